@@ -1,0 +1,1 @@
+from .device import GPU, get_gpu  # noqa: F401
