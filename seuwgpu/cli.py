@@ -1,8 +1,163 @@
 """The `seuwgpu` command line."""
 
+from __future__ import annotations
+
+import argparse
+import json
 import sys
+from pathlib import Path
+
+import numpy as np
 
 
-def main(argv=None):
-    print("seuwgpu: under construction", file=sys.stderr)
+class CliError(Exception):
+    """A user error: printed as one line, exit status 2."""
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must look like 128x96, got {text!r}") from None
+    if w <= 0 or h <= 0:
+        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
+    return w, h
+
+
+def add_model_args(p: argparse.ArgumentParser, default_scene: bool = True):
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--ply", type=Path, help="an INRIA-format 3DGS PLY file")
+    src.add_argument("--scene", help="an embedded scene (see `seuwgpu scene --list`)")
+    p.add_argument("--n", type=int, default=100_000, help="primitives for an embedded scene (default 100000)")
+    p.add_argument("--sh-degree", type=int, default=3, choices=range(4), help="SH degree of an embedded scene")
+    p.add_argument("--seed", type=int, default=0, help="seed of an embedded scene")
+    p.add_argument("--precision", choices=("fp32", "fp16", "bf16"), default="fp32", help="stored precision")
+
+
+def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "128x128"):
+    p.add_argument("--cameras", type=Path, help='CAMS.json: {"cameras": [{"viewmat", "K", "width", "height"}, ...]}')
+    p.add_argument("--views", type=int, default=views, help=f"orbit views when no --cameras (default {views})")
+    p.add_argument("--size", type=parse_size, default=parse_size(size), help=f"WxH of orbit views (default {size})")
+
+
+def load_model(args):
+    from .scenes import DEFAULT_SCENE, make_scene
+    from .ply import load_ply
+    if args.ply is not None:
+        return load_ply(args.ply), args.ply.stem
+    name = args.scene or DEFAULT_SCENE
+    return make_scene(name, n=args.n, sh_degree=args.sh_degree, seed=args.seed), name
+
+
+def load_cams(args, scene_name: str | None):
+    from .camera import load_cameras, orbit_cameras
+    from .scenes import SCENES, scene_cameras
+    if args.cameras is not None:
+        return load_cameras(args.cameras)
+    if args.views < 1:
+        raise CliError("--views must be at least 1")
+    w, h = args.size
+    if scene_name in SCENES:
+        return scene_cameras(scene_name, args.views, w, h)
+    return orbit_cameras(args.views, w, h)
+
+
+# ---- commands -------------------------------------------------------------------------------------
+def cmd_info(args):
+    from .gpu.device import get_gpu
+    gpu = get_gpu()
+    info = gpu.info
+    print(f"adapter: {info.get('device')} ({info.get('vendor')})")
+    print(f"backend: {info.get('backend_type')}  type: {info.get('adapter_type')}  driver: {info.get('description')}")
+    feats = sorted(gpu.adapter.features)
+    print("features that matter: " + ", ".join(f for f in ("shader-f16", "timestamp-query", "subgroup") if f in feats))
+    for k in ("max-storage-buffer-binding-size", "max-buffer-size", "max-compute-workgroup-storage-size",
+              "max-compute-invocations-per-workgroup", "max-compute-workgroups-per-dimension",
+              "max-storage-buffers-per-shader-stage"):
+        print(f"{k}: {gpu.limits.get(k)}")
     return 0
+
+
+def cmd_scene(args):
+    from .scenes import list_scenes, make_scene
+    from .ply import save_ply
+    if args.list or not args.name:
+        for s in list_scenes():
+            print(s)
+        return 0
+    if args.out is None:
+        raise CliError("--out FILE.ply is required")
+    model = make_scene(args.name, n=args.n, sh_degree=args.sh_degree, seed=args.seed)
+    save_ply(model, args.out)
+    print(f"wrote {args.out}: {model.n} primitives, SH degree {model.sh_degree}")
+    return 0
+
+
+def save_images(images: np.ndarray, out: Path, stem: str = "view"):
+    import imageio.v3 as iio
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i, img in enumerate(images):
+        rgb = np.nan_to_num(img[..., :3], nan=0.0, posinf=1.0, neginf=0.0)
+        path = out / f"{stem}_{i:03d}.png"
+        iio.imwrite(path, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
+        paths.append(path)
+    return paths
+
+
+def cmd_render(args):
+    from .render import Renderer
+    model, name = load_model(args)
+    cams = load_cams(args, name)
+    r = Renderer(model, cams, args.precision)
+    images = r.render()
+    out: Path = args.out
+    if out.suffix == ".npz":
+        out.parent.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(out, images=images.astype(np.float32))
+        print(f"wrote {out}: images {list(images.shape)} float32")
+    else:
+        paths = save_images(images, out)
+        print(f"wrote {len(paths)} PNGs to {out}")
+    bad = int((~np.isfinite(images)).any(axis=-1).sum())
+    if bad:
+        print(f"warning: {bad} non-finite pixels (shown black in PNGs)", file=sys.stderr)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="seuwgpu", description="Single-event-upset fault injection for 3D Gaussian splatting (WGSL, wgpu)")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("info", help="adapter, backend, features and limits in use")
+    s.set_defaults(func=cmd_info)
+
+    s = sub.add_parser("scene", help="export an embedded scene as PLY (or --list them)")
+    s.add_argument("name", nargs="?")
+    s.add_argument("--n", type=int, default=100_000)
+    s.add_argument("--sh-degree", type=int, default=3, choices=range(4))
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--out", type=Path)
+    s.add_argument("--list", action="store_true")
+    s.set_defaults(func=cmd_scene)
+
+    s = sub.add_parser("render", help="render views to PNGs or an .npz of float32 images")
+    add_model_args(s)
+    add_camera_args(s)
+    s.add_argument("--out", type=Path, required=True, help="a folder for PNGs, or X.npz")
+    s.set_defaults(func=cmd_render)
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (CliError, ValueError, FileNotFoundError) as e:
+        print(f"seuwgpu {args.command}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -71,7 +71,8 @@ class Model:
         for f in dc_fields(self):
             setattr(self, f.name, np.ascontiguousarray(getattr(self, f.name), dtype=np.float32))
         n = self.means.shape[0]
-        self.sh_rest = self.sh_rest.reshape(n, -1, 3)
+        if not (self.sh_rest.ndim == 3 and self.sh_rest.shape[0] == n and self.sh_rest.shape[2] == 3):
+            self.sh_rest = self.sh_rest.reshape(n, -1, 3)  # (reshape(0, -1, 3) is ambiguous when n == 0)
         expect = {"means": (n, 3), "log_scales": (n, 3), "quats": (n, 4), "opacity": (n,), "sh_dc": (n, 3)}
         for name, shape in expect.items():
             if getattr(self, name).shape != shape:

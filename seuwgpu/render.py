@@ -1,0 +1,257 @@
+"""The WGSL 3DGS renderer: GPU-resident model, K views per submission.
+
+Per view, all on the GPU inside one command encoder: project (per model chunk) -> depth sort of
+primitives (stable radix sort) -> tiles touched per primitive in depth order -> exclusive scan ->
+emit (tile, primitive) pairs -> stable radix sort by tile -> per-tile ranges -> composite.
+Because the pairs are emitted in depth order and the tile sort is stable, each tile's list is
+front to back with ties broken by primitive index, exactly as the numpy twin orders them.
+Scratch buffers are shared by the views of a submission (the passes are ordered).
+
+If a frame needs more intersections than the buffers hold (a corrupted primitive can touch every
+tile), the totals that come back with the image reveal it; the buffers grow and the frame is
+re-run, so no intersection is ever dropped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .camera import Camera
+from .gpu.device import GPU, STORAGE, UNIFORM, dispatch_dims, get_gpu
+from .gpu.sort import PrefixSum, RadixSort
+from .model import Model, StoredLayout
+from . import formats
+
+TILE = 16
+PRECISION_CODE = {"fp32": 0, "fp16": 1, "bf16": 2}
+_UNIFORM_STRIDE = 256
+
+
+def _next_pow2(x: int) -> int:
+    return 1 << max(0, int(x - 1).bit_length())
+
+
+def check_cameras(cameras: list[Camera]) -> tuple[int, int]:
+    if not cameras:
+        raise ValueError("at least one camera is needed")
+    sizes = {(c.width, c.height) for c in cameras}
+    if len(sizes) != 1:
+        raise ValueError(f"all cameras of one render must share one image size, got {sorted(sizes)}")
+    return sizes.pop()
+
+
+class Renderer:
+    """Holds one model on the GPU (in its stored precision) and renders it from a camera set."""
+
+    def __init__(self, model: Model, cameras: list[Camera], precision: str = "fp32",
+                 background=(1.0, 1.0, 1.0), gpu: GPU | None = None, chunk_prims: int | None = None,
+                 capacity: int | None = None):
+        self.gpu = gpu or get_gpu()
+        self.precision = formats.check_precision(precision)
+        self.background = np.asarray(background, dtype=np.float32).reshape(3)
+        self.degree = model.sh_degree
+        self.n = model.n
+        max_chunk = StoredLayout.max_chunk_prims(self.degree, precision, self.gpu.max_binding)
+        self.layout = StoredLayout(self.n, self.degree, precision, min(chunk_prims or max_chunk, max_chunk))
+        # Host copy of the clean stored words: flips are undone against it, variants built from it.
+        self.clean_words = self.layout.encode(model)
+        self.chunks = [self.gpu.upload(w, STORAGE, f"model-chunk-{k}") for k, w in enumerate(self.clean_words)]
+        # In-pipeline guard state (off by default): box of the clean model and clamp counters.
+        self.guard_mask = 0
+        self.box_buf = self.gpu.buffer(16 * self.layout.ncomp, STORAGE, "box")
+        self.guard_counts = self.gpu.buffer(4 * 8, STORAGE, "guard_counts")
+        self._alloc_primitive_scratch()
+        self.max_capacity = self.gpu.max_binding // 4
+        self.capacity = 0
+        self._want_capacity = capacity
+        self.cameras: list[Camera] = []
+        self.set_cameras(cameras)
+
+    # ---- set-up ----------------------------------------------------------------------------------
+    def _alloc_primitive_scratch(self):
+        g, n = self.gpu, self.n
+        self.proj_xy = g.buffer(8 * n, STORAGE, "proj_xy")
+        self.proj_conic = g.buffer(16 * n, STORAGE, "proj_conic")
+        self.proj_rgb = g.buffer(16 * n, STORAGE, "proj_rgb")
+        self.proj_rect = g.buffer(8 * n, STORAGE, "proj_rect")
+        self.depth_keys = g.buffer(4 * n, STORAGE, "depth_keys")
+        self.depth_vals = g.buffer(4 * n, STORAGE, "depth_vals")
+        self.counts = g.buffer(4 * n, STORAGE, "tile_counts")
+        self.offsets = g.buffer(4 * n, STORAGE, "tile_offsets")
+        self.depth_sort = RadixSort(g, n)
+        self.scan = PrefixSum(g, n)
+        self.p_project = g.pipeline("project")
+        self.p_count = g.pipeline("tiles", "count_tiles")
+        self.p_emit = g.pipeline("emit")
+        self.p_ranges = g.pipeline("ranges")
+        self.p_composite = g.pipeline("composite")
+
+    def set_cameras(self, cameras: list[Camera]):
+        """Change the view set (sizes may change; buffers follow)."""
+        self.width, self.height = check_cameras(cameras)
+        self.cameras = list(cameras)
+        self.k = len(cameras)
+        self.tiles_x = -(-self.width // TILE)
+        self.tiles_y = -(-self.height // TILE)
+        self.n_tiles = self.tiles_x * self.tiles_y
+        if self.tiles_x > 0xFFFF or self.tiles_y > 0xFFFF:
+            raise ValueError("image too large")
+        g = self.gpu
+        self.image = g.buffer(16 * self.k * self.width * self.height, STORAGE, "image")
+        self.stats = g.buffer(4 * self.k, STORAGE, "stats")
+        self.ranges = g.buffer(8 * self.n_tiles, STORAGE, "ranges")
+        self.view_params = g.buffer(_UNIFORM_STRIDE * self.k * self.layout.n_chunks, UNIFORM, "view_params")
+        self.bin_params = g.buffer(_UNIFORM_STRIDE * self.k, UNIFORM, "bin_params")
+        want = self._want_capacity or max(65536, 4 * self.n)
+        self._set_capacity(max(self.capacity, min(_next_pow2(want), self.max_capacity)), force=True)
+
+    def _write_params(self):
+        L = self.layout
+        vp = np.zeros((self.k * L.n_chunks, _UNIFORM_STRIDE // 4), dtype=np.uint32)
+        bp = np.zeros((self.k, _UNIFORM_STRIDE // 4), dtype=np.uint32)
+        for v, cam in enumerate(self.cameras):
+            for c in range(L.n_chunks):
+                row = vp[v * L.n_chunks + c]
+                f = row.view(np.float32)
+                f[0:16] = cam.viewmat.T.reshape(-1)  # WGSL matrices are column-major
+                f[16:19] = cam.position.astype(np.float32)
+                f[20:24] = [cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]]
+                f[24:27] = self.background
+                a, b = L.chunk_range(c)
+                row[28:44] = [self.width, self.height, self.tiles_x, self.tiles_y, self.n, a, b - a,
+                              L.plane_words, self.degree, PRECISION_CODE[self.precision], v,
+                              self.guard_mask & 0xFFFFFFFF, self.guard_mask >> 32, 0, 0, 0]
+            bp[v, 0:8] = [self.n, self.tiles_x, self.n_tiles, self.capacity, v, self.width, self.height, 0]
+            bp[v].view(np.float32)[8:11] = self.background
+        self.gpu.write(self.view_params, vp)
+        self.gpu.write(self.bin_params, bp)
+
+    def _set_capacity(self, capacity: int, force: bool = False):
+        if capacity == self.capacity and not force:
+            return
+        g = self.gpu
+        if capacity != self.capacity:
+            self.capacity = capacity
+            self.isect_tiles = g.buffer(4 * capacity, STORAGE, "isect_tiles")
+            self.isect_prims = g.buffer(4 * capacity, STORAGE, "isect_prims")
+            self.tile_sort = RadixSort(g, capacity)
+        self._write_params()
+        self._make_bind_groups()
+
+    def _make_bind_groups(self):
+        g, L = self.gpu, self.layout
+        S = _UNIFORM_STRIDE
+        self.bg_project = []
+        for v in range(self.k):
+            row = []
+            for c in range(L.n_chunks):
+                row.append(g.bind(self.p_project, {
+                    0: (self.view_params, (v * L.n_chunks + c) * S, 176), 1: self.chunks[c],
+                    2: self.proj_xy, 3: self.proj_conic, 4: self.proj_rgb, 5: self.proj_rect,
+                    6: self.depth_keys, 7: self.depth_vals, 8: self.box_buf, 9: self.guard_counts}))
+            self.bg_project.append(row)
+        self.bg_count, self.bg_emit, self.bg_ranges, self.bg_composite = [], [], [], []
+        for v in range(self.k):
+            u = (self.bin_params, v * S, 48)
+            self.bg_count.append(g.bind(self.p_count, {0: u, 1: self.proj_rect, 2: self.depth_vals, 3: self.counts}))
+            self.bg_emit.append(g.bind(self.p_emit, {0: u, 1: self.proj_rect, 2: self.depth_vals, 3: self.offsets,
+                                                     4: self.isect_tiles, 5: self.isect_prims}))
+            self.bg_ranges.append(g.bind(self.p_ranges, {0: u, 1: self.isect_tiles, 2: self.stats, 3: self.ranges}))
+            self.bg_composite.append(g.bind(self.p_composite, {
+                0: u, 1: self.ranges, 2: self.isect_prims, 3: self.proj_xy, 4: self.proj_conic,
+                5: self.proj_rgb, 6: self.image}))
+
+    # ---- encoding --------------------------------------------------------------------------------
+    @staticmethod
+    def _dispatch(encoder, pipeline, bind_group, groups):
+        p = encoder.begin_compute_pass()
+        p.set_pipeline(pipeline)
+        p.set_bind_group(0, bind_group)
+        p.dispatch_workgroups(*groups)
+        p.end()
+
+    def encode_view(self, encoder, v: int):
+        L, n = self.layout, self.n
+        for c in range(L.n_chunks):
+            a, b = L.chunk_range(c)
+            self._dispatch(encoder, self.p_project, self.bg_project[v][c], dispatch_dims(-(-(b - a) // 256)))
+        self.depth_sort.encode(encoder, self.depth_keys, self.depth_vals, n, key_bits=32)
+        prim_groups = dispatch_dims(-(-n // 256))
+        self._dispatch(encoder, self.p_count, self.bg_count[v], prim_groups)
+        self.scan.encode(encoder, self.counts, self.offsets, n, total=(self.stats, 4 * v))
+        self._dispatch(encoder, self.p_emit, self.bg_emit[v], prim_groups)
+        tile_bits = max(1, int(self.n_tiles - 1).bit_length())
+        self.tile_sort.encode(encoder, self.isect_tiles, self.isect_prims, (self.stats, 4 * v), key_bits=tile_bits)
+        self._dispatch(encoder, self.p_ranges, self.bg_ranges[v], dispatch_dims(-(-self.n_tiles // 256)))
+        self._dispatch(encoder, self.p_composite, self.bg_composite[v], (self.tiles_x, self.tiles_y, 1))
+
+    def encode(self, encoder):
+        for v in range(self.k):
+            self.encode_view(v=v, encoder=encoder)
+
+    def _run(self):
+        while True:
+            enc = self.gpu.device.create_command_encoder()
+            self.encode(enc)
+            self.gpu.submit(enc)
+            totals = self.gpu.read(self.stats, np.uint32)
+            need = int(totals.max())
+            if need <= self.capacity:
+                return totals
+            if need > self.max_capacity:
+                raise RuntimeError(f"frame needs {need} tile intersections, more than one storage binding "
+                                   f"holds ({self.max_capacity}); render at a smaller size or fewer primitives")
+            self._set_capacity(min(_next_pow2(need), self.max_capacity))
+
+    def render_rgba(self) -> np.ndarray:
+        """[K, H, W, 4] float32: rgb (unclamped) and final transmittance."""
+        self.last_totals = self._run()
+        img = self.gpu.read(self.image, np.float32, 0, 16 * self.k * self.width * self.height)
+        return img.reshape(self.k, self.height, self.width, 4)
+
+    def render(self) -> np.ndarray:
+        """[K, H, W, 3] float32 images, unclamped."""
+        return self.render_rgba()[..., :3].copy()
+
+    # ---- in-pipeline guard ----------------------------------------------------------------------
+    def set_guard(self, box_rows: np.ndarray | None, mask: int = 0):
+        """Clamp the components in `mask` into the box while projecting; memory is untouched.
+        box_rows: u32 [ncomp, 4] (lo, hi as f32 bits, then their stored bits) from guard.py."""
+        if box_rows is not None:
+            self.gpu.write(self.box_buf, np.ascontiguousarray(box_rows, dtype=np.uint32))
+        self.guard_mask = int(mask)
+        self._write_params()
+
+    def reset_guard_counts(self):
+        self.gpu.write(self.guard_counts, np.zeros(8, np.uint32))
+
+    def read_guard_counts(self) -> np.ndarray:
+        return self.gpu.read(self.guard_counts, np.uint32, 0, 32)[:6]
+
+    # ---- stored words --------------------------------------------------------------------------
+    def read_words(self, chunk: int) -> np.ndarray:
+        return self.gpu.read(self.chunks[chunk], np.uint32, 0, 4 * self.layout.chunk_words)
+
+    def stored_model(self) -> Model:
+        """The model as the GPU holds it now (decoded from the stored words)."""
+        return self.layout.decode([self.read_words(c) for c in range(self.layout.n_chunks)])
+
+
+def render(model: Model, cameras: list[Camera], precision: str = "fp32", **kw) -> np.ndarray:
+    """One-shot convenience: [K, H, W, 3] float32."""
+    return Renderer(model, cameras, precision, **kw).render()
+
+
+def gpu_decode(words: np.ndarray, precision: str, gpu: GPU | None = None) -> np.ndarray:
+    """Decode raw stored words with the shaders' decode (for tests and inspection)."""
+    gpu = gpu or get_gpu()
+    words = np.ascontiguousarray(words, dtype=np.uint32).reshape(-1)
+    count = words.size * (2 if formats.bits_per_value(precision) == 16 else 1)
+    params = gpu.upload(np.array([count, PRECISION_CODE[precision], 0, 0], dtype=np.uint32), UNIFORM)
+    src = gpu.upload(words)
+    dst = gpu.buffer(4 * count)
+    pipe = gpu.pipeline("decode")
+    enc = gpu.device.create_command_encoder()
+    Renderer._dispatch(enc, pipe, gpu.bind(pipe, {0: params, 1: src, 2: dst}), dispatch_dims(-(-count // 256)))
+    gpu.submit(enc)
+    return gpu.read(dst, np.float32, 0, 4 * count)
