@@ -167,7 +167,11 @@ class StoredLayout:
         """Model -> list of u32 word arrays, one per chunk."""
         if model.n != self.n or model.sh_degree != self.degree:
             raise ValueError("model does not match this layout")
-        bits = formats.to_bits(model.flat(), self.precision)  # [N, ncomp]
+        return self.encode_bits(formats.to_bits(model.flat(), self.precision))
+
+    def encode_bits(self, bits: np.ndarray) -> list[np.ndarray]:
+        """Stored bit patterns [N, ncomp] (uint32 or uint16) -> list of u32 chunk word arrays."""
+        bits = np.asarray(bits)
         out = []
         for k in range(self.n_chunks):
             a, b = self.chunk_range(k)

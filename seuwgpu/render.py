@@ -45,8 +45,11 @@ class Renderer:
 
     def __init__(self, model: Model, cameras: list[Camera], precision: str = "fp32",
                  background=(1.0, 1.0, 1.0), gpu: GPU | None = None, chunk_prims: int | None = None,
-                 capacity: int | None = None):
+                 capacity: int | None = None, keep_views: bool = False):
         self.gpu = gpu or get_gpu()
+        # keep_views: also keep each view's projection, tile lists and ranges after the frame
+        # (the incremental re-compositor of single upsets reads them).
+        self.keep_views = keep_views
         self.precision = formats.check_precision(precision)
         self.background = np.asarray(background, dtype=np.float32).reshape(3)
         self.degree = model.sh_degree
@@ -87,8 +90,14 @@ class Renderer:
         self.p_composite = g.pipeline("composite")
 
     def set_cameras(self, cameras: list[Camera]):
-        """Change the view set (sizes may change; buffers follow)."""
-        self.width, self.height = check_cameras(cameras)
+        """Change the view set. Same count and size: only the parameters are rewritten (cheap,
+        for interactive use); otherwise the view buffers are rebuilt."""
+        size = check_cameras(cameras)
+        if self.cameras and len(cameras) == self.k and size == (self.width, self.height):
+            self.cameras = list(cameras)
+            self._write_params()
+            return
+        self.width, self.height = size
         self.cameras = list(cameras)
         self.k = len(cameras)
         self.tiles_x = -(-self.width // TILE)
@@ -101,6 +110,14 @@ class Renderer:
         self.stats = g.buffer(4 * self.k, STORAGE, "stats")
         self.ranges = g.buffer(8 * self.n_tiles, STORAGE, "ranges")
         self.view_params = g.buffer(_UNIFORM_STRIDE * self.k * self.layout.n_chunks, UNIFORM, "view_params")
+        if self.keep_views:
+            n, k = self.n, self.k
+            self.kv_xy = g.buffer(8 * n * k, STORAGE, "kv_xy")
+            self.kv_conic = g.buffer(16 * n * k, STORAGE, "kv_conic")
+            self.kv_rgb = g.buffer(16 * n * k, STORAGE, "kv_rgb")
+            self.kv_rect = g.buffer(8 * n * k, STORAGE, "kv_rect")
+            self.kv_ranges = g.buffer(8 * self.n_tiles * k, STORAGE, "kv_ranges")
+            self.capacity = 0  # kv_isect follows the capacity
         self.bin_params = g.buffer(_UNIFORM_STRIDE * self.k, UNIFORM, "bin_params")
         want = self._want_capacity or max(65536, 4 * self.n)
         self._set_capacity(max(self.capacity, min(_next_pow2(want), self.max_capacity)), force=True)
@@ -135,6 +152,9 @@ class Renderer:
             self.isect_tiles = g.buffer(4 * capacity, STORAGE, "isect_tiles")
             self.isect_prims = g.buffer(4 * capacity, STORAGE, "isect_prims")
             self.tile_sort = RadixSort(g, capacity)
+            if self.keep_views:
+                self.kv_isect = g.buffer(4 * capacity * self.k, STORAGE, "kv_isect")
+            self.version = getattr(self, "version", 0) + 1  # bind groups on these buffers must be rebuilt
         self._write_params()
         self._make_bind_groups()
 
@@ -184,6 +204,14 @@ class Renderer:
         self.tile_sort.encode(encoder, self.isect_tiles, self.isect_prims, (self.stats, 4 * v), key_bits=tile_bits)
         self._dispatch(encoder, self.p_ranges, self.bg_ranges[v], dispatch_dims(-(-self.n_tiles // 256)))
         self._dispatch(encoder, self.p_composite, self.bg_composite[v], (self.tiles_x, self.tiles_y, 1))
+        if self.keep_views:
+            n = self.n
+            encoder.copy_buffer_to_buffer(self.proj_xy, 0, self.kv_xy, 8 * n * v, 8 * n)
+            encoder.copy_buffer_to_buffer(self.proj_conic, 0, self.kv_conic, 16 * n * v, 16 * n)
+            encoder.copy_buffer_to_buffer(self.proj_rgb, 0, self.kv_rgb, 16 * n * v, 16 * n)
+            encoder.copy_buffer_to_buffer(self.proj_rect, 0, self.kv_rect, 8 * n * v, 8 * n)
+            encoder.copy_buffer_to_buffer(self.isect_prims, 0, self.kv_isect, 4 * self.capacity * v, 4 * self.capacity)
+            encoder.copy_buffer_to_buffer(self.ranges, 0, self.kv_ranges, 8 * self.n_tiles * v, 8 * self.n_tiles)
 
     def encode(self, encoder):
         for v in range(self.k):

@@ -208,7 +208,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         // Unbounded footprint: the whole screen, at peak opacity (conic zero).
         rect = pack_rect(0.0, 0.0, tiles_x, tiles_y);
     } else {
-        if (det <= 0.0) {
+        // a or c can round negative for a huge covariance: culled like det <= 0 (sqrt would be NaN)
+        if (det <= 0.0 || a < 0.0 || c < 0.0) {
             cull(g);
             return;
         }
