@@ -125,6 +125,82 @@ def cmd_render(args):
     return 0
 
 
+def parse_shard(text: str) -> tuple[int, int]:
+    try:
+        i, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--shard must look like I/N (e.g. 0/4), got {text!r}") from None
+    if n < 1 or not 0 <= i < n:
+        raise argparse.ArgumentTypeError(f"--shard I/N needs 0 <= I < N, got {text!r}")
+    return i, n
+
+
+def run_campaign(spec: dict, out: Path, shard=(0, 1), quiet=False, full=False) -> dict:
+    from .campaign import Runner
+    runner = Runner(spec, out, shard=shard, quiet=quiet, full=full)
+    stats = runner.run()
+    rate = stats["new"] / stats["seconds"] if stats["seconds"] > 0 and stats["new"] else float("nan")
+    print(f"{out}: {stats['injections']} of {runner.total} injections recorded"
+          f" ({stats['new']} new in {stats['seconds']:.1f} s, {rate:.1f} injections/s"
+          f"{', full re-render' if full else ''})")
+    return stats
+
+
+def print_criticality(run_dirs):
+    from .report import criticality_table_text, load_runs
+    df, _ = load_runs(run_dirs)
+    single = df[df["k"] == 1] if "k" in df else df
+    for prec in sorted(single["precision"].unique()):
+        print(f"\nPer-field single-upset criticality at {prec} (defense: none)")
+        print(criticality_table_text(single, prec))
+
+
+def cmd_campaign(args):
+    from .campaign import load_spec
+    spec = load_spec(args.spec)
+    run_campaign(spec, args.out, args.shard, args.quiet, args.full)
+    if args.shard[1] == 1:
+        print_criticality([args.out])
+    return 0
+
+
+def cmd_demo(args):
+    from importlib.resources import files
+    from .campaign import normalize_spec
+    import tomllib
+    raw = tomllib.loads(files("seuwgpu").joinpath("specs/default.toml").read_text())
+    if args.n is not None:
+        raw["scenes"][0]["n"] = args.n
+    if args.samples is not None:
+        raw["single"]["samples"] = args.samples
+    spec = normalize_spec(raw)
+    print(f"seuwgpu demo: {spec['scenes'][0]['scene']} scene, {spec['scenes'][0]['n']} primitives, "
+          f"{spec['views']} views at {spec['size'][0]}x{spec['size'][1]}, every field and bit at fp32, "
+          f"{spec['single']['samples']} samples per (field, bit) cell, defenses {spec['single']['defenses']}")
+    run_campaign(spec, args.out, quiet=args.quiet)
+    print_criticality([args.out])
+    if not args.no_report:
+        from .report import build_report
+        index = build_report([args.out], args.out / "report")
+        print(f"\nreport: {index}")
+    return 0
+
+
+def cmd_merge(args):
+    from .campaign import merge
+    n = merge(args.out, args.shards)
+    print(f"merged {n} parts from {len(args.shards)} shard directories into {args.out}")
+    return 0
+
+
+def cmd_report(args):
+    from .report import build_report
+    index = build_report(args.runs, args.out)
+    print(f"wrote {index}")
+    print_criticality(args.runs)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="seuwgpu", description="Single-event-upset fault injection for 3D Gaussian splatting (WGSL, wgpu)")
     sub = p.add_subparsers(dest="command", required=True)
@@ -146,6 +222,32 @@ def build_parser() -> argparse.ArgumentParser:
     add_camera_args(s)
     s.add_argument("--out", type=Path, required=True, help="a folder for PNGs, or X.npz")
     s.set_defaults(func=cmd_render)
+
+    s = sub.add_parser("campaign", help="run a fault-injection campaign from a TOML spec (resumable)")
+    s.add_argument("spec", type=Path)
+    s.add_argument("--out", type=Path, required=True, help="run directory (re-run the same command to resume)")
+    s.add_argument("--shard", type=parse_shard, default=(0, 1), help="run the deterministic slice I of N")
+    s.add_argument("--quiet", action="store_true", help="log lines instead of a progress display")
+    s.add_argument("--full", action="store_true", help="re-render full frames for every injection (no incremental path)")
+    s.set_defaults(func=cmd_campaign)
+
+    s = sub.add_parser("demo", help="the main job: the default campaign on the embedded scene, then its criticality table")
+    s.add_argument("--out", type=Path, default=Path("runs/demo"))
+    s.add_argument("--n", type=int, help="primitives (default from the spec: 100000)")
+    s.add_argument("--samples", type=int, help="samples per (field, bit) cell")
+    s.add_argument("--quiet", action="store_true")
+    s.add_argument("--no-report", action="store_true")
+    s.set_defaults(func=cmd_demo)
+
+    s = sub.add_parser("merge", help="join shard run directories of one spec")
+    s.add_argument("shards", type=Path, nargs="+")
+    s.add_argument("--out", type=Path, required=True)
+    s.set_defaults(func=cmd_merge)
+
+    s = sub.add_parser("report", help="tables, figures and an HTML page from run directories")
+    s.add_argument("runs", type=Path, nargs="+")
+    s.add_argument("--out", type=Path, required=True)
+    s.set_defaults(func=cmd_report)
     return p
 
 
@@ -154,6 +256,9 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print(f"seuwgpu {args.command}: interrupted (completed parts are kept; re-run to resume)", file=sys.stderr)
+        return 130
     except (CliError, ValueError, FileNotFoundError) as e:
         print(f"seuwgpu {args.command}: error: {e}", file=sys.stderr)
         return 2

@@ -140,6 +140,7 @@ class Renderer:
                               self.guard_mask & 0xFFFFFFFF, self.guard_mask >> 32, 0, 0, 0]
             bp[v, 0:8] = [self.n, self.tiles_x, self.n_tiles, self.capacity, v, self.width, self.height, 0]
             bp[v].view(np.float32)[8:11] = self.background
+        self.view_rows = vp  # host copy (the incremental path derives its own parameters from it)
         self.gpu.write(self.view_params, vp)
         self.gpu.write(self.bin_params, bp)
 

@@ -25,7 +25,10 @@
 //             f32 sums stay accurate) and the count of evaluated interior centres; the host turns
 //             that into ssim_sum = count - deficit.
 //
-// SSIM per channel: two-pass window statistics (mean first, then centred sums), and the
+// SSIM per channel: two-pass window statistics (means first, then centred sums: no cancellation
+// in var = E[x^2] - E[x]^2; on hard cases this is closer to skimage-in-float64 than skimage run
+// in float32 is). Each thread evaluates 4 vertically adjacent windows, sharing the cell reads
+// (row sums for the means, one read per cell for the centred sums). The
 // deficit written as 1 - A1*A2/(B1*B2) = (e1*B2 + A1*e2) / (B1*B2) with e1 = (ux - uy)^2 = B1 - A1
 // and e2 = var(x - y) = B2 - A2. Every term is non-negative, so it is accurate, and identical
 // windows give e1 = e2 = 0 exactly, i.e. SSIM exactly 1 whatever the compiler does with the
@@ -42,7 +45,8 @@
 //   0 changed (u32)  1 peak (f32)  2 sse (f32)  3 nonfinite (u32)  4 ssim deficit (f32)
 //   5 ssim count (u32)
 // results[0..3] is a status header: [0] = entries requested (sparse: offsets[B*K]),
-// [1] = entries evaluated (min with capacity); records start at word 4.
+// [1] = entries evaluated (min with capacity), [2] = sparse flag; records start at word 4.
+// Workgroup memory: 15.5 KB (WebGPU's default limit is 16 KiB), all written before it is read.
 
 struct MetricsParams {
     width: u32,
@@ -69,7 +73,6 @@ const M_REC: u32 = 6u;
 const M_HDR: u32 = 4u;
 const M_SPAN: u32 = 22u;            // 16 + 2 * 3 halo
 const M_PLANE: u32 = 484u;          // 22 * 22
-const M_IMG: u32 = 1452u;           // 3 channels
 const M_THR: f32 = 1.0 / 255.0;
 const M_C1: f32 = 0.0001;           // (0.01 * 1)^2
 const M_C2: f32 = 0.0009;           // (0.03 * 1)^2
@@ -145,38 +148,25 @@ fn m_disp3(v: vec4<f32>) -> vec3<f32> {
     return vec3<f32>(m_display(v.x), m_display(v.y), m_display(v.z));
 }
 
-// SSIM deficit (1 - SSIM, mean over r,g,b) of the window whose top-left block cell is (wx, wy).
-fn m_ssim_deficit(wx: u32, wy: u32) -> f32 {
-    var sx = vec3<f32>(0.0);
-    var sy = vec3<f32>(0.0);
-    for (var j = 0u; j < 7u; j++) {
-        let row = (wy + j) * M_SPAN + wx;
-        for (var i = 0u; i < 7u; i++) {
-            sx += m_blk[row + i].xyz;
-            sy += m_blk[M_PLANE + row + i].xyz;
-        }
-    }
-    let ux = sx / 49.0;
-    let uy = sy / 49.0;
-    var sxx = vec3<f32>(0.0);
-    var syy = vec3<f32>(0.0);
-    var sxy = vec3<f32>(0.0);
-    var sdd = vec3<f32>(0.0);
-    for (var j = 0u; j < 7u; j++) {
-        let row = (wy + j) * M_SPAN + wx;
-        for (var i = 0u; i < 7u; i++) {
-            let dx = m_blk[row + i].xyz - ux;
-            let dy = m_blk[M_PLANE + row + i].xyz - uy;
-            let dd = dx - dy;
-            sxx += dx * dx;
-            syy += dy * dy;
-            sxy += dx * dy;
-            sdd += dd * dd;
-        }
-    }
-    let vx = sxx / 48.0;        // sample covariance: NP / (NP - 1) with NP = 49
-    let vy = syy / 48.0;
-    let e2 = sdd / 48.0;        // = vx + vy - 2 vxy = B2 - A2
+// Centred second moments of one window, per channel.
+struct MAcc {
+    sxx: vec3<f32>,
+    syy: vec3<f32>,
+    sdd: vec3<f32>,
+};
+
+fn m_acc(acc: MAcc, x: vec3<f32>, y: vec3<f32>, ux: vec3<f32>, uy: vec3<f32>) -> MAcc {
+    let dx = x - ux;
+    let dy = y - uy;
+    let dd = dx - dy;
+    return MAcc(acc.sxx + dx * dx, acc.syy + dy * dy, acc.sdd + dd * dd);
+}
+
+// SSIM deficit (1 - SSIM, mean over r,g,b) of one window from its means and centred sums.
+fn m_deficit(ux: vec3<f32>, uy: vec3<f32>, acc: MAcc) -> f32 {
+    let vx = acc.sxx / 48.0;    // sample covariance: NP / (NP - 1) with NP = 49
+    let vy = acc.syy / 48.0;
+    let e2 = acc.sdd / 48.0;    // = vx + vy - 2 vxy = B2 - A2
     let du = ux - uy;
     let e1 = du * du;           // = B1 - A1
     let a1 = 2.0 * ux * uy + M_C1;
@@ -184,6 +174,44 @@ fn m_ssim_deficit(wx: u32, wy: u32) -> f32 {
     let b2 = vx + vy + M_C2;
     let q = (e1 * b2 + a1 * e2) / (b1 * b2);
     return (q.x + q.y + q.z) / 3.0;
+}
+
+// SSIM deficits of the 4 vertically consecutive windows whose top-left block cells are
+// (wx, wy + w), w = 0..3. Two passes (means, then centred sums) over the 10 x 7 cells they
+// cover; each cell is read once per pass and feeds every window that contains it.
+fn m_ssim4(wx: u32, wy: u32) -> vec4<f32> {
+    let z = vec3<f32>(0.0);
+    var sx0 = z; var sx1 = z; var sx2 = z; var sx3 = z;
+    var sy0 = z; var sy1 = z; var sy2 = z; var sy3 = z;
+    for (var r = 0u; r < 10u; r++) {
+        let row = (wy + r) * M_SPAN + wx;
+        var rx = z;
+        var ry = z;
+        for (var i = 0u; i < 7u; i++) {
+            rx += m_blk[row + i].xyz;
+            ry += m_blk[M_PLANE + row + i].xyz;
+        }
+        if (r < 7u) { sx0 += rx; sy0 += ry; }
+        if (r >= 1u && r < 8u) { sx1 += rx; sy1 += ry; }
+        if (r >= 2u && r < 9u) { sx2 += rx; sy2 += ry; }
+        if (r >= 3u) { sx3 += rx; sy3 += ry; }
+    }
+    let ux0 = sx0 / 49.0; let ux1 = sx1 / 49.0; let ux2 = sx2 / 49.0; let ux3 = sx3 / 49.0;
+    let uy0 = sy0 / 49.0; let uy1 = sy1 / 49.0; let uy2 = sy2 / 49.0; let uy3 = sy3 / 49.0;
+    var a0 = MAcc(z, z, z); var a1 = a0; var a2 = a0; var a3 = a0;
+    for (var r = 0u; r < 10u; r++) {
+        let row = (wy + r) * M_SPAN + wx;
+        for (var i = 0u; i < 7u; i++) {
+            let x = m_blk[row + i].xyz;
+            let y = m_blk[M_PLANE + row + i].xyz;
+            if (r < 7u) { a0 = m_acc(a0, x, y, ux0, uy0); }
+            if (r >= 1u && r < 8u) { a1 = m_acc(a1, x, y, ux1, uy1); }
+            if (r >= 2u && r < 9u) { a2 = m_acc(a2, x, y, ux2, uy2); }
+            if (r >= 3u) { a3 = m_acc(a3, x, y, ux3, uy3); }
+        }
+    }
+    return vec4<f32>(m_deficit(ux0, uy0, a0), m_deficit(ux1, uy1, a1),
+                     m_deficit(ux2, uy2, a2), m_deficit(ux3, uy3, a3));
 }
 
 // One 64-thread workgroup per work-list entry (a 16x16 tile of one (variant, view)); each thread
@@ -288,17 +316,18 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     let any_diff = atomicLoad(&m_differs);
     var count = 0.0;
     var deficit = 0.0;
-    for (var j = 0u; j < 4u; j++) {
-        let p = tid + 64u * j;
-        let lx = p & 15u;
-        let ly = p >> 4u;
-        let x = ox + lx;
-        let y = oy + ly;
-        if (valid_tile && x >= 3u && y >= 3u && x + 3u < W && y + 3u < H) {
-            count += 1.0;
-            if (any_diff != 0u) {
-                deficit += m_ssim_deficit(lx, ly);
-            }
+    let lx = tid & 15u;
+    let ly0 = (tid >> 4u) * 4u;             // this thread's centres: (lx, ly0 .. ly0 + 3)
+    let x = ox + lx;
+    let y = vec4<u32>(oy + ly0) + vec4<u32>(0u, 1u, 2u, 3u);
+    let col_ok = valid_tile && x >= 3u && x + 3u < W;
+    let interior = vec4<bool>(col_ok) & (y >= vec4<u32>(3u)) & (y + vec4<u32>(3u) < vec4<u32>(H));
+    if (any(interior)) {
+        let flag = select(vec4<f32>(0.0), vec4<f32>(1.0), interior);
+        count = flag.x + flag.y + flag.z + flag.w;
+        if (any_diff != 0u) {
+            let q = m_ssim4(lx, ly0) * flag;
+            deficit = q.x + q.y + q.z + q.w;
         }
     }
 

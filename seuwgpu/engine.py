@@ -1,0 +1,286 @@
+"""The fault-injection engine: a GPU-resident model, its cameras and clean renders, and
+`inject(sites, defense)` answering with a result record.
+
+Flips are XORs on the stored words in the GPU buffers (a scatter shader, `shaders/flip.wgsl`),
+never re-uploads; undoing applies the same XOR again, so restores are exact. Defenses decide what
+the renderer reads from a corrupted word:
+- none: the corrupted word;
+- guard / selective: the corrupted word, clamped into the clean model's support box while
+  projecting (in-pipeline clamp, memory untouched; `guard.scrub` is the memory-repairing mode);
+- ecc: SEC-DED Hamming code over sign+exponent bits (faults.ecc_read);
+- dup: triple modular redundancy with majority voting (faults.dup_read).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import formats
+from .camera import Camera
+from .faults import (DEFENSES, GUARDED_FIELDS, Site, check_defense, dup_read, ecc_read, make_site,
+                     mask_of, site_bit_class)
+from .gpu.device import GPU, STORAGE, UNIFORM, dispatch_dims, get_gpu
+from .guard import Box, component_mask, support_box
+from .metrics import ImageMetrics, catastrophic, summarize
+from .model import Model
+from .render import Renderer
+
+GUARD_OF_DEFENSE = {"guard": "guard", "selective": "selective"}
+
+
+class Engine:
+    def __init__(self, model: Model, cameras: list[Camera], precision: str = "fp32",
+                 gpu: GPU | None = None, scene: str = "", chunk_prims: int | None = None,
+                 background=(1.0, 1.0, 1.0), incremental: bool = True):
+        self.gpu = gpu or get_gpu()
+        self.precision = formats.check_precision(precision)
+        self.scene = scene
+        self.renderer = Renderer(model, cameras, precision, gpu=self.gpu, chunk_prims=chunk_prims,
+                                 background=background, keep_views=incremental)
+        self.incremental = incremental
+        self.layout = self.renderer.layout
+        self.n, self.degree = model.n, model.sh_degree
+        stored = self.layout.decode(self.renderer.clean_words)
+        self.box: Box = support_box(stored, precision)
+        self.renderer.set_guard(self.box.rows(), 0)
+        self.masks = {d: component_mask(GUARDED_FIELDS[d], self.degree) for d in ("guard", "selective", "guard_all")}
+        self.p_flip = self.gpu.pipeline("flip")
+        self._active: list[dict] = []  # applied XOR lists, for undo
+        self._set_up_views()
+
+    # ---- views and clean renders ------------------------------------------------------------------
+    def _set_up_views(self):
+        r = self.renderer
+        self.cameras = r.cameras
+        self.width, self.height, self.k = r.width, r.height, r.k
+        self.clean_rgba = r.render_rgba()
+        self.clean_buf = self.gpu.buffer(r.image.size, STORAGE, "clean_images")
+        enc = self.gpu.device.create_command_encoder()
+        enc.copy_buffer_to_buffer(r.image, 0, self.clean_buf, 0, r.image.size)
+        self.gpu.submit(enc)
+        self.metrics = ImageMetrics(self.gpu, self.width, self.height, self.k, max_variants=1)
+        self._evaluator = None
+
+    def set_cameras(self, cameras: list[Camera]):
+        if self._active:
+            raise RuntimeError("undo active faults before changing cameras (the clean render is re-made)")
+        self.renderer.set_cameras(cameras)
+        self._set_up_views()
+
+    @property
+    def clean(self) -> np.ndarray:
+        return self.clean_rgba[..., :3]
+
+    # ---- sites -------------------------------------------------------------------------------------
+    def site(self, field: str, primitive: int, component: int, bits) -> Site:
+        return make_site(self.n, field, primitive, component, bits, self.precision, self.degree)
+
+    def stored_bits(self, primitive, flat_component) -> np.ndarray:
+        """Clean stored bit patterns (uint32 or uint16) at (primitive, flat component) pairs."""
+        chunk, word, shift = self.layout.locate(primitive, flat_component)
+        chunk, word, shift = np.atleast_1d(chunk), np.atleast_1d(word), np.atleast_1d(shift)
+        w = np.array([self.renderer.clean_words[c][i] for c, i in zip(chunk, word)], dtype=np.uint64)
+        vals = (w >> shift.astype(np.uint64)) & np.uint64(0xFFFFFFFF if not self.layout.halves else 0xFFFF)
+        return vals.astype(np.uint32 if not self.layout.halves else np.uint16)
+
+    def clean_value(self, site: Site) -> float:
+        return float(formats.from_bits(self.stored_bits([site.primitive], [site.flat_component()]), self.precision)[0])
+
+    def corrupted_value(self, site: Site) -> float:
+        b = self.stored_bits([site.primitive], [site.flat_component()])
+        return float(formats.from_bits(formats.flip_bits(b, list(site.bits), self.precision), self.precision)[0])
+
+    # ---- flips on the GPU --------------------------------------------------------------------------
+    def _xor_lists(self, sites: list[Site], defense: str) -> dict[int, np.ndarray]:
+        """Per chunk: [(word, xor mask)] turning the clean words into what the defense reads."""
+        if not sites:
+            return {}
+        prims = np.array([s.primitive for s in sites], dtype=np.int64)
+        comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
+        masks = np.array([mask_of(s.bits) for s in sites], dtype=np.uint64)
+        # merge sites hitting the same value (several upsets in one word compose)
+        key = prims * self.layout.ncomp + comps
+        uk, inv = np.unique(key, return_inverse=True)
+        vmask = np.zeros(uk.size, dtype=np.uint64)
+        np.bitwise_xor.at(vmask, inv, masks)
+        p, c = np.divmod(uk, self.layout.ncomp)
+        clean = self.stored_bits(p, c)
+        corrupt = (clean.astype(np.uint64) ^ vmask).astype(clean.dtype)
+        if defense == "ecc":
+            eff = ecc_read(clean, corrupt, self.precision)
+        elif defense == "dup":
+            eff = dup_read(clean, corrupt)
+        else:
+            eff = corrupt
+        delta = clean.astype(np.uint64) ^ eff.astype(np.uint64)
+        chunk, word, shift = self.layout.locate(p, c)
+        wmask = delta << shift.astype(np.uint64)
+        out = {}
+        for ch in np.unique(chunk):
+            sel = chunk == ch
+            w, wi = np.unique(word[sel], return_inverse=True)
+            m = np.zeros(w.size, dtype=np.uint64)
+            np.bitwise_xor.at(m, wi, wmask[sel])
+            keep = m != 0
+            if keep.any():
+                out[int(ch)] = np.stack([w[keep], m[keep]], axis=1).astype(np.uint32)
+        return out
+
+    def _scatter(self, xors: dict[int, np.ndarray]):
+        if not xors:
+            return
+        enc = self.gpu.device.create_command_encoder()
+        for ch, pairs in xors.items():
+            params = self.gpu.upload(np.array([len(pairs), 0, 0, 0], np.uint32), UNIFORM)
+            buf = self.gpu.upload(pairs)
+            bg = self.gpu.bind(self.p_flip, {0: params, 1: buf, 2: self.renderer.chunks[ch]})
+            p = enc.begin_compute_pass()
+            p.set_pipeline(self.p_flip)
+            p.set_bind_group(0, bg)
+            p.dispatch_workgroups(*dispatch_dims(-(-len(pairs) // 64)))
+            p.end()
+        self.gpu.submit(enc)
+
+    def apply(self, sites: list[Site], defense: str = "none") -> dict:
+        """Flip the sites in the GPU-resident model (as the defense reads them); returns a handle."""
+        xors = self._xor_lists(list(sites), check_defense(defense))
+        self._scatter(xors)
+        self._active.append(xors)
+        return xors
+
+    def undo(self, handle: dict):
+        self._scatter(handle)
+        self._active.remove(handle)
+
+    def undo_all(self):
+        while self._active:
+            self.undo(self._active[-1])
+
+    # ---- rendering and metrics ---------------------------------------------------------------------
+    def _guard_mask(self, defense: str) -> int:
+        return self.masks.get(GUARD_OF_DEFENSE.get(defense, ""), 0)
+
+    def render_current(self, defense: str = "none") -> tuple[np.ndarray, dict]:
+        """Render the model as it is now (faults applied) under a defense's in-pipeline guard.
+        Returns ([K, H, W, 4] images, clamps per field)."""
+        r = self.renderer
+        r.set_guard(None, self._guard_mask(defense))
+        r.reset_guard_counts()
+        try:
+            images = r.render_rgba()
+            clamps = r.read_guard_counts()
+        finally:
+            r.set_guard(None, 0)
+        return images, dict(zip(("means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest"), map(int, clamps)))
+
+    def measure_current(self, defense: str = "none") -> dict:
+        """GPU metrics of the current model against the clean render (the frame stays on the GPU)."""
+        r = self.renderer
+        r.set_guard(None, self._guard_mask(defense))
+        r.reset_guard_counts()
+        try:
+            r._run()
+            clamps = int(r.read_guard_counts().sum())
+        finally:
+            r.set_guard(None, 0)
+        raw = self.metrics.run_dense(self.clean_buf, r.image, 1)
+        out = {k: (v[0].item() if hasattr(v, "__len__") else v) for k, v in summarize(raw, self.width, self.height).items()}
+        out["clamps"] = clamps
+        return out
+
+    def inject(self, sites, defense: str = "none") -> dict:
+        """Apply the site(s), render the K views under `defense`, measure, restore. One record."""
+        sites = [sites] if isinstance(sites, Site) else list(sites)
+        handle = self.apply(sites, defense)
+        try:
+            m = self.measure_current(defense)
+        finally:
+            self.undo(handle)
+        rec = {"scene": self.scene, "n_primitives": self.n, "precision": self.precision,
+               "defense": defense, "k": len(sites)}
+        if len(sites) == 1:
+            s = sites[0]
+            rec.update(field=s.field, primitive=s.primitive, component=s.component, bit=s.bit,
+                       bit_class=site_bit_class(s, self.precision), clean_value=self.clean_value(s),
+                       corrupted_value=self.corrupted_value(s))
+        else:
+            fields = {s.field for s in sites}
+            rec.update(field=fields.pop() if len(fields) == 1 else "mixed", primitive=-1, component=-1,
+                       bit=-1, bit_class="mixed", clean_value=float("nan"), corrupted_value=float("nan"))
+        rec.update(m)
+        rec["catastrophic"] = bool(catastrophic(rec["footprint"], rec["nonfinite"]))
+        return rec
+
+    def worst_primitive(self, field: str, component: int, bits, sample: int = 32, seed: int = 0,
+                        defense: str = "none") -> tuple[int, dict]:
+        """The primitive whose flip does the most harm (footprint, then peak error) among a sample."""
+        rng = np.random.default_rng(seed)
+        cand = rng.choice(self.n, size=min(sample, self.n), replace=False)
+        best, best_rec = -1, None
+        for p in cand:
+            rec = self.inject(self.site(field, int(p), component, bits), defense)
+            score = (rec["nonfinite"], rec["footprint"], rec["peak_error"])
+            if best_rec is None or score > (best_rec["nonfinite"], best_rec["footprint"], best_rec["peak_error"]):
+                best, best_rec = int(p), rec
+        return best, best_rec
+
+    # ---- batched single upsets (incremental path) --------------------------------------------------
+    @property
+    def evaluator(self):
+        if self._evaluator is None:
+            from .incremental import IncrementalEvaluator
+            self._evaluator = IncrementalEvaluator(self)
+        return self._evaluator
+
+    def primitive_bits(self, prims) -> np.ndarray:
+        """Clean stored bits [M, ncomp] of whole primitives."""
+        prims = np.asarray(prims, dtype=np.int64)
+        nc = self.layout.ncomp
+        flat = self.stored_bits(np.repeat(prims, nc), np.tile(np.arange(nc), prims.size))
+        return flat.reshape(prims.size, nc)
+
+    def variant_bits(self, sites: list[Site], defense: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(primitives [M], effective stored bits [M, ncomp] as `defense` reads them, guard masks [M])."""
+        prims = np.array([s.primitive for s in sites], dtype=np.int64)
+        comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
+        masks = np.array([mask_of(s.bits) for s in sites], dtype=np.uint64)
+        bits = self.primitive_bits(prims)
+        rows = np.arange(len(sites))
+        clean = bits[rows, comps]
+        corrupt = (clean.astype(np.uint64) ^ masks).astype(clean.dtype)
+        if defense == "ecc":
+            corrupt = ecc_read(clean, corrupt, self.precision)
+        elif defense == "dup":
+            corrupt = dup_read(clean, corrupt)
+        bits[rows, comps] = corrupt
+        gm = np.full(len(sites), self._guard_mask(defense), dtype=np.int64)
+        return prims, bits, gm
+
+    def evaluate(self, sites: list[Site], defenses=("none",)) -> list[dict]:
+        """Records for single-value sites under each defense (paired: same sites for every arm),
+        by incremental re-compositing. Arms a defense fully corrects cost no rendering."""
+        sites = list(sites)
+        recs = []
+        base = []
+        for s in sites:
+            base.append({"scene": self.scene, "n_primitives": self.n, "precision": self.precision,
+                         "field": s.field, "primitive": s.primitive, "component": s.component, "bit": s.bit,
+                         "bit_class": site_bit_class(s, self.precision), "k": 1})
+        comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
+        for d in defenses:
+            check_defense(d)
+            prims, bits, gm = self.variant_bits(sites, d)
+            clean_bits = self.primitive_bits(prims)
+            rows = np.arange(len(sites))
+            clean_v = formats.from_bits(clean_bits[rows, comps], self.precision)
+            corr_v = formats.from_bits(bits[rows, comps], self.precision)
+            m = self.evaluator.evaluate(prims, bits, gm)
+            for i, b in enumerate(base):
+                rec = dict(b)
+                rec.update(defense=d, clean_value=float(clean_v[i]), corrupted_value=float(corr_v[i]),
+                           footprint=float(m["footprint"][i]), footprint_max=float(m["footprint_max"][i]),
+                           peak_error=float(m["peak_error"][i]), psnr=float(m["psnr"][i]), ssim=float(m["ssim"][i]),
+                           nonfinite=bool(m["nonfinite"][i]), clamps=int(m["clamps"][i]))
+                rec["catastrophic"] = bool(catastrophic(rec["footprint"], rec["nonfinite"]))
+                recs.append(rec)
+        return recs
