@@ -578,3 +578,13 @@ class _Progress:
     def close(self):
         if not self.quiet:
             self.p.stop()
+
+
+def replay(spec: dict, injection_id: int, full: bool = False, gpu=None) -> pd.DataFrame:
+    """Re-run one injection alone from its id: its rows (one per defense), as the campaign wrote them."""
+    runner = Runner(spec, Path("."), full=full, gpu=gpu)
+    for ctx in runner.contexts:
+        if ctx.first_id <= injection_id < ctx.first_id + ctx.count:
+            eng = runner._engine(ctx)
+            return pd.DataFrame(runner._run_block(eng, ctx, injection_id, 1), columns=COLUMNS)
+    raise ValueError(f"injection id {injection_id} is not in this campaign (0..{runner.total - 1})")

@@ -201,6 +201,47 @@ def cmd_report(args):
     return 0
 
 
+def cmd_inject(args):
+    from .engine import Engine
+    from .panel import save_panel
+    model, name = load_model(args)
+    cams = load_cams(args, name)
+    eng = Engine(model, cams, args.precision, scene=name)
+    bits = args.bit
+    if args.primitive is None:
+        prim, _ = eng.worst_primitive(args.field, args.component, bits, sample=args.sample, seed=args.seed,
+                                      defense=args.defense)
+        print(f"primitive: {prim} (most harmful of {min(args.sample, eng.n)} sampled)")
+    else:
+        prim = args.primitive
+    site = eng.site(args.field, prim, args.component, bits)
+    rec = eng.inject(site, args.defense)
+    h = eng.apply([site], args.defense)
+    faulted, _ = eng.render_current(args.defense)
+    guarded, gclamps = eng.render_current("guard")
+    eng.undo(h)
+    g = eng.inject(site, "guard")
+    args.out.mkdir(parents=True, exist_ok=True)
+    title = (f"{name}, {eng.n} primitives, {args.precision}: flip of {site.field}[{prim}][{site.component}] "
+             f"bit{'s' if len(site.bits) > 1 else ''} {','.join(map(str, site.bits))} ({rec['bit_class']}) "
+             f"{rec['clean_value']:.6g} -> {rec['corrupted_value']:.6g}; defense {args.defense}")
+    panel = save_panel(args.out / "panel.png", eng.clean_rgba, faulted, guarded, title)
+    lines = {
+        "field": site.field, "primitive": prim, "component": site.component,
+        "bit": ",".join(map(str, site.bits)), "bit_class": rec["bit_class"],
+        "clean_value": f"{rec['clean_value']:.9g}", "corrupted_value": f"{rec['corrupted_value']:.9g}",
+        "defense": args.defense,
+        "footprint": f"{100 * rec['footprint']:.4f}%", "footprint_max": f"{100 * rec['footprint_max']:.4f}%",
+        "peak_error": f"{rec['peak_error']:.6g}", "psnr": f"{rec['psnr']:.3f}", "ssim": f"{rec['ssim']:.6f}",
+        "nonfinite": rec["nonfinite"], "catastrophic": rec["catastrophic"], "clamps": rec["clamps"],
+        "guarded_footprint": f"{100 * g['footprint']:.4f}%", "guarded_psnr": f"{g['psnr']:.3f}",
+        "guarded_clamps": g["clamps"], "panel": panel,
+    }
+    for k, v in lines.items():
+        print(f"{k}: {v}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="seuwgpu", description="Single-event-upset fault injection for 3D Gaussian splatting (WGSL, wgpu)")
     sub = p.add_subparsers(dest="command", required=True)
@@ -222,6 +263,18 @@ def build_parser() -> argparse.ArgumentParser:
     add_camera_args(s)
     s.add_argument("--out", type=Path, required=True, help="a folder for PNGs, or X.npz")
     s.set_defaults(func=cmd_render)
+
+    s = sub.add_parser("inject", help="flip one stored bit (or several of one value), measure, write the panel")
+    add_model_args(s)
+    add_camera_args(s, views=2, size="256x256")
+    s.add_argument("--field", required=True, help="means | log_scales | quats | opacity | sh_dc | sh_rest (aliases: log_scale, mean, ...)")
+    s.add_argument("--primitive", type=int, help="primitive index (default: the most harmful of --sample)")
+    s.add_argument("--component", type=int, default=0)
+    s.add_argument("--bit", type=int, nargs="+", required=True, help="bit(s) of the stored value (0 = LSB)")
+    s.add_argument("--defense", default="none", choices=("none", "guard", "selective", "ecc", "dup"))
+    s.add_argument("--sample", type=int, default=64, help="primitives tried when --primitive is not given")
+    s.add_argument("--out", type=Path, required=True)
+    s.set_defaults(func=cmd_inject)
 
     s = sub.add_parser("campaign", help="run a fault-injection campaign from a TOML spec (resumable)")
     s.add_argument("spec", type=Path)

@@ -1,0 +1,146 @@
+"""Campaigns: spec errors, kill-and-resume, shards, replay by id, stratified sampling."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from seuwgpu.campaign import (COLUMNS, Runner, SpecError, enumerate_contexts, load_spec, merge,
+                              normalize_spec, read_records, replay)
+
+SPEC = textwrap.dedent("""
+    seed = 7
+    views = 2
+    size = "32x32"
+    batch = 24
+
+    [[scenes]]
+    scene = "blocks"
+    n = 1500
+
+    [single]
+    fields = ["log_scales", "opacity", "sh_dc"]
+    bits = [0, 22, 23, 30, 31]
+    samples = 6
+    defenses = ["none", "guard"]
+
+    [dose]
+    k = [1, 30]
+    repeats = 2
+    defenses = ["none", "guard"]
+""")
+
+
+def write_spec(tmp_path, text=SPEC, name="spec.toml"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def canonical(df: pd.DataFrame) -> pd.DataFrame:
+    return df.sort_values(["injection_id", "defense"]).reset_index(drop=True)[COLUMNS]
+
+
+@pytest.fixture(scope="module")
+def reference_run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("ref")
+    spec = load_spec(write_spec(tmp))
+    Runner(spec, tmp / "run", quiet=True).run()
+    return spec, canonical(read_records(tmp / "run"))
+
+
+def test_records_have_the_contract_columns(reference_run):
+    spec, df = reference_run
+    total = sum(c.count for c in enumerate_contexts(spec))
+    assert total == 3 * 5 * 6 + 2 * 2
+    assert len(df) == 2 * total
+    assert list(df.columns) == COLUMNS
+    assert df.injection_id.nunique() == total
+    single = df[df.campaign == "single"]
+    # stratified: exactly `samples` injections per (field, bit) cell
+    counts = single[single.defense == "none"].groupby(["field", "bit"]).size()
+    assert (counts == 6).all() and len(counts) == 15
+    # paired arms: same site for every defense
+    pairs = single.pivot_table(index="injection_id", columns="defense", values=["primitive", "component", "bit"])
+    assert (pairs["primitive"]["none"] == pairs["primitive"]["guard"]).all()
+    dose = df[df.campaign == "dose"]
+    assert sorted(dose.k.unique()) == [1, 30]
+    assert (dose.primitive == -1).all() and (single.k == 1).all()
+
+
+def test_sharded_and_merged_equals_unsharded(reference_run, tmp_path):
+    spec, ref = reference_run
+    dirs = []
+    for i in range(3):
+        d = tmp_path / f"shard{i}"
+        Runner(spec, d, shard=(i, 3), quiet=True).run()
+        dirs.append(d)
+    merge(tmp_path / "merged", dirs)
+    got = canonical(read_records(tmp_path / "merged"))
+    pd.testing.assert_frame_equal(got, ref)
+
+
+def test_replay_one_injection_by_id(reference_run):
+    spec, ref = reference_run
+    for iid in (5, 61, ref.injection_id.max()):
+        got = canonical(replay(spec, int(iid)))
+        want = ref[ref.injection_id == iid].reset_index(drop=True)
+        pd.testing.assert_frame_equal(got, want)
+
+
+def test_kill_and_resume_gives_the_uninterrupted_records(reference_run, tmp_path):
+    spec, ref = reference_run
+    spec_path = write_spec(tmp_path)
+    run = tmp_path / "run"
+    cmd = [sys.executable, "-m", "seuwgpu.cli", "campaign", str(spec_path), "--out", str(run), "--quiet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while time.time() < deadline and len(list((run / "records").glob("part-*.parquet"))) < 2:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    n_parts = len(list((run / "records").glob("part-*.parquet")))
+    n_blocks = len(list(Runner(spec, run).blocks()))
+    assert 2 <= n_parts < n_blocks, "the kill should land mid-run"
+    Runner(load_spec(spec_path), run, quiet=True).run()
+    got = canonical(read_records(run))
+    pd.testing.assert_frame_equal(got, ref)
+
+
+def test_changed_spec_is_refused(reference_run, tmp_path):
+    spec, _ = reference_run
+    run = tmp_path / "run"
+    small = normalize_spec({"seed": 1, "views": 1, "size": "32x32", "scenes": [{"scene": "blocks", "n": 500}],
+                            "single": {"fields": ["opacity"], "bits": [31], "samples": 2}})
+    Runner(small, run, quiet=True).run()
+    other = dict(small, seed=2)
+    with pytest.raises(SpecError, match="different spec"):
+        Runner(other, run, quiet=True).run()
+
+
+@pytest.mark.parametrize("text, message", [
+    ("seed = 1\nviews = 2\n[[scenes]]\nscene='blocks'\n[single]\nsampels = 3\n", "unknown key 'sampels' in single"),
+    ("seed = 1\nbogus = 2\n[[scenes]]\nscene='blocks'\n[single]\n", "unknown key 'bogus'"),
+    ("[[scenes]]\nscene='nope'\n[single]\n", "unknown scene 'nope'"),
+    ("[[scenes]]\nscene='blocks'\n[single]\nprecisions=['fp64']\n", "single.precisions"),
+    ("[[scenes]]\nscene='blocks'\n[single]\nbits=[32]\n", "bit 32 is out of range for fp32"),
+    ("[[scenes]]\nscene='blocks'\n[single]\nprecisions=['bf16']\nbits=[16]\n", "bit 16 is out of range for bf16"),
+    ("[[scenes]]\nscene='blocks'\n[single]\nfields=['colour_x']\n", "unknown field"),
+    ("[[scenes]]\nscene='blocks'\n[single]\nsamples=0\n", "single.samples"),
+    ("[[scenes]]\nscene='blocks'\n[single]\ndefenses=['magic']\n", "single.defenses"),
+    ("[[scenes]]\nscene='blocks'\n", "at least one of [single]"),
+    ("size='12'\n[[scenes]]\nscene='blocks'\n[single]\n", "size"),
+    ("[[scenes]]\nply='missing.ply'\n[single]\n", "file not found"),
+    ("[[scenes]]\nscene='blocks'\n[dose]\nk=[1]\nk_max=5\n", "either k"),
+    ("[[scenes]]\nscene='blocks'\n[single\n", "not valid TOML"),
+])
+def test_bad_specs_fail_with_a_message_naming_the_key(tmp_path, text, message):
+    with pytest.raises(SpecError, match=message.replace("[", r"\[").replace("(", r"\(")):
+        load_spec(write_spec(tmp_path, text))
