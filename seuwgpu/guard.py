@@ -47,6 +47,35 @@ class Box:
         return out
 
 
+class GuardAlert(UserWarning):
+    """The guard clamped more values than a healthy device should produce."""
+
+
+class GuardMonitor:
+    """Health signal from clamp counts: a clean model never clamps, so any count above
+    `threshold` (default 0) per check is an alert, raised as a GuardAlert warning (visible in
+    logs) and kept in `.alert`/`.message` for dashboards such as the viewer."""
+
+    def __init__(self, threshold: int = 0):
+        self.threshold = int(threshold)
+        self.alert = False
+        self.message = ""
+        self.total = 0
+
+    def update(self, counts: dict) -> bool:
+        n = int(sum(counts.values()))
+        self.total += n
+        self.alert = n > self.threshold
+        if self.alert:
+            fields = ", ".join(f"{f}: {c}" for f, c in counts.items() if c)
+            self.message = (f"support guard clamped {n} stored values (threshold {self.threshold}): {fields}; "
+                            "the model in memory is being corrupted - scrub it or reload it")
+            warnings.warn(self.message, GuardAlert, stacklevel=2)
+        else:
+            self.message = ""
+        return self.alert
+
+
 def support_box(stored: Model, precision: str) -> Box:
     """Per-component [min, max] over the finite stored values of the clean model."""
     flat = stored.flat()
