@@ -20,7 +20,7 @@ from .camera import Camera
 from .faults import (DEFENSES, GUARDED_FIELDS, Site, check_defense, dup_read, ecc_read, make_site,
                      mask_of, site_bit_class)
 from .gpu.device import GPU, STORAGE, UNIFORM, dispatch_dims, get_gpu
-from .guard import Box, component_mask, support_box
+from .guard import Box, GuardMonitor, component_mask, support_box
 from .metrics import ImageMetrics, catastrophic, summarize
 from .model import Model
 from .render import Renderer
@@ -46,6 +46,7 @@ class Engine:
         self.masks = {d: component_mask(GUARDED_FIELDS[d], self.degree) for d in ("guard", "selective", "guard_all")}
         self.p_flip = self.gpu.pipeline("flip")
         self._active: list[dict] = []  # applied XOR lists, for undo
+        self.monitor = GuardMonitor(threshold=0)  # health signal of interactive/guarded renders
         self._set_up_views()
 
     # ---- views and clean renders ------------------------------------------------------------------
@@ -171,7 +172,10 @@ class Engine:
             clamps = r.read_guard_counts()
         finally:
             r.set_guard(None, 0)
-        return images, dict(zip(("means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest"), map(int, clamps)))
+        counts = dict(zip(("means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest"), map(int, clamps)))
+        if self._guard_mask(defense):
+            self.monitor.update(counts)
+        return images, counts
 
     def measure_current(self, defense: str = "none") -> dict:
         """GPU metrics of the current model against the clean render (the frame stays on the GPU)."""
