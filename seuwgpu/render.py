@@ -45,8 +45,11 @@ class Renderer:
 
     def __init__(self, model: Model, cameras: list[Camera], precision: str = "fp32",
                  background=(1.0, 1.0, 1.0), gpu: GPU | None = None, chunk_prims: int | None = None,
-                 capacity: int | None = None, keep_views: bool = False):
+                 capacity: int | None = None, keep_views: bool = False, viewport=None):
         self.gpu = gpu or get_gpu()
+        # viewport (x0, y0, w, h): render only this tile-aligned region of every camera's frame (the
+        # sort-first split of distributed rendering); pixels equal the full frame's bit for bit.
+        self.viewport = None if viewport is None else tuple(int(v) for v in viewport)
         # keep_views: also keep each view's projection, tile lists and ranges after the frame
         # (the incremental re-compositor of single upsets reads them).
         self.keep_views = keep_views
@@ -93,11 +96,20 @@ class Renderer:
         """Change the view set. Same count and size: only the parameters are rewritten (cheap,
         for interactive use); otherwise the view buffers are rebuilt."""
         size = check_cameras(cameras)
-        if self.cameras and len(cameras) == self.k and size == (self.width, self.height):
+        if self.cameras and len(cameras) == self.k and size == (self.cam_width, self.cam_height):
             self.cameras = list(cameras)
             self._write_params()
             return
+        self.cam_width, self.cam_height = size
+        self.origin = (0, 0)
         self.width, self.height = size
+        if self.viewport is not None:
+            x0, y0, w, h = self.viewport
+            if x0 % TILE or y0 % TILE or w <= 0 or h <= 0 or x0 + w > size[0] or y0 + h > size[1]:
+                raise ValueError(f"viewport {self.viewport} must be tile-aligned ({TILE} px) and inside the "
+                                 f"{size[0]}x{size[1]} frame")
+            self.origin = (x0, y0)
+            self.width, self.height = w, h
         self.cameras = list(cameras)
         self.k = len(cameras)
         self.tiles_x = -(-self.width // TILE)
@@ -135,10 +147,12 @@ class Renderer:
                 f[20:24] = [cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]]
                 f[24:27] = self.background
                 a, b = L.chunk_range(c)
-                row[28:44] = [self.width, self.height, self.tiles_x, self.tiles_y, self.n, a, b - a,
+                row[28:41] = [self.cam_width, self.cam_height, self.tiles_x, self.tiles_y, self.n, a, b - a,
                               L.plane_words, self.degree, PRECISION_CODE[self.precision], v,
-                              self.guard_mask & 0xFFFFFFFF, self.guard_mask >> 32, 0, 0, 0]
-            bp[v, 0:8] = [self.n, self.tiles_x, self.n_tiles, self.capacity, v, self.width, self.height, 0]
+                              self.guard_mask & 0xFFFFFFFF, self.guard_mask >> 32]
+                f[41:43] = [self.origin[0] // TILE, self.origin[1] // TILE]
+            bp[v, 0:8] = [self.n, self.tiles_x, self.n_tiles, self.capacity, v, self.width, self.height,
+                          self.origin[0] | (self.origin[1] << 16)]
             bp[v].view(np.float32)[8:11] = self.background
         self.view_rows = vp  # host copy (the incremental path derives its own parameters from it)
         self.gpu.write(self.view_params, vp)

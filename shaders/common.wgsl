@@ -94,9 +94,9 @@ struct Binning {
     n_tiles: u32,
     capacity: u32,      // intersection buffer length: writes past it are dropped and the frame re-run
     stats_index: u32,   // this view's slot in the stats buffer (intersection total)
-    width: u32,
+    width: u32,         // viewport size in pixels (the output image)
     height: u32,
-    _pad: u32,
+    origin: u32,        // viewport origin in pixels (x | y << 16), tile-aligned; 0 for a full frame
     background: vec4<f32>,
 };
 

@@ -95,7 +95,8 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
     let px = wg.x * 16u + lid.x;
     let py = wg.y * 16u + lid.y;
     let inside = px < bin.width && py < bin.height;
-    var p = begin_pixel(li, inside, px, py);
+    // pixel centres in full-frame coordinates (a sort-first region starts at `origin`)
+    var p = begin_pixel(li, inside, px + (bin.origin & 0xffffu), py + (bin.origin >> 16u));
     let range = ranges[tile];
     let n = range.y - range.x;
     let batches = (n + 255u) / 256u;

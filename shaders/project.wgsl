@@ -7,9 +7,9 @@ struct View {
     campos: vec4<f32>,        // camera centre in world space (w unused)
     intr: vec4<f32>,          // fx, fy, cx, cy
     background: vec4<f32>,
-    width: u32,
+    width: u32,               // full camera image (Jacobian clamp)
     height: u32,
-    tiles_x: u32,
+    tiles_x: u32,             // tiles of the viewport (the whole frame unless rendering a region)
     tiles_y: u32,
     n_total: u32,             // primitives in the model
     chunk_base: u32,          // first primitive of this chunk
@@ -20,8 +20,8 @@ struct View {
     view_index: u32,
     guard_lo: u32,            // in-pipeline guard: components 0..31 to clamp
     guard_hi: u32,            // components 32..63
-    _p0: u32,
-    _p1: u32,
+    tile_x0: f32,             // viewport origin in tiles (sort-first regions); 0 for a full frame
+    tile_y0: f32,
     _p2: u32,
 };
 
@@ -217,10 +217,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         let rx = ceil(3.33 * sqrt(a));
         let ry = ceil(3.33 * sqrt(c));
         // Float-domain clamp before integer conversion: the saturating radius.
-        let x0 = clamp(floor((mx - rx) / 16.0), 0.0, tiles_x);
-        let x1 = clamp(ceil((mx + rx) / 16.0), 0.0, tiles_x);
-        let y0 = clamp(floor((my - ry) / 16.0), 0.0, tiles_y);
-        let y1 = clamp(ceil((my + ry) / 16.0), 0.0, tiles_y);
+        let x0 = clamp(floor((mx - rx) / 16.0) - view.tile_x0, 0.0, tiles_x);
+        let x1 = clamp(ceil((mx + rx) / 16.0) - view.tile_x0, 0.0, tiles_x);
+        let y0 = clamp(floor((my - ry) / 16.0) - view.tile_y0, 0.0, tiles_y);
+        let y1 = clamp(ceil((my + ry) / 16.0) - view.tile_y0, 0.0, tiles_y);
         if (x1 <= x0 || y1 <= y0) {
             cull(g);
             return;

@@ -1,22 +1,31 @@
 // Stable LSD radix sort of (u32 key, u32 value) pairs, 4 bits per pass (seuwgpu/gpu/sort.py).
 //
-// Per pass: `rs_upsweep` counts the digits of each block of 4096 elements (256 threads x 16
-// contiguous elements) into hist[digit * blocks + block]; PrefixSum scans that digit-major array,
+// Per pass: `rs_upsweep` counts the digits of each block of 256 threads x RS_PER contiguous
+// elements into hist[digit * blocks + block]; PrefixSum scans that digit-major array,
 // so hist[d * blocks + b] becomes the output position of block b's first element with digit d;
 // `rs_scatter` recounts its block, scans the per-thread digit counts over the workgroup and writes
 // each thread's run in order. Threads own contiguous runs, so equal keys keep their input order
 // (stable) and no inter-workgroup communication is needed (no forward-progress assumption).
 //
-// Per-thread digit counts are packed two digits per u32 (16-bit fields; a block has at most 4096
-// elements of one digit, so fields never carry into each other).
+// Cost model (lavapipe, and fine on GPUs): lavapipe runs 8 invocations per SIMD op but performs
+// every memory access with a non-uniform address lane by lane, masked-off lanes included, so the
+// kernels count memory instructions: keys and values are read as vec4, per-thread digit counts
+// live in registers (8-bit fields, four digits per u32; a run has at most RS_PER of a digit) and are
+// exchanged as vec4 of 16-bit fields (a block has at most 256 RS_PER of a digit: no carry
+// between fields), and the per-digit output positions are selected from registers, not workgroup memory.
 //
 // Arrays larger than one storage binding: inputs are read chunk by chunk (one dispatch per chunk,
-// bound at the chunk's offset), outputs are bound as two halves split at `rs_pass.split`.
+// bound at the chunk's offset), outputs are bound as two halves split at `rs_pass.split`; the
+// pipeline constant RS_TWO_PARTS compiles the second half in only where it is needed.
 // Workgroup memory is written before it is read (lavapipe does not zero it).
 
-const RS_PER: u32 = 16u;
-const RS_BLOCK: u32 = 4096u;
-const RS_MAX_X: u32 = 32768u;
+// Elements per thread, a multiple of 4 below 256 (8-bit per-thread counters; a block's digit
+// count must fit 16 bits). sort.py: 64 on CPU adapters, where each workgroup barrier costs several
+// microseconds, 16 on GPUs, for occupancy.
+override RS_PER: u32 = 16u;
+override RS_BLOCK: u32 = 256u * RS_PER;
+// Workgroups per dispatch row; larger grids are 2-D (overridable so that tests reach that path).
+override RS_MAX_X: u32 = 32768u;
 // Plan buffer layout (u32 words): [0] count, [1] blocks, [2] 16 * blocks (the scan's count),
 // [4 + 3c ..) indirect args of chunk c.
 const RS_ARGS: u32 = 4u;
@@ -39,8 +48,9 @@ struct RsPlanArgs {
     nch: u32,    // chunks
 };
 
-// Inputs are read as vec4 (one load per 4 elements: lavapipe issues memory accesses lane by lane,
-// so their number is what costs); buffer sizes are multiples of 16 bytes.
+override RS_TWO_PARTS: bool = false;
+
+// Inputs are read as vec4; buffer sizes are multiples of 16 bytes.
 @group(0) @binding(0) var<storage, read> rs_keys_in: array<vec4<u32>>;
 @group(0) @binding(1) var<storage, read> rs_vals_in: array<vec4<u32>>;
 @group(0) @binding(2) var<storage, read_write> rs_keys_lo: array<u32>;
@@ -53,12 +63,15 @@ struct RsPlanArgs {
 @group(0) @binding(9) var<storage, read_write> rs_plan_w: array<u32>;
 @group(0) @binding(10) var<storage, read> rs_count: array<u32>;
 @group(0) @binding(11) var<uniform> rs_pargs: RsPlanArgs;
+@group(0) @binding(12) var<storage, read_write> rs_keys_out4: array<vec4<u32>>;
+@group(0) @binding(13) var<storage, read_write> rs_vals_out4: array<vec4<u32>>;
 @group(1) @binding(0) var<uniform> rs_pass: RsPass;
 
-var<workgroup> rs_cnt: array<u32, 2048>;   // [digit pair][thread] packed counts
-var<workgroup> rs_part: array<u32, 128>;   // [digit pair][16 thread groups]
-var<workgroup> rs_base: array<u32, 16>;    // scanned hist of this block, per digit
-var<private> rs_k: array<u32, 16>;
+// Per-thread counts, 16-bit fields: [half][thread], half 0 = digits 0..7, half 1 = digits 8..15
+// (x = digits 0,1; y = 2,3; ...). 8 KiB.
+var<workgroup> rs_cnt: array<vec4<u32>, 512>;
+var<workgroup> rs_part: array<vec4<u32>, 32>;   // [half][16 thread groups]
+var<workgroup> rs_base: array<vec4<u32>, 4>;    // scanned hist of this block, digit d at [d/4][d%4]
 
 @compute @workgroup_size(1)
 fn rs_plan_main() {
@@ -93,37 +106,58 @@ fn rs_groups(nb: u32) -> u32 {
     return min(nb - rs_pass.block0, rs_pass.bpc);
 }
 
-// Loads the thread's run of keys into rs_k and writes its packed digit counts to rs_cnt.
-fn rs_count_run(t: u32, lbase: u32, gbase: u32, n: u32) {
-    var c0 = vec4<u32>(0u);
-    var c1 = vec4<u32>(0u);
-    let sel0 = vec4<u32>(0u, 1u, 2u, 3u);
-    let sel1 = vec4<u32>(4u, 5u, 6u, 7u);
+const RS_SEL: vec4<u32> = vec4<u32>(0u, 1u, 2u, 3u);
+
+fn rs_digit(key: u32) -> u32 {
+    return (key >> rs_pass.shift) & rs_pass.mask;
+}
+
+// One-hot increment of digit d in four words of 8-bit counters (word d / 4, byte d % 4).
+fn rs_inc8(d: u32) -> vec4<u32> {
+    return select(vec4<u32>(0u), vec4<u32>(1u << ((d & 3u) << 3u)), vec4<u32>(d >> 2u) == RS_SEL);
+}
+
+// Component d % 4 of the d / 4-th of four vectors, by selects (registers, no memory access).
+fn rs_pick(a: vec4<u32>, b: vec4<u32>, c: vec4<u32>, e: vec4<u32>, d: u32) -> u32 {
+    let q = d >> 2u;
+    let v = select(select(e, c, q == 2u), select(b, a, q == 0u), q < 2u);
+    return v[d & 3u];
+}
+
+// Digit counts of the thread's run, 8-bit fields (digit d: word d / 4, byte d % 4).
+fn rs_count_run(lbase: u32, gbase: u32, n: u32) -> vec4<u32> {
+    var c = vec4<u32>(0u);
     for (var j = 0u; j < RS_PER / 4u; j++) {
         if (gbase + 4u * j < n) {
             let k4 = rs_keys_in[(lbase >> 2u) + j];
-            for (var i = 0u; i < 4u; i++) {
-                let k = 4u * j + i;
-                let key = k4[i];
-                rs_k[k] = key;
-                if (gbase + k < n) {
-                    let d = (key >> rs_pass.shift) & rs_pass.mask;
-                    let inc = vec4<u32>(1u << ((d & 1u) << 4u));
-                    let w = vec4<u32>(d >> 1u);
-                    c0 += select(vec4<u32>(0u), inc, w == sel0);
-                    c1 += select(vec4<u32>(0u), inc, w == sel1);
+            for (var e = 0u; e < 4u; e++) {
+                if (gbase + 4u * j + e < n) {
+                    c += rs_inc8(rs_digit(k4[e]));
                 }
             }
         }
     }
-    rs_cnt[t] = c0.x;
-    rs_cnt[256u + t] = c0.y;
-    rs_cnt[512u + t] = c0.z;
-    rs_cnt[768u + t] = c0.w;
-    rs_cnt[1024u + t] = c1.x;
-    rs_cnt[1280u + t] = c1.y;
-    rs_cnt[1536u + t] = c1.z;
-    rs_cnt[1792u + t] = c1.w;
+    return c;
+}
+
+// 8-bit fields of two counter words -> 16-bit fields, two digits per component.
+fn rs_widen(a: u32, b: u32) -> vec4<u32> {
+    let m = 0x00ff00ffu;
+    return vec4<u32>(a & m, (a >> 8u) & m, b & m, (b >> 8u) & m);
+}
+
+// Digits in 16-bit fields are interleaved by rs_widen: component x holds digits 0 and 2, y holds
+// 1 and 3, z 4 and 6, w 5 and 7 (of the half). Field of digit d (0..15) in (lo, hi):
+fn rs_field16(lo: vec4<u32>, hi: vec4<u32>, d: u32) -> u32 {
+    let h = select(lo, hi, d >= 8u);
+    let r = d & 7u;                                   // 0..7 within the half
+    let comp = ((r >> 2u) << 1u) | (r & 1u);          // word r/4 -> x,y or z,w; odd -> y / w
+    return (h[comp] >> (((r >> 1u) & 1u) << 4u)) & 0xffffu;
+}
+
+fn rs_store_counts(t: u32, c: vec4<u32>) {
+    rs_cnt[t] = rs_widen(c.x, c.y);
+    rs_cnt[256u + t] = rs_widen(c.z, c.w);
 }
 
 @compute @workgroup_size(256)
@@ -137,12 +171,12 @@ fn rs_upsweep(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
     }
     let lbase = wid * RS_BLOCK + t * RS_PER;
     let gbase = rs_pass.block0 * RS_BLOCK + lbase;
-    rs_count_run(t, lbase, gbase, n);
+    rs_store_counts(t, rs_count_run(lbase, gbase, n));
     workgroupBarrier();
-    if (t < 128u) {
-        // pair w = t / 16, thread group g = t % 16
+    if (t < 32u) {
+        // half t / 16, threads 16 (t % 16) .. + 15
         let b = (t >> 4u) * 256u + (t & 15u) * 16u;
-        var acc = 0u;
+        var acc = vec4<u32>(0u);
         for (var k = 0u; k < 16u; k++) {
             acc += rs_cnt[b + k];
         }
@@ -150,12 +184,13 @@ fn rs_upsweep(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
     }
     workgroupBarrier();
     if (t < 16u) {
-        let w = t >> 1u;
-        var acc = 0u;
+        var lo = vec4<u32>(0u);
+        var hi = vec4<u32>(0u);
         for (var g = 0u; g < 16u; g++) {
-            acc += rs_part[w * 16u + g];
+            lo += rs_part[g];
+            hi += rs_part[16u + g];
         }
-        rs_hist_w[t * nb + rs_pass.block0 + wid] = (acc >> ((t & 1u) << 4u)) & 0xffffu;
+        rs_hist_w[t * nb + rs_pass.block0 + wid] = rs_field16(lo, hi, t);
     }
 }
 
@@ -171,16 +206,16 @@ fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
     let block = rs_pass.block0 + wid;
     let lbase = wid * RS_BLOCK + t * RS_PER;
     let gbase = block * RS_BLOCK + t * RS_PER;
-    rs_count_run(t, lbase, gbase, n);
+    rs_store_counts(t, rs_count_run(lbase, gbase, n));
     if (t < 16u) {
-        rs_base[t] = rs_hist[t * nb + block];
+        rs_base[t >> 2u][t & 3u] = rs_hist[t * nb + block];
     }
     workgroupBarrier();
-    // Exclusive scan of the packed counts over threads, per digit pair: 128 threads scan 16
-    // threads' counts each, then 8 threads scan the 16 group sums of their pair.
-    if (t < 128u) {
+    // Exclusive scan of the counts over threads: 32 threads scan 16 threads' vec4 each, then two
+    // threads scan the 16 group sums of their half.
+    if (t < 32u) {
         let b = (t >> 4u) * 256u + (t & 15u) * 16u;
-        var acc = 0u;
+        var acc = vec4<u32>(0u);
         for (var k = 0u; k < 16u; k++) {
             let x = rs_cnt[b + k];
             rs_cnt[b + k] = acc;
@@ -189,8 +224,8 @@ fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
         rs_part[t] = acc;
     }
     workgroupBarrier();
-    if (t < 8u) {
-        var acc = 0u;
+    if (t < 2u) {
+        var acc = vec4<u32>(0u);
         for (var g = 0u; g < 16u; g++) {
             let x = rs_part[t * 16u + g];
             rs_part[t * 16u + g] = acc;
@@ -198,44 +233,43 @@ fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
         }
     }
     workgroupBarrier();
-    // Running packed offsets of this thread, kept in its own rs_cnt slots (no races).
-    let grp = t >> 4u;
-    for (var w = 0u; w < 8u; w++) {
-        rs_cnt[w * 256u + t] += rs_part[w * 16u + grp];
-    }
-    let split = rs_pass.split;
+    // Output position of this thread's first element of each digit: f0..f3 (digit d at [d/4][d%4]).
+    let lo = rs_cnt[t] + rs_part[t >> 4u];
+    let hi = rs_cnt[256u + t] + rs_part[16u + (t >> 4u)];
+    let m = 0xffffu;
+    // lo.x = digits 0 | 2 << 16, lo.y = 1 | 3 << 16, lo.z = 4 | 6 << 16, lo.w = 5 | 7 << 16
+    let f0 = rs_base[0] + vec4<u32>(lo.x & m, lo.y & m, lo.x >> 16u, lo.y >> 16u);
+    let f1 = rs_base[1] + vec4<u32>(lo.z & m, lo.w & m, lo.z >> 16u, lo.w >> 16u);
+    let f2 = rs_base[2] + vec4<u32>(hi.x & m, hi.y & m, hi.x >> 16u, hi.y >> 16u);
+    let f3 = rs_base[3] + vec4<u32>(hi.z & m, hi.w & m, hi.z >> 16u, hi.w >> 16u);
+    // Walk the run in order; the rank among equal digits so far is counted in registers.
+    var seen = vec4<u32>(0u);
     for (var j = 0u; j < RS_PER / 4u; j++) {
-        if (gbase + 4u * j >= n) {
-            break;
-        }
-        let v4 = rs_vals_in[(lbase >> 2u) + j];
-        for (var e = 0u; e < 4u; e++) {
-            let k = 4u * j + e;
-            if (gbase + k < n) {
-                let key = rs_k[k];
-                let d = (key >> rs_pass.shift) & rs_pass.mask;
-                let s = (d & 1u) << 4u;
-                let slot = (d >> 1u) * 256u + t;
-                let o = rs_cnt[slot];
-                rs_cnt[slot] = o + (1u << s);
-                let dst = rs_base[d] + ((o >> s) & 0xffffu);
-                if (dst < split) {
-                    rs_keys_lo[dst] = key;
-                    rs_vals_lo[dst] = v4[e];
-                } else {
-                    rs_keys_hi[dst - split] = key;
-                    rs_vals_hi[dst - split] = v4[e];
+        if (gbase + 4u * j < n) {
+            let k4 = rs_keys_in[(lbase >> 2u) + j];
+            let v4 = rs_vals_in[(lbase >> 2u) + j];
+            for (var e = 0u; e < 4u; e++) {
+                if (gbase + 4u * j + e < n) {
+                    let d = rs_digit(k4[e]);
+                    let dst = rs_pick(f0, f1, f2, f3, d) + ((seen[d >> 2u] >> ((d & 3u) << 3u)) & 0xffu);
+                    seen += rs_inc8(d);
+                    if (RS_TWO_PARTS && dst >= rs_pass.split) {
+                        rs_keys_hi[dst - rs_pass.split] = k4[e];
+                        rs_vals_hi[dst - rs_pass.split] = v4[e];
+                    } else {
+                        rs_keys_lo[dst] = k4[e];
+                        rs_vals_lo[dst] = v4[e];
+                    }
                 }
             }
         }
     }
 }
 
-// Copies count pairs from the inputs to the *_lo outputs (both bound at the chunk's offset): an
-// odd number of passes starts from the internal buffers so that the result ends in the caller's.
-@group(0) @binding(12) var<storage, read_write> rs_keys_lo4: array<vec4<u32>>;
-@group(0) @binding(13) var<storage, read_write> rs_vals_lo4: array<vec4<u32>>;
-
+// Copies count pairs from the inputs to rs_*_out4 (both bound at the chunk's offset), vec4 at a
+// time (a partial last vec4 is copied whole: the destination is internal). An odd number of
+// passes starts from the internal buffers so that the result ends in the caller's. Each thread
+// copies its own contiguous run (measured faster on lavapipe than a strided layout).
 @compute @workgroup_size(256)
 fn rs_copy(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
            @builtin(local_invocation_index) t: u32) {
@@ -244,13 +278,13 @@ fn rs_copy(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: v
     if (wid >= rs_groups(rs_plan[1])) {
         return;
     }
-    // vec4 granularity: a partial last vec4 is copied whole (the destination is internal).
-    let g0 = (rs_pass.block0 + wid) * (RS_BLOCK / 4u);
-    for (var k = 0u; k < RS_PER / 4u; k++) {
-        let l = wid * (RS_BLOCK / 4u) + k * 256u + t;
-        if (4u * (g0 + k * 256u + t) < n) {
-            rs_keys_lo4[l] = rs_keys_in[l];
-            rs_vals_lo4[l] = rs_vals_in[l];
+    let q = RS_PER / 4u;
+    let l0 = wid * (RS_BLOCK / 4u) + t * q;
+    let g0 = rs_pass.block0 * (RS_BLOCK / 4u) + l0;
+    for (var k = 0u; k < q; k++) {
+        if (4u * (g0 + k) < n) {
+            rs_keys_out4[l0 + k] = rs_keys_in[l0 + k];
+            rs_vals_out4[l0 + k] = rs_vals_in[l0 + k];
         }
     }
 }

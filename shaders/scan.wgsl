@@ -1,6 +1,6 @@
 // Exclusive prefix sum of u32 (seuwgpu/gpu/sort.py: PrefixSum), reduce-then-scan.
 //
-// A block is 256 threads x 16 elements; each thread owns 16 contiguous elements. Levels: the
+// A block is 256 threads x PS_PER elements; each thread owns PS_PER contiguous elements. Levels: the
 // data (level 0) is reduced to one sum per block (level 1), and so on until a level fits one
 // block; that level is scanned by a single workgroup ("top"), then each lower level is scanned
 // block by block with its block's offset from the level above ("downsweep"). No inter-workgroup
@@ -13,10 +13,12 @@
 //
 // Workgroup memory is written before it is read (lavapipe does not zero it).
 
-const PS_WG: u32 = 256u;
-const PS_PER: u32 = 16u;
-const PS_BLOCK: u32 = 4096u;
-const PS_MAX_X: u32 = 32768u;
+// Elements per thread (sort.py: 64 on CPU adapters, where each workgroup barrier costs several
+// microseconds, 16 on GPUs, for occupancy).
+override PS_PER: u32 = 16u;
+override PS_BLOCK: u32 = 256u * PS_PER;
+// Workgroups per dispatch row; larger grids are 2-D (overridable so that tests reach that path).
+override PS_MAX_X: u32 = 32768u;
 // Plan buffer layout (u32 words): [0..4) count per level, [4] total, [8 + 3k ..) indirect args.
 const PS_TOTAL: u32 = 4u;
 const PS_ARGS: u32 = 8u;
@@ -47,7 +49,6 @@ struct PsPlanArgs {
 
 var<workgroup> ps_sh: array<u32, 256>;
 var<workgroup> ps_part: array<u32, 17>;
-var<private> ps_run: array<u32, 16>;
 
 fn ps_dims(groups: u32) -> vec3<u32> {
     if (groups <= PS_MAX_X) {
@@ -119,41 +120,46 @@ fn ps_wg_scan(t: u32, v: u32) -> vec2<u32> {
     return vec2<u32>(ps_sh[t] + ps_part[t >> 4u], ps_part[16]);
 }
 
-// Exclusive scan of the thread's run in place; returns the run's sum.
-fn ps_scan_run() -> u32 {
-    var acc = 0u;
+// Runs are read twice (sum, then scan-and-store) rather than kept in a private array: the run
+// length is a pipeline constant, and in place each element is read before it is overwritten.
+fn ps_sum_src(lbase: u32, gbase: u32, n: u32) -> u32 {
+    var s = 0u;
     for (var k = 0u; k < PS_PER; k++) {
-        let x = ps_run[k];
-        ps_run[k] = acc;
-        acc += x;
-    }
-    return acc;
-}
-
-fn ps_load_src(lbase: u32, gbase: u32, n: u32) {
-    for (var k = 0u; k < PS_PER; k++) {
-        var x = 0u;
         if (gbase + k < n) {
-            x = ps_src[lbase + k];
+            s += ps_src[lbase + k];
         }
-        ps_run[k] = x;
     }
+    return s;
 }
 
-fn ps_load_dst(lbase: u32, gbase: u32, n: u32) {
+fn ps_sum_dst(lbase: u32, gbase: u32, n: u32) -> u32 {
+    var s = 0u;
     for (var k = 0u; k < PS_PER; k++) {
-        var x = 0u;
         if (gbase + k < n) {
-            x = ps_dst[lbase + k];
+            s += ps_dst[lbase + k];
         }
-        ps_run[k] = x;
+    }
+    return s;
+}
+
+fn ps_store_from_src(lbase: u32, gbase: u32, n: u32, offset: u32) {
+    var acc = offset;
+    for (var k = 0u; k < PS_PER; k++) {
+        if (gbase + k < n) {
+            let x = ps_src[lbase + k];
+            ps_dst[lbase + k] = acc;
+            acc += x;
+        }
     }
 }
 
-fn ps_store_dst(lbase: u32, gbase: u32, n: u32, offset: u32) {
+fn ps_store_from_dst(lbase: u32, gbase: u32, n: u32, offset: u32) {
+    var acc = offset;
     for (var k = 0u; k < PS_PER; k++) {
         if (gbase + k < n) {
-            ps_dst[lbase + k] = offset + ps_run[k];
+            let x = ps_dst[lbase + k];
+            ps_dst[lbase + k] = acc;
+            acc += x;
         }
     }
 }
@@ -177,13 +183,7 @@ fn ps_reduce(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg:
     }
     let lbase = wid * PS_BLOCK + t * PS_PER;
     let gbase = ps_pass.block0 * PS_BLOCK + lbase;
-    var s = 0u;
-    for (var k = 0u; k < PS_PER; k++) {
-        if (gbase + k < n) {
-            s += ps_src[lbase + k];
-        }
-    }
-    let r = ps_wg_scan(t, s);
+    let r = ps_wg_scan(t, ps_sum_src(lbase, gbase, n));
     if (t == 0u) {
         ps_sums[ps_pass.block0 + wid] = r.y;
     }
@@ -199,9 +199,8 @@ fn ps_downsweep(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) n
     }
     let lbase = wid * PS_BLOCK + t * PS_PER;
     let gbase = ps_pass.block0 * PS_BLOCK + lbase;
-    ps_load_src(lbase, gbase, n);
-    let r = ps_wg_scan(t, ps_scan_run());
-    ps_store_dst(lbase, gbase, n, ps_offs[ps_pass.block0 + wid] + r.x);
+    let r = ps_wg_scan(t, ps_sum_src(lbase, gbase, n));
+    ps_store_from_src(lbase, gbase, n, ps_offs[ps_pass.block0 + wid] + r.x);
 }
 
 @compute @workgroup_size(256)
@@ -214,18 +213,16 @@ fn ps_downsweep_inplace(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workg
     }
     let lbase = wid * PS_BLOCK + t * PS_PER;
     let gbase = ps_pass.block0 * PS_BLOCK + lbase;
-    ps_load_dst(lbase, gbase, n);
-    let r = ps_wg_scan(t, ps_scan_run());
-    ps_store_dst(lbase, gbase, n, ps_offs[ps_pass.block0 + wid] + r.x);
+    let r = ps_wg_scan(t, ps_sum_dst(lbase, gbase, n));
+    ps_store_from_dst(lbase, gbase, n, ps_offs[ps_pass.block0 + wid] + r.x);
 }
 
 // The top level (at most one block) in a single workgroup; also records the grand total.
 @compute @workgroup_size(256)
 fn ps_top(@builtin(local_invocation_index) t: u32) {
     let n = ps_plan_w[ps_pass.level];
-    ps_load_src(t * PS_PER, t * PS_PER, n);
-    let r = ps_wg_scan(t, ps_scan_run());
-    ps_store_dst(t * PS_PER, t * PS_PER, n, r.x);
+    let r = ps_wg_scan(t, ps_sum_src(t * PS_PER, t * PS_PER, n));
+    ps_store_from_src(t * PS_PER, t * PS_PER, n, r.x);
     if (t == 0u) {
         ps_plan_w[PS_TOTAL] = r.y;
     }
@@ -234,9 +231,8 @@ fn ps_top(@builtin(local_invocation_index) t: u32) {
 @compute @workgroup_size(256)
 fn ps_top_inplace(@builtin(local_invocation_index) t: u32) {
     let n = ps_plan_w[ps_pass.level];
-    ps_load_dst(t * PS_PER, t * PS_PER, n);
-    let r = ps_wg_scan(t, ps_scan_run());
-    ps_store_dst(t * PS_PER, t * PS_PER, n, r.x);
+    let r = ps_wg_scan(t, ps_sum_dst(t * PS_PER, t * PS_PER, n));
+    ps_store_from_dst(t * PS_PER, t * PS_PER, n, r.x);
     if (t == 0u) {
         ps_plan_w[PS_TOTAL] = r.y;
     }

@@ -119,3 +119,16 @@ def test_gpu_decode_matches_numpy_bit_for_bit(precision):
     got = gpu_decode(words, precision)[: raw.size]
     want = formats.from_bits(raw, precision)
     assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+
+
+def test_viewport_regions_equal_the_full_frame_bit_for_bit():
+    model = random_model(600, seed=12)
+    cams = orbit_cameras(2, 72, 40)
+    full = Renderer(model, cams).render()
+    for vp in [(0, 0, 32, 16), (32, 16, 40, 24), (64, 32, 8, 8), (16, 0, 48, 40)]:
+        x0, y0, w, h = vp
+        part = Renderer(model, cams, viewport=vp).render()
+        assert part.shape == (2, h, w, 3)
+        assert np.array_equal(part.view(np.uint32), full[:, y0:y0 + h, x0:x0 + w].view(np.uint32))
+    with pytest.raises(ValueError, match="tile-aligned"):
+        Renderer(model, cams, viewport=(8, 0, 16, 16))
