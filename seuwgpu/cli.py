@@ -297,6 +297,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", type=Path, required=True)
     s.set_defaults(func=cmd_merge)
 
+    from .viewer import add_view_args, main_view  # (no wgpu import until the viewer runs)
+    s = sub.add_parser("view", help="interactive viewer: toggle faults and the guard live")
+    add_model_args(s)
+    add_view_args(s)
+    s.set_defaults(func=main_view)
+
     s = sub.add_parser("report", help="tables, figures and an HTML page from run directories")
     s.add_argument("runs", type=Path, nargs="+")
     s.add_argument("--out", type=Path, required=True)

@@ -151,7 +151,7 @@ class Engine:
 
     def undo(self, handle: dict):
         self._scatter(handle)
-        self._active.remove(handle)
+        self._active = [h for h in self._active if h is not handle]
 
     def undo_all(self):
         while self._active:

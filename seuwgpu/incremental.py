@@ -82,7 +82,7 @@ class IncrementalEvaluator:
         self.bg_variants = g.bind(self.p_variants, {
             10: self.rc_params, 11: self.entries, 12: r.kv_ranges, 13: r.kv_isect, 14: r.kv_xy,
             15: r.kv_conic, 16: r.kv_rgb, 17: self.var_xy, 18: self.var_conic, 19: self.var_rgb,
-            20: self.var_rect, 21: self.slabs})
+            20: self.var_rect, 21: self.slabs, 22: self.engine.clean_buf})
         self._bound_version = r.version
 
     # ---- evaluation ------------------------------------------------------------------------------

@@ -144,8 +144,26 @@ struct Recomp {
 @group(0) @binding(19) var<storage, read> var_rgb: array<vec4<f32>>;
 @group(0) @binding(20) var<storage, read> var_rect: array<vec2<u32>>;
 @group(0) @binding(21) var<storage, read_write> slabs: array<vec4<f32>>;
+@group(0) @binding(22) var<storage, read> clean_image: array<vec4<f32>>;  // [K, H, W]
 
 var<workgroup> s_list: vec4<u32>;   // (n virtual, insert position or 0xffffffff, removed position or 0xffffffff, 0)
+
+// Whether a record takes part in a pixel's blend (the same arithmetic and skip rules as
+// blend_batch). A pixel that neither the clean nor the corrupted record reaches composites
+// exactly as the clean frame did, so it is copied instead of re-blended.
+fn contributes(xy: vec2<f32>, co: vec4<f32>, pix: vec2<f32>) -> bool {
+    let d = xy - pix;
+    let sigma = 0.5 * (co.x * d.x * d.x + co.z * d.y * d.y) + co.y * d.x * d.y;
+    if (!is_nan_f32(sigma) && sigma < 0.0) {
+        return false;
+    }
+    let a = co.w * exp_ieee(-sigma);
+    var alpha = a;
+    if (!is_nan_f32(a)) {
+        alpha = min(0.99, a);
+    }
+    return !(!is_nan_f32(alpha) && alpha < 1.0 / 255.0);
+}
 
 // (key, index) ordering of the depth sort: depth bits, ties by primitive index.
 fn before(ka: u32, ia: u32, kb: u32, ib: u32) -> bool {
@@ -189,7 +207,8 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let ty = tile / rc.tiles_x;
     let px = tx * 16u + lid.x;
     let py = ty * 16u + lid.y;
-    var p = begin_pixel(li, px < rc.width && py < rc.height, px, py);
+    let inside = px < rc.width && py < rc.height;
+    var p = begin_pixel(li, inside, px, py);
     let range = kv_ranges[v * rc.n_tiles + tile];
     let vi = v * rc.n_variants + b;
     if (li == 0u) {
@@ -220,6 +239,17 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let nv = list.x;
     let insert = list.y;
     let removed = list.z;
+    var copy_clean = false;
+    if (inside) {
+        let o = v * rc.n_prims + prim;
+        let old_hits = removed != 0xffffffffu && contributes(kv_xy[o], kv_conic[o], p.pix);
+        let new_hits = insert != 0xffffffffu && contributes(var_xy[vi], var_conic[vi], p.pix);
+        if (!old_hits && !new_hits) {
+            copy_clean = true;
+            p.done = true;
+            atomicAdd(&s_done, 1u);
+        }
+    }
     let batches = (nv + 255u) / 256u;
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
         let i = bt * 256u + li;
@@ -245,5 +275,9 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
             break;
         }
     }
-    slabs[e * 256u + li] = vec4<f32>(p.C + p.T * rc.background.xyz, p.T);
+    if (copy_clean) {
+        slabs[e * 256u + li] = clean_image[(v * rc.height + py) * rc.width + px];
+    } else {
+        slabs[e * 256u + li] = vec4<f32>(p.C + p.T * rc.background.xyz, p.T);
+    }
 }

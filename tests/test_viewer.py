@@ -1,0 +1,312 @@
+"""The interactive viewer: its state machine driven headless, its window on an offscreen canvas,
+the command's behaviour without a display, and the real glfw window under Xvfb."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+# guarded frames of a faulted model clamp: the engine's monitor warns, the viewer shows it
+pytestmark = pytest.mark.filterwarnings("ignore::UserWarning:seuwgpu.engine")
+N, SIZE = 3000, (96, 96)
+
+
+@pytest.fixture(scope="module")
+def model():
+    from seuwgpu.scenes import make_scene
+    return make_scene("spheres", n=N)
+
+
+@pytest.fixture
+def state(model, gpu):
+    from seuwgpu.viewer import OrbitCamera, ViewerState
+    return ViewerState(model, "fp32", SIZE, scene="spheres", orbit=OrbitCamera.for_scene("spheres"), sample=16)
+
+
+def stored_words(st):
+    r = st.engine.renderer
+    return [r.read_words(c) for c in range(r.layout.n_chunks)]
+
+
+def flipped_bits(st) -> int:
+    """Bits of the GPU-resident model that differ from the clean stored words."""
+    now = stored_words(st)
+    return int(sum(np.unpackbits((a ^ b).view(np.uint8)).sum() for a, b in zip(now, st.engine.renderer.clean_words)))
+
+
+def odd_sites(sites) -> int:
+    """Bits an XOR of these single-bit sites leaves flipped (a bit hit twice is restored)."""
+    from collections import Counter
+    return sum(1 for c in Counter((s.primitive, s.flat_component(), s.bits) for s in sites).values() if c % 2)
+
+
+def direct_render(model, cam, precision="fp32"):
+    from seuwgpu.render import Renderer
+    return Renderer(model, [cam], precision).render_rgba()[0]
+
+
+# ---- ViewerState, headless ----------------------------------------------------------------------
+def test_clean_frame_is_the_pipeline_render(state, model):
+    rgba, ro = state.frame()
+    assert rgba.shape == (SIZE[1], SIZE[0], 4) and rgba.dtype == np.uint8
+    assert ro["footprint"] == 0.0 and ro["psnr"] == float("inf") and ro["clamps"] == 0
+    assert not ro["alert"] and ro["active_sites"] == 0 and ro["frame_ms"] > 0
+    np.testing.assert_array_equal(state.last_image, direct_render(model, state.camera()))
+    from seuwgpu.metrics import display
+    np.testing.assert_array_equal(rgba[..., :3], (display(state.last_image[..., :3]) * 255 + 0.5).astype(np.uint8))
+
+
+def test_scale_sign_flip_guard_and_undo(state):
+    _, ro0 = state.frame()
+    clean_img, clean_rgba = state.last_image.copy(), state.compose(state.last_image, state.last_image)
+    site = state.inject("log_scales", 31, None, component=2)  # worst primitive of a 16 sample
+    assert (site.field, site.component, site.bits) == ("log_scales", 2, (31,))
+    assert state.engine.corrupted_value(site) == -state.engine.clean_value(site)
+    _, ro = state.frame()
+    open_foot = ro["footprint"]
+    assert open_foot > 0.01, f"a scale sign flip changed only {open_foot:.2%} of the pixels"
+    assert ro["psnr"] < 40 and ro["active_sites"] == 1 and "bit 31 (sign)" in ro["sites"][0]
+    assert not ro["alert"] and ro["clamps"] == 0  # guard off: nothing monitored
+
+    for mode in ("guard", "selective"):
+        state.set_guard(mode)
+        _, ro = state.frame()
+        assert ro["footprint"] < 0.01, f"{mode}: the guarded flip still changes {ro['footprint']:.2%}"
+        assert ro["clamps_per_field"]["log_scales"] >= 1 and ro["alert"]
+        assert "log_scales" in ro["alert_message"] or not hasattr(state.engine, "monitor")
+        assert flipped_bits(state) == 1  # bounded while rendering, not restored in memory
+
+    state.set_guard("off")  # toggling is exact both ways
+    _, ro = state.frame()
+    assert ro["footprint"] == open_foot
+
+    state.undo_all()
+    rgba, ro = state.frame()
+    assert flipped_bits(state) == 0
+    np.testing.assert_array_equal(state.last_image, clean_img)  # bit for bit
+    np.testing.assert_array_equal(rgba, clean_rgba)
+    assert ro["footprint"] == 0.0 and ro["psnr"] == float("inf") and ro["active_sites"] == 0
+
+
+def test_explicit_site_and_random_upsets(state):
+    s = state.inject("opacity", 30, primitive=7, component=0)
+    assert (s.primitive, s.component, s.bits) == (7, 0, (30,))
+    with pytest.raises(ValueError):
+        state.inject("opacity", 32, primitive=7)
+    with pytest.raises(ValueError):
+        state.inject("log_scales", 31, primitive=N)
+    sites = state.inject_random(25)
+    assert len(sites) == 25 and len(state.active_sites) == 26
+    assert flipped_bits(state) == odd_sites(state.active_sites)
+    state.frame()
+    state.undo_all()
+    assert flipped_bits(state) == 0
+
+
+def test_storm_accumulates_and_transient_replaces(state):
+    state.frame()
+    state.storm_start(40, accumulate=True)
+    for step in range(1, 4):
+        state.frame()  # one storm step per frame
+        assert state.readout["storm"]["steps"] == step
+        assert len(state.active_sites) == 40 * step
+        assert flipped_bits(state) == odd_sites(state.active_sites)
+    sites = state.storm_step()
+    assert len(sites) == 40 and len(state.active_sites) == 160
+    state.storm_stop()
+    assert not state.storm_running and len(state.active_sites) == 160  # accumulated faults stay
+    state.undo_all()
+    assert flipped_bits(state) == 0
+
+    state.storm_start(40, accumulate=False)
+    for _ in range(3):
+        state.frame()
+        assert len(state.active_sites) == 40  # each frame's upsets replace the previous ones
+        assert flipped_bits(state) == odd_sites(state.active_sites)
+    state.storm_stop()
+    assert state.active_sites == [] and flipped_bits(state) == 0
+    _, ro = state.frame()
+    assert ro["footprint"] == 0.0
+
+
+def test_precision_switch(state, model):
+    state.frame()
+    fp32 = state.last_image.copy()
+    state.inject("log_scales", 31, primitive=0, component=0)
+    state.set_precision("bf16")
+    assert state.precision == "bf16" and state.engine.precision == "bf16" and state.bits_per_value() == 16
+    assert state.active_sites == []  # faults do not survive a change of format
+    _, ro = state.frame()
+    assert ro["footprint"] == 0.0 and ro["precision"] == "bf16"
+    np.testing.assert_array_equal(state.last_image, direct_render(model, state.camera(), "bf16"))
+    assert not np.array_equal(state.last_image, fp32)  # rounded parameters, a slightly different image
+    with pytest.raises(ValueError):
+        state.inject("log_scales", 31, primitive=0)  # no bit 31 in a 16-bit value
+    state.inject("log_scales", 15, None, component=2)  # bf16 sign bit
+    _, ro = state.frame()
+    assert ro["footprint"] > 0.01
+    state.set_precision("fp16")
+    _, ro = state.frame()
+    assert state.precision == "fp16" and ro["footprint"] == 0.0
+
+
+def test_camera_moves_with_faults_active(state, model):
+    state.frame()
+    cam0 = state.camera()
+    state.inject("log_scales", 31, None, component=2)
+    state.orbit_by(40, -10)
+    state.zoom_by(0.8)
+    state.pan_by(5, 3)
+    state.resize(80, 64)
+    cam = state.camera()
+    assert (cam.width, cam.height) == (80, 64) and not np.allclose(cam.viewmat, cam0.viewmat)
+    rgba, ro = state.frame()
+    assert rgba.shape == (64, 80, 4) and ro["clean_render"]  # faults off, clean render, faults back
+    # the clean reference of the new view is the clean model's render of that view
+    np.testing.assert_array_equal(state.clean_image, direct_render(model, cam))
+    assert flipped_bits(state) == 1  # the fault is back after the clean render
+    assert ro["footprint"] > 0.0
+    _, ro = state.frame()  # same view: the cached clean render serves
+    assert not ro["clean_render"]
+    state.reset_view()
+    state.resize(*SIZE)
+    np.testing.assert_array_equal(state.camera().viewmat, cam0.viewmat)
+
+
+def test_heatmap(state):
+    state.set_heatmap(True)
+    rgba, _ = state.frame()
+    grey = rgba[..., :3]
+    assert (grey[..., 0] == grey[..., 1]).all() and (grey[..., 1] == grey[..., 2]).all()  # no change: dim grey
+    assert grey.max() <= 0.3 * 255 + 1
+    state.inject("log_scales", 31, None, component=2)
+    rgba, ro = state.frame()
+    coloured = (rgba[..., 0] != rgba[..., 2])
+    assert abs(coloured.mean() - ro["footprint"]) < 0.01 and coloured.mean() > 0.01
+    state.toggle_heatmap()
+    rgba2, _ = state.frame()
+    assert not np.array_equal(rgba, rgba2)
+
+
+# ---- the window on an offscreen canvas --------------------------------------------------------
+def test_offscreen_window_panel_and_input(model, gpu):
+    pytest.importorskip("rendercanvas")
+    pytest.importorskip("imgui_bundle")
+    from rendercanvas.offscreen import RenderCanvas
+    from seuwgpu.viewer import OrbitCamera, ViewerState
+    from seuwgpu.viewer_gui import PANEL_WIDTH, ViewerApp
+
+    W, H = PANEL_WIDTH + 120, 200
+    canvas = RenderCanvas(size=(W, H))
+    st = ViewerState(model, "fp32", (120, H), scene="spheres", orbit=OrbitCamera.for_scene("spheres"))
+    app = ViewerApp(st, canvas)
+    img = np.asarray(canvas.draw())
+    assert img.shape == (H, W, 4)
+    # the render is blitted 1:1 into the image area; the panel is drawn beside it
+    np.testing.assert_array_equal(img[:, PANEL_WIDTH:, :3], app.last_rgba[..., :3])
+    panel = img[:, :PANEL_WIDTH, :3]
+    assert panel.std() > 10 and len(np.unique(panel.reshape(-1, 3), axis=0)) > 10
+
+    def send(*events):
+        for ev in events:
+            ev.setdefault("modifiers", ())
+            canvas.submit_event(ev)
+        canvas._process_events()
+
+    az = st.orbit.azimuth_deg
+    x, y = PANEL_WIDTH + 60, 100
+    send({"event_type": "pointer_down", "x": x, "y": y, "button": 1, "buttons": (1,)},
+         {"event_type": "pointer_move", "x": x + 30, "y": y, "button": 0, "buttons": (1,)},
+         {"event_type": "pointer_up", "x": x + 30, "y": y, "button": 1, "buttons": ()})
+    assert st.orbit.azimuth_deg != az and st.dirty
+    send({"event_type": "key_down", "key": "r"})
+    assert st.orbit.azimuth_deg == az
+    send({"event_type": "pointer_down", "x": 20, "y": 100, "button": 1, "buttons": (1,)},  # in the panel
+         {"event_type": "pointer_move", "x": 60, "y": 100, "button": 0, "buttons": (1,)},
+         {"event_type": "pointer_up", "x": 60, "y": 100, "button": 1, "buttons": ()})
+    assert st.orbit.azimuth_deg == az
+    send({"event_type": "key_down", "key": "g"}, {"event_type": "key_down", "key": "m"})
+    assert st.guard == "guard" and st.heatmap
+    app.ui.update(field=1, component=2, bit=31, worst=True)  # log_scales
+    app.inject_from_panel()
+    img = np.asarray(canvas.draw())
+    assert st.readout["active_sites"] == 1 and st.readout["alert"]
+    np.testing.assert_array_equal(img[:, PANEL_WIDTH:, :3], app.last_rgba[..., :3])
+    canvas.set_logical_size(W + 40, H)  # resize: the render follows the window
+    canvas.draw()
+    assert st.size == (160, H) and app.last_rgba.shape == (H, 160, 4)
+    canvas.set_logical_size(W, H)
+    send({"event_type": "key_down", "key": "h"})  # hide the panel: the render fills the window
+    img = np.asarray(canvas.draw())
+    assert st.size == (W, H) and app.last_rgba.shape == (H, W, 4)
+    np.testing.assert_array_equal(img[..., :3], app.last_rgba[..., :3])
+    canvas.close()
+
+
+# ---- the command ----------------------------------------------------------------------------------
+def _env(**kw):
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("DISPLAY", "WAYLAND_DISPLAY", "RENDERCANVAS_BACKEND", "RENDERCANVAS_FORCE_OFFSCREEN")}
+    env.setdefault("XDG_RUNTIME_DIR", "/tmp")
+    env.update(kw)
+    return env
+
+
+def _view_commands():
+    cmds = [[sys.executable, "-m", "seuwgpu.viewer"]]
+    from seuwgpu.cli import build_parser
+    sub = [a for a in build_parser()._actions if a.dest == "command"]
+    if sub and "view" in sub[0].choices:  # once cli.py wires `seuwgpu view`
+        cmds.append([sys.executable, "-m", "seuwgpu.cli", "view"])
+    return cmds
+
+
+def test_view_without_display_says_what_to_do():
+    for cmd in _view_commands():
+        p = subprocess.run(cmd + ["--n", "100"], cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=60)
+        assert p.returncode == 3, (cmd, p.stderr)
+        assert "xvfb-run" in p.stderr and "RENDERCANVAS_BACKEND=offscreen" in p.stderr
+
+
+def test_view_offscreen_command(tmp_path):
+    pytest.importorskip("rendercanvas")
+    pytest.importorskip("imgui_bundle")
+    p = subprocess.run([sys.executable, "-m", "seuwgpu.viewer", "--n", "2000", "--size", "480x200",
+                        "--frames", "1", "--screenshot-dir", str(tmp_path)], cwd=ROOT,
+                       env=_env(RENDERCANVAS_BACKEND="offscreen"), capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    import imageio.v3 as iio
+    pngs = list(tmp_path.glob("*.png"))
+    assert len(pngs) == 1
+    img = iio.imread(pngs[0])
+    assert img.shape[:2] == (200, 480) and img.std() > 10
+
+
+# ---- the real window under Xvfb -------------------------------------------------------------------
+def test_real_window_under_xvfb(tmp_path):
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb is not installed (Debian: apt-get install xvfb); the real-window test needs it")
+    for mod in ("rendercanvas", "glfw", "imgui_bundle"):
+        pytest.importorskip(mod)
+    p = subprocess.run([sys.executable, str(ROOT / "tools" / "viewer_xvfb.py"), "--out", str(tmp_path),
+                        "--n", "3000", "--size", "900x560", "--component", "2"],
+                       cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=240)
+    assert p.returncode == 0, p.stdout + p.stderr
+    import imageio.v3 as iio
+    report = json.loads((tmp_path / "viewer_report.json").read_text())
+    assert all(c["ok"] for c in report["checks"].values()), report["checks"]
+    clean = iio.imread(tmp_path / "viewer_clean.png")
+    sheet = iio.imread(tmp_path / "viewer_sheet.png")
+    assert clean.shape == sheet.shape == (560, 900, 3)
+    for img in (clean, sheet):  # not blank: varied colours, the panel and the model
+        assert img.std() > 10 and len(np.unique(img.reshape(-1, 3), axis=0)) > 100
+    from seuwgpu.viewer_gui import PANEL_WIDTH
+    render_clean, render_sheet = clean[:, PANEL_WIDTH:], sheet[:, PANEL_WIDTH:]
+    assert (render_clean < 250).any(axis=-1).mean() > 0.05  # the model covers part of the white view
+    assert (np.abs(render_sheet.astype(int) - render_clean).max(axis=-1) > 2).mean() > 0.01
