@@ -65,13 +65,20 @@ override RS_TWO_PARTS: bool = false;
 @group(0) @binding(11) var<uniform> rs_pargs: RsPlanArgs;
 @group(0) @binding(12) var<storage, read_write> rs_keys_out4: array<vec4<u32>>;
 @group(0) @binding(13) var<storage, read_write> rs_vals_out4: array<vec4<u32>>;
+// Per-thread first positions within the block (16-bit fields, see rs_widen), written by the
+// upsweep: thread g of the whole array at [RS_OFFS + 2g] (digits 0..7) and [RS_OFFS + 2g + 1]
+// (8..15). [0] is a header (count, blocks) that the plan kernel writes, so that the scatter finds
+// them without a ninth storage binding.
+@group(0) @binding(14) var<storage, read> rs_offs: array<vec4<u32>>;
+@group(0) @binding(15) var<storage, read_write> rs_offs_w: array<vec4<u32>>;
 @group(1) @binding(0) var<uniform> rs_pass: RsPass;
 
-// Per-thread counts, 16-bit fields: [half][thread], half 0 = digits 0..7, half 1 = digits 8..15
-// (x = digits 0,1; y = 2,3; ...). 8 KiB.
+const RS_OFFS: u32 = 16u;   // 256-byte header
+
+// Upsweep scratch: per-thread counts, 16-bit fields: [half][thread] (half 0 = digits 0..7), and
+// [half][16 thread groups] partial sums. 8.5 KiB.
 var<workgroup> rs_cnt: array<vec4<u32>, 512>;
-var<workgroup> rs_part: array<vec4<u32>, 32>;   // [half][16 thread groups]
-var<workgroup> rs_base: array<vec4<u32>, 4>;    // scanned hist of this block, digit d at [d/4][d%4]
+var<workgroup> rs_part: array<vec4<u32>, 32>;
 
 @compute @workgroup_size(1)
 fn rs_plan_main() {
@@ -96,6 +103,7 @@ fn rs_plan_main() {
         rs_plan_w[a + 1u] = d.y;
         rs_plan_w[a + 2u] = d.z;
     }
+    rs_offs_w[0] = vec4<u32>(n, nb, 0u, 0u);
 }
 
 // Number of valid workgroups of this chunk's dispatch (the 2-D grid may have a few extra).
@@ -146,20 +154,9 @@ fn rs_widen(a: u32, b: u32) -> vec4<u32> {
     return vec4<u32>(a & m, (a >> 8u) & m, b & m, (b >> 8u) & m);
 }
 
-// Digits in 16-bit fields are interleaved by rs_widen: component x holds digits 0 and 2, y holds
-// 1 and 3, z 4 and 6, w 5 and 7 (of the half). Field of digit d (0..15) in (lo, hi):
-fn rs_field16(lo: vec4<u32>, hi: vec4<u32>, d: u32) -> u32 {
-    let h = select(lo, hi, d >= 8u);
-    let r = d & 7u;                                   // 0..7 within the half
-    let comp = ((r >> 2u) << 1u) | (r & 1u);          // word r/4 -> x,y or z,w; odd -> y / w
-    return (h[comp] >> (((r >> 1u) & 1u) << 4u)) & 0xffffu;
-}
-
-fn rs_store_counts(t: u32, c: vec4<u32>) {
-    rs_cnt[t] = rs_widen(c.x, c.y);
-    rs_cnt[256u + t] = rs_widen(c.z, c.w);
-}
-
+// Upsweep: digit counts of the block into hist[digit * blocks + block] and each thread's first
+// position per digit within the block into rs_offs (exclusive scan over the threads), so that
+// the scatter needs neither workgroup memory nor barriers (each barrier costs lavapipe ~5 us).
 @compute @workgroup_size(256)
 fn rs_upsweep(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
               @builtin(local_invocation_index) t: u32) {
@@ -169,50 +166,13 @@ fn rs_upsweep(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
     if (wid >= rs_groups(nb)) {
         return;
     }
-    let lbase = wid * RS_BLOCK + t * RS_PER;
-    let gbase = rs_pass.block0 * RS_BLOCK + lbase;
-    rs_store_counts(t, rs_count_run(lbase, gbase, n));
-    workgroupBarrier();
-    if (t < 32u) {
-        // half t / 16, threads 16 (t % 16) .. + 15
-        let b = (t >> 4u) * 256u + (t & 15u) * 16u;
-        var acc = vec4<u32>(0u);
-        for (var k = 0u; k < 16u; k++) {
-            acc += rs_cnt[b + k];
-        }
-        rs_part[t] = acc;
-    }
-    workgroupBarrier();
-    if (t < 16u) {
-        var lo = vec4<u32>(0u);
-        var hi = vec4<u32>(0u);
-        for (var g = 0u; g < 16u; g++) {
-            lo += rs_part[g];
-            hi += rs_part[16u + g];
-        }
-        rs_hist_w[t * nb + rs_pass.block0 + wid] = rs_field16(lo, hi, t);
-    }
-}
-
-@compute @workgroup_size(256)
-fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-              @builtin(local_invocation_index) t: u32) {
-    let wid = linear_wg(wg, nwg);
-    let n = rs_plan[0];
-    let nb = rs_plan[1];
-    if (wid >= rs_groups(nb)) {
-        return;
-    }
     let block = rs_pass.block0 + wid;
     let lbase = wid * RS_BLOCK + t * RS_PER;
-    let gbase = block * RS_BLOCK + t * RS_PER;
-    rs_store_counts(t, rs_count_run(lbase, gbase, n));
-    if (t < 16u) {
-        rs_base[t >> 2u][t & 3u] = rs_hist[t * nb + block];
-    }
+    let c = rs_count_run(lbase, block * RS_BLOCK + t * RS_PER, n);
+    rs_cnt[t] = rs_widen(c.x, c.y);
+    rs_cnt[256u + t] = rs_widen(c.z, c.w);
     workgroupBarrier();
-    // Exclusive scan of the counts over threads: 32 threads scan 16 threads' vec4 each, then two
-    // threads scan the 16 group sums of their half.
+    // 32 threads scan 16 threads' counts each (half t / 16, threads 16 (t % 16) .. + 15) ...
     if (t < 32u) {
         let b = (t >> 4u) * 256u + (t & 15u) * 16u;
         var acc = vec4<u32>(0u);
@@ -224,6 +184,7 @@ fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
         rs_part[t] = acc;
     }
     workgroupBarrier();
+    // ... then two threads scan the 16 group sums of their half and store the block's counts.
     if (t < 2u) {
         var acc = vec4<u32>(0u);
         for (var g = 0u; g < 16u; g++) {
@@ -231,18 +192,53 @@ fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
             rs_part[t * 16u + g] = acc;
             acc += x;
         }
+        let d0 = 8u * t;
+        let m = 0xffffu;
+        rs_hist_w[d0 * nb + block] = acc.x & m;
+        rs_hist_w[(d0 + 1u) * nb + block] = acc.y & m;
+        rs_hist_w[(d0 + 2u) * nb + block] = acc.x >> 16u;
+        rs_hist_w[(d0 + 3u) * nb + block] = acc.y >> 16u;
+        rs_hist_w[(d0 + 4u) * nb + block] = acc.z & m;
+        rs_hist_w[(d0 + 5u) * nb + block] = acc.w & m;
+        rs_hist_w[(d0 + 6u) * nb + block] = acc.z >> 16u;
+        rs_hist_w[(d0 + 7u) * nb + block] = acc.w >> 16u;
     }
     workgroupBarrier();
-    // Output position of this thread's first element of each digit: f0..f3 (digit d at [d/4][d%4]).
-    let lo = rs_cnt[t] + rs_part[t >> 4u];
-    let hi = rs_cnt[256u + t] + rs_part[16u + (t >> 4u)];
+    let o = RS_OFFS + 2u * (block * 256u + t);
+    rs_offs_w[o] = rs_cnt[t] + rs_part[t >> 4u];
+    rs_offs_w[o + 1u] = rs_cnt[256u + t] + rs_part[16u + (t >> 4u)];
+}
+
+// Scatter: each thread walks its run in order and writes every pair to its digit's scanned
+// block base + the thread's first position in the block (upsweep) + its rank among equal digits
+// so far in the run (8-bit counters in registers). No workgroup memory, no barrier.
+@compute @workgroup_size(256)
+fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+              @builtin(local_invocation_index) t: u32) {
+    let wid = linear_wg(wg, nwg);
+    let hdr = rs_offs[0];
+    let n = hdr.x;
+    let nb = hdr.y;
+    if (wid >= rs_groups(nb)) {
+        return;
+    }
+    let block = rs_pass.block0 + wid;
+    let lbase = wid * RS_BLOCK + t * RS_PER;
+    let gbase = block * RS_BLOCK + t * RS_PER;
+    let o = RS_OFFS + 2u * (block * 256u + t);
+    let lo = rs_offs[o];
+    let hi = rs_offs[o + 1u];
+    // Output position of this thread's first element of each digit: f0..f3 (digit d at [d/4][d%4]);
+    // lo.x = digits 0 | 2 << 16, lo.y = 1 | 3 << 16, lo.z = 4 | 6 << 16, lo.w = 5 | 7 << 16.
     let m = 0xffffu;
-    // lo.x = digits 0 | 2 << 16, lo.y = 1 | 3 << 16, lo.z = 4 | 6 << 16, lo.w = 5 | 7 << 16
-    let f0 = rs_base[0] + vec4<u32>(lo.x & m, lo.y & m, lo.x >> 16u, lo.y >> 16u);
-    let f1 = rs_base[1] + vec4<u32>(lo.z & m, lo.w & m, lo.z >> 16u, lo.w >> 16u);
-    let f2 = rs_base[2] + vec4<u32>(hi.x & m, hi.y & m, hi.x >> 16u, hi.y >> 16u);
-    let f3 = rs_base[3] + vec4<u32>(hi.z & m, hi.w & m, hi.z >> 16u, hi.w >> 16u);
-    // Walk the run in order; the rank among equal digits so far is counted in registers.
+    let f0 = vec4<u32>(rs_hist[block], rs_hist[nb + block], rs_hist[2u * nb + block], rs_hist[3u * nb + block])
+           + vec4<u32>(lo.x & m, lo.y & m, lo.x >> 16u, lo.y >> 16u);
+    let f1 = vec4<u32>(rs_hist[4u * nb + block], rs_hist[5u * nb + block], rs_hist[6u * nb + block], rs_hist[7u * nb + block])
+           + vec4<u32>(lo.z & m, lo.w & m, lo.z >> 16u, lo.w >> 16u);
+    let f2 = vec4<u32>(rs_hist[8u * nb + block], rs_hist[9u * nb + block], rs_hist[10u * nb + block], rs_hist[11u * nb + block])
+           + vec4<u32>(hi.x & m, hi.y & m, hi.x >> 16u, hi.y >> 16u);
+    let f3 = vec4<u32>(rs_hist[12u * nb + block], rs_hist[13u * nb + block], rs_hist[14u * nb + block], rs_hist[15u * nb + block])
+           + vec4<u32>(hi.z & m, hi.w & m, hi.z >> 16u, hi.w >> 16u);
     var seen = vec4<u32>(0u);
     for (var j = 0u; j < RS_PER / 4u; j++) {
         if (gbase + 4u * j < n) {
@@ -269,7 +265,7 @@ fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
 // Copies count pairs from the inputs to rs_*_out4 (both bound at the chunk's offset), vec4 at a
 // time (a partial last vec4 is copied whole: the destination is internal). An odd number of
 // passes starts from the internal buffers so that the result ends in the caller's. Each thread
-// copies its own contiguous run (measured faster on lavapipe than a strided layout).
+// copies short contiguous runs (measured faster on lavapipe than strided or long runs).
 @compute @workgroup_size(256)
 fn rs_copy(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
            @builtin(local_invocation_index) t: u32) {
@@ -278,13 +274,17 @@ fn rs_copy(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: v
     if (wid >= rs_groups(rs_plan[1])) {
         return;
     }
-    let q = RS_PER / 4u;
-    let l0 = wid * (RS_BLOCK / 4u) + t * q;
-    let g0 = rs_pass.block0 * (RS_BLOCK / 4u) + l0;
-    for (var k = 0u; k < q; k++) {
-        if (4u * (g0 + k) < n) {
-            rs_keys_out4[l0 + k] = rs_keys_in[l0 + k];
-            rs_vals_out4[l0 + k] = rs_vals_in[l0 + k];
+    // Sub-blocks of 1024 vec4, four consecutive vec4 per thread.
+    let nv = RS_BLOCK / 4u;
+    let wbase = wid * nv;
+    let gbase = rs_pass.block0 * nv + wbase;
+    for (var s = 0u; s < (nv + 1023u) / 1024u; s++) {
+        for (var k = 0u; k < 4u; k++) {
+            let i = s * 1024u + t * 4u + k;
+            if (i < nv && 4u * (gbase + i) < n) {
+                rs_keys_out4[wbase + i] = rs_keys_in[wbase + i];
+                rs_vals_out4[wbase + i] = rs_vals_in[wbase + i];
+            }
         }
     }
 }

@@ -11,10 +11,13 @@
 // than one storage binding are processed in chunks: every block kernel is dispatched once per
 // chunk, with its arrays bound at the chunk's offset and the chunk's first block in `ps_pass`.
 //
+// Data is read and written as vec4 (lavapipe performs each memory access lane by lane, so their
+// number is what costs): buffer sizes must be multiples of 16 bytes (GPU.buffer rounds them up).
+// A vec4 straddling the count is written back with its elements past the count unchanged.
 // Workgroup memory is written before it is read (lavapipe does not zero it).
 
-// Elements per thread (sort.py: 64 on CPU adapters, where each workgroup barrier costs several
-// microseconds, 16 on GPUs, for occupancy).
+// Elements per thread, a multiple of 4 (sort.py: 64 on CPU adapters, where each workgroup barrier
+// costs several microseconds, 16 on GPUs, for occupancy).
 override PS_PER: u32 = 16u;
 override PS_BLOCK: u32 = 256u * PS_PER;
 // Workgroups per dispatch row; larger grids are 2-D (overridable so that tests reach that path).
@@ -37,8 +40,8 @@ struct PsPlanArgs {
     chunk: u32,     // elements per chunk (a multiple of PS_BLOCK)
 };
 
-@group(0) @binding(0) var<storage, read> ps_src: array<u32>;
-@group(0) @binding(1) var<storage, read_write> ps_dst: array<u32>;
+@group(0) @binding(0) var<storage, read> ps_src: array<vec4<u32>>;
+@group(0) @binding(1) var<storage, read_write> ps_dst: array<vec4<u32>>;
 @group(0) @binding(2) var<storage, read> ps_offs: array<u32>;       // scanned block sums, level + 1
 @group(0) @binding(3) var<storage, read_write> ps_sums: array<u32>; // block sums out, level + 1
 @group(0) @binding(4) var<storage, read> ps_plan: array<u32>;
@@ -122,11 +125,21 @@ fn ps_wg_scan(t: u32, v: u32) -> vec2<u32> {
 
 // Runs are read twice (sum, then scan-and-store) rather than kept in a private array: the run
 // length is a pipeline constant, and in place each element is read before it is overwritten.
+
+// v (elements g .. g + 3) with the elements at or past n zeroed.
+fn ps_masked(v: vec4<u32>, g: u32, n: u32) -> vec4<u32> {
+    return select(vec4<u32>(0u), v, vec4<u32>(g) + vec4<u32>(0u, 1u, 2u, 3u) < vec4<u32>(n));
+}
+
+fn ps_hsum(v: vec4<u32>) -> u32 {
+    return v.x + v.y + v.z + v.w;
+}
+
 fn ps_sum_src(lbase: u32, gbase: u32, n: u32) -> u32 {
     var s = 0u;
-    for (var k = 0u; k < PS_PER; k++) {
-        if (gbase + k < n) {
-            s += ps_src[lbase + k];
+    for (var j = 0u; j < PS_PER / 4u; j++) {
+        if (gbase + 4u * j < n) {
+            s += ps_hsum(ps_masked(ps_src[(lbase >> 2u) + j], gbase + 4u * j, n));
         }
     }
     return s;
@@ -134,32 +147,43 @@ fn ps_sum_src(lbase: u32, gbase: u32, n: u32) -> u32 {
 
 fn ps_sum_dst(lbase: u32, gbase: u32, n: u32) -> u32 {
     var s = 0u;
-    for (var k = 0u; k < PS_PER; k++) {
-        if (gbase + k < n) {
-            s += ps_dst[lbase + k];
+    for (var j = 0u; j < PS_PER / 4u; j++) {
+        if (gbase + 4u * j < n) {
+            s += ps_hsum(ps_masked(ps_dst[(lbase >> 2u) + j], gbase + 4u * j, n));
         }
     }
     return s;
 }
 
+// Writes the exclusive scan of v (offset acc) to ps_dst[i]; returns acc + sum(v).
+fn ps_put(i: u32, g: u32, n: u32, v: vec4<u32>, acc: u32) -> u32 {
+    let out = vec4<u32>(acc, acc + v.x, acc + v.x + v.y, acc + v.x + v.y + v.z);
+    if (g + 4u <= n) {
+        ps_dst[i] = out;
+    } else {
+        ps_dst[i] = select(ps_dst[i], out, vec4<u32>(g) + vec4<u32>(0u, 1u, 2u, 3u) < vec4<u32>(n));
+    }
+    return out.w + v.w;
+}
+
 fn ps_store_from_src(lbase: u32, gbase: u32, n: u32, offset: u32) {
     var acc = offset;
-    for (var k = 0u; k < PS_PER; k++) {
-        if (gbase + k < n) {
-            let x = ps_src[lbase + k];
-            ps_dst[lbase + k] = acc;
-            acc += x;
+    for (var j = 0u; j < PS_PER / 4u; j++) {
+        let g = gbase + 4u * j;
+        if (g < n) {
+            let i = (lbase >> 2u) + j;
+            acc = ps_put(i, g, n, ps_masked(ps_src[i], g, n), acc);
         }
     }
 }
 
 fn ps_store_from_dst(lbase: u32, gbase: u32, n: u32, offset: u32) {
     var acc = offset;
-    for (var k = 0u; k < PS_PER; k++) {
-        if (gbase + k < n) {
-            let x = ps_dst[lbase + k];
-            ps_dst[lbase + k] = acc;
-            acc += x;
+    for (var j = 0u; j < PS_PER / 4u; j++) {
+        let g = gbase + 4u * j;
+        if (g < n) {
+            let i = (lbase >> 2u) + j;
+            acc = ps_put(i, g, n, ps_masked(ps_dst[i], g, n), acc);
         }
     }
 }
