@@ -87,41 +87,41 @@ fn activate_colour(v: f32) -> f32 {
     return max(v, 0.0);
 }
 
+// SH coefficient k (1..15) of primitive j as rgb.
+fn shc(j: u32, k: u32) -> vec3<f32> {
+    let base = 11u + 3u * k;
+    return vec3<f32>(comp(j, base), comp(j, base + 1u), comp(j, base + 2u));
+}
+
+// INRIA/gsplat SH evaluation, accumulated in coefficient order (written out: private arrays with
+// dynamic indices are slow on CPU Vulkan).
 fn sh_colour(j: u32, dir: vec3<f32>) -> vec3<f32> {
-    var c = SH_C0 * vec3<f32>(comp(j, 11u), comp(j, 12u), comp(j, 13u));
+    var c = SH_C0 * shc(j, 0u);
     let deg = view.sh_degree;
     if (deg > 0u) {
         let x = dir.x;
         let y = dir.y;
         let z = dir.z;
-        var b: array<f32, 15>;
-        b[0] = -SH_C1 * y;
-        b[1] = SH_C1 * z;
-        b[2] = -SH_C1 * x;
-        var nb = 3u;
+        c = c + (-SH_C1 * y) * shc(j, 1u);
+        c = c + (SH_C1 * z) * shc(j, 2u);
+        c = c + (-SH_C1 * x) * shc(j, 3u);
         if (deg > 1u) {
             let xx = x * x; let yy = y * y; let zz = z * z;
             let xy = x * y; let yz = y * z; let xz = x * z;
-            b[3] = 1.0925484305920792 * xy;
-            b[4] = -1.0925484305920792 * yz;
-            b[5] = 0.31539156525252005 * (2.0 * zz - xx - yy);
-            b[6] = -1.0925484305920792 * xz;
-            b[7] = 0.5462742152960396 * (xx - yy);
-            nb = 8u;
+            c = c + (1.0925484305920792 * xy) * shc(j, 4u);
+            c = c + (-1.0925484305920792 * yz) * shc(j, 5u);
+            c = c + (0.31539156525252005 * (2.0 * zz - xx - yy)) * shc(j, 6u);
+            c = c + (-1.0925484305920792 * xz) * shc(j, 7u);
+            c = c + (0.5462742152960396 * (xx - yy)) * shc(j, 8u);
             if (deg > 2u) {
-                b[8] = -0.5900435899266435 * y * (3.0 * xx - yy);
-                b[9] = 2.890611442640554 * xy * z;
-                b[10] = -0.4570457994644658 * y * (4.0 * zz - xx - yy);
-                b[11] = 0.3731763325901154 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy);
-                b[12] = -0.4570457994644658 * x * (4.0 * zz - xx - yy);
-                b[13] = 1.445305721320277 * z * (xx - yy);
-                b[14] = -0.5900435899266435 * x * (xx - 3.0 * yy);
-                nb = 15u;
+                c = c + (-0.5900435899266435 * y * (3.0 * xx - yy)) * shc(j, 9u);
+                c = c + (2.890611442640554 * xy * z) * shc(j, 10u);
+                c = c + (-0.4570457994644658 * y * (4.0 * zz - xx - yy)) * shc(j, 11u);
+                c = c + (0.3731763325901154 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)) * shc(j, 12u);
+                c = c + (-0.4570457994644658 * x * (4.0 * zz - xx - yy)) * shc(j, 13u);
+                c = c + (1.445305721320277 * z * (xx - yy)) * shc(j, 14u);
+                c = c + (-0.5900435899266435 * x * (xx - 3.0 * yy)) * shc(j, 15u);
             }
-        }
-        for (var k = 0u; k < nb; k = k + 1u) {
-            let base = 14u + 3u * k;
-            c = c + b[k] * vec3<f32>(comp(j, base), comp(j, base + 1u), comp(j, base + 2u));
         }
     }
     c = c + vec3<f32>(0.5);

@@ -1,0 +1,82 @@
+"""Cost of the support guard per frame, as a ratio to one rendered view, measured in one run.
+
+    python tools/bench_guard.py [--n 100000 1000000] [--size 256x256] [--repeats 5] [--json out.json]
+
+Two modes: the scrub (one pass over the stored model that clamps and rewrites it; run once per
+frame or per scrub period) and the in-pipeline clamp (extra work inside the projection of every
+view). Reported: median seconds of one rendered view (K = 1), of one scrub, of one guarded view,
+and the ratios scrub / view and (guarded view - view) / view.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from seuwgpu.faults import GUARDED_FIELDS  # noqa: E402
+from seuwgpu.guard import component_mask, scrub, support_box  # noqa: E402
+from seuwgpu.render import Renderer  # noqa: E402
+from seuwgpu.scenes import make_scene, scene_cameras  # noqa: E402
+
+
+def median_time(fn, repeats):
+    fn()
+    ts = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return float(np.median(ts))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", default="spheres")
+    ap.add_argument("--n", type=int, nargs="+", default=[100_000, 1_000_000])
+    ap.add_argument("--size", default="256x256")
+    ap.add_argument("--precision", default="fp32")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--json", type=Path)
+    args = ap.parse_args(argv)
+    w, h = (int(v) for v in args.size.split("x"))
+    rows = []
+    for n in args.n:
+        model = make_scene(args.scene, n=n)
+        r = Renderer(model, scene_cameras(args.scene, 1, w, h), args.precision)
+        box = support_box(r.layout.decode(r.clean_words), args.precision)
+        fields = GUARDED_FIELDS["guard"]
+        t_view = median_time(lambda: r._run(), args.repeats)
+        t_scrub = median_time(lambda: scrub(r, box, fields), args.repeats)
+        r.set_guard(box.rows(), component_mask(fields, r.degree))
+        t_guarded = median_time(lambda: r._run(), args.repeats)
+        r.set_guard(None, 0)
+        rows.append({"n": n, "size": args.size, "view_s": t_view, "scrub_s": t_scrub, "guarded_view_s": t_guarded,
+                     "scrub_over_view": t_scrub / t_view, "in_pipeline_overhead": (t_guarded - t_view) / t_view})
+        del r
+    from rich.console import Console
+    from rich.table import Table
+    from seuwgpu.gpu.device import get_gpu
+    info = get_gpu().info
+    tab = Table(title=f"support guard cost, {args.scene} {args.size} {args.precision} on {info.get('device')} "
+                      f"({info.get('backend_type')})")
+    for c in ("primitives", "view ms", "scrub ms", "scrub / view", "guarded view ms", "in-pipeline overhead"):
+        tab.add_column(c, justify="right")
+    for row in rows:
+        tab.add_row(f"{row['n']:,}", f"{1e3 * row['view_s']:.1f}", f"{1e3 * row['scrub_s']:.1f}",
+                    f"{row['scrub_over_view']:.3f}", f"{1e3 * row['guarded_view_s']:.1f}",
+                    f"{100 * row['in_pipeline_overhead']:+.1f}%")
+    Console().print(tab)
+    if args.json:
+        args.json.write_text(json.dumps({"adapter": info.get("device"), "rows": rows}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
