@@ -1,31 +1,35 @@
 // Stable LSD radix sort of (u32 key, u32 value) pairs, 4 bits per pass (seuwgpu/gpu/sort.py).
 //
-// Per pass: `rs_upsweep` counts the digits of each block of 256 threads x RS_PER contiguous
-// elements into hist[digit * blocks + block]; PrefixSum scans that digit-major array,
-// so hist[d * blocks + b] becomes the output position of block b's first element with digit d;
-// `rs_scatter` recounts its block, scans the per-thread digit counts over the workgroup and writes
-// each thread's run in order. Threads own contiguous runs, so equal keys keep their input order
-// (stable) and no inter-workgroup communication is needed (no forward-progress assumption).
+// A block is 256 threads x RS_PER elements; each thread owns RS_PER contiguous elements. Per pass:
+// `rs_upsweep` counts each thread's digits, scans them over the workgroup and stores the block's
+// digit counts in hist[digit * blocks + block] and each thread's first position per digit inside
+// the block in rs_offs; PrefixSum scans the digit-major hist, so hist[d * blocks + b] becomes the
+// output position of block b's first element with digit d; `rs_scatter` walks each thread's run
+// in order and writes every pair to hist + thread offset + its rank among equal digits so far.
+// Threads own contiguous runs, so equal keys keep their input order (stable), and no workgroup
+// waits for another (no forward-progress assumption).
 //
-// Cost model (lavapipe, and fine on GPUs): lavapipe runs 8 invocations per SIMD op but performs
-// every memory access with a non-uniform address lane by lane, masked-off lanes included, so the
-// kernels count memory instructions: keys and values are read as vec4, per-thread digit counts
-// live in registers (8-bit fields, four digits per u32; a run has at most RS_PER of a digit) and are
-// exchanged as vec4 of 16-bit fields (a block has at most 256 RS_PER of a digit: no carry
-// between fields), and the per-digit output positions are selected from registers, not workgroup memory.
+// Cost model (lavapipe; harmless on GPUs): lavapipe runs 8 invocations per SIMD instruction but
+// performs each memory access with a non-uniform address lane by lane, and a workgroup barrier
+// costs it ~5 us. So keys and values are read as vec4, per-thread digit counts live in registers
+// (8-bit fields, four digits per u32: a run has at most RS_PER <= 252 of a digit) and are
+// exchanged as vec4 of 16-bit fields (a block has at most 256 RS_PER < 65536 of a digit: no
+// carry between fields), output positions are selected from registers, and the scatter has no
+// barrier and no workgroup memory.
 //
 // Arrays larger than one storage binding: inputs are read chunk by chunk (one dispatch per chunk,
 // bound at the chunk's offset), outputs are bound as two halves split at `rs_pass.split`; the
 // pipeline constant RS_TWO_PARTS compiles the second half in only where it is needed.
 // Workgroup memory is written before it is read (lavapipe does not zero it).
 
-// Elements per thread, a multiple of 4 below 256 (8-bit per-thread counters; a block's digit
-// count must fit 16 bits). sort.py: 64 on CPU adapters, where each workgroup barrier costs several
-// microseconds, 16 on GPUs, for occupancy.
+// Elements per thread, a multiple of 4 in [4, 252]. sort.py: 64 on CPU adapters (fewer
+// workgroups, so fewer barriers), 16 on GPUs (enough workgroups to fill the device).
 override RS_PER: u32 = 16u;
 override RS_BLOCK: u32 = 256u * RS_PER;
 // Workgroups per dispatch row; larger grids are 2-D (overridable so that tests reach that path).
 override RS_MAX_X: u32 = 32768u;
+// Outputs span two bindings (sort.py sets it only then: the branch costs lavapipe per element).
+override RS_TWO_PARTS: bool = false;
 // Plan buffer layout (u32 words): [0] count, [1] blocks, [2] 16 * blocks (the scan's count),
 // [4 + 3c ..) indirect args of chunk c.
 const RS_ARGS: u32 = 4u;
@@ -47,8 +51,6 @@ struct RsPlanArgs {
     chunk: u32,  // elements per chunk (a multiple of RS_BLOCK)
     nch: u32,    // chunks
 };
-
-override RS_TWO_PARTS: bool = false;
 
 // Inputs are read as vec4; buffer sizes are multiples of 16 bytes.
 @group(0) @binding(0) var<storage, read> rs_keys_in: array<vec4<u32>>;
@@ -148,7 +150,8 @@ fn rs_count_run(lbase: u32, gbase: u32, n: u32) -> vec4<u32> {
     return c;
 }
 
-// 8-bit fields of two counter words -> 16-bit fields, two digits per component.
+// 8-bit fields of two counter words (digits 0..7 of a half) -> 16-bit fields, two digits per
+// component: x = digits 0 | 2 << 16, y = 1 | 3 << 16, z = 4 | 6 << 16, w = 5 | 7 << 16.
 fn rs_widen(a: u32, b: u32) -> vec4<u32> {
     let m = 0x00ff00ffu;
     return vec4<u32>(a & m, (a >> 8u) & m, b & m, (b >> 8u) & m);

@@ -205,3 +205,8 @@ def test_bad_arguments(gpu):
         RadixSort(gpu, 3 * 16384, max_binding=65536)   # needs three bindings
     with pytest.raises(ValueError):
         RadixSort(gpu, 100, per=6)
+    odd = gpu.device.create_buffer(size=404, usage=kb.usage)   # vec4 access needs 16-byte multiples
+    with pytest.raises(ValueError):
+        rs.encode(enc, odd, vb, 10)
+    with pytest.raises(ValueError):
+        PrefixSum(gpu, 100).encode(enc, odd, vb, 10)
