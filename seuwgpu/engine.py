@@ -80,7 +80,10 @@ class Engine:
         """Clean stored bit patterns (uint32 or uint16) at (primitive, flat component) pairs."""
         chunk, word, shift = self.layout.locate(primitive, flat_component)
         chunk, word, shift = np.atleast_1d(chunk), np.atleast_1d(word), np.atleast_1d(shift)
-        w = np.array([self.renderer.clean_words[c][i] for c, i in zip(chunk, word)], dtype=np.uint64)
+        w = np.empty(word.shape, dtype=np.uint64)
+        for c in np.unique(chunk):
+            sel = chunk == c
+            w[sel] = self.renderer.clean_words[int(c)][word[sel]]
         vals = (w >> shift.astype(np.uint64)) & np.uint64(0xFFFFFFFF if not self.layout.halves else 0xFFFF)
         return vals.astype(np.uint32 if not self.layout.halves else np.uint16)
 
@@ -233,7 +236,12 @@ class Engine:
     def evaluator(self):
         if self._evaluator is None:
             from .incremental import IncrementalEvaluator
-            self._evaluator = IncrementalEvaluator(self)
+            # a CPU adapter gains nothing from huge batches; a GPU needs them to stay busy
+            if self.gpu.is_cpu:
+                self._evaluator = IncrementalEvaluator(self, max_variants=256, max_entries=8192)
+            else:
+                entries = int(min(65536, self.gpu.max_binding // (256 * 16)))
+                self._evaluator = IncrementalEvaluator(self, max_variants=2048, max_entries=entries)
         return self._evaluator
 
     def primitive_bits(self, prims) -> np.ndarray:
