@@ -1,0 +1,60 @@
+"""Smoke test of tools/bench.py: its core function on a tiny scene yields the JSON fields, positive.
+No speed assertions (timings depend on the machine and its load)."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "tools" / "bench.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("seuwgpu_bench", BENCH)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_bench_config_fields(bench, gpu):
+    from seuwgpu import scenes
+    model = scenes.make_scene("spheres", 2000, 3, 0)
+    twin = bench.measure_twin("spheres", model, 32)
+    rec = bench.bench_config(model, "spheres", 32, 2, repeats=2, gpu=gpu, twin=twin)
+    json.dumps(rec)  # JSON-serialisable (the twin image is not in the record)
+    assert rec["n"] == 2000 and rec["width"] == rec["height"] == 32 and rec["k"] == 2
+    assert 1 <= rec["repeats"] <= 2 and len(rec["times_s"]) == rec["repeats"]
+    for key in ("mpix_per_s", "ms_per_view", "seconds_per_submission", "warmup_s", "twin_ratio"):
+        assert rec[key] > 0, key
+    assert rec["twin"]["seconds_per_view"] > 0 and rec["twin"]["n"] == 2000
+    assert rec["psnr_view0_vs_twin_db"] > 50  # the timed renderer draws the right image
+    assert len(rec["intersections_per_view"]) == 2 and min(rec["intersections_per_view"]) > 0
+    if "timestamp-query" in gpu.features:
+        st = rec["stages_ms"]
+        for s in bench.STAGES:
+            assert st[s] >= 0, s
+        assert st["project"] > 0 and st["composite"] > 0
+        assert rec["untimed_passes"] == 0 and rec["timed_passes"] > 0
+    else:
+        assert rec["stages_ms"] is None and "timestamp-query" in rec["stage_source"]
+
+
+def test_twin_above_max_n_gives_no_ratio(bench, gpu):
+    from seuwgpu import scenes
+    model = scenes.make_scene("plant", 3000, 1, 0)
+    twin = bench.measure_twin("plant", model, 32, max_n=1000)
+    assert twin["n"] == 1000 and "N=1000" in twin["what"]
+    rec = bench.bench_config(model, "plant", 32, 1, repeats=1, gpu=gpu, twin=twin, stages=False)
+    assert rec["twin_ratio"] is None and rec["stages_ms"] is None and rec["mpix_per_s"] > 0
+
+
+def test_main_writes_json_and_table(bench, gpu, tmp_path, capsys):
+    out = tmp_path / "b.json"
+    assert bench.main(["--scenes", "spheres", "--n", "2000", "--sizes", "32", "--views", "1",
+                       "--repeats", "1", "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["adapter"]["backend"] and doc["adapter"]["device"]
+    assert len(doc["results"]) == 1 and doc["results"][0]["mpix_per_s"] > 0 and doc["total_wall_s"] > 0
+    assert "Mpix/s" in capsys.readouterr().out

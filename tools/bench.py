@@ -1,0 +1,393 @@
+"""Rendering benchmark: Mpix/s, ms per view, per-stage GPU times, and the speed ratio to the numpy twin.
+
+    python tools/bench.py                      # the default grid (see below), writes bench.json
+    python tools/bench.py --quick              # a tiny grid (seconds), for a smoke check
+    python tools/bench.py --scenes spheres --n 100000 --sizes 256 --views 1 8 --repeats 5 --out b.json
+
+For each (scene, N, size, K) the embedded scene is rendered from K orbit views in ONE submission
+(the Renderer's unit of work). What is measured, per configuration:
+
+- wall time of a submission: time.perf_counter() around encode + submit + the Renderer's tiny
+  readback of its per-view intersection totals (which waits for the GPU), i.e. `Renderer._run()`.
+  The image itself is not read back. The first submission is a warm-up and is discarded; the
+  reported time is the median of R timed submissions (fewer than --repeats when one submission
+  is slower than the --budget allows; the JSON and the table give R). Python-side encoding is
+  part of the time (command buffers cannot be replayed in WebGPU); `encode_ms` reports it apart.
+- Mpix/s = K * W * H / median seconds per submission; ms/view = median / K.
+- per-stage GPU times, from timestamp queries when the device has "timestamp-query": one more,
+  separate, instrumented submission (so the timestamps cannot slow the timed ones), each compute
+  pass getting begin/end timestamps, passes summed per stage over the K views. "gaps" is the time
+  between passes (barriers, buffer copies) inside the instrumented submission. Without the
+  feature only the whole submission's wall time is reported (and the output says so).
+- the numpy twin (`seuwgpu.reference.render`) in the same run, on view 0 of the same camera set
+  (orbit view 0 is the same camera for every K), at the same N and size, unless N exceeds
+  --twin-max-n: then it is measured at --twin-max-n primitives of the same scene and NO ratio is
+  given (the output names the N it measured). ratio = twin s/view / GPU s/view, both at the same
+  scene, N and size; the twin renders views one by one, so its per-view time does not depend on K.
+  The GPU's view 0 is read back once, untimed, and compared with the twin (PSNR) as a sanity check.
+
+Default grid (the issue's required one): scene spheres, N = 100k and 1M, 256x256 and 512x512,
+K = 1 and 8 (`--scenes all` for every embedded scene). On lavapipe (2 CPU cores) it takes several
+minutes, most of it 1M-primitive submissions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import wgpu  # noqa: E402
+
+from seuwgpu import reference, scenes  # noqa: E402
+from seuwgpu.gpu.device import GPU, get_gpu  # noqa: E402
+from seuwgpu.render import Renderer  # noqa: E402
+
+STAGES = ("project", "depth sort", "count+scan", "emit", "tile sort", "ranges", "composite")
+
+# Stage of a compute pass, from its label or the label of the first pipeline it sets
+# (device.pipeline labels pipelines "<shader>:<entry>"; the sorters label their passes).
+_STAGE_OF = {"project": "project", "tiles": "count+scan", "prefix_sum": "count+scan",
+             "emit": "emit", "ranges": "ranges", "composite": "composite"}
+
+
+# ---- timestamp instrumentation ---------------------------------------------------------------------
+class _TimedPass:
+    """Forwards to a real compute pass; remembers the label of the first pipeline set on it."""
+
+    def __init__(self, cpass, record: dict):
+        self._p, self._rec = cpass, record
+
+    def set_pipeline(self, pipeline):
+        if self._rec["label"] is None:
+            self._rec["label"] = pipeline.label
+        self._p.set_pipeline(pipeline)
+
+    def __getattr__(self, name):
+        return getattr(self._p, name)
+
+
+class _TimedEncoder:
+    """Forwards to a real command encoder, giving every compute pass begin/end timestamp writes
+    (WebGPU's portable way: `timestamp_writes` on begin_compute_pass; writes inside an encoder or a
+    pass are native-only features). Passes past the query set's size are left untimed and counted."""
+
+    def __init__(self, encoder, query_set, capacity: int):
+        self._e, self._qs, self._cap = encoder, query_set, capacity
+        self.records: list[dict] = []
+        self.untimed = 0
+
+    def begin_compute_pass(self, *, label=None, **kw):
+        rec = {"label": label}
+        i = 2 * len(self.records)
+        if i + 2 <= self._cap:
+            kw["timestamp_writes"] = {"query_set": self._qs, "beginning_of_pass_write_index": i,
+                                      "end_of_pass_write_index": i + 1}
+            self.records.append(rec)
+        else:
+            self.untimed += 1
+        cpass = self._e.begin_compute_pass(label=label, **kw) if label else self._e.begin_compute_pass(**kw)
+        return _TimedPass(cpass, rec)
+
+    def __getattr__(self, name):
+        return getattr(self._e, name)
+
+
+def timestamp_period_ns(gpu: GPU) -> float:
+    """Nanoseconds per timestamp tick (wgpu-native's wgpuQueueGetTimestampPeriod; 1.0 if absent)."""
+    try:
+        from wgpu.backends.wgpu_native._api import libf
+        return float(libf.wgpuQueueGetTimestampPeriod(gpu.queue._internal))
+    except Exception:  # noqa: BLE001 - another backend: WebGPU specifies nanoseconds
+        return 1.0
+
+
+class StageTimedRenderer(Renderer):
+    """A Renderer whose next submission(s) carry timestamp queries around every compute pass.
+    Only `encode` is wrapped; what the Renderer records is unchanged."""
+
+    def __init__(self, *args, **kw):
+        super().__init__(*args, **kw)
+        self.timed = False
+        self._ts = None
+
+    def _ensure_queries(self):
+        want = min(4096, 2 * self.k * (self.layout.n_chunks + 16))  # ~9 passes per view today
+        if self._ts is None or self._ts[1] < want:
+            qs = self.gpu.device.create_query_set(type=wgpu.QueryType.timestamp, count=want)
+            buf = self.gpu.device.create_buffer(
+                size=8 * want, usage=wgpu.BufferUsage.QUERY_RESOLVE | wgpu.BufferUsage.COPY_SRC)
+            self._ts = (qs, want, buf)
+        return self._ts
+
+    def encode(self, encoder):
+        if not self.timed:
+            return super().encode(encoder)
+        qs, cap, buf = self._ensure_queries()
+        proxy = _TimedEncoder(encoder, qs, cap)
+        super().encode(proxy)
+        if proxy.records:
+            encoder.resolve_query_set(qs, 0, 2 * len(proxy.records), buf, 0)
+        self._last = proxy
+
+    def stage_times(self) -> dict:
+        """Seconds per stage (summed over views) of the last timed submission, plus 'gaps',
+        'other' (passes of no known stage) and 'untimed_passes'."""
+        proxy, (_, _, buf) = self._last, self._ts
+        n = len(proxy.records)
+        ticks = np.frombuffer(self.gpu.queue.read_buffer(buf, 0, 16 * n), np.uint64).astype(np.int64)
+        ns = timestamp_period_ns(self.gpu)
+        begin, end = ticks[0::2], ticks[1::2]
+        out = {s: 0.0 for s in STAGES}
+        out["other"] = 0.0
+        after_emit = False  # a radix sort before a view's emit is the depth sort, after it the tile sort
+        for rec, b, e in zip(proxy.records, begin, end):
+            name = (rec["label"] or "").split(":")[0]
+            if name == "project":
+                after_emit = False
+            elif name == "emit":
+                after_emit = True
+            stage = ("tile sort" if after_emit else "depth sort") if name == "radix_sort" else _STAGE_OF.get(name, "other")
+            out[stage] += max(0, int(e - b)) * ns * 1e-9
+        span = (int(end.max()) - int(begin.min())) * ns * 1e-9 if n else 0.0
+        out["gaps"] = max(0.0, span - sum(out[s] for s in (*STAGES, "other")))
+        out["untimed_passes"] = proxy.untimed
+        out["passes"] = n
+        return out
+
+
+# ---- measurement -----------------------------------------------------------------------------------
+def _psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return float("inf") if mse == 0 else float(10 * np.log10(1.0 / mse))
+
+
+def _submission(r: Renderer) -> tuple[float, np.ndarray]:
+    """Seconds for one submission, and the per-view intersection totals it read back."""
+    t = time.perf_counter()
+    totals = r._run()  # encode + submit + read of the per-view totals (waits for the GPU); grows buffers if needed
+    return time.perf_counter() - t, totals
+
+
+def bench_config(model, scene: str, size: int, k: int, *, repeats: int = 3, budget: float = 100.0,
+                 gpu: GPU | None = None, twin: dict | None = None, stages: bool = True) -> dict:
+    """Measure one (scene, N, size, K). `twin` (from measure_twin) adds the ratio when its N and
+    size are this config's. Returns the JSON record."""
+    gpu = gpu or get_gpu()
+    w = h = int(size)
+    cams = scenes.scene_cameras(scene, k, w, h)
+    r = StageTimedRenderer(model, cams, gpu=gpu)
+    warm, totals = _submission(r)  # warm-up, discarded (first use of buffers, possible buffer growth)
+    # Repeats: at most `repeats`, and no more than the budget allows (at least one).
+    reps = max(1, min(int(repeats), int(budget // max(warm, 1e-9))))
+    times = [_submission(r)[0] for _ in range(reps)]
+    med = statistics.median(times)
+    # Python-side encoding alone (recorded, then dropped unsubmitted).
+    t = time.perf_counter()
+    enc = gpu.device.create_command_encoder()
+    r.encode(enc)
+    enc.finish()
+    encode_s = time.perf_counter() - t
+
+    rec = {
+        "scene": scene, "n": int(model.n), "sh_degree": int(model.sh_degree), "precision": r.precision,
+        "width": w, "height": h, "k": k, "repeats": reps, "warmup_s": warm, "times_s": times,
+        "seconds_per_submission": med, "ms_per_view": 1e3 * med / k, "mpix_per_s": k * w * h / med / 1e6,
+        "min_ms_per_view": 1e3 * min(times) / k,  # the least disturbed run (shared machines are noisy)
+        "encode_ms": 1e3 * encode_s, "model_chunks": r.layout.n_chunks,
+        "intersections_per_view": [int(x) for x in totals[:k]],
+    }
+
+    if stages and "timestamp-query" in gpu.features:
+        r.timed = True
+        t = time.perf_counter()
+        r._run()
+        rec["timed_submission_s"] = time.perf_counter() - t
+        st = r.stage_times()
+        r.timed = False
+        rec["stage_source"] = "timestamp-query (one separate instrumented submission; per-pass begin/end, summed over views)"
+        rec["stages_ms"] = {s: 1e3 * st[s] for s in (*STAGES, "other", "gaps")}
+        # Consistency check: the stages + gaps should add up to about the instrumented wall time.
+        rec["stage_sum_ms"] = sum(rec["stages_ms"].values())
+        rec["timed_passes"], rec["untimed_passes"] = st["passes"], st["untimed_passes"]
+    else:
+        rec["stage_source"] = ("none: the device has no timestamp-query feature; only the whole "
+                               "submission's wall time is measured" if stages else "disabled (--no-stages)")
+        rec["stages_ms"] = None
+
+    if twin is not None:
+        rec["twin"] = {key: twin[key] for key in ("n", "width", "height", "views", "seconds_per_view", "what")}
+        same = twin["n"] == model.n and twin["width"] == w and twin["height"] == h
+        rec["twin_ratio"] = twin["seconds_per_view"] / (med / k) if same else None
+        if same and "image" in twin:
+            # Sanity: the GPU's view 0 (left in the image buffer by the last submission; untimed
+            # readback, no re-render) against the twin's.
+            img0 = gpu.read(r.image, np.float32, 0, 16 * w * h).reshape(h, w, 4)[..., :3]
+            rec["psnr_view0_vs_twin_db"] = _psnr(img0, twin["image"])
+    return rec
+
+
+def measure_twin(scene: str, model, size: int, views: int = 1, max_n: int = 1_000_000, seed: int = 0) -> dict:
+    """Seconds per view of reference.render on view(s) 0.. of the orbit set, at the model's N
+    (or at `max_n` primitives of the same scene when the model is larger)."""
+    n = int(model.n)
+    if n > max_n:
+        model, n = scenes.make_scene(scene, max_n, model.sh_degree, seed), max_n
+    cams = scenes.scene_cameras(scene, max(views, 1), size, size)[:max(views, 1)]
+    t = time.perf_counter()
+    imgs = reference.render(model, cams)
+    s = (time.perf_counter() - t) / len(cams)
+    what = (f"reference.render on {len(cams)} view(s) of a {len(cams)}-camera orbit (its view 0 = every "
+            f"config's view 0), N={n}, {size}x{size}")
+    return {"n": n, "width": size, "height": size, "views": len(cams), "seconds_per_view": s,
+            "what": what, "image": imgs[0]}
+
+
+def adapter_info(gpu: GPU) -> dict:
+    info = gpu.info
+    return {"device": info.get("device"), "description": info.get("description"),
+            "vendor": info.get("vendor"), "adapter_type": info.get("adapter_type"),
+            "backend": info.get("backend_type"), "features": sorted(gpu.features),
+            "timestamp_period_ns": timestamp_period_ns(gpu) if "timestamp-query" in gpu.features else None}
+
+
+def run_grid(scene_names, ns, sizes, ks, *, repeats=3, budget=100.0, twin=True, twin_views=1,
+             twin_max_n=1_000_000, stages=True, sh_degree=3, seed=0, log=print) -> dict:
+    """The whole benchmark; returns the JSON document."""
+    gpu = get_gpu()
+    t0 = time.perf_counter()
+    doc = {"adapter": adapter_info(gpu), "host": {"platform": platform.platform(), "cpus": os.cpu_count(),
+                                                  "loadavg_start": list(os.getloadavg())},
+           "settings": {"repeats": repeats, "budget_s": budget, "twin_views": twin_views,
+                        "twin_max_n": twin_max_n, "sh_degree": sh_degree, "seed": seed,
+                        "precision": "fp32"},
+           "results": []}
+    for scene in scene_names:
+        for n in ns:
+            t = time.perf_counter()
+            model = scenes.make_scene(scene, n, sh_degree, seed)
+            log(f"[{scene} N={n}] scene generated in {time.perf_counter() - t:.1f} s")
+            for size in sizes:
+                tw = None
+                if twin:
+                    tw = measure_twin(scene, model, size, twin_views, twin_max_n, seed)
+                    log(f"[{scene} N={n} {size}x{size}] twin: {tw['seconds_per_view']:.2f} s/view ({tw['what']})")
+                for k in ks:
+                    rec = bench_config(model, scene, size, k, repeats=repeats, budget=budget, gpu=gpu,
+                                       twin=tw, stages=stages)
+                    doc["results"].append(rec)
+                    log(f"[{scene} N={n} {size}x{size} K={k}] {rec['mpix_per_s']:.3f} Mpix/s, "
+                        f"{rec['ms_per_view']:.1f} ms/view (median of {rec['repeats']})")
+            del model
+    doc["host"]["loadavg_end"] = list(os.getloadavg())
+    doc["total_wall_s"] = time.perf_counter() - t0
+    return doc
+
+
+# ---- output ----------------------------------------------------------------------------------------
+def _fmt(x, spec=".1f"):
+    return "-" if x is None else format(x, spec)
+
+
+def print_table(doc: dict, console=None) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = console or Console(width=200)
+    a = doc["adapter"]
+    stages_known = any(r.get("stages_ms") for r in doc["results"])
+    title = (f"seuwgpu render benchmark - {a['device']} ({a['backend']}, {a['adapter_type']}; {a['description']})")
+    table = Table(title=title, title_justify="left")
+    for col in ("scene", "N", "size", "K", "R", "Mpix/s", "ms/view", "min ms/view"):
+        table.add_column(col, justify="right" if col not in ("scene",) else "left")
+    if stages_known:
+        for s in (*STAGES, "gaps"):
+            table.add_column(s, justify="right")
+    table.add_column("twin s/view", justify="right")
+    table.add_column("GPU/twin speed", justify="right")
+    table.add_column("PSNR v0", justify="right")
+    for r in doc["results"]:
+        row = [r["scene"], f"{r['n']:,}", f"{r['width']}x{r['height']}", str(r["k"]), str(r["repeats"]),
+               f"{r['mpix_per_s']:.3f}", f"{r['ms_per_view']:.1f}", f"{r['min_ms_per_view']:.1f}"]
+        if stages_known:
+            st = r.get("stages_ms") or {}
+            row += [_fmt(st.get(s)) for s in (*STAGES, "gaps")]
+        tw = r.get("twin")
+        if tw is None:
+            row += ["-", "-"]
+        elif r.get("twin_ratio") is None:
+            row += [f"{tw['seconds_per_view']:.2f} @N={tw['n']:,}", "n/a (other N)"]
+        else:
+            row += [f"{tw['seconds_per_view']:.2f}", f"{r['twin_ratio']:.1f}x"]
+        row.append(_fmt(r.get("psnr_view0_vs_twin_db")))
+        table.add_row(*row)
+    console.print(table)
+    notes = []
+    if stages_known:
+        notes.append("Stage columns: GPU ms per submission (summed over the K views) from timestamp queries on one "
+                     "separate instrumented submission; 'count+scan' = tile counts + prefix sum; 'gaps' = time "
+                     "between passes. Mpix/s and ms/view come from un-instrumented submissions.")
+    else:
+        notes.append("No per-stage times: " + (doc["results"][0]["stage_source"] if doc["results"] else "no results"))
+    notes.append("Mpix/s = K*W*H / median wall time of R submissions (encode + submit + wait), warm-up excluded; "
+                 "ms/view = median / K; min ms/view = fastest of the R / K (other load on the host slows runs).")
+    notes.append("twin s/view: numpy reference.render measured in this run on orbit view 0 (K=1) at the same N and "
+                 "size; GPU/twin speed = twin s/view / GPU s/view of the row. PSNR v0: GPU view 0 vs the twin's.")
+    h = doc["host"]
+    notes.append(f"Host: {h['cpus']} CPUs, load average {h['loadavg_start'][0]:.1f} at start, "
+                 f"{h['loadavg_end'][0]:.1f} at end; total wall time {doc['total_wall_s']:.0f} s.")
+    for n in notes:
+        console.print(n)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenes", nargs="+", default=["spheres"],
+                    help=f"scene names or 'all' ({', '.join(scenes.list_scenes())}); default spheres")
+    ap.add_argument("--n", nargs="+", type=int, default=[100_000, 1_000_000], help="primitive counts")
+    ap.add_argument("--sizes", nargs="+", type=int, default=[256, 512], help="square image sizes (px)")
+    ap.add_argument("--views", nargs="+", type=int, default=[1, 8], help="views per submission (K)")
+    ap.add_argument("--repeats", type=int, default=3, help="timed submissions per config (median)")
+    ap.add_argument("--budget", type=float, default=100.0,
+                    help="seconds of timed submissions per config; caps the repeats (at least 1)")
+    ap.add_argument("--twin-views", type=int, default=1, help="views the numpy twin renders per (scene, N, size)")
+    ap.add_argument("--twin-max-n", type=int, default=1_000_000,
+                    help="largest N the twin renders; above it the twin runs at this N and no ratio is given")
+    ap.add_argument("--no-twin", action="store_true", help="skip the numpy twin")
+    ap.add_argument("--no-stages", action="store_true", help="skip the timestamp-instrumented submission")
+    ap.add_argument("--sh-degree", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--quick", action="store_true", help="tiny grid: every scene, N=20k, 128x128, K=1 and 4")
+    ap.add_argument("--out", default="bench.json", help="JSON output path (default bench.json)")
+    args = ap.parse_args(argv)
+
+    names = scenes.list_scenes() if "all" in args.scenes else args.scenes
+    ns, sizes, ks = args.n, args.sizes, args.views
+    if args.quick:
+        names, ns, sizes, ks = scenes.list_scenes(), [20_000], [128], [1, 4]
+    for s in names:
+        if s not in scenes.list_scenes():
+            ap.error(f"unknown scene {s!r}; valid: {', '.join(scenes.list_scenes())}")
+
+    from rich.console import Console
+    console = Console(width=200)
+    doc = run_grid(names, ns, sizes, ks, repeats=args.repeats, budget=args.budget, twin=not args.no_twin,
+                   twin_views=args.twin_views, twin_max_n=args.twin_max_n, stages=not args.no_stages,
+                   sh_degree=args.sh_degree, seed=args.seed, log=lambda m: console.print(m, highlight=False, markup=False))
+    print_table(doc, console)
+    Path(args.out).write_text(json.dumps(doc, indent=1))
+    console.print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
