@@ -131,19 +131,30 @@ class Engine:
         return out
 
     def _scatter(self, xors: dict[int, np.ndarray]):
+        """XOR the (word, mask) lists into the chunks: one submission, buffers reused across calls."""
         if not xors:
             return
-        enc = self.gpu.device.create_command_encoder()
+        g, n_chunks = self.gpu, self.layout.n_chunks
+        need = max(len(p) for p in xors.values())
+        if getattr(self, "_flip_cap", 0) < need:
+            self._flip_cap = max(need, 1024)
+            self._flip_pairs = [g.buffer(8 * self._flip_cap, STORAGE, "flip_pairs") for _ in range(n_chunks)]
+            self._flip_params = g.buffer(256 * n_chunks, UNIFORM, "flip_params")
+            self._flip_bgs = [g.bind(self.p_flip, {0: (self._flip_params, 256 * c, 16), 1: self._flip_pairs[c],
+                                                   2: self.renderer.chunks[c]}) for c in range(n_chunks)]
+        params = np.zeros((n_chunks, 64), np.uint32)
         for ch, pairs in xors.items():
-            params = self.gpu.upload(np.array([len(pairs), 0, 0, 0], np.uint32), UNIFORM)
-            buf = self.gpu.upload(pairs)
-            bg = self.gpu.bind(self.p_flip, {0: params, 1: buf, 2: self.renderer.chunks[ch]})
+            params[ch, 0] = len(pairs)
+            g.write(self._flip_pairs[ch], pairs)
+        g.write(self._flip_params, params)
+        enc = g.device.create_command_encoder()
+        for ch, pairs in xors.items():
             p = enc.begin_compute_pass()
             p.set_pipeline(self.p_flip)
-            p.set_bind_group(0, bg)
+            p.set_bind_group(0, self._flip_bgs[ch])
             p.dispatch_workgroups(*dispatch_dims(-(-len(pairs) // 64)))
             p.end()
-        self.gpu.submit(enc)
+        g.submit(enc)
 
     def apply(self, sites: list[Site], defense: str = "none") -> dict:
         """Flip the sites in the GPU-resident model (as the defense reads them); returns a handle."""

@@ -25,7 +25,7 @@ import numpy as np
 
 from . import formats
 from .faults import GUARDED_FIELDS
-from .gpu.device import UNIFORM, dispatch_dims
+from .gpu.device import STORAGE, UNIFORM, dispatch_dims
 from .model import FIELD_OFFSET, FIELDS, Model, field_components
 
 _FIELD_INDEX = {f: i for i, f in enumerate(FIELDS)}
@@ -127,20 +127,29 @@ def scrub(renderer, box: Box, fields, per_primitive: bool = False):
     Returns clamps per field (dict), and per primitive when asked (one readback)."""
     gpu, L = renderer.gpu, renderer.layout
     mask = component_mask(fields, L.degree)
-    box_buf = gpu.upload(box.rows())
-    counts = gpu.buffer(4 * (8 + L.n))
+    cache = renderer.scrub_cache
+    if not cache:  # buffers and bind groups made once per renderer
+        cache["box"] = gpu.buffer(16 * L.ncomp, STORAGE, "scrub_box")
+        cache["counts"] = gpu.buffer(4 * (8 + L.n), STORAGE, "scrub_counts")
+        cache["params"] = gpu.buffer(256 * L.n_chunks, UNIFORM, "scrub_params")
+        pipe = gpu.pipeline("guard")
+        cache["bgs"] = [gpu.bind(pipe, {0: (cache["params"], 256 * k, 32), 1: cache["box"], 2: renderer.chunks[k],
+                                        3: cache["counts"]}) for k in range(L.n_chunks)]
+    counts = cache["counts"]
+    gpu.write(cache["box"], box.rows())
     gpu.write(counts, np.zeros(counts.size // 4, np.uint32))
-    pipe = gpu.pipeline("guard")
     fmt = {"fp32": 0, "fp16": 1, "bf16": 2}[L.precision]
-    enc = gpu.device.create_command_encoder()
+    params = np.zeros((L.n_chunks, 64), np.uint32)
     for k in range(L.n_chunks):
         a, b = L.chunk_range(k)
-        params = gpu.upload(np.array([L.plane_words, L.ncomp, b - a, fmt, mask & 0xFFFFFFFF, mask >> 32, a, 0],
-                                     np.uint32), UNIFORM)
-        bg = gpu.bind(pipe, {0: params, 1: box_buf, 2: renderer.chunks[k], 3: counts})
+        params[k, :8] = [L.plane_words, L.ncomp, b - a, fmt, mask & 0xFFFFFFFF, mask >> 32, a, 0]
+    gpu.write(cache["params"], params)
+    pipe = gpu.pipeline("guard")
+    enc = gpu.device.create_command_encoder()
+    for k in range(L.n_chunks):
         p = enc.begin_compute_pass()
         p.set_pipeline(pipe)
-        p.set_bind_group(0, bg)
+        p.set_bind_group(0, cache["bgs"][k])
         p.dispatch_workgroups(*dispatch_dims(-(-L.chunk_words // 256)))
         p.end()
     gpu.submit(enc)

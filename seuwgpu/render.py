@@ -66,6 +66,7 @@ class Renderer:
         self.guard_mask = 0
         self.box_buf = self.gpu.buffer(16 * self.layout.ncomp, STORAGE, "box")
         self.guard_counts = self.gpu.buffer(4 * 8, STORAGE, "guard_counts")
+        self.scrub_cache: dict = {}  # guard.scrub's buffers and bind groups for this model
         self._alloc_primitive_scratch()
         self.max_capacity = self.gpu.max_binding // 4
         self.capacity = 0
