@@ -388,8 +388,7 @@ class Runner:
                         "python": platform.python_version(), "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
                         "total_injections": self.total, "columns": COLUMNS}
             _atomic_write(mpath, json.dumps(manifest, indent=1).encode())
-        for tmp in rec.glob("*.tmp"):
-            tmp.unlink()
+        _remove_stale_temps(rec)
 
     def done_ids(self) -> set[tuple[int, int]]:
         """(first id, count) of the parts already written."""
@@ -505,8 +504,28 @@ def _parquet_bytes(df: pd.DataFrame) -> bytes:
     return buf.getvalue()
 
 
+def _host() -> str:
+    return platform.node().replace(".", "_") or "host"
+
+
+def _remove_stale_temps(folder: Path):
+    """Delete half-written parts left by dead writers of this host (other shards may share the
+    folder: their live temp files, and other hosts', are left alone)."""
+    host = _host()
+    for tmp in folder.glob("*.tmp"):
+        parts = tmp.name.rsplit(".", 3)  # NAME.parquet . host . pid . tmp
+        if len(parts) != 4 or parts[1] != host:
+            continue
+        try:
+            os.kill(int(parts[2]), 0)
+        except (ProcessLookupError, ValueError):
+            tmp.unlink(missing_ok=True)
+        except PermissionError:
+            pass
+
+
 def _atomic_write(path: Path, data: bytes):
-    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    tmp = path.with_name(path.name + f".{_host()}.{os.getpid()}.tmp")
     with open(tmp, "wb") as f:
         f.write(data)
         f.flush()

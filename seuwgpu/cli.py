@@ -158,9 +158,34 @@ def print_criticality(run_dirs):
 def cmd_campaign(args):
     from .campaign import load_spec
     spec = load_spec(args.spec)
+    if getattr(args, "executor", "local") == "ray":
+        return cmd_campaign_ray(args, spec)
     run_campaign(spec, args.out, args.shard, args.quiet, args.full)
     if args.shard[1] == 1:
         print_criticality([args.out])
+    return 0
+
+
+def cmd_campaign_ray(args, spec):
+    """`campaign --executor ray`: shards over Ray workers (falls back to local when Ray is missing)."""
+    from .distributed import run_campaign as run_distributed
+    run_distributed(spec, args.out, "ray", args.workers, args.address, args.shard, args.quiet, args.full)
+    if args.shard[1] == 1:
+        print_criticality([args.out])
+    return 0
+
+
+def cmd_distributed(args):
+    """Sort-first rendering across Ray actors: per-rank times and the ranks an upset contaminates."""
+    from .distributed import INSTALL_HINT, parse_upset, ray_available, sort_first_tables
+    if not ray_available():
+        raise CliError(f"needs Ray. {INSTALL_HINT}")
+    model, name = load_model(args)
+    cams = load_cams(args, name)
+    upset = parse_upset(args.upset) if args.upset else None
+    sort_first_tables(model, cams, args.precision, args.ranks, upset, component=args.component,
+                      primitive=args.primitive, sample=args.sample, seed=args.seed, guard=args.guard,
+                      repeats=args.repeats, address=args.address)
     return 0
 
 
@@ -282,7 +307,25 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--shard", type=parse_shard, default=(0, 1), help="run the deterministic slice I of N")
     s.add_argument("--quiet", action="store_true", help="log lines instead of a progress display")
     s.add_argument("--full", action="store_true", help="re-render full frames for every injection (no incremental path)")
+    s.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="local (this process) or ray (shards over Ray workers; needs pip install seuwgpu[ray])")
+    s.add_argument("--address", help="Ray cluster address (e.g. auto); default: start a local Ray instance")
+    s.add_argument("--workers", type=int, help="Ray workers in flight (default: the cluster's GPUs, else CPUs)")
     s.set_defaults(func=cmd_campaign)
+
+    s = sub.add_parser("distributed", help="sort-first rendering over Ray ranks: per-rank times, ranks an upset contaminates")
+    add_model_args(s)
+    add_camera_args(s, views=2, size="256x256")
+    s.add_argument("--ranks", type=int, nargs="+", default=[4], help="ranks P (screen regions); several values: one table each")
+    s.add_argument("--upset", help="field:bit (e.g. log_scales:31), applied to every rank's copy")
+    s.add_argument("--component", type=int, default=0)
+    s.add_argument("--primitive", type=int, help="primitive index (default: the most harmful of --sample)")
+    s.add_argument("--sample", type=int, default=32, help="primitives tried when --primitive is not given")
+    s.add_argument("--guard", choices=("scrub", "clamp"), default="scrub",
+                   help="node-local guard: scrub each rank's stored copy, or clamp in the pipeline (default scrub)")
+    s.add_argument("--repeats", type=int, default=3, help="renders per rank for its median time")
+    s.add_argument("--address", help="Ray cluster address (e.g. auto); default: start a local Ray instance")
+    s.set_defaults(func=cmd_distributed)
 
     s = sub.add_parser("demo", help="the main job: the default campaign on the embedded scene, then its criticality table")
     s.add_argument("--out", type=Path, default=Path("runs/demo"))
@@ -311,6 +354,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    import warnings
+    warnings.formatwarning = lambda msg, cat, *a, **k: f"seuwgpu: {cat.__name__}: {msg}\n"
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -145,3 +145,22 @@ def test_changed_spec_is_refused(reference_run, tmp_path):
 def test_bad_specs_fail_with_a_message_naming_the_key(tmp_path, text, message):
     with pytest.raises(SpecError, match=message.replace("[", r"\[").replace("(", r"\(")):
         load_spec(write_spec(tmp_path, text))
+
+
+def test_size_sweep_and_uniform_sampling(tmp_path):
+    spec = normalize_spec({
+        "seed": 3, "views": 1, "size": "32x32", "batch": 64,
+        "scenes": [{"scene": "plant", "n": 999}],
+        "single": {"fields": "all", "bits": [31], "samples": 40, "sampling": "uniform", "defenses": ["none"]},
+        "sizes": {"n": [400, 1600], "fields": ["log_scales"], "bits": [30, 31], "samples": 3, "defenses": ["none", "guard"]},
+    })
+    Runner(spec, tmp_path / "run", quiet=True).run()
+    df = read_records(tmp_path / "run")
+    size = df[df.campaign == "size"]
+    assert sorted(size.n_primitives.unique()) == [400, 1600]
+    assert len(size) == 2 * 2 * 3 * 2  # n values x bits x samples x defenses
+    uni = df[df.campaign == "single"]
+    assert len(uni) == 6 * 40  # uniform mode: samples x cells injections
+    # uniform over all stored bits: every injection stands for the same number of bits
+    assert np.allclose(uni.weight, 999 * 59 * 32 / 240)
+    assert uni.field.nunique() >= 2 and uni.bit.nunique() > 5
