@@ -24,20 +24,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from seuwgpu import scenes  # noqa: E402
 from seuwgpu.camera import Camera  # noqa: E402
+from seuwgpu.reference import quat_to_rotmat  # noqa: E402
 
 C0 = 0.28209479177387814
 C1 = 0.4886025119029199
 MAX_RADIUS = 24
-
-
-def _quat_to_rotmat(q):
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-    ], axis=-2)
 
 
 def render(model, cam: Camera, background=(1.0, 1.0, 1.0)) -> np.ndarray:
@@ -52,7 +43,7 @@ def render(model, cam: Camera, background=(1.0, 1.0, 1.0)) -> np.ndarray:
     p = p[keep]
     z = p[:, 2]
     S = np.exp(model.log_scales[idx].astype(np.float64))
-    M = _quat_to_rotmat(model.quats[idx].astype(np.float64)) * S[:, None, :]
+    M = quat_to_rotmat(model.quats[idx]).astype(np.float64) * S[:, None, :]
     cov = M @ np.swapaxes(M, 1, 2)
     cov_c = R @ cov @ R.T
     J = np.zeros((len(idx), 2, 3))
