@@ -148,11 +148,17 @@ def run_campaign(spec: dict, out: Path, shard=(0, 1), quiet=False, full=False) -
 
 def print_criticality(run_dirs):
     from .report import criticality_table_text, load_runs
+    from .analysis import InsufficientData
     df, _ = load_runs(run_dirs)
-    single = df[df["k"] == 1] if "k" in df else df
+    single = df[(df["k"] == 1) & (df["campaign"].isin(["single", "size"]))]
     for prec in sorted(single["precision"].unique()):
+        try:
+            table = criticality_table_text(single, prec)
+        except InsufficientData as e:
+            print(f"\n(no criticality table at {prec}: {e})")
+            continue
         print(f"\nPer-field single-upset criticality at {prec} (defense: none)")
-        print(criticality_table_text(single, prec))
+        print(table)
 
 
 def cmd_campaign(args):
