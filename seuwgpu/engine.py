@@ -234,9 +234,13 @@ class Engine:
         """The primitive whose flip does the most harm (footprint, then peak error) among a sample."""
         rng = np.random.default_rng(seed)
         cand = rng.choice(self.n, size=min(sample, self.n), replace=False)
+        sites = [self.site(field, int(p), component, bits) for p in cand]
+        if self.incremental:
+            recs = self.evaluate(sites, (defense,))  # same numbers as inject, without full re-renders
+        else:
+            recs = [self.inject(s, defense) for s in sites]
         best, best_rec = -1, None
-        for p in cand:
-            rec = self.inject(self.site(field, int(p), component, bits), defense)
+        for p, rec in zip(cand, recs):
             score = (rec["nonfinite"], rec["footprint"], rec["peak_error"])
             if best_rec is None or score > (best_rec["nonfinite"], best_rec["footprint"], best_rec["peak_error"]):
                 best, best_rec = int(p), rec
