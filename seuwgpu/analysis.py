@@ -1179,8 +1179,8 @@ def contamination(df: pd.DataFrame) -> pd.DataFrame:
     ps = contamination_partitions(d)
     if not ps or d.empty:
         raise InsufficientData("no regions_pred_P / regions_meas_P columns in the records",
-                               "run a single-upset campaign with region measurement "
-                               "(sort-first partitions P = 4..64)")
+                               "run a single-upset campaign with regions = [4, 16, 64] in its [single] "
+                               "table (sort-first partitions; `seuwgpu distributed` times the regions)")
     rows = []
     for P in ps:
         npred, nmeas, iou = _region_stats(d[f"regions_pred_{P}"], d[f"regions_meas_{P}"], P)

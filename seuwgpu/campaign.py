@@ -21,6 +21,8 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     sampling = "stratified"  # or "uniform": `samples` x cells injections drawn uniformly over
                              # all stored bits (weight column = bits each sample stands for)
     defenses = ["none", "guard"]
+    regions = [4, 16, 64]    # optional: sort-first contamination columns regions_pred_P and
+                             # regions_meas_P (int64 bitmasks of the P regions reached/changed)
 
     [dose]                   # k simultaneous upsets drawn uniformly over the whole bit budget
     precisions = ["fp32"]
@@ -66,9 +68,9 @@ from .model import FIELDS, canonical_field, field_components
 # ---- spec --------------------------------------------------------------------------------------
 _TOP = {"seed", "views", "size", "batch", "scenes", "single", "dose", "sizes", "name"}
 _SCENE = {"scene", "ply", "n", "sh_degree", "cameras", "seed"}
-_SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses"}
+_SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions"}
 _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
-_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling"}
+_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions"}
 
 
 class SpecError(ValueError):
@@ -130,6 +132,19 @@ def _bits(table, where, precisions):
         for b in v:
             if not 0 <= b < formats.bits_per_value(p):
                 raise SpecError(f"{where}.bits: bit {b} is out of range for {p} (0..{formats.bits_per_value(p) - 1})")
+    return sorted(set(v))
+
+
+def _regions(table, where, size):
+    """Sort-first partition sizes P for contamination columns (regions_pred_P, regions_meas_P)."""
+    v = table.get("regions", [])
+    if not isinstance(v, list) or not all(isinstance(p, int) and not isinstance(p, bool) for p in v):
+        raise SpecError(f"{where}.regions must be a list of partition sizes, e.g. [4, 16, 64]")
+    for p in v:
+        if not 2 <= p <= 64:
+            raise SpecError(f"{where}.regions: P = {p} is out of range [2, 64] (regions are 64-bit masks)")
+        if p > size[0] * size[1]:
+            raise SpecError(f"{where}.regions: P = {p} is more regions than pixels")
     return sorted(set(v))
 
 
@@ -207,6 +222,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "samples": _int(t, "samples", "single", 20, 1),
             "sampling": t.get("sampling", "stratified"),
             "defenses": _list(t, "defenses", "single", ["none", "guard"], DEFENSES),
+            "regions": _regions(t, "single", spec["size"]),
         }
         if spec["single"]["sampling"] not in ("stratified", "uniform"):
             raise SpecError(f'single.sampling must be "stratified" or "uniform", got {t["sampling"]!r}')
@@ -244,6 +260,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "samples": _int(t, "samples", "sizes", 10, 1),
             "sampling": t.get("sampling", "stratified"),
             "defenses": _list(t, "defenses", "sizes", ["none"], DEFENSES),
+            "regions": _regions(t, "sizes", spec["size"]),
         }
     return spec
 
@@ -277,6 +294,7 @@ class Context:
     cells: list = dc_field(default_factory=list)   # single/size: [(field, bit)]; dose: [k]
     per_cell: int = 0    # samples (single/size) or repeats (dose)
     sampling: str = "stratified"
+    regions: tuple = ()  # sort-first partition sizes measured for single upsets
 
     def cell_of(self, local: int):
         return self.cells[local // self.per_cell], local % self.per_cell
@@ -296,7 +314,7 @@ def enumerate_contexts(spec: dict) -> list[Context]:
             for p in t["precisions"]:
                 cells = _cells(t["fields"], t["bits"], p)
                 c = Context("single", si, sc.get("n"), p, t["defenses"], nid, len(cells) * t["samples"],
-                            cells, t["samples"], t["sampling"])
+                            cells, t["samples"], t["sampling"], tuple(t.get("regions", ())))
                 ctxs.append(c)
                 nid += c.count
     if "dose" in spec:
@@ -313,7 +331,7 @@ def enumerate_contexts(spec: dict) -> list[Context]:
             for p in t["precisions"]:
                 cells = _cells(t["fields"], t["bits"], p)
                 c = Context("size", 0, n, p, t["defenses"], nid, len(cells) * t["samples"], cells,
-                            t["samples"], t["sampling"])
+                            t["samples"], t["sampling"], tuple(t.get("regions", ())))
                 ctxs.append(c)
                 nid += c.count
     return ctxs
@@ -347,6 +365,10 @@ COLUMNS = ["campaign", "scene", "n_primitives", "precision", "field", "primitive
            "bit_class", "clean_value", "corrupted_value", "defense", "footprint", "footprint_max",
            "peak_error", "psnr", "ssim", "nonfinite", "catastrophic", "clamps", "k", "repeat", "weight",
            "seed", "injection_id"]
+
+
+def columns_of(ctx: Context) -> list[str]:
+    return COLUMNS + [f"regions_{kind}_{P}" for P in ctx.regions for kind in ("pred", "meas")]
 
 
 def _git_commit() -> str:
@@ -427,7 +449,7 @@ class Runner:
                     engines[key] = self._engine(ctx)
                 eng = engines[key]
                 rows = self._run_block(eng, ctx, first, count)
-                df = pd.DataFrame(rows, columns=COLUMNS)
+                df = pd.DataFrame(rows, columns=columns_of(ctx))
                 _atomic_write(self.out / "records" / f"part-{first:010d}-{count:06d}.parquet", _parquet_bytes(df))
                 cat = int(df.loc[df.defense == ctx.defenses[0], "catastrophic"].sum())
                 stats["injections"] += count
@@ -465,9 +487,11 @@ class Runner:
             drawn = [draw_single(ctx, i - ctx.first_id, s, eng.n, eng.degree) for i, s in zip(ids, seeds)]
             sites = [d[0] for d in drawn]
             if self.full:
+                if ctx.regions:
+                    raise SpecError("regions (sort-first contamination) are measured on the incremental path; drop --full")
                 recs = [eng.inject(s, d) for d in ctx.defenses for s in sites]
             else:
-                recs = eng.evaluate(sites, ctx.defenses)
+                recs = eng.evaluate(sites, ctx.defenses, ctx.regions)
             for j, rec in enumerate(recs):
                 i = j % count
                 rec.update(campaign=ctx.kind, repeat=0, weight=drawn[i][1], seed=seeds[i], injection_id=ids[i])
@@ -605,5 +629,5 @@ def replay(spec: dict, injection_id: int, full: bool = False, gpu=None) -> pd.Da
     for ctx in runner.contexts:
         if ctx.first_id <= injection_id < ctx.first_id + ctx.count:
             eng = runner._engine(ctx)
-            return pd.DataFrame(runner._run_block(eng, ctx, injection_id, 1), columns=COLUMNS)
+            return pd.DataFrame(runner._run_block(eng, ctx, injection_id, 1), columns=columns_of(ctx))
     raise ValueError(f"injection id {injection_id} is not in this campaign (0..{runner.total - 1})")

@@ -283,7 +283,7 @@ class Engine:
         gm = np.full(len(sites), self._guard_mask(defense), dtype=np.int64)
         return prims, bits, gm
 
-    def evaluate(self, sites: list[Site], defenses=("none",)) -> list[dict]:
+    def evaluate(self, sites: list[Site], defenses=("none",), regions=()) -> list[dict]:
         """Records for single-value sites under each defense (paired: same sites for every arm),
         by incremental re-compositing. Arms a defense fully corrects cost no rendering."""
         sites = list(sites)
@@ -301,7 +301,7 @@ class Engine:
             rows = np.arange(len(sites))
             clean_v = formats.from_bits(clean_bits[rows, comps], self.precision)
             corr_v = formats.from_bits(bits[rows, comps], self.precision)
-            m = self.evaluator.evaluate(prims, bits, gm)
+            m = self.evaluator.evaluate(prims, bits, gm, regions)
             for i, b in enumerate(base):
                 rec = dict(b)
                 rec.update(defense=d, clean_value=float(clean_v[i]), corrupted_value=float(corr_v[i]),
@@ -309,5 +309,8 @@ class Engine:
                            peak_error=float(m["peak_error"][i]), psnr=float(m["psnr"][i]), ssim=float(m["ssim"][i]),
                            nonfinite=bool(m["nonfinite"][i]), clamps=int(m["clamps"][i]))
                 rec["catastrophic"] = bool(catastrophic(rec["footprint"], rec["nonfinite"]))
+                for P in regions:
+                    rec[f"regions_pred_{P}"] = int(m[f"regions_pred_{P}"][i])
+                    rec[f"regions_meas_{P}"] = int(m[f"regions_meas_{P}"][i])
                 recs.append(rec)
         return recs

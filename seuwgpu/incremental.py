@@ -86,11 +86,14 @@ class IncrementalEvaluator:
         self._bound_version = r.version
 
     # ---- evaluation ------------------------------------------------------------------------------
-    def evaluate(self, prims: np.ndarray, bits: np.ndarray, guard_masks: np.ndarray | None = None) -> dict:
+    def evaluate(self, prims: np.ndarray, bits: np.ndarray, guard_masks: np.ndarray | None = None,
+                 regions=()) -> dict:
         """Metrics of variants: `prims` [M] primitive replaced in each variant, `bits` [M, ncomp]
         its effective stored bits (flip and defense already applied, except the support guard:
         `guard_masks` [M] component masks to clamp, 0 for none). Returns dict of [M] arrays
-        (summarize's fields plus clamps)."""
+        (summarize's fields plus clamps). `regions`: sort-first partition sizes P for which to add
+        regions_pred_P (regions the corrupted footprint's tile rectangle reaches in any view) and
+        regions_meas_P (regions with a changed pixel in any view) as int64 bitmasks."""
         prims = np.asarray(prims, dtype=np.int64)
         bits = np.asarray(bits)
         m = prims.size
@@ -109,12 +112,12 @@ class IncrementalEvaluator:
                 bits[sel] = formats.to_bits(clamped, self.r.precision)
         out = None
         for a in range(0, m, self.B):
-            part = self._evaluate_batch(prims[a:a + self.B], bits[a:a + self.B])
+            part = self._evaluate_batch(prims[a:a + self.B], bits[a:a + self.B], tuple(regions))
             out = part if out is None else {k: np.concatenate([out[k], part[k]]) for k in out}
         out["clamps"] = clamps
         return out
 
-    def _evaluate_batch(self, prims: np.ndarray, bits: np.ndarray) -> dict:
+    def _evaluate_batch(self, prims: np.ndarray, bits: np.ndarray, regions=()) -> dict:
         r, g, B, K = self.r, self.gpu, self.B, self.r.k
         m = prims.size
         # 1. project the corrupted primitives for every view
@@ -148,13 +151,16 @@ class IncrementalEvaluator:
                 end += 1
             if total > self.max_entries:
                 raise RuntimeError(f"one variant dirties {total} tiles, more than max_entries={self.max_entries}")
-            part = self._recomposite(prims[start:end], dirty[start:end], start)
+            part = self._recomposite(prims[start:end], dirty[start:end], start, regions)
             for k2, v2 in part.items():
                 results.setdefault(k2, []).append(v2)
             start = end
-        return {k2: np.concatenate(v2) for k2, v2 in results.items()}
+        out = {k2: np.concatenate(v2) for k2, v2 in results.items()}
+        for P in regions:
+            out[f"regions_pred_{P}"] = self._predicted_regions(new, P)
+        return out
 
-    def _recomposite(self, prims, dirty, first: int) -> dict:
+    def _recomposite(self, prims, dirty, first: int, regions=()) -> dict:
         r, g, K = self.r, self.gpu, self.r.k
         m = prims.size
         b_idx, v_idx, t_idx = np.nonzero(dirty)
@@ -181,7 +187,62 @@ class IncrementalEvaluator:
         raw = self.metrics.read(m)
         out = summarize(raw, r.width, r.height)
         out["dirty_tiles"] = dirty.reshape(m, -1).sum(axis=1)
+        if regions:
+            out.update(self._measured_regions(b_idx, v_idx, t_idx, m, regions))
         return out
+
+    # ---- sort-first contamination ---------------------------------------------------------------
+    def _region_ids(self, P: int) -> np.ndarray:
+        """[H, W] region index of every pixel for the P-way grid of analysis.region_grid."""
+        from .analysis import region_grid
+        r = self.r
+        rows, cols = region_grid(P, r.height, r.width)
+        ry = (np.arange(r.height) * rows) // r.height
+        rx = (np.arange(r.width) * cols) // r.width
+        return (ry[:, None] * cols + rx[None, :]).astype(np.int64)
+
+    def _measured_regions(self, b_idx, v_idx, t_idx, m: int, regions) -> dict:
+        """Regions with a changed pixel (|d| > 1/255 in a channel, or non-finite) in any view,
+        from the re-composited slabs against the clean frame."""
+        r, n_e = self.r, b_idx.size
+        out = {f"regions_meas_{P}": np.zeros(m, dtype=np.int64) for P in regions}
+        if n_e == 0:
+            return out
+        slabs = self.read_slabs(n_e)                                   # [E, 16, 16, 4]
+        ys = (t_idx // r.tiles_x)[:, None, None] * TILE + np.arange(TILE)[None, :, None]
+        xs = (t_idx % r.tiles_x)[:, None, None] * TILE + np.arange(TILE)[None, None, :]
+        inside = (ys < r.height) & (xs < r.width)
+        yc, xc = np.minimum(ys, r.height - 1), np.minimum(xs, r.width - 1)
+        clean = self.engine.clean_rgba[v_idx[:, None, None], yc, xc, :3]
+        with np.errstate(invalid="ignore"):
+            diff = np.abs(slabs[..., :3].astype(np.float64) - clean)
+            changed = ((diff > 1.0 / 255.0) | ~np.isfinite(slabs[..., :3])).any(axis=-1) & inside
+        for P in regions:
+            rid = self._region_ids(P)[yc, xc]
+            bits = np.where(changed, np.left_shift(np.uint64(1), rid.astype(np.uint64)), np.uint64(0))
+            per_entry = np.bitwise_or.reduce(bits.reshape(n_e, -1), axis=1)
+            acc = np.zeros(m, dtype=np.uint64)
+            np.bitwise_or.at(acc, b_idx, per_entry)
+            out[f"regions_meas_{P}"] = acc.view(np.int64)
+        return out
+
+    def _predicted_regions(self, new_rects: np.ndarray, P: int) -> np.ndarray:
+        """Regions the corrupted primitive's tile rectangle (its projected 3.33-sigma footprint,
+        as binned) reaches in any view. new_rects [K, M, 4] in tiles."""
+        from .analysis import region_grid
+        r = self.r
+        rows, cols = region_grid(P, r.height, r.width)
+        ey = (np.arange(rows + 1) * r.height) // rows
+        ex = (np.arange(cols + 1) * r.width) // cols
+        x0, y0 = new_rects[..., 0] * TILE, new_rects[..., 1] * TILE
+        x1 = np.minimum(new_rects[..., 2] * TILE, r.width)
+        y1 = np.minimum(new_rects[..., 3] * TILE, r.height)
+        nonempty = (x1 > x0) & (y1 > y0)
+        hit_y = (ey[None, None, :-1] < y1[..., None]) & (ey[None, None, 1:] > y0[..., None])   # [K, M, rows]
+        hit_x = (ex[None, None, :-1] < x1[..., None]) & (ex[None, None, 1:] > x0[..., None])   # [K, M, cols]
+        hit = (hit_y[..., :, None] & hit_x[..., None, :] & nonempty[..., None, None]).any(axis=0)  # [M, rows, cols]
+        weights = np.left_shift(np.uint64(1), np.arange(rows * cols, dtype=np.uint64))
+        return (hit.reshape(hit.shape[0], -1).astype(np.uint64) * weights).sum(axis=1).view(np.int64)
 
     def read_slabs(self, n: int) -> np.ndarray:
         return self.gpu.read(self.slabs, np.float32, 0, _SLAB_BYTES * n).reshape(n, TILE, TILE, 4)

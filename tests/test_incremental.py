@@ -66,3 +66,46 @@ def test_defense_arms_are_paired_and_correct():
     assert by["ecc"]["footprint"] == 0 and by["dup"]["footprint"] == 0
     assert by["ecc"]["psnr"] == np.inf
     assert by["guard"]["clamps"] == 1 and by["none"]["clamps"] == 0
+
+
+def predicted(eng, site, defense, P):
+    """Regions reached by the corrupted primitive's tile rectangle, from the numpy twin."""
+    from seuwgpu import reference
+    from seuwgpu.analysis import region_set, regions_to_bitmask
+    from seuwgpu.guard import clamp_values
+    from seuwgpu.model import Model
+    _, bits, gm = eng.variant_bits([site], defense)
+    vals = formats.from_bits(bits, eng.precision)
+    if gm[0]:
+        vals, _ = clamp_values(vals, eng.box, int(gm[0]))
+    one = Model.from_flat(vals, eng.degree)
+    hit = np.zeros(P, bool)
+    for cam in eng.cameras:
+        x0, y0, x1, y1 = reference.project(one, cam)["rect"][0] * 16
+        hit |= region_set((x0, y0, min(x1, eng.width), min(y1, eng.height)), eng.height, eng.width, P)
+    return regions_to_bitmask(hit)
+
+
+def test_region_contamination_matches_full_frames():
+    from seuwgpu.analysis import region_set, regions_to_bitmask
+    model = make_scene("spheres", n=2000, seed=4)
+    eng = Engine(model, scene_cameras("spheres", 2, 64, 48), "fp32")
+    rng = np.random.default_rng(5)
+    sites = sample_sites(eng, rng, per_class=1)
+    regions = (4, 16, 64)
+    recs = eng.evaluate(sites, ("none", "guard"), regions)
+    seen_multi = False
+    for rec in recs:
+        site = eng.site(rec["field"], rec["primitive"], rec["component"], rec["bit"])
+        h = eng.apply([site], rec["defense"])
+        img, _ = eng.render_current(rec["defense"])
+        eng.undo(h)
+        with np.errstate(invalid="ignore"):
+            changed = ((np.abs(img[..., :3] - eng.clean) > 1 / 255) | ~np.isfinite(img[..., :3])).any(-1)
+        for P in regions:
+            want = regions_to_bitmask(region_set(changed, eng.height, eng.width, P))
+            assert rec[f"regions_meas_{P}"] == np.int64(np.uint64(want)), (rec, P)
+            pred = int(np.uint64(np.int64(rec[f"regions_pred_{P}"])))
+            assert pred == predicted(eng, site, rec["defense"], P), (rec, P)
+        seen_multi |= bin(int(np.uint64(np.int64(rec["regions_meas_16"])))).count("1") > 2
+    assert seen_multi, "some flip in the sample should reach several of 16 regions"
