@@ -54,7 +54,12 @@ class Engine:
         r = self.renderer
         self.cameras = r.cameras
         self.width, self.height, self.k = r.width, r.height, r.k
-        self.clean_rgba = r.render_rgba()
+        # keep the clean frame's per-view state (only this render: faulted ones must not overwrite it)
+        r.capture_views = r.keep_views
+        try:
+            self.clean_rgba = r.render_rgba()
+        finally:
+            r.capture_views = False
         self.clean_buf = self.gpu.buffer(r.image.size, STORAGE, "clean_images")
         enc = self.gpu.device.create_command_encoder()
         enc.copy_buffer_to_buffer(r.image, 0, self.clean_buf, 0, r.image.size)

@@ -53,6 +53,7 @@ class Renderer:
         # keep_views: also keep each view's projection, tile lists and ranges after the frame
         # (the incremental re-compositor of single upsets reads them).
         self.keep_views = keep_views
+        self.capture_views = False  # set while rendering the frame whose state is to be kept
         self.precision = formats.check_precision(precision)
         self.background = np.asarray(background, dtype=np.float32).reshape(3)
         self.degree = model.sh_degree
@@ -220,7 +221,7 @@ class Renderer:
         self.tile_sort.encode(encoder, self.isect_tiles, self.isect_prims, (self.stats, 4 * v), key_bits=tile_bits)
         self._dispatch(encoder, self.p_ranges, self.bg_ranges[v], dispatch_dims(-(-self.n_tiles // 256)))
         self._dispatch(encoder, self.p_composite, self.bg_composite[v], (self.tiles_x, self.tiles_y, 1))
-        if self.keep_views:
+        if self.keep_views and self.capture_views:
             n = self.n
             encoder.copy_buffer_to_buffer(self.proj_xy, 0, self.kv_xy, 8 * n * v, 8 * n)
             encoder.copy_buffer_to_buffer(self.proj_conic, 0, self.kv_conic, 16 * n * v, 16 * n)

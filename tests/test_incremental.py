@@ -109,3 +109,16 @@ def test_region_contamination_matches_full_frames():
             assert pred == predicted(eng, site, rec["defense"], P), (rec, P)
         seen_multi |= bin(int(np.uint64(np.int64(rec["regions_meas_16"])))).count("1") > 2
     assert seen_multi, "some flip in the sample should reach several of 16 regions"
+
+
+def test_full_renders_in_between_leave_the_incremental_state_clean():
+    model = make_scene("plant", n=1500, seed=6)
+    eng = Engine(model, scene_cameras("plant", 2, 48, 48), "fp32")
+    sites = [eng.site("log_scales", p, 0, 31) for p in range(0, 1500, 150)]
+    before = eng.evaluate(sites)
+    for s in sites:  # full re-renders of corrupted models, some growing the intersection buffers
+        eng.inject([s, eng.site("log_scales", s.primitive, 1, 31)])
+    after = eng.evaluate(sites)
+    for a, b in zip(before, after):
+        for key in METRICS:
+            assert same(a[key], b[key]), (a, key)
