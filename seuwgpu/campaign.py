@@ -17,7 +17,9 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     precisions = ["fp32"]
     fields = "all"           # or a list of field names
     bits = "all"             # or a list of bit indices (those valid for each precision)
-    samples = 20             # injections per (field, bit) cell
+    samples = 20             # injections per (field, bit) cell, or a plan:
+                             # samples = {margin = 0.02, confidence = 0.95} (Leveugle et al. 2009,
+                             # worst case p = 0.5, finite population of the smallest cell)
     sampling = "stratified"  # or "uniform": `samples` x cells injections drawn uniformly over
                              # all stored bits (weight column = bits each sample stands for)
     defenses = ["none", "guard"]
@@ -135,6 +137,22 @@ def _bits(table, where, precisions):
     return sorted(set(v))
 
 
+def _samples(table, where, default, n_min: int | None):
+    """`samples` as an int, or planned from {margin, confidence} (stats.sample_size)."""
+    v = table.get("samples", default)
+    if isinstance(v, dict):
+        _keys(v, {"margin", "confidence"}, f"{where}.samples")
+        from .stats import sample_size
+        margin, conf = v.get("margin"), v.get("confidence", 0.95)
+        if not isinstance(margin, (int, float)) or not 0 < margin < 1:
+            raise SpecError(f"{where}.samples.margin must be a proportion in (0, 1), e.g. 0.02")
+        if not isinstance(conf, (int, float)) or not 0 < conf < 1:
+            raise SpecError(f"{where}.samples.confidence must be in (0, 1), e.g. 0.95")
+        # the smallest cell is one field's values at one bit: n_primitives x 1 component at least
+        return int(sample_size(float(margin), float(conf), population=n_min))
+    return _int(table, "samples", where, default, 1)
+
+
 def _regions(table, where, size):
     """Sort-first partition sizes P for contamination columns (regions_pred_P, regions_meas_P)."""
     v = table.get("regions", [])
@@ -219,7 +237,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "precisions": precisions,
             "fields": _fields(t, "single"),
             "bits": _bits(t, "single", precisions),
-            "samples": _int(t, "samples", "single", 20, 1),
+            "samples": _samples(t, "single", 20, min((sc.get("n") or 10 ** 9) for sc in spec["scenes"])),
             "sampling": t.get("sampling", "stratified"),
             "defenses": _list(t, "defenses", "single", ["none", "guard"], DEFENSES),
             "regions": _regions(t, "single", spec["size"]),
@@ -257,7 +275,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "precisions": precisions,
             "fields": _fields(t, "sizes"),
             "bits": _bits(t, "sizes", precisions),
-            "samples": _int(t, "samples", "sizes", 10, 1),
+            "samples": _samples(t, "sizes", 10, min(ns)),
             "sampling": t.get("sampling", "stratified"),
             "defenses": _list(t, "defenses", "sizes", ["none"], DEFENSES),
             "regions": _regions(t, "sizes", spec["size"]),

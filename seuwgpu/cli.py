@@ -195,6 +195,36 @@ def cmd_distributed(args):
     return 0
 
 
+def cmd_plan(args):
+    """What a spec will run: injections per context, and the margin each cell's sample gives."""
+    from rich.console import Console
+    from rich.table import Table
+    from .campaign import enumerate_contexts, load_spec
+    from .stats import margin_of_error, sample_size
+    spec = load_spec(args.spec)
+    tab = Table(title=f"{args.spec}: campaign plan (margins: 95% confidence, worst case p = 0.5, Leveugle et al. 2009)")
+    for c in ("campaign", "scene", "N", "precision", "cells", "per cell", "injections", "arms", "rows", "margin per cell"):
+        tab.add_column(c, justify="right")
+    total = rows = 0
+    for ctx in enumerate_contexts(spec):
+        sc = spec["scenes"][ctx.scene_index]
+        name = sc.get("scene") or Path(sc["ply"]).stem
+        n = ctx.n or sc.get("n")
+        margin = "-" if ctx.kind == "dose" else f"+-{100 * margin_of_error(ctx.per_cell, 0.95, n):.2f} pt"
+        tab.add_row(ctx.kind, name, f"{n:,}" if n else "file", ctx.precision, str(len(ctx.cells)),
+                    str(ctx.per_cell), f"{ctx.count:,}", str(len(ctx.defenses)),
+                    f"{ctx.count * len(ctx.defenses):,}", margin)
+        total += ctx.count
+        rows += ctx.count * len(ctx.defenses)
+    Console(width=140).print(tab)
+    print(f"total: {total:,} injections, {rows:,} records")
+    if args.margin:
+        n = sample_size(args.margin, args.confidence)
+        print(f"for +-{100 * args.margin:g} pt at {100 * args.confidence:g}% confidence a cell needs {n:,} samples "
+              f"(unbounded population; set samples = {{margin = {args.margin}, confidence = {args.confidence}}})")
+    return 0
+
+
 def cmd_demo(args):
     from importlib.resources import files
     from .campaign import normalize_spec
@@ -332,6 +362,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--repeats", type=int, default=3, help="renders per rank for its median time")
     s.add_argument("--address", help="Ray cluster address (e.g. auto); default: start a local Ray instance")
     s.set_defaults(func=cmd_distributed)
+
+    s = sub.add_parser("plan", help="what a campaign spec will run, and the margin of error per cell")
+    s.add_argument("spec", type=Path)
+    s.add_argument("--margin", type=float, help="also print the samples per cell this margin needs (e.g. 0.01)")
+    s.add_argument("--confidence", type=float, default=0.95)
+    s.set_defaults(func=cmd_plan)
 
     s = sub.add_parser("demo", help="the main job: the default campaign on the embedded scene, then its criticality table")
     s.add_argument("--out", type=Path, default=Path("runs/demo"))

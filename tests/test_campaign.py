@@ -164,3 +164,18 @@ def test_size_sweep_and_uniform_sampling(tmp_path):
     # uniform over all stored bits: every injection stands for the same number of bits
     assert np.allclose(uni.weight, 999 * 59 * 32 / 240)
     assert uni.field.nunique() >= 2 and uni.bit.nunique() > 5
+
+
+def test_samples_planned_from_a_margin(tmp_path):
+    from seuwgpu.stats import sample_size
+    spec = normalize_spec({"views": 1, "size": "32x32", "scenes": [{"scene": "blocks", "n": 2000}],
+                           "single": {"samples": {"margin": 0.05, "confidence": 0.9}}})
+    assert spec["single"]["samples"] == sample_size(0.05, 0.9, population=2000)
+    with pytest.raises(SpecError, match="single.samples.margin"):
+        normalize_spec({"scenes": [{"scene": "blocks"}], "single": {"samples": {"margin": 5}}})
+    with pytest.raises(SpecError, match="unknown key 'margn' in single.samples"):
+        normalize_spec({"scenes": [{"scene": "blocks"}], "single": {"samples": {"margn": 0.1}}})
+    p = write_spec(tmp_path, "views=1\nsize='32x32'\n[[scenes]]\nscene='blocks'\nn=2000\n[single]\nsamples=7\n")
+    out = subprocess.run([sys.executable, "-m", "seuwgpu.cli", "plan", str(p)], capture_output=True, text=True)
+    assert out.returncode == 0
+    assert "total: 1,344 injections, 2,688 records" in out.stdout  # 6 fields x 32 bits x 7, 2 arms
