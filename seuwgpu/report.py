@@ -507,7 +507,8 @@ def _sec_contamination(df, manifests, ctx) -> Section:
     if cont["slowest_region_ms"].isna().all():
         ctx["skipped"].append(("Slowest-region render time and load imbalance",
                                "no region_ms_max_P / region_ms_mean_P columns",
-                               "run the contamination campaign with per-region timing"))
+                               "time the regions with `seuwgpu distributed --scene NAME --ranks 4 16 64` "
+                               "(each region rendered on its own Ray rank)"))
     return sec
 
 
