@@ -23,12 +23,12 @@ last bit, or where 0 * Inf decides between a finite value and NaN):
   tx = p.z * min(lim_x_pos, max(-lim_x_neg, p.x * rz)); J = [[fx*rz, 0, ((-fx*tx)*rz)*rz], ...];
 - quaternion normalised as q * rsqrt(((w*w + x*x) + y*y) + z*z) with rsqrt(v) = 1 / sqrt(v)
   (rsqrt(0) = +Inf, rsqrt(+Inf) = 0); rotation matrix as gsplat's quat_to_rotmat;
-  M = R * diag(s) (M[i,k] = R[i,k] * s[k]); Sigma = M @ M^T;
-  cov_cam = (W @ Sigma) @ W^T; cov2d = (J @ cov_cam) @ J^T;
+  T = (J @ (W @ R)) * diag(s) (2x3: T[i,k] = (J W R)[i,k] * s[k]), rows t1, t2;
 - SH direction d * rsqrt(((dx*dx + dy*dy) + dz*dz)); opacity = the stable sigmoid of
   docs/renderer.md rule 8;
-- a = cov2d[0][0] + 0.3, b = cov2d[0][1] (row 0, column 1), c = cov2d[1][1] + 0.3;
-  det = a*c - b*b; conic = (c/det, -b/det, a/det);
+- aa = (t1.x*t1.x + t1.y*t1.y) + t1.z*t1.z (cc likewise for t2), b = t1.t2 in the same order,
+  a = aa + 0.3, c = cc + 0.3; det = ((|t1 x t2|^2 + 0.3 * (aa + cc)) + 0.09) (Lagrange's identity:
+  a*c - b*b would cancel catastrophically for needles); conic = (c/det, -b/det, a/det);
 - sigma = 0.5 * ((conic.x*dx)*dx + (conic.z*dy)*dy) + (conic.y*dx)*dy with dx = mx - px
   (gsplat's left-to-right order: with conic = 0, sigma is 0 even where dx*dx overflows);
 - C += rgb * (alpha * T) (gsplat's `vis = alpha * T`).
@@ -183,6 +183,19 @@ def _mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return out
 
 
+def _cov2d(t1: np.ndarray, t2: np.ndarray):
+    """(a, b, c, det) of T T^T + 0.3 I from the rows t1, t2 of T = J W R S, det by Lagrange's
+    identity (no cancellation between a*c and b*b), each sum left to right as the shader does."""
+    aa = (t1[..., 0] * t1[..., 0] + t1[..., 1] * t1[..., 1]) + t1[..., 2] * t1[..., 2]
+    cc = (t2[..., 0] * t2[..., 0] + t2[..., 1] * t2[..., 1]) + t2[..., 2] * t2[..., 2]
+    b = (t1[..., 0] * t2[..., 0] + t1[..., 1] * t2[..., 1]) + t1[..., 2] * t2[..., 2]
+    x0 = t1[..., 1] * t2[..., 2] - t1[..., 2] * t2[..., 1]
+    x1 = t1[..., 2] * t2[..., 0] - t1[..., 0] * t2[..., 2]
+    x2 = t1[..., 0] * t2[..., 1] - t1[..., 1] * t2[..., 0]
+    det = (((x0 * x0 + x1 * x1) + x2 * x2) + LOWPASS * (aa + cc)) + F(0.09)
+    return aa + LOWPASS, b, cc + LOWPASS, det
+
+
 def quat_to_rotmat(quats: np.ndarray) -> np.ndarray:
     """[N, 4] (w, x, y, z) -> [N, 3, 3] rotation of q / |q| (gsplat's formula, no special case)."""
     q = np.asarray(quats, dtype=F)
@@ -230,13 +243,10 @@ def project(model: Model, cam: Camera) -> dict:
         mx = (fx * px) * rz + cx
         my = (fy * py) * rz + cy
         ok &= np.isfinite(mx) & np.isfinite(my)
-        # 4. 3-D covariance
+        # 4. scales and rotation
         s = np.exp(model.log_scales)
         Rq = quat_to_rotmat(model.quats)
-        M = Rq * s[:, None, :]
-        Sigma = _mm(M, np.swapaxes(M, 1, 2))
         Wm = np.broadcast_to(R, (n, 3, 3))
-        cov_c = _mm(_mm(Wm, Sigma), np.swapaxes(Wm, 1, 2))
         # 5. EWA with gsplat's clamp
         tx = pz * np.minimum(lim_x_pos, np.maximum(-lim_x_neg, px * rz))
         ty = pz * np.minimum(lim_y_pos, np.maximum(-lim_y_neg, py * rz))
@@ -245,12 +255,9 @@ def project(model: Model, cam: Camera) -> dict:
         J[:, 0, 2] = ((-fx * tx) * rz) * rz
         J[:, 1, 1] = fy * rz
         J[:, 1, 2] = ((-fy * ty) * rz) * rz
-        cov2d = _mm(_mm(J, cov_c), np.swapaxes(J, 1, 2))
-        a = cov2d[:, 0, 0] + LOWPASS
-        b = cov2d[:, 0, 1]
-        c = cov2d[:, 1, 1] + LOWPASS
+        T = _mm(J, _mm(Wm, Rq)) * s[:, None, :]
+        a, b, c, det = _cov2d(T[:, 0, :], T[:, 1, :])
         # 6. determinant, unbounded footprint, conic
-        det = a * c - b * b
         unb = ~(np.isfinite(a) & np.isfinite(b) & np.isfinite(c) & np.isfinite(det))
         conic = np.stack([c / det, -b / det, a / det], axis=1)
         conic[unb] = 0
@@ -395,8 +402,6 @@ def _naive_project_one(model: Model, i: int, cam: Camera, TX: int, TY: int):
     Rq = [[one - two * (qy * qy + qz * qz), two * (qx * qy - qw * qz), two * (qx * qz + qw * qy)],
           [two * (qx * qy + qw * qz), one - two * (qx * qx + qz * qz), two * (qy * qz - qw * qx)],
           [two * (qx * qz - qw * qy), two * (qy * qz + qw * qx), one - two * (qx * qx + qy * qy)]]
-    M = [[Rq[r][k] * s[k] for k in range(3)] for r in range(3)]
-
     def mm(A, B):
         return [[sum_lr([A[r][k] * B[k][col] for k in range(len(B))]) for col in range(len(B[0]))]
                 for r in range(len(A))]
@@ -404,18 +409,15 @@ def _naive_project_one(model: Model, i: int, cam: Camera, TX: int, TY: int):
     def tr(A):
         return [list(col) for col in zip(*A)]
 
-    Sigma = mm(M, tr(M))
     Wm = [[R[r, k] for k in range(3)] for r in range(3)]
-    cov_c = mm(mm(Wm, Sigma), tr(Wm))
     txc = z * min_nan(lxp, max_nan(-lxn, x * rz))
     tyc = z * min_nan(lyp, max_nan(-lyn, y * rz))
     zero = F(0)
     J = [[fx * rz, zero, ((-fx * txc) * rz) * rz], [zero, fy * rz, ((-fy * tyc) * rz) * rz]]
-    cov2d = mm(mm(J, cov_c), tr(J))
-    a = cov2d[0][0] + LOWPASS
-    b = cov2d[0][1]
-    c = cov2d[1][1] + LOWPASS
-    det = a * c - b * b
+    JWR = mm(J, mm(Wm, Rq))
+    t1 = np.array([JWR[0][k] * s[k] for k in range(3)], dtype=F)
+    t2 = np.array([JWR[1][k] * s[k] for k in range(3)], dtype=F)
+    a, b, c, det = (F(v) for v in _cov2d(t1, t2))
     if not (_finite(a) and _finite(b) and _finite(c) and _finite(det)):
         conic = (zero, zero, zero)
         rect = (0, 0, TX, TY)

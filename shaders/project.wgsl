@@ -164,7 +164,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         return;
     }
 
-    // Covariance in world space: R S S R^T from the normalised quaternion (w, x, y, z).
+    // Scales and the rotation of the normalised quaternion (w, x, y, z), gsplat's quat_to_rotmat.
     let s = vec3<f32>(exp_ieee(comp(j, 3u)), exp_ieee(comp(j, 4u)), exp_ieee(comp(j, 5u)));
     let q0 = vec4<f32>(comp(j, 6u), comp(j, 7u), comp(j, 8u), comp(j, 9u));
     let q = q0 * rsqrt_ieee(dot(q0, q0));
@@ -173,12 +173,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         vec3<f32>(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
         vec3<f32>(2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
         vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)));
-    let m = mat3x3<f32>(rot[0] * s.x, rot[1] * s.y, rot[2] * s.z);
-    let sigma = m * transpose(m);
-
-    // EWA with gsplat's Jacobian clamp (30% beyond the image edge).
+    // EWA with gsplat's Jacobian clamp (30% beyond the image edge), evaluated as T T^T with
+    // T = J W R S (2x3) and the determinant by Lagrange's identity, |t1|^2 |t2|^2 - (t1.t2)^2 =
+    // |t1 x t2|^2: the textbook a*c - b*b cancels catastrophically for a needle (one huge axis),
+    // which would make culling depend on the device's fused multiply-adds.
     let wmat = mat3x3<f32>(vm[0].xyz, vm[1].xyz, vm[2].xyz);
-    let cov_c = wmat * sigma * transpose(wmat);
     let width = f32(view.width);
     let height = f32(view.height);
     let tan_fovx = 0.5 * width / fx;
@@ -194,11 +193,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         vec2<f32>(fx * rz, 0.0),
         vec2<f32>(0.0, fy * rz),
         vec2<f32>(-fx * tx * rz * rz, -fy * ty * rz * rz));
-    let cov2 = jac * cov_c * transpose(jac);
-    let a = cov2[0][0] + 0.3;
-    let b = cov2[0][1];
-    let c = cov2[1][1] + 0.3;
-    let det = a * c - b * b;
+    let m2 = jac * (wmat * rot);
+    let t1 = vec3<f32>(m2[0].x * s.x, m2[1].x * s.y, m2[2].x * s.z);
+    let t2 = vec3<f32>(m2[0].y * s.x, m2[1].y * s.y, m2[2].y * s.z);
+    let aa = (t1.x * t1.x + t1.y * t1.y) + t1.z * t1.z;
+    let cc = (t2.x * t2.x + t2.y * t2.y) + t2.z * t2.z;
+    let b = (t1.x * t2.x + t1.y * t2.y) + t1.z * t2.z;
+    let xp = vec3<f32>(t1.y * t2.z - t1.z * t2.y, t1.z * t2.x - t1.x * t2.z, t1.x * t2.y - t1.y * t2.x);
+    let a = aa + 0.3;
+    let c = cc + 0.3;
+    let det = (((xp.x * xp.x + xp.y * xp.y) + xp.z * xp.z) + 0.3 * (aa + cc)) + 0.09;
 
     let tiles_x = f32(view.tiles_x);
     let tiles_y = f32(view.tiles_y);
