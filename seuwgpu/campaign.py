@@ -64,7 +64,7 @@ import numpy as np
 import pandas as pd
 
 from . import __version__, formats
-from .faults import DEFENSES, Site, site_from_flat, uniform_upsets
+from .faults import DEFENSES, Site, draw_uniform_sites, site_from_flat
 from .model import FIELDS, canonical_field, field_components
 
 # ---- spec --------------------------------------------------------------------------------------
@@ -517,26 +517,15 @@ class Runner:
         else:
             for i, s in zip(ids, seeds):
                 k, rep = ctx.cell_of(i - ctx.first_id)
-                sites = uniform_upsets_model(eng, k, np.random.default_rng(s))
+                try:
+                    sites = draw_uniform_sites(eng.n, eng.degree, eng.precision, k, np.random.default_rng(s))
+                except ValueError as e:
+                    raise SpecError(f"dose: {e}") from None
                 for d in ctx.defenses:
                     rec = eng.inject(sites, d)
                     rec.update(campaign="dose", repeat=rep, weight=1.0, seed=s, injection_id=i)
                     rows.append(rec)
         return rows
-
-
-def uniform_upsets_model(eng, k: int, rng) -> list[Site]:
-    """k distinct single-bit upsets uniform over the engine's whole stored bit budget."""
-    total = eng.n * eng.layout.ncomp * formats.bits_per_value(eng.precision)
-    if k > total:
-        raise SpecError(f"dose k={k} exceeds the model's {total} stored bits")
-    nb = formats.bits_per_value(eng.precision)
-    flat = np.unique(rng.integers(0, total, size=k))
-    while flat.size < k:
-        flat = np.unique(np.concatenate([flat, rng.integers(0, total, size=k - flat.size)]))
-    prim, rest = np.divmod(flat, eng.layout.ncomp * nb)
-    comp, bit = np.divmod(rest, nb)
-    return [site_from_flat(int(p), int(c), (int(b),), eng.degree) for p, c, b in zip(prim, comp, bit)]
 
 
 def _parquet_bytes(df: pd.DataFrame) -> bytes:

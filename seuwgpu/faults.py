@@ -68,22 +68,23 @@ def mask_of(bits) -> int:
 def uniform_upsets(model: Model, precision: str, k: int, rng: np.random.Generator) -> list[Site]:
     """k distinct single-bit upsets drawn uniformly over the whole stored bit budget (all six
     fields), without replacement."""
+    return draw_uniform_sites(model.n, model.sh_degree, precision, k, rng)
+
+
+def draw_uniform_sites(n: int, degree: int, precision: str, k: int, rng: np.random.Generator) -> list[Site]:
+    """k distinct stored bits of an n-primitive model, uniform over its bit budget (the dose
+    campaign's draw: a function of the generator's state alone)."""
     nb = formats.bits_per_value(precision)
-    ncomp = model.n_components
-    total = model.n * ncomp * nb
+    ncomp = 14 + 3 * ((degree + 1) ** 2 - 1)
+    total = n * ncomp * nb
     if k > total:
         raise ValueError(f"k={k} exceeds the model's {total} stored bits")
-    flat = rng.choice(total, size=k, replace=False) if k > total // 4 else _distinct(rng, total, k)
+    flat = np.unique(rng.integers(0, total, size=k))
+    while flat.size < k:
+        flat = np.unique(np.concatenate([flat, rng.integers(0, total, size=k - flat.size)]))
     prim, rest = np.divmod(flat, ncomp * nb)
     comp, bit = np.divmod(rest, nb)
-    return [site_from_flat(int(p), int(c), (int(b),), model.sh_degree) for p, c, b in zip(prim, comp, bit)]
-
-
-def _distinct(rng, total: int, k: int) -> np.ndarray:
-    out = np.unique(rng.integers(0, total, size=k))
-    while out.size < k:
-        out = np.unique(np.concatenate([out, rng.integers(0, total, size=k - out.size)]))
-    return rng.permutation(out)
+    return [site_from_flat(int(p), int(c), (int(b),), degree) for p, c, b in zip(prim, comp, bit)]
 
 
 def site_from_flat(prim: int, flat_comp: int, bits: tuple[int, ...], degree: int) -> Site:
