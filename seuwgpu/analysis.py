@@ -555,14 +555,6 @@ def _sort_prec_def(t: pd.DataFrame) -> pd.DataFrame:
 
 # ------------------------------------------------------------------------------- mitigation
 
-def _hamming_secded_bits(data_bits: int) -> int:
-    """Check bits of a SEC-DED (extended Hamming) code over `data_bits` data bits."""
-    r = 1
-    while (1 << r) < data_bits + r + 1:
-        r += 1
-    return r + 1
-
-
 def memory_overhead(defense: str, precision: str = "fp32", n_primitives: int | None = None,
                     sh_degree: int = DEFAULT_SH_DEGREE, manifests: Iterable[dict] = ()
                     ) -> tuple[float, str]:
@@ -598,9 +590,8 @@ def memory_overhead(defense: str, precision: str = "fp32", n_primitives: int | N
         frac = 2 * guarded * GUARD_BOX_BITS / (float(n_primitives) * comps * bits)
         return frac, f"2 x {guarded} fp32 box bounds per model, N = {int(n_primitives):,}"
     if defense == "ecc":
-        man, exp = formats.LAYOUT.get(precision, (23, 8))
-        data = 1 + exp
-        chk = _hamming_secded_bits(data)
+        from .faults import ecc_check_bits  # the code the ECC defense simulates
+        chk = ecc_check_bits(precision)
         return chk / bits, f"SEC-DED over sign+exponent: {chk} check bits per {bits}-bit value"
     if defense == "dup":
         return 2.0, "three copies (TMR, majority vote)"

@@ -172,27 +172,3 @@ def majority(a, b, c):
 def dup_read(clean_bits: np.ndarray, stored_bits: np.ndarray) -> np.ndarray:
     """Full duplication with majority voting: the upset hit one of three copies (copy 0)."""
     return majority(np.asarray(stored_bits), np.asarray(clean_bits), np.asarray(clean_bits))
-
-
-MEMORY_OVERHEAD_NOTE = {
-    "none": "no extra memory",
-    "guard": "two box bounds per guarded component for the whole model (negligible)",
-    "selective": "two box bounds per log-scale and opacity component (negligible)",
-    "ecc": "SEC-DED check bits over sign+exponent per stored value",
-    "dup": "two extra copies of every stored value (triple modular redundancy, majority vote)",
-}
-
-
-def memory_overhead(defense: str, precision: str, model: Model) -> float:
-    """Extra memory as a fraction of the stored model."""
-    check_defense(defense)
-    total_bits = model.bit_budget(precision)["total"]
-    nb = formats.bits_per_value(precision)
-    if defense == "none":
-        return 0.0
-    if defense in ("guard", "selective"):
-        comps = sum(field_components(f, model.sh_degree) for f in GUARDED_FIELDS[defense])
-        return 2 * comps * nb / total_bits
-    if defense == "ecc":
-        return ecc_overhead(precision)
-    return 2.0
