@@ -355,27 +355,54 @@ def enumerate_contexts(spec: dict) -> list[Context]:
     return ctxs
 
 
+def _splitmix64(x: np.ndarray) -> np.ndarray:
+    """SplitMix64 finaliser on uint64 arrays (wrapping arithmetic): a counter-based hash, so any
+    injection's random numbers follow from (master seed, id) alone, vectorised over a block."""
+    x = np.asarray(x, dtype=np.uint64) + np.uint64(0x9E3779B97F4A7C15)
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+def injection_seeds(master: int, ids) -> np.ndarray:
+    """Per-injection 63-bit seeds (the records' `seed` column) of a block of injection ids."""
+    key = _splitmix64(np.array([master], dtype=np.uint64))[0]
+    return (_splitmix64(np.asarray(ids, dtype=np.uint64) ^ key) >> np.uint64(1)).astype(np.int64)
+
+
 def injection_seed(master: int, injection_id: int) -> int:
-    return int(np.random.SeedSequence([master, injection_id]).generate_state(1, np.uint64)[0] >> np.uint64(1))
+    return int(injection_seeds(master, [injection_id])[0])
 
 
-def draw_single(ctx: Context, local: int, seed: int, n: int, degree: int) -> tuple[Site, float]:
-    """The site of a single-upset injection and its weight (stored bits it stands for)."""
-    rng = np.random.default_rng(seed)
+def _stream(seeds: np.ndarray, k: int) -> np.ndarray:
+    """The k-th 64-bit random number of each injection's stream."""
+    return _splitmix64(seeds.astype(np.uint64) * np.uint64(0x100000001B3) + np.uint64(k))
+
+
+def draw_sites(ctx: "Context", local: np.ndarray, seeds: np.ndarray, n: int, degree: int):
+    """Sites of a block of single-upset injections and their weights (stored bits each stands
+    for). Stratified: cell local // samples, primitive and component uniform within it; uniform:
+    one stored bit uniform over the whole budget. Returns (sites, weights)."""
     nb = formats.bits_per_value(ctx.precision)
+    local = np.asarray(local, dtype=np.int64)
     if ctx.sampling == "uniform":
         ncomp = 14 + 3 * ((degree + 1) ** 2 - 1)
         total = n * ncomp * nb
-        flat = int(rng.integers(total))
-        prim, rest = divmod(flat, ncomp * nb)
-        comp, bit = divmod(rest, nb)
-        site = site_from_flat(prim, comp, (bit,), degree)
-        return site, total / (len(ctx.cells) * ctx.per_cell)
-    (field, bit), _ = ctx.cell_of(local)
-    nc = field_components(field, degree)
-    prim = int(rng.integers(n))
-    comp = int(rng.integers(nc))
-    return Site(field, prim, comp, (int(bit),)), n * nc / ctx.per_cell
+        flat = (_stream(seeds, 0) % np.uint64(total)).astype(np.int64)
+        prim, rest = np.divmod(flat, ncomp * nb)
+        comp, bit = np.divmod(rest, nb)
+        sites = [site_from_flat(int(p), int(c), (int(b),), degree) for p, c, b in zip(prim, comp, bit)]
+        return sites, np.full(local.size, total / (len(ctx.cells) * ctx.per_cell))
+    cell = local // ctx.per_cell
+    prim = (_stream(seeds, 1) % np.uint64(n)).astype(np.int64)
+    r2 = _stream(seeds, 2)
+    sites, weights = [], np.empty(local.size)
+    for j, c in enumerate(cell):
+        field, bit = ctx.cells[c]
+        nc = field_components(field, degree)
+        sites.append(Site(field, int(prim[j]), int(r2[j] % np.uint64(nc)), (int(bit),)))
+        weights[j] = n * nc / ctx.per_cell
+    return sites, weights
 
 
 # ---- running -----------------------------------------------------------------------------------
@@ -466,8 +493,7 @@ class Runner:
                     engines.clear()  # one engine at a time: bounded memory
                     engines[key] = self._engine(ctx)
                 eng = engines[key]
-                rows = self._run_block(eng, ctx, first, count)
-                df = pd.DataFrame(rows, columns=columns_of(ctx))
+                df = self._run_block(eng, ctx, first, count)
                 _atomic_write(self.out / "records" / f"part-{first:010d}-{count:06d}.parquet", _parquet_bytes(df))
                 cat = int(df.loc[df.defense == ctx.defenses[0], "catastrophic"].sum())
                 stats["injections"] += count
@@ -497,35 +523,36 @@ class Runner:
             cams = load_cameras(sc["cameras"]) if "cameras" in sc else orbit_cameras(self.spec["views"], w, h)
         return Engine(model, cams, ctx.precision, gpu=self.gpu, scene=name, incremental=not self.full)
 
-    def _run_block(self, eng, ctx: Context, first: int, count: int) -> list[dict]:
-        ids = range(first, first + count)
-        seeds = [injection_seed(self.spec["seed"], i) for i in ids]
-        rows = []
+    def _run_block(self, eng, ctx: Context, first: int, count: int) -> pd.DataFrame:
+        ids = np.arange(first, first + count, dtype=np.int64)
+        seeds = injection_seeds(self.spec["seed"], ids)
         if ctx.kind in ("single", "size"):
-            drawn = [draw_single(ctx, i - ctx.first_id, s, eng.n, eng.degree) for i, s in zip(ids, seeds)]
-            sites = [d[0] for d in drawn]
+            sites, weights = draw_sites(ctx, ids - ctx.first_id, seeds, eng.n, eng.degree)
             if self.full:
                 if ctx.regions:
                     raise SpecError("regions (sort-first contamination) are measured on the incremental path; drop --full")
-                recs = [eng.inject(s, d) for d in ctx.defenses for s in sites]
+                df = pd.DataFrame([eng.inject(s, d) for d in ctx.defenses for s in sites])
             else:
-                recs = eng.evaluate(sites, ctx.defenses, ctx.regions)
-            for j, rec in enumerate(recs):
-                i = j % count
-                rec.update(campaign=ctx.kind, repeat=0, weight=drawn[i][1], seed=seeds[i], injection_id=ids[i])
+                df = eng.evaluate_frame(sites, ctx.defenses, ctx.regions)
+            arms = len(ctx.defenses)  # rows are defense-major: arm d holds rows d*count .. d*count+count-1
+            df["campaign"] = ctx.kind
+            df["repeat"] = 0
+            df["weight"] = np.tile(weights, arms)
+            df["seed"] = np.tile(seeds, arms)
+            df["injection_id"] = np.tile(ids, arms)
+            return df.reindex(columns=columns_of(ctx))
+        rows = []
+        for i, s in zip(ids, seeds):
+            k, rep = ctx.cell_of(int(i) - ctx.first_id)
+            try:
+                sites = draw_uniform_sites(eng.n, eng.degree, eng.precision, k, np.random.default_rng(int(s)))
+            except ValueError as e:
+                raise SpecError(f"dose: {e}") from None
+            for d in ctx.defenses:
+                rec = eng.inject(sites, d)
+                rec.update(campaign="dose", repeat=rep, weight=1.0, seed=int(s), injection_id=int(i))
                 rows.append(rec)
-        else:
-            for i, s in zip(ids, seeds):
-                k, rep = ctx.cell_of(i - ctx.first_id)
-                try:
-                    sites = draw_uniform_sites(eng.n, eng.degree, eng.precision, k, np.random.default_rng(s))
-                except ValueError as e:
-                    raise SpecError(f"dose: {e}") from None
-                for d in ctx.defenses:
-                    rec = eng.inject(sites, d)
-                    rec.update(campaign="dose", repeat=rep, weight=1.0, seed=s, injection_id=i)
-                    rows.append(rec)
-        return rows
+        return pd.DataFrame(rows).reindex(columns=columns_of(ctx))
 
 
 def _parquet_bytes(df: pd.DataFrame) -> bytes:
@@ -636,5 +663,5 @@ def replay(spec: dict, injection_id: int, full: bool = False, gpu=None) -> pd.Da
     for ctx in runner.contexts:
         if ctx.first_id <= injection_id < ctx.first_id + ctx.count:
             eng = runner._engine(ctx)
-            return pd.DataFrame(runner._run_block(eng, ctx, injection_id, 1), columns=columns_of(ctx))
+            return runner._run_block(eng, ctx, injection_id, 1)
     raise ValueError(f"injection id {injection_id} is not in this campaign (0..{runner.total - 1})")

@@ -14,6 +14,7 @@ the renderer reads from a corrupted word:
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 
 from . import formats
 from .camera import Camera
@@ -289,33 +290,42 @@ class Engine:
         return prims, bits, gm
 
     def evaluate(self, sites: list[Site], defenses=("none",), regions=()) -> list[dict]:
-        """Records for single-value sites under each defense (paired: same sites for every arm),
-        by incremental re-compositing. Arms a defense fully corrects cost no rendering."""
+        """Records (dicts) for single-value sites under each defense; see evaluate_frame."""
+        return self.evaluate_frame(sites, defenses, regions).to_dict("records")
+
+    def evaluate_frame(self, sites: list[Site], defenses=("none",), regions=()) -> pd.DataFrame:
+        """Records for single-value sites under each defense (paired: same sites for every arm,
+        rows defense-major), by incremental re-compositing, built column-wise."""
         sites = list(sites)
-        recs = []
-        base = []
-        for s in sites:
-            base.append({"scene": self.scene, "n_primitives": self.n, "precision": self.precision,
-                         "field": s.field, "primitive": s.primitive, "component": s.component, "bit": s.bit,
-                         "bit_class": site_bit_class(s, self.precision), "k": 1})
+        m_sites = len(sites)
         comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
+        base = {
+            "scene": [self.scene] * m_sites, "n_primitives": np.full(m_sites, self.n, np.int64),
+            "precision": [self.precision] * m_sites, "field": [s.field for s in sites],
+            "primitive": np.array([s.primitive for s in sites], np.int64),
+            "component": np.array([s.component for s in sites], np.int64),
+            "bit": np.array([s.bit for s in sites], np.int64),
+            "bit_class": [site_bit_class(s, self.precision) for s in sites], "k": np.ones(m_sites, np.int64),
+        }
+        frames = []
+        rows = np.arange(m_sites)
         for d in defenses:
             check_defense(d)
             prims, bits, gm = self.variant_bits(sites, d)
-            clean_bits = self.primitive_bits(prims)
-            rows = np.arange(len(sites))
-            clean_v = formats.from_bits(clean_bits[rows, comps], self.precision)
+            clean_v = formats.from_bits(self.primitive_bits(prims)[rows, comps], self.precision)
             corr_v = formats.from_bits(bits[rows, comps], self.precision)
             m = self.evaluator.evaluate(prims, bits, gm, regions)
-            for i, b in enumerate(base):
-                rec = dict(b)
-                rec.update(defense=d, clean_value=float(clean_v[i]), corrupted_value=float(corr_v[i]),
-                           footprint=float(m["footprint"][i]), footprint_max=float(m["footprint_max"][i]),
-                           peak_error=float(m["peak_error"][i]), psnr=float(m["psnr"][i]), ssim=float(m["ssim"][i]),
-                           nonfinite=bool(m["nonfinite"][i]), clamps=int(m["clamps"][i]))
-                rec["catastrophic"] = bool(catastrophic(rec["footprint"], rec["nonfinite"]))
-                for P in regions:
-                    rec[f"regions_pred_{P}"] = int(m[f"regions_pred_{P}"][i])
-                    rec[f"regions_meas_{P}"] = int(m[f"regions_meas_{P}"][i])
-                recs.append(rec)
-        return recs
+            cols = dict(base)
+            with np.errstate(invalid="ignore"):  # NaN values are data here
+                cols.update(defense=[d] * m_sites, clean_value=clean_v.astype(np.float64),
+                            corrupted_value=corr_v.astype(np.float64))
+            for key in ("footprint", "footprint_max", "peak_error", "psnr", "ssim"):
+                cols[key] = np.asarray(m[key], np.float64)
+            cols["nonfinite"] = np.asarray(m["nonfinite"], bool)
+            cols["clamps"] = np.asarray(m["clamps"], np.int64)
+            cols["catastrophic"] = np.asarray(catastrophic(cols["footprint"], cols["nonfinite"]), bool)
+            for P in regions:
+                cols[f"regions_pred_{P}"] = np.asarray(m[f"regions_pred_{P}"], np.int64)
+                cols[f"regions_meas_{P}"] = np.asarray(m[f"regions_meas_{P}"], np.int64)
+            frames.append(pd.DataFrame(cols))
+        return pd.concat(frames, ignore_index=True)
