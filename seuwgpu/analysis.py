@@ -699,9 +699,10 @@ def crossing_k(ks, values, threshold: float = BUDGET_PSNR_DB) -> tuple[float, st
 
 def redundancy_budget(df: pd.DataFrame, threshold_db: float = BUDGET_PSNR_DB) -> pd.DataFrame:
     """k where the mean (clipped) PSNR first crosses `threshold_db`, per (scene, n_primitives,
-    precision, defense), interpolated in log k, from dose and size campaign records."""
+    precision, defense), interpolated in log k, from dose campaign records (uniform upsets; a size
+    campaign's single upsets are stratified by cell, so they do not stand for k = 1 here)."""
     d = prepare(df)
-    d = d[d["campaign"].isin(["dose", "size"])]
+    d = d[d["campaign"] == "dose"]
     if d.empty or not (d["k"] > 1).any():
         raise InsufficientData("no k > 1 records", "run a dose campaign (k simultaneous upsets)")
     d = d.assign(_psnr=capped_psnr(d))
@@ -721,11 +722,22 @@ def redundancy_budget(df: pd.DataFrame, threshold_db: float = BUDGET_PSNR_DB) ->
     return _tag(out, d, threshold_db=threshold_db)
 
 
+def _wquantile(values: np.ndarray, weights: np.ndarray, q: float) -> float:
+    """Weighted quantile (lower, on the sorted values; +inf sorts last)."""
+    v = np.asarray(values, float)
+    w = np.asarray(weights, float)
+    order = np.argsort(v, kind="stable")
+    cw = np.cumsum(w[order])
+    return float(v[order][np.searchsorted(cw, q * cw[-1])])
+
+
 def size_scaling(df: pd.DataFrame) -> dict:
     """Median and mean single-upset error against primitive count N, with log-log fits.
 
-    Uses k = 1 records of campaign "size" (else of campaign "dose": both draw upsets uniformly
-    over the stored bits). Error = frame MSE from PSNR (see module notes); footprint too.
+    Uses k = 1 records of campaign "size" (else of campaign "dose"). Records are weighted by their
+    `weight` column (stored bits each sample stands for), so a stratified size campaign estimates
+    the mean and median over a uniformly drawn upset, as a uniform one does directly.
+    Error = frame MSE from PSNR (see module notes); footprint too.
     Fits are per (scene, precision, defense) with at least two N values; alpha = -exponent
     (the paper's sigma^2(N) = Theta(N^-alpha)). "guard_factor": mean MSE without / with guard at
     the largest N of each scene and precision.
@@ -747,14 +759,17 @@ def size_scaling(df: pd.DataFrame) -> dict:
     rows = []
     for key, g in d.groupby(["scene", "precision", "defense", "n_primitives"], sort=False):
         mse = g["_mse"].to_numpy(float)
+        w = (g["weight"].to_numpy(float) if "weight" in g and g["weight"].notna().all()
+             else np.ones(len(g)))
         fin = np.isfinite(mse)
+        foot = g["footprint"].to_numpy(float)
         rows.append({"scene": key[0], "precision": key[1], "defense": key[2],
                      "n_primitives": int(key[3]), "n": len(g),
-                     "median_mse": float(np.median(mse)),
-                     "mean_mse": float(mse[fin].mean()) if fin.any() else np.nan,
+                     "median_mse": _wquantile(mse, w, 0.5),
+                     "mean_mse": float(np.average(mse[fin], weights=w[fin])) if fin.any() else np.nan,
                      "n_nonfinite": int((~fin).sum()),
-                     "median_footprint_pct": 100 * g["footprint"].median(),
-                     "mean_footprint_pct": 100 * g["footprint"].mean()})
+                     "median_footprint_pct": 100 * _wquantile(foot, w, 0.5),
+                     "mean_footprint_pct": 100 * float(np.average(foot, weights=w))})
     table = _sort_prec_def(pd.DataFrame(rows).sort_values(["scene", "n_primitives"]))
     _tag(table, d, source_campaign=src)
     frows = []

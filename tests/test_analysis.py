@@ -399,3 +399,28 @@ def test_prediction_perfect_and_random():
     assert res_r["summary"]["auc_holdout"].iloc[1] == pytest.approx(0.5, abs=0.12)
     with pytest.raises(A.InsufficientData):
         A.prediction(_records(50))
+
+
+def test_size_scaling_weights_stratified_records():
+    """Stratified size-campaign records are weighted by the bits each stands for: a rare,
+    heavily damaging cell must not dominate the mean in proportion to its sample count."""
+    import pandas as pd
+    from seuwgpu import analysis as A
+    rows = []
+    for n in (1000, 4000):
+        for i in range(20):
+            # cell A: 10 samples standing for 9 bits each, error 1e-6; cell B: 10 samples standing
+            # for 1 bit each, error 1e-2
+            heavy = i < 10
+            mse = 1e-6 if heavy else 1e-2
+            rows.append(dict(scene="s", n_primitives=n, precision="fp32", field="means", primitive=0,
+                             component=0, bit=0, bit_class="mantissa", clean_value=0.0, corrupted_value=0.0,
+                             defense="none", footprint=0.0, footprint_max=0.0, peak_error=0.0,
+                             psnr=10 * np.log10(1 / mse), ssim=1.0, nonfinite=False, catastrophic=False,
+                             clamps=0, k=1, seed=i, injection_id=i + n, campaign="size", repeat=0,
+                             weight=9.0 if heavy else 1.0))
+    res = A.size_scaling(pd.DataFrame(rows))
+    t = res["table"]
+    want = (9 * 1e-6 + 1 * 1e-2) / 10
+    assert np.allclose(t["mean_mse"], want, rtol=1e-6)
+    assert np.allclose(t["median_mse"], 1e-6, rtol=1e-6)
