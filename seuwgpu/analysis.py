@@ -1014,6 +1014,21 @@ def _edges(n: int, parts: int) -> np.ndarray:
     return (np.arange(parts + 1) * n) // parts
 
 
+def region_edges(P: int, H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column pixel edges of the P-way grid: region (i, j) spans rows ey[i]..ey[i+1]-1
+    and columns ex[j]..ex[j+1]-1."""
+    rows, cols = region_grid(P, H, W)
+    return _edges(H, rows), _edges(W, cols)
+
+
+def region_id_map(P: int, H: int, W: int) -> np.ndarray:
+    """[H, W] region index (row-major) of every pixel, consistent with region_set."""
+    ey, ex = region_edges(P, H, W)
+    ry = np.searchsorted(ey, np.arange(H), side="right") - 1
+    rx = np.searchsorted(ex, np.arange(W), side="right") - 1
+    return (ry[:, None] * (len(ex) - 1) + rx[None, :]).astype(np.int64)
+
+
 def region_set(changed_mask_or_bbox, H: int, W: int, P: int) -> np.ndarray:
     """Boolean array of P regions (row-major: index = row * cols + col) touched by a footprint.
 
@@ -1021,8 +1036,8 @@ def region_set(changed_mask_or_bbox, H: int, W: int, P: int) -> np.ndarray:
     (x0, y0, x1, y1) in continuous pixel coordinates, x1/y1 exclusive, covering the pixels
     floor(x0) .. ceil(x1)-1 (clipped to the screen; an empty or off-screen box touches nothing).
     Region (i, j) spans rows edges_y[i]..edges_y[i+1]-1, edges = floor(t * size / parts)."""
-    rows, cols = region_grid(P, H, W)
-    ey, ex = _edges(H, rows), _edges(W, cols)
+    ey, ex = region_edges(P, H, W)
+    rows, cols = len(ey) - 1, len(ex) - 1
     out = np.zeros(rows * cols, dtype=bool)
     obj = changed_mask_or_bbox
     if isinstance(obj, (tuple, list)) and len(obj) == 4 and np.ndim(obj[0]) == 0:

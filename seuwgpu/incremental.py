@@ -192,15 +192,6 @@ class IncrementalEvaluator:
         return out
 
     # ---- sort-first contamination ---------------------------------------------------------------
-    def _region_ids(self, P: int) -> np.ndarray:
-        """[H, W] region index of every pixel for the P-way grid of analysis.region_grid."""
-        from .analysis import region_grid
-        r = self.r
-        rows, cols = region_grid(P, r.height, r.width)
-        ry = (np.arange(r.height) * rows) // r.height
-        rx = (np.arange(r.width) * cols) // r.width
-        return (ry[:, None] * cols + rx[None, :]).astype(np.int64)
-
     def _measured_regions(self, b_idx, v_idx, t_idx, m: int, regions) -> dict:
         """Regions with a changed pixel (|d| > 1/255 in a channel, or non-finite) in any view,
         from the re-composited slabs against the clean frame."""
@@ -217,8 +208,9 @@ class IncrementalEvaluator:
         with np.errstate(invalid="ignore"):
             diff = np.abs(slabs[..., :3].astype(np.float64) - clean)
             changed = ((diff > 1.0 / 255.0) | ~np.isfinite(slabs[..., :3])).any(axis=-1) & inside
+        from .analysis import region_id_map
         for P in regions:
-            rid = self._region_ids(P)[yc, xc]
+            rid = region_id_map(P, r.height, r.width)[yc, xc]
             bits = np.where(changed, np.left_shift(np.uint64(1), rid.astype(np.uint64)), np.uint64(0))
             per_entry = np.bitwise_or.reduce(bits.reshape(n_e, -1), axis=1)
             acc = np.zeros(m, dtype=np.uint64)
@@ -229,11 +221,10 @@ class IncrementalEvaluator:
     def _predicted_regions(self, new_rects: np.ndarray, P: int) -> np.ndarray:
         """Regions the corrupted primitive's tile rectangle (its projected 3.33-sigma footprint,
         as binned) reaches in any view. new_rects [K, M, 4] in tiles."""
-        from .analysis import region_grid
+        from .analysis import region_edges
         r = self.r
-        rows, cols = region_grid(P, r.height, r.width)
-        ey = (np.arange(rows + 1) * r.height) // rows
-        ex = (np.arange(cols + 1) * r.width) // cols
+        ey, ex = region_edges(P, r.height, r.width)
+        rows, cols = len(ey) - 1, len(ex) - 1
         x0, y0 = new_rects[..., 0] * TILE, new_rects[..., 1] * TILE
         x1 = np.minimum(new_rects[..., 2] * TILE, r.width)
         y1 = np.minimum(new_rects[..., 3] * TILE, r.height)

@@ -86,10 +86,11 @@ def predicted(eng, site, defense, P):
     return regions_to_bitmask(hit)
 
 
-def test_region_contamination_matches_full_frames():
+@pytest.mark.parametrize("size", [(64, 48), (50, 38)])  # grids that divide the frame, and that do not
+def test_region_contamination_matches_full_frames(size):
     from seuwgpu.analysis import region_set, regions_to_bitmask
     model = make_scene("spheres", n=2000, seed=4)
-    eng = Engine(model, scene_cameras("spheres", 2, 64, 48), "fp32")
+    eng = Engine(model, scene_cameras("spheres", 2, *size), "fp32")
     rng = np.random.default_rng(5)
     sites = sample_sites(eng, rng, per_class=1)
     regions = (4, 16, 64)
