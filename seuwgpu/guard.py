@@ -19,7 +19,7 @@ absorbing a degrading device.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field as dc_field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -119,6 +119,23 @@ def clamp_values(flat: np.ndarray, box: Box, mask: int) -> tuple[np.ndarray, np.
         f = max(i for i, name in enumerate(FIELDS) if c >= FIELD_OFFSET[name])
         counts[f] += int(low.sum() + high.sum())
     return out, counts
+
+
+def clamp_bits(bits: np.ndarray, box: Box, mask: int) -> tuple[np.ndarray, np.ndarray]:
+    """Numpy twin of the scrub shader on stored bits [N, ncomp]: every guarded value outside the
+    box (or NaN) is replaced by the stored bits of the bound; everything else, NaN payloads of
+    unguarded components included, is left bit for bit. Returns (new bits, clamped mask)."""
+    bits = np.asarray(bits)
+    vals = formats.from_bits(bits, box.precision)
+    guarded = np.array([(mask >> c) & 1 for c in range(bits.shape[1])], dtype=bool)
+    with np.errstate(invalid="ignore"):
+        low = guarded & (np.isnan(vals) | (vals < box.lo))
+        high = guarded & (vals > box.hi)
+    rows = box.rows()
+    out = bits.copy()
+    out[low] = np.broadcast_to(rows[:, 2].astype(bits.dtype), bits.shape)[low]
+    out[high] = np.broadcast_to(rows[:, 3].astype(bits.dtype), bits.shape)[high]
+    return out, low | high
 
 
 def scrub(renderer, box: Box, fields, per_primitive: bool = False):

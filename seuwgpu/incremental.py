@@ -18,12 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import formats
 from .gpu.device import STORAGE, UNIFORM, dispatch_dims
-from .guard import clamp_values
+from .guard import clamp_bits
 from .metrics import ImageMetrics, build_worklist, summarize, tile_map_to_mask
 from .model import StoredLayout
-from .render import PRECISION_CODE, _UNIFORM_STRIDE, TILE
+from .render import _UNIFORM_STRIDE, TILE
 
 _SLAB_BYTES = 256 * 16
 
@@ -101,15 +100,12 @@ class IncrementalEvaluator:
             self._refresh_clean_state()
         clamps = np.zeros(m, dtype=np.int64)
         if guard_masks is not None:
-            vals = formats.from_bits(bits, self.r.precision)
+            bits = bits.copy()
             for mask in np.unique(guard_masks):
-                if mask == 0:
-                    continue
-                sel = guard_masks == mask
-                clamped, _ = clamp_values(vals[sel], self.engine.box, int(mask))
-                clamps[sel] = (formats.to_bits(clamped, self.r.precision) != bits[sel]).sum(axis=1)
-                bits = bits.copy()
-                bits[sel] = formats.to_bits(clamped, self.r.precision)
+                if mask:
+                    sel = guard_masks == mask
+                    bits[sel], hit = clamp_bits(bits[sel], self.engine.box, int(mask))
+                    clamps[sel] = hit.sum(axis=1)
         out = None
         for a in range(0, m, self.B):
             part = self._evaluate_batch(prims[a:a + self.B], bits[a:a + self.B], tuple(regions))
@@ -161,7 +157,7 @@ class IncrementalEvaluator:
         return out
 
     def _recomposite(self, prims, dirty, first: int, regions=()) -> dict:
-        r, g, K = self.r, self.gpu, self.r.k
+        r, g = self.r, self.gpu
         m = prims.size
         b_idx, v_idx, t_idx = np.nonzero(dirty)
         n_e = b_idx.size

@@ -164,3 +164,28 @@ def test_uniform_upsets_cover_the_whole_budget():
     assert len({(s.field, s.primitive, s.component, s.bit) for s in sites}) == 2000
     share = {f: sum(s.field == f for s in sites) / 2000 for f in FIELDS}
     assert abs(share["sh_rest"] - 45 / 59) < 0.05 and abs(share["opacity"] - 1 / 59) < 0.02
+
+
+@pytest.mark.parametrize("precision", formats.PRECISIONS)
+def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision):
+    from seuwgpu.guard import clamp_bits
+    model = random_model(97, seed=13)
+    r = Renderer(model, scene_cameras("spheres", 1, 32, 32), precision)
+    box = support_box(r.layout.decode(r.clean_words), precision)
+    bits = formats.to_bits(model.flat(), precision)
+    nb = formats.bits_per_value(precision)
+    sign, top = 1 << (nb - 1), (1 << (nb - 1)) - 1           # sign bit; all exponent+mantissa ones
+    snan = {16: 0x7C01 if precision == "fp16" else 0x7F81, 32: 0x7F800001}[nb]
+    bits[3, 4] ^= sign                                       # log-scale sign flip: above the box
+    bits[5, 10] = top                                        # opacity NaN -> lower bound
+    bits[7, 20] = snan                                       # signalling NaN in sh_rest: not guarded
+    bits[9, 0] = snan                                        # ... and in a mean: guarded
+    mask = component_mask(FIELDS[:5], 3)
+    want, hit = clamp_bits(bits, box, mask)
+    for c, words in enumerate(r.layout.encode_bits(bits)):
+        r.gpu.write(r.chunks[c], words)
+    scrub(r, box, FIELDS[:5])
+    got = np.concatenate([r.read_words(c) for c in range(r.layout.n_chunks)])
+    assert np.array_equal(got, np.concatenate(r.layout.encode_bits(want)))
+    assert hit[5, 10] and hit[9, 0] and not hit[7, 20]
+    assert want[7, 20] == snan                               # payload untouched, bit for bit
