@@ -18,15 +18,13 @@ import pandas as pd
 
 from . import formats
 from .camera import Camera
-from .faults import (DEFENSES, GUARDED_FIELDS, Site, check_defense, dup_read, ecc_read, make_site,
-                     mask_of, site_bit_class)
+from .faults import (GUARDED_FIELDS, Site, check_defense, dup_read, ecc_read, make_site, mask_of,
+                     site_bit_class)
 from .gpu.device import GPU, STORAGE, UNIFORM, dispatch_dims, get_gpu
 from .guard import Box, GuardMonitor, component_mask, support_box
 from .metrics import ImageMetrics, catastrophic, summarize
-from .model import Model
+from .model import FIELDS, Model
 from .render import Renderer
-
-GUARD_OF_DEFENSE = {"guard": "guard", "selective": "selective"}
 
 
 class Engine:
@@ -44,8 +42,10 @@ class Engine:
         stored = self.layout.decode(self.renderer.clean_words)
         self.box: Box = support_box(stored, precision)
         self.renderer.set_guard(self.box.rows(), 0)
-        self.masks = {d: component_mask(GUARDED_FIELDS[d], self.degree) for d in ("guard", "selective", "guard_all")}
+        # in-pipeline clamp mask of each guard defense (other defenses: 0)
+        self.masks = {d: component_mask(GUARDED_FIELDS[d], self.degree) for d in ("guard", "selective")}
         self.p_flip = self.gpu.pipeline("flip")
+        self._flip_cap = 0  # flip buffers grow on demand (see _scatter)
         self._active: list[dict] = []  # applied XOR lists, for undo
         self.monitor = GuardMonitor(threshold=0)  # health signal of interactive/guarded renders
         self._set_up_views()
@@ -100,6 +100,16 @@ class Engine:
         b = self.stored_bits([site.primitive], [site.flat_component()])
         return float(formats.from_bits(formats.flip_bits(b, list(site.bits), self.precision), self.precision)[0])
 
+    def _defended(self, clean: np.ndarray, masks: np.ndarray, defense: str) -> np.ndarray:
+        """What `defense` reads from stored values `clean` after XOR `masks` hit them (the support
+        guard is applied later, in the pipeline or by clamp_bits)."""
+        corrupt = (clean.astype(np.uint64) ^ masks).astype(clean.dtype)
+        if defense == "ecc":
+            return ecc_read(clean, corrupt, self.precision)
+        if defense == "dup":
+            return dup_read(clean, corrupt)
+        return corrupt
+
     # ---- flips on the GPU --------------------------------------------------------------------------
     def _xor_lists(self, sites: list[Site], defense: str) -> dict[int, np.ndarray]:
         """Per chunk: [(word, xor mask)] turning the clean words into what the defense reads."""
@@ -115,14 +125,7 @@ class Engine:
         np.bitwise_xor.at(vmask, inv, masks)
         p, c = np.divmod(uk, self.layout.ncomp)
         clean = self.stored_bits(p, c)
-        corrupt = (clean.astype(np.uint64) ^ vmask).astype(clean.dtype)
-        if defense == "ecc":
-            eff = ecc_read(clean, corrupt, self.precision)
-        elif defense == "dup":
-            eff = dup_read(clean, corrupt)
-        else:
-            eff = corrupt
-        delta = clean.astype(np.uint64) ^ eff.astype(np.uint64)
+        delta = clean.astype(np.uint64) ^ self._defended(clean, vmask, defense).astype(np.uint64)
         chunk, word, shift = self.layout.locate(p, c)
         wmask = delta << shift.astype(np.uint64)
         out = {}
@@ -142,7 +145,7 @@ class Engine:
             return
         g, n_chunks = self.gpu, self.layout.n_chunks
         need = max(len(p) for p in xors.values())
-        if getattr(self, "_flip_cap", 0) < need:
+        if self._flip_cap < need:
             self._flip_cap = max(need, 1024)
             self._flip_pairs = [g.buffer(8 * self._flip_cap, STORAGE, "flip_pairs") for _ in range(n_chunks)]
             self._flip_params = g.buffer(256 * n_chunks, UNIFORM, "flip_params")
@@ -179,35 +182,34 @@ class Engine:
 
     # ---- rendering and metrics ---------------------------------------------------------------------
     def _guard_mask(self, defense: str) -> int:
-        return self.masks.get(GUARD_OF_DEFENSE.get(defense, ""), 0)
+        return self.masks.get(defense, 0)
 
-    def render_current(self, defense: str = "none") -> tuple[np.ndarray, dict]:
-        """Render the model as it is now (faults applied) under a defense's in-pipeline guard.
-        Returns ([K, H, W, 4] images, clamps per field)."""
-        r = self.renderer
-        r.set_guard(None, self._guard_mask(defense))
-        r.reset_guard_counts()
-        try:
-            images = r.render_rgba()
-            clamps = r.read_guard_counts()
-        finally:
-            r.set_guard(None, 0)
-        counts = dict(zip(("means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest"), map(int, clamps)))
-        if self._guard_mask(defense):
-            self.monitor.update(counts)
-        return images, counts
-
-    def measure_current(self, defense: str = "none") -> dict:
-        """GPU metrics of the current model against the clean render (the frame stays on the GPU)."""
+    def _run_guarded(self, defense: str) -> dict:
+        """Render the K views as the model is now, under the defense's in-pipeline clamp; the frame
+        stays in the renderer's image buffer. Returns clamps per field."""
         r = self.renderer
         r.set_guard(None, self._guard_mask(defense))
         r.reset_guard_counts()
         try:
             r._run()
-            clamps = int(r.read_guard_counts().sum())
+            return dict(zip(FIELDS, map(int, r.read_guard_counts())))
         finally:
             r.set_guard(None, 0)
-        raw = self.metrics.run_dense(self.clean_buf, r.image, 1)
+
+    def render_current(self, defense: str = "none") -> tuple[np.ndarray, dict]:
+        """Render the model as it is now (faults applied) under a defense's in-pipeline guard.
+        Returns ([K, H, W, 4] images, clamps per field); guarded renders feed the health monitor."""
+        counts = self._run_guarded(defense)
+        r = self.renderer
+        images = r.gpu.read(r.image, np.float32, 0, 16 * r.k * r.width * r.height)
+        if self._guard_mask(defense):
+            self.monitor.update(counts)
+        return images.reshape(r.k, r.height, r.width, 4), counts
+
+    def measure_current(self, defense: str = "none") -> dict:
+        """GPU metrics of the current model against the clean render (the frame stays on the GPU)."""
+        clamps = sum(self._run_guarded(defense).values())
+        raw = self.metrics.run_dense(self.clean_buf, self.renderer.image, 1)
         out = {k: (v[0].item() if hasattr(v, "__len__") else v) for k, v in summarize(raw, self.width, self.height).items()}
         out["clamps"] = clamps
         return out
@@ -279,13 +281,7 @@ class Engine:
         masks = np.array([mask_of(s.bits) for s in sites], dtype=np.uint64)
         bits = self.primitive_bits(prims)
         rows = np.arange(len(sites))
-        clean = bits[rows, comps]
-        corrupt = (clean.astype(np.uint64) ^ masks).astype(clean.dtype)
-        if defense == "ecc":
-            corrupt = ecc_read(clean, corrupt, self.precision)
-        elif defense == "dup":
-            corrupt = dup_read(clean, corrupt)
-        bits[rows, comps] = corrupt
+        bits[rows, comps] = self._defended(bits[rows, comps], masks, defense)
         gm = np.full(len(sites), self._guard_mask(defense), dtype=np.int64)
         return prims, bits, gm
 
@@ -312,7 +308,7 @@ class Engine:
         for d in defenses:
             check_defense(d)
             prims, bits, gm = self.variant_bits(sites, d)
-            clean_v = formats.from_bits(self.primitive_bits(prims)[rows, comps], self.precision)
+            clean_v = formats.from_bits(self.stored_bits(prims, comps), self.precision)
             corr_v = formats.from_bits(bits[rows, comps], self.precision)
             m = self.evaluator.evaluate(prims, bits, gm, regions)
             cols = dict(base)
