@@ -30,12 +30,12 @@ from .render import Renderer
 class Engine:
     def __init__(self, model: Model, cameras: list[Camera], precision: str = "fp32",
                  gpu: GPU | None = None, scene: str = "", chunk_prims: int | None = None,
-                 background=(1.0, 1.0, 1.0), incremental: bool = True):
+                 background=(1.0, 1.0, 1.0), incremental: bool = True, capacity: int | None = None):
         self.gpu = gpu or get_gpu()
         self.precision = formats.check_precision(precision)
         self.scene = scene
         self.renderer = Renderer(model, cameras, precision, gpu=self.gpu, chunk_prims=chunk_prims,
-                                 background=background, keep_views=incremental)
+                                 background=background, keep_views=incremental, capacity=capacity)
         self.incremental = incremental
         self.layout = self.renderer.layout
         self.n, self.degree = model.n, model.sh_degree

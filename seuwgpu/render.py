@@ -71,6 +71,7 @@ class Renderer:
         self._alloc_primitive_scratch()
         self.max_capacity = self.gpu.max_binding // 4
         self.capacity = 0
+        self.version = 0  # bumped when the intersection / kept-view buffers are replaced
         self._want_capacity = capacity
         self.cameras: list[Camera] = []
         self.set_cameras(cameras)
@@ -131,7 +132,6 @@ class Renderer:
             self.kv_rgb = g.buffer(16 * n * k, STORAGE, "kv_rgb")
             self.kv_rect = g.buffer(8 * n * k, STORAGE, "kv_rect")
             self.kv_ranges = g.buffer(8 * self.n_tiles * k, STORAGE, "kv_ranges")
-            self.capacity = 0  # kv_isect follows the capacity
         self.bin_params = g.buffer(_UNIFORM_STRIDE * self.k, UNIFORM, "bin_params")
         want = self._want_capacity or max(65536, 4 * self.n)
         self._set_capacity(max(self.capacity, min(_next_pow2(want), self.max_capacity)), force=True)
@@ -161,17 +161,27 @@ class Renderer:
         self.gpu.write(self.bin_params, bp)
 
     def _set_capacity(self, capacity: int, force: bool = False):
+        """(Re)allocate the intersection buffers. Growth during a frame keeps the clean per-view
+        tile lists of a keep_views renderer (copied to the new per-view stride); `force` (a new
+        view set) rebuilds them empty, to be captured again."""
         if capacity == self.capacity and not force:
             return
         g = self.gpu
+        old_capacity, old_kv = self.capacity, getattr(self, "kv_isect", None)
         if capacity != self.capacity:
             self.capacity = capacity
             self.isect_tiles = g.buffer(4 * capacity, STORAGE, "isect_tiles")
             self.isect_prims = g.buffer(4 * capacity, STORAGE, "isect_prims")
             self.tile_sort = RadixSort(g, capacity)
-            if self.keep_views:
-                self.kv_isect = g.buffer(4 * capacity * self.k, STORAGE, "kv_isect")
-            self.version = getattr(self, "version", 0) + 1  # bind groups on these buffers must be rebuilt
+        if self.keep_views:  # one tile list per view: follows both the capacity and the view count
+            self.kv_isect = g.buffer(4 * self.capacity * self.k, STORAGE, "kv_isect")
+            if old_kv is not None and not force:
+                enc = g.device.create_command_encoder()
+                for v in range(self.k):
+                    enc.copy_buffer_to_buffer(old_kv, 4 * old_capacity * v, self.kv_isect,
+                                              4 * self.capacity * v, 4 * old_capacity)
+                g.submit(enc)
+        self.version += 1  # bind groups on the replaced buffers must be rebuilt
         self._write_params()
         self._make_bind_groups()
 

@@ -114,11 +114,16 @@ def test_region_contamination_matches_full_frames(size):
 
 def test_full_renders_in_between_leave_the_incremental_state_clean():
     model = make_scene("plant", n=1500, seed=6)
-    eng = Engine(model, scene_cameras("plant", 2, 48, 48), "fp32")
+    eng = Engine(model, scene_cameras("plant", 2, 48, 48), "fp32", capacity=16)
     sites = [eng.site("log_scales", p, 0, 31) for p in range(0, 1500, 150)]
     before = eng.evaluate(sites)
-    for s in sites:  # full re-renders of corrupted models, some growing the intersection buffers
+    cap = eng.renderer.capacity
+    for s in sites:  # full re-renders of corrupted models
         eng.inject([s, eng.site("log_scales", s.primitive, 1, 31)])
+    # top exponent bit of every log-scale: -4 becomes about -4e-38, a unit-scale Gaussian filling
+    # the frame, so the intersection buffers must grow during this faulted frame
+    eng.inject([eng.site("log_scales", p, 0, 30) for p in range(1500)])
+    assert eng.renderer.capacity > cap
     after = eng.evaluate(sites)
     for a, b in zip(before, after):
         for key in METRICS:
