@@ -153,6 +153,16 @@ def _samples(table, where, default, n_min: int | None):
     return _int(table, "samples", where, default, 1)
 
 
+def _spec_file(table, key, where, base_dir: Path | None) -> str:
+    """A file named in the spec, relative to the spec's folder; it must exist."""
+    path = Path(table[key])
+    if base_dir is not None and not path.is_absolute():
+        path = base_dir / path
+    if not path.exists():
+        raise SpecError(f"{where}.{key}: file not found: {path}")
+    return str(path)
+
+
 def _regions(table, where, size):
     """Sort-first partition sizes P for contamination columns (regions_pred_P, regions_meas_P)."""
     v = table.get("regions", [])
@@ -213,19 +223,9 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             out["scene"] = s["scene"]
             out["n"] = _int(s, "n", where, 100_000, 1)
         else:
-            path = Path(s["ply"])
-            if base_dir is not None and not path.is_absolute():
-                path = base_dir / path
-            if not path.exists():
-                raise SpecError(f"{where}.ply: file not found: {path}")
-            out["ply"] = str(path)
+            out["ply"] = _spec_file(s, "ply", where, base_dir)
         if "cameras" in s:
-            cp = Path(s["cameras"])
-            if base_dir is not None and not cp.is_absolute():
-                cp = base_dir / cp
-            if not cp.exists():
-                raise SpecError(f"{where}.cameras: file not found: {cp}")
-            out["cameras"] = str(cp)
+            out["cameras"] = _spec_file(s, "cameras", where, base_dir)
         spec["scenes"].append(out)
     if not any(k in raw for k in ("single", "dose", "sizes")):
         raise SpecError("the spec needs at least one of [single], [dose], [sizes]")
