@@ -1,3 +1,5 @@
 """seuwgpu: single-event-upset fault injection for 3D Gaussian splatting on WGSL compute shaders."""
 
-__version__ = "0.1.0"
+from seuwgpu.version import __version__
+
+__all__ = ["__version__"]

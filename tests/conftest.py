@@ -9,6 +9,7 @@ os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp")
 @pytest.fixture(scope="session")
 def gpu():
     from seuwgpu.gpu.device import get_gpu
+
     return get_gpu()
 
 
@@ -32,7 +33,8 @@ def psnr_finite(a: np.ndarray, b: np.ndarray) -> float:
 
 def random_model(n: int, degree: int = 3, seed: int = 0, spread: float = 0.8):
     """Small random scene around the origin with trained-model-like parameters."""
-    from seuwgpu.model import Model, sh_rest_count
+    from seuwgpu.model.fields import Model, sh_rest_count
+
     rng = np.random.default_rng(seed)
     return Model(
         means=rng.uniform(-spread, spread, (n, 3)),

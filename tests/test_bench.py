@@ -19,7 +19,8 @@ def bench():
 
 
 def test_bench_config_fields(bench, gpu):
-    from seuwgpu import scenes
+    from seuwgpu.model import scenes
+
     model = scenes.make_scene("spheres", 2000, 3, 0)
     twin = bench.measure_twin("spheres", model, 32)
     rec = bench.bench_config(model, "spheres", 32, 2, repeats=2, gpu=gpu, twin=twin)
@@ -42,7 +43,8 @@ def test_bench_config_fields(bench, gpu):
 
 
 def test_twin_above_max_n_gives_no_ratio(bench, gpu):
-    from seuwgpu import scenes
+    from seuwgpu.model import scenes
+
     model = scenes.make_scene("plant", 3000, 1, 0)
     twin = bench.measure_twin("plant", model, 32, max_n=1000)
     assert twin["n"] == 1000 and "N=1000" in twin["what"]
@@ -52,8 +54,12 @@ def test_twin_above_max_n_gives_no_ratio(bench, gpu):
 
 def test_main_writes_json_and_table(bench, gpu, tmp_path, capsys):
     out = tmp_path / "b.json"
-    assert bench.main(["--scenes", "spheres", "--n", "2000", "--sizes", "32", "--views", "1",
-                       "--repeats", "1", "--out", str(out)]) == 0
+    assert (
+        bench.main(
+            ["--scenes", "spheres", "--n", "2000", "--sizes", "32", "--views", "1", "--repeats", "1", "--out", str(out)]
+        )
+        == 0
+    )
     doc = json.loads(out.read_text())
     assert doc["adapter"]["backend"] and doc["adapter"]["device"]
     assert len(doc["results"]) == 1 and doc["results"][0]["mpix_per_s"] > 0 and doc["total_wall_s"] > 0

@@ -1,19 +1,26 @@
 """Campaigns: spec errors, kill-and-resume, shards, replay by id, stratified sampling."""
 
-import os
 import signal
 import subprocess
 import sys
 import textwrap
 import time
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from seuwgpu.campaign import (COLUMNS, Runner, SpecError, enumerate_contexts, load_spec, merge,
-                              normalize_spec, read_records, replay)
+from seuwgpu.campaign.runner import (
+    COLUMNS,
+    Runner,
+    SpecError,
+    enumerate_contexts,
+    load_spec,
+    merge,
+    normalize_spec,
+    read_records,
+    replay,
+)
 
 SPEC = textwrap.dedent("""
     seed = 7
@@ -100,7 +107,7 @@ def test_kill_and_resume_gives_the_uninterrupted_records(reference_run, tmp_path
     spec, ref = reference_run
     spec_path = write_spec(tmp_path)
     run = tmp_path / "run"
-    cmd = [sys.executable, "-m", "seuwgpu.cli", "campaign", str(spec_path), "--out", str(run), "--quiet"]
+    cmd = [sys.executable, "-m", "seuwgpu", "campaign", str(spec_path), "--out", str(run), "--quiet"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 120
     while time.time() < deadline and len(list((run / "records").glob("part-*.parquet"))) < 2:
@@ -118,42 +125,63 @@ def test_kill_and_resume_gives_the_uninterrupted_records(reference_run, tmp_path
 def test_changed_spec_is_refused(reference_run, tmp_path):
     spec, _ = reference_run
     run = tmp_path / "run"
-    small = normalize_spec({"seed": 1, "views": 1, "size": "32x32", "scenes": [{"scene": "blocks", "n": 500}],
-                            "single": {"fields": ["opacity"], "bits": [31], "samples": 2}})
+    small = normalize_spec(
+        {
+            "seed": 1,
+            "views": 1,
+            "size": "32x32",
+            "scenes": [{"scene": "blocks", "n": 500}],
+            "single": {"fields": ["opacity"], "bits": [31], "samples": 2},
+        }
+    )
     Runner(small, run, quiet=True).run()
     other = dict(small, seed=2)
     with pytest.raises(SpecError, match="different spec"):
         Runner(other, run, quiet=True).run()
 
 
-@pytest.mark.parametrize("text, message", [
-    ("seed = 1\nviews = 2\n[[scenes]]\nscene='blocks'\n[single]\nsampels = 3\n", "unknown key 'sampels' in single"),
-    ("seed = 1\nbogus = 2\n[[scenes]]\nscene='blocks'\n[single]\n", "unknown key 'bogus'"),
-    ("[[scenes]]\nscene='nope'\n[single]\n", "unknown scene 'nope'"),
-    ("[[scenes]]\nscene='blocks'\n[single]\nprecisions=['fp64']\n", "single.precisions"),
-    ("[[scenes]]\nscene='blocks'\n[single]\nbits=[32]\n", "bit 32 is out of range for fp32"),
-    ("[[scenes]]\nscene='blocks'\n[single]\nprecisions=['bf16']\nbits=[16]\n", "bit 16 is out of range for bf16"),
-    ("[[scenes]]\nscene='blocks'\n[single]\nfields=['colour_x']\n", "unknown field"),
-    ("[[scenes]]\nscene='blocks'\n[single]\nsamples=0\n", "single.samples"),
-    ("[[scenes]]\nscene='blocks'\n[single]\ndefenses=['magic']\n", "single.defenses"),
-    ("[[scenes]]\nscene='blocks'\n", "at least one of [single]"),
-    ("size='12'\n[[scenes]]\nscene='blocks'\n[single]\n", "size"),
-    ("[[scenes]]\nply='missing.ply'\n[single]\n", "file not found"),
-    ("[[scenes]]\nscene='blocks'\n[dose]\nk=[1]\nk_max=5\n", "either k"),
-    ("[[scenes]]\nscene='blocks'\n[single\n", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("seed = 1\nviews = 2\n[[scenes]]\nscene='blocks'\n[single]\nsampels = 3\n", "unknown key 'sampels' in single"),
+        ("seed = 1\nbogus = 2\n[[scenes]]\nscene='blocks'\n[single]\n", "unknown key 'bogus'"),
+        ("[[scenes]]\nscene='nope'\n[single]\n", "unknown scene 'nope'"),
+        ("[[scenes]]\nscene='blocks'\n[single]\nprecisions=['fp64']\n", "single.precisions"),
+        ("[[scenes]]\nscene='blocks'\n[single]\nbits=[32]\n", "bit 32 is out of range for fp32"),
+        ("[[scenes]]\nscene='blocks'\n[single]\nprecisions=['bf16']\nbits=[16]\n", "bit 16 is out of range for bf16"),
+        ("[[scenes]]\nscene='blocks'\n[single]\nfields=['colour_x']\n", "unknown field"),
+        ("[[scenes]]\nscene='blocks'\n[single]\nsamples=0\n", "single.samples"),
+        ("[[scenes]]\nscene='blocks'\n[single]\ndefenses=['magic']\n", "single.defenses"),
+        ("[[scenes]]\nscene='blocks'\n", "at least one of [single]"),
+        ("size='12'\n[[scenes]]\nscene='blocks'\n[single]\n", "size"),
+        ("[[scenes]]\nply='missing.ply'\n[single]\n", "file not found"),
+        ("[[scenes]]\nscene='blocks'\n[dose]\nk=[1]\nk_max=5\n", "either k"),
+        ("[[scenes]]\nscene='blocks'\n[single\n", "not valid TOML"),
+    ],
+)
 def test_bad_specs_fail_with_a_message_naming_the_key(tmp_path, text, message):
     with pytest.raises(SpecError, match=message.replace("[", r"\[").replace("(", r"\(")):
         load_spec(write_spec(tmp_path, text))
 
 
 def test_size_sweep_and_uniform_sampling(tmp_path):
-    spec = normalize_spec({
-        "seed": 3, "views": 1, "size": "32x32", "batch": 64,
-        "scenes": [{"scene": "plant", "n": 999}],
-        "single": {"fields": "all", "bits": [31], "samples": 40, "sampling": "uniform", "defenses": ["none"]},
-        "sizes": {"n": [400, 1600], "fields": ["log_scales"], "bits": [30, 31], "samples": 3, "defenses": ["none", "guard"]},
-    })
+    spec = normalize_spec(
+        {
+            "seed": 3,
+            "views": 1,
+            "size": "32x32",
+            "batch": 64,
+            "scenes": [{"scene": "plant", "n": 999}],
+            "single": {"fields": "all", "bits": [31], "samples": 40, "sampling": "uniform", "defenses": ["none"]},
+            "sizes": {
+                "n": [400, 1600],
+                "fields": ["log_scales"],
+                "bits": [30, 31],
+                "samples": 3,
+                "defenses": ["none", "guard"],
+            },
+        }
+    )
     Runner(spec, tmp_path / "run", quiet=True).run()
     df = read_records(tmp_path / "run")
     size = df[df.campaign == "size"]
@@ -167,15 +195,22 @@ def test_size_sweep_and_uniform_sampling(tmp_path):
 
 
 def test_samples_planned_from_a_margin(tmp_path):
-    from seuwgpu.stats import sample_size
-    spec = normalize_spec({"views": 1, "size": "32x32", "scenes": [{"scene": "blocks", "n": 2000}],
-                           "single": {"samples": {"margin": 0.05, "confidence": 0.9}}})
+    from seuwgpu.campaign.plan import sample_size
+
+    spec = normalize_spec(
+        {
+            "views": 1,
+            "size": "32x32",
+            "scenes": [{"scene": "blocks", "n": 2000}],
+            "single": {"samples": {"margin": 0.05, "confidence": 0.9}},
+        }
+    )
     assert spec["single"]["samples"] == sample_size(0.05, 0.9, population=2000)
     with pytest.raises(SpecError, match="single.samples.margin"):
         normalize_spec({"scenes": [{"scene": "blocks"}], "single": {"samples": {"margin": 5}}})
     with pytest.raises(SpecError, match="unknown key 'margn' in single.samples"):
         normalize_spec({"scenes": [{"scene": "blocks"}], "single": {"samples": {"margn": 0.1}}})
     p = write_spec(tmp_path, "views=1\nsize='32x32'\n[[scenes]]\nscene='blocks'\nn=2000\n[single]\nsamples=7\n")
-    out = subprocess.run([sys.executable, "-m", "seuwgpu.cli", "plan", str(p)], capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "seuwgpu", "plan", str(p)], capture_output=True, text=True)
     assert out.returncode == 0
     assert "total: 1,344 injections, 2,688 records" in out.stdout  # 6 fields x 32 bits x 7, 2 arms

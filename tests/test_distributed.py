@@ -9,12 +9,16 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from seuwgpu import distributed
-from seuwgpu.campaign import COLUMNS, Runner, normalize_spec, read_records
-from seuwgpu.distributed import ray_available, split_regions
+from seuwgpu.apps.cli import run_campaign
+from seuwgpu.campaign import ray as distributed
+from seuwgpu.campaign import sortfirst
+from seuwgpu.campaign.ray import ray_available
+from seuwgpu.campaign.runner import COLUMNS, Runner, normalize_spec, read_records
+from seuwgpu.campaign.sortfirst import split_regions
 
-needs_ray = pytest.mark.skipif(not ray_available(),
-                               reason="ray is not importable (install the extra: pip install 'seuwgpu[ray]')")
+needs_ray = pytest.mark.skipif(
+    not ray_available(), reason="ray is not importable (install the extra: pip install 'seuwgpu[ray]')"
+)
 
 SPEC = textwrap.dedent("""
     seed = 11
@@ -46,6 +50,7 @@ def canonical(df: pd.DataFrame) -> pd.DataFrame:
 @pytest.fixture(scope="module")
 def spec():
     import tomllib
+
     return normalize_spec(tomllib.loads(SPEC))
 
 
@@ -59,6 +64,7 @@ def local_records(spec, tmp_path_factory):
 @pytest.fixture(scope="module")
 def ray_instance():
     import ray
+
     started = distributed.init_ray(num_cpus=2)
     yield ray
     if started:
@@ -66,25 +72,31 @@ def ray_instance():
 
 
 def test_regions_tile_the_frame():
-    for ranks, (w, h), grid in [(4, (64, 64), (2, 2)), (16, (64, 64), (4, 4)), (4, (80, 48), (2, 2)),
-                                (3, (96, 40), (3, 1)), (6, (100, 70), (3, 2))]:
+    for ranks, (w, h), grid in [
+        (4, (64, 64), (2, 2)),
+        (16, (64, 64), (4, 4)),
+        (4, (80, 48), (2, 2)),
+        (3, (96, 40), (3, 1)),
+        (6, (100, 70), (3, 2)),
+    ]:
         regions, g = split_regions(ranks, w, h)
         assert g == grid and len(regions) == ranks
         cover = np.zeros((h, w), int)
         for x0, y0, rw, rh in regions:
             assert x0 % 16 == 0 and y0 % 16 == 0 and rw > 0 and rh > 0
-            cover[y0:y0 + rh, x0:x0 + rw] += 1
+            cover[y0 : y0 + rh, x0 : x0 + rw] += 1
         assert (cover == 1).all()
     with pytest.raises(ValueError, match="do not fit"):
         split_regions(5, 32, 32)
 
 
-def test_without_ray_the_local_executor_runs_and_says_how_to_get_ray(spec, local_records, tmp_path, monkeypatch,
-                                                                    capsys):
+def test_without_ray_the_local_executor_runs_and_says_how_to_get_ray(
+    spec, local_records, tmp_path, monkeypatch, capsys
+):
     monkeypatch.setattr(distributed, "ray_available", lambda: False)
     small = dict(spec)
     del small["dose"]
-    distributed.run_campaign(small, tmp_path / "run", executor="ray", quiet=True)
+    run_campaign(small, tmp_path / "run", executor="ray", quiet=True)
     err = capsys.readouterr().err
     assert "pip install 'seuwgpu[ray]'" in err and "local executor" in err
     got = canonical(read_records(tmp_path / "run"))
@@ -98,6 +110,7 @@ def test_ray_run_records_equal_the_local_run(ray_instance, spec, local_records, 
     assert stats["workers"] == 2 and stats["new"] == stats["total"] == local_records.injection_id.nunique()
     pd.testing.assert_frame_equal(canonical(read_records(tmp_path / "run")), local_records)
     import json
+
     manifest = json.loads((tmp_path / "run" / "manifest.json").read_text())
     assert manifest["executor"]["kind"] == "ray"
     # nothing left to do: a re-run schedules no task and rewrites nothing
@@ -106,8 +119,7 @@ def test_ray_run_records_equal_the_local_run(ray_instance, spec, local_records, 
 
 
 @needs_ray
-def test_a_killed_worker_has_its_shard_redone_without_loss_or_duplicates(ray_instance, spec, local_records,
-                                                                         tmp_path):
+def test_a_killed_worker_has_its_shard_redone_without_loss_or_duplicates(ray_instance, spec, local_records, tmp_path):
     run = tmp_path / "run"
     Runner(spec, run, shard=(4, 5), quiet=True).run()  # a resumed run: the last of 5 blocks is already written
     pre = {p.name: p.stat().st_mtime_ns for p in (run / "records").glob("part-*.parquet")}
@@ -126,17 +138,20 @@ def test_a_killed_worker_has_its_shard_redone_without_loss_or_duplicates(ray_ins
 
 @pytest.fixture(scope="module")
 def sort_first_run(ray_instance):
-    from seuwgpu.scenes import make_scene, scene_cameras
+    from seuwgpu.model.scenes import make_scene, scene_cameras
+
     model = make_scene("spheres", n=3000)
     cams = scene_cameras("spheres", 2, 80, 64)  # 5x4 tiles: the 2x2 regions are uneven (32/48 px wide)
-    res = distributed.sort_first(model, cams, "fp32", ranks=4, upset=("log_scales", (31,)), sample=8,
-                                 guard="scrub", repeats=1)
+    res = sortfirst.sort_first(
+        model, cams, "fp32", ranks=4, upset=("log_scales", (31,)), sample=8, guard="scrub", repeats=1
+    )
     return model, cams, res
 
 
 @needs_ray
 def test_sort_first_composite_equals_the_single_device_render(sort_first_run):
-    from seuwgpu.render import Renderer
+    from seuwgpu.render.renderer import Renderer
+
     model, cams, res = sort_first_run
     full = Renderer(model, cams).render()
     assert res["composite"].shape == full.shape

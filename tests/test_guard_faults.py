@@ -1,32 +1,31 @@
 """Bit flips on the GPU-resident model, the support guard, ECC and duplication."""
 
-import warnings
-
 import numpy as np
 import pytest
-
 from conftest import random_model
-from seuwgpu import formats
-from seuwgpu.engine import Engine
-from seuwgpu.faults import DEFENSES, dup_read, ecc_read, make_site, uniform_upsets
-from seuwgpu.guard import GuardAlert, GuardMonitor, clamp_values, component_mask, scrub, support_box
-from seuwgpu.model import FIELDS, field_components
-from seuwgpu.render import Renderer
-from seuwgpu.scenes import make_scene, scene_cameras
+
+from seuwgpu.faults.defenses import DEFENSES, dup_read, ecc_read
+from seuwgpu.faults.engine import Engine
+from seuwgpu.faults.guard import GuardAlert, GuardMonitor, clamp_values, component_mask, scrub, support_box
+from seuwgpu.faults.sites import uniform_upsets
+from seuwgpu.model import encoding
+from seuwgpu.model.fields import FIELDS, field_components
+from seuwgpu.model.scenes import make_scene, scene_cameras
+from seuwgpu.render.renderer import Renderer
 
 
 @pytest.fixture(scope="module")
 def engines():
     model = make_scene("spheres", n=3000, seed=5)
     cams = scene_cameras("spheres", 2, 48, 48)
-    return {p: Engine(model, cams, p, scene="spheres", incremental=False) for p in formats.PRECISIONS}
+    return {p: Engine(model, cams, p, scene="spheres", incremental=False) for p in encoding.PRECISIONS}
 
 
 def bits_u32(x):
     return np.ascontiguousarray(x).view(np.uint32)
 
 
-@pytest.mark.parametrize("precision", formats.PRECISIONS)
+@pytest.mark.parametrize("precision", encoding.PRECISIONS)
 def test_each_flip_changes_exactly_one_stored_bit_and_restores_exactly(engines, precision):
     eng = engines[precision]
     r = eng.renderer
@@ -34,8 +33,12 @@ def test_each_flip_changes_exactly_one_stored_bit_and_restores_exactly(engines, 
     rng = np.random.default_rng(1)
     for field in FIELDS:
         nc = field_components(field, eng.degree)
-        site = eng.site(field, int(rng.integers(eng.n)), int(rng.integers(nc)),
-                        int(rng.integers(formats.bits_per_value(precision))))
+        site = eng.site(
+            field,
+            int(rng.integers(eng.n)),
+            int(rng.integers(nc)),
+            int(rng.integers(encoding.bits_per_value(precision))),
+        )
         h = eng.apply([site])
         now = [r.read_words(c) for c in range(r.layout.n_chunks)]
         diff = sum(int(np.unpackbits((a ^ b).view(np.uint8)).sum()) for a, b in zip(clean_words, now))
@@ -95,9 +98,15 @@ def test_planted_values_clamp_counts_nan_inf_and_scrub_matches_in_pipeline():
     clean_r = Renderer(model, cams, "fp16")
     box = support_box(clean_r.layout.decode(clean_r.clean_words), "fp16")
     bad = model.copy()
-    planted = {("log_scales", 3, 0): np.inf, ("log_scales", 7, 2): np.nan, ("opacity", 11, 0): -np.inf,
-               ("means", 20, 1): 1e4, ("sh_dc", 30, 2): -1e4, ("quats", 40, 3): np.nan,
-               ("sh_rest", 50, 5): 1e3}
+    planted = {
+        ("log_scales", 3, 0): np.inf,
+        ("log_scales", 7, 2): np.nan,
+        ("opacity", 11, 0): -np.inf,
+        ("means", 20, 1): 1e4,
+        ("sh_dc", 30, 2): -1e4,
+        ("quats", 40, 3): np.nan,
+        ("sh_rest", 50, 5): 1e3,
+    }
     for (f, p, c), v in planted.items():
         bad.field(f)[p, c] = v
     r = Renderer(bad, cams, "fp16")
@@ -115,14 +124,14 @@ def test_planted_values_clamp_counts_nan_inf_and_scrub_matches_in_pipeline():
     for c in range(stored.shape[1]):
         if (mask >> c) & 1:
             assert np.all(stored[:, c] >= box.lo[c]) and np.all(stored[:, c] <= box.hi[c])
-    assert stored[7, 3 + 2] == box.lo[5]          # NaN -> lower bound
-    assert stored[3, 3] == box.hi[3]              # +Inf -> upper bound
-    assert stored[11, 10] == box.lo[10]           # -Inf -> lower bound
-    assert stored[50, 14 + 5] == 1000.0            # sh_rest is not guarded by default
+    assert stored[7, 3 + 2] == box.lo[5]  # NaN -> lower bound
+    assert stored[3, 3] == box.hi[3]  # +Inf -> upper bound
+    assert stored[11, 10] == box.lo[10]  # -Inf -> lower bound
+    assert stored[50, 14 + 5] == 1000.0  # sh_rest is not guarded by default
     # the repaired memory renders exactly as the in-pipeline clamp did
     assert np.array_equal(bits_u32(r.render_rgba()), bits_u32(in_pipeline))
     # numpy twin agrees on the counts
-    _, twin_counts = clamp_values(formats.quantize(bad.flat(), "fp16"), box, mask)
+    _, twin_counts = clamp_values(encoding.quantize(bad.flat(), "fp16"), box, mask)
     assert twin_counts.tolist() == [1, 2, 1, 1, 1, 0]
 
 
@@ -134,14 +143,14 @@ def test_guard_monitor_alerts_above_threshold():
     assert mon.alert and "log_scales: 2" in mon.message
 
 
-@pytest.mark.parametrize("precision", formats.PRECISIONS)
+@pytest.mark.parametrize("precision", encoding.PRECISIONS)
 def test_ecc_corrects_every_single_sign_exponent_flip_and_dup_every_flip(precision):
     rng = np.random.default_rng(3)
-    vals = formats.to_bits(rng.normal(0, 3, 500).astype(np.float32), precision)
-    for bit in range(formats.bits_per_value(precision)):
-        flipped = formats.flip_bits(vals, bit, precision)
+    vals = encoding.to_bits(rng.normal(0, 3, 500).astype(np.float32), precision)
+    for bit in range(encoding.bits_per_value(precision)):
+        flipped = encoding.flip_bits(vals, bit, precision)
         got = ecc_read(vals, flipped, precision)
-        if formats.bit_class(precision, bit) == "mantissa":
+        if encoding.bit_class(precision, bit) == "mantissa":
             assert np.array_equal(got, flipped)
         else:
             assert np.array_equal(got, vals)
@@ -166,20 +175,21 @@ def test_uniform_upsets_cover_the_whole_budget():
     assert abs(share["sh_rest"] - 45 / 59) < 0.05 and abs(share["opacity"] - 1 / 59) < 0.02
 
 
-@pytest.mark.parametrize("precision", formats.PRECISIONS)
+@pytest.mark.parametrize("precision", encoding.PRECISIONS)
 def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision):
-    from seuwgpu.guard import clamp_bits
+    from seuwgpu.faults.guard import clamp_bits
+
     model = random_model(97, seed=13)
     r = Renderer(model, scene_cameras("spheres", 1, 32, 32), precision)
     box = support_box(r.layout.decode(r.clean_words), precision)
-    bits = formats.to_bits(model.flat(), precision)
-    nb = formats.bits_per_value(precision)
-    sign, top = 1 << (nb - 1), (1 << (nb - 1)) - 1           # sign bit; all exponent+mantissa ones
+    bits = encoding.to_bits(model.flat(), precision)
+    nb = encoding.bits_per_value(precision)
+    sign, top = 1 << (nb - 1), (1 << (nb - 1)) - 1  # sign bit; all exponent+mantissa ones
     snan = {16: 0x7C01 if precision == "fp16" else 0x7F81, 32: 0x7F800001}[nb]
-    bits[3, 4] ^= sign                                       # log-scale sign flip: above the box
-    bits[5, 10] = top                                        # opacity NaN -> lower bound
-    bits[7, 20] = snan                                       # signalling NaN in sh_rest: not guarded
-    bits[9, 0] = snan                                        # ... and in a mean: guarded
+    bits[3, 4] ^= sign  # log-scale sign flip: above the box
+    bits[5, 10] = top  # opacity NaN -> lower bound
+    bits[7, 20] = snan  # signalling NaN in sh_rest: not guarded
+    bits[9, 0] = snan  # ... and in a mean: guarded
     mask = component_mask(FIELDS[:5], 3)
     want, hit = clamp_bits(bits, box, mask)
     for c, words in enumerate(r.layout.encode_bits(bits)):
@@ -188,4 +198,4 @@ def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision):
     got = np.concatenate([r.read_words(c) for c in range(r.layout.n_chunks)])
     assert np.array_equal(got, np.concatenate(r.layout.encode_bits(want)))
     assert hit[5, 10] and hit[9, 0] and not hit[7, 20]
-    assert want[7, 20] == snan                               # payload untouched, bit for bit
+    assert want[7, 20] == snan  # payload untouched, bit for bit

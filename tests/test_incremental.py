@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from seuwgpu import formats
-from seuwgpu.engine import Engine
-from seuwgpu.faults import DEFENSES
-from seuwgpu.model import FIELDS, field_components
-from seuwgpu.scenes import make_scene, scene_cameras
+from seuwgpu.faults.defenses import DEFENSES
+from seuwgpu.faults.engine import Engine
+from seuwgpu.model import encoding
+from seuwgpu.model.fields import FIELDS, field_components
+from seuwgpu.model.scenes import make_scene, scene_cameras
 
 METRICS = ("footprint", "footprint_max", "peak_error", "psnr", "ssim", "nonfinite", "clamps")
 
@@ -18,12 +18,13 @@ def sample_sites(engine, rng, per_class=4):
     for field in FIELDS:
         nc = field_components(field, engine.degree)
         for cls in ("sign", "exponent", "mantissa"):
-            bits = formats.bits_of_class(engine.precision, cls)
+            bits = encoding.bits_of_class(engine.precision, cls)
             for _ in range(per_class):
-                sites.append(engine.site(field, int(rng.integers(engine.n)), int(rng.integers(nc)),
-                                         int(rng.choice(bits))))
-    sign = formats.bits_of_class(engine.precision, "sign")[0]
-    top_exp = formats.bits_of_class(engine.precision, "exponent")[-1]
+                sites.append(
+                    engine.site(field, int(rng.integers(engine.n)), int(rng.integers(nc)), int(rng.choice(bits)))
+                )
+    sign = encoding.bits_of_class(engine.precision, "sign")[0]
+    top_exp = encoding.bits_of_class(engine.precision, "exponent")[-1]
     for p in rng.choice(engine.n, 6, replace=False):
         sites.append(engine.site("log_scales", int(p), int(rng.integers(3)), sign))
         sites.append(engine.site("log_scales", int(p), int(rng.integers(3)), top_exp))
@@ -70,12 +71,13 @@ def test_defense_arms_are_paired_and_correct():
 
 def predicted(eng, site, defense, P):
     """Regions reached by the corrupted primitive's tile rectangle, from the numpy twin."""
-    from seuwgpu import reference
-    from seuwgpu.analysis import region_set, regions_to_bitmask
-    from seuwgpu.guard import clamp_values
-    from seuwgpu.model import Model
+    from seuwgpu.analysis.studies import region_set, regions_to_bitmask
+    from seuwgpu.faults.guard import clamp_values
+    from seuwgpu.model.fields import Model
+    from seuwgpu.render import reference
+
     _, bits, gm = eng.variant_bits([site], defense)
-    vals = formats.from_bits(bits, eng.precision)
+    vals = encoding.from_bits(bits, eng.precision)
     if gm[0]:
         vals, _ = clamp_values(vals, eng.box, int(gm[0]))
     one = Model.from_flat(vals, eng.degree)
@@ -88,7 +90,8 @@ def predicted(eng, site, defense, P):
 
 @pytest.mark.parametrize("size", [(64, 48), (50, 38)])  # grids that divide the frame, and that do not
 def test_region_contamination_matches_full_frames(size):
-    from seuwgpu.analysis import region_set, regions_to_bitmask
+    from seuwgpu.analysis.studies import region_set, regions_to_bitmask
+
     model = make_scene("spheres", n=2000, seed=4)
     eng = Engine(model, scene_cameras("spheres", 2, *size), "fp32")
     rng = np.random.default_rng(5)

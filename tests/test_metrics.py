@@ -3,25 +3,26 @@
 import numpy as np
 import pytest
 
-from seuwgpu import metrics as M
+from seuwgpu.metrics import image as M
 
-W, H, K = 40, 24, 3          # not multiples of 16: partial edge tiles in x and y
+W, H, K = 40, 24, 3  # not multiples of 16: partial edge tiles in x and y
 THR = float(M.THRESHOLD)
 
 
 @pytest.fixture(scope="module")
 def gpu():
     from seuwgpu.gpu import get_gpu
+
     return get_gpu()
 
 
 def _clean(rng, k=K, h=H, w=W):
-    img = rng.uniform(-0.1, 1.15, (k, h, w, 4)).astype(np.float32)     # beyond [0,1]: display clip
-    img[..., 3] = rng.random((k, h, w))                                 # transmittance: ignored
+    img = rng.uniform(-0.1, 1.15, (k, h, w, 4)).astype(np.float32)  # beyond [0,1]: display clip
+    img[..., 3] = rng.random((k, h, w))  # transmittance: ignored
     # a smooth band and a flat region, so SSIM sees structure, not only noise
     yy, xx = np.mgrid[0:h, 0:w]
     img[:, : h // 2, : w // 2, :3] = (0.5 + 0.4 * np.sin(xx[: h // 2, : w // 2] / 5.0))[None, ..., None]
-    img[:, h // 2:, w // 2:, :3] = 1.0
+    img[:, h // 2 :, w // 2 :, :3] = 1.0
     return img
 
 
@@ -33,8 +34,8 @@ def _planted(rng, clean, B=6):
     # b0: single pixels just above / below 1/255 (clean 0.5, so f - c is exact), both signs
     up = np.float32(0.5) + np.float32(THR * (1 + 1e-3))
     dn = np.float32(0.5) + np.float32(THR * (1 - 1e-3))
-    f[0, 0, 5, 30, 1] = up                                  # changed
-    f[0, 1, 5, 30, 2] = dn                                  # not changed, but differs (sse, ssim)
+    f[0, 0, 5, 30, 1] = up  # changed
+    f[0, 1, 5, 30, 2] = dn  # not changed, but differs (sse, ssim)
     f[0, 2, 5, 30, 0] = np.float32(0.5) - np.float32(THR * (1 + 1e-3))  # changed (negative)
     # b1: NaN, +Inf, -Inf in different views / channels, one pixel twice
     f[1, 0, 3, 3, 0] = np.nan
@@ -42,7 +43,7 @@ def _planted(rng, clean, B=6):
     f[1, 2, 0, 0, 1] = -np.inf
     f[1, 2, 10, 17, 0] = np.inf
     f[1, 2, 10, 17, 1] = np.nan
-    f[1, 0, 4, 3, 3] = np.nan                               # 4th channel: ignored
+    f[1, 0, 4, 3, 3] = np.nan  # 4th channel: ignored
     # b2: huge finite values
     f[2, 0, 12, 12, 0] = 3.0e38
     f[2, 1, 7, 25, 1] = -1.0e30
@@ -59,7 +60,7 @@ def _check_close(gpu_r, cpu_r, w=W, h=H):
     n_int = M.n_interior(w, h)
     np.testing.assert_array_equal(gpu_r["changed"], cpu_r["changed"])
     np.testing.assert_array_equal(gpu_r["nonfinite"], cpu_r["nonfinite"])
-    np.testing.assert_array_equal(gpu_r["peak"], cpu_r["peak"])        # max of f32: exact
+    np.testing.assert_array_equal(gpu_r["peak"], cpu_r["peak"])  # max of f32: exact
     np.testing.assert_allclose(gpu_r["sse"], cpu_r["sse"], rtol=2e-5, atol=1e-9)
     np.testing.assert_array_equal(gpu_r["ssim_count"], cpu_r["ssim_count"])
     s_gpu = (gpu_r["ssim_sum"] + n_int - gpu_r["ssim_count"]) / n_int
@@ -88,7 +89,7 @@ def _sparse_inputs(clean, faulted, extra_identical=0, rng=None):
             diff[tuple(idle[i])] = True
     tile_map = np.full((B, k_, NT), -1, np.int32)
     idx = np.argwhere(diff)
-    order = (rng.permutation(len(idx)) if rng is not None else np.arange(len(idx)))  # slab order is free
+    order = rng.permutation(len(idx)) if rng is not None else np.arange(len(idx))  # slab order is free
     slabs = np.zeros((max(1, len(idx)), 256, 4), np.float32)
     for s, j in enumerate(order):
         b, k, t = idx[j]
@@ -99,6 +100,7 @@ def _sparse_inputs(clean, faulted, extra_identical=0, rng=None):
 
 
 # --------------------------------------------------------------------------------------------------
+
 
 def test_dense_matches_numpy_twin(gpu):
     rng = np.random.default_rng(0)
@@ -111,7 +113,7 @@ def test_dense_matches_numpy_twin(gpu):
     _check_close(r, n)
     # the planted facts themselves
     assert r["changed"][0].tolist() == [1, 0, 1]
-    assert r["sse"][0, 1] > 0 and r["ssim_deficit"][0, 1] > 0                 # below threshold, not equal
+    assert r["sse"][0, 1] > 0 and r["ssim_deficit"][0, 1] > 0  # below threshold, not equal
     assert r["nonfinite"][1].tolist() == [1, 1, 2]
     assert r["changed"][1].tolist() == [1, 1, 2]
     assert np.isinf(r["peak"][1]).all()
@@ -130,20 +132,21 @@ def test_dense_matches_numpy_twin(gpu):
 
 def test_ssim_matches_skimage(gpu):
     from skimage.metrics import structural_similarity
+
     rng = np.random.default_rng(1)
     k_, h, w, B = 2, 37, 23, 3
     clean = rng.random((k_, h, w, 4)).astype(np.float32)
     f = np.repeat(clean[None], B, 0).copy()
     f[0, ..., :3] += rng.normal(0, 0.02, (k_, h, w, 3)).astype(np.float32)
-    f[1, 0, ..., :3] = np.clip(f[1, 0, ..., :3] * 0.7 + 0.2, 0, 1)               # contrast / brightness
-    f[1, 1, 10:30, 3:20, :3] = 0.0                                               # black block
-    f[2, :, ::5, ::3, :3] = 1.0 - f[2, :, ::5, ::3, :3]                         # sparse salt
+    f[1, 0, ..., :3] = np.clip(f[1, 0, ..., :3] * 0.7 + 0.2, 0, 1)  # contrast / brightness
+    f[1, 1, 10:30, 3:20, :3] = 0.0  # black block
+    f[2, :, ::5, ::3, :3] = 1.0 - f[2, :, ::5, ::3, :3]  # sparse salt
     im = M.ImageMetrics(gpu, w, h, k_, B)
     r = im.run_dense(gpu.upload(clean), gpu.upload(f), B)
     s_gpu = 1.0 - r["ssim_deficit"] / M.n_interior(w, h)
     for b in range(B):
         for k in range(k_):
-            a = M.display(clean[k, ..., :3]).astype(np.float64)           # display-referred
+            a = M.display(clean[k, ..., :3]).astype(np.float64)  # display-referred
             d = M.display(f[b, k, ..., :3]).astype(np.float64)
             ref = structural_similarity(a, d, channel_axis=-1, data_range=1.0)
             assert abs(s_gpu[b, k] - ref) < 1e-5, (b, k, s_gpu[b, k], ref)
@@ -153,7 +156,7 @@ def test_ssim_matches_skimage(gpu):
 def test_identical_is_exact(gpu):
     rng = np.random.default_rng(2)
     clean = _clean(rng, k=2, h=33, w=48)
-    clean[0, 3, 3, 0] = 7.5                                   # out-of-range values: still identical
+    clean[0, 3, 3, 0] = 7.5  # out-of-range values: still identical
     f = np.repeat(clean[None], 2, 0).copy()
     im = M.ImageMetrics(gpu, 48, 33, 2, 2)
     r = im.run_dense(gpu.upload(clean), gpu.upload(f), 2)
@@ -179,14 +182,15 @@ def test_sparse_equals_dense(gpu):
         for key in ("changed", "peak", "sse", "nonfinite", "ssim_deficit"):
             np.testing.assert_array_equal(rs[key], rd[key], err_msg=key)
         assert (rs["ssim_count"] <= rd["ssim_count"]).all()
-        assert (rs["ssim_count"][4] == 0).all()                              # identical variant: no work
+        assert (rs["ssim_count"][4] == 0).all()  # identical variant: no work
         sd, ss = M.summarize(rd, W, H), M.summarize(rs, W, H)
         for key in sd:
             np.testing.assert_array_equal(sd[key], ss[key], err_msg=key)
         # frame SSIM from (sum, count) agrees with the deficit form
         n_int = M.n_interior(W, H)
-        np.testing.assert_allclose((rs["ssim_sum"] + n_int - rs["ssim_count"]) / n_int,
-                                   1 - rs["ssim_deficit"] / n_int, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(
+            (rs["ssim_sum"] + n_int - rs["ssim_count"]) / n_int, 1 - rs["ssim_deficit"] / n_int, rtol=0, atol=1e-12
+        )
 
 
 def test_sparse_empty_worklist_and_overflow(gpu):
@@ -197,33 +201,36 @@ def test_sparse_empty_worklist_and_overflow(gpu):
     cb = gpu.upload(clean)
     tm = np.full((3, 2, TX * TY), -1, np.int32)
     wl, off = M.build_worklist(np.zeros((3, 2, TX * TY), bool))
-    r = im.run_sparse(cb, gpu.upload(np.zeros((1, 256, 4), np.float32)), gpu.upload(tm), gpu.upload(wl),
-                      gpu.upload(off), 3)
+    r = im.run_sparse(
+        cb, gpu.upload(np.zeros((1, 256, 4), np.float32)), gpu.upload(tm), gpu.upload(wl), gpu.upload(off), 3
+    )
     assert all((r[k] == 0).all() for k in ("changed", "peak", "sse", "nonfinite", "ssim_count", "ssim_deficit"))
     # work list entries that map to unmapped tiles: evaluated, identical to clean
     mask = np.zeros((3, 2, TX * TY), bool)
     mask[1, 1, :3] = True
     wl, off = M.build_worklist(mask)
-    r = im.run_sparse(cb, gpu.upload(np.zeros((1, 256, 4), np.float32)), gpu.upload(tm), gpu.upload(wl),
-                      gpu.upload(off), 3)
+    r = im.run_sparse(
+        cb, gpu.upload(np.zeros((1, 256, 4), np.float32)), gpu.upload(tm), gpu.upload(wl), gpu.upload(off), 3
+    )
     assert r["ssim_count"][1, 1] > 0 and r["ssim_count"].sum() == r["ssim_count"][1, 1]
     assert (r["ssim_deficit"] == 0).all() and (r["changed"] == 0).all()
-    mask[2, 0, :3] = True                                     # 6 entries > max_entries = 4
+    mask[2, 0, :3] = True  # 6 entries > max_entries = 4
     wl, off = M.build_worklist(mask)
     enc = gpu.device.create_command_encoder()
-    im.encode_sparse(enc, cb, gpu.upload(np.zeros((1, 256, 4), np.float32)), gpu.upload(tm), gpu.upload(wl),
-                     gpu.upload(off), 3)
+    im.encode_sparse(
+        enc, cb, gpu.upload(np.zeros((1, 256, 4), np.float32)), gpu.upload(tm), gpu.upload(wl), gpu.upload(off), 3
+    )
     gpu.submit(enc)
     with pytest.raises(RuntimeError, match="max_entries"):
         im.read(3)
     with pytest.raises(ValueError):
-        im.encode_dense(gpu.device.create_command_encoder(), cb, cb, 3)     # dense needs 36 > 4
+        im.encode_dense(gpu.device.create_command_encoder(), cb, cb, 3)  # dense needs 36 > 4
 
 
 def test_many_workgroups_2d_dispatch(gpu):
     """More than 32768 work-list entries: the 2-D dispatch path (dispatch_dims / linear_wg)."""
     rng = np.random.default_rng(5)
-    h = w = 8                                                  # 1 tile per view
+    h = w = 8  # 1 tile per view
     B = 33000
     clean = rng.random((1, h, w, 4)).astype(np.float32)
     f = np.repeat(clean[None], B, 0)
@@ -245,8 +252,7 @@ def test_many_workgroups_2d_dispatch(gpu):
     slabs = np.full((len(picks), 256, 4), np.nan, np.float32)
     slabs.reshape(len(picks), 16, 16, 4)[:, :h, :w] = f[picks, 0]
     wl, off = M.build_worklist(np.ones((B, 1, 1), bool))
-    rs = im.run_sparse(gpu.upload(clean), gpu.upload(slabs), gpu.upload(tile_map), gpu.upload(wl),
-                       gpu.upload(off), B)
+    rs = im.run_sparse(gpu.upload(clean), gpu.upload(slabs), gpu.upload(tile_map), gpu.upload(wl), gpu.upload(off), B)
     for key in M.FIELDS:
         np.testing.assert_array_equal(rs[key], r[key], err_msg=key)
 
@@ -260,7 +266,7 @@ def test_summarize_and_catastrophic():
         "ssim_sum": np.array([[5.0, 4.5], [0.0, 0.0]]),
         "ssim_count": np.array([[5, 5], [0, 0]]),
     }
-    s = M.summarize(raw, 20, 10)                               # 200 px, 14*4 = 56 interior
+    s = M.summarize(raw, 20, 10)  # 200 px, 14*4 = 56 interior
     np.testing.assert_allclose(s["footprint"], [10 / 200 / 2, 400 / 200 / 2])
     np.testing.assert_allclose(s["footprint_max"], [10 / 200, 2.0])
     np.testing.assert_allclose(s["peak_error"], [0.5, np.inf])

@@ -5,9 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from seuwgpu import formats
-from seuwgpu.model import (FIELDS, Model, StoredLayout, canonical_field, field_components, n_components,
-                           sh_rest_count)
+from seuwgpu.model import encoding
+from seuwgpu.model.fields import (
+    FIELDS,
+    Model,
+    StoredLayout,
+    canonical_field,
+    field_components,
+    n_components,
+    sh_rest_count,
+)
 
 
 def random_model(n, degree, seed=0) -> Model:
@@ -16,6 +23,7 @@ def random_model(n, degree, seed=0) -> Model:
 
 
 # ------------------------------------------------------------------------------- model basics
+
 
 def test_component_counts():
     assert [sh_rest_count(d) for d in range(4)] == [0, 3, 8, 15]
@@ -44,11 +52,23 @@ def test_flat_order_and_from_flat():
 def test_model_shape_validation():
     m = random_model(4, 1)
     with pytest.raises(ValueError, match="quats"):
-        Model(means=m.means, log_scales=m.log_scales, quats=m.quats[:, :3], opacity=m.opacity,
-              sh_dc=m.sh_dc, sh_rest=m.sh_rest)
+        Model(
+            means=m.means,
+            log_scales=m.log_scales,
+            quats=m.quats[:, :3],
+            opacity=m.opacity,
+            sh_dc=m.sh_dc,
+            sh_rest=m.sh_rest,
+        )
     with pytest.raises(ValueError, match="no SH degree"):
-        Model(means=m.means, log_scales=m.log_scales, quats=m.quats, opacity=m.opacity,
-              sh_dc=m.sh_dc, sh_rest=np.zeros((4, 5, 3)))
+        Model(
+            means=m.means,
+            log_scales=m.log_scales,
+            quats=m.quats,
+            opacity=m.opacity,
+            sh_dc=m.sh_dc,
+            sh_rest=np.zeros((4, 5, 3)),
+        )
 
 
 def test_empty_subset():
@@ -59,13 +79,27 @@ def test_empty_subset():
 
 # ------------------------------------------------------------------------- aliases, budgets
 
-@pytest.mark.parametrize("alias,field", [
-    ("means", "means"), ("xyz", "means"), ("Mean", "means"),
-    ("log_scales", "log_scales"), ("scale", "log_scales"), (" SCALES ", "log_scales"),
-    ("rotation", "quats"), ("rot", "quats"), ("quat", "quats"),
-    ("opacities", "opacity"), ("opacity", "opacity"),
-    ("color", "sh_dc"), ("dc", "sh_dc"), ("sh", "sh_rest"), ("sh_rest", "sh_rest"),
-])
+
+@pytest.mark.parametrize(
+    "alias,field",
+    [
+        ("means", "means"),
+        ("xyz", "means"),
+        ("Mean", "means"),
+        ("log_scales", "log_scales"),
+        ("scale", "log_scales"),
+        (" SCALES ", "log_scales"),
+        ("rotation", "quats"),
+        ("rot", "quats"),
+        ("quat", "quats"),
+        ("opacities", "opacity"),
+        ("opacity", "opacity"),
+        ("color", "sh_dc"),
+        ("dc", "sh_dc"),
+        ("sh", "sh_rest"),
+        ("sh_rest", "sh_rest"),
+    ],
+)
 def test_canonical_field_aliases(alias, field):
     assert canonical_field(alias) == field
 
@@ -92,14 +126,28 @@ def test_field_accessor():
 def test_bit_budget_hand_computed():
     m = random_model(10, 3)
     b = m.bit_budget("fp32")
-    assert b == {"means": 960, "log_scales": 960, "quats": 1280, "opacity": 320, "sh_dc": 960,
-                 "sh_rest": 14400, "total": 18880}  # 10 * 59 * 32
+    assert b == {
+        "means": 960,
+        "log_scales": 960,
+        "quats": 1280,
+        "opacity": 320,
+        "sh_dc": 960,
+        "sh_rest": 14400,
+        "total": 18880,
+    }  # 10 * 59 * 32
     b16 = m.bit_budget("fp16")
     assert b16 == {k: v // 2 for k, v in b.items()}
     assert m.bit_budget("bf16") == b16
     m0 = random_model(5, 0)
-    assert m0.bit_budget("bf16") == {"means": 240, "log_scales": 240, "quats": 320, "opacity": 80,
-                                     "sh_dc": 240, "sh_rest": 0, "total": 1120}  # 5 * 14 * 16
+    assert m0.bit_budget("bf16") == {
+        "means": 240,
+        "log_scales": 240,
+        "quats": 320,
+        "opacity": 80,
+        "sh_dc": 240,
+        "sh_rest": 0,
+        "total": 1120,
+    }  # 5 * 14 * 16
     with pytest.raises(ValueError, match="unknown precision"):
         m.bit_budget("fp64")
 
@@ -113,7 +161,7 @@ def test_max_chunk_prims_hand_computed():
     # degree 0 bf16: 28 bytes; 134217728 // 28 = 4793490
     assert StoredLayout.max_chunk_prims(0, "bf16", mib128) == 4793490
     for d in range(4):
-        for p in formats.PRECISIONS:
+        for p in encoding.PRECISIONS:
             c = StoredLayout.max_chunk_prims(d, p, mib128)
             lay = StoredLayout(10 * c, d, p, c)
             assert lay.chunk_prims == c and lay.chunk_words * 4 <= mib128
@@ -124,7 +172,7 @@ def test_max_chunk_prims_hand_computed():
 CASES = [(1, 1), (2, 2), (7, 2), (7, 3), (11, 4), (13, 13), (5, 100), (9, 8), (33, 10)]
 
 
-@pytest.mark.parametrize("precision", formats.PRECISIONS)
+@pytest.mark.parametrize("precision", encoding.PRECISIONS)
 @pytest.mark.parametrize("n,chunk", CASES)
 def test_encode_decode_round_trip(precision, n, chunk):
     degree = (n + chunk) % 4
@@ -134,26 +182,25 @@ def test_encode_decode_round_trip(precision, n, chunk):
     assert lay.n_chunks == -(-n // lay.chunk_prims)
     words = lay.encode(m)
     assert len(words) == lay.n_chunks
-    per_word = 2 if formats.bits_per_value(precision) == 16 else 1
+    per_word = 2 if encoding.bits_per_value(precision) == 16 else 1
     for w in words:
         assert w.dtype == np.uint32 and w.shape == (lay.ncomp * lay.chunk_prims // per_word,)
         assert w.shape == (lay.chunk_words,)
     back = lay.decode(words)
     expect = m.quantized(precision)
     for f in FIELDS:
-        np.testing.assert_array_equal(getattr(back, f).view(np.uint32), getattr(expect, f).view(np.uint32),
-                                      err_msg=f)
+        np.testing.assert_array_equal(getattr(back, f).view(np.uint32), getattr(expect, f).view(np.uint32), err_msg=f)
 
 
-@pytest.mark.parametrize("precision", formats.PRECISIONS)
+@pytest.mark.parametrize("precision", encoding.PRECISIONS)
 def test_layout_against_independent_reference(precision):
     """Plane p of chunk k holds component p of the chunk's primitives; 16-bit: 2j low, 2j+1 high."""
     n, degree, chunk = 9, 1, 4
     m = random_model(n, degree, seed=9)
     lay = StoredLayout(n, degree, precision, chunk)
     words = lay.encode(m)
-    bits = formats.to_bits(m.flat(), precision)
-    half = formats.bits_per_value(precision) == 16
+    bits = encoding.to_bits(m.flat(), precision)
+    half = encoding.bits_per_value(precision) == 16
     plane_words = chunk // 2 if half else chunk
     assert lay.plane_words == plane_words
     for i in range(n):
@@ -176,15 +223,15 @@ def test_layout_against_independent_reference(precision):
         assert (last[:, 1:] == 0).all()
 
 
-@pytest.mark.parametrize("precision", formats.PRECISIONS)
+@pytest.mark.parametrize("precision", encoding.PRECISIONS)
 def test_flip_at_locate_changes_exactly_that_value(precision):
     n, degree, chunk = 13, 3, 6
     m = random_model(n, degree, seed=4)
     lay = StoredLayout(n, degree, precision, chunk)
     clean_words = lay.encode(m)
     clean = lay.decode(clean_words).flat()
-    clean_bits = formats.to_bits(clean, precision)
-    width = formats.bits_per_value(precision)
+    clean_bits = encoding.to_bits(clean, precision)
+    width = encoding.bits_per_value(precision)
     rng = np.random.default_rng(0)
     sites = [(0, 0), (n - 1, lay.ncomp - 1), (5, 10), (6, 14), (7, 11), (12, 3)]
     sites += [(int(rng.integers(n)), int(rng.integers(lay.ncomp))) for _ in range(20)]
@@ -193,10 +240,10 @@ def test_flip_at_locate_changes_exactly_that_value(precision):
         ck, cw, cs = lay.locate(prim, comp)
         words = [w.copy() for w in clean_words]
         words[int(ck)][int(cw)] ^= np.uint32(1 << (bit + int(cs)))
-        hit_bits = formats.to_bits(lay.decode(words).flat(), precision)
+        hit_bits = encoding.to_bits(lay.decode(words).flat(), precision)
         changed = np.argwhere(hit_bits != clean_bits)
         assert changed.tolist() == [[prim, comp]], (prim, comp, bit)
-        assert int(hit_bits[prim, comp]) == int(formats.flip_bits(clean_bits[prim, comp], bit, precision))
+        assert int(hit_bits[prim, comp]) == int(encoding.flip_bits(clean_bits[prim, comp], bit, precision))
 
 
 def test_locate_vectorised():

@@ -12,20 +12,32 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from seuwgpu.model import FIELDS, Model
-from seuwgpu.ply import PlyError, load_ply, save_ply
+from seuwgpu.model.fields import FIELDS, Model
+from seuwgpu.model.ply import PlyError, load_ply, save_ply
 
 TYPE_NAME = {"<f4": "float", "<f8": "double", "u1": "uchar", "<i4": "int", "i1": "char", "<u2": "ushort"}
 
-INRIA_DEG3 = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-              + [f"f_rest_{j}" for j in range(45)]
-              + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+INRIA_DEG3 = (
+    ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+    + [f"f_rest_{j}" for j in range(45)]
+    + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+)
 
 
 # ----------------------------------------------------------------------------------- helpers
 
-def write_raw_ply(path: Path, columns: list[tuple[str, str, np.ndarray]], *, fmt="binary_little_endian",
-                  header_extra=(), pre_elements=(), post_bytes=b"", count=None, newline="\n") -> Path:
+
+def write_raw_ply(
+    path: Path,
+    columns: list[tuple[str, str, np.ndarray]],
+    *,
+    fmt="binary_little_endian",
+    header_extra=(),
+    pre_elements=(),
+    post_bytes=b"",
+    count=None,
+    newline="\n",
+) -> Path:
     """Write a PLY by hand. columns: (name, numpy type, values[N]); pre_elements:
     (header lines, raw bytes) of elements placed before `vertex`."""
     n = len(columns[0][2]) if columns else 0
@@ -64,9 +76,14 @@ def inria_columns(model: Model, *, normals=True, dtype="<f4") -> list[tuple[str,
 def random_model(n=7, degree=3, seed=0) -> Model:
     rng = np.random.default_rng(seed)
     r = (degree + 1) ** 2 - 1
-    return Model(means=rng.standard_normal((n, 3)), log_scales=rng.standard_normal((n, 3)),
-                 quats=rng.standard_normal((n, 4)), opacity=rng.standard_normal(n),
-                 sh_dc=rng.standard_normal((n, 3)), sh_rest=rng.standard_normal((n, r, 3)))
+    return Model(
+        means=rng.standard_normal((n, 3)),
+        log_scales=rng.standard_normal((n, 3)),
+        quats=rng.standard_normal((n, 4)),
+        opacity=rng.standard_normal(n),
+        sh_dc=rng.standard_normal((n, 3)),
+        sh_rest=rng.standard_normal((n, r, 3)),
+    )
 
 
 def assert_models_bit_equal(a: Model, b: Model):
@@ -77,15 +94,20 @@ def assert_models_bit_equal(a: Model, b: Model):
         np.testing.assert_array_equal(x.view(np.uint32), y.view(np.uint32), err_msg=f)
 
 
-SPECIAL_BITS = np.array([
-    0x7F800001,  # signalling NaN, smallest payload
-    0xFFC12345,  # negative quiet NaN with payload
-    0x7FBFFFFF,  # signalling NaN, largest payload
-    0x7F800000, 0xFF800000,  # +-Inf
-    0x80000000,  # -0.0
-    0x00000001, 0x807FFFFF,  # subnormals
-    0x7F7FFFFF,  # float32 max
-], dtype=np.uint32)
+SPECIAL_BITS = np.array(
+    [
+        0x7F800001,  # signalling NaN, smallest payload
+        0xFFC12345,  # negative quiet NaN with payload
+        0x7FBFFFFF,  # signalling NaN, largest payload
+        0x7F800000,
+        0xFF800000,  # +-Inf
+        0x80000000,  # -0.0
+        0x00000001,
+        0x807FFFFF,  # subnormals
+        0x7F7FFFFF,  # float32 max
+    ],
+    dtype=np.uint32,
+)
 
 
 def special_model(degree: int, n=11) -> Model:
@@ -94,11 +116,12 @@ def special_model(degree: int, n=11) -> Model:
     bits = flat.view(np.uint32)
     # scatter the special patterns over every component (cycling), row by row
     for i in range(n):
-        bits[i, i % flat.shape[1]::5] = SPECIAL_BITS[i % len(SPECIAL_BITS)]
+        bits[i, i % flat.shape[1] :: 5] = SPECIAL_BITS[i % len(SPECIAL_BITS)]
     return Model.from_flat(flat, degree)
 
 
 # ------------------------------------------------------------------------------ round trips
+
 
 @pytest.mark.parametrize("degree", [0, 1, 2, 3])
 def test_round_trip_bit_exact_with_special_values(tmp_path, degree):
@@ -143,9 +166,9 @@ def test_saved_file_reads_in_plyfile(tmp_path):
     v = plyfile.PlyData.read(str(p))["vertex"]
     assert [prop.name for prop in v.properties][9:12] == ["f_rest_0", "f_rest_1", "f_rest_2"]
     # degree 2: R = 8 coefficients per channel
-    np.testing.assert_array_equal(v["f_rest_7"], m.sh_rest[:, 7, 0])   # red, last coefficient
-    np.testing.assert_array_equal(v["f_rest_8"], m.sh_rest[:, 0, 1])   # green, first
-    np.testing.assert_array_equal(v["f_rest_9"], m.sh_rest[:, 1, 1])   # green, second
+    np.testing.assert_array_equal(v["f_rest_7"], m.sh_rest[:, 7, 0])  # red, last coefficient
+    np.testing.assert_array_equal(v["f_rest_8"], m.sh_rest[:, 0, 1])  # green, first
+    np.testing.assert_array_equal(v["f_rest_9"], m.sh_rest[:, 1, 1])  # green, second
     np.testing.assert_array_equal(v["f_rest_23"], m.sh_rest[:, 7, 2])  # blue, last
     np.testing.assert_array_equal(v["rot_0"], m.quats[:, 0])
     np.testing.assert_array_equal(v["nx"], 0.0)
@@ -167,13 +190,32 @@ def test_save_refuses_empty_model(tmp_path):
 
 # -------------------------------------------------------------------- channel-major mapping
 
+
 @pytest.mark.parametrize("degree", [1, 2, 3])
 def test_channel_major_mapping_from_hand_built_file(tmp_path, degree):
     n, r = 4, (degree + 1) ** 2 - 1
     i = np.arange(n, dtype=np.float64)
-    cols = [(name, "<f4", 1000 * i + v) for v, name in
-            enumerate(["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
-                       "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])]
+    cols = [
+        (name, "<f4", 1000 * i + v)
+        for v, name in enumerate(
+            [
+                "x",
+                "y",
+                "z",
+                "f_dc_0",
+                "f_dc_1",
+                "f_dc_2",
+                "opacity",
+                "scale_0",
+                "scale_1",
+                "scale_2",
+                "rot_0",
+                "rot_1",
+                "rot_2",
+                "rot_3",
+            ]
+        )
+    ]
     # f_rest_j holds 100 + j (+ 1000 * primitive)
     cols += [(f"f_rest_{j}", "<f4", 1000 * i + 100 + j) for j in range(3 * r)]
     m = load_ply(write_raw_ply(tmp_path / "h.ply", cols))
@@ -190,6 +232,7 @@ def test_channel_major_mapping_from_hand_built_file(tmp_path, degree):
 
 
 # ------------------------------------------------------------------ tolerant loading by name
+
 
 @pytest.fixture
 def ref():
@@ -220,16 +263,20 @@ def test_no_normals_comments_obj_info_and_extra_properties(tmp_path, ref):
     cols.insert(0, ("filter_3D", "<f4", np.full(n, 7.5)))
     cols.append(("tag", "<i4", np.arange(n) * -3))
     cols.append(("weight", "<f8", np.linspace(0, 1, n)))
-    extra = ["comment generated by some exporter", "obj_info  anything goes here",
-             "comment vertex 99 end_header lookalike"]
+    extra = [
+        "comment generated by some exporter",
+        "obj_info  anything goes here",
+        "comment vertex 99 end_header lookalike",
+    ]
     p = write_raw_ply(tmp_path / "e.ply", cols, header_extra=extra)
     assert_models_bit_equal(ref, load_ply(p))
 
 
 def test_long_header(tmp_path, ref):
     comments = [f"comment {'x' * 100} {i}" for i in range(2000)]  # ~200 KB of header
-    assert_models_bit_equal(ref, load_ply(write_raw_ply(tmp_path / "long.ply", inria_columns(ref),
-                                                        header_extra=comments)))
+    assert_models_bit_equal(
+        ref, load_ply(write_raw_ply(tmp_path / "long.ply", inria_columns(ref), header_extra=comments))
+    )
 
 
 def test_crlf_header(tmp_path, ref):
@@ -249,15 +296,19 @@ def test_double_typed_properties_convert_to_float32(tmp_path):
     np.testing.assert_array_equal(back.means[:, 1:], m.means[:, 1:])
     x = back.means[:, 0]
     assert x.dtype == np.float32
-    assert x[0] == np.float32(0.1) and x[1] == np.float32(1 / 3)   # round to nearest
+    assert x[0] == np.float32(0.1) and x[1] == np.float32(1 / 3)  # round to nearest
     assert x[2] == 0.0 and x[3] == np.inf and x[4] == -np.inf and np.isnan(x[5])
 
 
 def test_other_elements_before_and_after_vertex(tmp_path, ref):
     cam = np.arange(6, dtype="<f4").tobytes()  # element camera: 2 rows of 3 floats
     pre = [(["element camera 2", "property float a", "property float b", "property float c"], cam)]
-    p = write_raw_ply(tmp_path / "c.ply", inria_columns(ref), pre_elements=pre,
-                      post_bytes=b"\x03" + np.arange(3, dtype="<i4").tobytes())
+    p = write_raw_ply(
+        tmp_path / "c.ply",
+        inria_columns(ref),
+        pre_elements=pre,
+        post_bytes=b"\x03" + np.arange(3, dtype="<i4").tobytes(),
+    )
     # the trailing face element is not declared; trailing bytes are simply ignored
     assert_models_bit_equal(ref, load_ply(p))
 
@@ -272,10 +323,25 @@ def test_list_element_before_vertex(tmp_path, ref):
 
 # ----------------------------------------------------------------------------------- errors
 
+
 def base_columns(n=3, rest=45):
     i = np.arange(n, dtype=np.float64)
-    names = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
-             "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    names = [
+        "x",
+        "y",
+        "z",
+        "f_dc_0",
+        "f_dc_1",
+        "f_dc_2",
+        "opacity",
+        "scale_0",
+        "scale_1",
+        "scale_2",
+        "rot_0",
+        "rot_1",
+        "rot_2",
+        "rot_3",
+    ]
     names += [f"f_rest_{j}" for j in range(rest)]
     return [(name, "<f4", i) for name in names]
 
@@ -311,8 +377,13 @@ def test_error_header_without_end(tmp_path):
 
 def test_error_ascii(tmp_path):
     p = tmp_path / "a.ply"
-    text = "ply\nformat ascii 1.0\nelement vertex 1\n" + "".join(
-        f"property float {name}\n" for name, _, _ in base_columns(1, 0)) + "end_header\n" + "0 " * 14 + "\n"
+    text = (
+        "ply\nformat ascii 1.0\nelement vertex 1\n"
+        + "".join(f"property float {name}\n" for name, _, _ in base_columns(1, 0))
+        + "end_header\n"
+        + "0 " * 14
+        + "\n"
+    )
     p.write_text(text)
     expect_error(p, "ASCII", "binary_little_endian")
 
@@ -324,8 +395,10 @@ def test_error_big_endian(tmp_path):
 
 def test_error_no_vertex_element(tmp_path):
     p = tmp_path / "nv.ply"
-    p.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement face 1\nproperty list uchar int vertex_indices\n"
-                  b"end_header\n\x03" + np.arange(3, dtype="<i4").tobytes())
+    p.write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement face 1\nproperty list uchar int vertex_indices\n"
+        b"end_header\n\x03" + np.arange(3, dtype="<i4").tobytes()
+    )
     expect_error(p, "no 'vertex' element", "face")
 
 
@@ -371,7 +444,8 @@ def test_truncated_with_header_promising_more(tmp_path):
 def test_error_list_property_in_vertex(tmp_path):
     p = tmp_path / "lv.ply"
     hdr = "ply\nformat binary_little_endian 1.0\nelement vertex 1\n" + "".join(
-        f"property float {name}\n" for name, _, _ in base_columns(1, 0))
+        f"property float {name}\n" for name, _, _ in base_columns(1, 0)
+    )
     hdr += "property list uchar int idx\nend_header\n"
     p.write_bytes(hdr.encode() + np.zeros(14, "<f4").tobytes() + b"\x00")
     expect_error(p, "list")

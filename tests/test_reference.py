@@ -4,10 +4,10 @@ hand-checkable cases of docs/renderer.md."""
 import numpy as np
 import pytest
 
-from seuwgpu import formats
-from seuwgpu import reference as ref
-from seuwgpu.camera import Camera, orbit_cameras
-from seuwgpu.model import Model
+from seuwgpu.model import encoding
+from seuwgpu.model.cameras import Camera, orbit_cameras
+from seuwgpu.model.fields import Model
+from seuwgpu.render import reference as ref
 
 F = np.float32
 
@@ -19,8 +19,7 @@ def pinhole(width, height, f, cx=None, cy=None, viewmat=None):
     return Camera(np.eye(4) if viewmat is None else viewmat, K, width, height)
 
 
-def prims(means, log_scales=-3.0, quats=(1, 0, 0, 0), opacity=0.0, rgb=(0.2, 0.6, 0.9), degree=0,
-          sh_rest=None):
+def prims(means, log_scales=-3.0, quats=(1, 0, 0, 0), opacity=0.0, rgb=(0.2, 0.6, 0.9), degree=0, sh_rest=None):
     """Model from per-primitive values (scalars broadcast); rgb sets sh_dc so that the
     degree-0 colour is rgb."""
     means = np.atleast_2d(np.asarray(means, dtype=np.float64))
@@ -51,9 +50,14 @@ def sigmoid32(x):
 
 def random_scene(rng, n, degree, spread=0.8):
     r = (degree + 1) ** 2 - 1
-    return Model(means=rng.normal(0, spread, (n, 3)), log_scales=rng.uniform(-4, -1.2, (n, 3)),
-                 quats=rng.normal(size=(n, 4)), opacity=rng.normal(0.5, 2, n),
-                 sh_dc=rng.normal(0, 1, (n, 3)), sh_rest=rng.normal(0, 0.3, (n, r, 3)))
+    return Model(
+        means=rng.normal(0, spread, (n, 3)),
+        log_scales=rng.uniform(-4, -1.2, (n, 3)),
+        quats=rng.normal(size=(n, 4)),
+        opacity=rng.normal(0.5, 2, n),
+        sh_dc=rng.normal(0, 1, (n, 3)),
+        sh_rest=rng.normal(0, 0.3, (n, r, 3)),
+    )
 
 
 SPECIAL = np.array([np.nan, np.inf, -np.inf, 100, -100, 1e30, -1e30, 0, 45, 20, 12, 1e20, -0.0], dtype=F)
@@ -63,16 +67,17 @@ def corrupt(rng, model, n_special=4, n_flips=4):
     flat = model.flat()
     for _ in range(n_special):
         flat[rng.integers(model.n), rng.integers(flat.shape[1])] = SPECIAL[rng.integers(len(SPECIAL))]
-    bits = formats.to_bits(flat, "fp32").reshape(-1)
+    bits = encoding.to_bits(flat, "fp32").reshape(-1)
     for _ in range(n_flips):
         k = rng.integers(bits.size)
-        bits[k] = formats.flip_bits(bits[k], int(rng.integers(20, 32)), "fp32")
-    return Model.from_flat(formats.from_bits(bits, "fp32").reshape(flat.shape), model.sh_degree)
+        bits[k] = encoding.flip_bits(bits[k], int(rng.integers(20, 32)), "fp32")
+    return Model.from_flat(encoding.from_bits(bits, "fp32").reshape(flat.shape), model.sh_degree)
 
 
 # ---------------------------------------------------------------------------------------------
 # vectorised == naive
 # ---------------------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("seed", range(16))
 def test_vectorised_matches_naive_on_corrupted_scenes(seed):
@@ -124,6 +129,7 @@ def test_render_batches_views_and_background():
 # hand-checkable cases
 # ---------------------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("logit", [0.0, 10.0, -2.0])
 def test_isotropic_gaussian_at_image_centre(logit):
     # 33x33 image with the principal point at a pixel centre: pixel (16, 16) is the peak.
@@ -136,8 +142,12 @@ def test_isotropic_gaussian_at_image_centre(logit):
     np.testing.assert_allclose(p["cov2d"][0], [a_expect, 0, a_expect], rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(p["mean2d"][0], [16.5, 16.5])
     r = np.ceil(3.33 * np.sqrt(a_expect))
-    assert tuple(p["rect"][0]) == (int(np.floor((16.5 - r) / 16)), int(np.floor((16.5 - r) / 16)),
-                                   int(np.ceil((16.5 + r) / 16)), int(np.ceil((16.5 + r) / 16)))
+    assert tuple(p["rect"][0]) == (
+        int(np.floor((16.5 - r) / 16)),
+        int(np.floor((16.5 - r) / 16)),
+        int(np.ceil((16.5 + r) / 16)),
+        int(np.ceil((16.5 + r) / 16)),
+    )
     img = ref.render_view(model, cam)
     alpha = min(F(0.99), sigmoid32(logit))
     np.testing.assert_array_equal(img[16, 16], composite_one(p["rgb"][0], alpha))
@@ -263,7 +273,7 @@ def test_nan_opacity_gives_nan_exactly_inside_its_rect():
     img = ref.render_view(model, cam)
     x0, y0, x1, y1 = p["rect"][0]
     inside = np.zeros((64, 64), bool)
-    inside[16 * y0:16 * y1, 16 * x0:16 * x1] = True
+    inside[16 * y0 : 16 * y1, 16 * x0 : 16 * x1] = True
     assert 0 < inside.sum() < inside.size
     np.testing.assert_array_equal(np.isnan(img).any(-1), inside)
     np.testing.assert_array_equal(np.isnan(img).all(-1), inside)
@@ -290,8 +300,7 @@ def test_inf_colour_reaches_the_pixels():
 def test_early_stop_drops_the_contribution_that_crosses_the_threshold():
     # Two alpha = 0.99 layers: T = 1 - 0.99 = 0.0099999905, next_T = 9.9999e-5 <= 1e-4 -> stop.
     cam = pinhole(33, 33, 33.0, cx=16.5, cy=16.5)
-    model = prims([[0, 0, 1.0], [0, 0, 2.0]], log_scales=-1.0, opacity=12.0,
-                  rgb=[(1.0, 0.0, 0.0), (0.0, 1.0, 0.0)])
+    model = prims([[0, 0, 1.0], [0, 0, 2.0]], log_scales=-1.0, opacity=12.0, rgb=[(1.0, 0.0, 0.0), (0.0, 1.0, 0.0)])
     img = ref.render_view(model, cam)
     p = ref.project(model, cam)
     np.testing.assert_array_equal(img[16, 16], composite_one(p["rgb"][0], 0.99))
@@ -316,6 +325,7 @@ def test_depth_order_then_index_order():
 # ---------------------------------------------------------------------------------------------
 # spherical harmonics
 # ---------------------------------------------------------------------------------------------
+
 
 def test_stable_sigmoid():
     x = np.array([np.nan, np.inf, -np.inf, 0, 100, -100, -200, 3, -3], F)
@@ -375,8 +385,7 @@ def test_sh_to_rgb_sums_basis_and_clamps():
 def test_view_dependence_only_above_degree_zero(degree):
     rng = np.random.default_rng(degree)
     r = (degree + 1) ** 2 - 1
-    model = prims([[0.0, 0.0, 0.0]], log_scales=-2.0, opacity=2.0, degree=degree,
-                  sh_rest=rng.normal(0, 0.4, (r, 3)))
+    model = prims([[0.0, 0.0, 0.0]], log_scales=-2.0, opacity=2.0, degree=degree, sh_rest=rng.normal(0, 0.4, (r, 3)))
     cams = orbit_cameras(4, 33, 33)
     cols = np.stack([ref.project(model, c)["rgb"][0] for c in cams])
     imgs = ref.render(model, cams)
@@ -392,11 +401,11 @@ def test_view_dependence_only_above_degree_zero(degree):
 # projection against independent constructions
 # ---------------------------------------------------------------------------------------------
 
+
 def test_quaternion_convention():
     th = 0.7
     R = ref.quat_to_rotmat(np.array([[np.cos(th / 2), 0, 0, np.sin(th / 2)], [2.0, 0, 0, 0]], F))
-    np.testing.assert_allclose(R[0], [[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]],
-                               atol=1e-6)
+    np.testing.assert_allclose(R[0], [[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]], atol=1e-6)
     np.testing.assert_allclose(R[1], np.eye(3), atol=1e-7)  # normalised, not assumed unit
 
 
@@ -417,8 +426,9 @@ def test_ewa_covariance_matches_sampled_projection():
     uv = np.stack([K[0, 0] * P[:, 0] / P[:, 2] + K[0, 2], K[1, 1] * P[:, 1] / P[:, 2] + K[1, 2]], 1)
     emp = np.cov(uv.T)
     a, b, c = p["cov2d"][0]
-    np.testing.assert_allclose([a - 0.3, b, c - 0.3], [emp[0, 0], emp[0, 1], emp[1, 1]],
-                               rtol=0.03, atol=0.03 * np.sqrt(emp[0, 0] * emp[1, 1]))
+    np.testing.assert_allclose(
+        [a - 0.3, b, c - 0.3], [emp[0, 0], emp[0, 1], emp[1, 1]], rtol=0.03, atol=0.03 * np.sqrt(emp[0, 0] * emp[1, 1])
+    )
     np.testing.assert_allclose(p["mean2d"][0], uv.mean(0), atol=0.05)
     a_, b_, c_ = a, b, c
     det = a_ * c_ - b_ * b_
@@ -443,15 +453,22 @@ def test_jacobian_clamped_beyond_the_frame():
 def test_needles_are_never_culled_by_cancellation():
     """A log-scale flipped to a large positive value makes a needle; its 2-D determinant must not
     be lost to float32 cancellation (a*c - b*b), or culling would depend on the device's FMAs."""
-    from seuwgpu.camera import orbit_cameras
-    from seuwgpu.model import Model
-    from seuwgpu.render import Renderer
+    from seuwgpu.model.cameras import orbit_cameras
+    from seuwgpu.model.fields import Model
+    from seuwgpu.render.renderer import Renderer
+
     rng = np.random.default_rng(21)
     n = 400
     ls = rng.uniform(-6, -4, (n, 3)).astype(np.float32)
     ls[np.arange(n), rng.integers(0, 3, n)] = rng.uniform(4, 20, n)  # one huge axis each
-    m = Model(means=rng.uniform(-0.3, 0.3, (n, 3)), log_scales=ls, quats=rng.normal(size=(n, 4)),
-              opacity=np.full(n, 2.0), sh_dc=rng.normal(size=(n, 3)), sh_rest=np.zeros((n, 0, 3)))
+    m = Model(
+        means=rng.uniform(-0.3, 0.3, (n, 3)),
+        log_scales=ls,
+        quats=rng.normal(size=(n, 4)),
+        opacity=np.full(n, 2.0),
+        sh_dc=rng.normal(size=(n, 3)),
+        sh_rest=np.zeros((n, 0, 3)),
+    )
     cam = orbit_cameras(1, 64, 64)[0]
     pr = ref.project(m, cam)
     finite = ~pr["unbounded"]

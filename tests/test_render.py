@@ -2,13 +2,14 @@
 
 import numpy as np
 import pytest
-
 from conftest import psnr_finite, random_model
-from seuwgpu import formats, reference
-from seuwgpu.camera import Camera, intrinsics, look_at, orbit_cameras
-from seuwgpu.model import FIELDS, Model
-from seuwgpu.render import Renderer, gpu_decode
-from seuwgpu.scenes import list_scenes, make_scene, scene_cameras
+
+from seuwgpu.model import encoding
+from seuwgpu.model.cameras import Camera, intrinsics, look_at, orbit_cameras
+from seuwgpu.model.fields import FIELDS, Model
+from seuwgpu.model.scenes import list_scenes, make_scene, scene_cameras
+from seuwgpu.render import reference
+from seuwgpu.render.renderer import Renderer, gpu_decode
 
 W, H = 64, 48
 
@@ -19,7 +20,7 @@ def both(model, cams, precision="fp32", **kw):
     return gpu_img, ref_img
 
 
-@pytest.mark.parametrize("precision", formats.PRECISIONS)
+@pytest.mark.parametrize("precision", encoding.PRECISIONS)
 @pytest.mark.parametrize("scene", list_scenes())
 def test_scenes_match_reference(scene, precision):
     model = make_scene(scene, n=3000, seed=1)
@@ -68,7 +69,7 @@ def test_nonfinite_and_huge_values_in_every_field(field, value):
     assert psnr_finite(g, r) >= 50
 
 
-@pytest.mark.parametrize("precision", formats.PRECISIONS)
+@pytest.mark.parametrize("precision", encoding.PRECISIONS)
 def test_frame_covering_sheet(precision):
     model = random_model(200, seed=6)
     cams = orbit_cameras(2, W, H)
@@ -83,8 +84,14 @@ def test_frame_covering_sheet(precision):
 
 def test_one_primitive_touching_every_tile_and_single_primitive_model():
     cam = Camera(look_at((0, 0, -3), (0, 0, 0), up=(0, -1, 0)), intrinsics(W, H, 60), W, H)
-    m = Model(means=[[0, 0, 0]], log_scales=[[1.0, 1.0, -3.0]], quats=[[1, 0, 0, 0]], opacity=[0.0],
-              sh_dc=[[1.0, -0.5, 0.2]], sh_rest=np.zeros((1, 15, 3)))
+    m = Model(
+        means=[[0, 0, 0]],
+        log_scales=[[1.0, 1.0, -3.0]],
+        quats=[[1, 0, 0, 0]],
+        opacity=[0.0],
+        sh_dc=[[1.0, -0.5, 0.2]],
+        sh_rest=np.zeros((1, 15, 3)),
+    )
     r = Renderer(m, [cam])
     g = r.render()
     ref = reference.render(m, [cam])
@@ -99,10 +106,20 @@ def test_behind_camera_and_near_plane():
     n = 64
     means = np.zeros((n, 3), np.float32)
     means[:, :2] = rng.uniform(-0.5, 0.5, (n, 2))
-    means[:, 2] = np.concatenate([rng.uniform(-6, -3.2, n // 2),          # behind the camera
-                                  -3 + rng.uniform(0.0, 0.05, n // 2)])   # straddling the near plane
-    m = Model(means=means, log_scales=np.full((n, 3), -1.0), quats=rng.normal(size=(n, 4)),
-              opacity=np.full(n, 2.0), sh_dc=rng.normal(size=(n, 3)), sh_rest=np.zeros((n, 0, 3)))
+    means[:, 2] = np.concatenate(
+        [
+            rng.uniform(-6, -3.2, n // 2),  # behind the camera
+            -3 + rng.uniform(0.0, 0.05, n // 2),
+        ]
+    )  # straddling the near plane
+    m = Model(
+        means=means,
+        log_scales=np.full((n, 3), -1.0),
+        quats=rng.normal(size=(n, 4)),
+        opacity=np.full(n, 2.0),
+        sh_dc=rng.normal(size=(n, 3)),
+        sh_rest=np.zeros((n, 0, 3)),
+    )
     g, r = both(m, [cam])
     assert psnr_finite(g, r) >= 50
 
@@ -110,14 +127,16 @@ def test_behind_camera_and_near_plane():
 @pytest.mark.parametrize("precision", ["fp16", "bf16", "fp32"])
 def test_gpu_decode_matches_numpy_bit_for_bit(precision):
     rng = np.random.default_rng(8)
-    nb = formats.bits_per_value(precision)
-    raw = rng.integers(0, 2 ** nb, 4096, dtype=np.uint64).astype(np.uint32 if nb == 32 else np.uint16)
-    special = {16: [0x0000, 0x8000, 0x0001, 0x03FF, 0x0400, 0x7BFF, 0x7C00, 0xFC00, 0x7E00, 0x7C01, 0x3C00],
-               32: [0, 0x80000000, 1, 0x7F800000, 0xFF800000, 0x7FC00000, 0x7F800001, 0x3F800000]}[nb]
+    nb = encoding.bits_per_value(precision)
+    raw = rng.integers(0, 2**nb, 4096, dtype=np.uint64).astype(np.uint32 if nb == 32 else np.uint16)
+    special = {
+        16: [0x0000, 0x8000, 0x0001, 0x03FF, 0x0400, 0x7BFF, 0x7C00, 0xFC00, 0x7E00, 0x7C01, 0x3C00],
+        32: [0, 0x80000000, 1, 0x7F800000, 0xFF800000, 0x7FC00000, 0x7F800001, 0x3F800000],
+    }[nb]
     raw[: len(special)] = special
-    words = formats.pack_words(raw, precision)
+    words = encoding.pack_words(raw, precision)
     got = gpu_decode(words, precision)[: raw.size]
-    want = formats.from_bits(raw, precision)
+    want = encoding.from_bits(raw, precision)
     assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
 
 
@@ -129,6 +148,6 @@ def test_viewport_regions_equal_the_full_frame_bit_for_bit():
         x0, y0, w, h = vp
         part = Renderer(model, cams, viewport=vp).render()
         assert part.shape == (2, h, w, 3)
-        assert np.array_equal(part.view(np.uint32), full[:, y0:y0 + h, x0:x0 + w].view(np.uint32))
+        assert np.array_equal(part.view(np.uint32), full[:, y0 : y0 + h, x0 : x0 + w].view(np.uint32))
     with pytest.raises(ValueError, match="tile-aligned"):
         Renderer(model, cams, viewport=(8, 0, 16, 16))

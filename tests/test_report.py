@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from seuwgpu import formats
-from seuwgpu.report import build_report, criticality_table_text, load_runs, markdown_table
+from seuwgpu.model import encoding
+from seuwgpu.report.build import build_report, criticality_table_text, load_runs, markdown_table
 
 FIELD_COMPS = {"means": 3, "log_scales": 3, "quats": 4, "opacity": 1, "sh_dc": 3, "sh_rest": 45}
 DEFS = ("none", "guard", "selective", "ecc", "dup")
@@ -24,12 +24,12 @@ def _single_rows(rng, per_cell=4):
     rows = []
     inj = 0
     for scene, n_prims in SCENES.items():
-        for prec in formats.PRECISIONS:
-            man, exp = formats.LAYOUT[prec]
-            nb = formats.BITS[prec]
+        for prec in encoding.PRECISIONS:
+            man, exp = encoding.LAYOUT[prec]
+            nb = encoding.BITS[prec]
             for field, ncomp in FIELD_COMPS.items():
                 for bit in range(nb):
-                    cls = formats.bit_class(prec, bit)
+                    cls = encoding.bit_class(prec, bit)
                     for _ in range(per_cell):
                         inj += 1
                         clean = float(rng.normal(-3.0 if field == "log_scales" else 0.2, 0.5))
@@ -44,37 +44,56 @@ def _single_rows(rng, per_cell=4):
                             fp = min(1e-3 * rel, 0.005) if field != "sh_rest" else 0.0
                         else:
                             fp, peak = 1e-4 * rng.random(), 0.01
-                        nonfinite = bool(field == "sh_dc" and cls == "exponent"
-                                         and bit == man + exp - 1)
+                        nonfinite = bool(field == "sh_dc" and cls == "exponent" and bit == man + exp - 1)
                         for d in DEFS:
                             f, pk, nf = fp, peak, nonfinite
-                            if d in ("guard", "ecc", "dup") or (d == "selective" and field in
-                                                                  ("log_scales", "opacity")):
+                            if d in ("guard", "ecc", "dup") or (
+                                d == "selective" and field in ("log_scales", "opacity")
+                            ):
                                 if f > 0.01 or nf:
                                     f, pk, nf = 0.002, 0.05, False
                             if d in ("ecc", "dup") and cls != "mantissa":
                                 f, pk = 0.0, 0.0
                             if d == "dup":
                                 f, pk = 0.0, 0.0
-                            psnr = math.inf if pk == 0 else (5.0 if nf else 20 - 20 * math.log10(pk + 1e-9) - 10 * math.log10(f + 1e-9) / 2)
-                            rows.append({
-                                "scene": scene, "n_primitives": n_prims, "precision": prec,
-                                "field": field, "primitive": int(rng.integers(n_prims)),
-                                "component": int(rng.integers(ncomp)), "bit": bit,
-                                "bit_class": cls, "clean_value": clean,
-                                "corrupted_value": -clean if cls == "sign" else clean * 1.01,
-                                "defense": d, "footprint": f, "footprint_max": min(1.0, 2 * f),
-                                "peak_error": pk, "psnr": psnr,
-                                "ssim": 1.0 - f, "nonfinite": nf,
-                                "catastrophic": bool(f > 0.01 or nf),
-                                "clamps": int(d == "guard" and fp > 0.01), "k": 1,
-                                "seed": 7, "injection_id": inj, "campaign": "single",
-                                "repeat": 0, "time_ms": 2.0 if d == "none" else 2.1,
-                                "regions_pred_4": 15 if f > 0.01 else 1,
-                                "regions_meas_4": 15 if f > 0.01 else (1 if f > 0 else 0),
-                                "regions_pred_16": (1 << 16) - 1 if f > 0.01 else 3,
-                                "regions_meas_16": (1 << 16) - 1 if f > 0.01 else (1 if f > 0 else 0),
-                            })
+                            psnr = (
+                                math.inf
+                                if pk == 0
+                                else (5.0 if nf else 20 - 20 * math.log10(pk + 1e-9) - 10 * math.log10(f + 1e-9) / 2)
+                            )
+                            rows.append(
+                                {
+                                    "scene": scene,
+                                    "n_primitives": n_prims,
+                                    "precision": prec,
+                                    "field": field,
+                                    "primitive": int(rng.integers(n_prims)),
+                                    "component": int(rng.integers(ncomp)),
+                                    "bit": bit,
+                                    "bit_class": cls,
+                                    "clean_value": clean,
+                                    "corrupted_value": -clean if cls == "sign" else clean * 1.01,
+                                    "defense": d,
+                                    "footprint": f,
+                                    "footprint_max": min(1.0, 2 * f),
+                                    "peak_error": pk,
+                                    "psnr": psnr,
+                                    "ssim": 1.0 - f,
+                                    "nonfinite": nf,
+                                    "catastrophic": bool(f > 0.01 or nf),
+                                    "clamps": int(d == "guard" and fp > 0.01),
+                                    "k": 1,
+                                    "seed": 7,
+                                    "injection_id": inj,
+                                    "campaign": "single",
+                                    "repeat": 0,
+                                    "time_ms": 2.0 if d == "none" else 2.1,
+                                    "regions_pred_4": 15 if f > 0.01 else 1,
+                                    "regions_meas_4": 15 if f > 0.01 else (1 if f > 0 else 0),
+                                    "regions_pred_16": (1 << 16) - 1 if f > 0.01 else 3,
+                                    "regions_meas_16": (1 << 16) - 1 if f > 0.01 else (1 if f > 0 else 0),
+                                }
+                            )
     return rows
 
 
@@ -83,7 +102,7 @@ def _dose_rows(rng, repeats=3):
     inj = 10_000_000
     pc = {"none": 0.01, "guard": 0.0005}
     for scene, n_prims in SCENES.items():
-        for prec in formats.PRECISIONS:
+        for prec in encoding.PRECISIONS:
             for d in ("none", "guard"):
                 for k in (1, 10, 100, 1000, 10000):
                     for r in range(repeats):
@@ -91,18 +110,35 @@ def _dose_rows(rng, repeats=3):
                         base = (65 if d == "none" else 80) - (12 if d == "none" else 5) * math.log10(k)
                         base += 5 * math.log10(n_prims / 1000)
                         cat = bool(rng.random() < 1 - (1 - pc[d]) ** k)
-                        rows.append({
-                            "scene": scene, "n_primitives": n_prims, "precision": prec,
-                            "field": "means" if k == 1 else "mixed", "primitive": -1 if k > 1 else 0,
-                            "component": -1 if k > 1 else 0, "bit": -1 if k > 1 else 3,
-                            "bit_class": "mixed" if k > 1 else "mantissa",
-                            "clean_value": 0.0, "corrupted_value": 0.0, "defense": d,
-                            "footprint": 0.2 if cat else 0.001, "footprint_max": 0.3,
-                            "peak_error": 0.5, "psnr": base + rng.normal(0, 1), "ssim": 0.9,
-                            "nonfinite": False, "catastrophic": cat, "clamps": 0, "k": k,
-                            "seed": 1, "injection_id": inj, "campaign": "dose", "repeat": r,
-                            "time_ms": 3.0,
-                        })
+                        rows.append(
+                            {
+                                "scene": scene,
+                                "n_primitives": n_prims,
+                                "precision": prec,
+                                "field": "means" if k == 1 else "mixed",
+                                "primitive": -1 if k > 1 else 0,
+                                "component": -1 if k > 1 else 0,
+                                "bit": -1 if k > 1 else 3,
+                                "bit_class": "mixed" if k > 1 else "mantissa",
+                                "clean_value": 0.0,
+                                "corrupted_value": 0.0,
+                                "defense": d,
+                                "footprint": 0.2 if cat else 0.001,
+                                "footprint_max": 0.3,
+                                "peak_error": 0.5,
+                                "psnr": base + rng.normal(0, 1),
+                                "ssim": 0.9,
+                                "nonfinite": False,
+                                "catastrophic": cat,
+                                "clamps": 0,
+                                "k": k,
+                                "seed": 1,
+                                "injection_id": inj,
+                                "campaign": "dose",
+                                "repeat": r,
+                                "time_ms": 3.0,
+                            }
+                        )
     return rows
 
 
@@ -111,26 +147,49 @@ def _size_rows(rng):
     inj = 20_000_000
     for n in (1000, 4000, 16000):
         for d in ("none", "guard"):
-            for i in range(30):
+            for _i in range(30):
                 inj += 1
                 mse = 1e-4 * (n / 1000.0) ** -1.0 * math.exp(rng.normal(0, 0.1))
-                rows.append({
-                    "scene": "lego", "n_primitives": n, "precision": "fp32", "field": "means",
-                    "primitive": 0, "component": 0, "bit": 10, "bit_class": "mantissa",
-                    "clean_value": 0.1, "corrupted_value": 0.1, "defense": d,
-                    "footprint": 0.001, "footprint_max": 0.002, "peak_error": 0.01,
-                    "psnr": -10 * math.log10(mse), "ssim": 0.99, "nonfinite": False,
-                    "catastrophic": False, "clamps": 0, "k": 1, "seed": 2, "injection_id": inj,
-                    "campaign": "size", "repeat": 0,
-                })
+                rows.append(
+                    {
+                        "scene": "lego",
+                        "n_primitives": n,
+                        "precision": "fp32",
+                        "field": "means",
+                        "primitive": 0,
+                        "component": 0,
+                        "bit": 10,
+                        "bit_class": "mantissa",
+                        "clean_value": 0.1,
+                        "corrupted_value": 0.1,
+                        "defense": d,
+                        "footprint": 0.001,
+                        "footprint_max": 0.002,
+                        "peak_error": 0.01,
+                        "psnr": -10 * math.log10(mse),
+                        "ssim": 0.99,
+                        "nonfinite": False,
+                        "catastrophic": False,
+                        "clamps": 0,
+                        "k": 1,
+                        "seed": 2,
+                        "injection_id": inj,
+                        "campaign": "size",
+                        "repeat": 0,
+                    }
+                )
     return rows
 
 
 def write_run(run_dir: Path, df: pd.DataFrame, parts: int = 2) -> Path:
     (run_dir / "records").mkdir(parents=True, exist_ok=True)
-    manifest = {"spec": {"scenes": list(SCENES), "sh_degree": 3}, "spec_hash": "abc123",
-                "version": "0.1.0", "git_commit": "deadbeef",
-                "adapter": {"name": "llvmpipe (LLVM)", "backend": "Vulkan"}}
+    manifest = {
+        "spec": {"scenes": list(SCENES), "sh_degree": 3},
+        "spec_hash": "abc123",
+        "version": "0.1.0",
+        "git_commit": "deadbeef",
+        "adapter": {"name": "llvmpipe (LLVM)", "backend": "Vulkan"},
+    }
     (run_dir / "manifest.json").write_text(json.dumps(manifest))
     for i, chunk in enumerate(np.array_split(np.arange(len(df)), parts)):
         df.iloc[chunk].to_parquet(run_dir / "records" / f"part-{i:05d}.parquet", index=False)
@@ -171,14 +230,42 @@ def test_end_to_end_report(synthetic, tmp_path):
     assert index == out / "index.html" and index.is_file()
     page = index.read_text()
     assert "data:image/png;base64," in page
-    for fig in ("fig_heatmap", "fig_precision", "fig_theory", "fig_guard", "fig_dose",
-                "fig_budget", "fig_size", "fig_dose_model", "fig_contamination", "fig_roc"):
+    for fig in (
+        "fig_heatmap",
+        "fig_precision",
+        "fig_theory",
+        "fig_guard",
+        "fig_dose",
+        "fig_budget",
+        "fig_size",
+        "fig_dose_model",
+        "fig_contamination",
+        "fig_roc",
+    ):
         assert (out / f"{fig}.png").stat().st_size > 1000, fig
-    for tab in ("criticality", "field_bit", "precision_rates", "theory", "theory_fit",
-                "guard_summary", "guard_paired", "guard_sign_psnr", "mitigation", "dose_curves",
-                "redundancy_budget", "size_scaling", "size_fits", "reliability_pc", "mtbf",
-                "mtbf_detail", "dose_model", "contamination", "prediction",
-                "prediction_importance", "prediction_loso"):
+    for tab in (
+        "criticality",
+        "field_bit",
+        "precision_rates",
+        "theory",
+        "theory_fit",
+        "guard_summary",
+        "guard_paired",
+        "guard_sign_psnr",
+        "mitigation",
+        "dose_curves",
+        "redundancy_budget",
+        "size_scaling",
+        "size_fits",
+        "reliability_pc",
+        "mtbf",
+        "mtbf_detail",
+        "dose_model",
+        "contamination",
+        "prediction",
+        "prediction_importance",
+        "prediction_loso",
+    ):
         assert (out / f"{tab}.csv").is_file(), tab
         md = (out / f"{tab}.md").read_text()
         assert "Rests on" in md and "|" in md, tab
@@ -187,9 +274,9 @@ def test_end_to_end_report(synthetic, tmp_path):
 
     crit = pd.read_csv(out / "criticality.csv")
     assert list(crit["field"]) == list(FIELD_COMPS)
-    assert (crit["n"] == 2 * 32 * 4).all()          # 2 scenes x 32 bits x 4 per cell at fp32
+    assert (crit["n"] == 2 * 32 * 4).all()  # 2 scenes x 32 bits x 4 per cell at fp32
     ls = crit.set_index("field").loc["log_scales"]
-    assert ls["catastrophic"] == 2 * 3 * 4          # sign + top-2 exponent bits, 2 scenes
+    assert ls["catastrophic"] == 2 * 3 * 4  # sign + top-2 exponent bits, 2 scenes
     fb = pd.read_csv(out / "field_bit.csv")
     assert len(fb) == 6 * (32 + 16 + 16)
     mit = pd.read_csv(out / "mitigation.csv")
@@ -200,9 +287,9 @@ def test_end_to_end_report(synthetic, tmp_path):
     mtbf = pd.read_csv(out / "mtbf.csv")
     assert len(mtbf) == 3 and list(mtbf.columns) == ["environment", "no guard", "support guard"]
     dc = pd.read_csv(out / "dose_curves.csv")
-    assert len(dc) == 3 * 2 * 5                      # precisions x defenses x k
+    assert len(dc) == 3 * 2 * 5  # precisions x defenses x k
     bud = pd.read_csv(out / "redundancy_budget.csv")
-    assert len(bud) == 2 * 3 * 2 + 1 * 1 * 0         # scenes x precisions x defenses
+    assert len(bud) == 2 * 3 * 2 + 1 * 1 * 0  # scenes x precisions x defenses
     fits = pd.read_csv(out / "size_fits.csv")
     med = fits[(fits["metric"] == "median_mse") & (fits["defense"] == "none")]
     assert med["alpha"].iloc[0] == pytest.approx(1.0, abs=0.1)
@@ -250,13 +337,12 @@ def test_criticality_table_text(synthetic):
     txt = criticality_table_text(df)
     assert "fp32" in txt and "Wilson" in txt
     lines = [ln for ln in txt.splitlines() if ln.startswith("| ")]
-    assert len(lines) == 1 + 6                      # header + six fields
+    assert len(lines) == 1 + 6  # header + six fields
     assert "log-scale" in txt and "color (SH)" in txt
 
 
 def test_markdown_table_formatting():
-    md = markdown_table(pd.DataFrame({"a": ["x|y", "z"], "b": [0.000123456, float("nan")],
-                                      "c": [1, 2]}))
+    md = markdown_table(pd.DataFrame({"a": ["x|y", "z"], "b": [0.000123456, float("nan")], "c": [1, 2]}))
     lines = md.strip().splitlines()
     assert lines[0] == "| a | b | c |"
     assert "x\\|y" in lines[2] and "0.0001235" in lines[2] and "n/a" in lines[3]

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from seuwgpu import scenes
-from seuwgpu.model import FIELDS, Model, n_components
+from seuwgpu.model import scenes
+from seuwgpu.model.fields import FIELDS, Model, n_components
 
 C0 = 0.28209479177387814
 N = 6000
@@ -19,11 +19,14 @@ def _rotmat(q):
     q = q.astype(np.float64)
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     w, x, y, z = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
-    ], axis=-2)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+        ],
+        axis=-2,
+    )
 
 
 def _sigmoid(x):
@@ -61,8 +64,9 @@ def test_determinism_and_seed(models):
         other = scenes.make_scene(name, N, seed=1)
         assert not np.array_equal(m.means, other.means)
         # same geometry, other samples: the bounding boxes agree
-        assert np.allclose(np.quantile(m.means, [0.01, 0.99], axis=0),
-                           np.quantile(other.means, [0.01, 0.99], axis=0), atol=0.08)
+        assert np.allclose(
+            np.quantile(m.means, [0.01, 0.99], axis=0), np.quantile(other.means, [0.01, 0.99], axis=0), atol=0.08
+        )
 
 
 def test_lower_degree_is_prefix():
@@ -148,8 +152,11 @@ def test_scene_fits_and_is_framed(models):
         cams = scenes.scene_cameras(name, 6, 160, 120)
         assert len(cams) == 6
         for cam in cams:
-            R, t, K = (cam.viewmat[:3, :3].astype(np.float64), cam.viewmat[:3, 3].astype(np.float64),
-                       cam.K.astype(np.float64))
+            R, t, K = (
+                cam.viewmat[:3, :3].astype(np.float64),
+                cam.viewmat[:3, 3].astype(np.float64),
+                cam.K.astype(np.float64),
+            )
             p = m.means @ R.T + t
             assert (p[:, 2] > 1.0).all(), name  # everything well in front of the camera
             u = K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2]

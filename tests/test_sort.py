@@ -11,7 +11,7 @@ import pytest
 from seuwgpu.gpu.sort import WG, PrefixSum, RadixSort
 
 SENTINEL = 0xDEADBEEF
-PERS = (16, 64)   # elements per thread: the GPU and the CPU-adapter defaults
+PERS = (16, 64)  # elements per thread: the GPU and the CPU-adapter defaults
 
 
 def run(gpu, *encodes):
@@ -39,8 +39,8 @@ def check_sort(gpu, keys_in, vals_in, keys_buf, vals_buf, n, key_bits):
     np.testing.assert_array_equal(v[:n], vals_in[:n][order])
     np.testing.assert_array_equal(k[:n], keys_in[:n][order])
     # past count: untouched
-    np.testing.assert_array_equal(k[n:len(keys_in)], keys_in[n:])
-    np.testing.assert_array_equal(v[n:len(vals_in)], vals_in[n:])
+    np.testing.assert_array_equal(k[n : len(keys_in)], keys_in[n:])
+    np.testing.assert_array_equal(v[n : len(vals_in)], vals_in[n:])
 
 
 # ---- prefix sum ------------------------------------------------------------------------------
@@ -49,7 +49,7 @@ def check_sort(gpu, keys_in, vals_in, keys_buf, vals_buf, n, key_bits):
 def test_scan_matches_cumsum_with_total(gpu, per, blocks, extra):
     n = blocks * WG * per + extra
     rng = np.random.default_rng(n)
-    x = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)   # sums wrap like u32
+    x = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)  # sums wrap like u32
     ps = PrefixSum(gpu, max(n, 1), per=per)
     src = padded(gpu, x, n + 5)
     dst = padded(gpu, np.zeros(0, np.uint32), n + 5)
@@ -57,7 +57,7 @@ def test_scan_matches_cumsum_with_total(gpu, per, blocks, extra):
     run(gpu, lambda e: ps.encode(e, src, dst, n, total=(tot, 8)))
     out = gpu.read(dst)
     np.testing.assert_array_equal(out[:n], exclusive(x))
-    assert (out[n:n + 5] == SENTINEL).all()
+    assert (out[n : n + 5] == SENTINEL).all()
     assert gpu.read(tot).tolist() == [SENTINEL, SENTINEL, int(x.astype(np.uint64).sum() % 2**32), SENTINEL]
 
 
@@ -86,8 +86,11 @@ def test_scan_dynamic_count_three_levels(gpu):
     counts = gpu.upload(np.array([0, 0, 0, 9_999, 10**9, 0, 0, 0], np.uint32))
     dst1, dst2 = gpu.buffer(4 * 20_000), gpu.buffer(4 * 20_000)
     tot = gpu.upload(np.zeros(4, np.uint32))
-    run(gpu, lambda e: ps.encode(e, src, dst1, (counts, 12), total=(tot, 0)),
-        lambda e: ps.encode(e, src, dst2, (counts, 16), total=(tot, 4)))   # clamped to 20000
+    run(
+        gpu,
+        lambda e: ps.encode(e, src, dst1, (counts, 12), total=(tot, 0)),
+        lambda e: ps.encode(e, src, dst2, (counts, 16), total=(tot, 4)),
+    )  # clamped to 20000
     np.testing.assert_array_equal(gpu.read(dst1)[:9_999], exclusive(x[:9_999]))
     assert (gpu.read(dst1)[9_999:] == 0).all()
     np.testing.assert_array_equal(gpu.read(dst2), exclusive(x))
@@ -96,18 +99,21 @@ def test_scan_dynamic_count_three_levels(gpu):
 
 # ---- radix sort ------------------------------------------------------------------------------
 @pytest.mark.parametrize("per", PERS)
-@pytest.mark.parametrize("n,key_bits,hi", [
-    (50_000, 32, 2**32),    # 8 passes, full range incl. 0xFFFFFFFF
-    (50_000, 32, 17),       # many duplicates: stability
-    (40_961, 10, 1 << 10),  # 3 passes (odd: copy first), n not a multiple of the block
-    (5_000, 4, 2**32),      # 1 pass, high bits ignored and kept
-    (3_000, 1, 2**32),      # 1-bit digit
-    (4_096, 13, 2**32),     # one block at 16 per thread, partial last digit
-])
+@pytest.mark.parametrize(
+    "n,key_bits,hi",
+    [
+        (50_000, 32, 2**32),  # 8 passes, full range incl. 0xFFFFFFFF
+        (50_000, 32, 17),  # many duplicates: stability
+        (40_961, 10, 1 << 10),  # 3 passes (odd: copy first), n not a multiple of the block
+        (5_000, 4, 2**32),  # 1 pass, high bits ignored and kept
+        (3_000, 1, 2**32),  # 1-bit digit
+        (4_096, 13, 2**32),  # one block at 16 per thread, partial last digit
+    ],
+)
 def test_radix_sort_stable(gpu, n, key_bits, hi, per):
     rng = np.random.default_rng(n + key_bits)
     keys = rng.integers(0, hi, n, dtype=np.uint64).astype(np.uint32)
-    keys[:: 97] = 0xFFFFFFFF
+    keys[::97] = 0xFFFFFFFF
     vals = np.arange(n, dtype=np.uint32)
     rs = RadixSort(gpu, n, per=per)
     kb, vb = gpu.upload(keys), gpu.upload(vals)
@@ -142,8 +148,11 @@ def test_radix_sort_dynamic_count(gpu, per):
     counts = gpu.upload(np.array([0, 12_345, 2**31, 0], np.uint32))
     kb1, vb1 = gpu.upload(keys), gpu.upload(vals)
     kb2, vb2 = gpu.upload(keys), gpu.upload(vals)
-    run(gpu, lambda e: rs.encode(e, kb1, vb1, (counts, 4), key_bits=9),
-        lambda e: rs.encode(e, kb2, vb2, (counts, 8), key_bits=9))
+    run(
+        gpu,
+        lambda e: rs.encode(e, kb1, vb1, (counts, 4), key_bits=9),
+        lambda e: rs.encode(e, kb2, vb2, (counts, 8), key_bits=9),
+    )
     check_sort(gpu, keys, vals, kb1, vb1, 12_345, 9)
     check_sort(gpu, keys, vals, kb2, vb2, cap, 9)
 
@@ -164,7 +173,7 @@ def test_radix_sort_two_bindings(gpu, per):
     cnt = gpu.upload(np.array([n - 3], np.uint32))
     for bits in (32, 12):
         kb, vb = gpu.upload(keys), gpu.upload(vals)
-        run(gpu, lambda e: rs.encode(e, kb, vb, (cnt, 0), key_bits=bits))
+        run(gpu, lambda e, kb=kb, vb=vb, bits=bits: rs.encode(e, kb, vb, (cnt, 0), key_bits=bits))
         check_sort(gpu, keys, vals, kb, vb, n - 3, bits)
 
 
@@ -175,18 +184,18 @@ def test_one_encoder_many_calls(gpu):
     ps, rs = PrefixSum(gpu, 1000), RadixSort(gpu, 20_000)
     stats = gpu.upload(np.zeros(4, np.uint32))
     cases = []
-    for v, m in enumerate((700, 300)):
+    for m in (700, 300):
         counts = rng.integers(0, 40, 1000).astype(np.uint32)
         keys = rng.integers(0, 64, 20_000).astype(np.uint32)
         vals = np.arange(20_000, dtype=np.uint32)
         bufs = gpu.upload(counts), gpu.buffer(4000), gpu.upload(keys), gpu.upload(vals)
         cases.append((m, counts, keys, vals, bufs))
     encs = []
-    for v, (m, counts, keys, vals, (cb, ob, kb, vb)) in enumerate(cases):
+    for v, (m, _counts, _keys, _vals, (cb, ob, kb, vb)) in enumerate(cases):
         encs.append(lambda e, m=m, cb=cb, ob=ob, v=v: ps.encode(e, cb, ob, m, total=(stats, 4 * v)))
         encs.append(lambda e, kb=kb, vb=vb, v=v: rs.encode(e, kb, vb, (stats, 4 * v), key_bits=6))
     run(gpu, *encs)
-    for v, (m, counts, keys, vals, (cb, ob, kb, vb)) in enumerate(cases):
+    for v, (m, counts, keys, vals, (_cb, ob, kb, vb)) in enumerate(cases):
         total = int(counts[:m].sum())
         assert gpu.read(stats)[v] == total
         np.testing.assert_array_equal(gpu.read(ob)[:m], exclusive(counts[:m]))
@@ -202,10 +211,10 @@ def test_bad_arguments(gpu):
     with pytest.raises(ValueError):
         rs.encode(enc, kb, vb, 10, key_bits=33)
     with pytest.raises(ValueError):
-        RadixSort(gpu, 3 * 16384, max_binding=65536)   # needs three bindings
+        RadixSort(gpu, 3 * 16384, max_binding=65536)  # needs three bindings
     with pytest.raises(ValueError):
         RadixSort(gpu, 100, per=6)
-    odd = gpu.device.create_buffer(size=404, usage=kb.usage)   # vec4 access needs 16-byte multiples
+    odd = gpu.device.create_buffer(size=404, usage=kb.usage)  # vec4 access needs 16-byte multiples
     with pytest.raises(ValueError):
         rs.encode(enc, odd, vb, 10)
     with pytest.raises(ValueError):

@@ -19,13 +19,15 @@ N, SIZE = 3000, (96, 96)
 
 @pytest.fixture(scope="module")
 def model():
-    from seuwgpu.scenes import make_scene
+    from seuwgpu.model.scenes import make_scene
+
     return make_scene("spheres", n=N)
 
 
 @pytest.fixture
 def state(model, gpu):
-    from seuwgpu.viewer import OrbitCamera, ViewerState
+    from seuwgpu.apps.viewer import OrbitCamera, ViewerState
+
     return ViewerState(model, "fp32", SIZE, scene="spheres", orbit=OrbitCamera.for_scene("spheres"), sample=16)
 
 
@@ -43,11 +45,13 @@ def flipped_bits(st) -> int:
 def odd_sites(sites) -> int:
     """Bits an XOR of these single-bit sites leaves flipped (a bit hit twice is restored)."""
     from collections import Counter
+
     return sum(1 for c in Counter((s.primitive, s.flat_component(), s.bits) for s in sites).values() if c % 2)
 
 
 def direct_render(model, cam, precision="fp32"):
-    from seuwgpu.render import Renderer
+    from seuwgpu.render.renderer import Renderer
+
     return Renderer(model, [cam], precision).render_rgba()[0]
 
 
@@ -58,7 +62,8 @@ def test_clean_frame_is_the_pipeline_render(state, model):
     assert ro["footprint"] == 0.0 and ro["psnr"] == float("inf") and ro["clamps"] == 0
     assert not ro["alert"] and ro["active_sites"] == 0 and ro["frame_ms"] > 0
     np.testing.assert_array_equal(state.last_image, direct_render(model, state.camera()))
-    from seuwgpu.metrics import display
+    from seuwgpu.metrics.image import display
+
     np.testing.assert_array_equal(rgba[..., :3], (display(state.last_image[..., :3]) * 255 + 0.5).astype(np.uint8))
 
 
@@ -187,7 +192,7 @@ def test_heatmap(state):
     assert grey.max() <= 0.3 * 255 + 1
     state.inject("log_scales", 31, None, component=2)
     rgba, ro = state.frame()
-    coloured = (rgba[..., 0] != rgba[..., 2])
+    coloured = rgba[..., 0] != rgba[..., 2]
     assert abs(coloured.mean() - ro["footprint"]) < 0.01 and coloured.mean() > 0.01
     state.toggle_heatmap()
     rgba2, _ = state.frame()
@@ -199,8 +204,9 @@ def test_offscreen_window_panel_and_input(model, gpu):
     pytest.importorskip("rendercanvas")
     pytest.importorskip("imgui_bundle")
     from rendercanvas.offscreen import RenderCanvas
-    from seuwgpu.viewer import OrbitCamera, ViewerState
-    from seuwgpu.viewer_gui import PANEL_WIDTH, ViewerApp
+
+    from seuwgpu.apps.viewer import OrbitCamera, ViewerState
+    from seuwgpu.apps.viewer_window import PANEL_WIDTH, ViewerApp
 
     W, H = PANEL_WIDTH + 120, 200
     canvas = RenderCanvas(size=(W, H))
@@ -221,15 +227,19 @@ def test_offscreen_window_panel_and_input(model, gpu):
 
     az = st.orbit.azimuth_deg
     x, y = PANEL_WIDTH + 60, 100
-    send({"event_type": "pointer_down", "x": x, "y": y, "button": 1, "buttons": (1,)},
-         {"event_type": "pointer_move", "x": x + 30, "y": y, "button": 0, "buttons": (1,)},
-         {"event_type": "pointer_up", "x": x + 30, "y": y, "button": 1, "buttons": ()})
+    send(
+        {"event_type": "pointer_down", "x": x, "y": y, "button": 1, "buttons": (1,)},
+        {"event_type": "pointer_move", "x": x + 30, "y": y, "button": 0, "buttons": (1,)},
+        {"event_type": "pointer_up", "x": x + 30, "y": y, "button": 1, "buttons": ()},
+    )
     assert st.orbit.azimuth_deg != az and st.dirty
     send({"event_type": "key_down", "key": "r"})
     assert st.orbit.azimuth_deg == az
-    send({"event_type": "pointer_down", "x": 20, "y": 100, "button": 1, "buttons": (1,)},  # in the panel
-         {"event_type": "pointer_move", "x": 60, "y": 100, "button": 0, "buttons": (1,)},
-         {"event_type": "pointer_up", "x": 60, "y": 100, "button": 1, "buttons": ()})
+    send(
+        {"event_type": "pointer_down", "x": 20, "y": 100, "button": 1, "buttons": (1,)},  # in the panel
+        {"event_type": "pointer_move", "x": 60, "y": 100, "button": 0, "buttons": (1,)},
+        {"event_type": "pointer_up", "x": 60, "y": 100, "button": 1, "buttons": ()},
+    )
     assert st.orbit.azimuth_deg == az
     send({"event_type": "key_down", "key": "g"}, {"event_type": "key_down", "key": "m"})
     assert st.guard == "guard" and st.heatmap
@@ -251,20 +261,18 @@ def test_offscreen_window_panel_and_input(model, gpu):
 
 # ---- the command ----------------------------------------------------------------------------------
 def _env(**kw):
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("DISPLAY", "WAYLAND_DISPLAY", "RENDERCANVAS_BACKEND", "RENDERCANVAS_FORCE_OFFSCREEN")}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("DISPLAY", "WAYLAND_DISPLAY", "RENDERCANVAS_BACKEND", "RENDERCANVAS_FORCE_OFFSCREEN")
+    }
     env.setdefault("XDG_RUNTIME_DIR", "/tmp")
     env.update(kw)
     return env
 
 
 def _view_commands():
-    cmds = [[sys.executable, "-m", "seuwgpu.viewer"]]
-    from seuwgpu.cli import build_parser
-    sub = [a for a in build_parser()._actions if a.dest == "command"]
-    if sub and "view" in sub[0].choices:  # once cli.py wires `seuwgpu view`
-        cmds.append([sys.executable, "-m", "seuwgpu.cli", "view"])
-    return cmds
+    return [[sys.executable, "-m", "seuwgpu", "view"]]
 
 
 def test_view_without_display_says_what_to_do():
@@ -277,11 +285,30 @@ def test_view_without_display_says_what_to_do():
 def test_view_offscreen_command(tmp_path):
     pytest.importorskip("rendercanvas")
     pytest.importorskip("imgui_bundle")
-    p = subprocess.run([sys.executable, "-m", "seuwgpu.viewer", "--n", "2000", "--size", "480x200",
-                        "--frames", "1", "--screenshot-dir", str(tmp_path)], cwd=ROOT,
-                       env=_env(RENDERCANVAS_BACKEND="offscreen"), capture_output=True, text=True, timeout=120)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "seuwgpu",
+            "view",
+            "--n",
+            "2000",
+            "--size",
+            "480x200",
+            "--frames",
+            "1",
+            "--screenshot-dir",
+            str(tmp_path),
+        ],
+        cwd=ROOT,
+        env=_env(RENDERCANVAS_BACKEND="offscreen"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert p.returncode == 0, p.stderr
     import imageio.v3 as iio
+
     pngs = list(tmp_path.glob("*.png"))
     assert len(pngs) == 1
     img = iio.imread(pngs[0])
@@ -294,11 +321,28 @@ def test_real_window_under_xvfb(tmp_path):
         pytest.skip("Xvfb is not installed (Debian: apt-get install xvfb); the real-window test needs it")
     for mod in ("rendercanvas", "glfw", "imgui_bundle"):
         pytest.importorskip(mod)
-    p = subprocess.run([sys.executable, str(ROOT / "tools" / "viewer_xvfb.py"), "--out", str(tmp_path),
-                        "--n", "3000", "--size", "900x560", "--component", "2"],
-                       cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=240)
+    p = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "tools" / "viewer_xvfb.py"),
+            "--out",
+            str(tmp_path),
+            "--n",
+            "3000",
+            "--size",
+            "900x560",
+            "--component",
+            "2",
+        ],
+        cwd=ROOT,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
     assert p.returncode == 0, p.stdout + p.stderr
     import imageio.v3 as iio
+
     report = json.loads((tmp_path / "viewer_report.json").read_text())
     assert all(c["ok"] for c in report["checks"].values()), report["checks"]
     clean = iio.imread(tmp_path / "viewer_clean.png")
@@ -306,7 +350,8 @@ def test_real_window_under_xvfb(tmp_path):
     assert clean.shape == sheet.shape == (560, 900, 3)
     for img in (clean, sheet):  # not blank: varied colours, the panel and the model
         assert img.std() > 10 and len(np.unique(img.reshape(-1, 3), axis=0)) > 100
-    from seuwgpu.viewer_gui import PANEL_WIDTH
+    from seuwgpu.apps.viewer_window import PANEL_WIDTH
+
     render_clean, render_sheet = clean[:, PANEL_WIDTH:], sheet[:, PANEL_WIDTH:]
     assert (render_clean < 250).any(axis=-1).mean() > 0.05  # the model covers part of the white view
     assert (np.abs(render_sheet.astype(int) - render_clean).max(axis=-1) > 2).mean() > 0.01

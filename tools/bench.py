@@ -8,7 +8,7 @@ For each (scene, N, size, K) the embedded scene is rendered from K orbit views i
 (the Renderer's unit of work). What is measured, per configuration:
 
 - wall time of a submission: time.perf_counter() around encode + submit + the Renderer's tiny
-  readback of its per-view intersection totals (which waits for the GPU), i.e. `Renderer._run()`.
+  readback of its per-view intersection totals (which waits for the GPU), i.e. `Renderer.run()`.
   The image itself is not read back. The first submission is a warm-up and is discarded; the
   reported time is the median of R timed submissions (fewer than --repeats when one submission
   is slower than the --budget allows; the JSON and the table give R). Python-side encoding is
@@ -48,16 +48,23 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import wgpu  # noqa: E402
 
-from seuwgpu import reference, scenes  # noqa: E402
 from seuwgpu.gpu.device import GPU, get_gpu  # noqa: E402
-from seuwgpu.render import Renderer  # noqa: E402
+from seuwgpu.model import scenes  # noqa: E402
+from seuwgpu.render import reference
+from seuwgpu.render.renderer import Renderer  # noqa: E402
 
 STAGES = ("project", "depth sort", "count+scan", "emit", "tile sort", "ranges", "composite")
 
 # Stage of a compute pass, from its label or the label of the first pipeline it sets
 # (device.pipeline labels pipelines "<shader>:<entry>"; the sorters label their passes).
-_STAGE_OF = {"project": "project", "tiles": "count+scan", "prefix_sum": "count+scan",
-             "emit": "emit", "ranges": "ranges", "composite": "composite"}
+_STAGE_OF = {
+    "project": "project",
+    "tiles": "count+scan",
+    "prefix_sum": "count+scan",
+    "emit": "emit",
+    "ranges": "ranges",
+    "composite": "composite",
+}
 
 
 # ---- timestamp instrumentation ---------------------------------------------------------------------
@@ -90,8 +97,11 @@ class _TimedEncoder:
         rec = {"label": label}
         i = 2 * len(self.records)
         if i + 2 <= self._cap:
-            kw["timestamp_writes"] = {"query_set": self._qs, "beginning_of_pass_write_index": i,
-                                      "end_of_pass_write_index": i + 1}
+            kw["timestamp_writes"] = {
+                "query_set": self._qs,
+                "beginning_of_pass_write_index": i,
+                "end_of_pass_write_index": i + 1,
+            }
             self.records.append(rec)
         else:
             self.untimed += 1
@@ -106,6 +116,7 @@ def timestamp_period_ns(gpu: GPU) -> float:
     """Nanoseconds per timestamp tick (wgpu-native's wgpuQueueGetTimestampPeriod; 1.0 if absent)."""
     try:
         from wgpu.backends.wgpu_native._api import libf
+
         return float(libf.wgpuQueueGetTimestampPeriod(gpu.queue._internal))
     except Exception:  # noqa: BLE001 - another backend: WebGPU specifies nanoseconds
         return 1.0
@@ -125,7 +136,8 @@ class StageTimedRenderer(Renderer):
         if self._ts is None or self._ts[1] < want:
             qs = self.gpu.device.create_query_set(type=wgpu.QueryType.timestamp, count=want)
             buf = self.gpu.device.create_buffer(
-                size=8 * want, usage=wgpu.BufferUsage.QUERY_RESOLVE | wgpu.BufferUsage.COPY_SRC)
+                size=8 * want, usage=wgpu.BufferUsage.QUERY_RESOLVE | wgpu.BufferUsage.COPY_SRC
+            )
             self._ts = (qs, want, buf)
         return self._ts
 
@@ -156,7 +168,9 @@ class StageTimedRenderer(Renderer):
                 after_emit = False
             elif name == "emit":
                 after_emit = True
-            stage = ("tile sort" if after_emit else "depth sort") if name == "radix_sort" else _STAGE_OF.get(name, "other")
+            stage = (
+                ("tile sort" if after_emit else "depth sort") if name == "radix_sort" else _STAGE_OF.get(name, "other")
+            )
             out[stage] += max(0, int(e - b)) * ns * 1e-9
         span = (int(end.max()) - int(begin.min())) * ns * 1e-9 if n else 0.0
         out["gaps"] = max(0.0, span - sum(out[s] for s in (*STAGES, "other")))
@@ -174,12 +188,22 @@ def _psnr(a: np.ndarray, b: np.ndarray) -> float:
 def _submission(r: Renderer) -> tuple[float, np.ndarray]:
     """Seconds for one submission, and the per-view intersection totals it read back."""
     t = time.perf_counter()
-    totals = r._run()  # encode + submit + read of the per-view totals (waits for the GPU); grows buffers if needed
+    totals = r.run()  # encode + submit + read of the per-view totals (waits for the GPU); grows buffers if needed
     return time.perf_counter() - t, totals
 
 
-def bench_config(model, scene: str, size: int, k: int, *, repeats: int = 3, budget: float = 100.0,
-                 gpu: GPU | None = None, twin: dict | None = None, stages: bool = True) -> dict:
+def bench_config(
+    model,
+    scene: str,
+    size: int,
+    k: int,
+    *,
+    repeats: int = 3,
+    budget: float = 100.0,
+    gpu: GPU | None = None,
+    twin: dict | None = None,
+    stages: bool = True,
+) -> dict:
     """Measure one (scene, N, size, K). `twin` (from measure_twin) adds the ratio when its N and
     size are this config's. Returns the JSON record."""
     gpu = gpu or get_gpu()
@@ -199,29 +223,45 @@ def bench_config(model, scene: str, size: int, k: int, *, repeats: int = 3, budg
     encode_s = time.perf_counter() - t
 
     rec = {
-        "scene": scene, "n": int(model.n), "sh_degree": int(model.sh_degree), "precision": r.precision,
-        "width": w, "height": h, "k": k, "repeats": reps, "warmup_s": warm, "times_s": times,
-        "seconds_per_submission": med, "ms_per_view": 1e3 * med / k, "mpix_per_s": k * w * h / med / 1e6,
+        "scene": scene,
+        "n": int(model.n),
+        "sh_degree": int(model.sh_degree),
+        "precision": r.precision,
+        "width": w,
+        "height": h,
+        "k": k,
+        "repeats": reps,
+        "warmup_s": warm,
+        "times_s": times,
+        "seconds_per_submission": med,
+        "ms_per_view": 1e3 * med / k,
+        "mpix_per_s": k * w * h / med / 1e6,
         "min_ms_per_view": 1e3 * min(times) / k,  # the least disturbed run (shared machines are noisy)
-        "encode_ms": 1e3 * encode_s, "model_chunks": r.layout.n_chunks,
+        "encode_ms": 1e3 * encode_s,
+        "model_chunks": r.layout.n_chunks,
         "intersections_per_view": [int(x) for x in totals[:k]],
     }
 
     if stages and "timestamp-query" in gpu.features:
         r.timed = True
         t = time.perf_counter()
-        r._run()
+        r.run()
         rec["timed_submission_s"] = time.perf_counter() - t
         st = r.stage_times()
         r.timed = False
-        rec["stage_source"] = "timestamp-query (one separate instrumented submission; per-pass begin/end, summed over views)"
+        rec["stage_source"] = (
+            "timestamp-query (one separate instrumented submission; per-pass begin/end, summed over views)"
+        )
         rec["stages_ms"] = {s: 1e3 * st[s] for s in (*STAGES, "other", "gaps")}
         # Consistency check: the stages + gaps should add up to about the instrumented wall time.
         rec["stage_sum_ms"] = sum(rec["stages_ms"].values())
         rec["timed_passes"], rec["untimed_passes"] = st["passes"], st["untimed_passes"]
     else:
-        rec["stage_source"] = ("none: the device has no timestamp-query feature; only the whole "
-                               "submission's wall time is measured" if stages else "disabled (--no-stages)")
+        rec["stage_source"] = (
+            "none: the device has no timestamp-query feature; only the whole submission's wall time is measured"
+            if stages
+            else "disabled (--no-stages)"
+        )
         rec["stages_ms"] = None
 
     if twin is not None:
@@ -242,35 +282,71 @@ def measure_twin(scene: str, model, size: int, views: int = 1, max_n: int = 1_00
     n = int(model.n)
     if n > max_n:
         model, n = scenes.make_scene(scene, max_n, model.sh_degree, seed), max_n
-    cams = scenes.scene_cameras(scene, max(views, 1), size, size)[:max(views, 1)]
+    cams = scenes.scene_cameras(scene, max(views, 1), size, size)[: max(views, 1)]
     t = time.perf_counter()
     imgs = reference.render(model, cams)
     s = (time.perf_counter() - t) / len(cams)
-    what = (f"reference.render on {len(cams)} view(s) of a {len(cams)}-camera orbit (its view 0 = every "
-            f"config's view 0), N={n}, {size}x{size}")
-    return {"n": n, "width": size, "height": size, "views": len(cams), "seconds_per_view": s,
-            "what": what, "image": imgs[0]}
+    what = (
+        f"reference.render on {len(cams)} view(s) of a {len(cams)}-camera orbit (its view 0 = every "
+        f"config's view 0), N={n}, {size}x{size}"
+    )
+    return {
+        "n": n,
+        "width": size,
+        "height": size,
+        "views": len(cams),
+        "seconds_per_view": s,
+        "what": what,
+        "image": imgs[0],
+    }
 
 
 def adapter_info(gpu: GPU) -> dict:
     info = gpu.info
-    return {"device": info.get("device"), "description": info.get("description"),
-            "vendor": info.get("vendor"), "adapter_type": info.get("adapter_type"),
-            "backend": info.get("backend_type"), "features": sorted(gpu.features),
-            "timestamp_period_ns": timestamp_period_ns(gpu) if "timestamp-query" in gpu.features else None}
+    return {
+        "device": info.get("device"),
+        "description": info.get("description"),
+        "vendor": info.get("vendor"),
+        "adapter_type": info.get("adapter_type"),
+        "backend": info.get("backend_type"),
+        "features": sorted(gpu.features),
+        "timestamp_period_ns": timestamp_period_ns(gpu) if "timestamp-query" in gpu.features else None,
+    }
 
 
-def run_grid(scene_names, ns, sizes, ks, *, repeats=3, budget=100.0, twin=True, twin_views=1,
-             twin_max_n=1_000_000, stages=True, sh_degree=3, seed=0, log=print) -> dict:
+def run_grid(
+    scene_names,
+    ns,
+    sizes,
+    ks,
+    *,
+    repeats=3,
+    budget=100.0,
+    twin=True,
+    twin_views=1,
+    twin_max_n=1_000_000,
+    stages=True,
+    sh_degree=3,
+    seed=0,
+    log=print,
+) -> dict:
     """The whole benchmark; returns the JSON document."""
     gpu = get_gpu()
     t0 = time.perf_counter()
-    doc = {"adapter": adapter_info(gpu), "host": {"platform": platform.platform(), "cpus": os.cpu_count(),
-                                                  "loadavg_start": list(os.getloadavg())},
-           "settings": {"repeats": repeats, "budget_s": budget, "twin_views": twin_views,
-                        "twin_max_n": twin_max_n, "sh_degree": sh_degree, "seed": seed,
-                        "precision": "fp32"},
-           "results": []}
+    doc = {
+        "adapter": adapter_info(gpu),
+        "host": {"platform": platform.platform(), "cpus": os.cpu_count(), "loadavg_start": list(os.getloadavg())},
+        "settings": {
+            "repeats": repeats,
+            "budget_s": budget,
+            "twin_views": twin_views,
+            "twin_max_n": twin_max_n,
+            "sh_degree": sh_degree,
+            "seed": seed,
+            "precision": "fp32",
+        },
+        "results": [],
+    }
     for scene in scene_names:
         for n in ns:
             t = time.perf_counter()
@@ -282,11 +358,14 @@ def run_grid(scene_names, ns, sizes, ks, *, repeats=3, budget=100.0, twin=True, 
                     tw = measure_twin(scene, model, size, twin_views, twin_max_n, seed)
                     log(f"[{scene} N={n} {size}x{size}] twin: {tw['seconds_per_view']:.2f} s/view ({tw['what']})")
                 for k in ks:
-                    rec = bench_config(model, scene, size, k, repeats=repeats, budget=budget, gpu=gpu,
-                                       twin=tw, stages=stages)
+                    rec = bench_config(
+                        model, scene, size, k, repeats=repeats, budget=budget, gpu=gpu, twin=tw, stages=stages
+                    )
                     doc["results"].append(rec)
-                    log(f"[{scene} N={n} {size}x{size} K={k}] {rec['mpix_per_s']:.3f} Mpix/s, "
-                        f"{rec['ms_per_view']:.1f} ms/view (median of {rec['repeats']})")
+                    log(
+                        f"[{scene} N={n} {size}x{size} K={k}] {rec['mpix_per_s']:.3f} Mpix/s, "
+                        f"{rec['ms_per_view']:.1f} ms/view (median of {rec['repeats']})"
+                    )
             del model
     doc["host"]["loadavg_end"] = list(os.getloadavg())
     doc["total_wall_s"] = time.perf_counter() - t0
@@ -305,7 +384,7 @@ def print_table(doc: dict, console=None) -> None:
     console = console or Console(width=200)
     a = doc["adapter"]
     stages_known = any(r.get("stages_ms") for r in doc["results"])
-    title = (f"seuwgpu render benchmark - {a['device']} ({a['backend']}, {a['adapter_type']}; {a['description']})")
+    title = f"seuwgpu render benchmark - {a['device']} ({a['backend']}, {a['adapter_type']}; {a['description']})"
     table = Table(title=title, title_justify="left")
     for col in ("scene", "N", "size", "K", "R", "Mpix/s", "ms/view", "min ms/view"):
         table.add_column(col, justify="right" if col not in ("scene",) else "left")
@@ -316,8 +395,16 @@ def print_table(doc: dict, console=None) -> None:
     table.add_column("GPU/twin speed", justify="right")
     table.add_column("PSNR v0", justify="right")
     for r in doc["results"]:
-        row = [r["scene"], f"{r['n']:,}", f"{r['width']}x{r['height']}", str(r["k"]), str(r["repeats"]),
-               f"{r['mpix_per_s']:.3f}", f"{r['ms_per_view']:.1f}", f"{r['min_ms_per_view']:.1f}"]
+        row = [
+            r["scene"],
+            f"{r['n']:,}",
+            f"{r['width']}x{r['height']}",
+            str(r["k"]),
+            str(r["repeats"]),
+            f"{r['mpix_per_s']:.3f}",
+            f"{r['ms_per_view']:.1f}",
+            f"{r['min_ms_per_view']:.1f}",
+        ]
         if stages_known:
             st = r.get("stages_ms") or {}
             row += [_fmt(st.get(s)) for s in (*STAGES, "gaps")]
@@ -333,35 +420,55 @@ def print_table(doc: dict, console=None) -> None:
     console.print(table)
     notes = []
     if stages_known:
-        notes.append("Stage columns: GPU ms per submission (summed over the K views) from timestamp queries on one "
-                     "separate instrumented submission; 'count+scan' = tile counts + prefix sum; 'gaps' = time "
-                     "between passes. Mpix/s and ms/view come from un-instrumented submissions.")
+        notes.append(
+            "Stage columns: GPU ms per submission (summed over the K views) from timestamp queries on one "
+            "separate instrumented submission; 'count+scan' = tile counts + prefix sum; 'gaps' = time "
+            "between passes. Mpix/s and ms/view come from un-instrumented submissions."
+        )
     else:
         notes.append("No per-stage times: " + (doc["results"][0]["stage_source"] if doc["results"] else "no results"))
-    notes.append("Mpix/s = K*W*H / median wall time of R submissions (encode + submit + wait), warm-up excluded; "
-                 "ms/view = median / K; min ms/view = fastest of the R / K (other load on the host slows runs).")
-    notes.append("twin s/view: numpy reference.render measured in this run on orbit view 0 (K=1) at the same N and "
-                 "size; GPU/twin speed = twin s/view / GPU s/view of the row. PSNR v0: GPU view 0 vs the twin's.")
+    notes.append(
+        "Mpix/s = K*W*H / median wall time of R submissions (encode + submit + wait), warm-up excluded; "
+        "ms/view = median / K; min ms/view = fastest of the R / K (other load on the host slows runs)."
+    )
+    notes.append(
+        "twin s/view: numpy reference.render measured in this run on orbit view 0 (K=1) at the same N and "
+        "size; GPU/twin speed = twin s/view / GPU s/view of the row. PSNR v0: GPU view 0 vs the twin's."
+    )
     h = doc["host"]
-    notes.append(f"Host: {h['cpus']} CPUs, load average {h['loadavg_start'][0]:.1f} at start, "
-                 f"{h['loadavg_end'][0]:.1f} at end; total wall time {doc['total_wall_s']:.0f} s.")
+    notes.append(
+        f"Host: {h['cpus']} CPUs, load average {h['loadavg_start'][0]:.1f} at start, "
+        f"{h['loadavg_end'][0]:.1f} at end; total wall time {doc['total_wall_s']:.0f} s."
+    )
     for n in notes:
         console.print(n)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--scenes", nargs="+", default=["spheres"],
-                    help=f"scene names or 'all' ({', '.join(scenes.list_scenes())}); default spheres")
+    ap.add_argument(
+        "--scenes",
+        nargs="+",
+        default=["spheres"],
+        help=f"scene names or 'all' ({', '.join(scenes.list_scenes())}); default spheres",
+    )
     ap.add_argument("--n", nargs="+", type=int, default=[100_000, 1_000_000], help="primitive counts")
     ap.add_argument("--sizes", nargs="+", type=int, default=[256, 512], help="square image sizes (px)")
     ap.add_argument("--views", nargs="+", type=int, default=[1, 8], help="views per submission (K)")
     ap.add_argument("--repeats", type=int, default=3, help="timed submissions per config (median)")
-    ap.add_argument("--budget", type=float, default=100.0,
-                    help="seconds of timed submissions per config; caps the repeats (at least 1)")
+    ap.add_argument(
+        "--budget",
+        type=float,
+        default=100.0,
+        help="seconds of timed submissions per config; caps the repeats (at least 1)",
+    )
     ap.add_argument("--twin-views", type=int, default=1, help="views the numpy twin renders per (scene, N, size)")
-    ap.add_argument("--twin-max-n", type=int, default=1_000_000,
-                    help="largest N the twin renders; above it the twin runs at this N and no ratio is given")
+    ap.add_argument(
+        "--twin-max-n",
+        type=int,
+        default=1_000_000,
+        help="largest N the twin renders; above it the twin runs at this N and no ratio is given",
+    )
     ap.add_argument("--no-twin", action="store_true", help="skip the numpy twin")
     ap.add_argument("--no-stages", action="store_true", help="skip the timestamp-instrumented submission")
     ap.add_argument("--sh-degree", type=int, default=3)
@@ -379,10 +486,23 @@ def main(argv=None) -> int:
             ap.error(f"unknown scene {s!r}; valid: {', '.join(scenes.list_scenes())}")
 
     from rich.console import Console
+
     console = Console(width=200)
-    doc = run_grid(names, ns, sizes, ks, repeats=args.repeats, budget=args.budget, twin=not args.no_twin,
-                   twin_views=args.twin_views, twin_max_n=args.twin_max_n, stages=not args.no_stages,
-                   sh_degree=args.sh_degree, seed=args.seed, log=lambda m: console.print(m, highlight=False, markup=False))
+    doc = run_grid(
+        names,
+        ns,
+        sizes,
+        ks,
+        repeats=args.repeats,
+        budget=args.budget,
+        twin=not args.no_twin,
+        twin_views=args.twin_views,
+        twin_max_n=args.twin_max_n,
+        stages=not args.no_stages,
+        sh_degree=args.sh_degree,
+        seed=args.seed,
+        log=lambda m: console.print(m, highlight=False, markup=False),
+    )
     print_table(doc, console)
     Path(args.out).write_text(json.dumps(doc, indent=1))
     console.print(f"wrote {args.out}")

@@ -20,15 +20,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from seuwgpu import formats  # noqa: E402
-from seuwgpu.engine import Engine  # noqa: E402
-from seuwgpu.model import FIELDS, field_components  # noqa: E402
-from seuwgpu.scenes import make_scene, scene_cameras  # noqa: E402
+from seuwgpu.faults.engine import Engine  # noqa: E402
+from seuwgpu.model import encoding  # noqa: E402
+from seuwgpu.model.fields import FIELDS, field_components  # noqa: E402
+from seuwgpu.model.scenes import make_scene, scene_cameras  # noqa: E402
 
 
 def draw_sites(eng: Engine, count: int, seed: int):
     rng = np.random.default_rng(seed)
-    cells = [(f, b) for f in FIELDS for b in range(formats.bits_per_value(eng.precision))]
+    cells = [(f, b) for f in FIELDS for b in range(encoding.bits_per_value(eng.precision))]
     out = []
     for i in range(count):
         f, b = cells[i % len(cells)]
@@ -60,21 +60,31 @@ def main(argv=None):
     t = time.perf_counter()
     full = [eng.inject(s) for s in full_sites]
     t_full = time.perf_counter() - t
-    same = all(a["footprint"] == b["footprint"] and a["peak_error"] == b["peak_error"]
-               for a, b in zip(inc, full))
+    same = all(a["footprint"] == b["footprint"] and a["peak_error"] == b["peak_error"] for a, b in zip(inc, full))
     res = {
-        "adapter": eng.gpu.info.get("device"), "backend": eng.gpu.info.get("backend_type"),
-        "scene": args.scene, "n": args.n, "views": args.views, "size": args.size, "precision": args.precision,
-        "incremental_injections": len(sites), "incremental_seconds": t_inc,
+        "adapter": eng.gpu.info.get("device"),
+        "backend": eng.gpu.info.get("backend_type"),
+        "scene": args.scene,
+        "n": args.n,
+        "views": args.views,
+        "size": args.size,
+        "precision": args.precision,
+        "incremental_injections": len(sites),
+        "incremental_seconds": t_inc,
         "incremental_per_s": len(sites) / t_inc,
-        "full_injections": len(full_sites), "full_seconds": t_full, "full_per_s": len(full_sites) / t_full,
+        "full_injections": len(full_sites),
+        "full_seconds": t_full,
+        "full_per_s": len(full_sites) / t_full,
         "speedup": (len(sites) / t_inc) / (len(full_sites) / t_full),
         "records_identical_on_common_sites": same,
     }
     from rich.console import Console
     from rich.table import Table
-    tab = Table(title=f"campaign throughput: {args.scene} {args.n} primitives, K={args.views}, {args.size}, "
-                      f"{args.precision} on {res['adapter']} ({res['backend']})")
+
+    tab = Table(
+        title=f"campaign throughput: {args.scene} {args.n} primitives, K={args.views}, {args.size}, "
+        f"{args.precision} on {res['adapter']} ({res['backend']})"
+    )
     for c in ("path", "injections", "seconds", "injections/s"):
         tab.add_column(c, justify="right")
     tab.add_row("incremental", str(len(sites)), f"{t_inc:.2f}", f"{res['incremental_per_s']:.1f}")

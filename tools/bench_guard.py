@@ -20,10 +20,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from seuwgpu.faults import GUARDED_FIELDS  # noqa: E402
-from seuwgpu.guard import component_mask, scrub, support_box  # noqa: E402
-from seuwgpu.render import Renderer  # noqa: E402
-from seuwgpu.scenes import make_scene, scene_cameras  # noqa: E402
+from seuwgpu.faults.defenses import GUARDED_FIELDS  # noqa: E402
+from seuwgpu.faults.guard import component_mask, scrub, support_box  # noqa: E402
+from seuwgpu.model.scenes import make_scene, scene_cameras  # noqa: E402
+from seuwgpu.render.renderer import Renderer  # noqa: E402
 
 
 def median_time(fn, repeats):
@@ -52,25 +52,43 @@ def main(argv=None):
         r = Renderer(model, scene_cameras(args.scene, 1, w, h), args.precision)
         box = support_box(r.layout.decode(r.clean_words), args.precision)
         fields = GUARDED_FIELDS["guard"]
-        t_view = median_time(r._run, args.repeats)
+        t_view = median_time(r.run, args.repeats)
         t_scrub = median_time(lambda: scrub(r, box, fields), args.repeats)  # noqa: B023 (called at once)
         r.set_guard(box.rows(), component_mask(fields, r.degree))
-        t_guarded = median_time(r._run, args.repeats)
+        t_guarded = median_time(r.run, args.repeats)
         r.set_guard(None, 0)
-        rows.append({"n": n, "size": args.size, "view_s": t_view, "scrub_s": t_scrub, "guarded_view_s": t_guarded,
-                     "scrub_over_view": t_scrub / t_view, "in_pipeline_overhead": (t_guarded - t_view) / t_view})
+        rows.append(
+            {
+                "n": n,
+                "size": args.size,
+                "view_s": t_view,
+                "scrub_s": t_scrub,
+                "guarded_view_s": t_guarded,
+                "scrub_over_view": t_scrub / t_view,
+                "in_pipeline_overhead": (t_guarded - t_view) / t_view,
+            }
+        )
     from rich.console import Console
     from rich.table import Table
+
     from seuwgpu.gpu.device import get_gpu
+
     info = get_gpu().info
-    tab = Table(title=f"support guard cost, {args.scene} {args.size} {args.precision} on {info.get('device')} "
-                      f"({info.get('backend_type')})")
+    tab = Table(
+        title=f"support guard cost, {args.scene} {args.size} {args.precision} on {info.get('device')} "
+        f"({info.get('backend_type')})"
+    )
     for c in ("primitives", "view ms", "scrub ms", "scrub / view", "guarded view ms", "in-pipeline overhead"):
         tab.add_column(c, justify="right")
     for row in rows:
-        tab.add_row(f"{row['n']:,}", f"{1e3 * row['view_s']:.1f}", f"{1e3 * row['scrub_s']:.1f}",
-                    f"{row['scrub_over_view']:.3f}", f"{1e3 * row['guarded_view_s']:.1f}",
-                    f"{100 * row['in_pipeline_overhead']:+.1f}%")
+        tab.add_row(
+            f"{row['n']:,}",
+            f"{1e3 * row['view_s']:.1f}",
+            f"{1e3 * row['scrub_s']:.1f}",
+            f"{row['scrub_over_view']:.3f}",
+            f"{1e3 * row['guarded_view_s']:.1f}",
+            f"{100 * row['in_pipeline_overhead']:+.1f}%",
+        )
     Console().print(tab)
     if args.json:
         args.json.write_text(json.dumps({"adapter": info.get("device"), "rows": rows}, indent=1))

@@ -22,9 +22,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from seuwgpu import scenes  # noqa: E402
-from seuwgpu.camera import Camera  # noqa: E402
-from seuwgpu.reference import quat_to_rotmat  # noqa: E402
+from seuwgpu.model import scenes  # noqa: E402
+from seuwgpu.model.cameras import Camera  # noqa: E402
+from seuwgpu.render.reference import quat_to_rotmat  # noqa: E402
 
 C0 = 0.28209479177387814
 C1 = 0.4886025119029199
@@ -48,9 +48,9 @@ def render(model, cam: Camera, background=(1.0, 1.0, 1.0)) -> np.ndarray:
     cov_c = R @ cov @ R.T
     J = np.zeros((len(idx), 2, 3))
     J[:, 0, 0] = fx / z
-    J[:, 0, 2] = -fx * p[:, 0] / z ** 2
+    J[:, 0, 2] = -fx * p[:, 0] / z**2
     J[:, 1, 1] = fy / z
-    J[:, 1, 2] = -fy * p[:, 1] / z ** 2
+    J[:, 1, 2] = -fy * p[:, 1] / z**2
     c2 = J @ cov_c @ np.swapaxes(J, 1, 2) + 0.3 * np.eye(2)
     a, b, c = c2[:, 0, 0], c2[:, 0, 1], c2[:, 1, 1]
     det = a * c - b * b
@@ -108,6 +108,7 @@ def render(model, cam: Camera, background=(1.0, 1.0, 1.0)) -> np.ndarray:
 
 def to_png(img: np.ndarray, path) -> None:
     from PIL import Image
+
     Image.fromarray((np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)).save(path)
 
 
@@ -132,8 +133,10 @@ def main(argv=None) -> int:
         t2 = time.perf_counter()
         to_png(row, out / f"{name}.png")
         rows.append(row)
-        print(f"{name}: n={model.n} generated in {t1 - t0:.2f} s, {len(cams)} views splatted in {t2 - t1:.2f} s"
-              f" -> {out / (name + '.png')}")
+        print(
+            f"{name}: n={model.n} generated in {t1 - t0:.2f} s, {len(cams)} views splatted in {t2 - t1:.2f} s"
+            f" -> {out / (name + '.png')}"
+        )
     to_png(np.concatenate(rows, axis=0), out / "scenes.png")
     print(f"montage -> {out / 'scenes.png'}")
     return 0

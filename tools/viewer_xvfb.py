@@ -44,9 +44,24 @@ def start_xvfb(width: int, height: int, fbdir: Path, timeout: float = 20.0):
     if exe is None:
         raise SystemExit("viewer_xvfb: Xvfb is not installed (Debian: apt-get install xvfb)")
     r, w = os.pipe()
-    proc = subprocess.Popen([exe, "-displayfd", str(w), "-screen", "0", f"{width}x{height}x24",
-                             "-fbdir", str(fbdir), "-nolisten", "tcp", "-noreset"],
-                            pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [
+            exe,
+            "-displayfd",
+            str(w),
+            "-screen",
+            "0",
+            f"{width}x{height}x24",
+            "-fbdir",
+            str(fbdir),
+            "-nolisten",
+            "tcp",
+            "-noreset",
+        ],
+        pass_fds=(w,),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     os.close(w)
     buf = b""
     t0 = time.time()
@@ -86,15 +101,17 @@ def read_xwd(path: Path) -> np.ndarray:
 
 # ---- the drive -------------------------------------------------------------------------------
 def main(argv=None) -> int:
-    from seuwgpu.cli import parse_size
+    from seuwgpu.apps.cli import parse_size
+
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--out", type=Path, default=Path("viewer_xvfb_out"))
     p.add_argument("--scene", default="spheres")
     p.add_argument("--n", type=int, default=3000)
     p.add_argument("--size", type=parse_size, default=parse_size("1100x720"))
     p.add_argument("--precision", default="fp32", choices=("fp32", "fp16", "bf16"))
-    p.add_argument("--component", type=int, default=2,
-                   help="log_scales component to flip (0..2; default 2, the flat normal axis)")
+    p.add_argument(
+        "--component", type=int, default=2, help="log_scales component to flip (0..2; default 2, the flat normal axis)"
+    )
     p.add_argument("--sample", type=int, default=16)
     p.add_argument("--prefix", default="viewer_")
     p.add_argument("--timeout", type=float, default=240.0)
@@ -121,8 +138,8 @@ def main(argv=None) -> int:
 
 
 def drive(args, xwd: Path) -> int:
-    from seuwgpu.scenes import make_scene
-    from seuwgpu.viewer_gui import make_canvas
+    from seuwgpu.apps.viewer_window import make_canvas
+    from seuwgpu.model.scenes import make_scene
 
     W, H = args.size
     t_start = time.time()
@@ -134,6 +151,7 @@ def drive(args, xwd: Path) -> int:
         try:
             canvas.close()
             import glfw
+
             glfw.terminate()
         except Exception:
             pass
@@ -142,16 +160,29 @@ def drive(args, xwd: Path) -> int:
 def _drive(args, xwd, model, canvas, loop, t_start) -> int:
     import imageio.v3 as iio
     from rendercanvas.utils.asyncs import sleep
-    from seuwgpu.model import FIELDS
-    from seuwgpu.viewer import OrbitCamera, ViewerState
-    from seuwgpu.viewer_gui import PANEL_WIDTH, ViewerApp
+
+    from seuwgpu.apps.viewer import OrbitCamera, ViewerState
+    from seuwgpu.apps.viewer_window import PANEL_WIDTH, ViewerApp
+    from seuwgpu.model.fields import FIELDS
 
     W, H = args.size
-    state = ViewerState(model, args.precision, (W - PANEL_WIDTH, H), scene=args.scene,
-                        orbit=OrbitCamera.for_scene(args.scene), sample=args.sample)
+    state = ViewerState(
+        model,
+        args.precision,
+        (W - PANEL_WIDTH, H),
+        scene=args.scene,
+        orbit=OrbitCamera.for_scene(args.scene),
+        sample=args.sample,
+    )
     app = ViewerApp(state, canvas, screenshot_dir=args.out)
-    report = {"display": os.environ["DISPLAY"], "size": [W, H], "scene": args.scene, "n": args.n,
-              "precision": args.precision, "checks": {}}
+    report = {
+        "display": os.environ["DISPLAY"],
+        "size": [W, H],
+        "scene": args.scene,
+        "n": args.n,
+        "precision": args.precision,
+        "checks": {},
+    }
     errors: list[str] = []
 
     def check(name, ok, detail=""):
@@ -162,6 +193,7 @@ def _drive(args, xwd, model, canvas, loop, t_start) -> int:
     def window_origin():
         try:
             import glfw
+
             return glfw.get_window_pos(canvas._window)
         except Exception:
             return 0, 0
@@ -170,7 +202,7 @@ def _drive(args, xwd, model, canvas, loop, t_start) -> int:
         x, y = window_origin()
         w, h = canvas.get_physical_size()
         screen = read_xwd(xwd)
-        return screen[y:y + h, x:x + w]
+        return screen[y : y + h, x : x + w]
 
     async def frames(n=2, timeout=60.0):
         """Let the loop draw n more frames (and the X server show them)."""
@@ -194,8 +226,11 @@ def _drive(args, xwd, model, canvas, loop, t_start) -> int:
     async def script():
         try:
             await frames(3)
-            check("first_frame", app.renders >= 1 and state.readout.get("footprint") == 0.0,
-                  f"renders={app.renders} readout={state.readout.get('footprint')}")
+            check(
+                "first_frame",
+                app.renders >= 1 and state.readout.get("footprint") == 0.0,
+                f"renders={app.renders} readout={state.readout.get('footprint')}",
+            )
             # 1. orbit with the mouse, then R
             az0 = state.orbit.azimuth_deg
             pw, ph = canvas.get_physical_size()
@@ -214,14 +249,18 @@ def _drive(args, xwd, model, canvas, loop, t_start) -> int:
             await frames(2)
             check("reset_view", abs(state.orbit.azimuth_deg - az0) < 1e-9, f"azimuth {state.orbit.azimuth_deg:.3f}")
             # 2. clean, the panel already set for the flip of step 3
-            app.ui.update(field=FIELDS.index("log_scales"), component=args.component,
-                          bit=state.bits_per_value() - 1, worst=True)
+            app.ui.update(
+                field=FIELDS.index("log_scales"), component=args.component, bit=state.bits_per_value() - 1, worst=True
+            )
             await frames(2)
             clean = grab()
             iio.imwrite(args.out / f"{args.prefix}clean.png", clean)
             report["clean"] = dict(state.readout)
-            check("clean_not_blank", clean.std() > 10 and len(np.unique(clean.reshape(-1, 3), axis=0)) > 50,
-                  f"std={clean.std():.1f}")
+            check(
+                "clean_not_blank",
+                clean.std() > 10 and len(np.unique(clean.reshape(-1, 3), axis=0)) > 50,
+                f"std={clean.std():.1f}",
+            )
             # 3. sign-bit flip of a log-scale through the panel's action
             app.inject_from_panel()
             await frames(3)
@@ -232,7 +271,11 @@ def _drive(args, xwd, model, canvas, loop, t_start) -> int:
             check("flip_visible", foot > 0.01, f"footprint {foot:.4f}")
             region = (slice(None), slice(PANEL_WIDTH, None))
             diff = np.abs(sheet[region].astype(int) - clean[region].astype(int)).max(axis=-1)
-            check("window_changed", (diff > 2).mean() > 0.01, f"{(diff > 2).mean():.4f} of the render area changed on screen")
+            check(
+                "window_changed",
+                (diff > 2).mean() > 0.01,
+                f"{(diff > 2).mean():.4f} of the render area changed on screen",
+            )
             # 4. S: the viewer's own screenshot (swap chain), compared with the X screen
             key("s")
             await frames(2)
@@ -241,22 +284,32 @@ def _drive(args, xwd, model, canvas, loop, t_start) -> int:
                 onscreen = grab()
                 d = np.abs(onscreen.astype(int) - app.last_window[..., :3].astype(int)).max(axis=-1)
                 # the render area must match exactly; the panel's text moves on (status line, fps)
-                check("screen_matches_swapchain", (d[:, PANEL_WIDTH:] <= 1).all(),
-                      f"render area: max |X screen - swap chain| = {d[:, PANEL_WIDTH:].max()}; "
-                      f"panel: {int((d[:, :PANEL_WIDTH] > 1).sum())} px changed since")
+                check(
+                    "screen_matches_swapchain",
+                    (d[:, PANEL_WIDTH:] <= 1).all(),
+                    f"render area: max |X screen - swap chain| = {d[:, PANEL_WIDTH:].max()}; "
+                    f"panel: {int((d[:, :PANEL_WIDTH] > 1).sum())} px changed since",
+                )
             # 5. guard on, then undo and close
             key("g")
             await frames(2)
             report["guard"] = dict(state.readout)
             g = state.readout
-            check("guard_bounds_flip", g["footprint"] < foot and g["alert"], f"footprint {g['footprint']:.4f}, "
-                  f"clamps {g['clamps']}, alert {g['alert']}")
+            check(
+                "guard_bounds_flip",
+                g["footprint"] < foot and g["alert"],
+                f"footprint {g['footprint']:.4f}, clamps {g['clamps']}, alert {g['alert']}",
+            )
             key("u")
             await frames(2)
-            check("undo_restores", state.readout["footprint"] == 0.0 and not state.active_sites,
-                  f"footprint {state.readout['footprint']}")
+            check(
+                "undo_restores",
+                state.readout["footprint"] == 0.0 and not state.active_sites,
+                f"footprint {state.readout['footprint']}",
+            )
         except Exception as e:  # report, close the window, fail
             import traceback
+
             errors.append(f"driver: {type(e).__name__}: {e}")
             traceback.print_exc()
         finally:
@@ -270,8 +323,9 @@ def _drive(args, xwd, model, canvas, loop, t_start) -> int:
     report["errors"] = errors
     for k in ("clean", "sheet", "guard"):
         if k in report:
-            report[k] = {kk: (vv if not isinstance(vv, float) or np.isfinite(vv) else str(vv))
-                         for kk, vv in report[k].items()}
+            report[k] = {
+                kk: (vv if not isinstance(vv, float) or np.isfinite(vv) else str(vv)) for kk, vv in report[k].items()
+            }
     (args.report or args.out / f"{args.prefix}report.json").write_text(json.dumps(report, indent=1, default=str))
     for name, c in report["checks"].items():
         print(f"{'ok  ' if c['ok'] else 'FAIL'} {name}: {c['detail']}")
@@ -280,8 +334,10 @@ def _drive(args, xwd, model, canvas, loop, t_start) -> int:
     if errors:
         print("viewer_xvfb: " + "; ".join(errors), file=sys.stderr)
         return 1
-    print(f"wrote {args.out / (args.prefix + 'clean.png')}, {args.out / (args.prefix + 'sheet.png')} "
-          f"({report['seconds']} s)")
+    print(
+        f"wrote {args.out / (args.prefix + 'clean.png')}, {args.out / (args.prefix + 'sheet.png')} "
+        f"({report['seconds']} s)"
+    )
     return 0
 
 

@@ -1,1 +1,1 @@
-from .device import GPU, get_gpu  # noqa: F401
+from seuwgpu.gpu.device import GPU, get_gpu  # noqa: F401

@@ -1,19 +1,29 @@
 """One wgpu device per process, with cached shader modules and compute pipelines.
 
 Device creation (~0.6 s on lavapipe) and pipelines (~60 ms each) are paid once. Shaders live in
-the repository's top-level `shaders/` folder; `common.wgsl` is prepended to every stage so the
-decode and activation helpers exist once.
+the repository's top-level `shaders/` folder, which the wheel ships as the resource package
+`seuwgpu.shaders` (an editable install maps it to the folder); `common.wgsl` is prepended to every
+stage so the decode and activation helpers exist once.
 """
 
 from __future__ import annotations
 
 import os
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import wgpu
 
-SHADER_DIR = Path(__file__).resolve().parents[2] / "shaders"
+
+def shader_text(name: str) -> str:
+    """Source of `shaders/NAME.wgsl`: the installed resource package, else (a checkout imported
+    without installing it) the repository's folder."""
+    try:
+        return resources.files("seuwgpu.shaders").joinpath(f"{name}.wgsl").read_text()
+    except ModuleNotFoundError:
+        return (Path(__file__).resolve().parents[2] / "shaders" / f"{name}.wgsl").read_text()
+
 
 STORAGE = wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST
 UNIFORM = wgpu.BufferUsage.UNIFORM | wgpu.BufferUsage.COPY_DST
@@ -32,9 +42,11 @@ _WANTED_LIMITS = (
 
 
 class GPU:
-    def __init__(self, power_preference: str = "high-performance"):
+    def __init__(self, power_preference: str = "high-performance", adapter=None):
+        """The default adapter of `power_preference`, or `adapter` (one of
+        wgpu.gpu.enumerate_adapters_sync(), e.g. the GPU a Ray worker was given)."""
         os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp")
-        self.adapter = wgpu.gpu.request_adapter_sync(power_preference=power_preference)
+        self.adapter = adapter or wgpu.gpu.request_adapter_sync(power_preference=power_preference)
         if self.adapter is None:
             raise RuntimeError("no WebGPU adapter found: install a Vulkan driver (Debian: mesa-vulkan-drivers)")
         alimits = self.adapter.limits
@@ -62,8 +74,7 @@ class GPU:
 
     # ---- shaders and pipelines -----------------------------------------------------------------
     def shader_source(self, name: str) -> str:
-        common = (SHADER_DIR / "common.wgsl").read_text()
-        return common + "\n" + (SHADER_DIR / f"{name}.wgsl").read_text()
+        return shader_text("common") + "\n" + shader_text(name)
 
     def module(self, name: str):
         if name not in self._modules:
@@ -77,7 +88,8 @@ class GPU:
             if constants:
                 compute["constants"] = {k: float(v) for k, v in constants.items()}
             self._pipelines[key] = self.device.create_compute_pipeline(
-                label=f"{name}:{entry}", layout="auto", compute=compute)
+                label=f"{name}:{entry}", layout="auto", compute=compute
+            )
         return self._pipelines[key]
 
     def bind(self, pipeline, entries: dict, group: int = 0):
@@ -125,10 +137,26 @@ _GPU: GPU | None = None
 
 
 def get_gpu() -> GPU:
+    """This process's device (made on first use)."""
     global _GPU
     if _GPU is None:
         _GPU = GPU()
     return _GPU
+
+
+def set_gpu(gpu: GPU) -> None:
+    """Make `gpu` the device get_gpu() returns in this process."""
+    global _GPU
+    _GPU = gpu
+
+
+def dispatch(encoder, pipeline, bind_group, groups) -> None:
+    """Record one compute pass: one pipeline, bind group 0, `groups` workgroups."""
+    p = encoder.begin_compute_pass()
+    p.set_pipeline(pipeline)
+    p.set_bind_group(0, bind_group)
+    p.dispatch_workgroups(*groups)
+    p.end()
 
 
 def dispatch_dims(groups: int, max_x: int = 32768) -> tuple[int, int, int]:

@@ -29,14 +29,14 @@ from collections import OrderedDict
 
 import numpy as np
 
-from .device import GPU, INDIRECT, STORAGE, UNIFORM
+from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE, UNIFORM
 
-WG = 256                # threads per workgroup (both shaders); a block is WG x `per` elements
-_UNIFORM_STRIDE = 256   # the largest min-uniform-buffer-offset-alignment in the wild
-_PS_TOTAL = 4           # scan.wgsl plan layout
+WG = 256  # threads per workgroup (both shaders); a block is WG x `per` elements
+_UNIFORM_STRIDE = 256  # the largest min-uniform-buffer-offset-alignment in the wild
+_PS_TOTAL = 4  # scan.wgsl plan layout
 _PS_ARGS = 8
-_RS_ARGS = 4            # radix_sort.wgsl plan layout
-_OFFS_HEADER = 256      # radix_sort.wgsl: rs_offs header bytes (RS_OFFS vec4)
+_RS_ARGS = 4  # radix_sort.wgsl plan layout
+_OFFS_HEADER = 256  # radix_sort.wgsl: rs_offs header bytes (RS_OFFS vec4)
 _CACHE_SIZE = 512
 
 
@@ -97,8 +97,9 @@ class _Counts:
     def binding(self, count) -> tuple:
         """-> ((buffer, offset, size) to bind, word index of the count inside that range)."""
         if _is_int(count):
-            buf = self._consts.get_or(int(count), lambda: self.gpu.upload(np.array([int(count)], np.uint32),
-                                                                          label="sort.count"))
+            buf = self._consts.get_or(
+                int(count), lambda: self.gpu.upload(np.array([int(count)], np.uint32), label="sort.count")
+            )
             return (buf, 0, 16), 0
         buf, off = count
         off = int(off)
@@ -129,8 +130,15 @@ class PrefixSum:
     src and dst sizes must be multiples of 16 bytes.
     """
 
-    def __init__(self, gpu: GPU, capacity: int, *, per: int | None = None, max_binding: int | None = None,
-                 max_groups_x: int | None = None):
+    def __init__(
+        self,
+        gpu: GPU,
+        capacity: int,
+        *,
+        per: int | None = None,
+        max_binding: int | None = None,
+        max_groups_x: int | None = None,
+    ):
         """`per`: elements per thread (default by adapter type). `max_binding` (bytes) and
         `max_groups_x` lower the binding size and the workgroups per dispatch row below the
         device's, for tests of the chunked and 2-D dispatch paths."""
@@ -170,10 +178,13 @@ class PrefixSum:
         self.plan = gpu.buffer(4 * (_PS_ARGS + 3 * max(1, self._nargs)), INDIRECT, "scan.plan")
 
         consts = {"PS_PER": self.per}
-        self._pipes = {e: gpu.pipeline("scan", e, consts) for e in (
-            "ps_reduce", "ps_downsweep", "ps_downsweep_inplace", "ps_top", "ps_top_inplace")}
-        self._pipes["ps_plan_main"] = gpu.pipeline("scan", "ps_plan_main",
-                                                   dict(consts, PS_MAX_X=max_groups_x) if max_groups_x else consts)
+        self._pipes = {
+            e: gpu.pipeline("scan", e, consts)
+            for e in ("ps_reduce", "ps_downsweep", "ps_downsweep_inplace", "ps_top", "ps_top_inplace")
+        }
+        self._pipes["ps_plan_main"] = gpu.pipeline(
+            "scan", "ps_plan_main", dict(consts, PS_MAX_X=max_groups_x) if max_groups_x else consts
+        )
         self._pass_bg = {}
         for e in ("ps_reduce", "ps_downsweep", "ps_downsweep_inplace"):
             for k in range(self._nargs):
@@ -195,8 +206,9 @@ class PrefixSum:
         """Exclusive scan of `count` u32 of `src` into `dst` (`src is dst` allowed); with
         total=(buffer, byte_offset) the sum of the count elements is also written there."""
         if src.size % 16 or dst.size % 16:
-            raise ValueError("PrefixSum reads vec4: src and dst sizes must be multiples of 16 bytes "
-                             "(GPU.buffer rounds sizes up)")
+            raise ValueError(
+                "PrefixSum reads vec4: src and dst sizes must be multiples of 16 bytes (GPU.buffer rounds sizes up)"
+            )
         limit = self.limit(src, dst)
         if _is_int(count) and not 0 <= int(count) <= limit:
             raise ValueError(f"count {count} outside [0, {limit}] (capacity / buffer sizes)")
@@ -216,8 +228,9 @@ class PrefixSum:
         key = ("plan", id(buf), aoff, size, word, int(limit))
 
         def make():
-            pargs = self.gpu.upload(np.array([word, limit, self.capacity, self.chunk], np.uint32),
-                                    UNIFORM, "scan.pargs")
+            pargs = self.gpu.upload(
+                np.array([word, limit, self.capacity, self.chunk], np.uint32), UNIFORM, "scan.pargs"
+            )
             return self.gpu.bind(self._pipes["ps_plan_main"], {5: self.plan, 6: rng, 7: pargs}), buf
 
         bg, _ = self._bgs.get_or(key, make)
@@ -249,24 +262,44 @@ class PrefixSum:
         for lev in range(self.levels):
             a, _ = arrays[lev]
             for k, c in chunks(lev):
-                dispatch("ps_reduce", k, {0: _range(a, c * S4, S4), 3: self._sums[lev + 1], 4: self.plan},
-                         (_bind_key(a, self._sums[lev + 1]), c), a)
+                dispatch(
+                    "ps_reduce",
+                    k,
+                    {0: _range(a, c * S4, S4), 3: self._sums[lev + 1], 4: self.plan},
+                    (_bind_key(a, self._sums[lev + 1]), c),
+                    a,
+                )
         a, b = arrays[self.levels]
         if a is b:
             dispatch("ps_top_inplace", self._top_slot, {1: _range(b, 0, S4), 5: self.plan}, (_bind_key(b), 0), b)
         else:
-            dispatch("ps_top", self._top_slot, {0: _range(a, 0, S4), 1: _range(b, 0, S4), 5: self.plan},
-                     (_bind_key(a, b), 0), (a, b))
+            dispatch(
+                "ps_top",
+                self._top_slot,
+                {0: _range(a, 0, S4), 1: _range(b, 0, S4), 5: self.plan},
+                (_bind_key(a, b), 0),
+                (a, b),
+            )
         for lev in reversed(range(self.levels)):
             a, b = arrays[lev]
             offs = self._sums[lev + 1]
             for k, c in chunks(lev):
                 if a is b:
-                    dispatch("ps_downsweep_inplace", k, {1: _range(b, c * S4, S4), 2: offs, 4: self.plan},
-                             (_bind_key(b, offs), c), b)
+                    dispatch(
+                        "ps_downsweep_inplace",
+                        k,
+                        {1: _range(b, c * S4, S4), 2: offs, 4: self.plan},
+                        (_bind_key(b, offs), c),
+                        b,
+                    )
                 else:
-                    dispatch("ps_downsweep", k, {0: _range(a, c * S4, S4), 1: _range(b, c * S4, S4),
-                                                 2: offs, 4: self.plan}, (_bind_key(a, b, offs), c), (a, b))
+                    dispatch(
+                        "ps_downsweep",
+                        k,
+                        {0: _range(a, c * S4, S4), 1: _range(b, c * S4, S4), 2: offs, 4: self.plan},
+                        (_bind_key(a, b, offs), c),
+                        (a, b),
+                    )
 
 
 class RadixSort:
@@ -285,8 +318,15 @@ class RadixSort:
     Capacity is limited to two storage bindings (64 Mi pairs where bindings are 128 MiB).
     """
 
-    def __init__(self, gpu: GPU, capacity: int, *, per: int | None = None, max_binding: int | None = None,
-                 max_groups_x: int | None = None):
+    def __init__(
+        self,
+        gpu: GPU,
+        capacity: int,
+        *,
+        per: int | None = None,
+        max_binding: int | None = None,
+        max_groups_x: int | None = None,
+    ):
         """`per`, `max_binding` and `max_groups_x`: as for PrefixSum."""
         self.gpu = gpu
         self.capacity = max(1, int(capacity))
@@ -299,8 +339,9 @@ class RadixSort:
         self.chunk = _chunk_elems(gpu, max_binding, block)
         self.nch = _ceil_div(self.capacity, self.chunk)
         if self.nch > 2 or self.capacity >= 2**31:
-            raise ValueError(f"RadixSort capacity {capacity} exceeds two storage bindings "
-                             f"({2 * self.chunk} elements) on this device")
+            raise ValueError(
+                f"RadixSort capacity {capacity} exceeds two storage bindings ({2 * self.chunk} elements) on this device"
+            )
         self.bpc = self.chunk // block
         nb = _ceil_div(self.capacity, block)
         self.keys_tmp = gpu.buffer(4 * self.capacity, STORAGE, "sort.keys_tmp")
@@ -322,11 +363,13 @@ class RadixSort:
         self._pass_buf = gpu.upload(table, UNIFORM, "sort.pass")
         consts = {"RS_PER": self.per}
         self._pipes = {e: gpu.pipeline("radix_sort", e, consts) for e in ("rs_upsweep", "rs_copy")}
-        self._pipes["rs_plan_main"] = gpu.pipeline("radix_sort", "rs_plan_main",
-                                                   dict(consts, RS_MAX_X=max_groups_x) if max_groups_x else consts)
+        self._pipes["rs_plan_main"] = gpu.pipeline(
+            "radix_sort", "rs_plan_main", dict(consts, RS_MAX_X=max_groups_x) if max_groups_x else consts
+        )
         # The second output half is compiled in only when a sort spans two bindings.
-        self._pipes["rs_scatter"] = gpu.pipeline("radix_sort", "rs_scatter",
-                                                 dict(consts, RS_TWO_PARTS=1) if self.nch > 1 else consts)
+        self._pipes["rs_scatter"] = gpu.pipeline(
+            "radix_sort", "rs_scatter", dict(consts, RS_TWO_PARTS=1) if self.nch > 1 else consts
+        )
         self._counts = _Counts(gpu)
         self._bgs = _LRU()
         self._pass_bg = {}
@@ -351,8 +394,10 @@ class RadixSort:
         if keys is values:
             raise ValueError("keys and values must be distinct buffers")
         if keys.size % 16 or values.size % 16:
-            raise ValueError("RadixSort reads vec4: key and value buffer sizes must be multiples of 16 bytes "
-                             "(GPU.buffer rounds sizes up)")
+            raise ValueError(
+                "RadixSort reads vec4: key and value buffer sizes must be multiples of 16 bytes "
+                "(GPU.buffer rounds sizes up)"
+            )
         limit = self.limit(keys, values)
         if _is_int(count):
             if not 0 <= int(count) <= limit:
@@ -397,8 +442,9 @@ class RadixSort:
 
         def make():
             pargs = self.gpu.upload(np.array([word, limit, self.chunk, self.nch], np.uint32), UNIFORM, "sort.pargs")
-            return self.gpu.bind(self._pipes["rs_plan_main"], {9: self.plan, 10: rng, 11: pargs,
-                                                               15: (self.offs, 0, _OFFS_HEADER)}), buf
+            return self.gpu.bind(
+                self._pipes["rs_plan_main"], {9: self.plan, 10: rng, 11: pargs, 15: (self.offs, 0, _OFFS_HEADER)}
+            ), buf
 
         bg, _ = self._bgs.get_or(key, make)
         cpass.set_pipeline(self._pipes["rs_plan_main"])
@@ -415,8 +461,15 @@ class RadixSort:
 
     def _upsweep_bg(self, src, c):
         key = ("up", _bind_key(src[0]), c)
-        return self._bgs.get_or(key, lambda: (self.gpu.bind(self._pipes["rs_upsweep"], {
-            0: self._in(src[0], c), 7: self.hist, 8: self.plan, 15: self.offs}), src))[0]
+        return self._bgs.get_or(
+            key,
+            lambda: (
+                self.gpu.bind(
+                    self._pipes["rs_upsweep"], {0: self._in(src[0], c), 7: self.hist, 8: self.plan, 15: self.offs}
+                ),
+                src,
+            ),
+        )[0]
 
     def _scatter_bg(self, src, dst, c):
         key = ("scatter", _bind_key(*src, *dst), c)
@@ -424,14 +477,37 @@ class RadixSort:
         def make():
             klo, khi = self._out(dst[0])
             vlo, vhi = self._out(dst[1])
-            return self.gpu.bind(self._pipes["rs_scatter"], {
-                0: self._in(src[0], c), 1: self._in(src[1], c), 2: klo, 3: khi, 4: vlo, 5: vhi,
-                6: self.hist, 14: self.offs}), (src, dst)
+            return self.gpu.bind(
+                self._pipes["rs_scatter"],
+                {
+                    0: self._in(src[0], c),
+                    1: self._in(src[1], c),
+                    2: klo,
+                    3: khi,
+                    4: vlo,
+                    5: vhi,
+                    6: self.hist,
+                    14: self.offs,
+                },
+            ), (src, dst)
 
         return self._bgs.get_or(key, make)[0]
 
     def _copy_bg(self, src, dst, c):
         key = ("copy", _bind_key(*src, *dst), c)
-        return self._bgs.get_or(key, lambda: (self.gpu.bind(self._pipes["rs_copy"], {
-            0: self._in(src[0], c), 1: self._in(src[1], c), 12: self._in(dst[0], c), 13: self._in(dst[1], c),
-            8: self.plan}), (src, dst)))[0]
+        return self._bgs.get_or(
+            key,
+            lambda: (
+                self.gpu.bind(
+                    self._pipes["rs_copy"],
+                    {
+                        0: self._in(src[0], c),
+                        1: self._in(src[1], c),
+                        12: self._in(dst[0], c),
+                        13: self._in(dst[1], c),
+                        8: self.plan,
+                    },
+                ),
+                (src, dst),
+            ),
+        )[0]

@@ -32,18 +32,15 @@ Choices (see also the README):
 
 from __future__ import annotations
 
-import os
-import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from . import formats
-from .camera import Camera, look_at
-from .faults import Site, uniform_upsets
-from .model import Model, field_components
+from seuwgpu.faults.sites import Site, uniform_upsets
+from seuwgpu.model import encoding
+from seuwgpu.model.cameras import Camera, look_at
+from seuwgpu.model.fields import Model, field_components
 
 GUARD_MODES = {"off": "none", "guard": "guard", "selective": "selective"}
 MIN_SIZE = 16  # smallest render (the GPU metrics used by worst-of-sample need >= 7 px)
@@ -57,6 +54,7 @@ class OrbitCamera:
     """Turntable camera around `target` (z up). Angles in degrees; `fov_deg` spans the shorter
     image side. The same conventions as `camera.orbit_cameras` (eye = target + distance *
     (cos el cos az, cos el sin az, sin el))."""
+
     target: np.ndarray = field(default_factory=lambda: np.zeros(3))
     distance: float = 4.0
     azimuth_deg: float = 30.0
@@ -68,14 +66,15 @@ class OrbitCamera:
         self._home = (self.target.copy(), self.distance, self.azimuth_deg, self.elevation_deg, self.fov_deg)
 
     @classmethod
-    def for_scene(cls, name: str) -> "OrbitCamera":
-        from .scenes import _spec
-        s = _spec(name)
+    def for_scene(cls, name: str) -> OrbitCamera:
+        from seuwgpu.model.scenes import scene_spec
+
+        s = scene_spec(name)
         # scene_cameras' fov is across the image width of square views: the same framing here
         return cls(np.asarray(s.target, float), s.radius, 30.0, s.elevation_deg, s.fov_x_deg)
 
     @classmethod
-    def fit(cls, means: np.ndarray, fov_deg: float = 40.0) -> "OrbitCamera":
+    def fit(cls, means: np.ndarray, fov_deg: float = 40.0) -> OrbitCamera:
         """Frame a model of unknown extent: target the median mean, keep 98% of the means in view."""
         m = np.asarray(means, dtype=np.float64)
         m = m[np.isfinite(m).all(axis=1)]
@@ -125,13 +124,14 @@ class OrbitCamera:
 @dataclass(eq=False)  # compared by identity (handles hold numpy arrays)
 class FaultGroup:
     """Sites applied together (one action); `handles` are the Engine's undo handles."""
+
     label: str
     sites: list
     handles: list = field(default_factory=list)
 
 
 def site_text(s: Site, precision: str) -> str:
-    cls = formats.bit_class(precision, s.bit) if s.bit >= 0 else "multi"
+    cls = encoding.bit_class(precision, s.bit) if s.bit >= 0 else "multi"
     bits = s.bit if s.bit >= 0 else "+".join(map(str, s.bits))
     return f"{s.field}[{s.primitive}][{s.component}] bit {bits} ({cls})"
 
@@ -139,10 +139,21 @@ def site_text(s: Site, precision: str) -> str:
 class ViewerState:
     """Everything the viewer does, without a window. Units: sizes in physical pixels."""
 
-    def __init__(self, model: Model, precision: str = "fp32", size=(800, 600), scene: str = "",
-                 orbit: OrbitCamera | None = None, sample: int = 16, probe: int = 128, seed: int = 0,
-                 clamp_threshold: int = 0, gpu=None):
-        from .gpu.device import get_gpu
+    def __init__(
+        self,
+        model: Model,
+        precision: str = "fp32",
+        size=(800, 600),
+        scene: str = "",
+        orbit: OrbitCamera | None = None,
+        sample: int = 16,
+        probe: int = 128,
+        seed: int = 0,
+        clamp_threshold: int = 0,
+        gpu=None,
+    ):
+        from seuwgpu.gpu.device import get_gpu
+
         self.model = model
         self.scene = scene
         self.gpu = gpu or get_gpu()
@@ -153,14 +164,14 @@ class ViewerState:
         self.guard = "off"
         self.heatmap = False
         self.groups: list[FaultGroup] = []
-        self.storm: dict | None = None        # {"k", "accumulate", "steps", "group"}
+        self.storm: dict | None = None  # {"k", "accumulate", "steps", "group"}
         self.rng = np.random.default_rng(seed)
-        self.last_image: np.ndarray | None = None   # [H, W, 4] float32 of the last frame
+        self.last_image: np.ndarray | None = None  # [H, W, 4] float32 of the last frame
         self.clean_image: np.ndarray | None = None  # [H, W, 4] float32, clean render of _clean_key
         self.readout: dict = {}
         self.status = ""
         self.dirty = True
-        self._build_engine(formats.check_precision(precision))
+        self._build_engine(encoding.check_precision(precision))
 
     # ---- set-up -----------------------------------------------------------------------------------
     @staticmethod
@@ -169,7 +180,8 @@ class ViewerState:
         return max(MIN_SIZE, w), max(MIN_SIZE, h)
 
     def _build_engine(self, precision: str):
-        from .engine import Engine
+        from seuwgpu.faults.engine import Engine
+
         self.engine = None  # free the old model's GPU buffers before making the new ones
         self.engine = Engine(self.model, [self.camera()], precision, gpu=self.gpu, scene=self.scene)
         if hasattr(self.engine, "monitor"):  # the engine's guard health signal, at our threshold
@@ -239,7 +251,7 @@ class ViewerState:
         self.dirty = True
 
     def bits_per_value(self) -> int:
-        return formats.bits_per_value(self.precision)
+        return encoding.bits_per_value(self.precision)
 
     def worst_primitive(self, field: str, component: int, bits) -> tuple[int, dict]:
         """The primitive of a random sample whose flip harms the current view most (no defense),
@@ -347,7 +359,7 @@ class ViewerState:
     def set_precision(self, precision: str):
         """Rebuild the Engine at another stored precision. Active faults are dropped (a site's
         bit means something else in another format); a running storm goes on."""
-        precision = formats.check_precision(precision)
+        precision = encoding.check_precision(precision)
         if precision != self.precision:
             self._build_engine(precision)
             self.status = f"precision {precision}: faults cleared"
@@ -392,7 +404,8 @@ class ViewerState:
         return self.compose(img, self.clean_image), self.readout
 
     def _measure(self, img, clean, clamps: dict, frame_ms: float) -> dict:
-        from .metrics import THRESHOLD, display
+        from seuwgpu.metrics.image import THRESHOLD, display
+
         f, c = img[..., :3], clean[..., :3]
         with np.errstate(invalid="ignore", over="ignore"):
             d = f - c
@@ -412,7 +425,9 @@ class ViewerState:
             "clamps": total,
             "clamps_per_field": dict(clamps),
             "alert": self.guard != "off" and total > self.clamp_threshold,
-            "alert_message": getattr(getattr(self.engine, "monitor", None), "message", "") if self.guard != "off" else "",
+            "alert_message": getattr(getattr(self.engine, "monitor", None), "message", "")
+            if self.guard != "off"
+            else "",
             "active_sites": len(sites),
             "sites": [site_text(s, self.precision) for s in sites[-6:]],
             "precision": self.precision,
@@ -424,7 +439,8 @@ class ViewerState:
         """What the window shows: the display-referred render, or the heat map of |render - clean|
         (log scale from 1/255 to 1 over a dimmed grey copy of the clean view; non-finite pixels
         magenta)."""
-        from .metrics import THRESHOLD, display
+        from seuwgpu.metrics.image import THRESHOLD, display
+
         h, w = img.shape[:2]
         out = np.empty((h, w, 4), np.uint8)
         out[..., 3] = 255
@@ -458,101 +474,9 @@ def _heat_lut() -> np.ndarray:
     if _LUT is None:
         try:
             from matplotlib import colormaps
+
             _LUT = colormaps["inferno"](np.linspace(0, 1, 256))[:, :3] * 255.0
         except Exception:  # matplotlib missing: a black-red-yellow-white ramp
             t = np.linspace(0, 1, 256)[:, None]
             _LUT = np.clip(np.concatenate([3 * t, 3 * t - 1, 3 * t - 2], axis=1), 0, 1) * 255.0
     return _LUT
-
-
-# ------------------------------------------------------------------------------------------------
-# Command line
-# ------------------------------------------------------------------------------------------------
-def add_view_args(p):
-    """Viewer options (add_model_args from cli.py supplies --scene/--ply/--n/--precision...)."""
-    from .cli import parse_size
-    p.add_argument("--size", type=parse_size, default=parse_size("960x600"),
-                   help="window size WxH in pixels, the panel included (default 960x600)")
-    p.add_argument("--sample", type=int, default=16, help="primitives tried by 'worst of a sample' (default 16)")
-    p.add_argument("--clamp-threshold", type=int, default=0,
-                   help="guard alert when a frame clamps more components than this (default 0)")
-    p.add_argument("--screenshot-dir", type=Path, default=Path("."), help="where S/P screenshots go (default .)")
-    p.add_argument("--frames", type=int, default=0,
-                   help="draw this many frames, save a screenshot and exit (0 = interactive; "
-                        "with RENDERCANVAS_BACKEND=offscreen the default is 1)")
-
-
-def canvas_backend() -> str:
-    """'offscreen', 'glfw', or another rendercanvas backend named by RENDERCANVAS_BACKEND."""
-    force = os.environ.get("RENDERCANVAS_FORCE_OFFSCREEN", "").lower() in ("1", "true", "yes")
-    name = os.environ.get("RENDERCANVAS_BACKEND", "").strip().lower()
-    if force or name == "offscreen":
-        return "offscreen"
-    return name if name and name != "auto" else "glfw"
-
-
-def display_problem(backend: str) -> str | None:
-    """Why a window cannot open here (None when it can, as far as we can tell without opening
-    one: glfw aborts the whole process when there is no display)."""
-    if backend == "offscreen":
-        return None
-    if os.environ.get("WAYLAND_DISPLAY"):
-        return None
-    disp = os.environ.get("DISPLAY", "")
-    if not disp:
-        return "no display: DISPLAY is not set"
-    if disp.startswith(":"):
-        num = disp[1:].split(".")[0]
-        if num.isdigit() and not os.path.exists(f"/tmp/.X11-unix/X{num}"):
-            return f"no X server answers on DISPLAY={disp} (no /tmp/.X11-unix/X{num})"
-    return None
-
-
-NO_DISPLAY_HELP = """\
-seuwgpu view: {why}.
-The viewer opens a desktop window. Either
-  - run it on a desktop session, or under a virtual X server:  xvfb-run -a seuwgpu view ...
-    (Debian: apt-get install xvfb), or
-  - render headless: RENDERCANVAS_BACKEND=offscreen seuwgpu view --frames 1 --screenshot-dir OUT
-    (draws the viewer, panel included, and saves a screenshot PNG)."""
-
-
-def main_view(args) -> int:
-    """`seuwgpu view`: the interactive viewer (see viewer_gui.run_viewer)."""
-    backend = canvas_backend()
-    why = display_problem(backend)
-    if why:
-        print(NO_DISPLAY_HELP.format(why=why), file=sys.stderr)
-        return 3
-    from .cli import load_model
-    model, name = load_model(args)
-    from .scenes import SCENES
-    orbit = OrbitCamera.for_scene(name) if args.ply is None and name in SCENES else OrbitCamera.fit(model.means)
-    try:
-        from .viewer_gui import run_viewer
-    except ImportError as e:
-        print(f"seuwgpu view: {e}. The viewer needs the `viewer` extra: pip install -e '.[viewer]' "
-              "(rendercanvas, glfw, imgui-bundle)", file=sys.stderr)
-        return 2
-    return run_viewer(model, name, args.precision, tuple(args.size), orbit=orbit, backend=backend,
-                      sample=args.sample, clamp_threshold=args.clamp_threshold,
-                      screenshot_dir=args.screenshot_dir, frames=args.frames)
-
-
-def main(argv=None) -> int:
-    """`python -m seuwgpu.viewer` = `seuwgpu view` (until cli.py wires it)."""
-    import argparse
-    from .cli import CliError, add_model_args
-    p = argparse.ArgumentParser(prog="seuwgpu view", description="interactive fault-injection viewer")
-    add_model_args(p)
-    add_view_args(p)
-    args = p.parse_args(argv)
-    try:
-        return main_view(args)
-    except (CliError, ValueError, FileNotFoundError) as e:
-        print(f"seuwgpu view: error: {e}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

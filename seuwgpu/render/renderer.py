@@ -16,15 +16,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from .camera import Camera
-from .gpu.device import GPU, STORAGE, UNIFORM, dispatch_dims, get_gpu
-from .gpu.sort import PrefixSum, RadixSort
-from .model import Model, StoredLayout
-from . import formats
+from seuwgpu.gpu.device import GPU, STORAGE, UNIFORM, dispatch, dispatch_dims, get_gpu
+from seuwgpu.gpu.sort import PrefixSum, RadixSort
+from seuwgpu.model import encoding
+from seuwgpu.model.cameras import Camera
+from seuwgpu.model.fields import Model, StoredLayout
 
 TILE = 16
 PRECISION_CODE = {"fp32": 0, "fp16": 1, "bf16": 2}
-_UNIFORM_STRIDE = 256
+UNIFORM_STRIDE = 256
 
 
 def _next_pow2(x: int) -> int:
@@ -43,9 +43,18 @@ def check_cameras(cameras: list[Camera]) -> tuple[int, int]:
 class Renderer:
     """Holds one model on the GPU (in its stored precision) and renders it from a camera set."""
 
-    def __init__(self, model: Model, cameras: list[Camera], precision: str = "fp32",
-                 background=(1.0, 1.0, 1.0), gpu: GPU | None = None, chunk_prims: int | None = None,
-                 capacity: int | None = None, keep_views: bool = False, viewport=None):
+    def __init__(
+        self,
+        model: Model,
+        cameras: list[Camera],
+        precision: str = "fp32",
+        background=(1.0, 1.0, 1.0),
+        gpu: GPU | None = None,
+        chunk_prims: int | None = None,
+        capacity: int | None = None,
+        keep_views: bool = False,
+        viewport=None,
+    ):
         self.gpu = gpu or get_gpu()
         # viewport (x0, y0, w, h): render only this tile-aligned region of every camera's frame (the
         # sort-first split of distributed rendering); pixels equal the full frame's bit for bit.
@@ -54,7 +63,7 @@ class Renderer:
         # (the incremental re-compositor of single upsets reads them).
         self.keep_views = keep_views
         self.capture_views = False  # set while rendering the frame whose state is to be kept
-        self.precision = formats.check_precision(precision)
+        self.precision = encoding.check_precision(precision)
         self.background = np.asarray(background, dtype=np.float32).reshape(3)
         self.degree = model.sh_degree
         self.n = model.n
@@ -109,8 +118,10 @@ class Renderer:
         if self.viewport is not None:
             x0, y0, w, h = self.viewport
             if x0 % TILE or y0 % TILE or w <= 0 or h <= 0 or x0 + w > size[0] or y0 + h > size[1]:
-                raise ValueError(f"viewport {self.viewport} must be tile-aligned ({TILE} px) and inside the "
-                                 f"{size[0]}x{size[1]} frame")
+                raise ValueError(
+                    f"viewport {self.viewport} must be tile-aligned ({TILE} px) and inside the "
+                    f"{size[0]}x{size[1]} frame"
+                )
             self.origin = (x0, y0)
             self.width, self.height = w, h
         self.cameras = list(cameras)
@@ -124,7 +135,7 @@ class Renderer:
         self.image = g.buffer(16 * self.k * self.width * self.height, STORAGE, "image")
         self.stats = g.buffer(4 * self.k, STORAGE, "stats")
         self.ranges = g.buffer(8 * self.n_tiles, STORAGE, "ranges")
-        self.view_params = g.buffer(_UNIFORM_STRIDE * self.k * self.layout.n_chunks, UNIFORM, "view_params")
+        self.view_params = g.buffer(UNIFORM_STRIDE * self.k * self.layout.n_chunks, UNIFORM, "view_params")
         if self.keep_views:
             n, k = self.n, self.k
             self.kv_xy = g.buffer(8 * n * k, STORAGE, "kv_xy")
@@ -132,14 +143,14 @@ class Renderer:
             self.kv_rgb = g.buffer(16 * n * k, STORAGE, "kv_rgb")
             self.kv_rect = g.buffer(8 * n * k, STORAGE, "kv_rect")
             self.kv_ranges = g.buffer(8 * self.n_tiles * k, STORAGE, "kv_ranges")
-        self.bin_params = g.buffer(_UNIFORM_STRIDE * self.k, UNIFORM, "bin_params")
+        self.bin_params = g.buffer(UNIFORM_STRIDE * self.k, UNIFORM, "bin_params")
         want = self._want_capacity or max(65536, 4 * self.n)
         self._set_capacity(max(self.capacity, min(_next_pow2(want), self.max_capacity)), force=True)
 
     def _write_params(self):
         L = self.layout
-        vp = np.zeros((self.k * L.n_chunks, _UNIFORM_STRIDE // 4), dtype=np.uint32)
-        bp = np.zeros((self.k, _UNIFORM_STRIDE // 4), dtype=np.uint32)
+        vp = np.zeros((self.k * L.n_chunks, UNIFORM_STRIDE // 4), dtype=np.uint32)
+        bp = np.zeros((self.k, UNIFORM_STRIDE // 4), dtype=np.uint32)
         for v, cam in enumerate(self.cameras):
             for c in range(L.n_chunks):
                 row = vp[v * L.n_chunks + c]
@@ -149,12 +160,32 @@ class Renderer:
                 f[20:24] = [cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2]]
                 f[24:27] = self.background
                 a, b = L.chunk_range(c)
-                row[28:41] = [self.cam_width, self.cam_height, self.tiles_x, self.tiles_y, self.n, a, b - a,
-                              L.plane_words, self.degree, PRECISION_CODE[self.precision], v,
-                              self.guard_mask & 0xFFFFFFFF, self.guard_mask >> 32]
+                row[28:41] = [
+                    self.cam_width,
+                    self.cam_height,
+                    self.tiles_x,
+                    self.tiles_y,
+                    self.n,
+                    a,
+                    b - a,
+                    L.plane_words,
+                    self.degree,
+                    PRECISION_CODE[self.precision],
+                    v,
+                    self.guard_mask & 0xFFFFFFFF,
+                    self.guard_mask >> 32,
+                ]
                 f[41:43] = [self.origin[0] // TILE, self.origin[1] // TILE]
-            bp[v, 0:8] = [self.n, self.tiles_x, self.n_tiles, self.capacity, v, self.width, self.height,
-                          self.origin[0] | (self.origin[1] << 16)]
+            bp[v, 0:8] = [
+                self.n,
+                self.tiles_x,
+                self.n_tiles,
+                self.capacity,
+                v,
+                self.width,
+                self.height,
+                self.origin[0] | (self.origin[1] << 16),
+            ]
             bp[v].view(np.float32)[8:11] = self.background
         self.view_rows = vp  # host copy (the incremental path derives its own parameters from it)
         self.gpu.write(self.view_params, vp)
@@ -178,8 +209,9 @@ class Renderer:
             if old_kv is not None and not force:
                 enc = g.device.create_command_encoder()
                 for v in range(self.k):
-                    enc.copy_buffer_to_buffer(old_kv, 4 * old_capacity * v, self.kv_isect,
-                                              4 * self.capacity * v, 4 * old_capacity)
+                    enc.copy_buffer_to_buffer(
+                        old_kv, 4 * old_capacity * v, self.kv_isect, 4 * self.capacity * v, 4 * old_capacity
+                    )
                 g.submit(enc)
         self.version += 1  # bind groups on the replaced buffers must be rebuilt
         self._write_params()
@@ -187,50 +219,77 @@ class Renderer:
 
     def _make_bind_groups(self):
         g, L = self.gpu, self.layout
-        S = _UNIFORM_STRIDE
+        S = UNIFORM_STRIDE
         self.bg_project = []
         for v in range(self.k):
             row = []
             for c in range(L.n_chunks):
-                row.append(g.bind(self.p_project, {
-                    0: (self.view_params, (v * L.n_chunks + c) * S, 176), 1: self.chunks[c],
-                    2: self.proj_xy, 3: self.proj_conic, 4: self.proj_rgb, 5: self.proj_rect,
-                    6: self.depth_keys, 7: self.depth_vals, 8: self.box_buf, 9: self.guard_counts}))
+                row.append(
+                    g.bind(
+                        self.p_project,
+                        {
+                            0: (self.view_params, (v * L.n_chunks + c) * S, 176),
+                            1: self.chunks[c],
+                            2: self.proj_xy,
+                            3: self.proj_conic,
+                            4: self.proj_rgb,
+                            5: self.proj_rect,
+                            6: self.depth_keys,
+                            7: self.depth_vals,
+                            8: self.box_buf,
+                            9: self.guard_counts,
+                        },
+                    )
+                )
             self.bg_project.append(row)
         self.bg_count, self.bg_emit, self.bg_ranges, self.bg_composite = [], [], [], []
         for v in range(self.k):
             u = (self.bin_params, v * S, 48)
             self.bg_count.append(g.bind(self.p_count, {0: u, 1: self.proj_rect, 2: self.depth_vals, 3: self.counts}))
-            self.bg_emit.append(g.bind(self.p_emit, {0: u, 1: self.proj_rect, 2: self.depth_vals, 3: self.offsets,
-                                                     4: self.isect_tiles, 5: self.isect_prims}))
+            self.bg_emit.append(
+                g.bind(
+                    self.p_emit,
+                    {
+                        0: u,
+                        1: self.proj_rect,
+                        2: self.depth_vals,
+                        3: self.offsets,
+                        4: self.isect_tiles,
+                        5: self.isect_prims,
+                    },
+                )
+            )
             self.bg_ranges.append(g.bind(self.p_ranges, {0: u, 1: self.isect_tiles, 2: self.stats, 3: self.ranges}))
-            self.bg_composite.append(g.bind(self.p_composite, {
-                0: u, 1: self.ranges, 2: self.isect_prims, 3: self.proj_xy, 4: self.proj_conic,
-                5: self.proj_rgb, 6: self.image}))
+            self.bg_composite.append(
+                g.bind(
+                    self.p_composite,
+                    {
+                        0: u,
+                        1: self.ranges,
+                        2: self.isect_prims,
+                        3: self.proj_xy,
+                        4: self.proj_conic,
+                        5: self.proj_rgb,
+                        6: self.image,
+                    },
+                )
+            )
 
     # ---- encoding --------------------------------------------------------------------------------
-    @staticmethod
-    def _dispatch(encoder, pipeline, bind_group, groups):
-        p = encoder.begin_compute_pass()
-        p.set_pipeline(pipeline)
-        p.set_bind_group(0, bind_group)
-        p.dispatch_workgroups(*groups)
-        p.end()
-
     def encode_view(self, encoder, v: int):
         L, n = self.layout, self.n
         for c in range(L.n_chunks):
             a, b = L.chunk_range(c)
-            self._dispatch(encoder, self.p_project, self.bg_project[v][c], dispatch_dims(-(-(b - a) // 256)))
+            dispatch(encoder, self.p_project, self.bg_project[v][c], dispatch_dims(-(-(b - a) // 256)))
         self.depth_sort.encode(encoder, self.depth_keys, self.depth_vals, n, key_bits=32)
         prim_groups = dispatch_dims(-(-n // 256))
-        self._dispatch(encoder, self.p_count, self.bg_count[v], prim_groups)
+        dispatch(encoder, self.p_count, self.bg_count[v], prim_groups)
         self.scan.encode(encoder, self.counts, self.offsets, n, total=(self.stats, 4 * v))
-        self._dispatch(encoder, self.p_emit, self.bg_emit[v], prim_groups)
+        dispatch(encoder, self.p_emit, self.bg_emit[v], prim_groups)
         tile_bits = max(1, int(self.n_tiles - 1).bit_length())
         self.tile_sort.encode(encoder, self.isect_tiles, self.isect_prims, (self.stats, 4 * v), key_bits=tile_bits)
-        self._dispatch(encoder, self.p_ranges, self.bg_ranges[v], dispatch_dims(-(-self.n_tiles // 256)))
-        self._dispatch(encoder, self.p_composite, self.bg_composite[v], (self.tiles_x, self.tiles_y, 1))
+        dispatch(encoder, self.p_ranges, self.bg_ranges[v], dispatch_dims(-(-self.n_tiles // 256)))
+        dispatch(encoder, self.p_composite, self.bg_composite[v], (self.tiles_x, self.tiles_y, 1))
         if self.keep_views and self.capture_views:
             n = self.n
             encoder.copy_buffer_to_buffer(self.proj_xy, 0, self.kv_xy, 8 * n * v, 8 * n)
@@ -244,7 +303,9 @@ class Renderer:
         for v in range(self.k):
             self.encode_view(v=v, encoder=encoder)
 
-    def _run(self):
+    def run(self) -> np.ndarray:
+        """Encode, submit and wait for the K views (growing the intersection buffers and re-running
+        as needed); returns the per-view intersection totals."""
         while True:
             enc = self.gpu.device.create_command_encoder()
             self.encode(enc)
@@ -254,13 +315,15 @@ class Renderer:
             if need <= self.capacity:
                 return totals
             if need > self.max_capacity:
-                raise RuntimeError(f"frame needs {need} tile intersections, more than one storage binding "
-                                   f"holds ({self.max_capacity}); render at a smaller size or fewer primitives")
+                raise RuntimeError(
+                    f"frame needs {need} tile intersections, more than one storage binding "
+                    f"holds ({self.max_capacity}); render at a smaller size or fewer primitives"
+                )
             self._set_capacity(min(_next_pow2(need), self.max_capacity))
 
     def render_rgba(self) -> np.ndarray:
         """[K, H, W, 4] float32: rgb (unclamped) and final transmittance."""
-        self.last_totals = self._run()
+        self.last_totals = self.run()
         img = self.gpu.read(self.image, np.float32, 0, 16 * self.k * self.width * self.height)
         return img.reshape(self.k, self.height, self.width, 4)
 
@@ -301,12 +364,12 @@ def gpu_decode(words: np.ndarray, precision: str, gpu: GPU | None = None) -> np.
     """Decode raw stored words with the shaders' decode (for tests and inspection)."""
     gpu = gpu or get_gpu()
     words = np.ascontiguousarray(words, dtype=np.uint32).reshape(-1)
-    count = words.size * (2 if formats.bits_per_value(precision) == 16 else 1)
+    count = words.size * (2 if encoding.bits_per_value(precision) == 16 else 1)
     params = gpu.upload(np.array([count, PRECISION_CODE[precision], 0, 0], dtype=np.uint32), UNIFORM)
     src = gpu.upload(words)
     dst = gpu.buffer(4 * count)
     pipe = gpu.pipeline("decode")
     enc = gpu.device.create_command_encoder()
-    Renderer._dispatch(enc, pipe, gpu.bind(pipe, {0: params, 1: src, 2: dst}), dispatch_dims(-(-count // 256)))
+    dispatch(enc, pipe, gpu.bind(pipe, {0: params, 1: src, 2: dst}), dispatch_dims(-(-count // 256)))
     gpu.submit(enc)
     return gpu.read(dst, np.float32, 0, 4 * count)

@@ -21,8 +21,10 @@ def error_map(clean: np.ndarray, faulted: np.ndarray) -> np.ndarray:
 
 def save_panel(path, clean, faulted, guarded, title: str = "", labels=("clean", "faulted", "guarded", "|error|")):
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     k = clean.shape[0]
     fig, axes = plt.subplots(k, 4, figsize=(12, 3.1 * k + 0.4), squeeze=False)
     for v in range(k):

@@ -16,26 +16,43 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from . import formats
-from .camera import Camera
-from .faults import (GUARDED_FIELDS, Site, check_defense, dup_read, ecc_read, make_site, mask_of,
-                     site_bit_class)
-from .gpu.device import GPU, STORAGE, UNIFORM, dispatch_dims, get_gpu
-from .guard import Box, GuardMonitor, component_mask, support_box
-from .metrics import ImageMetrics, catastrophic, summarize
-from .model import FIELDS, Model
-from .render import Renderer
+from seuwgpu.faults.defenses import GUARDED_FIELDS, check_defense, dup_read, ecc_read
+from seuwgpu.faults.guard import Box, GuardMonitor, component_mask, support_box
+from seuwgpu.faults.sites import Site, make_site, mask_of, site_bit_class
+from seuwgpu.gpu.device import GPU, STORAGE, UNIFORM, dispatch_dims, get_gpu
+from seuwgpu.metrics.image import ImageMetrics, catastrophic, summarize
+from seuwgpu.model import encoding
+from seuwgpu.model.cameras import Camera
+from seuwgpu.model.fields import FIELDS, Model
+from seuwgpu.render.renderer import Renderer
 
 
 class Engine:
-    def __init__(self, model: Model, cameras: list[Camera], precision: str = "fp32",
-                 gpu: GPU | None = None, scene: str = "", chunk_prims: int | None = None,
-                 background=(1.0, 1.0, 1.0), incremental: bool = True, capacity: int | None = None):
+    def __init__(
+        self,
+        model: Model,
+        cameras: list[Camera],
+        precision: str = "fp32",
+        gpu: GPU | None = None,
+        scene: str = "",
+        chunk_prims: int | None = None,
+        background=(1.0, 1.0, 1.0),
+        incremental: bool = True,
+        capacity: int | None = None,
+    ):
         self.gpu = gpu or get_gpu()
-        self.precision = formats.check_precision(precision)
+        self.precision = encoding.check_precision(precision)
         self.scene = scene
-        self.renderer = Renderer(model, cameras, precision, gpu=self.gpu, chunk_prims=chunk_prims,
-                                 background=background, keep_views=incremental, capacity=capacity)
+        self.renderer = Renderer(
+            model,
+            cameras,
+            precision,
+            gpu=self.gpu,
+            chunk_prims=chunk_prims,
+            background=background,
+            keep_views=incremental,
+            capacity=capacity,
+        )
         self.incremental = incremental
         self.layout = self.renderer.layout
         self.n, self.degree = model.n, model.sh_degree
@@ -94,11 +111,11 @@ class Engine:
         return vals.astype(np.uint32 if not self.layout.halves else np.uint16)
 
     def clean_value(self, site: Site) -> float:
-        return float(formats.from_bits(self.stored_bits([site.primitive], [site.flat_component()]), self.precision)[0])
+        return float(encoding.from_bits(self.stored_bits([site.primitive], [site.flat_component()]), self.precision)[0])
 
     def corrupted_value(self, site: Site) -> float:
         b = self.stored_bits([site.primitive], [site.flat_component()])
-        return float(formats.from_bits(formats.flip_bits(b, list(site.bits), self.precision), self.precision)[0])
+        return float(encoding.from_bits(encoding.flip_bits(b, list(site.bits), self.precision), self.precision)[0])
 
     def _defended(self, clean: np.ndarray, masks: np.ndarray, defense: str) -> np.ndarray:
         """What `defense` reads from stored values `clean` after XOR `masks` hit them (the support
@@ -149,8 +166,13 @@ class Engine:
             self._flip_cap = max(need, 1024)
             self._flip_pairs = [g.buffer(8 * self._flip_cap, STORAGE, "flip_pairs") for _ in range(n_chunks)]
             self._flip_params = g.buffer(256 * n_chunks, UNIFORM, "flip_params")
-            self._flip_bgs = [g.bind(self.p_flip, {0: (self._flip_params, 256 * c, 16), 1: self._flip_pairs[c],
-                                                   2: self.renderer.chunks[c]}) for c in range(n_chunks)]
+            self._flip_bgs = [
+                g.bind(
+                    self.p_flip,
+                    {0: (self._flip_params, 256 * c, 16), 1: self._flip_pairs[c], 2: self.renderer.chunks[c]},
+                )
+                for c in range(n_chunks)
+            ]
         params = np.zeros((n_chunks, 64), np.uint32)
         for ch, pairs in xors.items():
             params[ch, 0] = len(pairs)
@@ -191,7 +213,7 @@ class Engine:
         r.set_guard(None, self._guard_mask(defense))
         r.reset_guard_counts()
         try:
-            r._run()
+            r.run()
             return dict(zip(FIELDS, map(int, r.read_guard_counts())))
         finally:
             r.set_guard(None, 0)
@@ -210,7 +232,9 @@ class Engine:
         """GPU metrics of the current model against the clean render (the frame stays on the GPU)."""
         clamps = sum(self._run_guarded(defense).values())
         raw = self.metrics.run_dense(self.clean_buf, self.renderer.image, 1)
-        out = {k: (v[0].item() if hasattr(v, "__len__") else v) for k, v in summarize(raw, self.width, self.height).items()}
+        out = {
+            k: (v[0].item() if hasattr(v, "__len__") else v) for k, v in summarize(raw, self.width, self.height).items()
+        }
         out["clamps"] = clamps
         return out
 
@@ -222,23 +246,42 @@ class Engine:
             m = self.measure_current(defense)
         finally:
             self.undo(handle)
-        rec = {"scene": self.scene, "n_primitives": self.n, "precision": self.precision,
-               "defense": defense, "k": len(sites)}
+        rec = {
+            "scene": self.scene,
+            "n_primitives": self.n,
+            "precision": self.precision,
+            "defense": defense,
+            "k": len(sites),
+        }
         if len(sites) == 1:
             s = sites[0]
-            rec.update(field=s.field, primitive=s.primitive, component=s.component, bit=s.bit,
-                       bit_class=site_bit_class(s, self.precision), clean_value=self.clean_value(s),
-                       corrupted_value=self.corrupted_value(s))
+            rec.update(
+                field=s.field,
+                primitive=s.primitive,
+                component=s.component,
+                bit=s.bit,
+                bit_class=site_bit_class(s, self.precision),
+                clean_value=self.clean_value(s),
+                corrupted_value=self.corrupted_value(s),
+            )
         else:
             fields = {s.field for s in sites}
-            rec.update(field=fields.pop() if len(fields) == 1 else "mixed", primitive=-1, component=-1,
-                       bit=-1, bit_class="mixed", clean_value=float("nan"), corrupted_value=float("nan"))
+            rec.update(
+                field=fields.pop() if len(fields) == 1 else "mixed",
+                primitive=-1,
+                component=-1,
+                bit=-1,
+                bit_class="mixed",
+                clean_value=float("nan"),
+                corrupted_value=float("nan"),
+            )
         rec.update(m)
         rec["catastrophic"] = bool(catastrophic(rec["footprint"], rec["nonfinite"]))
         return rec
 
-    def worst_primitive(self, field: str, component: int, bits, sample: int = 32, seed: int = 0,
-                        defense: str = "none") -> tuple[int, dict]:
+    def worst_primitive(
+        self, field: str, component: int, bits, sample: int = 32, seed: int = 0, defense: str = "none"
+    ) -> tuple[int, dict]:
         """The primitive whose flip does the most harm (footprint, then peak error) among a sample."""
         rng = np.random.default_rng(seed)
         cand = rng.choice(self.n, size=min(sample, self.n), replace=False)
@@ -258,7 +301,8 @@ class Engine:
     @property
     def evaluator(self):
         if self._evaluator is None:
-            from .incremental import IncrementalEvaluator
+            from seuwgpu.faults.incremental import IncrementalEvaluator
+
             # a CPU adapter gains nothing from huge batches; a GPU needs them to stay busy
             if self.gpu.is_cpu:
                 self._evaluator = IncrementalEvaluator(self, max_variants=256, max_entries=8192)
@@ -296,25 +340,31 @@ class Engine:
         m_sites = len(sites)
         comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
         base = {
-            "scene": [self.scene] * m_sites, "n_primitives": np.full(m_sites, self.n, np.int64),
-            "precision": [self.precision] * m_sites, "field": [s.field for s in sites],
+            "scene": [self.scene] * m_sites,
+            "n_primitives": np.full(m_sites, self.n, np.int64),
+            "precision": [self.precision] * m_sites,
+            "field": [s.field for s in sites],
             "primitive": np.array([s.primitive for s in sites], np.int64),
             "component": np.array([s.component for s in sites], np.int64),
             "bit": np.array([s.bit for s in sites], np.int64),
-            "bit_class": [site_bit_class(s, self.precision) for s in sites], "k": np.ones(m_sites, np.int64),
+            "bit_class": [site_bit_class(s, self.precision) for s in sites],
+            "k": np.ones(m_sites, np.int64),
         }
         frames = []
         rows = np.arange(m_sites)
         for d in defenses:
             check_defense(d)
             prims, bits, gm = self.variant_bits(sites, d)
-            clean_v = formats.from_bits(self.stored_bits(prims, comps), self.precision)
-            corr_v = formats.from_bits(bits[rows, comps], self.precision)
+            clean_v = encoding.from_bits(self.stored_bits(prims, comps), self.precision)
+            corr_v = encoding.from_bits(bits[rows, comps], self.precision)
             m = self.evaluator.evaluate(prims, bits, gm, regions)
             cols = dict(base)
             with np.errstate(invalid="ignore"):  # NaN values are data here
-                cols.update(defense=[d] * m_sites, clean_value=clean_v.astype(np.float64),
-                            corrupted_value=corr_v.astype(np.float64))
+                cols.update(
+                    defense=[d] * m_sites,
+                    clean_value=clean_v.astype(np.float64),
+                    corrupted_value=corr_v.astype(np.float64),
+                )
             for key in ("footprint", "footprint_max", "peak_error", "psnr", "ssim"):
                 cols[key] = np.asarray(m[key], np.float64)
             cols["nonfinite"] = np.asarray(m["nonfinite"], bool)

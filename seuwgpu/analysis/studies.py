@@ -40,13 +40,15 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Iterable
+from collections.abc import Iterable
 
 import numpy as np
 import pandas as pd
 
-from . import formats, stats
-from .model import FIELDS, field_components, n_components, sh_rest_count
+from seuwgpu.analysis import stats
+from seuwgpu.model import encoding
+from seuwgpu.model.fields import FIELDS, field_components, n_components, sh_rest_count
+from seuwgpu.render.regions import region_edges
 
 # ----------------------------------------------------------------------------------- constants
 
@@ -59,17 +61,21 @@ DEFENSE_LABELS = {
     "dup": "full duplication (TMR vote)",
 }
 FIELD_LABELS = {
-    "means": "mean", "log_scales": "log-scale", "quats": "quat", "opacity": "opacity",
-    "sh_dc": "color (DC)", "sh_rest": "color (SH)",
+    "means": "mean",
+    "log_scales": "log-scale",
+    "quats": "quat",
+    "opacity": "opacity",
+    "sh_dc": "color (DC)",
+    "sh_rest": "color (SH)",
 }
 BIT_CLASSES = ("sign", "exponent", "mantissa", "mixed")
 
-CATASTROPHIC_FOOTPRINT = 0.01   # Definition (catastrophic upset): footprint > 1% or non-finite
-PSNR_CAP_DB = 100.0             # identical frames (PSNR = inf) count as 100 dB in means
-PSNR_FLOOR_DB = 0.0             # non-finite frames (or NaN PSNR) count as 0 dB
-BUDGET_PSNR_DB = 30.0           # redundancy budget threshold (paper, Section 5.4)
+CATASTROPHIC_FOOTPRINT = 0.01  # Definition (catastrophic upset): footprint > 1% or non-finite
+PSNR_CAP_DB = 100.0  # identical frames (PSNR = inf) count as 100 dB in means
+PSNR_FLOOR_DB = 0.0  # non-finite frames (or NaN PSNR) count as 0 dB
+BUDGET_PSNR_DB = 30.0  # redundancy budget threshold (paper, Section 5.4)
 THEORY_FIT_RANGE = (1e-5, 0.1)  # peak-error window of the mantissa-slope fit (see theory_check)
-GUARD_BOX_BITS = 32             # the support box bounds are held as fp32 values
+GUARD_BOX_BITS = 32  # the support box bounds are held as fp32 values
 DEFAULT_SH_DEGREE = 3
 
 HOURS_PER_YEAR = 24.0 * 365.25
@@ -79,24 +85,30 @@ HOURS_PER_YEAR = 24.0 * 365.25
 UPSET_RATES = (
     {
         "environment": "ground (sea level)",
-        "per_bit_hour": 1.0e-12,   # 1,000 FIT/Mbit
-        "source": ("~10^3 FIT/Mbit, the order of unprotected SRAM soft-error rates at sea level "
-                   "(Baumann, IEEE TDMR 5(3) 2005; Normand, IEEE TNS 43(6) 1996), at the JEDEC "
-                   "JESD89A reference neutron flux (~13 n/cm^2/h, New York City). Commodity "
-                   "DRAM/HBM is lower per bit."),
+        "per_bit_hour": 1.0e-12,  # 1,000 FIT/Mbit
+        "source": (
+            "~10^3 FIT/Mbit, the order of unprotected SRAM soft-error rates at sea level "
+            "(Baumann, IEEE TDMR 5(3) 2005; Normand, IEEE TNS 43(6) 1996), at the JEDEC "
+            "JESD89A reference neutron flux (~13 n/cm^2/h, New York City). Commodity "
+            "DRAM/HBM is lower per bit."
+        ),
     },
     {
         "environment": "avionics (~10-12 km)",
-        "per_bit_hour": 3.0e-10,   # 300 x ground
-        "source": ("ground rate x 300: the atmospheric neutron flux at aircraft cruise altitude "
-                   "is roughly 300x the sea-level flux (Normand 1996; JESD89A altitude scaling)."),
+        "per_bit_hour": 3.0e-10,  # 300 x ground
+        "source": (
+            "ground rate x 300: the atmospheric neutron flux at aircraft cruise altitude "
+            "is roughly 300x the sea-level flux (Normand 1996; JESD89A altitude scaling)."
+        ),
     },
     {
         "environment": "low-Earth orbit",
-        "per_bit_hour": 1.0e-7 / 24.0,   # 1e-7 upsets/bit/day
-        "source": ("~1e-7 upsets/bit/day, a typical order for commercial memories in LEO "
-                   "(published rates span ~1e-8 to 1e-6 /bit/day with orbit, shielding and "
-                   "South Atlantic Anomaly passes)."),
+        "per_bit_hour": 1.0e-7 / 24.0,  # 1e-7 upsets/bit/day
+        "source": (
+            "~1e-7 upsets/bit/day, a typical order for commercial memories in LEO "
+            "(published rates span ~1e-8 to 1e-6 /bit/day with orbit, shielding and "
+            "South Atlantic Anomaly passes)."
+        ),
     },
 )
 
@@ -111,6 +123,7 @@ class InsufficientData(Exception):
 
 
 # --------------------------------------------------------------------------- record handling
+
 
 def prepare(df: pd.DataFrame) -> pd.DataFrame:
     """Fill optional columns and infer defaults (idempotent; returns a new frame)."""
@@ -146,8 +159,7 @@ def prepare(df: pd.DataFrame) -> pd.DataFrame:
     if "catastrophic" not in d:
         d["catastrophic"] = (d["footprint"] > CATASTROPHIC_FOOTPRINT) | d["nonfinite"]
     d["catastrophic"] = d["catastrophic"].fillna(False).astype(bool)
-    for col in ("time_ms", "psnr", "ssim", "peak_error", "footprint_max", "clean_value",
-                "corrupted_value"):
+    for col in ("time_ms", "psnr", "ssim", "peak_error", "footprint_max", "clean_value", "corrupted_value"):
         if col not in d:
             d[col] = np.nan
         d[col] = pd.to_numeric(d[col], errors="coerce").astype(float)
@@ -168,7 +180,7 @@ def _uniq(values) -> list:
 
 def provenance(d: pd.DataFrame) -> dict:
     """What a table or figure rests on: runs, scenes, precisions, defenses, campaigns, k, n."""
-    order = {"precision": formats.PRECISIONS, "defense": DEFENSES}
+    order = {"precision": encoding.PRECISIONS, "defense": DEFENSES}
 
     def col(name):
         vals = _uniq(d[name]) if name in d and len(d) else []
@@ -176,10 +188,14 @@ def provenance(d: pd.DataFrame) -> dict:
             known = [v for v in order[name] if v in vals]
             vals = known + [v for v in vals if v not in known]
         return vals
+
     ks = col("k")
     return {
-        "runs": col("run"), "scenes": col("scene"), "precisions": col("precision"),
-        "defenses": col("defense"), "campaigns": col("campaign"),
+        "runs": col("run"),
+        "scenes": col("scene"),
+        "precisions": col("precision"),
+        "defenses": col("defense"),
+        "campaigns": col("campaign"),
         "k_range": [int(min(ks)), int(max(ks))] if ks else [],
         "n_records": int(len(d)),
     }
@@ -189,8 +205,13 @@ def provenance_text(prov: dict) -> str:
     if not prov:
         return ""
     parts = [f"{prov.get('n_records', 0):,} records"]
-    for key, label in (("runs", "runs"), ("scenes", "scenes"), ("precisions", "precisions"),
-                       ("defenses", "defenses"), ("campaigns", "campaigns")):
+    for key, label in (
+        ("runs", "runs"),
+        ("scenes", "scenes"),
+        ("precisions", "precisions"),
+        ("defenses", "defenses"),
+        ("campaigns", "campaigns"),
+    ):
         vals = prov.get(key) or []
         if vals:
             parts.append(f"{label}: {', '.join(map(str, vals))}")
@@ -208,7 +229,7 @@ def _tag(out: pd.DataFrame, d: pd.DataFrame, **extra) -> pd.DataFrame:
 
 def precisions_present(df: pd.DataFrame) -> list[str]:
     have = set(df["precision"].astype(str)) if "precision" in df else set()
-    return [p for p in formats.PRECISIONS if p in have] + sorted(have - set(formats.PRECISIONS))
+    return [p for p in encoding.PRECISIONS if p in have] + sorted(have - set(encoding.PRECISIONS))
 
 
 def reference_precision(df: pd.DataFrame) -> str:
@@ -229,8 +250,7 @@ def fields_present(df: pd.DataFrame) -> list[str]:
     return [f for f in FIELDS if f in have] + sorted(have - set(FIELDS))
 
 
-def single_upsets(df: pd.DataFrame, precision: str | None = None,
-                  defense: str | None = "none") -> pd.DataFrame:
+def single_upsets(df: pd.DataFrame, precision: str | None = None, defense: str | None = "none") -> pd.DataFrame:
     """k = 1 records of the single-upset campaign, optionally at one precision and defense."""
     d = prepare(df)
     m = (d["k"] == 1) & (d["campaign"] == "single")
@@ -251,7 +271,8 @@ def _require_single(df, defense="none") -> pd.DataFrame:
     if s.empty:
         raise InsufficientData(
             f"no single-upset records (k = 1, campaign 'single') with defense '{defense}'",
-            "run a single-upset campaign over all fields and bits")
+            "run a single-upset campaign over all fields and bits",
+        )
     return s
 
 
@@ -284,8 +305,11 @@ def _rate_columns(k, n, prefix="cat", conf=0.95) -> dict:
     lo, hi = stats.wilson_interval(k, n, conf)
     with np.errstate(invalid="ignore", divide="ignore"):
         rate = np.where(n > 0, k / n, np.nan)
-    return {f"{prefix}_rate_pct": 100 * rate, f"{prefix}_ci_lo_pct": 100 * np.asarray(lo),
-            f"{prefix}_ci_hi_pct": 100 * np.asarray(hi)}
+    return {
+        f"{prefix}_rate_pct": 100 * rate,
+        f"{prefix}_ci_lo_pct": 100 * np.asarray(lo),
+        f"{prefix}_ci_hi_pct": 100 * np.asarray(hi),
+    }
 
 
 def sh_degree_of(df: pd.DataFrame | None = None, manifests: Iterable[dict] = ()) -> int:
@@ -316,8 +340,10 @@ def sh_degree_of(df: pd.DataFrame | None = None, manifests: Iterable[dict] = ())
 
 # ------------------------------------------------------------------------------ criticality
 
-def criticality(df: pd.DataFrame, precision: str | None = None, defense: str = "none",
-                conf: float = 0.95) -> pd.DataFrame:
+
+def criticality(
+    df: pd.DataFrame, precision: str | None = None, defense: str = "none", conf: float = 0.95
+) -> pd.DataFrame:
     """Per-field footprint quantiles (% of frame) and catastrophe rate with a Wilson interval.
 
     Pooled over scenes and bits of the single-upset campaign at one precision (fp32 by default).
@@ -328,21 +354,27 @@ def criticality(df: pd.DataFrame, precision: str | None = None, defense: str = "
     precision = precision or reference_precision(s)
     s = s[s["precision"] == precision]
     if s.empty:
-        raise InsufficientData(f"no single-upset records at {precision}",
-                               f"run a single-upset campaign at {precision}")
+        raise InsufficientData(f"no single-upset records at {precision}", f"run a single-upset campaign at {precision}")
     rows = []
     for field in fields_present(s):
         g = s[s["field"] == field]
         fp = g["footprint"].to_numpy(float) * 100.0
         fp = fp[np.isfinite(fp)]
         q = np.quantile(fp, [0.5, 0.95, 0.99]) if fp.size else [np.nan] * 3
-        rows.append({"field": field, "n": len(g), "median_pct": q[0], "p95_pct": q[1],
-                     "p99_pct": q[2], "max_pct": fp.max() if fp.size else np.nan,
-                     "mean_pct": fp.mean() if fp.size else np.nan,
-                     "catastrophic": int(g["catastrophic"].sum())})
+        rows.append(
+            {
+                "field": field,
+                "n": len(g),
+                "median_pct": q[0],
+                "p95_pct": q[1],
+                "p99_pct": q[2],
+                "max_pct": fp.max() if fp.size else np.nan,
+                "mean_pct": fp.mean() if fp.size else np.nan,
+                "catastrophic": int(g["catastrophic"].sum()),
+            }
+        )
     out = pd.DataFrame(rows)
-    out = pd.concat([out, pd.DataFrame(_rate_columns(out["catastrophic"], out["n"], conf=conf))],
-                    axis=1)
+    out = pd.concat([out, pd.DataFrame(_rate_columns(out["catastrophic"], out["n"], conf=conf))], axis=1)
     return _tag(out, s, precision=precision)
 
 
@@ -351,30 +383,37 @@ def field_bit_table(df: pd.DataFrame, defense: str = "none", conf: float = 0.95)
     s = _require_single(df, defense)
     s = s[s["bit"] >= 0]
     g = s.groupby(["precision", "field", "bit"], sort=False)
-    out = g.agg(n=("footprint", "size"), mean_footprint_pct=("footprint", "mean"),
-                max_footprint_pct=("footprint", "max"),
-                catastrophic=("catastrophic", "sum")).reset_index()
+    out = g.agg(
+        n=("footprint", "size"),
+        mean_footprint_pct=("footprint", "mean"),
+        max_footprint_pct=("footprint", "max"),
+        catastrophic=("catastrophic", "sum"),
+    ).reset_index()
     out["mean_footprint_pct"] *= 100.0
     out["max_footprint_pct"] *= 100.0
     out["catastrophic"] = out["catastrophic"].astype(np.int64)
-    out.insert(3, "bit_class", [formats.bit_class(p, b) if p in formats.PRECISIONS
-                                and 0 <= b < formats.BITS[p] else "?"
-                                for p, b in zip(out["precision"], out["bit"])])
-    out = pd.concat([out, pd.DataFrame(_rate_columns(out["catastrophic"], out["n"], conf=conf))],
-                    axis=1)
+    out.insert(
+        3,
+        "bit_class",
+        [
+            encoding.bit_class(p, b) if p in encoding.PRECISIONS and 0 <= b < encoding.BITS[p] else "?"
+            for p, b in zip(out["precision"], out["bit"])
+        ],
+    )
+    out = pd.concat([out, pd.DataFrame(_rate_columns(out["catastrophic"], out["n"], conf=conf))], axis=1)
     porder = {p: i for i, p in enumerate(precisions_present(s))}
     forder = {f: i for i, f in enumerate(fields_present(s))}
-    out = out.sort_values(["precision", "field", "bit"],
-                          key=lambda c: c.map(porder) if c.name == "precision"
-                          else (c.map(forder) if c.name == "field" else c)).reset_index(drop=True)
+    out = out.sort_values(
+        ["precision", "field", "bit"],
+        key=lambda c: c.map(porder) if c.name == "precision" else (c.map(forder) if c.name == "field" else c),
+    ).reset_index(drop=True)
     return _tag(out, s)
 
 
-def heatmap_matrix(table: pd.DataFrame, precision: str, value: str = "mean_footprint_pct"
-                   ) -> pd.DataFrame:
+def heatmap_matrix(table: pd.DataFrame, precision: str, value: str = "mean_footprint_pct") -> pd.DataFrame:
     """field x bit matrix (rows in FIELDS order, columns bit 0..B-1) from `field_bit_table`."""
     t = table[table["precision"] == precision]
-    nbits = formats.BITS.get(precision, int(t["bit"].max()) + 1 if len(t) else 0)
+    nbits = encoding.BITS.get(precision, int(t["bit"].max()) + 1 if len(t) else 0)
     m = t.pivot_table(index="field", columns="bit", values=value, aggfunc="mean")
     rows = [f for f in FIELDS if f in m.index] + [f for f in m.index if f not in FIELDS]
     return m.reindex(index=rows, columns=range(nbits))
@@ -384,12 +423,12 @@ def precision_rates(df: pd.DataFrame, defense: str = "none", conf: float = 0.95)
     """Catastrophe rate per (precision, field) with Wilson intervals, pooled over bits/scenes."""
     s = _require_single(df, defense)
     g = s.groupby(["precision", "field"], sort=False)
-    out = g.agg(n=("catastrophic", "size"), catastrophic=("catastrophic", "sum"),
-                mean_footprint_pct=("footprint", "mean")).reset_index()
+    out = g.agg(
+        n=("catastrophic", "size"), catastrophic=("catastrophic", "sum"), mean_footprint_pct=("footprint", "mean")
+    ).reset_index()
     out["mean_footprint_pct"] *= 100.0
     out["catastrophic"] = out["catastrophic"].astype(np.int64)
-    out = pd.concat([out, pd.DataFrame(_rate_columns(out["catastrophic"], out["n"], conf=conf))],
-                    axis=1)
+    out = pd.concat([out, pd.DataFrame(_rate_columns(out["catastrophic"], out["n"], conf=conf))], axis=1)
     porder = {p: i for i, p in enumerate(precisions_present(s))}
     forder = {f: i for i, f in enumerate(fields_present(s))}
     out = out.assign(_p=out["precision"].map(porder), _f=out["field"].map(forder))
@@ -399,8 +438,14 @@ def precision_rates(df: pd.DataFrame, defense: str = "none", conf: float = 0.95)
 
 # ---------------------------------------------------------------------------- theory check
 
-def theory_check(df: pd.DataFrame, field: str = "log_scales", precision: str | None = None,
-                 defense: str = "none", fit_range: tuple[float, float] = THEORY_FIT_RANGE) -> dict:
+
+def theory_check(
+    df: pd.DataFrame,
+    field: str = "log_scales",
+    precision: str | None = None,
+    defense: str = "none",
+    fit_range: tuple[float, float] = THEORY_FIT_RANGE,
+) -> dict:
     """Mean peak error against mantissa bit index, with the fitted log2 slope (Lemma: 1 per bit).
 
     The fit uses the bits whose mean peak error lies inside `fit_range` (default 1e-5 .. 0.1):
@@ -415,14 +460,21 @@ def theory_check(df: pd.DataFrame, field: str = "log_scales", precision: str | N
     d = s[(s["precision"] == precision) & (s["field"] == field) & (s["bit"] >= 0)]
     if "bit_class" in d:
         d = d[d["bit_class"] == "mantissa"]
-    if precision in formats.LAYOUT:
-        d = d[d["bit"] < formats.LAYOUT[precision][0]]
+    if precision in encoding.LAYOUT:
+        d = d[d["bit"] < encoding.LAYOUT[precision][0]]
     d = d[np.isfinite(d["peak_error"])]
     if d.empty:
-        raise InsufficientData(f"no {field} mantissa records with peak_error at {precision}",
-                               f"run a single-upset campaign covering {field} mantissa bits")
-    t = d.groupby("bit").agg(n=("peak_error", "size"), mean_peak_error=("peak_error", "mean"),
-                             median_peak_error=("peak_error", "median")).reset_index()
+        raise InsufficientData(
+            f"no {field} mantissa records with peak_error at {precision}",
+            f"run a single-upset campaign covering {field} mantissa bits",
+        )
+    t = (
+        d.groupby("bit")
+        .agg(
+            n=("peak_error", "size"), mean_peak_error=("peak_error", "mean"), median_peak_error=("peak_error", "median")
+        )
+        .reset_index()
+    )
     with np.errstate(divide="ignore"):
         t["log2_mean_peak_error"] = np.log2(t["mean_peak_error"].where(t["mean_peak_error"] > 0))
     lo, hi = fit_range
@@ -430,29 +482,51 @@ def theory_check(df: pd.DataFrame, field: str = "log_scales", precision: str | N
     note = ""
     if use.sum() < 3:
         use = t["mean_peak_error"] > 0
-        note = (f"fewer than 3 bits had a mean peak error in [{lo:g}, {hi:g}]; "
-                "the fit uses every bit with a positive mean")
+        note = (
+            f"fewer than 3 bits had a mean peak error in [{lo:g}, {hi:g}]; the fit uses every bit with a positive mean"
+        )
     if use.sum() < 2:
-        raise InsufficientData(f"fewer than two {field} mantissa bits with a non-zero peak error",
-                               f"run a single-upset campaign covering more {field} mantissa bits")
+        raise InsufficientData(
+            f"fewer than two {field} mantissa bits with a non-zero peak error",
+            f"run a single-upset campaign covering more {field} mantissa bits",
+        )
     t["in_fit"] = use.to_numpy()
     fit = stats.linear_fit(t.loc[use, "bit"], t.loc[use, "log2_mean_peak_error"])
     bits_used = t.loc[use, "bit"]
     _tag(t, d, precision=precision)
-    return {"table": t, "slope": fit.slope, "intercept": fit.intercept, "r2": fit.r2,
-            "fit_bits": (int(bits_used.min()), int(bits_used.max())),
-            "n_fit_bits": int(use.sum()), "predicted_slope": 1.0, "precision": precision,
-            "field": field, "fit_range": fit_range, "note": note}
+    return {
+        "table": t,
+        "slope": fit.slope,
+        "intercept": fit.intercept,
+        "r2": fit.r2,
+        "fit_bits": (int(bits_used.min()), int(bits_used.max())),
+        "n_fit_bits": int(use.sum()),
+        "predicted_slope": 1.0,
+        "precision": precision,
+        "field": field,
+        "fit_range": fit_range,
+        "note": note,
+    }
 
 
 # ------------------------------------------------------------------------------------- guard
+
 
 def paired(df: pd.DataFrame, a: str = "none", b: str = "guard") -> pd.DataFrame:
     """Single-upset records of defenses a and b joined on the fault site (pair_keys)."""
     s = single_upsets(df, None, None)
     keys = pair_keys(s)
-    cols = keys + ["field", "bit", "bit_class", "footprint", "catastrophic", "psnr", "nonfinite",
-                   "peak_error", "time_ms"]
+    cols = keys + [
+        "field",
+        "bit",
+        "bit_class",
+        "footprint",
+        "catastrophic",
+        "psnr",
+        "nonfinite",
+        "peak_error",
+        "time_ms",
+    ]
     cols = [c for c in dict.fromkeys(cols) if c in s]
     left = s.loc[s["defense"] == a, cols].drop_duplicates(keys)
     rcols = [c for c in cols if c in keys or c not in ("field", "bit", "bit_class")]
@@ -472,24 +546,34 @@ def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -
     s = single_upsets(df, None, None)
     s = s[s["defense"].isin(["none", guard])]
     if not (s["defense"] == guard).any():
-        raise InsufficientData(f"no single-upset records with defense '{guard}'",
-                               f"run the single-upset campaign with defenses none,{guard}")
+        raise InsufficientData(
+            f"no single-upset records with defense '{guard}'",
+            f"run the single-upset campaign with defenses none,{guard}",
+        )
     p = paired(s, "none", guard)
     if p.empty:
-        raise InsufficientData(f"no fault sites measured both without and with '{guard}'",
-                               f"run the single-upset campaign with defenses none,{guard} "
-                               "(same injection ids)")
+        raise InsufficientData(
+            f"no fault sites measured both without and with '{guard}'",
+            f"run the single-upset campaign with defenses none,{guard} (same injection ids)",
+        )
     rows = []
     for (prec, dfn), g in s.groupby(["precision", "defense"], sort=False):
         fp = g["footprint"].to_numpy(float) * 100
-        rows.append({"precision": prec, "defense": dfn, "n": len(g),
-                     "mean_footprint_pct": np.nanmean(fp),
-                     "p99_footprint_pct": np.nanquantile(fp, 0.99),
-                     "max_footprint_pct": np.nanmax(fp),
-                     "catastrophic": int(g["catastrophic"].sum())})
+        rows.append(
+            {
+                "precision": prec,
+                "defense": dfn,
+                "n": len(g),
+                "mean_footprint_pct": np.nanmean(fp),
+                "p99_footprint_pct": np.nanquantile(fp, 0.99),
+                "max_footprint_pct": np.nanmax(fp),
+                "catastrophic": int(g["catastrophic"].sum()),
+            }
+        )
     summary = pd.DataFrame(rows)
-    summary = pd.concat([summary, pd.DataFrame(_rate_columns(summary["catastrophic"],
-                                                             summary["n"], conf=conf))], axis=1)
+    summary = pd.concat(
+        [summary, pd.DataFrame(_rate_columns(summary["catastrophic"], summary["n"], conf=conf))], axis=1
+    )
     summary = _sort_prec_def(summary)
     _tag(summary, s)
 
@@ -504,11 +588,19 @@ def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -
         neut = cat & ~g[cg].astype(bool)
         k, n = int(neut.sum()), int(cat.sum())
         lo, hi = stats.wilson_interval(k, n, conf) if n else (np.nan, np.nan)
-        prow.append({"precision": prec, "pairs": len(g), "catastrophic_none": n,
-                     "neutralised": k, "share_neutralised_pct": 100 * k / n if n else np.nan,
-                     "share_ci_lo_pct": 100 * lo, "share_ci_hi_pct": 100 * hi,
-                     "residual_catastrophic": int(g[cg].astype(bool).sum()),
-                     "worst_guarded_footprint_pct": 100 * float(g[fg].max())})
+        prow.append(
+            {
+                "precision": prec,
+                "pairs": len(g),
+                "catastrophic_none": n,
+                "neutralised": k,
+                "share_neutralised_pct": 100 * k / n if n else np.nan,
+                "share_ci_lo_pct": 100 * lo,
+                "share_ci_hi_pct": 100 * hi,
+                "residual_catastrophic": int(g[cg].astype(bool).sum()),
+                "worst_guarded_footprint_pct": 100 * float(g[fg].max()),
+            }
+        )
     ptab = _sort_prec_def(pd.DataFrame(prow))
     _tag(ptab, s[s["injection_id"].isin(p["injection_id"])] if "injection_id" in s else s)
 
@@ -516,31 +608,53 @@ def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -
     srow = []
     for prec, g in sp.groupby("precision", sort=False):
         a = capped_psnr(g.rename(columns={"psnr_none": "psnr", "nonfinite_none": "nonfinite"}))
-        b = capped_psnr(g.rename(columns={f"psnr_{guard}": "psnr",
-                                          f"nonfinite_{guard}": "nonfinite"}))
-        srow.append({"precision": prec, "pairs": len(g), "mean_psnr_none_db": a.mean(),
-                     "mean_psnr_guard_db": b.mean(), "median_psnr_none_db": a.median(),
-                     "median_psnr_guard_db": b.median(),
-                     "mean_footprint_none_pct": 100 * g["footprint_none"].mean(),
-                     "mean_footprint_guard_pct": 100 * g[fg].mean()})
-    stab = _sort_prec_def(pd.DataFrame(srow, columns=[
-        "precision", "pairs", "mean_psnr_none_db", "mean_psnr_guard_db", "median_psnr_none_db",
-        "median_psnr_guard_db", "mean_footprint_none_pct", "mean_footprint_guard_pct"]))
+        b = capped_psnr(g.rename(columns={f"psnr_{guard}": "psnr", f"nonfinite_{guard}": "nonfinite"}))
+        srow.append(
+            {
+                "precision": prec,
+                "pairs": len(g),
+                "mean_psnr_none_db": a.mean(),
+                "mean_psnr_guard_db": b.mean(),
+                "median_psnr_none_db": a.median(),
+                "median_psnr_guard_db": b.median(),
+                "mean_footprint_none_pct": 100 * g["footprint_none"].mean(),
+                "mean_footprint_guard_pct": 100 * g[fg].mean(),
+            }
+        )
+    stab = _sort_prec_def(
+        pd.DataFrame(
+            srow,
+            columns=[
+                "precision",
+                "pairs",
+                "mean_psnr_none_db",
+                "mean_psnr_guard_db",
+                "median_psnr_none_db",
+                "median_psnr_guard_db",
+                "mean_footprint_none_pct",
+                "mean_footprint_guard_pct",
+            ],
+        )
+    )
     _tag(stab, s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")])
 
     allg = s[s["defense"] == guard]
     tot = ptab[ptab["precision"] == "all"] if (ptab["precision"] == "all").any() else ptab
-    return {"summary": summary, "paired": ptab, "sign_psnr": stab,
-            "worst_guarded_footprint_pct": 100 * float(allg["footprint"].max()),
-            "residual_catastrophic": int(allg["catastrophic"].sum()),
-            "n_guarded": int(len(allg)),
-            "share_pct": float(tot["share_neutralised_pct"].iloc[0]) if len(tot) else np.nan}
+    return {
+        "summary": summary,
+        "paired": ptab,
+        "sign_psnr": stab,
+        "worst_guarded_footprint_pct": 100 * float(allg["footprint"].max()),
+        "residual_catastrophic": int(allg["catastrophic"].sum()),
+        "n_guarded": int(len(allg)),
+        "share_pct": float(tot["share_neutralised_pct"].iloc[0]) if len(tot) else np.nan,
+    }
 
 
 def _sort_prec_def(t: pd.DataFrame) -> pd.DataFrame:
     if t.empty:
         return t.reset_index(drop=True)
-    porder = {p: i for i, p in enumerate(formats.PRECISIONS + ("all",))}
+    porder = {p: i for i, p in enumerate(encoding.PRECISIONS + ("all",))}
     dorder = {x: i for i, x in enumerate(DEFENSES)}
     key = {}
     if "precision" in t:
@@ -555,9 +669,14 @@ def _sort_prec_def(t: pd.DataFrame) -> pd.DataFrame:
 
 # ------------------------------------------------------------------------------- mitigation
 
-def memory_overhead(defense: str, precision: str = "fp32", n_primitives: int | None = None,
-                    sh_degree: int = DEFAULT_SH_DEGREE, manifests: Iterable[dict] = ()
-                    ) -> tuple[float, str]:
+
+def memory_overhead(
+    defense: str,
+    precision: str = "fp32",
+    n_primitives: int | None = None,
+    sh_degree: int = DEFAULT_SH_DEGREE,
+    manifests: Iterable[dict] = (),
+) -> tuple[float, str]:
     """(fractional memory overhead, basis text) of a defense.
 
     A manifest may state it: ``manifest["memory_overhead"][defense]`` or
@@ -571,26 +690,32 @@ def memory_overhead(defense: str, precision: str = "fp32", n_primitives: int | N
     * dup: duplication with majority voting needs three copies (triple modular redundancy), +200%.
     """
     for m in manifests or ():
-        for src in (m.get("memory_overhead"), (m.get("defenses") or {}).get(defense),
-                    (m.get("spec", {}) or {}).get("memory_overhead")):
+        for src in (
+            m.get("memory_overhead"),
+            (m.get("defenses") or {}).get(defense),
+            (m.get("spec", {}) or {}).get("memory_overhead"),
+        ):
             if isinstance(src, dict):
                 v = src.get(defense) if defense in src else src.get("memory_overhead")
                 if isinstance(v, (int, float)):
                     return float(v), "from the run manifest"
-    bits = formats.BITS.get(precision, 32)
+    bits = encoding.BITS.get(precision, 32)
     comps = n_components(sh_degree)
     if defense == "none":
         return 0.0, "no redundancy"
     if defense in ("guard", "selective"):
-        guarded = (sum(field_components(f, sh_degree) for f in FIELDS if f != "sh_rest")
-                   if defense == "guard" else
-                   field_components("log_scales", sh_degree) + field_components("opacity", sh_degree))
+        guarded = (
+            sum(field_components(f, sh_degree) for f in FIELDS if f != "sh_rest")
+            if defense == "guard"
+            else field_components("log_scales", sh_degree) + field_components("opacity", sh_degree)
+        )
         if not n_primitives:
             return 0.0, f"2 x {guarded} fp32 box bounds per model (~0 per primitive)"
         frac = 2 * guarded * GUARD_BOX_BITS / (float(n_primitives) * comps * bits)
         return frac, f"2 x {guarded} fp32 box bounds per model, N = {int(n_primitives):,}"
     if defense == "ecc":
-        from .faults import ecc_check_bits  # the code the ECC defense simulates
+        from seuwgpu.faults.defenses import ecc_check_bits  # the code the ECC defense simulates
+
         chk = ecc_check_bits(precision)
         return chk / bits, f"SEC-DED over sign+exponent: {chk} check bits per {bits}-bit value"
     if defense == "dup":
@@ -598,8 +723,9 @@ def memory_overhead(defense: str, precision: str = "fp32", n_primitives: int | N
     return float("nan"), "unknown defense"
 
 
-def mitigation_table(df: pd.DataFrame, manifests: Iterable[dict] = (),
-                     precision: str | None = None, conf: float = 0.95) -> pd.DataFrame:
+def mitigation_table(
+    df: pd.DataFrame, manifests: Iterable[dict] = (), precision: str | None = None, conf: float = 0.95
+) -> pd.DataFrame:
     """none / guard / selective / ecc / dup on the shared fault grid at one precision.
 
     The shared grid is the set of fault sites (pair_keys) measured under every defense present;
@@ -615,9 +741,10 @@ def mitigation_table(df: pd.DataFrame, manifests: Iterable[dict] = (),
     s = s[s["precision"] == precision]
     defs = defenses_present(s)
     if len(defs) < 2:
-        raise InsufficientData(f"only defense(s) {', '.join(defs)} at {precision}",
-                               "run the single-upset campaign with --defenses none,guard,"
-                               "selective,ecc,dup")
+        raise InsufficientData(
+            f"only defense(s) {', '.join(defs)} at {precision}",
+            "run the single-upset campaign with --defenses none,guard,selective,ecc,dup",
+        )
     keys = pair_keys(s)
     sites = None
     for x in defs:
@@ -636,14 +763,20 @@ def mitigation_table(df: pd.DataFrame, manifests: Iterable[dict] = (),
         g = s[s["defense"] == x]
         ov, basis = memory_overhead(x, precision, n_prims, deg, manifests)
         tm = g["time_ms"].mean()
-        rows.append({"defense": x, "label": DEFENSE_LABELS.get(x, x), "n": len(g),
-                     "catastrophic": int(g["catastrophic"].sum()),
-                     "mean_footprint_pct": 100 * g["footprint"].mean(),
-                     "max_footprint_pct": 100 * g["footprint"].max(),
-                     "memory_overhead_pct": 100 * ov, "memory_basis": basis,
-                     "time_ms_mean": tm,
-                     "time_ratio": tm / t_none if np.isfinite(tm) and np.isfinite(t_none)
-                     and t_none > 0 else np.nan})
+        rows.append(
+            {
+                "defense": x,
+                "label": DEFENSE_LABELS.get(x, x),
+                "n": len(g),
+                "catastrophic": int(g["catastrophic"].sum()),
+                "mean_footprint_pct": 100 * g["footprint"].mean(),
+                "max_footprint_pct": 100 * g["footprint"].max(),
+                "memory_overhead_pct": 100 * ov,
+                "memory_basis": basis,
+                "time_ms_mean": tm,
+                "time_ratio": tm / t_none if np.isfinite(tm) and np.isfinite(t_none) and t_none > 0 else np.nan,
+            }
+        )
     out = pd.DataFrame(rows)
     rc = pd.DataFrame(_rate_columns(out["catastrophic"], out["n"], conf=conf))
     out = pd.concat([out.iloc[:, :4], rc, out.iloc[:, 4:]], axis=1)
@@ -651,6 +784,7 @@ def mitigation_table(df: pd.DataFrame, manifests: Iterable[dict] = (),
 
 
 # -------------------------------------------------------------------------------------- dose
+
 
 def dose_curves(df: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
     """PSNR against k per (precision, defense): mean, median, quartiles (clipped PSNR, see module
@@ -660,13 +794,17 @@ def dose_curves(df: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
         raise InsufficientData("no k > 1 records", "run a dose campaign (k simultaneous upsets)")
     d = d.assign(_psnr=capped_psnr(d))
     g = d.groupby(["precision", "defense", "k"], sort=False)
-    out = g.agg(n=("_psnr", "size"), psnr_mean_db=("_psnr", "mean"),
-                psnr_median_db=("_psnr", "median"),
-                psnr_q25_db=("_psnr", lambda x: x.quantile(0.25)),
-                psnr_q75_db=("_psnr", lambda x: x.quantile(0.75)),
-                ssim_mean=("ssim", "mean"), mean_footprint_pct=("footprint", "mean"),
-                catastrophic=("catastrophic", "sum"),
-                scenes=("scene", "nunique")).reset_index()
+    out = g.agg(
+        n=("_psnr", "size"),
+        psnr_mean_db=("_psnr", "mean"),
+        psnr_median_db=("_psnr", "median"),
+        psnr_q25_db=("_psnr", lambda x: x.quantile(0.25)),
+        psnr_q75_db=("_psnr", lambda x: x.quantile(0.75)),
+        ssim_mean=("ssim", "mean"),
+        mean_footprint_pct=("footprint", "mean"),
+        catastrophic=("catastrophic", "sum"),
+        scenes=("scene", "nunique"),
+    ).reset_index()
     out["mean_footprint_pct"] *= 100
     out["catastrophic"] = out["catastrophic"].astype(np.int64)
     rc = _rate_columns(out["catastrophic"], out["n"], conf=conf)
@@ -713,11 +851,19 @@ def redundancy_budget(df: pd.DataFrame, threshold_db: float = BUDGET_PSNR_DB) ->
         if len(m) < 2:
             continue
         kb, cens = crossing_k(m.index.to_numpy(), m.to_numpy(), threshold_db)
-        rows.append(dict(zip(keys, key), n=len(g), k_min=int(m.index.min()),
-                         k_max=int(m.index.max()), n_k=len(m), k_budget=kb, censored=cens))
+        rows.append(
+            dict(
+                zip(keys, key),
+                n=len(g),
+                k_min=int(m.index.min()),
+                k_max=int(m.index.max()),
+                n_k=len(m),
+                k_budget=kb,
+                censored=cens,
+            )
+        )
     if not rows:
-        raise InsufficientData("no dose sweep with two or more k values",
-                               "run a dose campaign sweeping k")
+        raise InsufficientData("no dose sweep with two or more k values", "run a dose campaign sweeping k")
     out = _sort_prec_def(pd.DataFrame(rows).sort_values(["scene", "n_primitives"]))
     return _tag(out, d, threshold_db=threshold_db)
 
@@ -748,28 +894,38 @@ def size_scaling(df: pd.DataFrame) -> dict:
     src = "size" if (d["campaign"] == "size").any() else "dose"
     d = d[d["campaign"] == src]
     if d.empty or "n_primitives" not in d:
-        raise InsufficientData("no uniform single-upset records at several primitive counts",
-                               "run a size campaign (single upsets on subsampled models)")
+        raise InsufficientData(
+            "no uniform single-upset records at several primitive counts",
+            "run a size campaign (single upsets on subsampled models)",
+        )
     nn = d.groupby("scene")["n_primitives"].nunique()
     if not (nn >= 2).any():
-        raise InsufficientData("single-upset records at only one primitive count per scene",
-                               "run a size campaign (single upsets on subsampled models)")
+        raise InsufficientData(
+            "single-upset records at only one primitive count per scene",
+            "run a size campaign (single upsets on subsampled models)",
+        )
     d = d[d["scene"].isin(nn[nn >= 2].index)]
     d = d.assign(_mse=mse_from_psnr(d))
     rows = []
     for key, g in d.groupby(["scene", "precision", "defense", "n_primitives"], sort=False):
         mse = g["_mse"].to_numpy(float)
-        w = (g["weight"].to_numpy(float) if "weight" in g and g["weight"].notna().all()
-             else np.ones(len(g)))
+        w = g["weight"].to_numpy(float) if "weight" in g and g["weight"].notna().all() else np.ones(len(g))
         fin = np.isfinite(mse)
         foot = g["footprint"].to_numpy(float)
-        rows.append({"scene": key[0], "precision": key[1], "defense": key[2],
-                     "n_primitives": int(key[3]), "n": len(g),
-                     "median_mse": _wquantile(mse, w, 0.5),
-                     "mean_mse": float(np.average(mse[fin], weights=w[fin])) if fin.any() else np.nan,
-                     "n_nonfinite": int((~fin).sum()),
-                     "median_footprint_pct": 100 * _wquantile(foot, w, 0.5),
-                     "mean_footprint_pct": 100 * float(np.average(foot, weights=w))})
+        rows.append(
+            {
+                "scene": key[0],
+                "precision": key[1],
+                "defense": key[2],
+                "n_primitives": int(key[3]),
+                "n": len(g),
+                "median_mse": _wquantile(mse, w, 0.5),
+                "mean_mse": float(np.average(mse[fin], weights=w[fin])) if fin.any() else np.nan,
+                "n_nonfinite": int((~fin).sum()),
+                "median_footprint_pct": 100 * _wquantile(foot, w, 0.5),
+                "mean_footprint_pct": 100 * float(np.average(foot, weights=w)),
+            }
+        )
     table = _sort_prec_def(pd.DataFrame(rows).sort_values(["scene", "n_primitives"]))
     _tag(table, d, source_campaign=src)
     frows = []
@@ -780,10 +936,19 @@ def size_scaling(df: pd.DataFrame) -> dict:
                 exp_, icpt, r2 = f
             except ValueError:
                 exp_ = icpt = r2 = np.nan
-            frows.append({"scene": key[0], "precision": key[1], "defense": key[2],
-                          "metric": metric, "n_sizes": len(g), "exponent": exp_,
-                          "alpha": -exp_ if np.isfinite(exp_) else np.nan,
-                          "log10_prefactor": icpt, "r2": r2})
+            frows.append(
+                {
+                    "scene": key[0],
+                    "precision": key[1],
+                    "defense": key[2],
+                    "metric": metric,
+                    "n_sizes": len(g),
+                    "exponent": exp_,
+                    "alpha": -exp_ if np.isfinite(exp_) else np.nan,
+                    "log10_prefactor": icpt,
+                    "r2": r2,
+                }
+            )
     fits = _tag(_sort_prec_def(pd.DataFrame(frows)), d)
     grows = []
     for (scene, prec), g in table.groupby(["scene", "precision"], sort=False):
@@ -791,20 +956,26 @@ def size_scaling(df: pd.DataFrame) -> dict:
         a = top.loc[top["defense"] == "none", "mean_mse"]
         b = top.loc[top["defense"] == "guard", "mean_mse"]
         if len(a) and len(b):
-            grows.append({"scene": scene, "precision": prec,
-                          "n_primitives": int(top["n_primitives"].iloc[0]),
-                          "mean_mse_none": float(a.iloc[0]), "mean_mse_guard": float(b.iloc[0]),
-                          "guard_factor": float(a.iloc[0] / b.iloc[0]) if b.iloc[0] > 0
-                          else np.inf})
+            grows.append(
+                {
+                    "scene": scene,
+                    "precision": prec,
+                    "n_primitives": int(top["n_primitives"].iloc[0]),
+                    "mean_mse_none": float(a.iloc[0]),
+                    "mean_mse_guard": float(b.iloc[0]),
+                    "guard_factor": float(a.iloc[0] / b.iloc[0]) if b.iloc[0] > 0 else np.inf,
+                }
+            )
     gf = _tag(pd.DataFrame(grows), d)
     return {"table": table, "fits": fits, "guard_factor": gf, "source_campaign": src}
 
 
 # ------------------------------------------------------------------------------- reliability
 
+
 def cell_weights(precision: str, sh_degree: int = DEFAULT_SH_DEGREE) -> dict[tuple[str, int], float]:
     """Share of the stored bit budget in each (field, bit) cell: a uniform upset's distribution."""
-    bits = formats.BITS[precision]
+    bits = encoding.BITS[precision]
     comps = n_components(sh_degree)
     w = {}
     for f in FIELDS:
@@ -816,8 +987,7 @@ def cell_weights(precision: str, sh_degree: int = DEFAULT_SH_DEGREE) -> dict[tup
     return w
 
 
-def catastrophe_probability(df: pd.DataFrame, manifests: Iterable[dict] = (),
-                            conf: float = 0.95) -> pd.DataFrame:
+def catastrophe_probability(df: pd.DataFrame, manifests: Iterable[dict] = (), conf: float = 0.95) -> pd.DataFrame:
     """p_c per (precision, defense): stratified from the single-upset campaign (each cell weighted
     by its share of stored bits; Wilson interval at the Kish effective n), plus the direct estimate
     from k = 1 records of a dose campaign where present (source column says which).
@@ -828,33 +998,55 @@ def catastrophe_probability(df: pd.DataFrame, manifests: Iterable[dict] = (),
     s = single_upsets(d, None, None)
     s = s[s["bit"] >= 0]
     for (prec, dfn), g in s.groupby(["precision", "defense"], sort=False):
-        if prec not in formats.BITS:
+        if prec not in encoding.BITS:
             continue
         w = cell_weights(prec, deg)
-        cells = g.groupby(["field", "bit"]).agg(k=("catastrophic", "sum"),
-                                                n=("catastrophic", "size"))
+        cells = g.groupby(["field", "bit"]).agg(k=("catastrophic", "sum"), n=("catastrophic", "size"))
         cw = np.array([w.get(ix, 0.0) for ix in cells.index])
         if cw.sum() <= 0:
             continue
         p, lo, hi, neff = stats.stratified_rate(cells["k"], cells["n"], cw, conf)
-        rows.append({"precision": prec, "defense": dfn, "source": "single (stratified)",
-                     "p_c": p, "ci_lo": lo, "ci_hi": hi, "n": len(g), "n_eff": neff,
-                     "coverage_pct": 100 * cw.sum(), "sh_degree": deg})
+        rows.append(
+            {
+                "precision": prec,
+                "defense": dfn,
+                "source": "single (stratified)",
+                "p_c": p,
+                "ci_lo": lo,
+                "ci_hi": hi,
+                "n": len(g),
+                "n_eff": neff,
+                "coverage_pct": 100 * cw.sum(),
+                "sh_degree": deg,
+            }
+        )
     dz = d[(d["campaign"] == "dose") & (d["k"] == 1)]
     for (prec, dfn), g in dz.groupby(["precision", "defense"], sort=False):
         k, n = int(g["catastrophic"].sum()), len(g)
         lo, hi = stats.wilson_interval(k, n, conf)
-        rows.append({"precision": prec, "defense": dfn, "source": "dose k=1 (uniform)",
-                     "p_c": k / n, "ci_lo": lo, "ci_hi": hi, "n": n, "n_eff": float(n),
-                     "coverage_pct": 100.0, "sh_degree": deg})
+        rows.append(
+            {
+                "precision": prec,
+                "defense": dfn,
+                "source": "dose k=1 (uniform)",
+                "p_c": k / n,
+                "ci_lo": lo,
+                "ci_hi": hi,
+                "n": n,
+                "n_eff": float(n),
+                "coverage_pct": 100.0,
+                "sh_degree": deg,
+            }
+        )
     if not rows:
-        raise InsufficientData("no single-upset records to estimate p_c",
-                               "run a single-upset campaign over all fields and bits")
+        raise InsufficientData(
+            "no single-upset records to estimate p_c", "run a single-upset campaign over all fields and bits"
+        )
     out = _sort_prec_def(pd.DataFrame(rows))
     return _tag(out, pd.concat([s, dz]))
 
 
-def _pc_lookup(pc: pd.DataFrame, precision: str, defense: str):
+def pc_lookup(pc: pd.DataFrame, precision: str, defense: str):
     g = pc[(pc["precision"] == precision) & (pc["defense"] == defense)]
     if g.empty:
         return None
@@ -862,8 +1054,9 @@ def _pc_lookup(pc: pd.DataFrame, precision: str, defense: str):
     return (pref if len(pref) else g).iloc[0]
 
 
-def dose_model(df: pd.DataFrame, pc: pd.DataFrame | None = None, conf: float = 0.95,
-               manifests: Iterable[dict] = ()) -> pd.DataFrame:
+def dose_model(
+    df: pd.DataFrame, pc: pd.DataFrame | None = None, conf: float = 0.95, manifests: Iterable[dict] = ()
+) -> pd.DataFrame:
     """Measured catastrophic fraction against 1 - (1 - p_c)^k per (precision, defense, k).
 
     `within_ci` says whether the model lies inside the Wilson interval of the measurement."""
@@ -872,21 +1065,29 @@ def dose_model(df: pd.DataFrame, pc: pd.DataFrame | None = None, conf: float = 0
         pc = catastrophe_probability(df, manifests, conf)
     rows = []
     for _, r in curves.iterrows():
-        ref = _pc_lookup(pc, r["precision"], r["defense"])
+        ref = pc_lookup(pc, r["precision"], r["defense"])
         p = ref["p_c"] if ref is not None else np.nan
         lo = ref["ci_lo"] if ref is not None else np.nan
         hi = ref["ci_hi"] if ref is not None else np.nan
         k = r["k"]
         model = 1 - (1 - p) ** k
         meas = r["cat_rate_pct"] / 100
-        rows.append({"precision": r["precision"], "defense": r["defense"], "k": int(k),
-                     "n": int(r["n"]), "measured_pct": 100 * meas,
-                     "measured_ci_lo_pct": r["cat_ci_lo_pct"],
-                     "measured_ci_hi_pct": r["cat_ci_hi_pct"], "p_c": p,
-                     "model_pct": 100 * model, "model_lo_pct": 100 * (1 - (1 - lo) ** k),
-                     "model_hi_pct": 100 * (1 - (1 - hi) ** k),
-                     "within_ci": bool(np.isfinite(model) and r["cat_ci_lo_pct"] <= 100 * model
-                                       <= r["cat_ci_hi_pct"])})
+        rows.append(
+            {
+                "precision": r["precision"],
+                "defense": r["defense"],
+                "k": int(k),
+                "n": int(r["n"]),
+                "measured_pct": 100 * meas,
+                "measured_ci_lo_pct": r["cat_ci_lo_pct"],
+                "measured_ci_hi_pct": r["cat_ci_hi_pct"],
+                "p_c": p,
+                "model_pct": 100 * model,
+                "model_lo_pct": 100 * (1 - (1 - lo) ** k),
+                "model_hi_pct": 100 * (1 - (1 - hi) ** k),
+                "within_ci": bool(np.isfinite(model) and r["cat_ci_lo_pct"] <= 100 * model <= r["cat_ci_hi_pct"]),
+            }
+        )
     out = pd.DataFrame(rows)
     out.attrs.update(curves.attrs)
     return out
@@ -913,14 +1114,15 @@ def model_bits(df: pd.DataFrame, precision: str, sh_degree: int = DEFAULT_SH_DEG
     (single-upset campaign when present) x components per primitive x bits per value."""
     d = prepare(df)
     single = d[d["campaign"] == "single"]
-    d = single if len(single) else d           # size campaigns subsample: not the deployed model
+    d = single if len(single) else d  # size campaigns subsample: not the deployed model
     d = d[d["precision"] == precision] if (d["precision"] == precision).any() else d
     n = d.groupby("scene")["n_primitives"].max().mean()
-    return float(n) * n_components(sh_degree) * formats.BITS[precision]
+    return float(n) * n_components(sh_degree) * encoding.BITS[precision]
 
 
-def mtbf_table(pc: pd.DataFrame, bits: float, precision: str, rates=UPSET_RATES,
-               defenses: tuple[str, ...] = ("none", "guard")) -> pd.DataFrame:
+def mtbf_table(
+    pc: pd.DataFrame, bits: float, precision: str, rates=UPSET_RATES, defenses: tuple[str, ...] = ("none", "guard")
+) -> pd.DataFrame:
     """Mean time between catastrophic frames, 1 / (rate x bits x p_c), per environment/defense.
 
     Each upset is assumed to persist until scrubbed, so every catastrophic upset yields
@@ -930,29 +1132,44 @@ def mtbf_table(pc: pd.DataFrame, bits: float, precision: str, rates=UPSET_RATES,
     for env in rates:
         lam = float(env["per_bit_hour"])
         for dfn in defenses:
-            ref = _pc_lookup(pc, precision, dfn)
+            ref = pc_lookup(pc, precision, dfn)
             if ref is None:
                 continue
             p, lo, hi = float(ref["p_c"]), float(ref["ci_lo"]), float(ref["ci_hi"])
 
-            def t(x):
+            def t(x, lam=lam):
                 return 1.0 / (lam * bits * x) if x > 0 else np.inf
-            rows.append({"environment": env["environment"], "upsets_per_bit_hour": lam,
-                         "fit_per_mbit": lam * 1e15, "precision": precision,
-                         "model_bits": bits, "defense": dfn, "p_c": p,
-                         "mtbf_hours": t(p), "mtbf_hours_lo": t(hi), "mtbf_hours_hi": t(lo),
-                         "mtbf": (format_duration(t(p)) if p > 0
-                                  else f"> {format_duration(t(hi))}"),
-                         "mtbf_range": f"{format_duration(t(hi))} .. {format_duration(t(lo))}",
-                         "source": env["source"]})
+
+            rows.append(
+                {
+                    "environment": env["environment"],
+                    "upsets_per_bit_hour": lam,
+                    "fit_per_mbit": lam * 1e15,
+                    "precision": precision,
+                    "model_bits": bits,
+                    "defense": dfn,
+                    "p_c": p,
+                    "mtbf_hours": t(p),
+                    "mtbf_hours_lo": t(hi),
+                    "mtbf_hours_hi": t(lo),
+                    "mtbf": (format_duration(t(p)) if p > 0 else f"> {format_duration(t(hi))}"),
+                    "mtbf_range": f"{format_duration(t(hi))} .. {format_duration(t(lo))}",
+                    "source": env["source"],
+                }
+            )
     out = pd.DataFrame(rows)
     out.attrs.update(pc.attrs)
     return out
 
 
-def reliability(df: pd.DataFrame, manifests: Iterable[dict] = (), rates=UPSET_RATES,
-                bits: float | None = None, precision: str | None = None,
-                conf: float = 0.95) -> dict:
+def reliability(
+    df: pd.DataFrame,
+    manifests: Iterable[dict] = (),
+    rates=UPSET_RATES,
+    bits: float | None = None,
+    precision: str | None = None,
+    conf: float = 0.95,
+) -> dict:
     """p_c from the data, the dose model against the measured curve (when dose records exist),
     and the MTBF of catastrophic frames for ground / avionics / LEO rates, with and without guard.
     Returns {"pc", "dose_model" (None without dose records), "mtbf", "mtbf_wide", "bits",
@@ -971,62 +1188,37 @@ def reliability(df: pd.DataFrame, manifests: Iterable[dict] = (), rates=UPSET_RA
         notes.append(f"dose model not compared: {e.reason} ({e.remedy})")
     low_cov = pc[pc["coverage_pct"] < 99.999]
     for _, r in low_cov.iterrows():
-        notes.append(f"p_c at {r['precision']}/{r['defense']} covers only "
-                     f"{r['coverage_pct']:.1f}% of the stored bits (unsampled cells excluded)")
+        notes.append(
+            f"p_c at {r['precision']}/{r['defense']} covers only "
+            f"{r['coverage_pct']:.1f}% of the stored bits (unsampled cells excluded)"
+        )
     mt = mtbf_table(pc, bits, precision, rates)
     d = prepare(df)
-    used = d[(d["precision"] == precision) & d["defense"].isin(["none", "guard"])
-             & (((d["campaign"] == "single") & (d["k"] == 1))
-                | ((d["campaign"] == "dose") & (d["k"] == 1)))]
+    used = d[
+        (d["precision"] == precision)
+        & d["defense"].isin(["none", "guard"])
+        & (((d["campaign"] == "single") & (d["k"] == 1)) | ((d["campaign"] == "dose") & (d["k"] == 1)))
+    ]
     mt.attrs["provenance"] = provenance(used)
     wide = None
     if len(mt):
-        wide = mt.pivot_table(index="environment", columns="defense", values="mtbf",
-                              aggfunc="first", sort=False)
+        wide = mt.pivot_table(index="environment", columns="defense", values="mtbf", aggfunc="first", sort=False)
         wide = wide.reindex(columns=[c for c in ("none", "guard") if c in wide.columns])
         wide = wide.reset_index().rename(columns={"none": "no guard", "guard": "support guard"})
         wide.columns.name = None
         wide.attrs.update(mt.attrs)
-    return {"pc": pc, "dose_model": dm, "mtbf": mt, "mtbf_wide": wide, "bits": bits,
-            "precision": precision, "notes": notes}
+    return {
+        "pc": pc,
+        "dose_model": dm,
+        "mtbf": mt,
+        "mtbf_wide": wide,
+        "bits": bits,
+        "precision": precision,
+        "notes": notes,
+    }
 
 
 # ------------------------------------------------------------------ distributed contamination
-
-def region_grid(P: int, H: int | None = None, W: int | None = None) -> tuple[int, int]:
-    """(rows, cols) of a P-way sort-first screen partition, as square as possible.
-
-    rows is the largest divisor of P not above sqrt(P), cols = P // rows; for a portrait image
-    (H > W) the two are swapped so the longer screen side gets more regions."""
-    P = int(P)
-    if P < 1:
-        raise ValueError("P must be >= 1")
-    r = int(math.isqrt(P))
-    while P % r:
-        r -= 1
-    rows, cols = r, P // r
-    if H is not None and W is not None and H > W:
-        rows, cols = cols, rows
-    return rows, cols
-
-
-def _edges(n: int, parts: int) -> np.ndarray:
-    return (np.arange(parts + 1) * n) // parts
-
-
-def region_edges(P: int, H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
-    """Row and column pixel edges of the P-way grid: region (i, j) spans rows ey[i]..ey[i+1]-1
-    and columns ex[j]..ex[j+1]-1."""
-    rows, cols = region_grid(P, H, W)
-    return _edges(H, rows), _edges(W, cols)
-
-
-def region_id_map(P: int, H: int, W: int) -> np.ndarray:
-    """[H, W] region index (row-major) of every pixel, consistent with region_set."""
-    ey, ex = region_edges(P, H, W)
-    ry = np.searchsorted(ey, np.arange(H), side="right") - 1
-    rx = np.searchsorted(ex, np.arange(W), side="right") - 1
-    return (ry[:, None] * (len(ex) - 1) + rx[None, :]).astype(np.int64)
 
 
 def region_set(changed_mask_or_bbox, H: int, W: int, P: int) -> np.ndarray:
@@ -1063,12 +1255,12 @@ def region_set(changed_mask_or_bbox, H: int, W: int, P: int) -> np.ndarray:
     if m.shape != (H, W):
         raise ValueError(f"mask shape {m.shape} does not match the screen ({H}, {W})")
     for i in range(rows):
-        band = m[ey[i]:ey[i + 1]]
+        band = m[ey[i] : ey[i + 1]]
         if not band.any():
             continue
         colany = band.any(axis=0)
         for j in range(cols):
-            out[i * cols + j] = bool(colany[ex[j]:ex[j + 1]].any())
+            out[i * cols + j] = bool(colany[ex[j] : ex[j + 1]].any())
     return out
 
 
@@ -1096,7 +1288,7 @@ def decode_regions(value, P: int) -> np.ndarray | None:
     if isinstance(value, (float, np.floating)):
         if math.isnan(value):
             return None
-        if float(value).is_integer():   # an integer column widened to float by missing values
+        if float(value).is_integer():  # an integer column widened to float by missing values
             value = int(value)
     out = np.zeros(P, dtype=bool)
     if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)):
@@ -1171,8 +1363,7 @@ def _region_stats(pred_col: pd.Series, meas_col: pd.Series, P: int):
     meas = [decode_regions(v, P) for v in meas_col]
     npred = np.array([np.nan if x is None else x.sum() for x in pred], dtype=float)
     nmeas = np.array([np.nan if x is None else x.sum() for x in meas], dtype=float)
-    iou = np.array([np.nan if (x is None or y is None) else region_iou(x, y)
-                    for x, y in zip(pred, meas)], dtype=float)
+    iou = np.array([np.nan if (x is None or y is None) else region_iou(x, y) for x, y in zip(pred, meas)], dtype=float)
     return npred, nmeas, iou
 
 
@@ -1199,30 +1390,46 @@ def contamination(df: pd.DataFrame) -> pd.DataFrame:
     d = single_upsets(df, None, None)
     ps = contamination_partitions(d)
     if not ps or d.empty:
-        raise InsufficientData("no regions_pred_P / regions_meas_P columns in the records",
-                               "run a single-upset campaign with regions = [4, 16, 64] in its [single] "
-                               "table (sort-first partitions; `seuwgpu distributed` times the regions)")
+        raise InsufficientData(
+            "no regions_pred_P / regions_meas_P columns in the records",
+            "run a single-upset campaign with regions = [4, 16, 64] in its [single] "
+            "table (sort-first partitions; `seuwgpu distributed` times the regions)",
+        )
     rows = []
     for P in ps:
         npred, nmeas, iou = _region_stats(d[f"regions_pred_{P}"], d[f"regions_meas_{P}"], P)
         tmax = d.get(f"region_ms_max_{P}")
         tmean = d.get(f"region_ms_mean_{P}")
-        e = pd.DataFrame({"precision": d["precision"].to_numpy(),
-                          "defense": d["defense"].to_numpy(),
-                          "sign_scale": ((d["field"] == "log_scales")
-                                         & (d["bit_class"] == "sign")).to_numpy(),
-                          "fp": npred / P, "fm": nmeas / P, "iou": iou,
-                          "tmax": np.nan if tmax is None else pd.to_numeric(tmax).to_numpy(float),
-                          "tmean": np.nan if tmean is None else pd.to_numeric(tmean).to_numpy(float)})
+        e = pd.DataFrame(
+            {
+                "precision": d["precision"].to_numpy(),
+                "defense": d["defense"].to_numpy(),
+                "sign_scale": ((d["field"] == "log_scales") & (d["bit_class"] == "sign")).to_numpy(),
+                "fp": npred / P,
+                "fm": nmeas / P,
+                "iou": iou,
+                "tmax": np.nan if tmax is None else pd.to_numeric(tmax).to_numpy(float),
+                "tmean": np.nan if tmean is None else pd.to_numeric(tmean).to_numpy(float),
+            }
+        )
         for subset, sel in (("all single upsets", slice(None)), ("log-scale sign", e["sign_scale"])):
             es = e[sel] if not isinstance(sel, slice) else e
             for (prec, dfn), g in es.groupby(["precision", "defense"], sort=False):
-                rows.append({"subset": subset, "precision": prec, "defense": dfn, "P": P,
-                             "n": len(g), "pred_fraction_pct": 100 * g["fp"].mean(),
-                             "meas_fraction_pct": 100 * g["fm"].mean(),
-                             "iou_mean": g["iou"].mean(), "n_iou": int(g["iou"].notna().sum()),
-                             "slowest_region_ms": g["tmax"].mean(),
-                             "imbalance": (g["tmax"] / g["tmean"]).mean()})
+                rows.append(
+                    {
+                        "subset": subset,
+                        "precision": prec,
+                        "defense": dfn,
+                        "P": P,
+                        "n": len(g),
+                        "pred_fraction_pct": 100 * g["fp"].mean(),
+                        "meas_fraction_pct": 100 * g["fm"].mean(),
+                        "iou_mean": g["iou"].mean(),
+                        "n_iou": int(g["iou"].notna().sum()),
+                        "slowest_region_ms": g["tmax"].mean(),
+                        "imbalance": (g["tmax"] / g["tmean"]).mean(),
+                    }
+                )
     out = pd.DataFrame(rows)
     out = out.sort_values(["subset", "precision", "defense", "P"], kind="stable").reset_index(drop=True)
     return _tag(out, d)
@@ -1242,11 +1449,16 @@ def prediction_features(d: pd.DataFrame) -> pd.DataFrame:
         la = np.log10(np.abs(v))
     la = np.where(v == 0, -46.0, la)
     la = np.where(~np.isfinite(v), 39.0, la)
-    return pd.DataFrame({"field": d["field"].astype(str).to_numpy(),
-                         "bit": d["bit"].to_numpy(np.int64).astype(float),
-                         "bit_class": d["bit_class"].astype(str).to_numpy(),
-                         "log_abs_value": la,
-                         "sign": np.signbit(v).astype(float)}, index=d.index)
+    return pd.DataFrame(
+        {
+            "field": d["field"].astype(str).to_numpy(),
+            "bit": d["bit"].to_numpy(np.int64).astype(float),
+            "bit_class": d["bit_class"].astype(str).to_numpy(),
+            "log_abs_value": la,
+            "sign": np.signbit(v).astype(float),
+        },
+        index=d.index,
+    )
 
 
 def _classifier(features, seed):
@@ -1256,18 +1468,31 @@ def _classifier(features, seed):
     from sklearn.preprocessing import OneHotEncoder
 
     cat = [f for f in features if f in ("field", "bit_class")]
-    pre = ColumnTransformer([("cat", OneHotEncoder(handle_unknown="ignore", sparse_output=False),
-                              cat)], remainder="passthrough")
+    pre = ColumnTransformer(
+        [("cat", OneHotEncoder(handle_unknown="ignore", sparse_output=False), cat)], remainder="passthrough"
+    )
     # early stopping on a 10% validation split (log-loss, 10 rounds without improvement)
-    clf = HistGradientBoostingClassifier(max_iter=200, learning_rate=0.1, max_leaf_nodes=31,
-                                         early_stopping=True, validation_fraction=0.1,
-                                         n_iter_no_change=10, random_state=seed)
+    clf = HistGradientBoostingClassifier(
+        max_iter=200,
+        learning_rate=0.1,
+        max_leaf_nodes=31,
+        early_stopping=True,
+        validation_fraction=0.1,
+        n_iter_no_change=10,
+        random_state=seed,
+    )
     return Pipeline([("pre", pre), ("clf", clf)])
 
 
-def prediction(df: pd.DataFrame, precision: str | None = None, seed: int = 0,
-               max_rows: int = 200_000, test_size: float = 0.3, n_repeats: int = 5,
-               n_threads: int | None = 1) -> dict:
+def prediction(
+    df: pd.DataFrame,
+    precision: str | None = None,
+    seed: int = 0,
+    max_rows: int = 200_000,
+    test_size: float = 0.3,
+    n_repeats: int = 5,
+    n_threads: int | None = 1,
+) -> dict:
     """Predict "catastrophic" from static fault-site features (single-upset campaign, no defense,
     one precision: the bit index means different things in different formats).
 
@@ -1277,9 +1502,8 @@ def prediction(df: pd.DataFrame, precision: str | None = None, seed: int = 0,
     permutation importance (drop in held-out AUC) of the full model.
     Returns {"summary", "importance", "loso", "top_feature", "roc", "precision"}.
     """
-    from threadpoolctl import threadpool_limits
-
     import sklearn.ensemble  # noqa: F401  (load its OpenMP runtime before limiting it)
+    from threadpoolctl import threadpool_limits
 
     # One OpenMP thread by default: on small or shared machines gradient boosting with several
     # spinning threads can be 20x slower than with one (seen on a loaded 2-core CI box).
@@ -1300,14 +1524,14 @@ def _prediction(df, precision, seed, max_rows, test_size, n_repeats) -> dict:
     y = s["catastrophic"].astype(bool).to_numpy()
     npos, nneg = int(y.sum()), int((~y).sum())
     if npos < 5 or nneg < 5:
-        raise InsufficientData(f"too few catastrophic ({npos}) or benign ({nneg}) upsets at "
-                               f"{precision} to train a classifier (need >= 5 of each)",
-                               "run a larger single-upset campaign")
+        raise InsufficientData(
+            f"too few catastrophic ({npos}) or benign ({nneg}) upsets at "
+            f"{precision} to train a classifier (need >= 5 of each)",
+            "run a larger single-upset campaign",
+        )
     X = prediction_features(s)
-    idx_tr, idx_te = train_test_split(np.arange(len(s)), test_size=test_size, stratify=y,
-                                      random_state=seed)
-    models = {"field+bit+class+value": list(PREDICTION_FEATURES),
-              "field+bit": list(FIELD_BIT_FEATURES)}
+    idx_tr, idx_te = train_test_split(np.arange(len(s)), test_size=test_size, stratify=y, random_state=seed)
+    models = {"field+bit+class+value": list(PREDICTION_FEATURES), "field+bit": list(FIELD_BIT_FEATURES)}
     rows, loso_rows, roc = [], [], {}
     fitted = {}
     scenes = _uniq(s["scene"])
@@ -1326,32 +1550,56 @@ def _prediction(df, precision, seed, max_rows, test_size, n_repeats) -> dict:
                     continue
                 ms = _classifier(feats, seed).fit(X[~te][feats], y[~te])
                 a_s = stats.auc(y[te], ms.predict_proba(X[te][feats])[:, 1])
-                loso_rows.append({"model": name, "held_out_scene": sc, "n": int(te.sum()),
-                                  "positives": int(y[te].sum()), "auc": a_s})
+                loso_rows.append(
+                    {"model": name, "held_out_scene": sc, "n": int(te.sum()), "positives": int(y[te].sum()), "auc": a_s}
+                )
                 if np.isfinite(a_s):
                     aucs.append(a_s)
-        rows.append({"model": name, "features": ", ".join(feats), "auc_holdout": a,
-                     "loso_auc_mean": float(np.mean(aucs)) if aucs else np.nan,
-                     "loso_auc_min": float(np.min(aucs)) if aucs else np.nan,
-                     "n_train": len(idx_tr), "n_test": len(idx_te), "positives": npos})
+        rows.append(
+            {
+                "model": name,
+                "features": ", ".join(feats),
+                "auc_holdout": a,
+                "loso_auc_mean": float(np.mean(aucs)) if aucs else np.nan,
+                "loso_auc_min": float(np.min(aucs)) if aucs else np.nan,
+                "n_train": len(idx_tr),
+                "n_test": len(idx_te),
+                "positives": npos,
+            }
+        )
     full = list(PREDICTION_FEATURES)
-    pi = permutation_importance(fitted["field+bit+class+value"], X.iloc[idx_te][full], y[idx_te],
-                                scoring="roc_auc", n_repeats=n_repeats, random_state=seed)
-    imp = pd.DataFrame({"feature": full, "importance_mean": pi.importances_mean,
-                        "importance_std": pi.importances_std}
-                       ).sort_values("importance_mean", ascending=False).reset_index(drop=True)
+    pi = permutation_importance(
+        fitted["field+bit+class+value"],
+        X.iloc[idx_te][full],
+        y[idx_te],
+        scoring="roc_auc",
+        n_repeats=n_repeats,
+        random_state=seed,
+    )
+    imp = (
+        pd.DataFrame({"feature": full, "importance_mean": pi.importances_mean, "importance_std": pi.importances_std})
+        .sort_values("importance_mean", ascending=False)
+        .reset_index(drop=True)
+    )
     summary = _tag(pd.DataFrame(rows), s, precision=precision)
     _tag(imp, s, precision=precision)
-    loso = _tag(pd.DataFrame(loso_rows, columns=["model", "held_out_scene", "n", "positives",
-                                                 "auc"]), s)
-    return {"summary": summary, "importance": imp, "loso": loso,
-            "top_feature": str(imp["feature"].iloc[0]), "roc": roc, "precision": precision}
+    loso = _tag(pd.DataFrame(loso_rows, columns=["model", "held_out_scene", "n", "positives", "auc"]), s)
+    return {
+        "summary": summary,
+        "importance": imp,
+        "loso": loso,
+        "top_feature": str(imp["feature"].iloc[0]),
+        "roc": roc,
+        "precision": precision,
+    }
 
 
 # ---------------------------------------------------------------------------------- figures
 
+
 def _figure(w=6.4, h=4.0):
     from matplotlib.figure import Figure
+
     return Figure(figsize=(w, h), dpi=110, layout="constrained")
 
 
@@ -1360,7 +1608,7 @@ def plot_field_bit_heatmap(table: pd.DataFrame, precisions: list[str] | None = N
     Cells with zero mean footprint are drawn grey; unsampled cells white."""
     from matplotlib.colors import LogNorm
 
-    precisions = precisions or [p for p in formats.PRECISIONS if p in set(table["precision"])]
+    precisions = precisions or [p for p in encoding.PRECISIONS if p in set(table["precision"])]
     mats = {p: heatmap_matrix(table, p) for p in precisions}
     vals = np.concatenate([m.to_numpy(float).ravel() for m in mats.values()]) if mats else []
     pos = np.asarray(vals)[np.isfinite(vals) & (np.asarray(vals) > 0)] if len(vals) else []
@@ -1373,20 +1621,23 @@ def plot_field_bit_heatmap(table: pd.DataFrame, precisions: list[str] | None = N
         m = mats[p]
         a = m.to_numpy(float)
         zero = np.isfinite(a) & (a <= 0)
-        ax.imshow(np.where(zero, 1.0, np.nan), cmap="Greys", vmin=0, vmax=4, aspect="auto",
-                  interpolation="nearest")
-        im = ax.imshow(np.ma.masked_where(~(a > 0), a), norm=LogNorm(vmin=vmin, vmax=vmax),
-                       cmap="magma", aspect="auto", interpolation="nearest")
+        ax.imshow(np.where(zero, 1.0, np.nan), cmap="Greys", vmin=0, vmax=4, aspect="auto", interpolation="nearest")
+        im = ax.imshow(
+            np.ma.masked_where(~(a > 0), a),
+            norm=LogNorm(vmin=vmin, vmax=vmax),
+            cmap="magma",
+            aspect="auto",
+            interpolation="nearest",
+        )
         ax.set_yticks(range(len(m.index)), [FIELD_LABELS.get(f, f) for f in m.index])
         nb = a.shape[1]
         step = 1 if nb <= 16 else 2
         ax.set_xticks(range(0, nb, step))
         ax.set_xticklabels([str(b) for b in range(0, nb, step)], fontsize=7)
-        man, exp = formats.LAYOUT.get(p, (nb - 9, 8))
+        man, exp = encoding.LAYOUT.get(p, (nb - 9, 8))
         for x in (man - 0.5, man + exp - 0.5):
             ax.axvline(x, color="cyan", lw=0.8, ls=":")
-        ax.set_title(f"{p}: mean footprint (% of frame, log scale); dotted: mantissa | exponent"
-                     " | sign", fontsize=8)
+        ax.set_title(f"{p}: mean footprint (% of frame, log scale); dotted: mantissa | exponent | sign", fontsize=8)
         ax.set_xlabel("bit position (0 = LSB)", fontsize=8)
     if im is not None:
         fig.colorbar(im, ax=list(axes), label="mean footprint (%)", shrink=0.9)
@@ -1397,16 +1648,16 @@ def plot_precision_rates(rates: pd.DataFrame):
     """Catastrophe rate by field and precision, with Wilson intervals."""
     fig = _figure(7.0, 3.8)
     ax = fig.subplots()
-    precs = [p for p in formats.PRECISIONS if p in set(rates["precision"])] + \
-        sorted(set(rates["precision"]) - set(formats.PRECISIONS))
+    precs = [p for p in encoding.PRECISIONS if p in set(rates["precision"])] + sorted(
+        set(rates["precision"]) - set(encoding.PRECISIONS)
+    )
     fields = fields_present(rates)
     w = 0.8 / max(len(precs), 1)
     for i, p in enumerate(precs):
         g = rates[rates["precision"] == p].set_index("field").reindex(fields)
         x = np.arange(len(fields)) + (i - (len(precs) - 1) / 2) * w
         y = g["cat_rate_pct"].to_numpy(float)
-        err = np.vstack([y - g["cat_ci_lo_pct"].to_numpy(float),
-                         g["cat_ci_hi_pct"].to_numpy(float) - y])
+        err = np.vstack([y - g["cat_ci_lo_pct"].to_numpy(float), g["cat_ci_hi_pct"].to_numpy(float) - y])
         ax.bar(x, y, w, label=p, yerr=np.nan_to_num(err), capsize=2)
     ax.set_xticks(range(len(fields)), [FIELD_LABELS.get(f, f) for f in fields])
     ax.set_ylabel("catastrophic upsets (%, 95% Wilson CI)")
@@ -1423,12 +1674,16 @@ def plot_theory(res: dict):
     fit = t[t["in_fit"]]
     if len(fit):
         xb = fit["bit"].to_numpy(float)
-        ax.semilogy(xb, 2.0 ** (res["slope"] * xb + res["intercept"]), "-", base=2,
-                    label=f"fit: {res['slope']:.3f} per bit (R$^2$={res['r2']:.3f})")
+        ax.semilogy(
+            xb,
+            2.0 ** (res["slope"] * xb + res["intercept"]),
+            "-",
+            base=2,
+            label=f"fit: {res['slope']:.3f} per bit (R$^2$={res['r2']:.3f})",
+        )
         xc = xb.mean()
         yc = res["slope"] * xc + res["intercept"]
-        ax.semilogy(xb, 2.0 ** (yc + (xb - xc)), "k--", base=2, lw=1,
-                    label="unit slope (perturbation lemma)")
+        ax.semilogy(xb, 2.0 ** (yc + (xb - xc)), "k--", base=2, lw=1, label="unit slope (perturbation lemma)")
     ax.set_xlabel(f"mantissa bit index ({res['field']}, {res['precision']})")
     ax.set_ylabel(r"mean peak error $|\Delta I|_\infty$")
     ax.legend(fontsize=8)
@@ -1447,8 +1702,13 @@ def plot_guard_ccdf(df: pd.DataFrame, guard: str = "guard", precision: str | Non
         if not fp.size:
             continue
         surv = 1.0 - np.searchsorted(fp, x, side="right") / fp.size
-        ax.loglog(x, np.where(surv > 0, surv, np.nan), style,
-                  label=f"{DEFENSE_LABELS.get(dfn, dfn)} (n={fp.size:,})", drawstyle="steps-post")
+        ax.loglog(
+            x,
+            np.where(surv > 0, surv, np.nan),
+            style,
+            label=f"{DEFENSE_LABELS.get(dfn, dfn)} (n={fp.size:,})",
+            drawstyle="steps-post",
+        )
     ax.axvline(100 * CATASTROPHIC_FOOTPRINT, color="grey", ls=":", lw=1)
     ax.set_xlabel("footprint x (% of frame)")
     ax.set_ylabel("P(footprint > x)")
@@ -1462,14 +1722,18 @@ def plot_dose(curves: pd.DataFrame, threshold_db: float = BUDGET_PSNR_DB):
     fig = _figure(6.4, 4.0)
     ax = fig.subplots()
     colors = {"fp32": "C0", "fp16": "C1", "bf16": "C2"}
-    styles = {"none": ("-", 1.2), "guard": ("--", 2.4), "selective": (":", 1.6),
-              "ecc": ("-.", 1.2), "dup": ((0, (1, 1)), 1.2)}
+    styles = {
+        "none": ("-", 1.2),
+        "guard": ("--", 2.4),
+        "selective": (":", 1.6),
+        "ecc": ("-.", 1.2),
+        "dup": ((0, (1, 1)), 1.2),
+    }
     for (p, dfn), g in curves.groupby(["precision", "defense"], sort=False):
         g = g.sort_values("k")
         c = colors.get(p, None)
         ls, lw = styles.get(dfn, ("-", 1))
-        ax.plot(g["k"], g["psnr_median_db"], ls=ls, lw=lw, color=c,
-                label=f"{p} {DEFENSE_LABELS.get(dfn, dfn)}")
+        ax.plot(g["k"], g["psnr_median_db"], ls=ls, lw=lw, color=c, label=f"{p} {DEFENSE_LABELS.get(dfn, dfn)}")
         ax.fill_between(g["k"], g["psnr_q25_db"], g["psnr_q75_db"], color=c, alpha=0.15, lw=0)
         ax.plot(g["k"], g["psnr_mean_db"], ".", color=c, ms=4)
     ax.axhline(threshold_db, color="grey", ls=":", lw=1)
@@ -1488,12 +1752,10 @@ def plot_budget(budget: pd.DataFrame):
     keys = ["scene", "precision", "defense"] if per_scene else ["precision", "defense"]
     for key, g in budget.groupby(keys, sort=False):
         g = g.sort_values("n_primitives")
-        line, = ax.plot(g["n_primitives"], g["k_budget"], "-", label=" ".join(map(str, key)))
+        (line,) = ax.plot(g["n_primitives"], g["k_budget"], "-", label=" ".join(map(str, key)))
         cens = g["censored"] != ""
-        ax.plot(g.loc[~cens, "n_primitives"], g.loc[~cens, "k_budget"], "o",
-                color=line.get_color())
-        ax.plot(g.loc[cens, "n_primitives"], g.loc[cens, "k_budget"], "^", mfc="none",
-                color=line.get_color())
+        ax.plot(g.loc[~cens, "n_primitives"], g.loc[~cens, "k_budget"], "o", color=line.get_color())
+        ax.plot(g.loc[cens, "n_primitives"], g.loc[cens, "k_budget"], "^", mfc="none", color=line.get_color())
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("primitive count N")
@@ -1510,8 +1772,7 @@ def plot_size_scaling(res: dict):
         g = g.sort_values("n_primitives")
         for metric, ls in (("median_mse", "-"), ("mean_mse", "--")):
             y = g[metric].where(g[metric] > 0)
-            ax.plot(g["n_primitives"], y, ls, marker="o", ms=3,
-                    label=f"{sc} {p} {dfn} {metric.split('_')[0]}")
+            ax.plot(g["n_primitives"], y, ls, marker="o", ms=3, label=f"{sc} {p} {dfn} {metric.split('_')[0]}")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("primitive count N")
@@ -1522,8 +1783,7 @@ def plot_size_scaling(res: dict):
 
 def plot_dose_model(dm: pd.DataFrame):
     """Measured catastrophic fraction (Wilson bars) and the dose model, one panel per defense."""
-    defs = [x for x in DEFENSES if x in set(dm["defense"])] + \
-        sorted(set(dm["defense"]) - set(DEFENSES))
+    defs = [x for x in DEFENSES if x in set(dm["defense"])] + sorted(set(dm["defense"]) - set(DEFENSES))
     fig = _figure(4.2 * max(len(defs), 1), 3.8)
     axes = fig.subplots(1, max(len(defs), 1), squeeze=False, sharey=True)[0]
     colors = {"fp32": "C0", "fp16": "C1", "bf16": "C2"}
@@ -1531,12 +1791,10 @@ def plot_dose_model(dm: pd.DataFrame):
         for i, (p, g) in enumerate(dm[dm["defense"] == dfn].groupby("precision", sort=False)):
             g = g.sort_values("k")
             c = colors.get(p, f"C{i + 3}")
-            err = np.vstack([g["measured_pct"] - g["measured_ci_lo_pct"],
-                             g["measured_ci_hi_pct"] - g["measured_pct"]])
+            err = np.vstack([g["measured_pct"] - g["measured_ci_lo_pct"], g["measured_ci_hi_pct"] - g["measured_pct"]])
             # stagger the precisions a little along k so the bars do not hide each other
             x = g["k"].to_numpy(float) * (1.0 + 0.08 * (i - 1))
-            ax.errorbar(x, g["measured_pct"], yerr=err, fmt="o", ms=3, capsize=2, color=c,
-                        label=f"{p} measured")
+            ax.errorbar(x, g["measured_pct"], yerr=err, fmt="o", ms=3, capsize=2, color=c, label=f"{p} measured")
             ax.plot(g["k"], g["model_pct"], "-", color=c, lw=1, label=f"{p} 1-(1-p_c)^k")
         ax.set_xscale("log")
         ax.set_title(DEFENSE_LABELS.get(dfn, dfn), fontsize=9)
@@ -1546,8 +1804,7 @@ def plot_dose_model(dm: pd.DataFrame):
     return fig
 
 
-def plot_contamination(cont: pd.DataFrame, precision: str | None = None,
-                       defenses: tuple[str, ...] = ("none", "guard")):
+def plot_contamination(cont: pd.DataFrame, precision: str | None = None, defenses: tuple[str, ...] = ("none", "guard")):
     """Share of regions contaminated against P at one precision (fp32 by default), predicted
     (solid) and measured (dashed), for log-scale sign flips (all single upsets if none)."""
     fig = _figure(6.0, 3.8)
@@ -1562,10 +1819,17 @@ def plot_contamination(cont: pd.DataFrame, precision: str | None = None,
             sub = sub[sub["defense"].isin(defenses)]
     for dfn, g in sub.groupby("defense", sort=False):
         g = g.sort_values("P")
-        line, = ax.plot(g["P"], g["pred_fraction_pct"], "-o", ms=3,
-                        label=f"{DEFENSE_LABELS.get(dfn, dfn)}: predicted")
-        ax.plot(g["P"], g["meas_fraction_pct"], "--s", ms=3, color=line.get_color(),
-                label=f"{DEFENSE_LABELS.get(dfn, dfn)}: measured")
+        (line,) = ax.plot(
+            g["P"], g["pred_fraction_pct"], "-o", ms=3, label=f"{DEFENSE_LABELS.get(dfn, dfn)}: predicted"
+        )
+        ax.plot(
+            g["P"],
+            g["meas_fraction_pct"],
+            "--s",
+            ms=3,
+            color=line.get_color(),
+            label=f"{DEFENSE_LABELS.get(dfn, dfn)}: measured",
+        )
     ax.set_xscale("log", base=2)
     if len(sub):
         ps = sorted(set(sub["P"]))

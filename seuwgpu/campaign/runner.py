@@ -57,15 +57,18 @@ import subprocess
 import sys
 import time
 import tomllib
-from dataclasses import dataclass, field as dc_field
+from dataclasses import dataclass
+from dataclasses import field as dc_field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from . import __version__, formats
-from .faults import DEFENSES, Site, draw_uniform_sites, site_from_flat
-from .model import FIELDS, canonical_field, field_components
+from seuwgpu.faults.defenses import DEFENSES
+from seuwgpu.faults.sites import Site, draw_uniform_sites, site_from_flat
+from seuwgpu.model import encoding
+from seuwgpu.model.fields import FIELDS, canonical_field, field_components
+from seuwgpu.version import __version__
 
 # ---- spec --------------------------------------------------------------------------------------
 _TOP = {"seed", "views", "size", "batch", "scenes", "single", "dose", "sizes", "name"}
@@ -84,8 +87,10 @@ def _keys(table: dict, allowed: set, where: str):
         raise SpecError(f"{where} must be a table")
     unknown = sorted(set(table) - allowed)
     if unknown:
-        raise SpecError(f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(repr(k) for k in unknown)} in {where} "
-                        f"(allowed: {', '.join(sorted(allowed))})")
+        raise SpecError(
+            f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(repr(k) for k in unknown)} in {where} "
+            f"(allowed: {', '.join(sorted(allowed))})"
+        )
 
 
 def _int(table, key, where, default=None, lo=None, hi=None):
@@ -132,8 +137,8 @@ def _bits(table, where, precisions):
         raise SpecError(f'{where}.bits must be "all" or a list of bit indices')
     for p in precisions:
         for b in v:
-            if not 0 <= b < formats.bits_per_value(p):
-                raise SpecError(f"{where}.bits: bit {b} is out of range for {p} (0..{formats.bits_per_value(p) - 1})")
+            if not 0 <= b < encoding.bits_per_value(p):
+                raise SpecError(f"{where}.bits: bit {b} is out of range for {p} (0..{encoding.bits_per_value(p) - 1})")
     return sorted(set(v))
 
 
@@ -142,7 +147,8 @@ def _samples(table, where, default, n_min: int | None):
     v = table.get("samples", default)
     if isinstance(v, dict):
         _keys(v, {"margin", "confidence"}, f"{where}.samples")
-        from .stats import sample_size
+        from seuwgpu.campaign.plan import sample_size
+
         margin, conf = v.get("margin"), v.get("confidence", 0.95)
         if not isinstance(margin, (int, float)) or not 0 < margin < 1:
             raise SpecError(f"{where}.samples.margin must be a proportion in (0, 1), e.g. 0.02")
@@ -198,7 +204,8 @@ def dose_levels(k_max: int, points: int) -> list[int]:
 
 def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
     """Validated spec with defaults filled in (what is hashed and stored in the manifest)."""
-    from .scenes import list_scenes
+    from seuwgpu.model.scenes import list_scenes
+
     _keys(raw, _TOP, "the spec")
     spec = {
         "name": str(raw.get("name", "campaign")),
@@ -219,7 +226,9 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         out = {"sh_degree": _int(s, "sh_degree", where, 3, 0, 3), "seed": _int(s, "seed", where, 0, 0)}
         if "scene" in s:
             if s["scene"] not in list_scenes():
-                raise SpecError(f"{where}.scene: unknown scene {s['scene']!r}; embedded scenes: {', '.join(list_scenes())}")
+                raise SpecError(
+                    f"{where}.scene: unknown scene {s['scene']!r}; embedded scenes: {', '.join(list_scenes())}"
+                )
             out["scene"] = s["scene"]
             out["n"] = _int(s, "n", where, 100_000, 1)
         else:
@@ -232,12 +241,12 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
     if "single" in raw:
         t = raw["single"]
         _keys(t, _SINGLE, "single")
-        precisions = _list(t, "precisions", "single", ["fp32"], formats.PRECISIONS)
+        precisions = _list(t, "precisions", "single", ["fp32"], encoding.PRECISIONS)
         spec["single"] = {
             "precisions": precisions,
             "fields": _fields(t, "single"),
             "bits": _bits(t, "single", precisions),
-            "samples": _samples(t, "single", 20, min((sc.get("n") or 10 ** 9) for sc in spec["scenes"])),
+            "samples": _samples(t, "single", 20, min((sc.get("n") or 10**9) for sc in spec["scenes"])),
             "sampling": t.get("sampling", "stratified"),
             "defenses": _list(t, "defenses", "single", ["none", "guard"], DEFENSES),
             "regions": _regions(t, "single", spec["size"]),
@@ -256,7 +265,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         else:
             ks = dose_levels(_int(t, "k_max", "dose", 20_000, 1), _int(t, "points", "dose", 12, 1, 200))
         spec["dose"] = {
-            "precisions": _list(t, "precisions", "dose", ["fp32"], formats.PRECISIONS),
+            "precisions": _list(t, "precisions", "dose", ["fp32"], encoding.PRECISIONS),
             "k": sorted(set(int(k) for k in ks)),
             "repeats": _int(t, "repeats", "dose", 3, 1),
             "defenses": _list(t, "defenses", "dose", ["none", "guard"], DEFENSES),
@@ -269,7 +278,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         ns = _list(t, "n", "sizes", None)
         if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in ns):
             raise SpecError("sizes.n must be a list of positive integers")
-        precisions = _list(t, "precisions", "sizes", ["fp32"], formats.PRECISIONS)
+        precisions = _list(t, "precisions", "sizes", ["fp32"], encoding.PRECISIONS)
         spec["sizes"] = {
             "n": sorted(set(ns)),
             "precisions": precisions,
@@ -302,15 +311,16 @@ def spec_hash(spec: dict) -> str:
 @dataclass
 class Context:
     """One engine set-up: a scene at a primitive count and precision, and its injections."""
-    kind: str            # "single" | "dose" | "size"
+
+    kind: str  # "single" | "dose" | "size"
     scene_index: int
-    n: int | None        # primitive count (None: as loaded)
+    n: int | None  # primitive count (None: as loaded)
     precision: str
     defenses: list
     first_id: int
     count: int
-    cells: list = dc_field(default_factory=list)   # single/size: [(field, bit)]; dose: [k]
-    per_cell: int = 0    # samples (single/size) or repeats (dose)
+    cells: list = dc_field(default_factory=list)  # single/size: [(field, bit)]; dose: [k]
+    per_cell: int = 0  # samples (single/size) or repeats (dose)
     sampling: str = "stratified"
     regions: tuple = ()  # sort-first partition sizes measured for single upsets
 
@@ -319,7 +329,7 @@ class Context:
 
 
 def _cells(fields, bits, precision):
-    nb = formats.bits_per_value(precision)
+    nb = encoding.bits_per_value(precision)
     use = range(nb) if bits == "all" else [b for b in bits if b < nb]
     return [(f, b) for f in fields for b in use]
 
@@ -331,16 +341,36 @@ def enumerate_contexts(spec: dict) -> list[Context]:
         for si, sc in enumerate(spec["scenes"]):
             for p in t["precisions"]:
                 cells = _cells(t["fields"], t["bits"], p)
-                c = Context("single", si, sc.get("n"), p, t["defenses"], nid, len(cells) * t["samples"],
-                            cells, t["samples"], t["sampling"], tuple(t.get("regions", ())))
+                c = Context(
+                    "single",
+                    si,
+                    sc.get("n"),
+                    p,
+                    t["defenses"],
+                    nid,
+                    len(cells) * t["samples"],
+                    cells,
+                    t["samples"],
+                    t["sampling"],
+                    tuple(t.get("regions", ())),
+                )
                 ctxs.append(c)
                 nid += c.count
     if "dose" in spec:
         t = spec["dose"]
         for si, sc in enumerate(spec["scenes"]):
             for p in t["precisions"]:
-                c = Context("dose", si, sc.get("n"), p, t["defenses"], nid, len(t["k"]) * t["repeats"],
-                            list(t["k"]), t["repeats"])
+                c = Context(
+                    "dose",
+                    si,
+                    sc.get("n"),
+                    p,
+                    t["defenses"],
+                    nid,
+                    len(t["k"]) * t["repeats"],
+                    list(t["k"]),
+                    t["repeats"],
+                )
                 ctxs.append(c)
                 nid += c.count
     if "sizes" in spec:
@@ -348,8 +378,19 @@ def enumerate_contexts(spec: dict) -> list[Context]:
         for n in t["n"]:
             for p in t["precisions"]:
                 cells = _cells(t["fields"], t["bits"], p)
-                c = Context("size", 0, n, p, t["defenses"], nid, len(cells) * t["samples"], cells,
-                            t["samples"], t["sampling"], tuple(t.get("regions", ())))
+                c = Context(
+                    "size",
+                    0,
+                    n,
+                    p,
+                    t["defenses"],
+                    nid,
+                    len(cells) * t["samples"],
+                    cells,
+                    t["samples"],
+                    t["sampling"],
+                    tuple(t.get("regions", ())),
+                )
                 ctxs.append(c)
                 nid += c.count
     return ctxs
@@ -379,11 +420,11 @@ def _stream(seeds: np.ndarray, k: int) -> np.ndarray:
     return _splitmix64(seeds.astype(np.uint64) * np.uint64(0x100000001B3) + np.uint64(k))
 
 
-def draw_sites(ctx: "Context", local: np.ndarray, seeds: np.ndarray, n: int, degree: int):
+def draw_sites(ctx: Context, local: np.ndarray, seeds: np.ndarray, n: int, degree: int):
     """Sites of a block of single-upset injections and their weights (stored bits each stands
     for). Stratified: cell local // samples, primitive and component uniform within it; uniform:
     one stored bit uniform over the whole budget. Returns (sites, weights)."""
-    nb = formats.bits_per_value(ctx.precision)
+    nb = encoding.bits_per_value(ctx.precision)
     local = np.asarray(local, dtype=np.int64)
     if ctx.sampling == "uniform":
         ncomp = 14 + 3 * ((degree + 1) ** 2 - 1)
@@ -406,10 +447,33 @@ def draw_sites(ctx: "Context", local: np.ndarray, seeds: np.ndarray, n: int, deg
 
 
 # ---- running -----------------------------------------------------------------------------------
-COLUMNS = ["campaign", "scene", "n_primitives", "precision", "field", "primitive", "component", "bit",
-           "bit_class", "clean_value", "corrupted_value", "defense", "footprint", "footprint_max",
-           "peak_error", "psnr", "ssim", "nonfinite", "catastrophic", "clamps", "k", "repeat", "weight",
-           "seed", "injection_id"]
+COLUMNS = [
+    "campaign",
+    "scene",
+    "n_primitives",
+    "precision",
+    "field",
+    "primitive",
+    "component",
+    "bit",
+    "bit_class",
+    "clean_value",
+    "corrupted_value",
+    "defense",
+    "footprint",
+    "footprint_max",
+    "peak_error",
+    "psnr",
+    "ssim",
+    "nonfinite",
+    "catastrophic",
+    "clamps",
+    "k",
+    "repeat",
+    "weight",
+    "seed",
+    "injection_id",
+]
 
 
 def columns_of(ctx: Context) -> list[str]:
@@ -418,8 +482,12 @@ def columns_of(ctx: Context) -> list[str]:
 
 def _git_commit() -> str:
     try:
-        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
-                              text=True, timeout=5).stdout.strip() or "unknown"
+        return (
+            subprocess.run(
+                ["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True, text=True, timeout=5
+            ).stdout.strip()
+            or "unknown"
+        )
     except Exception:
         return "unknown"
 
@@ -427,8 +495,9 @@ def _git_commit() -> str:
 class Runner:
     """Runs (a shard of) a campaign into a run directory."""
 
-    def __init__(self, spec: dict, out: Path, shard: tuple[int, int] = (0, 1), quiet: bool = False,
-                 full: bool = False, gpu=None):
+    def __init__(
+        self, spec: dict, out: Path, shard: tuple[int, int] = (0, 1), quiet: bool = False, full: bool = False, gpu=None
+    ):
         self.spec, self.out = spec, Path(out)
         self.shard = shard
         self.quiet, self.full = quiet, full
@@ -438,23 +507,33 @@ class Runner:
         self.total = sum(c.count for c in self.contexts)
 
     # -- run directory --
-    def _prepare_dir(self):
+    def prepare_dir(self):
         rec = self.out / "records"
         rec.mkdir(parents=True, exist_ok=True)
         mpath = self.out / "manifest.json"
         if mpath.exists():
             old = json.loads(mpath.read_text())
             if old.get("spec_hash") != self.hash:
-                raise SpecError(f"{self.out} holds a run of a different spec (hash {old.get('spec_hash')} != {self.hash}); "
-                                "use a new --out directory, or the original spec to resume")
+                raise SpecError(
+                    f"{self.out} holds a run of a different spec (hash {old.get('spec_hash')} != {self.hash}); "
+                    "use a new --out directory, or the original spec to resume"
+                )
         else:
-            from .gpu.device import get_gpu
+            from seuwgpu.gpu.device import get_gpu
+
             gpu = self.gpu or get_gpu()
-            manifest = {"spec": self.spec, "spec_hash": self.hash, "version": __version__,
-                        "git_commit": _git_commit(), "adapter": {k: str(v) for k, v in gpu.info.items()},
-                        "python": platform.python_version(), "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
-                        "total_injections": self.total, "columns": COLUMNS}
-            _atomic_write(mpath, json.dumps(manifest, indent=1).encode())
+            manifest = {
+                "spec": self.spec,
+                "spec_hash": self.hash,
+                "version": __version__,
+                "git_commit": _git_commit(),
+                "adapter": {k: str(v) for k, v in gpu.info.items()},
+                "python": platform.python_version(),
+                "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
+                "total_injections": self.total,
+                "columns": COLUMNS,
+            }
+            atomic_write(mpath, json.dumps(manifest, indent=1).encode())
         _remove_stale_temps(rec)
 
     def done_ids(self) -> set[tuple[int, int]]:
@@ -477,13 +556,13 @@ class Runner:
                 j += 1
 
     def run(self, progress=None) -> dict:
-        self._prepare_dir()
+        self.prepare_dir()
         done = self.done_ids()
         todo = [(c, a, m) for c, a, m in self.blocks() if (a, m) not in done]
         shard_total = sum(m for _, _, m in self.blocks())
         already = shard_total - sum(m for _, _, m in todo)
         stats = {"injections": already, "catastrophic": 0, "seconds": 0.0, "new": 0}
-        bar = progress or _Progress(shard_total, already, self.quiet)
+        bar = progress or Progress(shard_total, already, self.quiet)
         engines = {}
         t0 = time.perf_counter()
         try:
@@ -491,10 +570,10 @@ class Runner:
                 key = (ctx.kind, ctx.scene_index, ctx.n, ctx.precision)
                 if key not in engines:
                     engines.clear()  # one engine at a time: bounded memory
-                    engines[key] = self._engine(ctx)
+                    engines[key] = self.engine_for(ctx)
                 eng = engines[key]
-                df = self._run_block(eng, ctx, first, count)
-                _atomic_write(self.out / "records" / f"part-{first:010d}-{count:06d}.parquet", _parquet_bytes(df))
+                df = self.run_block(eng, ctx, first, count)
+                atomic_write(self.out / "records" / f"part-{first:010d}-{count:06d}.parquet", _parquet_bytes(df))
                 cat = int(df.loc[df.defense == ctx.defenses[0], "catastrophic"].sum())
                 stats["injections"] += count
                 stats["new"] += count
@@ -505,11 +584,12 @@ class Runner:
         stats["seconds"] = time.perf_counter() - t0
         return stats
 
-    def _engine(self, ctx: Context):
-        from .camera import load_cameras
-        from .engine import Engine
-        from .ply import load_ply
-        from .scenes import make_scene, scene_cameras
+    def engine_for(self, ctx: Context):
+        from seuwgpu.faults.engine import Engine
+        from seuwgpu.model.cameras import load_cameras
+        from seuwgpu.model.ply import load_ply
+        from seuwgpu.model.scenes import make_scene, scene_cameras
+
         sc = self.spec["scenes"][ctx.scene_index]
         w, h = self.spec["size"]
         if "scene" in sc:
@@ -519,18 +599,21 @@ class Runner:
         else:
             model = load_ply(sc["ply"])
             name = Path(sc["ply"]).stem
-            from .camera import orbit_cameras
+            from seuwgpu.model.cameras import orbit_cameras
+
             cams = load_cameras(sc["cameras"]) if "cameras" in sc else orbit_cameras(self.spec["views"], w, h)
         return Engine(model, cams, ctx.precision, gpu=self.gpu, scene=name, incremental=not self.full)
 
-    def _run_block(self, eng, ctx: Context, first: int, count: int) -> pd.DataFrame:
+    def run_block(self, eng, ctx: Context, first: int, count: int) -> pd.DataFrame:
         ids = np.arange(first, first + count, dtype=np.int64)
         seeds = injection_seeds(self.spec["seed"], ids)
         if ctx.kind in ("single", "size"):
             sites, weights = draw_sites(ctx, ids - ctx.first_id, seeds, eng.n, eng.degree)
             if self.full:
                 if ctx.regions:
-                    raise SpecError("regions (sort-first contamination) are measured on the incremental path; drop --full")
+                    raise SpecError(
+                        "regions (sort-first contamination) are measured on the incremental path; drop --full"
+                    )
                 df = pd.DataFrame([eng.inject(s, d) for d in ctx.defenses for s in sites])
             else:
                 df = eng.evaluate_frame(sites, ctx.defenses, ctx.regions)
@@ -557,6 +640,7 @@ class Runner:
 
 def _parquet_bytes(df: pd.DataFrame) -> bytes:
     import io
+
     buf = io.BytesIO()
     df.to_parquet(buf, index=False)
     return buf.getvalue()
@@ -582,7 +666,7 @@ def _remove_stale_temps(folder: Path):
             pass
 
 
-def _atomic_write(path: Path, data: bytes):
+def atomic_write(path: Path, data: bytes):
     tmp = path.with_name(path.name + f".{_host()}.{os.getpid()}.tmp")
     with open(tmp, "wb") as f:
         f.write(data)
@@ -601,6 +685,7 @@ def read_records(run_dir) -> pd.DataFrame:
 def merge(out: Path, shard_dirs: list[Path]) -> int:
     """Join shard run directories (same spec) into one; refuses mixed specs and duplicates."""
     import shutil
+
     out = Path(out)
     manifests = [json.loads((Path(d) / "manifest.json").read_text()) for d in shard_dirs]
     hashes = {m["spec_hash"] for m in manifests}
@@ -618,11 +703,11 @@ def merge(out: Path, shard_dirs: list[Path]) -> int:
             shutil.copyfile(p, out / "records" / p.name)
     m = dict(manifests[0])
     m["merged_from"] = [str(d) for d in shard_dirs]
-    _atomic_write(out / "manifest.json", json.dumps(m, indent=1).encode())
+    atomic_write(out / "manifest.json", json.dumps(m, indent=1).encode())
     return len(seen)
 
 
-class _Progress:
+class Progress:
     """rich progress with injections/s, ETA and the running catastrophe count; quiet mode logs lines."""
 
     def __init__(self, total: int, done: int, quiet: bool):
@@ -632,12 +717,26 @@ class _Progress:
         self.last = self.t0
         self.start_done = done
         if not quiet:
-            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                                       TimeRemainingColumn)
-            self.p = Progress(TextColumn("[bold]injections"), BarColumn(), MofNCompleteColumn(),
-                              TextColumn("{task.fields[rate]:>8.1f}/s"), TimeElapsedColumn(), TextColumn("ETA"),
-                              TimeRemainingColumn(), TextColumn("catastrophic: {task.fields[cat]}"),
-                              transient=False)
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+
+            self.p = Progress(
+                TextColumn("[bold]injections"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TextColumn("{task.fields[rate]:>8.1f}/s"),
+                TimeElapsedColumn(),
+                TextColumn("ETA"),
+                TimeRemainingColumn(),
+                TextColumn("catastrophic: {task.fields[cat]}"),
+                transient=False,
+            )
             self.p.start()
             self.task = self.p.add_task("run", total=total, completed=done, rate=0.0, cat=0)
 
@@ -650,7 +749,11 @@ class _Progress:
             self.p.update(self.task, completed=self.done, rate=rate, cat=self.cat)
         elif now - self.last > 10 or self.done == self.total:
             self.last = now
-            print(f"{self.done}/{self.total} injections, {rate:.1f}/s, catastrophic {self.cat}", file=sys.stderr, flush=True)
+            print(
+                f"{self.done}/{self.total} injections, {rate:.1f}/s, catastrophic {self.cat}",
+                file=sys.stderr,
+                flush=True,
+            )
 
     def close(self):
         if not self.quiet:
@@ -662,6 +765,6 @@ def replay(spec: dict, injection_id: int, full: bool = False, gpu=None) -> pd.Da
     runner = Runner(spec, Path("."), full=full, gpu=gpu)
     for ctx in runner.contexts:
         if ctx.first_id <= injection_id < ctx.first_id + ctx.count:
-            eng = runner._engine(ctx)
-            return runner._run_block(eng, ctx, injection_id, 1)
+            eng = runner.engine_for(ctx)
+            return runner.run_block(eng, ctx, injection_id, 1)
     raise ValueError(f"injection id {injection_id} is not in this campaign (0..{runner.total - 1})")

@@ -16,20 +16,33 @@ sh_rest 14 + 3*k + c.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields as dc_fields
+from dataclasses import dataclass
+from dataclasses import fields as dc_fields
 
 import numpy as np
 
-from . import formats
+from seuwgpu.model import encoding
 
 FIELDS = ("means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest")
 FIELD_ALIASES = {
-    "mean": "means", "means": "means", "xyz": "means",
-    "log_scale": "log_scales", "log_scales": "log_scales", "scale": "log_scales", "scales": "log_scales",
-    "quat": "quats", "quats": "quats", "rotation": "quats", "rot": "quats",
-    "opacity": "opacity", "opacities": "opacity",
-    "sh_dc": "sh_dc", "color": "sh_dc", "dc": "sh_dc",
-    "sh_rest": "sh_rest", "sh": "sh_rest",
+    "mean": "means",
+    "means": "means",
+    "xyz": "means",
+    "log_scale": "log_scales",
+    "log_scales": "log_scales",
+    "scale": "log_scales",
+    "scales": "log_scales",
+    "quat": "quats",
+    "quats": "quats",
+    "rotation": "quats",
+    "rot": "quats",
+    "opacity": "opacity",
+    "opacities": "opacity",
+    "sh_dc": "sh_dc",
+    "color": "sh_dc",
+    "dc": "sh_dc",
+    "sh_rest": "sh_rest",
+    "sh": "sh_rest",
 }
 FIELD_OFFSET = {"means": 0, "log_scales": 3, "quats": 6, "opacity": 10, "sh_dc": 11, "sh_rest": 14}
 BASE_COMPONENTS = 14
@@ -50,8 +63,9 @@ def sh_rest_count(degree: int) -> int:
 
 def field_components(field: str, degree: int) -> int:
     field = canonical_field(field)
-    return {"means": 3, "log_scales": 3, "quats": 4, "opacity": 1, "sh_dc": 3,
-            "sh_rest": 3 * sh_rest_count(degree)}[field]
+    return {"means": 3, "log_scales": 3, "quats": 4, "opacity": 1, "sh_dc": 3, "sh_rest": 3 * sh_rest_count(degree)}[
+        field
+    ]
 
 
 def n_components(degree: int) -> int:
@@ -60,12 +74,12 @@ def n_components(degree: int) -> int:
 
 @dataclass
 class Model:
-    means: np.ndarray       # [N, 3]
+    means: np.ndarray  # [N, 3]
     log_scales: np.ndarray  # [N, 3]
-    quats: np.ndarray       # [N, 4] (w, x, y, z)
-    opacity: np.ndarray     # [N]
-    sh_dc: np.ndarray       # [N, 3]
-    sh_rest: np.ndarray     # [N, R, 3]
+    quats: np.ndarray  # [N, 4] (w, x, y, z)
+    opacity: np.ndarray  # [N]
+    sh_dc: np.ndarray  # [N, 3]
+    sh_rest: np.ndarray  # [N, R, 3]
 
     def __post_init__(self):
         for f in dc_fields(self):
@@ -103,26 +117,31 @@ class Model:
         return np.concatenate([self.field(f) for f in FIELDS], axis=1)
 
     @classmethod
-    def from_flat(cls, flat: np.ndarray, degree: int) -> "Model":
+    def from_flat(cls, flat: np.ndarray, degree: int) -> Model:
         flat = np.asarray(flat, dtype=np.float32)
         n = flat.shape[0]
-        return cls(means=flat[:, 0:3], log_scales=flat[:, 3:6], quats=flat[:, 6:10],
-                   opacity=flat[:, 10], sh_dc=flat[:, 11:14],
-                   sh_rest=flat[:, 14:].reshape(n, sh_rest_count(degree), 3))
+        return cls(
+            means=flat[:, 0:3],
+            log_scales=flat[:, 3:6],
+            quats=flat[:, 6:10],
+            opacity=flat[:, 10],
+            sh_dc=flat[:, 11:14],
+            sh_rest=flat[:, 14:].reshape(n, sh_rest_count(degree), 3),
+        )
 
-    def copy(self) -> "Model":
+    def copy(self) -> Model:
         return Model(**{f: getattr(self, f).copy() for f in FIELDS})
 
-    def subset(self, index) -> "Model":
+    def subset(self, index) -> Model:
         return Model(**{f: getattr(self, f)[index] for f in FIELDS})
 
-    def quantized(self, precision: str) -> "Model":
+    def quantized(self, precision: str) -> Model:
         """The values a model deployed at `precision` holds."""
-        return Model(**{f: formats.quantize(getattr(self, f), precision) for f in FIELDS})
+        return Model(**{f: encoding.quantize(getattr(self, f), precision) for f in FIELDS})
 
     def bit_budget(self, precision: str) -> dict[str, int]:
         """Stored bits per field and in total (the space a uniform upset is drawn from)."""
-        nb = formats.bits_per_value(precision)
+        nb = encoding.bits_per_value(precision)
         out = {f: self.n * field_components(f, self.sh_degree) * nb for f in FIELDS}
         out["total"] = sum(out.values())
         return out
@@ -135,9 +154,9 @@ class StoredLayout:
         if n <= 0:
             raise ValueError("a model needs at least one primitive")
         self.n, self.degree = int(n), int(degree)
-        self.precision = formats.check_precision(precision)
+        self.precision = encoding.check_precision(precision)
         self.ncomp = n_components(degree)
-        self.halves = formats.bits_per_value(precision) == 16
+        self.halves = encoding.bits_per_value(precision) == 16
         chunk_prims = int(min(chunk_prims, n + (n & 1)))
         self.chunk_prims = chunk_prims + (chunk_prims & 1)  # even, so a 16-bit pair never splits
         self.n_chunks = -(-self.n // self.chunk_prims)
@@ -146,7 +165,7 @@ class StoredLayout:
 
     @staticmethod
     def max_chunk_prims(degree: int, precision: str, max_binding_bytes: int) -> int:
-        per_prim = n_components(degree) * formats.bits_per_value(precision) // 8
+        per_prim = n_components(degree) * encoding.bits_per_value(precision) // 8
         c = max_binding_bytes // per_prim
         return max(2, c - (c & 1))
 
@@ -167,7 +186,7 @@ class StoredLayout:
         """Model -> list of u32 word arrays, one per chunk."""
         if model.n != self.n or model.sh_degree != self.degree:
             raise ValueError("model does not match this layout")
-        return self.encode_bits(formats.to_bits(model.flat(), self.precision))
+        return self.encode_bits(encoding.to_bits(model.flat(), self.precision))
 
     def encode_bits(self, bits: np.ndarray) -> list[np.ndarray]:
         """Stored bit patterns [N, ncomp] (uint32 or uint16) -> list of u32 chunk word arrays."""
@@ -196,5 +215,5 @@ class StoredLayout:
             else:
                 planes = w
             rows.append(planes[:, : b - a].T)
-        flat = formats.from_bits(np.concatenate(rows, axis=0), self.precision)
+        flat = encoding.from_bits(np.concatenate(rows, axis=0), self.precision)
         return Model.from_flat(flat, self.degree)

@@ -30,7 +30,8 @@ How a scene becomes a model that looks trained (`make_scene`):
 - Colour: per-part base colours with procedural texture (checker, stripes, seams, veins, noise)
   and per-primitive noise; `sh_dc = (rgb - 0.5) / C0`. `sh_rest` is small (|c| ~ 0.01-0.05):
   random view dependence decaying with degree (Irwin-Hall noise, sd 0.02 / 0.012 / 0.008 for
-  degrees 1 / 2 / 3, clipped to +-0.1) plus a normal-aligned degree-1 sheen on glossy parts. `sh_rest` is coefficient-major [N, (d+1)^2 - 1, 3]; the coefficients of a lower degree
+  degrees 1 / 2 / 3, clipped to +-0.1) plus a normal-aligned degree-1 sheen on glossy parts.
+  `sh_rest` is coefficient-major [N, (d+1)^2 - 1, 3]; the coefficients of a lower degree
   are a prefix of those of degree 3 (same seed).
 - The primitives are returned in a random order (trained models are not sorted by part; any
   prefix is a fair subsample of the scene).
@@ -44,32 +45,33 @@ the orbit the scene is framed by, see `scene_cameras`).
 from __future__ import annotations
 
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import lru_cache
-from typing import Callable
+from functools import cache
 
 import numpy as np
 
-from .camera import Camera, orbit_cameras
-from .model import Model, sh_rest_count
+from seuwgpu.model.cameras import Camera, orbit_cameras
+from seuwgpu.model.fields import Model, sh_rest_count
 
 C0 = 0.28209479177387814
 DEFAULT_SCENE = "spheres"
 
 # Generator constants (documented in the module docstring).
-SPLAT_C = 0.9                  # tangent sigma = SPLAT_C * local spacing
-TANGENT_JITTER = (0.2, 0.12)   # log-scale jitter: shared by both tangent axes, per axis
-FLAT_GAP = (1.5, 2.5)          # normal-axis log-scale below the smaller tangent one
+SPLAT_C = 0.9  # tangent sigma = SPLAT_C * local spacing
+TANGENT_JITTER = (0.2, 0.12)  # log-scale jitter: shared by both tangent axes, per axis
+FLAT_GAP = (1.5, 2.5)  # normal-axis log-scale below the smaller tangent one
 LOW_OPACITY_FRACTION = 0.12
 HIGH_OPACITY = (0.9, 0.99)
 LOW_OPACITY = (0.05, 0.5)
 SH_REST_SD = (0.02, 0.012, 0.008)  # per-degree noise (degree 1, 2, 3)
-SHEEN = 0.045                  # degree-1 normal-aligned coefficient for gloss = 1
+SHEEN = 0.045  # degree-1 normal-aligned coefficient for gloss = 1
 
 
 # --------------------------------------------------------------------------------------------
 # Parts: batches of instances of one surface kind.
 # --------------------------------------------------------------------------------------------
+
 
 @dataclass
 class _Part:
@@ -80,6 +82,7 @@ class _Part:
     the base colour. `texture(ctx)` may modify the per-sample colours. `cap` [I, 2] bounds the
     tangent sigmas (thin parts). `weight` scales the sampling density; `gloss` the sheen.
     """
+
     name: str
     kind: str
     origin: np.ndarray
@@ -97,8 +100,9 @@ class _Part:
         self.origin = np.asarray(self.origin, dtype=np.float64).reshape(-1, 3)
         count = self.origin.shape[0]
         self.frame = np.broadcast_to(np.asarray(self.frame, dtype=np.float64), (count, 3, 3)).copy()
-        self.params = {k: np.broadcast_to(np.asarray(v, dtype=np.float64), (count,)).copy()
-                       for k, v in self.params.items()}
+        self.params = {
+            k: np.broadcast_to(np.asarray(v, dtype=np.float64), (count,)).copy() for k, v in self.params.items()
+        }
         self.colour = np.broadcast_to(np.asarray(self.colour, dtype=np.float64), (count, 3)).copy()
         if self.cap is not None:
             self.cap = np.broadcast_to(np.asarray(self.cap, dtype=np.float64), (count, 2)).copy()
@@ -126,19 +130,26 @@ def _area_frustum(p):
 
 
 def _area_torus(p):
-    return 4.0 * np.pi ** 2 * p["R"] * p["r"]
+    return 4.0 * np.pi**2 * p["R"] * p["r"]
 
 
 def _area_leaf(p):
     return 4.0 * p["w"] * p["l"] / np.pi
 
 
-_AREA = {"quad": _area_quad, "disk": _area_disk, "sphere": _area_sphere,
-         "frustum": _area_frustum, "torus": _area_torus, "leaf": _area_leaf}
+_AREA = {
+    "quad": _area_quad,
+    "disk": _area_disk,
+    "sphere": _area_sphere,
+    "frustum": _area_frustum,
+    "torus": _area_torus,
+    "leaf": _area_leaf,
+}
 
 
 # Samplers: (params gathered per sample, rng, m) -> local point, local normal, local tangent hint
 # (or None: random in-plane orientation), uv texture coordinates.
+
 
 def _sample_quad(p, rng, m):
     u = rng.random((m, 2)) * 2.0 - 1.0
@@ -217,13 +228,20 @@ def _sample_leaf(p, rng, m):
     return np.stack([x, y, z], axis=1), nrm, None, np.stack([s, t], axis=1)
 
 
-_SAMPLE = {"quad": _sample_quad, "disk": _sample_disk, "sphere": _sample_sphere,
-           "frustum": _sample_frustum, "torus": _sample_torus, "leaf": _sample_leaf}
+_SAMPLE = {
+    "quad": _sample_quad,
+    "disk": _sample_disk,
+    "sphere": _sample_sphere,
+    "frustum": _sample_frustum,
+    "torus": _sample_torus,
+    "leaf": _sample_leaf,
+}
 
 
 # --------------------------------------------------------------------------------------------
 # Geometry helpers
 # --------------------------------------------------------------------------------------------
+
 
 def _normalize(v):
     v = np.asarray(v, dtype=np.float64)
@@ -288,7 +306,7 @@ class _Noise:
         self.k = dirs * f[:, None]
         self.phase = rng.random(octaves) * 2.0 * np.pi
         self.amp = 0.6 ** np.arange(octaves)
-        self.amp /= np.sqrt(np.sum(self.amp ** 2) / 2.0)  # unit standard deviation
+        self.amp /= np.sqrt(np.sum(self.amp**2) / 2.0)  # unit standard deviation
 
     def __call__(self, p):
         arg = np.asarray(p, dtype=np.float32) @ self.k.T.astype(np.float32) + self.phase.astype(np.float32)
@@ -324,10 +342,18 @@ def _layout_spheres() -> list[_Part]:
         ring = _smoothstep(0.035, 0.0, np.abs(r - 0.93))  # a dark ring near the rim
         return col * (1.0 - 0.6 * ring[:, None]) * (1.0 + 0.03 * noise(p))[:, None]
 
-    parts.append(_Part("base_top", "disk", [0, 0, top], EYE3, {"r0": 0.0, "r1": rb},
-                       [0.6, 0.6, 0.6], texture=checker))
-    parts.append(_Part("base_side", "frustum", [0, 0, top - thick], EYE3,
-                       {"r0": rb, "r1": rb, "h": thick, "flip": 0.0}, [0.22, 0.23, 0.27], gloss=0.3))
+    parts.append(_Part("base_top", "disk", [0, 0, top], EYE3, {"r0": 0.0, "r1": rb}, [0.6, 0.6, 0.6], texture=checker))
+    parts.append(
+        _Part(
+            "base_side",
+            "frustum",
+            [0, 0, top - thick],
+            EYE3,
+            {"r0": rb, "r1": rb, "h": thick, "flip": 0.0},
+            [0.22, 0.23, 0.27],
+            gloss=0.3,
+        )
+    )
 
     def marble(ctx):
         p = ctx["pts"]
@@ -356,24 +382,55 @@ def _layout_spheres() -> list[_Part]:
     for name, (x, y), r, col, gloss, tex, fr in spheres:
         parts.append(_Part(name, "sphere", [x, y, top + r], fr, {"r": r}, col, gloss=gloss, texture=tex))
     # a small magenta sphere resting on top of the red one
-    parts.append(_Part("magenta", "sphere", [0.35, -0.25, top + 0.80 + 0.15], EYE3, {"r": 0.15},
-                       [0.80, 0.25, 0.65], gloss=0.5, texture=speckle))
+    parts.append(
+        _Part(
+            "magenta",
+            "sphere",
+            [0.35, -0.25, top + 0.80 + 0.15],
+            EYE3,
+            {"r": 0.15},
+            [0.80, 0.25, 0.65],
+            gloss=0.5,
+            texture=speckle,
+        )
+    )
     # a gold torus standing upright
     R, r = 0.28, 0.085
     axis = _normalize([1.0, -1.0, 0.0])
-    parts.append(_Part("torus", "torus", [-0.42, 0.42, top + R + r], _frame(axis, Z), {"R": R, "r": r},
-                       [0.92, 0.66, 0.22], gloss=1.0, texture=speckle))
+    parts.append(
+        _Part(
+            "torus",
+            "torus",
+            [-0.42, 0.42, top + R + r],
+            _frame(axis, Z),
+            {"R": R, "r": r},
+            [0.92, 0.66, 0.22],
+            gloss=1.0,
+            texture=speckle,
+        )
+    )
     return parts
 
 
 BLOCKS_PITCH = 0.16
 BLOCKS_PLATE = 0.064
 BLOCKS_BRICK = 0.192
-_LEGO = np.array([
-    [0.78, 0.10, 0.10], [0.05, 0.34, 0.75], [0.98, 0.80, 0.10], [0.14, 0.55, 0.22],
-    [0.95, 0.95, 0.93], [0.12, 0.12, 0.14], [0.95, 0.50, 0.10], [0.55, 0.75, 0.90],
-    [0.62, 0.64, 0.66], [0.45, 0.25, 0.15], [0.80, 0.35, 0.60], [0.60, 0.80, 0.20],
-])
+_LEGO = np.array(
+    [
+        [0.78, 0.10, 0.10],
+        [0.05, 0.34, 0.75],
+        [0.98, 0.80, 0.10],
+        [0.14, 0.55, 0.22],
+        [0.95, 0.95, 0.93],
+        [0.12, 0.12, 0.14],
+        [0.95, 0.50, 0.10],
+        [0.55, 0.75, 0.90],
+        [0.62, 0.64, 0.66],
+        [0.45, 0.25, 0.15],
+        [0.80, 0.35, 0.60],
+        [0.60, 0.80, 0.20],
+    ]
+)
 
 
 def _brick_grid(nx=10, layers=5):
@@ -395,11 +452,11 @@ def _brick_grid(nx=10, layers=5):
             y0 = rng.integers(lo, max(lo + 1, hi - b + 1))
             if x0 + a > hi or y0 + b > hi:
                 continue
-            cells = occ[x0:x0 + a, y0:y0 + b, z]
-            below = occ[x0:x0 + a, y0:y0 + b, z - 1]
+            cells = occ[x0 : x0 + a, y0 : y0 + b, z]
+            below = occ[x0 : x0 + a, y0 : y0 + b, z - 1]
             if np.any(cells >= 0) or np.mean(below >= 0) < (1.0 if z == 1 else 0.6):
                 continue
-            occ[x0:x0 + a, y0:y0 + b, z] = next_id
+            occ[x0 : x0 + a, y0 : y0 + b, z] = next_id
             colours.append(_LEGO[rng.integers(len(_LEGO))] * (0.92 + 0.16 * rng.random()))
             next_id += 1
     return occ, np.array(colours)
@@ -464,19 +521,47 @@ def _layout_blocks() -> list[_Part]:
         edge = np.max(f * _smoothstep(0.012, 0.0, dist), axis=1)
         return ctx["colour"] * (1.0 - 0.55 * edge)[:, None] * (1.0 + 0.03 * noise(ctx["pts"]))[:, None]
 
-    parts = [_Part("faces", "quad", np.concatenate(origins), np.concatenate(frames),
-                   {"hx": np.concatenate(hx), "hy": np.concatenate(hy)}, np.concatenate(cols),
-                   gloss=0.6, texture=seams)]
+    parts = [
+        _Part(
+            "faces",
+            "quad",
+            np.concatenate(origins),
+            np.concatenate(frames),
+            {"hx": np.concatenate(hx), "hy": np.concatenate(hy)},
+            np.concatenate(cols),
+            gloss=0.6,
+            texture=seams,
+        )
+    ]
     # studs on every free top
     top_free = nb(ix, iy, iz, (0, 0, 1)) < 0
     so = np.stack([cx, cy, z1], axis=1)[top_free]
     sc = brick_col[ids[top_free]]
     rs, hs = 0.3 * p, 0.034
-    parts.append(_Part("stud_sides", "frustum", so, EYE3, {"r0": rs, "r1": rs, "h": hs, "flip": 0.0},
-                       sc * 0.9, gloss=0.8, cap=[0.5 * hs, np.inf]))
-    parts.append(_Part("stud_tops", "disk", so + [0.0, 0.0, hs], EYE3, {"r0": 0.0, "r1": rs}, sc,
-                       gloss=0.6, texture=lambda ctx: ctx["colour"] * (1.0 - 0.25 * _smoothstep(
-                           0.75, 1.0, ctx["uv"][:, 0]))[:, None]))
+    parts.append(
+        _Part(
+            "stud_sides",
+            "frustum",
+            so,
+            EYE3,
+            {"r0": rs, "r1": rs, "h": hs, "flip": 0.0},
+            sc * 0.9,
+            gloss=0.8,
+            cap=[0.5 * hs, np.inf],
+        )
+    )
+    parts.append(
+        _Part(
+            "stud_tops",
+            "disk",
+            so + [0.0, 0.0, hs],
+            EYE3,
+            {"r0": 0.0, "r1": rs},
+            sc,
+            gloss=0.6,
+            texture=lambda ctx: ctx["colour"] * (1.0 - 0.25 * _smoothstep(0.75, 1.0, ctx["uv"][:, 0]))[:, None],
+        )
+    )
     return parts
 
 
@@ -495,21 +580,59 @@ def _layout_plant() -> list[_Part]:
         stripe = _smoothstep(0.012, 0.0, np.abs(z - (zt - 0.09)))  # a darker groove below the rim
         return ctx["colour"] * (1.0 - 0.35 * stripe[:, None]) * (1.0 + 0.05 * band(ctx["pts"]))[:, None]
 
-    parts.append(_Part("pot", "frustum", [0, 0, zb], EYE3, {"r0": rbot, "r1": rtop, "h": zt - zb, "flip": 0.0},
-                       [0.74, 0.38, 0.22], texture=terracotta, gloss=0.2))
+    parts.append(
+        _Part(
+            "pot",
+            "frustum",
+            [0, 0, zb],
+            EYE3,
+            {"r0": rbot, "r1": rtop, "h": zt - zb, "flip": 0.0},
+            [0.74, 0.38, 0.22],
+            texture=terracotta,
+            gloss=0.2,
+        )
+    )
     rin = rbot + (rtop - rbot) * (PLANT_SOIL - zb) / (zt - zb) - 0.03
-    parts.append(_Part("pot_inner", "frustum", [0, 0, PLANT_SOIL], EYE3,
-                       {"r0": rin, "r1": rtop - 0.03, "h": zt - PLANT_SOIL, "flip": 1.0}, [0.55, 0.27, 0.16]))
-    parts.append(_Part("rim", "torus", [0, 0, zt], EYE3, {"R": rtop - 0.012, "r": 0.03}, [0.78, 0.42, 0.25],
-                       texture=terracotta, gloss=0.3))
+    parts.append(
+        _Part(
+            "pot_inner",
+            "frustum",
+            [0, 0, PLANT_SOIL],
+            EYE3,
+            {"r0": rin, "r1": rtop - 0.03, "h": zt - PLANT_SOIL, "flip": 1.0},
+            [0.55, 0.27, 0.16],
+        )
+    )
+    parts.append(
+        _Part(
+            "rim",
+            "torus",
+            [0, 0, zt],
+            EYE3,
+            {"R": rtop - 0.012, "r": 0.03},
+            [0.78, 0.42, 0.25],
+            texture=terracotta,
+            gloss=0.3,
+        )
+    )
 
     def soil(ctx):
         v = noise(ctx["pts"] * 6.0)
         grit = np.sin(ctx["pts"][:, 0] * 173.0) * np.sin(ctx["pts"][:, 1] * 191.0)
         return ctx["colour"] * (1.0 + 0.25 * v + 0.15 * grit)[:, None]
 
-    parts.append(_Part("soil", "disk", [0, 0, PLANT_SOIL], EYE3, {"r0": 0.0, "r1": rin}, [0.26, 0.17, 0.11],
-                       texture=soil, weight=0.6))
+    parts.append(
+        _Part(
+            "soil",
+            "disk",
+            [0, 0, PLANT_SOIL],
+            EYE3,
+            {"r0": 0.0, "r1": rin},
+            [0.26, 0.17, 0.11],
+            texture=soil,
+            weight=0.6,
+        )
+    )
 
     # stems and twigs: chains of tapering frusta; leaves at their upper nodes
     seg_o, seg_ax, seg_r0, seg_r1, seg_h = [], [], [], [], []
@@ -521,8 +644,11 @@ def _layout_plant() -> list[_Part]:
             h = length / nseg
             ra = r0 + (r1 - r0) * i / nseg
             rb = r0 + (r1 - r0) * (i + 1) / nseg
-            seg_o.append(pos.copy()); seg_ax.append(d.copy())
-            seg_r0.append(ra); seg_r1.append(rb); seg_h.append(h)
+            seg_o.append(pos.copy())
+            seg_ax.append(d.copy())
+            seg_r0.append(ra)
+            seg_r1.append(rb)
+            seg_h.append(h)
             pos = pos + d * h
             horiz = _normalize(d * [1, 1, 0] + 1e-6)
             d = _normalize(d + droop * (horiz * 0.6 - Z * 0.4) + 0.12 * rng.standard_normal(3))
@@ -543,11 +669,19 @@ def _layout_plant() -> list[_Part]:
         grow(start, direction, 1.0 + 0.5 * rng.random(), 11, 0.02, 0.006, 0.05 + 0.06 * rng.random(), True)
 
     seg_ax = np.array(seg_ax)
-    parts.append(_Part("stems", "frustum", np.array(seg_o), _frame(seg_ax), {
-        "r0": np.array(seg_r0), "r1": np.array(seg_r1), "h": np.array(seg_h), "flip": 0.0},
-        [0.36, 0.27, 0.15], weight=1.5, cap=np.stack([np.full(len(seg_r0), np.inf),
-                                                      0.8 * np.array(seg_r1)], axis=1),
-        texture=lambda ctx: ctx["colour"] * (1.0 + 0.15 * noise(ctx["pts"] * 5.0))[:, None]))
+    parts.append(
+        _Part(
+            "stems",
+            "frustum",
+            np.array(seg_o),
+            _frame(seg_ax),
+            {"r0": np.array(seg_r0), "r1": np.array(seg_r1), "h": np.array(seg_h), "flip": 0.0},
+            [0.36, 0.27, 0.15],
+            weight=1.5,
+            cap=np.stack([np.full(len(seg_r0), np.inf), 0.8 * np.array(seg_r1)], axis=1),
+            texture=lambda ctx: ctx["colour"] * (1.0 + 0.15 * noise(ctx["pts"] * 5.0))[:, None],
+        )
+    )
 
     lo, le1, le3, ll, lw, lbend, lcurl, lcol = [], [], [], [], [], [], [], []
     for pos, d, count in leaf_nodes:
@@ -557,9 +691,13 @@ def _layout_plant() -> list[_Part]:
             droop = -0.2 + 0.9 * rng.random()
             e1 = _normalize(side + 0.5 * d - droop * Z)
             e3 = _normalize(Z - np.dot(Z, e1) * e1 + 0.35 * rng.standard_normal(3))
-            lo.append(pos + 0.01 * side); le1.append(e1); le3.append(e3)
-            ll.append(0.10 + 0.09 * rng.random()); lw.append(0.022 + 0.02 * rng.random())
-            lbend.append(-0.05 - 0.15 * rng.random()); lcurl.append(-0.1 - 0.2 * rng.random())
+            lo.append(pos + 0.01 * side)
+            le1.append(e1)
+            le3.append(e3)
+            ll.append(0.10 + 0.09 * rng.random())
+            lw.append(0.022 + 0.02 * rng.random())
+            lbend.append(-0.05 - 0.15 * rng.random())
+            lcurl.append(-0.1 - 0.2 * rng.random())
             g = rng.random()
             lcol.append(np.array([0.10 + 0.18 * g, 0.36 + 0.28 * g, 0.08 + 0.10 * rng.random()]))
     lw = np.array(lw)
@@ -573,15 +711,27 @@ def _layout_plant() -> list[_Part]:
         return col + np.array([0.05, 0.06, 0.0]) * rib[:, None]
 
     e1 = np.array(le1)
-    parts.append(_Part("leaves", "leaf", np.array(lo), _frame(np.array(le3), e1), {
-        "l": np.array(ll), "w": lw, "bend": np.array(lbend), "curl": np.array(lcurl)},
-        np.array(lcol), weight=2.0, gloss=0.7, cap=np.stack([0.4 * lw, 0.4 * lw], axis=1), texture=veins))
+    parts.append(
+        _Part(
+            "leaves",
+            "leaf",
+            np.array(lo),
+            _frame(np.array(le3), e1),
+            {"l": np.array(ll), "w": lw, "bend": np.array(lbend), "curl": np.array(lcurl)},
+            np.array(lcol),
+            weight=2.0,
+            gloss=0.7,
+            cap=np.stack([0.4 * lw, 0.4 * lw], axis=1),
+            texture=veins,
+        )
+    )
     return parts
 
 
 @dataclass(frozen=True)
 class SceneSpec:
     """A registered scene: its layout builder and the orbit that frames it (`scene_cameras`)."""
+
     name: str
     description: str
     layout: Callable[[], list]
@@ -592,12 +742,18 @@ class SceneSpec:
 
 
 SCENES: dict[str, SceneSpec] = {
-    "spheres": SceneSpec("spheres", "smooth surfaces: coloured spheres and a torus on a checkered platform",
-                         _layout_spheres, target=(0.0, 0.0, 0.05)),
-    "blocks": SceneSpec("blocks", "high-frequency blocky geometry: lego-like stacked bricks on a plate",
-                        _layout_blocks),
-    "plant": SceneSpec("plant", "thin structures: stems and many small thin leaves in a pot",
-                       _layout_plant, target=(0.0, 0.0, -0.05)),
+    "spheres": SceneSpec(
+        "spheres",
+        "smooth surfaces: coloured spheres and a torus on a checkered platform",
+        _layout_spheres,
+        target=(0.0, 0.0, 0.05),
+    ),
+    "blocks": SceneSpec(
+        "blocks", "high-frequency blocky geometry: lego-like stacked bricks on a plate", _layout_blocks
+    ),
+    "plant": SceneSpec(
+        "plant", "thin structures: stems and many small thin leaves in a pot", _layout_plant, target=(0.0, 0.0, -0.05)
+    ),
 }
 
 
@@ -605,22 +761,23 @@ def list_scenes() -> list[str]:
     return list(SCENES)
 
 
-def _spec(name) -> SceneSpec:
+def scene_spec(name) -> SceneSpec:
     if not isinstance(name, str) or name not in SCENES:
         raise ValueError(f"unknown scene {name!r}; valid scenes: {', '.join(SCENES)}")
     return SCENES[name]
 
 
-@lru_cache(maxsize=None)
+@cache
 def _parts(name: str) -> tuple:
-    return tuple(_spec(name).layout())
+    return tuple(scene_spec(name).layout())
 
 
 def scene_cameras(name: str, k: int, width: int, height: int) -> list[Camera]:
     """`k` orbit cameras (z up, evenly spaced azimuths) that frame the scene."""
-    s = _spec(name)
-    return orbit_cameras(k, width, height, radius=s.radius, elevation_deg=s.elevation_deg,
-                         fov_x_deg=s.fov_x_deg, target=s.target)
+    s = scene_spec(name)
+    return orbit_cameras(
+        k, width, height, radius=s.radius, elevation_deg=s.elevation_deg, fov_x_deg=s.fov_x_deg, target=s.target
+    )
 
 
 def _allocate(weights: np.ndarray, n: int) -> np.ndarray:
@@ -653,7 +810,7 @@ def _logit(p):
 
 def make_scene(name: str = DEFAULT_SCENE, n: int = 100_000, sh_degree: int = 3, seed: int = 0) -> Model:
     """A trained-looking 3DGS model of scene `name` with exactly `n` primitives (module docs)."""
-    spec = _spec(name)
+    spec = scene_spec(name)
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
         raise ValueError(f"n must be an integer, got {n!r}")
     n = int(n)
@@ -669,16 +826,21 @@ def make_scene(name: str = DEFAULT_SCENE, n: int = 100_000, sh_degree: int = 3, 
     # each part fills its slots in increasing order with iid samples. Parts are processed in
     # chunks so that the temporaries stay small (4M primitives at degree 3 is ~1 GB of output).
     labels = np.repeat(np.arange(len(parts), dtype=np.int16), counts)[rng.permutation(n)]
-    out = {"means": np.empty((n, 3), np.float32), "log_scales": np.empty((n, 3), np.float32),
-           "quats": np.empty((n, 4), np.float32), "opacity": np.empty(n, np.float32),
-           "sh_dc": np.empty((n, 3), np.float32), "sh_rest": np.empty((n, nrest, 3), np.float32)}
+    out = {
+        "means": np.empty((n, 3), np.float32),
+        "log_scales": np.empty((n, 3), np.float32),
+        "quats": np.empty((n, 4), np.float32),
+        "opacity": np.empty(n, np.float32),
+        "sh_dc": np.empty((n, 3), np.float32),
+        "sh_rest": np.empty((n, nrest, 3), np.float32),
+    }
     for k, (part, m) in enumerate(zip(parts, counts)):
         if m == 0:
             continue
         slots = np.flatnonzero(labels == k)
         spacing = np.sqrt(part.area / int(m))
         for lo in range(0, int(m), _CHUNK):
-            dest = slots[lo:lo + _CHUNK]
+            dest = slots[lo : lo + _CHUNK]
             for key, val in _sample_part(part, spacing, dest.size, rng, nrest).items():
                 out[key][dest] = val
     return Model(**out)
@@ -716,7 +878,7 @@ def _sample_part(part: _Part, spacing: float, m: int, rng, nrest: int) -> dict:
     low = rng.random(m) < LOW_OPACITY_FRACTION
     u = rng.random(m)
     hi_l, lo_l = _logit(np.array(HIGH_OPACITY)), _logit(np.array(LOW_OPACITY))
-    opacity = np.where(low, lo_l[0] + (lo_l[1] - lo_l[0]) * u, hi_l[0] + (hi_l[1] - hi_l[0]) * u ** 0.7)
+    opacity = np.where(low, lo_l[0] + (lo_l[1] - lo_l[0]) * u, hi_l[0] + (hi_l[1] - hi_l[0]) * u**0.7)
     offset = rng.standard_normal(m) * spacing * np.where(low, 0.3, 0.05)
     pts = pts + nrm * offset[:, None]
     logs[low] += 0.35
@@ -742,5 +904,11 @@ def _sample_part(part: _Part, spacing: float, m: int, rng, nrest: int) -> dict:
         rest[:, 1, :] -= a[:, 2:3].astype(np.float32)
         rest[:, 2, :] += a[:, 0:1].astype(np.float32)
     np.clip(rest, -0.1, 0.1, out=rest)
-    return {"means": pts, "log_scales": logs, "quats": q, "opacity": opacity, "sh_dc": sh_dc,
-            "sh_rest": rest[:, :nrest]}
+    return {
+        "means": pts,
+        "log_scales": logs,
+        "quats": q,
+        "opacity": opacity,
+        "sh_dc": sh_dc,
+        "sh_rest": rest[:, :nrest],
+    }

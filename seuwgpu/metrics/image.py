@@ -51,15 +51,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from .gpu.device import INDIRECT, STORAGE, UNIFORM, dispatch_dims
+from seuwgpu.gpu.device import INDIRECT, STORAGE, UNIFORM, dispatch_dims
 
 TILE = 16
 WIN = 7
 PAD = (WIN - 1) // 2
 THRESHOLD = np.float32(1.0 / 255.0)
 FIELDS = ("changed", "peak", "sse", "nonfinite", "ssim_sum", "ssim_count", "ssim_deficit")
-_REC = 6          # words per record
-_HDR = 16         # bytes of status header in the results buffer
+_REC = 6  # words per record
+_HDR = 16  # bytes of status header in the results buffer
 
 
 def tiles_of(width: int, height: int) -> tuple[int, int]:
@@ -80,8 +80,7 @@ class ImageMetrics:
     once; ``encode_dense`` / ``encode_sparse`` record the kernels into a caller's command encoder
     (submit it before ``read``)."""
 
-    def __init__(self, gpu, width: int, height: int, n_views: int, max_variants: int,
-                 max_entries: int | None = None):
+    def __init__(self, gpu, width: int, height: int, n_views: int, max_variants: int, max_entries: int | None = None):
         if width < WIN or height < WIN:
             raise ValueError(f"SSIM needs images of at least {WIN}x{WIN}, got {width}x{height}")
         self.gpu = gpu
@@ -92,11 +91,12 @@ class ImageMetrics:
         self.n_interior = n_interior(width, height)
         self.capacity = int(max_entries) if max_entries else self.max_variants * self.n_views * self.n_tiles
         if self.capacity * _REC * 4 > gpu.max_binding:
-            raise ValueError(f"max_entries={self.capacity} needs more than one storage binding "
-                             f"({gpu.max_binding} bytes): evaluate fewer variants per call")
+            raise ValueError(
+                f"max_entries={self.capacity} needs more than one storage binding "
+                f"({gpu.max_binding} bytes): evaluate fewer variants per call"
+            )
         self.partials = gpu.buffer(self.capacity * _REC * 4, STORAGE, "metrics.partials")
-        self.results = gpu.buffer(_HDR + self.max_variants * self.n_views * _REC * 4, STORAGE,
-                                  "metrics.results")
+        self.results = gpu.buffer(_HDR + self.max_variants * self.n_views * _REC * 4, STORAGE, "metrics.results")
         self.indirect = gpu.buffer(16, INDIRECT, "metrics.indirect")
         self._dummy = gpu.buffer(16, STORAGE, "metrics.dummy")
         self.p_tile = gpu.pipeline("metrics", "tile_partials")
@@ -109,23 +109,42 @@ class ImageMetrics:
         n_variants = int(n_variants)
         if not 0 < n_variants <= self.max_variants:
             raise ValueError(f"n_variants={n_variants} outside 1..{self.max_variants}")
-        p = np.array([self.width, self.height, self.n_views, n_variants * self.n_views,
-                      self.tiles_x, self.n_tiles, self.capacity, int(sparse)], np.uint32)
+        p = np.array(
+            [
+                self.width,
+                self.height,
+                self.n_views,
+                n_variants * self.n_views,
+                self.tiles_x,
+                self.n_tiles,
+                self.capacity,
+                int(sparse),
+            ],
+            np.uint32,
+        )
         return self.gpu.device.create_buffer_with_data(data=p.tobytes(), usage=UNIFORM)
 
     def _need(self, buf, nbytes: int, what: str):
         if buf.size < nbytes:
             raise ValueError(f"{what} buffer holds {buf.size} bytes, needs {nbytes}")
 
-    def _record(self, encoder, params, clean_buf, fimg_buf, tile_map_buf, worklist_buf,
-                offsets_buf, n_bk, n_entries):
+    def _record(self, encoder, params, clean_buf, fimg_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, n_entries):
         g = self.gpu
-        common = {0: params, 1: clean_buf, 2: fimg_buf, 3: tile_map_buf, 4: worklist_buf,
-                  5: offsets_buf, 6: self.partials, 7: self.results, 8: self.indirect}
+        common = {
+            0: params,
+            1: clean_buf,
+            2: fimg_buf,
+            3: tile_map_buf,
+            4: worklist_buf,
+            5: offsets_buf,
+            6: self.partials,
+            7: self.results,
+            8: self.indirect,
+        }
         bg_tile = g.bind(self.p_tile, {i: common[i] for i in range(7)})
         bg_red = g.bind(self.p_reduce, {i: common[i] for i in (0, 5, 6, 7)})
         cp = encoder.begin_compute_pass()
-        if n_entries is None:           # sparse: size from offsets[B*K] on the GPU
+        if n_entries is None:  # sparse: size from offsets[B*K] on the GPU
             cp.set_pipeline(self.p_dispatch)
             cp.set_bind_group(0, g.bind(self.p_dispatch, {i: common[i] for i in (0, 5, 8)}))
             cp.dispatch_workgroups(1, 1, 1)
@@ -152,12 +171,10 @@ class ImageMetrics:
         px = self.height * self.width * 16
         self._need(clean_buf, self.n_views * px, "clean")
         self._need(faulted_buf, n_bk * px, "faulted")
-        self._record(encoder, params, clean_buf, faulted_buf, self._dummy, self._dummy,
-                     self._dummy, n_bk, n_entries)
+        self._record(encoder, params, clean_buf, faulted_buf, self._dummy, self._dummy, self._dummy, n_bk, n_entries)
         self._mode = ("dense", int(n_variants))
 
-    def encode_sparse(self, encoder, clean_buf, slabs_buf, tile_map_buf, worklist_buf,
-                      offsets_buf, n_variants: int):
+    def encode_sparse(self, encoder, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants: int):
         """slabs_buf [S, 256, 4] f32; tile_map_buf i32 [B, K, TY*TX]; worklist_buf u32 [E] tile
         indices grouped by bk = b*K + k (increasing bk; within a group in increasing tile order
         for results bit-identical to dense mode); offsets_buf u32 [B*K + 1] (CSR, offsets[0] = 0).
@@ -169,8 +186,7 @@ class ImageMetrics:
         self._need(clean_buf, self.n_views * self.height * self.width * 16, "clean")
         self._need(tile_map_buf, n_bk * self.n_tiles * 4, "tile_map")
         self._need(offsets_buf, (n_bk + 1) * 4, "offsets")
-        self._record(encoder, params, clean_buf, slabs_buf, tile_map_buf, worklist_buf,
-                     offsets_buf, n_bk, None)
+        self._record(encoder, params, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, None)
         self._mode = ("sparse", int(n_variants))
 
     # ---- results -------------------------------------------------------------------------------
@@ -183,8 +199,10 @@ class ImageMetrics:
         raw = self.gpu.read(self.results, np.uint32, 0, _HDR + B * K * _REC * 4)
         requested, evaluated = int(raw[0]), int(raw[1])
         if requested > evaluated:
-            raise RuntimeError(f"metrics work list has {requested} entries > max_entries="
-                               f"{self.capacity}: results incomplete (raise max_entries)")
+            raise RuntimeError(
+                f"metrics work list has {requested} entries > max_entries="
+                f"{self.capacity}: results incomplete (raise max_entries)"
+            )
         return _unpack(raw[4:].reshape(B, K, _REC))
 
     def run_dense(self, clean_buf, faulted_buf, n_variants: int) -> dict:
@@ -194,12 +212,10 @@ class ImageMetrics:
         self.gpu.submit(enc)
         return self.read(n_variants)
 
-    def run_sparse(self, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf,
-                   n_variants: int) -> dict:
+    def run_sparse(self, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants: int) -> dict:
         """encode_sparse + submit + read."""
         enc = self.gpu.device.create_command_encoder()
-        self.encode_sparse(enc, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf,
-                           n_variants)
+        self.encode_sparse(enc, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants)
         self.gpu.submit(enc)
         return self.read(n_variants)
 
@@ -246,12 +262,12 @@ def build_worklist(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """bool [B, K, NT] -> (worklist u32 [E] tile indices grouped by b*K + k, offsets u32 [B*K+1])."""
     m = np.asarray(mask, bool)
     flat = m.reshape(-1, m.shape[-1])
-    bk, tile = np.nonzero(flat)          # row-major: grouped by bk, tiles increasing
+    bk, tile = np.nonzero(flat)  # row-major: grouped by bk, tiles increasing
     offsets = np.zeros(flat.shape[0] + 1, np.uint32)
     np.cumsum(flat.sum(axis=1), out=offsets[1:])
     worklist = tile.astype(np.uint32)
     if worklist.size == 0:
-        worklist = np.zeros(1, np.uint32)   # a binding cannot be empty; offsets say E = 0
+        worklist = np.zeros(1, np.uint32)  # a binding cannot be empty; offsets say E = 0
     return worklist, offsets
 
 
@@ -273,8 +289,9 @@ def summarize(raw: dict, width: int, height: int) -> dict:
     if "ssim_deficit" in raw:
         ssim_view = 1.0 - np.asarray(raw["ssim_deficit"], np.float64) / n_int
     else:
-        ssim_view = (np.asarray(raw["ssim_sum"], np.float64) + n_int
-                     - np.asarray(raw["ssim_count"], np.float64)) / n_int
+        ssim_view = (
+            np.asarray(raw["ssim_sum"], np.float64) + n_int - np.asarray(raw["ssim_count"], np.float64)
+        ) / n_int
     nonfinite_px = np.asarray(raw["nonfinite"], np.int64).sum(axis=1)
     foot = changed / n_px
     return {
@@ -315,7 +332,7 @@ def numpy_metrics(clean: np.ndarray, faulted: np.ndarray) -> dict:
     B, K, H, W = f.shape[:4]
     n_int = n_interior(W, H)
     with np.errstate(invalid="ignore", over="ignore"):
-        d = f - c[None]                                     # float32, like the GPU
+        d = f - c[None]  # float32, like the GPU
     bad_f = ~np.isfinite(f)
     bad_d = ~np.isfinite(d)
     nonfin_px = bad_f.any(axis=-1)

@@ -42,8 +42,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .camera import Camera
-from .model import Model
+from seuwgpu.model.cameras import Camera
+from seuwgpu.model.fields import Model
 
 TILE = 16
 
@@ -60,11 +60,22 @@ CLIP = F(0.3)
 # Real SH constants (INRIA's sh_utils / gsplat).
 SH_C0 = F(0.28209479177387814)
 SH_C1 = F(0.4886025119029199)
-SH_C2 = tuple(F(v) for v in (1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
-                             -1.0925484305920792, 0.5462742152960396))
-SH_C3 = tuple(F(v) for v in (-0.5900435899266435, 2.890611442640554, -0.4570457994644658,
-                             0.3731763325901154, -0.4570457994644658, 1.445305721320277,
-                             -0.5900435899266435))
+SH_C2 = tuple(
+    F(v)
+    for v in (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+)
+SH_C3 = tuple(
+    F(v)
+    for v in (
+        -0.5900435899266435,
+        2.890611442640554,
+        -0.4570457994644658,
+        0.3731763325901154,
+        -0.4570457994644658,
+        1.445305721320277,
+        -0.5900435899266435,
+    )
+)
 
 
 def n_tiles_xy(cam: Camera) -> tuple[int, int]:
@@ -94,6 +105,7 @@ def _lims(cam: Camera, fx, fy, cx, cy):
 # ---------------------------------------------------------------------------------------------
 # Spherical harmonics
 # ---------------------------------------------------------------------------------------------
+
 
 def sh_basis(dirs: np.ndarray, degree: int) -> np.ndarray:
     """Real SH basis values [N, (degree+1)^2] at unit directions [N, 3] (INRIA's signs and
@@ -166,7 +178,7 @@ def sh_to_rgb(sh_dc, sh_rest, dirs, normalize: bool = True) -> np.ndarray:
         basis = sh_basis(d, degree)
         res = basis[:, 0:1] * sh_dc
         for k in range(1, r + 1):
-            res = res + basis[:, k:k + 1] * sh_rest[:, k - 1, :]
+            res = res + basis[:, k : k + 1] * sh_rest[:, k - 1, :]
         rgb = res + F(0.5)
         return np.maximum(rgb, F(0))  # np.maximum propagates NaN; -Inf -> 0, +Inf stays
 
@@ -174,6 +186,7 @@ def sh_to_rgb(sh_dc, sh_rest, dirs, normalize: bool = True) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------
 # Projection (vectorised)
 # ---------------------------------------------------------------------------------------------
+
 
 def _mm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Batched matrix product [N, i, k] @ [N, k, j] with each sum taken left to right."""
@@ -234,8 +247,9 @@ def project(model: Model, cam: Camera) -> dict:
     m = model.means
     with np.errstate(all="ignore"):
         # 2. camera-space mean
-        p = ((m[:, 0, None] * R[None, :, 0] + m[:, 1, None] * R[None, :, 1])
-             + m[:, 2, None] * R[None, :, 2]) + t[None, :]
+        p = ((m[:, 0, None] * R[None, :, 0] + m[:, 1, None] * R[None, :, 1]) + m[:, 2, None] * R[None, :, 2]) + t[
+            None, :
+        ]
         px, py, pz = p[:, 0], p[:, 1], p[:, 2]
         ok = np.isfinite(pz) & (pz >= NEAR) & (pz <= FAR)
         # 3. screen mean
@@ -281,10 +295,17 @@ def project(model: Model, cam: Camera) -> dict:
         opacity = sigmoid(model.opacity)
         rgb = sh_to_rgb(model.sh_dc, model.sh_rest, m - campos[None, :])
     return {
-        "depth": pz.astype(F), "visible": ok, "mean2d": np.stack([mx, my], axis=1).astype(F),
-        "cov2d": np.stack([a, b, c], axis=1).astype(F), "conic": conic.astype(F),
-        "unbounded": unb & ok, "radius": np.stack([rx, ry], axis=1).astype(F),
-        "opacity": opacity.astype(F), "rgb": rgb.astype(F), "rect": rect, "n_tiles": n_tiles,
+        "depth": pz.astype(F),
+        "visible": ok,
+        "mean2d": np.stack([mx, my], axis=1).astype(F),
+        "cov2d": np.stack([a, b, c], axis=1).astype(F),
+        "conic": conic.astype(F),
+        "unbounded": unb & ok,
+        "radius": np.stack([rx, ry], axis=1).astype(F),
+        "opacity": opacity.astype(F),
+        "rgb": rgb.astype(F),
+        "rect": rect,
+        "n_tiles": n_tiles,
     }
 
 
@@ -298,6 +319,7 @@ def depth_order(proj: dict) -> np.ndarray:
 # Compositing (vectorised per tile)
 # ---------------------------------------------------------------------------------------------
 
+
 def _composite_tile(ids, pxs, pys, mx, my, conic, opac, rgb, bg, block0=32, block_max=512):
     """Composite the depth-ordered primitive list `ids` over pixel centres (pxs, pys) [P].
     Exactly the sequential per-pixel rule, vectorised over pixels and blocks of primitives."""
@@ -307,7 +329,7 @@ def _composite_tile(ids, pxs, pys, mx, my, conic, opac, rgb, bg, block0=32, bloc
     active = np.arange(P)  # pixels not yet stopped
     pos, L, B = 0, len(ids), block0
     while pos < L and active.size:
-        blk = ids[pos:pos + B]
+        blk = ids[pos : pos + B]
         pos += len(blk)
         nb = len(blk)
         apx, apy = pxs[active], pys[active]
@@ -376,6 +398,7 @@ def render(model: Model, cams: list[Camera], background=(1.0, 1.0, 1.0)) -> np.n
 # Naive reference: per-primitive scalar projection, per-pixel loop (tiny scenes only)
 # ---------------------------------------------------------------------------------------------
 
+
 def _finite(x) -> bool:
     return bool(np.isfinite(x))
 
@@ -399,12 +422,16 @@ def _naive_project_one(model: Model, i: int, cam: Camera, TX: int, TY: int):
     inq = F(1) / np.sqrt(((qw * qw + qx * qx) + qy * qy) + qz * qz)
     qw, qx, qy, qz = qw * inq, qx * inq, qy * inq, qz * inq
     one, two = F(1), F(2)
-    Rq = [[one - two * (qy * qy + qz * qz), two * (qx * qy - qw * qz), two * (qx * qz + qw * qy)],
-          [two * (qx * qy + qw * qz), one - two * (qx * qx + qz * qz), two * (qy * qz - qw * qx)],
-          [two * (qx * qz - qw * qy), two * (qy * qz + qw * qx), one - two * (qx * qx + qy * qy)]]
+    Rq = [
+        [one - two * (qy * qy + qz * qz), two * (qx * qy - qw * qz), two * (qx * qz + qw * qy)],
+        [two * (qx * qy + qw * qz), one - two * (qx * qx + qz * qz), two * (qy * qz - qw * qx)],
+        [two * (qx * qz - qw * qy), two * (qy * qz + qw * qx), one - two * (qx * qx + qy * qy)],
+    ]
+
     def mm(A, B):
-        return [[sum_lr([A[r][k] * B[k][col] for k in range(len(B))]) for col in range(len(B[0]))]
-                for r in range(len(A))]
+        return [
+            [sum_lr([A[r][k] * B[k][col] for k in range(len(B))]) for col in range(len(B[0]))] for r in range(len(A))
+        ]
 
     def tr(A):
         return [list(col) for col in zip(*A)]
@@ -431,8 +458,12 @@ def _naive_project_one(model: Model, i: int, cam: Camera, TX: int, TY: int):
         def clampf(v, hi):
             return int(min(max(v, F(0)), F(hi)))
 
-        rect = (clampf(np.floor((mx - rx) / F(TILE)), TX), clampf(np.floor((my - ry) / F(TILE)), TY),
-                clampf(np.ceil((mx + rx) / F(TILE)), TX), clampf(np.ceil((my + ry) / F(TILE)), TY))
+        rect = (
+            clampf(np.floor((mx - rx) / F(TILE)), TX),
+            clampf(np.floor((my - ry) / F(TILE)), TY),
+            clampf(np.ceil((mx + rx) / F(TILE)), TX),
+            clampf(np.ceil((my + ry) / F(TILE)), TY),
+        )
         if rect[2] <= rect[0] or rect[3] <= rect[1]:
             return None
     lg = model.opacity[i]
@@ -478,14 +509,24 @@ def _naive_sh_basis(x, y, z, degree):
     if degree >= 1:
         b += [-(SH_C1 * y), SH_C1 * z, -(SH_C1 * x)]
     if degree >= 2:
-        b += [SH_C2[0] * (x * y), SH_C2[1] * (y * z), SH_C2[2] * ((F(2) * (z * z) - x * x) - y * y),
-              SH_C2[3] * (x * z), SH_C2[4] * (x * x - y * y)]
+        b += [
+            SH_C2[0] * (x * y),
+            SH_C2[1] * (y * z),
+            SH_C2[2] * ((F(2) * (z * z) - x * x) - y * y),
+            SH_C2[3] * (x * z),
+            SH_C2[4] * (x * x - y * y),
+        ]
     if degree >= 3:
         xx, yy, zz = x * x, y * y, z * z
-        b += [(SH_C3[0] * y) * (F(3) * xx - yy), (SH_C3[1] * (x * y)) * z,
-              (SH_C3[2] * y) * ((F(4) * zz - xx) - yy), (SH_C3[3] * z) * ((F(2) * zz - F(3) * xx) - F(3) * yy),
-              (SH_C3[4] * x) * ((F(4) * zz - xx) - yy), (SH_C3[5] * z) * (xx - yy),
-              (SH_C3[6] * x) * (xx - F(3) * yy)]
+        b += [
+            (SH_C3[0] * y) * (F(3) * xx - yy),
+            (SH_C3[1] * (x * y)) * z,
+            (SH_C3[2] * y) * ((F(4) * zz - xx) - yy),
+            (SH_C3[3] * z) * ((F(2) * zz - F(3) * xx) - F(3) * yy),
+            (SH_C3[4] * x) * ((F(4) * zz - xx) - yy),
+            (SH_C3[5] * z) * (xx - yy),
+            (SH_C3[6] * x) * (xx - F(3) * yy),
+        ]
     return b
 
 
@@ -508,7 +549,7 @@ def render_view_naive(model: Model, cam: Camera, background=(1.0, 1.0, 1.0)) -> 
                 px, py = F(xx) + F(0.5), F(yy) + F(0.5)
                 T = F(1)
                 C = [F(0), F(0), F(0)]
-                for _, _, (z, mx, my, conic, o, rgb, rect) in prims:
+                for _, _, (_z, mx, my, conic, o, rgb, rect) in prims:
                     if not (rect[0] <= tile_x < rect[2] and rect[1] <= tile_y < rect[3]):
                         continue
                     dx, dy = mx - px, my - py

@@ -20,15 +20,16 @@ storm runs; drawing the panel alone is cheap.
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
 import numpy as np
 import wgpu
 
-from .model import FIELDS
-from .viewer import GUARD_MODES, MIN_SIZE, OrbitCamera, ViewerState
-from . import formats
+from seuwgpu.apps.viewer import GUARD_MODES, MIN_SIZE, OrbitCamera, ViewerState
+from seuwgpu.model import encoding
+from seuwgpu.model.fields import FIELDS
 
 PANEL_WIDTH = 340  # logical pixels
 PRECISIONS = ("fp32", "fp16", "bf16")
@@ -61,6 +62,7 @@ fn fs(v: VOut) -> @location(0) vec4<f32> {
 
 def _rgb(r, g, b, a=1.0):
     from imgui_bundle import imgui
+
     return imgui.ImVec4(r, g, b, a)
 
 
@@ -76,14 +78,14 @@ class ViewerApp:
         self.device = state.gpu.device
         self.screenshot_dir = Path(screenshot_dir)
         self.show_panel = bool(show_panel)
-        self.frames = 0           # draws (panel included)
-        self.renders = 0          # frames rendered by the state
+        self.frames = 0  # draws (panel included)
+        self.renders = 0  # frames rendered by the state
         self.last_rgba: np.ndarray | None = None
         self.last_window: np.ndarray | None = None  # last window capture (RGBA8)
         self._drag = None
-        self._pending_shots: list[tuple[str, Path | None]] = []
+        self.pending_shots: list[tuple[str, Path | None]] = []
         self.saved: list[Path] = []
-        self.after_draw = None    # optional callback(app) at the end of each draw (scripts)
+        self.after_draw = None  # optional callback(app) at the end of each draw (scripts)
 
         # swap chain: a non-sRGB format so values reach the screen as they are
         self.ctx = canvas.get_wgpu_context()
@@ -105,11 +107,29 @@ class ViewerApp:
         self._bind = None
 
         # GUI state of the panel's widgets
-        self.ui = {"field": FIELDS.index("log_scales"), "component": 2, "bit": formats.bits_per_value(state.precision) - 1,
-                   "worst": True, "primitive": 0, "k_random": 10, "k_storm": 100, "accumulate": True}
+        self.ui = {
+            "field": FIELDS.index("log_scales"),
+            "component": 2,
+            "bit": encoding.bits_per_value(state.precision) - 1,
+            "worst": True,
+            "primitive": 0,
+            "k_random": 10,
+            "k_storm": 100,
+            "accumulate": True,
+        }
 
-        canvas.add_event_handler(self._wake, "pointer_move", "pointer_down", "pointer_up", "wheel",
-                                 "key_down", "key_up", "char", "resize", order=-100)
+        canvas.add_event_handler(
+            self._wake,
+            "pointer_move",
+            "pointer_down",
+            "pointer_up",
+            "wheel",
+            "key_down",
+            "key_up",
+            "char",
+            "resize",
+            order=-100,
+        )
         canvas.add_event_handler(self._on_pointer, "pointer_down", "pointer_move", "pointer_up")
         canvas.add_event_handler(self._on_wheel, "wheel")
         canvas.add_event_handler(self._on_key, "key_down")
@@ -120,22 +140,30 @@ class ViewerApp:
         d = self.device
         module = d.create_shader_module(label="viewer-blit", code=BLIT_WGSL)
         self.pipeline = d.create_render_pipeline(
-            label="viewer-blit", layout="auto",
+            label="viewer-blit",
+            layout="auto",
             vertex={"module": module, "entry_point": "vs", "buffers": []},
             primitive={"topology": wgpu.PrimitiveTopology.triangle_list},
-            fragment={"module": module, "entry_point": "fs", "targets": [{"format": self.format}]})
+            fragment={"module": module, "entry_point": "fs", "targets": [{"format": self.format}]},
+        )
         self.sampler = d.create_sampler(mag_filter="nearest", min_filter="nearest")
 
     def _upload(self, rgba: np.ndarray):
         h, w = rgba.shape[:2]
         if self._tex_size != (w, h):
-            self._tex = self.device.create_texture(size=(w, h, 1), format=wgpu.TextureFormat.rgba8unorm,
-                                                   usage=wgpu.TextureUsage.TEXTURE_BINDING | wgpu.TextureUsage.COPY_DST)
+            self._tex = self.device.create_texture(
+                size=(w, h, 1),
+                format=wgpu.TextureFormat.rgba8unorm,
+                usage=wgpu.TextureUsage.TEXTURE_BINDING | wgpu.TextureUsage.COPY_DST,
+            )
             self._tex_size = (w, h)
-            self._bind = self.device.create_bind_group(layout=self.pipeline.get_bind_group_layout(0), entries=[
-                {"binding": 0, "resource": self._tex.create_view()}, {"binding": 1, "resource": self.sampler}])
-        self.device.queue.write_texture({"texture": self._tex}, np.ascontiguousarray(rgba),
-                                        {"bytes_per_row": 4 * w, "rows_per_image": h}, (w, h, 1))
+            self._bind = self.device.create_bind_group(
+                layout=self.pipeline.get_bind_group_layout(0),
+                entries=[{"binding": 0, "resource": self._tex.create_view()}, {"binding": 1, "resource": self.sampler}],
+            )
+        self.device.queue.write_texture(
+            {"texture": self._tex}, np.ascontiguousarray(rgba), {"bytes_per_row": 4 * w, "rows_per_image": h}, (w, h, 1)
+        )
 
     # ---- geometry -----------------------------------------------------------------------------
     def pixel_ratio(self) -> float:
@@ -167,9 +195,17 @@ class ViewerApp:
         tex = self.ctx.get_current_texture()
         W, H = tex.size[0], tex.size[1]
         enc = self.device.create_command_encoder()
-        rp = enc.begin_render_pass(color_attachments=[{
-            "view": tex.create_view(), "resolve_target": None, "clear_value": (0.09, 0.09, 0.1, 1.0),
-            "load_op": wgpu.LoadOp.clear, "store_op": wgpu.StoreOp.store}])
+        rp = enc.begin_render_pass(
+            color_attachments=[
+                {
+                    "view": tex.create_view(),
+                    "resolve_target": None,
+                    "clear_value": (0.09, 0.09, 0.1, 1.0),
+                    "load_op": wgpu.LoadOp.clear,
+                    "store_op": wgpu.StoreOp.store,
+                }
+            ]
+        )
         if self._tex is not None and x0 < W:
             tw, th = self._tex_size
             rp.set_viewport(x0, y0, min(tw, W - x0), min(th, H - y0), 0.0, 1.0)
@@ -190,7 +226,7 @@ class ViewerApp:
     def screenshot(self, window: bool = True, path: Path | str | None = None):
         """Queue a screenshot: the whole window (panel included) at the end of the next draw, or
         the render alone. The PNG path is reported in the status line and in `saved`."""
-        self._pending_shots.append(("window" if window else "render", None if path is None else Path(path)))
+        self.pending_shots.append(("window" if window else "render", None if path is None else Path(path)))
         self.canvas.request_draw()
 
     def _shot_path(self, kind: str) -> Path:
@@ -210,8 +246,11 @@ class ViewerApp:
             raise RuntimeError("this canvas's swap chain cannot be read back (no COPY_SRC usage)")
         tex = tex or self.ctx.get_current_texture()
         w, h = tex.size[0], tex.size[1]
-        data = self.device.queue.read_texture({"texture": tex, "origin": (0, 0, 0), "mip_level": 0},
-                                              {"offset": 0, "bytes_per_row": 4 * w, "rows_per_image": h}, (w, h, 1))
+        data = self.device.queue.read_texture(
+            {"texture": tex, "origin": (0, 0, 0), "mip_level": 0},
+            {"offset": 0, "bytes_per_row": 4 * w, "rows_per_image": h},
+            (w, h, 1),
+        )
         img = np.frombuffer(data, np.uint8).reshape(h, w, 4).copy()
         if self.format.startswith("bgra"):
             img = img[..., [2, 1, 0, 3]]
@@ -220,7 +259,8 @@ class ViewerApp:
 
     def _take_pending_shots(self, tex):
         import imageio.v3 as iio
-        shots, self._pending_shots = self._pending_shots, []
+
+        shots, self.pending_shots = self.pending_shots, []
         for kind, path in shots:
             try:
                 img = self.capture_window(tex) if kind == "window" else self.last_rgba
@@ -325,6 +365,7 @@ class ViewerApp:
     # ---- panel --------------------------------------------------------------------------------
     def _gui(self):
         from imgui_bundle import imgui
+
         if not self.show_panel:
             return
         st, ui = self.state, self.ui
@@ -344,7 +385,10 @@ class ViewerApp:
         col = _rgb(1.0, 0.35, 0.3) if foot > 0.01 else _rgb(0.85, 0.85, 0.85)
         imgui.text_colored(col, f"footprint {100 * foot:.2f} %  ({ro.get('changed_pixels', 0)} px)")
         psnr = ro.get("psnr", float("inf"))
-        imgui.text(f"PSNR {'inf' if not np.isfinite(psnr) else f'{psnr:.2f}'} dB   non-finite {ro.get('nonfinite_pixels', 0)} px")
+        imgui.text(
+            f"PSNR {'inf' if not np.isfinite(psnr) else f'{psnr:.2f}'} dB   "
+            f"non-finite {ro.get('nonfinite_pixels', 0)} px"
+        )
         if st.guard == "off":
             imgui.text_colored(_rgb(0.6, 0.6, 0.6), "guard off: clamps not monitored")
         elif ro.get("alert"):
@@ -372,7 +416,7 @@ class ViewerApp:
         imgui.set_next_item_width(180)
         _, ui["component"] = imgui.slider_int("component", ui["component"], 0, nc - 1)
         imgui.set_next_item_width(180)
-        _, ui["bit"] = imgui.slider_int(f"bit ({formats.bit_class(st.precision, ui['bit'])})", ui["bit"], 0, nb - 1)
+        _, ui["bit"] = imgui.slider_int(f"bit ({encoding.bit_class(st.precision, ui['bit'])})", ui["bit"], 0, nb - 1)
         _, ui["worst"] = imgui.checkbox("worst of a sample of", ui["worst"])
         imgui.same_line()
         imgui.set_next_item_width(90)
@@ -442,6 +486,7 @@ def make_canvas(backend: str, size, title: str = "seuwgpu view"):
     """(canvas, loop) for a rendercanvas backend: 'offscreen' (loop None), 'glfw' or another."""
     if backend == "offscreen":
         from rendercanvas.offscreen import RenderCanvas
+
         return RenderCanvas(size=size), None
     if backend == "glfw":
         from rendercanvas.glfw import RenderCanvas, loop
@@ -450,9 +495,18 @@ def make_canvas(backend: str, size, title: str = "seuwgpu view"):
     return RenderCanvas(size=size, title=title, update_mode="ondemand"), loop
 
 
-def run_viewer(model, scene: str, precision: str, size, orbit: OrbitCamera | None = None,
-               backend: str = "glfw", sample: int = 16, clamp_threshold: int = 0,
-               screenshot_dir: Path | str = ".", frames: int = 0) -> int:
+def run_viewer(
+    model,
+    scene: str,
+    precision: str,
+    size,
+    orbit: OrbitCamera | None = None,
+    backend: str = "glfw",
+    sample: int = 16,
+    clamp_threshold: int = 0,
+    screenshot_dir: Path | str = ".",
+    frames: int = 0,
+) -> int:
     """Open the viewer. frames > 0 (or an offscreen canvas): draw that many frames, save a
     window screenshot in screenshot_dir, and return."""
     w, h = (int(v) for v in size)
@@ -460,8 +514,15 @@ def run_viewer(model, scene: str, precision: str, size, orbit: OrbitCamera | Non
     canvas, loop = make_canvas(backend, (w, h), title)
     pw, ph = canvas.get_physical_size()
     r = canvas.get_pixel_ratio() or 1.0
-    state = ViewerState(model, precision, (max(MIN_SIZE, pw - int(round(PANEL_WIDTH * r))), ph), scene=scene,
-                        orbit=orbit, sample=sample, clamp_threshold=clamp_threshold)
+    state = ViewerState(
+        model,
+        precision,
+        (max(MIN_SIZE, pw - int(round(PANEL_WIDTH * r))), ph),
+        scene=scene,
+        orbit=orbit,
+        sample=sample,
+        clamp_threshold=clamp_threshold,
+    )
     app = ViewerApp(state, canvas, screenshot_dir)
     if loop is None:  # offscreen: no event loop, we draw
         n = max(1, frames)
@@ -473,15 +534,55 @@ def run_viewer(model, scene: str, precision: str, size, orbit: OrbitCamera | Non
             print(f"wrote {p}")
         return 0 if app.saved else 1
     if frames > 0:
+
         def stop_after(a):
             if a.frames == frames - 1:
                 a.screenshot(window=True)
-            if a.frames >= frames and not a._pending_shots:
+            if a.frames >= frames and not a.pending_shots:
                 a.canvas.close()
             else:
                 a.canvas.request_draw()
+
         app.after_draw = stop_after
     loop.run()
     for p in app.saved:
         print(f"wrote {p}")
     return 0
+
+
+# ------------------------------------------------------------------------------------------------
+# Where a window can open
+# ------------------------------------------------------------------------------------------------
+def canvas_backend() -> str:
+    """'offscreen', 'glfw', or another rendercanvas backend named by RENDERCANVAS_BACKEND."""
+    force = os.environ.get("RENDERCANVAS_FORCE_OFFSCREEN", "").lower() in ("1", "true", "yes")
+    name = os.environ.get("RENDERCANVAS_BACKEND", "").strip().lower()
+    if force or name == "offscreen":
+        return "offscreen"
+    return name if name and name != "auto" else "glfw"
+
+
+def display_problem(backend: str) -> str | None:
+    """Why a window cannot open here (None when it can, as far as we can tell without opening
+    one: glfw aborts the whole process when there is no display)."""
+    if backend == "offscreen":
+        return None
+    if os.environ.get("WAYLAND_DISPLAY"):
+        return None
+    disp = os.environ.get("DISPLAY", "")
+    if not disp:
+        return "no display: DISPLAY is not set"
+    if disp.startswith(":"):
+        num = disp[1:].split(".")[0]
+        if num.isdigit() and not os.path.exists(f"/tmp/.X11-unix/X{num}"):
+            return f"no X server answers on DISPLAY={disp} (no /tmp/.X11-unix/X{num})"
+    return None
+
+
+NO_DISPLAY_HELP = """\
+seuwgpu view: {why}.
+The viewer opens a desktop window. Either
+  - run it on a desktop session, or under a virtual X server:  xvfb-run -a seuwgpu view ...
+    (Debian: apt-get install xvfb), or
+  - render headless: RENDERCANVAS_BACKEND=offscreen seuwgpu view --frames 1 --screenshot-dir OUT
+    (draws the viewer, panel included, and saves a screenshot PNG)."""

@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import formats
-from .faults import GUARDED_FIELDS
-from .gpu.device import STORAGE, UNIFORM, dispatch_dims
-from .model import FIELD_OFFSET, FIELDS, Model, field_components
+from seuwgpu.faults.defenses import GUARDED_FIELDS
+from seuwgpu.gpu.device import STORAGE, UNIFORM, dispatch_dims
+from seuwgpu.model import encoding
+from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, field_components
 
 _FIELD_INDEX = {f: i for i, f in enumerate(FIELDS)}
 
@@ -42,8 +42,8 @@ class Box:
         out = np.zeros((self.lo.size, 4), dtype=np.uint32)
         out[:, 0] = self.lo.view(np.uint32)
         out[:, 1] = self.hi.view(np.uint32)
-        out[:, 2] = formats.to_bits(self.lo, self.precision).astype(np.uint32)
-        out[:, 3] = formats.to_bits(self.hi, self.precision).astype(np.uint32)
+        out[:, 2] = encoding.to_bits(self.lo, self.precision).astype(np.uint32)
+        out[:, 3] = encoding.to_bits(self.hi, self.precision).astype(np.uint32)
         return out
 
 
@@ -68,8 +68,10 @@ class GuardMonitor:
         self.alert = n > self.threshold
         if self.alert:
             fields = ", ".join(f"{f}: {c}" for f, c in counts.items() if c)
-            self.message = (f"support guard clamped {n} stored values (threshold {self.threshold}): {fields}; "
-                            "the model in memory is being corrupted - scrub it or reload it")
+            self.message = (
+                f"support guard clamped {n} stored values (threshold {self.threshold}): {fields}; "
+                "the model in memory is being corrupted - scrub it or reload it"
+            )
             warnings.warn(self.message, GuardAlert, stacklevel=2)
         else:
             self.message = ""
@@ -85,7 +87,7 @@ def support_box(stored: Model, precision: str) -> Box:
     empty = ~np.isfinite(lo)  # a component with no finite value: box collapses to 0
     lo[empty], hi[empty] = 0.0, 0.0
     # exact stored values already; quantize anyway so bounds are representable at `precision`
-    return Box(precision, formats.quantize(lo, precision), formats.quantize(hi, precision))
+    return Box(precision, encoding.quantize(lo, precision), encoding.quantize(hi, precision))
 
 
 def guard_fields(variant: str = "guard") -> tuple[str, ...]:
@@ -126,7 +128,7 @@ def clamp_bits(bits: np.ndarray, box: Box, mask: int) -> tuple[np.ndarray, np.nd
     box (or NaN) is replaced by the stored bits of the bound; everything else, NaN payloads of
     unguarded components included, is left bit for bit. Returns (new bits, clamped mask)."""
     bits = np.asarray(bits)
-    vals = formats.from_bits(bits, box.precision)
+    vals = encoding.from_bits(bits, box.precision)
     guarded = np.array([(mask >> c) & 1 for c in range(bits.shape[1])], dtype=bool)
     with np.errstate(invalid="ignore"):
         low = guarded & (np.isnan(vals) | (vals < box.lo))
@@ -150,8 +152,12 @@ def scrub(renderer, box: Box, fields, per_primitive: bool = False):
         cache["counts"] = gpu.buffer(4 * (8 + L.n), STORAGE, "scrub_counts")
         cache["params"] = gpu.buffer(256 * L.n_chunks, UNIFORM, "scrub_params")
         pipe = gpu.pipeline("guard")
-        cache["bgs"] = [gpu.bind(pipe, {0: (cache["params"], 256 * k, 32), 1: cache["box"], 2: renderer.chunks[k],
-                                        3: cache["counts"]}) for k in range(L.n_chunks)]
+        cache["bgs"] = [
+            gpu.bind(
+                pipe, {0: (cache["params"], 256 * k, 32), 1: cache["box"], 2: renderer.chunks[k], 3: cache["counts"]}
+            )
+            for k in range(L.n_chunks)
+        ]
     counts = cache["counts"]
     gpu.write(cache["box"], box.rows())
     gpu.write(counts, np.zeros(counts.size // 4, np.uint32))
@@ -173,5 +179,5 @@ def scrub(renderer, box: Box, fields, per_primitive: bool = False):
     raw = gpu.read(counts, np.uint32, 0, 4 * (8 + (L.n if per_primitive else 0)))
     per_field = {f: int(raw[i]) for i, f in enumerate(FIELDS)}
     if per_primitive:
-        return per_field, raw[8: 8 + L.n].copy()
+        return per_field, raw[8 : 8 + L.n].copy()
     return per_field

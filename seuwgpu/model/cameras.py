@@ -16,7 +16,7 @@ import numpy as np
 @dataclass
 class Camera:
     viewmat: np.ndarray  # [4, 4] world-to-camera
-    K: np.ndarray        # [3, 3]
+    K: np.ndarray  # [3, 3]
     width: int
     height: int
 
@@ -37,8 +37,7 @@ class Camera:
         return -R.T @ t
 
     def to_json(self) -> dict:
-        return {"viewmat": self.viewmat.tolist(), "K": self.K.tolist(),
-                "width": self.width, "height": self.height}
+        return {"viewmat": self.viewmat.tolist(), "K": self.K.tolist(), "width": self.width, "height": self.height}
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -63,8 +62,16 @@ def intrinsics(width: int, height: int, fov_x_deg: float) -> np.ndarray:
     return np.array([[fx, 0, width / 2], [0, fx, height / 2], [0, 0, 1]], dtype=np.float32)
 
 
-def orbit_cameras(k: int, width: int, height: int, radius: float = 4.0, elevation_deg: float = 25.0,
-                  fov_x_deg: float = 40.0, target=(0.0, 0.0, 0.0), phase_deg: float = 30.0) -> list[Camera]:
+def orbit_cameras(
+    k: int,
+    width: int,
+    height: int,
+    radius: float = 4.0,
+    elevation_deg: float = 25.0,
+    fov_x_deg: float = 40.0,
+    target=(0.0, 0.0, 0.0),
+    phase_deg: float = 30.0,
+) -> list[Camera]:
     """K cameras evenly spaced on a circle around `target` (z up), like NeRF-synthetic test views."""
     cams = []
     el = np.radians(elevation_deg)

@@ -37,7 +37,7 @@ import re
 
 import numpy as np
 
-from .model import Model, sh_rest_count
+from seuwgpu.model.fields import Model, sh_rest_count
 
 __all__ = ["PlyError", "load_ply", "save_ply", "REQUIRED_PROPERTIES", "inria_property_names"]
 
@@ -48,14 +48,22 @@ class PlyError(ValueError):
 
 # PLY scalar type names (both spellings of the spec) -> little-endian numpy type.
 _PLY_TYPES = {
-    "char": "i1", "int8": "i1",
-    "uchar": "u1", "uint8": "u1",
-    "short": "<i2", "int16": "<i2",
-    "ushort": "<u2", "uint16": "<u2",
-    "int": "<i4", "int32": "<i4",
-    "uint": "<u4", "uint32": "<u4",
-    "float": "<f4", "float32": "<f4",
-    "double": "<f8", "float64": "<f8",
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "<i2",
+    "int16": "<i2",
+    "ushort": "<u2",
+    "uint16": "<u2",
+    "int": "<i4",
+    "int32": "<i4",
+    "uint": "<u4",
+    "uint32": "<u4",
+    "float": "<f4",
+    "float32": "<f4",
+    "double": "<f8",
+    "float64": "<f8",
 }
 
 # Required properties other than f_rest_*, grouped by model field (file order within a field).
@@ -66,8 +74,22 @@ _FIELD_PROPS = {
     "log_scales": ("scale_0", "scale_1", "scale_2"),
     "quats": ("rot_0", "rot_1", "rot_2", "rot_3"),
 }
-REQUIRED_PROPERTIES = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
-                       "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
+REQUIRED_PROPERTIES = (
+    "x",
+    "y",
+    "z",
+    "f_dc_0",
+    "f_dc_1",
+    "f_dc_2",
+    "opacity",
+    "scale_0",
+    "scale_1",
+    "scale_2",
+    "rot_0",
+    "rot_1",
+    "rot_2",
+    "rot_3",
+)
 _VALID_REST = {3 * sh_rest_count(d): d for d in range(4)}  # {0: 0, 9: 1, 24: 2, 45: 3}
 _F_REST = re.compile(r"f_rest_(.*)\Z")
 _MAX_HEADER = 64 << 20  # give up looking for end_header after this many bytes
@@ -76,12 +98,15 @@ _MAX_HEADER = 64 << 20  # give up looking for end_header after this many bytes
 def inria_property_names(degree: int) -> list[str]:
     """The vertex property names, in the order the INRIA code writes them, for an SH degree."""
     nrest = 3 * sh_rest_count(degree)
-    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-            + [f"f_rest_{j}" for j in range(nrest)]
-            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+    return (
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        + [f"f_rest_{j}" for j in range(nrest)]
+        + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    )
 
 
 # --------------------------------------------------------------------------------------- saving
+
 
 def save_ply(model: Model, path) -> None:
     """Write `model` as an INRIA 3DGS PLY (binary little-endian float32, INRIA property order).
@@ -92,8 +117,9 @@ def save_ply(model: Model, path) -> None:
         raise TypeError(f"save_ply expects a Model, got {type(model).__name__}")
     n = model.n
     if n == 0:
-        raise PlyError(f"{os.fspath(path)}: refusing to write a model with zero primitives "
-                       "(load_ply rejects such files)")
+        raise PlyError(
+            f"{os.fspath(path)}: refusing to write a model with zero primitives (load_ply rejects such files)"
+        )
     r = model.sh_rest.shape[1]
     names = inria_property_names(model.sh_degree)
     out = np.empty((n, len(names)), dtype="<f4")
@@ -101,11 +127,11 @@ def save_ply(model: Model, path) -> None:
     out[:, 3:6] = 0.0
     out[:, 6:9] = model.sh_dc
     # coefficient-major [N, R, 3] -> channel-major [N, 3, R] -> f_rest_{c*R + k}
-    out[:, 9:9 + 3 * r] = model.sh_rest.transpose(0, 2, 1).reshape(n, 3 * r)
+    out[:, 9 : 9 + 3 * r] = model.sh_rest.transpose(0, 2, 1).reshape(n, 3 * r)
     j = 9 + 3 * r
     out[:, j] = model.opacity
-    out[:, j + 1:j + 4] = model.log_scales
-    out[:, j + 4:j + 8] = model.quats
+    out[:, j + 1 : j + 4] = model.log_scales
+    out[:, j + 4 : j + 8] = model.quats
     header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
     header += [f"property float {name}" for name in names]
     header.append("end_header")
@@ -116,10 +142,11 @@ def save_ply(model: Model, path) -> None:
 
 # -------------------------------------------------------------------------------------- loading
 
+
 class _Element:
     def __init__(self, name: str, count: int):
         self.name, self.count = name, count
-        self.props: list[tuple[str, str]] = []   # (name, numpy type) for scalar properties
+        self.props: list[tuple[str, str]] = []  # (name, numpy type) for scalar properties
         self.has_list = False
 
     def dtype(self) -> np.dtype:
@@ -173,8 +200,10 @@ def _read_header(path: str, f) -> tuple[list[_Element], int, str]:
                 el.props.append((words[4], "list"))
             elif len(words) == 3:
                 if words[1] not in _PLY_TYPES:
-                    raise PlyError(f"{path}: unknown PLY type {words[1]!r} in {raw!r} "
-                                   f"(header line {lineno}); valid types: {', '.join(_PLY_TYPES)}")
+                    raise PlyError(
+                        f"{path}: unknown PLY type {words[1]!r} in {raw!r} "
+                        f"(header line {lineno}); valid types: {', '.join(_PLY_TYPES)}"
+                    )
                 el.props.append((words[2], _PLY_TYPES[words[1]]))
             else:
                 raise PlyError(f"{path}: malformed property line {raw!r} (header line {lineno})")
@@ -183,11 +212,14 @@ def _read_header(path: str, f) -> tuple[list[_Element], int, str]:
     if fmt is None:
         raise PlyError(f"{path}: PLY header has no 'format' line")
     if fmt == "ascii":
-        raise PlyError(f"{path}: ASCII PLY is not supported; 3DGS models must be "
-                       "binary_little_endian (re-export the file as binary little-endian)")
+        raise PlyError(
+            f"{path}: ASCII PLY is not supported; 3DGS models must be "
+            "binary_little_endian (re-export the file as binary little-endian)"
+        )
     if fmt == "binary_big_endian":
-        raise PlyError(f"{path}: big-endian PLY (binary_big_endian) is not supported; "
-                       "3DGS models must be binary_little_endian")
+        raise PlyError(
+            f"{path}: big-endian PLY (binary_big_endian) is not supported; 3DGS models must be binary_little_endian"
+        )
     if fmt != "binary_little_endian":
         raise PlyError(f"{path}: unknown PLY format {fmt!r}; expected binary_little_endian")
     return elements, data_start, fmt
@@ -206,15 +238,19 @@ def _rest_columns(path: str, names: list[str]) -> list[str]:
         idx[int(s)] = name
     k = len(idx)
     if k not in _VALID_REST:
-        raise PlyError(f"{path}: the vertex element has {k} f_rest_* properties, which is no SH "
-                       "degree; valid counts are 0 (degree 0), 9 (degree 1), 24 (degree 2) "
-                       "or 45 (degree 3)")
+        raise PlyError(
+            f"{path}: the vertex element has {k} f_rest_* properties, which is no SH "
+            "degree; valid counts are 0 (degree 0), 9 (degree 1), 24 (degree 2) "
+            "or 45 (degree 3)"
+        )
     missing = sorted(set(range(k)) - idx.keys())
     if missing:
         extra = sorted(set(idx) - set(range(k)))
-        raise PlyError(f"{path}: f_rest indices have gaps: {k} f_rest_* properties but "
-                       f"f_rest_{missing[0]} is missing (missing {missing}, unexpected {extra}); "
-                       f"expected f_rest_0..f_rest_{k - 1}")
+        raise PlyError(
+            f"{path}: f_rest indices have gaps: {k} f_rest_* properties but "
+            f"f_rest_{missing[0]} is missing (missing {missing}, unexpected {extra}); "
+            f"expected f_rest_0..f_rest_{k - 1}"
+        )
     return [idx[j] for j in range(k)]
 
 
@@ -224,7 +260,8 @@ def load_ply(path) -> Model:
     Required vertex properties: x y z f_dc_0..2 opacity scale_0..2 rot_0..3 and f_rest_0..K-1
     with K in (0, 9, 24, 45). Any other property (normals, colours, ...) is ignored. Properties
     stored as double (or another numeric type) are converted to float32, doubles rounding to
-    nearest (+-Inf beyond the float32 range); float32 properties are kept bit for bit. Raises PlyError on malformed input.
+    nearest (+-Inf beyond the float32 range); float32 properties are kept bit for bit.
+    Raises PlyError on malformed input.
     """
     spath = os.fspath(path)
     with open(spath, "rb") as f:
@@ -246,14 +283,15 @@ def load_ply(path) -> Model:
         rest = _rest_columns(spath, names)
         if vert.has_list:
             lists = [name for name, t in vert.props if t == "list"]
-            raise PlyError(f"{spath}: vertex element has list properties ({', '.join(lists)}), "
-                           "which a 3DGS PLY never has")
+            raise PlyError(
+                f"{spath}: vertex element has list properties ({', '.join(lists)}), which a 3DGS PLY never has"
+            )
         n = vert.count
         if n == 0:
             raise PlyError(f"{spath}: PLY holds zero primitives (element vertex 0)")
 
         if any(e.has_list for e in elements[:vi]):
-            raw = _vertex_via_plyfile(spath)   # rare: list data before the vertices
+            raw = _vertex_via_plyfile(spath)  # rare: list data before the vertices
         else:
             offset = data_start + sum(e.count * e.dtype().itemsize for e in elements[:vi])
             vdtype = vert.dtype()
@@ -264,7 +302,8 @@ def load_ply(path) -> Model:
                     f"{spath}: truncated PLY: the header promises {n} vertices of "
                     f"{vdtype.itemsize} bytes ({n * vdtype.itemsize} bytes of vertex data) but only "
                     f"{have} bytes follow ({have // vdtype.itemsize} whole vertices); "
-                    f"file is {file_size} bytes, expected at least {need}")
+                    f"file is {file_size} bytes, expected at least {need}"
+                )
             f.seek(offset)
             raw = np.fromfile(f, dtype=vdtype, count=n)
             if raw.shape[0] != n:  # file shrank while reading
@@ -301,6 +340,7 @@ def _model_from_vertices(raw: np.ndarray, rest: list[str]) -> Model:
             # np.take returns C-contiguous rows (fancy indexing flat[:, idx] would not).
             return np.take(flat, np.array([col[p] for p in props], dtype=np.intp), axis=1)
     else:
+
         def take(props):
             out = np.empty((n, len(props)), dtype=np.float32)
             with np.errstate(over="ignore"):  # doubles beyond the float32 range become +-Inf
@@ -309,6 +349,11 @@ def _model_from_vertices(raw: np.ndarray, rest: list[str]) -> Model:
             return out
 
     parts = {name: take(props) for name, props in groups.items()}
-    return Model(means=parts["means"], log_scales=parts["log_scales"], quats=parts["quats"],
-                 opacity=parts["opacity"][:, 0], sh_dc=parts["sh_dc"],
-                 sh_rest=parts["sh_rest"].reshape(n, r, 3))
+    return Model(
+        means=parts["means"],
+        log_scales=parts["log_scales"],
+        quats=parts["quats"],
+        opacity=parts["opacity"][:, 0],
+        sh_dc=parts["sh_dc"],
+        sh_rest=parts["sh_rest"].reshape(n, r, 3),
+    )
