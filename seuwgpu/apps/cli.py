@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from seuwgpu.version import __version__
+
 
 class CliError(Exception):
     """A user error: printed as one line, exit status 2."""
@@ -446,6 +448,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="seuwgpu", description="Single-event-upset fault injection for 3D Gaussian splatting (WGSL, wgpu)"
     )
+    p.add_argument("--version", action="version", version=f"seuwgpu {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("info", help="adapter, backend, features and limits in use")

@@ -1,0 +1,598 @@
+"""The `seuwgpu` command line."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from seuwgpu.version import __version__
+
+
+class CliError(Exception):
+    """A user error: printed as one line, exit status 2."""
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must look like 128x96, got {text!r}") from None
+    if w <= 0 or h <= 0:
+        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
+    return w, h
+
+
+def add_model_args(p: argparse.ArgumentParser, default_scene: bool = True):
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--ply", type=Path, help="an INRIA-format 3DGS PLY file")
+    src.add_argument("--scene", help="an embedded scene (see `seuwgpu scene --list`)")
+    p.add_argument("--n", type=int, default=100_000, help="primitives for an embedded scene (default 100000)")
+    p.add_argument("--sh-degree", type=int, default=3, choices=range(4), help="SH degree of an embedded scene")
+    p.add_argument("--seed", type=int, default=0, help="seed of an embedded scene")
+    p.add_argument("--precision", choices=("fp32", "fp16", "bf16"), default="fp32", help="stored precision")
+
+
+def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "128x128"):
+    p.add_argument("--cameras", type=Path, help='CAMS.json: {"cameras": [{"viewmat", "K", "width", "height"}, ...]}')
+    p.add_argument("--views", type=int, default=views, help=f"orbit views when no --cameras (default {views})")
+    p.add_argument("--size", type=parse_size, default=parse_size(size), help=f"WxH of orbit views (default {size})")
+
+
+def load_model(args):
+    from seuwgpu.model.ply import load_ply
+    from seuwgpu.model.scenes import DEFAULT_SCENE, make_scene
+
+    if args.ply is not None:
+        return load_ply(args.ply), args.ply.stem
+    name = args.scene or DEFAULT_SCENE
+    return make_scene(name, n=args.n, sh_degree=args.sh_degree, seed=args.seed), name
+
+
+def load_cams(args, scene_name: str | None):
+    from seuwgpu.model.cameras import load_cameras, orbit_cameras
+    from seuwgpu.model.scenes import SCENES, scene_cameras
+
+    if args.cameras is not None:
+        return load_cameras(args.cameras)
+    if args.views < 1:
+        raise CliError("--views must be at least 1")
+    w, h = args.size
+    if scene_name in SCENES:
+        return scene_cameras(scene_name, args.views, w, h)
+    return orbit_cameras(args.views, w, h)
+
+
+# ---- commands -------------------------------------------------------------------------------------
+def cmd_info(args):
+    from seuwgpu.gpu.device import get_gpu
+
+    gpu = get_gpu()
+    info = gpu.info
+    print(f"adapter: {info.get('device')} ({info.get('vendor')})")
+    print(f"backend: {info.get('backend_type')}  type: {info.get('adapter_type')}  driver: {info.get('description')}")
+    feats = sorted(gpu.adapter.features)
+    print("features that matter: " + ", ".join(f for f in ("shader-f16", "timestamp-query", "subgroup") if f in feats))
+    for k in (
+        "max-storage-buffer-binding-size",
+        "max-buffer-size",
+        "max-compute-workgroup-storage-size",
+        "max-compute-invocations-per-workgroup",
+        "max-compute-workgroups-per-dimension",
+        "max-storage-buffers-per-shader-stage",
+    ):
+        print(f"{k}: {gpu.limits.get(k)}")
+    return 0
+
+
+def cmd_scene(args):
+    from seuwgpu.model.ply import save_ply
+    from seuwgpu.model.scenes import list_scenes, make_scene
+
+    if args.list or not args.name:
+        for s in list_scenes():
+            print(s)
+        return 0
+    if args.out is None:
+        raise CliError("--out FILE.ply is required")
+    model = make_scene(args.name, n=args.n, sh_degree=args.sh_degree, seed=args.seed)
+    save_ply(model, args.out)
+    print(f"wrote {args.out}: {model.n} primitives, SH degree {model.sh_degree}")
+    return 0
+
+
+def save_images(images: np.ndarray, out: Path, stem: str = "view"):
+    import imageio.v3 as iio
+
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i, img in enumerate(images):
+        rgb = np.nan_to_num(img[..., :3], nan=0.0, posinf=1.0, neginf=0.0)
+        path = out / f"{stem}_{i:03d}.png"
+        iio.imwrite(path, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
+        paths.append(path)
+    return paths
+
+
+def cmd_render(args):
+    from seuwgpu.render.renderer import Renderer
+
+    model, name = load_model(args)
+    cams = load_cams(args, name)
+    r = Renderer(model, cams, args.precision)
+    images = r.render()
+    out: Path = args.out
+    if out.suffix == ".npz":
+        out.parent.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(out, images=images.astype(np.float32))
+        print(f"wrote {out}: images {list(images.shape)} float32")
+    else:
+        paths = save_images(images, out)
+        print(f"wrote {len(paths)} PNGs to {out}")
+    bad = int((~np.isfinite(images)).any(axis=-1).sum())
+    if bad:
+        print(f"warning: {bad} non-finite pixels (shown black in PNGs)", file=sys.stderr)
+    return 0
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    try:
+        i, n = (int(v) for v in text.split("/"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--shard must look like I/N (e.g. 0/4), got {text!r}") from None
+    if n < 1 or not 0 <= i < n:
+        raise argparse.ArgumentTypeError(f"--shard I/N needs 0 <= I < N, got {text!r}")
+    return i, n
+
+
+def run_campaign(
+    spec: dict,
+    out: Path,
+    shard=(0, 1),
+    quiet=False,
+    full=False,
+    executor: str = "local",
+    workers: int | None = None,
+    address: str | None = None,
+) -> dict:
+    """Run a campaign on the local or the Ray executor (local, with a message saying how to install
+    Ray, when Ray is missing) and print its one-line summary."""
+    if executor == "ray":
+        from seuwgpu.campaign.ray import INSTALL_HINT, ray_available, run_ray
+
+        if not ray_available():
+            print(f"seuwgpu campaign: {INSTALL_HINT}; running on the local executor instead", file=sys.stderr)
+        else:
+            try:
+                stats = run_ray(spec, out, workers=workers, address=address, quiet=quiet, full=full, shard=shard)
+            except RuntimeError as e:
+                raise CliError(str(e)) from None
+            rate = stats["new"] / stats["seconds"] if stats["seconds"] > 0 and stats["new"] else float("nan")
+            resub = f", {stats['resubmitted']} resubmitted" if stats["resubmitted"] else ""
+            print(
+                f"{out}: {stats['injections']} of {stats['campaign_total']} injections recorded "
+                f"({stats['new']} new in {stats['seconds']:.1f} s, "
+                f"{rate:.1f} injections/s on {stats['workers']} Ray worker{'s' if stats['workers'] != 1 else ''}, "
+                f"{stats['shards']} shards{resub}{', full re-render' if full else ''})"
+            )
+            return stats
+    from seuwgpu.campaign.runner import Runner
+
+    runner = Runner(spec, out, shard=shard, quiet=quiet, full=full)
+    stats = runner.run()
+    rate = stats["new"] / stats["seconds"] if stats["seconds"] > 0 and stats["new"] else float("nan")
+    print(
+        f"{out}: {stats['injections']} of {runner.total} injections recorded"
+        f" ({stats['new']} new in {stats['seconds']:.1f} s, {rate:.1f} injections/s"
+        f"{', full re-render' if full else ''})"
+    )
+    return stats
+
+
+def print_criticality(run_dirs):
+    from seuwgpu.analysis.studies import InsufficientData
+    from seuwgpu.report.build import criticality_table_text, load_runs
+
+    df, _ = load_runs(run_dirs)
+    single = df[(df["k"] == 1) & (df["campaign"].isin(["single", "size"]))]
+    for prec in sorted(single["precision"].unique()):
+        try:
+            table = criticality_table_text(single, prec)
+        except InsufficientData as e:
+            print(f"\n(no criticality table at {prec}: {e})")
+            continue
+        print(f"\nPer-field single-upset criticality at {prec} (defense: none)")
+        print(table)
+
+
+def cmd_campaign(args):
+    from seuwgpu.campaign.runner import load_spec
+
+    spec = load_spec(args.spec)
+    run_campaign(
+        spec,
+        args.out,
+        args.shard,
+        args.quiet,
+        args.full,
+        getattr(args, "executor", "local"),
+        args.workers,
+        args.address,
+    )
+    if args.shard[1] == 1:
+        print_criticality([args.out])
+    return 0
+
+
+def cmd_distributed(args):
+    """Sort-first rendering across Ray actors: per-rank times and the ranks an upset contaminates."""
+    from seuwgpu.campaign.ray import INSTALL_HINT, ray_available
+    from seuwgpu.campaign.sortfirst import parse_upset, sort_first_tables
+
+    if not ray_available():
+        raise CliError(f"needs Ray. {INSTALL_HINT}")
+    model, name = load_model(args)
+    cams = load_cams(args, name)
+    upset = parse_upset(args.upset) if args.upset else None
+    sort_first_tables(
+        model,
+        cams,
+        args.precision,
+        args.ranks,
+        upset,
+        component=args.component,
+        primitive=args.primitive,
+        sample=args.sample,
+        seed=args.seed,
+        guard=args.guard,
+        repeats=args.repeats,
+        address=args.address,
+    )
+    return 0
+
+
+def cmd_plan(args):
+    """What a spec will run: injections per context, and the margin each cell's sample gives."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from seuwgpu.campaign.plan import margin_of_error, sample_size
+    from seuwgpu.campaign.runner import enumerate_contexts, load_spec
+
+    spec = load_spec(args.spec)
+    tab = Table(title=f"{args.spec}: campaign plan (margins: 95% confidence, worst case p = 0.5, Leveugle et al. 2009)")
+    for c in (
+        "campaign",
+        "scene",
+        "N",
+        "precision",
+        "cells",
+        "per cell",
+        "injections",
+        "arms",
+        "rows",
+        "margin per cell",
+    ):
+        tab.add_column(c, justify="right")
+    total = rows = 0
+    for ctx in enumerate_contexts(spec):
+        sc = spec["scenes"][ctx.scene_index]
+        name = sc.get("scene") or Path(sc["ply"]).stem
+        n = ctx.n or sc.get("n")
+        margin = "-" if ctx.kind == "dose" else f"+-{100 * margin_of_error(ctx.per_cell, 0.95, n):.2f} pt"
+        tab.add_row(
+            ctx.kind,
+            name,
+            f"{n:,}" if n else "file",
+            ctx.precision,
+            str(len(ctx.cells)),
+            str(ctx.per_cell),
+            f"{ctx.count:,}",
+            str(len(ctx.defenses)),
+            f"{ctx.count * len(ctx.defenses):,}",
+            margin,
+        )
+        total += ctx.count
+        rows += ctx.count * len(ctx.defenses)
+    Console(width=140).print(tab)
+    print(f"total: {total:,} injections, {rows:,} records")
+    if args.margin:
+        n = sample_size(args.margin, args.confidence)
+        print(
+            f"for +-{100 * args.margin:g} pt at {100 * args.confidence:g}% confidence a cell needs {n:,} samples "
+            f"(unbounded population; set samples = {{margin = {args.margin}, confidence = {args.confidence}}})"
+        )
+    return 0
+
+
+def cmd_demo(args):
+    import tomllib
+    from importlib.resources import files
+
+    from seuwgpu.campaign.runner import normalize_spec
+
+    raw = tomllib.loads(files("seuwgpu").joinpath("specs/default.toml").read_text())
+    if args.n is not None:
+        raw["scenes"][0]["n"] = args.n
+    if args.samples is not None:
+        raw["single"]["samples"] = args.samples
+    spec = normalize_spec(raw)
+    print(
+        f"seuwgpu demo: {spec['scenes'][0]['scene']} scene, {spec['scenes'][0]['n']} primitives, "
+        f"{spec['views']} views at {spec['size'][0]}x{spec['size'][1]}, every field and bit at fp32, "
+        f"{spec['single']['samples']} samples per (field, bit) cell, defenses {spec['single']['defenses']}"
+    )
+    run_campaign(spec, args.out, quiet=args.quiet)
+    print_criticality([args.out])
+    if not args.no_report:
+        from seuwgpu.report.build import build_report
+
+        index = build_report([args.out], args.out / "report")
+        print(f"\nreport: {index}")
+    return 0
+
+
+def cmd_merge(args):
+    from seuwgpu.campaign.runner import merge
+
+    n = merge(args.out, args.shards)
+    print(f"merged {n} parts from {len(args.shards)} shard directories into {args.out}")
+    return 0
+
+
+def cmd_report(args):
+    from seuwgpu.report.build import build_report
+
+    index = build_report(args.runs, args.out)
+    print(f"wrote {index}")
+    print_criticality(args.runs)
+    return 0
+
+
+def cmd_inject(args):
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.report.panel import save_panel
+
+    model, name = load_model(args)
+    cams = load_cams(args, name)
+    eng = Engine(model, cams, args.precision, scene=name)
+    bits = args.bit
+    if args.primitive is None:
+        prim, _ = eng.worst_primitive(
+            args.field, args.component, bits, sample=args.sample, seed=args.seed, defense=args.defense
+        )
+        print(f"primitive: {prim} (most harmful of {min(args.sample, eng.n)} sampled)")
+    else:
+        prim = args.primitive
+    site = eng.site(args.field, prim, args.component, bits)
+    rec = eng.inject(site, args.defense)
+    h = eng.apply([site], args.defense)
+    faulted, _ = eng.render_current(args.defense)
+    guarded, gclamps = eng.render_current("guard")
+    eng.undo(h)
+    g = eng.inject(site, "guard")
+    args.out.mkdir(parents=True, exist_ok=True)
+    title = (
+        f"{name}, {eng.n} primitives, {args.precision}: flip of {site.field}[{prim}][{site.component}] "
+        f"bit{'s' if len(site.bits) > 1 else ''} {','.join(map(str, site.bits))} ({rec['bit_class']}) "
+        f"{rec['clean_value']:.6g} -> {rec['corrupted_value']:.6g}; defense {args.defense}"
+    )
+    panel = save_panel(args.out / "panel.png", eng.clean_rgba, faulted, guarded, title)
+    lines = {
+        "field": site.field,
+        "primitive": prim,
+        "component": site.component,
+        "bit": ",".join(map(str, site.bits)),
+        "bit_class": rec["bit_class"],
+        "clean_value": f"{rec['clean_value']:.9g}",
+        "corrupted_value": f"{rec['corrupted_value']:.9g}",
+        "defense": args.defense,
+        "footprint": f"{100 * rec['footprint']:.4f}%",
+        "footprint_max": f"{100 * rec['footprint_max']:.4f}%",
+        "peak_error": f"{rec['peak_error']:.6g}",
+        "psnr": f"{rec['psnr']:.3f}",
+        "ssim": f"{rec['ssim']:.6f}",
+        "nonfinite": rec["nonfinite"],
+        "catastrophic": rec["catastrophic"],
+        "clamps": rec["clamps"],
+        "guarded_footprint": f"{100 * g['footprint']:.4f}%",
+        "guarded_psnr": f"{g['psnr']:.3f}",
+        "guarded_clamps": g["clamps"],
+        "panel": panel,
+    }
+    for k, v in lines.items():
+        print(f"{k}: {v}")
+    return 0
+
+
+def cmd_view(args):
+    """`seuwgpu view`: the interactive viewer (apps/viewer_window.py)."""
+    from seuwgpu.apps.viewer_window import NO_DISPLAY_HELP, canvas_backend, display_problem
+
+    backend = canvas_backend()
+    why = display_problem(backend)
+    if why:
+        print(NO_DISPLAY_HELP.format(why=why), file=sys.stderr)
+        return 3
+    from seuwgpu.apps.viewer import OrbitCamera
+    from seuwgpu.model.scenes import SCENES
+
+    model, name = load_model(args)
+    orbit = OrbitCamera.for_scene(name) if args.ply is None and name in SCENES else OrbitCamera.fit(model.means)
+    try:
+        from seuwgpu.apps.viewer_window import run_viewer
+    except ImportError as e:
+        print(
+            f"seuwgpu view: {e}. The viewer needs the `viewer` extra: pip install 'seuwgpu[viewer]' "
+            "(rendercanvas, glfw, imgui-bundle)",
+            file=sys.stderr,
+        )
+        return 2
+    return run_viewer(
+        model,
+        name,
+        args.precision,
+        tuple(args.size),
+        orbit=orbit,
+        backend=backend,
+        sample=args.sample,
+        clamp_threshold=args.clamp_threshold,
+        screenshot_dir=args.screenshot_dir,
+        frames=args.frames,
+    )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="seuwgpu", description="Single-event-upset fault injection for 3D Gaussian splatting (WGSL, wgpu)"
+    )
+    p.add_argument("--version", action="version", version=f"seuwgpu {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("info", help="adapter, backend, features and limits in use")
+    s.set_defaults(func=cmd_info)
+
+    s = sub.add_parser("scene", help="export an embedded scene as PLY (or --list them)")
+    s.add_argument("name", nargs="?")
+    s.add_argument("--n", type=int, default=100_000)
+    s.add_argument("--sh-degree", type=int, default=3, choices=range(4))
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--out", type=Path)
+    s.add_argument("--list", action="store_true")
+    s.set_defaults(func=cmd_scene)
+
+    s = sub.add_parser("render", help="render views to PNGs or an .npz of float32 images")
+    add_model_args(s)
+    add_camera_args(s)
+    s.add_argument("--out", type=Path, required=True, help="a folder for PNGs, or X.npz")
+    s.set_defaults(func=cmd_render)
+
+    s = sub.add_parser("inject", help="flip one stored bit (or several of one value), measure, write the panel")
+    add_model_args(s)
+    add_camera_args(s, views=2, size="256x256")
+    s.add_argument(
+        "--field",
+        required=True,
+        help="means | log_scales | quats | opacity | sh_dc | sh_rest (aliases: log_scale, mean, ...)",
+    )
+    s.add_argument("--primitive", type=int, help="primitive index (default: the most harmful of --sample)")
+    s.add_argument("--component", type=int, default=0)
+    s.add_argument("--bit", type=int, nargs="+", required=True, help="bit(s) of the stored value (0 = LSB)")
+    s.add_argument("--defense", default="none", choices=("none", "guard", "selective", "ecc", "dup"))
+    s.add_argument("--sample", type=int, default=64, help="primitives tried when --primitive is not given")
+    s.add_argument("--out", type=Path, required=True)
+    s.set_defaults(func=cmd_inject)
+
+    s = sub.add_parser("campaign", help="run a fault-injection campaign from a TOML spec (resumable)")
+    s.add_argument("spec", type=Path)
+    s.add_argument("--out", type=Path, required=True, help="run directory (re-run the same command to resume)")
+    s.add_argument("--shard", type=parse_shard, default=(0, 1), help="run the deterministic slice I of N")
+    s.add_argument("--quiet", action="store_true", help="log lines instead of a progress display")
+    s.add_argument(
+        "--full", action="store_true", help="re-render full frames for every injection (no incremental path)"
+    )
+    s.add_argument(
+        "--executor",
+        choices=("local", "ray"),
+        default="local",
+        help="local (this process) or ray (shards over Ray workers; needs pip install seuwgpu[ray])",
+    )
+    s.add_argument("--address", help="Ray cluster address (e.g. auto); default: start a local Ray instance")
+    s.add_argument("--workers", type=int, help="Ray workers in flight (default: the cluster's GPUs, else CPUs)")
+    s.set_defaults(func=cmd_campaign)
+
+    s = sub.add_parser(
+        "distributed", help="sort-first rendering over Ray ranks: per-rank times, ranks an upset contaminates"
+    )
+    add_model_args(s)
+    add_camera_args(s, views=2, size="256x256")
+    s.add_argument(
+        "--ranks", type=int, nargs="+", default=[4], help="ranks P (screen regions); several values: one table each"
+    )
+    s.add_argument("--upset", help="field:bit (e.g. log_scales:31), applied to every rank's copy")
+    s.add_argument("--component", type=int, default=0)
+    s.add_argument("--primitive", type=int, help="primitive index (default: the most harmful of --sample)")
+    s.add_argument("--sample", type=int, default=32, help="primitives tried when --primitive is not given")
+    s.add_argument(
+        "--guard",
+        choices=("scrub", "clamp"),
+        default="scrub",
+        help="node-local guard: scrub each rank's stored copy, or clamp in the pipeline (default scrub)",
+    )
+    s.add_argument("--repeats", type=int, default=3, help="renders per rank for its median time")
+    s.add_argument("--address", help="Ray cluster address (e.g. auto); default: start a local Ray instance")
+    s.set_defaults(func=cmd_distributed)
+
+    s = sub.add_parser("plan", help="what a campaign spec will run, and the margin of error per cell")
+    s.add_argument("spec", type=Path)
+    s.add_argument("--margin", type=float, help="also print the samples per cell this margin needs (e.g. 0.01)")
+    s.add_argument("--confidence", type=float, default=0.95)
+    s.set_defaults(func=cmd_plan)
+
+    s = sub.add_parser(
+        "demo", help="the main job: the default campaign on the embedded scene, then its criticality table"
+    )
+    s.add_argument("--out", type=Path, default=Path("runs/demo"))
+    s.add_argument("--n", type=int, help="primitives (default from the spec: 100000)")
+    s.add_argument("--samples", type=int, help="samples per (field, bit) cell")
+    s.add_argument("--quiet", action="store_true")
+    s.add_argument("--no-report", action="store_true")
+    s.set_defaults(func=cmd_demo)
+
+    s = sub.add_parser("merge", help="join shard run directories of one spec")
+    s.add_argument("shards", type=Path, nargs="+")
+    s.add_argument("--out", type=Path, required=True)
+    s.set_defaults(func=cmd_merge)
+
+    s = sub.add_parser("view", help="interactive viewer: toggle faults and the guard live")
+    add_model_args(s)
+    s.add_argument(
+        "--size",
+        type=parse_size,
+        default=parse_size("960x600"),
+        help="window size WxH in pixels, the panel included (default 960x600)",
+    )
+    s.add_argument("--sample", type=int, default=16, help="primitives tried by 'worst of a sample' (default 16)")
+    s.add_argument(
+        "--clamp-threshold",
+        type=int,
+        default=0,
+        help="guard alert when a frame clamps more components than this (default 0)",
+    )
+    s.add_argument("--screenshot-dir", type=Path, default=Path("."), help="where S/P screenshots go (default .)")
+    s.add_argument(
+        "--frames",
+        type=int,
+        default=0,
+        help="draw this many frames, save a screenshot and exit (0 = interactive; "
+        "with RENDERCANVAS_BACKEND=offscreen the default is 1)",
+    )
+    s.set_defaults(func=cmd_view)
+
+    s = sub.add_parser("report", help="tables, figures and an HTML page from run directories")
+    s.add_argument("runs", type=Path, nargs="+")
+    s.add_argument("--out", type=Path, required=True)
+    s.set_defaults(func=cmd_report)
+    return p
+
+
+def main(argv=None) -> int:
+    import warnings
+
+    warnings.formatwarning = lambda msg, cat, *a, **k: f"seuwgpu: {cat.__name__}: {msg}\n"
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print(f"seuwgpu {args.command}: interrupted (completed parts are kept; re-run to resume)", file=sys.stderr)
+        return 130
+    except (CliError, ValueError, FileNotFoundError) as e:
+        print(f"seuwgpu {args.command}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,377 @@
+"""The fault-injection engine: a GPU-resident model, its cameras and clean renders, and
+`inject(sites, defense)` answering with a result record.
+
+Flips are XORs on the stored words in the GPU buffers (a scatter shader, `shaders/flip.wgsl`),
+never re-uploads; undoing applies the same XOR again, so restores are exact. Defenses decide what
+the renderer reads from a corrupted word:
+- none: the corrupted word;
+- guard / selective: the corrupted word, clamped into the clean model's support box while
+  projecting (in-pipeline clamp, memory untouched; `guard.scrub` is the memory-repairing mode);
+- ecc: SEC-DED Hamming code over sign+exponent bits (faults.ecc_read);
+- dup: triple modular redundancy with majority voting (faults.dup_read).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from seuwgpu.faults.defenses import GUARDED_FIELDS, check_defense, dup_read, ecc_read
+from seuwgpu.faults.guard import Box, GuardMonitor, component_mask, support_box
+from seuwgpu.faults.sites import Site, make_site, mask_of, site_bit_class
+from seuwgpu.gpu.device import GPU, STORAGE, UNIFORM, dispatch_dims, get_gpu
+from seuwgpu.metrics.image import ImageMetrics, catastrophic, summarize
+from seuwgpu.model import encoding
+from seuwgpu.model.cameras import Camera
+from seuwgpu.model.fields import FIELDS, Model
+from seuwgpu.render.renderer import Renderer
+
+
+class Engine:
+    def __init__(
+        self,
+        model: Model,
+        cameras: list[Camera],
+        precision: str = "fp32",
+        gpu: GPU | None = None,
+        scene: str = "",
+        chunk_prims: int | None = None,
+        background=(1.0, 1.0, 1.0),
+        incremental: bool = True,
+        capacity: int | None = None,
+    ):
+        self.gpu = gpu or get_gpu()
+        self.precision = encoding.check_precision(precision)
+        self.scene = scene
+        self.renderer = Renderer(
+            model,
+            cameras,
+            precision,
+            gpu=self.gpu,
+            chunk_prims=chunk_prims,
+            background=background,
+            keep_views=incremental,
+            capacity=capacity,
+        )
+        self.incremental = incremental
+        self.layout = self.renderer.layout
+        self.n, self.degree = model.n, model.sh_degree
+        stored = self.layout.decode(self.renderer.clean_words)
+        self.box: Box = support_box(stored, precision)
+        self.renderer.set_guard(self.box.rows(), 0)
+        # in-pipeline clamp mask of each guard defense (other defenses: 0)
+        self.masks = {d: component_mask(GUARDED_FIELDS[d], self.degree) for d in ("guard", "selective")}
+        self.p_flip = self.gpu.pipeline("flip")
+        self._flip_cap = 0  # flip buffers grow on demand (see _scatter)
+        self._active: list[dict] = []  # applied XOR lists, for undo
+        self.monitor = GuardMonitor(threshold=0)  # health signal of interactive/guarded renders
+        self._set_up_views()
+
+    # ---- views and clean renders ------------------------------------------------------------------
+    def _set_up_views(self):
+        r = self.renderer
+        self.cameras = r.cameras
+        self.width, self.height, self.k = r.width, r.height, r.k
+        # keep the clean frame's per-view state (only this render: faulted ones must not overwrite it)
+        r.capture_views = r.keep_views
+        try:
+            self.clean_rgba = r.render_rgba()
+        finally:
+            r.capture_views = False
+        self.clean_buf = self.gpu.buffer(r.image.size, STORAGE, "clean_images")
+        enc = self.gpu.device.create_command_encoder()
+        enc.copy_buffer_to_buffer(r.image, 0, self.clean_buf, 0, r.image.size)
+        self.gpu.submit(enc)
+        self.metrics = ImageMetrics(self.gpu, self.width, self.height, self.k, max_variants=1)
+        self._evaluator = None
+
+    def set_cameras(self, cameras: list[Camera]):
+        if self._active:
+            raise RuntimeError("undo active faults before changing cameras (the clean render is re-made)")
+        self.renderer.set_cameras(cameras)
+        self._set_up_views()
+
+    @property
+    def clean(self) -> np.ndarray:
+        return self.clean_rgba[..., :3]
+
+    # ---- sites -------------------------------------------------------------------------------------
+    def site(self, field: str, primitive: int, component: int, bits) -> Site:
+        return make_site(self.n, field, primitive, component, bits, self.precision, self.degree)
+
+    def stored_bits(self, primitive, flat_component) -> np.ndarray:
+        """Clean stored bit patterns (uint32 or uint16) at (primitive, flat component) pairs."""
+        chunk, word, shift = self.layout.locate(primitive, flat_component)
+        chunk, word, shift = np.atleast_1d(chunk), np.atleast_1d(word), np.atleast_1d(shift)
+        w = np.empty(word.shape, dtype=np.uint64)
+        for c in np.unique(chunk):
+            sel = chunk == c
+            w[sel] = self.renderer.clean_words[int(c)][word[sel]]
+        vals = (w >> shift.astype(np.uint64)) & np.uint64(0xFFFFFFFF if not self.layout.halves else 0xFFFF)
+        return vals.astype(np.uint32 if not self.layout.halves else np.uint16)
+
+    def clean_value(self, site: Site) -> float:
+        return float(encoding.from_bits(self.stored_bits([site.primitive], [site.flat_component()]), self.precision)[0])
+
+    def corrupted_value(self, site: Site) -> float:
+        b = self.stored_bits([site.primitive], [site.flat_component()])
+        return float(encoding.from_bits(encoding.flip_bits(b, list(site.bits), self.precision), self.precision)[0])
+
+    def _defended(self, clean: np.ndarray, masks: np.ndarray, defense: str) -> np.ndarray:
+        """What `defense` reads from stored values `clean` after XOR `masks` hit them (the support
+        guard is applied later, in the pipeline or by clamp_bits)."""
+        corrupt = (clean.astype(np.uint64) ^ masks).astype(clean.dtype)
+        if defense == "ecc":
+            return ecc_read(clean, corrupt, self.precision)
+        if defense == "dup":
+            return dup_read(clean, corrupt)
+        return corrupt
+
+    # ---- flips on the GPU --------------------------------------------------------------------------
+    def _xor_lists(self, sites: list[Site], defense: str) -> dict[int, np.ndarray]:
+        """Per chunk: [(word, xor mask)] turning the clean words into what the defense reads."""
+        if not sites:
+            return {}
+        prims = np.array([s.primitive for s in sites], dtype=np.int64)
+        comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
+        masks = np.array([mask_of(s.bits) for s in sites], dtype=np.uint64)
+        # merge sites hitting the same value (several upsets in one word compose)
+        key = prims * self.layout.ncomp + comps
+        uk, inv = np.unique(key, return_inverse=True)
+        vmask = np.zeros(uk.size, dtype=np.uint64)
+        np.bitwise_xor.at(vmask, inv, masks)
+        p, c = np.divmod(uk, self.layout.ncomp)
+        clean = self.stored_bits(p, c)
+        delta = clean.astype(np.uint64) ^ self._defended(clean, vmask, defense).astype(np.uint64)
+        chunk, word, shift = self.layout.locate(p, c)
+        wmask = delta << shift.astype(np.uint64)
+        out = {}
+        for ch in np.unique(chunk):
+            sel = chunk == ch
+            w, wi = np.unique(word[sel], return_inverse=True)
+            m = np.zeros(w.size, dtype=np.uint64)
+            np.bitwise_xor.at(m, wi, wmask[sel])
+            keep = m != 0
+            if keep.any():
+                out[int(ch)] = np.stack([w[keep], m[keep]], axis=1).astype(np.uint32)
+        return out
+
+    def _scatter(self, xors: dict[int, np.ndarray]):
+        """XOR the (word, mask) lists into the chunks: one submission, buffers reused across calls."""
+        if not xors:
+            return
+        g, n_chunks = self.gpu, self.layout.n_chunks
+        need = max(len(p) for p in xors.values())
+        if self._flip_cap < need:
+            self._flip_cap = max(need, 1024)
+            self._flip_pairs = [g.buffer(8 * self._flip_cap, STORAGE, "flip_pairs") for _ in range(n_chunks)]
+            self._flip_params = g.buffer(256 * n_chunks, UNIFORM, "flip_params")
+            self._flip_bgs = [
+                g.bind(
+                    self.p_flip,
+                    {0: (self._flip_params, 256 * c, 16), 1: self._flip_pairs[c], 2: self.renderer.chunks[c]},
+                )
+                for c in range(n_chunks)
+            ]
+        params = np.zeros((n_chunks, 64), np.uint32)
+        for ch, pairs in xors.items():
+            params[ch, 0] = len(pairs)
+            g.write(self._flip_pairs[ch], pairs)
+        g.write(self._flip_params, params)
+        enc = g.device.create_command_encoder()
+        for ch, pairs in xors.items():
+            p = enc.begin_compute_pass()
+            p.set_pipeline(self.p_flip)
+            p.set_bind_group(0, self._flip_bgs[ch])
+            p.dispatch_workgroups(*dispatch_dims(-(-len(pairs) // 64)))
+            p.end()
+        g.submit(enc)
+
+    def apply(self, sites: list[Site], defense: str = "none") -> dict:
+        """Flip the sites in the GPU-resident model (as the defense reads them); returns a handle."""
+        xors = self._xor_lists(list(sites), check_defense(defense))
+        self._scatter(xors)
+        self._active.append(xors)
+        return xors
+
+    def undo(self, handle: dict):
+        self._scatter(handle)
+        self._active = [h for h in self._active if h is not handle]
+
+    def undo_all(self):
+        while self._active:
+            self.undo(self._active[-1])
+
+    # ---- rendering and metrics ---------------------------------------------------------------------
+    def _guard_mask(self, defense: str) -> int:
+        return self.masks.get(defense, 0)
+
+    def _run_guarded(self, defense: str) -> dict:
+        """Render the K views as the model is now, under the defense's in-pipeline clamp; the frame
+        stays in the renderer's image buffer. Returns clamps per field."""
+        r = self.renderer
+        r.set_guard(None, self._guard_mask(defense))
+        r.reset_guard_counts()
+        try:
+            r.run()
+            return dict(zip(FIELDS, map(int, r.read_guard_counts())))
+        finally:
+            r.set_guard(None, 0)
+
+    def render_current(self, defense: str = "none") -> tuple[np.ndarray, dict]:
+        """Render the model as it is now (faults applied) under a defense's in-pipeline guard.
+        Returns ([K, H, W, 4] images, clamps per field); guarded renders feed the health monitor."""
+        counts = self._run_guarded(defense)
+        r = self.renderer
+        images = r.gpu.read(r.image, np.float32, 0, 16 * r.k * r.width * r.height)
+        if self._guard_mask(defense):
+            self.monitor.update(counts)
+        return images.reshape(r.k, r.height, r.width, 4), counts
+
+    def measure_current(self, defense: str = "none") -> dict:
+        """GPU metrics of the current model against the clean render (the frame stays on the GPU)."""
+        clamps = sum(self._run_guarded(defense).values())
+        raw = self.metrics.run_dense(self.clean_buf, self.renderer.image, 1)
+        out = {
+            k: (v[0].item() if hasattr(v, "__len__") else v) for k, v in summarize(raw, self.width, self.height).items()
+        }
+        out["clamps"] = clamps
+        return out
+
+    def inject(self, sites, defense: str = "none") -> dict:
+        """Apply the site(s), render the K views under `defense`, measure, restore. One record."""
+        sites = [sites] if isinstance(sites, Site) else list(sites)
+        handle = self.apply(sites, defense)
+        try:
+            m = self.measure_current(defense)
+        finally:
+            self.undo(handle)
+        rec = {
+            "scene": self.scene,
+            "n_primitives": self.n,
+            "precision": self.precision,
+            "defense": defense,
+            "k": len(sites),
+        }
+        if len(sites) == 1:
+            s = sites[0]
+            rec.update(
+                field=s.field,
+                primitive=s.primitive,
+                component=s.component,
+                bit=s.bit,
+                bit_class=site_bit_class(s, self.precision),
+                clean_value=self.clean_value(s),
+                corrupted_value=self.corrupted_value(s),
+            )
+        else:
+            fields = {s.field for s in sites}
+            rec.update(
+                field=fields.pop() if len(fields) == 1 else "mixed",
+                primitive=-1,
+                component=-1,
+                bit=-1,
+                bit_class="mixed",
+                clean_value=float("nan"),
+                corrupted_value=float("nan"),
+            )
+        rec.update(m)
+        rec["catastrophic"] = bool(catastrophic(rec["footprint"], rec["nonfinite"]))
+        return rec
+
+    def worst_primitive(
+        self, field: str, component: int, bits, sample: int = 32, seed: int = 0, defense: str = "none"
+    ) -> tuple[int, dict]:
+        """The primitive whose flip does the most harm (footprint, then peak error) among a sample."""
+        rng = np.random.default_rng(seed)
+        cand = rng.choice(self.n, size=min(sample, self.n), replace=False)
+        sites = [self.site(field, int(p), component, bits) for p in cand]
+        if self.incremental:
+            recs = self.evaluate(sites, (defense,))  # same numbers as inject, without full re-renders
+        else:
+            recs = [self.inject(s, defense) for s in sites]
+        best, best_rec = -1, None
+        for p, rec in zip(cand, recs):
+            score = (rec["nonfinite"], rec["footprint"], rec["peak_error"])
+            if best_rec is None or score > (best_rec["nonfinite"], best_rec["footprint"], best_rec["peak_error"]):
+                best, best_rec = int(p), rec
+        return best, best_rec
+
+    # ---- batched single upsets (incremental path) --------------------------------------------------
+    @property
+    def evaluator(self):
+        if self._evaluator is None:
+            from seuwgpu.faults.incremental import IncrementalEvaluator
+
+            # a CPU adapter gains nothing from huge batches; a GPU needs them to stay busy
+            if self.gpu.is_cpu:
+                self._evaluator = IncrementalEvaluator(self, max_variants=256, max_entries=8192)
+            else:
+                entries = int(min(65536, self.gpu.max_binding // (256 * 16)))
+                self._evaluator = IncrementalEvaluator(self, max_variants=2048, max_entries=entries)
+        return self._evaluator
+
+    def primitive_bits(self, prims) -> np.ndarray:
+        """Clean stored bits [M, ncomp] of whole primitives."""
+        prims = np.asarray(prims, dtype=np.int64)
+        nc = self.layout.ncomp
+        flat = self.stored_bits(np.repeat(prims, nc), np.tile(np.arange(nc), prims.size))
+        return flat.reshape(prims.size, nc)
+
+    def variant_bits(self, sites: list[Site], defense: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(primitives [M], effective stored bits [M, ncomp] as `defense` reads them, guard masks [M])."""
+        prims = np.array([s.primitive for s in sites], dtype=np.int64)
+        comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
+        masks = np.array([mask_of(s.bits) for s in sites], dtype=np.uint64)
+        bits = self.primitive_bits(prims)
+        rows = np.arange(len(sites))
+        bits[rows, comps] = self._defended(bits[rows, comps], masks, defense)
+        gm = np.full(len(sites), self._guard_mask(defense), dtype=np.int64)
+        return prims, bits, gm
+
+    def evaluate(self, sites: list[Site], defenses=("none",), regions=()) -> list[dict]:
+        """Records (dicts) for single-value sites under each defense; see evaluate_frame."""
+        return self.evaluate_frame(sites, defenses, regions).to_dict("records")
+
+    def evaluate_frame(self, sites: list[Site], defenses=("none",), regions=()) -> pd.DataFrame:
+        """Records for single-value sites under each defense (paired: same sites for every arm,
+        rows defense-major), by incremental re-compositing, built column-wise."""
+        sites = list(sites)
+        m_sites = len(sites)
+        comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
+        base = {
+            "scene": [self.scene] * m_sites,
+            "n_primitives": np.full(m_sites, self.n, np.int64),
+            "precision": [self.precision] * m_sites,
+            "field": [s.field for s in sites],
+            "primitive": np.array([s.primitive for s in sites], np.int64),
+            "component": np.array([s.component for s in sites], np.int64),
+            "bit": np.array([s.bit for s in sites], np.int64),
+            "bit_class": [site_bit_class(s, self.precision) for s in sites],
+            "k": np.ones(m_sites, np.int64),
+        }
+        frames = []
+        rows = np.arange(m_sites)
+        for d in defenses:
+            check_defense(d)
+            prims, bits, gm = self.variant_bits(sites, d)
+            clean_v = encoding.from_bits(self.stored_bits(prims, comps), self.precision)
+            corr_v = encoding.from_bits(bits[rows, comps], self.precision)
+            m = self.evaluator.evaluate(prims, bits, gm, regions)
+            cols = dict(base)
+            with np.errstate(invalid="ignore"):  # NaN values are data here
+                cols.update(
+                    defense=[d] * m_sites,
+                    clean_value=clean_v.astype(np.float64),
+                    corrupted_value=corr_v.astype(np.float64),
+                )
+            for key in ("footprint", "footprint_max", "peak_error", "psnr", "ssim"):
+                cols[key] = np.asarray(m[key], np.float64)
+            cols["nonfinite"] = np.asarray(m["nonfinite"], bool)
+            cols["clamps"] = np.asarray(m["clamps"], np.int64)
+            cols["catastrophic"] = np.asarray(catastrophic(cols["footprint"], cols["nonfinite"]), bool)
+            for P in regions:
+                cols[f"regions_pred_{P}"] = np.asarray(m[f"regions_pred_{P}"], np.int64)
+                cols[f"regions_meas_{P}"] = np.asarray(m[f"regions_meas_{P}"], np.int64)
+            frames.append(pd.DataFrame(cols))
+        return pd.concat(frames, ignore_index=True)

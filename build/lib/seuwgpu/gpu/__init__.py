@@ -1,0 +1,1 @@
+from seuwgpu.gpu.device import GPU, get_gpu  # noqa: F401

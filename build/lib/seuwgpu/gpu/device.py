@@ -1,0 +1,168 @@
+"""One wgpu device per process, with cached shader modules and compute pipelines.
+
+Device creation (~0.6 s on lavapipe) and pipelines (~60 ms each) are paid once. Shaders live in
+the repository's top-level `shaders/` folder, which the wheel ships as the resource package
+`seuwgpu.shaders` (an editable install maps it to the folder); `common.wgsl` is prepended to every
+stage so the decode and activation helpers exist once.
+"""
+
+from __future__ import annotations
+
+import os
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import wgpu
+
+
+def shader_text(name: str) -> str:
+    """Source of `shaders/NAME.wgsl`: the installed resource package, else (a checkout imported
+    without installing it) the repository's folder."""
+    try:
+        return resources.files("seuwgpu.shaders").joinpath(f"{name}.wgsl").read_text()
+    except ModuleNotFoundError:
+        return (Path(__file__).resolve().parents[2] / "shaders" / f"{name}.wgsl").read_text()
+
+
+STORAGE = wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST
+UNIFORM = wgpu.BufferUsage.UNIFORM | wgpu.BufferUsage.COPY_DST
+INDIRECT = STORAGE | wgpu.BufferUsage.INDIRECT
+
+# Limits we ask for, up to what the adapter offers (WebGPU defaults are too small for big models).
+_WANTED_LIMITS = (
+    "max-storage-buffer-binding-size",
+    "max-buffer-size",
+    "max-storage-buffers-per-shader-stage",
+    "max-compute-workgroup-storage-size",
+    "max-compute-invocations-per-workgroup",
+    "max-compute-workgroups-per-dimension",
+    "max-bind-groups",
+)
+
+
+class GPU:
+    def __init__(self, power_preference: str = "high-performance", adapter=None):
+        """The default adapter of `power_preference`, or `adapter` (one of
+        wgpu.gpu.enumerate_adapters_sync(), e.g. the GPU a Ray worker was given)."""
+        os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp")
+        self.adapter = adapter or wgpu.gpu.request_adapter_sync(power_preference=power_preference)
+        if self.adapter is None:
+            raise RuntimeError("no WebGPU adapter found: install a Vulkan driver (Debian: mesa-vulkan-drivers)")
+        alimits = self.adapter.limits
+        limits = {k: alimits[k] for k in _WANTED_LIMITS if k in alimits}
+        feats = [f for f in ("timestamp-query",) if f in self.adapter.features]
+        self.device = self.adapter.request_device_sync(required_features=feats, required_limits=limits)
+        self.limits = dict(self.device.limits)
+        self.features = set(self.device.features)
+        self.queue = self.device.queue
+        self._modules: dict = {}
+        self._pipelines: dict = {}
+
+    # ---- description -------------------------------------------------------------------------
+    @property
+    def info(self) -> dict:
+        return dict(self.adapter.info)
+
+    @property
+    def max_binding(self) -> int:
+        return int(min(self.limits["max-storage-buffer-binding-size"], self.limits["max-buffer-size"]))
+
+    @property
+    def is_cpu(self) -> bool:
+        return str(self.info.get("adapter_type", "")).lower() == "cpu"
+
+    # ---- shaders and pipelines -----------------------------------------------------------------
+    def shader_source(self, name: str) -> str:
+        return shader_text("common") + "\n" + shader_text(name)
+
+    def module(self, name: str):
+        if name not in self._modules:
+            self._modules[name] = self.device.create_shader_module(label=name, code=self.shader_source(name))
+        return self._modules[name]
+
+    def pipeline(self, name: str, entry: str = "main", constants: dict | None = None):
+        key = (name, entry, tuple(sorted((constants or {}).items())))
+        if key not in self._pipelines:
+            compute = {"module": self.module(name), "entry_point": entry}
+            if constants:
+                compute["constants"] = {k: float(v) for k, v in constants.items()}
+            self._pipelines[key] = self.device.create_compute_pipeline(
+                label=f"{name}:{entry}", layout="auto", compute=compute
+            )
+        return self._pipelines[key]
+
+    def bind(self, pipeline, entries: dict, group: int = 0):
+        """entries: {binding: buffer | (buffer, offset, size)}."""
+        out = []
+        for binding, res in sorted(entries.items()):
+            if isinstance(res, tuple):
+                buf, off, size = res
+            else:
+                buf, off, size = res, 0, res.size
+            out.append({"binding": binding, "resource": {"buffer": buf, "offset": off, "size": size}})
+        return self.device.create_bind_group(layout=pipeline.get_bind_group_layout(group), entries=out)
+
+    # ---- buffers -------------------------------------------------------------------------------
+    def buffer(self, size: int, usage=STORAGE, label: str = ""):
+        size = max(16, (int(size) + 15) // 16 * 16)
+        return self.device.create_buffer(size=size, usage=usage, label=label)
+
+    def upload(self, array, usage=STORAGE, label: str = ""):
+        data = np.ascontiguousarray(array)
+        buf = self.buffer(data.nbytes, usage, label)
+        if data.nbytes:
+            self.queue.write_buffer(buf, 0, data)
+        return buf
+
+    def write(self, buf, array, offset: int = 0):
+        data = np.ascontiguousarray(array)
+        self.queue.write_buffer(buf, offset, data)
+
+    def read(self, buf, dtype=np.uint32, offset: int = 0, size: int | None = None) -> np.ndarray:
+        size = buf.size - offset if size is None else size
+        return np.frombuffer(self.queue.read_buffer(buf, offset, size), dtype=dtype).copy()
+
+    def submit(self, encoder):
+        self.queue.submit([encoder.finish()])
+
+    def sync(self):
+        """Wait for submitted work (a tiny readback; on_submitted_work_done_sync is unreliable)."""
+        if not hasattr(self, "_sync_buf"):
+            self._sync_buf = self.buffer(16, STORAGE, "sync")
+        self.queue.read_buffer(self._sync_buf, 0, 4)
+
+
+_GPU: GPU | None = None
+
+
+def get_gpu() -> GPU:
+    """This process's device (made on first use)."""
+    global _GPU
+    if _GPU is None:
+        _GPU = GPU()
+    return _GPU
+
+
+def set_gpu(gpu: GPU) -> None:
+    """Make `gpu` the device get_gpu() returns in this process."""
+    global _GPU
+    _GPU = gpu
+
+
+def dispatch(encoder, pipeline, bind_group, groups) -> None:
+    """Record one compute pass: one pipeline, bind group 0, `groups` workgroups."""
+    p = encoder.begin_compute_pass()
+    p.set_pipeline(pipeline)
+    p.set_bind_group(0, bind_group)
+    p.dispatch_workgroups(*groups)
+    p.end()
+
+
+def dispatch_dims(groups: int, max_x: int = 32768) -> tuple[int, int, int]:
+    """Split a 1-D workgroup count into (x, y, 1) within the per-dimension limit; shaders compute
+    `wid = wg.y * num_wg.x + wg.x` and return when wid is past the end."""
+    groups = max(1, int(groups))
+    if groups <= max_x:
+        return groups, 1, 1
+    return max_x, -(-groups // max_x), 1

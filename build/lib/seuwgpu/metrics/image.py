@@ -1,0 +1,359 @@
+"""Per-injection image metrics on the GPU (shaders/metrics.wgsl), and their numpy twin.
+
+Only a few numbers per (variant, view) come back to the host: one [B, K, 6] readback.
+
+Conventions
+-----------
+Images are float32 RGBA (rgb + final transmittance; the 4th channel is ignored), as the renderer
+writes them: never clamped, possibly non-finite after a fault.
+
+* Raw-float metrics (what the renderer produced): ``changed`` (pixels whose r, g or b differs from
+  the clean render by more than 1/255, or is non-finite), ``peak`` (max |faulted - clean| over
+  pixels and channels, +Inf as soon as a difference is non-finite), ``nonfinite`` (pixels with a
+  non-finite r, g or b; exponent-bit test, never ``x != x``).
+* Display-referred metrics (what an 8-bit display shows): ``sse`` (hence PSNR) and SSIM are
+  computed on both images clipped to [0, 1] with NaN -> 0 (+Inf -> 1, -Inf -> 0). A frame full of
+  Inf therefore has a finite PSNR; the raw metrics and the non-finite flag report it instead.
+* SSIM is ``skimage.metrics.structural_similarity(clean, faulted, channel_axis=-1,
+  data_range=1.0)`` with its defaults (7x7 uniform window, sample covariance, K1=0.01, K2=0.03,
+  map cropped by 3 px on each side, mean over channels). Images need W, H >= 7.
+
+Storage modes
+-------------
+* dense: ``faulted`` [B, K, H, W, 4] float32; every tile is evaluated.
+* sparse: ``slabs`` [S, 256, 4] float32 (one 16x16 tile per slab, pixel (tx, ty) at ty*16+tx),
+  ``tile_map`` int32 [B, K, TY*TX] (slab index or -1 = identical to clean), a work list
+  ``worklist`` uint32 [E] of tile indices (ty*TX + tx) grouped by bk = b*K + k in increasing bk
+  order, and its CSR ``offsets`` uint32 [B*K + 1] (entries of bk are worklist[offsets[bk] :
+  offsets[bk+1]]). Tiles outside the work list are taken as identical to clean: 0 changed pixels,
+  0 error, SSIM exactly 1 at every window centred in them. A window centred in a listed tile reads
+  its neighbours correctly (slab if mapped, else clean), so the work list must hold the tiles a
+  fault changed dilated by one tile (``build_worklist(tile_map_to_mask(...))`` does that).
+
+Results (``read``) per (b, k): changed, peak, sse, nonfinite, ssim_sum, ssim_count and
+ssim_deficit. ``ssim_count`` is the number of evaluated interior window centres and
+``ssim_sum`` the sum of SSIM over them, so the frame SSIM is
+``(ssim_sum + n_interior - ssim_count) / n_interior`` with n_interior = (W-6)*(H-6). The GPU
+accumulates the deficit 1 - SSIM (accurate in float32; exactly 0 for unchanged windows), and
+``ssim_sum = ssim_count - ssim_deficit`` is formed on the host in float64; ``summarize`` uses the
+deficit directly: SSIM = 1 - deficit / n_interior.
+
+Sums are float32 on the GPU, in a fixed order: per tile (one 64-thread workgroup, 4 pixels per
+thread, then thread 0 adds the 64 thread records), then the tiles of one (b, k) added
+sequentially in work-list order by one thread. Tiles whose partials are all zero therefore change
+nothing, bit for bit: sparse mode with a correct work list (tiles in increasing order within a
+(b, k), as build_worklist makes them) gives exactly the dense numbers. No float atomics.
+
+One ``encode_*`` per ``read``: the partial and result buffers are reused by every call.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from seuwgpu.gpu.device import INDIRECT, STORAGE, UNIFORM, dispatch_dims
+
+TILE = 16
+WIN = 7
+PAD = (WIN - 1) // 2
+THRESHOLD = np.float32(1.0 / 255.0)
+FIELDS = ("changed", "peak", "sse", "nonfinite", "ssim_sum", "ssim_count", "ssim_deficit")
+_REC = 6  # words per record
+_HDR = 16  # bytes of status header in the results buffer
+
+
+def tiles_of(width: int, height: int) -> tuple[int, int]:
+    """(TX, TY): tiles per row and per column."""
+    return -(-int(width) // TILE), -(-int(height) // TILE)
+
+
+def n_interior(width: int, height: int) -> int:
+    """Window centres of the cropped SSIM map."""
+    return max(0, int(width) - 2 * PAD) * max(0, int(height) - 2 * PAD)
+
+
+# ------------------------------------------------------------------------------------------------
+# GPU
+# ------------------------------------------------------------------------------------------------
+class ImageMetrics:
+    """GPU reductions for B variants x K views of W x H images. Buffers and pipelines are made
+    once; ``encode_dense`` / ``encode_sparse`` record the kernels into a caller's command encoder
+    (submit it before ``read``)."""
+
+    def __init__(self, gpu, width: int, height: int, n_views: int, max_variants: int, max_entries: int | None = None):
+        if width < WIN or height < WIN:
+            raise ValueError(f"SSIM needs images of at least {WIN}x{WIN}, got {width}x{height}")
+        self.gpu = gpu
+        self.width, self.height = int(width), int(height)
+        self.n_views, self.max_variants = int(n_views), int(max_variants)
+        self.tiles_x, self.tiles_y = tiles_of(width, height)
+        self.n_tiles = self.tiles_x * self.tiles_y
+        self.n_interior = n_interior(width, height)
+        self.capacity = int(max_entries) if max_entries else self.max_variants * self.n_views * self.n_tiles
+        if self.capacity * _REC * 4 > gpu.max_binding:
+            raise ValueError(
+                f"max_entries={self.capacity} needs more than one storage binding "
+                f"({gpu.max_binding} bytes): evaluate fewer variants per call"
+            )
+        self.partials = gpu.buffer(self.capacity * _REC * 4, STORAGE, "metrics.partials")
+        self.results = gpu.buffer(_HDR + self.max_variants * self.n_views * _REC * 4, STORAGE, "metrics.results")
+        self.indirect = gpu.buffer(16, INDIRECT, "metrics.indirect")
+        self._dummy = gpu.buffer(16, STORAGE, "metrics.dummy")
+        self.p_tile = gpu.pipeline("metrics", "tile_partials")
+        self.p_reduce = gpu.pipeline("metrics", "reduce_entries")
+        self.p_dispatch = gpu.pipeline("metrics", "sparse_dispatch")
+        self._mode = None
+
+    # ---- recording -----------------------------------------------------------------------------
+    def _params(self, n_variants: int, sparse: bool):
+        n_variants = int(n_variants)
+        if not 0 < n_variants <= self.max_variants:
+            raise ValueError(f"n_variants={n_variants} outside 1..{self.max_variants}")
+        p = np.array(
+            [
+                self.width,
+                self.height,
+                self.n_views,
+                n_variants * self.n_views,
+                self.tiles_x,
+                self.n_tiles,
+                self.capacity,
+                int(sparse),
+            ],
+            np.uint32,
+        )
+        return self.gpu.device.create_buffer_with_data(data=p.tobytes(), usage=UNIFORM)
+
+    def _need(self, buf, nbytes: int, what: str):
+        if buf.size < nbytes:
+            raise ValueError(f"{what} buffer holds {buf.size} bytes, needs {nbytes}")
+
+    def _record(self, encoder, params, clean_buf, fimg_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, n_entries):
+        g = self.gpu
+        common = {
+            0: params,
+            1: clean_buf,
+            2: fimg_buf,
+            3: tile_map_buf,
+            4: worklist_buf,
+            5: offsets_buf,
+            6: self.partials,
+            7: self.results,
+            8: self.indirect,
+        }
+        bg_tile = g.bind(self.p_tile, {i: common[i] for i in range(7)})
+        bg_red = g.bind(self.p_reduce, {i: common[i] for i in (0, 5, 6, 7)})
+        cp = encoder.begin_compute_pass()
+        if n_entries is None:  # sparse: size from offsets[B*K] on the GPU
+            cp.set_pipeline(self.p_dispatch)
+            cp.set_bind_group(0, g.bind(self.p_dispatch, {i: common[i] for i in (0, 5, 8)}))
+            cp.dispatch_workgroups(1, 1, 1)
+            cp.set_pipeline(self.p_tile)
+            cp.set_bind_group(0, bg_tile)
+            cp.dispatch_workgroups_indirect(self.indirect, 0)
+        elif n_entries > 0:
+            cp.set_pipeline(self.p_tile)
+            cp.set_bind_group(0, bg_tile)
+            cp.dispatch_workgroups(*dispatch_dims(n_entries))
+        cp.set_pipeline(self.p_reduce)
+        cp.set_bind_group(0, bg_red)
+        cp.dispatch_workgroups(*dispatch_dims(-(-n_bk // 64)))
+        cp.end()
+
+    def encode_dense(self, encoder, clean_buf, faulted_buf, n_variants: int):
+        """clean_buf: [K, H, W, 4] f32; faulted_buf: [B, K, H, W, 4] f32 with B >= n_variants.
+        Evaluates every tile."""
+        n_bk = int(n_variants) * self.n_views
+        n_entries = n_bk * self.n_tiles
+        if n_entries > self.capacity:
+            raise ValueError(f"dense mode needs {n_entries} partials > max_entries={self.capacity}")
+        params = self._params(n_variants, False)
+        px = self.height * self.width * 16
+        self._need(clean_buf, self.n_views * px, "clean")
+        self._need(faulted_buf, n_bk * px, "faulted")
+        self._record(encoder, params, clean_buf, faulted_buf, self._dummy, self._dummy, self._dummy, n_bk, n_entries)
+        self._mode = ("dense", int(n_variants))
+
+    def encode_sparse(self, encoder, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants: int):
+        """slabs_buf [S, 256, 4] f32; tile_map_buf i32 [B, K, TY*TX]; worklist_buf u32 [E] tile
+        indices grouped by bk = b*K + k (increasing bk; within a group in increasing tile order
+        for results bit-identical to dense mode); offsets_buf u32 [B*K + 1] (CSR, offsets[0] = 0).
+        The number of entries is read on the GPU (offsets[B*K]) and the tile kernel dispatched
+        indirectly, so the work list may be built on the GPU; more entries than max_entries
+        makes ``read`` raise."""
+        n_bk = int(n_variants) * self.n_views
+        params = self._params(n_variants, True)
+        self._need(clean_buf, self.n_views * self.height * self.width * 16, "clean")
+        self._need(tile_map_buf, n_bk * self.n_tiles * 4, "tile_map")
+        self._need(offsets_buf, (n_bk + 1) * 4, "offsets")
+        self._record(encoder, params, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, None)
+        self._mode = ("sparse", int(n_variants))
+
+    # ---- results -------------------------------------------------------------------------------
+    def read(self, n_variants: int | None = None) -> dict:
+        """Results of the last submitted encode: dict of [B, K] numpy arrays (see FIELDS)."""
+        if self._mode is None:
+            raise RuntimeError("nothing encoded")
+        B = self._mode[1] if n_variants is None else int(n_variants)
+        K = self.n_views
+        raw = self.gpu.read(self.results, np.uint32, 0, _HDR + B * K * _REC * 4)
+        requested, evaluated = int(raw[0]), int(raw[1])
+        if requested > evaluated:
+            raise RuntimeError(
+                f"metrics work list has {requested} entries > max_entries="
+                f"{self.capacity}: results incomplete (raise max_entries)"
+            )
+        return _unpack(raw[4:].reshape(B, K, _REC))
+
+    def run_dense(self, clean_buf, faulted_buf, n_variants: int) -> dict:
+        """encode_dense + submit + read."""
+        enc = self.gpu.device.create_command_encoder()
+        self.encode_dense(enc, clean_buf, faulted_buf, n_variants)
+        self.gpu.submit(enc)
+        return self.read(n_variants)
+
+    def run_sparse(self, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants: int) -> dict:
+        """encode_sparse + submit + read."""
+        enc = self.gpu.device.create_command_encoder()
+        self.encode_sparse(enc, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants)
+        self.gpu.submit(enc)
+        return self.read(n_variants)
+
+
+def _unpack(rec: np.ndarray) -> dict:
+    f = rec.view(np.float32)
+    count = rec[..., 5].astype(np.int64)
+    deficit = f[..., 4].astype(np.float64)
+    return {
+        "changed": rec[..., 0].astype(np.int64),
+        "peak": f[..., 1].astype(np.float64),
+        "sse": f[..., 2].astype(np.float64),
+        "nonfinite": rec[..., 3].astype(np.int64),
+        "ssim_sum": count - deficit,
+        "ssim_count": count,
+        "ssim_deficit": deficit,
+    }
+
+
+# ------------------------------------------------------------------------------------------------
+# Work lists for sparse mode
+# ------------------------------------------------------------------------------------------------
+def tile_map_to_mask(tile_map: np.ndarray, width: int, height: int, dilate: int = 1) -> np.ndarray:
+    """Tiles to evaluate: mapped tiles (tile_map >= 0) dilated by `dilate` tiles (8-neighbour,
+    so windows centred next to a changed tile are evaluated). tile_map [B, K, TY*TX] ->
+    bool [B, K, TY*TX]."""
+    TX, TY = tiles_of(width, height)
+    tm = np.asarray(tile_map)
+    m = (tm >= 0).reshape(tm.shape[0], tm.shape[1], TY, TX)
+    out = m.copy()
+    for _ in range(int(dilate)):
+        src = out.copy()
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                ys = slice(max(dy, 0), TY + min(dy, 0))
+                yd = slice(max(-dy, 0), TY + min(-dy, 0))
+                xs = slice(max(dx, 0), TX + min(dx, 0))
+                xd = slice(max(-dx, 0), TX + min(-dx, 0))
+                out[:, :, yd, xd] |= src[:, :, ys, xs]
+    return out.reshape(tm.shape[0], tm.shape[1], TY * TX)
+
+
+def build_worklist(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """bool [B, K, NT] -> (worklist u32 [E] tile indices grouped by b*K + k, offsets u32 [B*K+1])."""
+    m = np.asarray(mask, bool)
+    flat = m.reshape(-1, m.shape[-1])
+    bk, tile = np.nonzero(flat)  # row-major: grouped by bk, tiles increasing
+    offsets = np.zeros(flat.shape[0] + 1, np.uint32)
+    np.cumsum(flat.sum(axis=1), out=offsets[1:])
+    worklist = tile.astype(np.uint32)
+    if worklist.size == 0:
+        worklist = np.zeros(1, np.uint32)  # a binding cannot be empty; offsets say E = 0
+    return worklist, offsets
+
+
+# ------------------------------------------------------------------------------------------------
+# Host-side summaries
+# ------------------------------------------------------------------------------------------------
+def summarize(raw: dict, width: int, height: int) -> dict:
+    """[B, K] results -> [B] per-injection metrics: footprint (mean over views of changed/(W*H)),
+    footprint_max, peak_error (max over views), psnr (10 log10(1/mse) over all views' pixels and
+    channels, display-referred, +inf when sse == 0), ssim (mean over views), nonfinite (any),
+    nonfinite_pixels (total)."""
+    n_px = float(width) * float(height)
+    n_int = n_interior(width, height)
+    changed = np.asarray(raw["changed"], np.float64)
+    K = changed.shape[1]
+    sse = np.asarray(raw["sse"], np.float64).sum(axis=1)
+    with np.errstate(divide="ignore"):
+        psnr = np.where(sse > 0, 10.0 * np.log10((K * n_px * 3.0) / np.where(sse > 0, sse, 1.0)), np.inf)
+    if "ssim_deficit" in raw:
+        ssim_view = 1.0 - np.asarray(raw["ssim_deficit"], np.float64) / n_int
+    else:
+        ssim_view = (
+            np.asarray(raw["ssim_sum"], np.float64) + n_int - np.asarray(raw["ssim_count"], np.float64)
+        ) / n_int
+    nonfinite_px = np.asarray(raw["nonfinite"], np.int64).sum(axis=1)
+    foot = changed / n_px
+    return {
+        "footprint": foot.mean(axis=1),
+        "footprint_max": foot.max(axis=1),
+        "peak_error": np.asarray(raw["peak"], np.float64).max(axis=1),
+        "psnr": psnr,
+        "ssim": ssim_view.mean(axis=1),
+        "nonfinite": nonfinite_px > 0,
+        "nonfinite_pixels": nonfinite_px,
+    }
+
+
+ImageMetrics.summarize = staticmethod(summarize)
+
+
+def catastrophic(footprint, nonfinite, threshold: float = 0.01):
+    """Catastrophic injection: footprint > threshold (1% of the pixels) or any non-finite pixel."""
+    return (np.asarray(footprint) > threshold) | np.asarray(nonfinite, bool)
+
+
+# ------------------------------------------------------------------------------------------------
+# numpy twin
+# ------------------------------------------------------------------------------------------------
+def display(img: np.ndarray) -> np.ndarray:
+    """Display-referred image: clip to [0, 1], NaN -> 0 (+Inf -> 1, -Inf -> 0)."""
+    a = np.asarray(img, np.float32)
+    return np.clip(np.nan_to_num(a, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+
+
+def numpy_metrics(clean: np.ndarray, faulted: np.ndarray) -> dict:
+    """Independent CPU twin of ImageMetrics.read() (full frames evaluated): clean [K, H, W, 3|4],
+    faulted [B, K, H, W, 3|4] -> dict of [B, K] arrays. SSIM from skimage (float64)."""
+    from skimage.metrics import structural_similarity
+
+    c = np.asarray(clean, np.float32)[..., :3]
+    f = np.asarray(faulted, np.float32)[..., :3]
+    B, K, H, W = f.shape[:4]
+    n_int = n_interior(W, H)
+    with np.errstate(invalid="ignore", over="ignore"):
+        d = f - c[None]  # float32, like the GPU
+    bad_f = ~np.isfinite(f)
+    bad_d = ~np.isfinite(d)
+    nonfin_px = bad_f.any(axis=-1)
+    inf_px = nonfin_px | bad_d.any(axis=-1)
+    ad = np.where(bad_d, np.float32(0), np.abs(d))
+    changed_px = inf_px | (ad > THRESHOLD).any(axis=-1)
+    peak_px = np.where(inf_px, np.float32(np.inf), ad.max(axis=-1))
+    dc = display(c).astype(np.float64)
+    df = display(f).astype(np.float64)
+    sse = ((df - dc[None]) ** 2).sum(axis=(2, 3, 4))
+    ssim = np.empty((B, K))
+    for b in range(B):
+        for k in range(K):
+            ssim[b, k] = structural_similarity(dc[k], df[b, k], channel_axis=-1, data_range=1.0)
+    deficit = (1.0 - ssim) * n_int
+    return {
+        "changed": changed_px.sum(axis=(2, 3)).astype(np.int64),
+        "peak": peak_px.max(axis=(2, 3)).astype(np.float64),
+        "sse": sse,
+        "nonfinite": nonfin_px.sum(axis=(2, 3)).astype(np.int64),
+        "ssim_sum": ssim * n_int,
+        "ssim_count": np.full((B, K), n_int, np.int64),
+        "ssim_deficit": deficit,
+    }

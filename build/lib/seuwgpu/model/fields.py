@@ -1,0 +1,219 @@
+"""The 3DGS model: six fields per primitive, and its stored (raw-bit, chunked) GPU layout.
+
+Fields (DESIGN.md): means[3], log_scales[3] (renderer applies exp), quats[4] (w, x, y, z;
+normalized at render time), opacity[1] (logit), sh_dc[3], sh_rest[R][3] with R = (deg+1)^2 - 1,
+coefficient-major like gsplat (`sh_rest[i, k, c]`: coefficient k+1, channel c).
+
+Stored layout: the model is split into chunks of `chunk_prims` primitives so that no storage
+binding exceeds the device limit (a 4M-primitive degree-3 model is ~1 GB at fp32). A chunk is one
+u32 buffer of component planes: plane p (the flat component index below) holds that component
+for every primitive of the chunk, so neighbouring threads read neighbouring words. For 16-bit
+precisions two primitives share a word (primitive 2j low half, 2j+1 high half).
+
+Flat component order: means 0-2, log_scales 3-5, quats 6-9, opacity 10, sh_dc 11-13,
+sh_rest 14 + 3*k + c.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from dataclasses import fields as dc_fields
+
+import numpy as np
+
+from seuwgpu.model import encoding
+
+FIELDS = ("means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest")
+FIELD_ALIASES = {
+    "mean": "means",
+    "means": "means",
+    "xyz": "means",
+    "log_scale": "log_scales",
+    "log_scales": "log_scales",
+    "scale": "log_scales",
+    "scales": "log_scales",
+    "quat": "quats",
+    "quats": "quats",
+    "rotation": "quats",
+    "rot": "quats",
+    "opacity": "opacity",
+    "opacities": "opacity",
+    "sh_dc": "sh_dc",
+    "color": "sh_dc",
+    "dc": "sh_dc",
+    "sh_rest": "sh_rest",
+    "sh": "sh_rest",
+}
+FIELD_OFFSET = {"means": 0, "log_scales": 3, "quats": 6, "opacity": 10, "sh_dc": 11, "sh_rest": 14}
+BASE_COMPONENTS = 14
+
+
+def canonical_field(name: str) -> str:
+    key = str(name).strip().lower()
+    if key not in FIELD_ALIASES:
+        raise ValueError(f"unknown field {name!r}; expected one of {', '.join(FIELDS)}")
+    return FIELD_ALIASES[key]
+
+
+def sh_rest_count(degree: int) -> int:
+    if not 0 <= degree <= 3:
+        raise ValueError(f"SH degree must be 0..3, got {degree}")
+    return (degree + 1) ** 2 - 1
+
+
+def field_components(field: str, degree: int) -> int:
+    field = canonical_field(field)
+    return {"means": 3, "log_scales": 3, "quats": 4, "opacity": 1, "sh_dc": 3, "sh_rest": 3 * sh_rest_count(degree)}[
+        field
+    ]
+
+
+def n_components(degree: int) -> int:
+    return BASE_COMPONENTS + 3 * sh_rest_count(degree)
+
+
+@dataclass
+class Model:
+    means: np.ndarray  # [N, 3]
+    log_scales: np.ndarray  # [N, 3]
+    quats: np.ndarray  # [N, 4] (w, x, y, z)
+    opacity: np.ndarray  # [N]
+    sh_dc: np.ndarray  # [N, 3]
+    sh_rest: np.ndarray  # [N, R, 3]
+
+    def __post_init__(self):
+        for f in dc_fields(self):
+            setattr(self, f.name, np.ascontiguousarray(getattr(self, f.name), dtype=np.float32))
+        n = self.means.shape[0]
+        if not (self.sh_rest.ndim == 3 and self.sh_rest.shape[0] == n and self.sh_rest.shape[2] == 3):
+            self.sh_rest = self.sh_rest.reshape(n, -1, 3)  # (reshape(0, -1, 3) is ambiguous when n == 0)
+        expect = {"means": (n, 3), "log_scales": (n, 3), "quats": (n, 4), "opacity": (n,), "sh_dc": (n, 3)}
+        for name, shape in expect.items():
+            if getattr(self, name).shape != shape:
+                raise ValueError(f"field {name} has shape {getattr(self, name).shape}, expected {shape}")
+        r = self.sh_rest.shape[1]
+        if r not in (0, 3, 8, 15):
+            raise ValueError(f"sh_rest holds {r} coefficients per channel, which is no SH degree (0, 3, 8 or 15)")
+
+    @property
+    def n(self) -> int:
+        return int(self.means.shape[0])
+
+    @property
+    def sh_degree(self) -> int:
+        return {0: 0, 3: 1, 8: 2, 15: 3}[self.sh_rest.shape[1]]
+
+    @property
+    def n_components(self) -> int:
+        return n_components(self.sh_degree)
+
+    def field(self, name: str) -> np.ndarray:
+        """Field as a 2-D [N, components] array (a view where possible)."""
+        name = canonical_field(name)
+        return getattr(self, name).reshape(self.n, -1)
+
+    def flat(self) -> np.ndarray:
+        """[N, n_components] in the flat component order."""
+        return np.concatenate([self.field(f) for f in FIELDS], axis=1)
+
+    @classmethod
+    def from_flat(cls, flat: np.ndarray, degree: int) -> Model:
+        flat = np.asarray(flat, dtype=np.float32)
+        n = flat.shape[0]
+        return cls(
+            means=flat[:, 0:3],
+            log_scales=flat[:, 3:6],
+            quats=flat[:, 6:10],
+            opacity=flat[:, 10],
+            sh_dc=flat[:, 11:14],
+            sh_rest=flat[:, 14:].reshape(n, sh_rest_count(degree), 3),
+        )
+
+    def copy(self) -> Model:
+        return Model(**{f: getattr(self, f).copy() for f in FIELDS})
+
+    def subset(self, index) -> Model:
+        return Model(**{f: getattr(self, f)[index] for f in FIELDS})
+
+    def quantized(self, precision: str) -> Model:
+        """The values a model deployed at `precision` holds."""
+        return Model(**{f: encoding.quantize(getattr(self, f), precision) for f in FIELDS})
+
+    def bit_budget(self, precision: str) -> dict[str, int]:
+        """Stored bits per field and in total (the space a uniform upset is drawn from)."""
+        nb = encoding.bits_per_value(precision)
+        out = {f: self.n * field_components(f, self.sh_degree) * nb for f in FIELDS}
+        out["total"] = sum(out.values())
+        return out
+
+
+class StoredLayout:
+    """Where each (primitive, component) of a model lives in the chunked u32 GPU buffers."""
+
+    def __init__(self, n: int, degree: int, precision: str, chunk_prims: int):
+        if n <= 0:
+            raise ValueError("a model needs at least one primitive")
+        self.n, self.degree = int(n), int(degree)
+        self.precision = encoding.check_precision(precision)
+        self.ncomp = n_components(degree)
+        self.halves = encoding.bits_per_value(precision) == 16
+        chunk_prims = int(min(chunk_prims, n + (n & 1)))
+        self.chunk_prims = chunk_prims + (chunk_prims & 1)  # even, so a 16-bit pair never splits
+        self.n_chunks = -(-self.n // self.chunk_prims)
+        self.plane_words = self.chunk_prims // 2 if self.halves else self.chunk_prims
+        self.chunk_words = self.ncomp * self.plane_words
+
+    @staticmethod
+    def max_chunk_prims(degree: int, precision: str, max_binding_bytes: int) -> int:
+        per_prim = n_components(degree) * encoding.bits_per_value(precision) // 8
+        c = max_binding_bytes // per_prim
+        return max(2, c - (c & 1))
+
+    def chunk_range(self, k: int) -> tuple[int, int]:
+        return k * self.chunk_prims, min(self.n, (k + 1) * self.chunk_prims)
+
+    def locate(self, prim, comp):
+        """(chunk, word index in chunk, bit shift of the value within the word) - vectorised."""
+        prim = np.asarray(prim, dtype=np.int64)
+        comp = np.asarray(comp, dtype=np.int64)
+        chunk = prim // self.chunk_prims
+        j = prim % self.chunk_prims
+        if self.halves:
+            return chunk, comp * self.plane_words + (j >> 1), 16 * (j & 1)
+        return chunk, comp * self.plane_words + j, np.zeros_like(j)
+
+    def encode(self, model: Model) -> list[np.ndarray]:
+        """Model -> list of u32 word arrays, one per chunk."""
+        if model.n != self.n or model.sh_degree != self.degree:
+            raise ValueError("model does not match this layout")
+        return self.encode_bits(encoding.to_bits(model.flat(), self.precision))
+
+    def encode_bits(self, bits: np.ndarray) -> list[np.ndarray]:
+        """Stored bit patterns [N, ncomp] (uint32 or uint16) -> list of u32 chunk word arrays."""
+        bits = np.asarray(bits)
+        out = []
+        for k in range(self.n_chunks):
+            a, b = self.chunk_range(k)
+            planes = np.zeros((self.ncomp, self.chunk_prims), dtype=bits.dtype)
+            planes[:, : b - a] = bits[a:b].T
+            if self.halves:
+                p = planes.astype(np.uint32).reshape(self.ncomp, self.plane_words, 2)
+                words = p[:, :, 0] | (p[:, :, 1] << 16)
+            else:
+                words = planes.astype(np.uint32)
+            out.append(np.ascontiguousarray(words.reshape(-1)))
+        return out
+
+    def decode(self, chunks: list[np.ndarray]) -> Model:
+        """Inverse of encode: u32 chunk words -> Model of the stored values (as float32)."""
+        rows = []
+        for k, words in enumerate(chunks):
+            a, b = self.chunk_range(k)
+            w = np.asarray(words, dtype=np.uint32).reshape(self.ncomp, self.plane_words)
+            if self.halves:
+                planes = np.stack([w & 0xFFFF, w >> 16], axis=2).reshape(self.ncomp, -1).astype(np.uint16)
+            else:
+                planes = w
+            rows.append(planes[:, : b - a].T)
+        flat = encoding.from_bits(np.concatenate(rows, axis=0), self.precision)
+        return Model.from_flat(flat, self.degree)

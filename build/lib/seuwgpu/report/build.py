@@ -1,0 +1,1050 @@
+"""Turn campaign runs into a report a reviewer can read: HTML page, PNG figures, CSV/MD tables.
+
+    df, manifests = load_runs(["runs/a", "runs/b"])
+    index = build_report(["runs/a", "runs/b"], "report/")      # -> report/index.html
+    print(criticality_table_text(df))                          # the CLI's per-field table
+
+`build_report` writes into out_dir (flat):
+  index.html      self-contained page (figures embedded as base64 PNG), one section per analysis,
+                  each table and figure captioned with the runs, scenes, precisions and record
+                  counts it rests on, and a "Skipped analyses" section saying what is missing
+                  and which campaign would supply it;
+  fig_*.png       every figure, also beside the page;
+  <table>.csv / <table>.md   every table (CSV with full precision, Markdown with a caption);
+  report.md       the whole report as Markdown (tables inline, figures linked);
+  summary.json    headline numbers, provenance of the runs and the skipped list.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+import io
+import json
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from dataclasses import field as dc_field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from seuwgpu.analysis import studies as A
+from seuwgpu.analysis.studies import InsufficientData, provenance, provenance_text
+from seuwgpu.version import __version__
+
+__all__ = [
+    "load_runs",
+    "build_report",
+    "criticality_table_text",
+    "markdown_table",
+    "Section",
+    "TableItem",
+    "FigureItem",
+    "SECTIONS",
+]
+
+OPTIONAL_COLUMNS = ("campaign", "repeat", "time_ms")
+
+
+# ------------------------------------------------------------------------------------ loading
+
+
+def load_runs(run_dirs: Iterable[str | Path]) -> tuple[pd.DataFrame, list[dict]]:
+    """Concatenate the records of campaign run directories.
+
+    Each run directory holds manifest.json and records/part-*.parquet. Returns the records (with
+    a ``run`` column naming the run directory, optional columns filled by
+    `analysis.prepare`) and the manifests (each with ``_run`` and ``_run_dir`` added).
+    A missing manifest is tolerated (an empty one is used); a run without parquet parts is an
+    error."""
+    if isinstance(run_dirs, (str, Path)):
+        run_dirs = [run_dirs]
+    frames, manifests, names = [], [], set()
+    for rd in run_dirs:
+        p = Path(rd)
+        if not p.is_dir():
+            raise FileNotFoundError(f"{p}: not a run directory")
+        name = p.resolve().name or str(p)
+        base, i = name, 2
+        while name in names:
+            name, i = f"{base}#{i}", i + 1
+        names.add(name)
+        mpath = p / "manifest.json"
+        manifest = json.loads(mpath.read_text()) if mpath.is_file() else {}
+        manifest = dict(manifest)
+        manifest["_run"] = name
+        manifest["_run_dir"] = str(p)
+        parts = sorted((p / "records").glob("part-*.parquet"))
+        if not parts:
+            raise FileNotFoundError(f"{p}: no records/part-*.parquet")
+        n = 0
+        for part in parts:
+            f = pd.read_parquet(part)
+            if len(f) == 0:
+                continue
+            f["run"] = name
+            for c in f.columns:
+                # region bitmasks: keep them exact integers when other parts lack the column
+                # (a plain int64 column would widen to float64 and lose bits above 2^53)
+                if str(c).startswith("regions_") and pd.api.types.is_integer_dtype(f[c]):
+                    v = f[c].to_numpy()
+                    if v.dtype == np.uint64:
+                        v = v.view(np.int64)
+                    f[c] = pd.array(v, dtype="Int64")
+            frames.append(f)
+            n += len(f)
+        manifest["_n_records"] = n
+        manifests.append(manifest)
+    if not frames:
+        raise ValueError("the runs hold no records")
+    df = pd.concat(frames, ignore_index=True, sort=False)
+    return A.prepare(df), manifests
+
+
+# ------------------------------------------------------------------------------- formatting
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, (bool, np.bool_)):
+        return "yes" if v else "no"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        x = float(v)
+        if math.isnan(x):
+            return "n/a"
+        if math.isinf(x):
+            return "inf" if x > 0 else "-inf"
+        if x == 0:
+            return "0"
+        if x == int(x) and abs(x) < 1e12:
+            return str(int(x))
+        ax = abs(x)
+        if ax >= 1e4 and ax < 1e12:
+            return f"{x:.0f}"
+        return f"{x:.4g}"
+    if isinstance(v, (list, tuple)):
+        return ", ".join(_fmt(x) for x in v)
+    return str(v)
+
+
+def _formatted(df: pd.DataFrame) -> pd.DataFrame:
+    return pd.DataFrame({c: [_fmt(v) for v in df[c].tolist()] for c in df.columns}, index=range(len(df)), dtype=object)
+
+
+def markdown_table(df: pd.DataFrame) -> str:
+    """A GitHub-style Markdown table of a DataFrame (values formatted to 4 significant digits)."""
+    f = _formatted(df)
+    cols = [str(c) for c in f.columns]
+
+    def esc(s):
+        return str(s).replace("|", "\\|").replace("\n", " ")
+
+    lines = [
+        "| " + " | ".join(esc(c) for c in cols) + " |",
+        "|" + "|".join("---" if f[c].map(lambda s: not _numlike(s)).any() else "---:" for c in f.columns) + "|",
+    ]
+    for row in f.itertuples(index=False):
+        lines.append("| " + " | ".join(esc(x) for x in row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _numlike(s: str) -> bool:
+    try:
+        float(str(s).replace(",", ""))
+        return True
+    except ValueError:
+        return s in ("n/a", "inf", "-inf", "")
+
+
+def _html_table(df: pd.DataFrame) -> str:
+    f = _formatted(df)
+    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in f.columns)
+    body = []
+    for row in f.itertuples(index=False):
+        cells = "".join(f"<td class='{'num' if _numlike(x) else 'txt'}'>{html.escape(x)}</td>" for x in row)
+        body.append(f"<tr>{cells}</tr>")
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+# ------------------------------------------------------------------------------ report model
+
+
+@dataclass
+class TableItem:
+    name: str  # file stem
+    title: str
+    df: pd.DataFrame
+    caption: str  # what it shows (provenance is appended)
+    prov: dict | None = None
+
+    def full_caption(self) -> str:
+        prov = self.prov if self.prov is not None else self.df.attrs.get("provenance", {})
+        return f"{self.caption} {provenance_text(prov)}".strip()
+
+
+@dataclass
+class FigureItem:
+    name: str
+    title: str
+    fig: object  # matplotlib Figure
+    caption: str
+    prov: dict | None = None
+
+    def full_caption(self) -> str:
+        return f"{self.caption} {provenance_text(self.prov or {})}".strip()
+
+
+@dataclass
+class Section:
+    key: str
+    title: str
+    text: str = ""
+    tables: list[TableItem] = dc_field(default_factory=list)
+    figures: list[FigureItem] = dc_field(default_factory=list)
+    notes: list[str] = dc_field(default_factory=list)
+    skipped: list[tuple[str, str, str]] = dc_field(default_factory=list)  # partial skips
+    numbers: dict = dc_field(default_factory=dict)
+
+
+def _prov(t) -> dict:
+    return t.attrs.get("provenance", {}) if hasattr(t, "attrs") else {}
+
+
+# ----------------------------------------------------------------------------- the sections
+
+
+def _sec_criticality(df, manifests, ctx) -> Section:
+    crit = A.criticality(df)
+    prec = crit.attrs["precision"]
+    fb = A.field_bit_table(df)
+    sec = Section(
+        "criticality",
+        "Concentration of single-bit criticality",
+        "Single-bit upsets of the single-upset campaign without defense. Footprint is "
+        "the percent of pixels whose colour changes by more than 1/255 (mean over "
+        "views); catastrophic means footprint > 1% or a non-finite pixel.",
+    )
+    sec.tables.append(
+        TableItem(
+            "criticality",
+            f"Per-field severity at {prec}",
+            crit,
+            f"Per-field single-bit upset severity at {prec}, pooled over scenes and bits: footprint "
+            "quantiles (% of frame) and catastrophe rate (%) with its 95% Wilson interval.",
+        )
+    )
+    sec.figures.append(
+        FigureItem(
+            "fig_heatmap",
+            "Field x bit mean footprint",
+            A.plot_field_bit_heatmap(fb),
+            "Mean corruption footprint (% of frame, log colour scale) over field and bit position, "
+            "one panel per precision, pooled over scenes; grey cells: zero mean footprint.",
+            _prov(fb),
+        )
+    )
+    sec.tables.append(
+        TableItem(
+            "field_bit",
+            "Per (precision, field, bit) cell",
+            fb,
+            "Per-cell sample count, mean and max footprint (%) and catastrophe rate with 95% Wilson "
+            "interval; the data behind the heat map.",
+        )
+    )
+    s = A.single_upsets(df, prec, "none")
+    sign = s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")]
+    if len(sign):
+        fp = sign["footprint"].to_numpy(float) * 100
+        sec.numbers.update(
+            scale_sign_footprint_mean_pct=float(np.nanmean(fp)),
+            scale_sign_footprint_p99_pct=float(np.nanquantile(fp, 0.99)),
+            scale_sign_n=int(len(sign)),
+        )
+        sec.notes.append(
+            f"log-scale sign bit at {prec}: mean footprint {np.nanmean(fp):.4g}%, "
+            f"p99 {np.nanquantile(fp, 0.99):.4g}% (n = {len(sign):,})."
+        )
+    cells = fb[fb["precision"] == prec]
+    if len(cells):
+        sec.notes.append(
+            f"{prec}: {len(cells)} (field, bit) cells sampled; fewest samples in a "
+            f"cell: {int(cells['n'].min()):,}, most: {int(cells['n'].max()):,}."
+        )
+        sec.numbers["min_samples_per_cell"] = int(cells["n"].min())
+    return sec
+
+
+def _sec_precision(df, manifests, ctx) -> Section:
+    rates = A.precision_rates(df)
+    precs = A.precisions_present(rates)
+    if len(precs) < 2:
+        raise InsufficientData(
+            f"single-upset records at one precision only ({', '.join(precs)})",
+            "run the single-upset campaign at fp32, fp16 and bf16",
+        )
+    sec = Section(
+        "precision",
+        "Numeric precision changes the exposure",
+        "Catastrophe rate by field for each stored precision (no defense).",
+    )
+    sec.figures.append(
+        FigureItem(
+            "fig_precision",
+            "Catastrophe rate by field and precision",
+            A.plot_precision_rates(rates),
+            "Catastrophic-upset rate (%) by field and numeric format, with 95% Wilson intervals, "
+            "pooled over scenes and bits.",
+            _prov(rates),
+        )
+    )
+    sec.tables.append(
+        TableItem(
+            "precision_rates",
+            "Catastrophe rate by precision and field",
+            rates,
+            "Catastrophe rate (%) per precision and field with 95% Wilson intervals, and the mean footprint (%).",
+        )
+    )
+    return sec
+
+
+def _sec_theory(df, manifests, ctx) -> Section:
+    res = A.theory_check(df)
+    t = res["table"]
+    sec = Section(
+        "theory",
+        "Validation of the perturbation bound",
+        "Lemma (value perturbation): a mantissa flip of bit b changes the value by "
+        "2^(e+b-p), so the peak image error doubles per bit (unit slope in log2) until "
+        "one primitive's contribution saturates the pixels it covers.",
+    )
+    sec.figures.append(
+        FigureItem(
+            "fig_theory",
+            "Peak error against mantissa bit",
+            A.plot_theory(res),
+            f"Mean peak error |dI|_inf against mantissa bit index for {res['field']} at "
+            f"{res['precision']} (log2 axis), the fitted line over bits {res['fit_bits'][0]}.."
+            f"{res['fit_bits'][1]} (mean peak error in ({res['fit_range'][0]:g}, "
+            f"{res['fit_range'][1]:g}]) and the unit-slope prediction.",
+            _prov(t),
+        )
+    )
+    sec.tables.append(
+        TableItem(
+            "theory",
+            "Mean peak error per mantissa bit",
+            t,
+            f"Mean and median peak error per mantissa bit of {res['field']} at {res['precision']}; "
+            "in_fit marks the bits of the slope fit.",
+        )
+    )
+    fit = pd.DataFrame(
+        [
+            {
+                "field": res["field"],
+                "precision": res["precision"],
+                "fitted_log2_slope": res["slope"],
+                "predicted_slope": 1.0,
+                "r2": res["r2"],
+                "fit_bits": f"{res['fit_bits'][0]}..{res['fit_bits'][1]}",
+                "n_fit_bits": res["n_fit_bits"],
+            }
+        ]
+    )
+    sec.tables.append(
+        TableItem(
+            "theory_fit",
+            "Fitted slope",
+            fit,
+            "Fitted log2 slope of mean peak error per mantissa bit against the unit slope of the perturbation lemma.",
+            _prov(t),
+        )
+    )
+    if res["note"]:
+        sec.notes.append(res["note"])
+    sec.numbers.update(theory_slope=res["slope"], theory_r2=res["r2"])
+    return sec
+
+
+def _sec_guard(df, manifests, ctx) -> Section:
+    res = A.guard_analysis(df)
+    sec = Section(
+        "guard",
+        "Support guard evaluation",
+        "The same single-upset fault sites rendered without defense and with the "
+        "support guard (records paired by injection id).",
+    )
+    sec.figures.append(
+        FigureItem(
+            "fig_guard",
+            "Footprint distribution with and without the guard",
+            A.plot_guard_ccdf(df),
+            "Complementary CDF of the corruption footprint (% of frame) "
+            "without defense and with the support guard, all precisions pooled; the dotted line is "
+            "the 1% catastrophe threshold.",
+            _prov(res["summary"]),
+        )
+    )
+    sec.tables.append(
+        TableItem(
+            "guard_summary",
+            "Footprint and catastrophe rate by defense",
+            res["summary"],
+            "Footprint statistics (% of frame) and "
+            "catastrophe rate with 95% Wilson interval, without and with "
+            "the guard, per precision.",
+        )
+    )
+    sec.tables.append(
+        TableItem(
+            "guard_paired",
+            "Catastrophic upsets neutralised",
+            res["paired"],
+            "On paired fault sites: catastrophic upsets "
+            "without defense, how many the guard neutralises (share with "
+            "95% Wilson interval), residual catastrophic events and the "
+            "worst guarded footprint (%).",
+        )
+    )
+    if len(res["sign_psnr"]):
+        sec.tables.append(
+            TableItem(
+                "guard_sign_psnr",
+                "PSNR of log-scale sign flips",
+                res["sign_psnr"],
+                "Log-scale sign-bit upsets: mean and "
+                "median PSNR (dB, clipped to [0, 100]) without and with the "
+                "guard, and their mean footprints (%).",
+            )
+        )
+    else:
+        sec.notes.append("no paired log-scale sign-bit upsets: PSNR before/after not reported")
+    sec.notes.append(
+        f"{res['n_guarded']:,} guarded single-bit upsets: worst footprint "
+        f"{res['worst_guarded_footprint_pct']:.4g}% of the frame, "
+        f"{res['residual_catastrophic']} residual catastrophic events; "
+        f"share of catastrophic upsets neutralised {res['share_pct']:.4g}%."
+    )
+    sec.numbers.update(
+        guard_share_neutralised_pct=res["share_pct"],
+        guard_worst_footprint_pct=res["worst_guarded_footprint_pct"],
+        guard_residual_catastrophic=res["residual_catastrophic"],
+        guard_n_sites=res["n_guarded"],
+    )
+    return sec
+
+
+def _sec_mitigation(df, manifests, ctx) -> Section:
+    t = A.mitigation_table(df, manifests)
+    sec = Section(
+        "mitigation",
+        "Alternative defenses",
+        "Each defense on the shared fault grid (the fault sites measured under every "
+        "defense present) at one precision.",
+    )
+    cap = (
+        f"Mitigations at {t.attrs['precision']}"
+        + (
+            " on a shared (paired) fault grid"
+            if t.attrs.get("paired")
+            else " (no site measured under every defense: unpaired)"
+        )
+        + ": catastrophe rate (%) with 95% Wilson interval, footprint (%), memory overhead "
+        "(% of the stored model; basis column) and mean per-injection time relative to no "
+        "defense (time_ms, when recorded). Memory: guard = 2 fp32 box bounds per guarded "
+        "component per model; ECC = SEC-DED over sign+exponent per stored value; "
+        "duplication = three copies for majority voting (+200%)."
+    )
+    sec.tables.append(TableItem("mitigation", "Mitigation table", t, cap))
+    for _, r in t.iterrows():
+        sec.numbers[f"mitigation_cat_pct_{r['defense']}"] = float(r["cat_rate_pct"])
+    if t["time_ms_mean"].isna().all():
+        sec.notes.append("no time_ms recorded: time cost not reported")
+    return sec
+
+
+def _sec_dose(df, manifests, ctx) -> Section:
+    curves = A.dose_curves(df)
+    sec = Section(
+        "dose",
+        "Behavior under accumulated dose",
+        "k simultaneous upsets drawn uniformly over the stored bit budget. PSNR is "
+        "clipped to [0, 100] dB per record (identical frames at 100, non-finite at 0) "
+        "before averaging.",
+    )
+    sec.figures.append(
+        FigureItem(
+            "fig_dose",
+            "PSNR against dose",
+            A.plot_dose(curves),
+            "PSNR against the number of simultaneous upsets k: median lines with interquartile bands "
+            "(spread over scenes and repeats), dots the mean; thin solid: no defense, bold dashed: "
+            "support guard; one colour per precision; dotted: 30 dB.",
+            _prov(curves),
+        )
+    )
+    for dfn in ("none", "guard"):
+        g = curves[(curves["precision"] == A.reference_precision(curves)) & (curves["defense"] == dfn)]
+        if len(g):
+            top = g[g["k"] == g["k"].max()].iloc[0]
+            sec.numbers[f"dose_psnr_mean_at_kmax_{dfn}_db"] = float(top["psnr_mean_db"])
+            sec.numbers["dose_kmax"] = int(top["k"])
+    sec.tables.append(
+        TableItem(
+            "dose_curves",
+            "Dose response",
+            curves,
+            "Per precision, defense and k: samples, mean/median/quartile "
+            "PSNR (dB), mean SSIM and footprint (%), catastrophic fraction "
+            "with 95% Wilson interval.",
+        )
+    )
+    return sec
+
+
+def _sec_budget(df, manifests, ctx) -> Section:
+    b = A.redundancy_budget(df)
+    sec = Section(
+        "budget",
+        "Redundancy budget against primitive count",
+        "The dose k at which the mean PSNR first falls below 30 dB, interpolated in "
+        "log k; censored '>=' when it never falls below within the sweep, '<=' when "
+        "already below at the smallest k.",
+    )
+    if b["n_primitives"].nunique() >= 2:
+        sec.figures.append(
+            FigureItem(
+                "fig_budget",
+                "Redundancy budget against N",
+                A.plot_budget(b),
+                "Redundancy budget (k at 30 dB mean PSNR) against primitive count; open markers are censored bounds.",
+                _prov(b),
+            )
+        )
+    else:
+        sec.notes.append("one primitive count only: budget-vs-N figure needs a size campaign")
+        ctx["skipped"].append(
+            (
+                "Redundancy budget against N (figure)",
+                "dose records at a single primitive count",
+                "run a size campaign (dose sweeps on subsampled models)",
+            )
+        )
+    for _, r in b.iterrows():
+        sec.numbers[f"budget_k_{r['scene']}_{r['precision']}_{r['defense']}"] = f"{r['censored']}{r['k_budget']:.4g}"
+    sec.tables.append(
+        TableItem(
+            "redundancy_budget",
+            "Redundancy budget",
+            b,
+            "Per scene, primitive count, precision and defense: the k where "
+            "mean PSNR crosses 30 dB (k_budget, censored marks bounds).",
+        )
+    )
+    return sec
+
+
+def _sec_size(df, manifests, ctx) -> Section:
+    res = A.size_scaling(df)
+    sec = Section(
+        "size",
+        "Single-upset error against primitive count",
+        "Uniform single upsets on models of several sizes; error is the frame MSE "
+        "(from PSNR, peak 1). alpha = -exponent of the log-log fit "
+        "(sigma^2(N) = Theta(N^-alpha)).",
+    )
+    sec.figures.append(
+        FigureItem(
+            "fig_size",
+            "Single-upset error against N",
+            A.plot_size_scaling(res),
+            "Median (solid) and mean (dashed) single-upset frame MSE against primitive count, log-log.",
+            _prov(res["table"]),
+        )
+    )
+    sec.tables.append(
+        TableItem(
+            "size_scaling",
+            "Error per size",
+            res["table"],
+            f"Per scene, precision, defense and N (source campaign: "
+            f"{res['source_campaign']}): median and mean MSE (non-finite "
+            "frames left out of the mean and counted), footprints (%).",
+        )
+    )
+    sec.tables.append(
+        TableItem(
+            "size_fits",
+            "Log-log fits",
+            res["fits"],
+            "Log-log least-squares fits against N: exponent, alpha = -exponent, log10 prefactor, R^2.",
+        )
+    )
+    f = res["fits"]
+    for _, r in f[f["metric"].isin(["median_mse", "mean_mse"])].iterrows():
+        sec.numbers[f"size_alpha_{r['metric']}_{r['scene']}_{r['precision']}_{r['defense']}"] = float(r["alpha"])
+    if len(res["guard_factor"]):
+        sec.tables.append(
+            TableItem(
+                "size_guard_factor",
+                "Guard factor at the largest N",
+                res["guard_factor"],
+                "Mean single-upset MSE without / with the guard at the largest primitive count.",
+            )
+        )
+    return sec
+
+
+def _sec_reliability(df, manifests, ctx) -> Section:
+    res = A.reliability(df, manifests)
+    prec = res["precision"]
+    sec = Section(
+        "reliability",
+        "Reliability under realistic upset rates",
+        "p_c is the probability that one upset, uniform over the stored bits, is "
+        "catastrophic: the single-upset cells weighted by their share of stored bits. "
+        "MTBF = 1 / (rate per bit x stored bits x p_c). The upset rates are "
+        "order-of-magnitude assumptions (sources below): read the table as relative.",
+    )
+    sec.tables.append(
+        TableItem(
+            "reliability_pc",
+            "p_c",
+            res["pc"],
+            "Per-upset catastrophe probability p_c per precision and defense "
+            "with its 95% interval (Wilson at the Kish effective n for the "
+            "stratified estimate), the sample and bit-budget coverage.",
+        )
+    )
+    if res["mtbf_wide"] is not None and len(res["mtbf_wide"]):
+        sec.tables.append(
+            TableItem(
+                "mtbf",
+                "Mean time between catastrophic frames",
+                res["mtbf_wide"],
+                f"Estimated mean time between catastrophic frames for a model of "
+                f"{res['bits']:.3g} stored bits at {prec} (mean primitive count of the scenes), "
+                "without and with the support guard ('> x': no catastrophic event observed, bound "
+                "from the 95% upper limit of p_c).",
+                _prov(res["mtbf"]),
+            )
+        )
+        sec.tables.append(
+            TableItem(
+                "mtbf_detail",
+                "MTBF inputs and intervals",
+                res["mtbf"],
+                "Per environment and defense: upset rate (per bit-hour and "
+                "FIT/Mbit), p_c, MTBF in hours with the range from the p_c "
+                "interval, and the source of the rate.",
+            )
+        )
+    for env in A.UPSET_RATES:
+        sec.notes.append(
+            f"rate assumption, {env['environment']}: {env['per_bit_hour']:.3g} "
+            f"upsets/bit/h ({env['per_bit_hour'] * 1e15:.3g} FIT/Mbit). "
+            f"{env['source']}"
+        )
+    dm = res["dose_model"]
+    if dm is not None and len(dm):
+        sec.figures.append(
+            FigureItem(
+                "fig_dose_model",
+                "Dose model against measurement",
+                A.plot_dose_model(dm),
+                "Measured catastrophic-frame fraction against k (95% Wilson intervals) and the dose "
+                "model 1-(1-p_c)^k with p_c from the single-upset campaign.",
+                _prov(dm),
+            )
+        )
+        sec.tables.append(
+            TableItem(
+                "dose_model",
+                "Dose model",
+                dm,
+                "Measured catastrophic fraction (%) with 95% Wilson interval "
+                "against the model 1-(1-p_c)^k (with its range from the p_c "
+                "interval); within_ci: the model lies in the measured "
+                "interval.",
+            )
+        )
+        sec.numbers["dose_model_within_ci_share"] = float(dm["within_ci"].mean())
+    else:
+        ctx["skipped"].append(
+            ("Dose model 1-(1-p_c)^k against the measured curve", "no k > 1 records", "run a dose campaign")
+        )
+    sec.notes.extend(n for n in res["notes"] if not n.startswith("dose model not compared"))
+    for dfn in ("none", "guard"):
+        r = A.pc_lookup(res["pc"], prec, dfn)
+        if r is not None:
+            sec.numbers[f"p_c_{dfn}_pct"] = 100 * float(r["p_c"])
+    sec.numbers["model_bits"] = res["bits"]
+    return sec
+
+
+def _sec_contamination(df, manifests, ctx) -> Section:
+    cont = A.contamination(df)
+    sec = Section(
+        "contamination",
+        "Cross-node contamination in distributed rendering",
+        "Sort-first partitions of the screen into P regions (grid as square as "
+        "possible): the share of regions one upset contaminates, predicted from the "
+        "projected footprint and measured from changed pixels, and their IoU.",
+    )
+    sec.figures.append(
+        FigureItem(
+            "fig_contamination",
+            "Contaminated regions against P",
+            A.plot_contamination(cont),
+            "Share of regions contaminated by one log-scale sign-bit upset against the partition "
+            "size P at the reference precision, predicted from the projected footprint (solid) and "
+            "measured from changed pixels (dashed), without and with the guard; the table has every "
+            "precision, defense and all single upsets.",
+            _prov(cont),
+        )
+    )
+    sec.tables.append(
+        TableItem(
+            "contamination",
+            "Region contamination",
+            cont,
+            "Per subset, precision, defense and P: mean share of regions "
+            "contaminated (%, predicted and measured), mean IoU of the "
+            "region sets (records where either is non-empty), slowest-region "
+            "time (ms) and load imbalance (max/mean) where recorded.",
+        )
+    )
+    sub = cont[(cont["subset"] == "log-scale sign") & cont["defense"].isin(["none", "guard"])]
+    if len(sub):
+        sub = sub[sub["precision"] == A.reference_precision(sub)]
+        pmax = int(sub["P"].max())
+        for _, r in sub[sub["P"] == pmax].iterrows():
+            key = f"{r['precision']}_{r['defense']}_P{pmax}"
+            sec.numbers[f"contam_sign_pred_pct_{key}"] = float(r["pred_fraction_pct"])
+            sec.numbers[f"contam_sign_meas_pct_{key}"] = float(r["meas_fraction_pct"])
+            sec.numbers[f"contam_sign_iou_{key}"] = float(r["iou_mean"])
+    if cont["slowest_region_ms"].isna().all():
+        ctx["skipped"].append(
+            (
+                "Slowest-region render time and load imbalance",
+                "no region_ms_max_P / region_ms_mean_P columns",
+                "time the regions with `seuwgpu distributed --scene NAME --ranks 4 16 64` "
+                "(each region rendered on its own Ray rank)",
+            )
+        )
+    return sec
+
+
+def _sec_prediction(df, manifests, ctx) -> Section:
+    res = A.prediction(df, max_rows=ctx.get("max_pred_rows", 200_000))
+    sec = Section(
+        "prediction",
+        "Predicting criticality without injection",
+        f"Gradient-boosted classifiers of 'catastrophic' at {res['precision']} from "
+        "static fault-site features, evaluated on a stratified 30% held-out split and "
+        "leave-one-scene-out.",
+    )
+    sec.figures.append(
+        FigureItem(
+            "fig_roc",
+            "ROC curves",
+            A.plot_roc(res),
+            "Held-out ROC curves of the two classifiers.",
+            _prov(res["summary"]),
+        )
+    )
+    sec.tables.append(
+        TableItem(
+            "prediction",
+            "Classifier AUC",
+            res["summary"],
+            "ROC AUC on the held-out split, leave-one-scene-out mean and "
+            "minimum AUC, training/test sizes and positives.",
+        )
+    )
+    sec.tables.append(
+        TableItem(
+            "prediction_importance",
+            "Permutation importance",
+            res["importance"],
+            "Drop in held-out ROC AUC when one feature of the full model is permuted (mean and std over repeats).",
+        )
+    )
+    if len(res["loso"]):
+        sec.tables.append(
+            TableItem(
+                "prediction_loso",
+                "Leave-one-scene-out AUC",
+                res["loso"],
+                "AUC on each held-out scene, trained on the others.",
+            )
+        )
+    else:
+        ctx["skipped"].append(
+            (
+                "Leave-one-scene-out AUC",
+                "records from one scene only",
+                "run the single-upset campaign on two or more scenes",
+            )
+        )
+    sec.notes.append(f"top feature by permutation importance: {res['top_feature']}")
+    s = res["summary"].set_index("model")
+    sec.numbers.update(
+        pred_auc=float(s["auc_holdout"].iloc[0]),
+        pred_auc_fieldbit=float(s["auc_holdout"].iloc[1]),
+        pred_top_feature=res["top_feature"],
+        pred_loso_mean=float(s["loso_auc_mean"].iloc[0]),
+        pred_loso_min=float(s["loso_auc_min"].iloc[0]),
+    )
+    return sec
+
+
+# (key, title, builder, remedy when it fails for an unexpected reason)
+SECTIONS: list[tuple[str, str, Callable]] = [
+    ("criticality", "Criticality (per-field table, field x bit heat map)", _sec_criticality),
+    ("precision", "Per-precision catastrophe rates", _sec_precision),
+    ("theory", "Theory check (mantissa slope)", _sec_theory),
+    ("guard", "Guard evaluation", _sec_guard),
+    ("mitigation", "Mitigation table", _sec_mitigation),
+    ("dose", "Dose response (PSNR against k)", _sec_dose),
+    ("budget", "Redundancy budget", _sec_budget),
+    ("size", "Single-upset error against N", _sec_size),
+    ("reliability", "Reliability (p_c, dose model, MTBF)", _sec_reliability),
+    ("contamination", "Distributed contamination", _sec_contamination),
+    ("prediction", "Prediction of criticality", _sec_prediction),
+]
+
+
+# ----------------------------------------------------------------------------- build report
+
+
+def _png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    return buf.getvalue()
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1100px;margin:2em auto;
+padding:0 1em;color:#222;line-height:1.45}
+h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
+h3{font-size:1.05em;margin-bottom:.3em}
+table{border-collapse:collapse;font-size:.82em;margin:.4em 0 1em 0;display:block;overflow-x:auto}
+th,td{border:1px solid #ddd;padding:.2em .5em}th{background:#f3f3f3}td.num{text-align:right;
+font-variant-numeric:tabular-nums}
+figure{margin:1em 0}figure img{max-width:100%;border:1px solid #eee}
+.cap{font-size:.86em;color:#444}.note{font-size:.88em;color:#555}
+.skip{background:#fff8e6;border-left:4px solid #f0b429;padding:.5em 1em}
+code{background:#f5f5f5;padding:0 .2em}
+"""
+
+
+def build_report(
+    run_dirs: Iterable[str | Path],
+    out_dir: str | Path,
+    *,
+    title: str = "seuwgpu: single-event upsets in 3D Gaussian splatting",
+    max_pred_rows: int = 200_000,
+) -> Path:
+    """Write the report of the given runs into out_dir; returns the path of index.html."""
+    if isinstance(run_dirs, (str, Path)):
+        run_dirs = [run_dirs]
+    run_dirs = [Path(r) for r in run_dirs]
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    df, manifests = load_runs(run_dirs)
+    previous = _previous_files(out)
+    written: list[str] = []
+    ctx = {"skipped": [], "max_pred_rows": max_pred_rows}
+    sections: list[Section] = []
+    for _key, label, builder in SECTIONS:
+        try:
+            sections.append(builder(df, manifests, ctx))
+        except InsufficientData as e:
+            ctx["skipped"].append((label, e.reason, e.remedy))
+    skipped = ctx["skipped"]
+
+    # files
+    md_parts = [f"# {title}\n", _runs_markdown(df, manifests)]
+    html_sections = []
+    toc = []
+    numbers: dict = {}
+    for sec in sections:
+        numbers.update(sec.numbers)
+        toc.append(f"<li><a href='#{sec.key}'>{html.escape(sec.title)}</a></li>")
+        hs = [f"<h2 id='{sec.key}'>{html.escape(sec.title)}</h2>"]
+        md_parts.append(f"\n## {sec.title}\n\n{sec.text}\n")
+        if sec.text:
+            hs.append(f"<p>{html.escape(sec.text)}</p>")
+        for fi in sec.figures:
+            png = _png(fi.fig)
+            (out / f"{fi.name}.png").write_bytes(png)
+            written.append(f"{fi.name}.png")
+            b64 = base64.b64encode(png).decode("ascii")
+            cap = fi.full_caption()
+            hs.append(
+                f"<figure><img alt='{html.escape(fi.title)}' "
+                f"src='data:image/png;base64,{b64}'><figcaption class='cap'><b>"
+                f"{html.escape(fi.title)}.</b> {html.escape(cap)} "
+                f"(<a href='{fi.name}.png'>{fi.name}.png</a>)</figcaption></figure>"
+            )
+            md_parts.append(f"\n![{fi.title}]({fi.name}.png)\n\n*{fi.title}.* {cap}\n")
+        for ti in sec.tables:
+            cap = ti.full_caption()
+            ti.df.to_csv(out / f"{ti.name}.csv", index=False)
+            mdt = markdown_table(ti.df)
+            (out / f"{ti.name}.md").write_text(f"**{ti.title}.** {cap}\n\n{mdt}")
+            written += [f"{ti.name}.csv", f"{ti.name}.md"]
+            hs.append(
+                f"<h3>{html.escape(ti.title)}</h3><p class='cap'>{html.escape(cap)} "
+                f"(<a href='{ti.name}.csv'>{ti.name}.csv</a>, "
+                f"<a href='{ti.name}.md'>{ti.name}.md</a>)</p>{_html_table(ti.df)}"
+            )
+            md_parts.append(f"\n**{ti.title}.** {cap}\n\n{mdt}")
+        if sec.notes:
+            hs.append("<ul class='note'>" + "".join(f"<li>{html.escape(n)}</li>" for n in sec.notes) + "</ul>")
+            md_parts.append("\n" + "".join(f"- {n}\n" for n in sec.notes))
+        html_sections.append("\n".join(hs))
+
+    skip_rows = pd.DataFrame(skipped, columns=["analysis", "missing", "what would supply it"])
+    toc.append("<li><a href='#skipped'>Skipped analyses</a></li>")
+    if len(skip_rows):
+        skip_html = (
+            "<div class='skip'><p>These analyses were skipped for lack of data:</p>" + _html_table(skip_rows) + "</div>"
+        )
+    else:
+        skip_html = "<p>None: every analysis had the data it needs.</p>"
+    skip_rows.to_csv(out / "skipped.csv", index=False)
+    (out / "skipped.md").write_text(
+        "**Skipped analyses.**\n\n" + (markdown_table(skip_rows) if len(skip_rows) else "None.\n")
+    )
+    md_parts.append("\n## Skipped analyses\n\n" + (markdown_table(skip_rows) if len(skip_rows) else "None.\n"))
+    (out / "report.md").write_text("".join(md_parts))
+
+    summary = {
+        "title": title,
+        "generated": _dt.datetime.now(_dt.UTC).isoformat(),
+        "seuwgpu_version": __version__,
+        "provenance": provenance(df),
+        "runs": [_run_info(m) for m in manifests],
+        "sections": [s.key for s in sections],
+        "skipped": [{"analysis": a, "missing": b, "remedy": c} for a, b, c in skipped],
+        "numbers": numbers,
+        "files": sorted(written + ["index.html", "report.md", "summary.json", "skipped.csv", "skipped.md"]),
+    }
+    # files an earlier report wrote here that this one does not (an analysis now skipped):
+    # remove them so the folder never shows stale results; nothing else is touched
+    for name in previous - set(summary["files"]):
+        try:
+            (out / name).unlink()
+        except OSError:
+            pass
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
+
+    page = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
+<style>{_CSS}</style></head><body>
+<h1>{html.escape(title)}</h1>
+<p class='note'>Generated {html.escape(summary["generated"])} by seuwgpu {html.escape(__version__)}.
+{html.escape(provenance_text(provenance(df)))}</p>
+<h2>Runs</h2>{_html_table(_runs_table(manifests))}
+<h2>Contents</h2><ul>{"".join(toc)}</ul>
+{"".join(html_sections)}
+<h2 id='skipped'>Skipped analyses</h2>{skip_html}
+<h2>Conventions</h2><ul class='note'>
+<li>Proportions carry 95% Wilson score intervals (never a normal approximation).</li>
+<li>Footprint: % of pixels changed by more than 1/255 in any channel, mean over views;
+catastrophic: footprint &gt; 1% or any non-finite pixel.</li>
+<li>PSNR is clipped per record to [{A.PSNR_FLOOR_DB:g}, {A.PSNR_CAP_DB:g}] dB before means
+(identical frames have infinite PSNR; non-finite frames count at the floor).</li>
+<li>Reference precision for single-precision tables: fp32 when present.</li>
+</ul>
+</body></html>
+"""
+    index = out / "index.html"
+    index.write_text(page)
+    return index
+
+
+def _previous_files(out: Path) -> set[str]:
+    """Files listed by an earlier report's summary.json in out (plain names only)."""
+    try:
+        files = json.loads((out / "summary.json").read_text()).get("files", [])
+    except (OSError, ValueError, AttributeError):
+        return set()
+    return {f for f in files if isinstance(f, str) and f == Path(f).name and f}
+
+
+def _json_default(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def _run_info(m: dict) -> dict:
+    adapter = m.get("adapter") or {}
+    if isinstance(adapter, dict):
+        adapter = adapter.get("device") or adapter.get("name") or adapter.get("description") or json.dumps(adapter)[:80]
+    return {
+        "run": m.get("_run"),
+        "dir": m.get("_run_dir"),
+        "records": m.get("_n_records"),
+        "spec_hash": m.get("spec_hash"),
+        "version": m.get("version"),
+        "git_commit": m.get("git_commit"),
+        "adapter": str(adapter) if adapter else None,
+    }
+
+
+def _runs_table(manifests: list[dict]) -> pd.DataFrame:
+    return pd.DataFrame([_run_info(m) for m in manifests])
+
+
+def _runs_markdown(df, manifests) -> str:
+    return "\n" + provenance_text(provenance(df)) + "\n\n" + markdown_table(_runs_table(manifests))
+
+
+# ------------------------------------------------------------------------------ CLI helper
+
+
+def criticality_table_text(df: pd.DataFrame, precision: str | None = None) -> str:
+    """The per-field criticality table as Markdown (what `seuwgpu report` prints)."""
+    crit = A.criticality(df, precision)
+    prec = crit.attrs["precision"]
+    rows = []
+    for _, r in crit.iterrows():
+        rows.append(
+            {
+                "Field": A.FIELD_LABELS.get(r["field"], r["field"]),
+                "n": int(r["n"]),
+                "median": f"{r['median_pct']:.3f}",
+                "p95": f"{r['p95_pct']:.3f}",
+                "p99": f"{r['p99_pct']:.3g}",
+                "max": f"{r['max_pct']:.3g}",
+                "mean": f"{r['mean_pct']:.3f}",
+                "catastrophe (%, 95% CI)": f"{r['cat_rate_pct']:.3f} "
+                f"[{r['cat_ci_lo_pct']:.3f}, {r['cat_ci_hi_pct']:.3f}]",
+            }
+        )
+    t = pd.DataFrame(rows)
+    head = (
+        f"Per-field single-bit upset severity at {prec} (no defense), pooled over scenes and "
+        "bits; footprint quantiles in % of frame; catastrophe rate with 95% Wilson interval.\n"
+        f"{provenance_text(crit.attrs.get('provenance', {}))}\n\n"
+    )
+    lines = ["| " + " | ".join(t.columns) + " |", "|---|" + "|".join("---:" for _ in t.columns[1:]) + "|"]
+    for row in t.itertuples(index=False):
+        lines.append("| " + " | ".join(str(x) for x in row) + " |")
+    return head + "\n".join(lines) + "\n"

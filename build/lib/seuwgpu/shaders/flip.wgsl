@@ -1,0 +1,23 @@
+// Batched bit flips: XOR a mask into listed words of one model chunk. The same call undoes itself,
+// so restores are exact. The host merges masks per word, so no two threads touch one word.
+
+struct FlipParams {
+    count: u32,
+    _p0: u32,
+    _p1: u32,
+    _p2: u32,
+};
+
+@group(0) @binding(0) var<uniform> params: FlipParams;
+@group(0) @binding(1) var<storage, read> flips: array<vec2<u32>>;   // (word index, xor mask)
+@group(0) @binding(2) var<storage, read_write> words: array<u32>;
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = gid.x + gid.y * nwg.x * 64u;
+    if (i >= params.count) {
+        return;
+    }
+    let f = flips[i];
+    words[f.x] = words[f.x] ^ f.y;
+}

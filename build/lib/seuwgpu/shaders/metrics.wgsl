@@ -1,0 +1,423 @@
+// Per-injection image-difference reductions (seuwgpu/metrics.py drives these kernels).
+//
+// Images are float32 RGBA, 4 floats per pixel (rgb + final transmittance; the 4th channel is
+// ignored). clean: [K, H, W] vec4. Faulted variants, two storage modes (params.sparse):
+//   dense  (0): fimg = faulted [B, K, H, W] vec4, row-major;
+//   sparse (1): fimg = slabs [S, 256] vec4 (one 16x16 tile per slab, pixel (tx, ty) at ty*16+tx),
+//               tile_map i32 [B, K, TY*TX]: slab of that tile of variant b / view k, or -1 =
+//               "identical to clean".
+// Work list: one entry per (b, k, tile) to evaluate. Dense: every tile, implicit (entry e is
+// bk = e / n_tiles, tile = e % n_tiles). Sparse: worklist u32 [E] holds tile indices
+// (ty*TX + tx) grouped by bk = b*K + k in increasing bk order, with CSR offsets u32 [B*K + 1]
+// (E = offsets[B*K]). Tiles not in the list are taken as identical to clean.
+//
+// Metric definitions (raw = the float32 render as stored; display = clipped to [0,1], NaN -> 0,
+// +Inf -> 1, -Inf -> 0, i.e. what an 8-bit display shows):
+//   changed   pixels with |f - c| > 1/255 in any of r,g,b (raw), or any non-finite faulted
+//             channel, or a non-finite raw difference;
+//   peak      max over pixels and channels of |f - c| (raw), +Inf if any of those is non-finite;
+//   nonfinite pixels with any non-finite faulted r,g,b channel (exponent-bit test);
+//   sse       sum over pixels x 3 channels of (display(f) - display(c))^2;
+//   SSIM      skimage.metrics.structural_similarity(display(c), display(f), channel_axis=-1,
+//             data_range=1) with its defaults (7x7 uniform window, sample covariance, K1 = 0.01,
+//             K2 = 0.03, map cropped by 3 px): per interior window centre the mean over the 3
+//             channels. The kernel accumulates the SSIM *deficit* 1 - SSIM (small numbers, so the
+//             f32 sums stay accurate) and the count of evaluated interior centres; the host turns
+//             that into ssim_sum = count - deficit.
+//
+// SSIM per channel: two-pass window statistics (means first, then centred sums: no cancellation
+// in var = E[x^2] - E[x]^2; on hard cases this is closer to skimage-in-float64 than skimage run
+// in float32 is). Each thread evaluates 4 vertically adjacent windows, sharing the cell reads
+// (row sums for the means, one read per cell for the centred sums). The
+// deficit written as 1 - A1*A2/(B1*B2) = (e1*B2 + A1*e2) / (B1*B2) with e1 = (ux - uy)^2 = B1 - A1
+// and e2 = var(x - y) = B2 - A2. Every term is non-negative, so it is accurate, and identical
+// windows give e1 = e2 = 0 exactly, i.e. SSIM exactly 1 whatever the compiler does with the
+// division (no reliance on x / x == 1).
+//
+// Reductions are portable: one 64-thread workgroup per work-list entry (tile) reduces its
+// pixels in workgroup memory in a fixed order and writes one partial record; a second kernel, one
+// thread per (b, k), adds its entries' partials sequentially in entry order. Inserting entries
+// whose partials are zero therefore leaves every sum bit-identical, which is why sparse mode
+// (with a work list covering the changed tiles dilated by one tile) equals dense mode exactly.
+// No float atomics.
+//
+// Record layout (partials [E, 6] and results [B*K, 6], 32-bit words):
+//   0 changed (u32)  1 peak (f32)  2 sse (f32)  3 nonfinite (u32)  4 ssim deficit (f32)
+//   5 ssim count (u32)
+// results[0..3] is a status header: [0] = entries requested (sparse: offsets[B*K]),
+// [1] = entries evaluated (min with capacity), [2] = sparse flag; records start at word 4.
+// Workgroup memory: 15.5 KB (WebGPU's default limit is 16 KiB), all written before it is read.
+
+struct MetricsParams {
+    width: u32,
+    height: u32,
+    n_views: u32,
+    n_bk: u32,          // B * K of this call
+    tiles_x: u32,
+    n_tiles: u32,
+    capacity: u32,      // partial records that fit in the partials buffer
+    sparse: u32,        // 0 dense, 1 sparse
+};
+
+@group(0) @binding(0) var<uniform> mp: MetricsParams;
+@group(0) @binding(1) var<storage, read> m_clean: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> m_fimg: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> m_tile_map: array<i32>;
+@group(0) @binding(4) var<storage, read> m_worklist: array<u32>;
+@group(0) @binding(5) var<storage, read> m_offsets: array<u32>;
+@group(0) @binding(6) var<storage, read_write> m_partials: array<u32>;
+@group(0) @binding(7) var<storage, read_write> m_results: array<u32>;
+@group(0) @binding(8) var<storage, read_write> m_indirect: array<u32>;
+
+const M_REC: u32 = 6u;
+const M_HDR: u32 = 4u;
+const M_SPAN: u32 = 22u;            // 16 + 2 * 3 halo
+const M_PLANE: u32 = 484u;          // 22 * 22
+const M_THR: f32 = 1.0 / 255.0;
+const M_C1: f32 = 0.0001;           // (0.01 * 1)^2
+const M_C2: f32 = 0.0009;           // (0.03 * 1)^2
+const M_MAX_X: u32 = 32768u;        // = dispatch_dims max_x
+
+// Display-referred rgb of the tile plus its 3-px halo: clean at [i], faulted at [M_PLANE + i]
+// (i = hy * 22 + hx). Reused for the reduction once SSIM is done.
+var<workgroup> m_blk: array<vec4<f32>, 968>;
+var<workgroup> m_differs: atomic<u32>;
+
+fn m_inf() -> f32 {
+    return bitcast<f32>(0x7f800000u);
+}
+
+// Display-referred value by bit tests only: NaN -> 0, negatives (and -0, -Inf) -> 0,
+// >= 1 (and +Inf) -> 1.
+fn m_display(x: f32) -> f32 {
+    let b = bitcast<u32>(x);
+    if ((b & 0x7fffffffu) > 0x7f800000u) {
+        return 0.0;
+    }
+    if ((b & 0x80000000u) != 0u) {
+        return 0.0;
+    }
+    if (b >= 0x3f800000u) {
+        return 1.0;
+    }
+    return x;
+}
+
+fn m_entries() -> u32 {
+    if (mp.sparse == 0u) {
+        return mp.n_bk * mp.n_tiles;
+    }
+    return m_offsets[mp.n_bk];
+}
+
+fn m_clean_px(k: u32, x: u32, y: u32) -> vec4<f32> {
+    return m_clean[(k * mp.height + y) * mp.width + x];
+}
+
+fn m_faulted_px(bk: u32, k: u32, x: u32, y: u32) -> vec4<f32> {
+    if (mp.sparse == 0u) {
+        return m_fimg[(bk * mp.height + y) * mp.width + x];
+    }
+    let t = (y >> 4u) * mp.tiles_x + (x >> 4u);
+    let s = m_tile_map[bk * mp.n_tiles + t];
+    if (s < 0) {
+        return m_clean_px(k, x, y);
+    }
+    return m_fimg[u32(s) * 256u + (y & 15u) * 16u + (x & 15u)];
+}
+
+// bk of entry e in sparse mode: the largest bk with offsets[bk] <= e.
+fn m_entry_bk(e: u32) -> u32 {
+    var lo = 0u;
+    var hi = mp.n_bk;       // offsets[lo] <= e < offsets[hi] (offsets[n_bk] = E > e)
+    loop {
+        if (hi - lo <= 1u) {
+            break;
+        }
+        let mid = (lo + hi) >> 1u;
+        if (m_offsets[mid] <= e) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    return lo;
+}
+
+fn m_disp3(v: vec4<f32>) -> vec3<f32> {
+    return vec3<f32>(m_display(v.x), m_display(v.y), m_display(v.z));
+}
+
+// Centred second moments of one window, per channel.
+struct MAcc {
+    sxx: vec3<f32>,
+    syy: vec3<f32>,
+    sdd: vec3<f32>,
+};
+
+fn m_acc(acc: MAcc, x: vec3<f32>, y: vec3<f32>, ux: vec3<f32>, uy: vec3<f32>) -> MAcc {
+    let dx = x - ux;
+    let dy = y - uy;
+    let dd = dx - dy;
+    return MAcc(acc.sxx + dx * dx, acc.syy + dy * dy, acc.sdd + dd * dd);
+}
+
+// SSIM deficit (1 - SSIM, mean over r,g,b) of one window from its means and centred sums.
+fn m_deficit(ux: vec3<f32>, uy: vec3<f32>, acc: MAcc) -> f32 {
+    let vx = acc.sxx / 48.0;    // sample covariance: NP / (NP - 1) with NP = 49
+    let vy = acc.syy / 48.0;
+    let e2 = acc.sdd / 48.0;    // = vx + vy - 2 vxy = B2 - A2
+    let du = ux - uy;
+    let e1 = du * du;           // = B1 - A1
+    let a1 = 2.0 * ux * uy + M_C1;
+    let b1 = ux * ux + uy * uy + M_C1;
+    let b2 = vx + vy + M_C2;
+    let q = (e1 * b2 + a1 * e2) / (b1 * b2);
+    return (q.x + q.y + q.z) / 3.0;
+}
+
+// SSIM deficits of the 4 vertically consecutive windows whose top-left block cells are
+// (wx, wy + w), w = 0..3. Two passes (means, then centred sums) over the 10 x 7 cells they
+// cover; each cell is read once per pass and feeds every window that contains it.
+fn m_ssim4(wx: u32, wy: u32) -> vec4<f32> {
+    let z = vec3<f32>(0.0);
+    var sx0 = z; var sx1 = z; var sx2 = z; var sx3 = z;
+    var sy0 = z; var sy1 = z; var sy2 = z; var sy3 = z;
+    for (var r = 0u; r < 10u; r++) {
+        let row = (wy + r) * M_SPAN + wx;
+        var rx = z;
+        var ry = z;
+        for (var i = 0u; i < 7u; i++) {
+            rx += m_blk[row + i].xyz;
+            ry += m_blk[M_PLANE + row + i].xyz;
+        }
+        if (r < 7u) { sx0 += rx; sy0 += ry; }
+        if (r >= 1u && r < 8u) { sx1 += rx; sy1 += ry; }
+        if (r >= 2u && r < 9u) { sx2 += rx; sy2 += ry; }
+        if (r >= 3u) { sx3 += rx; sy3 += ry; }
+    }
+    let ux0 = sx0 / 49.0; let ux1 = sx1 / 49.0; let ux2 = sx2 / 49.0; let ux3 = sx3 / 49.0;
+    let uy0 = sy0 / 49.0; let uy1 = sy1 / 49.0; let uy2 = sy2 / 49.0; let uy3 = sy3 / 49.0;
+    var a0 = MAcc(z, z, z); var a1 = a0; var a2 = a0; var a3 = a0;
+    for (var r = 0u; r < 10u; r++) {
+        let row = (wy + r) * M_SPAN + wx;
+        for (var i = 0u; i < 7u; i++) {
+            let x = m_blk[row + i].xyz;
+            let y = m_blk[M_PLANE + row + i].xyz;
+            if (r < 7u) { a0 = m_acc(a0, x, y, ux0, uy0); }
+            if (r >= 1u && r < 8u) { a1 = m_acc(a1, x, y, ux1, uy1); }
+            if (r >= 2u && r < 9u) { a2 = m_acc(a2, x, y, ux2, uy2); }
+            if (r >= 3u) { a3 = m_acc(a3, x, y, ux3, uy3); }
+        }
+    }
+    return vec4<f32>(m_deficit(ux0, uy0, a0), m_deficit(ux1, uy1, a1),
+                     m_deficit(ux2, uy2, a2), m_deficit(ux3, uy3, a3));
+}
+
+// One 64-thread workgroup per work-list entry (a 16x16 tile of one (variant, view)); each thread
+// owns 4 pixels. Barriers are few on purpose: lavapipe runs barrier-separated phases as
+// coroutines, and each barrier costs a switch per SIMD group.
+@compute @workgroup_size(64)
+fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                 @builtin(local_invocation_index) tid: u32) {
+    let e = linear_wg(wg, nwg);
+    let n_eval = min(m_entries(), mp.capacity);
+    if (e >= n_eval) {
+        return;     // uniform per workgroup
+    }
+    var bk = 0u;
+    var tile = 0u;
+    if (mp.sparse == 0u) {
+        bk = e / mp.n_tiles;
+        tile = e % mp.n_tiles;
+    } else {
+        bk = m_entry_bk(e);
+        tile = m_worklist[e];
+    }
+    let valid_tile = tile < mp.n_tiles;
+    let k = bk % mp.n_views;
+    let W = mp.width;
+    let H = mp.height;
+    let ox = (tile % mp.tiles_x) * 16u;
+    let oy = (tile / mp.tiles_x) * 16u;
+
+    if (tid == 0u) {
+        atomicStore(&m_differs, 0u);
+    }
+    workgroupBarrier();
+
+    // ---- load the 22x22 block (every cell of m_blk is written: no stale workgroup memory);
+    //      raw metrics for the cells that are pixels of this tile ----
+    var changed = 0.0;
+    var nonfin = 0.0;
+    var peak = 0.0;
+    var sse = 0.0;
+    var differs = false;
+    for (var i = tid; i < M_PLANE; i += 64u) {
+        let hx = i % M_SPAN;
+        let hy = i / M_SPAN;
+        let gx = i32(ox + hx) - 3;
+        let gy = i32(oy + hy) - 3;
+        var cd = vec3<f32>(0.0);
+        var fd = vec3<f32>(0.0);
+        if (valid_tile && gx >= 0 && gy >= 0 && u32(gx) < W && u32(gy) < H) {
+            let c = m_clean_px(k, u32(gx), u32(gy));
+            let f = m_faulted_px(bk, k, u32(gx), u32(gy));
+            cd = m_disp3(c);
+            fd = m_disp3(f);
+            if (hx >= 3u && hx < 19u && hy >= 3u && hy < 19u) {
+                var bad = false;
+                var over = false;
+                var pk = 0.0;
+                var nf = false;
+                for (var ch = 0u; ch < 3u; ch++) {
+                    if (!is_finite_f32(f[ch])) {
+                        nf = true;
+                    }
+                    let d = f[ch] - c[ch];
+                    if (!is_finite_f32(d)) {
+                        bad = true;
+                    } else {
+                        let a = abs(d);
+                        pk = max(pk, a);
+                        if (a > M_THR) {
+                            over = true;
+                        }
+                    }
+                }
+                if (nf || bad) {
+                    pk = m_inf();
+                    over = true;
+                }
+                if (nf) {
+                    nonfin += 1.0;
+                }
+                if (over) {
+                    changed += 1.0;
+                }
+                peak = max(peak, pk);
+                let dd = fd - cd;
+                sse += dot(dd, dd);
+            }
+        }
+        m_blk[i] = vec4<f32>(cd, 0.0);
+        m_blk[M_PLANE + i] = vec4<f32>(fd, 0.0);
+        if (any(bitcast<vec3<u32>>(cd) != bitcast<vec3<u32>>(fd))) {
+            differs = true;
+        }
+    }
+    if (differs) {
+        atomicStore(&m_differs, 1u);
+    }
+    workgroupBarrier();
+
+    // ---- SSIM at interior window centres (skipped when the whole block is identical: every
+    //      deficit would be exactly 0 anyway) ----
+    let any_diff = atomicLoad(&m_differs);
+    var count = 0.0;
+    var deficit = 0.0;
+    let lx = tid & 15u;
+    let ly0 = (tid >> 4u) * 4u;             // this thread's centres: (lx, ly0 .. ly0 + 3)
+    let x = ox + lx;
+    let y = vec4<u32>(oy + ly0) + vec4<u32>(0u, 1u, 2u, 3u);
+    let col_ok = valid_tile && x >= 3u && x + 3u < W;
+    let interior = vec4<bool>(col_ok) & (y >= vec4<u32>(3u)) & (y + vec4<u32>(3u) < vec4<u32>(H));
+    if (any(interior)) {
+        let flag = select(vec4<f32>(0.0), vec4<f32>(1.0), interior);
+        count = flag.x + flag.y + flag.z + flag.w;
+        if (any_diff != 0u) {
+            let q = m_ssim4(lx, ly0) * flag;
+            deficit = q.x + q.y + q.z + q.w;
+        }
+    }
+
+    // ---- workgroup reduction: thread 0 adds the 64 per-thread records in order ----
+    workgroupBarrier();
+    m_blk[tid] = vec4<f32>(changed, peak, sse, nonfin);
+    m_blk[64u + tid] = vec4<f32>(deficit, count, 0.0, 0.0);
+    workgroupBarrier();
+    if (tid == 0u) {
+        var r_sum = vec4<f32>(0.0);     // changed, -, sse, nonfinite
+        var r_peak = 0.0;
+        var r_ssim = vec2<f32>(0.0);    // deficit, count
+        for (var t = 0u; t < 64u; t++) {
+            let v = m_blk[t];
+            r_sum += vec4<f32>(v.x, 0.0, v.z, v.w);
+            r_peak = max(r_peak, v.y);
+            r_ssim += m_blk[64u + t].xy;
+        }
+        let r_changed = r_sum.x;
+        let r_sse = r_sum.z;
+        let r_nonfin = r_sum.w;
+        let r_deficit = r_ssim.x;
+        let r_count = r_ssim.y;
+        let r = e * M_REC;
+        m_partials[r] = u32(r_changed);
+        m_partials[r + 1u] = bitcast<u32>(r_peak);
+        m_partials[r + 2u] = bitcast<u32>(r_sse);
+        m_partials[r + 3u] = u32(r_nonfin);
+        m_partials[r + 4u] = bitcast<u32>(r_deficit);
+        m_partials[r + 5u] = u32(r_count);
+    }
+}
+
+// One thread per (b, k): sequential sum of its entries' partials, in entry order.
+@compute @workgroup_size(64)
+fn reduce_entries(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+                  @builtin(local_invocation_index) lidx: u32) {
+    let bk = linear_wg(wg, nwg) * 64u + lidx;
+    if (bk >= mp.n_bk) {
+        return;
+    }
+    let n_eval = min(m_entries(), mp.capacity);
+    var lo = bk * mp.n_tiles;
+    var hi = lo + mp.n_tiles;
+    if (mp.sparse != 0u) {
+        lo = m_offsets[bk];
+        hi = m_offsets[bk + 1u];
+    }
+    hi = min(hi, n_eval);
+    var changed = 0u;
+    var peak = 0.0;
+    var sse = 0.0;
+    var nonfin = 0u;
+    var deficit = 0.0;
+    var count = 0u;
+    for (var e = lo; e < hi; e++) {
+        let r = e * M_REC;
+        changed += m_partials[r];
+        peak = max(peak, bitcast<f32>(m_partials[r + 1u]));
+        sse += bitcast<f32>(m_partials[r + 2u]);
+        nonfin += m_partials[r + 3u];
+        deficit += bitcast<f32>(m_partials[r + 4u]);
+        count += m_partials[r + 5u];
+    }
+    let o = M_HDR + bk * M_REC;
+    m_results[o] = changed;
+    m_results[o + 1u] = bitcast<u32>(peak);
+    m_results[o + 2u] = bitcast<u32>(sse);
+    m_results[o + 3u] = nonfin;
+    m_results[o + 4u] = bitcast<u32>(deficit);
+    m_results[o + 5u] = count;
+    if (bk == 0u) {
+        m_results[0] = m_entries();
+        m_results[1] = n_eval;
+        m_results[2] = mp.sparse;
+        m_results[3] = 0u;
+    }
+}
+
+// Sparse mode: indirect dispatch size for tile_partials from the work list length.
+@compute @workgroup_size(1)
+fn sparse_dispatch() {
+    let n = min(m_entries(), mp.capacity);
+    var gx = min(n, M_MAX_X);
+    var gy = (n + M_MAX_X - 1u) / M_MAX_X;
+    if (n == 0u) {
+        gx = 0u;
+        gy = 1u;
+    }
+    m_indirect[0] = gx;
+    m_indirect[1] = gy;
+    m_indirect[2] = 1u;
+}

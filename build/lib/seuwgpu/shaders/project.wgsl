@@ -1,0 +1,246 @@
+// Projection: decode the stored primitive, EWA-project it into one view, evaluate SH colour, and
+// compute its tile rectangle. One thread per primitive of one model chunk.
+// Rules (culling, unbounded footprints, saturating rectangles) are in docs/renderer.md.
+
+struct View {
+    viewmat: mat4x4<f32>,     // world-to-camera, column-major (as WGSL stores it)
+    campos: vec4<f32>,        // camera centre in world space (w unused)
+    intr: vec4<f32>,          // fx, fy, cx, cy
+    background: vec4<f32>,
+    width: u32,               // full camera image (Jacobian clamp)
+    height: u32,
+    tiles_x: u32,             // tiles of the viewport (the whole frame unless rendering a region)
+    tiles_y: u32,
+    n_total: u32,             // primitives in the model
+    chunk_base: u32,          // first primitive of this chunk
+    chunk_count: u32,         // primitives in this chunk
+    plane_words: u32,         // u32 words per component plane
+    sh_degree: u32,
+    fmt: u32,                 // 0 fp32, 1 fp16, 2 bf16
+    view_index: u32,
+    guard_lo: u32,            // in-pipeline guard: components 0..31 to clamp
+    guard_hi: u32,            // components 32..63
+    tile_x0: f32,             // viewport origin in tiles (sort-first regions); 0 for a full frame
+    tile_y0: f32,
+    _p2: u32,
+};
+
+struct Bound {
+    lo: f32,
+    hi: f32,
+    lo_bits: u32,
+    hi_bits: u32,
+};
+
+@group(0) @binding(0) var<uniform> view: View;
+@group(0) @binding(1) var<storage, read> model: array<u32>;
+@group(0) @binding(2) var<storage, read_write> out_xy: array<vec2<f32>>;
+@group(0) @binding(3) var<storage, read_write> out_conic: array<vec4<f32>>;   // conic.xyz, opacity
+@group(0) @binding(4) var<storage, read_write> out_rgb: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> out_rect: array<vec2<u32>>;    // (x0 | y0 << 16, x1 | y1 << 16)
+@group(0) @binding(6) var<storage, read_write> depth_keys: array<u32>;
+@group(0) @binding(7) var<storage, read_write> depth_vals: array<u32>;
+// In-pipeline support guard (memory untouched): the box, and clamp counts per field (view 0).
+@group(0) @binding(8) var<storage, read> box: array<Bound>;
+@group(0) @binding(9) var<storage, read_write> guard_counts: array<atomic<u32>>;
+
+const SH_C0: f32 = 0.28209479177387814;
+const SH_C1: f32 = 0.4886025119029199;
+
+fn stored(j: u32, c: u32) -> f32 {
+    if (view.fmt == 0u) {
+        return bitcast<f32>(model[c * view.plane_words + j]);
+    }
+    let w = model[c * view.plane_words + (j >> 1u)];
+    return decode_value(w, (j & 1u) == 1u, view.fmt);
+}
+
+fn guard_on(c: u32) -> bool {
+    if (c < 32u) {
+        return ((view.guard_lo >> c) & 1u) == 1u;
+    }
+    return ((view.guard_hi >> (c - 32u)) & 1u) == 1u;
+}
+
+// Each component is read exactly once per primitive and view, so clamps are counted once (view 0).
+fn comp(j: u32, c: u32) -> f32 {
+    let v = stored(j, c);
+    if (!guard_on(c)) {
+        return v;
+    }
+    let b = box[c];
+    let side = guard_side(v, b.lo, b.hi);
+    if (side == 0u) {
+        return v;
+    }
+    if (view.view_index == 0u) {
+        atomicAdd(&guard_counts[field_of(c)], 1u);
+    }
+    return select(b.hi, b.lo, side == 1u);
+}
+
+// Colour = SH + 0.5, then max(., 0) per channel, except that NaN stays NaN.
+fn activate_colour(v: f32) -> f32 {
+    if (is_nan_f32(v)) {
+        return v;
+    }
+    return max(v, 0.0);
+}
+
+// SH coefficient k (1..15) of primitive j as rgb.
+fn shc(j: u32, k: u32) -> vec3<f32> {
+    let base = 11u + 3u * k;
+    return vec3<f32>(comp(j, base), comp(j, base + 1u), comp(j, base + 2u));
+}
+
+// INRIA/gsplat SH evaluation, accumulated in coefficient order (written out: private arrays with
+// dynamic indices are slow on CPU Vulkan).
+fn sh_colour(j: u32, dir: vec3<f32>) -> vec3<f32> {
+    var c = SH_C0 * shc(j, 0u);
+    let deg = view.sh_degree;
+    if (deg > 0u) {
+        let x = dir.x;
+        let y = dir.y;
+        let z = dir.z;
+        c = c + (-SH_C1 * y) * shc(j, 1u);
+        c = c + (SH_C1 * z) * shc(j, 2u);
+        c = c + (-SH_C1 * x) * shc(j, 3u);
+        if (deg > 1u) {
+            let xx = x * x; let yy = y * y; let zz = z * z;
+            let xy = x * y; let yz = y * z; let xz = x * z;
+            c = c + (1.0925484305920792 * xy) * shc(j, 4u);
+            c = c + (-1.0925484305920792 * yz) * shc(j, 5u);
+            c = c + (0.31539156525252005 * (2.0 * zz - xx - yy)) * shc(j, 6u);
+            c = c + (-1.0925484305920792 * xz) * shc(j, 7u);
+            c = c + (0.5462742152960396 * (xx - yy)) * shc(j, 8u);
+            if (deg > 2u) {
+                c = c + (-0.5900435899266435 * y * (3.0 * xx - yy)) * shc(j, 9u);
+                c = c + (2.890611442640554 * xy * z) * shc(j, 10u);
+                c = c + (-0.4570457994644658 * y * (4.0 * zz - xx - yy)) * shc(j, 11u);
+                c = c + (0.3731763325901154 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)) * shc(j, 12u);
+                c = c + (-0.4570457994644658 * x * (4.0 * zz - xx - yy)) * shc(j, 13u);
+                c = c + (1.445305721320277 * z * (xx - yy)) * shc(j, 14u);
+                c = c + (-0.5900435899266435 * x * (xx - 3.0 * yy)) * shc(j, 15u);
+            }
+        }
+    }
+    c = c + vec3<f32>(0.5);
+    return vec3<f32>(activate_colour(c.x), activate_colour(c.y), activate_colour(c.z));
+}
+
+fn cull(g: u32) {
+    depth_keys[g] = 0xffffffffu;
+    depth_vals[g] = g;
+    out_rect[g] = vec2<u32>(0u, 0u);
+}
+
+fn pack_rect(x0: f32, y0: f32, x1: f32, y1: f32) -> vec2<u32> {
+    return vec2<u32>(u32(x0) | (u32(y0) << 16u), u32(x1) | (u32(y1) << 16u));
+}
+
+@compute @workgroup_size(256)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let j = gid.x + gid.y * nwg.x * 256u;
+    if (j >= view.chunk_count) {
+        return;
+    }
+    let g = view.chunk_base + j;
+    let mean = vec3<f32>(comp(j, 0u), comp(j, 1u), comp(j, 2u));
+    let vm = view.viewmat;
+    let p = (vm * vec4<f32>(mean, 1.0)).xyz;
+    if (!is_finite_f32(p.z) || p.z < 0.01 || p.z > 1e10) {
+        cull(g);
+        return;
+    }
+    let fx = view.intr.x;
+    let fy = view.intr.y;
+    let cx = view.intr.z;
+    let cy = view.intr.w;
+    let rz = 1.0 / p.z;
+    let mx = fx * p.x * rz + cx;
+    let my = fy * p.y * rz + cy;
+    if (!is_finite_f32(mx) || !is_finite_f32(my)) {
+        cull(g);
+        return;
+    }
+
+    // Scales and the rotation of the normalised quaternion (w, x, y, z), gsplat's quat_to_rotmat.
+    let s = vec3<f32>(exp_ieee(comp(j, 3u)), exp_ieee(comp(j, 4u)), exp_ieee(comp(j, 5u)));
+    let q0 = vec4<f32>(comp(j, 6u), comp(j, 7u), comp(j, 8u), comp(j, 9u));
+    let q = q0 * rsqrt_ieee(dot(q0, q0));
+    let w = q.x; let x = q.y; let y = q.z; let z = q.w;
+    let rot = mat3x3<f32>(
+        vec3<f32>(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
+        vec3<f32>(2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
+        vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)));
+    // EWA with gsplat's Jacobian clamp (30% beyond the image edge), evaluated as T T^T with
+    // T = J W R S (2x3) and the determinant by Lagrange's identity, |t1|^2 |t2|^2 - (t1.t2)^2 =
+    // |t1 x t2|^2: the textbook a*c - b*b cancels catastrophically for a needle (one huge axis),
+    // which would make culling depend on the device's fused multiply-adds.
+    let wmat = mat3x3<f32>(vm[0].xyz, vm[1].xyz, vm[2].xyz);
+    let width = f32(view.width);
+    let height = f32(view.height);
+    let tan_fovx = 0.5 * width / fx;
+    let tan_fovy = 0.5 * height / fy;
+    let lim_x_pos = (width - cx) / fx + 0.3 * tan_fovx;
+    let lim_x_neg = cx / fx + 0.3 * tan_fovx;
+    let lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy;
+    let lim_y_neg = cy / fy + 0.3 * tan_fovy;
+    let tx = p.z * min(lim_x_pos, max(-lim_x_neg, p.x * rz));
+    let ty = p.z * min(lim_y_pos, max(-lim_y_neg, p.y * rz));
+    // J is 2x3; WGSL mat3x2 has 3 columns of vec2.
+    let jac = mat3x2<f32>(
+        vec2<f32>(fx * rz, 0.0),
+        vec2<f32>(0.0, fy * rz),
+        vec2<f32>(-fx * tx * rz * rz, -fy * ty * rz * rz));
+    let m2 = jac * (wmat * rot);
+    let t1 = vec3<f32>(m2[0].x * s.x, m2[1].x * s.y, m2[2].x * s.z);
+    let t2 = vec3<f32>(m2[0].y * s.x, m2[1].y * s.y, m2[2].y * s.z);
+    let aa = (t1.x * t1.x + t1.y * t1.y) + t1.z * t1.z;
+    let cc = (t2.x * t2.x + t2.y * t2.y) + t2.z * t2.z;
+    let b = (t1.x * t2.x + t1.y * t2.y) + t1.z * t2.z;
+    let xp = vec3<f32>(t1.y * t2.z - t1.z * t2.y, t1.z * t2.x - t1.x * t2.z, t1.x * t2.y - t1.y * t2.x);
+    let a = aa + 0.3;
+    let c = cc + 0.3;
+    let det = (((xp.x * xp.x + xp.y * xp.y) + xp.z * xp.z) + 0.3 * (aa + cc)) + 0.09;
+
+    let tiles_x = f32(view.tiles_x);
+    let tiles_y = f32(view.tiles_y);
+    var conic = vec3<f32>(0.0);
+    var rect: vec2<u32>;
+    if (!is_finite_f32(a) || !is_finite_f32(b) || !is_finite_f32(c) || !is_finite_f32(det)) {
+        // Unbounded footprint: the whole screen, at peak opacity (conic zero).
+        rect = pack_rect(0.0, 0.0, tiles_x, tiles_y);
+    } else {
+        // a or c can round negative for a huge covariance: culled like det <= 0 (sqrt would be NaN)
+        if (det <= 0.0 || a < 0.0 || c < 0.0) {
+            cull(g);
+            return;
+        }
+        conic = vec3<f32>(c / det, -b / det, a / det);
+        let rx = ceil(3.33 * sqrt(a));
+        let ry = ceil(3.33 * sqrt(c));
+        // Float-domain clamp before integer conversion: the saturating radius.
+        let x0 = clamp(floor((mx - rx) / 16.0) - view.tile_x0, 0.0, tiles_x);
+        let x1 = clamp(ceil((mx + rx) / 16.0) - view.tile_x0, 0.0, tiles_x);
+        let y0 = clamp(floor((my - ry) / 16.0) - view.tile_y0, 0.0, tiles_y);
+        let y1 = clamp(ceil((my + ry) / 16.0) - view.tile_y0, 0.0, tiles_y);
+        if (x1 <= x0 || y1 <= y0) {
+            cull(g);
+            return;
+        }
+        rect = pack_rect(x0, y0, x1, y1);
+    }
+
+    let opacity = sigmoid(comp(j, 10u));
+    let d = mean - view.campos.xyz;
+    let dir = d * rsqrt_ieee(dot(d, d));
+    let rgb = sh_colour(j, dir);
+
+    out_xy[g] = vec2<f32>(mx, my);
+    out_conic[g] = vec4<f32>(conic, opacity);
+    out_rgb[g] = vec4<f32>(rgb, p.z);  // depth rides along for incremental re-compositing
+    out_rect[g] = rect;
+    depth_keys[g] = bitcast<u32>(p.z);
+    depth_vals[g] = g;
+}
