@@ -10,17 +10,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from seuwgpu.campaign.runner import (
-    COLUMNS,
-    Runner,
-    SpecError,
-    enumerate_contexts,
-    load_spec,
-    merge,
-    normalize_spec,
-    read_records,
-    replay,
-)
+from seuwgpu.campaign.merge import merge
+from seuwgpu.campaign.runner import Runner, replay
+from seuwgpu.campaign.sampling import enumerate_contexts
+from seuwgpu.campaign.spec import SpecError, load_spec, normalize_spec
+from seuwgpu.campaign.store import COLUMNS, read_records
 
 SPEC = textwrap.dedent("""
     seed = 7

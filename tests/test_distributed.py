@@ -13,8 +13,10 @@ from seuwgpu.apps.cli import run_campaign
 from seuwgpu.campaign import ray as distributed
 from seuwgpu.campaign import sortfirst
 from seuwgpu.campaign.ray import ray_available
-from seuwgpu.campaign.runner import COLUMNS, Runner, normalize_spec, read_records
+from seuwgpu.campaign.runner import Runner
 from seuwgpu.campaign.sortfirst import split_regions
+from seuwgpu.campaign.spec import normalize_spec
+from seuwgpu.campaign.store import COLUMNS, read_records
 
 needs_ray = pytest.mark.skipif(
     not ray_available(), reason="ray is not importable (install the extra: pip install 'seuwgpu[ray]')"

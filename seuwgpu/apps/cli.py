@@ -208,7 +208,7 @@ def print_criticality(run_dirs):
 
 
 def cmd_campaign(args):
-    from seuwgpu.campaign.runner import load_spec
+    from seuwgpu.campaign.spec import load_spec
 
     spec = load_spec(args.spec)
     run_campaign(
@@ -259,7 +259,8 @@ def cmd_plan(args):
     from rich.table import Table
 
     from seuwgpu.campaign.plan import margin_of_error, sample_size
-    from seuwgpu.campaign.runner import enumerate_contexts, load_spec
+    from seuwgpu.campaign.sampling import enumerate_contexts
+    from seuwgpu.campaign.spec import load_spec
 
     spec = load_spec(args.spec)
     tab = Table(title=f"{args.spec}: campaign plan (margins: 95% confidence, worst case p = 0.5, Leveugle et al. 2009)")
@@ -311,7 +312,7 @@ def cmd_demo(args):
     import tomllib
     from importlib.resources import files
 
-    from seuwgpu.campaign.runner import normalize_spec
+    from seuwgpu.campaign.spec import normalize_spec
 
     raw = tomllib.loads(files("seuwgpu").joinpath("specs/default.toml").read_text())
     if args.n is not None:
@@ -335,7 +336,7 @@ def cmd_demo(args):
 
 
 def cmd_merge(args):
-    from seuwgpu.campaign.runner import merge
+    from seuwgpu.campaign.merge import merge
 
     n = merge(args.out, args.shards)
     print(f"merged {n} parts from {len(args.shards)} shard directories into {args.out}")

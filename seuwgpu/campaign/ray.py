@@ -42,7 +42,6 @@ concurrent frame (all ranks at once) is reported beside them.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import time
@@ -133,18 +132,19 @@ def worker_gpu():
 
 # ---- campaigns --------------------------------------------------------------------------------
 def _shard_runner_class():
-    from seuwgpu.campaign.runner import Runner, SpecError
+    from seuwgpu.campaign import store
+    from seuwgpu.campaign.runner import Runner
+    from seuwgpu.campaign.spec import SpecError
 
     class ShardRunner(Runner):
         """A Runner for one Ray task: the run directory was prepared by the driver's prepare task
         (no temp-file sweep under concurrent shards), and the engine is cached per worker process."""
 
         def prepare_dir(self):
-            mpath = self.out / "manifest.json"
-            if not mpath.exists():
+            old = store.read_manifest(self.out)
+            if old is None:
                 return super().prepare_dir()
-            (self.out / "records").mkdir(parents=True, exist_ok=True)
-            old = json.loads(mpath.read_text())
+            store.records_dir(self.out).mkdir(parents=True, exist_ok=True)
             if old.get("spec_hash") != self.hash:
                 raise SpecError(f"{self.out} holds a run of a different spec ({old.get('spec_hash')} != {self.hash})")
 
@@ -204,20 +204,6 @@ def _shard_task(
     return stats
 
 
-def _parts_in(rec_dir: Path) -> set[tuple[int, int]]:
-    out = set()
-    try:
-        it = os.scandir(rec_dir)
-    except FileNotFoundError:
-        return out
-    with it:
-        for e in it:
-            if e.name.startswith("part-") and e.name.endswith(".parquet"):
-                a, b = e.name[:-8].split("-")[1:3]
-                out.add((int(a), int(b)))
-    return out
-
-
 def _is_system_failure(ray, exc) -> bool:
     """A failure of the machinery (worker or node lost), as opposed to an error raised by the code."""
     if isinstance(exc, ray.exceptions.RayTaskError):
@@ -242,15 +228,16 @@ def run_ray(
     `shards`, `resources` and `resubmitted`. Uses the Ray instance already initialised in this
     process, else connects to `address` or starts a local one with `workers` CPUs."""
     ray = get_ray()
-    from seuwgpu.campaign.runner import Progress, Runner, SpecError, atomic_write
+    from seuwgpu.campaign import store
+    from seuwgpu.campaign.runner import Progress, Runner
+    from seuwgpu.campaign.spec import SpecError
 
     out = Path(out).resolve()
     base = Runner(spec, out, shard=shard)
     blocks = list(base.blocks())
     expected = {(a, m): ctx for ctx, a, m in blocks}
-    mpath = out / "manifest.json"
-    if mpath.exists():
-        old = json.loads(mpath.read_text())
+    old = store.read_manifest(out)
+    if old is not None:
         if old.get("spec_hash") != base.hash:
             raise SpecError(
                 f"{out} holds a run of a different spec (hash {old.get('spec_hash')} != {base.hash}); "
@@ -267,8 +254,7 @@ def run_ray(
         S = max(1, min(len(blocks), shards or 4 * workers))
         i, n = shard
         subs = [(i + n * s, n * S) for s in range(S)]
-        rec_dir = out / "records"
-        seen = _parts_in(rec_dir) & set(expected)
+        seen = store.parts_in(out) & set(expected)
         todo = [sub for sub in subs if any((a, m) not in seen for _, a, m in Runner(spec, out, shard=sub).blocks())]
         total = sum(m for _, m in expected)
         already = sum(m for _, m in seen)
@@ -297,7 +283,7 @@ def run_ray(
         bar = Progress(total, already, quiet)
 
         def poll():
-            for key in sorted(_parts_in(rec_dir) - seen):
+            for key in sorted(store.parts_in(out) - seen):
                 if key not in expected:
                     continue
                 seen.add(key)
@@ -305,9 +291,7 @@ def run_ray(
                 try:
                     import pandas as pd
 
-                    df = pd.read_parquet(
-                        rec_dir / f"part-{key[0]:010d}-{key[1]:06d}.parquet", columns=["defense", "catastrophic"]
-                    )
+                    df = pd.read_parquet(store.part_path(out, *key), columns=["defense", "catastrophic"])
                     cat = int(df.loc[df.defense == ctx.defenses[0], "catastrophic"].sum())
                 except Exception:
                     cat = 0
@@ -354,8 +338,8 @@ def run_ray(
                 f"{len(missing)} record parts are missing after the run (first: ids {missing[0][0]}.."
                 f"{missing[0][0] + missing[0][1] - 1}); re-run the same command to resume"
             )
-        if mpath.exists() and todo:
-            m = json.loads(mpath.read_text())
+        m = store.read_manifest(out)
+        if m is not None and todo:
             m["executor"] = {
                 "kind": "ray",
                 "workers": workers,
@@ -364,7 +348,7 @@ def run_ray(
                 "address": address or "local",
                 "nodes": len(ray.nodes()),
             }
-            atomic_write(mpath, json.dumps(m, indent=1).encode())
+            store.write_manifest(out, m)
         return stats
     finally:
         if started:

@@ -1,0 +1,290 @@
+"""Campaign specs: parse, validate and normalise a TOML spec; its hash names the run.
+
+Spec (TOML; unknown keys and bad values fail at once, naming the key):
+
+    seed = 0                 # master seed
+    views = 4                # orbit views per scene (K)
+    size = "128x128"         # WxH
+    batch = 256              # injections per GPU batch and per Parquet part
+
+    [[scenes]]               # one or more
+    scene = "spheres"        # an embedded scene ... or: ply = "model.ply"
+    n = 100000               # primitives of an embedded scene
+    sh_degree = 3
+    cameras = "CAMS.json"    # optional, instead of orbit views
+
+    [single]                 # single upsets, stratified by (field, bit) cell
+    precisions = ["fp32"]
+    fields = "all"           # or a list of field names
+    bits = "all"             # or a list of bit indices (those valid for each precision)
+    samples = 20             # injections per (field, bit) cell, or a plan:
+                             # samples = {margin = 0.02, confidence = 0.95} (Leveugle et al. 2009,
+                             # worst case p = 0.5, finite population of the smallest cell)
+    sampling = "stratified"  # or "uniform": `samples` x cells injections drawn uniformly over
+                             # all stored bits (weight column = bits each sample stands for)
+    defenses = ["none", "guard"]
+    regions = [4, 16, 64]    # optional: sort-first contamination columns regions_pred_P and
+                             # regions_meas_P (int64 bitmasks of the P regions reached/changed)
+
+    [dose]                   # k simultaneous upsets drawn uniformly over the whole bit budget
+    precisions = ["fp32"]
+    k = [1, 10, 100]         # or k_max = 20000 and points = 12 (log-spaced, rounded, distinct)
+    repeats = 3
+    defenses = ["none", "guard"]
+
+    [sizes]                  # primitive-count sweep of the first scene: single upsets at each N
+    n = [5000, 20000, 80000]
+    precisions = ["fp32"]
+    fields = "all"
+    bits = "all"
+    samples = 10
+    defenses = ["none"]
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from seuwgpu.faults.defenses import DEFENSES
+from seuwgpu.model import encoding
+from seuwgpu.model.fields import FIELDS, canonical_field
+
+_TOP = {"seed", "views", "size", "batch", "scenes", "single", "dose", "sizes", "name"}
+_SCENE = {"scene", "ply", "n", "sh_degree", "cameras", "seed"}
+_SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions"}
+_DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
+_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions"}
+
+
+class SpecError(ValueError):
+    pass
+
+
+def _keys(table: dict, allowed: set, where: str):
+    if not isinstance(table, dict):
+        raise SpecError(f"{where} must be a table")
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise SpecError(
+            f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(repr(k) for k in unknown)} in {where} "
+            f"(allowed: {', '.join(sorted(allowed))})"
+        )
+
+
+def _int(table, key, where, default=None, lo=None, hi=None):
+    v = table.get(key, default)
+    if v is None:
+        raise SpecError(f"{where}.{key} is required")
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise SpecError(f"{where}.{key} must be an integer, got {v!r}")
+    if lo is not None and v < lo or hi is not None and v > hi:
+        raise SpecError(f"{where}.{key} = {v} is out of range [{lo}, {hi if hi is not None else 'inf'}]")
+    return v
+
+
+def _list(table, key, where, default, valid=None):
+    v = table.get(key, default)
+    if isinstance(v, str) and v == "all" and valid is not None:
+        return list(valid)
+    if not isinstance(v, list) or not v:
+        raise SpecError(f"{where}.{key} must be a non-empty list" + (' or "all"' if valid is not None else ""))
+    if valid is not None:
+        bad = [x for x in v if x not in valid]
+        if bad:
+            raise SpecError(f"{where}.{key}: unknown value(s) {bad}; valid: {list(valid)}")
+    return v
+
+
+def _fields(table, where):
+    v = table.get("fields", "all")
+    if v == "all":
+        return list(FIELDS)
+    if not isinstance(v, list) or not v:
+        raise SpecError(f'{where}.fields must be "all" or a list of fields')
+    try:
+        return [canonical_field(f) for f in v]
+    except ValueError as e:
+        raise SpecError(f"{where}.fields: {e}") from None
+
+
+def _bits(table, where, precisions):
+    v = table.get("bits", "all")
+    if v == "all":
+        return "all"
+    if not isinstance(v, list) or not v or not all(isinstance(b, int) and not isinstance(b, bool) for b in v):
+        raise SpecError(f'{where}.bits must be "all" or a list of bit indices')
+    for p in precisions:
+        for b in v:
+            if not 0 <= b < encoding.bits_per_value(p):
+                raise SpecError(f"{where}.bits: bit {b} is out of range for {p} (0..{encoding.bits_per_value(p) - 1})")
+    return sorted(set(v))
+
+
+def _samples(table, where, default, n_min: int | None):
+    """`samples` as an int, or planned from {margin, confidence} (stats.sample_size)."""
+    v = table.get("samples", default)
+    if isinstance(v, dict):
+        _keys(v, {"margin", "confidence"}, f"{where}.samples")
+        from seuwgpu.campaign.plan import sample_size
+
+        margin, conf = v.get("margin"), v.get("confidence", 0.95)
+        if not isinstance(margin, (int, float)) or not 0 < margin < 1:
+            raise SpecError(f"{where}.samples.margin must be a proportion in (0, 1), e.g. 0.02")
+        if not isinstance(conf, (int, float)) or not 0 < conf < 1:
+            raise SpecError(f"{where}.samples.confidence must be in (0, 1), e.g. 0.95")
+        # the smallest cell is one field's values at one bit: n_primitives x 1 component at least
+        return int(sample_size(float(margin), float(conf), population=n_min))
+    return _int(table, "samples", where, default, 1)
+
+
+def _spec_file(table, key, where, base_dir: Path | None) -> str:
+    """A file named in the spec, relative to the spec's folder; it must exist."""
+    path = Path(table[key])
+    if base_dir is not None and not path.is_absolute():
+        path = base_dir / path
+    if not path.exists():
+        raise SpecError(f"{where}.{key}: file not found: {path}")
+    return str(path)
+
+
+def _regions(table, where, size):
+    """Sort-first partition sizes P for contamination columns (regions_pred_P, regions_meas_P)."""
+    v = table.get("regions", [])
+    if not isinstance(v, list) or not all(isinstance(p, int) and not isinstance(p, bool) for p in v):
+        raise SpecError(f"{where}.regions must be a list of partition sizes, e.g. [4, 16, 64]")
+    for p in v:
+        if not 2 <= p <= 64:
+            raise SpecError(f"{where}.regions: P = {p} is out of range [2, 64] (regions are 64-bit masks)")
+        if p > size[0] * size[1]:
+            raise SpecError(f"{where}.regions: P = {p} is more regions than pixels")
+    return sorted(set(v))
+
+
+def parse_size(v, where="size"):
+    if isinstance(v, str):
+        try:
+            w, h = (int(x) for x in v.lower().split("x"))
+        except ValueError:
+            raise SpecError(f'{where} must look like "128x128", got {v!r}') from None
+    elif isinstance(v, list) and len(v) == 2:
+        w, h = v
+    else:
+        raise SpecError(f'{where} must look like "128x128", got {v!r}')
+    if not (isinstance(w, int) and isinstance(h, int)) or w < 16 or h < 16:
+        raise SpecError(f"{where}: width and height must be integers >= 16, got {v!r}")
+    return int(w), int(h)
+
+
+def dose_levels(k_max: int, points: int) -> list[int]:
+    ks = np.unique(np.round(np.logspace(0, np.log10(k_max), points)).astype(int))
+    return [int(k) for k in ks]
+
+
+def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
+    """Validated spec with defaults filled in (what is hashed and stored in the manifest)."""
+    from seuwgpu.model.scenes import list_scenes
+
+    _keys(raw, _TOP, "the spec")
+    spec = {
+        "name": str(raw.get("name", "campaign")),
+        "seed": _int(raw, "seed", "spec", 0, 0),
+        "views": _int(raw, "views", "spec", 4, 1, 64),
+        "size": list(parse_size(raw.get("size", "128x128"))),
+        "batch": _int(raw, "batch", "spec", 256, 1, 65536),
+    }
+    scenes = raw.get("scenes")
+    if not isinstance(scenes, list) or not scenes:
+        raise SpecError("the spec needs at least one [[scenes]] table")
+    spec["scenes"] = []
+    for i, s in enumerate(scenes):
+        where = f"scenes[{i}]"
+        _keys(s, _SCENE, where)
+        if ("scene" in s) == ("ply" in s):
+            raise SpecError(f"{where} needs exactly one of scene = NAME or ply = FILE")
+        out = {"sh_degree": _int(s, "sh_degree", where, 3, 0, 3), "seed": _int(s, "seed", where, 0, 0)}
+        if "scene" in s:
+            if s["scene"] not in list_scenes():
+                raise SpecError(
+                    f"{where}.scene: unknown scene {s['scene']!r}; embedded scenes: {', '.join(list_scenes())}"
+                )
+            out["scene"] = s["scene"]
+            out["n"] = _int(s, "n", where, 100_000, 1)
+        else:
+            out["ply"] = _spec_file(s, "ply", where, base_dir)
+        if "cameras" in s:
+            out["cameras"] = _spec_file(s, "cameras", where, base_dir)
+        spec["scenes"].append(out)
+    if not any(k in raw for k in ("single", "dose", "sizes")):
+        raise SpecError("the spec needs at least one of [single], [dose], [sizes]")
+    if "single" in raw:
+        t = raw["single"]
+        _keys(t, _SINGLE, "single")
+        precisions = _list(t, "precisions", "single", ["fp32"], encoding.PRECISIONS)
+        spec["single"] = {
+            "precisions": precisions,
+            "fields": _fields(t, "single"),
+            "bits": _bits(t, "single", precisions),
+            "samples": _samples(t, "single", 20, min((sc.get("n") or 10**9) for sc in spec["scenes"])),
+            "sampling": t.get("sampling", "stratified"),
+            "defenses": _list(t, "defenses", "single", ["none", "guard"], DEFENSES),
+            "regions": _regions(t, "single", spec["size"]),
+        }
+        if spec["single"]["sampling"] not in ("stratified", "uniform"):
+            raise SpecError(f'single.sampling must be "stratified" or "uniform", got {t["sampling"]!r}')
+    if "dose" in raw:
+        t = raw["dose"]
+        _keys(t, _DOSE, "dose")
+        if "k" in t and ("k_max" in t or "points" in t):
+            raise SpecError("dose: give either k = [...] or k_max and points, not both")
+        if "k" in t:
+            ks = _list(t, "k", "dose", None)
+            if not all(isinstance(k, int) and not isinstance(k, bool) and 1 <= k for k in ks):
+                raise SpecError("dose.k must be a list of positive integers")
+        else:
+            ks = dose_levels(_int(t, "k_max", "dose", 20_000, 1), _int(t, "points", "dose", 12, 1, 200))
+        spec["dose"] = {
+            "precisions": _list(t, "precisions", "dose", ["fp32"], encoding.PRECISIONS),
+            "k": sorted(set(int(k) for k in ks)),
+            "repeats": _int(t, "repeats", "dose", 3, 1),
+            "defenses": _list(t, "defenses", "dose", ["none", "guard"], DEFENSES),
+        }
+    if "sizes" in raw:
+        t = raw["sizes"]
+        _keys(t, _SIZES, "sizes")
+        if "scene" not in spec["scenes"][0]:
+            raise SpecError("sizes: the first [[scenes]] entry must be an embedded scene (it is generated at each n)")
+        ns = _list(t, "n", "sizes", None)
+        if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in ns):
+            raise SpecError("sizes.n must be a list of positive integers")
+        precisions = _list(t, "precisions", "sizes", ["fp32"], encoding.PRECISIONS)
+        spec["sizes"] = {
+            "n": sorted(set(ns)),
+            "precisions": precisions,
+            "fields": _fields(t, "sizes"),
+            "bits": _bits(t, "sizes", precisions),
+            "samples": _samples(t, "sizes", 10, min(ns)),
+            "sampling": t.get("sampling", "stratified"),
+            "defenses": _list(t, "defenses", "sizes", ["none"], DEFENSES),
+            "regions": _regions(t, "sizes", spec["size"]),
+        }
+    return spec
+
+
+def load_spec(path) -> dict:
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise SpecError(f"{path}: not valid TOML ({e})") from None
+    except FileNotFoundError:
+        raise SpecError(f"{path}: file not found") from None
+    return normalize_spec(raw, path.parent)
+
+
+def spec_hash(spec: dict) -> str:
+    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
