@@ -15,7 +15,15 @@ import pytest
 from seuwgpu.model.fields import FIELDS, Model
 from seuwgpu.model.ply import PlyError, load_ply, save_ply
 
-TYPE_NAME = {"<f4": "float", "<f8": "double", "u1": "uchar", "<i4": "int", "i1": "char", "<u2": "ushort"}
+TYPE_NAME = {
+    "<f4": "float",
+    ">f4": "float",
+    "<f8": "double",
+    "u1": "uchar",
+    "<i4": "int",
+    "i1": "char",
+    "<u2": "ushort",
+}
 
 INRIA_DEG3 = (
     ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
@@ -53,7 +61,7 @@ def write_raw_ply(
     lines.append(f"element vertex {n if count is None else count}")
     lines += [f"property {TYPE_NAME[t]} {name}" for name, t, _ in columns]
     lines.append("end_header")
-    path.write_bytes((newline.join(lines) + newline).encode("ascii") + body + arr.tobytes() + post_bytes)
+    path.write_bytes((newline.join(lines) + newline).encode("utf-8") + body + arr.tobytes() + post_bytes)
     return path
 
 
@@ -375,22 +383,45 @@ def test_error_header_without_end(tmp_path):
     expect_error(p, "end_header")
 
 
-def test_error_ascii(tmp_path):
-    p = tmp_path / "a.ply"
-    text = (
-        "ply\nformat ascii 1.0\nelement vertex 1\n"
-        + "".join(f"property float {name}\n" for name, _, _ in base_columns(1, 0))
-        + "end_header\n"
-        + "0 " * 14
-        + "\n"
-    )
-    p.write_text(text)
-    expect_error(p, "ASCII", "binary_little_endian")
+def test_big_endian_any_order(tmp_path, ref):
+    cols = inria_columns(ref)
+    cols = [(name, ">f4", vals) for name, _, vals in reversed(cols)]  # big-endian, reversed order
+    p = write_raw_ply(tmp_path / "be.ply", cols, fmt="binary_big_endian", header_extra=["comment été ✓"])
+    assert_models_bit_equal(ref, load_ply(p))
 
 
-def test_error_big_endian(tmp_path):
-    p = write_raw_ply(tmp_path / "b.ply", base_columns(), fmt="binary_big_endian")
-    expect_error(p, "big-endian")
+def _ascii_ply(path, names, rows, extra=()):
+    head = ["ply", "format ascii 1.0", *extra, f"element vertex {len(rows)}"]
+    head += [f"property float {name}" for name in names] + ["end_header"]
+    path.write_text("\n".join(head) + "\n" + "".join(" ".join(r) + "\n" for r in rows), encoding="utf-8")
+    return path
+
+
+def test_ascii_with_utf8_comments_and_no_normals(tmp_path):
+    m = random_model(5, 2, seed=4)
+    cols = inria_columns(m, normals=False)
+    rng = np.random.default_rng(1)
+    cols = [cols[j] for j in rng.permutation(len(cols))]
+    # shortest decimal that round-trips each float32 (what numpy and most exporters print)
+    rows = [[np.format_float_positional(np.float32(c[2][i]), unique=True) for c in cols] for i in range(m.n)]
+    p = _ascii_ply(tmp_path / "a.ply", [c[0] for c in cols], rows, ["comment créé avec ♥ par un exporteur"])
+    assert_models_bit_equal(m, load_ply(p))
+
+
+def test_ascii_rounds_decimals_to_nearest_float32(tmp_path):
+    names = [c[0] for c in base_columns(1, 0)]
+    rows = [["0.1"] * len(names), ["1e-50"] * len(names), ["-inf"] * len(names)]
+    m = load_ply(_ascii_ply(tmp_path / "d.ply", names, rows))
+    assert m.means[0, 0] == np.float32(0.1) and m.means[1, 0] == 0.0 and m.means[2, 0] == -np.inf
+
+
+def test_error_ascii_truncated_or_not_numeric(tmp_path):
+    names = [c[0] for c in base_columns(1, 0)]
+    p = _ascii_ply(tmp_path / "t.ply", names, [["0"] * len(names)])
+    p.write_text(p.read_text().replace("element vertex 1", "element vertex 2"))
+    expect_error(p, "truncated", "2 vertex rows")
+    p = _ascii_ply(tmp_path / "n.ply", names, [["0"] * (len(names) - 1) + ["zero"]])
+    expect_error(p, "not numeric")
 
 
 def test_error_no_vertex_element(tmp_path):

@@ -1,12 +1,31 @@
 """Pinhole cameras (gsplat conventions): `viewmat` is world-to-camera in OpenCV axes
 (x right, y down, z forward), `K` in pixels, pixel centres at +0.5.
 
-CAMS.json contract: {"cameras": [{"viewmat": 4x4, "K": 3x3, "width": W, "height": H}, ...]}.
+Camera files (`read_cameras`, recognised by content, views in the file's order):
+- seuwgpu CAMS.json: {"cameras": [{"viewmat": 4x4, "K": 3x3, "width": W, "height": H}, ...]}.
+- INRIA 3DGS `cameras.json` (graphdeco-inria utils/camera_utils.py `camera_to_JSON`): a list of
+  {"img_name", "width", "height", "position", "rotation", "fx", "fy"}; `rotation` is the
+  camera-to-world rotation (columns: the camera's x, y, z axes, OpenCV), `position` the camera
+  centre; the principal point is the image centre unless a fork adds "cx"/"cy".
+- A COLMAP model folder (cameras + images, .bin or .txt; colmap doc/format.rst and
+  scripts/python/read_write_model.py): images hold the world-to-camera rotation as a quaternion
+  (w, x, y, z) and the translation; views sorted by image name. PINHOLE and SIMPLE_PINHOLE are
+  exact; SIMPLE_RADIAL, RADIAL, OPENCV and FULL_OPENCV are read with their distortion ignored
+  (a warning says so); fisheye and other models are refused. COLMAP's principal point already
+  uses pixel centres at +0.5.
+- nerfstudio `transforms.json` (nerfstudio_dataparser.py): frames[i].transform_matrix is
+  camera-to-world in OpenGL axes (x right, y up, z back); intrinsics fl_x, fl_y, cx, cy, w, h at
+  the top level (as nerfstudio, these win) or per frame; camera_angle_x stands in for fl_x. The
+  poses must be in the model's world: nerfstudio trains in a re-oriented, re-scaled frame
+  (dataparser_transforms.json), so apply that transform first for a splatfacto export.
+A folder holding cameras.json, transforms.json, a COLMAP model or sparse/0/ is searched for them.
 """
 
 from __future__ import annotations
 
 import json
+import struct
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,6 +57,10 @@ class Camera:
 
     def to_json(self) -> dict:
         return {"viewmat": self.viewmat.tolist(), "K": self.K.tolist(), "width": self.width, "height": self.height}
+
+
+class CameraFileError(ValueError):
+    """A camera file that cannot be read (the message names the file and the problem)."""
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -83,25 +106,363 @@ def orbit_cameras(
 
 
 def load_cameras(path) -> list[Camera]:
-    try:
-        data = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: not valid JSON ({e})") from None
-    if not isinstance(data, dict) or "cameras" not in data:
-        raise ValueError(f'{path}: expected {{"cameras": [...]}}')
-    cams = []
-    for i, c in enumerate(data["cameras"]):
-        missing = {"viewmat", "K", "width", "height"} - set(c)
-        if missing:
-            raise ValueError(f"{path}: camera {i} lacks {', '.join(sorted(missing))}")
-        try:
-            cams.append(Camera(c["viewmat"], c["K"], c["width"], c["height"]))
-        except ValueError as e:
-            raise ValueError(f"{path}: camera {i}: {e}") from None
-    if not cams:
-        raise ValueError(f"{path}: no cameras")
-    return cams
+    """The cameras of any supported camera file or folder (see the module docstring)."""
+    return read_cameras(path)[0]
 
 
 def save_cameras(cams: list[Camera], path) -> None:
     Path(path).write_text(json.dumps({"cameras": [c.to_json() for c in cams]}, indent=1))
+
+
+def select_views(cams: list[Camera], k: int | None) -> list[Camera]:
+    """`k` of the views, evenly spread over the file's order (all of them when k is None or
+    not smaller than their number)."""
+    if k is None or k >= len(cams):
+        return list(cams)
+    if k < 1:
+        raise ValueError(f"--views must be at least 1, got {k}")
+    n = len(cams)
+    return [cams[i * n // k] for i in range(k)]
+
+
+def scale_cameras(cams: list[Camera], scale: float) -> list[Camera]:
+    """The views rendered at `scale` times their resolution, intrinsics scaled to match (pixel
+    edges scale with the image, so fx, cx scale by new_width / width and fy, cy by the heights)."""
+    if not (np.isfinite(scale) and scale > 0):
+        raise ValueError(f"--scale must be a positive number, got {scale}")
+    out = []
+    for c in cams:
+        w, h = max(1, round(c.width * scale)), max(1, round(c.height * scale))
+        K = c.K.astype(np.float64)
+        K[0] *= w / c.width
+        K[1] *= h / c.height
+        out.append(Camera(c.viewmat, K, w, h))
+    return out
+
+
+# ------------------------------------------------------------------------------- camera files
+
+
+def read_cameras(path) -> tuple[list[Camera], list[str], str]:
+    """(cameras, view names, format) of a CAMS.json, INRIA cameras.json, COLMAP model (folder, or
+    one of its files) or nerfstudio transforms.json, recognised by content."""
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: no such camera file or folder")
+    if p.is_dir():
+        return _read_camera_folder(p)
+    if p.name in ("cameras.bin", "images.bin", "cameras.txt", "images.txt"):
+        return _read_colmap(p.parent)
+    raw = p.read_bytes()
+    try:
+        data = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise CameraFileError(
+            f"{p}: not a camera file (not JSON: {e}); expected CAMS.json, INRIA cameras.json, "
+            "nerfstudio transforms.json or a COLMAP model folder"
+        ) from None
+    if isinstance(data, dict) and "cameras" in data:
+        return _read_cams_json(p, data)
+    if isinstance(data, dict) and "frames" in data:
+        return _read_transforms_json(p, data)
+    if isinstance(data, list) and data and isinstance(data[0], dict) and "rotation" in data[0]:
+        return _read_inria(p, data)
+    raise CameraFileError(
+        f'{p}: JSON that is no known camera file (expected {{"cameras": [...]}}, '
+        '{"frames": [...]} or an INRIA list of cameras)'
+    )
+
+
+def _read_camera_folder(p: Path):
+    for name in ("cameras.json", "transforms.json", "CAMS.json"):
+        if (p / name).is_file():
+            return read_cameras(p / name)
+    for sub in (p, p / "sparse" / "0", p / "sparse"):
+        if any((sub / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
+            return _read_colmap(sub)
+    raise CameraFileError(
+        f"{p}: folder without cameras.json, transforms.json or a COLMAP model (cameras and images .bin/.txt)"
+    )
+
+
+def _num(p: Path, where: str, v, shape=None) -> np.ndarray:
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CameraFileError(f"{p}: {where} is not numeric") from None
+    if shape is not None and a.shape != shape:
+        raise CameraFileError(f"{p}: {where} has shape {a.shape}, expected {shape}")
+    if not np.isfinite(a).all():
+        raise CameraFileError(f"{p}: {where} is not finite")
+    return a
+
+
+def _intrinsics(fx, fy, cx, cy) -> np.ndarray:
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def _from_c2w(rot: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """World-to-camera 4x4 from a camera-to-world rotation (OpenCV axes) and centre."""
+    M = np.eye(4)
+    M[:3, :3] = rot.T
+    M[:3, 3] = -rot.T @ pos
+    return M
+
+
+def _read_cams_json(p: Path, data: dict):
+    cams, names = [], []
+    entries = data["cameras"]
+    if not isinstance(entries, list):
+        raise CameraFileError(f'{p}: "cameras" must be a list')
+    for i, c in enumerate(entries):
+        if not isinstance(c, dict):
+            raise CameraFileError(f"{p}: camera {i} is not an object")
+        missing = {"viewmat", "K", "width", "height"} - set(c)
+        if missing:
+            raise CameraFileError(f"{p}: camera {i} lacks {', '.join(sorted(missing))}")
+        try:
+            cams.append(Camera(c["viewmat"], c["K"], c["width"], c["height"]))
+        except (ValueError, TypeError) as e:
+            raise CameraFileError(f"{p}: camera {i}: {e}") from None
+        names.append(str(c.get("name", i)))
+    if not cams:
+        raise CameraFileError(f"{p}: no cameras")
+    return cams, names, "cams"
+
+
+def _read_inria(p: Path, data: list):
+    cams, names = [], []
+    for i, c in enumerate(data):
+        if not isinstance(c, dict):
+            raise CameraFileError(f"{p}: camera {i} is not an object")
+        missing = {"position", "rotation", "fx", "fy", "width", "height"} - set(c)
+        if missing:
+            raise CameraFileError(f"{p}: INRIA camera {i} lacks {', '.join(sorted(missing))}")
+        rot = _num(p, f"camera {i} rotation", c["rotation"], (3, 3))
+        pos = _num(p, f"camera {i} position", c["position"], (3,))
+        w, h = int(c["width"]), int(c["height"])
+        cx, cy = float(c.get("cx", w / 2)), float(c.get("cy", h / 2))
+        try:
+            cams.append(Camera(_from_c2w(rot, pos), _intrinsics(float(c["fx"]), float(c["fy"]), cx, cy), w, h))
+        except ValueError as e:
+            raise CameraFileError(f"{p}: camera {i}: {e}") from None
+        names.append(str(c.get("img_name", i)))
+    return cams, names, "inria"
+
+
+_GL_TO_CV = np.diag([1.0, -1.0, -1.0])
+_NS_UNSUPPORTED = ("OPENCV_FISHEYE", "EQUIRECTANGULAR", "FISHEYE624")
+
+
+def _read_transforms_json(p: Path, data: dict):
+    frames = data["frames"]
+    if not isinstance(frames, list) or not frames:
+        raise CameraFileError(f'{p}: "frames" must be a non-empty list')
+    model = str(data.get("camera_model", "OPENCV"))
+    if model in _NS_UNSUPPORTED:
+        raise CameraFileError(f"{p}: nerfstudio camera_model {model} is not a pinhole camera (unsupported)")
+    cams, names, distorted = [], [], False
+
+    def get(frame, key):
+        return data[key] if key in data else frame.get(key)
+
+    for i, fr in enumerate(frames):
+        if not isinstance(fr, dict) or "transform_matrix" not in fr:
+            raise CameraFileError(f"{p}: frame {i} lacks transform_matrix")
+        w, h = get(fr, "w"), get(fr, "h")
+        if w is None or h is None:
+            raise CameraFileError(f"{p}: frame {i}: image size w, h missing (top level or per frame)")
+        w, h = int(w), int(h)
+        fx = get(fr, "fl_x")
+        if fx is None and get(fr, "camera_angle_x") is not None:
+            fx = 0.5 * w / np.tan(0.5 * float(get(fr, "camera_angle_x")))
+        if fx is None:
+            raise CameraFileError(f"{p}: frame {i}: focal length fl_x missing (top level or per frame)")
+        fy = get(fr, "fl_y")
+        fy = fx if fy is None else fy
+        cx, cy = get(fr, "cx"), get(fr, "cy")
+        cx = w / 2 if cx is None else cx
+        cy = h / 2 if cy is None else cy
+        if any(float(get(fr, k) or 0.0) != 0.0 for k in ("k1", "k2", "k3", "k4", "p1", "p2")):
+            distorted = True
+        T = _num(p, f"frame {i} transform_matrix", fr["transform_matrix"])
+        if T.shape not in ((4, 4), (3, 4)):
+            raise CameraFileError(f"{p}: frame {i} transform_matrix has shape {T.shape}, expected 4x4")
+        rot = T[:3, :3] @ _GL_TO_CV  # OpenGL camera axes (y up, z back) -> OpenCV (y down, z forward)
+        try:
+            cams.append(Camera(_from_c2w(rot, T[:3, 3]), _intrinsics(float(fx), float(fy), float(cx), float(cy)), w, h))
+        except ValueError as e:
+            raise CameraFileError(f"{p}: frame {i}: {e}") from None
+        names.append(str(fr.get("file_path", i)))
+    if distorted:
+        warnings.warn(f"{p}: lens distortion (k1..k4, p1, p2) ignored: rendered as a pinhole camera")
+    return cams, names, "nerfstudio"
+
+
+# COLMAP camera models: id -> (name, parameter count); the pinhole part of each usable model.
+COLMAP_MODELS = {
+    0: ("SIMPLE_PINHOLE", 3),
+    1: ("PINHOLE", 4),
+    2: ("SIMPLE_RADIAL", 4),
+    3: ("RADIAL", 5),
+    4: ("OPENCV", 8),
+    5: ("OPENCV_FISHEYE", 8),
+    6: ("FULL_OPENCV", 12),
+    7: ("FOV", 5),
+    8: ("SIMPLE_RADIAL_FISHEYE", 4),
+    9: ("RADIAL_FISHEYE", 5),
+    10: ("THIN_PRISM_FISHEYE", 12),
+}
+_COLMAP_IDS = {name: i for i, (name, _) in COLMAP_MODELS.items()}
+_SINGLE_F = ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL")
+_DISTORTED = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
+
+
+def _colmap_intrinsics(p: Path, cam_id: int, model: str, params) -> np.ndarray:
+    if model in _SINGLE_F:
+        f, cx, cy = params[:3]
+        return _intrinsics(f, f, cx, cy)
+    if model in ("PINHOLE", "OPENCV", "FULL_OPENCV"):
+        fx, fy, cx, cy = params[:4]
+        return _intrinsics(fx, fy, cx, cy)
+    raise CameraFileError(
+        f"{p}: COLMAP camera {cam_id} uses the {model} model, which is not a pinhole camera; "
+        "supported: SIMPLE_PINHOLE, PINHOLE and (distortion ignored) SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV"
+    )
+
+
+def _qvec_to_rotmat(q) -> np.ndarray:
+    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * y * y - 2 * z * z, 2 * x * y - 2 * w * z, 2 * z * x + 2 * w * y],
+            [2 * x * y + 2 * w * z, 1 - 2 * x * x - 2 * z * z, 2 * y * z - 2 * w * x],
+            [2 * z * x - 2 * w * y, 2 * y * z + 2 * w * x, 1 - 2 * x * x - 2 * y * y],
+        ]
+    )
+
+
+def _read_colmap(folder: Path):
+    if (folder / "cameras.bin").is_file() and (folder / "images.bin").is_file():
+        cameras = _colmap_cameras_bin(folder / "cameras.bin")
+        images = _colmap_images_bin(folder / "images.bin")
+    elif (folder / "cameras.txt").is_file() and (folder / "images.txt").is_file():
+        cameras = _colmap_cameras_txt(folder / "cameras.txt")
+        images = _colmap_images_txt(folder / "images.txt")
+    else:
+        raise CameraFileError(f"{folder}: a COLMAP model needs cameras and images (.bin or .txt) in one folder")
+    if not images:
+        raise CameraFileError(f"{folder}: the COLMAP model has no registered images")
+    cams, names, distorted = [], [], set()
+    for name, qvec, tvec, cam_id in sorted(images, key=lambda im: im[0]):
+        if cam_id not in cameras:
+            raise CameraFileError(f"{folder}: image {name!r} refers to camera {cam_id}, which is not in the model")
+        model, w, h, params = cameras[cam_id]
+        K = _colmap_intrinsics(folder, cam_id, model, params)
+        if model in _DISTORTED and any(v != 0 for v in params[3 if model in _SINGLE_F else 4 :]):
+            distorted.add(model)
+        M = np.eye(4)
+        M[:3, :3] = _qvec_to_rotmat(qvec)
+        M[:3, 3] = tvec
+        try:
+            cams.append(Camera(M, K, w, h))
+        except ValueError as e:
+            raise CameraFileError(f"{folder}: image {name!r}: {e}") from None
+        names.append(name)
+    if distorted:
+        warnings.warn(
+            f"{folder}: lens distortion of the {', '.join(sorted(distorted))} camera model ignored: "
+            "rendered as a pinhole camera"
+        )
+    return cams, names, "colmap"
+
+
+def _colmap_cameras_txt(path: Path) -> dict:
+    out = {}
+    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        e = line.split()
+        try:
+            cam_id, model, w, h = int(e[0]), e[1], int(e[2]), int(e[3])
+            params = [float(v) for v in e[4:]]
+        except (IndexError, ValueError):
+            raise CameraFileError(f"{path}: malformed camera line {lineno}: {line!r}") from None
+        if model not in _COLMAP_IDS:
+            raise CameraFileError(f"{path}: unknown COLMAP camera model {model!r} (line {lineno})")
+        if len(params) != COLMAP_MODELS[_COLMAP_IDS[model]][1]:
+            raise CameraFileError(f"{path}: camera {cam_id} ({model}) has {len(params)} parameters (line {lineno})")
+        out[cam_id] = (model, w, h, params)
+    return out
+
+
+def _colmap_images_txt(path: Path) -> list:
+    """Two lines an image: IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, then its 2D points (maybe
+    empty); comment lines start with '#'."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    out, i = [], 0
+    while i < len(lines):
+        line = lines[i].strip()
+        i += 1
+        if not line or line.startswith("#"):
+            continue
+        e = line.split()
+        try:
+            q = [float(v) for v in e[1:5]]
+            t = [float(v) for v in e[5:8]]
+            cam_id, name = int(e[8]), " ".join(e[9:])
+        except (IndexError, ValueError):
+            raise CameraFileError(f"{path}: malformed image line {i}: {line!r}") from None
+        if not name:
+            raise CameraFileError(f"{path}: image line {i} has no image name")
+        out.append((name, q, t, cam_id))
+        i += 1  # the POINTS2D line that follows every image line
+    return out
+
+
+class _Reader:
+    def __init__(self, path: Path):
+        self.path, self.data, self.off = path, path.read_bytes(), 0
+
+    def take(self, fmt: str):
+        size = struct.calcsize(fmt)
+        if self.off + size > len(self.data):
+            raise CameraFileError(f"{self.path}: truncated COLMAP binary file (at byte {self.off})")
+        v = struct.unpack_from(fmt, self.data, self.off)
+        self.off += size
+        return v
+
+    def cstring(self) -> str:
+        end = self.data.find(b"\0", self.off)
+        if end < 0:
+            raise CameraFileError(f"{self.path}: truncated COLMAP binary file (unterminated image name)")
+        s = self.data[self.off : end].decode("utf-8", errors="replace")
+        self.off = end + 1
+        return s
+
+
+def _colmap_cameras_bin(path: Path) -> dict:
+    r = _Reader(path)
+    (count,) = r.take("<Q")
+    out = {}
+    for _ in range(count):
+        cam_id, model_id, w, h = r.take("<iiQQ")
+        if model_id not in COLMAP_MODELS:
+            raise CameraFileError(f"{path}: unknown COLMAP camera model id {model_id} (camera {cam_id})")
+        name, nparams = COLMAP_MODELS[model_id]
+        out[cam_id] = (name, w, h, list(r.take(f"<{nparams}d")))
+    return out
+
+
+def _colmap_images_bin(path: Path) -> list:
+    r = _Reader(path)
+    (count,) = r.take("<Q")
+    out = []
+    for _ in range(count):
+        v = r.take("<idddddddi")
+        name = r.cstring()
+        (npoints,) = r.take("<Q")
+        r.take(f"<{24 * npoints}x")
+        out.append((name, list(v[1:5]), list(v[5:8]), v[8]))
+    return out

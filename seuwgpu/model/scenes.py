@@ -36,6 +36,10 @@ How a scene becomes a model that looks trained (`make_scene`):
 - The primitives are returned in a random order (trained models are not sorted by part; any
   prefix is a fair subsample of the scene).
 
+Real captures (`leica-sofort`, `yashica-t4` and their `-wide` variants, model/captures.py) are
+scenes too: `make_scene` returns them (all splats, or a seeded subset of n) and `scene_cameras`
+frames them with model/framing.py (y up, SPZ's axes).
+
 Everything is vectorised numpy (processed in chunks of 64k primitives to bound temporaries):
 100k primitives take ~0.2 s, 4M ~5-10 s and ~1.3 GB peak. The output is deterministic for
 (name, n, seed, sh_degree). `SCENES` maps names to `SceneSpec` (description, layout builder and
@@ -52,10 +56,14 @@ from functools import cache
 import numpy as np
 
 from seuwgpu.model.cameras import Camera, orbit_cameras
+from seuwgpu.model.captures import CAPTURES, capture_model
+from seuwgpu.model.captures import UP as CAPTURE_UP
 from seuwgpu.model.fields import Model, sh_rest_count
+from seuwgpu.model.framing import orbit_views
 
 C0 = 0.28209479177387814
 DEFAULT_SCENE = "spheres"
+DEFAULT_N = 100_000
 
 # Generator constants (documented in the module docstring).
 SPLAT_C = 0.9  # tangent sigma = SPLAT_C * local spacing
@@ -758,12 +766,21 @@ SCENES: dict[str, SceneSpec] = {
 
 
 def list_scenes() -> list[str]:
-    return list(SCENES)
+    """Every scene name: the procedural scenes, then the real captures (model/captures.py)."""
+    return list(SCENES) + list(CAPTURES)
+
+
+def is_capture(name) -> bool:
+    return isinstance(name, str) and name in CAPTURES
+
+
+def scene_description(name: str) -> str:
+    return CAPTURES[name].description if is_capture(name) else scene_spec(name).description
 
 
 def scene_spec(name) -> SceneSpec:
     if not isinstance(name, str) or name not in SCENES:
-        raise ValueError(f"unknown scene {name!r}; valid scenes: {', '.join(SCENES)}")
+        raise ValueError(f"unknown scene {name!r}; valid scenes: {', '.join(list_scenes())}")
     return SCENES[name]
 
 
@@ -773,7 +790,10 @@ def _parts(name: str) -> tuple:
 
 
 def scene_cameras(name: str, k: int, width: int, height: int) -> list[Camera]:
-    """`k` orbit cameras (z up, evenly spaced azimuths) that frame the scene."""
+    """`k` orbit cameras (evenly spaced azimuths) that frame the scene: a procedural scene's
+    registered orbit (z up), or for a real capture the robust framing of model/framing.py (y up)."""
+    if is_capture(name):
+        return orbit_views(capture_model(name).means, k, width, height, up=CAPTURE_UP)
     s = scene_spec(name)
     return orbit_cameras(
         k, width, height, radius=s.radius, elevation_deg=s.elevation_deg, fov_x_deg=s.fov_x_deg, target=s.target
@@ -808,15 +828,18 @@ def _logit(p):
     return np.log(p / (1.0 - p))
 
 
-def make_scene(name: str = DEFAULT_SCENE, n: int = 100_000, sh_degree: int = 3, seed: int = 0) -> Model:
-    """A trained-looking 3DGS model of scene `name` with exactly `n` primitives (module docs)."""
-    spec = scene_spec(name)
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
+def make_scene(name: str = DEFAULT_SCENE, n: int | None = None, sh_degree: int = 3, seed: int = 0) -> Model:
+    """A trained-looking 3DGS model of scene `name` with exactly `n` primitives (module docs;
+    default 100,000), or a real capture: all its splats, or a seeded subset of `n`."""
+    if n is not None and (isinstance(n, bool) or not isinstance(n, (int, np.integer))):
         raise ValueError(f"n must be an integer, got {n!r}")
-    n = int(n)
-    if n < 1:
+    if n is not None and n < 1:
         raise ValueError(f"n must be at least 1, got {n}")
     nrest = sh_rest_count(int(sh_degree))
+    if is_capture(name):
+        return capture_model(name, None if n is None else int(n), int(sh_degree), seed)
+    spec = scene_spec(name)
+    n = DEFAULT_N if n is None else int(n)
     parts = _parts(spec.name)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed) % (1 << 64), zlib.crc32(name.encode()), 0x3D65]))
     counts = _allocate(np.array([p.area * p.weight for p in parts]), n)

@@ -1,0 +1,167 @@
+"""3DGS model files: one loader that recognises a file by its content, and writers.
+
+| format | recognised by | read with | up axis |
+|---|---|---|---|
+| INRIA PLY (`.ply`; binary LE/BE, ASCII) | `ply` magic, `vertex` element | ply.py (own header + numpy) | -y |
+| SuperSplat/PlayCanvas compressed PLY | `ply` magic, `chunk` element, packed_* | compressed_ply.py | -y |
+| Niantic SPZ v1-v4 (`.spz`) | gzip header / NGSP magic | spz.py (v4: zstandard) | +y |
+| antimatter15 `.splat` | no header: size % 32 == 0, plausible records | splat.py | -y |
+| gsplat checkpoint (`.pt`) | zip / pickle magic | gsplat.py (torch) | -y |
+
+The up axis is the file format's convention, used to frame a model when no cameras are given:
+SPZ stores RUB axes (y up); PLY, .splat and gsplat models live in their capture's COLMAP world,
+which follows the first camera (x right, y down), so -y is up; viewers such as SuperSplat make
+the same assumption. A PLY written by seuwgpu records its up axis in a `comment up +z` line (the
+embedded scenes are z up); `--up` overrides all of this.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from seuwgpu.model.fields import FIELDS, Model
+from seuwgpu.model.formats import compressed_ply, gsplat, ply, spz
+from seuwgpu.model.formats import splat as splat_format
+from seuwgpu.model.formats.errors import ModelFileError, NonFiniteWarning
+
+__all__ = [
+    "FORMATS",
+    "ModelFile",
+    "ModelFileError",
+    "NonFiniteWarning",
+    "detect_format",
+    "load_model",
+    "nonfinite_counts",
+    "read_model",
+    "save_model",
+]
+
+FORMATS = {
+    "ply": "INRIA 3DGS PLY",
+    "compressed-ply": "SuperSplat/PlayCanvas compressed PLY",
+    "spz": "Niantic SPZ",
+    "splat": "antimatter15 .splat",
+    "gsplat": "gsplat checkpoint",
+}
+UP = {"ply": "-y", "compressed-ply": "-y", "spz": "+y", "splat": "-y", "gsplat": "-y"}
+UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
+
+
+@dataclass
+class ModelFile:
+    """A loaded model file: the model, its format, the up axis of its convention, and notes
+    (e.g. the SPZ version, an antialiased flag) worth telling the user."""
+
+    model: Model
+    path: Path
+    format: str
+    up: str
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def name(self) -> str:
+        name = self.path.name
+        for suffix in (".compressed.ply", ".ply", ".spz", ".splat", ".pt", ".pth", ".ckpt"):
+            if name.lower().endswith(suffix):
+                return name[: -len(suffix)]
+        return self.path.stem
+
+
+def detect_format(path) -> str:
+    """The format of a file from its content (magic bytes, gzip header, PLY header)."""
+    spath = os.fspath(path)
+    if not os.path.exists(spath):
+        raise FileNotFoundError(f"{spath}: no such file")
+    if os.path.isdir(spath):
+        raise ModelFileError(f"{spath}: is a folder, not a model file")
+    size = os.path.getsize(spath)
+    with open(spath, "rb") as f:
+        head = f.read(4096)
+    if head.startswith(b"ply\n") or head.startswith(b"ply\r\n"):
+        return "compressed-ply" if compressed_ply.is_compressed_ply(ply.read_header(spath)) else "ply"
+    if spz.is_spz(head):
+        return "spz"
+    if gsplat.is_torch_file(head):
+        return "gsplat"
+    if spath.lower().endswith(".splat") or splat_format.looks_like_splat(spath, size, head):
+        return "splat"
+    raise ModelFileError(
+        f"{spath}: unrecognised model file (not a PLY, SPZ, .splat or PyTorch checkpoint); "
+        f"supported: {', '.join(FORMATS.values())}"
+    )
+
+
+def _ply_up(header: ply.PlyHeader) -> str | None:
+    for c in header.comments:
+        words = c.split()
+        if len(words) == 2 and words[0] == "up" and words[1] in UP_AXES:
+            return words[1]
+    return None
+
+
+def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
+    """Load any supported model file (see the module table). Raises ModelFileError (a ValueError)
+    naming the file and the problem; warns (NonFiniteWarning) when the model holds NaN or Inf."""
+    spath = os.fspath(path)
+    fmt = detect_format(spath)
+    notes: list[str] = []
+    up = UP[fmt]
+    if fmt in ("ply", "compressed-ply"):
+        header = ply.read_header(spath)
+        up = _ply_up(header) or up
+        if fmt == "ply":
+            model = ply.model_from_header(header)
+            if header.format != "binary_little_endian":
+                notes.append(header.format.replace("_", " "))
+        else:
+            model = compressed_ply.read_compressed_ply(header)
+    elif fmt == "spz":
+        model, info = spz.read_spz(spath)
+        notes.append(f"SPZ version {info.version}")
+        if info.antialiased:
+            notes.append("trained antialiased (mip-splatting): rendered here without the opacity compensation")
+    elif fmt == "splat":
+        model = splat_format.read_splat(spath)
+    else:
+        model = gsplat.read_gsplat(spath)
+    if warn_nonfinite:
+        counts = nonfinite_counts(model)
+        if counts:
+            total = sum(counts.values())
+            per = ", ".join(f"{f} {c}" for f, c in counts.items())
+            warnings.warn(f"{spath}: the model holds {total} non-finite values ({per})", NonFiniteWarning)
+    return ModelFile(model, Path(spath), fmt, up, notes)
+
+
+def load_model(path) -> Model:
+    """The Model in any supported file (read_model without the metadata)."""
+    return read_model(path).model
+
+
+def nonfinite_counts(model: Model) -> dict[str, int]:
+    """NaN/Inf values per field, fields without any left out."""
+    out = {}
+    for f in FIELDS:
+        c = int(np.count_nonzero(~np.isfinite(getattr(model, f))))
+        if c:
+            out[f] = c
+    return out
+
+
+def save_model(model: Model, path, format: str | None = None, up: str | None = None, **options) -> str:
+    """Write `model` as an INRIA PLY (`.ply`) or an SPZ (`.spz`; options: version=3,
+    antialiased=False), chosen by `format` or the file extension. Returns the format written."""
+    spath = os.fspath(path)
+    fmt = format or {".ply": "ply", ".spz": "spz"}.get(Path(spath).suffix.lower())
+    if fmt == "ply":
+        ply.save_ply(model, spath, comments=[f"up {up}"] if up else ())
+    elif fmt == "spz":
+        spz.save_spz(model, spath, **options)
+    else:
+        raise ModelFileError(f"{spath}: cannot write this format; write .ply (INRIA PLY) or .spz (Niantic SPZ)")
+    return fmt

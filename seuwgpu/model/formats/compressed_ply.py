@@ -1,0 +1,131 @@
+"""The compressed PLY of SuperSplat / PlayCanvas (`.compressed.ply`): chunks of 256 splats.
+
+Read as PlayCanvas's splat-transform reads it (src/lib/readers/decompress-ply.ts): a `chunk`
+element of float32 bounds (min/max of x y z, of the log-scales and, when 18 properties, of the
+colours), a `vertex` element of four uint32 (packed_position 11-10-11 bits, packed_rotation
+2 + 3 x 10 bits "smallest three", packed_scale 11-10-11 bits, packed_color 8-8-8-8 bits) and an
+optional `sh` element of uint8 f_rest_0..K-1 (channel-major as in the INRIA PLY). Each value is
+lerp(min, max, code / (2^bits - 1)) computed in float64 like the JavaScript reference and rounded
+once to float32; colour -> SH DC = (c - 0.5) / C0; alpha byte -> logit (saturated bytes give
++-20 instead of +-Inf, see quantized.py); SH byte b -> ((b + 0.5) / 256 - 0.5) * 8, with 0 and
+255 mapping to the ends (-4, +4). rot_0..3 keep the INRIA order (w, x, y, z).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from seuwgpu.model.fields import Model
+from seuwgpu.model.formats.errors import ModelFileError
+from seuwgpu.model.formats.ply import PlyHeader, read_element
+from seuwgpu.model.formats.quantized import SH_C0, finite_logit
+
+CHUNK = 256
+_BOUNDS = [f"{m}_{a}" for m in ("min", "max") for a in "xyz"] + [
+    f"{m}_scale_{a}" for m in ("min", "max") for a in "xyz"
+]
+_COLOURS = [f"{m}_{c}" for m in ("min", "max") for c in "rgb"]
+_PACKED = ("packed_position", "packed_rotation", "packed_scale", "packed_color")
+
+
+class CompressedPlyError(ModelFileError):
+    """A compressed PLY that cannot be read."""
+
+
+def is_compressed_ply(header: PlyHeader) -> bool:
+    vertex, chunk = header.element("vertex"), header.element("chunk")
+    return chunk is not None and vertex is not None and "packed_position" in vertex.names()
+
+
+def _unorm(v: np.ndarray, bits: int) -> np.ndarray:
+    t = (1 << bits) - 1
+    return (v & t).astype(np.float64) / t
+
+
+def _lerp(a, b, t):
+    return a * (1.0 - t) + b * t
+
+
+def read_compressed_ply(header: PlyHeader) -> Model:
+    path = header.path
+    chunk_el, vertex_el = header.element("chunk"), header.element("vertex")
+    names = chunk_el.names()
+    missing = [p for p in _BOUNDS if p not in names] + [p for p in _PACKED if p not in vertex_el.names()]
+    if missing:
+        raise CompressedPlyError(f"{path}: compressed PLY lacks required properties: {', '.join(missing)}")
+    n = vertex_el.count
+    if n == 0:
+        raise CompressedPlyError(f"{path}: compressed PLY holds zero splats")
+    if chunk_el.count != -(-n // CHUNK):
+        raise CompressedPlyError(
+            f"{path}: compressed PLY has {chunk_el.count} chunks for {n} splats (expected {-(-n // CHUNK)})"
+        )
+    chunks = read_element(header, "chunk")
+    vert = read_element(header, "vertex")
+    ci = np.arange(n) // CHUNK
+
+    def bound(name):
+        return chunks[name].astype(np.float32).astype(np.float64)[ci]
+
+    pos = vert["packed_position"].astype(np.uint32)
+    means = np.stack(
+        [
+            _lerp(bound("min_x"), bound("max_x"), _unorm(pos >> 21, 11)),
+            _lerp(bound("min_y"), bound("max_y"), _unorm(pos >> 11, 10)),
+            _lerp(bound("min_z"), bound("max_z"), _unorm(pos, 11)),
+        ],
+        axis=1,
+    )
+    sc = vert["packed_scale"].astype(np.uint32)
+    log_scales = np.stack(
+        [
+            _lerp(bound("min_scale_x"), bound("max_scale_x"), _unorm(sc >> 21, 11)),
+            _lerp(bound("min_scale_y"), bound("max_scale_y"), _unorm(sc >> 11, 10)),
+            _lerp(bound("min_scale_z"), bound("max_scale_z"), _unorm(sc, 11)),
+        ],
+        axis=1,
+    )
+    rot = vert["packed_rotation"].astype(np.uint32)
+    norm = 1.0 / (np.sqrt(2.0) * 0.5)
+    abc = np.stack([(_unorm(rot >> s, 10) - 0.5) * norm for s in (20, 10, 0)], axis=1)
+    m = np.sqrt(np.maximum(0.0, 1.0 - (abc[:, 0] * abc[:, 0] + abc[:, 1] * abc[:, 1] + abc[:, 2] * abc[:, 2])))
+    which = (rot >> 30).astype(np.int64)
+    quats = np.empty((n, 4))
+    for w in range(4):  # the largest component sits at `which`, the other three keep their order
+        sel = which == w
+        others = [i for i in range(4) if i != w]
+        quats[np.ix_(sel, others)] = abc[sel]
+        quats[sel, w] = m[sel]
+    col = vert["packed_color"].astype(np.uint32)
+    c = np.stack([_unorm(col >> s, 8) for s in (24, 16, 8, 0)], axis=1)
+    if all(p in names for p in _COLOURS):
+        for j, ch in enumerate("rgb"):
+            c[:, j] = _lerp(bound(f"min_{ch}"), bound(f"max_{ch}"), c[:, j])
+    with np.errstate(divide="ignore"):
+        opacity = finite_logit(-np.log(1.0 / c[:, 3] - 1.0))
+    sh_rest = np.zeros((n, 0, 3))
+    sh_el = header.element("sh")
+    if sh_el is not None:
+        k = len(sh_el.names())
+        if k not in (9, 24, 45) or sh_el.count != n:
+            raise CompressedPlyError(
+                f"{path}: compressed PLY sh element has {k} properties x {sh_el.count} rows "
+                f"(expected 9, 24 or 45 x {n})"
+            )
+        sh = read_element(header, "sh")
+        try:
+            cols = [sh[f"f_rest_{i}"] for i in range(k)]
+        except ValueError:
+            raise CompressedPlyError(f"{path}: compressed PLY sh element must hold f_rest_0..f_rest_{k - 1}") from None
+        b = np.stack(cols, axis=1).astype(np.float64)
+        v = np.where(b == 0, 0.0, np.where(b == 255, 1.0, (b + 0.5) / 256.0))
+        r = k // 3
+        sh_rest = ((v - 0.5) * 8.0).reshape(n, 3, r).transpose(0, 2, 1)  # channel-major -> [N, R, 3]
+    return Model(
+        means=means,
+        log_scales=log_scales,
+        quats=quats,
+        opacity=opacity,
+        sh_dc=(c[:, :3] - 0.5) / SH_C0,
+        sh_rest=sh_rest,
+    )

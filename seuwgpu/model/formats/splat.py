@@ -1,0 +1,68 @@
+"""antimatter15 `.splat`: 32 bytes a splat, no header.
+
+Layout (github antimatter15/splat, convert.py and main.js): position float32 x 3, linear scale
+float32 x 3, colour RGBA uint8 x 4 (RGB = 0.5 + C0 * f_dc, A = sigmoid(opacity), times 255),
+rotation uint8 x 4 (w, x, y, z; q / |q| * 128 + 128). Decoded as the viewer and PlayCanvas's
+splat-transform (src/lib/readers/read-splat.ts) read it, in float64 then rounded once to float32:
+log_scales = log(scale), sh_dc = (byte / 255 - 0.5) / C0, opacity = logit(byte / 255) (saturated
+bytes 0 and 255 become -+20, see quantized.py), quats = byte / 128 - 1 with w first and not
+normalised (the renderer normalises; an all-128 rotation, which no encoder writes, becomes the
+identity as in splat-transform). The format carries no SH beyond DC (degree 0). Coordinates are
+those of the PLY it was converted from (COLMAP-style, y down).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from seuwgpu.model.fields import Model
+from seuwgpu.model.formats.errors import ModelFileError
+from seuwgpu.model.formats.quantized import SH_C0, finite_logit
+
+RECORD = np.dtype([("pos", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
+
+
+class SplatError(ModelFileError):
+    """A .splat file that cannot be read."""
+
+
+def looks_like_splat(path: str, size: int, head: bytes) -> bool:
+    """A headerless file is taken as .splat when its size is a multiple of 32 and its first
+    records have finite positions and positive finite scales."""
+    if size == 0 or size % RECORD.itemsize:
+        return False
+    k = min(len(head), 64 * RECORD.itemsize) // RECORD.itemsize
+    if k == 0:
+        return False
+    rec = np.frombuffer(head[: k * RECORD.itemsize], dtype=RECORD)
+    with np.errstate(invalid="ignore"):
+        return bool(np.isfinite(rec["pos"]).all() and (rec["scale"] > 0).all() and np.isfinite(rec["scale"]).all())
+
+
+def read_splat(path) -> Model:
+    spath = os.fspath(path)
+    size = os.path.getsize(spath)
+    if size == 0:
+        raise SplatError(f"{spath}: empty .splat file")
+    if size % RECORD.itemsize:
+        raise SplatError(
+            f"{spath}: .splat size {size} bytes is not a multiple of the 32-byte record (truncated or not a .splat)"
+        )
+    rec = np.fromfile(spath, dtype=RECORD)
+    rgba = rec["rgba"].astype(np.float64) / 255.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_scales = np.log(rec["scale"].astype(np.float64))
+        opacity = finite_logit(np.log(rgba[:, 3] / (1.0 - rgba[:, 3])))
+    quats = rec["rot"].astype(np.float64) / 128.0 - 1.0
+    quats[(rec["rot"] == 128).all(axis=1)] = (1.0, 0.0, 0.0, 0.0)
+    n = len(rec)
+    return Model(
+        means=rec["pos"],
+        log_scales=log_scales,
+        quats=quats,
+        opacity=opacity,
+        sh_dc=(rgba[:, :3] - 0.5) / SH_C0,
+        sh_rest=np.zeros((n, 0, 3), np.float32),
+    )
