@@ -25,44 +25,55 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def add_model_args(p: argparse.ArgumentParser, default_scene: bool = True):
+def add_model_args(p: argparse.ArgumentParser):
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--ply", type=Path, help="an INRIA-format 3DGS PLY file")
+    src.add_argument(
+        "--model",
+        "--ply",
+        dest="model",
+        type=Path,
+        help="a 3DGS model file: INRIA PLY, compressed PLY, .spz, .splat or a gsplat .pt (recognised by content)",
+    )
     src.add_argument("--scene", help="an embedded scene (see `seuwgpu scene --list`)")
-    p.add_argument("--n", type=int, default=100_000, help="primitives for an embedded scene (default 100000)")
+    p.add_argument("--n", type=int, help="primitives of an embedded scene (default 100000; a real capture: all)")
     p.add_argument("--sh-degree", type=int, default=3, choices=range(4), help="SH degree of an embedded scene")
     p.add_argument("--seed", type=int, default=0, help="seed of an embedded scene")
     p.add_argument("--precision", choices=("fp32", "fp16", "bf16"), default="fp32", help="stored precision")
+    p.add_argument(
+        "--up",
+        choices=("+x", "-x", "+y", "-y", "+z", "-z"),
+        help="up axis of the orbit views (default: the file format's convention, see README)",
+    )
 
 
-def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "128x128"):
-    p.add_argument("--cameras", type=Path, help='CAMS.json: {"cameras": [{"viewmat", "K", "width", "height"}, ...]}')
-    p.add_argument("--views", type=int, default=views, help=f"orbit views when no --cameras (default {views})")
+def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "256x256"):
+    p.add_argument(
+        "--cameras",
+        type=Path,
+        help="the capture's cameras: CAMS.json, INRIA cameras.json, a COLMAP model folder, nerfstudio transforms.json",
+    )
+    p.add_argument(
+        "--views", type=int, help=f"orbit views (default {views}), or with --cameras: this many of them, evenly"
+    )
     p.add_argument("--size", type=parse_size, default=parse_size(size), help=f"WxH of orbit views (default {size})")
+    p.add_argument("--scale", type=float, help="render at this fraction of the views' resolution (e.g. 0.25)")
+    p.set_defaults(default_views=views)
 
 
-def load_model(args):
-    from seuwgpu.model.ply import load_ply
-    from seuwgpu.model.scenes import DEFAULT_SCENE, make_scene
+def load_source(args):
+    """The model the arguments name (sources.load_source), its notes printed once."""
+    from seuwgpu.model.sources import load_source as load
 
-    if args.ply is not None:
-        return load_ply(args.ply), args.ply.stem
-    name = args.scene or DEFAULT_SCENE
-    return make_scene(name, n=args.n, sh_degree=args.sh_degree, seed=args.seed), name
+    src = load(scene=args.scene, path=args.model, n=args.n, sh_degree=args.sh_degree, seed=args.seed, up=args.up)
+    if src.notes:
+        print(f"seuwgpu: {args.model}: {'; '.join(src.notes)}", file=sys.stderr)
+    return src
 
 
-def load_cams(args, scene_name: str | None):
-    from seuwgpu.model.cameras import load_cameras, orbit_cameras
-    from seuwgpu.model.scenes import SCENES, scene_cameras
+def load_cams(args, src):
+    from seuwgpu.model.sources import source_views
 
-    if args.cameras is not None:
-        return load_cameras(args.cameras)
-    if args.views < 1:
-        raise CliError("--views must be at least 1")
-    w, h = args.size
-    if scene_name in SCENES:
-        return scene_cameras(scene_name, args.views, w, h)
-    return orbit_cameras(args.views, w, h)
+    return source_views(src, args.cameras, args.views, args.size, args.scale, args.default_views)
 
 
 # ---- commands -------------------------------------------------------------------------------------
@@ -88,18 +99,19 @@ def cmd_info(args):
 
 
 def cmd_scene(args):
-    from seuwgpu.model.ply import save_ply
-    from seuwgpu.model.scenes import list_scenes, make_scene
+    from seuwgpu.model.formats import save_model
+    from seuwgpu.model.scenes import is_capture, list_scenes, make_scene, scene_description
 
     if args.list or not args.name:
+        width = max(len(s) for s in list_scenes())
         for s in list_scenes():
-            print(s)
+            print(f"{s:<{width}}  {scene_description(s)}")
         return 0
     if args.out is None:
-        raise CliError("--out FILE.ply is required")
+        raise CliError("--out FILE.ply (INRIA PLY) or FILE.spz (Niantic SPZ) is required")
     model = make_scene(args.name, n=args.n, sh_degree=args.sh_degree, seed=args.seed)
-    save_ply(model, args.out)
-    print(f"wrote {args.out}: {model.n} primitives, SH degree {model.sh_degree}")
+    fmt = save_model(model, args.out, up="+y" if is_capture(args.name) else "+z")
+    print(f"wrote {args.out} ({fmt}): {model.n} primitives, SH degree {model.sh_degree}")
     return 0
 
 
@@ -119,9 +131,9 @@ def save_images(images: np.ndarray, out: Path, stem: str = "view"):
 def cmd_render(args):
     from seuwgpu.render.renderer import Renderer
 
-    model, name = load_model(args)
-    cams = load_cams(args, name)
-    r = Renderer(model, cams, args.precision)
+    src = load_source(args)
+    cams = load_cams(args, src)
+    r = Renderer(src.model, cams, args.precision)
     images = r.render()
     out: Path = args.out
     if out.suffix == ".npz":
@@ -233,11 +245,11 @@ def cmd_distributed(args):
 
     if not ray_available():
         raise CliError(f"needs Ray. {INSTALL_HINT}")
-    model, name = load_model(args)
-    cams = load_cams(args, name)
+    src = load_source(args)
+    cams = load_cams(args, src)
     upset = parse_upset(args.upset) if args.upset else None
     sort_first_tables(
-        model,
+        src.model,
         cams,
         args.precision,
         args.ranks,
@@ -280,7 +292,7 @@ def cmd_plan(args):
     total = rows = 0
     for ctx in enumerate_contexts(spec):
         sc = spec["scenes"][ctx.scene_index]
-        name = sc.get("scene") or Path(sc["ply"]).stem
+        name = sc.get("scene") or Path(sc["model"]).stem
         n = ctx.n or sc.get("n")
         margin = "-" if ctx.kind == "dose" else f"+-{100 * margin_of_error(ctx.per_cell, 0.95, n):.2f} pt"
         tab.add_row(
@@ -356,9 +368,10 @@ def cmd_inject(args):
     from seuwgpu.faults.engine import Engine
     from seuwgpu.report.panel import save_panel
 
-    model, name = load_model(args)
-    cams = load_cams(args, name)
-    eng = Engine(model, cams, args.precision, scene=name)
+    src = load_source(args)
+    cams = load_cams(args, src)
+    eng = Engine(src.model, cams, args.precision, scene=src.name)
+    name = src.name
     bits = args.bit
     if args.primitive is None:
         prim, _ = eng.worst_primitive(
@@ -418,10 +431,16 @@ def cmd_view(args):
         print(NO_DISPLAY_HELP.format(why=why), file=sys.stderr)
         return 3
     from seuwgpu.apps.viewer import OrbitCamera
-    from seuwgpu.model.scenes import SCENES
+    from seuwgpu.model.cameras import read_cameras, select_views
 
-    model, name = load_model(args)
-    orbit = OrbitCamera.for_scene(name) if args.ply is None and name in SCENES else OrbitCamera.fit(model.means)
+    src = load_source(args)
+    model, name = src.model, src.name
+    orbit = OrbitCamera.for_scene(src.scene) if src.scene else OrbitCamera.fit(model.means, up=src.up)
+    views, names = None, None
+    if args.cameras is not None:
+        views, names, _ = read_cameras(args.cameras)
+        keep = select_views(list(range(len(views))), args.views)
+        views, names = [views[i] for i in keep], [names[i] for i in keep]
     try:
         from seuwgpu.apps.viewer_window import run_viewer
     except ImportError as e:
@@ -442,6 +461,8 @@ def cmd_view(args):
         clamp_threshold=args.clamp_threshold,
         screenshot_dir=args.screenshot_dir,
         frames=args.frames,
+        views=views,
+        view_names=names,
     )
 
 
@@ -455,9 +476,9 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("info", help="adapter, backend, features and limits in use")
     s.set_defaults(func=cmd_info)
 
-    s = sub.add_parser("scene", help="export an embedded scene as PLY (or --list them)")
+    s = sub.add_parser("scene", help="export an embedded scene as PLY or SPZ (or --list them)")
     s.add_argument("name", nargs="?")
-    s.add_argument("--n", type=int, default=100_000)
+    s.add_argument("--n", type=int, help="primitives (default 100000; a real capture: all)")
     s.add_argument("--sh-degree", type=int, default=3, choices=range(4))
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--out", type=Path)
@@ -549,6 +570,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("view", help="interactive viewer: toggle faults and the guard live")
     add_model_args(s)
+    s.add_argument(
+        "--cameras",
+        type=Path,
+        help="the capture's cameras (any format `render` takes): step through them with [ and ] or the panel",
+    )
+    s.add_argument("--views", type=int, help="with --cameras: this many of them, evenly")
     s.add_argument(
         "--size",
         type=parse_size,

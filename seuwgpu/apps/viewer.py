@@ -25,9 +25,12 @@ Choices (see also the README):
   box is its own min/max), so the alert fires when clamps > `clamp_threshold` (default 0; the
   Engine's GuardMonitor gets the same threshold and also logs a GuardAlert warning). With the
   guard off nothing is clamped or counted.
-- Camera: turntable orbit around a target, z up (the embedded scenes' convention; PLY files
-  get z up too, with target and distance fitted to the primitive means), pinhole with `fov_deg`
-  across the shorter image side, so resizing the window never distorts or crops the view.
+- Camera: turntable orbit around a target about an up axis (z for the embedded scenes; a model
+  file's format convention, y for SPZ, -y for PLY, or --up), framed by model/framing.py like
+  every command; pinhole with `fov_deg` across the shorter image side, so resizing the window
+  never distorts or crops the view. With the capture's cameras (`views`), `step_view` shows
+  them one by one, letterboxed into the window (the capture's frame scaled to fit, centred);
+  any orbit, pan or zoom goes back to the orbit camera.
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ from seuwgpu.faults.sites import Site, uniform_upsets
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import Camera, look_at
 from seuwgpu.model.fields import Model, field_components
+from seuwgpu.model.framing import bounding_region, framing_distance, orbit_basis
 
 GUARD_MODES = {"off": "none", "guard": "guard", "selective": "selective"}
 MIN_SIZE = 16  # smallest render (the GPU metrics used by worst-of-sample need >= 7 px)
@@ -51,38 +55,39 @@ MIN_SIZE = 16  # smallest render (the GPU metrics used by worst-of-sample need >
 # ------------------------------------------------------------------------------------------------
 @dataclass
 class OrbitCamera:
-    """Turntable camera around `target` (z up). Angles in degrees; `fov_deg` spans the shorter
-    image side. The same conventions as `camera.orbit_cameras` (eye = target + distance *
-    (cos el cos az, cos el sin az, sin el))."""
+    """Turntable camera around `target` about the `up` axis ('+z' for the embedded scenes, the
+    file format's convention for a model file). Angles in degrees; `fov_deg` spans the shorter
+    image side. The same conventions as `framing.orbit_views` (eye = target + distance *
+    (cos el cos az e1 + cos el sin az e2 + sin el up))."""
 
     target: np.ndarray = field(default_factory=lambda: np.zeros(3))
     distance: float = 4.0
     azimuth_deg: float = 30.0
     elevation_deg: float = 25.0
     fov_deg: float = 40.0
+    up: str = "+z"
 
     def __post_init__(self):
         self.target = np.asarray(self.target, dtype=np.float64).reshape(3).copy()
+        self.basis = orbit_basis(self.up)
         self._home = (self.target.copy(), self.distance, self.azimuth_deg, self.elevation_deg, self.fov_deg)
 
     @classmethod
     def for_scene(cls, name: str) -> OrbitCamera:
-        from seuwgpu.model.scenes import scene_spec
+        from seuwgpu.model.captures import capture_model
+        from seuwgpu.model.scenes import is_capture, scene_spec
 
+        if is_capture(name):
+            return cls.fit(capture_model(name).means, up="+y")
         s = scene_spec(name)
         # scene_cameras' fov is across the image width of square views: the same framing here
         return cls(np.asarray(s.target, float), s.radius, 30.0, s.elevation_deg, s.fov_x_deg)
 
     @classmethod
-    def fit(cls, means: np.ndarray, fov_deg: float = 40.0) -> OrbitCamera:
-        """Frame a model of unknown extent: target the median mean, keep 98% of the means in view."""
-        m = np.asarray(means, dtype=np.float64)
-        m = m[np.isfinite(m).all(axis=1)]
-        if m.size == 0:
-            return cls(fov_deg=fov_deg)
-        target = np.median(m, axis=0)
-        extent = float(np.percentile(np.linalg.norm(m - target, axis=1), 98)) or 1.0
-        return cls(target, 1.1 * extent / np.sin(np.radians(fov_deg) / 2), 30.0, 25.0, fov_deg)
+    def fit(cls, means: np.ndarray, up: str = "+z", fov_deg: float = 40.0) -> OrbitCamera:
+        """Frame a model of unknown extent the way every command does (model/framing.py)."""
+        region = bounding_region(means)
+        return cls(region.center, framing_distance(region.radius, fov_deg), 30.0, 25.0, fov_deg, up)
 
     def reset(self):
         t, self.distance, self.azimuth_deg, self.elevation_deg, self.fov_deg = self._home
@@ -90,7 +95,10 @@ class OrbitCamera:
 
     def eye(self) -> np.ndarray:
         az, el = np.radians(self.azimuth_deg), np.radians(self.elevation_deg)
-        return self.target + self.distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        e1, e2, u = self.basis
+        return self.target + self.distance * (
+            np.cos(el) * np.cos(az) * e1 + np.cos(el) * np.sin(az) * e2 + np.sin(el) * u
+        )
 
     def focal(self, width: int, height: int) -> float:
         return 0.5 * min(width, height) / np.tan(np.radians(self.fov_deg) / 2)
@@ -98,7 +106,7 @@ class OrbitCamera:
     def camera(self, width: int, height: int) -> Camera:
         f = self.focal(width, height)
         K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]], dtype=np.float32)
-        return Camera(look_at(self.eye(), self.target), K, int(width), int(height))
+        return Camera(look_at(self.eye(), self.target, self.basis[2]), K, int(width), int(height))
 
     # ---- mouse gestures (pixels) ----------------------------------------------------------------
     def orbit(self, dx: float, dy: float, deg_per_px: float = 0.3):
@@ -108,7 +116,7 @@ class OrbitCamera:
 
     def pan(self, dx: float, dy: float, width: int, height: int):
         """Drag: the point under the mouse (at the target's depth) follows the mouse."""
-        R = look_at(self.eye(), self.target)[:3, :3].astype(np.float64)  # rows: right, down, forward
+        R = look_at(self.eye(), self.target, self.basis[2])[:3, :3].astype(np.float64)  # rows: right, down, forward
         s = self.distance / self.focal(width, height)
         self.target = self.target - s * (dx * R[0] + dy * R[1])
 
@@ -116,6 +124,16 @@ class OrbitCamera:
         """factor > 1 moves away, < 1 closer."""
         if np.isfinite(factor) and factor > 0:
             self.distance = float(np.clip(self.distance * factor, 1e-4, 1e6))
+
+
+def letterbox(cam: Camera, width: int, height: int) -> Camera:
+    """`cam` drawn into a width x height image: its frame scaled to fit and centred, the margins
+    showing what lies beyond it."""
+    s = min(width / cam.width, height / cam.height)
+    K = cam.K.astype(np.float64) * np.array([[s], [s], [1.0]])
+    K[0, 2] += 0.5 * (width - cam.width * s)
+    K[1, 2] += 0.5 * (height - cam.height * s)
+    return Camera(cam.viewmat, K, int(width), int(height))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -151,6 +169,8 @@ class ViewerState:
         seed: int = 0,
         clamp_threshold: int = 0,
         gpu=None,
+        views: list[Camera] | None = None,
+        view_names: list[str] | None = None,
     ):
         from seuwgpu.gpu.device import get_gpu
 
@@ -158,6 +178,9 @@ class ViewerState:
         self.scene = scene
         self.gpu = gpu or get_gpu()
         self.orbit = orbit or OrbitCamera.fit(model.means)
+        self.views = list(views or [])
+        self.view_names = list(view_names or [str(i) for i in range(len(self.views))])
+        self.view_index: int | None = None  # a capture view shown, or None: the orbit camera
         self.size = self._check_size(size)
         self.sample, self.probe, self.seed = int(sample), int(probe), int(seed)
         self.clamp_threshold = int(clamp_threshold)
@@ -203,7 +226,9 @@ class ViewerState:
         return GUARD_MODES[self.guard]
 
     def camera(self) -> Camera:
-        return self.orbit.camera(*self.size)
+        if self.view_index is None:
+            return self.orbit.camera(*self.size)
+        return letterbox(self.views[self.view_index], *self.size)
 
     @staticmethod
     def _view_key(cam: Camera):
@@ -211,19 +236,42 @@ class ViewerState:
 
     # ---- camera actions ---------------------------------------------------------------------------
     def orbit_by(self, dx, dy):
+        self.view_index = None
         self.orbit.orbit(dx, dy)
         self.dirty = True
 
     def pan_by(self, dx, dy):
+        self.view_index = None
         self.orbit.pan(dx, dy, *self.size)
         self.dirty = True
 
     def zoom_by(self, factor):
+        self.view_index = None
         self.orbit.zoom(factor)
         self.dirty = True
 
     def reset_view(self):
+        self.view_index = None
         self.orbit.reset()
+        self.dirty = True
+
+    def step_view(self, step: int = 1):
+        """Show the next (or, step -1, the previous) capture view; from the orbit camera the
+        first (or last)."""
+        if not self.views:
+            self.status = "no capture views (open the model with --cameras)"
+            return
+        n = len(self.views)
+        if self.view_index is None:
+            self.view_index = 0 if step > 0 else n - 1
+        else:
+            self.view_index = (self.view_index + step) % n
+        self.status = f"capture view {self.view_index + 1}/{n}: {self.view_names[self.view_index]}"
+        self.dirty = True
+
+    def orbit_view(self):
+        """Back to the orbit camera."""
+        self.view_index = None
         self.dirty = True
 
     def resize(self, width, height):

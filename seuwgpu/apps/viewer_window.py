@@ -11,8 +11,17 @@ unchanged (3DGS colours are display-referred), and ImGui draws over it in the sa
 Input: left drag orbits, right or middle drag (or shift + left drag) pans, the wheel zooms.
 Keys: R reset view, S screenshot of the window (panel included), P screenshot of the render
 only, H hide/show the panel, M heat map, G cycle the guard (off, guard, selective), U undo all
-faults, Space start/stop the storm, Q or Escape close. Events the panel uses (clicks, typing in
-a field) do not reach the view.
+faults, Space start/stop the storm, ] / [ (or the arrow keys) next / previous capture view (with
+--cameras), O back to the orbit camera, Q or Escape close. Events the panel uses (clicks, typing
+in a field) do not reach the view.
+
+Short clicks: Dear ImGui applies at most one press or release of a button per frame (its input
+queue trickles them), so a press and release that arrive between two frames need two frames to
+become a click. With on-demand drawing nothing else may ask for that second frame, so after any
+button or key event the window draws until ImGui's queue is empty (`pending_input`).
+
+The panel keeps its layout while values change: numbers have fixed widths (the font is
+monospaced), and the lines that come and go (alert, fault sites, status) have reserved rows.
 
 Frames are rendered only when something changed (camera, faults, guard, size, heat map) or a
 storm runs; drawing the panel alone is cheap.
@@ -83,6 +92,8 @@ class ViewerApp:
         self.last_rgba: np.ndarray | None = None
         self.last_window: np.ndarray | None = None  # last window capture (RGBA8)
         self._drag = None
+        self.pending_input = 0  # frames to draw so that ImGui's queued input (a short click) is applied
+        self.button_rects: dict[str, tuple[float, float, float, float]] = {}  # panel buttons (x0, y0, x1, y1)
         self.pending_shots: list[tuple[str, Path | None]] = []
         self.saved: list[Path] = []
         self.after_draw = None  # optional callback(app) at the end of each draw (scripts)
@@ -217,9 +228,11 @@ class ViewerApp:
         self.imgui.render()
         self._take_pending_shots(tex)
         self.frames += 1
+        if self.pending_input > 0:
+            self.pending_input -= 1
         if self.after_draw is not None:
             self.after_draw(self)
-        if st.needs_frame():
+        if st.needs_frame() or self.pending_input > 0:
             self.canvas.request_draw()
 
     # ---- screenshots --------------------------------------------------------------------------
@@ -278,6 +291,8 @@ class ViewerApp:
 
     # ---- input --------------------------------------------------------------------------------
     def _wake(self, event):
+        if event.get("event_type") in ("pointer_down", "pointer_up", "key_down", "key_up", "char"):
+            self.pending_input = 2  # a press and a release between two frames take two frames
         self.canvas.request_draw()
 
     def _in_panel(self, x: float) -> bool:
@@ -333,6 +348,12 @@ class ViewerApp:
             st.undo_all()
         elif k == " ":
             self._toggle_storm()
+        elif k in ("]", "arrowright"):
+            st.step_view(1)
+        elif k in ("[", "arrowleft"):
+            st.step_view(-1)
+        elif k == "o":
+            st.orbit_view()
         elif k in ("q", "escape"):
             self.canvas.close()
             return
@@ -363,6 +384,15 @@ class ViewerApp:
         self._act(st.inject, field, int(ui["bit"]), prim, int(ui["component"]))
 
     # ---- panel --------------------------------------------------------------------------------
+    def _button(self, label: str, width: float = 0.0) -> bool:
+        """imgui.button that remembers where it was drawn (tests click it by position)."""
+        from imgui_bundle import imgui
+
+        hit = imgui.button(label, imgui.ImVec2(width, 0))
+        lo, hi = imgui.get_item_rect_min(), imgui.get_item_rect_max()
+        self.button_rects[label] = (lo.x, lo.y, hi.x, hi.y)
+        return hit
+
     def _gui(self):
         from imgui_bundle import imgui
 
@@ -378,33 +408,49 @@ class ViewerApp:
         imgui.text(f"{st.scene or 'model'}: {st.n} primitives, {st.precision}")
         w, h = st.size
         ms = ro.get("frame_ms", 0.0)
-        imgui.text(f"render {w}x{h}   frame {ms:.0f} ms ({1000.0 / ms if ms > 0 else 0.0:.1f} fps)")
+        fps = 1000.0 / ms if ms > 0 else 0.0
+        imgui.text(f"render {w:>5}x{h:<5} frame {ms:6.0f} ms {fps:6.1f} fps")
 
         imgui.separator_text("Frame vs clean render")
         foot = ro.get("footprint", 0.0)
         col = _rgb(1.0, 0.35, 0.3) if foot > 0.01 else _rgb(0.85, 0.85, 0.85)
-        imgui.text_colored(col, f"footprint {100 * foot:.2f} %  ({ro.get('changed_pixels', 0)} px)")
+        imgui.text_colored(col, f"footprint {100 * foot:7.2f} %  {ro.get('changed_pixels', 0):>8} px")
         psnr = ro.get("psnr", float("inf"))
-        imgui.text(
-            f"PSNR {'inf' if not np.isfinite(psnr) else f'{psnr:.2f}'} dB   "
-            f"non-finite {ro.get('nonfinite_pixels', 0)} px"
-        )
+        psnr_text = f"{psnr:7.2f}" if np.isfinite(psnr) else f"{'inf':>7}"
+        imgui.text(f"PSNR {psnr_text} dB  non-finite {ro.get('nonfinite_pixels', 0):>8} px")
+        # two reserved rows for the guard line and its alert details
         if st.guard == "off":
             imgui.text_colored(_rgb(0.6, 0.6, 0.6), "guard off: clamps not monitored")
+            imgui.text("")
         elif ro.get("alert"):
             per = {k: v for k, v in ro.get("clamps_per_field", {}).items() if v}
-            imgui.text_colored(_rgb(1.0, 0.25, 0.2), f"ALERT: {ro.get('clamps', 0)} clamps > {st.clamp_threshold}")
-            imgui.push_style_color(imgui.Col_.text, _rgb(1.0, 0.6, 0.5))
-            imgui.text_wrapped("  " + ", ".join(f"{k} {v}" for k, v in per.items()))
-            imgui.pop_style_color()
+            imgui.text_colored(_rgb(1.0, 0.25, 0.2), f"ALERT: {ro.get('clamps', 0):>8} clamps > {st.clamp_threshold}")
+            imgui.text_colored(_rgb(1.0, 0.6, 0.5), _fit("  " + ", ".join(f"{k} {v}" for k, v in per.items())))
         else:
-            imgui.text_colored(_rgb(0.4, 0.9, 0.4), f"guard ({st.guard}): {ro.get('clamps', 0)} clamps, ok")
+            imgui.text_colored(_rgb(0.4, 0.9, 0.4), f"guard ({st.guard:>9}): {ro.get('clamps', 0):>8} clamps, ok")
+            imgui.text("")
         sites = st.active_sites
-        imgui.text(f"active fault sites: {len(sites)}")
-        for s in ro.get("sites", [])[-4:]:
-            imgui.text_colored(_rgb(0.75, 0.75, 1.0), "  " + s)
-        if st.status:
-            imgui.text_wrapped(st.status)
+        imgui.text(f"active fault sites: {len(sites):>8}")
+        shown = ro.get("sites", [])[-SITE_ROWS:]
+        for i in range(SITE_ROWS):  # reserved rows: the list never pushes the panel down
+            imgui.text_colored(_rgb(0.75, 0.75, 1.0), _fit("  " + shown[i]) if i < len(shown) else "")
+        imgui.text(_fit(st.status))
+
+        imgui.separator_text("Capture views")
+        n_views = len(st.views)
+        if n_views:
+            cur = "orbit" if st.view_index is None else f"{st.view_index + 1:>4}/{n_views:<4}"
+            imgui.text(f"view {cur:>9}  " + _fit("" if st.view_index is None else st.view_names[st.view_index], 20))
+        else:
+            imgui.text_colored(_rgb(0.6, 0.6, 0.6), "none (open with --cameras FILE)")
+        if self._button("< prev", 70):
+            self._act(st.step_view, -1)
+        imgui.same_line()
+        if self._button("next >", 70):
+            self._act(st.step_view, 1)
+        imgui.same_line()
+        if self._button("orbit", 70):
+            self._act(st.orbit_view)
 
         imgui.separator_text("Inject a bit flip")
         imgui.set_next_item_width(180)
@@ -423,12 +469,13 @@ class ViewerApp:
         ch, v = imgui.input_int("##sample", st.sample)
         if ch:
             st.sample = max(1, min(v, st.n))
-        if not ui["worst"]:
-            imgui.set_next_item_width(180)
-            ch, v = imgui.input_int("primitive", ui["primitive"])
-            if ch:
-                ui["primitive"] = max(0, min(v, st.n - 1))
-        if imgui.button("Inject flip"):
+        imgui.begin_disabled(ui["worst"])  # always drawn: toggling "worst" does not move the rows below
+        imgui.set_next_item_width(180)
+        ch, v = imgui.input_int("primitive", ui["primitive"])
+        if ch:
+            ui["primitive"] = max(0, min(v, st.n - 1))
+        imgui.end_disabled()
+        if self._button("Inject flip", 120):
             self.inject_from_panel()
 
         imgui.separator_text("Random upsets / storm")
@@ -436,18 +483,17 @@ class ViewerApp:
         _, ui["k_random"] = imgui.input_int("k##random", ui["k_random"])
         ui["k_random"] = max(1, ui["k_random"])
         imgui.same_line()
-        if imgui.button("Inject k random"):
+        if self._button("Inject k random", 130):
             self._act(st.inject_random, ui["k_random"])
         imgui.set_next_item_width(110)
         _, ui["k_storm"] = imgui.input_int("k/frame", ui["k_storm"])
         ui["k_storm"] = max(1, ui["k_storm"])
         imgui.same_line()
         _, ui["accumulate"] = imgui.checkbox("accumulate", ui["accumulate"])
-        if imgui.button("Stop storm" if st.storm_running else "Start storm"):
+        if self._button("Stop storm" if st.storm_running else "Start storm", 120):
             self._act(self._toggle_storm)
-        if st.storm_running:
-            imgui.same_line()
-            imgui.text(f"step {st.storm['steps']}")
+        imgui.same_line()
+        imgui.text(f"step {st.storm['steps']:>7}" if st.storm_running else "")
 
         imgui.separator_text("Defense")
         for mode in GUARD_MODES:
@@ -466,19 +512,30 @@ class ViewerApp:
             if imgui.radio_button(p, st.precision == p) and p != st.precision:
                 self._act(st.set_precision, p)
                 ui["bit"] = min(ui["bit"], st.bits_per_value() - 1)
-        if imgui.button("Undo all"):
+        if self._button("Undo all", 90):
             self._act(st.undo_all)
         imgui.same_line()
-        if imgui.button("Reset view"):
+        if self._button("Reset view", 90):
             self._act(st.reset_view)
         imgui.same_line()
-        if imgui.button("Screenshot"):
+        if self._button("Screenshot", 90):
             self.screenshot(window=True)
         imgui.text_colored(_rgb(0.6, 0.6, 0.6), "left drag: orbit   wheel: zoom")
         imgui.text_colored(_rgb(0.6, 0.6, 0.6), "right, middle or shift drag: pan")
         imgui.text_colored(_rgb(0.6, 0.6, 0.6), "R reset  S/P screenshot  H panel  M heat")
         imgui.text_colored(_rgb(0.6, 0.6, 0.6), "G guard  U undo  Space storm  Q quit")
+        imgui.text_colored(_rgb(0.6, 0.6, 0.6), "[ ] capture views  O orbit")
         imgui.end()
+
+
+SITE_ROWS = 4
+PANEL_COLUMNS = 44  # characters of the monospaced default font that fit the panel
+
+
+def _fit(text: str, width: int = PANEL_COLUMNS) -> str:
+    """One row of at most `width` characters (longer text is cut with an ellipsis)."""
+    text = str(text).replace("\n", " ")
+    return text if len(text) <= width else text[: width - 3] + "..."
 
 
 # ------------------------------------------------------------------------------------------------
@@ -506,6 +563,8 @@ def run_viewer(
     clamp_threshold: int = 0,
     screenshot_dir: Path | str = ".",
     frames: int = 0,
+    views=None,
+    view_names=None,
 ) -> int:
     """Open the viewer. frames > 0 (or an offscreen canvas): draw that many frames, save a
     window screenshot in screenshot_dir, and return."""
@@ -522,6 +581,8 @@ def run_viewer(
         orbit=orbit,
         sample=sample,
         clamp_threshold=clamp_threshold,
+        views=views,
+        view_names=view_names,
     )
     app = ViewerApp(state, canvas, screenshot_dir)
     if loop is None:  # offscreen: no event loop, we draw

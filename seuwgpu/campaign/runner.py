@@ -111,23 +111,21 @@ class Runner:
 
     def engine_for(self, ctx: Context):
         from seuwgpu.faults.engine import Engine
-        from seuwgpu.model.cameras import load_cameras
-        from seuwgpu.model.ply import load_ply
-        from seuwgpu.model.scenes import make_scene, scene_cameras
+        from seuwgpu.model.sources import load_source, source_views
 
         sc = self.spec["scenes"][ctx.scene_index]
-        w, h = self.spec["size"]
-        if "scene" in sc:
-            model = make_scene(sc["scene"], n=ctx.n or sc["n"], sh_degree=sc["sh_degree"], seed=sc["seed"])
-            name = sc["scene"]
-            cams = load_cameras(sc["cameras"]) if "cameras" in sc else scene_cameras(name, self.spec["views"], w, h)
-        else:
-            model = load_ply(sc["ply"])
-            name = Path(sc["ply"]).stem
-            from seuwgpu.model.cameras import orbit_cameras
-
-            cams = load_cameras(sc["cameras"]) if "cameras" in sc else orbit_cameras(self.spec["views"], w, h)
-        return Engine(model, cams, ctx.precision, gpu=self.gpu, scene=name, incremental=not self.full)
+        src = load_source(
+            scene=sc.get("scene"),
+            path=sc.get("model"),
+            n=ctx.n or sc.get("n"),
+            sh_degree=sc["sh_degree"],
+            seed=sc["seed"],
+            up=sc.get("up"),
+        )
+        views = source_views(
+            src, sc.get("cameras"), self.spec["views"], tuple(self.spec["size"]), self.spec.get("scale")
+        )
+        return Engine(src.model, views, ctx.precision, gpu=self.gpu, scene=src.name, incremental=not self.full)
 
     def run_block(self, eng, ctx: Context, first: int, count: int) -> pd.DataFrame:
         ids = np.arange(first, first + count, dtype=np.int64)

@@ -3,15 +3,19 @@
 Spec (TOML; unknown keys and bad values fail at once, naming the key):
 
     seed = 0                 # master seed
-    views = 4                # orbit views per scene (K)
-    size = "128x128"         # WxH
+    views = 4                # orbit views per scene (K), or K of the capture's views, evenly
+    size = "256x256"         # WxH of orbit views
+    scale = 0.25             # optional: render at this fraction of the views' resolution
     batch = 256              # injections per GPU batch and per Parquet part
 
     [[scenes]]               # one or more
-    scene = "spheres"        # an embedded scene ... or: ply = "model.ply"
-    n = 100000               # primitives of an embedded scene
+    scene = "spheres"        # an embedded scene (`seuwgpu scene --list`: procedural or real) ...
+                             # or: model = "point_cloud.ply" (any format; `ply =` is an alias)
+    n = 100000               # primitives of an embedded scene (a real capture: all by default)
     sh_degree = 3
-    cameras = "CAMS.json"    # optional, instead of orbit views
+    cameras = "cameras.json" # optional, the capture's cameras (CAMS.json, INRIA cameras.json,
+                             # a COLMAP model folder, nerfstudio transforms.json) instead of orbits
+    up = "-y"                # optional: up axis of the orbit views (default: the format's)
 
     [single]                 # single upsets, stratified by (field, bit) cell
     precisions = ["fp32"]
@@ -54,8 +58,9 @@ from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELDS, canonical_field
 
-_TOP = {"seed", "views", "size", "batch", "scenes", "single", "dose", "sizes", "name"}
-_SCENE = {"scene", "ply", "n", "sh_degree", "cameras", "seed"}
+_TOP = {"seed", "views", "size", "scale", "batch", "scenes", "single", "dose", "sizes", "name"}
+_SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
+_UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 _SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions"}
 _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
 _SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions"}
@@ -187,16 +192,21 @@ def dose_levels(k_max: int, points: int) -> list[int]:
 
 def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
     """Validated spec with defaults filled in (what is hashed and stored in the manifest)."""
-    from seuwgpu.model.scenes import list_scenes
+    from seuwgpu.model.scenes import is_capture, list_scenes, make_scene
 
     _keys(raw, _TOP, "the spec")
     spec = {
         "name": str(raw.get("name", "campaign")),
         "seed": _int(raw, "seed", "spec", 0, 0),
         "views": _int(raw, "views", "spec", 4, 1, 64),
-        "size": list(parse_size(raw.get("size", "128x128"))),
+        "size": list(parse_size(raw.get("size", "256x256"))),
         "batch": _int(raw, "batch", "spec", 256, 1, 65536),
     }
+    if "scale" in raw:  # recorded only when given, so older specs keep their hash
+        scale = raw["scale"]
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 16:
+            raise SpecError(f"scale must be a number in (0, 16], got {scale!r}")
+        spec["scale"] = float(scale)
     scenes = raw.get("scenes")
     if not isinstance(scenes, list) or not scenes:
         raise SpecError("the spec needs at least one [[scenes]] table")
@@ -204,8 +214,8 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
     for i, s in enumerate(scenes):
         where = f"scenes[{i}]"
         _keys(s, _SCENE, where)
-        if ("scene" in s) == ("ply" in s):
-            raise SpecError(f"{where} needs exactly one of scene = NAME or ply = FILE")
+        if sum(k in s for k in ("scene", "model", "ply")) != 1:
+            raise SpecError(f"{where} needs exactly one of scene = NAME or model = FILE (ply = FILE is an alias)")
         out = {"sh_degree": _int(s, "sh_degree", where, 3, 0, 3), "seed": _int(s, "seed", where, 0, 0)}
         if "scene" in s:
             if s["scene"] not in list_scenes():
@@ -213,9 +223,18 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
                     f"{where}.scene: unknown scene {s['scene']!r}; embedded scenes: {', '.join(list_scenes())}"
                 )
             out["scene"] = s["scene"]
-            out["n"] = _int(s, "n", where, 100_000, 1)
+            if is_capture(s["scene"]):
+                size = make_scene(s["scene"]).n
+                out["n"] = _int(s, "n", where, size, 1, size)
+            else:
+                out["n"] = _int(s, "n", where, 100_000, 1)
         else:
-            out["ply"] = _spec_file(s, "ply", where, base_dir)
+            key = "model" if "model" in s else "ply"
+            out["model"] = _spec_file(s, key, where, base_dir)
+        if "up" in s:
+            if s["up"] not in _UP_AXES:
+                raise SpecError(f"{where}.up: {s['up']!r} is no axis; expected one of {', '.join(_UP_AXES)}")
+            out["up"] = s["up"]
         if "cameras" in s:
             out["cameras"] = _spec_file(s, "cameras", where, base_dir)
         spec["scenes"].append(out)
@@ -261,6 +280,9 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         ns = _list(t, "n", "sizes", None)
         if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in ns):
             raise SpecError("sizes.n must be a list of positive integers")
+        first = spec["scenes"][0]["scene"]
+        if is_capture(first) and max(ns) > make_scene(first).n:
+            raise SpecError(f"sizes.n: the real capture {first} has {make_scene(first).n} splats; n must not exceed it")
         precisions = _list(t, "precisions", "sizes", ["fp32"], encoding.PRECISIONS)
         spec["sizes"] = {
             "n": sorted(set(ns)),

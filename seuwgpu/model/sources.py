@@ -1,0 +1,70 @@
+"""Where a model and its views come from, resolved the same way by every command (render,
+inject, campaign, viewer): an embedded scene or a model file, then the capture's cameras when
+given (K of them evenly with `views`), else the scene's registered orbit (procedural scenes) or
+the robust framing of model/framing.py, and at last `scale` applied to the resolution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from seuwgpu.model import scenes
+from seuwgpu.model.cameras import Camera, load_cameras, scale_cameras, select_views
+from seuwgpu.model.fields import Model
+from seuwgpu.model.formats import read_model
+from seuwgpu.model.framing import AXES, orbit_views
+
+
+@dataclass
+class Source:
+    """A loaded model with its display name, the up axis its framing uses and notes for the user."""
+
+    model: Model
+    name: str
+    up: str
+    scene: str | None = None  # the embedded scene framed by its registered views (None: a file, or --up given)
+    notes: list[str] = field(default_factory=list)
+
+
+def load_source(
+    scene: str | None = None,
+    path=None,
+    n: int | None = None,
+    sh_degree: int = 3,
+    seed: int = 0,
+    up: str | None = None,
+) -> Source:
+    """An embedded scene (procedural or real capture) by name, or any supported model file."""
+    if up is not None and up not in AXES:
+        raise ValueError(f"unknown up axis {up!r}; expected one of {', '.join(AXES)}")
+    if path is not None:
+        mf = read_model(path)
+        return Source(mf.model, mf.name, up or mf.up, None, mf.notes)
+    name = scene or scenes.DEFAULT_SCENE
+    model = scenes.make_scene(name, n=n, sh_degree=sh_degree, seed=seed)
+    registered = "+y" if scenes.is_capture(name) else "+z"
+    return Source(model, name, up or registered, name if up in (None, registered) else None)
+
+
+def source_views(
+    source: Source,
+    cameras=None,
+    views: int | None = None,
+    size: tuple[int, int] = (256, 256),
+    scale: float | None = None,
+    default_views: int = 4,
+) -> list[Camera]:
+    """The views to render: a camera file's (all, or `views` of them evenly), else `views` (or
+    `default_views`) orbit views of `size` pixels; then `scale` times the resolution."""
+    if views is not None and views < 1:
+        raise ValueError(f"views must be at least 1, got {views}")
+    if cameras is not None:
+        cams = select_views(load_cameras(Path(cameras)), views)
+    else:
+        k, (w, h) = views or default_views, size
+        if source.scene is not None:
+            cams = scenes.scene_cameras(source.scene, k, w, h)
+        else:
+            cams = orbit_views(source.model.means, k, w, h, up=source.up)
+    return scale_cameras(cams, scale) if scale not in (None, 1, 1.0) else cams
