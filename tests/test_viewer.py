@@ -208,7 +208,7 @@ def test_offscreen_window_panel_and_input(model, gpu):
     from seuwgpu.apps.viewer import OrbitCamera, ViewerState
     from seuwgpu.apps.viewer_window import PANEL_WIDTH, ViewerApp
 
-    W, H = PANEL_WIDTH + 120, 200
+    W, H = PANEL_WIDTH + 120, 360
     canvas = RenderCanvas(size=(W, H))
     st = ViewerState(model, "fp32", (120, H), scene="spheres", orbit=OrbitCamera.for_scene("spheres"))
     app = ViewerApp(st, canvas)
@@ -256,6 +256,85 @@ def test_offscreen_window_panel_and_input(model, gpu):
     img = np.asarray(canvas.draw())
     assert st.size == (W, H) and app.last_rgba.shape == (H, W, 4)
     np.testing.assert_array_equal(img[..., :3], app.last_rgba[..., :3])
+    canvas.close()
+
+
+def test_capture_views_step_and_letterbox(model, gpu):
+    from seuwgpu.apps.viewer import OrbitCamera, ViewerState, letterbox
+    from seuwgpu.model.scenes import scene_cameras
+
+    views = scene_cameras("spheres", 3, 64, 32)
+    st = ViewerState(model, "fp32", (96, 96), scene="spheres", orbit=OrbitCamera.for_scene("spheres"), views=views)
+    orbit_cam = st.camera()
+    st.step_view(1)
+    assert st.view_index == 0 and "1/3" in st.status
+    cam = st.camera()
+    np.testing.assert_array_equal(cam.viewmat, views[0].viewmat)
+    # the 64x32 frame scaled by 1.5 to 96x48 and centred: 24 px bands above and below
+    np.testing.assert_allclose(cam.K[0], [views[0].K[0, 0] * 1.5, 0, 48.0])
+    np.testing.assert_allclose(cam.K[1], [0, views[0].K[1, 1] * 1.5, 48.0])
+    img, _ = st.frame()
+    inner = letterbox(views[0], 96, 48)
+    want = direct_render(model, inner)
+    got = st.last_image[24:72]
+    assert np.mean(np.abs(got[..., :3] - want[..., :3])) < 2e-3  # the capture's frame, scaled
+    st.step_view(-1)  # wraps around
+    assert st.view_index == 2
+    st.orbit_by(5, 0)  # any orbit returns to the orbit camera
+    assert st.view_index is None
+    st.reset_view()
+    np.testing.assert_array_equal(st.camera().viewmat, orbit_cam.viewmat)
+
+
+def test_short_click_and_steady_panel(model, gpu):
+    """A press and release that arrive between two frames still click a panel button, and the
+    panel's buttons stay where they are while the readout changes."""
+    pytest.importorskip("rendercanvas")
+    pytest.importorskip("imgui_bundle")
+    from rendercanvas.offscreen import RenderCanvas
+
+    from seuwgpu.apps.viewer import OrbitCamera, ViewerState
+    from seuwgpu.apps.viewer_window import PANEL_WIDTH, ViewerApp
+    from seuwgpu.model.scenes import scene_cameras
+
+    canvas = RenderCanvas(size=(PANEL_WIDTH + 64, 760))
+    st = ViewerState(
+        model,
+        "fp32",
+        (64, 760),
+        scene="spheres",
+        orbit=OrbitCamera.for_scene("spheres"),
+        views=scene_cameras("spheres", 2, 48, 48),
+    )
+    app = ViewerApp(st, canvas)
+    canvas.draw()
+    canvas.draw()
+    before = dict(app.button_rects)
+    x0, y0, x1, y1 = before["next >"]
+    for ev in (
+        {"event_type": "pointer_move", "x": (x0 + x1) / 2, "y": (y0 + y1) / 2, "button": 0, "buttons": ()},
+        {"event_type": "pointer_down", "x": (x0 + x1) / 2, "y": (y0 + y1) / 2, "button": 1, "buttons": (1,)},
+        {"event_type": "pointer_up", "x": (x0 + x1) / 2, "y": (y0 + y1) / 2, "button": 1, "buttons": ()},
+    ):
+        ev["modifiers"] = ()
+        canvas.submit_event(ev)
+    canvas._process_events()  # press and release, both before the next frame
+    draws = 0
+    while st.view_index is None and draws < 4:
+        canvas.draw()
+        draws += 1
+        if st.view_index is None:
+            # ImGui has applied only the press: the window must ask for another frame itself
+            assert app.pending_input > 0
+    assert st.view_index == 0, "the short click was lost"
+    # values change (faults, alert, long status, a capture view): the buttons do not move
+    st.set_guard("guard")
+    st.inject("log_scales", 30, primitive=0, component=0)
+    st.status = "x" * 200
+    for _ in range(2):
+        canvas.draw()
+    assert st.readout["active_sites"] == 1
+    assert app.button_rects == before
     canvas.close()
 
 

@@ -1,0 +1,224 @@
+"""Camera files: one set of views written by hand as seuwgpu CAMS.json, INRIA cameras.json,
+COLMAP text and binary models and nerfstudio transforms.json; each must load to the same float32
+cameras and render the same images as the CAMS.json, bit for bit."""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+import pytest
+
+from seuwgpu.model.cameras import Camera, CameraFileError, read_cameras, scale_cameras, select_views
+
+W, H = 40, 30
+
+
+def rotation(q):
+    w, x, y, z = np.asarray(q, float) / np.linalg.norm(q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+# three views of the spheres scene: world-to-camera rotation (quaternion), translation, intrinsics
+VIEWS = []
+for i, az in enumerate((0.3, 2.2, 4.1)):
+    target = np.array([0.11, -0.07, 0.05])  # off the origin: no translation component is ~0
+    eye = 4.0 * np.array([np.cos(az), np.sin(az), 0.45])
+    f = (target - eye) / np.linalg.norm(target - eye)
+    r = np.cross(f, [0, 0, 1.0])
+    r /= np.linalg.norm(r)
+    R = np.stack([r, np.cross(f, r), f])  # rows: camera x, y (down), z (forward)
+    # the quaternion of R (w > 0), and R recomputed from it so that every file describes one pose
+    w = 0.5 * np.sqrt(1 + np.trace(R))
+    q = np.array([w, (R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w)])
+    R = rotation(q)
+    t = -R @ eye
+    fx, fy = 38.0 + 2 * i, 37.5 + 2 * i
+    VIEWS.append({"name": f"img_{2 - i:03d}.png", "q": q, "R": R, "t": t, "fx": fx, "fy": fy, "cx": W / 2, "cy": H / 2})
+
+
+def cams_json(path):
+    cams = []
+    for v in VIEWS:
+        M = np.eye(4)
+        M[:3, :3], M[:3, 3] = v["R"], v["t"]
+        K = [[v["fx"], 0, v["cx"]], [0, v["fy"], v["cy"]], [0, 0, 1]]
+        cams.append({"viewmat": M.tolist(), "K": K, "width": W, "height": H})
+    path.write_text(json.dumps({"cameras": cams}))
+    return path
+
+
+def inria_json(path):
+    out = []
+    for i, v in enumerate(VIEWS):
+        c2w_rot = v["R"].T  # the INRIA file holds the camera-to-world rotation and the centre
+        out.append(
+            {
+                "id": i,
+                "img_name": v["name"],
+                "width": W,
+                "height": H,
+                "position": (-v["R"].T @ v["t"]).tolist(),
+                "rotation": c2w_rot.tolist(),
+                "fy": v["fy"],
+                "fx": v["fx"],
+            }
+        )
+    path.write_text(json.dumps(out))
+    return path
+
+
+def transforms_json(path, per_frame: bool):
+    frames = []
+    for v in VIEWS:
+        c2w = np.eye(4)
+        c2w[:3, :3] = v["R"].T @ np.diag([1.0, -1.0, -1.0])  # OpenGL camera axes
+        c2w[:3, 3] = -v["R"].T @ v["t"]
+        fr = {"file_path": v["name"], "transform_matrix": c2w.tolist()}
+        if per_frame:
+            fr.update(fl_x=v["fx"], fl_y=v["fy"], cx=v["cx"], cy=v["cy"], w=W, h=H)
+        frames.append(fr)
+    data = {"camera_model": "OPENCV", "frames": frames}
+    if not per_frame:  # one intrinsics for all: only meaningful when they agree
+        v = VIEWS[0]
+        data.update(fl_x=v["fx"], fl_y=v["fy"], cx=v["cx"], cy=v["cy"], w=W, h=H)
+    path.write_text(json.dumps(data))
+    return path
+
+
+def colmap_txt(folder, model="PINHOLE", extra=()):
+    folder.mkdir(parents=True, exist_ok=True)
+    lines = ["# Camera list with one line of data per camera:", "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]"]
+    for i, v in enumerate(VIEWS):
+        params = [v["fx"], v["fy"], v["cx"], v["cy"]] if model != "SIMPLE_PINHOLE" else [v["fx"], v["cx"], v["cy"]]
+        lines.append(" ".join(str(x) for x in [i + 1, model, W, H, *map(float, params), *extra]))
+    (folder / "cameras.txt").write_text("\n".join(lines) + "\n")
+    img = ["# Image list with two lines of data per image:"]
+    for i, v in reversed(list(enumerate(VIEWS))):  # not in name order: the reader sorts by name
+        img.append(
+            " ".join(repr(x) for x in [i + 1, *map(float, v["q"]), *map(float, v["t"]), i + 1]) + " " + v["name"]
+        )
+        img.append("" if i == 1 else "1.5 2.5 -1 3.0 4.0 7")  # POINTS2D, possibly empty
+    (folder / "images.txt").write_text("\n".join(img) + "\n")
+    return folder
+
+
+def colmap_bin(folder):
+    folder.mkdir(parents=True, exist_ok=True)
+    b = struct.pack("<Q", len(VIEWS))
+    for i, v in enumerate(VIEWS):
+        b += struct.pack("<iiQQ4d", i + 1, 1, W, H, v["fx"], v["fy"], v["cx"], v["cy"])  # 1 = PINHOLE
+    (folder / "cameras.bin").write_bytes(b)
+    b = struct.pack("<Q", len(VIEWS))
+    for i, v in enumerate(VIEWS):
+        b += struct.pack("<i7di", i + 1, *v["q"], *v["t"], i + 1) + v["name"].encode() + b"\0"
+        b += struct.pack("<Q", 2) + struct.pack("<ddq", 1.0, 2.0, 5) * 2
+    (folder / "images.bin").write_bytes(b)
+    return folder
+
+
+def by_name(cams, names):
+    order = np.argsort(names)
+    return [cams[i] for i in order]
+
+
+def assert_same(a: list[Camera], b: list[Camera]):
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        assert (x.width, x.height) == (y.width, y.height)
+        np.testing.assert_array_equal(x.viewmat, y.viewmat)
+        np.testing.assert_array_equal(x.K, y.K)
+
+
+@pytest.fixture
+def reference(tmp_path):
+    cams, names, fmt = read_cameras(cams_json(tmp_path / "CAMS.json"))
+    assert fmt == "cams" and len(cams) == 3
+    return cams
+
+
+def test_every_format_gives_the_same_cameras(tmp_path, reference):
+    cams, names, fmt = read_cameras(inria_json(tmp_path / "cameras.json"))
+    assert fmt == "inria" and names == [v["name"] for v in VIEWS]  # the file's order
+    assert_same(cams, reference)
+    cams, names, fmt = read_cameras(transforms_json(tmp_path / "transforms.json", per_frame=True))
+    assert fmt == "nerfstudio"
+    assert_same(cams, reference)
+    for folder in (colmap_txt(tmp_path / "txt"), colmap_bin(tmp_path / "bin")):
+        cams, names, fmt = read_cameras(folder)
+        assert fmt == "colmap" and names == sorted(v["name"] for v in VIEWS)  # COLMAP: by image name
+        assert_same(cams, by_name(reference, [v["name"] for v in VIEWS]))
+    # a COLMAP file names its folder; an INRIA output folder holds cameras.json
+    assert_same(read_cameras(tmp_path / "txt" / "images.txt")[0], read_cameras(tmp_path / "txt")[0])
+    assert_same(read_cameras(tmp_path)[0], reference)
+
+
+def test_top_level_intrinsics_and_simple_pinhole(tmp_path):
+    cams, _, _ = read_cameras(transforms_json(tmp_path / "transforms.json", per_frame=False))
+    for c in cams:
+        np.testing.assert_array_equal(c.K, np.array([[38.0, 0, 20], [0, 37.5, 15], [0, 0, 1]], np.float32))
+    cams, _, _ = read_cameras(colmap_txt(tmp_path / "simple", "SIMPLE_PINHOLE"))
+    assert all(c.K[0, 0] == c.K[1, 1] for c in cams)
+
+
+def test_distortion_is_ignored_with_a_warning_and_fisheye_refused(tmp_path, reference):
+    with pytest.warns(UserWarning, match="distortion of the OPENCV camera model ignored"):
+        cams, _, _ = read_cameras(colmap_txt(tmp_path / "cv", "OPENCV", extra=(0.1, -0.02, 0.001, 0.0)))
+    assert_same(cams, by_name(reference, [v["name"] for v in VIEWS]))
+    with pytest.raises(CameraFileError, match="OPENCV_FISHEYE model, which is not a pinhole"):
+        read_cameras(colmap_txt(tmp_path / "fish", "OPENCV_FISHEYE", extra=(0.1, 0.0, 0.0, 0.0)))
+
+
+def test_camera_file_errors(tmp_path):
+    (tmp_path / "bad.json").write_text("{nope")
+    with pytest.raises(CameraFileError, match="not JSON") as e:
+        read_cameras(tmp_path / "bad.json")
+    assert str(tmp_path / "bad.json") in str(e.value)
+    (tmp_path / "other.json").write_text('{"hello": 1}')
+    with pytest.raises(CameraFileError, match="no known camera file"):
+        read_cameras(tmp_path / "other.json")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(CameraFileError, match="folder without"):
+        read_cameras(tmp_path / "empty")
+    colmap_bin(tmp_path / "trunc")
+    data = (tmp_path / "trunc" / "images.bin").read_bytes()
+    (tmp_path / "trunc" / "images.bin").write_bytes(data[:50])
+    with pytest.raises(CameraFileError, match="truncated"):
+        read_cameras(tmp_path / "trunc")
+
+
+def test_select_views_and_scale(reference):
+    assert select_views(list(range(10)), 4) == [0, 2, 5, 7]  # evenly: i * n // k
+    assert select_views(reference, None) == reference and select_views(reference, 10) == reference
+    half = scale_cameras(reference, 0.5)
+    assert (half[0].width, half[0].height) == (20, 15)
+    np.testing.assert_allclose(half[0].K[:2], reference[0].K[:2] * 0.5)
+    np.testing.assert_array_equal(half[0].viewmat, reference[0].viewmat)
+
+
+def test_renders_identical_to_cams_json(tmp_path, reference):
+    """The GPU renders of the views read from each format equal the CAMS.json renders bit for bit."""
+    from seuwgpu.model.scenes import make_scene
+    from seuwgpu.render.renderer import Renderer
+
+    model = make_scene("spheres", n=2000)
+    want = Renderer(model, reference).render()
+    assert (np.abs(want - 1.0) > 0.05).mean() > 0.05  # the views see the scene
+    names = [v["name"] for v in VIEWS]
+    files = {
+        "inria": inria_json(tmp_path / "cameras.json"),
+        "nerfstudio": transforms_json(tmp_path / "transforms.json", per_frame=True),
+        "colmap-bin": colmap_bin(tmp_path / "bin"),
+    }
+    for fmt, path in files.items():
+        cams, got_names, _ = read_cameras(path)
+        got = Renderer(model, cams).render()
+        order = [got_names.index(n) for n in names]
+        np.testing.assert_array_equal(got[order], want, err_msg=fmt)

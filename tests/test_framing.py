@@ -1,0 +1,180 @@
+"""Framing without cameras (model/framing.py): the robust region ignores a far shell and floaters,
+and the orbit views of both real captures see the object whole, not filling the frame; the one
+source of models and views (model/sources.py) and the campaign spec keys that use it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seuwgpu.model.framing import bounding_region, orbit_basis
+from seuwgpu.model.scenes import make_scene, scene_cameras
+
+
+def project(cam, pts):
+    p = pts @ cam.viewmat[:3, :3].T.astype(np.float64) + cam.viewmat[:3, 3]
+    K = cam.K.astype(np.float64)
+    return K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2], K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2], p[:, 2]
+
+
+def test_region_ignores_a_far_shell_and_floaters():
+    rng = np.random.default_rng(0)
+    obj = rng.normal(size=(5000, 3)) * [0.05, 0.03, 0.04] + [1.0, 2.0, 3.0]
+    shell = rng.normal(size=(1500, 3))
+    shell = 240 * shell / np.linalg.norm(shell, axis=1, keepdims=True)  # 23% of the splats
+    floaters = [1.0, 2.0, 3.0] + rng.uniform(-3, 3, (200, 3))
+    clean = bounding_region(obj)
+    wide = bounding_region(np.concatenate([obj, shell, floaters, [[np.nan, 0, 0], [np.inf, 1, 1]]]))
+    np.testing.assert_allclose(wide.center, clean.center, atol=0.01)
+    assert 0.08 < clean.radius < 0.2 and abs(wide.radius - clean.radius) < 0.25 * clean.radius
+    # min/max would have been 1000x off
+    assert np.ptp(np.concatenate([obj, shell]), axis=0).max() > 400
+
+
+@pytest.mark.parametrize("up", ["+x", "-x", "+y", "-y", "+z", "-z"])
+def test_orbit_basis_is_right_handed(up):
+    e1, e2, u = orbit_basis(up)
+    np.testing.assert_array_equal(np.cross(e1, e2), u)
+
+
+def test_z_up_orbit_matches_the_registered_orbit_cameras():
+    from seuwgpu.model.cameras import orbit_cameras
+
+    # same angles, and the same eye formula as camera.orbit_cameras for z up
+    e1, e2, u = orbit_basis("+z")
+    assert (e1 == [1, 0, 0]).all() and (e2 == [0, 1, 0]).all()
+    assert len(orbit_cameras(3, 32, 32)) == 3
+
+
+@pytest.mark.parametrize("name", ["leica-sofort", "yashica-t4", "leica-sofort-wide", "yashica-t4-wide"])
+def test_real_captures_are_framed_in_every_view(name):
+    """Object visible, whole and not filling the frame, in every view, at any aspect ratio."""
+    model = make_scene(name)
+    core = make_scene(name.replace("-wide", "")).means.astype(np.float64)  # the object's splats
+    for w, h in ((64, 64), (96, 48)):
+        cams = scene_cameras(name, 4, w, h)
+        assert len(cams) == 4
+        for cam in cams:
+            u, v, z = project(cam, core)
+            assert (z > 0.01).all()
+            inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            assert inside.mean() > 0.97, (name, w, h)
+            span_u = np.ptp(np.percentile(u, [2, 98]))
+            span_v = np.ptp(np.percentile(v, [2, 98]))
+            assert max(span_u / w, span_v / h) > 0.2, (name, w, h)  # not a dot
+            assert span_u < w and span_v < h  # not cropped
+    region = bounding_region(model.means)
+    assert region.radius < 0.3  # the shell at radius 240 does not shrink the object
+
+
+@pytest.mark.parametrize("name", ["leica-sofort", "yashica-t4"])
+def test_real_capture_renders_show_the_object(name):
+    from seuwgpu.render.renderer import Renderer
+
+    model = make_scene(name)
+    img = Renderer(model, scene_cameras(name, 4, 64, 64)).render()
+    covered = (np.abs(img - 1.0) > 0.05).any(axis=-1)  # not the white background
+    for k in range(4):
+        assert 0.05 < covered[k].mean() < 0.9, (name, k, covered[k].mean())
+
+
+def test_wide_variants_are_wider_and_spz_exact():
+    from seuwgpu.model.formats.spz import spz_values
+
+    base, wide = make_scene("leica-sofort"), make_scene("leica-sofort-wide")
+    assert wide.n == base.n + 1536 + 256
+    for f in ("means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest"):
+        np.testing.assert_array_equal(getattr(wide, f)[: base.n], getattr(base, f))
+    assert wide.log_scales.max() > base.log_scales.max() + 5  # the far shell's large splats
+    assert np.abs(wide.means).max() > 200
+    again = spz_values(wide, 2)  # already what SPZ holds
+    np.testing.assert_array_equal(again.log_scales, wide.log_scales)
+    np.testing.assert_array_equal(again.means, wide.means)
+    np.testing.assert_array_equal(make_scene("leica-sofort-wide").means, wide.means)  # deterministic
+
+
+def test_capture_subsets_and_degrees():
+    full = make_scene("yashica-t4")
+    sub = make_scene("yashica-t4", n=1000, sh_degree=1, seed=3)
+    assert sub.n == 1000 and sub.sh_degree == 1
+    flat_full, flat_sub = full.flat()[:, : 14 + 9], sub.flat()  # degree 1: the first 3 SH coefficients
+    j, idx = 0, []
+    for row in flat_sub:  # each subset row appears in the full model, in the file's order
+        while not np.array_equal(flat_full[j].view(np.uint32), row.view(np.uint32)):
+            j += 1
+        idx.append(j)
+        j += 1
+    assert len(idx) == 1000
+    with pytest.raises(ValueError, match="8192 splats"):
+        make_scene("yashica-t4", n=9000)
+
+
+def test_sources_and_cli_arguments(tmp_path):
+    from seuwgpu.apps.cli import main
+    from seuwgpu.model.formats import save_model
+    from seuwgpu.model.sources import load_source, source_views
+
+    src = load_source("leica-sofort")
+    assert src.up == "+y" and src.scene == "leica-sofort"
+    views = source_views(src, views=3, size=(64, 48), scale=0.5)
+    assert len(views) == 3 and (views[0].width, views[0].height) == (32, 24)
+    save_model(make_scene("spheres", n=500), tmp_path / "s.ply", up="+z")
+    src = load_source(path=tmp_path / "s.ply")
+    assert src.up == "+z" and src.scene is None and src.name == "s"
+    assert (
+        main(
+            [
+                "render",
+                "--ply",
+                str(tmp_path / "s.ply"),
+                "--views",
+                "2",
+                "--size",
+                "32x24",
+                "--out",
+                str(tmp_path / "a.npz"),
+            ]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "render",
+                "--model",
+                str(tmp_path / "s.ply"),
+                "--views",
+                "2",
+                "--size",
+                "32x24",
+                "--out",
+                str(tmp_path / "b.npz"),
+            ]
+        )
+        == 0
+    )
+    a, b = np.load(tmp_path / "a.npz")["images"], np.load(tmp_path / "b.npz")["images"]
+    assert a.shape == (2, 24, 32, 3) and np.array_equal(a, b)
+    assert main(["render", "--model", str(tmp_path / "missing.spz"), "--out", str(tmp_path / "c.npz")]) == 2
+
+
+def test_spec_model_cameras_scale_and_capture_defaults(tmp_path):
+    from seuwgpu.campaign.spec import SpecError, normalize_spec
+    from seuwgpu.model.formats import save_model
+
+    save_model(make_scene("spheres", n=200), tmp_path / "m.spz")
+    base = {"single": {"samples": 1}}
+    spec = normalize_spec({**base, "scenes": [{"ply": "m.spz"}], "scale": 0.5}, tmp_path)
+    assert spec["scenes"][0]["model"] == str(tmp_path / "m.spz") and spec["scale"] == 0.5
+    assert spec["size"] == [256, 256] and spec["views"] >= 4  # campaign defaults
+    spec = normalize_spec({**base, "scenes": [{"scene": "yashica-t4", "up": "+y"}]})
+    assert spec["scenes"][0]["n"] == 8192 and spec["scenes"][0]["up"] == "+y"
+    for bad, frag in (
+        ({"scenes": [{"scene": "leica-sofort", "n": 9000}]}, "out of range"),
+        ({"scenes": [{"scene": "spheres", "model": "m.spz"}]}, "exactly one"),
+        ({"scenes": [{"scene": "spheres", "up": "up"}]}, "no axis"),
+        ({"scenes": [{"scene": "spheres"}], "scale": 0}, "scale"),
+        ({"scenes": [{"scene": "leica-sofort"}], "sizes": {"n": [100, 10000]}}, "8192"),
+    ):
+        with pytest.raises(SpecError, match=frag):
+            normalize_spec({**base, **bad}, tmp_path)
