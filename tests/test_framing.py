@@ -178,3 +178,41 @@ def test_spec_model_cameras_scale_and_capture_defaults(tmp_path):
     ):
         with pytest.raises(SpecError, match=frag):
             normalize_spec({**base, **bad}, tmp_path)
+
+
+@pytest.mark.slow
+def test_inria_output_folder_to_report_in_one_command(tmp_path):
+    """The README's path: an INRIA output folder (point_cloud/iteration_*/point_cloud.ply and
+    cameras.json) to a campaign and its report with `seuwgpu demo`."""
+    import json
+
+    from seuwgpu.apps.cli import main
+    from seuwgpu.model.formats.ply import save_ply
+
+    run = tmp_path / "output" / "run"
+    for it in (7000, 30000):
+        (run / "point_cloud" / f"iteration_{it}").mkdir(parents=True)
+    save_ply(make_scene("spheres", n=1500), run / "point_cloud" / "iteration_30000" / "point_cloud.ply")
+    (run / "point_cloud" / "iteration_7000" / "point_cloud.ply").write_text("an older iteration, not read")
+    cams = []
+    for i, c in enumerate(scene_cameras("spheres", 5, 96, 64)):
+        R, t = c.viewmat[:3, :3].astype(float), c.viewmat[:3, 3].astype(float)
+        cams.append(
+            {
+                "id": i,
+                "img_name": f"{i:05d}",
+                "width": 96,
+                "height": 64,
+                "position": (-R.T @ t).tolist(),
+                "rotation": R.T.tolist(),
+                "fx": float(c.K[0, 0]),
+                "fy": float(c.K[1, 1]),
+            }
+        )
+    (run / "cameras.json").write_text(json.dumps(cams))
+    out = tmp_path / "runs" / "mine"
+    args = ["demo", "--model", str(run), "--cameras", str(run), "--views", "2", "--scale", "0.5"]
+    assert main([*args, "--samples", "1", "--quiet", "--out", str(out)]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["spec"]["scenes"][0]["cameras"] == str(run) and manifest["spec"]["scale"] == 0.5
+    assert (out / "report" / "index.html").is_file()

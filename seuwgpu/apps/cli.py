@@ -325,16 +325,34 @@ def cmd_demo(args):
     from importlib.resources import files
 
     from seuwgpu.campaign.spec import normalize_spec
+    from seuwgpu.model.scenes import is_capture, make_scene
 
-    raw = tomllib.loads(files("seuwgpu").joinpath("specs/default.toml").read_text())
-    if args.n is not None:
+    raw = tomllib.loads(files("seuwgpu.campaign.specs").joinpath("default.toml").read_text())
+    if args.model is not None or args.scene is not None:  # the default campaign on another model
+        raw["scenes"] = [{"model": str(args.model)} if args.model is not None else {"scene": args.scene}]
+        if args.scene is not None and args.n is None and is_capture(args.scene):
+            raw["scenes"][0]["n"] = make_scene(args.scene).n
+    if args.cameras is not None:
+        raw["scenes"][0]["cameras"] = str(args.cameras)
+    if args.up is not None:
+        raw["scenes"][0]["up"] = args.up
+    for key in ("views", "scale"):
+        if getattr(args, key) is not None:
+            raw[key] = getattr(args, key)
+    if args.size is not None:
+        raw["size"] = f"{args.size[0]}x{args.size[1]}"
+    if args.n is not None and "model" not in raw["scenes"][0]:
         raw["scenes"][0]["n"] = args.n
     if args.samples is not None:
         raw["single"]["samples"] = args.samples
     spec = normalize_spec(raw)
+    sc = spec["scenes"][0]
+    what = f"{sc['scene']} scene, {sc['n']} primitives" if "scene" in sc else f"model {sc['model']}"
+    views = f"{spec['views']} of the views in {sc['cameras']}" if "cameras" in sc else f"{spec['views']} views"
+    views += f" at {spec['size'][0]}x{spec['size'][1]}" if "cameras" not in sc else ""
+    views += f", scaled by {spec['scale']:g}" if "scale" in spec else ""
     print(
-        f"seuwgpu demo: {spec['scenes'][0]['scene']} scene, {spec['scenes'][0]['n']} primitives, "
-        f"{spec['views']} views at {spec['size'][0]}x{spec['size'][1]}, every field and bit at fp32, "
+        f"seuwgpu demo: {what}, {views}, every field and bit at fp32, "
         f"{spec['single']['samples']} samples per (field, bit) cell, defenses {spec['single']['defenses']}"
     )
     run_campaign(spec, args.out, quiet=args.quiet)
@@ -557,6 +575,14 @@ def build_parser() -> argparse.ArgumentParser:
         "demo", help="the main job: the default campaign on the embedded scene, then its criticality table"
     )
     s.add_argument("--out", type=Path, default=Path("runs/demo"))
+    src = s.add_mutually_exclusive_group()
+    src.add_argument("--model", "--ply", dest="model", type=Path, help="run it on this model file (any format)")
+    src.add_argument("--scene", help="run it on this embedded scene (`seuwgpu scene --list`)")
+    s.add_argument("--cameras", type=Path, help="the capture's cameras (any format `render` takes)")
+    s.add_argument("--views", type=int, help="orbit views, or this many of the capture's (default 4)")
+    s.add_argument("--size", type=parse_size, help="WxH of orbit views (default from the spec)")
+    s.add_argument("--scale", type=float, help="render at this fraction of the views' resolution")
+    s.add_argument("--up", choices=("+x", "-x", "+y", "-y", "+z", "-z"), help="up axis of the orbit views")
     s.add_argument("--n", type=int, help="primitives (default from the spec: 100000)")
     s.add_argument("--samples", type=int, help="samples per (field, bit) cell")
     s.add_argument("--quiet", action="store_true")

@@ -78,7 +78,7 @@ def detect_format(path) -> str:
     if not os.path.exists(spath):
         raise FileNotFoundError(f"{spath}: no such file")
     if os.path.isdir(spath):
-        raise ModelFileError(f"{spath}: is a folder, not a model file")
+        raise ModelFileError(f"{spath}: is a folder without point_cloud/iteration_*/point_cloud.ply (INRIA output)")
     size = os.path.getsize(spath)
     with open(spath, "rb") as f:
         head = f.read(4096)
@@ -107,7 +107,7 @@ def _ply_up(header: ply.PlyHeader) -> str | None:
 def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
     """Load any supported model file (see the module table). Raises ModelFileError (a ValueError)
     naming the file and the problem; warns (NonFiniteWarning) when the model holds NaN or Inf."""
-    spath = os.fspath(path)
+    spath = os.fspath(inria_output_model(path) if os.path.isdir(path) else path)
     fmt = detect_format(spath)
     notes: list[str] = []
     up = UP[fmt]
@@ -136,6 +136,17 @@ def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
             per = ", ".join(f"{f} {c}" for f, c in counts.items())
             warnings.warn(f"{spath}: the model holds {total} non-finite values ({per})", NonFiniteWarning)
     return ModelFile(model, Path(spath), fmt, up, notes)
+
+
+def inria_output_model(folder) -> Path:
+    """The last iteration's point_cloud.ply of an INRIA 3DGS output folder (or the folder itself,
+    which detect_format then refuses with a clear message)."""
+    found = []
+    for p in Path(folder).glob("point_cloud/iteration_*/point_cloud.ply"):
+        it = p.parent.name.removeprefix("iteration_")
+        if it.isdigit():
+            found.append((int(it), p))
+    return max(found)[1] if found else Path(folder)
 
 
 def load_model(path) -> Model:
