@@ -1,1 +1,0 @@
-from seuwgpu.gpu.device import GPU, get_gpu  # noqa: F401
