@@ -133,7 +133,15 @@ struct Recomp {
 };
 
 @group(0) @binding(10) var<uniform> rc: Recomp;
-@group(0) @binding(11) var<storage, read> entries: array<vec4<u32>>;   // (variant, view, tile, primitive)
+// One tile of one variant to re-composite.
+struct VariantEntry {
+    variant: u32,       // index of the variant's records (per view, n_variants apart)
+    view: u32,
+    tile: u32,
+    prim: u32,          // the primitive the variant changes
+};
+
+@group(0) @binding(11) var<storage, read> entries: array<VariantEntry>;
 @group(0) @binding(12) var<storage, read> kv_ranges: array<vec2<u32>>;
 @group(0) @binding(13) var<storage, read> kv_isect: array<u32>;
 @group(0) @binding(14) var<storage, read> kv_xy: array<vec2<f32>>;
@@ -199,10 +207,10 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         return;
     }
     let entry = entries[e];
-    let b = entry.x;
-    let v = entry.y;
-    let tile = entry.z;
-    let prim = entry.w;
+    let b = entry.variant;
+    let v = entry.view;
+    let tile = entry.tile;
+    let prim = entry.prim;
     let tx = tile % rc.tiles_x;
     let ty = tile / rc.tiles_x;
     let px = tx * TILE + lid.x;

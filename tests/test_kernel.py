@@ -153,3 +153,25 @@ def test_kernel_grid_splits_long_1d_dispatches(gpu):
     enc = gpu.device.create_command_encoder()
     with pytest.raises(ValueError, match="threads, workgroups or indirect"):
         k.dispatch(enc, {})
+
+
+def test_steady_state_work_creates_no_bind_group(gpu, monkeypatch):
+    """Once warm, rendering, injecting and incremental evaluation only look bind groups up."""
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.model.scenes import make_scene, scene_cameras
+
+    eng = Engine(make_scene("spheres", n=800, seed=1), scene_cameras("spheres", 2, 40, 32), "fp32")
+    sites = [eng.site("log_scales", p, 0, 31) for p in (3, 50, 400)]
+
+    def work():
+        eng.renderer.render()
+        eng.inject(sites[0], "guard")
+        eng.evaluate(sites, ("none", "ecc"))
+
+    work()
+    made = []
+    real = gpu.bind
+    monkeypatch.setattr(gpu, "bind", lambda *a, **kw: made.append(a) or real(*a, **kw))
+    work()
+    work()
+    assert made == []

@@ -38,6 +38,7 @@ no bind group.
 
 from __future__ import annotations
 
+import ast
 import functools
 import re
 import weakref
@@ -56,23 +57,45 @@ def _strip_comments(src: str) -> str:
     return re.sub(r"//[^\n]*", "", src)
 
 
+_INT_OPS = {
+    ast.Add: lambda a, b: a + b,
+    ast.Sub: lambda a, b: a - b,
+    ast.Mult: lambda a, b: a * b,
+    ast.Div: lambda a, b: a // b,  # WGSL integer division truncates (operands here are >= 0)
+    ast.Mod: lambda a, b: a % b,
+}
+
+
 def _eval_int(expr: str, values: dict) -> int | None:
-    """Integer value of a const expression of literals, known names and + - * / ( ), or None."""
-    expr = re.sub(r"\b(\d+)[ui]\b", r"\1", expr)  # literal suffixes: 4u -> 4
-    for n in re.findall(r"\b[A-Za-z_]\w*", expr):
-        if n not in values:
-            return None
-    text = re.sub(r"\b[A-Za-z_]\w*", lambda m: str(int(values[m.group(0)])), expr).replace("/", "//")
-    if not re.fullmatch(r"[\d\s+\-*/()]*", text) or not text.strip():
+    """Integer value of a WGSL const expression of integer literals, known names, + - * / % and
+    parentheses; None for anything else (floats, vectors, calls, unknown names)."""
+    expr = re.sub(r"\b(\d+)[ui]\b", r"\1", expr.strip())  # literal suffixes: 4u -> 4
+
+    def ev(node):
+        if isinstance(node, ast.Constant) and type(node.value) is int:
+            return node.value
+        if isinstance(node, ast.Name) and node.id in values:
+            return int(values[node.id])
+        if isinstance(node, ast.BinOp) and type(node.op) in _INT_OPS:
+            left, right = ev(node.left), ev(node.right)
+            return None if left is None or right is None else _INT_OPS[type(node.op)](left, right)
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+            v = ev(node.operand)
+            return None if v is None else -v
         return None
-    return int(eval(text, {"__builtins__": {}}))  # digits and operators only (checked above)
+
+    try:
+        return ev(ast.parse(expr, mode="eval").body)
+    except (SyntaxError, ZeroDivisionError):
+        return None
 
 
 def wgsl_constants(src: str, overrides: dict | None = None) -> dict:
     """Integer `const` and `override` values declared in a WGSL source (`overrides` replace the
     overrides' defaults), in declaration order; non-integer ones are left out."""
     values = dict(SHARED)
-    for kind, name, expr in re.findall(r"\b(const|override)\s+(\w+)\s*(?::\s*[\w<>]+)?\s*=\s*([^;]+);", src):
+    decl = r"\b(const|override)\s+(\w+)\s*(?::\s*[\w<>]+)?\s*=\s*([^;]+);"
+    for kind, name, expr in re.findall(decl, _strip_comments(src)):
         if kind == "override" and overrides and name in overrides:
             values[name] = int(overrides[name])
             continue

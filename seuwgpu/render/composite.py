@@ -65,21 +65,22 @@ class VariantCompositing:
         self.gpu = gpu
         self.kernel = Kernel(gpu, "composite", "variants")
         self.params = Uniforms(gpu, self.kernel.struct("Recomp"), 1, "recomp")
+        self.entry = self.kernel.struct("VariantEntry")
         self.max_entries = int(max_entries)
-        self.entries = gpu.buffer(16 * self.max_entries, STORAGE, "variants.entries")
+        self.entries = gpu.buffer(self.entry.size * self.max_entries, STORAGE, "variants.entries")
         self.slabs = gpu.buffer(SLAB_BYTES * self.max_entries, STORAGE, "variants.slabs")
 
-    def encode(self, encoder, entries: np.ndarray, kept: dict, variant: dict, clean_image, **params):
-        """Record the slabs of `entries` (u32 [E, 4]: variant, view, tile, primitive).
+    def encode(self, encoder, entries: dict, kept: dict, variant: dict, clean_image, **params):
+        """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}).
         kept: the clean frame's per-view `ranges`, `isect` (tile lists, `capacity` apart), `xy`,
         `conic`, `rgb` (w = depth) of n_prims records per view; variant: the variants' `xy`,
         `conic`, `rgb`, `rect` (n_variants per view); params: width, height, tiles_x, n_tiles,
         n_prims, n_variants, capacity, background. Queue writes: one encode per submission."""
-        n_e = len(entries)
+        n_e = len(entries["tile"])
         if n_e > self.max_entries:
             raise ValueError(f"{n_e} entries > max_entries={self.max_entries}")
         if n_e:
-            self.gpu.write(self.entries, np.ascontiguousarray(entries, np.uint32))
+            self.gpu.write(self.entries, self.entry.fill(self.entry.zeros(n_e), **entries))
         params["background"] = np.append(np.asarray(params["background"], np.float32), 0.0)
         self.params.struct.fill(self.params.rows[0:1], n_entries=n_e, **params)
         self.params.write()

@@ -123,10 +123,9 @@ class IncrementalCompositor:
         tile_map = np.full(dirty.shape, -1, dtype=np.int32)
         tile_map[b_idx, v_idx, t_idx] = np.arange(b_idx.size, dtype=np.int32)
         self.gpu.write(self.tile_map, tile_map)
-        entries = np.stack([b_idx + first, v_idx, t_idx, prims[b_idx]], axis=1).astype(np.uint32)
         self.compositing.encode(
             encoder,
-            entries,
+            {"variant": b_idx + first, "view": v_idx, "tile": t_idx, "prim": prims[b_idx]},
             kept={"ranges": r.kv_ranges, "isect": r.kv_isect, "xy": r.kv_xy, "conic": r.kv_conic, "rgb": r.kv_rgb},
             variant={"xy": p.xy, "conic": p.conic, "rgb": p.rgb, "rect": p.rect},
             clean_image=self.clean_buf,
