@@ -145,7 +145,7 @@ class ImageMetrics:
             8: self.indirect,
         }
         tile = {i: common[i] for i in range(7)}
-        cp = encoder.begin_compute_pass(label="metrics")
+        cp = encoder.begin_compute_pass()
         if n_entries is None:  # sparse: size from offsets[B*K] on the GPU
             self.k_dispatch.record(cp, {i: common[i] for i in (0, 5, 8)}, workgroups=(1, 1, 1))
             self.k_tile.record(cp, tile, indirect=(self.indirect, 0))
