@@ -154,7 +154,7 @@ class Scrub:
         gpu, L = renderer.gpu, renderer.layout
         self.gpu, self.layout, self.chunks = gpu, L, renderer.chunks
         self.kernel = Kernel(gpu, "guard")
-        self.box = gpu.buffer(16 * L.ncomp, STORAGE, "scrub.box")
+        self.box = gpu.buffer(self.kernel.struct("Bound").size * L.ncomp, STORAGE, "scrub.box")
         self.layout_counts = self.kernel.struct("ClampCounts")
         self.per_prim_at = self.layout_counts.offset("per_primitive")
         self.counts = gpu.buffer(self.per_prim_at + 4 * L.n, STORAGE, "scrub.counts")

@@ -74,15 +74,15 @@ class Renderer:
         # Host copy of the clean stored words: flips are undone against it, variants built from it.
         self.clean_words = self.layout.encode(model)
         self.chunks = [self.gpu.upload(w, STORAGE, f"model-chunk-{k}") for k, w in enumerate(self.clean_words)]
-        # In-pipeline guard state (off by default): box of the clean model and clamp counters.
-        self.guard_mask = 0
-        self.box_buf = self.gpu.buffer(16 * self.layout.ncomp, STORAGE, "box")
-        self.guard_counts = self.gpu.buffer(4 * 8, STORAGE, "guard_counts")
-        # the stages
         self.projection = Projection(self.gpu, self.n)
         self.sorting = Sorting(self.gpu, self.n)
         self.binning = Binning(self.gpu, self.n)
         self.compositing = Compositing(self.gpu)
+        # In-pipeline guard state (off by default): box of the clean model and clamp counters.
+        self.guard_mask = 0
+        bound = self.projection.kernel.struct("Bound")
+        self.box_buf = self.gpu.buffer(bound.size * self.layout.ncomp, STORAGE, "box")
+        self.guard_counts = self.gpu.buffer(4 * 8, STORAGE, "guard_counts")
         self.max_capacity = self.gpu.max_binding // 4
         self.capacity = 0
         self.version = 0  # bumped when the intersection / kept-view buffers are replaced
