@@ -1,5 +1,8 @@
-// Shared helpers, prepended to every stage by seuwgpu/gpu/device.py.
+// Shared helpers, compiled into every stage after the generated constants header (TILE, WG,
+// MAX_GROUPS_X, FMT_*: seuwgpu/gpu/constants.py) by seuwgpu/gpu/device.py.
 // Non-finite values are detected on the raw bits: compilers may assume finite math.
+
+const TILE_PIXELS: u32 = TILE * TILE;
 
 fn is_finite_f32(x: f32) -> bool {
     return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u;
@@ -26,17 +29,17 @@ fn f16_bits_to_f32(h: u32) -> f32 {
     return bitcast<f32>(s | ((e + 112u) << 23u) | (m << 13u));
 }
 
-// Decode one stored value. fmt: 0 = fp32, 1 = fp16, 2 = bf16.
+// Decode one stored value. fmt: FMT_FP32, FMT_FP16 or FMT_BF16.
 // `hi` selects the high half for 16-bit formats.
 fn decode_value(word: u32, hi: bool, fmt: u32) -> f32 {
-    if (fmt == 0u) {
+    if (fmt == FMT_FP32) {
         return bitcast<f32>(word);
     }
     var h = word & 0xffffu;
     if (hi) {
         h = word >> 16u;
     }
-    if (fmt == 2u) {
+    if (fmt == FMT_BF16) {
         return bitcast<f32>(h << 16u);
     }
     return f16_bits_to_f32(h);
@@ -87,7 +90,12 @@ fn linear_wg(wg: vec3<u32>, nwg: vec3<u32>) -> u32 {
     return wg.y * nwg.x + wg.x;
 }
 
-// Per-view tile-binning parameters shared by tiles/emit/ranges/composite.
+// Linear invocation id of a one-thread-per-element kernel (@workgroup_size(WG)) under dispatch_dims().
+fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
+    return gid.x + gid.y * nwg.x * WG;
+}
+
+// Per-view tile-binning parameters shared by bin.wgsl and composite.wgsl (render/bin.py).
 struct Binning {
     n_total: u32,       // primitives in the model
     tiles_x: u32,
@@ -98,6 +106,15 @@ struct Binning {
     height: u32,
     origin: u32,        // viewport origin in pixels (x | y << 16), tile-aligned; 0 for a full frame
     background: vec4<f32>,
+};
+
+// Support-guard box of one stored component (faults/guard.py Box): bounds as f32 and as the
+// stored bits written back by the scrub (fp32 word or 16-bit half).
+struct Bound {
+    lo: f32,
+    hi: f32,
+    lo_bits: u32,
+    hi_bits: u32,
 };
 
 // Field index (means 0, log_scales 1, quats 2, opacity 3, sh_dc 4, sh_rest 5) of a flat component.

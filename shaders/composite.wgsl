@@ -1,16 +1,16 @@
-// Front-to-back compositing: one 16x16 workgroup per tile, intersections staged through
-// workgroup memory in batches of 256. Rules (skips, NaN-propagating min, early stop) are in
-// docs/renderer.md. Output pixel = (C + T * background, T).
+// Front-to-back compositing (render/composite.py): one TILE x TILE workgroup per tile,
+// intersections staged through workgroup memory in batches of TILE_PIXELS. Rules (skips,
+// NaN-propagating min, early stop) are in docs/renderer.md. Output pixel = (C + T * background, T).
 //
 // Two entry points share the blending code, so their arithmetic is identical bit for bit:
 // - main: a tile of a full frame;
 // - variants: a tile of a single-upset variant, re-composited from the clean frame's tile list
 //   with the corrupted primitive removed and its re-projected record merged in at its depth
-//   (the incremental path of campaigns; equal to a full re-render bit for bit).
+//   (render/incremental.py; equal to a full re-render bit for bit).
 
-var<workgroup> s_xy: array<vec2<f32>, 256>;
-var<workgroup> s_conic: array<vec4<f32>, 256>;
-var<workgroup> s_rgb: array<vec4<f32>, 256>;
+var<workgroup> s_xy: array<vec2<f32>, TILE_PIXELS>;
+var<workgroup> s_conic: array<vec4<f32>, TILE_PIXELS>;
+var<workgroup> s_rgb: array<vec4<f32>, TILE_PIXELS>;
 var<workgroup> s_done: atomic<u32>;
 var<workgroup> s_all_done: u32;
 
@@ -76,7 +76,7 @@ fn all_done(li: u32) -> bool {
     if (li == 0u) {
         s_all_done = atomicLoad(&s_done);
     }
-    return workgroupUniformLoad(&s_all_done) == 256u;
+    return workgroupUniformLoad(&s_all_done) == TILE_PIXELS;
 }
 
 // ---- full frame -----------------------------------------------------------------------------
@@ -88,20 +88,20 @@ fn all_done(li: u32) -> bool {
 @group(0) @binding(5) var<storage, read> proj_rgb: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read_write> image: array<vec4<f32>>;
 
-@compute @workgroup_size(16, 16)
+@compute @workgroup_size(TILE, TILE)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
         @builtin(local_invocation_index) li: u32) {
     let tile = wg.y * bin.tiles_x + wg.x;
-    let px = wg.x * 16u + lid.x;
-    let py = wg.y * 16u + lid.y;
+    let px = wg.x * TILE + lid.x;
+    let py = wg.y * TILE + lid.y;
     let inside = px < bin.width && py < bin.height;
     // pixel centres in full-frame coordinates (a sort-first region starts at `origin`)
     var p = begin_pixel(li, inside, px + (bin.origin & 0xffffu), py + (bin.origin >> 16u));
     let range = ranges[tile];
     let n = range.y - range.x;
-    let batches = (n + 255u) / 256u;
+    let batches = (n + TILE_PIXELS - 1u) / TILE_PIXELS;
     for (var b = 0u; b < batches; b = b + 1u) {
-        let idx = range.x + b * 256u + li;
+        let idx = range.x + b * TILE_PIXELS + li;
         if (idx < range.y) {
             let g = isect_prims[idx];
             s_xy[li] = proj_xy[g];
@@ -109,7 +109,7 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
             s_rgb[li] = proj_rgb[g];
         }
         workgroupBarrier();
-        blend_batch(&p, min(256u, n - b * 256u));
+        blend_batch(&p, min(TILE_PIXELS, n - b * TILE_PIXELS));
         if (all_done(li)) {
             break;
         }
@@ -133,7 +133,15 @@ struct Recomp {
 };
 
 @group(0) @binding(10) var<uniform> rc: Recomp;
-@group(0) @binding(11) var<storage, read> entries: array<vec4<u32>>;   // (variant, view, tile, primitive)
+// One tile of one variant to re-composite.
+struct VariantEntry {
+    variant: u32,       // index of the variant's records (per view, n_variants apart)
+    view: u32,
+    tile: u32,
+    prim: u32,          // the primitive the variant changes
+};
+
+@group(0) @binding(11) var<storage, read> entries: array<VariantEntry>;
 @group(0) @binding(12) var<storage, read> kv_ranges: array<vec2<u32>>;
 @group(0) @binding(13) var<storage, read> kv_isect: array<u32>;
 @group(0) @binding(14) var<storage, read> kv_xy: array<vec2<f32>>;
@@ -191,7 +199,7 @@ fn count_before(v: u32, start: u32, end: u32, key: u32, idx: u32) -> u32 {
     return lo - start;
 }
 
-@compute @workgroup_size(16, 16)
+@compute @workgroup_size(TILE, TILE)
 fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
             @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     let e = linear_wg(wg, nwg);
@@ -199,14 +207,14 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         return;
     }
     let entry = entries[e];
-    let b = entry.x;
-    let v = entry.y;
-    let tile = entry.z;
-    let prim = entry.w;
+    let b = entry.variant;
+    let v = entry.view;
+    let tile = entry.tile;
+    let prim = entry.prim;
     let tx = tile % rc.tiles_x;
     let ty = tile / rc.tiles_x;
-    let px = tx * 16u + lid.x;
-    let py = ty * 16u + lid.y;
+    let px = tx * TILE + lid.x;
+    let py = ty * TILE + lid.y;
     let inside = px < rc.width && py < rc.height;
     var p = begin_pixel(li, inside, px, py);
     let range = kv_ranges[v * rc.n_tiles + tile];
@@ -250,9 +258,9 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
             atomicAdd(&s_done, 1u);
         }
     }
-    let batches = (nv + 255u) / 256u;
+    let batches = (nv + TILE_PIXELS - 1u) / TILE_PIXELS;
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
-        let i = bt * 256u + li;
+        let i = bt * TILE_PIXELS + li;
         if (i < nv) {
             if (i == insert) {
                 s_xy[li] = var_xy[vi];
@@ -270,14 +278,14 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
             }
         }
         workgroupBarrier();
-        blend_batch(&p, min(256u, nv - bt * 256u));
+        blend_batch(&p, min(TILE_PIXELS, nv - bt * TILE_PIXELS));
         if (all_done(li)) {
             break;
         }
     }
     if (copy_clean) {
-        slabs[e * 256u + li] = clean_image[(v * rc.height + py) * rc.width + px];
+        slabs[e * TILE_PIXELS + li] = clean_image[(v * rc.height + py) * rc.width + px];
     } else {
-        slabs[e * 256u + li] = vec4<f32>(p.C + p.T * rc.background.xyz, p.T);
+        slabs[e * TILE_PIXELS + li] = vec4<f32>(p.C + p.T * rc.background.xyz, p.T);
     }
 }

@@ -1,9 +1,9 @@
-// Per-injection image-difference reductions (seuwgpu/metrics.py drives these kernels).
+// Per-injection image-difference reductions (seuwgpu/metrics/image.py drives these kernels).
 //
 // Images are float32 RGBA, 4 floats per pixel (rgb + final transmittance; the 4th channel is
 // ignored). clean: [K, H, W] vec4. Faulted variants, two storage modes (params.sparse):
 //   dense  (0): fimg = faulted [B, K, H, W] vec4, row-major;
-//   sparse (1): fimg = slabs [S, 256] vec4 (one 16x16 tile per slab, pixel (tx, ty) at ty*16+tx),
+//   sparse (1): fimg = slabs [S, TILE_PIXELS] vec4 (one tile per slab, pixel (tx, ty) at ty*TILE+tx),
 //               tile_map i32 [B, K, TY*TX]: slab of that tile of variant b / view k, or -1 =
 //               "identical to clean".
 // Work list: one entry per (b, k, tile) to evaluate. Dense: every tile, implicit (entry e is
@@ -34,19 +34,18 @@
 // windows give e1 = e2 = 0 exactly, i.e. SSIM exactly 1 whatever the compiler does with the
 // division (no reliance on x / x == 1).
 //
-// Reductions are portable: one 64-thread workgroup per work-list entry (tile) reduces its
+// Reductions are portable: one M_THREADS-thread workgroup per work-list entry (tile) reduces its
 // pixels in workgroup memory in a fixed order and writes one partial record; a second kernel, one
 // thread per (b, k), adds its entries' partials sequentially in entry order. Inserting entries
 // whose partials are zero therefore leaves every sum bit-identical, which is why sparse mode
 // (with a work list covering the changed tiles dilated by one tile) equals dense mode exactly.
 // No float atomics.
 //
-// Record layout (partials [E, 6] and results [B*K, 6], 32-bit words):
-//   0 changed (u32)  1 peak (f32)  2 sse (f32)  3 nonfinite (u32)  4 ssim deficit (f32)
-//   5 ssim count (u32)
-// results[0..3] is a status header: [0] = entries requested (sparse: offsets[B*K]),
-// [1] = entries evaluated (min with capacity), [2] = sparse flag; records start at word 4.
-// Workgroup memory: 15.5 KB (WebGPU's default limit is 16 KiB), all written before it is read.
+// Records (partials [E] and results [B*K]): MetricsRecord; the results buffer starts with a
+// MetricsStatus (entries requested (sparse: offsets[B*K]), entries evaluated (min with
+// capacity), sparse flag). The host reads both through the same structs (gpu/kernel.py Struct).
+// Workgroup memory: 15.5 KB at TILE = 16 (WebGPU's default limit is 16 KiB), all written before
+// it is read.
 
 struct MetricsParams {
     width: u32,
@@ -65,22 +64,41 @@ struct MetricsParams {
 @group(0) @binding(3) var<storage, read> m_tile_map: array<i32>;
 @group(0) @binding(4) var<storage, read> m_worklist: array<u32>;
 @group(0) @binding(5) var<storage, read> m_offsets: array<u32>;
-@group(0) @binding(6) var<storage, read_write> m_partials: array<u32>;
-@group(0) @binding(7) var<storage, read_write> m_results: array<u32>;
+struct MetricsRecord {
+    changed: u32,
+    peak: f32,
+    sse: f32,
+    nonfinite: u32,
+    deficit: f32,       // SSIM deficit
+    count: u32,         // SSIM window centres
+};
+
+struct MetricsStatus {
+    requested: u32,
+    evaluated: u32,
+    sparse: u32,
+    _pad: u32,
+};
+
+struct MetricsResults {
+    status: MetricsStatus,
+    records: array<MetricsRecord>,
+};
+
+@group(0) @binding(6) var<storage, read_write> m_partials: array<MetricsRecord>;
+@group(0) @binding(7) var<storage, read_write> m_results: MetricsResults;
 @group(0) @binding(8) var<storage, read_write> m_indirect: array<u32>;
 
-const M_REC: u32 = 6u;
-const M_HDR: u32 = 4u;
-const M_SPAN: u32 = 22u;            // 16 + 2 * 3 halo
-const M_PLANE: u32 = 484u;          // 22 * 22
+const M_THREADS: u32 = TILE_PIXELS / 4u;  // 4 vertically adjacent pixels per thread
+const M_SPAN: u32 = TILE + 6u;            // a tile and its 3-px SSIM halo on each side
+const M_PLANE: u32 = M_SPAN * M_SPAN;
 const M_THR: f32 = 1.0 / 255.0;
 const M_C1: f32 = 0.0001;           // (0.01 * 1)^2
 const M_C2: f32 = 0.0009;           // (0.03 * 1)^2
-const M_MAX_X: u32 = 32768u;        // = dispatch_dims max_x
 
 // Display-referred rgb of the tile plus its 3-px halo: clean at [i], faulted at [M_PLANE + i]
 // (i = hy * 22 + hx). Reused for the reduction once SSIM is done.
-var<workgroup> m_blk: array<vec4<f32>, 968>;
+var<workgroup> m_blk: array<vec4<f32>, 2u * M_PLANE>;
 var<workgroup> m_differs: atomic<u32>;
 
 fn m_inf() -> f32 {
@@ -118,12 +136,12 @@ fn m_faulted_px(bk: u32, k: u32, x: u32, y: u32) -> vec4<f32> {
     if (mp.sparse == 0u) {
         return m_fimg[(bk * mp.height + y) * mp.width + x];
     }
-    let t = (y >> 4u) * mp.tiles_x + (x >> 4u);
+    let t = (y / TILE) * mp.tiles_x + (x / TILE);
     let s = m_tile_map[bk * mp.n_tiles + t];
     if (s < 0) {
         return m_clean_px(k, x, y);
     }
-    return m_fimg[u32(s) * 256u + (y & 15u) * 16u + (x & 15u)];
+    return m_fimg[u32(s) * TILE_PIXELS + (y % TILE) * TILE + (x % TILE)];
 }
 
 // bk of entry e in sparse mode: the largest bk with offsets[bk] <= e.
@@ -214,10 +232,10 @@ fn m_ssim4(wx: u32, wy: u32) -> vec4<f32> {
                      m_deficit(ux2, uy2, a2), m_deficit(ux3, uy3, a3));
 }
 
-// One 64-thread workgroup per work-list entry (a 16x16 tile of one (variant, view)); each thread
+// One M_THREADS-thread workgroup per work-list entry (a tile of one (variant, view)); each thread
 // owns 4 pixels. Barriers are few on purpose: lavapipe runs barrier-separated phases as
 // coroutines, and each barrier costs a switch per SIMD group.
-@compute @workgroup_size(64)
+@compute @workgroup_size(M_THREADS)
 fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                  @builtin(local_invocation_index) tid: u32) {
     let e = linear_wg(wg, nwg);
@@ -238,8 +256,8 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     let k = bk % mp.n_views;
     let W = mp.width;
     let H = mp.height;
-    let ox = (tile % mp.tiles_x) * 16u;
-    let oy = (tile / mp.tiles_x) * 16u;
+    let ox = (tile % mp.tiles_x) * TILE;
+    let oy = (tile / mp.tiles_x) * TILE;
 
     if (tid == 0u) {
         atomicStore(&m_differs, 0u);
@@ -253,7 +271,7 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     var peak = 0.0;
     var sse = 0.0;
     var differs = false;
-    for (var i = tid; i < M_PLANE; i += 64u) {
+    for (var i = tid; i < M_PLANE; i += M_THREADS) {
         let hx = i % M_SPAN;
         let hy = i / M_SPAN;
         let gx = i32(ox + hx) - 3;
@@ -265,7 +283,7 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
             let f = m_faulted_px(bk, k, u32(gx), u32(gy));
             cd = m_disp3(c);
             fd = m_disp3(f);
-            if (hx >= 3u && hx < 19u && hy >= 3u && hy < 19u) {
+            if (hx >= 3u && hx < TILE + 3u && hy >= 3u && hy < TILE + 3u) {
                 var bad = false;
                 var over = false;
                 var pk = 0.0;
@@ -316,8 +334,8 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     let any_diff = atomicLoad(&m_differs);
     var count = 0.0;
     var deficit = 0.0;
-    let lx = tid & 15u;
-    let ly0 = (tid >> 4u) * 4u;             // this thread's centres: (lx, ly0 .. ly0 + 3)
+    let lx = tid % TILE;
+    let ly0 = (tid / TILE) * 4u;            // this thread's centres: (lx, ly0 .. ly0 + 3)
     let x = ox + lx;
     let y = vec4<u32>(oy + ly0) + vec4<u32>(0u, 1u, 2u, 3u);
     let col_ok = valid_tile && x >= 3u && x + 3u < W;
@@ -331,41 +349,34 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
         }
     }
 
-    // ---- workgroup reduction: thread 0 adds the 64 per-thread records in order ----
+    // ---- workgroup reduction: thread 0 adds the M_THREADS per-thread records in order ----
     workgroupBarrier();
     m_blk[tid] = vec4<f32>(changed, peak, sse, nonfin);
-    m_blk[64u + tid] = vec4<f32>(deficit, count, 0.0, 0.0);
+    m_blk[M_THREADS + tid] = vec4<f32>(deficit, count, 0.0, 0.0);
     workgroupBarrier();
     if (tid == 0u) {
         var r_sum = vec4<f32>(0.0);     // changed, -, sse, nonfinite
         var r_peak = 0.0;
         var r_ssim = vec2<f32>(0.0);    // deficit, count
-        for (var t = 0u; t < 64u; t++) {
+        for (var t = 0u; t < M_THREADS; t++) {
             let v = m_blk[t];
             r_sum += vec4<f32>(v.x, 0.0, v.z, v.w);
             r_peak = max(r_peak, v.y);
-            r_ssim += m_blk[64u + t].xy;
+            r_ssim += m_blk[M_THREADS + t].xy;
         }
         let r_changed = r_sum.x;
         let r_sse = r_sum.z;
         let r_nonfin = r_sum.w;
         let r_deficit = r_ssim.x;
         let r_count = r_ssim.y;
-        let r = e * M_REC;
-        m_partials[r] = u32(r_changed);
-        m_partials[r + 1u] = bitcast<u32>(r_peak);
-        m_partials[r + 2u] = bitcast<u32>(r_sse);
-        m_partials[r + 3u] = u32(r_nonfin);
-        m_partials[r + 4u] = bitcast<u32>(r_deficit);
-        m_partials[r + 5u] = u32(r_count);
+        m_partials[e] = MetricsRecord(u32(r_changed), r_peak, r_sse, u32(r_nonfin), r_deficit, u32(r_count));
     }
 }
 
 // One thread per (b, k): sequential sum of its entries' partials, in entry order.
-@compute @workgroup_size(64)
-fn reduce_entries(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-                  @builtin(local_invocation_index) lidx: u32) {
-    let bk = linear_wg(wg, nwg) * 64u + lidx;
+@compute @workgroup_size(WG)
+fn reduce_entries(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let bk = linear_id(gid, nwg);
     if (bk >= mp.n_bk) {
         return;
     }
@@ -384,26 +395,17 @@ fn reduce_entries(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups)
     var deficit = 0.0;
     var count = 0u;
     for (var e = lo; e < hi; e++) {
-        let r = e * M_REC;
-        changed += m_partials[r];
-        peak = max(peak, bitcast<f32>(m_partials[r + 1u]));
-        sse += bitcast<f32>(m_partials[r + 2u]);
-        nonfin += m_partials[r + 3u];
-        deficit += bitcast<f32>(m_partials[r + 4u]);
-        count += m_partials[r + 5u];
+        let r = m_partials[e];
+        changed += r.changed;
+        peak = max(peak, r.peak);
+        sse += r.sse;
+        nonfin += r.nonfinite;
+        deficit += r.deficit;
+        count += r.count;
     }
-    let o = M_HDR + bk * M_REC;
-    m_results[o] = changed;
-    m_results[o + 1u] = bitcast<u32>(peak);
-    m_results[o + 2u] = bitcast<u32>(sse);
-    m_results[o + 3u] = nonfin;
-    m_results[o + 4u] = bitcast<u32>(deficit);
-    m_results[o + 5u] = count;
+    m_results.records[bk] = MetricsRecord(changed, peak, sse, nonfin, deficit, count);
     if (bk == 0u) {
-        m_results[0] = m_entries();
-        m_results[1] = n_eval;
-        m_results[2] = mp.sparse;
-        m_results[3] = 0u;
+        m_results.status = MetricsStatus(m_entries(), n_eval, mp.sparse, 0u);
     }
 }
 
@@ -411,8 +413,8 @@ fn reduce_entries(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups)
 @compute @workgroup_size(1)
 fn sparse_dispatch() {
     let n = min(m_entries(), mp.capacity);
-    var gx = min(n, M_MAX_X);
-    var gy = (n + M_MAX_X - 1u) / M_MAX_X;
+    var gx = min(n, MAX_GROUPS_X);
+    var gy = (n + MAX_GROUPS_X - 1u) / MAX_GROUPS_X;
     if (n == 0u) {
         gx = 0u;
         gy = 1u;

@@ -1,5 +1,5 @@
-// Projection: decode the stored primitive, EWA-project it into one view, evaluate SH colour, and
-// compute its tile rectangle. One thread per primitive of one model chunk.
+// Projection (render/project.py): decode the stored primitive, EWA-project it into one view,
+// evaluate SH colour, and compute its tile rectangle. One thread per primitive of one model chunk.
 // Rules (culling, unbounded footprints, saturating rectangles) are in docs/renderer.md.
 
 struct View {
@@ -16,20 +16,13 @@ struct View {
     chunk_count: u32,         // primitives in this chunk
     plane_words: u32,         // u32 words per component plane
     sh_degree: u32,
-    fmt: u32,                 // 0 fp32, 1 fp16, 2 bf16
+    fmt: u32,                 // FMT_FP32, FMT_FP16, FMT_BF16
     view_index: u32,
     guard_lo: u32,            // in-pipeline guard: components 0..31 to clamp
     guard_hi: u32,            // components 32..63
     tile_x0: f32,             // viewport origin in tiles (sort-first regions); 0 for a full frame
     tile_y0: f32,
     _p2: u32,
-};
-
-struct Bound {
-    lo: f32,
-    hi: f32,
-    lo_bits: u32,
-    hi_bits: u32,
 };
 
 @group(0) @binding(0) var<uniform> view: View;
@@ -48,7 +41,7 @@ const SH_C0: f32 = 0.28209479177387814;
 const SH_C1: f32 = 0.4886025119029199;
 
 fn stored(j: u32, c: u32) -> f32 {
-    if (view.fmt == 0u) {
+    if (view.fmt == FMT_FP32) {
         return bitcast<f32>(model[c * view.plane_words + j]);
     }
     let w = model[c * view.plane_words + (j >> 1u)];
@@ -138,9 +131,9 @@ fn pack_rect(x0: f32, y0: f32, x1: f32, y1: f32) -> vec2<u32> {
     return vec2<u32>(u32(x0) | (u32(y0) << 16u), u32(x1) | (u32(y1) << 16u));
 }
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let j = gid.x + gid.y * nwg.x * 256u;
+    let j = linear_id(gid, nwg);
     if (j >= view.chunk_count) {
         return;
     }
@@ -221,10 +214,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         let rx = ceil(3.33 * sqrt(a));
         let ry = ceil(3.33 * sqrt(c));
         // Float-domain clamp before integer conversion: the saturating radius.
-        let x0 = clamp(floor((mx - rx) / 16.0) - view.tile_x0, 0.0, tiles_x);
-        let x1 = clamp(ceil((mx + rx) / 16.0) - view.tile_x0, 0.0, tiles_x);
-        let y0 = clamp(floor((my - ry) / 16.0) - view.tile_y0, 0.0, tiles_y);
-        let y1 = clamp(ceil((my + ry) / 16.0) - view.tile_y0, 0.0, tiles_y);
+        let x0 = clamp(floor((mx - rx) / f32(TILE)) - view.tile_x0, 0.0, tiles_x);
+        let x1 = clamp(ceil((mx + rx) / f32(TILE)) - view.tile_x0, 0.0, tiles_x);
+        let y0 = clamp(floor((my - ry) / f32(TILE)) - view.tile_y0, 0.0, tiles_y);
+        let y1 = clamp(ceil((my + ry) / f32(TILE)) - view.tile_y0, 0.0, tiles_y);
         if (x1 <= x0 || y1 <= y0) {
             cull(g);
             return;

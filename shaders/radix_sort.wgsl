@@ -1,6 +1,6 @@
 // Stable LSD radix sort of (u32 key, u32 value) pairs, 4 bits per pass (seuwgpu/gpu/sort.py).
 //
-// A block is 256 threads x RS_PER elements; each thread owns RS_PER contiguous elements. Per pass:
+// A block is WG (256) threads x RS_PER elements; each thread owns RS_PER contiguous elements. Per pass:
 // `rs_upsweep` counts each thread's digits, scans them over the workgroup and stores the block's
 // digit counts in hist[digit * blocks + block] and each thread's first position per digit inside
 // the block in rs_offs; PrefixSum scans the digit-major hist, so hist[d * blocks + b] becomes the
@@ -25,14 +25,14 @@
 // Elements per thread, a multiple of 4 in [4, 252]. sort.py: 64 on CPU adapters (fewer
 // workgroups, so fewer barriers), 16 on GPUs (enough workgroups to fill the device).
 override RS_PER: u32 = 16u;
-override RS_BLOCK: u32 = 256u * RS_PER;
+override RS_BLOCK: u32 = WG * RS_PER;
 // Workgroups per dispatch row; larger grids are 2-D (overridable so that tests reach that path).
-override RS_MAX_X: u32 = 32768u;
+override RS_MAX_X: u32 = MAX_GROUPS_X;
 // Outputs span two bindings (sort.py sets it only then: the branch costs lavapipe per element).
 override RS_TWO_PARTS: bool = false;
-// Plan buffer layout (u32 words): [0] count, [1] blocks, [2] 16 * blocks (the scan's count),
-// [4 + 3c ..) indirect args of chunk c.
-const RS_ARGS: u32 = 4u;
+// Plan buffer layout (u32 words; RS_HIST_COUNT, RS_ARGS and RS_OFFS from sort.py's RADIX_PLAN):
+// [0] count, [1] blocks, [RS_HIST_COUNT] 16 * blocks (the scan's count), [RS_ARGS + 3c ..)
+// indirect args of chunk c.
 
 struct RsPass {
     shift: u32,   // digit = (key >> shift) & mask
@@ -73,13 +73,12 @@ struct RsPlanArgs {
 // them without a ninth storage binding.
 @group(0) @binding(14) var<storage, read> rs_offs: array<vec4<u32>>;
 @group(0) @binding(15) var<storage, read_write> rs_offs_w: array<vec4<u32>>;
-@group(1) @binding(0) var<uniform> rs_pass: RsPass;
-
-const RS_OFFS: u32 = 16u;   // 256-byte header
+// This dispatch's slot of the sorter's pass table (bound at an offset, with the arrays).
+@group(0) @binding(16) var<uniform> rs_pass: RsPass;
 
 // Upsweep scratch: per-thread counts, 16-bit fields: [half][thread] (half 0 = digits 0..7), and
 // [half][16 thread groups] partial sums. 8.5 KiB.
-var<workgroup> rs_cnt: array<vec4<u32>, 512>;
+var<workgroup> rs_cnt: array<vec4<u32>, 2u * WG>;
 var<workgroup> rs_part: array<vec4<u32>, 32>;
 
 @compute @workgroup_size(1)
@@ -88,7 +87,7 @@ fn rs_plan_main() {
     let nb = (n + RS_BLOCK - 1u) / RS_BLOCK;
     rs_plan_w[0] = n;
     rs_plan_w[1] = nb;
-    rs_plan_w[2] = nb * 16u;
+    rs_plan_w[RS_HIST_COUNT] = nb * 16u;
     rs_plan_w[3] = 0u;
     let bpc = rs_pargs.chunk / RS_BLOCK;
     for (var c = 0u; c < rs_pargs.nch; c++) {
@@ -160,7 +159,7 @@ fn rs_widen(a: u32, b: u32) -> vec4<u32> {
 // Upsweep: digit counts of the block into hist[digit * blocks + block] and each thread's first
 // position per digit within the block into rs_offs (exclusive scan over the threads), so that
 // the scatter needs neither workgroup memory nor barriers (each barrier costs lavapipe ~5 us).
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG)
 fn rs_upsweep(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
               @builtin(local_invocation_index) t: u32) {
     let wid = linear_wg(wg, nwg);
@@ -173,11 +172,11 @@ fn rs_upsweep(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
     let lbase = wid * RS_BLOCK + t * RS_PER;
     let c = rs_count_run(lbase, block * RS_BLOCK + t * RS_PER, n);
     rs_cnt[t] = rs_widen(c.x, c.y);
-    rs_cnt[256u + t] = rs_widen(c.z, c.w);
+    rs_cnt[WG + t] = rs_widen(c.z, c.w);
     workgroupBarrier();
     // 32 threads scan 16 threads' counts each (half t / 16, threads 16 (t % 16) .. + 15) ...
     if (t < 32u) {
-        let b = (t >> 4u) * 256u + (t & 15u) * 16u;
+        let b = (t >> 4u) * WG + (t & 15u) * 16u;
         var acc = vec4<u32>(0u);
         for (var k = 0u; k < 16u; k++) {
             let x = rs_cnt[b + k];
@@ -207,15 +206,15 @@ fn rs_upsweep(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
         rs_hist_w[(d0 + 7u) * nb + block] = acc.w >> 16u;
     }
     workgroupBarrier();
-    let o = RS_OFFS + 2u * (block * 256u + t);
+    let o = RS_OFFS + 2u * (block * WG + t);
     rs_offs_w[o] = rs_cnt[t] + rs_part[t >> 4u];
-    rs_offs_w[o + 1u] = rs_cnt[256u + t] + rs_part[16u + (t >> 4u)];
+    rs_offs_w[o + 1u] = rs_cnt[WG + t] + rs_part[16u + (t >> 4u)];
 }
 
 // Scatter: each thread walks its run in order and writes every pair to its digit's scanned
 // block base + the thread's first position in the block (upsweep) + its rank among equal digits
 // so far in the run (8-bit counters in registers). No workgroup memory, no barrier.
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG)
 fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
               @builtin(local_invocation_index) t: u32) {
     let wid = linear_wg(wg, nwg);
@@ -228,7 +227,7 @@ fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
     let block = rs_pass.block0 + wid;
     let lbase = wid * RS_BLOCK + t * RS_PER;
     let gbase = block * RS_BLOCK + t * RS_PER;
-    let o = RS_OFFS + 2u * (block * 256u + t);
+    let o = RS_OFFS + 2u * (block * WG + t);
     let lo = rs_offs[o];
     let hi = rs_offs[o + 1u];
     // Output position of this thread's first element of each digit: f0..f3 (digit d at [d/4][d%4]);
@@ -269,7 +268,7 @@ fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
 // time (a partial last vec4 is copied whole: the destination is internal). An odd number of
 // passes starts from the internal buffers so that the result ends in the caller's. Each thread
 // copies short contiguous runs (measured faster on lavapipe than strided or long runs).
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG)
 fn rs_copy(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
            @builtin(local_invocation_index) t: u32) {
     let wid = linear_wg(wg, nwg);

@@ -1,13 +1,13 @@
 // Exclusive prefix sum of u32 (seuwgpu/gpu/sort.py: PrefixSum), reduce-then-scan.
 //
-// A block is 256 threads x PS_PER elements; each thread owns PS_PER contiguous elements. Levels: the
+// A block is WG (256) threads x PS_PER elements; each thread owns PS_PER contiguous elements. Levels: the
 // data (level 0) is reduced to one sum per block (level 1), and so on until a level fits one
 // block; that level is scanned by a single workgroup ("top"), then each lower level is scanned
 // block by block with its block's offset from the level above ("downsweep"). No inter-workgroup
 // communication inside a dispatch, so no forward-progress assumption.
 //
 // Counts are dynamic: `ps_plan_main` turns a count read from a buffer into per-level counts and
-// indirect dispatch arguments (a 2-D grid when a level has more than 32768 blocks). Arrays larger
+// indirect dispatch arguments (a 2-D grid when a level has more than MAX_GROUPS_X blocks). Arrays larger
 // than one storage binding are processed in chunks: every block kernel is dispatched once per
 // chunk, with its arrays bound at the chunk's offset and the chunk's first block in `ps_pass`.
 //
@@ -19,12 +19,11 @@
 // Elements per thread, a multiple of 4 (sort.py: 64 on CPU adapters, where each workgroup barrier
 // costs several microseconds, 16 on GPUs, for occupancy).
 override PS_PER: u32 = 16u;
-override PS_BLOCK: u32 = 256u * PS_PER;
+override PS_BLOCK: u32 = WG * PS_PER;
 // Workgroups per dispatch row; larger grids are 2-D (overridable so that tests reach that path).
-override PS_MAX_X: u32 = 32768u;
-// Plan buffer layout (u32 words): [0..4) count per level, [4] total, [8 + 3k ..) indirect args.
-const PS_TOTAL: u32 = 4u;
-const PS_ARGS: u32 = 8u;
+override PS_MAX_X: u32 = MAX_GROUPS_X;
+// Plan buffer layout (u32 words, PS_TOTAL and PS_ARGS from sort.py's SCAN_PLAN): [0..4) count
+// per level, [PS_TOTAL] total, [PS_ARGS + 3k ..) indirect args of dispatch slot k.
 
 struct PsPass {
     level: u32,   // plan slot holding this level's element count
@@ -48,9 +47,10 @@ struct PsPlanArgs {
 @group(0) @binding(5) var<storage, read_write> ps_plan_w: array<u32>;
 @group(0) @binding(6) var<storage, read> ps_count: array<u32>;
 @group(0) @binding(7) var<uniform> ps_pargs: PsPlanArgs;
-@group(1) @binding(0) var<uniform> ps_pass: PsPass;
+// This dispatch's slot of the scan's pass table (bound at an offset, with the arrays).
+@group(0) @binding(8) var<uniform> ps_pass: PsPass;
 
-var<workgroup> ps_sh: array<u32, 256>;
+var<workgroup> ps_sh: array<u32, WG>;
 var<workgroup> ps_part: array<u32, 17>;
 
 fn ps_dims(groups: u32) -> vec3<u32> {
@@ -95,7 +95,8 @@ fn ps_plan_main() {
 }
 
 // Exclusive scan of one value per thread over the workgroup: (prefix, workgroup total).
-// 16 threads scan 16 values each, one thread scans the 16 partial sums: three barriers.
+// 16 threads scan 16 values each, one thread scans the 16 partial sums: three barriers
+// (so WG must be 256 = 16 x 16; sort.py checks it).
 fn ps_wg_scan(t: u32, v: u32) -> vec2<u32> {
     ps_sh[t] = v;
     workgroupBarrier();
@@ -197,7 +198,7 @@ fn ps_groups(n: u32) -> u32 {
     return min(nb - ps_pass.block0, ps_pass.bpc);
 }
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG)
 fn ps_reduce(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
              @builtin(local_invocation_index) t: u32) {
     let wid = linear_wg(wg, nwg);
@@ -213,7 +214,7 @@ fn ps_reduce(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg:
     }
 }
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG)
 fn ps_downsweep(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                 @builtin(local_invocation_index) t: u32) {
     let wid = linear_wg(wg, nwg);
@@ -227,7 +228,7 @@ fn ps_downsweep(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) n
     ps_store_from_src(lbase, gbase, n, ps_offs[ps_pass.block0 + wid] + r.x);
 }
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG)
 fn ps_downsweep_inplace(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                         @builtin(local_invocation_index) t: u32) {
     let wid = linear_wg(wg, nwg);
@@ -242,7 +243,7 @@ fn ps_downsweep_inplace(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workg
 }
 
 // The top level (at most one block) in a single workgroup; also records the grand total.
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG)
 fn ps_top(@builtin(local_invocation_index) t: u32) {
     let n = ps_plan_w[ps_pass.level];
     let r = ps_wg_scan(t, ps_sum_src(t * PS_PER, t * PS_PER, n));
@@ -252,7 +253,7 @@ fn ps_top(@builtin(local_invocation_index) t: u32) {
     }
 }
 
-@compute @workgroup_size(256)
+@compute @workgroup_size(WG)
 fn ps_top_inplace(@builtin(local_invocation_index) t: u32) {
     let n = ps_plan_w[ps_pass.level];
     let r = ps_wg_scan(t, ps_sum_dst(t * PS_PER, t * PS_PER, n));

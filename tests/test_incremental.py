@@ -5,6 +5,7 @@ import pytest
 
 from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.faults.engine import Engine
+from seuwgpu.gpu.constants import TILE
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELDS, field_components
 from seuwgpu.model.scenes import make_scene, scene_cameras
@@ -74,7 +75,7 @@ def predicted(eng, site, defense, P):
     from seuwgpu.analysis.studies import region_set, regions_to_bitmask
     from seuwgpu.faults.guard import clamp_values
     from seuwgpu.model.fields import Model
-    from seuwgpu.render import reference
+    from seuwgpu.render.project import project
 
     _, bits, gm = eng.variant_bits([site], defense)
     vals = encoding.from_bits(bits, eng.precision)
@@ -83,7 +84,7 @@ def predicted(eng, site, defense, P):
     one = Model.from_flat(vals, eng.degree)
     hit = np.zeros(P, bool)
     for cam in eng.cameras:
-        x0, y0, x1, y1 = reference.project(one, cam)["rect"][0] * 16
+        x0, y0, x1, y1 = project(one, cam)["rect"][0] * TILE
         hit |= region_set((x0, y0, min(x1, eng.width), min(y1, eng.height)), eng.height, eng.width, P)
     return regions_to_bitmask(hit)
 

@@ -1,5 +1,5 @@
-"""The numpy reference renderer (seuwgpu.reference) against its naive per-pixel twin and against
-hand-checkable cases of docs/renderer.md."""
+"""The numpy twin (render/reference.py composing the stage twins) against its naive per-pixel
+twin, and the projection twin (render/project.py) against hand-checkable cases of docs/renderer.md."""
 
 import numpy as np
 import pytest
@@ -8,6 +8,8 @@ from seuwgpu.model import encoding
 from seuwgpu.model.cameras import Camera, orbit_cameras
 from seuwgpu.model.fields import Model
 from seuwgpu.render import reference as ref
+from seuwgpu.render.project import project, quat_to_rotmat, sh_basis, sh_to_rgb, sigmoid
+from seuwgpu.render.sort import depth_order
 
 F = np.float32
 
@@ -136,7 +138,7 @@ def test_isotropic_gaussian_at_image_centre(logit):
     f, z, s = 40.0, 2.0, 0.05
     cam = pinhole(33, 33, f, cx=16.5, cy=16.5)
     model = prims([[0, 0, z]], log_scales=np.log(s), opacity=logit, rgb=(0.2, 0.6, 0.9))
-    p = ref.project(model, cam)
+    p = project(model, cam)
     assert p["visible"][0] and not p["unbounded"][0]
     a_expect = (f * s / z) ** 2 + 0.3
     np.testing.assert_allclose(p["cov2d"][0], [a_expect, 0, a_expect], rtol=1e-5, atol=1e-7)
@@ -165,7 +167,7 @@ def test_pixel_centre_convention():
     # fx = 32, cx = 16, z = 1: mean x = -5.5/32 lands on mx = 10.5, the centre of pixel column 10.
     cam = pinhole(32, 32, 32.0)
     model = prims([[-5.5 / 32, (7.5 - 16) / 32, 1.0]], log_scales=-12.0, opacity=1.0, rgb=(0.1, 0.1, 0.1))
-    p = ref.project(model, cam)
+    p = project(model, cam)
     assert tuple(p["mean2d"][0]) == (10.5, 7.5)
     img = ref.render_view(model, cam)
     peak = composite_one(p["rgb"][0], sigmoid32(1.0))
@@ -182,7 +184,7 @@ def test_pixel_centre_convention():
 def test_culled_by_depth_draws_nothing(z):
     cam = pinhole(32, 32, 32.0)
     model = prims([[0, 0, z]], log_scales=2.0, opacity=5.0)
-    p = ref.project(model, cam)
+    p = project(model, cam)
     assert not p["visible"][0] and p["n_tiles"][0] == 0
     np.testing.assert_array_equal(ref.render_view(model, cam), 1.0)
 
@@ -190,7 +192,7 @@ def test_culled_by_depth_draws_nothing(z):
 def test_near_plane_is_inclusive():
     cam = pinhole(32, 32, 32.0)
     model = prims([[0, 0, 0.01]], log_scales=-8.0, opacity=5.0)
-    assert ref.project(model, cam)["visible"][0]
+    assert project(model, cam)["visible"][0]
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
@@ -201,7 +203,7 @@ def test_non_finite_mean_draws_nothing(bad):
         mean[k] = bad
         model = prims([mean, [0.0, 0.0, 3.0]], log_scales=[[-2.0] * 3, [-9.0] * 3], opacity=3.0)
         model.opacity[1] = -50.0  # an invisible companion: the image must be exactly white
-        p = ref.project(model, cam)
+        p = project(model, cam)
         assert not p["visible"][0]
         np.testing.assert_array_equal(ref.render_view(model, cam), 1.0)
 
@@ -217,7 +219,7 @@ def test_behind_camera_in_orbit_view():
 def test_overflowing_scale_is_the_frame_covering_sheet(log_scales):
     cam = pinhole(40, 24, 30.0)
     model = prims([[0.3, -0.2, 3.0]], log_scales=log_scales, opacity=0.5, rgb=(0.9, 0.1, 0.4))
-    p = ref.project(model, cam)
+    p = project(model, cam)
     assert p["visible"][0] and p["unbounded"][0]
     np.testing.assert_array_equal(p["conic"][0], 0)
     assert tuple(p["rect"][0]) == (0, 0, 3, 2) and p["n_tiles"][0] == 6
@@ -230,7 +232,7 @@ def test_sheet_with_far_off_screen_centre_is_still_a_sheet():
     # mean2d ~ 3e21: dx*dx overflows, but sigma = 0.5*((0*dx)*dx + ...) = 0 (left to right).
     cam = pinhole(32, 32, 32.0)
     model = prims([[1e20, 0.0, 1.0]], log_scales=100.0, opacity=2.0)
-    p = ref.project(model, cam)
+    p = project(model, cam)
     assert p["visible"][0] and p["unbounded"][0] and np.isfinite(p["mean2d"][0]).all()
     img = ref.render_view(model, cam)
     expect = composite_one(p["rgb"][0], sigmoid32(2.0))
@@ -240,7 +242,7 @@ def test_sheet_with_far_off_screen_centre_is_still_a_sheet():
 def test_huge_finite_scale_saturates_rect_not_unbounded():
     cam = pinhole(48, 32, 40.0)
     model = prims([[0.0, 0.0, 2.0]], log_scales=15.0, opacity=0.0)
-    p = ref.project(model, cam)
+    p = project(model, cam)
     assert p["visible"][0] and not p["unbounded"][0]
     assert tuple(p["rect"][0]) == (0, 0, 3, 2)
     img = ref.render_view(model, cam)
@@ -251,7 +253,7 @@ def test_zero_quaternion_is_unbounded():
     # No special case: q / |q| = NaN, so the covariance is NaN and the footprint unbounded.
     cam = pinhole(32, 32, 32.0)
     model = prims([[0.0, 0.0, 2.0]], quats=(0, 0, 0, 0), opacity=0.0)
-    p = ref.project(model, cam)
+    p = project(model, cam)
     assert p["visible"][0] and p["unbounded"][0]
     assert np.isfinite(ref.render_view(model, cam)).all()
 
@@ -259,7 +261,7 @@ def test_zero_quaternion_is_unbounded():
 def test_off_screen_small_primitive_is_culled():
     cam = pinhole(32, 32, 32.0)
     model = prims([[10.0, 0.0, 1.0], [1e30, 0.0, 1.0]], log_scales=-5.0)
-    p = ref.project(model, cam)
+    p = project(model, cam)
     assert not p["visible"].any() and (p["n_tiles"] == 0).all() and (p["rect"] == 0).all()
 
 
@@ -268,7 +270,7 @@ def test_nan_opacity_gives_nan_exactly_inside_its_rect():
     # however far from the centre, and on no other pixel.
     cam = pinhole(64, 64, 64.0)
     model = prims([[0.0, 0.0, 2.0], [-0.8, -0.8, 2.5]], log_scales=np.log(0.02), opacity=[np.nan, 1.0])
-    p = ref.project(model, cam)
+    p = project(model, cam)
     assert p["visible"].all()
     img = ref.render_view(model, cam)
     x0, y0, x1, y1 = p["rect"][0]
@@ -302,7 +304,7 @@ def test_early_stop_drops_the_contribution_that_crosses_the_threshold():
     cam = pinhole(33, 33, 33.0, cx=16.5, cy=16.5)
     model = prims([[0, 0, 1.0], [0, 0, 2.0]], log_scales=-1.0, opacity=12.0, rgb=[(1.0, 0.0, 0.0), (0.0, 1.0, 0.0)])
     img = ref.render_view(model, cam)
-    p = ref.project(model, cam)
+    p = project(model, cam)
     np.testing.assert_array_equal(img[16, 16], composite_one(p["rgb"][0], 0.99))
     assert img[16, 16, 1] == F(1) - F(0.99)  # nothing of the green layer
     np.testing.assert_array_equal(img, ref.render_view_naive(model, cam))
@@ -318,8 +320,8 @@ def test_depth_order_then_index_order():
         order = prims([[0, 0, 2.0], [0, 0, 1.5]], log_scales=-2.0, opacity=3.0, rgb=rgbs)
         img = ref.render_view(order, cam)
         assert np.argmax(img[16, 16]) == np.argmax(rgbs[1])  # nearer one in front
-    p = ref.project(prims([[0, 0, 3.0], [0, 0, 1.0], [0, 0, 3.0], [0, 0, 2.0]]), cam)
-    np.testing.assert_array_equal(ref.depth_order(p), [1, 3, 0, 2])
+    p = project(prims([[0, 0, 3.0], [0, 0, 1.0], [0, 0, 3.0], [0, 0, 2.0]]), cam)
+    np.testing.assert_array_equal(depth_order(p), [1, 3, 0, 2])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -330,7 +332,7 @@ def test_depth_order_then_index_order():
 def test_stable_sigmoid():
     x = np.array([np.nan, np.inf, -np.inf, 0, 100, -100, -200, 3, -3], F)
     with np.errstate(all="ignore"):
-        o = ref.sigmoid(x)
+        o = sigmoid(x)
     assert o.dtype == np.float32 and np.isnan(o[0])
     np.testing.assert_array_equal(o[1:4], [1, 0, 0.5])
     assert o[4] == 1 and 0 < o[5] < 1e-40 and o[6] == 0
@@ -341,7 +343,7 @@ def test_stable_sigmoid():
 def test_normalisation_edge_cases():
     with np.errstate(all="ignore"):
         # squared norm overflows: q * rsqrt(Inf) = 0 -> identity rotation (gsplat's CUDA kernel)
-        R = ref.quat_to_rotmat(np.array([[3e19, 1e19, 0, 0], [0, 0, 0, 0], [np.nan, 0, 0, 1]], F))
+        R = quat_to_rotmat(np.array([[3e19, 1e19, 0, 0], [0, 0, 0, 0], [np.nan, 0, 0, 1]], F))
     np.testing.assert_array_equal(R[0], np.eye(3))
     assert np.isnan(R[1]).all() and np.isnan(R[2]).any()
 
@@ -350,14 +352,14 @@ def test_sh_basis_is_orthonormal():
     rng = np.random.default_rng(0)
     d = rng.normal(size=(400_000, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    B = ref.sh_basis(d.astype(F), 3).astype(np.float64)
+    B = sh_basis(d.astype(F), 3).astype(np.float64)
     gram = 4 * np.pi * B.T @ B / len(d)
     np.testing.assert_allclose(gram, np.eye(16), atol=0.03)
 
 
 def test_sh_basis_signs_match_inria():
     C1 = 0.4886025119029199
-    B = ref.sh_basis(np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1]], F), 3)
+    B = sh_basis(np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1]], F), 3)
     np.testing.assert_allclose(B[:, 1:4], [[0, 0, -C1], [-C1, 0, 0], [0, C1, 0]], atol=1e-7)
     np.testing.assert_allclose(B[2, 6], 2 * 0.31539156525252005, rtol=1e-6)
     np.testing.assert_allclose(B[2, 12], 2 * 0.3731763325901154, rtol=1e-6)
@@ -371,13 +373,13 @@ def test_sh_to_rgb_sums_basis_and_clamps():
         dc = rng.normal(size=(50, 3)).astype(F)
         rest = rng.normal(size=(50, r, 3)).astype(F)
         dirs = rng.normal(size=(50, 3)).astype(F) * 3
-        got = ref.sh_to_rgb(dc, rest, dirs)
+        got = sh_to_rgb(dc, rest, dirs)
         unit = dirs / np.linalg.norm(dirs.astype(np.float64), axis=1, keepdims=True)
-        B = ref.sh_basis(unit.astype(F), degree).astype(np.float64)
+        B = sh_basis(unit.astype(F), degree).astype(np.float64)
         coeffs = np.concatenate([dc[:, None], rest], axis=1).astype(np.float64)
         want = np.maximum(np.einsum("nk,nkc->nc", B, coeffs) + 0.5, 0)
         np.testing.assert_allclose(got, want, atol=2e-5)
-    rgb = ref.sh_to_rgb(np.array([[np.nan, -np.inf, np.inf]], F), np.zeros((1, 0, 3), F), np.ones((1, 3), F))
+    rgb = sh_to_rgb(np.array([[np.nan, -np.inf, np.inf]], F), np.zeros((1, 0, 3), F), np.ones((1, 3), F))
     assert np.isnan(rgb[0, 0]) and rgb[0, 1] == 0 and np.isposinf(rgb[0, 2])
 
 
@@ -387,7 +389,7 @@ def test_view_dependence_only_above_degree_zero(degree):
     r = (degree + 1) ** 2 - 1
     model = prims([[0.0, 0.0, 0.0]], log_scales=-2.0, opacity=2.0, degree=degree, sh_rest=rng.normal(0, 0.4, (r, 3)))
     cams = orbit_cameras(4, 33, 33)
-    cols = np.stack([ref.project(model, c)["rgb"][0] for c in cams])
+    cols = np.stack([project(model, c)["rgb"][0] for c in cams])
     imgs = ref.render(model, cams)
     if degree == 0:
         assert (cols == cols[0]).all()
@@ -404,7 +406,7 @@ def test_view_dependence_only_above_degree_zero(degree):
 
 def test_quaternion_convention():
     th = 0.7
-    R = ref.quat_to_rotmat(np.array([[np.cos(th / 2), 0, 0, np.sin(th / 2)], [2.0, 0, 0, 0]], F))
+    R = quat_to_rotmat(np.array([[np.cos(th / 2), 0, 0, np.sin(th / 2)], [2.0, 0, 0, 0]], F))
     np.testing.assert_allclose(R[0], [[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]], atol=1e-6)
     np.testing.assert_allclose(R[1], np.eye(3), atol=1e-7)  # normalised, not assumed unit
 
@@ -417,8 +419,8 @@ def test_ewa_covariance_matches_sampled_projection():
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)
     model = prims([[0.3, -0.2, 0.4]], log_scales=np.log([0.05, 0.015, 0.03]), quats=q)
-    p = ref.project(model, cam)
-    Rq = ref.quat_to_rotmat(model.quats).astype(np.float64)[0]
+    p = project(model, cam)
+    Rq = quat_to_rotmat(model.quats).astype(np.float64)[0]
     X = model.means[0].astype(np.float64) + (rng.normal(size=(400_000, 3)) * np.exp(model.log_scales[0])) @ Rq.T
     V = cam.viewmat.astype(np.float64)
     P = X @ V[:3, :3].T + V[:3, 3]
@@ -441,7 +443,7 @@ def test_jacobian_clamped_beyond_the_frame():
     cam = pinhole(W, H, f)
     x = 3.0  # x/z = 1.5 > lim_x_pos = (32-16)/32 + 0.3*0.5 = 0.65
     model = prims([[x, 0.0, z]], log_scales=np.log(0.5))
-    p = ref.project(model, cam)
+    p = project(model, cam)
     s2 = 0.25
     tx = z * 0.65
     J0 = np.array([f / z, 0, -f * tx / z**2])
@@ -470,7 +472,7 @@ def test_needles_are_never_culled_by_cancellation():
         sh_rest=np.zeros((n, 0, 3)),
     )
     cam = orbit_cameras(1, 64, 64)[0]
-    pr = ref.project(m, cam)
+    pr = project(m, cam)
     finite = ~pr["unbounded"]
     assert finite.sum() > n // 2
     assert pr["visible"][finite].all()

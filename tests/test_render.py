@@ -9,7 +9,7 @@ from seuwgpu.model.cameras import Camera, intrinsics, look_at, orbit_cameras
 from seuwgpu.model.fields import FIELDS, Model
 from seuwgpu.model.scenes import list_scenes, make_scene, scene_cameras
 from seuwgpu.render import reference
-from seuwgpu.render.renderer import Renderer, gpu_decode
+from seuwgpu.render.renderer import Renderer
 
 W, H = 64, 48
 
@@ -122,22 +122,6 @@ def test_behind_camera_and_near_plane():
     )
     g, r = both(m, [cam])
     assert psnr_finite(g, r) >= 50
-
-
-@pytest.mark.parametrize("precision", ["fp16", "bf16", "fp32"])
-def test_gpu_decode_matches_numpy_bit_for_bit(precision):
-    rng = np.random.default_rng(8)
-    nb = encoding.bits_per_value(precision)
-    raw = rng.integers(0, 2**nb, 4096, dtype=np.uint64).astype(np.uint32 if nb == 32 else np.uint16)
-    special = {
-        16: [0x0000, 0x8000, 0x0001, 0x03FF, 0x0400, 0x7BFF, 0x7C00, 0xFC00, 0x7E00, 0x7C01, 0x3C00],
-        32: [0, 0x80000000, 1, 0x7F800000, 0xFF800000, 0x7FC00000, 0x7F800001, 0x3F800000],
-    }[nb]
-    raw[: len(special)] = special
-    words = encoding.pack_words(raw, precision)
-    got = gpu_decode(words, precision)[: raw.size]
-    want = encoding.from_bits(raw, precision)
-    assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
 
 
 def test_viewport_regions_equal_the_full_frame_bit_for_bit():

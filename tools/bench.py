@@ -19,7 +19,7 @@ For each (scene, N, size, K) the embedded scene is rendered from K orbit views i
   pass getting begin/end timestamps, passes summed per stage over the K views. "gaps" is the time
   between passes (barriers, buffer copies) inside the instrumented submission. Without the
   feature only the whole submission's wall time is reported (and the output says so).
-- the numpy twin (`seuwgpu.reference.render`) in the same run, on view 0 of the same camera set
+- the numpy twin (`seuwgpu.render.reference.render`) in the same run, on view 0 of the same camera set
   (orbit view 0 is the same camera for every K), at the same N and size, unless N exceeds
   --twin-max-n: then it is measured at --twin-max-n primitives of the same scene and NO ratio is
   given (the output names the N it measured). ratio = twin s/view / GPU s/view, both at the same
@@ -55,15 +55,16 @@ from seuwgpu.render.renderer import Renderer  # noqa: E402
 
 STAGES = ("project", "depth sort", "count+scan", "emit", "tile sort", "ranges", "composite")
 
-# Stage of a compute pass, from its label or the label of the first pipeline it sets
-# (device.pipeline labels pipelines "<shader>:<entry>"; the sorters label their passes).
+# Stage of a compute pass, from its label or the label of the first pipeline it sets (Kernel
+# labels its passes and device.pipeline its pipelines "<shader>:<entry>"; the sorters label their
+# passes "radix_sort" / "prefix_sum").
 _STAGE_OF = {
-    "project": "project",
-    "tiles": "count+scan",
+    "project:main": "project",
+    "bin:count_tiles": "count+scan",
     "prefix_sum": "count+scan",
-    "emit": "emit",
-    "ranges": "ranges",
-    "composite": "composite",
+    "bin:emit": "emit",
+    "bin:tile_ranges": "ranges",
+    "composite:main": "composite",
 }
 
 
@@ -163,10 +164,10 @@ class StageTimedRenderer(Renderer):
         out["other"] = 0.0
         after_emit = False  # a radix sort before a view's emit is the depth sort, after it the tile sort
         for rec, b, e in zip(proxy.records, begin, end):
-            name = (rec["label"] or "").split(":")[0]
-            if name == "project":
+            name = rec["label"] or ""
+            if name == "project:main":
                 after_emit = False
-            elif name == "emit":
+            elif name == "bin:emit":
                 after_emit = True
             stage = (
                 ("tile sort" if after_emit else "depth sort") if name == "radix_sort" else _STAGE_OF.get(name, "other")

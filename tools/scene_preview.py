@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from seuwgpu.model import scenes  # noqa: E402
 from seuwgpu.model.cameras import Camera  # noqa: E402
-from seuwgpu.render.reference import quat_to_rotmat  # noqa: E402
+from seuwgpu.render.project import quat_to_rotmat  # noqa: E402
 
 C0 = 0.28209479177387814
 C1 = 0.4886025119029199

@@ -1,7 +1,7 @@
 """The fault-injection engine: a GPU-resident model, its cameras and clean renders, and
 `inject(sites, defense)` answering with a result record.
 
-Flips are XORs on the stored words in the GPU buffers (a scatter shader, `shaders/flip.wgsl`),
+Flips are XORs on the stored words in the GPU buffers (faults/flips.py, `shaders/flip.wgsl`),
 never re-uploads; undoing applies the same XOR again, so restores are exact. Defenses decide what
 the renderer reads from a corrupted word:
 - none: the corrupted word;
@@ -17,9 +17,10 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.faults.defenses import GUARDED_FIELDS, check_defense, dup_read, ecc_read
+from seuwgpu.faults.flips import Flips
 from seuwgpu.faults.guard import Box, GuardMonitor, component_mask, support_box
 from seuwgpu.faults.sites import Site, make_site, mask_of, site_bit_class
-from seuwgpu.gpu.device import GPU, STORAGE, UNIFORM, dispatch_dims, get_gpu
+from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.metrics.image import ImageMetrics, catastrophic, summarize
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import Camera
@@ -61,8 +62,7 @@ class Engine:
         self.renderer.set_guard(self.box.rows(), 0)
         # in-pipeline clamp mask of each guard defense (other defenses: 0)
         self.masks = {d: component_mask(GUARDED_FIELDS[d], self.degree) for d in ("guard", "selective")}
-        self.p_flip = self.gpu.pipeline("flip")
-        self._flip_cap = 0  # flip buffers grow on demand (see _scatter)
+        self.flips = Flips(self.gpu, self.renderer.chunks)
         self._active: list[dict] = []  # applied XOR lists, for undo
         self.monitor = GuardMonitor(threshold=0)  # health signal of interactive/guarded renders
         self._set_up_views()
@@ -156,46 +156,15 @@ class Engine:
                 out[int(ch)] = np.stack([w[keep], m[keep]], axis=1).astype(np.uint32)
         return out
 
-    def _scatter(self, xors: dict[int, np.ndarray]):
-        """XOR the (word, mask) lists into the chunks: one submission, buffers reused across calls."""
-        if not xors:
-            return
-        g, n_chunks = self.gpu, self.layout.n_chunks
-        need = max(len(p) for p in xors.values())
-        if self._flip_cap < need:
-            self._flip_cap = max(need, 1024)
-            self._flip_pairs = [g.buffer(8 * self._flip_cap, STORAGE, "flip_pairs") for _ in range(n_chunks)]
-            self._flip_params = g.buffer(256 * n_chunks, UNIFORM, "flip_params")
-            self._flip_bgs = [
-                g.bind(
-                    self.p_flip,
-                    {0: (self._flip_params, 256 * c, 16), 1: self._flip_pairs[c], 2: self.renderer.chunks[c]},
-                )
-                for c in range(n_chunks)
-            ]
-        params = np.zeros((n_chunks, 64), np.uint32)
-        for ch, pairs in xors.items():
-            params[ch, 0] = len(pairs)
-            g.write(self._flip_pairs[ch], pairs)
-        g.write(self._flip_params, params)
-        enc = g.device.create_command_encoder()
-        for ch, pairs in xors.items():
-            p = enc.begin_compute_pass()
-            p.set_pipeline(self.p_flip)
-            p.set_bind_group(0, self._flip_bgs[ch])
-            p.dispatch_workgroups(*dispatch_dims(-(-len(pairs) // 64)))
-            p.end()
-        g.submit(enc)
-
     def apply(self, sites: list[Site], defense: str = "none") -> dict:
         """Flip the sites in the GPU-resident model (as the defense reads them); returns a handle."""
         xors = self._xor_lists(list(sites), check_defense(defense))
-        self._scatter(xors)
+        self.flips.apply(xors)
         self._active.append(xors)
         return xors
 
     def undo(self, handle: dict):
-        self._scatter(handle)
+        self.flips.apply(handle)
         self._active = [h for h in self._active if h is not handle]
 
     def undo_all(self):

@@ -19,12 +19,15 @@ absorbing a degrading device.
 from __future__ import annotations
 
 import warnings
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
 
 from seuwgpu.faults.defenses import GUARDED_FIELDS
-from seuwgpu.gpu.device import STORAGE, UNIFORM, dispatch_dims
+from seuwgpu.gpu.constants import PRECISION_CODE
+from seuwgpu.gpu.device import STORAGE
+from seuwgpu.gpu.kernel import Kernel, Struct, Uniforms
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, field_components
 
@@ -38,13 +41,16 @@ class Box:
     hi: np.ndarray
 
     def rows(self) -> np.ndarray:
-        """u32 [ncomp, 4]: lo, hi as f32 bits, then their stored bits (what the scrub writes)."""
-        out = np.zeros((self.lo.size, 4), dtype=np.uint32)
-        out[:, 0] = self.lo.view(np.uint32)
-        out[:, 1] = self.hi.view(np.uint32)
-        out[:, 2] = encoding.to_bits(self.lo, self.precision).astype(np.uint32)
-        out[:, 3] = encoding.to_bits(self.hi, self.precision).astype(np.uint32)
-        return out
+        """The shaders' `Bound` records, one per component: lo, hi (f32), then their stored bits
+        (what the scrub writes)."""
+        bound = Struct.from_shader("guard", "Bound")
+        return bound.fill(
+            bound.zeros(self.lo.size),
+            lo=self.lo,
+            hi=self.hi,
+            lo_bits=encoding.to_bits(self.lo, self.precision),
+            hi_bits=encoding.to_bits(self.hi, self.precision),
+        )
 
 
 class GuardAlert(UserWarning):
@@ -135,49 +141,62 @@ def clamp_bits(bits: np.ndarray, box: Box, mask: int) -> tuple[np.ndarray, np.nd
         high = guarded & (vals > box.hi)
     rows = box.rows()
     out = bits.copy()
-    out[low] = np.broadcast_to(rows[:, 2].astype(bits.dtype), bits.shape)[low]
-    out[high] = np.broadcast_to(rows[:, 3].astype(bits.dtype), bits.shape)[high]
+    out[low] = np.broadcast_to(rows["lo_bits"].astype(bits.dtype), bits.shape)[low]
+    out[high] = np.broadcast_to(rows["hi_bits"].astype(bits.dtype), bits.shape)[high]
     return out, low | high
+
+
+class Scrub:
+    """guard.wgsl over one renderer's stored chunks: its box, its clamp counters (`ClampCounts`:
+    per field, then per primitive) and one `GuardParams` slot per chunk."""
+
+    def __init__(self, renderer):
+        gpu, L = renderer.gpu, renderer.layout
+        self.gpu, self.layout, self.chunks = gpu, L, renderer.chunks
+        self.kernel = Kernel(gpu, "guard")
+        self.box = gpu.buffer(self.kernel.struct("Bound").size * L.ncomp, STORAGE, "scrub.box")
+        self.layout_counts = self.kernel.struct("ClampCounts")
+        self.per_prim_at = self.layout_counts.offset("per_primitive")
+        self.counts = gpu.buffer(self.per_prim_at + 4 * L.n, STORAGE, "scrub.counts")
+        self.params = Uniforms(gpu, self.kernel.struct("GuardParams"), L.n_chunks, "scrub.params")
+        first, end = np.array([L.chunk_range(k) for k in range(L.n_chunks)]).T
+        self.params.struct.fill(
+            self.params.rows,
+            plane_words=L.plane_words,
+            ncomp=L.ncomp,
+            chunk_count=end - first,
+            fmt=PRECISION_CODE[L.precision],
+            prim_base=first,
+        )
+
+    def run(self, box: Box, mask: int, per_primitive: bool = False):
+        g, L = self.gpu, self.layout
+        g.write(self.box, box.rows())
+        g.write(self.counts, np.zeros(self.counts.size // 4, np.uint32))
+        self.params.rows["mask_lo"] = mask & 0xFFFFFFFF
+        self.params.rows["mask_hi"] = mask >> 32
+        self.params.write()
+        enc = g.device.create_command_encoder()
+        for k in range(L.n_chunks):
+            self.kernel.dispatch(
+                enc, {0: self.params.binding(k), 1: self.box, 2: self.chunks[k], 3: self.counts}, threads=L.chunk_words
+            )
+        g.submit(enc)
+        raw = g.read(self.counts, np.uint8, 0, self.per_prim_at + (4 * L.n if per_primitive else 0))
+        fields = raw[: self.layout_counts.size].view(self.layout_counts.dtype)["per_field"][0]
+        per_field = {f: int(fields[i]) for i, f in enumerate(FIELDS)}
+        if per_primitive:
+            return per_field, raw[self.per_prim_at :].view(np.uint32).copy()
+        return per_field
+
+
+_SCRUBS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # renderer -> its Scrub
 
 
 def scrub(renderer, box: Box, fields, per_primitive: bool = False):
     """Rewrite the renderer's stored buffers with every guarded value clamped into the box.
 
     Returns clamps per field (dict), and per primitive when asked (one readback)."""
-    gpu, L = renderer.gpu, renderer.layout
-    mask = component_mask(fields, L.degree)
-    cache = renderer.scrub_cache
-    if not cache:  # buffers and bind groups made once per renderer
-        cache["box"] = gpu.buffer(16 * L.ncomp, STORAGE, "scrub_box")
-        cache["counts"] = gpu.buffer(4 * (8 + L.n), STORAGE, "scrub_counts")
-        cache["params"] = gpu.buffer(256 * L.n_chunks, UNIFORM, "scrub_params")
-        pipe = gpu.pipeline("guard")
-        cache["bgs"] = [
-            gpu.bind(
-                pipe, {0: (cache["params"], 256 * k, 32), 1: cache["box"], 2: renderer.chunks[k], 3: cache["counts"]}
-            )
-            for k in range(L.n_chunks)
-        ]
-    counts = cache["counts"]
-    gpu.write(cache["box"], box.rows())
-    gpu.write(counts, np.zeros(counts.size // 4, np.uint32))
-    fmt = {"fp32": 0, "fp16": 1, "bf16": 2}[L.precision]
-    params = np.zeros((L.n_chunks, 64), np.uint32)
-    for k in range(L.n_chunks):
-        a, b = L.chunk_range(k)
-        params[k, :8] = [L.plane_words, L.ncomp, b - a, fmt, mask & 0xFFFFFFFF, mask >> 32, a, 0]
-    gpu.write(cache["params"], params)
-    pipe = gpu.pipeline("guard")
-    enc = gpu.device.create_command_encoder()
-    for k in range(L.n_chunks):
-        p = enc.begin_compute_pass()
-        p.set_pipeline(pipe)
-        p.set_bind_group(0, cache["bgs"][k])
-        p.dispatch_workgroups(*dispatch_dims(-(-L.chunk_words // 256)))
-        p.end()
-    gpu.submit(enc)
-    raw = gpu.read(counts, np.uint32, 0, 4 * (8 + (L.n if per_primitive else 0)))
-    per_field = {f: int(raw[i]) for i, f in enumerate(FIELDS)}
-    if per_primitive:
-        return per_field, raw[8 : 8 + L.n].copy()
-    return per_field
+    if renderer not in _SCRUBS:  # buffers made once per renderer
+        _SCRUBS[renderer] = Scrub(renderer)
+    return _SCRUBS[renderer].run(box, component_mask(fields, renderer.layout.degree), per_primitive)

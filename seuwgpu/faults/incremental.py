@@ -11,11 +11,11 @@ from __future__ import annotations
 import numpy as np
 
 from seuwgpu.faults.guard import clamp_bits
+from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import STORAGE
 from seuwgpu.metrics.image import ImageMetrics, build_worklist, summarize, tile_map_to_mask
 from seuwgpu.render.incremental import IncrementalCompositor
 from seuwgpu.render.regions import region_id_map
-from seuwgpu.render.renderer import TILE
 
 
 class IncrementalEvaluator:
@@ -95,7 +95,7 @@ class IncrementalEvaluator:
         out = {f"regions_meas_{P}": np.zeros(m, dtype=np.int64) for P in regions}
         if n_e == 0:
             return out
-        slabs = self.compositor.read_slabs(n_e)  # [E, 16, 16, 4]
+        slabs = self.compositor.read_slabs(n_e)  # [E, TILE, TILE, 4]
         ys = (t_idx // r.tiles_x)[:, None, None] * TILE + np.arange(TILE)[None, :, None]
         xs = (t_idx % r.tiles_x)[:, None, None] * TILE + np.arange(TILE)[None, None, :]
         inside = (ys < r.height) & (xs < r.width)

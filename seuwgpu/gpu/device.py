@@ -2,8 +2,9 @@
 
 Device creation (~0.6 s on lavapipe) and pipelines (~60 ms each) are paid once. Shaders live in
 the repository's top-level `shaders/` folder, which the wheel ships as the resource package
-`seuwgpu.shaders` (an editable install maps it to the folder); `common.wgsl` is prepended to every
-stage so the decode and activation helpers exist once.
+`seuwgpu.shaders` (an editable install maps it to the folder). Every stage is compiled as the
+generated constants header (gpu/constants.py), then `common.wgsl` (the decode and activation
+helpers, once), then its own file. Stages record their work through gpu/kernel.py's Kernel.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import wgpu
 
+from seuwgpu.gpu.constants import MAX_GROUPS_X, wgsl_header
+
 
 def shader_text(name: str) -> str:
     """Source of `shaders/NAME.wgsl`: the installed resource package, else (a checkout imported
@@ -23,6 +26,12 @@ def shader_text(name: str) -> str:
         return resources.files("seuwgpu.shaders").joinpath(f"{name}.wgsl").read_text()
     except ModuleNotFoundError:
         return (Path(__file__).resolve().parents[2] / "shaders" / f"{name}.wgsl").read_text()
+
+
+def shader_source(name: str, defines: dict | None = None) -> str:
+    """What a stage is compiled from: the constants header (shared values, then the module's own
+    `defines`), common.wgsl, then shaders/NAME.wgsl."""
+    return wgsl_header(defines) + shader_text("common") + "\n" + shader_text(name)
 
 
 STORAGE = wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST
@@ -73,18 +82,18 @@ class GPU:
         return str(self.info.get("adapter_type", "")).lower() == "cpu"
 
     # ---- shaders and pipelines -----------------------------------------------------------------
-    def shader_source(self, name: str) -> str:
-        return shader_text("common") + "\n" + shader_text(name)
+    def module(self, name: str, defines: dict | None = None):
+        key = (name, tuple(sorted((defines or {}).items())))
+        if key not in self._modules:
+            self._modules[key] = self.device.create_shader_module(label=name, code=shader_source(name, defines))
+        return self._modules[key]
 
-    def module(self, name: str):
-        if name not in self._modules:
-            self._modules[name] = self.device.create_shader_module(label=name, code=self.shader_source(name))
-        return self._modules[name]
-
-    def pipeline(self, name: str, entry: str = "main", constants: dict | None = None):
-        key = (name, entry, tuple(sorted((constants or {}).items())))
+    def pipeline(self, name: str, entry: str = "main", constants: dict | None = None, defines: dict | None = None):
+        """Compute pipeline of `entry` in shaders/NAME.wgsl; `constants` set its `override`s,
+        `defines` add module-scope consts to its header (gpu/kernel.py)."""
+        key = (name, entry, tuple(sorted((constants or {}).items())), tuple(sorted((defines or {}).items())))
         if key not in self._pipelines:
-            compute = {"module": self.module(name), "entry_point": entry}
+            compute = {"module": self.module(name, defines), "entry_point": entry}
             if constants:
                 compute["constants"] = {k: float(v) for k, v in constants.items()}
             self._pipelines[key] = self.device.create_compute_pipeline(
@@ -93,7 +102,8 @@ class GPU:
         return self._pipelines[key]
 
     def bind(self, pipeline, entries: dict, group: int = 0):
-        """entries: {binding: buffer | (buffer, offset, size)}."""
+        """A new bind group; entries: {binding: buffer | (buffer, offset, size)}. Stages use
+        Kernel.bind, which caches."""
         out = []
         for binding, res in sorted(entries.items()):
             if isinstance(res, tuple):
@@ -109,14 +119,14 @@ class GPU:
         return self.device.create_buffer(size=size, usage=usage, label=label)
 
     def upload(self, array, usage=STORAGE, label: str = ""):
-        data = np.ascontiguousarray(array)
+        data = _raw(array)
         buf = self.buffer(data.nbytes, usage, label)
         if data.nbytes:
             self.queue.write_buffer(buf, 0, data)
         return buf
 
     def write(self, buf, array, offset: int = 0):
-        data = np.ascontiguousarray(array)
+        data = _raw(array)
         self.queue.write_buffer(buf, offset, data)
 
     def read(self, buf, dtype=np.uint32, offset: int = 0, size: int | None = None) -> np.ndarray:
@@ -131,6 +141,12 @@ class GPU:
         if not hasattr(self, "_sync_buf"):
             self._sync_buf = self.buffer(16, STORAGE, "sync")
         self.queue.read_buffer(self._sync_buf, 0, 4)
+
+
+def _raw(array) -> np.ndarray:
+    """Contiguous data for a queue write; structured records (gpu/kernel.py Struct) as bytes."""
+    data = np.ascontiguousarray(array)
+    return data.reshape(-1).view(np.uint8) if data.dtype.names else data
 
 
 _GPU: GPU | None = None
@@ -150,16 +166,7 @@ def set_gpu(gpu: GPU) -> None:
     _GPU = gpu
 
 
-def dispatch(encoder, pipeline, bind_group, groups) -> None:
-    """Record one compute pass: one pipeline, bind group 0, `groups` workgroups."""
-    p = encoder.begin_compute_pass()
-    p.set_pipeline(pipeline)
-    p.set_bind_group(0, bind_group)
-    p.dispatch_workgroups(*groups)
-    p.end()
-
-
-def dispatch_dims(groups: int, max_x: int = 32768) -> tuple[int, int, int]:
+def dispatch_dims(groups: int, max_x: int = MAX_GROUPS_X) -> tuple[int, int, int]:
     """Split a 1-D workgroup count into (x, y, 1) within the per-dimension limit; shaders compute
     `wid = wg.y * num_wg.x + wg.x` and return when wid is past the end."""
     groups = max(1, int(groups))

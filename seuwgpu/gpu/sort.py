@@ -29,14 +29,20 @@ from collections import OrderedDict
 
 import numpy as np
 
+from seuwgpu.gpu.constants import WG
 from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE, UNIFORM
+from seuwgpu.gpu.kernel import Kernel, Uniforms
 
-WG = 256  # threads per workgroup (both shaders); a block is WG x `per` elements
-_UNIFORM_STRIDE = 256  # the largest min-uniform-buffer-offset-alignment in the wild
-_PS_TOTAL = 4  # scan.wgsl plan layout
-_PS_ARGS = 8
-_RS_ARGS = 4  # radix_sort.wgsl plan layout
-_OFFS_HEADER = 256  # radix_sort.wgsl: rs_offs header bytes (RS_OFFS vec4)
+# Word positions in the GPU-written plan buffers, compiled into the shaders as header constants.
+# scan.wgsl: [0, 4) element count per level, [PS_TOTAL] grand total, [PS_ARGS + 3k ..) indirect
+# arguments of dispatch slot k.
+SCAN_PLAN = {"PS_TOTAL": 4, "PS_ARGS": 8}
+# radix_sort.wgsl: [0] count, [1] blocks, [RS_HIST_COUNT] 16 * blocks (the histogram scan's count),
+# [RS_ARGS + 3c ..) indirect arguments of chunk c; RS_OFFS: vec4 header of the offsets buffer.
+RADIX_PLAN = {"RS_HIST_COUNT": 2, "RS_ARGS": 4, "RS_OFFS": 16}
+_OFFS_HEADER = 16 * RADIX_PLAN["RS_OFFS"]  # bytes
+if WG != 256:  # both shaders scan a workgroup's values as 16 groups of 16
+    raise ImportError(f"scan.wgsl and radix_sort.wgsl need 256-thread workgroups, constants.WG is {WG}")
 _CACHE_SIZE = 512
 
 
@@ -45,9 +51,7 @@ def _ceil_div(a: int, b: int) -> int:
 
 
 class _LRU(OrderedDict):
-    """Bounded cache of bind groups and constant buffers. Values keep references to the buffers
-    whose id() is part of the key, so an id cannot be reused while its entry lives. Evicting an
-    entry is safe even if an unsubmitted encoder uses it: wgpu keeps used objects alive."""
+    """Bounded cache of small immutable parameter buffers (counts, plan arguments)."""
 
     def get_or(self, key, make):
         if key in self:
@@ -109,8 +113,18 @@ class _Counts:
         return (buf, aoff, off + 4 - aoff), (off - aoff) // 4
 
 
-def _bind_key(*bufs) -> tuple:
-    return tuple(id(b) for b in bufs)
+class _PlanArgs:
+    """Immutable uniform buffers of a plan kernel's arguments, one per distinct value."""
+
+    def __init__(self, gpu: GPU, struct):
+        self.gpu, self.struct = gpu, struct
+        self._bufs = _LRU()
+
+    def get(self, **values):
+        key = tuple(values.items())
+        return self._bufs.get_or(
+            key, lambda: self.gpu.upload(self.struct.pack(**values), UNIFORM, f"{self.struct.name}")
+        )
 
 
 def _range(buf, offset: int, size: int) -> tuple:
@@ -120,14 +134,14 @@ def _range(buf, offset: int, size: int) -> tuple:
 
 
 class PrefixSum:
-    """Exclusive scan of u32 (reduce-then-scan, 256 x `per` elements per workgroup, multi-level).
+    """Exclusive scan of u32 (reduce-then-scan, WG x `per` elements per workgroup, multi-level).
 
     `encode(encoder, src, dst, count, total=None)` writes dst[i] = src[0] + ... + src[i-1] for
     i < count (u32, wrapping). `src` may be `dst` (in place). `count` is a python int or
     (buffer, byte_offset) of a u32 on the GPU, clamped to the capacity and the buffer sizes.
     `total=(buffer, byte_offset)` also stores the sum of the `count` elements there (a 4-byte
     copy, so that buffer needs COPY_DST). Elements of dst at or past count keep their values.
-    src and dst sizes must be multiples of 16 bytes.
+    src and dst sizes must be multiples of 16 bytes. Twin: `exclusive_scan`.
     """
 
     def __init__(
@@ -158,6 +172,16 @@ class PrefixSum:
             raise ValueError(f"PrefixSum capacity {capacity} needs more than 3 levels")
         self._sums = [None] + [gpu.buffer(4 * c, label=f"scan.sums{l}") for l, c in enumerate(caps[1:], 1)]
 
+        consts = {"PS_PER": self.per}
+        self._k = {
+            e: Kernel(gpu, "scan", e, constants=consts, defines=SCAN_PLAN, label="prefix_sum")
+            for e in ("ps_reduce", "ps_downsweep", "ps_downsweep_inplace", "ps_top", "ps_top_inplace")
+        }
+        plan_consts = dict(consts, PS_MAX_X=max_groups_x) if max_groups_x else consts
+        self._k["ps_plan_main"] = Kernel(
+            gpu, "scan", "ps_plan_main", constants=plan_consts, defines=SCAN_PLAN, label="prefix_sum"
+        )
+
         # One uniform slot per (level, chunk) dispatch, in the order ps_plan_main numbers its
         # indirect arguments, then one for the top level.
         bpc = self.chunk // block
@@ -172,30 +196,13 @@ class PrefixSum:
         self._nargs = len(rows)
         self._top_slot = len(rows)
         rows.append((self.levels, 0, 1))
-        table = np.zeros((len(rows), _UNIFORM_STRIDE // 4), np.uint32)
-        table[:, :3] = rows
-        self._pass_buf = gpu.upload(table, UNIFORM, "scan.pass")
-        self.plan = gpu.buffer(4 * (_PS_ARGS + 3 * max(1, self._nargs)), INDIRECT, "scan.plan")
-
-        consts = {"PS_PER": self.per}
-        self._pipes = {
-            e: gpu.pipeline("scan", e, consts)
-            for e in ("ps_reduce", "ps_downsweep", "ps_downsweep_inplace", "ps_top", "ps_top_inplace")
-        }
-        self._pipes["ps_plan_main"] = gpu.pipeline(
-            "scan", "ps_plan_main", dict(consts, PS_MAX_X=max_groups_x) if max_groups_x else consts
-        )
-        self._pass_bg = {}
-        for e in ("ps_reduce", "ps_downsweep", "ps_downsweep_inplace"):
-            for k in range(self._nargs):
-                self._pass_bg[e, k] = self._slot_bg(e, k)
-        for e in ("ps_top", "ps_top_inplace"):
-            self._pass_bg[e, self._top_slot] = self._slot_bg(e, self._top_slot)
+        self._pass = Uniforms(gpu, self._k["ps_reduce"].struct("PsPass"), len(rows), "scan.pass")
+        level, block0, bpc_ = np.array(rows).T
+        self._pass.struct.fill(self._pass.rows, level=level, block0=block0, bpc=bpc_)
+        self._pass.write()
+        self.plan = gpu.buffer(4 * (SCAN_PLAN["PS_ARGS"] + 3 * max(1, self._nargs)), INDIRECT, "scan.plan")
         self._counts = _Counts(gpu)
-        self._bgs = _LRU()
-
-    def _slot_bg(self, entry: str, k: int):
-        return self.gpu.bind(self._pipes[entry], {0: (self._pass_buf, k * _UNIFORM_STRIDE, 16)}, group=1)
+        self._plan_args = _PlanArgs(gpu, self._k["ps_plan_main"].struct("PsPlanArgs"))
 
     # ---- encoding ------------------------------------------------------------------------------
     def limit(self, src, dst) -> int:
@@ -218,25 +225,14 @@ class PrefixSum:
         cpass.end()
         if total is not None:
             buf, off = total
-            encoder.copy_buffer_to_buffer(self.plan, 4 * _PS_TOTAL, buf, int(off), 4)
+            encoder.copy_buffer_to_buffer(self.plan, 4 * SCAN_PLAN["PS_TOTAL"], buf, int(off), 4)
 
     def encode_plan(self, cpass, count, limit: int):
         """Dispatch the plan kernel (inside the caller's compute pass): count -> level counts and
         indirect arguments for the next `encode_scan` calls."""
         rng, word = self._counts.binding(count)
-        buf, aoff, size = rng
-        key = ("plan", id(buf), aoff, size, word, int(limit))
-
-        def make():
-            pargs = self.gpu.upload(
-                np.array([word, limit, self.capacity, self.chunk], np.uint32), UNIFORM, "scan.pargs"
-            )
-            return self.gpu.bind(self._pipes["ps_plan_main"], {5: self.plan, 6: rng, 7: pargs}), buf
-
-        bg, _ = self._bgs.get_or(key, make)
-        cpass.set_pipeline(self._pipes["ps_plan_main"])
-        cpass.set_bind_group(0, bg)
-        cpass.dispatch_workgroups(1, 1, 1)
+        pargs = self._plan_args.get(word=word, limit=int(limit), capacity=self.capacity, chunk=self.chunk)
+        self._k["ps_plan_main"].record(cpass, {5: self.plan, 6: rng, 7: pargs}, workgroups=(1, 1, 1))
 
     def encode_scan(self, cpass, src, dst, limit: int):
         """Dispatch the scan itself (after `encode_plan`, inside the caller's compute pass)."""
@@ -249,56 +245,33 @@ class PrefixSum:
                     break
                 yield k, c
 
-        def dispatch(entry, k, entries, cache_key, pin):
-            bg, _ = self._bgs.get_or((entry,) + cache_key, lambda: (self.gpu.bind(self._pipes[entry], entries), pin))
-            cpass.set_pipeline(self._pipes[entry])
-            cpass.set_bind_group(0, bg)
-            cpass.set_bind_group(1, self._pass_bg[entry, k])
+        def dispatch(entry, k, entries):
+            entries[8] = self._pass.binding(k)
             if k == self._top_slot:
-                cpass.dispatch_workgroups(1, 1, 1)
+                self._k[entry].record(cpass, entries, workgroups=(1, 1, 1))
             else:
-                cpass.dispatch_workgroups_indirect(self.plan, 4 * (_PS_ARGS + 3 * k))
+                self._k[entry].record(cpass, entries, indirect=(self.plan, 4 * (SCAN_PLAN["PS_ARGS"] + 3 * k)))
 
         for lev in range(self.levels):
             a, _ = arrays[lev]
             for k, c in chunks(lev):
-                dispatch(
-                    "ps_reduce",
-                    k,
-                    {0: _range(a, c * S4, S4), 3: self._sums[lev + 1], 4: self.plan},
-                    (_bind_key(a, self._sums[lev + 1]), c),
-                    a,
-                )
+                dispatch("ps_reduce", k, {0: _range(a, c * S4, S4), 3: self._sums[lev + 1], 4: self.plan})
         a, b = arrays[self.levels]
         if a is b:
-            dispatch("ps_top_inplace", self._top_slot, {1: _range(b, 0, S4), 5: self.plan}, (_bind_key(b), 0), b)
+            dispatch("ps_top_inplace", self._top_slot, {1: _range(b, 0, S4), 5: self.plan})
         else:
-            dispatch(
-                "ps_top",
-                self._top_slot,
-                {0: _range(a, 0, S4), 1: _range(b, 0, S4), 5: self.plan},
-                (_bind_key(a, b), 0),
-                (a, b),
-            )
+            dispatch("ps_top", self._top_slot, {0: _range(a, 0, S4), 1: _range(b, 0, S4), 5: self.plan})
         for lev in reversed(range(self.levels)):
             a, b = arrays[lev]
             offs = self._sums[lev + 1]
             for k, c in chunks(lev):
                 if a is b:
-                    dispatch(
-                        "ps_downsweep_inplace",
-                        k,
-                        {1: _range(b, c * S4, S4), 2: offs, 4: self.plan},
-                        (_bind_key(b, offs), c),
-                        b,
-                    )
+                    dispatch("ps_downsweep_inplace", k, {1: _range(b, c * S4, S4), 2: offs, 4: self.plan})
                 else:
                     dispatch(
                         "ps_downsweep",
                         k,
                         {0: _range(a, c * S4, S4), 1: _range(b, c * S4, S4), 2: offs, 4: self.plan},
-                        (_bind_key(a, b, offs), c),
-                        (a, b),
                     )
 
 
@@ -311,7 +284,7 @@ class RadixSort:
     python int or (buffer, byte_offset) of a u32 on the GPU (clamped to the capacity and to the
     buffer sizes; the dispatches are then indirect). Needs ceil(key_bits / 4) passes; an odd
     number of passes costs one extra copy into the internal buffers first. `keys` and `values`
-    must be distinct buffers whose sizes are multiples of 16 bytes.
+    must be distinct buffers whose sizes are multiples of 16 bytes. Twin: `stable_sort`.
 
     Holds two internal buffers of `capacity` pairs, a histogram of 16 words per block and 32
     bytes of per-thread offsets per thread (0.5 byte per pair at 64 per thread, 2 at 16).
@@ -350,36 +323,30 @@ class RadixSort:
         self.offs = gpu.buffer(_OFFS_HEADER + 32 * WG * nb, STORAGE, "sort.offs")
         if self.offs.size > binding:
             raise ValueError(f"RadixSort capacity {capacity} too large for this device's storage bindings")
-        self.plan = gpu.buffer(4 * (_RS_ARGS + 3 * self.nch), INDIRECT, "sort.plan")
+        self.plan = gpu.buffer(4 * (RADIX_PLAN["RS_ARGS"] + 3 * self.nch), INDIRECT, "sort.plan")
         self._dummy = gpu.buffer(16, STORAGE, "sort.dummy")
         self.scan = PrefixSum(gpu, 16 * nb, per=per, max_binding=max_binding, max_groups_x=max_groups_x)
 
-        # Uniform slot per (pass, digit width, chunk): shift, mask, block0, bpc, split.
-        table = np.zeros((8, 4, self.nch, _UNIFORM_STRIDE // 4), np.uint32)
-        for p in range(8):
-            for m in range(4):
-                for c in range(self.nch):
-                    table[p, m, c, :5] = (4 * p, (1 << (m + 1)) - 1, c * self.bpc, self.bpc, self.chunk)
-        self._pass_buf = gpu.upload(table, UNIFORM, "sort.pass")
         consts = {"RS_PER": self.per}
-        self._pipes = {e: gpu.pipeline("radix_sort", e, consts) for e in ("rs_upsweep", "rs_copy")}
-        self._pipes["rs_plan_main"] = gpu.pipeline(
-            "radix_sort", "rs_plan_main", dict(consts, RS_MAX_X=max_groups_x) if max_groups_x else consts
+
+        def kernel(entry, constants=consts):
+            return Kernel(gpu, "radix_sort", entry, constants=constants, defines=RADIX_PLAN, label="radix_sort")
+
+        self._k = {e: kernel(e) for e in ("rs_upsweep", "rs_copy")}
+        self._k["rs_plan_main"] = kernel(
+            "rs_plan_main", dict(consts, RS_MAX_X=max_groups_x) if max_groups_x else consts
         )
         # The second output half is compiled in only when a sort spans two bindings.
-        self._pipes["rs_scatter"] = gpu.pipeline(
-            "radix_sort", "rs_scatter", dict(consts, RS_TWO_PARTS=1) if self.nch > 1 else consts
+        self._k["rs_scatter"] = kernel("rs_scatter", dict(consts, RS_TWO_PARTS=1) if self.nch > 1 else consts)
+        # Uniform slot per (pass, digit width, chunk).
+        self._pass = Uniforms(gpu, self._k["rs_upsweep"].struct("RsPass"), 8 * 4 * self.nch, "sort.pass")
+        p, m, c = (a.reshape(-1) for a in np.meshgrid(np.arange(8), np.arange(4), np.arange(self.nch), indexing="ij"))
+        self._pass.struct.fill(
+            self._pass.rows, shift=4 * p, mask=(1 << (m + 1)) - 1, block0=c * self.bpc, bpc=self.bpc, split=self.chunk
         )
+        self._pass.write()
         self._counts = _Counts(gpu)
-        self._bgs = _LRU()
-        self._pass_bg = {}
-
-    def _slot_bg(self, entry: str, p: int, m: int, c: int):
-        key = (entry, p, m, c)
-        if key not in self._pass_bg:
-            off = ((p * 4 + m) * self.nch + c) * _UNIFORM_STRIDE
-            self._pass_bg[key] = self.gpu.bind(self._pipes[entry], {0: (self._pass_buf, off, 32)}, group=1)
-        return self._pass_bg[key]
+        self._plan_args = _PlanArgs(gpu, self._k["rs_plan_main"].struct("RsPlanArgs"))
 
     def limit(self, keys, values) -> int:
         """Largest count these buffers can hold."""
@@ -409,47 +376,45 @@ class RadixSort:
             return
         cpass = encoder.begin_compute_pass(label="radix_sort")
         self._encode_plan(cpass, count, limit)
-        self.scan.encode_plan(cpass, (self.plan, 8), self.scan.capacity)
+        self.scan.encode_plan(cpass, (self.plan, 4 * RADIX_PLAN["RS_HIST_COUNT"]), self.scan.capacity)
         chunks = [c for c in range(self.nch) if c * self.chunk < limit]
+        # each array's chunk-c input range and its two output halves, computed once per call
+        io = {b: ([self._in(b, c) for c in chunks], self._out(b)) for b in (keys, values, self.keys_tmp, self.vals_tmp)}
         user, tmp = (keys, values), (self.keys_tmp, self.vals_tmp)
         if passes % 2:
             for c in chunks:
-                self._dispatch(cpass, "rs_copy", 0, 3, c, self._copy_bg(user, tmp, c))
+                bindings = {0: io[keys][0][c], 1: io[values][0][c], 8: self.plan}
+                bindings[12], bindings[13] = io[tmp[0]][0][c], io[tmp[1]][0][c]
+                self._dispatch(cpass, "rs_copy", 0, 3, c, bindings)
             cur, oth = tmp, user
         else:
             cur, oth = user, tmp
         for p in range(passes):
             m = min(4, key_bits - 4 * p) - 1
             for c in chunks:
-                self._dispatch(cpass, "rs_upsweep", p, m, c, self._upsweep_bg(cur, c))
+                self._dispatch(
+                    cpass, "rs_upsweep", p, m, c, {0: io[cur[0]][0][c], 7: self.hist, 8: self.plan, 15: self.offs}
+                )
             self.scan.encode_scan(cpass, self.hist, self.hist, self.scan.capacity)
+            (klo, khi), (vlo, vhi) = io[oth[0]][1], io[oth[1]][1]
             for c in chunks:
-                self._dispatch(cpass, "rs_scatter", p, m, c, self._scatter_bg(cur, oth, c))
+                bindings = {0: io[cur[0]][0][c], 1: io[cur[1]][0][c], 2: klo, 3: khi, 4: vlo, 5: vhi, 6: self.hist}
+                bindings[14] = self.offs
+                self._dispatch(cpass, "rs_scatter", p, m, c, bindings)
             cur, oth = oth, cur
         cpass.end()
 
     # ---- internals -----------------------------------------------------------------------------
-    def _dispatch(self, cpass, entry, p, m, c, bg):
-        cpass.set_pipeline(self._pipes[entry])
-        cpass.set_bind_group(0, bg)
-        cpass.set_bind_group(1, self._slot_bg(entry, p, m, c))
-        cpass.dispatch_workgroups_indirect(self.plan, 4 * (_RS_ARGS + 3 * c))
+    def _dispatch(self, cpass, entry, p, m, c, bindings):
+        bindings[16] = self._pass.binding((p * 4 + m) * self.nch + c)
+        self._k[entry].record(cpass, bindings, indirect=(self.plan, 4 * (RADIX_PLAN["RS_ARGS"] + 3 * c)))
 
     def _encode_plan(self, cpass, count, limit):
         rng, word = self._counts.binding(count)
-        buf, aoff, size = rng
-        key = ("plan", id(buf), aoff, size, word, int(limit))
-
-        def make():
-            pargs = self.gpu.upload(np.array([word, limit, self.chunk, self.nch], np.uint32), UNIFORM, "sort.pargs")
-            return self.gpu.bind(
-                self._pipes["rs_plan_main"], {9: self.plan, 10: rng, 11: pargs, 15: (self.offs, 0, _OFFS_HEADER)}
-            ), buf
-
-        bg, _ = self._bgs.get_or(key, make)
-        cpass.set_pipeline(self._pipes["rs_plan_main"])
-        cpass.set_bind_group(0, bg)
-        cpass.dispatch_workgroups(1, 1, 1)
+        pargs = self._plan_args.get(word=word, limit=int(limit), chunk=self.chunk, nch=self.nch)
+        self._k["rs_plan_main"].record(
+            cpass, {9: self.plan, 10: rng, 11: pargs, 15: (self.offs, 0, _OFFS_HEADER)}, workgroups=(1, 1, 1)
+        )
 
     def _in(self, buf, c):
         return _range(buf, c * 4 * self.chunk, 4 * self.chunk)
@@ -459,55 +424,17 @@ class RadixSort:
         S4 = 4 * self.chunk
         return _range(buf, 0, S4), (_range(buf, S4, S4) or self._dummy)
 
-    def _upsweep_bg(self, src, c):
-        key = ("up", _bind_key(src[0]), c)
-        return self._bgs.get_or(
-            key,
-            lambda: (
-                self.gpu.bind(
-                    self._pipes["rs_upsweep"], {0: self._in(src[0], c), 7: self.hist, 8: self.plan, 15: self.offs}
-                ),
-                src,
-            ),
-        )[0]
 
-    def _scatter_bg(self, src, dst, c):
-        key = ("scatter", _bind_key(*src, *dst), c)
+# ---- numpy twins -----------------------------------------------------------------------------------
+def exclusive_scan(x: np.ndarray) -> np.ndarray:
+    """Twin of PrefixSum: the exclusive prefix sum of u32, wrapping."""
+    x = np.asarray(x, np.uint32)
+    return ((np.cumsum(x.astype(np.uint64)) - x) % 2**32).astype(np.uint32)
 
-        def make():
-            klo, khi = self._out(dst[0])
-            vlo, vhi = self._out(dst[1])
-            return self.gpu.bind(
-                self._pipes["rs_scatter"],
-                {
-                    0: self._in(src[0], c),
-                    1: self._in(src[1], c),
-                    2: klo,
-                    3: khi,
-                    4: vlo,
-                    5: vhi,
-                    6: self.hist,
-                    14: self.offs,
-                },
-            ), (src, dst)
 
-        return self._bgs.get_or(key, make)[0]
-
-    def _copy_bg(self, src, dst, c):
-        key = ("copy", _bind_key(*src, *dst), c)
-        return self._bgs.get_or(
-            key,
-            lambda: (
-                self.gpu.bind(
-                    self._pipes["rs_copy"],
-                    {
-                        0: self._in(src[0], c),
-                        1: self._in(src[1], c),
-                        12: self._in(dst[0], c),
-                        13: self._in(dst[1], c),
-                        8: self.plan,
-                    },
-                ),
-                (src, dst),
-            ),
-        )[0]
+def stable_sort(keys: np.ndarray, values: np.ndarray, key_bits: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """Twin of RadixSort: pairs ordered by the low `key_bits` bits of the keys, ties in input order."""
+    keys = np.asarray(keys, np.uint32)
+    mask = np.uint32(0xFFFFFFFF if key_bits >= 32 else (1 << key_bits) - 1)
+    order = np.argsort(keys & mask, kind="stable")
+    return keys[order], np.asarray(values)[order]

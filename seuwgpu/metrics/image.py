@@ -21,7 +21,7 @@ writes them: never clamped, possibly non-finite after a fault.
 Storage modes
 -------------
 * dense: ``faulted`` [B, K, H, W, 4] float32; every tile is evaluated.
-* sparse: ``slabs`` [S, 256, 4] float32 (one 16x16 tile per slab, pixel (tx, ty) at ty*16+tx),
+* sparse: ``slabs`` [S, TILE*TILE, 4] float32 (one tile per slab, pixel (tx, ty) at ty*TILE+tx),
   ``tile_map`` int32 [B, K, TY*TX] (slab index or -1 = identical to clean), a work list
   ``worklist`` uint32 [E] of tile indices (ty*TX + tx) grouped by bk = b*K + k in increasing bk
   order, and its CSR ``offsets`` uint32 [B*K + 1] (entries of bk are worklist[offsets[bk] :
@@ -38,28 +38,28 @@ accumulates the deficit 1 - SSIM (accurate in float32; exactly 0 for unchanged w
 ``ssim_sum = ssim_count - ssim_deficit`` is formed on the host in float64; ``summarize`` uses the
 deficit directly: SSIM = 1 - deficit / n_interior.
 
-Sums are float32 on the GPU, in a fixed order: per tile (one 64-thread workgroup, 4 pixels per
-thread, then thread 0 adds the 64 thread records), then the tiles of one (b, k) added
+Sums are float32 on the GPU, in a fixed order: per tile (one workgroup, 4 pixels per thread,
+then thread 0 adds the thread records in order), then the tiles of one (b, k) added
 sequentially in work-list order by one thread. Tiles whose partials are all zero therefore change
 nothing, bit for bit: sparse mode with a correct work list (tiles in increasing order within a
 (b, k), as build_worklist makes them) gives exactly the dense numbers. No float atomics.
 
-One ``encode_*`` per ``read``: the partial and result buffers are reused by every call.
+One ``encode_*`` per submission and ``read``: the parameters, partial and result buffers are
+reused by every call. Records are the shader's ``MetricsRecord`` (gpu/kernel.py Struct).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from seuwgpu.gpu.device import INDIRECT, STORAGE, UNIFORM, dispatch_dims
+from seuwgpu.gpu.constants import TILE
+from seuwgpu.gpu.device import INDIRECT, STORAGE
+from seuwgpu.gpu.kernel import Kernel, Uniforms
 
-TILE = 16
 WIN = 7
 PAD = (WIN - 1) // 2
 THRESHOLD = np.float32(1.0 / 255.0)
 FIELDS = ("changed", "peak", "sse", "nonfinite", "ssim_sum", "ssim_count", "ssim_deficit")
-_REC = 6  # words per record
-_HDR = 16  # bytes of status header in the results buffer
 
 
 def tiles_of(width: int, height: int) -> tuple[int, int]:
@@ -90,18 +90,24 @@ class ImageMetrics:
         self.n_tiles = self.tiles_x * self.tiles_y
         self.n_interior = n_interior(width, height)
         self.capacity = int(max_entries) if max_entries else self.max_variants * self.n_views * self.n_tiles
-        if self.capacity * _REC * 4 > gpu.max_binding:
+        self.k_tile = Kernel(gpu, "metrics", "tile_partials")
+        self.k_reduce = Kernel(gpu, "metrics", "reduce_entries")
+        self.k_dispatch = Kernel(gpu, "metrics", "sparse_dispatch")
+        self.record = self.k_tile.struct("MetricsRecord")
+        self.layout = self.k_tile.struct("MetricsResults")  # status, then records
+        if self.capacity * self.record.size > gpu.max_binding:
             raise ValueError(
                 f"max_entries={self.capacity} needs more than one storage binding "
                 f"({gpu.max_binding} bytes): evaluate fewer variants per call"
             )
-        self.partials = gpu.buffer(self.capacity * _REC * 4, STORAGE, "metrics.partials")
-        self.results = gpu.buffer(_HDR + self.max_variants * self.n_views * _REC * 4, STORAGE, "metrics.results")
+        self.params = Uniforms(gpu, self.k_tile.struct("MetricsParams"), 1, "metrics.params")
+        self.partials = gpu.buffer(self.capacity * self.record.size, STORAGE, "metrics.partials")
+        n_results = self.max_variants * self.n_views
+        self.results = gpu.buffer(
+            self.layout.offset("records") + n_results * self.record.size, STORAGE, "metrics.results"
+        )
         self.indirect = gpu.buffer(16, INDIRECT, "metrics.indirect")
         self._dummy = gpu.buffer(16, STORAGE, "metrics.dummy")
-        self.p_tile = gpu.pipeline("metrics", "tile_partials")
-        self.p_reduce = gpu.pipeline("metrics", "reduce_entries")
-        self.p_dispatch = gpu.pipeline("metrics", "sparse_dispatch")
         self._mode = None
 
     # ---- recording -----------------------------------------------------------------------------
@@ -109,29 +115,26 @@ class ImageMetrics:
         n_variants = int(n_variants)
         if not 0 < n_variants <= self.max_variants:
             raise ValueError(f"n_variants={n_variants} outside 1..{self.max_variants}")
-        p = np.array(
-            [
-                self.width,
-                self.height,
-                self.n_views,
-                n_variants * self.n_views,
-                self.tiles_x,
-                self.n_tiles,
-                self.capacity,
-                int(sparse),
-            ],
-            np.uint32,
+        self.params.struct.fill(
+            self.params.rows,
+            width=self.width,
+            height=self.height,
+            n_views=self.n_views,
+            n_bk=n_variants * self.n_views,
+            tiles_x=self.tiles_x,
+            n_tiles=self.n_tiles,
+            capacity=self.capacity,
+            sparse=int(sparse),
         )
-        return self.gpu.device.create_buffer_with_data(data=p.tobytes(), usage=UNIFORM)
+        self.params.write()
 
     def _need(self, buf, nbytes: int, what: str):
         if buf.size < nbytes:
             raise ValueError(f"{what} buffer holds {buf.size} bytes, needs {nbytes}")
 
-    def _record(self, encoder, params, clean_buf, fimg_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, n_entries):
-        g = self.gpu
+    def _record(self, encoder, clean_buf, fimg_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, n_entries):
         common = {
-            0: params,
+            0: self.params.binding(0),
             1: clean_buf,
             2: fimg_buf,
             3: tile_map_buf,
@@ -141,23 +144,14 @@ class ImageMetrics:
             7: self.results,
             8: self.indirect,
         }
-        bg_tile = g.bind(self.p_tile, {i: common[i] for i in range(7)})
-        bg_red = g.bind(self.p_reduce, {i: common[i] for i in (0, 5, 6, 7)})
+        tile = {i: common[i] for i in range(7)}
         cp = encoder.begin_compute_pass()
         if n_entries is None:  # sparse: size from offsets[B*K] on the GPU
-            cp.set_pipeline(self.p_dispatch)
-            cp.set_bind_group(0, g.bind(self.p_dispatch, {i: common[i] for i in (0, 5, 8)}))
-            cp.dispatch_workgroups(1, 1, 1)
-            cp.set_pipeline(self.p_tile)
-            cp.set_bind_group(0, bg_tile)
-            cp.dispatch_workgroups_indirect(self.indirect, 0)
+            self.k_dispatch.record(cp, {i: common[i] for i in (0, 5, 8)}, workgroups=(1, 1, 1))
+            self.k_tile.record(cp, tile, indirect=(self.indirect, 0))
         elif n_entries > 0:
-            cp.set_pipeline(self.p_tile)
-            cp.set_bind_group(0, bg_tile)
-            cp.dispatch_workgroups(*dispatch_dims(n_entries))
-        cp.set_pipeline(self.p_reduce)
-        cp.set_bind_group(0, bg_red)
-        cp.dispatch_workgroups(*dispatch_dims(-(-n_bk // 64)))
+            self.k_tile.record(cp, tile, workgroups=n_entries)
+        self.k_reduce.record(cp, {i: common[i] for i in (0, 5, 6, 7)}, threads=n_bk)
         cp.end()
 
     def encode_dense(self, encoder, clean_buf, faulted_buf, n_variants: int):
@@ -167,11 +161,11 @@ class ImageMetrics:
         n_entries = n_bk * self.n_tiles
         if n_entries > self.capacity:
             raise ValueError(f"dense mode needs {n_entries} partials > max_entries={self.capacity}")
-        params = self._params(n_variants, False)
         px = self.height * self.width * 16
         self._need(clean_buf, self.n_views * px, "clean")
         self._need(faulted_buf, n_bk * px, "faulted")
-        self._record(encoder, params, clean_buf, faulted_buf, self._dummy, self._dummy, self._dummy, n_bk, n_entries)
+        self._params(n_variants, False)
+        self._record(encoder, clean_buf, faulted_buf, self._dummy, self._dummy, self._dummy, n_bk, n_entries)
         self._mode = ("dense", int(n_variants))
 
     def encode_sparse(self, encoder, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants: int):
@@ -182,11 +176,11 @@ class ImageMetrics:
         indirectly, so the work list may be built on the GPU; more entries than max_entries
         makes ``read`` raise."""
         n_bk = int(n_variants) * self.n_views
-        params = self._params(n_variants, True)
         self._need(clean_buf, self.n_views * self.height * self.width * 16, "clean")
         self._need(tile_map_buf, n_bk * self.n_tiles * 4, "tile_map")
         self._need(offsets_buf, (n_bk + 1) * 4, "offsets")
-        self._record(encoder, params, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, None)
+        self._params(n_variants, True)
+        self._record(encoder, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, None)
         self._mode = ("sparse", int(n_variants))
 
     # ---- results -------------------------------------------------------------------------------
@@ -196,14 +190,15 @@ class ImageMetrics:
             raise RuntimeError("nothing encoded")
         B = self._mode[1] if n_variants is None else int(n_variants)
         K = self.n_views
-        raw = self.gpu.read(self.results, np.uint32, 0, _HDR + B * K * _REC * 4)
-        requested, evaluated = int(raw[0]), int(raw[1])
-        if requested > evaluated:
+        start = self.layout.offset("records")
+        raw = self.gpu.read(self.results, np.uint8, 0, start + B * K * self.record.size)
+        status = raw[: self.layout.size].view(self.layout.dtype)["status"][0]
+        if status["requested"] > status["evaluated"]:
             raise RuntimeError(
-                f"metrics work list has {requested} entries > max_entries="
+                f"metrics work list has {status['requested']} entries > max_entries="
                 f"{self.capacity}: results incomplete (raise max_entries)"
             )
-        return _unpack(raw[4:].reshape(B, K, _REC))
+        return _unpack(raw[start:].view(self.record.dtype).reshape(B, K))
 
     def run_dense(self, clean_buf, faulted_buf, n_variants: int) -> dict:
         """encode_dense + submit + read."""
@@ -221,14 +216,14 @@ class ImageMetrics:
 
 
 def _unpack(rec: np.ndarray) -> dict:
-    f = rec.view(np.float32)
-    count = rec[..., 5].astype(np.int64)
-    deficit = f[..., 4].astype(np.float64)
+    """MetricsRecord [B, K] -> the FIELDS as [B, K] arrays."""
+    count = rec["count"].astype(np.int64)
+    deficit = rec["deficit"].astype(np.float64)
     return {
-        "changed": rec[..., 0].astype(np.int64),
-        "peak": f[..., 1].astype(np.float64),
-        "sse": f[..., 2].astype(np.float64),
-        "nonfinite": rec[..., 3].astype(np.int64),
+        "changed": rec["changed"].astype(np.int64),
+        "peak": rec["peak"].astype(np.float64),
+        "sse": rec["sse"].astype(np.float64),
+        "nonfinite": rec["nonfinite"].astype(np.int64),
         "ssim_sum": count - deficit,
         "ssim_count": count,
         "ssim_deficit": deficit,

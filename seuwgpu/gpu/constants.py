@@ -1,0 +1,52 @@
+"""Values that the host code and the WGSL shaders must agree on, defined here once.
+
+Every shader is compiled with `wgsl_header()` prepended (gpu/device.py `shader_source`), so the
+shaders use these names (`TILE`, `FMT_BF16`, ...) and never restate the numbers; Python imports
+them from here. See gpu/kernel.py for the rules (header constants vs pipeline overrides).
+"""
+
+from __future__ import annotations
+
+TILE = 16
+"""Pixels per side of a screen tile: binning, one compositing workgroup, one metrics slab."""
+
+PRECISION_CODE = {"fp32": 0, "fp16": 1, "bf16": 2}
+"""Code of each stored precision in the shaders' uniforms (`FMT_FP32`, `FMT_FP16`, `FMT_BF16`)."""
+
+WG = 256
+"""Threads per workgroup of the one-thread-per-element kernels and of the scan and radix sort."""
+
+MAX_GROUPS_X = 32768
+"""Workgroups per dispatch row: a longer 1-D grid is split into rows (gpu/device.dispatch_dims;
+shaders read the linear id back with `linear_wg`). WebGPU's default per-dimension limit is 65535."""
+
+UNIFORM_STRIDE = 256
+"""Bytes between uniform slots bound by offset: the largest min-uniform-buffer-offset-alignment
+in the wild (host only)."""
+
+SHARED = {
+    "TILE": TILE,
+    "WG": WG,
+    "MAX_GROUPS_X": MAX_GROUPS_X,
+    **{f"FMT_{p.upper()}": code for p, code in PRECISION_CODE.items()},
+}
+"""What `wgsl_header` declares in every shader."""
+
+
+def wgsl_const(name: str, value) -> str:
+    """One WGSL `const` declaration of a Python bool, int (u32 when >= 0, else i32) or float."""
+    if isinstance(value, bool):
+        return f"const {name}: bool = {str(value).lower()};"
+    if isinstance(value, int):
+        return f"const {name}: u32 = {value}u;" if value >= 0 else f"const {name}: i32 = {value}i;"
+    if isinstance(value, float):
+        return f"const {name}: f32 = {value!r};"
+    raise TypeError(f"shader constant {name} must be a bool, int or float, got {type(value).__name__}")
+
+
+def wgsl_header(defines: dict | None = None) -> str:
+    """The constants every shader is compiled with, then a module's own `defines`."""
+    both = {**SHARED, **(defines or {})}
+    lines = ["// Generated from seuwgpu/gpu/constants.py (and the module's defines): do not restate."]
+    lines += [wgsl_const(k, v) for k, v in both.items()]
+    return "\n".join(lines) + "\n"

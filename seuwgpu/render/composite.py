@@ -1,0 +1,195 @@
+"""Compositing stage: shaders/composite.wgsl and its numpy twin.
+
+Front to back over each tile's depth-ordered list, per pixel (docs/renderer.md): skip when
+sigma < 0 or alpha < 1/255, alpha = min(0.99, o * exp(-sigma)) with NaN propagating, stop before
+T drops to 1e-4 or below, output (C + T * background, T). Nothing is clamped.
+
+Two GPU entry points share the blending code, so their arithmetic is identical bit for bit:
+`Compositing` (main: the tiles of full frames) and `VariantCompositing` (variants: tiles of
+single-upset variants re-composited from a clean frame's kept lists, render/incremental.py).
+
+Twin: `composite_tile` blends one tile exactly as the sequential per-pixel rule does, vectorised
+over pixels and blocks of primitives: the transmittance and colour recurrences use
+`np.multiply.accumulate` / `np.add.accumulate`, which are strictly sequential in float32, so it
+equals the per-pixel loop `T = T * (1 - alpha)`, `C = C + rgb * (alpha * T)` bit for bit.
+sigma = 0.5 * ((conic.x*dx)*dx + (conic.z*dy)*dy) + (conic.y*dx)*dy with dx = mx - px (gsplat's
+left-to-right order: with conic = 0, sigma is 0 even where dx*dx overflows). The GPU may fuse
+multiply-adds and its exp may differ by an ulp, so GPU and twin agree to float32 rounding
+(tests/test_composite.py documents the tolerance), not bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from seuwgpu.gpu.constants import TILE
+from seuwgpu.gpu.device import GPU, STORAGE
+from seuwgpu.gpu.kernel import Kernel, Uniforms
+
+F = np.float32
+ALPHA_MAX = F(0.99)
+ALPHA_MIN = F(1.0 / 255.0)
+T_MIN = F(1e-4)
+SLAB_BYTES = TILE * TILE * 16  # one re-composited tile: TILE x TILE vec4 (rgb, T)
+
+
+class Compositing:
+    """composite.wgsl:main: one TILE x TILE workgroup per tile; owns the frames `image`
+    ([K, H, W] vec4: rgb, final transmittance)."""
+
+    def __init__(self, gpu: GPU):
+        self.gpu = gpu
+        self.kernel = Kernel(gpu, "composite", "main")
+
+    def set_views(self, k: int, width: int, height: int):
+        self.image = self.gpu.buffer(16 * int(k) * int(width) * int(height), STORAGE, "composite.image")
+
+    def encode(self, encoder, frame, ranges, isect_prims, xy, conic, rgb, tiles: tuple[int, int]):
+        """One view: `frame` its Binning slot (render/bin.py), `ranges` / `isect_prims` its tile
+        lists, `xy` / `conic` / `rgb` the screen records (render/project.py), tiles = (TX, TY)."""
+        self.kernel.dispatch(
+            encoder,
+            {0: frame, 1: ranges, 2: isect_prims, 3: xy, 4: conic, 5: rgb, 6: self.image},
+            workgroups=(int(tiles[0]), int(tiles[1]), 1),
+        )
+
+
+class VariantCompositing:
+    """composite.wgsl:variants: re-composite listed (variant, view, tile, primitive) entries into
+    slabs (one TILE x TILE vec4 tile each), from a clean frame's kept per-view state with the
+    primitive's clean entry removed and its variant record merged in at its depth (ordered by
+    (depth bits, index) as the depth sort orders them). A pixel that neither record reaches is
+    copied from the clean image. Owns the entries, the slabs and the `Recomp` parameters."""
+
+    def __init__(self, gpu: GPU, max_entries: int):
+        self.gpu = gpu
+        self.kernel = Kernel(gpu, "composite", "variants")
+        self.params = Uniforms(gpu, self.kernel.struct("Recomp"), 1, "recomp")
+        self.entry = self.kernel.struct("VariantEntry")
+        self.max_entries = int(max_entries)
+        self.entries = gpu.buffer(self.entry.size * self.max_entries, STORAGE, "variants.entries")
+        self.slabs = gpu.buffer(SLAB_BYTES * self.max_entries, STORAGE, "variants.slabs")
+
+    def encode(self, encoder, entries: dict, kept: dict, variant: dict, clean_image, **params):
+        """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}).
+        kept: the clean frame's per-view `ranges`, `isect` (tile lists, `capacity` apart), `xy`,
+        `conic`, `rgb` (w = depth) of n_prims records per view; variant: the variants' `xy`,
+        `conic`, `rgb`, `rect` (n_variants per view); params: width, height, tiles_x, n_tiles,
+        n_prims, n_variants, capacity, background. Queue writes: one encode per submission."""
+        n_e = len(entries["tile"])
+        if n_e > self.max_entries:
+            raise ValueError(f"{n_e} entries > max_entries={self.max_entries}")
+        if n_e:
+            self.gpu.write(self.entries, self.entry.fill(self.entry.zeros(n_e), **entries))
+        params["background"] = np.append(np.asarray(params["background"], np.float32), 0.0)
+        self.params.struct.fill(self.params.rows[0:1], n_entries=n_e, **params)
+        self.params.write()
+        if n_e:
+            self.kernel.dispatch(
+                encoder,
+                {
+                    10: self.params.binding(0),
+                    11: self.entries,
+                    12: kept["ranges"],
+                    13: kept["isect"],
+                    14: kept["xy"],
+                    15: kept["conic"],
+                    16: kept["rgb"],
+                    17: variant["xy"],
+                    18: variant["conic"],
+                    19: variant["rgb"],
+                    20: variant["rect"],
+                    21: self.slabs,
+                    22: clean_image,
+                },
+                workgroups=n_e,
+            )
+
+    def read_slabs(self, n: int) -> np.ndarray:
+        """[n, TILE, TILE, 4] float32 of the last submitted encode."""
+        return self.gpu.read(self.slabs, np.float32, 0, SLAB_BYTES * n).reshape(n, TILE, TILE, 4)
+
+
+# ---- numpy twin ---------------------------------------------------------------------------------
+def composite_tile(ids, pxs, pys, mx, my, conic, opac, rgb, bg, block0=32, block_max=512):
+    """Composite the depth-ordered primitive list `ids` over pixel centres (pxs, pys) [P]:
+    (C + T * bg [P, 3], T [P]). Exactly the sequential per-pixel rule, vectorised over pixels and
+    blocks of primitives."""
+    P = pxs.shape[0]
+    T = np.ones(P, dtype=F)
+    C = np.zeros((P, 3), dtype=F)
+    active = np.arange(P)  # pixels not yet stopped
+    pos, L, B = 0, len(ids), block0
+    with np.errstate(all="ignore"):
+        while pos < L and active.size:
+            blk = ids[pos : pos + B]
+            pos += len(blk)
+            nb = len(blk)
+            apx, apy = pxs[active], pys[active]
+            dx = mx[blk, None] - apx[None, :]
+            dy = my[blk, None] - apy[None, :]
+            cxx, cxy, czz = conic[blk, 0, None], conic[blk, 1, None], conic[blk, 2, None]
+            sigma = F(0.5) * ((cxx * dx) * dx + (czz * dy) * dy) + (cxy * dx) * dy
+            a = opac[blk, None] * np.exp(-sigma)
+            alpha = np.minimum(ALPHA_MAX, a)  # NaN propagates
+            skip = (sigma < 0) | (alpha < ALPHA_MIN)
+            f = F(1) - np.where(skip, F(0), alpha)
+            Ta = T[active]
+            Tc = np.multiply.accumulate(np.concatenate([Ta[None, :], f], axis=0), axis=0)  # [nb+1, Pa]
+            stop = Tc[1:] <= T_MIN  # skipped steps keep T (> T_MIN), so they never stop
+            any_stop = stop.any(axis=0)
+            first = np.where(any_stop, np.argmax(stop, axis=0), nb)
+            include = (np.arange(nb)[:, None] < first[None, :]) & ~skip
+            vis = alpha * Tc[:-1]
+            contrib = rgb[blk][:, None, :] * vis[:, :, None]
+            contrib = np.where(include[:, :, None], contrib, F(0))
+            Cc = np.add.accumulate(np.concatenate([C[active][None], contrib], axis=0), axis=0)
+            cols = np.arange(active.size)
+            C[active] = Cc[first, cols]
+            T[active] = Tc[first, cols]
+            active = active[~any_stop]
+            B = min(2 * B, block_max)
+        return C + T[:, None] * bg[None, :], T
+
+
+def tile_pixels(tx: int, ty: int, width: int, height: int, origin=(0, 0)):
+    """Pixel rows / columns of tile (tx, ty) inside a width x height viewport, and their centres
+    in full-frame coordinates (the viewport starts at `origin`)."""
+    xa, xb = tx * TILE, min(width, (tx + 1) * TILE)
+    ya, yb = ty * TILE, min(height, (ty + 1) * TILE)
+    gy, gx = np.mgrid[ya:yb, xa:xb]
+    pxs = (gx.reshape(-1) + origin[0]).astype(F) + F(0.5)
+    pys = (gy.reshape(-1) + origin[1]).astype(F) + F(0.5)
+    return (slice(ya, yb), slice(xa, xb)), pxs, pys
+
+
+def composite_frame(ranges, prims, records: dict, width: int, height: int, background=(1.0, 1.0, 1.0), origin=(0, 0)):
+    """Twin of the main entry for one view: tile t draws prims[ranges[t, 0]:ranges[t, 1]] with
+    the screen records (`mean2d` [N, 2], `conic` [N, 3], `opacity`, `rgb` [N, 3]). Returns
+    [H, W, 4] float32 (rgb, T) like the GPU's image."""
+    bg = np.asarray(background, dtype=F).reshape(3)
+    tiles_x, tiles_y = -(-int(width) // TILE), -(-int(height) // TILE)
+    mx, my = records["mean2d"][:, 0], records["mean2d"][:, 1]
+    img = np.empty((height, width, 4), dtype=F)
+    prims = np.asarray(prims, np.int64)
+    for ty in range(tiles_y):
+        for tx in range(tiles_x):
+            (ys, xs), pxs, pys = tile_pixels(tx, ty, width, height, origin)
+            a, b = ranges[ty * tiles_x + tx]
+            rgb, T = composite_tile(
+                prims[a:b], pxs, pys, mx, my, records["conic"], records["opacity"], records["rgb"], bg
+            )
+            img[ys, xs, :3] = rgb.reshape(img[ys, xs].shape[:2] + (3,))
+            img[ys, xs, 3] = T.reshape(img[ys, xs].shape[:2])
+    return img
+
+
+def variant_list(clean_ids, keys, prim: int, new_key: int, covers: bool) -> np.ndarray:
+    """Twin of the variants entry's list: the clean tile list `clean_ids` (ordered by (key,
+    index), `keys` the depth-key bits of every primitive) without `prim`, and with `prim` merged
+    back at (new_key, prim) if its variant rectangle `covers` the tile."""
+    ids = [int(i) for i in clean_ids if int(i) != prim]
+    if covers:
+        pos = sum(1 for i in ids if (int(keys[i]), i) < (int(new_key), prim))
+        ids.insert(pos, prim)
+    return np.array(ids, dtype=np.int64)

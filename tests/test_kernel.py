@@ -1,0 +1,177 @@
+"""gpu/kernel.py: Struct layouts against hand-computed WGSL offsets, the constants header, and the
+Kernel's bind-group cache and dispatch grid."""
+
+import gc
+
+import numpy as np
+import pytest
+
+from seuwgpu.gpu.constants import MAX_GROUPS_X, PRECISION_CODE, TILE, UNIFORM_STRIDE, WG, wgsl_header
+from seuwgpu.gpu.device import UNIFORM, shader_source
+from seuwgpu.gpu.kernel import Kernel, Struct, Uniforms, wgsl_constants, workgroup_size
+
+LAYOUT_SRC = """
+const N: u32 = 3u;
+struct Inner {
+    a: f32,
+    b: vec2<f32>,       // align 8: offset 8
+};
+struct Outer {
+    x: u32,             // 0
+    v3: vec3<f32>,      // align 16: 16 .. 28
+    y: u32,             // packs into the vec3's tail: 28
+    v2: vec2f,          // 32
+    m: mat4x4<f32>,     // align 16: 48 .. 112
+    arr: array<u32, 4>, // 112 .. 128
+    inner: Inner,       // align 8, size 16: 128 .. 144
+    vs: array<vec4<i32>, N>, // 144 .. 192
+    @align(16) z: f32,  // 192
+    @size(8) w: u32,    // 196 .. 204
+    tail_pad: u32,      // 204; struct size rounds 208 up to align 16 -> 208
+};
+struct Header {
+    count: u32,
+    recs: array<Inner>, // runtime-sized tail at roundUp(4, align 8) = 8, after an 8-byte header
+};
+"""
+
+
+def test_struct_layout_follows_wgsl_alignment_rules():
+    s = Struct.from_wgsl(LAYOUT_SRC, "Outer")
+    want = {
+        "x": 0,
+        "v3": 16,
+        "y": 28,
+        "v2": 32,
+        "m": 48,
+        "arr": 112,
+        "inner": 128,
+        "vs": 144,
+        "z": 192,
+        "w": 196,
+        "tail_pad": 204,
+    }
+    assert {f: s.offset(f) for f in s.fields} == want
+    assert s.size == 208
+    inner = Struct.from_wgsl(LAYOUT_SRC, "Inner")
+    assert (inner.size, inner.offset("b")) == (16, 8)
+    assert s.zeros()["m"].shape == (4, 4) and s.zeros()["vs"].shape == (3, 4)
+    h = Struct.from_wgsl(LAYOUT_SRC, "Header")
+    assert h.size == 8 and h.tail[0] == "recs" and h.offset("recs") == 8 and h.tail[2].itemsize == 16
+
+
+def test_struct_bytes_land_where_the_shader_reads_them():
+    s = Struct.from_wgsl(LAYOUT_SRC, "Outer")
+    m = np.arange(16, dtype=np.float32).reshape(4, 4)
+    raw = s.pack(x=7, y=9, v3=[1, 2, 3], m=m, inner=(5.0, [6.0, 7.0])).view(np.uint32)
+    f = raw.view(np.float32)
+    assert raw[0] == 7 and raw[7] == 9 and f[4:7].tolist() == [1, 2, 3]
+    assert f[12:28].tolist() == m.reshape(-1).tolist()  # column by column: m[col][row]
+    assert f[32] == 5.0 and f[34:36].tolist() == [6.0, 7.0]
+    assert raw.size * 4 == s.size
+    with pytest.raises(KeyError, match="no field 'count'"):
+        s.pack(count=1)
+
+
+def test_struct_from_a_numpy_dtype_and_uniform_slots(gpu):
+    s = Struct(np.dtype([("a", "<u4"), ("b", "<f4")]), "Pair")
+    assert s.size == 8 and s.offset("b") == 4
+    u = Uniforms(gpu, Struct.from_shader("flip", "FlipParams"), 3)
+    assert u.rows.dtype.itemsize == UNIFORM_STRIDE and u.buffer.size == 3 * UNIFORM_STRIDE
+    assert u.binding(2) == (u.buffer, 2 * UNIFORM_STRIDE, 16)
+    with pytest.raises(ValueError):
+        Struct(np.dtype("<u4"))
+
+
+def test_shader_structs_match_the_host_layouts_they_replace():
+    """The offsets the host used to write by hand, now read from the shaders."""
+    view = Struct.from_shader("project", "View")
+    assert view.size == 176
+    assert [view.offset(f) for f in ("campos", "intr", "background", "width", "fmt", "guard_hi", "tile_x0")] == [
+        64,
+        80,
+        96,
+        112,
+        148,
+        160,
+        164,
+    ]
+    binning = Struct.from_shader("bin", "Binning")
+    assert (binning.size, binning.offset("origin"), binning.offset("background")) == (48, 28, 32)
+    rec = Struct.from_shader("metrics", "MetricsRecord")
+    assert rec.size == 24 and rec.fields == ("changed", "peak", "sse", "nonfinite", "deficit", "count")
+    assert Struct.from_shader("metrics", "MetricsResults").offset("records") == 16
+
+
+def test_unsupported_types_are_refused():
+    with pytest.raises(ValueError, match="unsupported"):
+        Struct.from_wgsl("struct S { b: bool, };", "S")
+    with pytest.raises(ValueError, match="padded"):
+        Struct.from_wgsl("struct S { a: array<vec3<f32>, 2>, };", "S")
+    with pytest.raises(ValueError, match="no `struct T`"):
+        Struct.from_wgsl("struct S { a: u32, };", "T")
+
+
+def test_constants_header_defines_the_shared_values_once():
+    head = wgsl_header({"EXTRA": 5})
+    assert f"const TILE: u32 = {TILE}u;" in head and "const EXTRA: u32 = 5u;" in head
+    for p, code in PRECISION_CODE.items():
+        assert f"const FMT_{p.upper()}: u32 = {code}u;" in head
+    src = shader_source("composite")
+    values = wgsl_constants(src)
+    assert values["TILE_PIXELS"] == TILE * TILE and values["MAX_GROUPS_X"] == MAX_GROUPS_X
+    assert workgroup_size(src, "main") == (TILE, TILE, 1)
+    assert workgroup_size(shader_source("scan"), "ps_reduce") == (WG, 1, 1)
+    assert workgroup_size(shader_source("metrics"), "tile_partials") == (TILE * TILE // 4, 1, 1)
+    with pytest.raises(ValueError):
+        workgroup_size(src, "no_such_entry")
+
+
+def test_kernel_caches_bind_groups_by_what_they_bind(gpu):
+    k = Kernel(gpu, "flip")
+    assert k.workgroup_size == (WG, 1, 1) and k.label == "flip:main"
+    params = gpu.upload(k.struct("FlipParams").pack(count=0), UNIFORM)
+    a, b, words = gpu.buffer(64), gpu.buffer(64), gpu.buffer(64)
+    bg = k.bind({0: params, 1: a, 2: words})
+    assert k.bind({0: params, 1: a, 2: words}) is bg
+    assert k.bind({0: (params, 0, 16), 1: a, 2: words}) is not bg  # a range is another binding
+    other = k.bind({0: params, 1: b, 2: words})
+    assert other is not bg and k.cached_bind_groups == 3
+    del a  # a collected buffer takes its bind groups with it: no stale entry, nothing pinned
+    gc.collect()
+    assert k.cached_bind_groups == 1 and k.bind({0: params, 1: b, 2: words}) is other
+    del params, b, words, bg, other
+    gc.collect()
+    assert k.cached_bind_groups == 0
+
+
+def test_kernel_grid_splits_long_1d_dispatches(gpu):
+    k = Kernel(gpu, "flip")
+    assert k.grid(0) == (1, 1, 1) and k.grid(WG) == (1, 1, 1) and k.grid(WG + 1) == (2, 1, 1)
+    assert k.grid(WG * MAX_GROUPS_X) == (MAX_GROUPS_X, 1, 1)
+    assert k.grid(WG * MAX_GROUPS_X + 1) == (MAX_GROUPS_X, 2, 1)
+    enc = gpu.device.create_command_encoder()
+    with pytest.raises(ValueError, match="threads, workgroups or indirect"):
+        k.dispatch(enc, {})
+
+
+def test_steady_state_work_creates_no_bind_group(gpu, monkeypatch):
+    """Once warm, rendering, injecting and incremental evaluation only look bind groups up."""
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.model.scenes import make_scene, scene_cameras
+
+    eng = Engine(make_scene("spheres", n=800, seed=1), scene_cameras("spheres", 2, 40, 32), "fp32")
+    sites = [eng.site("log_scales", p, 0, 31) for p in (3, 50, 400)]
+
+    def work():
+        eng.renderer.render()
+        eng.inject(sites[0], "guard")
+        eng.evaluate(sites, ("none", "ecc"))
+
+    work()
+    made = []
+    real = gpu.bind
+    monkeypatch.setattr(gpu, "bind", lambda *a, **kw: made.append(a) or real(*a, **kw))
+    work()
+    work()
+    assert made == []
