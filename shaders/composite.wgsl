@@ -1,6 +1,18 @@
-// Front-to-back compositing (render/composite.py): one TILE x TILE workgroup per tile,
-// intersections staged through workgroup memory in batches of TILE_PIXELS. Rules (skips,
-// NaN-propagating min, early stop) are in docs/renderer.md. Output pixel = (C + T * background, T).
+// Front-to-back compositing (render/composite.py): one workgroup per TILE x TILE tile, each
+// invocation compositing a column of QUAD (4) vertically adjacent pixels as vec4 lanes (the
+// splat's x offset, staged record and loop overhead are shared by the four; on CPU Vulkan, 4x fewer
+// invocations also means 4x fewer barrier context switches). Intersections are staged through
+// workgroup memory in batches of BATCH records. Rules (skips, NaN-propagating min, early stop)
+// are in docs/renderer.md. Output pixel = (C + T * background, T).
+//
+// Exactness: every pixel runs the per-pixel rule with the same operations in the same order as a
+// one-pixel-per-invocation loop would (the lanes are independent; skips and stops are masks).
+// Two shortcuts skip work that cannot change a pixel:
+// - a staged record carries `cut`, a sigma beyond which alpha < 1/255 for certain (its opacity o:
+//   ln(255 o) + 0.01, a margin far above exp's error; -Inf when o < 0.001, where alpha < 1/255
+//   for every sigma >= 0; +Inf when o is NaN or huge, never cut): lanes past it skip without exp;
+// - an invocation whose four pixels have stopped leaves the batch loop; the workgroup leaves the
+//   tile when all its pixels have stopped.
 //
 // Two entry points share the blending code, so their arithmetic is identical bit for bit:
 // - main: a tile of a full frame;
@@ -8,75 +20,160 @@
 //   with the corrupted primitive removed and its re-projected record merged in at its depth
 //   (render/incremental.py; equal to a full re-render bit for bit).
 
-var<workgroup> s_xy: array<vec2<f32>, TILE_PIXELS>;
-var<workgroup> s_conic: array<vec4<f32>, TILE_PIXELS>;
-var<workgroup> s_rgb: array<vec4<f32>, TILE_PIXELS>;
+const QUAD: u32 = 4u;                       // pixels per invocation (one column)
+const ROWS: u32 = TILE / QUAD;              // invocation rows per tile
+const LANES: u32 = TILE * ROWS;             // invocations per workgroup
+const BATCH: u32 = TILE_PIXELS;             // records staged per batch
+const PER_LANE: u32 = BATCH / LANES;        // records each invocation stages per batch
+
+var<workgroup> s_xy: array<vec4<f32>, BATCH>;     // mean x, mean y, cut, 0
+var<workgroup> s_conic: array<vec4<f32>, BATCH>;  // conic, opacity
+var<workgroup> s_rgb: array<vec4<f32>, BATCH>;
 var<workgroup> s_done: atomic<u32>;
 var<workgroup> s_all_done: u32;
 
-struct Pixel {
-    pix: vec2<f32>,
-    C: vec3<f32>,
-    T: f32,
-    done: bool,
+// Four pixels (x, y0 + i), i = 0..3, in vec4 lanes.
+struct Quad {
+    x: f32,
+    y: vec4<f32>,
+    r: vec4<f32>,
+    g: vec4<f32>,
+    b: vec4<f32>,
+    T: vec4<f32>,
+    done: vec4<bool>,
 };
 
-fn begin_pixel(li: u32, inside: bool, px: u32, py: u32) -> Pixel {
-    if (li == 0u) {
-        atomicStore(&s_done, 0u);
-        s_all_done = 0u;
-    }
-    workgroupBarrier();
-    if (!inside) {
-        atomicAdd(&s_done, 1u);
-    }
-    return Pixel(vec2<f32>(f32(px) + 0.5, f32(py) + 0.5), vec3<f32>(0.0), 1.0, !inside);
+fn inf_f32() -> f32 {
+    return bitcast<f32>(0x7f800000u);
 }
 
-// Blend the m staged intersections into one pixel.
-fn blend_batch(px: ptr<function, Pixel>, m: u32) {
-    if ((*px).done) {
+fn nan4(v: vec4<f32>) -> vec4<bool> {
+    return (bitcast<vec4<u32>>(v) & vec4<u32>(0x7fffffffu)) > vec4<u32>(0x7f800000u);
+}
+
+// Sigma beyond which a record of opacity o cannot reach alpha >= 1/255 (see the header).
+fn cut_of(o: f32) -> f32 {
+    if ((bitcast<u32>(o) & 0x7fffffffu) > 0x7149f2cau) {
+        return inf_f32();  // NaN, infinite or |o| > 1e30: never cut
+    }
+    if (o < 0.001) {
+        return -inf_f32();
+    }
+    return log(255.0 * o) + 0.01;
+}
+
+// Stage one record (screen mean, conic + opacity, rgb) at slot i.
+fn stage(i: u32, xy: vec2<f32>, co: vec4<f32>, rgb: vec4<f32>) {
+    s_xy[i] = vec4<f32>(xy, cut_of(co.w), 0.0);
+    s_conic[i] = co;
+    s_rgb[i] = rgb;
+}
+
+// The quad of pixel centres (x, y0 + i) + 0.5 in full-frame coordinates; `done` lanes are not drawn.
+fn make_quad(x: u32, y0: u32, done: vec4<bool>) -> Quad {
+    let yf = f32(y0) + 0.5;
+    return Quad(f32(x) + 0.5, vec4<f32>(yf, yf + 1.0, yf + 2.0, yf + 3.0), vec4<f32>(0.0), vec4<f32>(0.0),
+                vec4<f32>(0.0), vec4<f32>(1.0), done);
+}
+
+// Lanes of a quad inside the width x height viewport (tile-local x, y0).
+fn inside_quad(x: u32, y0: u32, width: u32, height: u32) -> vec4<bool> {
+    let ys = vec4<u32>(y0) + vec4<u32>(0u, 1u, 2u, 3u);
+    return vec4<bool>(x < width) & (ys < vec4<u32>(height));
+}
+
+// Count an invocation whose lanes are all finished before the first batch (after s_done's reset
+// and a barrier).
+fn count_if_done(q: ptr<function, Quad>) {
+    if (all((*q).done)) {
+        atomicAdd(&s_done, 1u);
+    }
+}
+
+// sigma of a record at the quad's pixels, in the per-pixel rule's operation order.
+fn sigma_of(xy: vec2<f32>, co: vec4<f32>, q: ptr<function, Quad>) -> vec4<f32> {
+    let dx = xy.x - (*q).x;
+    let dy = vec4<f32>(xy.y) - (*q).y;
+    return 0.5 * (vec4<f32>(co.x * dx * dx) + co.z * dy * dy) + (co.y * dx) * dy;
+}
+
+// alpha (NaN propagating) of a record at sigma, and whether each lane takes part in the blend.
+struct Alpha {
+    alpha: vec4<f32>,
+    hit: vec4<bool>,
+};
+
+fn alpha_of(sigma: vec4<f32>, o: f32) -> Alpha {
+    let s_nan = nan4(sigma);
+    let x = -sigma;
+    var e = exp(x);
+    e = select(e, vec4<f32>(0.0), x < vec4<f32>(-103.97208));
+    e = select(e, vec4<f32>(inf_f32()), x > vec4<f32>(88.72283));
+    e = select(e, x, s_nan);
+    let a = o * e;
+    let a_nan = nan4(a);
+    let alpha = select(min(vec4<f32>(0.99), a), a, a_nan);
+    let skip = (!s_nan & (sigma < vec4<f32>(0.0))) | (!nan4(alpha) & (alpha < vec4<f32>(1.0 / 255.0)));
+    return Alpha(alpha, !skip);
+}
+
+// Blend the m staged records into the quad.
+fn blend_batch(q: ptr<function, Quad>, m: u32) {
+    if (all((*q).done)) {
         return;
     }
-    var T = (*px).T;
-    var C = (*px).C;
+    var T = (*q).T;
+    var r = (*q).r;
+    var g = (*q).g;
+    var b = (*q).b;
+    var done = (*q).done;
     for (var k = 0u; k < m; k = k + 1u) {
+        let st = s_xy[k];
         let co = s_conic[k];
-        let d = s_xy[k] - (*px).pix;
-        let sigma = 0.5 * (co.x * d.x * d.x + co.z * d.y * d.y) + co.y * d.x * d.y;
-        // NaN never takes a skip or stop branch: it must reach the pixel (bit tests, since
-        // compilers may assume finite math).
-        if (!is_nan_f32(sigma) && sigma < 0.0) {
+        let sigma = sigma_of(st.xy, co, q);
+        // lanes that may take part: not stopped, and sigma neither negative nor past the cut
+        let gone = !nan4(sigma) & ((sigma < vec4<f32>(0.0)) | (sigma > vec4<f32>(st.z)));
+        if (!any(!done & !gone)) {
             continue;
         }
-        let a = co.w * exp_ieee(-sigma);
-        var alpha = a;
-        if (!is_nan_f32(a)) {
-            alpha = min(0.99, a);
-        }
-        if (!is_nan_f32(alpha) && alpha < 1.0 / 255.0) {
-            continue;
-        }
+        let al = alpha_of(sigma, co.w);
+        let alpha = al.alpha;
+        let hit = al.hit & !done;
         let next_t = T * (1.0 - alpha);
-        if (!is_nan_f32(next_t) && next_t <= 1e-4) {
-            (*px).done = true;
+        let stop = hit & !nan4(next_t) & (next_t <= vec4<f32>(1e-4));
+        let upd = hit & !stop;
+        let rgb = s_rgb[k];
+        let w = alpha * T;
+        r = select(r, r + rgb.x * w, upd);
+        g = select(g, g + rgb.y * w, upd);
+        b = select(b, b + rgb.z * w, upd);
+        T = select(T, next_t, upd);
+        done = done | stop;
+        if (all(done)) {
             atomicAdd(&s_done, 1u);
             break;
         }
-        C = C + s_rgb[k].xyz * (alpha * T);
-        T = next_t;
     }
-    (*px).T = T;
-    (*px).C = C;
+    (*q).T = T;
+    (*q).r = r;
+    (*q).g = g;
+    (*q).b = b;
+    (*q).done = done;
 }
 
-// After a batch: true (uniformly) when every pixel of the tile is finished.
+// After a batch: true (uniformly) when every invocation of the tile is finished.
 fn all_done(li: u32) -> bool {
     workgroupBarrier();
     if (li == 0u) {
         s_all_done = atomicLoad(&s_done);
     }
-    return workgroupUniformLoad(&s_all_done) == TILE_PIXELS;
+    return workgroupUniformLoad(&s_all_done) == LANES;
+}
+
+// Pixel i of the quad as the output (C + T * background, T).
+fn out_pixel(q: Quad, i: u32, bg: vec3<f32>) -> vec4<f32> {
+    let T = q.T[i];
+    return vec4<f32>(vec3<f32>(q.r[i], q.g[i], q.b[i]) + T * bg, T);
 }
 
 // ---- full frame -----------------------------------------------------------------------------
@@ -88,34 +185,43 @@ fn all_done(li: u32) -> bool {
 @group(0) @binding(5) var<storage, read> proj_rgb: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read_write> image: array<vec4<f32>>;
 
-@compute @workgroup_size(TILE, TILE)
+@compute @workgroup_size(TILE, ROWS)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
         @builtin(local_invocation_index) li: u32) {
     let tile = wg.y * bin.tiles_x + wg.x;
-    let px = wg.x * TILE + lid.x;
-    let py = wg.y * TILE + lid.y;
-    let inside = px < bin.width && py < bin.height;
+    let x = wg.x * TILE + lid.x;
+    let y0 = wg.y * TILE + lid.y * QUAD;
+    let inside = inside_quad(x, y0, bin.width, bin.height);
     // pixel centres in full-frame coordinates (a sort-first region starts at `origin`)
-    var p = begin_pixel(li, inside, px + (bin.origin & 0xffffu), py + (bin.origin >> 16u));
+    var q = make_quad(x + (bin.origin & 0xffffu), y0 + (bin.origin >> 16u), !inside);
+    if (li == 0u) {
+        atomicStore(&s_done, 0u);
+    }
+    workgroupBarrier();
+    count_if_done(&q);
     let range = ranges[tile];
     let n = range.y - range.x;
-    let batches = (n + TILE_PIXELS - 1u) / TILE_PIXELS;
-    for (var b = 0u; b < batches; b = b + 1u) {
-        let idx = range.x + b * TILE_PIXELS + li;
-        if (idx < range.y) {
-            let g = isect_prims[idx];
-            s_xy[li] = proj_xy[g];
-            s_conic[li] = proj_conic[g];
-            s_rgb[li] = proj_rgb[g];
+    let batches = (n + BATCH - 1u) / BATCH;
+    for (var bt = 0u; bt < batches; bt = bt + 1u) {
+        for (var s = 0u; s < PER_LANE; s = s + 1u) {
+            let i = s * LANES + li;
+            let idx = range.x + bt * BATCH + i;
+            if (idx < range.y) {
+                let g = isect_prims[idx];
+                stage(i, proj_xy[g], proj_conic[g], proj_rgb[g]);
+            }
         }
         workgroupBarrier();
-        blend_batch(&p, min(TILE_PIXELS, n - b * TILE_PIXELS));
+        blend_batch(&q, min(BATCH, n - bt * BATCH));
         if (all_done(li)) {
             break;
         }
     }
-    if (inside) {
-        image[(bin.stats_index * bin.height + py) * bin.width + px] = vec4<f32>(p.C + p.T * bin.background.xyz, p.T);
+    let bg = bin.background.xyz;
+    for (var i = 0u; i < QUAD; i = i + 1u) {
+        if (inside[i]) {
+            image[(bin.stats_index * bin.height + y0 + i) * bin.width + x] = out_pixel(q, i, bg);
+        }
     }
 }
 
@@ -156,21 +262,11 @@ struct VariantEntry {
 
 var<workgroup> s_list: vec4<u32>;   // (n virtual, insert position or 0xffffffff, removed position or 0xffffffff, 0)
 
-// Whether a record takes part in a pixel's blend (the same arithmetic and skip rules as
+// Lanes of the quad that a record takes part in (the same arithmetic and skip rules as
 // blend_batch). A pixel that neither the clean nor the corrupted record reaches composites
 // exactly as the clean frame did, so it is copied instead of re-blended.
-fn contributes(xy: vec2<f32>, co: vec4<f32>, pix: vec2<f32>) -> bool {
-    let d = xy - pix;
-    let sigma = 0.5 * (co.x * d.x * d.x + co.z * d.y * d.y) + co.y * d.x * d.y;
-    if (!is_nan_f32(sigma) && sigma < 0.0) {
-        return false;
-    }
-    let a = co.w * exp_ieee(-sigma);
-    var alpha = a;
-    if (!is_nan_f32(a)) {
-        alpha = min(0.99, a);
-    }
-    return !(!is_nan_f32(alpha) && alpha < 1.0 / 255.0);
+fn contributes(xy: vec2<f32>, co: vec4<f32>, q: ptr<function, Quad>) -> vec4<bool> {
+    return alpha_of(sigma_of(xy, co, q), co.w).hit;
 }
 
 // (key, index) ordering of the depth sort: depth bits, ties by primitive index.
@@ -199,7 +295,7 @@ fn count_before(v: u32, start: u32, end: u32, key: u32, idx: u32) -> u32 {
     return lo - start;
 }
 
-@compute @workgroup_size(TILE, TILE)
+@compute @workgroup_size(TILE, ROWS)
 fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
             @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     let e = linear_wg(wg, nwg);
@@ -213,13 +309,14 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let prim = entry.prim;
     let tx = tile % rc.tiles_x;
     let ty = tile / rc.tiles_x;
-    let px = tx * TILE + lid.x;
-    let py = ty * TILE + lid.y;
-    let inside = px < rc.width && py < rc.height;
-    var p = begin_pixel(li, inside, px, py);
+    let x = tx * TILE + lid.x;
+    let y0 = ty * TILE + lid.y * QUAD;
+    let inside = inside_quad(x, y0, rc.width, rc.height);
+    var q = make_quad(x, y0, !inside);
     let range = kv_ranges[v * rc.n_tiles + tile];
     let vi = v * rc.n_variants + b;
     if (li == 0u) {
+        atomicStore(&s_done, 0u);
         let n = range.y - range.x;
         // the clean entry of the corrupted primitive, if this tile lists it
         let ck = clean_key(v, prim);
@@ -247,45 +344,41 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let nv = list.x;
     let insert = list.y;
     let removed = list.z;
-    var copy_clean = false;
-    if (inside) {
-        let o = v * rc.n_prims + prim;
-        let old_hits = removed != 0xffffffffu && contributes(kv_xy[o], kv_conic[o], p.pix);
-        let new_hits = insert != 0xffffffffu && contributes(var_xy[vi], var_conic[vi], p.pix);
-        if (!old_hits && !new_hits) {
-            copy_clean = true;
-            p.done = true;
-            atomicAdd(&s_done, 1u);
-        }
-    }
-    let batches = (nv + TILE_PIXELS - 1u) / TILE_PIXELS;
+    let o = v * rc.n_prims + prim;
+    let old_hits = contributes(kv_xy[o], kv_conic[o], &q) & vec4<bool>(removed != 0xffffffffu);
+    let new_hits = contributes(var_xy[vi], var_conic[vi], &q) & vec4<bool>(insert != 0xffffffffu);
+    let copy_clean = inside & !old_hits & !new_hits;
+    q.done = q.done | copy_clean;
+    count_if_done(&q);
+    let batches = (nv + BATCH - 1u) / BATCH;
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
-        let i = bt * TILE_PIXELS + li;
-        if (i < nv) {
-            if (i == insert) {
-                s_xy[li] = var_xy[vi];
-                s_conic[li] = var_conic[vi];
-                s_rgb[li] = var_rgb[vi];
-            } else {
-                var j = i;
-                if (insert != 0xffffffffu && i > insert) { j = j - 1u; }
-                if (removed != 0xffffffffu && j >= removed) { j = j + 1u; }
-                let g = kv_isect[v * rc.capacity + range.x + j];
-                let o = v * rc.n_prims + g;
-                s_xy[li] = kv_xy[o];
-                s_conic[li] = kv_conic[o];
-                s_rgb[li] = kv_rgb[o];
+        for (var s = 0u; s < PER_LANE; s = s + 1u) {
+            let i = bt * BATCH + s * LANES + li;
+            if (i < nv) {
+                if (i == insert) {
+                    stage(s * LANES + li, var_xy[vi], var_conic[vi], var_rgb[vi]);
+                } else {
+                    var j = i;
+                    if (insert != 0xffffffffu && i > insert) { j = j - 1u; }
+                    if (removed != 0xffffffffu && j >= removed) { j = j + 1u; }
+                    let g = kv_isect[v * rc.capacity + range.x + j];
+                    let og = v * rc.n_prims + g;
+                    stage(s * LANES + li, kv_xy[og], kv_conic[og], kv_rgb[og]);
+                }
             }
         }
         workgroupBarrier();
-        blend_batch(&p, min(TILE_PIXELS, nv - bt * TILE_PIXELS));
+        blend_batch(&q, min(BATCH, nv - bt * BATCH));
         if (all_done(li)) {
             break;
         }
     }
-    if (copy_clean) {
-        slabs[e * TILE_PIXELS + li] = clean_image[(v * rc.height + py) * rc.width + px];
-    } else {
-        slabs[e * TILE_PIXELS + li] = vec4<f32>(p.C + p.T * rc.background.xyz, p.T);
+    let bg = rc.background.xyz;
+    for (var i = 0u; i < QUAD; i = i + 1u) {
+        var px = out_pixel(q, i, bg);
+        if (copy_clean[i]) {
+            px = clean_image[(v * rc.height + y0 + i) * rc.width + x];
+        }
+        slabs[e * TILE_PIXELS + (lid.y * QUAD + i) * TILE + lid.x] = px;
     }
 }
