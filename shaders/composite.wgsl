@@ -1,18 +1,21 @@
-// Front-to-back compositing (render/composite.py): one workgroup per TILE x TILE tile, each
-// invocation compositing a column of QUAD (4) vertically adjacent pixels as vec4 lanes (the
-// splat's x offset, staged record and loop overhead are shared by the four; on CPU Vulkan, 4x fewer
-// invocations also means 4x fewer barrier context switches). Intersections are staged through
-// workgroup memory in batches of BATCH records. Rules (skips, NaN-propagating min, early stop)
-// are in docs/renderer.md. Output pixel = (C + T * background, T).
+// Front-to-back compositing (render/composite.py): one workgroup per TILE x TILE tile. Each
+// invocation composites a column of QPI x QUAD (2 x 4) pixels, held as vec4 lanes (one Quad per 4
+// rows): a staged record is read once for eight pixels, and the workgroup has 8x fewer
+// invocations to switch between at barriers (CPU Vulkan runs a workgroup's invocations in SIMD
+// groups, and gathers every per-invocation workgroup-memory read). Intersections are staged
+// through workgroup memory in batches of BATCH records. Rules (skips, NaN-propagating min, early
+// stop) are in docs/renderer.md. Output pixel = (C + T * background, T).
 //
 // Exactness: every pixel runs the per-pixel rule with the same operations in the same order as a
-// one-pixel-per-invocation loop would (the lanes are independent; skips and stops are masks).
-// Two shortcuts skip work that cannot change a pixel:
-// - a staged record carries `cut`, a sigma beyond which alpha < 1/255 for certain (its opacity o:
-//   ln(255 o) + 0.01, a margin far above exp's error; -Inf when o < 0.001, where alpha < 1/255
-//   for every sigma >= 0; +Inf when o is NaN or huge, never cut): lanes past it skip without exp;
-// - an invocation whose four pixels have stopped leaves the batch loop; the workgroup leaves the
-//   tile when all its pixels have stopped.
+// one-pixel-per-invocation loop (lanes are independent; skips and stops are masks), so the image
+// is the same bit for bit. Three shortcuts skip only work that cannot change a pixel:
+// - `cut`: a sigma beyond which alpha < 1/255 for certain (from the opacity o: ln(255 o) + 0.01,
+//   a margin far above exp's error; -Inf when o < 0.001, where alpha < 1/255 for every
+//   sigma >= 0; +Inf, never cut, when o is NaN or |o| > 1e30): lanes past it skip without exp;
+// - `box`: the tile-local pixel rectangle outside which sigma > cut for certain (below), so an
+//   invocation or a quad outside it skips the record after one integer test;
+// - an invocation whose pixels have all stopped leaves the batch loop; the workgroup leaves the
+//   tile when all of them have.
 //
 // Two entry points share the blending code, so their arithmetic is identical bit for bit:
 // - main: a tile of a full frame;
@@ -20,19 +23,24 @@
 //   with the corrupted primitive removed and its re-projected record merged in at its depth
 //   (render/incremental.py; equal to a full re-render bit for bit).
 
-const QUAD: u32 = 4u;                       // pixels per invocation (one column)
-const ROWS: u32 = TILE / QUAD;              // invocation rows per tile
+const QUAD: u32 = 4u;                       // pixels per Quad (vec4 lanes, one column)
+const QPI: u32 = 2u;                        // Quads per invocation
+const SPAN: u32 = QUAD * QPI;               // rows per invocation
+const ROWS: u32 = TILE / SPAN;              // invocation rows per tile
 const LANES: u32 = TILE * ROWS;             // invocations per workgroup
 const BATCH: u32 = TILE_PIXELS;             // records staged per batch
 const PER_LANE: u32 = BATCH / LANES;        // records each invocation stages per batch
+const FULL_BOX: u32 = (TILE - 1u) << 8u | (TILE - 1u) << 24u;
+const EMPTY_BOX: u32 = 1u;                  // x0 = 1 > x1 = 0
 
-var<workgroup> s_xy: array<vec4<f32>, BATCH>;     // mean x, mean y, cut, 0
+var<workgroup> s_box: array<u32, BATCH>;          // x0 | x1 << 8 | y0 << 16 | y1 << 24 (inclusive)
+var<workgroup> s_pos: array<vec4<f32>, BATCH>;    // mean x, mean y, cut, 0
 var<workgroup> s_conic: array<vec4<f32>, BATCH>;  // conic, opacity
 var<workgroup> s_rgb: array<vec4<f32>, BATCH>;
 var<workgroup> s_done: atomic<u32>;
 var<workgroup> s_all_done: u32;
 
-// Four pixels (x, y0 + i), i = 0..3, in vec4 lanes.
+// Four pixels (x, y + i), i = 0..3, in vec4 lanes (centres in full-frame coordinates).
 struct Quad {
     x: f32,
     y: vec4<f32>,
@@ -62,38 +70,95 @@ fn cut_of(o: f32) -> f32 {
     return log(255.0 * o) + 0.01;
 }
 
-// Stage one record (screen mean, conic + opacity, rgb) at slot i.
-fn stage(i: u32, xy: vec2<f32>, co: vec4<f32>, rgb: vec4<f32>) {
-    s_xy[i] = vec4<f32>(xy, cut_of(co.w), 0.0);
+// Half-extents (x, y) of the region outside which sigma > cut for certain, or +Inf (no bound).
+// The minimum over dy of sigma(dx, dy) = 0.5 (A dx^2 + C dy^2) + B dx dy is 0.5 dx^2 D / C with
+// D = A C - B^2, so |dx| >= sqrt(2 S C / D) gives sigma >= S; S = 1.01 max(cut, 1e-3) and a
+// further 1% on the extent leave a margin of 3% in sigma. Only for conics where the float
+// evaluation of sigma is provably within 1e-4 of its value (A, C in [1e-12, 1e6], |B| <= 1e6,
+// B^2 <= 0.99 A C: no overflow, no cancellation beyond a factor 200) and means within 1e6 px
+// (dx, dy exact to 0.06 px); otherwise +Inf.
+fn reach_of(xy: vec2<f32>, co: vec4<f32>, cut: f32) -> vec2<f32> {
+    let A = co.x;
+    let B = co.y;
+    let C = co.z;
+    if (!is_finite_f32(A) || !is_finite_f32(B) || !is_finite_f32(C) || !is_finite_f32(xy.x) || !is_finite_f32(xy.y)) {
+        return vec2<f32>(inf_f32());
+    }
+    let ok = A >= 1e-12 && C >= 1e-12 && A <= 1e6 && C <= 1e6 && abs(B) <= 1e6 && abs(xy.x) <= 1e6
+        && abs(xy.y) <= 1e6 && cut < 1e30 && B * B <= 0.99 * (A * C);
+    if (!ok) {
+        return vec2<f32>(inf_f32());
+    }
+    let s = 2.02 * max(cut, 1e-3) / (A * C - B * B);
+    return 1.01 * sqrt(vec2<f32>(s * C, s * A));
+}
+
+// Tile-local pixel rectangle of a record (tile's first pixel at `origin`, full-frame
+// coordinates): the columns and rows whose centres lie within `reach` of the mean, widened by
+// one pixel for the rounding of dx = mx - px (<= 0.06 px here); EMPTY_BOX when none.
+fn box_of(xy: vec2<f32>, co: vec4<f32>, cut: f32, origin: vec2<f32>) -> u32 {
+    let reach = reach_of(xy, co, cut);
+    if (!is_finite_f32(reach.x) || !is_finite_f32(reach.y)) {
+        return FULL_BOX;
+    }
+    let last = f32(TILE - 1u);
+    let lo = floor(xy - reach - origin - 0.5) - 1.0;
+    let hi = ceil(xy + reach - origin - 0.5) + 1.0;
+    if (hi.x < 0.0 || hi.y < 0.0 || lo.x > last || lo.y > last) {
+        return EMPTY_BOX;
+    }
+    let l = vec2<u32>(max(lo, vec2<f32>(0.0)));
+    let h = vec2<u32>(min(hi, vec2<f32>(last)));
+    return l.x | (h.x << 8u) | (l.y << 16u) | (h.y << 24u);
+}
+
+// Stage one record (screen mean, conic + opacity, rgb) at slot i, for the tile at `origin`.
+fn stage(i: u32, xy: vec2<f32>, co: vec4<f32>, rgb: vec4<f32>, origin: vec2<f32>) {
+    let cut = cut_of(co.w);
+    s_box[i] = box_of(xy, co, cut, origin);
+    s_pos[i] = vec4<f32>(xy, cut, 0.0);
     s_conic[i] = co;
     s_rgb[i] = rgb;
 }
 
-// The quad of pixel centres (x, y0 + i) + 0.5 in full-frame coordinates; `done` lanes are not drawn.
-fn make_quad(x: u32, y0: u32, done: vec4<bool>) -> Quad {
-    let yf = f32(y0) + 0.5;
-    return Quad(f32(x) + 0.5, vec4<f32>(yf, yf + 1.0, yf + 2.0, yf + 3.0), vec4<f32>(0.0), vec4<f32>(0.0),
-                vec4<f32>(0.0), vec4<f32>(1.0), done);
+// The invocation's pixels: column x, rows y0 .. y0 + SPAN - 1 (full-frame coordinates), Quad j
+// holding rows y0 + QUAD j ..; `inside` says which lie in the viewport (w x h from `first`, the
+// viewport's first pixel); the others are done from the start.
+struct Pixels {
+    q: array<Quad, QPI>,
+};
+
+fn make_pixels(x: u32, y0: u32, first: vec2<u32>, size: vec2<u32>) -> Pixels {
+    var p: Pixels;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        let ys = vec4<u32>(y0 + QUAD * j) + vec4<u32>(0u, 1u, 2u, 3u);
+        let inside = vec4<bool>(x - first.x < size.x) & (ys - vec4<u32>(first.y) < vec4<u32>(size.y));
+        let yf = vec4<f32>(ys) + 0.5;
+        p.q[j] = Quad(f32(x) + 0.5, yf, vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(1.0), !inside);
+    }
+    return p;
 }
 
-// Lanes of a quad inside the width x height viewport (tile-local x, y0).
-fn inside_quad(x: u32, y0: u32, width: u32, height: u32) -> vec4<bool> {
-    let ys = vec4<u32>(y0) + vec4<u32>(0u, 1u, 2u, 3u);
-    return vec4<bool>(x < width) & (ys < vec4<u32>(height));
+fn all_pixels_done(p: ptr<function, Pixels>) -> bool {
+    var d = true;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        d = d && all((*p).q[j].done);
+    }
+    return d;
 }
 
-// Count an invocation whose lanes are all finished before the first batch (after s_done's reset
+// Count an invocation whose pixels are all finished before the first batch (after s_done's reset
 // and a barrier).
-fn count_if_done(q: ptr<function, Quad>) {
-    if (all((*q).done)) {
+fn count_if_done(p: ptr<function, Pixels>) {
+    if (all_pixels_done(p)) {
         atomicAdd(&s_done, 1u);
     }
 }
 
 // sigma of a record at the quad's pixels, in the per-pixel rule's operation order.
-fn sigma_of(xy: vec2<f32>, co: vec4<f32>, q: ptr<function, Quad>) -> vec4<f32> {
-    let dx = xy.x - (*q).x;
-    let dy = vec4<f32>(xy.y) - (*q).y;
+fn sigma_of(xy: vec2<f32>, co: vec4<f32>, q: Quad) -> vec4<f32> {
+    let dx = xy.x - q.x;
+    let dy = vec4<f32>(xy.y) - q.y;
     return 0.5 * (vec4<f32>(co.x * dx * dx) + co.z * dy * dy) + (co.y * dx) * dy;
 }
 
@@ -111,54 +176,64 @@ fn alpha_of(sigma: vec4<f32>, o: f32) -> Alpha {
     e = select(e, vec4<f32>(inf_f32()), x > vec4<f32>(88.72283));
     e = select(e, x, s_nan);
     let a = o * e;
-    let a_nan = nan4(a);
-    let alpha = select(min(vec4<f32>(0.99), a), a, a_nan);
+    let alpha = select(min(vec4<f32>(0.99), a), a, nan4(a));
     let skip = (!s_nan & (sigma < vec4<f32>(0.0))) | (!nan4(alpha) & (alpha < vec4<f32>(1.0 / 255.0)));
     return Alpha(alpha, !skip);
 }
 
-// Blend the m staged records into the quad.
-fn blend_batch(q: ptr<function, Quad>, m: u32) {
-    if (all((*q).done)) {
+// Staged record k blended into a quad.
+fn blend_quad(q0: Quad, st: vec4<f32>, co: vec4<f32>, k: u32) -> Quad {
+    var q = q0;
+    let done = q.done;
+    let sigma = sigma_of(st.xy, co, q);
+    // lanes that skip for certain: sigma negative or past the cut
+    let gone = !nan4(sigma) & ((sigma < vec4<f32>(0.0)) | (sigma > vec4<f32>(st.z)));
+    if (!any(!done & !gone)) {
+        return q;
+    }
+    let al = alpha_of(sigma, co.w);
+    let alpha = al.alpha;
+    let T = q.T;
+    let hit = al.hit & !done;
+    let next_t = T * (1.0 - alpha);
+    let stop = hit & !nan4(next_t) & (next_t <= vec4<f32>(1e-4));
+    let upd = hit & !stop;
+    let rgb = s_rgb[k];
+    let w = alpha * T;
+    q.r = select(q.r, q.r + rgb.x * w, upd);
+    q.g = select(q.g, q.g + rgb.y * w, upd);
+    q.b = select(q.b, q.b + rgb.z * w, upd);
+    q.T = select(T, next_t, upd);
+    q.done = done | stop;
+    return q;
+}
+
+// Blend the m staged records into the invocation's pixels (tile-local column `col`, first row
+// `row0`).
+fn blend_batch(p: ptr<function, Pixels>, col: u32, row0: u32, m: u32) {
+    if (all_pixels_done(p)) {
         return;
     }
-    var T = (*q).T;
-    var r = (*q).r;
-    var g = (*q).g;
-    var b = (*q).b;
-    var done = (*q).done;
     for (var k = 0u; k < m; k = k + 1u) {
-        let st = s_xy[k];
-        let co = s_conic[k];
-        let sigma = sigma_of(st.xy, co, q);
-        // lanes that may take part: not stopped, and sigma neither negative nor past the cut
-        let gone = !nan4(sigma) & ((sigma < vec4<f32>(0.0)) | (sigma > vec4<f32>(st.z)));
-        if (!any(!done & !gone)) {
+        let bx = s_box[k];
+        let y0 = (bx >> 16u) & 0xffu;
+        let y1 = bx >> 24u;
+        if (col < (bx & 0xffu) || col > ((bx >> 8u) & 0xffu) || row0 + SPAN - 1u < y0 || row0 > y1) {
             continue;
         }
-        let al = alpha_of(sigma, co.w);
-        let alpha = al.alpha;
-        let hit = al.hit & !done;
-        let next_t = T * (1.0 - alpha);
-        let stop = hit & !nan4(next_t) & (next_t <= vec4<f32>(1e-4));
-        let upd = hit & !stop;
-        let rgb = s_rgb[k];
-        let w = alpha * T;
-        r = select(r, r + rgb.x * w, upd);
-        g = select(g, g + rgb.y * w, upd);
-        b = select(b, b + rgb.z * w, upd);
-        T = select(T, next_t, upd);
-        done = done | stop;
-        if (all(done)) {
+        let st = s_pos[k];
+        let co = s_conic[k];
+        for (var j = 0u; j < QPI; j = j + 1u) {
+            let r = row0 + QUAD * j;
+            if (r + QUAD - 1u >= y0 && r <= y1) {
+                (*p).q[j] = blend_quad((*p).q[j], st, co, k);
+            }
+        }
+        if (all_pixels_done(p)) {
             atomicAdd(&s_done, 1u);
             break;
         }
     }
-    (*q).T = T;
-    (*q).r = r;
-    (*q).g = g;
-    (*q).b = b;
-    (*q).done = done;
 }
 
 // After a batch: true (uniformly) when every invocation of the tile is finished.
@@ -170,7 +245,7 @@ fn all_done(li: u32) -> bool {
     return workgroupUniformLoad(&s_all_done) == LANES;
 }
 
-// Pixel i of the quad as the output (C + T * background, T).
+// Pixel i of a quad as the output (C + T * background, T).
 fn out_pixel(q: Quad, i: u32, bg: vec3<f32>) -> vec4<f32> {
     let T = q.T[i];
     return vec4<f32>(vec3<f32>(q.r[i], q.g[i], q.b[i]) + T * bg, T);
@@ -189,38 +264,43 @@ fn out_pixel(q: Quad, i: u32, bg: vec3<f32>) -> vec4<f32> {
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
         @builtin(local_invocation_index) li: u32) {
     let tile = wg.y * bin.tiles_x + wg.x;
-    let x = wg.x * TILE + lid.x;
-    let y0 = wg.y * TILE + lid.y * QUAD;
-    let inside = inside_quad(x, y0, bin.width, bin.height);
-    // pixel centres in full-frame coordinates (a sort-first region starts at `origin`)
-    var q = make_quad(x + (bin.origin & 0xffffu), y0 + (bin.origin >> 16u), !inside);
+    let row0 = lid.y * SPAN;
+    // pixel centres in full-frame coordinates (a sort-first viewport starts at `origin`)
+    let first = vec2<u32>(bin.origin & 0xffffu, bin.origin >> 16u);
+    let tile0 = first + vec2<u32>(wg.x * TILE, wg.y * TILE);
+    var p = make_pixels(tile0.x + lid.x, tile0.y + row0, first, vec2<u32>(bin.width, bin.height));
     if (li == 0u) {
         atomicStore(&s_done, 0u);
     }
     workgroupBarrier();
-    count_if_done(&q);
+    count_if_done(&p);
     let range = ranges[tile];
     let n = range.y - range.x;
     let batches = (n + BATCH - 1u) / BATCH;
+    let origin = vec2<f32>(tile0);
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
         for (var s = 0u; s < PER_LANE; s = s + 1u) {
             let i = s * LANES + li;
             let idx = range.x + bt * BATCH + i;
             if (idx < range.y) {
                 let g = isect_prims[idx];
-                stage(i, proj_xy[g], proj_conic[g], proj_rgb[g]);
+                stage(i, proj_xy[g], proj_conic[g], proj_rgb[g], origin);
             }
         }
         workgroupBarrier();
-        blend_batch(&q, min(BATCH, n - bt * BATCH));
+        blend_batch(&p, lid.x, row0, min(BATCH, n - bt * BATCH));
         if (all_done(li)) {
             break;
         }
     }
     let bg = bin.background.xyz;
-    for (var i = 0u; i < QUAD; i = i + 1u) {
-        if (inside[i]) {
-            image[(bin.stats_index * bin.height + y0 + i) * bin.width + x] = out_pixel(q, i, bg);
+    let x = wg.x * TILE + lid.x;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            let y = wg.y * TILE + row0 + QUAD * j + i;
+            if (x < bin.width && y < bin.height) {
+                image[(bin.stats_index * bin.height + y) * bin.width + x] = out_pixel(p.q[j], i, bg);
+            }
         }
     }
 }
@@ -265,7 +345,7 @@ var<workgroup> s_list: vec4<u32>;   // (n virtual, insert position or 0xffffffff
 // Lanes of the quad that a record takes part in (the same arithmetic and skip rules as
 // blend_batch). A pixel that neither the clean nor the corrupted record reaches composites
 // exactly as the clean frame did, so it is copied instead of re-blended.
-fn contributes(xy: vec2<f32>, co: vec4<f32>, q: ptr<function, Quad>) -> vec4<bool> {
+fn contributes(xy: vec2<f32>, co: vec4<f32>, q: Quad) -> vec4<bool> {
     return alpha_of(sigma_of(xy, co, q), co.w).hit;
 }
 
@@ -309,10 +389,9 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let prim = entry.prim;
     let tx = tile % rc.tiles_x;
     let ty = tile / rc.tiles_x;
-    let x = tx * TILE + lid.x;
-    let y0 = ty * TILE + lid.y * QUAD;
-    let inside = inside_quad(x, y0, rc.width, rc.height);
-    var q = make_quad(x, y0, !inside);
+    let row0 = lid.y * SPAN;
+    let tile0 = vec2<u32>(tx * TILE, ty * TILE);
+    var p = make_pixels(tile0.x + lid.x, tile0.y + row0, vec2<u32>(0u), vec2<u32>(rc.width, rc.height));
     let range = kv_ranges[v * rc.n_tiles + tile];
     let vi = v * rc.n_variants + b;
     if (li == 0u) {
@@ -344,41 +423,50 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let nv = list.x;
     let insert = list.y;
     let removed = list.z;
+    // pixels that neither the clean nor the corrupted record reaches: copied from the clean frame
     let o = v * rc.n_prims + prim;
-    let old_hits = contributes(kv_xy[o], kv_conic[o], &q) & vec4<bool>(removed != 0xffffffffu);
-    let new_hits = contributes(var_xy[vi], var_conic[vi], &q) & vec4<bool>(insert != 0xffffffffu);
-    let copy_clean = inside & !old_hits & !new_hits;
-    q.done = q.done | copy_clean;
-    count_if_done(&q);
+    var copy_clean: array<vec4<bool>, QPI>;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        let old_hits = contributes(kv_xy[o], kv_conic[o], p.q[j]) & vec4<bool>(removed != 0xffffffffu);
+        let new_hits = contributes(var_xy[vi], var_conic[vi], p.q[j]) & vec4<bool>(insert != 0xffffffffu);
+        copy_clean[j] = !p.q[j].done & !old_hits & !new_hits;
+        p.q[j].done = p.q[j].done | copy_clean[j];
+    }
+    count_if_done(&p);
+    let origin = vec2<f32>(tile0);
     let batches = (nv + BATCH - 1u) / BATCH;
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
         for (var s = 0u; s < PER_LANE; s = s + 1u) {
             let i = bt * BATCH + s * LANES + li;
             if (i < nv) {
                 if (i == insert) {
-                    stage(s * LANES + li, var_xy[vi], var_conic[vi], var_rgb[vi]);
+                    stage(s * LANES + li, var_xy[vi], var_conic[vi], var_rgb[vi], origin);
                 } else {
                     var j = i;
                     if (insert != 0xffffffffu && i > insert) { j = j - 1u; }
                     if (removed != 0xffffffffu && j >= removed) { j = j + 1u; }
                     let g = kv_isect[v * rc.capacity + range.x + j];
                     let og = v * rc.n_prims + g;
-                    stage(s * LANES + li, kv_xy[og], kv_conic[og], kv_rgb[og]);
+                    stage(s * LANES + li, kv_xy[og], kv_conic[og], kv_rgb[og], origin);
                 }
             }
         }
         workgroupBarrier();
-        blend_batch(&q, min(BATCH, nv - bt * BATCH));
+        blend_batch(&p, lid.x, row0, min(BATCH, nv - bt * BATCH));
         if (all_done(li)) {
             break;
         }
     }
     let bg = rc.background.xyz;
-    for (var i = 0u; i < QUAD; i = i + 1u) {
-        var px = out_pixel(q, i, bg);
-        if (copy_clean[i]) {
-            px = clean_image[(v * rc.height + y0 + i) * rc.width + x];
+    let x = tile0.x + lid.x;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            let ly = row0 + QUAD * j + i;
+            var px = out_pixel(p.q[j], i, bg);
+            if (copy_clean[j][i]) {
+                px = clean_image[(v * rc.height + tile0.y + ly) * rc.width + x];
+            }
+            slabs[e * TILE_PIXELS + ly * TILE + lid.x] = px;
         }
-        slabs[e * TILE_PIXELS + (lid.y * QUAD + i) * TILE + lid.x] = px;
     }
 }
