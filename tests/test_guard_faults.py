@@ -176,7 +176,8 @@ def test_uniform_upsets_cover_the_whole_budget():
 
 
 @pytest.mark.parametrize("precision", encoding.PRECISIONS)
-def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision):
+@pytest.mark.parametrize("fields", [FIELDS[:5], ("log_scales", "opacity")])
+def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision, fields):
     from seuwgpu.faults.guard import clamp_bits
 
     model = random_model(97, seed=13)
@@ -189,13 +190,15 @@ def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision):
     bits[3, 4] ^= sign  # log-scale sign flip: above the box
     bits[5, 10] = top  # opacity NaN -> lower bound
     bits[7, 20] = snan  # signalling NaN in sh_rest: not guarded
-    bits[9, 0] = snan  # ... and in a mean: guarded
-    mask = component_mask(FIELDS[:5], 3)
+    bits[9, 0] = snan  # ... and in a mean: guarded by the full guard only
+    bits[96, 4] ^= sign  # the last primitive (the low half of a 16-bit word)
+    mask = component_mask(fields, 3)
     want, hit = clamp_bits(bits, box, mask)
     for c, words in enumerate(r.layout.encode_bits(bits)):
         r.gpu.write(r.chunks[c], words)
-    scrub(r, box, FIELDS[:5])
+    counts = scrub(r, box, fields)
     got = np.concatenate([r.read_words(c) for c in range(r.layout.n_chunks)])
     assert np.array_equal(got, np.concatenate(r.layout.encode_bits(want)))
-    assert hit[5, 10] and hit[9, 0] and not hit[7, 20]
+    assert hit[5, 10] and hit[96, 4] and hit[9, 0] == ("means" in fields) and not hit[7, 20]
+    assert sum(counts.values()) == hit.sum()
     assert want[7, 20] == snan  # payload untouched, bit for bit
