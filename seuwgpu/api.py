@@ -171,7 +171,8 @@ def inject(
     seed: int = 0,
 ) -> Injection:
     """Flip `bit` (or several bits of one word) of `field[primitive][component]` in the stored
-    model and evaluate the render under each defense against the clean render. Without
+    model and evaluate the render under each defense against the clean render (footprint, peak
+    error, PSNR, SSIM, non-finite pixels, and LPIPS when `seuwgpu[lpips]` is installed). Without
     `primitive`, the most harmful of `sample` randomly drawn primitives (seeded) is taken. The
     stored model is restored exactly afterwards."""
     from seuwgpu.faults.engine import Engine
@@ -200,6 +201,7 @@ def inject(
         finally:
             eng.undo(handle)
         frames[d] = rgba[..., :3].copy()
+        rec["lpips"] = _mean_lpips(frames["clean"], frames[d])
         site_keys = ("scene", "n_primitives", "precision", "field", "primitive", "component", "bit_class")
         site_info = site_info or {
             **{k: rec[k] for k in site_keys},
@@ -368,6 +370,16 @@ def _existing(path, what: str) -> Path:
     if not p.exists():
         raise FileNotFoundError(f"{p}: no such {what}")
     return p
+
+
+def _mean_lpips(clean: np.ndarray, faulted: np.ndarray) -> float:
+    """LPIPS (AlexNet) mean over the views; NaN when its weights are not installed, a frame is
+    smaller than 32x32 or non-finite (undefined, not 0)."""
+    from seuwgpu.metrics import lpips
+
+    if not lpips.available() or min(clean.shape[1:3]) < 32:
+        return float("nan")
+    return float(np.mean(lpips.lpips(clean, faulted)))
 
 
 def _frame_stem(name: str) -> str:

@@ -64,6 +64,11 @@ def test_inject_measures_restores_and_saves(scene, views, tmp_path):
         assert 0.0 <= m["footprint"] <= 1.0  # a fraction, not a percent
         assert m["footprint"] == pytest.approx(_footprint(inj.frames["clean"], inj.frames[d]), abs=1e-9)
     assert inj.metrics["none"]["footprint"] > 0
+    from seuwgpu.metrics.lpips import lpips
+
+    for d in ("none", "guard"):  # LPIPS (AlexNet), mean over the views
+        want = float(np.mean(lpips(inj.frames["clean"], inj.frames[d])))
+        assert inj.metrics[d]["lpips"] == pytest.approx(want, rel=1e-6)
     assert np.array_equal(sg.render_views(scene, views), before)  # the stored model is restored exactly
     assert list(inj.table()["defense"]) == ["none", "guard"]
 

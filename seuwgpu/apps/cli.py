@@ -380,6 +380,14 @@ def cmd_report(args):
     return 0
 
 
+def lpips_text(value: float) -> str:
+    from seuwgpu.metrics import lpips
+
+    if value == value:
+        return f"{value:.6f}"
+    return "nan (undefined: frames under 32x32 or non-finite)" if lpips.available() else f"n/a ({lpips.INSTALL_HINT})"
+
+
 def cmd_inject(args):
     from seuwgpu import api
     from seuwgpu.report.panel import save_panel
@@ -426,6 +434,7 @@ def cmd_inject(args):
         "peak_error": f"{rec['peak_error']:.6g}",
         "psnr": f"{rec['psnr']:.3f}",
         "ssim": f"{rec['ssim']:.6f}",
+        "lpips": lpips_text(rec["lpips"]),
         "nonfinite": rec["nonfinite"],
         "catastrophic": rec["catastrophic"],
         "clamps": rec["clamps"],
