@@ -46,6 +46,16 @@ def add_model_args(p: argparse.ArgumentParser):
     )
 
 
+def add_profile_arg(p: argparse.ArgumentParser, default: str | None = "strict"):
+    p.add_argument(
+        "--profile",
+        choices=("strict", "gsplat"),
+        default=default,
+        help="what corrupted values draw: strict (NaN covariance = frame-covering sheet) or gsplat "
+        "(gsplat's CUDA arithmetic); docs/renderer.md" + ("" if default else "; overrides the spec's profile"),
+    )
+
+
 def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "256x256"):
     p.add_argument(
         "--cameras",
@@ -133,7 +143,7 @@ def cmd_render(args):
 
     src = load_source(args)
     cams = load_cams(args, src)
-    r = Renderer(src.model, cams, args.precision)
+    r = Renderer(src.model, cams, args.precision, profile=args.profile)
     images = r.render()
     out: Path = args.out
     if out.suffix == ".npz":
@@ -223,6 +233,8 @@ def cmd_campaign(args):
     from seuwgpu.campaign.spec import load_spec
 
     spec = load_spec(args.spec)
+    if args.profile:
+        spec["profile"] = args.profile
     run_campaign(
         spec,
         args.out,
@@ -388,7 +400,7 @@ def cmd_inject(args):
 
     src = load_source(args)
     cams = load_cams(args, src)
-    eng = Engine(src.model, cams, args.precision, scene=src.name)
+    eng = Engine(src.model, cams, args.precision, scene=src.name, profile=args.profile)
     name = src.name
     bits = args.bit
     if args.primitive is None:
@@ -507,6 +519,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_model_args(s)
     add_camera_args(s)
     s.add_argument("--out", type=Path, required=True, help="a folder for PNGs, or X.npz")
+    add_profile_arg(s)
     s.set_defaults(func=cmd_render)
 
     s = sub.add_parser("inject", help="flip one stored bit (or several of one value), measure, write the panel")
@@ -523,6 +536,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--defense", default="none", choices=("none", "guard", "selective", "ecc", "dup"))
     s.add_argument("--sample", type=int, default=64, help="primitives tried when --primitive is not given")
     s.add_argument("--out", type=Path, required=True)
+    add_profile_arg(s)
     s.set_defaults(func=cmd_inject)
 
     s = sub.add_parser("campaign", help="run a fault-injection campaign from a TOML spec (resumable)")
@@ -541,6 +555,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--address", help="Ray cluster address (e.g. auto); default: start a local Ray instance")
     s.add_argument("--workers", type=int, help="Ray workers in flight (default: the cluster's GPUs, else CPUs)")
+    add_profile_arg(s, default=None)
     s.set_defaults(func=cmd_campaign)
 
     s = sub.add_parser(

@@ -40,6 +40,7 @@ class Engine:
         background=(1.0, 1.0, 1.0),
         incremental: bool = True,
         capacity: int | None = None,
+        profile: str = "strict",
     ):
         self.gpu = gpu or get_gpu()
         self.precision = encoding.check_precision(precision)
@@ -53,7 +54,9 @@ class Engine:
             background=background,
             keep_views=incremental,
             capacity=capacity,
+            profile=profile,
         )
+        self.profile = self.renderer.profile
         self.incremental = incremental
         self.layout = self.renderer.layout
         self.n, self.degree = model.n, model.sh_degree
@@ -219,6 +222,7 @@ class Engine:
             "scene": self.scene,
             "n_primitives": self.n,
             "precision": self.precision,
+            "profile": self.profile,
             "defense": defense,
             "k": len(sites),
         }
@@ -312,6 +316,7 @@ class Engine:
             "scene": [self.scene] * m_sites,
             "n_primitives": np.full(m_sites, self.n, np.int64),
             "precision": [self.precision] * m_sites,
+            "profile": [self.profile] * m_sites,
             "field": [s.field for s in sites],
             "primitive": np.array([s.primitive for s in sites], np.int64),
             "component": np.array([s.component for s in sites], np.int64),
