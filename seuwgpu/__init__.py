@@ -11,6 +11,7 @@ _API = (
     "FIELDS",
     "FRAME_FORMATS",
     "PRECISIONS",
+    "PROFILES",
     "Camera",
     "Injection",
     "Model",

@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.faults.defenses import DEFENSES, check_defense
+from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.faults.guard import GuardAlert
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import Camera
@@ -44,6 +45,7 @@ __all__ = [
     "FIELDS",
     "FRAME_FORMATS",
     "PRECISIONS",
+    "PROFILES",
     "Camera",
     "Injection",
     "Model",
@@ -108,13 +110,16 @@ def cameras(
 
 
 # ---- rendering ------------------------------------------------------------------------------------
-def render_views(scene: Scene | Model, views: Sequence[Camera], *, precision: str = "fp32") -> np.ndarray:
+def render_views(
+    scene: Scene | Model, views: Sequence[Camera], *, precision: str = "fp32", profile: str = "strict"
+) -> np.ndarray:
     """The views of the model stored at `precision`: float32 [K, H, W, 3], unclamped (values of a
-    corrupted model may be negative, above 1 or non-finite)."""
+    corrupted model may be negative, above 1 or non-finite). `profile` is the renderer's rule set
+    for corrupted values (PROFILES: "strict", or "gsplat" as gsplat's CUDA kernels; docs/renderer.md)."""
     from seuwgpu.render.renderer import Renderer
 
     model = _model_of(scene)
-    return Renderer(model, _views(views), encoding.check_precision(precision)).render()
+    return Renderer(model, _views(views), encoding.check_precision(precision), profile=_profile(profile)).render()
 
 
 @dataclass
@@ -169,6 +174,7 @@ def inject(
     defenses: Sequence[str] = ("none", "guard"),
     sample: int = 32,
     seed: int = 0,
+    profile: str = "strict",
 ) -> Injection:
     """Flip `bit` (or several bits of one word) of `field[primitive][component]` in the stored
     model and evaluate the render under each defense against the clean render (footprint, peak
@@ -184,7 +190,7 @@ def inject(
         raise ValueError(f"sample must be a positive integer, got {sample!r}")
     model = _model_of(scene)
     name = scene.name if isinstance(scene, Source) else "model"
-    eng = Engine(model, _views(views), encoding.check_precision(precision), scene=name)
+    eng = Engine(model, _views(views), encoding.check_precision(precision), scene=name, profile=_profile(profile))
     if primitive is None:
         primitive, _ = eng.worst_primitive(field, component, bit, sample=sample, seed=seed, defense=defenses[0])
     site = eng.site(field, int(primitive), component, bit)
@@ -320,6 +326,12 @@ def report_figures(runs: str | Path | Iterable[str | Path]) -> dict:
 
 
 # ---- helpers --------------------------------------------------------------------------------------
+def _profile(profile) -> str:
+    if profile not in PROFILES:
+        raise ValueError(f"unknown renderer profile {profile!r}; expected one of {', '.join(PROFILES)}")
+    return profile
+
+
 def _check_scene(scene):
     if not isinstance(scene, Source):
         raise ValueError(f"expected a scene from load_model(), got {type(scene).__name__}")

@@ -46,6 +46,18 @@ def add_model_args(p: argparse.ArgumentParser):
     )
 
 
+def add_profile_arg(p: argparse.ArgumentParser, default: str | None = "strict"):
+    from seuwgpu.gpu.constants import PROFILES
+
+    p.add_argument(
+        "--profile",
+        choices=PROFILES,
+        default=default,
+        help="what corrupted values draw: strict (NaN covariance = frame-covering sheet) or gsplat "
+        "(gsplat's CUDA arithmetic); docs/renderer.md" + ("" if default else "; overrides the spec's profile"),
+    )
+
+
 def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "256x256"):
     p.add_argument(
         "--cameras",
@@ -132,7 +144,7 @@ def cmd_render(args):
 
     src = load_source(args)
     cams = load_cams(args, src)
-    images = api.render_views(src, cams, precision=args.precision)
+    images = api.render_views(src, cams, precision=args.precision, profile=args.profile)
     out: Path = args.out
     if out.suffix == ".npz":
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -221,6 +233,8 @@ def cmd_campaign(args):
     from seuwgpu.campaign.spec import load_spec
 
     spec = load_spec(args.spec)
+    if args.profile:
+        spec["profile"] = args.profile
     run_campaign(
         spec,
         args.out,
@@ -406,6 +420,7 @@ def cmd_inject(args):
         defenses=defenses,
         sample=args.sample,
         seed=args.seed,
+        profile=args.profile,
     )
     site, rec, g = inj.site, inj.metrics[args.defense], inj.metrics["guard"]
     if args.primitive is None:
@@ -523,6 +538,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=("png",),
         help="frame files: png (display), tiff (float32, unclamped), npz; comma-separated (default png)",
     )
+    add_profile_arg(s)
     s.set_defaults(func=cmd_render)
 
     s = sub.add_parser("inject", help="flip one stored bit (or several of one value), measure, write the panel")
@@ -545,6 +561,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=("png", "tiff"),
         help="frame files besides panel.png and metrics.json: png, tiff (float32, unclamped), npz (default png,tiff)",
     )
+    add_profile_arg(s)
     s.set_defaults(func=cmd_inject)
 
     s = sub.add_parser("campaign", help="run a fault-injection campaign from a TOML spec (resumable)")
@@ -563,6 +580,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--address", help="Ray cluster address (e.g. auto); default: start a local Ray instance")
     s.add_argument("--workers", type=int, help="Ray workers in flight (default: the cluster's GPUs, else CPUs)")
+    add_profile_arg(s, default=None)
     s.set_defaults(func=cmd_campaign)
 
     s = sub.add_parser(

@@ -60,6 +60,7 @@ class Runner:
                 "python": platform.python_version(),
                 "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
                 "total_injections": self.total,
+                "profile": self.spec.get("profile", "strict"),
                 "columns": store.COLUMNS,
             }
             store.write_manifest(self.out, manifest)
@@ -125,7 +126,15 @@ class Runner:
         views = source_views(
             src, sc.get("cameras"), self.spec["views"], tuple(self.spec["size"]), self.spec.get("scale")
         )
-        return Engine(src.model, views, ctx.precision, gpu=self.gpu, scene=src.name, incremental=not self.full)
+        return Engine(
+            src.model,
+            views,
+            ctx.precision,
+            gpu=self.gpu,
+            scene=src.name,
+            incremental=not self.full,
+            profile=self.spec.get("profile", "strict"),
+        )
 
     def run_block(self, eng, ctx: Context, first: int, count: int) -> pd.DataFrame:
         ids = np.arange(first, first + count, dtype=np.int64)

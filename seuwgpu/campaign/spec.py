@@ -7,6 +7,7 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     size = "256x256"         # WxH of orbit views
     scale = 0.25             # optional: render at this fraction of the views' resolution
     batch = 256              # injections per GPU batch and per Parquet part
+    profile = "strict"       # optional renderer profile: "strict" or "gsplat" (docs/renderer.md)
 
     [[scenes]]               # one or more
     scene = "spheres"        # an embedded scene (`seuwgpu scene --list`: procedural or real) ...
@@ -55,10 +56,11 @@ from pathlib import Path
 import numpy as np
 
 from seuwgpu.faults.defenses import DEFENSES
+from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELDS, canonical_field
 
-_TOP = {"seed", "views", "size", "scale", "batch", "scenes", "single", "dose", "sizes", "name"}
+_TOP = {"seed", "views", "size", "scale", "batch", "scenes", "single", "dose", "sizes", "name", "profile"}
 _SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
 _UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 _SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions"}
@@ -207,6 +209,12 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 16:
             raise SpecError(f"scale must be a number in (0, 16], got {scale!r}")
         spec["scale"] = float(scale)
+    if "profile" in raw:  # renderer profile (docs/renderer.md); recorded only when given (hash)
+        if raw["profile"] not in PROFILES:
+            raise SpecError(
+                f"profile: {raw['profile']!r} is no renderer profile; expected one of {', '.join(PROFILES)}"
+            )
+        spec["profile"] = raw["profile"]
     scenes = raw.get("scenes")
     if not isinstance(scenes, list) or not scenes:
         raise SpecError("the spec needs at least one [[scenes]] table")

@@ -27,6 +27,7 @@ COLUMNS = [
     "scene",
     "n_primitives",
     "precision",
+    "profile",
     "field",
     "primitive",
     "component",

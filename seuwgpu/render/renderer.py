@@ -25,7 +25,7 @@ from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model, StoredLayout
 from seuwgpu.render.bin import Binning
 from seuwgpu.render.composite import Compositing
-from seuwgpu.render.project import Projection
+from seuwgpu.render.project import Projection, check_profile
 from seuwgpu.render.sort import Sorting
 
 
@@ -56,8 +56,11 @@ class Renderer:
         capacity: int | None = None,
         keep_views: bool = False,
         viewport=None,
+        profile: str = "strict",
     ):
         self.gpu = gpu or get_gpu()
+        # renderer profile (docs/renderer.md "Profiles"): what corrupted values draw
+        self.profile = check_profile(profile)
         # viewport (x0, y0, w, h): render only this tile-aligned region of every camera's frame (the
         # sort-first split of distributed rendering); pixels equal the full frame's bit for bit.
         self.viewport = None if viewport is None else tuple(int(v) for v in viewport)
@@ -74,10 +77,10 @@ class Renderer:
         # Host copy of the clean stored words: flips are undone against it, variants built from it.
         self.clean_words = self.layout.encode(model)
         self.chunks = [self.gpu.upload(w, STORAGE, f"model-chunk-{k}") for k, w in enumerate(self.clean_words)]
-        self.projection = Projection(self.gpu, self.n)
+        self.projection = Projection(self.gpu, self.n, profile=self.profile)
         self.sorting = Sorting(self.gpu, self.n)
         self.binning = Binning(self.gpu, self.n)
-        self.compositing = Compositing(self.gpu)
+        self.compositing = Compositing(self.gpu, self.profile)
         # In-pipeline guard state (off by default): box of the clean model and clamp counters.
         self.guard_mask = 0
         bound = self.projection.kernel.struct("Bound")
