@@ -32,8 +32,8 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.faults.defenses import DEFENSES, check_defense
-from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.faults.guard import GuardAlert
+from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import FIELDS, Model
