@@ -388,17 +388,25 @@ def cmd_inject(args):
 
     src = load_source(args)
     cams = load_cams(args, src)
+    from seuwgpu.faults.sites import model_bits
+
     eng = Engine(src.model, cams, args.precision, scene=src.name)
     name = src.name
-    bits = args.bit
+    if args.fault in ("random", "zero"):
+        r = int(np.random.default_rng(args.seed).integers(2**63))
+        bits, op, value = model_bits(args.fault, -1, args.precision, r)
+    elif not args.bit:
+        raise SystemExit(f"error: --fault {args.fault} needs --bit")
+    elif args.fault == "adjacent" and len(args.bit) == 1:
+        bits, op, value = model_bits("adjacent", args.bit[0], args.precision, args.width - 2)
+    else:
+        bits, op, value = tuple(args.bit), ("flip" if args.fault in ("bit", "adjacent") else args.fault), 0
     if args.primitive is None:
-        prim, _ = eng.worst_primitive(
-            args.field, args.component, bits, sample=args.sample, seed=args.seed, defense=args.defense
-        )
+        prim, _ = eng.worst_primitive(args.field, args.component, bits, args.sample, args.seed, args.defense, op, value)
         print(f"primitive: {prim} (most harmful of {min(args.sample, eng.n)} sampled)")
     else:
         prim = args.primitive
-    site = eng.site(args.field, prim, args.component, bits)
+    site = eng.site(args.field, prim, args.component, bits, op, value)
     rec = eng.inject(site, args.defense)
     h = eng.apply([site], args.defense)
     faulted, _ = eng.render_current(args.defense)
@@ -407,7 +415,7 @@ def cmd_inject(args):
     g = eng.inject(site, "guard")
     args.out.mkdir(parents=True, exist_ok=True)
     title = (
-        f"{name}, {eng.n} primitives, {args.precision}: flip of {site.field}[{prim}][{site.component}] "
+        f"{name}, {eng.n} primitives, {args.precision}: {rec['fault']} fault of {site.field}[{prim}][{site.component}] "
         f"bit{'s' if len(site.bits) > 1 else ''} {','.join(map(str, site.bits))} ({rec['bit_class']}) "
         f"{rec['clean_value']:.6g} -> {rec['corrupted_value']:.6g}; defense {args.defense}"
     )
@@ -418,6 +426,7 @@ def cmd_inject(args):
         "component": site.component,
         "bit": ",".join(map(str, site.bits)),
         "bit_class": rec["bit_class"],
+        "fault": rec["fault"],
         "clean_value": f"{rec['clean_value']:.9g}",
         "corrupted_value": f"{rec['corrupted_value']:.9g}",
         "defense": args.defense,
@@ -485,6 +494,9 @@ def cmd_view(args):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from seuwgpu.faults.defenses import DEFENSES
+    from seuwgpu.faults.sites import FAULT_MODELS
+
     p = argparse.ArgumentParser(
         prog="seuwgpu", description="Single-event-upset fault injection for 3D Gaussian splatting (WGSL, wgpu)"
     )
@@ -519,8 +531,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--primitive", type=int, help="primitive index (default: the most harmful of --sample)")
     s.add_argument("--component", type=int, default=0)
-    s.add_argument("--bit", type=int, nargs="+", required=True, help="bit(s) of the stored value (0 = LSB)")
-    s.add_argument("--defense", default="none", choices=("none", "guard", "selective", "ecc", "dup"))
+    s.add_argument("--bit", type=int, nargs="+", help="bit(s) of the stored value (0 = LSB)")
+    s.add_argument(
+        "--fault",
+        default="bit",
+        choices=FAULT_MODELS,
+        help="bit/adjacent: flip the bits (adjacent with one --bit: --width bits ending there); "
+        "stuck0/stuck1: the bits stuck; zero/random: the whole value replaced (random from --seed)",
+    )
+    s.add_argument("--width", type=int, default=2, choices=(2, 3, 4), help="adjacent burst width")
+    s.add_argument("--defense", default="none", choices=DEFENSES)
     s.add_argument("--sample", type=int, default=64, help="primitives tried when --primitive is not given")
     s.add_argument("--out", type=Path, required=True)
     s.set_defaults(func=cmd_inject)
