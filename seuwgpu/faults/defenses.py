@@ -179,27 +179,34 @@ def checksum(rows: np.ndarray) -> np.ndarray:
     return h.astype(np.uint32)
 
 
-def scale_class_bounds(clean: np.ndarray, lo: np.ndarray, hi: np.ndarray, precision: str) -> np.ndarray:
-    """[M] upper bound of each primitive's log-scales from its SCALE_CLASS_BITS-bit class: the model's
-    log-scale range [lo, hi] in equal classes, the bound the top of the primitive's class (stored
-    precision, rounded up so the clean value always lies inside)."""
-    ls = encoding.from_bits(np.asarray(clean)[:, 3:6], precision).astype(np.float64)
-    with np.errstate(invalid="ignore"):
-        top = np.nanmax(np.where(np.isfinite(ls), ls, np.nan), axis=1)
-    top = np.where(np.isfinite(top), top, hi)
+def scale_class_table(lo: float, hi: float, precision: str) -> np.ndarray:
+    """The 2**SCALE_CLASS_BITS log-scale upper bounds a class stands for: the model's log-scale
+    range [lo, hi] cut into equal classes, each top rounded up to a stored value; the last is hi."""
     k = 1 << SCALE_CLASS_BITS
-    width = max(hi - lo, 1e-30) / k
-    cls = np.clip(np.floor((top - lo) / width), 0, k - 1)
-    bound = np.minimum(lo + (cls + 1) * width, hi).astype(np.float32)
-    q = encoding.quantize(bound, precision)
+    edges = (lo + (np.arange(1, k + 1) / k) * max(hi - lo, 0.0)).astype(np.float32)
+    q = encoding.quantize(edges, precision)
     for _ in range(8):  # round up in the stored precision, one representable step at a time
-        below = q < top
+        below = q < edges
         if not below.any():
             break
         b = encoding.to_bits(q[below], precision).astype(np.int64)
         nxt = np.where(q[below] == 0, 1, np.where(np.signbit(q[below]), b - 1, b + 1))
         q[below] = encoding.from_bits(nxt.astype(np.uint32), precision)
-    return q
+    q[-1] = hi
+    return np.maximum.accumulate(np.minimum(q, np.float32(hi)))
+
+
+def scale_classes(clean: np.ndarray, table: np.ndarray, precision: str) -> np.ndarray:
+    """[M] class of each primitive: the lowest whose bound holds its largest finite log-scale."""
+    ls = encoding.from_bits(np.asarray(clean)[:, 3:6], precision)
+    top = np.where(np.isfinite(ls), ls, -np.inf).max(axis=1)
+    return np.minimum(np.searchsorted(table, top, side="left"), table.size - 1)
+
+
+def scale_class_bounds(clean: np.ndarray, lo: float, hi: float, precision: str) -> np.ndarray:
+    """[M] upper bound of each primitive's log-scales (scalebound's 4-bit class, looked up)."""
+    table = scale_class_table(lo, hi, precision)
+    return table[scale_classes(clean, table, precision)]
 
 
 def ecc_crit_read(clean: np.ndarray, corrupt: np.ndarray, precision: str, degree: int) -> np.ndarray:
