@@ -23,7 +23,10 @@ defense is the identity on the clean model (tests/test_defenses.py).
 - checksum: a 32-bit FNV-1a checksum per primitive over all its stored values, checked before the
   frame; a mismatch reloads the primitive from the golden copy (host memory or the model file,
   not charged to device memory). Each FNV step is a bijection of the running hash, so any change
-  confined to one stored value is detected with certainty.
+  confined to one stored value is detected with certainty;
+- parity4r: parity4's check, but a flagged primitive is reloaded from the golden copy (as
+  checksum does) rather than culled.
+The golden copy that reloads read from lives off the device and is not charged as device memory.
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ DEFENSE_INFO = {
     "ecc_crit": "SEC-DED over sign+exponent of log-scales and opacity only; uncorrectable culls",
     "scalebound": "support guard plus a 4-bit scale class per primitive bounding its log-scales",
     "checksum": "32-bit checksum per primitive checked per frame; mismatch reloads it from the golden copy",
+    "parity4r": "parity4's check; a mismatch reloads the primitive from the golden copy instead of culling",
 }
 DEFENSES = tuple(DEFENSE_INFO)
 GUARDED_FIELDS = {
@@ -70,6 +74,13 @@ def _covered_components(fields, degree: int) -> np.ndarray:
     from seuwgpu.model.fields import FIELD_OFFSET, field_components
 
     return np.array([FIELD_OFFSET[f] + c for f in fields for c in range(field_components(f, degree))], np.int64)
+
+
+def parity_components(degree: int) -> int:
+    """The parity defenses cover flat components 0 .. this - 1 (PARITY_FIELDS lead the layout)."""
+    cols = _covered_components(PARITY_FIELDS, degree)
+    assert np.array_equal(cols, np.arange(cols.size))
+    return int(cols.size)
 
 
 def _protected_bits(precision: str) -> list[int]:
@@ -219,6 +230,62 @@ def ecc_crit_read(clean: np.ndarray, corrupt: np.ndarray, precision: str, degree
     return _cull(out, (left != 0).any(axis=1), precision)
 
 
+# defenses whose check runs on the GPU (shaders/check.wgsl, faults/check.py): per-primitive side
+# data stored with the model, and the check that flags a primitive
+CHECKED = ("parity", "parity4", "parity4r", "checksum", "scalebound")
+RELOADED = ("checksum", "parity4r")  # flagged primitives reloaded from the golden copy
+
+
+def scale_table(box, precision: str) -> np.ndarray:
+    return scale_class_table(float(box.lo[3:6].min()), float(box.hi[3:6].max()), precision)
+
+
+def side_data(defense: str, clean: np.ndarray, precision: str, degree: int, box=None) -> np.ndarray:
+    """[M] u32 stored with each clean primitive: packed parity bits, the checksum, or the scale
+    class (the table is shared by the model: `scale_table`)."""
+    clean = np.asarray(clean)
+    if defense in ("parity", "parity4", "parity4r"):
+        par = parity_bits(clean, precision, degree, 1 if defense == "parity" else 4).astype(np.uint32)
+        return (par << np.arange(par.shape[1], dtype=np.uint32)).sum(axis=1).astype(np.uint32)
+    if defense == "checksum":
+        return checksum(clean)
+    if defense == "scalebound":
+        if box is None:
+            raise ValueError("scalebound needs the clean model's box")
+        return scale_classes(clean, scale_table(box, precision), precision).astype(np.uint32)
+    raise ValueError(f"defense {defense!r} has no per-primitive check; checked ones: {', '.join(CHECKED)}")
+
+
+def detect(defense: str, side: np.ndarray, rows: np.ndarray, precision: str, degree: int, box=None) -> np.ndarray:
+    """[M] bool: the check of `defense` flags the primitive (stored `rows` against `side`).
+    Twin of shaders/check.wgsl."""
+    rows = np.asarray(rows)
+    if defense == "scalebound":
+        bound = scale_table(box, precision)[np.asarray(side, dtype=np.int64)]
+        vals = encoding.from_bits(rows[:, 3:6], precision)
+        with np.errstate(invalid="ignore"):
+            return (vals > bound[:, None]).any(axis=1)
+    return side_data(defense, rows, precision, degree, box) != np.asarray(side, dtype=np.uint32)
+
+
+def repair(defense: str, clean: np.ndarray, corrupt: np.ndarray, hit: np.ndarray, precision: str, box=None):
+    """What a flagged primitive becomes: culled (parity), reloaded (checksum) or its log-scales
+    clamped to the class bound (scalebound); unflagged rows are returned as they are."""
+    if defense in ("parity", "parity4"):
+        return _cull(corrupt, hit, precision)
+    if defense in RELOADED:
+        return np.where(hit[:, None], clean, corrupt)
+    bound = scale_table(box, precision)[side_data(defense, clean, precision, 0, box).astype(np.int64)]
+    vals = encoding.from_bits(corrupt[:, 3:6], precision)
+    with np.errstate(invalid="ignore"):
+        over = (vals > bound[:, None]) & hit[:, None]
+    out = corrupt.copy()
+    ls = out[:, 3:6]
+    ls[over] = np.broadcast_to(encoding.to_bits(bound, precision)[:, None], ls.shape)[over]
+    out[:, 3:6] = ls
+    return out
+
+
 def read(defense: str, clean: np.ndarray, corrupt: np.ndarray, precision: str, degree: int, box=None) -> np.ndarray:
     """What `defense` reads from primitives whose stored patterns went from `clean` to `corrupt`
     ([M, ncomp] each). The support-guard clamp (PIPELINE_GUARD) is left to the pipeline; `box`
@@ -229,26 +296,12 @@ def read(defense: str, clean: np.ndarray, corrupt: np.ndarray, precision: str, d
         return ecc_read(clean, corrupt, precision)
     if defense == "dup":
         return dup_read(clean, corrupt)
-    if defense in ("parity", "parity4"):
-        ways = 1 if defense == "parity" else 4
-        hit = (parity_bits(clean, precision, degree, ways) != parity_bits(corrupt, precision, degree, ways)).any(1)
-        return _cull(corrupt, hit, precision)
     if defense == "ecc_crit":
         return ecc_crit_read(clean, corrupt, precision, degree)
-    if defense == "checksum":
-        return np.where((checksum(clean) != checksum(corrupt))[:, None], clean, corrupt)
-    if defense == "scalebound":
-        if box is None:
-            raise ValueError("scalebound needs the clean model's box")
-        bound = scale_class_bounds(clean, float(box.lo[3:6].min()), float(box.hi[3:6].max()), precision)
-        vals = encoding.from_bits(corrupt[:, 3:6], precision)
-        with np.errstate(invalid="ignore"):
-            over = (vals > bound[:, None]) & ~np.isnan(vals)
-        out = corrupt.copy()
-        ls = out[:, 3:6]
-        ls[over] = np.broadcast_to(encoding.to_bits(bound, precision)[:, None], ls.shape)[over]
-        out[:, 3:6] = ls
-        return out
+    if defense in CHECKED:
+        side = side_data(defense, clean, precision, degree, box)
+        hit = detect(defense, side, corrupt, precision, degree, box)
+        return repair(defense, clean, corrupt, hit, precision, box)
     return corrupt
 
 
@@ -265,6 +318,7 @@ def memory_overhead(defense: str, precision: str, degree: int, n: int) -> float:
         "dup": 2 * per_prim,
         "parity": 1,
         "parity4": 4,
+        "parity4r": 4,
         "ecc_crit": ecc_check_bits(precision) * _covered_components(CRITICAL_FIELDS, degree).size,
         "scalebound": SCALE_CLASS_BITS,
         "checksum": 32,
