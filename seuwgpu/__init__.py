@@ -8,6 +8,7 @@ from seuwgpu.version import __version__
 
 _API = (
     "DEFENSES",
+    "FAULT_MODELS",
     "FIELDS",
     "FRAME_FORMATS",
     "PRECISIONS",

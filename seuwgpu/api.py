@@ -33,6 +33,7 @@ import pandas as pd
 
 from seuwgpu.faults.defenses import DEFENSES, check_defense
 from seuwgpu.faults.guard import GuardAlert
+from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, VALUE_MODELS, model_bits
 from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import Camera
@@ -42,6 +43,7 @@ from seuwgpu.model.sources import Source, load_source, source_views
 
 __all__ = [
     "DEFENSES",
+    "FAULT_MODELS",
     "FIELDS",
     "FRAME_FORMATS",
     "PRECISIONS",
@@ -167,7 +169,7 @@ def inject(
     views: Sequence[Camera],
     *,
     field: str,
-    bit: int | Sequence[int],
+    bit: int | Sequence[int] | None,
     component: int = 0,
     primitive: int | None = None,
     precision: str = "fp32",
@@ -175,9 +177,14 @@ def inject(
     sample: int = 32,
     seed: int = 0,
     profile: str = "strict",
+    fault: str = "bit",
+    width: int = 2,
 ) -> Injection:
-    """Flip `bit` (or several bits of one word) of `field[primitive][component]` in the stored
-    model and evaluate the render under each defense against the clean render (footprint, peak
+    """Corrupt `field[primitive][component]` in the stored model with one fault and evaluate the
+    render under each defense against the clean render. `fault` is a FAULT_MODELS name: "bit"
+    flips `bit` (or each of several bits of the word), "adjacent" flips `width` neighbouring bits
+    ending at `bit` (a multi-cell upset), "stuck0"/"stuck1" force the bits, "zero"/"random" replace
+    the whole value (random: drawn from `seed`; `bit` is ignored) (footprint, peak
     error, PSNR, SSIM, non-finite pixels, and LPIPS when `seuwgpu[lpips]` is installed). Without
     `primitive`, the most harmful of `sample` randomly drawn primitives (seeded) is taken. The
     stored model is restored exactly afterwards."""
@@ -188,12 +195,13 @@ def inject(
         raise ValueError("defenses must name at least one defense")
     if not isinstance(sample, int) or isinstance(sample, bool) or sample < 1:
         raise ValueError(f"sample must be a positive integer, got {sample!r}")
+    bits, op, value = _fault_bits(fault, bit, width, precision, seed)
     model = _model_of(scene)
     name = scene.name if isinstance(scene, Source) else "model"
     eng = Engine(model, _views(views), encoding.check_precision(precision), scene=name, profile=_profile(profile))
     if primitive is None:
-        primitive, _ = eng.worst_primitive(field, component, bit, sample=sample, seed=seed, defense=defenses[0])
-    site = eng.site(field, int(primitive), component, bit)
+        primitive, _ = eng.worst_primitive(field, component, bits, sample, seed, defenses[0], op, value)
+    site = eng.site(field, int(primitive), component, bits, op, value)
     frames = {"clean": eng.clean.copy()}
     metrics = {}
     site_info = None
@@ -208,7 +216,7 @@ def inject(
             eng.undo(handle)
         frames[d] = rgba[..., :3].copy()
         rec["lpips"] = _mean_lpips(frames["clean"], frames[d])
-        site_keys = ("scene", "n_primitives", "precision", "field", "primitive", "component", "bit_class")
+        site_keys = ("scene", "n_primitives", "precision", "fault", "field", "primitive", "component", "bit_class")
         site_info = site_info or {
             **{k: rec[k] for k in site_keys},
             "bits": list(site.bits),
@@ -326,6 +334,22 @@ def report_figures(runs: str | Path | Iterable[str | Path]) -> dict:
 
 
 # ---- helpers --------------------------------------------------------------------------------------
+def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], str, int]:
+    """(bits, op, value) of one fault, as faults/sites.py applies it."""
+    if fault not in FAULT_MODELS:
+        raise ValueError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
+    if fault in VALUE_MODELS:
+        return model_bits(fault, -1, precision, int(np.random.default_rng(seed).integers(2**63)))
+    if bit is None:
+        raise ValueError(f"fault {fault!r} needs bit=")
+    bits = [bit] if isinstance(bit, (int, np.integer)) else list(bit)
+    if fault == "adjacent" and len(bits) == 1:
+        if width not in ADJACENT_WIDTHS:
+            raise ValueError(f"width must be one of {', '.join(map(str, ADJACENT_WIDTHS))}, got {width!r}")
+        return model_bits("adjacent", int(bits[0]), precision, ADJACENT_WIDTHS.index(width))
+    return tuple(int(b) for b in bits), ("flip" if fault in ("bit", "adjacent") else fault), 0
+
+
 def _profile(profile) -> str:
     if profile not in PROFILES:
         raise ValueError(f"unknown renderer profile {profile!r}; expected one of {', '.join(PROFILES)}")

@@ -169,3 +169,24 @@ def test_cli_inject_and_render_write_every_frame(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:  # argparse: usage and a one-line error, status 2
         main(["render", *common, "--formats", "jpg", "--out", str(tmp_path / "r")])
     assert e.value.code == 2 and "--formats takes" in capsys.readouterr().err
+
+
+def test_inject_fault_models(scene, views):
+    """Each fault model corrupts the stored word as it says (hand-computed bit patterns)."""
+    word = int(np.float32(scene.model.opacity[5]).view(np.uint32))
+
+    def stored(inj):
+        return int(np.float32(inj.site["corrupted_value"]).view(np.uint32))
+
+    adj = sg.inject(scene, views, field="opacity", bit=27, primitive=5, fault="adjacent", width=3, defenses="none")
+    assert adj.site["bits"] == [25, 26, 27] and stored(adj) == word ^ (0b111 << 25)
+    s1 = sg.inject(scene, views, field="opacity", bit=30, primitive=5, fault="stuck1", defenses="none")
+    assert stored(s1) == word | (1 << 30) and s1.site["fault"] == "stuck1"
+    s0 = sg.inject(scene, views, field="opacity", bit=31, primitive=5, fault="stuck0", defenses="none")
+    assert stored(s0) == word & ~(1 << 31) & 0xFFFFFFFF
+    zero = sg.inject(scene, views, field="opacity", bit=None, primitive=5, fault="zero", defenses="none")
+    assert stored(zero) == 0
+    with pytest.raises(ValueError, match="unknown fault model"):
+        sg.inject(scene, views, field="opacity", bit=3, primitive=5, fault="cosmic")
+    with pytest.raises(ValueError, match="needs bit"):
+        sg.inject(scene, views, field="opacity", bit=None, primitive=5, fault="stuck1")

@@ -421,13 +421,15 @@ def cmd_inject(args):
         sample=args.sample,
         seed=args.seed,
         profile=args.profile,
+        fault=args.fault,
+        width=args.width,
     )
     site, rec, g = inj.site, inj.metrics[args.defense], inj.metrics["guard"]
     if args.primitive is None:
         print(f"primitive: {site['primitive']} (most harmful of {min(args.sample, site['n_primitives'])} sampled)")
     bits = site["bits"]
     title = (
-        f"{src.name}, {site['n_primitives']} primitives, {args.precision}: flip of {site['field']}"
+        f"{src.name}, {site['n_primitives']} primitives, {args.precision}: {site['fault']} fault of {site['field']}"
         f"[{site['primitive']}][{site['component']}] bit{'s' if len(bits) > 1 else ''} {','.join(map(str, bits))} "
         f"({site['bit_class']}) {site['clean_value']:.6g} -> {site['corrupted_value']:.6g}; defense {args.defense}"
     )
@@ -441,6 +443,7 @@ def cmd_inject(args):
         "component": site["component"],
         "bit": ",".join(map(str, bits)),
         "bit_class": site["bit_class"],
+        "fault": site["fault"],
         "clean_value": f"{site['clean_value']:.9g}",
         "corrupted_value": f"{site['corrupted_value']:.9g}",
         "defense": args.defense,
@@ -510,6 +513,9 @@ def cmd_view(args):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from seuwgpu.faults.defenses import DEFENSES
+    from seuwgpu.faults.sites import FAULT_MODELS
+
     p = argparse.ArgumentParser(
         prog="seuwgpu", description="Single-event-upset fault injection for 3D Gaussian splatting (WGSL, wgpu)"
     )
@@ -551,8 +557,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--primitive", type=int, help="primitive index (default: the most harmful of --sample)")
     s.add_argument("--component", type=int, default=0)
-    s.add_argument("--bit", type=int, nargs="+", required=True, help="bit(s) of the stored value (0 = LSB)")
-    s.add_argument("--defense", default="none", choices=("none", "guard", "selective", "ecc", "dup"))
+    s.add_argument("--bit", type=int, nargs="+", help="bit(s) of the stored value (0 = LSB)")
+    s.add_argument(
+        "--fault",
+        default="bit",
+        choices=FAULT_MODELS,
+        help="bit/adjacent: flip the bits (adjacent with one --bit: --width bits ending there); "
+        "stuck0/stuck1: the bits stuck; zero/random: the whole value replaced (random from --seed)",
+    )
+    s.add_argument("--width", type=int, default=2, choices=(2, 3, 4), help="adjacent burst width")
+    s.add_argument("--defense", default="none", choices=DEFENSES)
     s.add_argument("--sample", type=int, default=64, help="primitives tried when --primitive is not given")
     s.add_argument("--out", type=Path, required=True)
     s.add_argument(
