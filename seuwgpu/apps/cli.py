@@ -8,10 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
+from seuwgpu.errors import SeuwgpuError
 from seuwgpu.version import __version__
 
 
-class CliError(Exception):
+class CliError(SeuwgpuError):
     """A user error: printed as one line, exit status 2."""
 
 
@@ -643,8 +644,19 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"seuwgpu {args.command}: interrupted (completed parts are kept; re-run to resume)", file=sys.stderr)
         return 130
-    except (CliError, ValueError, FileNotFoundError) as e:
+    except (SeuwgpuError, ValueError) as e:  # the project's errors, and plain ValueErrors naming a bad value
         print(f"seuwgpu {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # a file or folder that cannot be read or written: name it, no traceback
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"seuwgpu {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(
+            f"seuwgpu {args.command}: error: out of host memory "
+            "(use fewer primitives, views or samples, or a smaller size)",
+            file=sys.stderr,
+        )
         return 2
 
 

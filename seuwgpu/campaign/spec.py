@@ -54,6 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELDS, canonical_field
@@ -66,8 +67,8 @@ _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
 _SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions"}
 
 
-class SpecError(ValueError):
-    pass
+class SpecError(InputError):
+    """A campaign spec (or a run directory or shard set it meets) that cannot be run as given."""
 
 
 def _keys(table: dict, allowed: set, where: str):
