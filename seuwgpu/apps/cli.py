@@ -367,10 +367,13 @@ def cmd_demo(args):
 
 
 def cmd_merge(args):
+    from seuwgpu.campaign import store
     from seuwgpu.campaign.merge import merge
 
-    n = merge(args.out, args.shards)
-    print(f"merged {n} parts from {len(args.shards)} shard directories into {args.out}")
+    n = merge(args.out, args.shards, allow_partial=args.allow_partial)
+    missing = (store.read_manifest(args.out) or {}).get("missing_parts", [])
+    gap = f"; {len(missing)} parts missing (listed in the manifest)" if missing else ""
+    print(f"merged {n} parts from {len(args.shards)} shard directories into {args.out}{gap}")
     return 0
 
 
@@ -593,6 +596,11 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("merge", help="join shard run directories of one spec")
     s.add_argument("shards", type=Path, nargs="+")
     s.add_argument("--out", type=Path, required=True)
+    s.add_argument(
+        "--allow-partial",
+        action="store_true",
+        help="merge even when shards are missing (the manifest lists the missing parts)",
+    )
     s.set_defaults(func=cmd_merge)
 
     s = sub.add_parser("view", help="interactive viewer: toggle faults and the guard live")

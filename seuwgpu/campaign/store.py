@@ -25,7 +25,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from seuwgpu.errors import RunInUse
+from seuwgpu.errors import InputError, RunInUse
 
 MANIFEST = "manifest.json"
 RECORDS = "records"
@@ -132,14 +132,29 @@ def expected_parts(spec: dict) -> dict[tuple[int, int], int]:
     return out
 
 
+def completed_parts(run_dir, expected: dict[tuple[int, int], int]) -> set[tuple[int, int]]:
+    """The parts among `expected` ({(first, count): rows}) already written whole. A part that is
+    empty, unreadable or holds another number of rows is deleted, so the caller redoes it."""
+    done = set()
+    for key in parts_in(run_dir) & set(expected):
+        path = part_path(run_dir, *key)
+        if part_rows(path) == expected[key]:
+            done.add(key)
+        else:
+            path.unlink(missing_ok=True)
+    return done
+
+
 def record_parts(run_dir, manifest: dict | None = None) -> list[Path]:
     """The parts of a run that hold its records: the blocks its spec names (stray part files are
-    left out). Without a manifest holding the spec, every well-named part."""
+    left out). Without a manifest holding a campaign spec (runs written by other tools), every
+    part file."""
     manifest = manifest if manifest is not None else read_manifest(run_dir)
     parts = part_files(run_dir)
-    if not manifest or "spec" not in manifest:
-        return [p for p in parts if parse_part_name(p.name) is not None]
-    want = expected_parts(manifest["spec"])
+    try:
+        want = expected_parts(manifest["spec"])
+    except (KeyError, TypeError, ValueError):
+        return parts
     return [p for p in parts if parse_part_name(p.name) in want]
 
 
@@ -160,11 +175,14 @@ def read_manifest(run_dir) -> dict | None:
 
 def check_same_run(run_dir, manifest: dict | None, spec: dict, spec_hash: str):
     """Refuse to add records of `spec` to a run of another spec, naming what differs (a model or
-    camera file whose content changed since the run began, else the spec hashes)."""
+    camera file whose content changed since the run began, else the spec hashes). A run without
+    any part may be replaced (the caller writes the new manifest)."""
     from seuwgpu.campaign.spec import SpecError
 
     if manifest is None or manifest.get("spec_hash") == spec_hash:
         return
+    if not part_files(run_dir):
+        return  # a run that stopped before its first part (a model that failed to load, ...) holds nothing
     old = manifest.get("spec") or {}
     for i, (a, b) in enumerate(zip(old.get("scenes", []), spec.get("scenes", []))):
         for key in ("model", "cameras"):
@@ -181,6 +199,19 @@ def check_same_run(run_dir, manifest: dict | None, spec: dict, spec_hash: str):
     )
 
 
+def make_run_dir(run_dir):
+    """Create the run directory (and its parents), or say in one line why it cannot be."""
+    p = Path(run_dir)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"--out {p}: is a file, not a run directory")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"--out {p}: cannot create the run directory ({e.strerror or e})") from None
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise InputError(f"--out {p}: the run directory is not writable")
+
+
 @contextlib.contextmanager
 def lock(run_dir, shard: tuple[int, int] = (0, 1)):
     """Hold the run directory's lock for shard I/N (an exclusive flock: released when the
@@ -188,6 +219,7 @@ def lock(run_dir, shard: tuple[int, int] = (0, 1)):
     import fcntl
 
     i, n = shard
+    make_run_dir(run_dir)
     path = Path(run_dir) / f".lock-{i}-of-{n}"
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
     try:

@@ -212,16 +212,34 @@ def read_cameras(path) -> tuple[list[Camera], list[str], str]:
     )
 
 
+def camera_files(path) -> list[Path]:
+    """The files read_cameras reads for `path` (what a campaign hashes to notice a change)."""
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: no such camera file or folder")
+    if p.is_file() and p.name not in ("cameras.bin", "images.bin", "cameras.txt", "images.txt"):
+        return [p]
+    folder = p.parent if p.is_file() else p
+    if p.is_dir():
+        for name in ("cameras.json", "transforms.json", "CAMS.json"):
+            if (p / name).is_file():
+                return [p / name]
+        for sub in (p, p / "sparse" / "0", p / "sparse"):
+            if any((sub / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
+                folder = sub
+                break
+    ext = "bin" if (folder / "cameras.bin").is_file() and (folder / "images.bin").is_file() else "txt"
+    found = [folder / f"{stem}.{ext}" for stem in ("cameras", "images") if (folder / f"{stem}.{ext}").is_file()]
+    if len(found) != 2:
+        raise CameraFileError(
+            f"{p}: folder without cameras.json, transforms.json or a COLMAP model (cameras and images .bin/.txt)"
+        )
+    return found
+
+
 def _read_camera_folder(p: Path):
-    for name in ("cameras.json", "transforms.json", "CAMS.json"):
-        if (p / name).is_file():
-            return read_cameras(p / name)
-    for sub in (p, p / "sparse" / "0", p / "sparse"):
-        if any((sub / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
-            return _read_colmap(sub)
-    raise CameraFileError(
-        f"{p}: folder without cameras.json, transforms.json or a COLMAP model (cameras and images .bin/.txt)"
-    )
+    files = camera_files(p)
+    return read_cameras(files[0]) if files[0].suffix == ".json" else _read_colmap(files[0].parent)
 
 
 def _num(p: Path, where: str, v, shape=None) -> np.ndarray:
