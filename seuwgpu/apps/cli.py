@@ -9,6 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from seuwgpu.errors import SeuwgpuError
+from seuwgpu.faults.defenses import DEFENSES
+from seuwgpu.model.encoding import PRECISIONS
+from seuwgpu.model.formats import UP_AXES
 from seuwgpu.version import __version__
 
 
@@ -26,6 +29,45 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def positive_int(text: str) -> int:
+    """An argument that counts something (primitives, views, samples): an integer >= 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
+    return v
+
+
+def index_int(text: str) -> int:
+    """An index or threshold argument: an integer >= 0."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be 0 or more, got {v}")
+    return v
+
+
+def positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (v > 0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return v
+
+
+def proportion(text: str) -> float:
+    v = positive_float(text)
+    if v >= 1:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1, got {text!r}")
+    return v
+
+
 def add_model_args(p: argparse.ArgumentParser):
     src = p.add_mutually_exclusive_group()
     src.add_argument(
@@ -36,13 +78,15 @@ def add_model_args(p: argparse.ArgumentParser):
         help="a 3DGS model file: INRIA PLY, compressed PLY, .spz, .splat or a gsplat .pt (recognised by content)",
     )
     src.add_argument("--scene", help="an embedded scene (see `seuwgpu scene --list`)")
-    p.add_argument("--n", type=int, help="primitives of an embedded scene (default 100000; a real capture: all)")
+    p.add_argument(
+        "--n", type=positive_int, help="primitives of an embedded scene (default 100000; a real capture: all)"
+    )
     p.add_argument("--sh-degree", type=int, default=3, choices=range(4), help="SH degree of an embedded scene")
     p.add_argument("--seed", type=int, default=0, help="seed of an embedded scene")
-    p.add_argument("--precision", choices=("fp32", "fp16", "bf16"), default="fp32", help="stored precision")
+    p.add_argument("--precision", choices=PRECISIONS, default="fp32", help="stored precision")
     p.add_argument(
         "--up",
-        choices=("+x", "-x", "+y", "-y", "+z", "-z"),
+        choices=UP_AXES,
         help="up axis of the orbit views (default: the file format's convention, see README)",
     )
 
@@ -54,10 +98,12 @@ def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "256
         help="the capture's cameras: CAMS.json, INRIA cameras.json, a COLMAP model folder, nerfstudio transforms.json",
     )
     p.add_argument(
-        "--views", type=int, help=f"orbit views (default {views}), or with --cameras: this many of them, evenly"
+        "--views",
+        type=positive_int,
+        help=f"orbit views (default {views}), or with --cameras: this many of them, evenly",
     )
     p.add_argument("--size", type=parse_size, default=parse_size(size), help=f"WxH of orbit views (default {size})")
-    p.add_argument("--scale", type=float, help="render at this fraction of the views' resolution (e.g. 0.25)")
+    p.add_argument("--scale", type=positive_float, help="render at this fraction of the views' resolution (e.g. 0.25)")
     p.set_defaults(default_views=views)
 
 
@@ -500,7 +546,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("scene", help="export an embedded scene as PLY or SPZ (or --list them)")
     s.add_argument("name", nargs="?")
-    s.add_argument("--n", type=int, help="primitives (default 100000; a real capture: all)")
+    s.add_argument("--n", type=positive_int, help="primitives (default 100000; a real capture: all)")
     s.add_argument("--sh-degree", type=int, default=3, choices=range(4))
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--out", type=Path)
@@ -521,11 +567,11 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help="means | log_scales | quats | opacity | sh_dc | sh_rest (aliases: log_scale, mean, ...)",
     )
-    s.add_argument("--primitive", type=int, help="primitive index (default: the most harmful of --sample)")
-    s.add_argument("--component", type=int, default=0)
-    s.add_argument("--bit", type=int, nargs="+", required=True, help="bit(s) of the stored value (0 = LSB)")
-    s.add_argument("--defense", default="none", choices=("none", "guard", "selective", "ecc", "dup"))
-    s.add_argument("--sample", type=int, default=64, help="primitives tried when --primitive is not given")
+    s.add_argument("--primitive", type=index_int, help="primitive index (default: the most harmful of --sample)")
+    s.add_argument("--component", type=index_int, default=0)
+    s.add_argument("--bit", type=index_int, nargs="+", required=True, help="bit(s) of the stored value (0 = LSB)")
+    s.add_argument("--defense", default="none", choices=DEFENSES)
+    s.add_argument("--sample", type=positive_int, default=64, help="primitives tried when --primitive is not given")
     s.add_argument("--out", type=Path, required=True)
     s.set_defaults(func=cmd_inject)
 
@@ -544,7 +590,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="local (this process) or ray (shards over Ray workers; needs pip install seuwgpu[ray])",
     )
     s.add_argument("--address", help="Ray cluster address (e.g. auto); default: start a local Ray instance")
-    s.add_argument("--workers", type=int, help="Ray workers in flight (default: the cluster's GPUs, else CPUs)")
+    s.add_argument(
+        "--workers", type=positive_int, help="Ray workers in flight (default: the cluster's GPUs, else CPUs)"
+    )
     s.set_defaults(func=cmd_campaign)
 
     s = sub.add_parser(
@@ -553,26 +601,30 @@ def build_parser() -> argparse.ArgumentParser:
     add_model_args(s)
     add_camera_args(s, views=2, size="256x256")
     s.add_argument(
-        "--ranks", type=int, nargs="+", default=[4], help="ranks P (screen regions); several values: one table each"
+        "--ranks",
+        type=positive_int,
+        nargs="+",
+        default=[4],
+        help="ranks P (screen regions); several values: one table each",
     )
     s.add_argument("--upset", help="field:bit (e.g. log_scales:31), applied to every rank's copy")
-    s.add_argument("--component", type=int, default=0)
-    s.add_argument("--primitive", type=int, help="primitive index (default: the most harmful of --sample)")
-    s.add_argument("--sample", type=int, default=32, help="primitives tried when --primitive is not given")
+    s.add_argument("--component", type=index_int, default=0)
+    s.add_argument("--primitive", type=index_int, help="primitive index (default: the most harmful of --sample)")
+    s.add_argument("--sample", type=positive_int, default=32, help="primitives tried when --primitive is not given")
     s.add_argument(
         "--guard",
         choices=("scrub", "clamp"),
         default="scrub",
         help="node-local guard: scrub each rank's stored copy, or clamp in the pipeline (default scrub)",
     )
-    s.add_argument("--repeats", type=int, default=3, help="renders per rank for its median time")
+    s.add_argument("--repeats", type=positive_int, default=3, help="renders per rank for its median time")
     s.add_argument("--address", help="Ray cluster address (e.g. auto); default: start a local Ray instance")
     s.set_defaults(func=cmd_distributed)
 
     s = sub.add_parser("plan", help="what a campaign spec will run, and the margin of error per cell")
     s.add_argument("spec", type=Path)
-    s.add_argument("--margin", type=float, help="also print the samples per cell this margin needs (e.g. 0.01)")
-    s.add_argument("--confidence", type=float, default=0.95)
+    s.add_argument("--margin", type=proportion, help="also print the samples per cell this margin needs (e.g. 0.01)")
+    s.add_argument("--confidence", type=proportion, default=0.95)
     s.set_defaults(func=cmd_plan)
 
     s = sub.add_parser(
@@ -583,12 +635,12 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--model", "--ply", dest="model", type=Path, help="run it on this model file (any format)")
     src.add_argument("--scene", help="run it on this embedded scene (`seuwgpu scene --list`)")
     s.add_argument("--cameras", type=Path, help="the capture's cameras (any format `render` takes)")
-    s.add_argument("--views", type=int, help="orbit views, or this many of the capture's (default 4)")
+    s.add_argument("--views", type=positive_int, help="orbit views, or this many of the capture's (default 4)")
     s.add_argument("--size", type=parse_size, help="WxH of orbit views (default from the spec)")
-    s.add_argument("--scale", type=float, help="render at this fraction of the views' resolution")
-    s.add_argument("--up", choices=("+x", "-x", "+y", "-y", "+z", "-z"), help="up axis of the orbit views")
-    s.add_argument("--n", type=int, help="primitives (default from the spec: 100000)")
-    s.add_argument("--samples", type=int, help="samples per (field, bit) cell")
+    s.add_argument("--scale", type=positive_float, help="render at this fraction of the views' resolution")
+    s.add_argument("--up", choices=UP_AXES, help="up axis of the orbit views")
+    s.add_argument("--n", type=positive_int, help="primitives (default from the spec: 100000)")
+    s.add_argument("--samples", type=positive_int, help="samples per (field, bit) cell")
     s.add_argument("--quiet", action="store_true")
     s.add_argument("--no-report", action="store_true")
     s.set_defaults(func=cmd_demo)
@@ -610,24 +662,26 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="the capture's cameras (any format `render` takes): step through them with [ and ] or the panel",
     )
-    s.add_argument("--views", type=int, help="with --cameras: this many of them, evenly")
+    s.add_argument("--views", type=positive_int, help="with --cameras: this many of them, evenly")
     s.add_argument(
         "--size",
         type=parse_size,
         default=parse_size("960x600"),
         help="window size WxH in pixels, the panel included (default 960x600)",
     )
-    s.add_argument("--sample", type=int, default=16, help="primitives tried by 'worst of a sample' (default 16)")
+    s.add_argument(
+        "--sample", type=positive_int, default=16, help="primitives tried by 'worst of a sample' (default 16)"
+    )
     s.add_argument(
         "--clamp-threshold",
-        type=int,
+        type=index_int,
         default=0,
         help="guard alert when a frame clamps more components than this (default 0)",
     )
     s.add_argument("--screenshot-dir", type=Path, default=Path("."), help="where S/P screenshots go (default .)")
     s.add_argument(
         "--frames",
-        type=int,
+        type=index_int,
         default=0,
         help="draw this many frames, save a screenshot and exit (0 = interactive; "
         "with RENDERCANVAS_BACKEND=offscreen the default is 1)",

@@ -58,10 +58,10 @@ from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELDS, canonical_field
+from seuwgpu.model.formats import UP_AXES
 
 _TOP = {"seed", "views", "size", "scale", "batch", "scenes", "single", "dose", "sizes", "name"}
 _SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
-_UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 _SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions"}
 _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
 _SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions"}
@@ -297,8 +297,8 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             out["model"] = _spec_file(s, key, where, base_dir)
             out["model_sha256"] = content_hash("model", out["model"])
         if "up" in s:
-            if not isinstance(s["up"], str) or s["up"] not in _UP_AXES:
-                raise SpecError(f"{where}.up: {s['up']!r} is no axis; expected one of {', '.join(_UP_AXES)}")
+            if not isinstance(s["up"], str) or s["up"] not in UP_AXES:
+                raise SpecError(f"{where}.up: {s['up']!r} is no axis; expected one of {', '.join(UP_AXES)}")
             out["up"] = s["up"]
         if "cameras" in s:
             out["cameras"] = _spec_file(s, "cameras", where, base_dir)
