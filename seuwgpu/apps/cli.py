@@ -29,26 +29,24 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def positive_int(text: str) -> int:
-    """An argument that counts something (primitives, views, samples): an integer >= 1."""
+def _whole(text: str, lo: int) -> int:
     try:
         v = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {v}")
+    if v < lo:
+        raise argparse.ArgumentTypeError(f"must be at least {lo}, got {v}")
     return v
+
+
+def positive_int(text: str) -> int:
+    """An argument that counts something (primitives, views, samples): an integer >= 1."""
+    return _whole(text, 1)
 
 
 def index_int(text: str) -> int:
     """An index or threshold argument: an integer >= 0."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be 0 or more, got {v}")
-    return v
+    return _whole(text, 0)
 
 
 def positive_float(text: str) -> float:
