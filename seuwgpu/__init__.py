@@ -4,6 +4,7 @@ The public API (seuwgpu/api.py) is importable from here: `import seuwgpu as sg; 
 It is loaded on first use, so `import seuwgpu` and `seuwgpu --version` stay fast.
 """
 
+from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.version import __version__
 
 _API = (
@@ -29,7 +30,7 @@ _API = (
     "save_frames",
 )
 
-__all__ = ["__version__", *_API]
+__all__ = ["InputError", "RunInUse", "SeuwgpuError", "TooBig", "__version__", *_API]
 
 
 def __getattr__(name: str):

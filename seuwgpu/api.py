@@ -15,8 +15,8 @@
 The command line (apps/cli.py) is a thin layer over these functions. Units: the footprint is a
 fraction (0-1) in every record, dict and JSON file; only text for people prints it as a percent.
 Undefined values (PSNR of a frame with non-finite pixels, say) are NaN in data and null in JSON.
-Bad input raises ValueError (or FileNotFoundError) whose message names the input and the problem,
-as the command line prints it.
+Bad input raises seuwgpu.InputError (a ValueError) or FileNotFoundError whose message names the
+input and the problem, as the command line prints it.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES, check_defense
 from seuwgpu.faults.guard import GuardAlert
 from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, VALUE_MODELS, model_bits
@@ -89,7 +90,7 @@ def load_model(
         return load_source(path=path, up=up)
     name = str(source)
     if name not in list_scenes():
-        raise ValueError(f"{name!r} is neither a file nor an embedded scene; scenes: {', '.join(list_scenes())}")
+        raise InputError(f"{name!r} is neither a file nor an embedded scene; scenes: {', '.join(list_scenes())}")
     return load_source(scene=name, n=n, sh_degree=sh_degree, seed=seed, up=up)
 
 
@@ -107,7 +108,7 @@ def cameras(
     _check_scene(scene)
     w, h = _size(size)
     if scale is not None and not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
-        raise ValueError(f"scale must be a positive number, got {scale!r}")
+        raise InputError(f"scale must be a positive number, got {scale!r}")
     return source_views(scene, cameras, views, (w, h), scale, default_views=4)
 
 
@@ -192,9 +193,9 @@ def inject(
 
     defenses = tuple(dict.fromkeys(check_defense(d) for d in _names(defenses, "defenses")))
     if not defenses:
-        raise ValueError("defenses must name at least one defense")
+        raise InputError("defenses must name at least one defense")
     if not isinstance(sample, int) or isinstance(sample, bool) or sample < 1:
-        raise ValueError(f"sample must be a positive integer, got {sample!r}")
+        raise InputError(f"sample must be a positive integer, got {sample!r}")
     bits, op, value = _fault_bits(fault, bit, width, precision, seed)
     model = _model_of(scene)
     name = scene.name if isinstance(scene, Source) else "model"
@@ -233,10 +234,10 @@ def save_frames(images: np.ndarray, out: str | Path, stem: str, *, formats: Iter
     formats = tuple(_names(formats, "formats"))
     unknown = sorted(set(formats) - set(FRAME_FORMATS))
     if unknown:
-        raise ValueError(f"unknown frame format(s) {', '.join(unknown)}; expected some of {', '.join(FRAME_FORMATS)}")
+        raise InputError(f"unknown frame format(s) {', '.join(unknown)}; expected some of {', '.join(FRAME_FORMATS)}")
     images = np.asarray(images, np.float32)
     if images.ndim != 4 or images.shape[-1] not in (1, 3):
-        raise ValueError(f"frames must be [K, H, W, 1 or 3], got shape {list(images.shape)}")
+        raise InputError(f"frames must be [K, H, W, 1 or 3], got shape {list(images.shape)}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -281,7 +282,7 @@ def run_campaign(
     elif isinstance(spec, (str, Path)):
         spec = load_spec(spec)
     else:
-        raise ValueError(f"spec must be a dict or the path of a TOML file, got {type(spec).__name__}")
+        raise InputError(f"spec must be a dict or the path of a TOML file, got {type(spec).__name__}")
     runner = Runner(spec, Path(out), shard=shard, quiet=progress is not True, full=full)
     return runner.run() if progress is True else runner.run(_Callback(progress or None, runner))
 
@@ -309,7 +310,7 @@ def read_records(*runs: str | Path) -> pd.DataFrame:
     from seuwgpu.report.build import load_runs
 
     if not runs:
-        raise ValueError("read_records needs at least one run directory")
+        raise InputError("read_records needs at least one run directory")
     df, _ = load_runs([Path(_existing(r, "run directory")) for r in runs])
     return df
 
@@ -337,28 +338,28 @@ def report_figures(runs: str | Path | Iterable[str | Path]) -> dict:
 def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], str, int]:
     """(bits, op, value) of one fault, as faults/sites.py applies it."""
     if fault not in FAULT_MODELS:
-        raise ValueError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
+        raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
     if fault in VALUE_MODELS:
         return model_bits(fault, -1, precision, int(np.random.default_rng(seed).integers(2**63)))
     if bit is None:
-        raise ValueError(f"fault {fault!r} needs bit=")
+        raise InputError(f"fault {fault!r} needs bit=")
     bits = [bit] if isinstance(bit, (int, np.integer)) else list(bit)
     if fault == "adjacent" and len(bits) == 1:
         if width not in ADJACENT_WIDTHS:
-            raise ValueError(f"width must be one of {', '.join(map(str, ADJACENT_WIDTHS))}, got {width!r}")
+            raise InputError(f"width must be one of {', '.join(map(str, ADJACENT_WIDTHS))}, got {width!r}")
         return model_bits("adjacent", int(bits[0]), precision, ADJACENT_WIDTHS.index(width))
     return tuple(int(b) for b in bits), ("flip" if fault in ("bit", "adjacent") else fault), 0
 
 
 def _profile(profile) -> str:
     if profile not in PROFILES:
-        raise ValueError(f"unknown renderer profile {profile!r}; expected one of {', '.join(PROFILES)}")
+        raise InputError(f"unknown renderer profile {profile!r}; expected one of {', '.join(PROFILES)}")
     return profile
 
 
 def _check_scene(scene):
     if not isinstance(scene, Source):
-        raise ValueError(f"expected a scene from load_model(), got {type(scene).__name__}")
+        raise InputError(f"expected a scene from load_model(), got {type(scene).__name__}")
 
 
 def _model_of(scene) -> Model:
@@ -366,7 +367,7 @@ def _model_of(scene) -> Model:
         return scene.model
     if isinstance(scene, Model):
         return scene
-    raise ValueError(f"expected a scene from load_model() or a Model, got {type(scene).__name__}")
+    raise InputError(f"expected a scene from load_model() or a Model, got {type(scene).__name__}")
 
 
 def _views(views) -> list[Camera]:
@@ -374,7 +375,7 @@ def _views(views) -> list[Camera]:
         views = [views]
     views = list(views) if isinstance(views, (list, tuple)) else None
     if not views or not all(isinstance(c, Camera) for c in views):
-        raise ValueError("views must be a non-empty list of Camera (from cameras())")
+        raise InputError("views must be a non-empty list of Camera (from cameras())")
     return views
 
 
@@ -382,10 +383,10 @@ def _size(size) -> tuple[int, int]:
     try:
         w, h = size
     except (TypeError, ValueError):
-        raise ValueError(f"size must be (width, height), got {size!r}") from None
+        raise InputError(f"size must be (width, height), got {size!r}") from None
     for v in (w, h):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
-            raise ValueError(f"size must be two positive integers (width, height), got {size!r}")
+            raise InputError(f"size must be two positive integers (width, height), got {size!r}")
     return int(w), int(h)
 
 
@@ -395,9 +396,9 @@ def _names(values, what: str) -> list[str]:
     try:
         values = list(values)
     except TypeError:
-        raise ValueError(f"{what} must be a name or a list of names, got {values!r}") from None
+        raise InputError(f"{what} must be a name or a list of names, got {values!r}") from None
     if not all(isinstance(v, str) for v in values):
-        raise ValueError(f"{what} must be names (strings), got {values!r}")
+        raise InputError(f"{what} must be names (strings), got {values!r}")
     return values
 
 

@@ -46,13 +46,13 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis import stats
+from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELDS, field_components, n_components, sh_rest_count
 from seuwgpu.render.regions import region_edges
 
 # ----------------------------------------------------------------------------------- constants
 
-DEFENSES = ("none", "guard", "selective", "ecc", "dup")
 DEFENSE_LABELS = {
     "none": "none",
     "guard": "support guard",

@@ -41,13 +41,8 @@ class Runner:
         rec = store.records_dir(self.out)
         rec.mkdir(parents=True, exist_ok=True)
         old = store.read_manifest(self.out)
-        if old is not None:
-            if old.get("spec_hash") != self.hash:
-                raise SpecError(
-                    f"{self.out} holds a run of a different spec (hash {old.get('spec_hash')} != {self.hash}); "
-                    "use a new --out directory, or the original spec to resume"
-                )
-        else:
+        store.check_same_run(self.out, old, self.spec, self.hash)
+        if old is None or old.get("spec_hash") != self.hash:
             from seuwgpu.gpu.device import get_gpu
 
             gpu = self.gpu or get_gpu()
@@ -67,8 +62,11 @@ class Runner:
         store.remove_stale_temps(rec)
 
     def done_ids(self) -> set[tuple[int, int]]:
-        """(first id, count) of the parts already written."""
-        return {store.parse_part_name(p.name) for p in store.part_files(self.out)}
+        """(first id, count) of this shard's parts already written and whole (a part that cannot be
+        read, or holds the wrong number of rows, is deleted here and redone)."""
+        want = store.expected_parts(self.spec)
+        mine = {(a, m): want[(a, m)] for _, a, m in self.blocks()}
+        return store.completed_parts(self.out, mine)
 
     def blocks(self):
         """Deterministic (context, first id, count) blocks of this shard."""
@@ -82,7 +80,14 @@ class Runner:
                 j += 1
 
     def run(self, progress=None) -> dict:
-        self.prepare_dir()
+        from seuwgpu.campaign.budget import check_campaign
+
+        check_campaign(self.spec)
+        with store.lock(self.out, self.shard):
+            self.prepare_dir()
+            return self._run(progress)
+
+    def _run(self, progress) -> dict:
         done = self.done_ids()
         todo = [(c, a, m) for c, a, m in self.blocks() if (a, m) not in done]
         shard_total = sum(m for _, _, m in self.blocks())

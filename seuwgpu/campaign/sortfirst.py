@@ -11,6 +11,7 @@ import time
 import numpy as np
 
 from seuwgpu.campaign.ray import get_ray, init_ray, worker_gpu
+from seuwgpu.metrics.image import changed_pixels
 
 # ---- sort-first rendering ---------------------------------------------------------------------
 TILE = 16
@@ -46,15 +47,6 @@ def split_regions(ranks: int, width: int, height: int) -> tuple[list[tuple[int, 
     yb = [min(round(k * ty / py) * TILE, height) for k in range(py + 1)]
     regions = [(xb[c], yb[r], xb[c + 1] - xb[c], yb[r + 1] - yb[r]) for r in range(py) for c in range(px)]
     return regions, (px, py)
-
-
-def changed_pixels(a: np.ndarray, b: np.ndarray, threshold: float = 1.0 / 255.0) -> np.ndarray:
-    """[..., H, W] bool: any channel differs by more than `threshold` or in finiteness (bitwise
-    equal values, Inf included, are unchanged)."""
-    same = a.view(np.uint32) == b.view(np.uint32)
-    with np.errstate(invalid="ignore", over="ignore"):
-        close = np.abs(a.astype(np.float64) - b.astype(np.float64)) <= threshold
-    return (~(same | close)).any(axis=-1)
 
 
 class RankRenderer:

@@ -13,7 +13,7 @@ import numpy as np
 from seuwgpu.faults.guard import clamp_bits
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import STORAGE
-from seuwgpu.metrics.image import ImageMetrics, build_worklist, summarize, tile_map_to_mask
+from seuwgpu.metrics.image import ImageMetrics, build_worklist, changed_pixels, summarize, tile_map_to_mask
 from seuwgpu.render.incremental import IncrementalCompositor
 from seuwgpu.render.regions import region_id_map
 
@@ -95,7 +95,7 @@ class IncrementalEvaluator:
         return out
 
     def _measured_regions(self, b_idx, v_idx, t_idx, m: int, regions) -> dict:
-        """Regions with a changed pixel (|d| > 1/255 in a channel, or non-finite) in any view,
+        """Regions with a changed pixel (metrics.image.changed_pixels) in any view,
         from the re-composited slabs against the clean frame."""
         r, n_e = self.r, b_idx.size
         out = {f"regions_meas_{P}": np.zeros(m, dtype=np.int64) for P in regions}
@@ -107,9 +107,7 @@ class IncrementalEvaluator:
         inside = (ys < r.height) & (xs < r.width)
         yc, xc = np.minimum(ys, r.height - 1), np.minimum(xs, r.width - 1)
         clean = self.engine.clean_rgba[v_idx[:, None, None], yc, xc, :3]
-        with np.errstate(invalid="ignore"):
-            diff = np.abs(slabs[..., :3].astype(np.float64) - clean)
-            changed = ((diff > 1.0 / 255.0) | ~np.isfinite(slabs[..., :3])).any(axis=-1) & inside
+        changed = changed_pixels(slabs, clean) & inside
         for P in regions:
             rid = region_id_map(P, r.height, r.width)[yc, xc]
             bits = np.where(changed, np.left_shift(np.uint64(1), rid.astype(np.uint64)), np.uint64(0))

@@ -319,6 +319,23 @@ def display(img: np.ndarray) -> np.ndarray:
     return np.clip(np.nan_to_num(a, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
 
 
+def changed_pixels(faulted: np.ndarray, clean: np.ndarray, threshold=THRESHOLD) -> np.ndarray:
+    """The one pixel-changed test of the project ([..., H, W] bool), as the metrics shader makes it
+    (M_THR): a pixel changed when a colour channel of the faulted render is non-finite, or differs
+    from the clean one by more than 1/255 (the float32 difference, as on the GPU). Only r, g, b
+    count; a fourth (transmittance) channel is ignored; a pixel bit-identical to the clean one is
+    unchanged (a clean model's own NaN pixels are not charged to an upset). The footprint, the viewer's heat map and
+    both contamination measures (incremental and sort-first) all use it."""
+    f = np.asarray(faulted, np.float32)[..., :3]
+    c = np.asarray(clean, np.float32)[..., :3]
+    with np.errstate(invalid="ignore", over="ignore"):
+        d = f - c
+    bad = ~np.isfinite(f) | ~np.isfinite(d)
+    changed = (bad | (np.abs(np.where(bad, np.float32(0), d)) > np.float32(threshold))).any(axis=-1)
+    same = (f.view(np.uint32) == np.broadcast_to(c, f.shape).view(np.uint32)).all(axis=-1)
+    return changed & ~same
+
+
 def numpy_metrics(clean: np.ndarray, faulted: np.ndarray) -> dict:
     """Independent CPU twin of ImageMetrics.read() (full frames evaluated): clean [K, H, W, 3|4],
     faulted [B, K, H, W, 3|4] -> dict of [B, K] arrays. SSIM from skimage (float64)."""
@@ -336,7 +353,7 @@ def numpy_metrics(clean: np.ndarray, faulted: np.ndarray) -> dict:
     nonfin_px = bad_f.any(axis=-1) & ~same
     inf_px = nonfin_px | (bad_d.any(axis=-1) & ~same)
     ad = np.where(bad_d | same[..., None], np.float32(0), np.abs(d))
-    changed_px = inf_px | (ad > THRESHOLD).any(axis=-1)
+    changed_px = changed_pixels(f, c[None])
     peak_px = np.where(inf_px, np.float32(np.inf), ad.max(axis=-1))
     dc = display(c).astype(np.float64)
     df = display(f).astype(np.float64)

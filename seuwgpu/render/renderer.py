@@ -21,6 +21,7 @@ import numpy as np
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.model import encoding
+from seuwgpu.model.budget import check_render
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model, StoredLayout
 from seuwgpu.render.bin import Binning
@@ -72,6 +73,8 @@ class Renderer:
         self.background = np.asarray(background, dtype=np.float32).reshape(3)
         self.degree = model.sh_degree
         self.n = model.n
+        w, h = check_cameras(cameras)
+        check_render(self.gpu.limits, self.gpu.is_cpu, self.n, self.degree, len(cameras), w, h, keep_views)
         max_chunk = StoredLayout.max_chunk_prims(self.degree, precision, self.gpu.max_binding)
         self.layout = StoredLayout(self.n, self.degree, precision, min(chunk_prims or max_chunk, max_chunk))
         # Host copy of the clean stored words: flips are undone against it, variants built from it.

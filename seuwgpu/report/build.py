@@ -33,6 +33,7 @@ import pandas as pd
 
 from seuwgpu.analysis import studies as A
 from seuwgpu.analysis.studies import InsufficientData, provenance, provenance_text
+from seuwgpu.campaign import store
 from seuwgpu.version import __version__
 
 __all__ = [
@@ -72,12 +73,10 @@ def load_runs(run_dirs: Iterable[str | Path]) -> tuple[pd.DataFrame, list[dict]]
         while name in names:
             name, i = f"{base}#{i}", i + 1
         names.add(name)
-        mpath = p / "manifest.json"
-        manifest = json.loads(mpath.read_text()) if mpath.is_file() else {}
-        manifest = dict(manifest)
+        manifest = dict(store.read_manifest(p) or {})
+        parts = store.record_parts(p, manifest)  # the spec's parts only: a stray file is never counted
         manifest["_run"] = name
         manifest["_run_dir"] = str(p)
-        parts = sorted((p / "records").glob("part-*.parquet"))
         if not parts:
             raise FileNotFoundError(f"{p}: no records/part-*.parquet")
         n = 0
