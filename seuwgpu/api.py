@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from seuwgpu.errors import InputError
+from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.faults.defenses import DEFENSES, check_defense
 from seuwgpu.faults.guard import GuardAlert
 from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, VALUE_MODELS, model_bits
@@ -50,9 +50,13 @@ __all__ = [
     "PRECISIONS",
     "PROFILES",
     "Camera",
+    "InputError",
     "Injection",
     "Model",
+    "RunInUse",
     "Scene",
+    "SeuwgpuError",
+    "TooBig",
     "cameras",
     "inject",
     "list_scenes",
