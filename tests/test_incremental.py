@@ -72,7 +72,7 @@ def test_defense_arms_are_paired_and_correct():
 
 def predicted(eng, site, defense, P):
     """Regions reached by the corrupted primitive's tile rectangle, from the numpy twin."""
-    from seuwgpu.analysis.studies import region_set, regions_to_bitmask
+    from seuwgpu.analysis.contamination import region_set, regions_to_bitmask
     from seuwgpu.faults.guard import clamp_values
     from seuwgpu.model.fields import Model
     from seuwgpu.render.project import project
@@ -91,7 +91,7 @@ def predicted(eng, site, defense, P):
 
 @pytest.mark.parametrize("size", [(64, 48), (50, 38)])  # grids that divide the frame, and that do not
 def test_region_contamination_matches_full_frames(size):
-    from seuwgpu.analysis.studies import region_set, regions_to_bitmask
+    from seuwgpu.analysis.contamination import region_set, regions_to_bitmask
 
     model = make_scene("spheres", n=2000, seed=4)
     eng = Engine(model, scene_cameras("spheres", 2, *size), "fp32")
