@@ -24,7 +24,7 @@ from seuwgpu.analysis import (
 )
 from seuwgpu.campaign import plan
 from seuwgpu.model import encoding
-from seuwgpu.render.regions import region_grid
+from seuwgpu.render.regions import region_edges, region_grid
 
 # ------------------------------------------------------------------------------------ stats
 
@@ -406,15 +406,20 @@ def test_outcome_classes():
 # --------------------------------------------------------------------- distributed contamination
 
 
-def test_region_grid_square_as_possible():
-    assert region_grid(4) == (2, 2)
-    assert region_grid(8) == (2, 4)
-    assert region_grid(12) == (3, 4)
-    assert region_grid(16) == (4, 4)
-    assert region_grid(32) == (4, 8)
-    assert region_grid(64) == (8, 8)
-    assert region_grid(7) == (1, 7)
-    assert region_grid(8, H=100, W=50) == (4, 2)  # portrait: more rows
+def test_region_grid_tile_aligned_and_square_in_tiles():
+    assert region_grid(4, 64, 64) == (2, 2)
+    assert region_grid(8, 128, 128) == (2, 4)  # a tie goes to more columns
+    assert region_grid(16, 128, 128) == (4, 4)
+    assert region_grid(64, 128, 128) == (8, 8)
+    assert region_grid(6, 128, 128) == (2, 3)  # the old pixel grid was 3 x 2 here, the ranks' 2 x 3
+    assert region_grid(8, 256, 128) == (4, 2)  # portrait: more rows
+    assert region_grid(3, 40, 96) == (1, 3)
+    ey, ex = region_edges(4, 64, 80)  # 80 px = 5 tiles: edges on tile borders, not at 40 px
+    assert ex.tolist() == [0, 32, 80] and ey.tolist() == [0, 32, 64]
+    ey, ex = region_edges(4, 38, 50)  # partial last tiles: clipped to the frame
+    assert ex.tolist() == [0, 32, 50] and ey.tolist() == [0, 32, 38]
+    with pytest.raises(ValueError, match="do not fit"):
+        region_grid(64, 64, 64)  # 4 x 4 tiles hold at most 16 regions
 
 
 def test_contaminated_regions_planted_masks():
@@ -428,11 +433,11 @@ def test_contaminated_regions_planted_masks():
     m[15:17, 15:17] = True  # crosses a corner: 4 regions
     assert contamination.contaminated_regions(m, H, W, 16) == 4
     assert contamination.contaminated_regions(np.ones((H, W), bool), H, W, 16) == 16
-    assert contamination.contaminated_regions(np.ones((H, W), bool), H, W, 64) == 64
+    assert contamination.contaminated_regions(np.ones((128, 128), bool), 128, 128, 64) == 64
     row = np.zeros((H, W), bool)
     row[40, :] = True  # one pixel row: a full band of regions
     assert contamination.contaminated_regions(row, H, W, 4) == 2
-    assert contamination.contaminated_regions(row, H, W, 64) == 8
+    assert contamination.contaminated_regions(row, H, W, 16) == 4
     assert contamination.region_set(row, H, W, 16).tolist() == [False] * 8 + [True] * 4 + [False] * 4
     views = np.zeros((2, H, W), bool)
     views[1, 63, 63] = True
