@@ -259,7 +259,7 @@ def run_campaign(
 
 
 def print_criticality(run_dirs):
-    from seuwgpu.analysis.studies import InsufficientData
+    from seuwgpu.analysis.records import InsufficientData
     from seuwgpu.report.build import criticality_table_text, load_runs
 
     df, _ = load_runs(run_dirs)

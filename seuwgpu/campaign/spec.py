@@ -41,6 +41,14 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     repeats = 3
     defenses = ["none", "guard"]
 
+    [outcomes]               # optional: outcome-class thresholds (defaults: the paper's)
+    pixel_threshold = 0.00392156862745098  # a channel change above it is visible (SDC), 1/255
+    footprint = 0.01         # a frame with more changed pixels than this share is catastrophic
+
+    [reliability]            # optional: inputs of the MTBF analysis (they change no injection)
+    scrub_hours = 24.0       # the model is restored from protected storage this often
+    rates = [{environment = "ground", per_bit_hour = 1e-12, source = "where the rate comes from"}]
+
     [sizes]                  # primitive-count sweep of the first scene: single upsets at each N
     n = [5000, 20000, 80000]
     precisions = ["fp32"]
@@ -66,7 +74,21 @@ from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELDS, canonical_field
 from seuwgpu.model.formats import UP_AXES
 
-_TOP = {"seed", "views", "size", "scale", "batch", "scenes", "single", "dose", "sizes", "name", "profile"}
+_TOP = {
+    "seed",
+    "views",
+    "size",
+    "scale",
+    "batch",
+    "scenes",
+    "single",
+    "dose",
+    "sizes",
+    "name",
+    "outcomes",
+    "reliability",
+    "profile",
+}
 _SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
 _SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions", "fault"}
 _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
@@ -221,15 +243,20 @@ def _names(table, key, where, default, valid) -> list:
 
 
 def _regions(table, where, size):
-    """Sort-first partition sizes P for contamination columns (regions_pred_P, regions_meas_P)."""
+    """Sort-first partition sizes P for contamination columns (regions_pred_P, regions_meas_P);
+    each must fit the tile-aligned region grid of the frame (render/regions.py)."""
+    from seuwgpu.render.regions import region_grid
+
     v = table.get("regions", [])
     if not isinstance(v, list) or not all(isinstance(p, int) and not isinstance(p, bool) for p in v):
         raise SpecError(f"{where}.regions must be a list of partition sizes, e.g. [4, 16, 64]")
     for p in v:
         if not 2 <= p <= 64:
             raise SpecError(f"{where}.regions: P = {p} is out of range [2, 64] (regions are 64-bit masks)")
-        if p > size[0] * size[1]:
-            raise SpecError(f"{where}.regions: P = {p} is more regions than pixels")
+        try:
+            region_grid(p, size[1], size[0])
+        except ValueError as e:
+            raise SpecError(f"{where}.regions: {e}") from None
     return sorted(set(v))
 
 
@@ -270,6 +297,43 @@ def _name(raw) -> str:
 def dose_levels(k_max: int, points: int) -> list[int]:
     ks = np.unique(np.round(np.logspace(0, np.log10(k_max), points)).astype(int))
     return [int(k) for k in ks]
+
+
+def _outcomes(t) -> dict:
+    from seuwgpu.metrics.image import FOOTPRINT_THRESHOLD, PIXEL_THRESHOLD
+
+    _keys(t, {"pixel_threshold", "footprint"}, "outcomes")
+    out = {}
+    for key, default in (("pixel_threshold", PIXEL_THRESHOLD), ("footprint", FOOTPRINT_THRESHOLD)):
+        v = t.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < 1:
+            raise SpecError(f"outcomes.{key} must be a number in [0, 1), got {v!r}")
+        out[key] = float(v)
+    return out
+
+
+def _reliability(t) -> dict:
+    _keys(t, {"scrub_hours", "rates"}, "reliability")
+    out = {}
+    if "scrub_hours" in t:
+        v = t["scrub_hours"]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+            raise SpecError(f"reliability.scrub_hours must be a positive number of hours, got {v!r}")
+        out["scrub_hours"] = float(v)
+    if "rates" in t:
+        rates = t["rates"]
+        if not isinstance(rates, list) or not rates:
+            raise SpecError("reliability.rates must be a non-empty list of {environment, per_bit_hour, source}")
+        out["rates"] = []
+        for i, r in enumerate(rates):
+            _keys(r, {"environment", "per_bit_hour", "source"}, f"reliability.rates[{i}]")
+            lam = r.get("per_bit_hour")
+            if isinstance(lam, bool) or not isinstance(lam, (int, float)) or not lam > 0:
+                raise SpecError(f"reliability.rates[{i}].per_bit_hour must be a positive number, got {lam!r}")
+            if not isinstance(r.get("environment"), str) or not isinstance(r.get("source"), str):
+                raise SpecError(f"reliability.rates[{i}] needs environment and source (strings)")
+            out["rates"].append({"environment": r["environment"], "per_bit_hour": float(lam), "source": r["source"]})
+    return out
 
 
 def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
@@ -328,6 +392,11 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             out["cameras"] = _spec_file(s, "cameras", where, base_dir)
             out["cameras_sha256"] = content_hash("cameras", out["cameras"])
         spec["scenes"].append(out)
+    # recorded only when given, so older specs keep their hash (the manifest states the thresholds)
+    if "outcomes" in raw:
+        spec["outcomes"] = _outcomes(raw["outcomes"])
+    if "reliability" in raw:
+        spec["reliability"] = _reliability(raw["reliability"])
     if not any(k in raw for k in ("single", "dose", "sizes")):
         raise SpecError("the spec needs at least one of [single], [dose], [sizes]")
     if "single" in raw:

@@ -52,13 +52,18 @@ COLUMNS = [
     "ssim",
     "nonfinite",
     "catastrophic",
+    "outcome",
     "clamps",
     "k",
     "repeat",
     "weight",
     "seed",
     "injection_id",
+    "time_ms",
 ]
+# wall-clock measurements: the only columns a replay, a shard or a Ray worker may not reproduce
+TIMED_COLUMNS = ("time_ms",)
+REPRODUCIBLE_COLUMNS = [c for c in COLUMNS if c not in TIMED_COLUMNS]
 
 
 def columns_of(ctx) -> list[str]:

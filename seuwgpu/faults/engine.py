@@ -266,6 +266,20 @@ class Engine:
             self.monitor.update(counts)
         return images.reshape(r.k, r.height, r.width, 4), counts
 
+    def view_time_ms(self, defense: str = "none", repeats: int = 5) -> float:
+        """Median wall time (ms) of rendering one view of the model as it is now under the
+        defense's in-pipeline guard (K views rendered and waited for, divided by K; one warm-up
+        render first). The mitigation table's time cost comes from it, in the same run."""
+        import time
+
+        self._run_guarded(defense)
+        ts = []
+        for _ in range(max(int(repeats), 1)):
+            t0 = time.perf_counter()
+            self._run_guarded(defense)  # Renderer.run reads its totals back: the GPU is done
+            ts.append(time.perf_counter() - t0)
+        return 1e3 * float(np.median(ts)) / self.k
+
     def measure_current(self, defense: str = "none") -> dict:
         """GPU metrics of the current model against the current clean reference (the frame stays
         on the GPU). clamps: the guard's clamps beyond the reference's own (negative when an upset

@@ -275,7 +275,11 @@ def summarize(raw: dict, width: int, height: int) -> dict:
     """[B, K] results -> [B] per-injection metrics: footprint (mean over views of changed/(W*H)),
     footprint_max, peak_error (max over views), psnr (10 log10(1/mse) over all views' pixels and
     channels, display-referred, +inf when sse == 0), ssim (mean over views), nonfinite (any),
-    nonfinite_pixels (total)."""
+    nonfinite_pixels (total).
+
+    PSNR and SSIM of a frame with a non-finite pixel in any view are NaN: its display-referred
+    numbers would rest on how NaN/Inf happen to be clipped, so they stay undefined (the
+    non-finite flag and the raw metrics report such frames)."""
     n_px = float(width) * float(height)
     n_int = n_interior(width, height)
     changed = np.asarray(raw["changed"], np.float64)
@@ -290,14 +294,17 @@ def summarize(raw: dict, width: int, height: int) -> dict:
             np.asarray(raw["ssim_sum"], np.float64) + n_int - np.asarray(raw["ssim_count"], np.float64)
         ) / n_int
     nonfinite_px = np.asarray(raw["nonfinite"], np.int64).sum(axis=1)
+    bad = nonfinite_px > 0
+    psnr = np.where(bad, np.nan, psnr)
+    ssim = np.where(bad, np.nan, ssim_view.mean(axis=1))
     foot = changed / n_px
     return {
         "footprint": foot.mean(axis=1),
         "footprint_max": foot.max(axis=1),
         "peak_error": np.asarray(raw["peak"], np.float64).max(axis=1),
         "psnr": psnr,
-        "ssim": ssim_view.mean(axis=1),
-        "nonfinite": nonfinite_px > 0,
+        "ssim": ssim,
+        "nonfinite": bad,
         "nonfinite_pixels": nonfinite_px,
     }
 
@@ -305,9 +312,38 @@ def summarize(raw: dict, width: int, height: int) -> dict:
 ImageMetrics.summarize = staticmethod(summarize)
 
 
-def catastrophic(footprint, nonfinite, threshold: float = 0.01):
+PIXEL_THRESHOLD = 1.0 / 255.0  # a channel change above one 8-bit level is visible (paper's definition)
+FOOTPRINT_THRESHOLD = 0.01  # a frame with more than 1% of its pixels changed is catastrophic
+OUTCOMES = ("masked", "tolerable", "sdc", "catastrophic")
+
+
+def catastrophic(footprint, nonfinite, threshold: float = FOOTPRINT_THRESHOLD):
     """Catastrophic injection: footprint > threshold (1% of the pixels) or any non-finite pixel."""
     return (np.asarray(footprint) > threshold) | np.asarray(nonfinite, bool)
+
+
+def outcome_class(
+    peak_error, footprint, nonfinite, pixel_threshold: float = PIXEL_THRESHOLD, footprint_threshold=FOOTPRINT_THRESHOLD
+) -> np.ndarray:
+    """Outcome class of each injection (object array of OUTCOMES):
+
+    * masked: the frame is bit-identical to clean (peak error 0, every pixel finite);
+    * tolerable: changed, but no channel by more than `pixel_threshold`;
+    * sdc: silent data corruption, visible (a channel changed by more than `pixel_threshold`),
+      with a footprint of at most `footprint_threshold`;
+    * catastrophic: footprint over `footprint_threshold`, or a non-finite pixel.
+
+    The footprint counts pixels changed by more than 1/255 (the metric shader's fixed test);
+    `pixel_threshold` sets the tolerable / SDC boundary on the peak change. A NaN peak error
+    (not measured) with a zero footprint counts as tolerable, never as masked."""
+    peak = np.asarray(peak_error, np.float64)
+    foot = np.asarray(footprint, np.float64)
+    bad = np.asarray(nonfinite, bool)
+    out = np.full(peak.shape, "tolerable", dtype=object)
+    out[peak == 0] = "masked"
+    out[peak > pixel_threshold] = "sdc"
+    out[(foot > footprint_threshold) | bad] = "catastrophic"
+    return out
 
 
 # ------------------------------------------------------------------------------------------------
