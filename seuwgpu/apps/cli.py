@@ -139,12 +139,11 @@ def save_images(images: np.ndarray, out: Path, stem: str = "view"):
 
 
 def cmd_render(args):
-    from seuwgpu.render.renderer import Renderer
+    from seuwgpu.render.renderer import render_split
 
     src = load_source(args)
     cams = load_cams(args, src)
-    r = Renderer(src.model, cams, args.precision, profile=args.profile)
-    images = r.render()
+    images = render_split(src.model, cams, args.precision, profile=args.profile)  # any frame size
     out: Path = args.out
     if out.suffix == ".npz":
         out.parent.mkdir(parents=True, exist_ok=True)
