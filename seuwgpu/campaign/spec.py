@@ -27,7 +27,11 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
                              # worst case p = 0.5, finite population of the smallest cell)
     sampling = "stratified"  # or "uniform": `samples` x cells injections drawn uniformly over
                              # all stored bits (weight column = bits each sample stands for)
-    defenses = ["none", "guard"]
+    defenses = ["none", "guard"]   # `seuwgpu defenses` lists them all
+    fault = "bit"            # fault model: "bit" (single-bit flip), "adjacent" (2-4 neighbouring
+                             # bits of the value from the cell's bit up), "stuck0"/"stuck1" (the
+                             # cell's bit stuck), "random"/"zero" (the whole value replaced by
+                             # random bits / 0: one cell per field, bits ignored)
     regions = [4, 16, 64]    # optional: sort-first contamination columns regions_pred_P and
                              # regions_meas_P (int64 bitmasks of the P regions reached/changed)
 
@@ -63,9 +67,9 @@ from seuwgpu.model.fields import FIELDS, canonical_field
 _TOP = {"seed", "views", "size", "scale", "batch", "scenes", "single", "dose", "sizes", "name", "profile"}
 _SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
 _UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
-_SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions"}
+_SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions", "fault"}
 _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
-_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions"}
+_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions", "fault"}
 
 
 class SpecError(ValueError):
@@ -172,6 +176,18 @@ def _regions(table, where, size):
     return sorted(set(v))
 
 
+def _fault(table, out, where):
+    """The fault model, recorded only when not the default single-bit flip (older specs keep their
+    hash)."""
+    from seuwgpu.faults.sites import FAULT_MODELS
+
+    v = table.get("fault", "bit")
+    if v not in FAULT_MODELS:
+        raise SpecError(f"{where}.fault: unknown fault model {v!r}; expected one of {', '.join(FAULT_MODELS)}")
+    if v != "bit":
+        out["fault"] = v
+
+
 def parse_size(v, where="size"):
     if isinstance(v, str):
         try:
@@ -261,6 +277,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "defenses": _list(t, "defenses", "single", ["none", "guard"], DEFENSES),
             "regions": _regions(t, "single", spec["size"]),
         }
+        _fault(t, spec["single"], "single")
         if spec["single"]["sampling"] not in ("stratified", "uniform"):
             raise SpecError(f'single.sampling must be "stratified" or "uniform", got {t["sampling"]!r}')
     if "dose" in raw:
@@ -302,6 +319,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "defenses": _list(t, "defenses", "sizes", ["none"], DEFENSES),
             "regions": _regions(t, "sizes", spec["size"]),
         }
+        _fault(t, spec["sizes"], "sizes")
     return spec
 
 

@@ -33,6 +33,7 @@ COLUMNS = [
     "component",
     "bit",
     "bit_class",
+    "fault",
     "clean_value",
     "corrupted_value",
     "defense",

@@ -826,6 +826,24 @@ SECTIONS: list[tuple[str, str, Callable]] = [
 # ----------------------------------------------------------------------------- build report
 
 
+def run_sections(df: pd.DataFrame, manifests: list[dict], ctx: dict) -> list[Section]:
+    """Every analysis the records support, in report order; the others go to ctx["skipped"]."""
+    sections: list[Section] = []
+    ctx.setdefault("skipped", [])
+    ctx.setdefault("max_pred_rows", 200_000)
+    for _key, label, builder in SECTIONS:
+        try:
+            sections.append(builder(df, manifests, ctx))
+        except InsufficientData as e:
+            ctx["skipped"].append((label, e.reason, e.remedy))
+    return sections
+
+
+def section_figures(df: pd.DataFrame, manifests: list[dict]) -> dict:
+    """The report's matplotlib figures by name (what the Python API hands to a notebook)."""
+    return {fi.name: fi.fig for sec in run_sections(df, manifests, {}) for fi in sec.figures}
+
+
 def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
@@ -864,12 +882,7 @@ def build_report(
     previous = _previous_files(out)
     written: list[str] = []
     ctx = {"skipped": [], "max_pred_rows": max_pred_rows}
-    sections: list[Section] = []
-    for _key, label, builder in SECTIONS:
-        try:
-            sections.append(builder(df, manifests, ctx))
-        except InsufficientData as e:
-            ctx["skipped"].append((label, e.reason, e.remedy))
+    sections = run_sections(df, manifests, ctx)
     skipped = ctx["skipped"]
 
     # files
