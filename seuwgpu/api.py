@@ -123,10 +123,11 @@ def render_views(
     """The views of the model stored at `precision`: float32 [K, H, W, 3], unclamped (values of a
     corrupted model may be negative, above 1 or non-finite). `profile` is the renderer's rule set
     for corrupted values (PROFILES: "strict", or "gsplat" as gsplat's CUDA kernels; docs/renderer.md)."""
-    from seuwgpu.render.renderer import Renderer
+    from seuwgpu.render.renderer import render_split
 
     model = _model_of(scene)
-    return Renderer(model, _views(views), encoding.check_precision(precision), profile=_profile(profile)).render()
+    # frames larger than one storage binding are rendered in view groups or tile-row bands
+    return render_split(model, _views(views), encoding.check_precision(precision), profile=_profile(profile))
 
 
 @dataclass

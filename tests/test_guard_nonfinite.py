@@ -56,3 +56,18 @@ def test_incremental_equals_full_on_every_guard_row(eng):
         full = eng.inject(site, rec["defense"])
         for key in METRICS:
             assert same(rec[key], full[key]), (rec, key, full[key])
+
+
+def test_campaign_notes_the_guard_effect_once(eng, tmp_path):
+    import json
+    from types import SimpleNamespace
+
+    from seuwgpu.campaign.runner import Runner
+    from seuwgpu.campaign.store import guard_note_path
+
+    runner = Runner.__new__(Runner)
+    runner.out = tmp_path
+    runner.note_clean_model(eng, SimpleNamespace(precision="fp32", defenses=["none", "guard"]))
+    note = json.loads(guard_note_path(tmp_path, "blocks", "fp32", "strict").read_text())
+    assert note["nonfinite_values"] == {"log_scales": 1, "quats": 1, "opacity": 1}
+    assert note["guard"]["clamps"] == 3 and "selective" not in note

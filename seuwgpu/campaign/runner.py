@@ -114,6 +114,7 @@ class Runner:
                 if key not in engines:
                     engines.clear()  # one engine at a time: bounded memory
                     engines[key] = self.engine_for(ctx)
+                    self.note_clean_model(engines[key], ctx)
                 eng = engines[key]
                 df = self.run_block(eng, ctx, first, count)
                 store.write_part(self.out, first, count, df)
@@ -126,6 +127,15 @@ class Runner:
             bar.close()
         stats["seconds"] = time.perf_counter() - t0
         return stats
+
+    def note_clean_model(self, eng, ctx: Context):
+        """A clean model holding NaN/Inf: the guard's own effect on it (per guard arm), written
+        once beside the manifest instead of being charged to every upset."""
+        if not eng.nonfinite_counts:
+            return
+        note = {d: eng.guard_on_clean(d) for d in ("guard", "selective") if d in ctx.defenses}
+        note["nonfinite_values"] = dict(eng.nonfinite_counts)
+        store.write_guard_note(self.out, eng.scene, ctx.precision, eng.profile, note)
 
     def engine_for(self, ctx: Context):
         from seuwgpu.faults.engine import Engine

@@ -249,6 +249,15 @@ def write_manifest(run_dir, manifest: dict):
     atomic_write(manifest_path(run_dir), json.dumps(manifest, indent=1).encode())
 
 
+def guard_note_path(run_dir, scene: str, precision: str, profile: str) -> Path:
+    """Where a run records the guard's effect on a clean model holding NaN/Inf (once per model)."""
+    return Path(run_dir) / f"guard_on_clean-{scene}-{precision}-{profile}.json"
+
+
+def write_guard_note(run_dir, scene: str, precision: str, profile: str, note: dict):
+    atomic_write(guard_note_path(run_dir, scene, precision, profile), json.dumps(note, indent=1).encode())
+
+
 def git_commit() -> str:
     try:
         return (
