@@ -57,6 +57,7 @@ import numpy as np
 from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.model import encoding
+from seuwgpu.model.budget import n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
 from seuwgpu.model.formats import UP_AXES
 
@@ -338,6 +339,15 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "repeats": _int(t, "repeats", "dose", 3, 1),
             "defenses": _names(t, "defenses", "dose", ["none", "guard"], DEFENSES),
         }
+        for i, sc in enumerate(spec["scenes"]):  # model files: checked when loaded (runner)
+            for p in spec["dose"]["precisions"]:
+                stored = sc["n"] * n_values(sc["sh_degree"]) * encoding.bits_per_value(p) if "n" in sc else None
+                if stored is not None and spec["dose"]["k"][-1] > stored:
+                    raise SpecError(
+                        f"dose.k = {spec['dose']['k'][-1]} is more upsets than scenes[{i}] stores bits at {p} "
+                        f"({sc['n']} primitives x {n_values(sc['sh_degree'])} values x "
+                        f"{encoding.bits_per_value(p)} bits = {stored})"
+                    )
     if "sizes" in raw:
         t = raw["sizes"]
         _keys(t, _SIZES, "sizes")

@@ -320,12 +320,16 @@ class Engine:
             "k": np.ones(m_sites, np.int64),
         }
         frames = []
-        rows = np.arange(m_sites)
+        prims = np.array([s.primitive for s in sites], dtype=np.int64)
+        clean_b = self.stored_bits(prims, comps)
+        masks = np.array([mask_of(s.bits) for s in sites], dtype=np.uint64)
+        # clean_value / corrupted_value: the stored value before and after the upset, whatever the
+        # defense then reads (the same in every arm, and equal to inject()'s)
+        clean_v = encoding.from_bits(clean_b, self.precision)
+        corr_v = encoding.from_bits(self._defended(clean_b, masks, "none"), self.precision)
         for d in defenses:
             check_defense(d)
             prims, bits, gm = self.variant_bits(sites, d)
-            clean_v = encoding.from_bits(self.stored_bits(prims, comps), self.precision)
-            corr_v = encoding.from_bits(bits[rows, comps], self.precision)
             m = self.evaluator.evaluate(prims, bits, gm, regions)
             cols = dict(base)
             with np.errstate(invalid="ignore"):  # NaN values are data here
