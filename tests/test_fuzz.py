@@ -22,7 +22,9 @@ from seuwgpu.model.scenes import make_scene, scene_cameras
 
 # SEUWGPU_FUZZ_EXAMPLES raises the bound for a deeper local search (CI keeps it small)
 FUZZ = settings(
-    max_examples=int(os.environ.get("SEUWGPU_FUZZ_EXAMPLES", 120)), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
+    max_examples=int(os.environ.get("SEUWGPU_FUZZ_EXAMPLES", 120)),
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
 
 
