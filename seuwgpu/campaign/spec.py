@@ -1,5 +1,11 @@
 """Campaign specs: parse, validate and normalise a TOML spec; its hash names the run.
 
+Files a spec names (model, cameras) are resolved to absolute paths and recorded with the sha256
+of their content (`model_sha256`, `cameras_sha256`; reading costs about a second per GB); the hash
+covers the content, not the path, so a changed file is another run and a moved one the same.
+Lists of names (precisions, defenses, fields with their aliases) must not repeat an entry; lists of
+numbers (bits, k, sizes.n, regions) are merged. Seeds are integers in [0, 2**63).
+
 Spec (TOML; unknown keys and bad values fail at once, naming the key):
 
     seed = 0                 # master seed
