@@ -1,5 +1,11 @@
 """Campaign specs: parse, validate and normalise a TOML spec; its hash names the run.
 
+Files a spec names (model, cameras) are resolved to absolute paths and recorded with the sha256
+of their content (`model_sha256`, `cameras_sha256`; reading costs about a second per GB); the hash
+covers the content, not the path, so a changed file is another run and a moved one the same.
+Lists of names (precisions, defenses, fields with their aliases) must not repeat an entry; lists of
+numbers (bits, k, sizes.n, regions) are merged. Seeds are integers in [0, 2**63).
+
 Spec (TOML; unknown keys and bad values fail at once, naming the key):
 
     seed = 0                 # master seed
@@ -71,6 +77,7 @@ from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.model import encoding
+from seuwgpu.model.budget import n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
 from seuwgpu.model.formats import UP_AXES
 
@@ -432,6 +439,15 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "repeats": _int(t, "repeats", "dose", 3, 1),
             "defenses": _names(t, "defenses", "dose", ["none", "guard"], DEFENSES),
         }
+        for i, sc in enumerate(spec["scenes"]):  # model files: checked when loaded (runner)
+            for p in spec["dose"]["precisions"]:
+                stored = sc["n"] * n_values(sc["sh_degree"]) * encoding.bits_per_value(p) if "n" in sc else None
+                if stored is not None and spec["dose"]["k"][-1] > stored:
+                    raise SpecError(
+                        f"dose.k = {spec['dose']['k'][-1]} is more upsets than scenes[{i}] stores bits at {p} "
+                        f"({sc['n']} primitives x {n_values(sc['sh_degree'])} values x "
+                        f"{encoding.bits_per_value(p)} bits = {stored})"
+                    )
     if "sizes" in raw:
         t = raw["sizes"]
         _keys(t, _SIZES, "sizes")

@@ -420,12 +420,15 @@ class Engine:
             "k": np.ones(m_sites, np.int64),
         }
         frames = []
-        rows = np.arange(m_sites)
+        prims = np.array([s.primitive for s in sites], dtype=np.int64)
+        clean_b = self.stored_bits(prims, comps)
+        # clean_value / corrupted_value: the stored value before and after the upset, whatever the
+        # defense then reads (the same in every arm, and equal to inject()'s)
+        clean_v = encoding.from_bits(clean_b, self.precision)
+        corr_v = encoding.from_bits(apply_sites(clean_b, sites), self.precision)
         for d in defenses:
             dfn.check_defense(d)
             prims, bits, gm = self.variant_bits(sites, d)
-            clean_v = encoding.from_bits(self.stored_bits(prims, comps), self.precision)
-            corr_v = encoding.from_bits(bits[rows, comps], self.precision)
             self.use_reference(d)
             m = self.evaluator.evaluate(prims, bits, gm, regions, self.primitive_bits(prims) if gm.any() else None)
             cols = dict(base)

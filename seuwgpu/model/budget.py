@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 
 from seuwgpu.errors import TooBig
+from seuwgpu.model.fields import n_components
 
 SCENE_BYTES_PER_VALUE = 6  # generating an embedded scene (float64 intermediates, float32 result)
 MODEL_BYTES_PER_VALUE = 16  # a loaded model plus the renderer's and engine's copies of it
@@ -26,7 +27,7 @@ HOST_SHARE = 0.8  # of the available memory a job may plan to use
 
 def n_values(degree: int) -> int:
     """Stored values per primitive at an SH degree."""
-    return 14 + 3 * ((int(degree) + 1) ** 2 - 1)
+    return n_components(int(degree))
 
 
 def available_host_bytes() -> int:
