@@ -994,7 +994,7 @@ def build_report(
             (out / name).unlink()
         except OSError:
             pass
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
+    (out / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2, default=_json_default, allow_nan=False))
 
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
@@ -1031,6 +1031,27 @@ def _previous_files(out: Path) -> set[str]:
     except (OSError, ValueError, AttributeError):
         return set()
     return {f for f in files if isinstance(f, str) and f == Path(f).name and f}
+
+
+def _json_safe(o):
+    """Plain JSON: NaN (undefined) -> null, +-inf -> "inf" / "-inf" (a median frame that is
+    non-finite, an unbounded MTBF): strict parsers reject NaN and Infinity literals."""
+    if isinstance(o, dict):
+        return {str(k): _json_safe(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_json_safe(v) for v in o]
+    if isinstance(o, (float, np.floating)):
+        x = float(o)
+        if math.isnan(x):
+            return None
+        if math.isinf(x):
+            return "inf" if x > 0 else "-inf"
+        return x
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.bool_,)):
+        return bool(o)
+    return o
 
 
 def _json_default(o):
