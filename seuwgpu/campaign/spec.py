@@ -44,8 +44,9 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     scrub_hours = 24.0       # the model is restored from protected storage this often
     rates = [{environment = "ground", per_bit_hour = 1e-12, source = "where the rate comes from"}]
 
-    [sizes]                  # primitive-count sweep of the first scene: single upsets at each N
+    [sizes]                  # primitive-count sweep: single upsets at each N
     n = [5000, 20000, 80000]
+    scenes = "all"           # optional: [[scenes]] indices swept, or "all" (default: [0], the first)
     precisions = ["fp32"]
     fields = "all"
     bits = "all"
@@ -84,7 +85,7 @@ _SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
 _UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 _SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions"}
 _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
-_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions"}
+_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions", "scenes"}
 
 
 class SpecError(ValueError):
@@ -343,14 +344,26 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
     if "sizes" in raw:
         t = raw["sizes"]
         _keys(t, _SIZES, "sizes")
-        if "scene" not in spec["scenes"][0]:
-            raise SpecError("sizes: the first [[scenes]] entry must be an embedded scene (it is generated at each n)")
+        which = t.get("scenes", [0])
+        if which == "all":
+            which = list(range(len(spec["scenes"])))
+        if (
+            not isinstance(which, list)
+            or not which
+            or not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(spec["scenes"]) for i in which)
+        ):
+            raise SpecError(f'sizes.scenes must be "all" or a list of [[scenes]] indices 0..{len(spec["scenes"]) - 1}')
         ns = _list(t, "n", "sizes", None)
         if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in ns):
             raise SpecError("sizes.n must be a list of positive integers")
-        first = spec["scenes"][0]["scene"]
-        if is_capture(first) and max(ns) > make_scene(first).n:
-            raise SpecError(f"sizes.n: the real capture {first} has {make_scene(first).n} splats; n must not exceed it")
+        for i in which:
+            if "scene" not in spec["scenes"][i]:
+                raise SpecError(f"sizes: [[scenes]] entry {i} must be an embedded scene (it is generated at each n)")
+            name = spec["scenes"][i]["scene"]
+            if is_capture(name) and max(ns) > make_scene(name).n:
+                raise SpecError(
+                    f"sizes.n: the real capture {name} has {make_scene(name).n} splats; n must not exceed it"
+                )
         precisions = _list(t, "precisions", "sizes", ["fp32"], encoding.PRECISIONS)
         spec["sizes"] = {
             "n": sorted(set(ns)),
@@ -362,6 +375,8 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "defenses": _list(t, "defenses", "sizes", ["none"], DEFENSES),
             "regions": _regions(t, "sizes", spec["size"]),
         }
+        if "scenes" in t:  # recorded only when given (the first scene by default), older hashes stay
+            spec["sizes"]["scenes"] = sorted(set(which))
     return spec
 
 
