@@ -36,6 +36,9 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     repeats = 3
     defenses = ["none", "guard"]
 
+    lpips = true             # optional: LPIPS (AlexNet) of every record, re-rendered in full
+                             # (slow: ~1 s per 256 px view on a CPU; pip install 'seuwgpu[lpips]')
+
     [outcomes]               # optional: outcome-class thresholds (defaults: the paper's)
     pixel_threshold = 0.00392156862745098  # a channel change above it is visible (SDC), 1/255
     footprint = 0.01         # a frame with more changed pixels than this share is catastrophic
@@ -78,8 +81,9 @@ _TOP = {
     "dose",
     "sizes",
     "name",
-    "outcomes",
+    "outcomes",  # analysis inputs (thresholds, upset rates) and the optional LPIPS metric
     "reliability",
+    "lpips",
 }
 _SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
 _UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
@@ -303,6 +307,11 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             out["cameras"] = _spec_file(s, "cameras", where, base_dir)
         spec["scenes"].append(out)
     # recorded only when given, so older specs keep their hash (the manifest states the thresholds)
+    if "lpips" in raw:
+        if not isinstance(raw["lpips"], bool):
+            raise SpecError(f"lpips must be true or false, got {raw['lpips']!r}")
+        if raw["lpips"]:
+            spec["lpips"] = True
     if "outcomes" in raw:
         spec["outcomes"] = _outcomes(raw["outcomes"])
     if "reliability" in raw:

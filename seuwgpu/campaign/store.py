@@ -40,6 +40,7 @@ COLUMNS = [
     "peak_error",
     "psnr",
     "ssim",
+    "lpips",
     "nonfinite",
     "catastrophic",
     "outcome",
