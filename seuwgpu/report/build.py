@@ -672,7 +672,7 @@ def _sec_size(df, manifests, ctx) -> Section:
             "Log-log fits",
             res["fits"],
             "Log-log least-squares fits against N: sizes, sizes fitted, zero points, exponent and alpha "
-            "with 95% t intervals (NaN with two sizes: a line fits two points exactly), R^2.",
+            "with 95% t intervals (NaN with fewer than three positive sizes: two points fit any line), R^2.",
         )
     )
     sec.tables.append(
