@@ -44,25 +44,18 @@ class Runner:
         }
         self._times: dict = {}  # (engine key, defense) -> ms per view
         if spec.get("lpips"):
-            from seuwgpu.metrics.lpips import LPIPSUnavailable, weights_path
+            from seuwgpu.metrics.lpips import INSTALL_HINT, available
 
-            try:
-                weights_path()
-            except LPIPSUnavailable as e:
-                raise SpecError(f"lpips = true: {e}") from None
+            if not available():
+                raise SpecError(f"lpips = true: {INSTALL_HINT}")
 
     # -- run directory --
     def prepare_dir(self):
         rec = store.records_dir(self.out)
         rec.mkdir(parents=True, exist_ok=True)
         old = store.read_manifest(self.out)
-        if old is not None:
-            if old.get("spec_hash") != self.hash:
-                raise SpecError(
-                    f"{self.out} holds a run of a different spec (hash {old.get('spec_hash')} != {self.hash}); "
-                    "use a new --out directory, or the original spec to resume"
-                )
-        else:
+        store.check_same_run(self.out, old, self.spec, self.hash)
+        if old is None or old.get("spec_hash") != self.hash:
             from seuwgpu.gpu.device import get_gpu
 
             gpu = self.gpu or get_gpu()
@@ -75,6 +68,7 @@ class Runner:
                 "python": platform.python_version(),
                 "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
                 "total_injections": self.total,
+                "profile": self.spec.get("profile", "strict"),
                 "columns": store.COLUMNS,
                 "outcomes": self.thresholds,
                 "region_grid": REGION_GRID_VERSION,
@@ -85,8 +79,11 @@ class Runner:
         store.remove_stale_temps(rec)
 
     def done_ids(self) -> set[tuple[int, int]]:
-        """(first id, count) of the parts already written."""
-        return {store.parse_part_name(p.name) for p in store.part_files(self.out)}
+        """(first id, count) of this shard's parts already written and whole (a part that cannot be
+        read, or holds the wrong number of rows, is deleted here and redone)."""
+        want = store.expected_parts(self.spec)
+        mine = {(a, m): want[(a, m)] for _, a, m in self.blocks()}
+        return store.completed_parts(self.out, mine)
 
     def blocks(self):
         """Deterministic (context, first id, count) blocks of this shard."""
@@ -100,7 +97,14 @@ class Runner:
                 j += 1
 
     def run(self, progress=None) -> dict:
-        self.prepare_dir()
+        from seuwgpu.campaign.budget import check_campaign
+
+        check_campaign(self.spec)
+        with store.lock(self.out, self.shard):
+            self.prepare_dir()
+            return self._run(progress)
+
+    def _run(self, progress) -> dict:
         done = self.done_ids()
         todo = [(c, a, m) for c, a, m in self.blocks() if (a, m) not in done]
         shard_total = sum(m for _, _, m in self.blocks())
@@ -115,6 +119,7 @@ class Runner:
                 if key not in engines:
                     engines.clear()  # one engine at a time: bounded memory
                     engines[key] = self.engine_for(ctx)
+                    self.note_clean_model(engines[key], ctx)
                 eng = engines[key]
                 df = self.run_block(eng, ctx, first, count)
                 store.write_part(self.out, first, count, df)
@@ -127,6 +132,15 @@ class Runner:
             bar.close()
         stats["seconds"] = time.perf_counter() - t0
         return stats
+
+    def note_clean_model(self, eng, ctx: Context):
+        """A clean model holding NaN/Inf: the guard's own effect on it (per guard arm), written
+        once beside the manifest instead of being charged to every upset."""
+        if not eng.nonfinite_counts:
+            return
+        note = {d: eng.guard_on_clean(d) for d in ("guard", "selective") if d in ctx.defenses}
+        note["nonfinite_values"] = dict(eng.nonfinite_counts)
+        store.write_guard_note(self.out, eng.scene, ctx.precision, eng.profile, note)
 
     def engine_for(self, ctx: Context):
         from seuwgpu.faults.engine import Engine
@@ -144,7 +158,15 @@ class Runner:
         views = source_views(
             src, sc.get("cameras"), self.spec["views"], tuple(self.spec["size"]), self.spec.get("scale")
         )
-        return Engine(src.model, views, ctx.precision, gpu=self.gpu, scene=src.name, incremental=not self.full)
+        return Engine(
+            src.model,
+            views,
+            ctx.precision,
+            gpu=self.gpu,
+            scene=src.name,
+            incremental=not self.full,
+            profile=self.spec.get("profile", "strict"),
+        )
 
     def view_times(self, eng, ctx: Context) -> dict:
         """ms per view of each defense's render of the clean model (measured once per engine)."""
@@ -159,14 +181,14 @@ class Runner:
     def lpips_of(self, eng, sites, defense: str) -> float:
         """LPIPS of the frame with `sites` flipped under `defense` against clean (a full render;
         NaN for a frame with a non-finite pixel)."""
-        from seuwgpu.metrics.lpips import lpips_views
+        from seuwgpu.metrics.lpips import lpips
 
         handle = eng.apply(sites, defense)
         try:
             img, _ = eng.render_current(defense)
         finally:
             eng.undo(handle)
-        return lpips_views(eng.clean_rgba, img)
+        return float(np.mean(lpips(eng.clean_rgba[..., :3], img[..., :3])))  # NaN if any view is
 
     def finish(self, df: pd.DataFrame, eng, ctx: Context) -> pd.DataFrame:
         """Outcome class and catastrophic flag under the spec's thresholds; time_ms per defense."""

