@@ -23,6 +23,9 @@
 //   with the corrupted primitive removed and its re-projected record merged in at its depth
 //   (render/incremental.py; equal to a full re-render bit for bit).
 
+// Renderer profile (docs/renderer.md, "Profiles"): PROFILE_STRICT (default) or PROFILE_GSPLAT.
+override PROFILE: u32 = PROFILE_STRICT;
+
 const QUAD: u32 = 4u;                       // pixels per Quad (vec4 lanes, one column)
 const QPI: u32 = 2u;                        // Quads per invocation
 const SPAN: u32 = QUAD * QPI;               // rows per invocation
@@ -176,7 +179,8 @@ fn alpha_of(sigma: vec4<f32>, o: f32) -> Alpha {
     e = select(e, vec4<f32>(inf_f32()), x > vec4<f32>(88.72283));
     e = select(e, x, s_nan);
     let a = o * e;
-    let alpha = select(min(vec4<f32>(0.99), a), a, nan4(a));
+    // a NaN alpha propagates (strict); gsplat: CUDA's min (fminf) drops the NaN
+    let alpha = select(min(vec4<f32>(0.99), a), select(a, vec4<f32>(0.99), PROFILE == PROFILE_GSPLAT), nan4(a));
     let skip = (!s_nan & (sigma < vec4<f32>(0.0))) | (!nan4(alpha) & (alpha < vec4<f32>(1.0 / 255.0)));
     return Alpha(alpha, !skip);
 }

@@ -157,14 +157,27 @@ def test_ecc_corrects_every_single_sign_exponent_flip_and_dup_every_flip(precisi
         assert np.array_equal(dup_read(vals, flipped), vals)
 
 
-def test_defenses_on_the_gpu_model(engines):
+def test_defenses_on_the_gpu_model(engines, monkeypatch):
+    """ECC corrects a single exponent upset and passes a mantissa one; duplication outvotes both.
+    The primitive is the most harmful of a sample and the undefended render is asserted changed
+    first, so every defended zero is the defense's doing (a primitive hidden from the views would
+    give zeros under any defense); with the defenses' reads made pass-through, the checks fail."""
+    import seuwgpu.faults.defenses as defenses_module
+
     eng = engines["fp32"]
-    site = eng.site("sh_dc", 17, 1, 30)
+    prim, _ = eng.worst_primitive("sh_dc", 1, [30], sample=64, seed=0)
+    site, mant = eng.site("sh_dc", prim, 1, 30), eng.site("sh_dc", prim, 1, 22)
     recs = {d: eng.inject(site, d) for d in DEFENSES}
+    assert recs["none"]["footprint"] > 0 and recs["none"]["psnr"] != np.inf  # NaN when non-finite
     assert recs["ecc"]["footprint"] == 0 and recs["ecc"]["psnr"] == np.inf
-    assert recs["dup"]["footprint"] == 0
-    mant = eng.site("sh_dc", 17, 1, 22)
-    assert eng.inject(mant, "ecc")["peak_error"] == eng.inject(mant, "none")["peak_error"]
+    assert recs["dup"]["footprint"] == 0 and recs["dup"]["psnr"] == np.inf
+    none, ecc, dup = (eng.inject(mant, d) for d in ("none", "ecc", "dup"))
+    assert none["peak_error"] > 0
+    assert ecc["peak_error"] == none["peak_error"] and ecc["footprint"] == none["footprint"]
+    assert dup["peak_error"] == 0
+    monkeypatch.setattr(defenses_module, "ecc_read", lambda clean, stored, precision: stored)
+    monkeypatch.setattr(defenses_module, "dup_read", lambda clean, stored: stored)
+    assert eng.inject(site, "ecc")["footprint"] > 0 and eng.inject(site, "dup")["footprint"] > 0
 
 
 def test_uniform_upsets_cover_the_whole_budget():
