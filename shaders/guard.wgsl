@@ -10,7 +10,8 @@
 // that may be outside takes the exact per-value path. A scrub thus reads the guarded planes once
 // and writes only clamped words.
 override FMT: u32 = 0u;
-const WPT: u32 = 8u;  // words per thread
+override WPT: u32 = 4u;  // words per thread (faults/guard.py: many on CPU adapters, where each
+                         // invocation and workgroup has a fixed cost; 4 on GPUs)
 
 struct GuardParams {
     plane_words: u32,
@@ -25,7 +26,11 @@ struct GuardParams {
 
 @group(0) @binding(0) var<uniform> params: GuardParams;
 @group(0) @binding(1) var<storage, read> box: array<Bound>;
-@group(0) @binding(2) var<storage, read_write> words: array<u32>;
+@group(0) @binding(2) var<storage, read_write> words: array<vec4<u32>>;  // the chunk's words, 4 per element
+
+fn word_at(i: u32) -> u32 {
+    return words[i >> 2u][i & 3u];
+}
 // Clamp counters: per field, and per primitive (primitive j of this chunk at prim_base + j).
 struct ClampCounts {
     per_field: array<atomic<u32>, 8>,
@@ -91,26 +96,36 @@ fn key_range(b: Bound, sign: u32) -> vec2<u32> {
     return vec2<u32>(order_key(lo, sign), order_key(hi, sign));
 }
 
+fn order_key4(bits: vec4<u32>, sign: u32) -> vec4<u32> {
+    let full = vec4<u32>(sign | (sign - 1u));
+    return select(bits | vec4<u32>(sign), ~bits & full, (bits & vec4<u32>(sign)) != vec4<u32>(0u));
+}
+
 // Whether any value of words [w0, w1) of plane c may lie outside the box: integer compares on
-// the raw bits, no branch per value (the common case of a scrub is a clean plane).
+// the raw bits, no branch per value (the common case of a scrub is a clean plane); 4 words per
+// read where the words are 16-byte aligned.
 fn any_outside(c: u32, w0: u32, w1: u32, b: Bound) -> bool {
-    var out = false;
-    if (FMT == FMT_FP32) {
-        let r = key_range(b, 0x80000000u);
-        for (var w = w0; w < w1; w = w + 1u) {
-            let k = order_key(words[c * params.plane_words + w], 0x80000000u);
-            out = out | (k < r.x) | (k > r.y);
-        }
-    } else {
-        let r = key_range(b, 0x8000u);
-        for (var w = w0; w < w1; w = w + 1u) {
-            let word = words[c * params.plane_words + w];
-            let k0 = order_key(word & 0xffffu, 0x8000u);
-            let k1 = order_key(word >> 16u, 0x8000u);
-            out = out | (k0 < r.x) | (k0 > r.y) | (k1 < r.x) | (k1 > r.y);
+    let sign = select(0x8000u, 0x80000000u, FMT == FMT_FP32);
+    let r = key_range(b, sign);
+    let lo = vec4<u32>(r.x);
+    let hi = vec4<u32>(r.y);
+    let i0 = c * params.plane_words + w0;
+    let i1 = i0 + (w1 - w0);
+    var out = vec4<bool>(false);
+    for (var i = i0 & ~3u; i < i1; i = i + 4u) {
+        let x = words[i >> 2u];
+        let idx = vec4<u32>(i) + vec4<u32>(0u, 1u, 2u, 3u);
+        let valid = (idx >= vec4<u32>(i0)) & (idx < vec4<u32>(i1));
+        if (FMT == FMT_FP32) {
+            let k = order_key4(x, sign);
+            out = out | (valid & ((k < lo) | (k > hi)));
+        } else {
+            let k0 = order_key4(x & vec4<u32>(0xffffu), sign);
+            let k1 = order_key4(x >> vec4<u32>(16u), sign);
+            out = out | (valid & ((k0 < lo) | (k0 > hi) | (k1 < lo) | (k1 > hi)));
         }
     }
-    return out;
+    return any(out);
 }
 
 @compute @workgroup_size(WG)
@@ -135,9 +150,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     var n_clamped = 0u;
     for (var w = w0; w < w1; w = w + 1u) {
         let i = c * params.plane_words + w;
-        let r = scrub_word(words[i], w, b);
+        let r = scrub_word(word_at(i), w, b);
         if (r.y > 0u) {
-            words[i] = r.x;
+            words[i >> 2u][i & 3u] = r.x;
             n_clamped = n_clamped + r.y;
         }
     }

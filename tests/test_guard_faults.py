@@ -189,9 +189,10 @@ def test_uniform_upsets_cover_the_whole_budget():
 
 
 @pytest.mark.parametrize("precision", encoding.PRECISIONS)
-@pytest.mark.parametrize("fields", [FIELDS[:5], ("log_scales", "opacity")])
-def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision, fields):
-    from seuwgpu.faults.guard import clamp_bits
+@pytest.mark.parametrize("fields, wpt", [(FIELDS[:5], 4), (("log_scales", "opacity"), 128)])
+def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision, fields, wpt):
+    """The scrub against its twin, for both thread shapes (GPU: 4 words per thread, CPU: 128)."""
+    from seuwgpu.faults.guard import Scrub, clamp_bits
 
     model = random_model(97, seed=13)
     r = Renderer(model, scene_cameras("spheres", 1, 32, 32), precision)
@@ -209,7 +210,7 @@ def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision, fields
     want, hit = clamp_bits(bits, box, mask)
     for c, words in enumerate(r.layout.encode_bits(bits)):
         r.gpu.write(r.chunks[c], words)
-    counts = scrub(r, box, fields)
+    counts = Scrub(r, words_per_thread=wpt).run(box, component_mask(fields, 3))
     got = np.concatenate([r.read_words(c) for c in range(r.layout.n_chunks)])
     assert np.array_equal(got, np.concatenate(r.layout.encode_bits(want)))
     assert hit[5, 10] and hit[96, 4] and hit[9, 0] == ("means" in fields) and not hit[7, 20]
