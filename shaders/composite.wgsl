@@ -115,13 +115,19 @@ fn box_of(xy: vec2<f32>, co: vec4<f32>, cut: f32, origin: vec2<f32>) -> u32 {
     return l.x | (h.x << 8u) | (l.y << 16u) | (h.y << 24u);
 }
 
-// Stage one record (screen mean, conic + opacity, rgb) at slot i, for the tile at `origin`.
-fn stage(i: u32, xy: vec2<f32>, co: vec4<f32>, rgb: vec4<f32>, origin: vec2<f32>) {
-    let cut = cut_of(co.w);
-    s_box[i] = box_of(xy, co, cut, origin);
-    s_pos[i] = vec4<f32>(xy, cut, 0.0);
+// Stage one record (screen mean, conic + opacity, rgb) at slot i with its pixel box `bx`.
+fn stage_boxed(i: u32, xy: vec2<f32>, co: vec4<f32>, rgb: vec4<f32>, bx: u32) {
+    s_box[i] = bx;
+    s_pos[i] = vec4<f32>(xy, cut_of(co.w), 0.0);
     s_conic[i] = co;
     s_rgb[i] = rgb;
+}
+
+// Stage one record at slot i for the tile at `origin`; returns its pixel box.
+fn stage(i: u32, xy: vec2<f32>, co: vec4<f32>, rgb: vec4<f32>, origin: vec2<f32>) -> u32 {
+    let bx = box_of(xy, co, cut_of(co.w), origin);
+    stage_boxed(i, xy, co, rgb, bx);
+    return bx;
 }
 
 // The invocation's pixels: column x, rows y0 .. y0 + SPAN - 1 (full-frame coordinates), Quad j
@@ -263,6 +269,9 @@ fn out_pixel(q: Quad, i: u32, bg: vec3<f32>) -> vec4<f32> {
 @group(0) @binding(4) var<storage, read> proj_conic: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read> proj_rgb: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read_write> image: array<vec4<f32>>;
+// The pixel box of every pair (FULL_BOX past the point where the tile stopped): the variants
+// entry reads the clean frame's copy instead of re-reading records that cannot reach its pixels.
+@group(0) @binding(7) var<storage, read_write> isect_box: array<u32>;
 
 @compute @workgroup_size(TILE, ROWS)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
@@ -288,12 +297,16 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
             let idx = range.x + bt * BATCH + i;
             if (idx < range.y) {
                 let g = isect_prims[idx];
-                stage(i, proj_xy[g], proj_conic[g], proj_rgb[g], origin);
+                isect_box[idx] = stage(i, proj_xy[g], proj_conic[g], proj_rgb[g], origin);
             }
         }
         workgroupBarrier();
         blend_batch(&p, lid.x, row0, min(BATCH, n - bt * BATCH));
         if (all_done(li)) {
+            // the pairs never staged: no box known
+            for (var idx = range.x + (bt + 1u) * BATCH + li; idx < range.y; idx = idx + LANES) {
+                isect_box[idx] = FULL_BOX;
+            }
             break;
         }
     }
@@ -343,6 +356,31 @@ struct VariantEntry {
 @group(0) @binding(20) var<storage, read> var_rect: array<vec2<u32>>;
 @group(0) @binding(21) var<storage, read_write> slabs: array<vec4<f32>>;
 @group(0) @binding(22) var<storage, read> clean_image: array<vec4<f32>>;  // [K, H, W]
+@group(0) @binding(23) var<storage, read> kv_box: array<u32>;              // pixel box per kept pair
+
+// Tile-local bounds of the pixels still to blend (x0 | x1 << 8 | y0 << 16 | y1 << 24 once
+// gathered; empty when x0 > x1).
+var<workgroup> s_active: array<atomic<u32>, 4>;  // min col, max col, min row, max row
+
+var<workgroup> s_count: array<u32, LANES>;  // staged entries per invocation, then their offsets
+var<workgroup> s_kept: u32;
+
+// Position in the clean tile list of entry i of the variant's list.
+fn clean_pos(i: u32, insert: u32, removed: u32) -> u32 {
+    var j = i;
+    if (insert != 0xffffffffu && i > insert) { j = j - 1u; }
+    if (removed != 0xffffffffu && j >= removed) { j = j + 1u; }
+    return j;
+}
+
+// Whether two pixel boxes share a pixel.
+fn boxes_meet(a: u32, b: u32) -> bool {
+    let x0 = max(a & 0xffu, b & 0xffu);
+    let x1 = min((a >> 8u) & 0xffu, (b >> 8u) & 0xffu);
+    let y0 = max((a >> 16u) & 0xffu, (b >> 16u) & 0xffu);
+    let y1 = min(a >> 24u, b >> 24u);
+    return x0 <= x1 && y0 <= y1;
+}
 
 var<workgroup> s_list: vec4<u32>;   // (n virtual, insert position or 0xffffffff, removed position or 0xffffffff, 0)
 
@@ -400,6 +438,10 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let vi = v * rc.n_variants + b;
     if (li == 0u) {
         atomicStore(&s_done, 0u);
+        atomicStore(&s_active[0], 0xffu);
+        atomicStore(&s_active[1], 0u);
+        atomicStore(&s_active[2], 0xffu);
+        atomicStore(&s_active[3], 0u);
         let n = range.y - range.x;
         // the clean entry of the corrupted primitive, if this tile lists it
         let ck = clean_key(v, prim);
@@ -437,26 +479,73 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         p.q[j].done = p.q[j].done | copy_clean[j];
     }
     count_if_done(&p);
+    // the box of the pixels to re-blend: a clean record whose box misses it is not read
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        let rows = select(vec4<u32>(0xffu), vec4<u32>(row0 + QUAD * j) + vec4<u32>(0u, 1u, 2u, 3u), !p.q[j].done);
+        if (any(!p.q[j].done)) {
+            atomicMin(&s_active[0], lid.x);
+            atomicMax(&s_active[1], lid.x);
+            atomicMin(&s_active[2], min(min(rows.x, rows.y), min(rows.z, rows.w)));
+            let top = select(vec4<u32>(0u), rows, !p.q[j].done);
+            atomicMax(&s_active[3], max(max(top.x, top.y), max(top.z, top.w)));
+        }
+    }
+    workgroupBarrier();
+    let live = atomicLoad(&s_active[0]) | (atomicLoad(&s_active[1]) << 8u) | (atomicLoad(&s_active[2]) << 16u)
+        | (atomicLoad(&s_active[3]) << 24u);
     let origin = vec2<f32>(tile0);
     let batches = (nv + BATCH - 1u) / BATCH;
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
+        // Each invocation takes PER_LANE consecutive list entries; only those whose pixel box
+        // meets the live pixels are staged, compacted in list order (an exclusive scan of the
+        // per-invocation counts), so the blend loop never visits the others.
+        var boxes: array<u32, PER_LANE>;
+        var kept = 0u;
         for (var s = 0u; s < PER_LANE; s = s + 1u) {
-            let i = bt * BATCH + s * LANES + li;
+            let i = bt * BATCH + li * PER_LANE + s;
+            var bx = EMPTY_BOX;
             if (i < nv) {
                 if (i == insert) {
-                    stage(s * LANES + li, var_xy[vi], var_conic[vi], var_rgb[vi], origin);
+                    bx = box_of(var_xy[vi], var_conic[vi], cut_of(var_conic[vi].w), origin);
                 } else {
-                    var j = i;
-                    if (insert != 0xffffffffu && i > insert) { j = j - 1u; }
-                    if (removed != 0xffffffffu && j >= removed) { j = j + 1u; }
-                    let g = kv_isect[v * rc.capacity + range.x + j];
-                    let og = v * rc.n_prims + g;
-                    stage(s * LANES + li, kv_xy[og], kv_conic[og], kv_rgb[og], origin);
+                    bx = kv_box[v * rc.capacity + range.x + clean_pos(i, insert, removed)];
                 }
+            }
+            if (!boxes_meet(bx, live)) {
+                bx = EMPTY_BOX;
+            }
+            boxes[s] = bx;
+            kept = kept + u32(bx != EMPTY_BOX);
+        }
+        s_count[li] = kept;
+        workgroupBarrier();
+        if (li == 0u) {
+            var sum = 0u;
+            for (var t = 0u; t < LANES; t = t + 1u) {
+                let c = s_count[t];
+                s_count[t] = sum;
+                sum = sum + c;
+            }
+            s_kept = sum;
+        }
+        let m = workgroupUniformLoad(&s_kept);
+        var slot = s_count[li];
+        for (var s = 0u; s < PER_LANE; s = s + 1u) {
+            let bx = boxes[s];
+            if (bx != EMPTY_BOX) {
+                let i = bt * BATCH + li * PER_LANE + s;
+                if (i == insert) {
+                    stage_boxed(slot, var_xy[vi], var_conic[vi], var_rgb[vi], bx);
+                } else {
+                    let at = v * rc.capacity + range.x + clean_pos(i, insert, removed);
+                    let og = v * rc.n_prims + kv_isect[at];  // its box: the clean frame's, for this very pair
+                    stage_boxed(slot, kv_xy[og], kv_conic[og], kv_rgb[og], bx);
+                }
+                slot = slot + 1u;
             }
         }
         workgroupBarrier();
-        blend_batch(&p, lid.x, row0, min(BATCH, nv - bt * BATCH));
+        blend_batch(&p, lid.x, row0, m);
         if (all_done(li)) {
             break;
         }

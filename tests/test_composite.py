@@ -50,6 +50,7 @@ def gpu_frame(gpu, ranges, prims, rec: dict, w: int, h: int, background) -> np.n
         gpu.upload(np.column_stack([rec["conic"], rec["opacity"]]).astype(np.float32)),
         gpu.upload(np.column_stack([rec["rgb"], depth]).astype(np.float32)),
         (tx, ty),
+        gpu.buffer(4 * len(prims)),
     )
     gpu.submit(enc)
     return gpu.read(stage.image, np.float32).reshape(h, w, 4)
