@@ -365,6 +365,24 @@ var<workgroup> s_active: array<atomic<u32>, 4>;  // min col, max col, min row, m
 var<workgroup> s_count: array<u32, LANES>;  // staged entries per invocation, then their offsets
 var<workgroup> s_kept: u32;
 
+// Offsets of a compaction in list order: each invocation passes how many of its PER_LANE
+// consecutive entries it keeps; returns (its first slot, the batch's total, uniform).
+fn compact(li: u32, kept: u32) -> vec2<u32> {
+    s_count[li] = kept;
+    workgroupBarrier();
+    if (li == 0u) {
+        var sum = 0u;
+        for (var t = 0u; t < LANES; t = t + 1u) {
+            let c = s_count[t];
+            s_count[t] = sum;
+            sum = sum + c;
+        }
+        s_kept = sum;
+    }
+    let total = workgroupUniformLoad(&s_kept);
+    return vec2<u32>(s_count[li], total);
+}
+
 // Position in the clean tile list of entry i of the variant's list.
 fn clean_pos(i: u32, insert: u32, removed: u32) -> u32 {
     var j = i;
@@ -517,19 +535,9 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
             boxes[s] = bx;
             kept = kept + u32(bx != EMPTY_BOX);
         }
-        s_count[li] = kept;
-        workgroupBarrier();
-        if (li == 0u) {
-            var sum = 0u;
-            for (var t = 0u; t < LANES; t = t + 1u) {
-                let c = s_count[t];
-                s_count[t] = sum;
-                sum = sum + c;
-            }
-            s_kept = sum;
-        }
-        let m = workgroupUniformLoad(&s_kept);
-        var slot = s_count[li];
+        let at_m = compact(li, kept);
+        let m = at_m.y;
+        var slot = at_m.x;
         for (var s = 0u; s < PER_LANE; s = s + 1u) {
             let bx = boxes[s];
             if (bx != EMPTY_BOX) {
