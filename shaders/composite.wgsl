@@ -21,7 +21,11 @@
 // - main: a tile of a full frame;
 // - variants: a tile of a single-upset variant, re-composited from the clean frame's tile list
 //   with the corrupted primitive removed and its re-projected record merged in at its depth
-//   (render/incremental.py; equal to a full re-render bit for bit).
+//   (render/incremental.py; equal to a full re-render bit for bit). Only the pixels that the
+//   clean or the corrupted record reaches are re-blended; the others are copied. main leaves
+//   every pair's pixel box in isect_box (kept with the clean frame), so a variant tile stages only
+//   the entries whose box meets the bounding box of its re-blended pixels, and reads nothing of
+//   the others (they skip those pixels for certain).
 
 // Renderer profile (docs/renderer.md, "Profiles"): PROFILE_STRICT (default) or PROFILE_GSPLAT.
 override PROFILE: u32 = PROFILE_STRICT;
