@@ -162,21 +162,21 @@ def test_defenses_on_the_gpu_model(engines, monkeypatch):
     The primitive is the most harmful of a sample and the undefended render is asserted changed
     first, so every defended zero is the defense's doing (a primitive hidden from the views would
     give zeros under any defense); with the defenses' reads made pass-through, the checks fail."""
-    import seuwgpu.faults.engine as engine_module
+    import seuwgpu.faults.defenses as defenses_module
 
     eng = engines["fp32"]
     prim, _ = eng.worst_primitive("sh_dc", 1, [30], sample=64, seed=0)
     site, mant = eng.site("sh_dc", prim, 1, 30), eng.site("sh_dc", prim, 1, 22)
     recs = {d: eng.inject(site, d) for d in DEFENSES}
-    assert recs["none"]["footprint"] > 0 and recs["none"]["psnr"] < np.inf
+    assert recs["none"]["footprint"] > 0 and recs["none"]["psnr"] != np.inf  # (NaN: non-finite pixels)
     assert recs["ecc"]["footprint"] == 0 and recs["ecc"]["psnr"] == np.inf
     assert recs["dup"]["footprint"] == 0 and recs["dup"]["psnr"] == np.inf
     none, ecc, dup = (eng.inject(mant, d) for d in ("none", "ecc", "dup"))
     assert none["peak_error"] > 0
     assert ecc["peak_error"] == none["peak_error"] and ecc["footprint"] == none["footprint"]
     assert dup["peak_error"] == 0
-    monkeypatch.setattr(engine_module, "ecc_read", lambda clean, stored, precision: stored)
-    monkeypatch.setattr(engine_module, "dup_read", lambda clean, stored: stored)
+    monkeypatch.setattr(defenses_module, "ecc_read", lambda clean, stored, precision: stored)
+    monkeypatch.setattr(defenses_module, "dup_read", lambda clean, stored: stored)
     assert eng.inject(site, "ecc")["footprint"] > 0 and eng.inject(site, "dup")["footprint"] > 0
 
 

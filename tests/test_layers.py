@@ -13,7 +13,20 @@ PACKAGE = Path(__file__).resolve().parents[1] / "seuwgpu"
 
 # Bottom to top. `errors` holds the project's exception types, `version` the package version
 # alone; the package root (the public API) and `__main__` sit above everything.
-LAYERS = ["errors", "version", "model", "gpu", "render", "metrics", "faults", "campaign", "analysis", "report", "apps"]
+LAYERS = [
+    "errors",
+    "version",
+    "model",
+    "gpu",
+    "render",
+    "metrics",
+    "faults",
+    "campaign",
+    "analysis",
+    "report",
+    "api",
+    "apps",
+]
 TOP = len(LAYERS)
 
 

@@ -572,8 +572,12 @@ class Battery:
     @staticmethod
     def records_equal(run, ref):
         def check(_out):
-            a = store.read_records(run).sort_values(["injection_id", "defense"]).reset_index(drop=True)
-            b = store.read_records(ref).sort_values(["injection_id", "defense"]).reset_index(drop=True)
+            a, b = (
+                store.read_records(d)
+                .sort_values(["injection_id", "defense"])
+                .reset_index(drop=True)[store.REPRODUCIBLE_COLUMNS]
+                for d in (run, ref)
+            )
             assert len(a) == len(b) and a.equals(b), (len(a), len(b))
             assert len(set(zip(a["injection_id"], a["defense"]))) == len(a), "duplicated records"
 

@@ -89,6 +89,18 @@ def add_model_args(p: argparse.ArgumentParser):
     )
 
 
+def add_profile_arg(p: argparse.ArgumentParser, default: str | None = "strict"):
+    from seuwgpu.gpu.constants import PROFILES
+
+    p.add_argument(
+        "--profile",
+        choices=PROFILES,
+        default=default,
+        help="what corrupted values draw: strict (NaN covariance = frame-covering sheet) or gsplat "
+        "(gsplat's CUDA arithmetic); docs/renderer.md" + ("" if default else "; overrides the spec's profile"),
+    )
+
+
 def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "256x256"):
     p.add_argument(
         "--cameras",
@@ -160,37 +172,35 @@ def cmd_scene(args):
     return 0
 
 
-def save_images(images: np.ndarray, out: Path, stem: str = "view"):
-    import imageio.v3 as iio
+def parse_formats(text: str) -> tuple[str, ...]:
+    from seuwgpu.api import FRAME_FORMATS
 
-    out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for i, img in enumerate(images):
-        rgb = np.nan_to_num(img[..., :3], nan=0.0, posinf=1.0, neginf=0.0)
-        path = out / f"{stem}_{i:03d}.png"
-        iio.imwrite(path, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
-        paths.append(path)
-    return paths
+    formats = tuple(dict.fromkeys(f.strip().lower() for f in text.split(",") if f.strip()))
+    bad = [f for f in formats if f not in FRAME_FORMATS]
+    if bad or not formats:
+        raise argparse.ArgumentTypeError(
+            f"--formats takes a comma-separated list of {', '.join(FRAME_FORMATS)}, got {text!r}"
+        )
+    return formats
 
 
 def cmd_render(args):
-    from seuwgpu.render.renderer import Renderer
+    from seuwgpu import api
 
     src = load_source(args)
     cams = load_cams(args, src)
-    r = Renderer(src.model, cams, args.precision)
-    images = r.render()
+    images = api.render_views(src, cams, precision=args.precision, profile=args.profile)
     out: Path = args.out
     if out.suffix == ".npz":
         out.parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(out, images=images.astype(np.float32))
         print(f"wrote {out}: images {list(images.shape)} float32")
     else:
-        paths = save_images(images, out)
-        print(f"wrote {len(paths)} PNGs to {out}")
+        paths = api.save_frames(images, out, "view", formats=args.formats)
+        print(f"wrote {len(paths)} files ({', '.join(args.formats)}) to {out}")
     bad = int((~np.isfinite(images)).any(axis=-1).sum())
     if bad:
-        print(f"warning: {bad} non-finite pixels (shown black in PNGs)", file=sys.stderr)
+        print(f"warning: {bad} non-finite pixels (black in PNGs, kept in TIFF and npz)", file=sys.stderr)
     return 0
 
 
@@ -249,7 +259,7 @@ def run_campaign(
 
 
 def print_criticality(run_dirs):
-    from seuwgpu.analysis.studies import InsufficientData
+    from seuwgpu.analysis.records import InsufficientData
     from seuwgpu.report.build import criticality_table_text, load_runs
 
     df, _ = load_runs(run_dirs)
@@ -268,6 +278,8 @@ def cmd_campaign(args):
     from seuwgpu.campaign.spec import load_spec
 
     spec = load_spec(args.spec)
+    if args.profile:
+        spec["profile"] = args.profile
     run_campaign(
         spec,
         args.out,
@@ -430,50 +442,65 @@ def cmd_report(args):
     return 0
 
 
+def lpips_text(value: float) -> str:
+    from seuwgpu.metrics import lpips
+
+    if value == value:
+        return f"{value:.6f}"
+    return "nan (undefined: frames under 32x32 or non-finite)" if lpips.available() else f"n/a ({lpips.INSTALL_HINT})"
+
+
 def cmd_inject(args):
-    from seuwgpu.faults.engine import Engine
+    from seuwgpu import api
     from seuwgpu.report.panel import save_panel
 
     src = load_source(args)
     cams = load_cams(args, src)
-    eng = Engine(src.model, cams, args.precision, scene=src.name)
-    name = src.name
-    bits = args.bit
-    if args.primitive is None:
-        prim, _ = eng.worst_primitive(
-            args.field, args.component, bits, sample=args.sample, seed=args.seed, defense=args.defense
-        )
-        print(f"primitive: {prim} (most harmful of {min(args.sample, eng.n)} sampled)")
-    else:
-        prim = args.primitive
-    site = eng.site(args.field, prim, args.component, bits)
-    rec = eng.inject(site, args.defense)
-    h = eng.apply([site], args.defense)
-    faulted, _ = eng.render_current(args.defense)
-    guarded, gclamps = eng.render_current("guard")
-    eng.undo(h)
-    g = eng.inject(site, "guard")
-    args.out.mkdir(parents=True, exist_ok=True)
-    title = (
-        f"{name}, {eng.n} primitives, {args.precision}: flip of {site.field}[{prim}][{site.component}] "
-        f"bit{'s' if len(site.bits) > 1 else ''} {','.join(map(str, site.bits))} ({rec['bit_class']}) "
-        f"{rec['clean_value']:.6g} -> {rec['corrupted_value']:.6g}; defense {args.defense}"
+    defenses = tuple(dict.fromkeys((args.defense, "guard")))
+    inj = api.inject(
+        src,
+        cams,
+        field=args.field,
+        bit=args.bit,
+        component=args.component,
+        primitive=args.primitive,
+        precision=args.precision,
+        defenses=defenses,
+        sample=args.sample,
+        seed=args.seed,
+        profile=args.profile,
+        fault=args.fault,
+        width=args.width,
     )
-    panel = save_panel(args.out / "panel.png", eng.clean_rgba, faulted, guarded, title)
+    site, rec, g = inj.site, inj.metrics[args.defense], inj.metrics["guard"]
+    if args.primitive is None:
+        print(f"primitive: {site['primitive']} (most harmful of {min(args.sample, site['n_primitives'])} sampled)")
+    bits = site["bits"]
+    title = (
+        f"{src.name}, {site['n_primitives']} primitives, {args.precision}: {site['fault']} fault of {site['field']}"
+        f"[{site['primitive']}][{site['component']}] bit{'s' if len(bits) > 1 else ''} {','.join(map(str, bits))} "
+        f"({site['bit_class']}) {site['clean_value']:.6g} -> {site['corrupted_value']:.6g}; defense {args.defense}"
+    )
+    args.out.mkdir(parents=True, exist_ok=True)
+    frames = inj.frames
+    panel = save_panel(args.out / "panel.png", frames["clean"], frames[args.defense], frames["guard"], title)
+    files = inj.save(args.out, formats=args.formats)
     lines = {
-        "field": site.field,
-        "primitive": prim,
-        "component": site.component,
-        "bit": ",".join(map(str, site.bits)),
-        "bit_class": rec["bit_class"],
-        "clean_value": f"{rec['clean_value']:.9g}",
-        "corrupted_value": f"{rec['corrupted_value']:.9g}",
+        "field": site["field"],
+        "primitive": site["primitive"],
+        "component": site["component"],
+        "bit": ",".join(map(str, bits)),
+        "bit_class": site["bit_class"],
+        "fault": site["fault"],
+        "clean_value": f"{site['clean_value']:.9g}",
+        "corrupted_value": f"{site['corrupted_value']:.9g}",
         "defense": args.defense,
         "footprint": f"{100 * rec['footprint']:.4f}%",
         "footprint_max": f"{100 * rec['footprint_max']:.4f}%",
         "peak_error": f"{rec['peak_error']:.6g}",
         "psnr": f"{rec['psnr']:.3f}",
         "ssim": f"{rec['ssim']:.6f}",
+        "lpips": lpips_text(rec["lpips"]),
         "nonfinite": rec["nonfinite"],
         "catastrophic": rec["catastrophic"],
         "clamps": rec["clamps"],
@@ -481,6 +508,7 @@ def cmd_inject(args):
         "guarded_psnr": f"{g['psnr']:.3f}",
         "guarded_clamps": g["clamps"],
         "panel": panel,
+        "frames": f"{len(files) - 1} files ({', '.join(args.formats)}) and metrics.json in {args.out}",
     }
     for k, v in lines.items():
         print(f"{k}: {v}")
@@ -533,6 +561,8 @@ def cmd_view(args):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from seuwgpu.faults.sites import FAULT_MODELS
+
     p = argparse.ArgumentParser(
         prog="seuwgpu", description="Single-event-upset fault injection for 3D Gaussian splatting (WGSL, wgpu)"
     )
@@ -554,7 +584,14 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("render", help="render views to PNGs or an .npz of float32 images")
     add_model_args(s)
     add_camera_args(s)
-    s.add_argument("--out", type=Path, required=True, help="a folder for PNGs, or X.npz")
+    s.add_argument("--out", type=Path, required=True, help="a folder for the frames, or X.npz")
+    s.add_argument(
+        "--formats",
+        type=parse_formats,
+        default=("png",),
+        help="frame files: png (display), tiff (float32, unclamped), npz; comma-separated (default png)",
+    )
+    add_profile_arg(s)
     s.set_defaults(func=cmd_render)
 
     s = sub.add_parser("inject", help="flip one stored bit (or several of one value), measure, write the panel")
@@ -567,10 +604,25 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--primitive", type=index_int, help="primitive index (default: the most harmful of --sample)")
     s.add_argument("--component", type=index_int, default=0)
-    s.add_argument("--bit", type=index_int, nargs="+", required=True, help="bit(s) of the stored value (0 = LSB)")
+    s.add_argument("--bit", type=index_int, nargs="+", help="bit(s) of the stored value (0 = LSB)")
+    s.add_argument(
+        "--fault",
+        default="bit",
+        choices=FAULT_MODELS,
+        help="bit/adjacent: flip the bits (adjacent with one --bit: --width bits ending there); "
+        "stuck0/stuck1: the bits stuck; zero/random: the whole value replaced (random from --seed)",
+    )
+    s.add_argument("--width", type=int, default=2, choices=(2, 3, 4), help="adjacent burst width")
     s.add_argument("--defense", default="none", choices=DEFENSES)
     s.add_argument("--sample", type=positive_int, default=64, help="primitives tried when --primitive is not given")
     s.add_argument("--out", type=Path, required=True)
+    s.add_argument(
+        "--formats",
+        type=parse_formats,
+        default=("png", "tiff"),
+        help="frame files besides panel.png and metrics.json: png, tiff (float32, unclamped), npz (default png,tiff)",
+    )
+    add_profile_arg(s)
     s.set_defaults(func=cmd_inject)
 
     s = sub.add_parser("campaign", help="run a fault-injection campaign from a TOML spec (resumable)")
@@ -591,6 +643,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--workers", type=positive_int, help="Ray workers in flight (default: the cluster's GPUs, else CPUs)"
     )
+    add_profile_arg(s, default=None)
     s.set_defaults(func=cmd_campaign)
 
     s = sub.add_parser(

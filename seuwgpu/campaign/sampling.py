@@ -12,7 +12,7 @@ from dataclasses import field as dc_field
 
 import numpy as np
 
-from seuwgpu.faults.sites import Site, site_from_flat
+from seuwgpu.faults.sites import VALUE_MODELS, Site, model_bits, site_from_flat
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import field_components
 
@@ -32,12 +32,16 @@ class Context:
     per_cell: int = 0  # samples (single/size) or repeats (dose)
     sampling: str = "stratified"
     regions: tuple = ()  # sort-first partition sizes measured for single upsets
+    fault: str = "bit"  # fault model (faults/sites.py FAULT_MODELS)
 
     def cell_of(self, local: int):
         return self.cells[local // self.per_cell], local % self.per_cell
 
 
-def _cells(fields, bits, precision):
+def _cells(fields, bits, precision, fault="bit"):
+    """(field, bit) strata; a fault model replacing whole values has one cell per field (bit -1)."""
+    if fault in VALUE_MODELS:
+        return [(f, -1) for f in fields]
     nb = encoding.bits_per_value(precision)
     use = range(nb) if bits == "all" else [b for b in bits if b < nb]
     return [(f, b) for f in fields for b in use]
@@ -49,7 +53,7 @@ def enumerate_contexts(spec: dict) -> list[Context]:
         t = spec["single"]
         for si, sc in enumerate(spec["scenes"]):
             for p in t["precisions"]:
-                cells = _cells(t["fields"], t["bits"], p)
+                cells = _cells(t["fields"], t["bits"], p, t.get("fault", "bit"))
                 c = Context(
                     "single",
                     si,
@@ -62,6 +66,7 @@ def enumerate_contexts(spec: dict) -> list[Context]:
                     t["samples"],
                     t["sampling"],
                     tuple(t.get("regions", ())),
+                    t.get("fault", "bit"),
                 )
                 ctxs.append(c)
                 nid += c.count
@@ -86,7 +91,7 @@ def enumerate_contexts(spec: dict) -> list[Context]:
         t = spec["sizes"]
         for n in t["n"]:
             for p in t["precisions"]:
-                cells = _cells(t["fields"], t["bits"], p)
+                cells = _cells(t["fields"], t["bits"], p, t.get("fault", "bit"))
                 c = Context(
                     "size",
                     0,
@@ -99,6 +104,7 @@ def enumerate_contexts(spec: dict) -> list[Context]:
                     t["samples"],
                     t["sampling"],
                     tuple(t.get("regions", ())),
+                    t.get("fault", "bit"),
                 )
                 ctxs.append(c)
                 nid += c.count
@@ -132,7 +138,9 @@ def _stream(seeds: np.ndarray, k: int) -> np.ndarray:
 def draw_sites(ctx: Context, local: np.ndarray, seeds: np.ndarray, n: int, degree: int):
     """Sites of a block of single-upset injections and their weights (stored bits each stands
     for). Stratified: cell local // samples, primitive and component uniform within it; uniform:
-    one stored bit uniform over the whole budget. Returns (sites, weights)."""
+    one stored bit uniform over the whole budget. The fault model (ctx.fault) turns the drawn bit
+    into the site's bits and operation (sites.model_bits, from the stream's third number).
+    Returns (sites, weights)."""
     nb = encoding.bits_per_value(ctx.precision)
     local = np.asarray(local, dtype=np.int64)
     if ctx.sampling == "uniform":
@@ -142,14 +150,24 @@ def draw_sites(ctx: Context, local: np.ndarray, seeds: np.ndarray, n: int, degre
         prim, rest = np.divmod(flat, ncomp * nb)
         comp, bit = np.divmod(rest, nb)
         sites = [site_from_flat(int(p), int(c), (int(b),), degree) for p, c, b in zip(prim, comp, bit)]
+        if ctx.fault != "bit":
+            r3 = _stream(seeds, 3)
+            sites = [_with_model(s, ctx.fault, s.bits[0], ctx.precision, r) for s, r in zip(sites, r3)]
         return sites, np.full(local.size, total / (len(ctx.cells) * ctx.per_cell))
     cell = local // ctx.per_cell
     prim = (_stream(seeds, 1) % np.uint64(n)).astype(np.int64)
     r2 = _stream(seeds, 2)
+    r3 = _stream(seeds, 3)
     sites, weights = [], np.empty(local.size)
     for j, c in enumerate(cell):
         field, bit = ctx.cells[c]
         nc = field_components(field, degree)
-        sites.append(Site(field, int(prim[j]), int(r2[j] % np.uint64(nc)), (int(bit),)))
+        site = Site(field, int(prim[j]), int(r2[j] % np.uint64(nc)), (int(bit),))
+        sites.append(site if ctx.fault == "bit" else _with_model(site, ctx.fault, bit, ctx.precision, r3[j]))
         weights[j] = n * nc / ctx.per_cell
     return sites, weights
+
+
+def _with_model(site: Site, fault: str, bit: int, precision: str, r) -> Site:
+    bits, op, value = model_bits(fault, bit, precision, int(r))
+    return Site(site.field, site.primitive, site.component, bits, op, value)

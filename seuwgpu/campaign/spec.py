@@ -13,6 +13,7 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     size = "256x256"         # WxH of orbit views
     scale = 0.25             # optional: render at this fraction of the views' resolution
     batch = 256              # injections per GPU batch and per Parquet part
+    profile = "strict"       # optional renderer profile: "strict" or "gsplat" (docs/renderer.md)
 
     [[scenes]]               # one or more
     scene = "spheres"        # an embedded scene (`seuwgpu scene --list`: procedural or real) ...
@@ -32,7 +33,11 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
                              # worst case p = 0.5, finite population of the smallest cell)
     sampling = "stratified"  # or "uniform": `samples` x cells injections drawn uniformly over
                              # all stored bits (weight column = bits each sample stands for)
-    defenses = ["none", "guard"]
+    defenses = ["none", "guard"]   # `seuwgpu defenses` lists them all
+    fault = "bit"            # fault model: "bit" (single-bit flip), "adjacent" (2-4 neighbouring
+                             # bits of the value from the cell's bit up), "stuck0"/"stuck1" (the
+                             # cell's bit stuck), "random"/"zero" (the whole value replaced by
+                             # random bits / 0: one cell per field, bits ignored)
     regions = [4, 16, 64]    # optional: sort-first contamination columns regions_pred_P and
                              # regions_meas_P (int64 bitmasks of the P regions reached/changed)
 
@@ -41,6 +46,14 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     k = [1, 10, 100]         # or k_max = 20000 and points = 12 (log-spaced, rounded, distinct)
     repeats = 3
     defenses = ["none", "guard"]
+
+    [outcomes]               # optional: outcome-class thresholds (defaults: the paper's)
+    pixel_threshold = 0.00392156862745098  # a channel change above it is visible (SDC), 1/255
+    footprint = 0.01         # a frame with more changed pixels than this share is catastrophic
+
+    [reliability]            # optional: inputs of the MTBF analysis (they change no injection)
+    scrub_hours = 24.0       # the model is restored from protected storage this often
+    rates = [{environment = "ground", per_bit_hour = 1e-12, source = "where the rate comes from"}]
 
     [sizes]                  # primitive-count sweep of the first scene: single upsets at each N
     n = [5000, 20000, 80000]
@@ -62,16 +75,31 @@ import numpy as np
 
 from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
+from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.model import encoding
 from seuwgpu.model.budget import n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
 from seuwgpu.model.formats import UP_AXES
 
-_TOP = {"seed", "views", "size", "scale", "batch", "scenes", "single", "dose", "sizes", "name"}
+_TOP = {
+    "seed",
+    "views",
+    "size",
+    "scale",
+    "batch",
+    "scenes",
+    "single",
+    "dose",
+    "sizes",
+    "name",
+    "outcomes",
+    "reliability",
+    "profile",
+}
 _SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
-_SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions"}
+_SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions", "fault"}
 _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
-_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions"}
+_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions", "fault"}
 
 
 SEED_MAX = 2**63 - 1  # seeds are TOML integers (signed 64-bit), used as unsigned 64-bit hash keys
@@ -222,16 +250,33 @@ def _names(table, key, where, default, valid) -> list:
 
 
 def _regions(table, where, size):
-    """Sort-first partition sizes P for contamination columns (regions_pred_P, regions_meas_P)."""
+    """Sort-first partition sizes P for contamination columns (regions_pred_P, regions_meas_P);
+    each must fit the tile-aligned region grid of the frame (render/regions.py)."""
+    from seuwgpu.render.regions import region_grid
+
     v = table.get("regions", [])
     if not isinstance(v, list) or not all(isinstance(p, int) and not isinstance(p, bool) for p in v):
         raise SpecError(f"{where}.regions must be a list of partition sizes, e.g. [4, 16, 64]")
     for p in v:
         if not 2 <= p <= 64:
             raise SpecError(f"{where}.regions: P = {p} is out of range [2, 64] (regions are 64-bit masks)")
-        if p > size[0] * size[1]:
-            raise SpecError(f"{where}.regions: P = {p} is more regions than pixels")
+        try:
+            region_grid(p, size[1], size[0])
+        except ValueError as e:
+            raise SpecError(f"{where}.regions: {e}") from None
     return sorted(set(v))
+
+
+def _fault(table, out, where):
+    """The fault model, recorded only when not the default single-bit flip (older specs keep their
+    hash)."""
+    from seuwgpu.faults.sites import FAULT_MODELS
+
+    v = table.get("fault", "bit")
+    if v not in FAULT_MODELS:
+        raise SpecError(f"{where}.fault: unknown fault model {v!r}; expected one of {', '.join(FAULT_MODELS)}")
+    if v != "bit":
+        out["fault"] = v
 
 
 def parse_size(v, where="size"):
@@ -261,6 +306,43 @@ def dose_levels(k_max: int, points: int) -> list[int]:
     return [int(k) for k in ks]
 
 
+def _outcomes(t) -> dict:
+    from seuwgpu.metrics.image import FOOTPRINT_THRESHOLD, PIXEL_THRESHOLD
+
+    _keys(t, {"pixel_threshold", "footprint"}, "outcomes")
+    out = {}
+    for key, default in (("pixel_threshold", PIXEL_THRESHOLD), ("footprint", FOOTPRINT_THRESHOLD)):
+        v = t.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < 1:
+            raise SpecError(f"outcomes.{key} must be a number in [0, 1), got {v!r}")
+        out[key] = float(v)
+    return out
+
+
+def _reliability(t) -> dict:
+    _keys(t, {"scrub_hours", "rates"}, "reliability")
+    out = {}
+    if "scrub_hours" in t:
+        v = t["scrub_hours"]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+            raise SpecError(f"reliability.scrub_hours must be a positive number of hours, got {v!r}")
+        out["scrub_hours"] = float(v)
+    if "rates" in t:
+        rates = t["rates"]
+        if not isinstance(rates, list) or not rates:
+            raise SpecError("reliability.rates must be a non-empty list of {environment, per_bit_hour, source}")
+        out["rates"] = []
+        for i, r in enumerate(rates):
+            _keys(r, {"environment", "per_bit_hour", "source"}, f"reliability.rates[{i}]")
+            lam = r.get("per_bit_hour")
+            if isinstance(lam, bool) or not isinstance(lam, (int, float)) or not lam > 0:
+                raise SpecError(f"reliability.rates[{i}].per_bit_hour must be a positive number, got {lam!r}")
+            if not isinstance(r.get("environment"), str) or not isinstance(r.get("source"), str):
+                raise SpecError(f"reliability.rates[{i}] needs environment and source (strings)")
+            out["rates"].append({"environment": r["environment"], "per_bit_hour": float(lam), "source": r["source"]})
+    return out
+
+
 def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
     """Validated spec with defaults filled in (what is hashed and stored in the manifest)."""
     from seuwgpu.model.scenes import is_capture, list_scenes, make_scene
@@ -278,6 +360,12 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 16:
             raise SpecError(f"scale must be a number in (0, 16], got {scale!r}")
         spec["scale"] = float(scale)
+    if "profile" in raw:  # renderer profile (docs/renderer.md); recorded only when given (hash)
+        if raw["profile"] not in PROFILES:
+            raise SpecError(
+                f"profile: {raw['profile']!r} is no renderer profile; expected one of {', '.join(PROFILES)}"
+            )
+        spec["profile"] = raw["profile"]
     scenes = raw.get("scenes")
     if not isinstance(scenes, list) or not scenes:
         raise SpecError("the spec needs at least one [[scenes]] table")
@@ -311,6 +399,11 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             out["cameras"] = _spec_file(s, "cameras", where, base_dir)
             out["cameras_sha256"] = content_hash("cameras", out["cameras"])
         spec["scenes"].append(out)
+    # recorded only when given, so older specs keep their hash (the manifest states the thresholds)
+    if "outcomes" in raw:
+        spec["outcomes"] = _outcomes(raw["outcomes"])
+    if "reliability" in raw:
+        spec["reliability"] = _reliability(raw["reliability"])
     if not any(k in raw for k in ("single", "dose", "sizes")):
         raise SpecError("the spec needs at least one of [single], [dose], [sizes]")
     if "single" in raw:
@@ -326,6 +419,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "defenses": _names(t, "defenses", "single", ["none", "guard"], DEFENSES),
             "regions": _regions(t, "single", spec["size"]),
         }
+        _fault(t, spec["single"], "single")
         if spec["single"]["sampling"] not in ("stratified", "uniform"):
             raise SpecError(f'single.sampling must be "stratified" or "uniform", got {t["sampling"]!r}')
     if "dose" in raw:
@@ -376,6 +470,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "defenses": _names(t, "defenses", "sizes", ["none"], DEFENSES),
             "regions": _regions(t, "sizes", spec["size"]),
         }
+        _fault(t, spec["sizes"], "sizes")
     return spec
 
 

@@ -35,11 +35,13 @@ COLUMNS = [
     "scene",
     "n_primitives",
     "precision",
+    "profile",
     "field",
     "primitive",
     "component",
     "bit",
     "bit_class",
+    "fault",
     "clean_value",
     "corrupted_value",
     "defense",
@@ -50,13 +52,18 @@ COLUMNS = [
     "ssim",
     "nonfinite",
     "catastrophic",
+    "outcome",
     "clamps",
     "k",
     "repeat",
     "weight",
     "seed",
     "injection_id",
+    "time_ms",
 ]
+# wall-clock measurements: the only columns a replay, a shard or a Ray worker may not reproduce
+TIMED_COLUMNS = ("time_ms",)
+REPRODUCIBLE_COLUMNS = [c for c in COLUMNS if c not in TIMED_COLUMNS]
 
 
 def columns_of(ctx) -> list[str]:
@@ -240,6 +247,15 @@ def lock(run_dir, shard: tuple[int, int] = (0, 1)):
 
 def write_manifest(run_dir, manifest: dict):
     atomic_write(manifest_path(run_dir), json.dumps(manifest, indent=1).encode())
+
+
+def guard_note_path(run_dir, scene: str, precision: str, profile: str) -> Path:
+    """Where a run records the guard's effect on a clean model holding NaN/Inf (once per model)."""
+    return Path(run_dir) / f"guard_on_clean-{scene}-{precision}-{profile}.json"
+
+
+def write_guard_note(run_dir, scene: str, precision: str, profile: str, note: dict):
+    atomic_write(guard_note_path(run_dir, scene, precision, profile), json.dumps(note, indent=1).encode())
 
 
 def git_commit() -> str:

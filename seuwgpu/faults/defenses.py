@@ -1,5 +1,33 @@
-"""The defenses' view of a corrupted stored word: which defenses exist, which fields the support
-guard covers, and what ECC (SEC-DED over sign+exponent) and triple modular redundancy read back."""
+"""Every defense in one place: its name, what it costs in memory, and what the renderer reads
+through it from a corrupted primitive (the numpy twin every evaluation uses).
+
+This module is the single source of the defense list (`DEFENSES`, `DEFENSE_INFO`): the spec, the
+CLI, the viewer and `seuwgpu defenses` take it from here.
+
+A defense reads the stored primitive as it is now (`corrupt`, stored bit patterns [M, ncomp]) and
+knows what it stored alongside the clean model (parity bits, checksums, scale classes, boxes: all
+functions of the clean primitive, so the twins take the clean rows and recompute them). Every
+defense is the identity on the clean model (tests/test_defenses.py).
+
+- none, guard, selective: the support guard's box clamp (faults/guard.py; applied in the
+  pipeline, so `read` returns the corrupted bits and `PIPELINE_GUARD` names the clamp);
+- ecc: SEC-DED over every value's sign+exponent bits; dup: triple modular redundancy;
+- parity / parity4: 1 (4 interleaved) parity bit(s) per primitive over the sign, exponent and top
+  mantissa bits of its 14 geometry/opacity/colour values (not sh_rest); a mismatch culls the
+  primitive (its mean is set to NaN: the one corrupted primitive the renderer draws nothing for).
+  Four interleaved parities (bit position mod 4) catch every burst of up to 4 adjacent bits;
+- ecc_crit: SEC-DED over the sign+exponent bits of log-scales and opacity only (the critical
+  cells); a detected uncorrectable error culls the primitive;
+- scalebound: the guard plus a 4-bit scale class per primitive bounding its log-scales from above
+  (16 equal classes across the box);
+- checksum: a 32-bit FNV-1a checksum per primitive over all its stored values, checked before the
+  frame; a mismatch reloads the primitive from the golden copy (host memory or the model file,
+  not charged to device memory). Each FNV step is a bijection of the running hash, so any change
+  confined to one stored value is detected with certainty;
+- parity4r: parity4's check, but a flagged primitive is reloaded from the golden copy (as
+  checksum does) rather than culled.
+The golden copy that reloads read from lives off the device and is not charged as device memory.
+"""
 
 from __future__ import annotations
 
@@ -9,18 +37,50 @@ from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELDS
 
 # ---- defenses on stored bits -------------------------------------------------------------------
-DEFENSES = ("none", "guard", "selective", "ecc", "dup")
+DEFENSE_INFO = {
+    "none": "no protection",
+    "guard": "support guard: clamp every value except sh_rest into the clean model's box",
+    "selective": "support guard on log-scales and opacity only",
+    "ecc": "SEC-DED Hamming code over every value's sign+exponent bits (corrects single errors)",
+    "dup": "triple modular redundancy with bitwise majority voting",
+    "parity": "1 parity bit per primitive over sign, exponent and top mantissa bits; mismatch culls",
+    "parity4": "4 interleaved parity bits per primitive (bit mod 4): catch bursts of <= 4 bits; cull",
+    "ecc_crit": "SEC-DED over sign+exponent of log-scales and opacity only; uncorrectable culls",
+    "scalebound": "support guard plus a 4-bit scale class per primitive bounding its log-scales",
+    "checksum": "32-bit checksum per primitive checked per frame; mismatch reloads it from the golden copy",
+    "parity4r": "parity4's check; a mismatch reloads the primitive from the golden copy instead of culling",
+}
+DEFENSES = tuple(DEFENSE_INFO)
 GUARDED_FIELDS = {
     "guard": ("means", "log_scales", "quats", "opacity", "sh_dc"),
     "guard_all": FIELDS,
     "selective": ("log_scales", "opacity"),
 }
+# the support-guard variant each defense clamps with in the pipeline
+PIPELINE_GUARD = {"guard": "guard", "selective": "selective", "scalebound": "guard"}
+PARITY_FIELDS = GUARDED_FIELDS["guard"]
+PARITY_MANTISSA = 4  # top mantissa bits covered by the parity defenses, besides sign+exponent
+SCALE_CLASS_BITS = 4
+CRITICAL_FIELDS = ("log_scales", "opacity")
 
 
 def check_defense(name: str) -> str:
     if name not in DEFENSES:
         raise ValueError(f"unknown defense {name!r}; expected one of {', '.join(DEFENSES)}")
     return name
+
+
+def _covered_components(fields, degree: int) -> np.ndarray:
+    from seuwgpu.model.fields import FIELD_OFFSET, field_components
+
+    return np.array([FIELD_OFFSET[f] + c for f in fields for c in range(field_components(f, degree))], np.int64)
+
+
+def parity_components(degree: int) -> int:
+    """The parity defenses cover flat components 0 .. this - 1 (PARITY_FIELDS lead the layout)."""
+    cols = _covered_components(PARITY_FIELDS, degree)
+    assert np.array_equal(cols, np.arange(cols.size))
+    return int(cols.size)
 
 
 def _protected_bits(precision: str) -> list[int]:
@@ -88,3 +148,179 @@ def majority(a, b, c):
 def dup_read(clean_bits: np.ndarray, stored_bits: np.ndarray) -> np.ndarray:
     """Full duplication with majority voting: the upset hit one of three copies (copy 0)."""
     return majority(np.asarray(stored_bits), np.asarray(clean_bits), np.asarray(clean_bits))
+
+
+# ---- new defenses: twins of what the renderer reads ---------------------------------------------
+def cull_bits(precision: str) -> int:
+    """Stored pattern written into a culled primitive's means: a quiet NaN (the renderer culls a
+    primitive whose camera-space depth is not finite, docs/renderer.md rule 2)."""
+    return {"fp32": 0x7FC00000, "fp16": 0x7E00, "bf16": 0x7FC0}[encoding.check_precision(precision)]
+
+
+def _cull(rows: np.ndarray, hit: np.ndarray, precision: str) -> np.ndarray:
+    out = rows.copy()
+    out[np.ix_(hit, np.arange(3))] = cull_bits(precision)  # means are components 0..2
+    return out
+
+
+def parity_cover_mask(precision: str) -> int:
+    """Bits of each value the parity defenses cover: sign, exponent and the top PARITY_MANTISSA
+    mantissa bits."""
+    man, _ = encoding.LAYOUT[encoding.check_precision(precision)]
+    return ((1 << encoding.bits_per_value(precision)) - 1) & ~((1 << (man - PARITY_MANTISSA)) - 1)
+
+
+def parity_bits(rows: np.ndarray, precision: str, degree: int, ways: int) -> np.ndarray:
+    """[M, ways] parity of the covered bits of each primitive's PARITY_FIELDS values, way w over
+    bit positions b with b % ways == w (interleaving: a burst of <= ways adjacent bits of one value
+    flips at most one bit of each way)."""
+    cols = _covered_components(PARITY_FIELDS, degree)
+    v = np.asarray(rows)[:, cols].astype(np.uint64) & np.uint64(parity_cover_mask(precision))
+    out = np.zeros((v.shape[0], ways), dtype=np.uint8)
+    for b in range(encoding.bits_per_value(precision)):
+        out[:, b % ways] ^= ((v >> np.uint64(b)) & np.uint64(1)).astype(np.uint8).sum(axis=1).astype(np.uint8) & 1
+    return out
+
+
+def checksum(rows: np.ndarray) -> np.ndarray:
+    """[M] 32-bit FNV-1a over each primitive's stored patterns (one step per value)."""
+    h = np.full(np.asarray(rows).shape[0], 0x811C9DC5, dtype=np.uint64)
+    for c in range(rows.shape[1]):
+        h = ((h ^ rows[:, c].astype(np.uint64)) * np.uint64(0x01000193)) & np.uint64(0xFFFFFFFF)
+    return h.astype(np.uint32)
+
+
+def scale_class_table(lo: float, hi: float, precision: str) -> np.ndarray:
+    """The 2**SCALE_CLASS_BITS log-scale upper bounds a class stands for: the model's log-scale
+    range [lo, hi] cut into equal classes, each top rounded up to a stored value; the last is hi."""
+    k = 1 << SCALE_CLASS_BITS
+    edges = (lo + (np.arange(1, k + 1) / k) * max(hi - lo, 0.0)).astype(np.float32)
+    q = encoding.quantize(edges, precision)
+    for _ in range(8):  # round up in the stored precision, one representable step at a time
+        below = q < edges
+        if not below.any():
+            break
+        b = encoding.to_bits(q[below], precision).astype(np.int64)
+        nxt = np.where(q[below] == 0, 1, np.where(np.signbit(q[below]), b - 1, b + 1))
+        q[below] = encoding.from_bits(nxt.astype(np.uint32), precision)
+    q[-1] = hi
+    return np.maximum.accumulate(np.minimum(q, np.float32(hi)))
+
+
+def scale_classes(clean: np.ndarray, table: np.ndarray, precision: str) -> np.ndarray:
+    """[M] class of each primitive: the lowest whose bound holds its largest finite log-scale."""
+    ls = encoding.from_bits(np.asarray(clean)[:, 3:6], precision)
+    top = np.where(np.isfinite(ls), ls, -np.inf).max(axis=1)
+    return np.minimum(np.searchsorted(table, top, side="left"), table.size - 1)
+
+
+def scale_class_bounds(clean: np.ndarray, lo: float, hi: float, precision: str) -> np.ndarray:
+    """[M] upper bound of each primitive's log-scales (scalebound's 4-bit class, looked up)."""
+    table = scale_class_table(lo, hi, precision)
+    return table[scale_classes(clean, table, precision)]
+
+
+def ecc_crit_read(clean: np.ndarray, corrupt: np.ndarray, precision: str, degree: int) -> np.ndarray:
+    cols = _covered_components(CRITICAL_FIELDS, degree)
+    out = corrupt.copy()
+    out[:, cols] = ecc_read(clean[:, cols], corrupt[:, cols], precision)
+    # SEC-DED detects what it cannot correct (two errors in the protected bits): cull
+    prot = np.uint64(sum(1 << b for b in _protected_bits(precision)))
+    left = (out[:, cols].astype(np.uint64) ^ clean[:, cols].astype(np.uint64)) & prot
+    return _cull(out, (left != 0).any(axis=1), precision)
+
+
+# defenses whose check runs on the GPU (shaders/check.wgsl, faults/check.py): per-primitive side
+# data stored with the model, and the check that flags a primitive
+CHECKED = ("parity", "parity4", "parity4r", "checksum", "scalebound")
+RELOADED = ("checksum", "parity4r")  # flagged primitives reloaded from the golden copy
+
+
+def scale_table(box, precision: str) -> np.ndarray:
+    return scale_class_table(float(box.lo[3:6].min()), float(box.hi[3:6].max()), precision)
+
+
+def side_data(defense: str, clean: np.ndarray, precision: str, degree: int, box=None) -> np.ndarray:
+    """[M] u32 stored with each clean primitive: packed parity bits, the checksum, or the scale
+    class (the table is shared by the model: `scale_table`)."""
+    clean = np.asarray(clean)
+    if defense in ("parity", "parity4", "parity4r"):
+        par = parity_bits(clean, precision, degree, 1 if defense == "parity" else 4).astype(np.uint32)
+        return (par << np.arange(par.shape[1], dtype=np.uint32)).sum(axis=1).astype(np.uint32)
+    if defense == "checksum":
+        return checksum(clean)
+    if defense == "scalebound":
+        if box is None:
+            raise ValueError("scalebound needs the clean model's box")
+        return scale_classes(clean, scale_table(box, precision), precision).astype(np.uint32)
+    raise ValueError(f"defense {defense!r} has no per-primitive check; checked ones: {', '.join(CHECKED)}")
+
+
+def detect(defense: str, side: np.ndarray, rows: np.ndarray, precision: str, degree: int, box=None) -> np.ndarray:
+    """[M] bool: the check of `defense` flags the primitive (stored `rows` against `side`).
+    Twin of shaders/check.wgsl."""
+    rows = np.asarray(rows)
+    if defense == "scalebound":
+        bound = scale_table(box, precision)[np.asarray(side, dtype=np.int64)]
+        vals = encoding.from_bits(rows[:, 3:6], precision)
+        with np.errstate(invalid="ignore"):
+            return (vals > bound[:, None]).any(axis=1)
+    return side_data(defense, rows, precision, degree, box) != np.asarray(side, dtype=np.uint32)
+
+
+def repair(defense: str, clean: np.ndarray, corrupt: np.ndarray, hit: np.ndarray, precision: str, box=None):
+    """What a flagged primitive becomes: culled (parity), reloaded (checksum) or its log-scales
+    clamped to the class bound (scalebound); unflagged rows are returned as they are."""
+    if defense in ("parity", "parity4"):
+        return _cull(corrupt, hit, precision)
+    if defense in RELOADED:
+        return np.where(hit[:, None], clean, corrupt)
+    bound = scale_table(box, precision)[side_data(defense, clean, precision, 0, box).astype(np.int64)]
+    vals = encoding.from_bits(corrupt[:, 3:6], precision)
+    with np.errstate(invalid="ignore"):
+        over = (vals > bound[:, None]) & hit[:, None]
+    out = corrupt.copy()
+    ls = out[:, 3:6]
+    ls[over] = np.broadcast_to(encoding.to_bits(bound, precision)[:, None], ls.shape)[over]
+    out[:, 3:6] = ls
+    return out
+
+
+def read(defense: str, clean: np.ndarray, corrupt: np.ndarray, precision: str, degree: int, box=None) -> np.ndarray:
+    """What `defense` reads from primitives whose stored patterns went from `clean` to `corrupt`
+    ([M, ncomp] each). The support-guard clamp (PIPELINE_GUARD) is left to the pipeline; `box`
+    (faults/guard.Box of the clean model) is needed by scalebound."""
+    check_defense(defense)
+    clean, corrupt = np.asarray(clean), np.asarray(corrupt)
+    if defense == "ecc":
+        return ecc_read(clean, corrupt, precision)
+    if defense == "dup":
+        return dup_read(clean, corrupt)
+    if defense == "ecc_crit":
+        return ecc_crit_read(clean, corrupt, precision, degree)
+    if defense in CHECKED:
+        side = side_data(defense, clean, precision, degree, box)
+        hit = detect(defense, side, corrupt, precision, degree, box)
+        return repair(defense, clean, corrupt, hit, precision, box)
+    return corrupt
+
+
+def memory_overhead(defense: str, precision: str, degree: int, n: int) -> float:
+    """Extra stored bits on the device per stored bit of the model (box bounds are fp32)."""
+    check_defense(defense)
+    from seuwgpu.model.fields import n_components
+
+    nb = encoding.bits_per_value(precision)
+    per_prim = n_components(degree) * nb
+    box = {g: 2 * 32 * _covered_components(GUARDED_FIELDS[v], degree).size for g, v in PIPELINE_GUARD.items()}
+    extra_per_prim = {
+        "ecc": ecc_check_bits(precision) * n_components(degree),
+        "dup": 2 * per_prim,
+        "parity": 1,
+        "parity4": 4,
+        "parity4r": 4,
+        "ecc_crit": ecc_check_bits(precision) * _covered_components(CRITICAL_FIELDS, degree).size,
+        "scalebound": SCALE_CLASS_BITS,
+        "checksum": 32,
+    }.get(defense, 0)
+    return (extra_per_prim * n + box.get(defense, 0)) / (per_prim * n)

@@ -7,8 +7,9 @@ the renderer reads from a corrupted word:
 - none: the corrupted word;
 - guard / selective: the corrupted word, clamped into the clean model's support box while
   projecting (in-pipeline clamp, memory untouched; `guard.scrub` is the memory-repairing mode);
-- ecc: SEC-DED Hamming code over sign+exponent bits (faults.ecc_read);
-- dup: triple modular redundancy with majority voting (faults.dup_read).
+- every other defense: what its twin (faults/defenses.read) returns for the hit primitives.
+Sites carry a fault model (faults/sites.py: flips, stuck-at, value replacement); whatever it is,
+the engine XORs the difference between the clean and the read pattern, so undo is exact.
 """
 
 from __future__ import annotations
@@ -16,16 +17,22 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from seuwgpu.faults.defenses import GUARDED_FIELDS, check_defense, dup_read, ecc_read
+from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.flips import Flips
 from seuwgpu.faults.guard import Box, GuardMonitor, component_mask, support_box
-from seuwgpu.faults.sites import Site, make_site, mask_of, site_bit_class
+from seuwgpu.faults.sites import Site, apply_sites, fault_name, make_site, site_bit_class
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.metrics.image import ImageMetrics, catastrophic, summarize
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import Camera
-from seuwgpu.model.fields import FIELDS, Model
+from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, n_components
 from seuwgpu.render.renderer import Renderer
+
+
+def field_of_components(degree: int) -> np.ndarray:
+    """Field index (FIELDS order) of each flat component."""
+    offs = [FIELD_OFFSET[f] for f in FIELDS]
+    return np.searchsorted(offs, np.arange(n_components(degree)), side="right") - 1
 
 
 class Engine:
@@ -40,6 +47,7 @@ class Engine:
         background=(1.0, 1.0, 1.0),
         incremental: bool = True,
         capacity: int | None = None,
+        profile: str = "strict",
     ):
         self.gpu = gpu or get_gpu()
         self.precision = encoding.check_precision(precision)
@@ -53,7 +61,9 @@ class Engine:
             background=background,
             keep_views=incremental,
             capacity=capacity,
+            profile=profile,
         )
+        self.profile = self.renderer.profile
         self.incremental = incremental
         self.layout = self.renderer.layout
         self.n, self.degree = model.n, model.sh_degree
@@ -61,7 +71,22 @@ class Engine:
         self.box: Box = support_box(stored, precision)
         self.renderer.set_guard(self.box.rows(), 0)
         # in-pipeline clamp mask of each guard defense (other defenses: 0)
-        self.masks = {d: component_mask(GUARDED_FIELDS[d], self.degree) for d in ("guard", "selective")}
+        self.masks = {d: component_mask(dfn.GUARDED_FIELDS[v], self.degree) for d, v in dfn.PIPELINE_GUARD.items()}
+        # Components where the clean model itself holds NaN or Inf (rare): the guard changes them
+        # like corrupted values, so a guarded upset is measured against the guarded clean render
+        # (its "reference"), and the guard's effect on the clean model is reported once
+        # (`guard_on_clean`), never charged to every upset.
+        bad = ~np.isfinite(stored.flat()).all(axis=0)
+        self.nonfinite_mask = int(sum(1 << int(c) for c in np.flatnonzero(bad)))
+        self.nonfinite_counts = {
+            f: int(v)
+            for f, v in zip(
+                FIELDS, np.bincount(field_of_components(self.degree), (~np.isfinite(stored.flat())).sum(0), len(FIELDS))
+            )
+            if v
+        }
+        self._ref_mask = 0  # guard mask of the render held as the clean reference
+        self.reference_clamps = 0
         self.flips = Flips(self.gpu, self.renderer.chunks)
         self._active: list[dict] = []  # applied XOR lists, for undo
         self.monitor = GuardMonitor(threshold=0)  # health signal of interactive/guarded renders
@@ -72,18 +97,54 @@ class Engine:
         r = self.renderer
         self.cameras = r.cameras
         self.width, self.height, self.k = r.width, r.height, r.k
-        # keep the clean frame's per-view state (only this render: faulted ones must not overwrite it)
+        self.clean_buf = self.gpu.buffer(r.image.size, STORAGE, "clean_images")
+        self._capture_reference(0)
+        self.metrics = ImageMetrics(self.gpu, self.width, self.height, self.k, max_variants=1)
+        self._evaluator = None
+
+    def _capture_reference(self, mask: int):
+        """Render the clean model under the in-pipeline guard `mask` (0: unguarded) as the reference
+        of the metrics: its frame into clean_buf / clean_rgba, its per-view state kept for the
+        incremental path (only this render: faulted ones must not overwrite it), its clamp total."""
+        if self._active:
+            raise RuntimeError("undo active faults before changing the clean reference")
+        r = self.renderer
         r.capture_views = r.keep_views
+        r.set_guard(None, mask)
+        r.reset_guard_counts()
         try:
             self.clean_rgba = r.render_rgba()
+            self.reference_clamps = int(r.read_guard_counts().sum())
         finally:
             r.capture_views = False
-        self.clean_buf = self.gpu.buffer(r.image.size, STORAGE, "clean_images")
+            r.set_guard(None, 0)
         enc = self.gpu.device.create_command_encoder()
         enc.copy_buffer_to_buffer(r.image, 0, self.clean_buf, 0, r.image.size)
         self.gpu.submit(enc)
-        self.metrics = ImageMetrics(self.gpu, self.width, self.height, self.k, max_variants=1)
-        self._evaluator = None
+        r.version += 1  # kept views re-captured: the incremental compositor re-reads them
+        self._ref_mask = mask
+
+    def reference_mask(self, defense: str) -> int:
+        """Guard mask of the clean reference of `defense`: its own mask where the clean model holds
+        non-finite values the guard changes, else 0 (the guard is then the identity on it)."""
+        mask = self._guard_mask(defense)
+        return mask if mask & self.nonfinite_mask else 0
+
+    def use_reference(self, defense: str):
+        """Make the clean reference of `defense` current (a re-render only when it changes)."""
+        mask = self.reference_mask(defense)
+        if mask != self._ref_mask:
+            self._capture_reference(mask)
+
+    def guard_on_clean(self, defense: str = "guard") -> dict:
+        """The guard's own effect on the clean model, reported once: the model's non-finite
+        values per field, and the guarded clean render against the unguarded one (metrics and
+        clamps). All zeros for a finite model."""
+        mask = self.reference_mask(defense)
+        self.use_reference("none")
+        out = self.measure_current(defense) if mask else {"footprint": 0.0, "clamps": 0}
+        out = {k: v for k, v in out.items() if not hasattr(v, "__len__")}
+        return {"defense": defense, **out, "nonfinite_values": dict(self.nonfinite_counts)}
 
     def set_cameras(self, cameras: list[Camera]):
         if self._active:
@@ -96,8 +157,8 @@ class Engine:
         return self.clean_rgba[..., :3]
 
     # ---- sites -------------------------------------------------------------------------------------
-    def site(self, field: str, primitive: int, component: int, bits) -> Site:
-        return make_site(self.n, field, primitive, component, bits, self.precision, self.degree)
+    def site(self, field: str, primitive: int, component: int, bits, op: str = "flip", value: int = 0) -> Site:
+        return make_site(self.n, field, primitive, component, bits, self.precision, self.degree, op, value)
 
     def stored_bits(self, primitive, flat_component) -> np.ndarray:
         """Clean stored bit patterns (uint32 or uint16) at (primitive, flat component) pairs."""
@@ -115,34 +176,42 @@ class Engine:
 
     def corrupted_value(self, site: Site) -> float:
         b = self.stored_bits([site.primitive], [site.flat_component()])
-        return float(encoding.from_bits(encoding.flip_bits(b, list(site.bits), self.precision), self.precision)[0])
+        return float(encoding.from_bits(apply_sites(b, [site]), self.precision)[0])
 
-    def _defended(self, clean: np.ndarray, masks: np.ndarray, defense: str) -> np.ndarray:
-        """What `defense` reads from stored values `clean` after XOR `masks` hit them (the support
-        guard is applied later, in the pipeline or by clamp_bits)."""
-        corrupt = (clean.astype(np.uint64) ^ masks).astype(clean.dtype)
-        if defense == "ecc":
-            return ecc_read(clean, corrupt, self.precision)
-        if defense == "dup":
-            return dup_read(clean, corrupt)
-        return corrupt
+    def _read(self, clean: np.ndarray, corrupt: np.ndarray, defense: str) -> np.ndarray:
+        """What `defense` reads from primitives (stored bits [M, ncomp]) that went from `clean` to
+        `corrupt` (the support guard is applied later, in the pipeline or by clamp_bits)."""
+        return dfn.read(defense, clean, corrupt, self.precision, self.degree, self.box)
+
+    def _faulted(self, sites: list[Site]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(primitives [P] hit, their clean bits [P, ncomp], their bits after every site in order:
+        sites hitting one value compose, the k-th hit of a value applied in round k)."""
+        prims_of = np.array([s.primitive for s in sites], dtype=np.int64)
+        comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
+        prims, row = np.unique(prims_of, return_inverse=True)
+        clean = self.primitive_bits(prims)
+        cur = clean.copy()
+        key = row * self.layout.ncomp + comps
+        order = np.argsort(key, kind="stable")
+        ks = key[order]
+        first = np.r_[True, ks[1:] != ks[:-1]]
+        rank = np.empty(len(sites), dtype=np.int64)
+        rank[order] = np.arange(len(sites)) - np.maximum.accumulate(np.where(first, np.arange(len(sites)), 0))
+        for k in range(int(rank.max()) + 1 if len(sites) else 0):
+            sel = np.flatnonzero(rank == k)
+            cur[row[sel], comps[sel]] = apply_sites(cur[row[sel], comps[sel]], [sites[i] for i in sel])
+        return prims, clean, cur
 
     # ---- flips on the GPU --------------------------------------------------------------------------
     def _xor_lists(self, sites: list[Site], defense: str) -> dict[int, np.ndarray]:
         """Per chunk: [(word, xor mask)] turning the clean words into what the defense reads."""
         if not sites:
             return {}
-        prims = np.array([s.primitive for s in sites], dtype=np.int64)
-        comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
-        masks = np.array([mask_of(s.bits) for s in sites], dtype=np.uint64)
-        # merge sites hitting the same value (several upsets in one word compose)
-        key = prims * self.layout.ncomp + comps
-        uk, inv = np.unique(key, return_inverse=True)
-        vmask = np.zeros(uk.size, dtype=np.uint64)
-        np.bitwise_xor.at(vmask, inv, masks)
-        p, c = np.divmod(uk, self.layout.ncomp)
-        clean = self.stored_bits(p, c)
-        delta = clean.astype(np.uint64) ^ self._defended(clean, vmask, defense).astype(np.uint64)
+        prims, clean, cur = self._faulted(sites)
+        delta = clean.astype(np.uint64) ^ self._read(clean, cur, defense).astype(np.uint64)
+        pi, c = np.nonzero(delta)
+        p = prims[pi]
+        delta = delta[pi, c]
         chunk, word, shift = self.layout.locate(p, c)
         wmask = delta << shift.astype(np.uint64)
         out = {}
@@ -158,7 +227,7 @@ class Engine:
 
     def apply(self, sites: list[Site], defense: str = "none") -> dict:
         """Flip the sites in the GPU-resident model (as the defense reads them); returns a handle."""
-        xors = self._xor_lists(list(sites), check_defense(defense))
+        xors = self._xor_lists(list(sites), dfn.check_defense(defense))
         self.flips.apply(xors)
         self._active.append(xors)
         return xors
@@ -197,9 +266,25 @@ class Engine:
             self.monitor.update(counts)
         return images.reshape(r.k, r.height, r.width, 4), counts
 
+    def view_time_ms(self, defense: str = "none", repeats: int = 5) -> float:
+        """Median wall time (ms) of rendering one view of the model as it is now under the
+        defense's in-pipeline guard (K views rendered and waited for, divided by K; one warm-up
+        render first). The mitigation table's time cost comes from it, in the same run."""
+        import time
+
+        self._run_guarded(defense)
+        ts = []
+        for _ in range(max(int(repeats), 1)):
+            t0 = time.perf_counter()
+            self._run_guarded(defense)  # Renderer.run reads its totals back: the GPU is done
+            ts.append(time.perf_counter() - t0)
+        return 1e3 * float(np.median(ts)) / self.k
+
     def measure_current(self, defense: str = "none") -> dict:
-        """GPU metrics of the current model against the clean render (the frame stays on the GPU)."""
-        clamps = sum(self._run_guarded(defense).values())
+        """GPU metrics of the current model against the current clean reference (the frame stays
+        on the GPU). clamps: the guard's clamps beyond the reference's own (negative when an upset
+        turns a clean non-finite value into one inside the box)."""
+        clamps = sum(self._run_guarded(defense).values()) - self.reference_clamps
         raw = self.metrics.run_dense(self.clean_buf, self.renderer.image, 1)
         out = {
             k: (v[0].item() if hasattr(v, "__len__") else v) for k, v in summarize(raw, self.width, self.height).items()
@@ -210,17 +295,21 @@ class Engine:
     def inject(self, sites, defense: str = "none") -> dict:
         """Apply the site(s), render the K views under `defense`, measure, restore. One record."""
         sites = [sites] if isinstance(sites, Site) else list(sites)
+        self.use_reference(defense)
         handle = self.apply(sites, defense)
         try:
             m = self.measure_current(defense)
         finally:
             self.undo(handle)
+        names = {fault_name(s, self.precision) for s in sites}
         rec = {
             "scene": self.scene,
             "n_primitives": self.n,
             "precision": self.precision,
+            "profile": self.profile,
             "defense": defense,
             "k": len(sites),
+            "fault": names.pop() if len(names) == 1 else "mixed",
         }
         if len(sites) == 1:
             s = sites[0]
@@ -228,7 +317,7 @@ class Engine:
                 field=s.field,
                 primitive=s.primitive,
                 component=s.component,
-                bit=s.bit,
+                bit=s.record_bit,
                 bit_class=site_bit_class(s, self.precision),
                 clean_value=self.clean_value(s),
                 corrupted_value=self.corrupted_value(s),
@@ -249,12 +338,20 @@ class Engine:
         return rec
 
     def worst_primitive(
-        self, field: str, component: int, bits, sample: int = 32, seed: int = 0, defense: str = "none"
+        self,
+        field: str,
+        component: int,
+        bits,
+        sample: int = 32,
+        seed: int = 0,
+        defense: str = "none",
+        op: str = "flip",
+        value: int = 0,
     ) -> tuple[int, dict]:
         """The primitive whose flip does the most harm (footprint, then peak error) among a sample."""
         rng = np.random.default_rng(seed)
         cand = rng.choice(self.n, size=min(sample, self.n), replace=False)
-        sites = [self.site(field, int(p), component, bits) for p in cand]
+        sites = [self.site(field, int(p), component, bits, op, value) for p in cand]
         if self.incremental:
             recs = self.evaluate(sites, (defense,))  # same numbers as inject, without full re-renders
         else:
@@ -291,10 +388,11 @@ class Engine:
         """(primitives [M], effective stored bits [M, ncomp] as `defense` reads them, guard masks [M])."""
         prims = np.array([s.primitive for s in sites], dtype=np.int64)
         comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
-        masks = np.array([mask_of(s.bits) for s in sites], dtype=np.uint64)
-        bits = self.primitive_bits(prims)
+        clean = self.primitive_bits(prims)
+        bits = clean.copy()
         rows = np.arange(len(sites))
-        bits[rows, comps] = self._defended(bits[rows, comps], masks, defense)
+        bits[rows, comps] = apply_sites(clean[rows, comps], sites)
+        bits = self._read(clean, bits, defense)
         gm = np.full(len(sites), self._guard_mask(defense), dtype=np.int64)
         return prims, bits, gm
 
@@ -312,25 +410,27 @@ class Engine:
             "scene": [self.scene] * m_sites,
             "n_primitives": np.full(m_sites, self.n, np.int64),
             "precision": [self.precision] * m_sites,
+            "profile": [self.profile] * m_sites,
             "field": [s.field for s in sites],
             "primitive": np.array([s.primitive for s in sites], np.int64),
             "component": np.array([s.component for s in sites], np.int64),
-            "bit": np.array([s.bit for s in sites], np.int64),
+            "bit": np.array([s.record_bit for s in sites], np.int64),
             "bit_class": [site_bit_class(s, self.precision) for s in sites],
+            "fault": [fault_name(s, self.precision) for s in sites],
             "k": np.ones(m_sites, np.int64),
         }
         frames = []
         prims = np.array([s.primitive for s in sites], dtype=np.int64)
         clean_b = self.stored_bits(prims, comps)
-        masks = np.array([mask_of(s.bits) for s in sites], dtype=np.uint64)
         # clean_value / corrupted_value: the stored value before and after the upset, whatever the
         # defense then reads (the same in every arm, and equal to inject()'s)
         clean_v = encoding.from_bits(clean_b, self.precision)
-        corr_v = encoding.from_bits(self._defended(clean_b, masks, "none"), self.precision)
+        corr_v = encoding.from_bits(apply_sites(clean_b, sites), self.precision)
         for d in defenses:
-            check_defense(d)
+            dfn.check_defense(d)
             prims, bits, gm = self.variant_bits(sites, d)
-            m = self.evaluator.evaluate(prims, bits, gm, regions)
+            self.use_reference(d)
+            m = self.evaluator.evaluate(prims, bits, gm, regions, self.primitive_bits(prims) if gm.any() else None)
             cols = dict(base)
             with np.errstate(invalid="ignore"):  # NaN values are data here
                 cols.update(

@@ -146,6 +146,21 @@ def clamp_bits(bits: np.ndarray, box: Box, mask: int) -> tuple[np.ndarray, np.nd
     return out, low | high
 
 
+def fill_chunk_params(params: Uniforms, layout, **extra):
+    """One uniform slot per stored chunk with its layout (plane_words, ncomp, chunk_count, fmt,
+    prim_base): the parameters every pass over the stored model shares, plus `extra` fields."""
+    first, end = np.array([layout.chunk_range(k) for k in range(layout.n_chunks)]).T
+    params.struct.fill(
+        params.rows,
+        plane_words=layout.plane_words,
+        ncomp=layout.ncomp,
+        chunk_count=end - first,
+        fmt=PRECISION_CODE[layout.precision],
+        prim_base=first,
+        **extra,
+    )
+
+
 class Scrub:
     """guard.wgsl over one renderer's stored chunks: its box, its clamp counters (`ClampCounts`:
     per field, then per primitive) and one `GuardParams` slot per chunk."""
@@ -159,15 +174,7 @@ class Scrub:
         self.per_prim_at = self.layout_counts.offset("per_primitive")
         self.counts = gpu.buffer(self.per_prim_at + 4 * L.n, STORAGE, "scrub.counts")
         self.params = Uniforms(gpu, self.kernel.struct("GuardParams"), L.n_chunks, "scrub.params")
-        first, end = np.array([L.chunk_range(k) for k in range(L.n_chunks)]).T
-        self.params.struct.fill(
-            self.params.rows,
-            plane_words=L.plane_words,
-            ncomp=L.ncomp,
-            chunk_count=end - first,
-            fmt=PRECISION_CODE[L.precision],
-            prim_base=first,
-        )
+        fill_chunk_params(self.params, L)
 
     def run(self, box: Box, mask: int, per_primitive: bool = False):
         g, L = self.gpu, self.layout

@@ -29,13 +29,17 @@ class IncrementalEvaluator:
         self.offsets = g.buffer(4 * (self.B * k + 1), STORAGE, "offsets")
         self.metrics = ImageMetrics(g, r.width, r.height, k, self.B, max_entries=self.B * k * r.n_tiles)
 
-    def evaluate(self, prims: np.ndarray, bits: np.ndarray, guard_masks: np.ndarray | None = None, regions=()) -> dict:
+    def evaluate(
+        self, prims: np.ndarray, bits: np.ndarray, guard_masks: np.ndarray | None = None, regions=(), clean_bits=None
+    ) -> dict:
         """Metrics of variants: `prims` [M] primitive replaced in each variant, `bits` [M, ncomp]
         its effective stored bits (flip and defense already applied, except the support guard:
         `guard_masks` [M] component masks to clamp, 0 for none). Returns dict of [M] arrays
         (summarize's fields plus clamps). `regions`: sort-first partition sizes P for which to add
         regions_pred_P (regions the corrupted footprint's tile rectangle reaches in any view) and
-        regions_meas_P (regions with a changed pixel in any view) as int64 bitmasks."""
+        regions_meas_P (regions with a changed pixel in any view) as int64 bitmasks. `clean_bits`
+        [M, ncomp]: the primitives' clean stored bits; clamps then count beyond the clean
+        primitive's own (the reference's), as the full path does."""
         prims = np.asarray(prims, dtype=np.int64)
         bits = np.asarray(bits)
         m = prims.size
@@ -48,6 +52,8 @@ class IncrementalEvaluator:
                     sel = guard_masks == mask
                     bits[sel], hit = clamp_bits(bits[sel], self.engine.box, int(mask))
                     clamps[sel] = hit.sum(axis=1)
+                    if clean_bits is not None:
+                        clamps[sel] -= clamp_bits(clean_bits[sel], self.engine.box, int(mask))[1].sum(axis=1)
         out = None
         for a in range(0, m, self.B):
             part = self._evaluate_batch(prims[a : a + self.B], bits[a : a + self.B], tuple(regions))

@@ -1,8 +1,14 @@
-"""Fault sites in the stored model, and the defenses' view of a corrupted word.
+"""Fault sites in the stored model and the fault models that corrupt them.
 
-A site is (field, primitive, component, bits) in the stored precision: one bit is a single-event
-upset, several bits of one value a multi-bit upset. Flips are XOR masks on stored words, so
-applying the same mask again restores the value exactly.
+A site is (field, primitive, component, bits) in the stored precision plus an operation on those
+bits of the stored value:
+- "flip": XOR (one bit: a single-event upset; 2-4 neighbouring bits: an adjacent multi-cell
+  upset, as in SRAM; any other set: a multi-bit upset);
+- "stuck0" / "stuck1": the named bits read 0 / 1 (a stuck-at fault; a bit already at that value is
+  masked);
+- "set": the named bits take `value`'s bits ("zero": every bit 0; "random": every bit uniform).
+Whatever the operation, the engine writes the difference from the clean value as an XOR mask on the
+stored word, so applying the same mask again restores the value exactly.
 """
 
 from __future__ import annotations
@@ -14,6 +20,19 @@ import numpy as np
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, canonical_field, field_components
 
+# Fault models a campaign spec or the CLI names (`fault = ...`), and what each does to the bits a
+# site names (the cell's bit): see `draw_model_bits` for the draw.
+FAULT_MODELS = ("bit", "adjacent", "stuck0", "stuck1", "random", "zero")
+VALUE_MODELS = ("random", "zero")  # replace the whole value: cells are per field, bit = -1
+OPS = ("flip", "stuck0", "stuck1", "set")
+ADJACENT_WIDTHS = (2, 3, 4)
+
+
+def check_fault_model(name: str) -> str:
+    if name not in FAULT_MODELS:
+        raise ValueError(f"unknown fault model {name!r}; expected one of {', '.join(FAULT_MODELS)}")
+    return name
+
 
 @dataclass(frozen=True)
 class Site:
@@ -21,17 +40,36 @@ class Site:
     primitive: int
     component: int
     bits: tuple[int, ...]
+    op: str = "flip"  # see OPS
+    value: int = 0  # the stored pattern written by op "set" (only its `bits` are used)
 
     @property
     def bit(self) -> int:
         return self.bits[0] if len(self.bits) == 1 else -1
+
+    @property
+    def record_bit(self) -> int:
+        """The `bit` column of records: the bit, or an adjacent burst's top bit (its stratum);
+        -1 for other multi-bit and whole-value faults."""
+        if len(self.bits) == 1:
+            return self.bits[0]
+        b = sorted(self.bits)
+        return b[-1] if self.op == "flip" and b[-1] - b[0] == len(b) - 1 and len(b) <= 4 else -1
 
     def flat_component(self) -> int:
         return FIELD_OFFSET[self.field] + self.component
 
 
 def make_site(
-    model_or_n, field: str, primitive: int, component: int, bits, precision: str, degree: int | None = None
+    model_or_n,
+    field: str,
+    primitive: int,
+    component: int,
+    bits,
+    precision: str,
+    degree: int | None = None,
+    op: str = "flip",
+    value: int = 0,
 ) -> Site:
     """Validated site; raises ValueError naming what is out of range."""
     if isinstance(model_or_n, Model):
@@ -51,10 +89,26 @@ def make_site(
     nc = field_components(field, degree)
     if not 0 <= int(component) < nc:
         raise ValueError(f"component {component} is out of range for field {field} (valid 0..{nc - 1})")
-    return Site(field, int(primitive), int(component), bits)
+    if op not in OPS:
+        raise ValueError(f"unknown fault operation {op!r}; expected one of {', '.join(OPS)}")
+    return Site(field, int(primitive), int(component), bits, op, int(value))
+
+
+def fault_name(site: Site, precision: str) -> str:
+    """The fault model of a site, as records name it (FAULT_MODELS, or "multi" for several
+    non-neighbouring flipped bits)."""
+    if site.op == "set":
+        return "zero" if (site.value & mask_of(site.bits)) == 0 else "random"
+    if site.op != "flip":
+        return site.op
+    if len(site.bits) == 1:
+        return "bit"
+    return "adjacent" if site.record_bit >= 0 else "multi"
 
 
 def site_bit_class(site: Site, precision: str) -> str:
+    if site.op == "set" and len(site.bits) == encoding.bits_per_value(precision):
+        return "value"
     classes = {encoding.bit_class(precision, b) for b in site.bits}
     return classes.pop() if len(classes) == 1 else "mixed"
 
@@ -64,6 +118,55 @@ def mask_of(bits) -> int:
     for b in bits:
         m |= 1 << int(b)
     return m
+
+
+def corrupt_bits(clean, ops, masks, values) -> np.ndarray:
+    """Stored patterns `clean` after per-element operations (OPS names) on the bits of `masks`;
+    same dtype as `clean`. The twin of every fault model (the engine XORs the difference)."""
+    c = np.asarray(clean)
+    dt = c.dtype
+    c = c.astype(np.uint64)
+    ops = np.broadcast_to(np.asarray(ops), c.shape)
+    m = np.broadcast_to(np.asarray(masks, dtype=np.uint64), c.shape)
+    v = np.broadcast_to(np.asarray(values, dtype=np.uint64), c.shape)
+    unknown = set(np.unique(ops)) - set(OPS)
+    if unknown:
+        raise ValueError(f"unknown fault operation(s) {sorted(unknown)}; expected one of {', '.join(OPS)}")
+    out = np.select(
+        [ops == "flip", ops == "stuck0", ops == "stuck1"],
+        [c ^ m, c & ~m, c | m],
+        (c & ~m) | (v & m),
+    )
+    return out.astype(dt)
+
+
+def apply_sites(clean: np.ndarray, sites: list[Site]) -> np.ndarray:
+    """`clean` (stored patterns, one per site) after each site's fault; sites hitting one value
+    are composed by the caller in order (engine: per value)."""
+    return corrupt_bits(
+        clean,
+        np.array([s.op for s in sites]),
+        np.array([mask_of(s.bits) for s in sites], dtype=np.uint64),
+        np.array([s.value for s in sites], dtype=np.uint64),
+    )
+
+
+def model_bits(model: str, bit: int, precision: str, r: int) -> tuple[tuple[int, ...], str, int]:
+    """(bits, op, value) of one fault of `model` anchored at the cell's `bit`, from one 64-bit
+    random number `r` (adjacent: width ADJACENT_WIDTHS[r % 3], the burst's top bit is `bit`, moved
+    up to fit in the value at the lowest bits; random: the value's bits are r's low bits)."""
+    nb = encoding.bits_per_value(precision)
+    if model in VALUE_MODELS:
+        allbits = tuple(range(nb))
+        return allbits, "set", (int(r) & ((1 << nb) - 1)) if model == "random" else 0
+    if model == "adjacent":
+        w = ADJACENT_WIDTHS[int(r) % len(ADJACENT_WIDTHS)]
+        start = max(0, int(bit) - w + 1)
+        return tuple(range(start, start + w)), "flip", 0
+    if model in ("stuck0", "stuck1"):
+        return (int(bit),), model, 0
+    check_fault_model(model)
+    return (int(bit),), "flip", 0
 
 
 def uniform_upsets(model: Model, precision: str, k: int, rng: np.random.Generator) -> list[Site]:

@@ -1,0 +1,164 @@
+"""Defenses against cost: the residual catastrophic rate of each defense (paired arms of one
+campaign) with 95% intervals, overall and on the dangerous cells, next to its memory overhead and
+time cost, the Pareto front, and the issue's goal check.
+
+Rates are stratified by (field, bit) cell: each cell's rate weighted by the stored bits it stands
+for (the records' `weight`), with a Wilson interval at the Kish effective n (analysis/stats.py).
+
+The dangerous cells (DANGEROUS_BITS) are where an unprotected trained model fails: a log-scale's
+sign and top exponent bit (a small splat becomes a frame-covering sheet) and opacity's top
+exponent bit (a faint splat becomes opaque or a strong one half transparent).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from seuwgpu.analysis.stats import stratified_rate
+from seuwgpu.faults.defenses import DEFENSES, memory_overhead
+from seuwgpu.model import encoding
+
+# goal of issue 16, on each real model
+GOAL = {"memory_overhead": 0.05, "time_vs_guard": 2.0, "danger_vs_none": 0.05, "overall_rate": 0.0005}
+
+
+def dangerous_bits(precision: str) -> dict[str, tuple[int, ...]]:
+    nb = encoding.bits_per_value(precision)
+    return {"log_scales": (nb - 1, nb - 2), "opacity": (nb - 2,)}
+
+
+def dangerous_mask(df: pd.DataFrame) -> pd.Series:
+    """Rows whose (field, bit) cell is dangerous at their precision."""
+    out = pd.Series(False, index=df.index)
+    for prec in df["precision"].unique():
+        for field, bits in dangerous_bits(prec).items():
+            out |= (df["precision"] == prec) & (df["field"] == field) & df["bit"].isin(bits)
+    return out
+
+
+def _rate(df: pd.DataFrame) -> tuple[float, float, float, int, int]:
+    """(rate, lo, hi, n, catastrophic) stratified by (field, bit) cell."""
+    if df.empty:
+        return float("nan"), float("nan"), float("nan"), 0, 0
+    g = df.groupby(["field", "bit"], observed=True).agg(
+        k=("catastrophic", "sum"), n=("catastrophic", "size"), w=("weight", "sum")
+    )
+    p, lo, hi, _ = stratified_rate(g["k"], g["n"], g["w"])
+    return p, float(lo), float(hi), int(g["n"].sum()), int(g["k"].sum())
+
+
+def load_timing(path) -> dict:
+    """`seuwgpu defenses --json` output saved to a file: {name: {time_fraction, ...}}."""
+    rows = json.loads(Path(path).read_text())
+    return {r["name"]: r for r in rows}
+
+
+def defense_table(df: pd.DataFrame, timing: dict | None = None) -> pd.DataFrame:
+    """One row per (scene, defense): residual catastrophic rates (overall and on the dangerous
+    cells) with intervals, the dangerous-cell rate relative to no defense, memory overhead,
+    time fraction (NaN where not measured), Pareto membership and the goal check."""
+    df = df[df["k"] == 1] if "k" in df else df
+    if "weight" not in df or df["weight"].isna().all():
+        df = df.assign(weight=1.0)
+    danger = dangerous_mask(df)
+    timing = timing or {}
+    rows = []
+    for (scene, prec), part in df.groupby(["scene", "precision"], observed=True):
+        n_prims = int(part["n_primitives"].iloc[0])
+        degree = _degree(part)
+        base = None
+        for d in [x for x in DEFENSES if x in set(part["defense"])]:
+            arm = part[part["defense"] == d]
+            p, lo, hi, n, k = _rate(arm)
+            dp, dlo, dhi, dn, dk = _rate(arm[danger.loc[arm.index]])
+            if d == "none":
+                base = dp
+            t = timing.get(d, {})
+            rows.append(
+                {
+                    "scene": scene,
+                    "precision": prec,
+                    "defense": d,
+                    "n": n,
+                    "catastrophic": k,
+                    "rate_pct": 100 * p,
+                    "rate_lo_pct": 100 * lo,
+                    "rate_hi_pct": 100 * hi,
+                    "danger_n": dn,
+                    "danger_catastrophic": dk,
+                    "danger_rate_pct": 100 * dp,
+                    "danger_lo_pct": 100 * dlo,
+                    "danger_hi_pct": 100 * dhi,
+                    "danger_vs_none": dp / base if base else float("nan"),
+                    "memory_overhead_pct": 100 * memory_overhead(d, prec, degree, n_prims),
+                    "time_fraction": float(t.get("time_fraction", float("nan"))),
+                }
+            )
+    out = pd.DataFrame(rows)
+    if out.empty:
+        return out
+    out["pareto"] = False
+    for _, idx in out.groupby(["scene", "precision"]).groups.items():
+        t = out.loc[idx]
+        for i in idx:
+            r = out.loc[i]
+            worse_or_eq = (t["rate_pct"] <= r["rate_pct"]) & (t["memory_overhead_pct"] <= r["memory_overhead_pct"])
+            better = (t["rate_pct"] < r["rate_pct"]) | (t["memory_overhead_pct"] < r["memory_overhead_pct"])
+            out.loc[i, "pareto"] = not (worse_or_eq & better).any()
+    guard_t = out.loc[out["defense"] == "guard", "time_fraction"]
+    gt = float(guard_t.iloc[0]) if len(guard_t) else float("nan")
+    with np.errstate(invalid="ignore"):
+        time_ok = out["time_fraction"] <= GOAL["time_vs_guard"] * gt
+    out["meets_goal"] = (
+        (out["memory_overhead_pct"] <= 100 * GOAL["memory_overhead"])
+        & (out["danger_vs_none"] <= GOAL["danger_vs_none"])
+        & (out["rate_hi_pct"] <= 100 * GOAL["overall_rate"])
+        & (time_ok | out["time_fraction"].isna())
+    )
+    return out
+
+
+def _degree(part: pd.DataFrame) -> int:
+    """SH degree from the sh_rest component count the records reached (3 unless evidently lower)."""
+    sh = part.loc[part["field"] == "sh_rest", "component"]
+    if sh.empty:
+        return 3
+    comps = int(sh.max()) + 1
+    return next((d for d in (0, 1, 2, 3) if 3 * ((d + 1) ** 2 - 1) >= comps), 3)
+
+
+def pareto_plot(table: pd.DataFrame, path) -> Path:
+    """Residual catastrophic rate (95% interval) against memory overhead, one panel per scene."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = list(table["scene"].unique())
+    fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 4), squeeze=False)
+    for ax, scene in zip(axes[0], scenes):
+        t = table[table["scene"] == scene]
+        x = np.maximum(t["memory_overhead_pct"], 1e-4)
+        y = np.maximum(t["rate_pct"], 1e-4)
+        err = [y - np.maximum(t["rate_lo_pct"], 1e-4), np.maximum(t["rate_hi_pct"], 1e-4) - y]
+        ax.errorbar(x, y, yerr=err, fmt="o", capsize=3)
+        for xi, yi, name, front in zip(x, y, t["defense"], t["pareto"]):
+            ax.annotate(
+                name, (xi, yi), fontsize=8, xytext=(3, 3), textcoords="offset points", weight="bold" if front else None
+            )
+        front = t[t["pareto"]].sort_values("memory_overhead_pct")
+        ax.plot(np.maximum(front["memory_overhead_pct"], 1e-4), np.maximum(front["rate_pct"], 1e-4), "--", alpha=0.5)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("memory overhead (% of the model; 1e-4 = none)")
+        ax.set_ylabel("residual catastrophic rate (%)")
+        ax.set_title(scene)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

@@ -1,0 +1,85 @@
+// Per-primitive checks of the stored model (faults/check.py; twin: faults/defenses.py detect):
+// recompute what each primitive stored beside the clean model (4 interleaved or 1 parity bit(s),
+// a 32-bit FNV-1a checksum, or its scale class) from its words as they are now, flag mismatches
+// and count them, so the host learns in one small read whether to repair. One thread per
+// primitive of one chunk; the words are only read.
+
+struct CheckParams {
+    plane_words: u32,
+    ncomp: u32,
+    chunk_count: u32,     // primitives in this chunk
+    fmt: u32,             // FMT_FP32, FMT_FP16, FMT_BF16
+    prim_base: u32,       // global index of this chunk's first primitive (side data, flags)
+    mode: u32,            // MODE_PARITY, MODE_CHECKSUM, MODE_SCALE
+    ways: u32,            // parity ways (1 or 4)
+    cover: u32,           // bits of each value the parity covers
+    comp_count: u32,      // parity covers components 0 .. comp_count - 1
+    _p0: u32,
+    _p1: u32,
+    _p2: u32,
+};
+
+const MODE_PARITY: u32 = 0u;
+const MODE_CHECKSUM: u32 = 1u;
+const MODE_SCALE: u32 = 2u;
+
+struct CheckOut {
+    detected: atomic<u32>,
+    _p0: u32,
+    _p1: u32,
+    _p2: u32,
+    flags: array<u32>,   // per primitive (global index): 1 = flagged
+};
+
+@group(0) @binding(0) var<uniform> params: CheckParams;
+@group(0) @binding(1) var<storage, read> side: array<u32>;
+@group(0) @binding(2) var<storage, read> words: array<u32>;
+@group(0) @binding(3) var<storage, read> table: array<f32>;
+@group(0) @binding(4) var<storage, read_write> out: CheckOut;
+
+// stored pattern of component c of primitive j of this chunk
+fn stored(j: u32, c: u32) -> u32 {
+    if (params.fmt == FMT_FP32) {
+        return words[c * params.plane_words + j];
+    }
+    return (words[c * params.plane_words + (j >> 1u)] >> (16u * (j & 1u))) & 0xffffu;
+}
+
+@compute @workgroup_size(WG)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let j = linear_id(gid, nwg);
+    if (j >= params.chunk_count) {
+        return;
+    }
+    var flagged = false;
+    if (params.mode == MODE_PARITY) {
+        var par = 0u;
+        for (var c = 0u; c < params.comp_count; c = c + 1u) {
+            let v = stored(j, c) & params.cover;
+            for (var w = 0u; w < params.ways; w = w + 1u) {
+                let way = select(0x11111111u << w, 0xffffffffu, params.ways == 1u);
+                par = par ^ ((countOneBits(v & way) & 1u) << w);
+            }
+        }
+        flagged = par != side[params.prim_base + j];
+    } else if (params.mode == MODE_CHECKSUM) {
+        var h = 0x811C9DC5u;
+        for (var c = 0u; c < params.ncomp; c = c + 1u) {
+            h = (h ^ stored(j, c)) * 0x01000193u;
+        }
+        flagged = h != side[params.prim_base + j];
+    } else {
+        let bound = table[side[params.prim_base + j]];
+        for (var c = 3u; c < 6u; c = c + 1u) {
+            let w = words[c * params.plane_words + select(j >> 1u, j, params.fmt == FMT_FP32)];
+            let v = decode_value(w, params.fmt != FMT_FP32 && (j & 1u) == 1u, params.fmt);
+            if (!is_nan_f32(v) && v > bound) {  // NaN is the guard's (bit test, not v != v)
+                flagged = true;
+            }
+        }
+    }
+    out.flags[params.prim_base + j] = select(0u, 1u, flagged);
+    if (flagged) {
+        atomicAdd(&out.detected, 1u);
+    }
+}

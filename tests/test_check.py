@@ -1,0 +1,44 @@
+"""Check stage (faults/check.py, shaders/check.wgsl) against its twin defenses.detect, flag for
+flag, at every precision and for every checked defense, on a model with many kinds of damage."""
+
+import numpy as np
+import pytest
+
+from seuwgpu.faults import defenses as dfn
+from seuwgpu.faults.check import Checker
+from seuwgpu.faults.guard import support_box
+from seuwgpu.model import encoding
+from seuwgpu.model.scenes import scene_cameras
+from seuwgpu.render.renderer import Renderer
+from tests.conftest import random_model
+
+
+@pytest.mark.parametrize("precision", encoding.PRECISIONS)
+def test_gpu_checks_equal_the_twin(precision):
+    model = random_model(301, seed=21)
+    r = Renderer(model, scene_cameras("spheres", 1, 32, 32), precision, chunk_prims=128)
+    clean = encoding.to_bits(model.flat(), precision)
+    box = support_box(r.layout.decode(r.clean_words), precision)
+    rng = np.random.default_rng(5)
+    nb = encoding.bits_per_value(precision)
+    bad = clean.copy()
+    hit = rng.choice(model.n, 120, replace=False)
+    for i, p in enumerate(hit):
+        c = int(rng.integers(0, 14)) if i % 3 else int(rng.integers(3, 6))
+        w = 1 + i % 4
+        top = int(rng.integers(w - 1, nb))
+        bad[p, c] ^= bad.dtype.type(((1 << w) - 1) << (top - w + 1))
+    bad[hit[0], 20] ^= bad.dtype.type(1 << (nb - 2))  # sh_rest: only the checksum sees it
+    bad[hit[1], 4] = encoding.to_bits(np.float32([np.nan]), precision)[0]  # NaN log-scale: not scalebound's
+    for c, words in enumerate(r.layout.encode_bits(bad)):
+        r.gpu.write(r.chunks[c], words)
+    for d in dfn.CHECKED:
+        chk = Checker(r, d, clean, box)
+        want = dfn.detect(d, dfn.side_data(d, clean, precision, 3, box), bad, precision, 3, box)
+        count = chk.run()
+        np.testing.assert_array_equal(chk.flags(), want, err_msg=d)
+        assert count == want.sum() and 0 < count < model.n, (d, count)
+    # clean model: nothing flagged
+    for c, words in enumerate(r.layout.encode_bits(clean)):
+        r.gpu.write(r.chunks[c], words)
+    assert all(Checker(r, d, clean, box).run() == 0 for d in dfn.CHECKED)

@@ -1,0 +1,138 @@
+"""Defenses (faults/defenses.py): identity on the clean model, what each one catches and misses
+(hand-built faults), memory overheads by hand, and a culled primitive rendering as if removed."""
+
+import numpy as np
+import pytest
+
+from seuwgpu.faults import defenses as dfn
+from seuwgpu.faults.engine import Engine
+from seuwgpu.faults.guard import support_box
+from seuwgpu.model import encoding
+from seuwgpu.model.fields import Model
+from seuwgpu.model.scenes import make_scene, scene_cameras
+
+
+@pytest.fixture(scope="module")
+def real():
+    return make_scene("leica-sofort-wide")
+
+
+def stored_rows(model, precision):
+    return encoding.to_bits(model.flat(), precision)
+
+
+@pytest.mark.parametrize("precision", encoding.PRECISIONS)
+def test_every_defense_is_the_identity_on_the_clean_model(real, precision):
+    rows = stored_rows(real, precision)
+    box = support_box(Model.from_flat(encoding.from_bits(rows, precision), real.sh_degree), precision)
+    for d in dfn.DEFENSES:
+        np.testing.assert_array_equal(dfn.read(d, rows, rows, precision, real.sh_degree, box), rows, err_msg=d)
+    # the scale classes hold every clean log-scale
+    bound = dfn.scale_class_bounds(rows, float(box.lo[3:6].min()), float(box.hi[3:6].max()), precision)
+    assert (encoding.from_bits(rows[:, 3:6], precision) <= bound[:, None]).all()
+    assert np.unique(bound).size > 4  # the classes separate small from large splats
+
+
+def test_parity_catches_what_it_covers_and_culls(real):
+    p, deg = "fp32", real.sh_degree
+    rows = stored_rows(real, p)[:200]
+    cover = dfn.parity_cover_mask(p)
+    assert cover == 0xF8000000 | (0xF << 19) | 0x07800000  # sign, exponent, 4 top mantissa bits
+    nan3 = np.full(3, 0x7FC00000, np.uint32)
+    for comp in (0, 3, 6, 10, 13):  # means, log_scales, quats, opacity, sh_dc
+        for top in (31, 30, 24, 22):  # bursts inside the covered bits
+            for w in (1, 2, 3, 4):
+                bits = [b for b in range(top - w + 1, top + 1)]
+                bad = rows.copy()
+                bad[:, comp] ^= np.uint32(sum(1 << b for b in bits))
+                got4 = dfn.read("parity4", rows, bad, p, deg)
+                assert (got4[:, :3] == nan3).all(), (comp, bits)  # every burst <= 4 bits: culled
+                np.testing.assert_array_equal(got4[:, 3:], bad[:, 3:])
+                got1 = dfn.read("parity", rows, bad, p, deg)
+                assert (got1[:, :3] == nan3).all() == (w % 2 == 1)  # 1 parity bit: odd counts only
+    # low mantissa bits and sh_rest are not covered: they pass
+    bad = rows.copy()
+    bad[:, 3] ^= np.uint32(1 << 10)
+    bad[:, 20] ^= np.uint32(1 << 30)
+    for d in ("parity", "parity4"):
+        np.testing.assert_array_equal(dfn.read(d, rows, bad, p, deg), bad)
+
+
+def test_checksum_reloads_every_single_value_change(real):
+    p, deg = "bf16", real.sh_degree
+    rows = stored_rows(real, p)[:300]
+    rng = np.random.default_rng(4)
+    bad = rows.copy()
+    comp = rng.integers(0, rows.shape[1], 300)
+    bad[np.arange(300), comp] = rng.integers(0, 2**16, 300).astype(np.uint16)
+    changed = (bad != rows).any(axis=1)
+    assert changed.sum() > 290
+    np.testing.assert_array_equal(dfn.read("checksum", rows, bad, p, deg), rows)
+    # known FNV-1a value of one row of zeros: hash of 59 zero steps
+    h = 0x811C9DC5
+    for _ in range(59):
+        h = (h * 0x01000193) & 0xFFFFFFFF
+    assert dfn.checksum(np.zeros((1, 59), np.uint16))[0] == h
+
+
+def test_ecc_crit_corrects_singles_culls_doubles_and_ignores_other_fields(real):
+    p, deg = "fp32", real.sh_degree
+    rows = stored_rows(real, p)[:100]
+    for comp in (3, 10):
+        bad = rows.copy()
+        bad[:, comp] ^= np.uint32(1 << 30)
+        np.testing.assert_array_equal(dfn.read("ecc_crit", rows, bad, p, deg), rows)
+        bad[:, comp] ^= np.uint32(1 << 29)
+        got = dfn.read("ecc_crit", rows, bad, p, deg)
+        assert (got[:, :3] == 0x7FC00000).all()
+    bad = rows.copy()
+    bad[:, 7] ^= np.uint32(1 << 30)  # a quaternion: not covered
+    np.testing.assert_array_equal(dfn.read("ecc_crit", rows, bad, p, deg), bad)
+
+
+def test_scalebound_clamps_a_grown_log_scale_to_its_class(real):
+    p, deg = "fp32", real.sh_degree
+    rows = stored_rows(real, p)
+    box = support_box(real, p)
+    vals = encoding.from_bits(rows[:, 3], p)
+    small = int(np.argmin(vals))  # the smallest splat: its class bound is far below the box top
+    bad = rows[small : small + 1].copy()
+    bad[0, 3] ^= np.uint32(1 << 31)  # -x -> +x
+    got = dfn.read("scalebound", rows[small : small + 1], bad, p, deg, box)
+    bound = dfn.scale_class_bounds(rows[small : small + 1], float(box.lo[3:6].min()), float(box.hi[3:6].max()), p)
+    assert encoding.from_bits(got[0, 3], p) == bound[0] < box.hi[3]
+    np.testing.assert_array_equal(got[0, 4:], bad[0, 4:])
+
+
+def test_memory_overheads_by_hand():
+    bits = 59 * 32
+    n = 1000
+    assert dfn.memory_overhead("none", "fp32", 3, n) == 0
+    assert dfn.memory_overhead("parity", "fp32", 3, n) == pytest.approx(1 / bits)
+    assert dfn.memory_overhead("parity4", "fp32", 3, n) == pytest.approx(4 / bits)
+    assert dfn.memory_overhead("checksum", "fp16", 3, n) == pytest.approx(32 / (59 * 16))
+    assert dfn.memory_overhead("ecc", "fp32", 3, n) == pytest.approx(5 / 32)
+    assert dfn.memory_overhead("ecc_crit", "fp32", 3, n) == pytest.approx(4 * 5 / bits)
+    assert dfn.memory_overhead("dup", "bf16", 0, n) == pytest.approx(2.0)
+    assert dfn.memory_overhead("guard", "fp32", 3, n) == pytest.approx(2 * 14 * 32 / (n * bits))
+    assert dfn.memory_overhead("scalebound", "fp32", 3, n) == pytest.approx((4 * n + 2 * 14 * 32) / (n * bits))
+    with pytest.raises(ValueError, match="unknown defense 'tmr'"):
+        dfn.memory_overhead("tmr", "fp32", 3, n)
+
+
+def test_a_culled_primitive_renders_as_if_removed():
+    model = make_scene("blocks", n=400, seed=5)
+    cams = scene_cameras("blocks", 2, 48, 48)
+    eng = Engine(model, cams, "fp32", scene="blocks")
+    victim = int(np.argmax(model.opacity))
+    site = eng.site("log_scales", victim, 1, 31)
+    h = eng.apply([site], "parity4")
+    got, _ = eng.render_current("parity4")
+    eng.undo(h)
+    keep = np.arange(model.n) != victim
+    rest = Model.from_flat(model.flat()[keep], model.sh_degree)
+    want = Engine(rest, cams, "fp32", gpu=eng.gpu).clean_rgba
+    np.testing.assert_array_equal(got, want)
+    assert not np.array_equal(got, eng.clean_rgba)  # the victim was visible
+    rec = eng.inject(site, "parity4")
+    assert rec["footprint"] == float(np.mean(np.any(np.abs(want[..., :3] - eng.clean) > 1 / 255, axis=-1)))
