@@ -21,7 +21,7 @@ import numpy as np
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.model import encoding
-from seuwgpu.model.budget import check_render
+from seuwgpu.model.budget import check_frames, check_render
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model, StoredLayout
 from seuwgpu.render.bin import Binning
@@ -74,6 +74,8 @@ class Renderer:
         self.degree = model.sh_degree
         self.n = model.n
         w, h = check_cameras(cameras)
+        if self.viewport is not None:  # only the viewport's pixels are held (render_split's bands)
+            w, h = self.viewport[2], self.viewport[3]
         check_render(self.gpu.limits, self.gpu.is_cpu, self.n, self.degree, len(cameras), w, h, keep_views)
         max_chunk = StoredLayout.max_chunk_prims(self.degree, precision, self.gpu.max_binding)
         self.layout = StoredLayout(self.n, self.degree, precision, min(chunk_prims or max_chunk, max_chunk))
@@ -310,6 +312,7 @@ def render_split(
     (`split_bytes`, default the adapter's limit) are rendered in groups of views, or a single
     huge frame in bands of tile rows (sort-first viewports), bit-identical to one submission."""
     width, height = check_cameras(cameras)
+    check_frames(len(cameras), width, height)
     gpu = kw.pop("gpu", None) or get_gpu()
     limit = int(split_bytes or gpu.max_binding)
     group, rows = split_plan(len(cameras), width, height, limit)
