@@ -448,6 +448,41 @@ def cmd_inject(args):
     return 0
 
 
+def cmd_defenses(args):
+    """Every defense with its memory overhead and its time cost, measured on this device for the
+    named model (or not measured with --no-time: time_fraction NaN)."""
+    from seuwgpu.faults.costs import defense_costs
+
+    if args.scene is None and args.model is None:
+        args.scene = "leica-sofort"
+    src = load_source(args)
+    cam = load_cams(args, src)[0]
+    rows = defense_costs(src.model, cam, args.precision, args.repeats, time_it=not args.no_time)
+    if args.json:
+        import json
+
+        print(json.dumps(rows, indent=1, allow_nan=True))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(
+        title=f"defenses on {src.name} ({src.model.n:,} primitives, {args.precision}); time: {rows[0]['time_basis']}"
+    )
+    for c in ("defense", "memory", "time / view", "what it does"):
+        t.add_column(c, justify="right" if c in ("memory", "time / view") else "left")
+    for r in rows:
+        tf = r["time_fraction"]
+        t.add_row(
+            r["name"],
+            f"{100 * r['memory_overhead']:.3f}%",
+            "n/a" if tf != tf else f"{100 * tf:+.1f}%",
+            r["description"],
+        )
+    Console().print(t)
+    return 0
+
+
 def cmd_view(args):
     """`seuwgpu view`: the interactive viewer (apps/viewer_window.py)."""
     from seuwgpu.apps.viewer_window import NO_DISPLAY_HELP, canvas_backend, display_problem
@@ -644,6 +679,14 @@ def build_parser() -> argparse.ArgumentParser:
         "with RENDERCANVAS_BACKEND=offscreen the default is 1)",
     )
     s.set_defaults(func=cmd_view)
+
+    s = sub.add_parser("defenses", help="every defense with its memory overhead and time cost on this device")
+    add_model_args(s)
+    add_camera_args(s, views=1, size="256x256")
+    s.add_argument("--repeats", type=int, default=7, help="timing rounds (medians)")
+    s.add_argument("--no-time", action="store_true", help="skip the timing (time_fraction NaN)")
+    s.add_argument("--json", action="store_true", help="print [{name, memory_overhead, time_fraction, ...}]")
+    s.set_defaults(func=cmd_defenses)
 
     s = sub.add_parser("report", help="tables, figures and an HTML page from run directories")
     s.add_argument("runs", type=Path, nargs="+")
