@@ -51,6 +51,11 @@ def _rate(df: pd.DataFrame) -> tuple[float, float, float, int, int]:
     return p, float(lo), float(hi), int(g["n"].sum()), int(g["k"].sum())
 
 
+def has_new_defenses(df: pd.DataFrame) -> bool:
+    """Records hold a defense beyond the guard variants, ECC and duplication."""
+    return bool(set(df.get("defense", pd.Series(dtype=str)).unique()) - {"none", "guard", "selective", "ecc", "dup"})
+
+
 def load_timing(path) -> dict:
     """`seuwgpu defenses --json` output saved to a file: {name: {time_fraction, ...}}."""
     rows = json.loads(Path(path).read_text())
@@ -132,7 +137,19 @@ def _degree(part: pd.DataFrame) -> int:
 
 
 def pareto_plot(table: pd.DataFrame, path) -> Path:
-    """Residual catastrophic rate (95% interval) against memory overhead, one panel per scene."""
+    """`pareto_figure` saved as a PNG."""
+    import matplotlib.pyplot as plt
+
+    fig = pareto_figure(table)
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def pareto_figure(table: pd.DataFrame):
+    """Residual catastrophic rate (95% interval) against memory overhead, one panel per scene;
+    the Pareto front dashed, its members in bold."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -158,7 +175,4 @@ def pareto_plot(table: pd.DataFrame, path) -> Path:
         ax.set_ylabel("residual catastrophic rate (%)")
         ax.set_title(scene)
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return fig
