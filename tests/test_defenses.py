@@ -56,6 +56,13 @@ def test_parity_catches_what_it_covers_and_culls(real):
     bad[:, 20] ^= np.uint32(1 << 30)
     for d in ("parity", "parity4"):
         np.testing.assert_array_equal(dfn.read(d, rows, bad, p, deg), bad)
+    # parity4r covers sh_rest too and reloads: the sh_rest flip is undone, the low mantissa one not
+    got = dfn.read("parity4r", rows, bad, p, deg)
+    np.testing.assert_array_equal(got[:, 20], rows[:, 20])
+    np.testing.assert_array_equal(got[:, 3], rows[:, 3])  # reloaded whole: its primitive was flagged
+    only_low = rows.copy()
+    only_low[:, 3] ^= np.uint32(1 << 10)
+    np.testing.assert_array_equal(dfn.read("parity4r", rows, only_low, p, deg), only_low)
 
 
 def test_checksum_reloads_every_single_value_change(real):
