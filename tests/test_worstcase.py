@@ -29,3 +29,13 @@ def test_search_equals_exhaustive_sweep(defense):
     assert wc.evaluated < prims.size  # the bounds spared most renders
     cut = worst_case(eng, defense, fields, max_evaluations=1)
     assert cut.evaluated <= 1 and cut.certified >= wc.footprint >= cut.footprint
+
+
+def test_worstcase_command(capsys):
+    from seuwgpu.apps.cli import main
+
+    args = ["worstcase", "--scene", "blocks", "--n", "40", "--size", "32x32", "--views", "1", "--fields", "opacity"]
+    assert main([*args, "--bit", "30", "31", "--defense", "none", "checksum"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("none: worst flip opacity[") and "of 80 flips rendered" in out[0]
+    assert out[1].startswith("checksum: worst flip ") and "footprint 0.0000% (certified bound 0.0000%)" in out[1]

@@ -176,3 +176,30 @@ def pareto_figure(table: pd.DataFrame):
         ax.set_title(scene)
     fig.tight_layout()
     return fig
+
+
+def storm_figure(df: pd.DataFrame):
+    """Footprint and PSNR of every frame of a fault storm, one line per defense (campaign/storm.py
+    records); non-finite frames (PSNR undefined) are marked on the footprint panel."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    for d, t in df.groupby("defense", sort=False):
+        t = t.sort_values("frame")
+        (line,) = a1.plot(t["frame"], 100 * t["footprint"], label=d)
+        bad = t[t["nonfinite"]]
+        a1.plot(bad["frame"], 100 * bad["footprint"], "x", color=line.get_color())
+        a2.plot(t["frame"], t["psnr"].replace(np.inf, np.nan), label=d, color=line.get_color())
+    r = df.iloc[0]
+    a1.set_title(f"{r['scene']}: {r['k']} upsets/frame, scrub every {r['scrub_every'] or 'never'}")
+    a1.set_xlabel("frame")
+    a1.set_ylabel("footprint (% of pixels; x = non-finite)")
+    a1.set_yscale("symlog", linthresh=0.01)
+    a2.set_xlabel("frame")
+    a2.set_ylabel("PSNR (dB; gaps: identical or undefined)")
+    a2.legend(fontsize=8)
+    fig.tight_layout()
+    return fig

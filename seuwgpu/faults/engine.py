@@ -148,9 +148,13 @@ class Engine:
         if not sites:
             return {}
         prims, clean, cur = self._faulted(sites)
-        delta = clean.astype(np.uint64) ^ self._read(clean, cur, defense).astype(np.uint64)
+        return self.xor_rows(prims, clean, self._read(clean, cur, defense))
+
+    def xor_rows(self, prims: np.ndarray, clean: np.ndarray, rows: np.ndarray) -> dict[int, np.ndarray]:
+        """Per chunk: [(word, xor mask)] turning primitives `prims` (clean bits `clean`) into `rows`."""
+        delta = clean.astype(np.uint64) ^ np.asarray(rows).astype(np.uint64)
         pi, c = np.nonzero(delta)
-        p = prims[pi]
+        p = np.asarray(prims)[pi]
         delta = delta[pi, c]
         chunk, word, shift = self.layout.locate(p, c)
         wmask = delta << shift.astype(np.uint64)

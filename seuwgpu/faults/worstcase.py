@@ -7,7 +7,8 @@ clean frame bit for bit). The pixel count of those tiles, averaged over the view
 the frame, bounds the flip's footprint from above. The search
 1. bounds every site: a flip that leaves the primitive's geometry (means, log-scales, quats) as
    the defense reads it unchanged keeps its clean rectangle; the others are projected on the GPU
-   in batches (the renderer's own projection shader);
+   in batches (the renderer's own projection shader); a flip the defense reads back as the
+   clean primitive (corrected, reloaded) is bounded by 0;
 2. evaluates sites in decreasing order of bound (incremental re-compositing, exact) and stops when
    the next bound cannot beat the best footprint found.
 The result carries the observed maximum and the certified bound: the largest footprint any
@@ -86,7 +87,8 @@ def footprint_bounds(engine, prims, comps, bits, defense: str = "none", chunk: i
             j = idx[b : b + ev.B]
             rects[:, j] = comp.project(eff[j])
         dirty = comp.dirty_tiles(p, rects)  # [m, K, T]
-        out[sl] = (dirty * tp).sum(axis=2).mean(axis=1) / frame
+        same = (eff == clean).all(axis=1)  # the defense read the clean primitive back: footprint 0
+        out[sl] = np.where(same, 0.0, (dirty * tp).sum(axis=2).mean(axis=1) / frame)
     return out
 
 
