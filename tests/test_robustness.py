@@ -44,7 +44,9 @@ def tiny_spec(tmp_path, scene='scene = "spheres"\n    n = 200', name="spec.toml"
 
 
 def records(run):
-    return store.read_records(run).sort_values(["injection_id", "defense"]).reset_index(drop=True)
+    """A run's records in a canonical order, without the wall-clock time_ms (never reproduced)."""
+    df = store.read_records(run).sort_values(["injection_id", "defense"]).reset_index(drop=True)
+    return df[store.REPRODUCIBLE_COLUMNS]
 
 
 @pytest.fixture(scope="module")

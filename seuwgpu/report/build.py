@@ -553,6 +553,23 @@ def _sec_mitigation(df, manifests, ctx) -> Section:
     return sec
 
 
+def _sec_defenses(df, manifests, ctx) -> Section:
+    from seuwgpu.analysis import defenses as D  # issue 16: defenses against cost (own module)
+
+    if not D.has_new_defenses(df):
+        raise InsufficientData("no defense beyond guard/ECC/duplication in the records", "run defenses = [...]")
+    t = D.defense_table(df)
+    sec = Section("defenses", "Defenses against cost", "Residual catastrophic rate of every defense (paired arms).")
+    cap = (
+        "Per scene and defense: catastrophic rate (%) stratified by (field, bit) cell with 95% interval, "
+        "the same on the dangerous cells (log-scale sign and top exponent bit, opacity top exponent bit) and "
+        "relative to no defense, memory overhead (% of the stored model). Time: `seuwgpu defenses`."
+    )
+    sec.tables.append(TableItem("defenses", "Defenses against cost", t, cap))
+    sec.figures.append(FigureItem("fig_pareto", "Pareto", D.pareto_figure(t), "Residual rate against memory."))
+    return sec
+
+
 def _sec_dose(df, manifests, ctx) -> Section:
     curves = dose.dose_curves(df)
     fits = dose.dose_fits(curves)
@@ -852,6 +869,7 @@ SECTIONS: list[tuple[str, str, Callable]] = [
     ("theory", "Theory check (mantissa slope)", _sec_theory),
     ("guard", "Guard evaluation", _sec_guard),
     ("mitigation", "Mitigation table", _sec_mitigation),
+    ("defenses", "Defenses against cost (Pareto)", _sec_defenses),
     ("dose", "Dose response (quality and catastrophes against k)", _sec_dose),
     ("budget", "Redundancy budget", _sec_budget),
     ("size", "Single-upset error against N", _sec_size),
