@@ -168,7 +168,7 @@ def test_defenses_on_the_gpu_model(engines, monkeypatch):
     prim, _ = eng.worst_primitive("sh_dc", 1, [30], sample=64, seed=0)
     site, mant = eng.site("sh_dc", prim, 1, 30), eng.site("sh_dc", prim, 1, 22)
     recs = {d: eng.inject(site, d) for d in DEFENSES}
-    assert recs["none"]["footprint"] > 0 and recs["none"]["psnr"] != np.inf  # (NaN: non-finite pixels)
+    assert recs["none"]["footprint"] > 0 and recs["none"]["psnr"] != np.inf  # NaN when non-finite
     assert recs["ecc"]["footprint"] == 0 and recs["ecc"]["psnr"] == np.inf
     assert recs["dup"]["footprint"] == 0 and recs["dup"]["psnr"] == np.inf
     none, ecc, dup = (eng.inject(mant, d) for d in ("none", "ecc", "dup"))

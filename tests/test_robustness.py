@@ -44,7 +44,7 @@ def tiny_spec(tmp_path, scene='scene = "spheres"\n    n = 200', name="spec.toml"
 
 
 def records(run):
-    """A run's records in a fixed order, wall-clock columns (time_ms) left out."""
+    """A run's records in a canonical order, without the wall-clock time_ms (never reproduced)."""
     df = store.read_records(run).sort_values(["injection_id", "defense"]).reset_index(drop=True)
     return df[store.REPRODUCIBLE_COLUMNS]
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from seuwgpu.analysis.stats import stratified_rate
+from seuwgpu.analysis import estimate as E
 from seuwgpu.faults.defenses import DEFENSES, memory_overhead
 from seuwgpu.model import encoding
 
@@ -41,14 +41,16 @@ def dangerous_mask(df: pd.DataFrame) -> pd.Series:
 
 
 def _rate(df: pd.DataFrame) -> tuple[float, float, float, int, int]:
-    """(rate, lo, hi, n, catastrophic) stratified by (field, bit) cell."""
+    """(rate, lo, hi, n, catastrophic): the weighted stratified rate of the estimator layer."""
     if df.empty:
         return float("nan"), float("nan"), float("nan"), 0, 0
-    g = df.groupby(["field", "bit"], observed=True).agg(
-        k=("catastrophic", "sum"), n=("catastrophic", "size"), w=("weight", "sum")
-    )
-    p, lo, hi, _ = stratified_rate(g["k"], g["n"], g["w"])
-    return p, float(lo), float(hi), int(g["n"].sum()), int(g["k"].sum())
+    r = E.one_rate(df)
+    return float(r["rate"]), float(r["ci_lo"]), float(r["ci_hi"]), int(r["n"]), int(r["events"])
+
+
+def has_new_defenses(df: pd.DataFrame) -> bool:
+    """Records hold a defense beyond the guard variants, ECC and duplication."""
+    return bool(set(df.get("defense", pd.Series(dtype=str)).unique()) - {"none", "guard", "selective", "ecc", "dup"})
 
 
 def load_timing(path) -> dict:
@@ -132,7 +134,19 @@ def _degree(part: pd.DataFrame) -> int:
 
 
 def pareto_plot(table: pd.DataFrame, path) -> Path:
-    """Residual catastrophic rate (95% interval) against memory overhead, one panel per scene."""
+    """`pareto_figure` saved as a PNG."""
+    import matplotlib.pyplot as plt
+
+    fig = pareto_figure(table)
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def pareto_figure(table: pd.DataFrame):
+    """Residual catastrophic rate (95% interval) against memory overhead, one panel per scene;
+    the Pareto front dashed, its members in bold."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -158,7 +172,31 @@ def pareto_plot(table: pd.DataFrame, path) -> Path:
         ax.set_ylabel("residual catastrophic rate (%)")
         ax.set_title(scene)
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return fig
+
+
+def storm_figure(df: pd.DataFrame):
+    """Footprint and PSNR of every frame of a fault storm, one line per defense (campaign/storm.py
+    records); non-finite frames (PSNR undefined) are marked on the footprint panel."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    for d, t in df.groupby("defense", sort=False):
+        t = t.sort_values("frame")
+        (line,) = a1.plot(t["frame"], 100 * t["footprint"], label=d)
+        bad = t[t["nonfinite"]]
+        a1.plot(bad["frame"], 100 * bad["footprint"], "x", color=line.get_color())
+        a2.plot(t["frame"], t["psnr"].replace(np.inf, np.nan), label=d, color=line.get_color())
+    r = df.iloc[0]
+    a1.set_title(f"{r['scene']}: {r['k']} upsets/frame, scrub every {r['scrub_every'] or 'never'}")
+    a1.set_xlabel("frame")
+    a1.set_ylabel("footprint (% of pixels; x = non-finite)")
+    a1.set_yscale("symlog", linthresh=0.01)
+    a2.set_xlabel("frame")
+    a2.set_ylabel("PSNR (dB; gaps: identical or undefined)")
+    a2.legend(fontsize=8)
+    fig.tight_layout()
+    return fig

@@ -43,6 +43,11 @@ class Runner:
             "footprint_threshold": float(t.get("footprint", FOOTPRINT_THRESHOLD)),
         }
         self._times: dict = {}  # (engine key, defense) -> ms per view
+        if spec.get("lpips"):
+            from seuwgpu.metrics.lpips import INSTALL_HINT, available
+
+            if not available():
+                raise SpecError(f"lpips = true: {INSTALL_HINT}")
 
     # -- run directory --
     def prepare_dir(self):
@@ -173,6 +178,18 @@ class Runner:
             out[d] = self._times[(key, d)]
         return out
 
+    def lpips_of(self, eng, sites, defense: str) -> float:
+        """LPIPS of the frame with `sites` flipped under `defense` against clean (a full render;
+        NaN for a frame with a non-finite pixel)."""
+        from seuwgpu.metrics.lpips import lpips
+
+        handle = eng.apply(sites, defense)
+        try:
+            img, _ = eng.render_current(defense)
+        finally:
+            eng.undo(handle)
+        return float(np.mean(lpips(eng.clean_rgba[..., :3], img[..., :3])))  # NaN if any view is
+
     def finish(self, df: pd.DataFrame, eng, ctx: Context) -> pd.DataFrame:
         """Outcome class and catastrophic flag under the spec's thresholds; time_ms per defense."""
         t = self.thresholds
@@ -201,6 +218,8 @@ class Runner:
             else:
                 df = eng.evaluate_frame(sites, ctx.defenses, ctx.regions)
             arms = len(ctx.defenses)  # rows are defense-major: arm d holds rows d*count .. d*count+count-1
+            if self.spec.get("lpips"):
+                df["lpips"] = [self.lpips_of(eng, [s], d) for d in ctx.defenses for s in sites]
             df["campaign"] = ctx.kind
             df["repeat"] = 0
             df["weight"] = np.tile(weights, arms)
@@ -217,6 +236,8 @@ class Runner:
             for d in ctx.defenses:
                 rec = eng.inject(sites, d)
                 rec.update(campaign="dose", repeat=rep, weight=1.0, seed=int(s), injection_id=int(i))
+                if self.spec.get("lpips"):
+                    rec["lpips"] = self.lpips_of(eng, sites, d)
                 rows.append(rec)
         return self.finish(pd.DataFrame(rows), eng, ctx)
 

@@ -208,9 +208,13 @@ class Engine:
         if not sites:
             return {}
         prims, clean, cur = self._faulted(sites)
-        delta = clean.astype(np.uint64) ^ self._read(clean, cur, defense).astype(np.uint64)
+        return self.xor_rows(prims, clean, self._read(clean, cur, defense))
+
+    def xor_rows(self, prims: np.ndarray, clean: np.ndarray, rows: np.ndarray) -> dict[int, np.ndarray]:
+        """Per chunk: [(word, xor mask)] turning primitives `prims` (clean bits `clean`) into `rows`."""
+        delta = clean.astype(np.uint64) ^ np.asarray(rows).astype(np.uint64)
         pi, c = np.nonzero(delta)
-        p = prims[pi]
+        p = np.asarray(prims)[pi]
         delta = delta[pi, c]
         chunk, word, shift = self.layout.locate(p, c)
         wmask = delta << shift.astype(np.uint64)
@@ -389,12 +393,16 @@ class Engine:
         prims = np.array([s.primitive for s in sites], dtype=np.int64)
         comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
         clean = self.primitive_bits(prims)
-        bits = clean.copy()
         rows = np.arange(len(sites))
-        bits[rows, comps] = apply_sites(clean[rows, comps], sites)
+        return prims, *self.variant_rows(clean, comps, apply_sites(clean[rows, comps], sites), defense)
+
+    def variant_rows(self, clean: np.ndarray, comps: np.ndarray, values: np.ndarray, defense: str):
+        """(effective bits [M, ncomp], guard masks [M]) of primitives `clean` whose component
+        `comps[i]` now holds the stored pattern `values[i]`, as `defense` reads them."""
+        bits = clean.copy()
+        bits[np.arange(len(comps)), comps] = values
         bits = self._read(clean, bits, defense)
-        gm = np.full(len(sites), self._guard_mask(defense), dtype=np.int64)
-        return prims, bits, gm
+        return bits, np.full(len(comps), self._guard_mask(defense), dtype=np.int64)
 
     def evaluate(self, sites: list[Site], defenses=("none",), regions=()) -> list[dict]:
         """Records (dicts) for single-value sites under each defense; see evaluate_frame."""

@@ -553,6 +553,23 @@ def _sec_mitigation(df, manifests, ctx) -> Section:
     return sec
 
 
+def _sec_defenses(df, manifests, ctx) -> Section:
+    from seuwgpu.analysis import defenses as D  # issue 16: defenses against cost (own module)
+
+    if not D.has_new_defenses(df):
+        raise InsufficientData("no defense beyond guard/ECC/duplication in the records", "run defenses = [...]")
+    t = D.defense_table(df)
+    sec = Section("defenses", "Defenses against cost", "Residual catastrophic rate of every defense (paired arms).")
+    cap = (
+        "Per scene and defense: catastrophic rate (%) stratified by (field, bit) cell with 95% interval, "
+        "the same on the dangerous cells (log-scale sign and top exponent bit, opacity top exponent bit) and "
+        "relative to no defense, memory overhead (% of the stored model). Time: `seuwgpu defenses`."
+    )
+    sec.tables.append(TableItem("defenses", "Defenses against cost", t, cap))
+    sec.figures.append(FigureItem("fig_pareto", "Pareto", D.pareto_figure(t), "Residual rate against memory."))
+    return sec
+
+
 def _sec_dose(df, manifests, ctx) -> Section:
     curves = dose.dose_curves(df)
     fits = dose.dose_fits(curves)
@@ -671,7 +688,7 @@ def _sec_size(df, manifests, ctx) -> Section:
             "Log-log fits",
             res["fits"],
             "Log-log least-squares fits against N: sizes, sizes fitted, zero points, exponent and alpha "
-            "with 95% t intervals (NaN with two sizes: a line fits two points exactly), R^2.",
+            "with 95% t intervals (NaN with fewer than three positive sizes: two points fit any line), R^2.",
         )
     )
     sec.tables.append(
@@ -852,6 +869,7 @@ SECTIONS: list[tuple[str, str, Callable]] = [
     ("theory", "Theory check (mantissa slope)", _sec_theory),
     ("guard", "Guard evaluation", _sec_guard),
     ("mitigation", "Mitigation table", _sec_mitigation),
+    ("defenses", "Defenses against cost (Pareto)", _sec_defenses),
     ("dose", "Dose response (quality and catastrophes against k)", _sec_dose),
     ("budget", "Redundancy budget", _sec_budget),
     ("size", "Single-upset error against N", _sec_size),
@@ -1007,7 +1025,7 @@ def build_report(
             (out / name).unlink()
         except OSError:
             pass
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
+    (out / "summary.json").write_text(json.dumps(_json_safe(summary), indent=2, default=_json_default, allow_nan=False))
 
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
@@ -1044,6 +1062,27 @@ def _previous_files(out: Path) -> set[str]:
     except (OSError, ValueError, AttributeError):
         return set()
     return {f for f in files if isinstance(f, str) and f == Path(f).name and f}
+
+
+def _json_safe(o):
+    """Plain JSON: NaN (undefined) -> null, +-inf -> "inf" / "-inf" (a median frame that is
+    non-finite, an unbounded MTBF): strict parsers reject NaN and Infinity literals."""
+    if isinstance(o, dict):
+        return {str(k): _json_safe(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_json_safe(v) for v in o]
+    if isinstance(o, (float, np.floating)):
+        x = float(o)
+        if math.isnan(x):
+            return None
+        if math.isinf(x):
+            return "inf" if x > 0 else "-inf"
+        return x
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.bool_,)):
+        return bool(o)
+    return o
 
 
 def _json_default(o):
