@@ -270,19 +270,23 @@ class Engine:
             self.monitor.update(counts)
         return images.reshape(r.k, r.height, r.width, 4), counts
 
-    def view_time_ms(self, defense: str = "none", repeats: int = 5) -> float:
-        """Median wall time (ms) of rendering one view of the model as it is now under the
-        defense's in-pipeline guard (K views rendered and waited for, divided by K; one warm-up
-        render first). The mitigation table's time cost comes from it, in the same run."""
+    def view_times_ms(self, defenses=("none",), repeats: int = 9) -> dict:
+        """Median wall time (ms) of rendering one view of the model as it is now under each
+        defense's in-pipeline guard (K views rendered and waited for, divided by K). The defenses
+        are timed interleaved, round by round after one warm-up round, so a drift of the machine's
+        load hits them alike. The mitigation table's time cost comes from it, in the same run."""
         import time
 
-        self._run_guarded(defense)
-        ts = []
+        defenses = list(dict.fromkeys(defenses))
+        for d in defenses:
+            self._run_guarded(d)
+        ts = {d: [] for d in defenses}
         for _ in range(max(int(repeats), 1)):
-            t0 = time.perf_counter()
-            self._run_guarded(defense)  # Renderer.run reads its totals back: the GPU is done
-            ts.append(time.perf_counter() - t0)
-        return 1e3 * float(np.median(ts)) / self.k
+            for d in defenses:
+                t0 = time.perf_counter()
+                self._run_guarded(d)  # Renderer.run reads its totals back: the GPU is done
+                ts[d].append(time.perf_counter() - t0)
+        return {d: 1e3 * float(np.median(v)) / self.k for d, v in ts.items()}
 
     def measure_current(self, defense: str = "none") -> dict:
         """GPU metrics of the current model against the current clean reference (the frame stays

@@ -621,6 +621,15 @@ def _sec_dose(df, manifests, ctx) -> Section:
             sec.numbers[f"dose_psnr_median_at_kmax_{dfn}_db"] = float(top["psnr_median_db"])
             sec.numbers[f"dose_nonfinite_at_kmax_{dfn}_pct"] = float(top["nonfinite_pct"])
             sec.numbers["dose_kmax"] = int(top["k"])
+    # did the grid reach the point where the unguarded render is destroyed (most frames catastrophic)?
+    top = curves[curves["defense"] == "none"].sort_values("k").groupby(["scene", "n_primitives", "precision"]).tail(1)
+    short = top[top["cat_rate_pct"] < 50]
+    for _, r in short.iterrows():
+        sec.notes.append(
+            f"{r['scene']} (N = {int(r['n_primitives']):,}, {r['precision']}): at the largest k = {int(r['k']):,} only "
+            f"{r['cat_rate_pct']:.3g}% of unguarded frames are catastrophic: the sweep stops before the render is "
+            "destroyed (raise dose.k_max)"
+        )
     reps = dose_records(df).groupby(["scene", "n_primitives", "precision", "defense", "k"]).size()
     if len(reps) and reps.min() < 10:
         sec.notes.append(f"only {int(reps.min())} repeats at some dose points (>= 10 recommended)")
@@ -914,7 +923,8 @@ padding:0 1em;color:#222;line-height:1.45}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
 h3{font-size:1.05em;margin-bottom:.3em}
 table{border-collapse:collapse;font-size:.82em;margin:.4em 0 1em 0;display:block;overflow-x:auto}
-th,td{border:1px solid #ddd;padding:.2em .5em}th{background:#f3f3f3}td.num{text-align:right;
+th,td{border:1px solid #ddd;padding:.2em .5em}th{background:#f3f3f3}td.txt{max-width:18em;white-space:normal;
+overflow-wrap:anywhere}td.num{text-align:right;
 font-variant-numeric:tabular-nums}
 figure{margin:1em 0}figure img{max-width:100%;border:1px solid #eee}
 .cap{font-size:.86em;color:#444}.note{font-size:.88em;color:#555}
