@@ -1,5 +1,45 @@
-"""seuwgpu: single-event-upset fault injection for 3D Gaussian splatting on WGSL compute shaders."""
+"""seuwgpu: single-event-upset fault injection for 3D Gaussian splatting on WGSL compute shaders.
 
+The public API (seuwgpu/api.py) is importable from here: `import seuwgpu as sg; sg.render(...)`.
+It is loaded on first use, so `import seuwgpu` and `seuwgpu --version` stay fast.
+"""
+
+from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.version import __version__
 
-__all__ = ["__version__"]
+_API = (
+    "DEFENSES",
+    "FAULT_MODELS",
+    "FIELDS",
+    "FRAME_FORMATS",
+    "PRECISIONS",
+    "PROFILES",
+    "Camera",
+    "Injection",
+    "Model",
+    "Scene",
+    "cameras",
+    "inject",
+    "list_scenes",
+    "load_model",
+    "make_report",
+    "read_records",
+    "render_views",
+    "report_figures",
+    "run_campaign",
+    "save_frames",
+)
+
+__all__ = ["InputError", "RunInUse", "SeuwgpuError", "TooBig", "__version__", *_API]
+
+
+def __getattr__(name: str):
+    if name in _API:
+        from seuwgpu import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'seuwgpu' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(__all__)

@@ -8,6 +8,9 @@
 //   with the corrupted primitive removed and its re-projected record merged in at its depth
 //   (render/incremental.py; equal to a full re-render bit for bit).
 
+// Renderer profile (docs/renderer.md, "Profiles"): PROFILE_STRICT (default) or PROFILE_GSPLAT.
+override PROFILE: u32 = PROFILE_STRICT;
+
 var<workgroup> s_xy: array<vec2<f32>, TILE_PIXELS>;
 var<workgroup> s_conic: array<vec4<f32>, TILE_PIXELS>;
 var<workgroup> s_rgb: array<vec4<f32>, TILE_PIXELS>;
@@ -53,6 +56,8 @@ fn blend_batch(px: ptr<function, Pixel>, m: u32) {
         var alpha = a;
         if (!is_nan_f32(a)) {
             alpha = min(0.99, a);
+        } else if (PROFILE == PROFILE_GSPLAT) {
+            alpha = 0.99;  // gsplat: CUDA's min (fminf) drops the NaN
         }
         if (!is_nan_f32(alpha) && alpha < 1.0 / 255.0) {
             continue;

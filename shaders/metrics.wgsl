@@ -14,7 +14,9 @@
 // Metric definitions (raw = the float32 render as stored; display = clipped to [0,1], NaN -> 0,
 // +Inf -> 1, -Inf -> 0, i.e. what an 8-bit display shows):
 //   changed   pixels with |f - c| > 1/255 in any of r,g,b (raw), or any non-finite faulted
-//             channel, or a non-finite raw difference;
+//             channel, or a non-finite raw difference; a pixel whose r,g,b bits equal the
+//             clean pixel's counts for none of changed, peak, nonfinite (a clean render's own
+//             NaN pixels are not the upset's);
 //   peak      max over pixels and channels of |f - c| (raw), +Inf if any of those is non-finite;
 //   nonfinite pixels with any non-finite faulted r,g,b channel (exponent-bit test);
 //   sse       sum over pixels x 3 channels of (display(f) - display(c))^2;
@@ -283,7 +285,10 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
             let f = m_faulted_px(bk, k, u32(gx), u32(gy));
             cd = m_disp3(c);
             fd = m_disp3(f);
-            if (hx >= 3u && hx < TILE + 3u && hy >= 3u && hy < TILE + 3u) {
+            // a pixel bit-identical to the clean one is unchanged (a clean model's own NaN
+            // pixels are not charged to the upset; tiles off the work list are taken the same)
+            let same = all(bitcast<vec3<u32>>(f.xyz) == bitcast<vec3<u32>>(c.xyz));
+            if (!same && hx >= 3u && hx < TILE + 3u && hy >= 3u && hy < TILE + 3u) {
                 var bad = false;
                 var over = false;
                 var pk = 0.0;

@@ -37,6 +37,10 @@ struct View {
 @group(0) @binding(8) var<storage, read> box: array<Bound>;
 @group(0) @binding(9) var<storage, read_write> guard_counts: array<atomic<u32>>;
 
+// Renderer profile (docs/renderer.md, "Profiles"): PROFILE_STRICT (default) or PROFILE_GSPLAT.
+// A pipeline override, so each profile compiles to its own specialised pipeline.
+override PROFILE: u32 = PROFILE_STRICT;
+
 const SH_C0: f32 = 0.28209479177387814;
 const SH_C1: f32 = 0.4886025119029199;
 
@@ -121,6 +125,49 @@ fn sh_colour(j: u32, dir: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(activate_colour(c.x), activate_colour(c.y), activate_colour(c.z));
 }
 
+// Scales exp(log_scales) of primitive j.
+fn scales(j: u32) -> vec3<f32> {
+    return vec3<f32>(exp_ieee(comp(j, 3u)), exp_ieee(comp(j, 4u)), exp_ieee(comp(j, 5u)));
+}
+
+// Rotation of the normalised quaternion (w, x, y, z) of primitive j, gsplat's quat_to_rotmat.
+fn rotation(j: u32) -> mat3x3<f32> {
+    let q0 = vec4<f32>(comp(j, 6u), comp(j, 7u), comp(j, 8u), comp(j, 9u));
+    let q = q0 * rsqrt_ieee(dot(q0, q0));
+    let w = q.x; let x = q.y; let y = q.z; let z = q.w;
+    return mat3x3<f32>(
+        vec3<f32>(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
+        vec3<f32>(2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
+        vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)));
+}
+
+// EWA Jacobian (2x3; WGSL mat3x2 has 3 columns of vec2) with gsplat's clamp 30% beyond the
+// image edge; `glm`: glm's min/max, which drop a NaN second operand (gsplat profile).
+fn jacobian(p: vec3<f32>, rz: f32, glm: bool) -> mat3x2<f32> {
+    let fx = view.intr.x;
+    let fy = view.intr.y;
+    let cx = view.intr.z;
+    let cy = view.intr.w;
+    let width = f32(view.width);
+    let height = f32(view.height);
+    let tan_fovx = 0.5 * width / fx;
+    let tan_fovy = 0.5 * height / fy;
+    let lim_x_pos = (width - cx) / fx + 0.3 * tan_fovx;
+    let lim_x_neg = cx / fx + 0.3 * tan_fovx;
+    let lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy;
+    let lim_y_neg = cy / fy + 0.3 * tan_fovy;
+    var tx = p.z * min(lim_x_pos, max(-lim_x_neg, p.x * rz));
+    var ty = p.z * min(lim_y_pos, max(-lim_y_neg, p.y * rz));
+    if (glm) {
+        tx = p.z * glm_min(lim_x_pos, glm_max(-lim_x_neg, p.x * rz));
+        ty = p.z * glm_min(lim_y_pos, glm_max(-lim_y_neg, p.y * rz));
+    }
+    return mat3x2<f32>(
+        vec2<f32>(fx * rz, 0.0),
+        vec2<f32>(0.0, fy * rz),
+        vec2<f32>(-fx * tx * rz * rz, -fy * ty * rz * rz));
+}
+
 fn cull(g: u32) {
     depth_keys[g] = 0xffffffffu;
     depth_vals[g] = g;
@@ -141,51 +188,30 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let mean = vec3<f32>(comp(j, 0u), comp(j, 1u), comp(j, 2u));
     let vm = view.viewmat;
     let p = (vm * vec4<f32>(mean, 1.0)).xyz;
+    if (PROFILE == PROFILE_GSPLAT) {
+        project_gsplat(j, g, mean, p);
+        return;
+    }
     if (!is_finite_f32(p.z) || p.z < 0.01 || p.z > 1e10) {
         cull(g);
         return;
     }
-    let fx = view.intr.x;
-    let fy = view.intr.y;
-    let cx = view.intr.z;
-    let cy = view.intr.w;
     let rz = 1.0 / p.z;
-    let mx = fx * p.x * rz + cx;
-    let my = fy * p.y * rz + cy;
+    let mx = view.intr.x * p.x * rz + view.intr.z;
+    let my = view.intr.y * p.y * rz + view.intr.w;
     if (!is_finite_f32(mx) || !is_finite_f32(my)) {
         cull(g);
         return;
     }
 
-    // Scales and the rotation of the normalised quaternion (w, x, y, z), gsplat's quat_to_rotmat.
-    let s = vec3<f32>(exp_ieee(comp(j, 3u)), exp_ieee(comp(j, 4u)), exp_ieee(comp(j, 5u)));
-    let q0 = vec4<f32>(comp(j, 6u), comp(j, 7u), comp(j, 8u), comp(j, 9u));
-    let q = q0 * rsqrt_ieee(dot(q0, q0));
-    let w = q.x; let x = q.y; let y = q.z; let z = q.w;
-    let rot = mat3x3<f32>(
-        vec3<f32>(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
-        vec3<f32>(2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
-        vec3<f32>(2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)));
+    let s = scales(j);
+    let rot = rotation(j);
     // EWA with gsplat's Jacobian clamp (30% beyond the image edge), evaluated as T T^T with
     // T = J W R S (2x3) and the determinant by Lagrange's identity, |t1|^2 |t2|^2 - (t1.t2)^2 =
     // |t1 x t2|^2: the textbook a*c - b*b cancels catastrophically for a needle (one huge axis),
     // which would make culling depend on the device's fused multiply-adds.
     let wmat = mat3x3<f32>(vm[0].xyz, vm[1].xyz, vm[2].xyz);
-    let width = f32(view.width);
-    let height = f32(view.height);
-    let tan_fovx = 0.5 * width / fx;
-    let tan_fovy = 0.5 * height / fy;
-    let lim_x_pos = (width - cx) / fx + 0.3 * tan_fovx;
-    let lim_x_neg = cx / fx + 0.3 * tan_fovx;
-    let lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy;
-    let lim_y_neg = cy / fy + 0.3 * tan_fovy;
-    let tx = p.z * min(lim_x_pos, max(-lim_x_neg, p.x * rz));
-    let ty = p.z * min(lim_y_pos, max(-lim_y_neg, p.y * rz));
-    // J is 2x3; WGSL mat3x2 has 3 columns of vec2.
-    let jac = mat3x2<f32>(
-        vec2<f32>(fx * rz, 0.0),
-        vec2<f32>(0.0, fy * rz),
-        vec2<f32>(-fx * tx * rz * rz, -fy * ty * rz * rz));
+    let jac = jacobian(p, rz, false);
     let m2 = jac * (wmat * rot);
     let t1 = vec3<f32>(m2[0].x * s.x, m2[1].x * s.y, m2[2].x * s.z);
     let t2 = vec3<f32>(m2[0].y * s.x, m2[1].y * s.y, m2[2].y * s.z);
@@ -225,15 +251,138 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         rect = pack_rect(x0, y0, x1, y1);
     }
 
+    emit(j, g, mean, vec2<f32>(mx, my), conic, rect, p.z);
+}
+
+// Opacity and colour, then the screen record of a drawn primitive.
+fn emit(j: u32, g: u32, mean: vec3<f32>, xy: vec2<f32>, conic: vec3<f32>, rect: vec2<u32>, z: f32) {
     let opacity = sigmoid(comp(j, 10u));
     let d = mean - view.campos.xyz;
     let dir = d * rsqrt_ieee(dot(d, d));
     let rgb = sh_colour(j, dir);
 
-    out_xy[g] = vec2<f32>(mx, my);
+    out_xy[g] = xy;
     out_conic[g] = vec4<f32>(conic, opacity);
-    out_rgb[g] = vec4<f32>(rgb, p.z);  // depth rides along for incremental re-compositing
+    out_rgb[g] = vec4<f32>(rgb, z);  // depth rides along for incremental re-compositing
     out_rect[g] = rect;
-    depth_keys[g] = bitcast<u32>(p.z);
+    depth_keys[g] = bitcast<u32>(z);
     depth_vals[g] = g;
+}
+
+// ---- gsplat profile ----------------------------------------------------------------------------
+// gsplat's CUDA arithmetic (ProjectionEWA3DGSFused.cu, Utils.cuh, IntersectTile.cu): comparisons
+// that NaN fails do not cull, glm::min/max drop a NaN second operand, the covariance is formed
+// explicitly (Sigma = M M^T, W Sigma W^T, J . J^T), det = a*c - b*b, and the radius goes through
+// CUDA's float-to-int conversion (NaN -> 0: culled; >= 2^31 -> INT_MAX: the whole screen).
+
+fn glm_min(a: f32, b: f32) -> f32 {
+    return select(a, b, b < a);
+}
+
+fn glm_max(a: f32, b: f32) -> f32 {
+    return select(a, b, a < b);
+}
+
+// x <= v and x >= v as comparisons that a NaN x fails (compilers may assume finite math).
+fn le_num(x: f32, v: f32) -> bool {
+    return !is_nan_f32(x) && x <= v;
+}
+
+fn ge_num(x: f32, v: f32) -> bool {
+    return !is_nan_f32(x) && x >= v;
+}
+
+// CUDA (int32)x, back in float: NaN -> 0, saturating at +-2^31.
+fn cuda_f2i(x: f32) -> f32 {
+    if (is_nan_f32(x)) {
+        return 0.0;
+    }
+    return clamp(x, -2147483648.0, 2147483648.0);
+}
+
+// sqrt, floor and ceil with CUDA's non-finite results (WGSL leaves them to the driver):
+// sqrt(x < 0) = NaN, NaN and Inf pass through floor and ceil.
+fn gs_sqrt(x: f32) -> f32 {
+    if (is_nan_f32(x) || x < 0.0) {
+        return bitcast<f32>(0x7fc00000u);
+    }
+    if (!is_finite_f32(x)) {
+        return x;
+    }
+    return sqrt(x);
+}
+
+fn gs_floor(x: f32) -> f32 {
+    return select(x, floor(x), is_finite_f32(x));
+}
+
+fn gs_ceil(x: f32) -> f32 {
+    return select(x, ceil(x), is_finite_f32(x));
+}
+
+// Tile bound min(max(0, (int)v), tiles) of the full frame, then shifted into the viewport.
+fn gs_tile(v: f32, full: f32, origin: f32, tiles: f32) -> f32 {
+    return clamp(clamp(cuda_f2i(v), 0.0, full) - origin, 0.0, tiles);
+}
+
+fn project_gsplat(j: u32, g: u32, mean: vec3<f32>, p: vec3<f32>) {
+    // NaN depth passes the near/far test (and is culled later by its NaN radius)
+    if (!is_nan_f32(p.z) && (p.z < 0.01 || p.z > 1e10)) {
+        cull(g);
+        return;
+    }
+    let rz = 1.0 / p.z;
+    let mx = view.intr.x * p.x * rz + view.intr.z;
+    let my = view.intr.y * p.y * rz + view.intr.w;
+    let s = scales(j);
+    let rot = rotation(j);
+    let m = mat3x3<f32>(rot[0] * s.x, rot[1] * s.y, rot[2] * s.z);
+    let sigma3 = m * transpose(m);
+    let wmat = mat3x3<f32>(view.viewmat[0].xyz, view.viewmat[1].xyz, view.viewmat[2].xyz);
+    let cov_c = (wmat * sigma3) * transpose(wmat);
+    let width = f32(view.width);
+    let height = f32(view.height);
+    let jac = jacobian(p, rz, true);
+    let cov2 = (jac * cov_c) * transpose(jac);
+    let a = cov2[0].x + 0.3;
+    let c = cov2[1].y + 0.3;
+    let det = a * c - cov2[0].y * cov2[1].x;
+    if (le_num(det, 0.0)) {
+        cull(g);
+        return;
+    }
+    let inv = 1.0 / det;
+    let conic = vec3<f32>(c * inv, -cov2[0].y * inv, a * inv);
+    let rx = gs_ceil(3.33 * gs_sqrt(a));
+    let ry = gs_ceil(3.33 * gs_sqrt(c));
+    // radius_clip = 0 and the image-region mask: comparisons, which NaN fails
+    if (le_num(rx, 0.0) && le_num(ry, 0.0)) {
+        cull(g);
+        return;
+    }
+    if (le_num(mx + rx, 0.0) || ge_num(mx - rx, width) || le_num(my + ry, 0.0) || ge_num(my - ry, height)) {
+        cull(g);
+        return;
+    }
+    // radii as int32 (NaN -> 0: culled by the tile intersection)
+    let irx = cuda_f2i(rx);
+    let iry = cuda_f2i(ry);
+    if (irx <= 0.0 || iry <= 0.0) {
+        cull(g);
+        return;
+    }
+    let ts = f32(TILE);
+    let full_x = f32((view.width + TILE - 1u) / TILE);
+    let full_y = f32((view.height + TILE - 1u) / TILE);
+    let tiles_x = f32(view.tiles_x);
+    let tiles_y = f32(view.tiles_y);
+    let x0 = gs_tile(gs_floor(mx / ts - irx / ts), full_x, view.tile_x0, tiles_x);
+    let x1 = gs_tile(gs_ceil(mx / ts + irx / ts), full_x, view.tile_x0, tiles_x);
+    let y0 = gs_tile(gs_floor(my / ts - iry / ts), full_y, view.tile_y0, tiles_y);
+    let y1 = gs_tile(gs_ceil(my / ts + iry / ts), full_y, view.tile_y0, tiles_y);
+    if (x1 <= x0 || y1 <= y0) {
+        cull(g);
+        return;
+    }
+    emit(j, g, mean, vec2<f32>(mx, my), conic, pack_rect(x0, y0, x1, y1), p.z);
 }

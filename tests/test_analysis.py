@@ -8,11 +8,23 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from seuwgpu.analysis import stats
-from seuwgpu.analysis import studies as A
+from seuwgpu.analysis import (
+    contamination,
+    criticality,
+    dose,
+    estimate,
+    guard,
+    mitigation,
+    prediction,
+    records,
+    reliability,
+    scaling,
+    stats,
+    theory,
+)
 from seuwgpu.campaign import plan
 from seuwgpu.model import encoding
-from seuwgpu.render.regions import region_grid
+from seuwgpu.render.regions import region_edges, region_grid
 
 # ------------------------------------------------------------------------------------ stats
 
@@ -68,10 +80,17 @@ def test_loglog_fit_exact_power_law():
     assert fit.exponent == pytest.approx(-1.5, abs=1e-12)
     assert fit.intercept == pytest.approx(math.log10(3.0), abs=1e-12)
     assert fit.r2 == pytest.approx(1.0, abs=1e-12)
-    exp_, icpt, r2 = fit  # unpacks as (exponent, intercept, R^2)
-    assert exp_ == fit.exponent
+    assert fit.exponent_lo == pytest.approx(-1.5, abs=1e-9) and fit.exponent_hi == pytest.approx(-1.5, abs=1e-9)
     noisy = stats.loglog_fit(x, y * np.array([1.3, 0.8, 1.2, 0.9, 1.1]))
     assert 0.9 < noisy.r2 < 1.0
+    assert noisy.exponent_lo < noisy.exponent < noisy.exponent_hi and noisy.n == 5
+    # the interval by hand: t(0.975, 3) * sqrt(SSR / 3 / Sxx)
+    lx, ly = np.log10(x), np.log10(y * np.array([1.3, 0.8, 1.2, 0.9, 1.1]))
+    b, a = np.polyfit(lx, ly, 1)
+    se = np.sqrt(np.sum((ly - (a + b * lx)) ** 2) / 3 / np.sum((lx - lx.mean()) ** 2))
+    assert noisy.exponent_hi - noisy.exponent == pytest.approx(3.182446305284263 * se)
+    two = stats.loglog_fit([1e3, 1e4], [1.0, 0.1])  # a line through two points: no interval
+    assert math.isnan(two.exponent_lo) and two.n == 2
     with pytest.raises(ValueError):
         stats.loglog_fit([1, 2], [0, 0])
 
@@ -85,14 +104,34 @@ def test_auc_perfect_and_random():
     assert math.isnan(stats.auc(np.ones(5, bool), np.arange(5)))
 
 
-def test_stratified_rate_and_kish():
-    # two strata, weights 0.9 / 0.1, rates 0 and 0.5
-    p, lo, hi, neff = stats.stratified_rate([0, 50], [100, 100], [0.9, 0.1])
+def test_stratified_interval_korn_graubard_and_zero_counts():
+    # two strata, weights 0.9 / 0.1, rates 0 and 0.5: V = 0.01 * 0.25 / 100, n_eff = p(1-p)/V
+    p, lo, hi, neff = estimate.stratified_interval([0.0, 0.5], [100, 100], [0.9, 0.1])
     assert p == pytest.approx(0.05)
-    assert neff == pytest.approx(1 / (0.81 / 100 + 0.01 / 100))
-    assert lo < p < hi
-    p0, lo0, hi0, _ = stats.stratified_rate([0, 0], [100, 100], [0.5, 0.5])
-    assert p0 == 0 and lo0 == 0 and hi0 > 0  # honest at zero events
+    assert neff == pytest.approx(min(0.05 * 0.95 / (0.01 * 0.25 / 100), 200))
+    assert (lo, hi) == pytest.approx(stats.wilson_interval(0.05 * neff, neff))
+    # no event anywhere: V = 0, Kish n_eff, exact Wilson edge (lower 0, upper > 0)
+    p0, lo0, hi0, n0 = estimate.stratified_interval([0.0, 0.0], [100, 100], [0.5, 0.5])
+    assert p0 == 0 and lo0 == 0 and hi0 > 0 and n0 == pytest.approx(200)
+    assert hi0 == pytest.approx(stats.wilson_interval(0, 200)[1])
+    # one stratum: the plain Wilson interval of (k, n)
+    assert estimate.stratified_interval([0.3], [10], [1.0])[1:3] == pytest.approx(stats.wilson_interval(3, 10))
+
+
+def test_weighted_rate_differs_from_pooled_counts():
+    # cell A: 1000 stored bits, 0 of 10 catastrophic; cell B: 10 bits, 10 of 10: the unweighted
+    # pool says 50%, a uniform upset is catastrophic with probability 10 / 1010
+    d = pd.DataFrame(
+        {
+            "field": ["a"] * 10 + ["b"] * 10,
+            "bit": 0,
+            "weight": [100.0] * 10 + [1.0] * 10,
+            "catastrophic": [False] * 10 + [True] * 10,
+        }
+    )
+    r = estimate.one_rate(d)
+    assert r["rate"] == pytest.approx(10 / 1010) and r["n"] == 20 and r["events"] == 10
+    assert r["ci_lo"] < r["rate"] < r["ci_hi"]
 
 
 # ---------------------------------------------------------------------------- record helpers
@@ -134,11 +173,12 @@ def test_criticality_known_quantiles_and_rates():
     fp = np.arange(100) / 1000.0  # 0 .. 9.9 % of the frame
     a = _records(100, field="log_scales", footprint=fp)
     b = _records(50, field="quats", footprint=0.0)
-    crit = A.criticality(pd.concat([a, b], ignore_index=True)).set_index("field")
+    crit = criticality.criticality(pd.concat([a, b], ignore_index=True)).set_index("field")
     ls = crit.loc["log_scales"]
     assert ls["n"] == 100
-    assert ls["median_pct"] == pytest.approx(4.95)
-    assert ls["p95_pct"] == pytest.approx(np.quantile(fp * 100, 0.95))
+    # equal weights: the weighted quantile is the inverted-CDF one (no interpolation)
+    assert ls["median_pct"] == pytest.approx(np.quantile(fp * 100, 0.5, method="inverted_cdf"))
+    assert ls["p95_pct"] == pytest.approx(np.quantile(fp * 100, 0.95, method="inverted_cdf"))
     assert ls["max_pct"] == pytest.approx(9.9) and ls["mean_pct"] == pytest.approx(4.95)
     assert ls["catastrophic"] == 89  # footprint > 1%: i = 11..99
     lo, hi = stats.wilson_interval(89, 100)
@@ -156,11 +196,11 @@ def test_criticality_uses_fp32_and_ignores_dose_and_guard():
     b = _records(10, precision="fp16", footprint=0.0)
     c = _records(10, defense="guard", footprint=0.0)
     d = _records(10, k=5, campaign="dose", footprint=0.0)
-    crit = A.criticality(pd.concat([a, b, c, d], ignore_index=True))
+    crit = criticality.criticality(pd.concat([a, b, c, d], ignore_index=True))
     assert crit.attrs["precision"] == "fp32"
     assert crit["n"].tolist() == [10] and crit["catastrophic"].tolist() == [10]
-    with pytest.raises(A.InsufficientData) as e:
-        A.criticality(d)
+    with pytest.raises(records.InsufficientData) as e:
+        criticality.criticality(d)
     assert "single" in e.value.remedy
 
 
@@ -177,10 +217,10 @@ def test_field_bit_table_and_heatmap():
                 footprint=bit / 1000,
             )
         )
-    t = A.field_bit_table(pd.concat(rows, ignore_index=True))
+    t = criticality.field_bit_table(pd.concat(rows, ignore_index=True))
     assert len(t) == 16 and (t["n"] == 3).all()
     assert t.loc[t["bit"] == 15, "bit_class"].item() == "sign"
-    m = A.heatmap_matrix(t, "fp16")
+    m = criticality.heatmap_matrix(t, "fp16")
     assert m.shape == (1, 16) and m.loc["opacity", 5] == pytest.approx(0.5)
 
 
@@ -189,7 +229,7 @@ def test_theory_check_unit_slope_on_exact_power_law():
     for b in range(23):
         peak = min(0.25 * 2.0 ** (b - 23), 0.5)  # doubles per bit; bit 22 leaves the window
         rows.append(_records(4, field="log_scales", bit=b, peak_error=peak))
-    res = A.theory_check(pd.concat(rows, ignore_index=True))
+    res = theory.theory_check(pd.concat(rows, ignore_index=True))
     assert res["slope"] == pytest.approx(1.0, abs=1e-9)
     assert res["r2"] == pytest.approx(1.0, abs=1e-9)
     # window (1e-5, 0.1]: 0.25 * 2^(b-23) > 1e-5 from b = 9, <= 0.1 up to b = 21
@@ -203,7 +243,7 @@ def test_guard_share_neutralised_and_sign_psnr():
     kw = dict(field="log_scales", bit=31, bit_class="sign")
     a = _records(n, footprint=fp_none, psnr=np.where(fp_none > 0, 10.0, np.inf), **kw)
     b = _records(n, defense="guard", footprint=fp_guard, psnr=np.where(fp_guard > 0.1, 10.0, 60.0), **kw)
-    res = A.guard_analysis(pd.concat([a, b], ignore_index=True))
+    res = guard.guard_analysis(pd.concat([a, b], ignore_index=True))
     p = res["paired"].iloc[0]
     assert p["catastrophic_none"] == 10 and p["neutralised"] == 8
     assert p["share_neutralised_pct"] == pytest.approx(80.0)
@@ -211,36 +251,39 @@ def test_guard_share_neutralised_and_sign_psnr():
     assert p["share_ci_lo_pct"] == pytest.approx(100 * lo)
     assert res["residual_catastrophic"] == 2
     assert res["worst_guarded_footprint_pct"] == pytest.approx(50.0)
-    sp = res["sign_psnr"].iloc[0]
-    # none: 10 x 10 dB + 10 x inf (capped at 100) -> mean 55; guard: 2 x 10 + 18 x 60 -> 55
-    assert sp["mean_psnr_none_db"] == pytest.approx(55.0)
-    assert sp["mean_psnr_guard_db"] == pytest.approx((2 * 10 + 18 * 60) / 20)
-    with pytest.raises(A.InsufficientData):
-        A.guard_analysis(a)
+    sp = res["sign_psnr"].set_index("defense")
+    # none: 10 x 10 dB (mse 0.1) + 10 identical (mse 0): PSNR of the mean MSE = 10 log10(1 / 0.05)
+    assert sp.loc["none", "psnr_mean_mse_db"] == pytest.approx(10 * math.log10(20))
+    assert sp.loc["guard", "psnr_mean_mse_db"] == pytest.approx(10 * math.log10(20 / (2 * 0.1 + 18 * 1e-6)))
+    assert sp.loc["none", "psnr_median_db"] == 10.0 and sp.loc["none", "nonfinite_pct"] == 0
+    with pytest.raises(records.InsufficientData):
+        guard.guard_analysis(a)
 
 
 def test_mitigation_shared_grid_and_memory():
     a = _records(10, footprint=np.r_[np.full(5, 0.5), np.zeros(5)])
     b = _records(10, defense="guard", footprint=0.0)
     c = _records(12, defense="dup", footprint=0.0)  # two extra sites: not on the grid
-    t = A.mitigation_table(pd.concat([a, b, c], ignore_index=True)).set_index("defense")
+    t = mitigation.mitigation_table(pd.concat([a, b, c], ignore_index=True)).set_index("defense")
     assert t.attrs["paired"] is True
     assert t.loc["dup", "n"] == 10 and t.loc["none", "cat_rate_pct"] == pytest.approx(50)
     assert t.loc["dup", "memory_overhead_pct"] == pytest.approx(200)
     assert t.loc["guard", "memory_overhead_pct"] == pytest.approx(100 * 2 * 14 / (1000 * 59))
-    assert A.memory_overhead("ecc", "fp32")[0] == pytest.approx(5 / 32)
-    assert A.memory_overhead("ecc", "fp16")[0] == pytest.approx(5 / 16)
-    assert A.memory_overhead("ecc", "bf16")[0] == pytest.approx(5 / 16)
-    assert A.memory_overhead("selective", "fp32", 100)[0] == pytest.approx(8 / (100 * 59))
+    assert mitigation.memory_overhead("ecc", "fp32")[0] == pytest.approx(5 / 32)
+    assert mitigation.memory_overhead("ecc", "fp16")[0] == pytest.approx(5 / 16)
+    assert mitigation.memory_overhead("ecc", "bf16")[0] == pytest.approx(5 / 16)
+    assert mitigation.memory_overhead("selective", "fp32", 100)[0] == pytest.approx(8 / (100 * 59))
     man = [{"memory_overhead": {"ecc": 0.3}}]
-    assert A.memory_overhead("ecc", "fp32", manifests=man) == (0.3, "from the run manifest")
+    assert mitigation.memory_overhead("ecc", "fp32", manifests=man) == (0.3, "from the run manifest")
 
 
 def test_crossing_k_interpolates_in_log_k():
-    k, c = A.crossing_k([1, 10, 100], [50, 40, 20], 30)
-    assert c == "" and k == pytest.approx(10**1.5)
-    assert A.crossing_k([1, 10], [50, 40], 30) == (10.0, ">=")
-    assert A.crossing_k([2, 10], [20, 10], 30) == (2.0, "<=")
+    k, c, lo, hi = dose.crossing_k([1, 10, 100], [50, 40, 20], 30)
+    assert c == "" and k == pytest.approx(10**1.5) and (lo, hi) == (10, 100)
+    assert dose.crossing_k([1, 10], [50, 40], 30)[:2] == (10.0, ">=")
+    assert dose.crossing_k([2, 10], [20, 10], 30)[:2] == (2.0, "<=")
+    # the median frame at k = 100 is non-finite: bracketed, not interpolated to a made-up value
+    assert dose.crossing_k([1, 10, 100], [50, 40, -np.inf], 30) == (100.0, "<=", 10.0, 100.0)
 
 
 def test_dose_curves_budget_and_model():
@@ -265,18 +308,21 @@ def test_dose_curves_budget_and_model():
                 )
             )
     d = pd.concat(rows, ignore_index=True)
-    cur = A.dose_curves(d)
-    assert len(cur) == 8 and cur["psnr_mean_db"].iloc[0] == pytest.approx(60)
-    b = A.redundancy_budget(d).set_index("defense")
+    cur = dose.dose_curves(d)
+    assert len(cur) == 8 and cur["psnr_median_db"].iloc[0] == pytest.approx(60)
+    assert (cur["nonfinite_pct"] == 0).all()
+    b = dose.redundancy_budget(d).set_index("defense")
     assert b.loc["none", "k_budget"] == pytest.approx(1000) and b.loc["none", "censored"] == ""
+    assert (b.loc["none", "k_lo"], b.loc["none", "k_hi"]) == (100, 1000)
     assert b.loc["guard", "censored"] == ">="
-    # p_c from the dose k=1 rows: 4/200 none (round(200*0.02)), 0 guard
-    dm = A.dose_model(d).set_index(["defense", "k"])
-    assert dm.loc[("none", 10), "model_pct"] == pytest.approx(100 * (1 - (1 - 0.02) ** 10))
-    assert dm.loc[("none", 10), "within_ci"]
-    assert dm.loc[("guard", 1000), "model_pct"] == 0.0
-    with pytest.raises(A.InsufficientData) as e:
-        A.dose_curves(_records(5))
+    # the dose model fitted per model: p near the planted 2%, a good fit; guard: no event, p = 0
+    fits = dose.dose_fits(cur).set_index("defense")
+    assert fits.loc["none", "p_pct"] == pytest.approx(2.0, rel=0.15)
+    assert fits.loc["none", "p_lo_pct"] < 2.0 < fits.loc["none", "p_hi_pct"]
+    assert fits.loc["none", "fit_pvalue"] > 0.05 and fits.loc["none", "points_within_ci"] == 1.0
+    assert fits.loc["guard", "p_pct"] == 0 and fits.loc["guard", "p_lo_pct"] == 0 and fits.loc["guard", "p_hi_pct"] > 0
+    with pytest.raises(records.InsufficientData) as e:
+        dose.dose_curves(_records(5))
     assert "dose campaign" in e.value.remedy
 
 
@@ -285,12 +331,12 @@ def test_size_scaling_recovers_exponent():
     for n in (1000, 4000, 16000, 64000):
         mse = 1e-4 * (n / 1000) ** -0.5
         rows.append(_records(7, campaign="size", n_primitives=n, psnr=-10 * math.log10(mse)))
-    res = A.size_scaling(pd.concat(rows, ignore_index=True))
+    res = scaling.size_scaling(pd.concat(rows, ignore_index=True))
     f = res["fits"].set_index("metric")
     assert f.loc["median_mse", "alpha"] == pytest.approx(0.5, abs=1e-9)
     assert f.loc["mean_mse", "r2"] == pytest.approx(1.0, abs=1e-9)
-    with pytest.raises(A.InsufficientData) as e:
-        A.size_scaling(rows[0])
+    with pytest.raises(records.InsufficientData) as e:
+        scaling.size_scaling(rows[0])
     assert "size campaign" in e.value.remedy
 
 
@@ -310,90 +356,118 @@ def test_pc_stratified_weights_and_mtbf():
                 )
             )
     d = pd.concat(rows, ignore_index=True)
-    w = A.cell_weights("fp16", 3)
-    assert sum(w.values()) == pytest.approx(1.0)
-    pc = A.catastrophe_probability(d)
+    pc = reliability.catastrophe_probability(d)
     r = pc.iloc[0]
     assert r["p_c"] == pytest.approx(3 / 59 / 16) and r["coverage_pct"] == pytest.approx(100)
     assert r["ci_lo"] < r["p_c"] < r["ci_hi"]
-    rel = A.reliability(d)
+    rel = reliability.reliability(d)
     bits = 1000 * 59 * 16
     assert rel["bits"] == pytest.approx(bits)
     mt = rel["mtbf"].set_index("environment")
     ground = mt.loc["ground (sea level)"]
-    assert ground["mtbf_hours"] == pytest.approx(1 / (1e-12 * bits * 3 / 59 / 16))
-    assert rel["dose_model"] is None and any("dose" in n for n in rel["notes"])
+    # upsets accumulate until the daily scrub: MTBF = T / (1 - exp(-rate * bits * p * T))
+    x = 1e-12 * bits * 3 / 59 / 16 * 24.0
+    assert ground["mtbf_hours"] == pytest.approx(24.0 / (1 - math.exp(-x)))
+    assert reliability.mtbf(1e-12, bits, 3 / 59 / 16, math.inf) == pytest.approx(1 / (1e-12 * bits * 3 / 59 / 16))
+    assert reliability.mtbf(1e-3, bits, 0.5, 24.0) == pytest.approx(24.0)  # every interval is hit
     # the rates are documented inputs with sources
-    assert all(env["source"] for env in A.UPSET_RATES)
+    assert all(env["source"] for env in reliability.UPSET_RATES)
 
 
-def test_capped_psnr_and_mse():
-    d = A.prepare(_records(4, psnr=[np.inf, 40.0, np.nan, 250.0], nonfinite=[False, False, True, False]))
-    assert A.capped_psnr(d).tolist() == [100.0, 40.0, 0.0, 100.0]
-    mse = A.mse_from_psnr(d).tolist()
-    assert mse[0] == 0.0 and mse[1] == pytest.approx(1e-4) and mse[2] == np.inf
+def test_undefined_psnr_stays_undefined():
+    d = records.prepare(_records(4, psnr=[np.inf, 40.0, 12.0, 20.0], nonfinite=[False, False, True, False]))
+    assert np.isnan(d["psnr"].iloc[2]) and np.isnan(d["ssim"].iloc[2])  # not 0 dB, not 12 dB
+    q = estimate.quality(d).iloc[0]
+    assert q["n"] == 4 and q["n_finite"] == 3 and q["nonfinite_pct"] == pytest.approx(25)
+    assert q["psnr_median_db"] == 40.0  # over finite frames: inf, 40, 20
+    mse = np.mean([0.0, 1e-4, 1e-2])
+    assert q["psnr_mean_mse_db"] == pytest.approx(10 * math.log10(1 / mse))
+    assert estimate.mse_of_psnr([np.inf, 40.0, np.nan])[0] == 0.0
+
+
+def test_outcome_classes():
+    d = records.prepare(
+        _records(
+            5,
+            peak_error=[0.0, 1e-3, 0.5, 0.5, 0.0],
+            footprint=[0.0, 0.0, 0.005, 0.02, 0.0],
+            nonfinite=[False, False, False, False, True],
+        )
+    )
+    assert d["outcome"].tolist() == ["masked", "tolerable", "sdc", "catastrophic", "catastrophic"]
+    assert d["catastrophic"].tolist() == [False, False, False, True, True]
+    strict = records.prepare(
+        _records(2, peak_error=[1e-3, 0.5], footprint=[0.0, 0.005]),
+        {"pixel_threshold": 1e-4, "footprint_threshold": 0.001},
+    )
+    assert strict["outcome"].tolist() == ["sdc", "catastrophic"]
 
 
 # --------------------------------------------------------------------- distributed contamination
 
 
-def test_region_grid_square_as_possible():
-    assert region_grid(4) == (2, 2)
-    assert region_grid(8) == (2, 4)
-    assert region_grid(12) == (3, 4)
-    assert region_grid(16) == (4, 4)
-    assert region_grid(32) == (4, 8)
-    assert region_grid(64) == (8, 8)
-    assert region_grid(7) == (1, 7)
-    assert region_grid(8, H=100, W=50) == (4, 2)  # portrait: more rows
+def test_region_grid_tile_aligned_and_square_in_tiles():
+    assert region_grid(4, 64, 64) == (2, 2)
+    assert region_grid(8, 128, 128) == (2, 4)  # a tie goes to more columns
+    assert region_grid(16, 128, 128) == (4, 4)
+    assert region_grid(64, 128, 128) == (8, 8)
+    assert region_grid(6, 128, 128) == (2, 3)  # the old pixel grid was 3 x 2 here, the ranks' 2 x 3
+    assert region_grid(8, 256, 128) == (4, 2)  # portrait: more rows
+    assert region_grid(3, 40, 96) == (1, 3)
+    ey, ex = region_edges(4, 64, 80)  # 80 px = 5 tiles: edges on tile borders, not at 40 px
+    assert ex.tolist() == [0, 32, 80] and ey.tolist() == [0, 32, 64]
+    ey, ex = region_edges(4, 38, 50)  # partial last tiles: clipped to the frame
+    assert ex.tolist() == [0, 32, 50] and ey.tolist() == [0, 32, 38]
+    with pytest.raises(ValueError, match="do not fit"):
+        region_grid(64, 64, 64)  # 4 x 4 tiles hold at most 16 regions
 
 
 def test_contaminated_regions_planted_masks():
     H = W = 64  # P = 16: 4 x 4 regions of 16 x 16
     m = np.zeros((H, W), bool)
-    assert A.contaminated_regions(m, H, W, 16) == 0
+    assert contamination.contaminated_regions(m, H, W, 16) == 0
     m[0, 0] = True
-    assert A.contaminated_regions(m, H, W, 16) == 1
+    assert contamination.contaminated_regions(m, H, W, 16) == 1
     m[15, 15] = True  # same region
-    assert A.contaminated_regions(m, H, W, 16) == 1
+    assert contamination.contaminated_regions(m, H, W, 16) == 1
     m[15:17, 15:17] = True  # crosses a corner: 4 regions
-    assert A.contaminated_regions(m, H, W, 16) == 4
-    assert A.contaminated_regions(np.ones((H, W), bool), H, W, 16) == 16
-    assert A.contaminated_regions(np.ones((H, W), bool), H, W, 64) == 64
+    assert contamination.contaminated_regions(m, H, W, 16) == 4
+    assert contamination.contaminated_regions(np.ones((H, W), bool), H, W, 16) == 16
+    assert contamination.contaminated_regions(np.ones((128, 128), bool), 128, 128, 64) == 64
     row = np.zeros((H, W), bool)
     row[40, :] = True  # one pixel row: a full band of regions
-    assert A.contaminated_regions(row, H, W, 4) == 2
-    assert A.contaminated_regions(row, H, W, 64) == 8
-    assert A.region_set(row, H, W, 16).tolist() == [False] * 8 + [True] * 4 + [False] * 4
+    assert contamination.contaminated_regions(row, H, W, 4) == 2
+    assert contamination.contaminated_regions(row, H, W, 16) == 4
+    assert contamination.region_set(row, H, W, 16).tolist() == [False] * 8 + [True] * 4 + [False] * 4
     views = np.zeros((2, H, W), bool)
     views[1, 63, 63] = True
-    assert A.contaminated_regions(views, H, W, 4) == 1
+    assert contamination.contaminated_regions(views, H, W, 4) == 1
     with pytest.raises(ValueError):
-        A.contaminated_regions(np.zeros((3, 3), bool), H, W, 4)
+        contamination.contaminated_regions(np.zeros((3, 3), bool), H, W, 4)
 
 
 def test_contaminated_regions_bbox():
     H, W = 64, 128  # P = 8: 2 x 4 regions of 32 x 32
-    assert A.contaminated_regions((10, 10, 20, 12), H, W, 8) == 1
-    assert A.contaminated_regions((30.5, 10, 33.2, 40), H, W, 8) == 4
-    assert A.contaminated_regions((0, 0, W, H), H, W, 8) == 8
-    assert A.contaminated_regions((-1e9, -1e9, 1e9, 1e9), H, W, 8) == 8
-    assert A.contaminated_regions((200, 0, 300, 10), H, W, 8) == 0  # off screen
-    assert A.contaminated_regions((5, 5, 5, 9), H, W, 8) == 0  # empty
-    assert A.contaminated_regions((0, 0, np.inf, np.nan), H, W, 8) == 8  # exploded
+    assert contamination.contaminated_regions((10, 10, 20, 12), H, W, 8) == 1
+    assert contamination.contaminated_regions((30.5, 10, 33.2, 40), H, W, 8) == 4
+    assert contamination.contaminated_regions((0, 0, W, H), H, W, 8) == 8
+    assert contamination.contaminated_regions((-1e9, -1e9, 1e9, 1e9), H, W, 8) == 8
+    assert contamination.contaminated_regions((200, 0, 300, 10), H, W, 8) == 0  # off screen
+    assert contamination.contaminated_regions((5, 5, 5, 9), H, W, 8) == 0  # empty
+    assert contamination.contaminated_regions((0, 0, np.inf, np.nan), H, W, 8) == 8  # exploded
 
 
 def test_region_iou_and_bitmasks():
-    a = A.decode_regions(0b1111, 4)
-    b = A.decode_regions([0, 1], 4)
-    assert A.region_iou(a, b) == 0.5
-    assert math.isnan(A.region_iou(np.zeros(4, bool), np.zeros(4, bool)))
-    full64 = A.decode_regions(np.int64(-1), 64)  # all 64 bits, stored as int64
+    a = contamination.decode_regions(0b1111, 4)
+    b = contamination.decode_regions([0, 1], 4)
+    assert contamination.region_iou(a, b) == 0.5
+    assert math.isnan(contamination.region_iou(np.zeros(4, bool), np.zeros(4, bool)))
+    full64 = contamination.decode_regions(np.int64(-1), 64)  # all 64 bits, stored as int64
     assert full64.sum() == 64
-    assert A.regions_to_bitmask(A.region_set((0, 0, 64, 64), 64, 64, 4)) == 0b1111
-    assert A.decode_regions("0,3", 4).tolist() == [True, False, False, True]
-    assert A.decode_regions(float("nan"), 4) is None
-    assert A.popcount64(np.array([0, 1, 3, 2**63], dtype=np.uint64)).tolist() == [0, 1, 2, 1]
+    assert contamination.regions_to_bitmask(contamination.region_set((0, 0, 64, 64), 64, 64, 4)) == 0b1111
+    assert contamination.decode_regions("0,3", 4).tolist() == [True, False, False, True]
+    assert contamination.decode_regions(float("nan"), 4) is None
+    assert contamination.popcount64(np.array([0, 1, 3, 2**63], dtype=np.uint64)).tolist() == [0, 1, 2, 1]
 
 
 def test_contamination_table_from_region_columns():
@@ -421,15 +495,15 @@ def test_contamination_table_from_region_columns():
         regions_pred_16=1,
         regions_meas_16=0,
     )
-    t = A.contamination(pd.concat([d, g], ignore_index=True))
+    t = contamination.contamination(pd.concat([d, g], ignore_index=True))
     r = t[(t["subset"] == "log-scale sign") & (t["defense"] == "none")].set_index("P")
     assert r.loc[4, "pred_fraction_pct"] == 100 and r.loc[4, "meas_fraction_pct"] == 50
     assert r.loc[4, "iou_mean"] == pytest.approx(0.5) and r.loc[16, "iou_mean"] == 1.0
     rg = t[(t["subset"] == "log-scale sign") & (t["defense"] == "guard")].set_index("P")
     assert rg.loc[4, "pred_fraction_pct"] == 25 and rg.loc[16, "meas_fraction_pct"] == 0
     assert rg.loc[4, "iou_mean"] == 0.0
-    with pytest.raises(A.InsufficientData):
-        A.contamination(_records(3))
+    with pytest.raises(records.InsufficientData):
+        contamination.contamination(_records(3))
 
 
 # ------------------------------------------------------------------------------- prediction
@@ -454,32 +528,35 @@ def _prediction_table(rng, label):
                     )
                 )
     d = pd.concat(rows, ignore_index=True)
-    d["catastrophic"] = label(d)
+    d["footprint"] = np.where(label(d), 0.5, 0.0)  # the outcome class follows the footprint
     return d
 
 
 def test_prediction_perfect_and_random():
     rng = np.random.default_rng(0)
     d = _prediction_table(rng, lambda d: (d["field"] == "log_scales") & (d["bit"] >= 29))
-    res = A.prediction(d, n_repeats=2)
+    res = prediction.prediction(d, n_repeats=2)
     s = res["summary"].set_index("model")
-    assert s.loc["field+bit+class+value", "auc_holdout"] > 0.99
-    assert s.loc["field+bit", "auc_holdout"] > 0.99
-    assert s.loc["field+bit", "loso_auc_min"] > 0.99
+    clf, look, const = s.index
+    assert s.loc[clf, "auc_holdout"] > 0.99 and s.loc[look, "auc_holdout"] > 0.99
+    assert s.loc[look, "loso_auc_min"] > 0.99 and s.loc[look, "loso_scenes"] >= 2
+    assert s.loc[const, "auc_holdout"] == 0.5  # a constant ranks nothing
+    assert s.loc[look, "brier"] < s.loc[const, "brier"]
+    assert s.loc[clf, "auc_lo"] <= s.loc[clf, "auc_holdout"] <= s.loc[clf, "auc_hi"]
+    assert res["lookup_as_good"] is True and any("lookup" in n for n in res["notes"])
     assert res["top_feature"] in ("bit", "field", "bit_class")
     r = _prediction_table(rng, lambda d: pd.Series(rng.random(len(d)) < 0.2, index=d.index))
-    res_r = A.prediction(r, n_repeats=2)
+    res_r = prediction.prediction(r, n_repeats=2)
     assert res_r["summary"]["auc_holdout"].iloc[1] == pytest.approx(0.5, abs=0.12)
-    with pytest.raises(A.InsufficientData):
-        A.prediction(_records(50))
+    # too few events: NaN and a note, not a failure (a tiny run's report must still build)
+    tiny = prediction.prediction(_records(50))
+    assert tiny["summary"]["auc_holdout"].isna().all() and "too few" in tiny["notes"][0]
 
 
 def test_size_scaling_weights_stratified_records():
     """Stratified size-campaign records are weighted by the bits each stands for: a rare,
     heavily damaging cell must not dominate the mean in proportion to its sample count."""
     import pandas as pd
-
-    from seuwgpu.analysis import studies as A
 
     rows = []
     for n in (1000, 4000):
@@ -517,7 +594,7 @@ def test_size_scaling_weights_stratified_records():
                     weight=9.0 if heavy else 1.0,
                 )
             )
-    res = A.size_scaling(pd.DataFrame(rows))
+    res = scaling.size_scaling(pd.DataFrame(rows))
     t = res["table"]
     want = (9 * 1e-6 + 1 * 1e-2) / 10
     assert np.allclose(t["mean_mse"], want, rtol=1e-6)

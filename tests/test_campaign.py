@@ -10,11 +10,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from seuwgpu.campaign import store
 from seuwgpu.campaign.merge import merge
 from seuwgpu.campaign.runner import Runner, replay
 from seuwgpu.campaign.sampling import enumerate_contexts
 from seuwgpu.campaign.spec import SpecError, load_spec, normalize_spec
-from seuwgpu.campaign.store import COLUMNS, read_records
+from seuwgpu.campaign.store import COLUMNS, REPRODUCIBLE_COLUMNS, read_records
+from seuwgpu.render.regions import REGION_GRID_VERSION
 
 SPEC = textwrap.dedent("""
     seed = 7
@@ -46,7 +48,8 @@ def write_spec(tmp_path, text=SPEC, name="spec.toml"):
 
 
 def canonical(df: pd.DataFrame) -> pd.DataFrame:
-    return df.sort_values(["injection_id", "defense"]).reset_index(drop=True)[COLUMNS]
+    # every column but the wall-clock ones (time_ms) is reproduced bit for bit
+    return df.sort_values(["injection_id", "defense"]).reset_index(drop=True)[REPRODUCIBLE_COLUMNS]
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +65,12 @@ def test_records_have_the_contract_columns(reference_run):
     total = sum(c.count for c in enumerate_contexts(spec))
     assert total == 3 * 5 * 6 + 2 * 2
     assert len(df) == 2 * total
-    assert list(df.columns) == COLUMNS
+    assert list(df.columns) == REPRODUCIBLE_COLUMNS
+    # outcome classes agree with the catastrophic flag and the metrics
+    assert set(df["outcome"]) <= {"masked", "tolerable", "sdc", "catastrophic"}
+    assert ((df["outcome"] == "catastrophic") == df["catastrophic"]).all()
+    assert ((df["outcome"] == "masked") == ((df["peak_error"] == 0) & ~df["nonfinite"])).all()
+
     assert df.injection_id.nunique() == total
     single = df[df.campaign == "single"]
     # stratified: exactly `samples` injections per (field, bit) cell
@@ -75,6 +83,18 @@ def test_records_have_the_contract_columns(reference_run):
     assert sorted(dose.k.unique()) == [1, 30]
     assert (dose[dose.k > 1].primitive == -1).all() and (dose[dose.k == 1].primitive >= 0).all()
     assert (single.k == 1).all()
+
+
+def test_records_time_each_defense_and_manifest_states_thresholds(tmp_path):
+    spec = load_spec(write_spec(tmp_path))
+    Runner(spec, tmp_path / "run", quiet=True).run()
+    raw = read_records(tmp_path / "run")
+    assert list(raw.columns) == COLUMNS
+    t = raw.groupby(["campaign", "scene", "n_primitives", "precision", "defense"])["time_ms"].agg(["min", "nunique"])
+    assert (t["min"] > 0).all() and (t["nunique"] == 1).all()  # one measurement per engine and defense
+    m = store.read_manifest(tmp_path / "run")
+    assert m["outcomes"] == {"pixel_threshold": 1 / 255, "footprint_threshold": 0.01}
+    assert m["region_grid"] == REGION_GRID_VERSION
 
 
 def test_sharded_and_merged_equals_unsharded(reference_run, tmp_path):
@@ -208,3 +228,27 @@ def test_samples_planned_from_a_margin(tmp_path):
     out = subprocess.run([sys.executable, "-m", "seuwgpu", "plan", str(p)], capture_output=True, text=True)
     assert out.returncode == 0
     assert "total: 1,344 injections, 2,688 records" in out.stdout  # 6 fields x 32 bits x 7, 2 arms
+
+
+def test_outcome_and_reliability_tables_of_the_spec():
+    base = {"scenes": [{"scene": "spheres", "n": 100}], "single": {"samples": 1}}
+    plain = normalize_spec(base)
+    assert "outcomes" not in plain and "reliability" not in plain  # older specs keep their hash
+    s = normalize_spec(
+        base
+        | {
+            "outcomes": {"footprint": 0.05},
+            "reliability": {"scrub_hours": 6, "rates": [{"environment": "lab", "per_bit_hour": 1e-9, "source": "x"}]},
+        }
+    )
+    assert s["outcomes"] == {"pixel_threshold": 1 / 255, "footprint": 0.05}
+    assert s["reliability"]["scrub_hours"] == 6.0 and s["reliability"]["rates"][0]["per_bit_hour"] == 1e-9
+    for bad, what in (
+        ({"outcomes": {"footprint": 2}}, "outcomes.footprint"),
+        ({"outcomes": {"pixel": 0.1}}, "unknown key 'pixel'"),
+        ({"reliability": {"scrub_hours": 0}}, "reliability.scrub_hours"),
+        ({"reliability": {"rates": [{"environment": "a", "per_bit_hour": -1, "source": "s"}]}}, "per_bit_hour"),
+        ({"single": {"samples": 1, "regions": [64]}, "size": "64x64"}, "do not fit"),
+    ):
+        with pytest.raises(SpecError, match=what):
+            normalize_spec(base | bad)

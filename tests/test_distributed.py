@@ -16,7 +16,8 @@ from seuwgpu.campaign.ray import ray_available
 from seuwgpu.campaign.runner import Runner
 from seuwgpu.campaign.sortfirst import split_regions
 from seuwgpu.campaign.spec import normalize_spec
-from seuwgpu.campaign.store import COLUMNS, read_records
+from seuwgpu.campaign.store import REPRODUCIBLE_COLUMNS, read_records
+from seuwgpu.render.regions import region_id_map
 
 needs_ray = pytest.mark.skipif(
     not ray_available(), reason="ray is not importable (install the extra: pip install 'seuwgpu[ray]')"
@@ -46,7 +47,8 @@ SPEC = textwrap.dedent("""
 
 
 def canonical(df: pd.DataFrame) -> pd.DataFrame:
-    return df.sort_values(["injection_id", "defense"]).reset_index(drop=True)[COLUMNS]
+    # every column but the wall-clock ones (time_ms) is reproduced bit for bit
+    return df.sort_values(["injection_id", "defense"]).reset_index(drop=True)[REPRODUCIBLE_COLUMNS]
 
 
 @pytest.fixture(scope="module")
@@ -90,6 +92,11 @@ def test_regions_tile_the_frame():
         assert (cover == 1).all()
     with pytest.raises(ValueError, match="do not fit"):
         split_regions(5, 32, 32)
+    # the contamination analysis counts exactly the regions the ranks render (one grid)
+    for ranks, (w, h) in [(4, (80, 64)), (6, (128, 128)), (16, (128, 96)), (4, (50, 38))]:
+        rid = region_id_map(ranks, h, w)
+        for r, (x0, y0, rw, rh) in enumerate(split_regions(ranks, w, h)[0]):
+            assert (rid[y0 : y0 + rh, x0 : x0 + rw] == r).all()
 
 
 def test_without_ray_the_local_executor_runs_and_says_how_to_get_ray(

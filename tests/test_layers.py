@@ -11,9 +11,22 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "seuwgpu"
 
-# Bottom to top. `version` is the package version alone; the package root (the public API) and
-# `__main__` sit above everything.
-LAYERS = ["version", "model", "gpu", "render", "metrics", "faults", "campaign", "analysis", "report", "apps"]
+# Bottom to top. `errors` holds the project's exception types, `version` the package version
+# alone; the package root (the public API) and `__main__` sit above everything.
+LAYERS = [
+    "errors",
+    "version",
+    "model",
+    "gpu",
+    "render",
+    "metrics",
+    "faults",
+    "campaign",
+    "analysis",
+    "report",
+    "api",
+    "apps",
+]
 TOP = len(LAYERS)
 
 

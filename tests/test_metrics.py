@@ -127,6 +127,7 @@ def test_dense_matches_numpy_twin(gpu):
     assert s["ssim"][4] == 1.0 and s["psnr"][4] == np.inf and s["footprint"][4] == 0
     assert s["nonfinite"].tolist() == [False, True, False, False, False, False]
     assert s["nonfinite_pixels"][1] == 4
+    assert np.isnan(s["psnr"][1]) and np.isnan(s["ssim"][1]) and np.isfinite(s["psnr"][[0, 2, 3, 5]]).all()
     assert M.catastrophic(s["footprint"], s["nonfinite"]).tolist() == [False, True, False, True, False, False]
 
 
@@ -271,8 +272,8 @@ def test_summarize_and_catastrophic():
     np.testing.assert_allclose(s["footprint_max"], [10 / 200, 2.0])
     np.testing.assert_allclose(s["peak_error"], [0.5, np.inf])
     np.testing.assert_allclose(s["psnr"][0], 10 * np.log10(2 * 200 * 3 / 3.0))
-    assert s["psnr"][1] == np.inf
-    np.testing.assert_allclose(s["ssim"], [1 - 0.5 / 56 / 2, 1.0])
+    assert np.isnan(s["psnr"][1]) and np.isnan(s["ssim"][1])  # non-finite frame: undefined, not 0 dB
+    np.testing.assert_allclose(s["ssim"][0], 1 - 0.5 / 56 / 2)
     assert s["nonfinite"].tolist() == [False, True] and s["nonfinite_pixels"].tolist() == [0, 2]
     assert M.catastrophic(s["footprint"], s["nonfinite"]).tolist() == [True, True]
     assert M.catastrophic([0.01, 0.0101], [False, False]).tolist() == [False, True]

@@ -238,12 +238,16 @@ def test_end_to_end_report(synthetic, tmp_path):
         "fig_dose",
         "fig_budget",
         "fig_size",
-        "fig_dose_model",
+        "fig_reliability",
         "fig_contamination",
         "fig_roc",
     ):
         assert (out / f"{fig}.png").stat().st_size > 1000, fig
     for tab in (
+        "claims",
+        "outcomes",
+        "outcomes_long",
+        "scenes",
         "criticality",
         "field_bit",
         "precision_rates",
@@ -260,7 +264,7 @@ def test_end_to_end_report(synthetic, tmp_path):
         "reliability_pc",
         "mtbf",
         "mtbf_detail",
-        "dose_model",
+        "dose_fits",
         "contamination",
         "prediction",
         "prediction_importance",
@@ -285,9 +289,9 @@ def test_end_to_end_report(synthetic, tmp_path):
     assert mit.set_index("defense").loc["dup", "memory_overhead_pct"] == pytest.approx(200)
     assert mit.set_index("defense").loc["ecc", "memory_overhead_pct"] == pytest.approx(100 * 5 / 32)
     mtbf = pd.read_csv(out / "mtbf.csv")
-    assert len(mtbf) == 3 and list(mtbf.columns) == ["environment", "no guard", "support guard"]
+    assert len(mtbf) == 3 and {"none (single-upset p_c)", "guard (single-upset p_c)"} <= set(mtbf.columns)
     dc = pd.read_csv(out / "dose_curves.csv")
-    assert len(dc) == 3 * 2 * 5  # precisions x defenses x k
+    assert len(dc) == 2 * 3 * 2 * 5  # models x precisions x defenses x k: models never averaged
     bud = pd.read_csv(out / "redundancy_budget.csv")
     assert len(bud) == 2 * 3 * 2 + 1 * 1 * 0  # scenes x precisions x defenses
     fits = pd.read_csv(out / "size_fits.csv")
@@ -301,7 +305,10 @@ def test_end_to_end_report(synthetic, tmp_path):
     assert not any(s.startswith("Dose response") for s in skipped)
     assert "Slowest-region render time and load imbalance" in skipped
     assert summary["numbers"]["guard_residual_catastrophic"] == 0
-    assert 0.9 <= summary["numbers"]["pred_auc"] <= 1.0
+    assert 0.9 <= summary["numbers"]["pred_auc"][0] <= 1.0
+    # the report opens with the claims table
+    assert summary["sections"][0] == "claims"
+    assert page.index("id='claims'") < page.index("id='outcomes'") < page.index("id='criticality'")
 
 
 def test_skipped_when_no_dose_rows(synthetic, tmp_path):
@@ -318,12 +325,11 @@ def test_skipped_when_no_dose_rows(synthetic, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert "criticality.csv" in summary["files"]
     skipped = {s["analysis"]: s for s in summary["skipped"]}
-    dose = skipped["Dose response (PSNR against k)"]
+    dose = skipped["Dose response (quality and catastrophes against k)"]
     assert "k > 1" in dose["missing"] and "dose campaign" in dose["remedy"]
     assert "Redundancy budget" in skipped
     assert "size campaign" in skipped["Single-upset error against N"]["remedy"]
     assert "Distributed contamination" in skipped
-    assert "Dose model 1-(1-p_c)^k against the measured curve" in skipped
     assert not (out / "dose_curves.csv").exists()
     page = (out / "index.html").read_text()
     assert "Skipped analyses" in page and "run a dose campaign" in page
@@ -335,7 +341,7 @@ def test_skipped_when_no_dose_rows(synthetic, tmp_path):
 def test_criticality_table_text(synthetic):
     df, _ = load_runs([synthetic["full"]])
     txt = criticality_table_text(df)
-    assert "fp32" in txt and "Wilson" in txt
+    assert "fp32" in txt and "95% interval" in txt
     lines = [ln for ln in txt.splitlines() if ln.startswith("| ")]
     assert len(lines) == 1 + 6  # header + six fields
     assert "log-scale" in txt and "color (SH)" in txt

@@ -2,8 +2,8 @@
 campaign) with 95% intervals, overall and on the dangerous cells, next to its memory overhead and
 time cost, the Pareto front, and the issue's goal check.
 
-Rates are stratified by (field, bit) cell: each cell's rate weighted by the stored bits it stands
-for (the records' `weight`), with a Wilson interval at the Kish effective n (analysis/stats.py).
+Rates come from the estimator layer (analysis/estimate.py `one_rate`): stratified by cell, each
+weighted by the stored bits it stands for, with a stratified Wilson interval.
 
 The dangerous cells (DANGEROUS_BITS) are where an unprotected trained model fails: a log-scale's
 sign and top exponent bit (a small splat becomes a frame-covering sheet) and opacity's top
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from seuwgpu.analysis.stats import stratified_rate
+from seuwgpu.analysis.estimate import one_rate
 from seuwgpu.faults.defenses import DEFENSES, memory_overhead
 from seuwgpu.model import encoding
 
@@ -41,14 +41,9 @@ def dangerous_mask(df: pd.DataFrame) -> pd.Series:
 
 
 def _rate(df: pd.DataFrame) -> tuple[float, float, float, int, int]:
-    """(rate, lo, hi, n, catastrophic) stratified by (field, bit) cell."""
-    if df.empty:
-        return float("nan"), float("nan"), float("nan"), 0, 0
-    g = df.groupby(["field", "bit"], observed=True).agg(
-        k=("catastrophic", "sum"), n=("catastrophic", "size"), w=("weight", "sum")
-    )
-    p, lo, hi, _ = stratified_rate(g["k"], g["n"], g["w"])
-    return p, float(lo), float(hi), int(g["n"].sum()), int(g["k"].sum())
+    """(rate, lo, hi, n, catastrophic), stratified (estimate.one_rate)."""
+    r = one_rate(df)
+    return float(r["rate"]), float(r["ci_lo"]), float(r["ci_hi"]), int(r["n"]), int(r["events"])
 
 
 def has_new_defenses(df: pd.DataFrame) -> bool:

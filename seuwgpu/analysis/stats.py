@@ -11,9 +11,10 @@ Conventions
   quantile of the confidence level and p the (unknown, worst case 0.5) proportion. With no
   population (N -> infinity) it is the familiar n = t^2 p (1-p) / e^2.
 * `loglog_fit` fits log10(y) = exponent * log10(x) + intercept by least squares; R^2 is that of
-  the fit in log-log space.
+  the fit in log-log space, the exponent's interval is Student-t with n - 2 degrees of freedom.
+* Rates of campaign records (weighted, stratified) are `analysis.estimate`'s, not these.
 
-Only numpy and the standard library are needed, except `auc`, which uses scikit-learn.
+Fit intervals use scipy's t quantile, `auc` scikit-learn (both imported when called).
 """
 
 from __future__ import annotations
@@ -31,8 +32,7 @@ __all__ = [
     "loglog_fit",
     "linear_fit",
     "auc",
-    "kish_effective_n",
-    "stratified_rate",
+    "auc_interval",
 ]
 
 
@@ -66,22 +66,32 @@ def wilson_interval(k, n, conf: float = 0.95):
     return lo, hi
 
 
+class LinearFit(NamedTuple):
+    """y = slope * x + intercept by least squares; slope_lo/hi: its t interval (NaN for 2 points)."""
+
+    slope: float
+    intercept: float
+    r2: float
+    slope_lo: float = float("nan")
+    slope_hi: float = float("nan")
+    n: int = 0
+
+
 class PowerFit(NamedTuple):
-    """y = 10**intercept * x**exponent, fitted in log10-log10 space."""
+    """y = 10**intercept * x**exponent, fitted in log10-log10 space, with the exponent's interval."""
 
     exponent: float
     intercept: float
     r2: float
+    exponent_lo: float = float("nan")
+    exponent_hi: float = float("nan")
+    n: int = 0
 
 
-class LinearFit(NamedTuple):
-    slope: float
-    intercept: float
-    r2: float
-
-
-def linear_fit(x, y) -> LinearFit:
-    """Least-squares line y = slope * x + intercept over the finite points, with R^2."""
+def linear_fit(x, y, conf: float = 0.95) -> LinearFit:
+    """Least-squares line y = slope * x + intercept over the finite points, with R^2 and the
+    slope's Student-t interval (n - 2 degrees of freedom; undefined with two points, where a line
+    fits exactly whatever the data)."""
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
     ok = np.isfinite(x) & np.isfinite(y)
@@ -93,64 +103,57 @@ def linear_fit(x, y) -> LinearFit:
     ss_res = float(np.sum(resid**2))
     ss_tot = float(np.sum((y - y.mean()) ** 2))
     r2 = 1.0 - ss_res / ss_tot if ss_tot > 0 else (1.0 if ss_res == 0 else 0.0)
-    return LinearFit(float(slope), float(intercept), float(r2))
+    lo = hi = float("nan")
+    if x.size > 2:
+        from scipy.stats import t as student_t
+
+        se = np.sqrt(ss_res / (x.size - 2) / np.sum((x - x.mean()) ** 2))
+        q = float(student_t.ppf(0.5 + conf / 2, x.size - 2))
+        lo, hi = float(slope - q * se), float(slope + q * se)
+    return LinearFit(float(slope), float(intercept), float(r2), lo, hi, int(x.size))
 
 
-def loglog_fit(x, y) -> PowerFit:
-    """Fit y = A x^b in log10-log10 space; returns (exponent b, intercept log10 A, R^2).
+def loglog_fit(x, y, conf: float = 0.95) -> PowerFit:
+    """Fit y = A x^b in log10-log10 space; returns (exponent b, intercept log10 A, R^2, b's
+    interval, points used).
 
-    Points with non-positive or non-finite x or y are dropped (they have no logarithm); at least
-    two distinct x values must remain.
+    Points with non-positive or non-finite x or y have no logarithm and are not fitted (callers
+    show them); at least two distinct x values must remain.
     """
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
     ok = np.isfinite(x) & np.isfinite(y) & (x > 0) & (y > 0)
     if ok.sum() < 2:
         raise ValueError("a log-log fit needs at least two points with positive x and y")
-    f = linear_fit(np.log10(x[ok]), np.log10(y[ok]))
-    return PowerFit(f.slope, f.intercept, f.r2)
+    f = linear_fit(np.log10(x[ok]), np.log10(y[ok]), conf)
+    return PowerFit(f.slope, f.intercept, f.r2, f.slope_lo, f.slope_hi, f.n)
 
 
-def auc(y, score) -> float:
-    """ROC AUC of a score for binary labels y (NaN when y holds a single class)."""
+def auc(y, score, weight=None) -> float:
+    """ROC AUC of a score for binary labels y, optionally weighted (NaN with a single class)."""
     from sklearn.metrics import roc_auc_score
 
     y = np.asarray(y).astype(bool)
     score = np.asarray(score, dtype=float)
     if y.size == 0 or y.all() or not y.any():
         return float("nan")
-    return float(roc_auc_score(y, score))
+    return float(roc_auc_score(y, score, sample_weight=weight))
 
 
-def kish_effective_n(weights, n) -> float:
-    """Effective sample size of a stratified mean: 1 / sum_h (w_h^2 / n_h), weights summing to 1.
-
-    This is the n a simple random sample would need for the same variance when the strata share
-    one proportion; used to put a Wilson interval on a stratified rate (see `stratified_rate`).
-    """
-    w = np.asarray(weights, dtype=float)
-    n = np.asarray(n, dtype=float)
-    ok = n > 0
-    w = w[ok] / w[ok].sum()
-    return float(1.0 / np.sum(w * w / n[ok]))
-
-
-def stratified_rate(k, n, weights, conf: float = 0.95):
-    """Population rate from per-stratum counts: p = sum_h w_h k_h / n_h.
-
-    Strata with n_h = 0 are dropped and the remaining weights renormalised (the caller reports
-    coverage). The interval is a Wilson interval at the Kish effective sample size n_eff (with
-    k_eff = p * n_eff), which stays honest at zero events where a normal approximation collapses.
-    Returns (p, lo, hi, n_eff).
-    """
-    k = np.asarray(k, dtype=float)
-    n = np.asarray(n, dtype=float)
-    w = np.asarray(weights, dtype=float)
-    ok = n > 0
-    if not ok.any():
-        return float("nan"), float("nan"), float("nan"), 0.0
-    w = w[ok] / w[ok].sum()
-    p = float(np.sum(w * k[ok] / n[ok]))
-    n_eff = kish_effective_n(w, n[ok])
-    lo, hi = wilson_interval(min(p * n_eff, n_eff), n_eff, conf)
-    return p, lo, hi, n_eff
+def auc_interval(y, score, weight=None, n_boot: int = 200, conf: float = 0.95, seed: int = 0):
+    """Percentile bootstrap interval of the (weighted) AUC, resampling records; (lo, hi), NaN
+    when fewer than half the resamples hold both classes."""
+    y = np.asarray(y).astype(bool)
+    score = np.asarray(score, dtype=float)
+    w = np.ones(y.size) if weight is None else np.asarray(weight, float)
+    rng = np.random.default_rng(seed)
+    vals = []
+    for _ in range(n_boot):
+        i = rng.integers(0, y.size, y.size)
+        a = auc(y[i], score[i], w[i])
+        if np.isfinite(a):
+            vals.append(a)
+    if len(vals) < n_boot // 2:
+        return float("nan"), float("nan")
+    a = (1 - conf) / 2
+    return float(np.quantile(vals, a)), float(np.quantile(vals, 1 - a))

@@ -8,10 +8,14 @@ from pathlib import Path
 
 import numpy as np
 
+from seuwgpu.errors import SeuwgpuError
+from seuwgpu.faults.defenses import DEFENSES
+from seuwgpu.model.encoding import PRECISIONS
+from seuwgpu.model.formats import UP_AXES
 from seuwgpu.version import __version__
 
 
-class CliError(Exception):
+class CliError(SeuwgpuError):
     """A user error: printed as one line, exit status 2."""
 
 
@@ -25,6 +29,43 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _whole(text: str, lo: int) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if v < lo:
+        raise argparse.ArgumentTypeError(f"must be at least {lo}, got {v}")
+    return v
+
+
+def positive_int(text: str) -> int:
+    """An argument that counts something (primitives, views, samples): an integer >= 1."""
+    return _whole(text, 1)
+
+
+def index_int(text: str) -> int:
+    """An index or threshold argument: an integer >= 0."""
+    return _whole(text, 0)
+
+
+def positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (v > 0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return v
+
+
+def proportion(text: str) -> float:
+    v = positive_float(text)
+    if v >= 1:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1, got {text!r}")
+    return v
+
+
 def add_model_args(p: argparse.ArgumentParser):
     src = p.add_mutually_exclusive_group()
     src.add_argument(
@@ -35,14 +76,28 @@ def add_model_args(p: argparse.ArgumentParser):
         help="a 3DGS model file: INRIA PLY, compressed PLY, .spz, .splat or a gsplat .pt (recognised by content)",
     )
     src.add_argument("--scene", help="an embedded scene (see `seuwgpu scene --list`)")
-    p.add_argument("--n", type=int, help="primitives of an embedded scene (default 100000; a real capture: all)")
+    p.add_argument(
+        "--n", type=positive_int, help="primitives of an embedded scene (default 100000; a real capture: all)"
+    )
     p.add_argument("--sh-degree", type=int, default=3, choices=range(4), help="SH degree of an embedded scene")
     p.add_argument("--seed", type=int, default=0, help="seed of an embedded scene")
-    p.add_argument("--precision", choices=("fp32", "fp16", "bf16"), default="fp32", help="stored precision")
+    p.add_argument("--precision", choices=PRECISIONS, default="fp32", help="stored precision")
     p.add_argument(
         "--up",
-        choices=("+x", "-x", "+y", "-y", "+z", "-z"),
+        choices=UP_AXES,
         help="up axis of the orbit views (default: the file format's convention, see README)",
+    )
+
+
+def add_profile_arg(p: argparse.ArgumentParser, default: str | None = "strict"):
+    from seuwgpu.gpu.constants import PROFILES
+
+    p.add_argument(
+        "--profile",
+        choices=PROFILES,
+        default=default,
+        help="what corrupted values draw: strict (NaN covariance = frame-covering sheet) or gsplat "
+        "(gsplat's CUDA arithmetic); docs/renderer.md" + ("" if default else "; overrides the spec's profile"),
     )
 
 
@@ -53,10 +108,12 @@ def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "256
         help="the capture's cameras: CAMS.json, INRIA cameras.json, a COLMAP model folder, nerfstudio transforms.json",
     )
     p.add_argument(
-        "--views", type=int, help=f"orbit views (default {views}), or with --cameras: this many of them, evenly"
+        "--views",
+        type=positive_int,
+        help=f"orbit views (default {views}), or with --cameras: this many of them, evenly",
     )
     p.add_argument("--size", type=parse_size, default=parse_size(size), help=f"WxH of orbit views (default {size})")
-    p.add_argument("--scale", type=float, help="render at this fraction of the views' resolution (e.g. 0.25)")
+    p.add_argument("--scale", type=positive_float, help="render at this fraction of the views' resolution (e.g. 0.25)")
     p.set_defaults(default_views=views)
 
 
@@ -115,37 +172,35 @@ def cmd_scene(args):
     return 0
 
 
-def save_images(images: np.ndarray, out: Path, stem: str = "view"):
-    import imageio.v3 as iio
+def parse_formats(text: str) -> tuple[str, ...]:
+    from seuwgpu.api import FRAME_FORMATS
 
-    out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for i, img in enumerate(images):
-        rgb = np.nan_to_num(img[..., :3], nan=0.0, posinf=1.0, neginf=0.0)
-        path = out / f"{stem}_{i:03d}.png"
-        iio.imwrite(path, (np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
-        paths.append(path)
-    return paths
+    formats = tuple(dict.fromkeys(f.strip().lower() for f in text.split(",") if f.strip()))
+    bad = [f for f in formats if f not in FRAME_FORMATS]
+    if bad or not formats:
+        raise argparse.ArgumentTypeError(
+            f"--formats takes a comma-separated list of {', '.join(FRAME_FORMATS)}, got {text!r}"
+        )
+    return formats
 
 
 def cmd_render(args):
-    from seuwgpu.render.renderer import Renderer
+    from seuwgpu import api
 
     src = load_source(args)
     cams = load_cams(args, src)
-    r = Renderer(src.model, cams, args.precision)
-    images = r.render()
+    images = api.render_views(src, cams, precision=args.precision, profile=args.profile)
     out: Path = args.out
     if out.suffix == ".npz":
         out.parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(out, images=images.astype(np.float32))
         print(f"wrote {out}: images {list(images.shape)} float32")
     else:
-        paths = save_images(images, out)
-        print(f"wrote {len(paths)} PNGs to {out}")
+        paths = api.save_frames(images, out, "view", formats=args.formats)
+        print(f"wrote {len(paths)} files ({', '.join(args.formats)}) to {out}")
     bad = int((~np.isfinite(images)).any(axis=-1).sum())
     if bad:
-        print(f"warning: {bad} non-finite pixels (shown black in PNGs)", file=sys.stderr)
+        print(f"warning: {bad} non-finite pixels (black in PNGs, kept in TIFF and npz)", file=sys.stderr)
     return 0
 
 
@@ -204,7 +259,7 @@ def run_campaign(
 
 
 def print_criticality(run_dirs):
-    from seuwgpu.analysis.studies import InsufficientData
+    from seuwgpu.analysis.records import InsufficientData
     from seuwgpu.report.build import criticality_table_text, load_runs
 
     df, _ = load_runs(run_dirs)
@@ -223,6 +278,8 @@ def cmd_campaign(args):
     from seuwgpu.campaign.spec import load_spec
 
     spec = load_spec(args.spec)
+    if args.profile:
+        spec["profile"] = args.profile
     run_campaign(
         spec,
         args.out,
@@ -366,10 +423,13 @@ def cmd_demo(args):
 
 
 def cmd_merge(args):
+    from seuwgpu.campaign import store
     from seuwgpu.campaign.merge import merge
 
-    n = merge(args.out, args.shards)
-    print(f"merged {n} parts from {len(args.shards)} shard directories into {args.out}")
+    n = merge(args.out, args.shards, allow_partial=args.allow_partial)
+    missing = (store.read_manifest(args.out) or {}).get("missing_parts", [])
+    gap = f"; {len(missing)} parts missing (listed in the manifest)" if missing else ""
+    print(f"merged {n} parts from {len(args.shards)} shard directories into {args.out}{gap}")
     return 0
 
 
@@ -382,59 +442,65 @@ def cmd_report(args):
     return 0
 
 
+def lpips_text(value: float) -> str:
+    from seuwgpu.metrics import lpips
+
+    if value == value:
+        return f"{value:.6f}"
+    return "nan (undefined: frames under 32x32 or non-finite)" if lpips.available() else f"n/a ({lpips.INSTALL_HINT})"
+
+
 def cmd_inject(args):
-    from seuwgpu.faults.engine import Engine
+    from seuwgpu import api
     from seuwgpu.report.panel import save_panel
 
     src = load_source(args)
     cams = load_cams(args, src)
-    from seuwgpu.faults.sites import model_bits
-
-    eng = Engine(src.model, cams, args.precision, scene=src.name)
-    name = src.name
-    if args.fault in ("random", "zero"):
-        r = int(np.random.default_rng(args.seed).integers(2**63))
-        bits, op, value = model_bits(args.fault, -1, args.precision, r)
-    elif not args.bit:
-        raise SystemExit(f"error: --fault {args.fault} needs --bit")
-    elif args.fault == "adjacent" and len(args.bit) == 1:
-        bits, op, value = model_bits("adjacent", args.bit[0], args.precision, args.width - 2)
-    else:
-        bits, op, value = tuple(args.bit), ("flip" if args.fault in ("bit", "adjacent") else args.fault), 0
-    if args.primitive is None:
-        prim, _ = eng.worst_primitive(args.field, args.component, bits, args.sample, args.seed, args.defense, op, value)
-        print(f"primitive: {prim} (most harmful of {min(args.sample, eng.n)} sampled)")
-    else:
-        prim = args.primitive
-    site = eng.site(args.field, prim, args.component, bits, op, value)
-    rec = eng.inject(site, args.defense)
-    h = eng.apply([site], args.defense)
-    faulted, _ = eng.render_current(args.defense)
-    guarded, gclamps = eng.render_current("guard")
-    eng.undo(h)
-    g = eng.inject(site, "guard")
-    args.out.mkdir(parents=True, exist_ok=True)
-    title = (
-        f"{name}, {eng.n} primitives, {args.precision}: {rec['fault']} fault of {site.field}[{prim}][{site.component}] "
-        f"bit{'s' if len(site.bits) > 1 else ''} {','.join(map(str, site.bits))} ({rec['bit_class']}) "
-        f"{rec['clean_value']:.6g} -> {rec['corrupted_value']:.6g}; defense {args.defense}"
+    defenses = tuple(dict.fromkeys((args.defense, "guard")))
+    inj = api.inject(
+        src,
+        cams,
+        field=args.field,
+        bit=args.bit,
+        component=args.component,
+        primitive=args.primitive,
+        precision=args.precision,
+        defenses=defenses,
+        sample=args.sample,
+        seed=args.seed,
+        profile=args.profile,
+        fault=args.fault,
+        width=args.width,
     )
-    panel = save_panel(args.out / "panel.png", eng.clean_rgba, faulted, guarded, title)
+    site, rec, g = inj.site, inj.metrics[args.defense], inj.metrics["guard"]
+    if args.primitive is None:
+        print(f"primitive: {site['primitive']} (most harmful of {min(args.sample, site['n_primitives'])} sampled)")
+    bits = site["bits"]
+    title = (
+        f"{src.name}, {site['n_primitives']} primitives, {args.precision}: {site['fault']} fault of {site['field']}"
+        f"[{site['primitive']}][{site['component']}] bit{'s' if len(bits) > 1 else ''} {','.join(map(str, bits))} "
+        f"({site['bit_class']}) {site['clean_value']:.6g} -> {site['corrupted_value']:.6g}; defense {args.defense}"
+    )
+    args.out.mkdir(parents=True, exist_ok=True)
+    frames = inj.frames
+    panel = save_panel(args.out / "panel.png", frames["clean"], frames[args.defense], frames["guard"], title)
+    files = inj.save(args.out, formats=args.formats)
     lines = {
-        "field": site.field,
-        "primitive": prim,
-        "component": site.component,
-        "bit": ",".join(map(str, site.bits)),
-        "bit_class": rec["bit_class"],
-        "fault": rec["fault"],
-        "clean_value": f"{rec['clean_value']:.9g}",
-        "corrupted_value": f"{rec['corrupted_value']:.9g}",
+        "field": site["field"],
+        "primitive": site["primitive"],
+        "component": site["component"],
+        "bit": ",".join(map(str, bits)),
+        "bit_class": site["bit_class"],
+        "fault": site["fault"],
+        "clean_value": f"{site['clean_value']:.9g}",
+        "corrupted_value": f"{site['corrupted_value']:.9g}",
         "defense": args.defense,
         "footprint": f"{100 * rec['footprint']:.4f}%",
         "footprint_max": f"{100 * rec['footprint_max']:.4f}%",
         "peak_error": f"{rec['peak_error']:.6g}",
         "psnr": f"{rec['psnr']:.3f}",
         "ssim": f"{rec['ssim']:.6f}",
+        "lpips": lpips_text(rec["lpips"]),
         "nonfinite": rec["nonfinite"],
         "catastrophic": rec["catastrophic"],
         "clamps": rec["clamps"],
@@ -442,6 +508,7 @@ def cmd_inject(args):
         "guarded_psnr": f"{g['psnr']:.3f}",
         "guarded_clamps": g["clamps"],
         "panel": panel,
+        "frames": f"{len(files) - 1} files ({', '.join(args.formats)}) and metrics.json in {args.out}",
     }
     for k, v in lines.items():
         print(f"{k}: {v}")
@@ -568,7 +635,6 @@ def cmd_view(args):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from seuwgpu.faults.defenses import DEFENSES
     from seuwgpu.faults.sites import FAULT_MODELS
 
     p = argparse.ArgumentParser(
@@ -582,7 +648,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("scene", help="export an embedded scene as PLY or SPZ (or --list them)")
     s.add_argument("name", nargs="?")
-    s.add_argument("--n", type=int, help="primitives (default 100000; a real capture: all)")
+    s.add_argument("--n", type=positive_int, help="primitives (default 100000; a real capture: all)")
     s.add_argument("--sh-degree", type=int, default=3, choices=range(4))
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--out", type=Path)
@@ -592,7 +658,14 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("render", help="render views to PNGs or an .npz of float32 images")
     add_model_args(s)
     add_camera_args(s)
-    s.add_argument("--out", type=Path, required=True, help="a folder for PNGs, or X.npz")
+    s.add_argument("--out", type=Path, required=True, help="a folder for the frames, or X.npz")
+    s.add_argument(
+        "--formats",
+        type=parse_formats,
+        default=("png",),
+        help="frame files: png (display), tiff (float32, unclamped), npz; comma-separated (default png)",
+    )
+    add_profile_arg(s)
     s.set_defaults(func=cmd_render)
 
     s = sub.add_parser("inject", help="flip one stored bit (or several of one value), measure, write the panel")
@@ -603,9 +676,9 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help="means | log_scales | quats | opacity | sh_dc | sh_rest (aliases: log_scale, mean, ...)",
     )
-    s.add_argument("--primitive", type=int, help="primitive index (default: the most harmful of --sample)")
-    s.add_argument("--component", type=int, default=0)
-    s.add_argument("--bit", type=int, nargs="+", help="bit(s) of the stored value (0 = LSB)")
+    s.add_argument("--primitive", type=index_int, help="primitive index (default: the most harmful of --sample)")
+    s.add_argument("--component", type=index_int, default=0)
+    s.add_argument("--bit", type=index_int, nargs="+", help="bit(s) of the stored value (0 = LSB)")
     s.add_argument(
         "--fault",
         default="bit",
@@ -615,8 +688,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--width", type=int, default=2, choices=(2, 3, 4), help="adjacent burst width")
     s.add_argument("--defense", default="none", choices=DEFENSES)
-    s.add_argument("--sample", type=int, default=64, help="primitives tried when --primitive is not given")
+    s.add_argument("--sample", type=positive_int, default=64, help="primitives tried when --primitive is not given")
     s.add_argument("--out", type=Path, required=True)
+    s.add_argument(
+        "--formats",
+        type=parse_formats,
+        default=("png", "tiff"),
+        help="frame files besides panel.png and metrics.json: png, tiff (float32, unclamped), npz (default png,tiff)",
+    )
+    add_profile_arg(s)
     s.set_defaults(func=cmd_inject)
 
     s = sub.add_parser("campaign", help="run a fault-injection campaign from a TOML spec (resumable)")
@@ -634,7 +714,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="local (this process) or ray (shards over Ray workers; needs pip install seuwgpu[ray])",
     )
     s.add_argument("--address", help="Ray cluster address (e.g. auto); default: start a local Ray instance")
-    s.add_argument("--workers", type=int, help="Ray workers in flight (default: the cluster's GPUs, else CPUs)")
+    s.add_argument(
+        "--workers", type=positive_int, help="Ray workers in flight (default: the cluster's GPUs, else CPUs)"
+    )
+    add_profile_arg(s, default=None)
     s.set_defaults(func=cmd_campaign)
 
     s = sub.add_parser(
@@ -643,26 +726,30 @@ def build_parser() -> argparse.ArgumentParser:
     add_model_args(s)
     add_camera_args(s, views=2, size="256x256")
     s.add_argument(
-        "--ranks", type=int, nargs="+", default=[4], help="ranks P (screen regions); several values: one table each"
+        "--ranks",
+        type=positive_int,
+        nargs="+",
+        default=[4],
+        help="ranks P (screen regions); several values: one table each",
     )
     s.add_argument("--upset", help="field:bit (e.g. log_scales:31), applied to every rank's copy")
-    s.add_argument("--component", type=int, default=0)
-    s.add_argument("--primitive", type=int, help="primitive index (default: the most harmful of --sample)")
-    s.add_argument("--sample", type=int, default=32, help="primitives tried when --primitive is not given")
+    s.add_argument("--component", type=index_int, default=0)
+    s.add_argument("--primitive", type=index_int, help="primitive index (default: the most harmful of --sample)")
+    s.add_argument("--sample", type=positive_int, default=32, help="primitives tried when --primitive is not given")
     s.add_argument(
         "--guard",
         choices=("scrub", "clamp"),
         default="scrub",
         help="node-local guard: scrub each rank's stored copy, or clamp in the pipeline (default scrub)",
     )
-    s.add_argument("--repeats", type=int, default=3, help="renders per rank for its median time")
+    s.add_argument("--repeats", type=positive_int, default=3, help="renders per rank for its median time")
     s.add_argument("--address", help="Ray cluster address (e.g. auto); default: start a local Ray instance")
     s.set_defaults(func=cmd_distributed)
 
     s = sub.add_parser("plan", help="what a campaign spec will run, and the margin of error per cell")
     s.add_argument("spec", type=Path)
-    s.add_argument("--margin", type=float, help="also print the samples per cell this margin needs (e.g. 0.01)")
-    s.add_argument("--confidence", type=float, default=0.95)
+    s.add_argument("--margin", type=proportion, help="also print the samples per cell this margin needs (e.g. 0.01)")
+    s.add_argument("--confidence", type=proportion, default=0.95)
     s.set_defaults(func=cmd_plan)
 
     s = sub.add_parser(
@@ -673,12 +760,12 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--model", "--ply", dest="model", type=Path, help="run it on this model file (any format)")
     src.add_argument("--scene", help="run it on this embedded scene (`seuwgpu scene --list`)")
     s.add_argument("--cameras", type=Path, help="the capture's cameras (any format `render` takes)")
-    s.add_argument("--views", type=int, help="orbit views, or this many of the capture's (default 4)")
+    s.add_argument("--views", type=positive_int, help="orbit views, or this many of the capture's (default 4)")
     s.add_argument("--size", type=parse_size, help="WxH of orbit views (default from the spec)")
-    s.add_argument("--scale", type=float, help="render at this fraction of the views' resolution")
-    s.add_argument("--up", choices=("+x", "-x", "+y", "-y", "+z", "-z"), help="up axis of the orbit views")
-    s.add_argument("--n", type=int, help="primitives (default from the spec: 100000)")
-    s.add_argument("--samples", type=int, help="samples per (field, bit) cell")
+    s.add_argument("--scale", type=positive_float, help="render at this fraction of the views' resolution")
+    s.add_argument("--up", choices=UP_AXES, help="up axis of the orbit views")
+    s.add_argument("--n", type=positive_int, help="primitives (default from the spec: 100000)")
+    s.add_argument("--samples", type=positive_int, help="samples per (field, bit) cell")
     s.add_argument("--quiet", action="store_true")
     s.add_argument("--no-report", action="store_true")
     s.set_defaults(func=cmd_demo)
@@ -686,6 +773,11 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("merge", help="join shard run directories of one spec")
     s.add_argument("shards", type=Path, nargs="+")
     s.add_argument("--out", type=Path, required=True)
+    s.add_argument(
+        "--allow-partial",
+        action="store_true",
+        help="merge even when shards are missing (the manifest lists the missing parts)",
+    )
     s.set_defaults(func=cmd_merge)
 
     s = sub.add_parser("view", help="interactive viewer: toggle faults and the guard live")
@@ -695,24 +787,26 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="the capture's cameras (any format `render` takes): step through them with [ and ] or the panel",
     )
-    s.add_argument("--views", type=int, help="with --cameras: this many of them, evenly")
+    s.add_argument("--views", type=positive_int, help="with --cameras: this many of them, evenly")
     s.add_argument(
         "--size",
         type=parse_size,
         default=parse_size("960x600"),
         help="window size WxH in pixels, the panel included (default 960x600)",
     )
-    s.add_argument("--sample", type=int, default=16, help="primitives tried by 'worst of a sample' (default 16)")
+    s.add_argument(
+        "--sample", type=positive_int, default=16, help="primitives tried by 'worst of a sample' (default 16)"
+    )
     s.add_argument(
         "--clamp-threshold",
-        type=int,
+        type=index_int,
         default=0,
         help="guard alert when a frame clamps more components than this (default 0)",
     )
     s.add_argument("--screenshot-dir", type=Path, default=Path("."), help="where S/P screenshots go (default .)")
     s.add_argument(
         "--frames",
-        type=int,
+        type=index_int,
         default=0,
         help="draw this many frames, save a screenshot and exit (0 = interactive; "
         "with RENDERCANVAS_BACKEND=offscreen the default is 1)",
@@ -764,8 +858,19 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"seuwgpu {args.command}: interrupted (completed parts are kept; re-run to resume)", file=sys.stderr)
         return 130
-    except (CliError, ValueError, FileNotFoundError) as e:
+    except (SeuwgpuError, ValueError) as e:  # the project's errors, and plain ValueErrors naming a bad value
         print(f"seuwgpu {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # a file or folder that cannot be read or written: name it, no traceback
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"seuwgpu {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(
+            f"seuwgpu {args.command}: error: out of host memory "
+            "(use fewer primitives, views or samples, or a smaller size)",
+            file=sys.stderr,
+        )
         return 2
 
 

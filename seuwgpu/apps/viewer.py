@@ -452,13 +452,11 @@ class ViewerState:
         return self.compose(img, self.clean_image), self.readout
 
     def _measure(self, img, clean, clamps: dict, frame_ms: float) -> dict:
-        from seuwgpu.metrics.image import THRESHOLD, display
+        from seuwgpu.metrics.image import changed_pixels, display
 
         f, c = img[..., :3], clean[..., :3]
-        with np.errstate(invalid="ignore", over="ignore"):
-            d = f - c
+        changed = changed_pixels(f, c)
         nonfin = ~np.isfinite(f).all(axis=-1)
-        changed = nonfin | ~np.isfinite(d).all(axis=-1) | (np.abs(np.nan_to_num(d)) > THRESHOLD).any(axis=-1)
         mse = float(np.mean((display(f).astype(np.float64) - display(c)) ** 2))
         total = int(sum(clamps.values()))
         sites = self.active_sites
@@ -487,7 +485,7 @@ class ViewerState:
         """What the window shows: the display-referred render, or the heat map of |render - clean|
         (log scale from 1/255 to 1 over a dimmed grey copy of the clean view; non-finite pixels
         magenta)."""
-        from seuwgpu.metrics.image import THRESHOLD, display
+        from seuwgpu.metrics.image import changed_pixels, display
 
         h, w = img.shape[:2]
         out = np.empty((h, w, 4), np.uint8)
@@ -497,10 +495,8 @@ class ViewerState:
             return out
         f, c = img[..., :3], clean[..., :3]
         dd = np.abs(display(f) - display(c)).max(axis=-1)
-        with np.errstate(invalid="ignore", over="ignore"):
-            raw = np.abs(f - c)
+        changed = changed_pixels(f, c)
         nonfin = ~np.isfinite(f).all(axis=-1)
-        changed = nonfin | ~np.isfinite(raw).all(axis=-1) | (np.nan_to_num(raw) > THRESHOLD).any(axis=-1)
         grey = display(c).mean(axis=-1, keepdims=True) * 0.3 * 255.0
         rgb = np.repeat(grey, 3, axis=-1)
         v = np.clip(np.log10(np.maximum(dd, 1.0 / 255.0) * 255.0) / np.log10(255.0), 0.0, 1.0)

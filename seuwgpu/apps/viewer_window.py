@@ -41,7 +41,7 @@ from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELDS
 
 PANEL_WIDTH = 340  # logical pixels
-PRECISIONS = ("fp32", "fp16", "bf16")
+PRECISIONS = encoding.PRECISIONS
 
 BLIT_WGSL = """
 @group(0) @binding(0) var img: texture_2d<f32>;

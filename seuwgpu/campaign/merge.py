@@ -1,35 +1,80 @@
-"""Join the run directories of a campaign's shards into one."""
+"""Join the run directories of a campaign's shards into one.
+
+A merge is refused (SpecError, naming the directory) when a shard holds no run, when the shards
+come from different specs, when `out` is one of the shards, when `out` already holds a run of
+another spec, when two shards disagree on a part, and when parts of the campaign are missing:
+`allow_partial` merges what there is and records the missing parts in the manifest
+(`missing_parts`: [first id, count] pairs; `injections_recorded` < `total_injections`).
+"""
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 from seuwgpu.campaign import store
-from seuwgpu.campaign.spec import SpecError
+from seuwgpu.campaign.spec import SpecError, spec_hash
 
 
-def merge(out: Path, shard_dirs: list[Path]) -> int:
-    """Join shard run directories (same spec) into one; refuses mixed specs and duplicates."""
+def merge(out: Path, shard_dirs: list[Path], allow_partial: bool = False) -> int:
+    """Join shard run directories (same spec) into `out`; returns the number of parts merged."""
     out = Path(out)
-    manifests = [store.read_manifest(d) for d in shard_dirs]
-    for d, m in zip(shard_dirs, manifests):
-        if m is None:
-            raise FileNotFoundError(store.manifest_path(d))
+    if not shard_dirs:
+        raise SpecError("merge needs at least one shard directory")
+    manifests = []
+    for d in shard_dirs:
+        if not Path(d).is_dir():
+            raise SpecError(f"{d}: no such run directory")
+        m = store.read_manifest(d)
+        if m is None or "spec" not in m:
+            raise SpecError(f"{d}: not a run directory (no {store.MANIFEST} with a spec)")
+        manifests.append(m)
+        if out.resolve() == Path(d).resolve():
+            raise SpecError(f"--out {out} is one of the shards being merged; merge into a new directory")
     hashes = {m["spec_hash"] for m in manifests}
     if len(hashes) != 1:
-        raise SpecError(f"shards come from different specs: {sorted(hashes)}")
-    store.records_dir(out).mkdir(parents=True, exist_ok=True)
-    seen = {}
-    for d in shard_dirs:
-        for p in store.part_files(d):
-            if p.name in seen:
-                if p.read_bytes() != seen[p.name].read_bytes():
-                    raise SpecError(f"part {p.name} differs between {seen[p.name].parent.parent} and {d}")
-                continue
-            seen[p.name] = p
-            shutil.copyfile(p, store.records_dir(out) / p.name)
-    m = dict(manifests[0])
-    m["merged_from"] = [str(d) for d in shard_dirs]
-    store.write_manifest(out, m)
-    return len(seen)
+        by = ", ".join(f"{d} ({m['spec_hash']})" for d, m in zip(shard_dirs, manifests))
+        raise SpecError(f"the shards come from different specs: {by}")
+    spec = manifests[0]["spec"]
+    if spec_hash(spec) != manifests[0]["spec_hash"]:
+        raise SpecError(f"{shard_dirs[0]}: its manifest's spec does not match its spec hash (edited by hand?)")
+    expected = store.expected_parts(spec)
+    with store.lock(out):
+        existing = store.read_manifest(out)
+        if existing is not None and existing.get("spec_hash") != manifests[0]["spec_hash"]:
+            raise SpecError(
+                f"--out {out} already holds a run of another spec (hash {existing.get('spec_hash')}); "
+                "merge into a new directory"
+            )
+        store.records_dir(out).mkdir(parents=True, exist_ok=True)
+        found = {}
+        for d in [out, *shard_dirs]:  # parts already merged into out count, and must agree
+            for p in store.record_parts(d, manifests[0]):
+                key = store.parse_part_name(p.name)
+                if store.part_rows(p) != expected[key]:
+                    continue  # an empty or damaged part: as good as missing
+                if key in found:
+                    if found[key].resolve() != p.resolve() and p.read_bytes() != found[key].read_bytes():
+                        raise SpecError(f"part {p.name} differs between {found[key].parent.parent} and {d}")
+                    continue
+                found[key] = p
+        missing = sorted(set(expected) - set(found))
+        if missing and not allow_partial:
+            n_missing = sum(c for _, c in missing)
+            a, c = missing[0]
+            raise SpecError(
+                f"the shards hold {len(found)} of the campaign's {len(expected)} parts: {n_missing:,} injections "
+                f"are missing (first: ids {a}..{a + c - 1}); run the missing shards, or merge with --allow-partial"
+            )
+        for key, p in found.items():
+            dst = store.part_path(out, *key)
+            if p.resolve() != dst.resolve():
+                store.atomic_write(dst, p.read_bytes())
+        m = dict(manifests[0])
+        m["merged_from"] = [str(d) for d in shard_dirs]
+        m["injections_recorded"] = sum(c for _, c in found)
+        if missing:
+            m["missing_parts"] = [list(k) for k in missing]
+        else:
+            m.pop("missing_parts", None)
+        store.write_manifest(out, m)
+    return len(found)

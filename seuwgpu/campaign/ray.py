@@ -134,19 +134,21 @@ def worker_gpu():
 def _shard_runner_class():
     from seuwgpu.campaign import store
     from seuwgpu.campaign.runner import Runner
-    from seuwgpu.campaign.spec import SpecError
 
     class ShardRunner(Runner):
         """A Runner for one Ray task: the run directory was prepared by the driver's prepare task
         (no temp-file sweep under concurrent shards), and the engine is cached per worker process."""
 
+        def run(self, progress=None) -> dict:
+            # no lock here: the driver holds the run directory's lock for the whole Ray run
+            self.prepare_dir()
+            return self._run(progress)
+
         def prepare_dir(self):
             old = store.read_manifest(self.out)
-            if old is None:
+            if old is None or old.get("spec_hash") != self.hash:
                 return super().prepare_dir()
             store.records_dir(self.out).mkdir(parents=True, exist_ok=True)
-            if old.get("spec_hash") != self.hash:
-                raise SpecError(f"{self.out} holds a run of a different spec ({old.get('spec_hash')} != {self.hash})")
 
         def engine_for(self, ctx):
             key = (self.hash, ctx.kind, ctx.scene_index, ctx.n, ctx.precision, self.full)
@@ -229,20 +231,23 @@ def run_ray(
     process, else connects to `address` or starts a local one with `workers` CPUs."""
     ray = get_ray()
     from seuwgpu.campaign import store
-    from seuwgpu.campaign.runner import Progress, Runner
-    from seuwgpu.campaign.spec import SpecError
+    from seuwgpu.campaign.budget import check_campaign
 
+    check_campaign(spec)
     out = Path(out).resolve()
+    with store.lock(out, shard):
+        return _run_ray(ray, spec, out, workers, address, quiet, full, shard, shards, max_retries, poll_s, _kill_once)
+
+
+def _run_ray(ray, spec, out, workers, address, quiet, full, shard, shards, max_retries, poll_s, _kill_once) -> dict:
+    """run_ray with the run directory's lock held."""
+    from seuwgpu.campaign import store
+    from seuwgpu.campaign.runner import Progress, Runner
+
     base = Runner(spec, out, shard=shard)
     blocks = list(base.blocks())
     expected = {(a, m): ctx for ctx, a, m in blocks}
-    old = store.read_manifest(out)
-    if old is not None:
-        if old.get("spec_hash") != base.hash:
-            raise SpecError(
-                f"{out} holds a run of a different spec (hash {old.get('spec_hash')} != {base.hash}); "
-                "use a new --out directory, or the original spec to resume"
-            )
+    store.check_same_run(out, store.read_manifest(out), spec, base.hash)
     started = init_ray(address, num_cpus=workers if not address else None)
     try:
         res = ray.cluster_resources()
@@ -254,7 +259,8 @@ def run_ray(
         S = max(1, min(len(blocks), shards or 4 * workers))
         i, n = shard
         subs = [(i + n * s, n * S) for s in range(S)]
-        seen = store.parts_in(out) & set(expected)
+        rows = store.expected_parts(spec)
+        seen = store.completed_parts(out, {key: rows[key] for key in expected})
         todo = [sub for sub in subs if any((a, m) not in seen for _, a, m in Runner(spec, out, shard=sub).blocks())]
         total = sum(m for _, m in expected)
         already = sum(m for _, m in seen)

@@ -19,6 +19,8 @@ from seuwgpu.campaign import store
 from seuwgpu.campaign.sampling import Context, draw_sites, enumerate_contexts, injection_seeds
 from seuwgpu.campaign.spec import SpecError, spec_hash
 from seuwgpu.faults.sites import draw_uniform_sites
+from seuwgpu.metrics.image import FOOTPRINT_THRESHOLD, PIXEL_THRESHOLD, outcome_class
+from seuwgpu.render.regions import REGION_GRID_VERSION
 from seuwgpu.version import __version__
 
 
@@ -35,19 +37,20 @@ class Runner:
         self.hash = spec_hash(spec)
         self.contexts = enumerate_contexts(spec)
         self.total = sum(c.count for c in self.contexts)
+        t = spec.get("outcomes") or {}
+        self.thresholds = {
+            "pixel_threshold": float(t.get("pixel_threshold", PIXEL_THRESHOLD)),
+            "footprint_threshold": float(t.get("footprint", FOOTPRINT_THRESHOLD)),
+        }
+        self._times: dict = {}  # (engine key, defense) -> ms per view
 
     # -- run directory --
     def prepare_dir(self):
         rec = store.records_dir(self.out)
         rec.mkdir(parents=True, exist_ok=True)
         old = store.read_manifest(self.out)
-        if old is not None:
-            if old.get("spec_hash") != self.hash:
-                raise SpecError(
-                    f"{self.out} holds a run of a different spec (hash {old.get('spec_hash')} != {self.hash}); "
-                    "use a new --out directory, or the original spec to resume"
-                )
-        else:
+        store.check_same_run(self.out, old, self.spec, self.hash)
+        if old is None or old.get("spec_hash") != self.hash:
             from seuwgpu.gpu.device import get_gpu
 
             gpu = self.gpu or get_gpu()
@@ -60,14 +63,22 @@ class Runner:
                 "python": platform.python_version(),
                 "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
                 "total_injections": self.total,
+                "profile": self.spec.get("profile", "strict"),
                 "columns": store.COLUMNS,
+                "outcomes": self.thresholds,
+                "region_grid": REGION_GRID_VERSION,
+                "time_ms": "median render time of one view of the clean model under the defense's "
+                "in-pipeline guard, measured once per (scene, N, precision) engine",
             }
             store.write_manifest(self.out, manifest)
         store.remove_stale_temps(rec)
 
     def done_ids(self) -> set[tuple[int, int]]:
-        """(first id, count) of the parts already written."""
-        return {store.parse_part_name(p.name) for p in store.part_files(self.out)}
+        """(first id, count) of this shard's parts already written and whole (a part that cannot be
+        read, or holds the wrong number of rows, is deleted here and redone)."""
+        want = store.expected_parts(self.spec)
+        mine = {(a, m): want[(a, m)] for _, a, m in self.blocks()}
+        return store.completed_parts(self.out, mine)
 
     def blocks(self):
         """Deterministic (context, first id, count) blocks of this shard."""
@@ -81,7 +92,14 @@ class Runner:
                 j += 1
 
     def run(self, progress=None) -> dict:
-        self.prepare_dir()
+        from seuwgpu.campaign.budget import check_campaign
+
+        check_campaign(self.spec)
+        with store.lock(self.out, self.shard):
+            self.prepare_dir()
+            return self._run(progress)
+
+    def _run(self, progress) -> dict:
         done = self.done_ids()
         todo = [(c, a, m) for c, a, m in self.blocks() if (a, m) not in done]
         shard_total = sum(m for _, _, m in self.blocks())
@@ -96,6 +114,7 @@ class Runner:
                 if key not in engines:
                     engines.clear()  # one engine at a time: bounded memory
                     engines[key] = self.engine_for(ctx)
+                    self.note_clean_model(engines[key], ctx)
                 eng = engines[key]
                 df = self.run_block(eng, ctx, first, count)
                 store.write_part(self.out, first, count, df)
@@ -108,6 +127,15 @@ class Runner:
             bar.close()
         stats["seconds"] = time.perf_counter() - t0
         return stats
+
+    def note_clean_model(self, eng, ctx: Context):
+        """A clean model holding NaN/Inf: the guard's own effect on it (per guard arm), written
+        once beside the manifest instead of being charged to every upset."""
+        if not eng.nonfinite_counts:
+            return
+        note = {d: eng.guard_on_clean(d) for d in ("guard", "selective") if d in ctx.defenses}
+        note["nonfinite_values"] = dict(eng.nonfinite_counts)
+        store.write_guard_note(self.out, eng.scene, ctx.precision, eng.profile, note)
 
     def engine_for(self, ctx: Context):
         from seuwgpu.faults.engine import Engine
@@ -125,7 +153,39 @@ class Runner:
         views = source_views(
             src, sc.get("cameras"), self.spec["views"], tuple(self.spec["size"]), self.spec.get("scale")
         )
-        return Engine(src.model, views, ctx.precision, gpu=self.gpu, scene=src.name, incremental=not self.full)
+        return Engine(
+            src.model,
+            views,
+            ctx.precision,
+            gpu=self.gpu,
+            scene=src.name,
+            incremental=not self.full,
+            profile=self.spec.get("profile", "strict"),
+        )
+
+    def view_times(self, eng, ctx: Context) -> dict:
+        """ms per view of each defense's render of the clean model (measured once per engine)."""
+        key = (id(eng), ctx.kind, ctx.scene_index, ctx.n, ctx.precision)
+        out = {}
+        for d in ctx.defenses:
+            if (key, d) not in self._times:
+                self._times[(key, d)] = eng.view_time_ms(d)
+            out[d] = self._times[(key, d)]
+        return out
+
+    def finish(self, df: pd.DataFrame, eng, ctx: Context) -> pd.DataFrame:
+        """Outcome class and catastrophic flag under the spec's thresholds; time_ms per defense."""
+        t = self.thresholds
+        df["outcome"] = outcome_class(
+            df["peak_error"].to_numpy(float),
+            df["footprint"].to_numpy(float),
+            df["nonfinite"].to_numpy(bool),
+            t["pixel_threshold"],
+            t["footprint_threshold"],
+        )
+        df["catastrophic"] = df["outcome"].to_numpy() == "catastrophic"
+        df["time_ms"] = df["defense"].map(self.view_times(eng, ctx)).astype(float)
+        return df.reindex(columns=store.columns_of(ctx))
 
     def run_block(self, eng, ctx: Context, first: int, count: int) -> pd.DataFrame:
         ids = np.arange(first, first + count, dtype=np.int64)
@@ -146,7 +206,7 @@ class Runner:
             df["weight"] = np.tile(weights, arms)
             df["seed"] = np.tile(seeds, arms)
             df["injection_id"] = np.tile(ids, arms)
-            return df.reindex(columns=store.columns_of(ctx))
+            return self.finish(df, eng, ctx)
         rows = []
         for i, s in zip(ids, seeds):
             k, rep = ctx.cell_of(int(i) - ctx.first_id)
@@ -158,7 +218,7 @@ class Runner:
                 rec = eng.inject(sites, d)
                 rec.update(campaign="dose", repeat=rep, weight=1.0, seed=int(s), injection_id=int(i))
                 rows.append(rec)
-        return pd.DataFrame(rows).reindex(columns=store.columns_of(ctx))
+        return self.finish(pd.DataFrame(rows), eng, ctx)
 
 
 class Progress:

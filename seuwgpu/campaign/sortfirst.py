@@ -3,7 +3,6 @@ ranks a corrupted primitive contaminates (see campaign/ray.py for the Ray set-up
 
 from __future__ import annotations
 
-import math
 import os
 import statistics
 import time
@@ -11,50 +10,20 @@ import time
 import numpy as np
 
 from seuwgpu.campaign.ray import get_ray, init_ray, worker_gpu
+from seuwgpu.gpu.constants import TILE
+from seuwgpu.metrics.image import changed_pixels
+from seuwgpu.render.regions import region_grid, region_rects
 
 # ---- sort-first rendering ---------------------------------------------------------------------
-TILE = 16
-
-
-def grid_shape(ranks: int, tiles_x: int, tiles_y: int) -> tuple[int, int]:
-    """(px, py) with px * py = ranks, each within the tile grid, regions as square as possible."""
-    if ranks < 1:
-        raise ValueError("--ranks must be at least 1")
-    best = None
-    for px in range(1, ranks + 1):
-        if ranks % px:
-            continue
-        py = ranks // px
-        if px > tiles_x or py > tiles_y:
-            continue
-        cost = abs(math.log((tiles_x / px) / (tiles_y / py)))
-        if best is None or cost < best[0] - 1e-12:
-            best = (cost, px, py)
-    if best is None:
-        raise ValueError(
-            f"{ranks} ranks do not fit a grid of the frame's {tiles_x}x{tiles_y} tiles "
-            f"({TILE} px); use fewer ranks or a larger --size"
-        )
-    return best[1], best[2]
 
 
 def split_regions(ranks: int, width: int, height: int) -> tuple[list[tuple[int, int, int, int]], tuple[int, int]]:
-    """Tile-aligned regions (x0, y0, w, h), row-major, and the grid (px, py)."""
-    tx, ty = -(-width // TILE), -(-height // TILE)
-    px, py = grid_shape(ranks, tx, ty)
-    xb = [min(round(k * tx / px) * TILE, width) for k in range(px + 1)]
-    yb = [min(round(k * ty / py) * TILE, height) for k in range(py + 1)]
-    regions = [(xb[c], yb[r], xb[c + 1] - xb[c], yb[r + 1] - yb[r]) for r in range(py) for c in range(px)]
-    return regions, (px, py)
-
-
-def changed_pixels(a: np.ndarray, b: np.ndarray, threshold: float = 1.0 / 255.0) -> np.ndarray:
-    """[..., H, W] bool: any channel differs by more than `threshold` or in finiteness (bitwise
-    equal values, Inf included, are unchanged)."""
-    same = a.view(np.uint32) == b.view(np.uint32)
-    with np.errstate(invalid="ignore", over="ignore"):
-        close = np.abs(a.astype(np.float64) - b.astype(np.float64)) <= threshold
-    return (~(same | close)).any(axis=-1)
+    """Tile-aligned regions (x0, y0, w, h), row-major, and the grid (px, py): the one grid of
+    `render.regions`, which the contamination analysis uses too."""
+    if ranks < 1:
+        raise ValueError("--ranks must be at least 1")
+    rows, cols = region_grid(ranks, height, width)
+    return region_rects(ranks, height, width), (cols, rows)
 
 
 class RankRenderer:

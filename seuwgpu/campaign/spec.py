@@ -7,6 +7,7 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     size = "256x256"         # WxH of orbit views
     scale = 0.25             # optional: render at this fraction of the views' resolution
     batch = 256              # injections per GPU batch and per Parquet part
+    profile = "strict"       # optional renderer profile: "strict" or "gsplat" (docs/renderer.md)
 
     [[scenes]]               # one or more
     scene = "spheres"        # an embedded scene (`seuwgpu scene --list`: procedural or real) ...
@@ -40,6 +41,14 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     repeats = 3
     defenses = ["none", "guard"]
 
+    [outcomes]               # optional: outcome-class thresholds (defaults: the paper's)
+    pixel_threshold = 0.00392156862745098  # a channel change above it is visible (SDC), 1/255
+    footprint = 0.01         # a frame with more changed pixels than this share is catastrophic
+
+    [reliability]            # optional: inputs of the MTBF analysis (they change no injection)
+    scrub_hours = 24.0       # the model is restored from protected storage this often
+    rates = [{environment = "ground", per_bit_hour = 1e-12, source = "where the rate comes from"}]
+
     [sizes]                  # primitive-count sweep of the first scene: single upsets at each N
     n = [5000, 20000, 80000]
     precisions = ["fp32"]
@@ -58,20 +67,39 @@ from pathlib import Path
 
 import numpy as np
 
+from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
+from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELDS, canonical_field
+from seuwgpu.model.formats import UP_AXES
 
-_TOP = {"seed", "views", "size", "scale", "batch", "scenes", "single", "dose", "sizes", "name"}
+_TOP = {
+    "seed",
+    "views",
+    "size",
+    "scale",
+    "batch",
+    "scenes",
+    "single",
+    "dose",
+    "sizes",
+    "name",
+    "outcomes",
+    "reliability",
+    "profile",
+}
 _SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
-_UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 _SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions", "fault"}
 _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
 _SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions", "fault"}
 
 
-class SpecError(ValueError):
-    pass
+SEED_MAX = 2**63 - 1  # seeds are TOML integers (signed 64-bit), used as unsigned 64-bit hash keys
+
+
+class SpecError(InputError):
+    """A campaign spec (or a run directory or shard set it meets) that cannot be run as given."""
 
 
 def _keys(table: dict, allowed: set, where: str):
@@ -103,7 +131,7 @@ def _list(table, key, where, default, valid=None):
     if not isinstance(v, list) or not v:
         raise SpecError(f"{where}.{key} must be a non-empty list" + (' or "all"' if valid is not None else ""))
     if valid is not None:
-        bad = [x for x in v if x not in valid]
+        bad = [x for x in v if not isinstance(x, str) or x not in valid]
         if bad:
             raise SpecError(f"{where}.{key}: unknown value(s) {bad}; valid: {list(valid)}")
     return v
@@ -116,9 +144,13 @@ def _fields(table, where):
     if not isinstance(v, list) or not v:
         raise SpecError(f'{where}.fields must be "all" or a list of fields')
     try:
-        return [canonical_field(f) for f in v]
+        out = [canonical_field(f) for f in v]
     except ValueError as e:
         raise SpecError(f"{where}.fields: {e}") from None
+    twice = sorted({f for f in out if out.count(f) > 1})
+    if twice:
+        raise SpecError(f"{where}.fields names {', '.join(twice)} more than once (a field and its alias?)")
+    return out
 
 
 def _bits(table, where, precisions):
@@ -152,25 +184,79 @@ def _samples(table, where, default, n_min: int | None):
 
 
 def _spec_file(table, key, where, base_dir: Path | None) -> str:
-    """A file named in the spec, relative to the spec's folder; it must exist."""
-    path = Path(table[key])
+    """A file named in the spec, relative to the spec's folder; it must exist. Returned resolved
+    (absolute, links followed), so one spec reached through another path names the same file."""
+    v = table[key]
+    if not isinstance(v, str) or not v:
+        raise SpecError(f'{where}.{key} must be a file name in quotes, e.g. {key} = "point_cloud.ply"; got {v!r}')
+    path = Path(v).expanduser()
     if base_dir is not None and not path.is_absolute():
         path = base_dir / path
     if not path.exists():
         raise SpecError(f"{where}.{key}: file not found: {path}")
-    return str(path)
+    return str(path.resolve())
+
+
+def content_files(key: str, path) -> list[Path]:
+    """The files whose content a spec's `model` or `cameras` entry stands for: the model file (an
+    INRIA output folder: its last iteration's PLY), or the camera files read_cameras reads."""
+    from seuwgpu.model.cameras import camera_files
+    from seuwgpu.model.formats import inria_output_model
+
+    path = Path(path)
+    if key == "cameras":
+        return camera_files(path)
+    if path.is_dir():
+        ply = inria_output_model(path)
+        if ply == path:
+            raise SpecError(
+                f"model {path} is a folder, not a model file (and holds no point_cloud/iteration_*/point_cloud.ply)"
+            )
+        return [ply]
+    return [path]
+
+
+def content_hash(key: str, path) -> str:
+    """sha256 of the content a spec entry names (several files: of their names and contents)."""
+    files = content_files(key, path)
+    h = hashlib.sha256()
+    for f in files:
+        if len(files) > 1:
+            h.update(f.name.encode() + b"\0")
+        try:
+            with open(f, "rb") as fh:
+                for block in iter(lambda: fh.read(1 << 20), b""):
+                    h.update(block)
+        except OSError as e:
+            raise SpecError(f"{key} {f}: cannot be read ({e.strerror or e})") from None
+    return h.hexdigest()
+
+
+def _names(table, key, where, default, valid) -> list:
+    """A list of names (precisions, defenses), each at most once: an arm listed twice would be
+    run and counted twice."""
+    v = _list(table, key, where, default, valid)
+    twice = sorted({x for x in v if v.count(x) > 1})
+    if twice:
+        raise SpecError(f"{where}.{key} lists {', '.join(map(repr, twice))} more than once")
+    return v
 
 
 def _regions(table, where, size):
-    """Sort-first partition sizes P for contamination columns (regions_pred_P, regions_meas_P)."""
+    """Sort-first partition sizes P for contamination columns (regions_pred_P, regions_meas_P);
+    each must fit the tile-aligned region grid of the frame (render/regions.py)."""
+    from seuwgpu.render.regions import region_grid
+
     v = table.get("regions", [])
     if not isinstance(v, list) or not all(isinstance(p, int) and not isinstance(p, bool) for p in v):
         raise SpecError(f"{where}.regions must be a list of partition sizes, e.g. [4, 16, 64]")
     for p in v:
         if not 2 <= p <= 64:
             raise SpecError(f"{where}.regions: P = {p} is out of range [2, 64] (regions are 64-bit masks)")
-        if p > size[0] * size[1]:
-            raise SpecError(f"{where}.regions: P = {p} is more regions than pixels")
+        try:
+            region_grid(p, size[1], size[0])
+        except ValueError as e:
+            raise SpecError(f"{where}.regions: {e}") from None
     return sorted(set(v))
 
 
@@ -201,9 +287,53 @@ def parse_size(v, where="size"):
     return int(w), int(h)
 
 
+def _name(raw) -> str:
+    v = raw.get("name", "campaign")
+    if not isinstance(v, str) or not v.strip():
+        raise SpecError(f"name must be a non-empty string, got {v!r}")
+    return v
+
+
 def dose_levels(k_max: int, points: int) -> list[int]:
     ks = np.unique(np.round(np.logspace(0, np.log10(k_max), points)).astype(int))
     return [int(k) for k in ks]
+
+
+def _outcomes(t) -> dict:
+    from seuwgpu.metrics.image import FOOTPRINT_THRESHOLD, PIXEL_THRESHOLD
+
+    _keys(t, {"pixel_threshold", "footprint"}, "outcomes")
+    out = {}
+    for key, default in (("pixel_threshold", PIXEL_THRESHOLD), ("footprint", FOOTPRINT_THRESHOLD)):
+        v = t.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < 1:
+            raise SpecError(f"outcomes.{key} must be a number in [0, 1), got {v!r}")
+        out[key] = float(v)
+    return out
+
+
+def _reliability(t) -> dict:
+    _keys(t, {"scrub_hours", "rates"}, "reliability")
+    out = {}
+    if "scrub_hours" in t:
+        v = t["scrub_hours"]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+            raise SpecError(f"reliability.scrub_hours must be a positive number of hours, got {v!r}")
+        out["scrub_hours"] = float(v)
+    if "rates" in t:
+        rates = t["rates"]
+        if not isinstance(rates, list) or not rates:
+            raise SpecError("reliability.rates must be a non-empty list of {environment, per_bit_hour, source}")
+        out["rates"] = []
+        for i, r in enumerate(rates):
+            _keys(r, {"environment", "per_bit_hour", "source"}, f"reliability.rates[{i}]")
+            lam = r.get("per_bit_hour")
+            if isinstance(lam, bool) or not isinstance(lam, (int, float)) or not lam > 0:
+                raise SpecError(f"reliability.rates[{i}].per_bit_hour must be a positive number, got {lam!r}")
+            if not isinstance(r.get("environment"), str) or not isinstance(r.get("source"), str):
+                raise SpecError(f"reliability.rates[{i}] needs environment and source (strings)")
+            out["rates"].append({"environment": r["environment"], "per_bit_hour": float(lam), "source": r["source"]})
+    return out
 
 
 def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
@@ -212,8 +342,8 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
 
     _keys(raw, _TOP, "the spec")
     spec = {
-        "name": str(raw.get("name", "campaign")),
-        "seed": _int(raw, "seed", "spec", 0, 0),
+        "name": _name(raw),
+        "seed": _int(raw, "seed", "spec", 0, 0, SEED_MAX),
         "views": _int(raw, "views", "spec", 4, 1, 64),
         "size": list(parse_size(raw.get("size", "256x256"))),
         "batch": _int(raw, "batch", "spec", 256, 1, 65536),
@@ -223,6 +353,12 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 16:
             raise SpecError(f"scale must be a number in (0, 16], got {scale!r}")
         spec["scale"] = float(scale)
+    if "profile" in raw:  # renderer profile (docs/renderer.md); recorded only when given (hash)
+        if raw["profile"] not in PROFILES:
+            raise SpecError(
+                f"profile: {raw['profile']!r} is no renderer profile; expected one of {', '.join(PROFILES)}"
+            )
+        spec["profile"] = raw["profile"]
     scenes = raw.get("scenes")
     if not isinstance(scenes, list) or not scenes:
         raise SpecError("the spec needs at least one [[scenes]] table")
@@ -232,9 +368,9 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         _keys(s, _SCENE, where)
         if sum(k in s for k in ("scene", "model", "ply")) != 1:
             raise SpecError(f"{where} needs exactly one of scene = NAME or model = FILE (ply = FILE is an alias)")
-        out = {"sh_degree": _int(s, "sh_degree", where, 3, 0, 3), "seed": _int(s, "seed", where, 0, 0)}
+        out = {"sh_degree": _int(s, "sh_degree", where, 3, 0, 3), "seed": _int(s, "seed", where, 0, 0, SEED_MAX)}
         if "scene" in s:
-            if s["scene"] not in list_scenes():
+            if not isinstance(s["scene"], str) or s["scene"] not in list_scenes():
                 raise SpecError(
                     f"{where}.scene: unknown scene {s['scene']!r}; embedded scenes: {', '.join(list_scenes())}"
                 )
@@ -247,26 +383,33 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         else:
             key = "model" if "model" in s else "ply"
             out["model"] = _spec_file(s, key, where, base_dir)
+            out["model_sha256"] = content_hash("model", out["model"])
         if "up" in s:
-            if s["up"] not in _UP_AXES:
-                raise SpecError(f"{where}.up: {s['up']!r} is no axis; expected one of {', '.join(_UP_AXES)}")
+            if not isinstance(s["up"], str) or s["up"] not in UP_AXES:
+                raise SpecError(f"{where}.up: {s['up']!r} is no axis; expected one of {', '.join(UP_AXES)}")
             out["up"] = s["up"]
         if "cameras" in s:
             out["cameras"] = _spec_file(s, "cameras", where, base_dir)
+            out["cameras_sha256"] = content_hash("cameras", out["cameras"])
         spec["scenes"].append(out)
+    # recorded only when given, so older specs keep their hash (the manifest states the thresholds)
+    if "outcomes" in raw:
+        spec["outcomes"] = _outcomes(raw["outcomes"])
+    if "reliability" in raw:
+        spec["reliability"] = _reliability(raw["reliability"])
     if not any(k in raw for k in ("single", "dose", "sizes")):
         raise SpecError("the spec needs at least one of [single], [dose], [sizes]")
     if "single" in raw:
         t = raw["single"]
         _keys(t, _SINGLE, "single")
-        precisions = _list(t, "precisions", "single", ["fp32"], encoding.PRECISIONS)
+        precisions = _names(t, "precisions", "single", ["fp32"], encoding.PRECISIONS)
         spec["single"] = {
             "precisions": precisions,
             "fields": _fields(t, "single"),
             "bits": _bits(t, "single", precisions),
             "samples": _samples(t, "single", 20, min((sc.get("n") or 10**9) for sc in spec["scenes"])),
             "sampling": t.get("sampling", "stratified"),
-            "defenses": _list(t, "defenses", "single", ["none", "guard"], DEFENSES),
+            "defenses": _names(t, "defenses", "single", ["none", "guard"], DEFENSES),
             "regions": _regions(t, "single", spec["size"]),
         }
         _fault(t, spec["single"], "single")
@@ -284,10 +427,10 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         else:
             ks = dose_levels(_int(t, "k_max", "dose", 20_000, 1), _int(t, "points", "dose", 12, 1, 200))
         spec["dose"] = {
-            "precisions": _list(t, "precisions", "dose", ["fp32"], encoding.PRECISIONS),
+            "precisions": _names(t, "precisions", "dose", ["fp32"], encoding.PRECISIONS),
             "k": sorted(set(int(k) for k in ks)),
             "repeats": _int(t, "repeats", "dose", 3, 1),
-            "defenses": _list(t, "defenses", "dose", ["none", "guard"], DEFENSES),
+            "defenses": _names(t, "defenses", "dose", ["none", "guard"], DEFENSES),
         }
     if "sizes" in raw:
         t = raw["sizes"]
@@ -300,7 +443,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         first = spec["scenes"][0]["scene"]
         if is_capture(first) and max(ns) > make_scene(first).n:
             raise SpecError(f"sizes.n: the real capture {first} has {make_scene(first).n} splats; n must not exceed it")
-        precisions = _list(t, "precisions", "sizes", ["fp32"], encoding.PRECISIONS)
+        precisions = _names(t, "precisions", "sizes", ["fp32"], encoding.PRECISIONS)
         spec["sizes"] = {
             "n": sorted(set(ns)),
             "precisions": precisions,
@@ -308,7 +451,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "bits": _bits(t, "sizes", precisions),
             "samples": _samples(t, "sizes", 10, min(ns)),
             "sampling": t.get("sampling", "stratified"),
-            "defenses": _list(t, "defenses", "sizes", ["none"], DEFENSES),
+            "defenses": _names(t, "defenses", "sizes", ["none"], DEFENSES),
             "regions": _regions(t, "sizes", spec["size"]),
         }
         _fault(t, spec["sizes"], "sizes")
@@ -317,14 +460,28 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
 
 def load_spec(path) -> dict:
     path = Path(path)
+    if path.is_dir():
+        raise SpecError(f"{path}: is a folder; give the campaign spec file (TOML)")
     try:
-        raw = tomllib.loads(path.read_text())
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as e:
         raise SpecError(f"{path}: not valid TOML ({e})") from None
+    except UnicodeDecodeError:
+        raise SpecError(f"{path}: not a text file (a campaign spec is TOML)") from None
     except FileNotFoundError:
         raise SpecError(f"{path}: file not found") from None
-    return normalize_spec(raw, path.parent)
+    except OSError as e:
+        raise SpecError(f"{path}: cannot be read ({e.strerror or e})") from None
+    return normalize_spec(raw, path.resolve().parent)
 
 
 def spec_hash(spec: dict) -> str:
-    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
+    """The run's name: a hash of the normalised spec in which the files it names stand for their
+    content (their sha256), so the same spec is the same run whatever path reaches the files, and
+    a changed model or camera file is another run."""
+    keyed = dict(spec)
+    keyed["scenes"] = [
+        {k: v for k, v in sc.items() if not (k in ("model", "cameras") and f"{k}_sha256" in sc)}
+        for sc in spec.get("scenes", [])
+    ]
+    return hashlib.sha256(json.dumps(keyed, sort_keys=True).encode()).hexdigest()[:16]

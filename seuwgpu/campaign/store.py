@@ -3,13 +3,19 @@
     RUN_DIR/manifest.json                              spec, spec hash, provenance, totals
     RUN_DIR/records/part-FFFFFFFFFF-CCCCCC.parquet     rows of injections F .. F+C-1 (all arms)
     RUN_DIR/records/part-....parquet.HOST.PID.tmp      a part being written (atomic rename)
+    RUN_DIR/.lock-I-of-N                               held (flock) by the campaign running shard I/N
 
 Records are written in atomic parts (temp file + rename); a re-run skips the parts already
-written, and a changed spec is refused.
+written, and a changed spec is refused (`check_same_run`, naming a model or camera file whose
+content changed). A part that cannot be read, or holds the wrong number of rows, is deleted and
+redone; a part that is no block of the spec (a stray file) is never read (`record_parts`).
+A second campaign on the same shard of one directory is refused (RunInUse) while the first holds
+its lock; the lock is an flock, so a killed campaign releases it and can be resumed at once.
 """
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -19,6 +25,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from seuwgpu.errors import InputError, RunInUse
+
 MANIFEST = "manifest.json"
 RECORDS = "records"
 
@@ -27,6 +35,7 @@ COLUMNS = [
     "scene",
     "n_primitives",
     "precision",
+    "profile",
     "field",
     "primitive",
     "component",
@@ -43,13 +52,18 @@ COLUMNS = [
     "ssim",
     "nonfinite",
     "catastrophic",
+    "outcome",
     "clamps",
     "k",
     "repeat",
     "weight",
     "seed",
     "injection_id",
+    "time_ms",
 ]
+# wall-clock measurements: the only columns a replay, a shard or a Ray worker may not reproduce
+TIMED_COLUMNS = ("time_ms",)
+REPRODUCIBLE_COLUMNS = [c for c in COLUMNS if c not in TIMED_COLUMNS]
 
 
 def columns_of(ctx) -> list[str]:
@@ -77,8 +91,10 @@ def parse_part_name(name: str) -> tuple[int, int] | None:
     """(first id, count) of a part file name, or None for any other name."""
     if not (name.startswith("part-") and name.endswith(".parquet")):
         return None
-    a, b = name[: -len(".parquet")].split("-")[1:3]
-    return int(a), int(b)
+    fields = name[: -len(".parquet")].split("-")[1:]
+    if len(fields) != 2 or not all(f.isdigit() for f in fields):
+        return None
+    return int(fields[0]), int(fields[1])
 
 
 def part_files(run_dir) -> list[Path]:
@@ -100,15 +116,146 @@ def parts_in(run_dir) -> set[tuple[int, int]]:
     return out
 
 
+def part_rows(path: Path) -> int | None:
+    """Rows of a part from its Parquet footer, or None when the file is empty or unreadable."""
+    import pyarrow.parquet as pq
+
+    try:
+        return int(pq.read_metadata(path).num_rows)
+    except (OSError, ValueError):  # pyarrow's ArrowInvalid is a ValueError
+        return None
+
+
+def expected_parts(spec: dict) -> dict[tuple[int, int], int]:
+    """{(first id, count): rows} of every part a spec's campaign writes (blocks of `batch`
+    injections per context, one row per injection and defense)."""
+    from seuwgpu.campaign.sampling import enumerate_contexts
+
+    out, bs = {}, spec["batch"]
+    for ctx in enumerate_contexts(spec):
+        for a in range(0, ctx.count, bs):
+            m = min(bs, ctx.count - a)
+            out[(ctx.first_id + a, m)] = m * len(ctx.defenses)
+    return out
+
+
+def completed_parts(run_dir, expected: dict[tuple[int, int], int]) -> set[tuple[int, int]]:
+    """The parts among `expected` ({(first, count): rows}) already written whole. A part that is
+    empty, unreadable or holds another number of rows is deleted, so the caller redoes it."""
+    done = set()
+    for key in parts_in(run_dir) & set(expected):
+        path = part_path(run_dir, *key)
+        if part_rows(path) == expected[key]:
+            done.add(key)
+        else:
+            path.unlink(missing_ok=True)
+    return done
+
+
+def record_parts(run_dir, manifest: dict | None = None) -> list[Path]:
+    """The parts of a run that hold its records: the blocks its spec names (stray part files are
+    left out). Without a manifest holding a campaign spec (runs written by other tools), every
+    part file."""
+    manifest = manifest if manifest is not None else read_manifest(run_dir)
+    parts = part_files(run_dir)
+    try:
+        want = expected_parts(manifest["spec"])
+    except (KeyError, TypeError, ValueError):
+        return parts
+    return [p for p in parts if parse_part_name(p.name) in want]
+
+
 def read_manifest(run_dir) -> dict | None:
+    from seuwgpu.campaign.spec import SpecError
+
     path = manifest_path(run_dir)
     if not path.exists():
         return None
-    return json.loads(path.read_text())
+    try:
+        m = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise SpecError(f"{path}: not a readable run manifest ({e})") from None
+    if not isinstance(m, dict):
+        raise SpecError(f"{path}: not a run manifest (a JSON object expected)")
+    return m
+
+
+def check_same_run(run_dir, manifest: dict | None, spec: dict, spec_hash: str):
+    """Refuse to add records of `spec` to a run of another spec, naming what differs (a model or
+    camera file whose content changed since the run began, else the spec hashes). A run without
+    any part may be replaced (the caller writes the new manifest)."""
+    from seuwgpu.campaign.spec import SpecError
+
+    if manifest is None or manifest.get("spec_hash") == spec_hash:
+        return
+    if not part_files(run_dir):
+        return  # a run that stopped before its first part (a model that failed to load, ...) holds nothing
+    old = manifest.get("spec") or {}
+    for i, (a, b) in enumerate(zip(old.get("scenes", []), spec.get("scenes", []))):
+        for key in ("model", "cameras"):
+            ha, hb = a.get(f"{key}_sha256"), b.get(f"{key}_sha256")
+            if ha and hb and ha != hb:
+                raise SpecError(
+                    f"{run_dir} holds a run made with other content in {b.get(key)} (scenes[{i}].{key}: sha256 "
+                    f"{ha[:12]}.. then, {hb[:12]}.. now): the file changed since the run began; restore it, or "
+                    "use a new --out directory"
+                )
+    raise SpecError(
+        f"{run_dir} holds a run of a different spec (hash {manifest.get('spec_hash')} != {spec_hash}); "
+        "use a new --out directory, or the original spec to resume"
+    )
+
+
+def make_run_dir(run_dir):
+    """Create the run directory (and its parents), or say in one line why it cannot be."""
+    p = Path(run_dir)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"--out {p}: is a file, not a run directory")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"--out {p}: cannot create the run directory ({e.strerror or e})") from None
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise InputError(f"--out {p}: the run directory is not writable")
+
+
+@contextlib.contextmanager
+def lock(run_dir, shard: tuple[int, int] = (0, 1)):
+    """Hold the run directory's lock for shard I/N (an exclusive flock: released when the
+    process ends, however it ends). Raises RunInUse when another process holds it."""
+    import fcntl
+
+    i, n = shard
+    make_run_dir(run_dir)
+    path = Path(run_dir) / f".lock-{i}-of-{n}"
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "another process"
+            raise RunInUse(
+                f"{run_dir} is in use: a campaign ({holder}) is running shard {i}/{n} there; "
+                "wait for it to finish (or stop it), or use another --out"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"pid {os.getpid()} on {platform.node() or 'this host'}".encode(), 0)
+        yield path
+    finally:
+        os.close(fd)  # closing the descriptor releases the flock
 
 
 def write_manifest(run_dir, manifest: dict):
     atomic_write(manifest_path(run_dir), json.dumps(manifest, indent=1).encode())
+
+
+def guard_note_path(run_dir, scene: str, precision: str, profile: str) -> Path:
+    """Where a run records the guard's effect on a clean model holding NaN/Inf (once per model)."""
+    return Path(run_dir) / f"guard_on_clean-{scene}-{precision}-{profile}.json"
+
+
+def write_guard_note(run_dir, scene: str, precision: str, profile: str, note: dict):
+    atomic_write(guard_note_path(run_dir, scene, precision, profile), json.dumps(note, indent=1).encode())
 
 
 def git_commit() -> str:
@@ -163,7 +310,7 @@ def atomic_write(path: Path, data: bytes):
 
 
 def read_records(run_dir) -> pd.DataFrame:
-    parts = part_files(run_dir)
+    parts = record_parts(run_dir)
     if not parts:
         return pd.DataFrame(columns=COLUMNS)
     return pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)

@@ -25,8 +25,14 @@ from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.metrics.image import ImageMetrics, catastrophic, summarize
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import Camera
-from seuwgpu.model.fields import FIELDS, Model
+from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, n_components
 from seuwgpu.render.renderer import Renderer
+
+
+def field_of_components(degree: int) -> np.ndarray:
+    """Field index (FIELDS order) of each flat component."""
+    offs = [FIELD_OFFSET[f] for f in FIELDS]
+    return np.searchsorted(offs, np.arange(n_components(degree)), side="right") - 1
 
 
 class Engine:
@@ -41,6 +47,7 @@ class Engine:
         background=(1.0, 1.0, 1.0),
         incremental: bool = True,
         capacity: int | None = None,
+        profile: str = "strict",
     ):
         self.gpu = gpu or get_gpu()
         self.precision = encoding.check_precision(precision)
@@ -54,7 +61,9 @@ class Engine:
             background=background,
             keep_views=incremental,
             capacity=capacity,
+            profile=profile,
         )
+        self.profile = self.renderer.profile
         self.incremental = incremental
         self.layout = self.renderer.layout
         self.n, self.degree = model.n, model.sh_degree
@@ -63,6 +72,21 @@ class Engine:
         self.renderer.set_guard(self.box.rows(), 0)
         # in-pipeline clamp mask of each guard defense (other defenses: 0)
         self.masks = {d: component_mask(dfn.GUARDED_FIELDS[v], self.degree) for d, v in dfn.PIPELINE_GUARD.items()}
+        # Components where the clean model itself holds NaN or Inf (rare): the guard changes them
+        # like corrupted values, so a guarded upset is measured against the guarded clean render
+        # (its "reference"), and the guard's effect on the clean model is reported once
+        # (`guard_on_clean`), never charged to every upset.
+        bad = ~np.isfinite(stored.flat()).all(axis=0)
+        self.nonfinite_mask = int(sum(1 << int(c) for c in np.flatnonzero(bad)))
+        self.nonfinite_counts = {
+            f: int(v)
+            for f, v in zip(
+                FIELDS, np.bincount(field_of_components(self.degree), (~np.isfinite(stored.flat())).sum(0), len(FIELDS))
+            )
+            if v
+        }
+        self._ref_mask = 0  # guard mask of the render held as the clean reference
+        self.reference_clamps = 0
         self.flips = Flips(self.gpu, self.renderer.chunks)
         self._active: list[dict] = []  # applied XOR lists, for undo
         self.monitor = GuardMonitor(threshold=0)  # health signal of interactive/guarded renders
@@ -73,18 +97,54 @@ class Engine:
         r = self.renderer
         self.cameras = r.cameras
         self.width, self.height, self.k = r.width, r.height, r.k
-        # keep the clean frame's per-view state (only this render: faulted ones must not overwrite it)
+        self.clean_buf = self.gpu.buffer(r.image.size, STORAGE, "clean_images")
+        self._capture_reference(0)
+        self.metrics = ImageMetrics(self.gpu, self.width, self.height, self.k, max_variants=1)
+        self._evaluator = None
+
+    def _capture_reference(self, mask: int):
+        """Render the clean model under the in-pipeline guard `mask` (0: unguarded) as the reference
+        of the metrics: its frame into clean_buf / clean_rgba, its per-view state kept for the
+        incremental path (only this render: faulted ones must not overwrite it), its clamp total."""
+        if self._active:
+            raise RuntimeError("undo active faults before changing the clean reference")
+        r = self.renderer
         r.capture_views = r.keep_views
+        r.set_guard(None, mask)
+        r.reset_guard_counts()
         try:
             self.clean_rgba = r.render_rgba()
+            self.reference_clamps = int(r.read_guard_counts().sum())
         finally:
             r.capture_views = False
-        self.clean_buf = self.gpu.buffer(r.image.size, STORAGE, "clean_images")
+            r.set_guard(None, 0)
         enc = self.gpu.device.create_command_encoder()
         enc.copy_buffer_to_buffer(r.image, 0, self.clean_buf, 0, r.image.size)
         self.gpu.submit(enc)
-        self.metrics = ImageMetrics(self.gpu, self.width, self.height, self.k, max_variants=1)
-        self._evaluator = None
+        r.version += 1  # kept views re-captured: the incremental compositor re-reads them
+        self._ref_mask = mask
+
+    def reference_mask(self, defense: str) -> int:
+        """Guard mask of the clean reference of `defense`: its own mask where the clean model holds
+        non-finite values the guard changes, else 0 (the guard is then the identity on it)."""
+        mask = self._guard_mask(defense)
+        return mask if mask & self.nonfinite_mask else 0
+
+    def use_reference(self, defense: str):
+        """Make the clean reference of `defense` current (a re-render only when it changes)."""
+        mask = self.reference_mask(defense)
+        if mask != self._ref_mask:
+            self._capture_reference(mask)
+
+    def guard_on_clean(self, defense: str = "guard") -> dict:
+        """The guard's own effect on the clean model, reported once: the model's non-finite
+        values per field, and the guarded clean render against the unguarded one (metrics and
+        clamps). All zeros for a finite model."""
+        mask = self.reference_mask(defense)
+        self.use_reference("none")
+        out = self.measure_current(defense) if mask else {"footprint": 0.0, "clamps": 0}
+        out = {k: v for k, v in out.items() if not hasattr(v, "__len__")}
+        return {"defense": defense, **out, "nonfinite_values": dict(self.nonfinite_counts)}
 
     def set_cameras(self, cameras: list[Camera]):
         if self._active:
@@ -210,9 +270,25 @@ class Engine:
             self.monitor.update(counts)
         return images.reshape(r.k, r.height, r.width, 4), counts
 
+    def view_time_ms(self, defense: str = "none", repeats: int = 5) -> float:
+        """Median wall time (ms) of rendering one view of the model as it is now under the
+        defense's in-pipeline guard (K views rendered and waited for, divided by K; one warm-up
+        render first). The mitigation table's time cost comes from it, in the same run."""
+        import time
+
+        self._run_guarded(defense)
+        ts = []
+        for _ in range(max(int(repeats), 1)):
+            t0 = time.perf_counter()
+            self._run_guarded(defense)  # Renderer.run reads its totals back: the GPU is done
+            ts.append(time.perf_counter() - t0)
+        return 1e3 * float(np.median(ts)) / self.k
+
     def measure_current(self, defense: str = "none") -> dict:
-        """GPU metrics of the current model against the clean render (the frame stays on the GPU)."""
-        clamps = sum(self._run_guarded(defense).values())
+        """GPU metrics of the current model against the current clean reference (the frame stays
+        on the GPU). clamps: the guard's clamps beyond the reference's own (negative when an upset
+        turns a clean non-finite value into one inside the box)."""
+        clamps = sum(self._run_guarded(defense).values()) - self.reference_clamps
         raw = self.metrics.run_dense(self.clean_buf, self.renderer.image, 1)
         out = {
             k: (v[0].item() if hasattr(v, "__len__") else v) for k, v in summarize(raw, self.width, self.height).items()
@@ -223,6 +299,7 @@ class Engine:
     def inject(self, sites, defense: str = "none") -> dict:
         """Apply the site(s), render the K views under `defense`, measure, restore. One record."""
         sites = [sites] if isinstance(sites, Site) else list(sites)
+        self.use_reference(defense)
         handle = self.apply(sites, defense)
         try:
             m = self.measure_current(defense)
@@ -233,6 +310,7 @@ class Engine:
             "scene": self.scene,
             "n_primitives": self.n,
             "precision": self.precision,
+            "profile": self.profile,
             "defense": defense,
             "k": len(sites),
             "fault": names.pop() if len(names) == 1 else "mixed",
@@ -340,6 +418,7 @@ class Engine:
             "scene": [self.scene] * m_sites,
             "n_primitives": np.full(m_sites, self.n, np.int64),
             "precision": [self.precision] * m_sites,
+            "profile": [self.profile] * m_sites,
             "field": [s.field for s in sites],
             "primitive": np.array([s.primitive for s in sites], np.int64),
             "component": np.array([s.component for s in sites], np.int64),
@@ -355,7 +434,8 @@ class Engine:
             prims, bits, gm = self.variant_bits(sites, d)
             clean_v = encoding.from_bits(self.stored_bits(prims, comps), self.precision)
             corr_v = encoding.from_bits(bits[rows, comps], self.precision)
-            m = self.evaluator.evaluate(prims, bits, gm, regions)
+            self.use_reference(d)
+            m = self.evaluator.evaluate(prims, bits, gm, regions, self.primitive_bits(prims) if gm.any() else None)
             cols = dict(base)
             with np.errstate(invalid="ignore"):  # NaN values are data here
                 cols.update(

@@ -13,7 +13,7 @@ import numpy as np
 from seuwgpu.faults.guard import clamp_bits
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import STORAGE
-from seuwgpu.metrics.image import ImageMetrics, build_worklist, summarize, tile_map_to_mask
+from seuwgpu.metrics.image import ImageMetrics, build_worklist, changed_pixels, summarize, tile_map_to_mask
 from seuwgpu.render.incremental import IncrementalCompositor
 from seuwgpu.render.regions import region_id_map
 
@@ -29,13 +29,17 @@ class IncrementalEvaluator:
         self.offsets = g.buffer(4 * (self.B * k + 1), STORAGE, "offsets")
         self.metrics = ImageMetrics(g, r.width, r.height, k, self.B, max_entries=self.B * k * r.n_tiles)
 
-    def evaluate(self, prims: np.ndarray, bits: np.ndarray, guard_masks: np.ndarray | None = None, regions=()) -> dict:
+    def evaluate(
+        self, prims: np.ndarray, bits: np.ndarray, guard_masks: np.ndarray | None = None, regions=(), clean_bits=None
+    ) -> dict:
         """Metrics of variants: `prims` [M] primitive replaced in each variant, `bits` [M, ncomp]
         its effective stored bits (flip and defense already applied, except the support guard:
         `guard_masks` [M] component masks to clamp, 0 for none). Returns dict of [M] arrays
         (summarize's fields plus clamps). `regions`: sort-first partition sizes P for which to add
         regions_pred_P (regions the corrupted footprint's tile rectangle reaches in any view) and
-        regions_meas_P (regions with a changed pixel in any view) as int64 bitmasks."""
+        regions_meas_P (regions with a changed pixel in any view) as int64 bitmasks. `clean_bits`
+        [M, ncomp]: the primitives' clean stored bits; clamps then count beyond the clean
+        primitive's own (the reference's), as the full path does."""
         prims = np.asarray(prims, dtype=np.int64)
         bits = np.asarray(bits)
         m = prims.size
@@ -48,6 +52,8 @@ class IncrementalEvaluator:
                     sel = guard_masks == mask
                     bits[sel], hit = clamp_bits(bits[sel], self.engine.box, int(mask))
                     clamps[sel] = hit.sum(axis=1)
+                    if clean_bits is not None:
+                        clamps[sel] -= clamp_bits(clean_bits[sel], self.engine.box, int(mask))[1].sum(axis=1)
         out = None
         for a in range(0, m, self.B):
             part = self._evaluate_batch(prims[a : a + self.B], bits[a : a + self.B], tuple(regions))
@@ -89,7 +95,7 @@ class IncrementalEvaluator:
         return out
 
     def _measured_regions(self, b_idx, v_idx, t_idx, m: int, regions) -> dict:
-        """Regions with a changed pixel (|d| > 1/255 in a channel, or non-finite) in any view,
+        """Regions with a changed pixel (metrics.image.changed_pixels) in any view,
         from the re-composited slabs against the clean frame."""
         r, n_e = self.r, b_idx.size
         out = {f"regions_meas_{P}": np.zeros(m, dtype=np.int64) for P in regions}
@@ -101,9 +107,7 @@ class IncrementalEvaluator:
         inside = (ys < r.height) & (xs < r.width)
         yc, xc = np.minimum(ys, r.height - 1), np.minimum(xs, r.width - 1)
         clean = self.engine.clean_rgba[v_idx[:, None, None], yc, xc, :3]
-        with np.errstate(invalid="ignore"):
-            diff = np.abs(slabs[..., :3].astype(np.float64) - clean)
-            changed = ((diff > 1.0 / 255.0) | ~np.isfinite(slabs[..., :3])).any(axis=-1) & inside
+        changed = changed_pixels(slabs, clean) & inside
         for P in regions:
             rid = region_id_map(P, r.height, r.width)[yc, xc]
             bits = np.where(changed, np.left_shift(np.uint64(1), rid.astype(np.uint64)), np.uint64(0))

@@ -13,6 +13,12 @@ TILE = 16
 PRECISION_CODE = {"fp32": 0, "fp16": 1, "bf16": 2}
 """Code of each stored precision in the shaders' uniforms (`FMT_FP32`, `FMT_FP16`, `FMT_BF16`)."""
 
+PROFILE_CODE = {"strict": 0, "gsplat": 1}
+"""Renderer profile codes (docs/renderer.md, "Profiles"): the value of the `PROFILE` pipeline
+override of project.wgsl and composite.wgsl (`PROFILE_STRICT`, `PROFILE_GSPLAT`)."""
+
+PROFILES = tuple(PROFILE_CODE)
+
 WG = 256
 """Threads per workgroup of the one-thread-per-element kernels and of the scan and radix sort."""
 
@@ -29,6 +35,7 @@ SHARED = {
     "WG": WG,
     "MAX_GROUPS_X": MAX_GROUPS_X,
     **{f"FMT_{p.upper()}": code for p, code in PRECISION_CODE.items()},
+    **{f"PROFILE_{p.upper()}": code for p, code in PROFILE_CODE.items()},
 }
 """What `wgsl_header` declares in every shader."""
 

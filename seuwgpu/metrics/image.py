@@ -10,7 +10,9 @@ writes them: never clamped, possibly non-finite after a fault.
 * Raw-float metrics (what the renderer produced): ``changed`` (pixels whose r, g or b differs from
   the clean render by more than 1/255, or is non-finite), ``peak`` (max |faulted - clean| over
   pixels and channels, +Inf as soon as a difference is non-finite), ``nonfinite`` (pixels with a
-  non-finite r, g or b; exponent-bit test, never ``x != x``).
+  non-finite r, g or b; exponent-bit test, never ``x != x``). A pixel bit-identical to the clean
+  one counts for none of them: a clean model's own NaN pixels are not charged to every upset
+  (and sparse mode, which takes unlisted tiles as identical, equals dense mode).
 * Display-referred metrics (what an 8-bit display shows): ``sse`` (hence PSNR) and SSIM are
   computed on both images clipped to [0, 1] with NaN -> 0 (+Inf -> 1, -Inf -> 0). A frame full of
   Inf therefore has a finite PSNR; the raw metrics and the non-finite flag report it instead.
@@ -273,7 +275,11 @@ def summarize(raw: dict, width: int, height: int) -> dict:
     """[B, K] results -> [B] per-injection metrics: footprint (mean over views of changed/(W*H)),
     footprint_max, peak_error (max over views), psnr (10 log10(1/mse) over all views' pixels and
     channels, display-referred, +inf when sse == 0), ssim (mean over views), nonfinite (any),
-    nonfinite_pixels (total)."""
+    nonfinite_pixels (total).
+
+    PSNR and SSIM of a frame with a non-finite pixel in any view are NaN: its display-referred
+    numbers would rest on how NaN/Inf happen to be clipped, so they stay undefined (the
+    non-finite flag and the raw metrics report such frames)."""
     n_px = float(width) * float(height)
     n_int = n_interior(width, height)
     changed = np.asarray(raw["changed"], np.float64)
@@ -288,14 +294,17 @@ def summarize(raw: dict, width: int, height: int) -> dict:
             np.asarray(raw["ssim_sum"], np.float64) + n_int - np.asarray(raw["ssim_count"], np.float64)
         ) / n_int
     nonfinite_px = np.asarray(raw["nonfinite"], np.int64).sum(axis=1)
+    bad = nonfinite_px > 0
+    psnr = np.where(bad, np.nan, psnr)
+    ssim = np.where(bad, np.nan, ssim_view.mean(axis=1))
     foot = changed / n_px
     return {
         "footprint": foot.mean(axis=1),
         "footprint_max": foot.max(axis=1),
         "peak_error": np.asarray(raw["peak"], np.float64).max(axis=1),
         "psnr": psnr,
-        "ssim": ssim_view.mean(axis=1),
-        "nonfinite": nonfinite_px > 0,
+        "ssim": ssim,
+        "nonfinite": bad,
         "nonfinite_pixels": nonfinite_px,
     }
 
@@ -303,9 +312,38 @@ def summarize(raw: dict, width: int, height: int) -> dict:
 ImageMetrics.summarize = staticmethod(summarize)
 
 
-def catastrophic(footprint, nonfinite, threshold: float = 0.01):
+PIXEL_THRESHOLD = 1.0 / 255.0  # a channel change above one 8-bit level is visible (paper's definition)
+FOOTPRINT_THRESHOLD = 0.01  # a frame with more than 1% of its pixels changed is catastrophic
+OUTCOMES = ("masked", "tolerable", "sdc", "catastrophic")
+
+
+def catastrophic(footprint, nonfinite, threshold: float = FOOTPRINT_THRESHOLD):
     """Catastrophic injection: footprint > threshold (1% of the pixels) or any non-finite pixel."""
     return (np.asarray(footprint) > threshold) | np.asarray(nonfinite, bool)
+
+
+def outcome_class(
+    peak_error, footprint, nonfinite, pixel_threshold: float = PIXEL_THRESHOLD, footprint_threshold=FOOTPRINT_THRESHOLD
+) -> np.ndarray:
+    """Outcome class of each injection (object array of OUTCOMES):
+
+    * masked: the frame is bit-identical to clean (peak error 0, every pixel finite);
+    * tolerable: changed, but no channel by more than `pixel_threshold`;
+    * sdc: silent data corruption, visible (a channel changed by more than `pixel_threshold`),
+      with a footprint of at most `footprint_threshold`;
+    * catastrophic: footprint over `footprint_threshold`, or a non-finite pixel.
+
+    The footprint counts pixels changed by more than 1/255 (the metric shader's fixed test);
+    `pixel_threshold` sets the tolerable / SDC boundary on the peak change. A NaN peak error
+    (not measured) with a zero footprint counts as tolerable, never as masked."""
+    peak = np.asarray(peak_error, np.float64)
+    foot = np.asarray(footprint, np.float64)
+    bad = np.asarray(nonfinite, bool)
+    out = np.full(peak.shape, "tolerable", dtype=object)
+    out[peak == 0] = "masked"
+    out[peak > pixel_threshold] = "sdc"
+    out[(foot > footprint_threshold) | bad] = "catastrophic"
+    return out
 
 
 # ------------------------------------------------------------------------------------------------
@@ -315,6 +353,23 @@ def display(img: np.ndarray) -> np.ndarray:
     """Display-referred image: clip to [0, 1], NaN -> 0 (+Inf -> 1, -Inf -> 0)."""
     a = np.asarray(img, np.float32)
     return np.clip(np.nan_to_num(a, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+
+
+def changed_pixels(faulted: np.ndarray, clean: np.ndarray, threshold=THRESHOLD) -> np.ndarray:
+    """The one pixel-changed test of the project ([..., H, W] bool), as the metrics shader makes it
+    (M_THR): a pixel changed when a colour channel of the faulted render is non-finite, or differs
+    from the clean one by more than 1/255 (the float32 difference, as on the GPU). Only r, g, b
+    count; a fourth (transmittance) channel is ignored; a pixel bit-identical to the clean one is
+    unchanged (a clean model's own NaN pixels are not charged to an upset). The footprint, the viewer's heat map and
+    both contamination measures (incremental and sort-first) all use it."""
+    f = np.asarray(faulted, np.float32)[..., :3]
+    c = np.asarray(clean, np.float32)[..., :3]
+    with np.errstate(invalid="ignore", over="ignore"):
+        d = f - c
+    bad = ~np.isfinite(f) | ~np.isfinite(d)
+    changed = (bad | (np.abs(np.where(bad, np.float32(0), d)) > np.float32(threshold))).any(axis=-1)
+    same = (f.view(np.uint32) == np.broadcast_to(c, f.shape).view(np.uint32)).all(axis=-1)
+    return changed & ~same
 
 
 def numpy_metrics(clean: np.ndarray, faulted: np.ndarray) -> dict:
@@ -328,12 +383,13 @@ def numpy_metrics(clean: np.ndarray, faulted: np.ndarray) -> dict:
     n_int = n_interior(W, H)
     with np.errstate(invalid="ignore", over="ignore"):
         d = f - c[None]  # float32, like the GPU
+    same = (f.view(np.uint32) == c[None].view(np.uint32)).all(axis=-1)  # bit-identical: unchanged
     bad_f = ~np.isfinite(f)
     bad_d = ~np.isfinite(d)
-    nonfin_px = bad_f.any(axis=-1)
-    inf_px = nonfin_px | bad_d.any(axis=-1)
-    ad = np.where(bad_d, np.float32(0), np.abs(d))
-    changed_px = inf_px | (ad > THRESHOLD).any(axis=-1)
+    nonfin_px = bad_f.any(axis=-1) & ~same
+    inf_px = nonfin_px | (bad_d.any(axis=-1) & ~same)
+    ad = np.where(bad_d | same[..., None], np.float32(0), np.abs(d))
+    changed_px = changed_pixels(f, c[None])
     peak_px = np.where(inf_px, np.float32(np.inf), ad.max(axis=-1))
     dc = display(c).astype(np.float64)
     df = display(f).astype(np.float64)

@@ -31,6 +31,35 @@ from pathlib import Path
 
 import numpy as np
 
+from seuwgpu.errors import InputError
+
+
+def _is_number(x) -> bool:
+    """A JSON number: int or float, not a bool (True is no width), None or text."""
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
+
+
+def _size(v, what: str) -> int:
+    """An image size: a positive integer (an integral float such as 640.0 is accepted; a bool, a
+    fraction, None or text is not)."""
+    if not _is_number(v) or not (np.isfinite(v) and float(v) == int(v) and v > 0):
+        raise InputError(f"camera {what} must be a positive integer, got {v!r}")
+    return int(v)
+
+
+def _matrix(v, shape: tuple, what: str) -> np.ndarray:
+    """A finite numeric matrix of `shape` (booleans and text refused)."""
+    a = np.asarray(v, dtype=object)
+    flat = a.ravel()
+    if a.shape != shape and a.size != shape[0] * shape[1]:
+        raise InputError(f"camera {what} must be {shape[0]}x{shape[1]} numbers, got shape {a.shape}")
+    if not all(_is_number(x) for x in flat):
+        raise InputError(f"camera {what} must hold numbers only")
+    m = np.asarray(flat.astype(np.float64), dtype=np.float32).reshape(shape)
+    if not np.isfinite(m).all():
+        raise InputError(f"camera {what} must be finite, got {m.tolist()}")
+    return m
+
 
 @dataclass
 class Camera:
@@ -40,13 +69,23 @@ class Camera:
     height: int
 
     def __post_init__(self):
-        self.viewmat = np.asarray(self.viewmat, dtype=np.float32).reshape(4, 4)
-        self.K = np.asarray(self.K, dtype=np.float32).reshape(3, 3)
-        self.width, self.height = int(self.width), int(self.height)
-        if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"camera size must be positive, got {self.width}x{self.height}")
-        if not (np.isfinite(self.viewmat).all() and np.isfinite(self.K).all()):
-            raise ValueError("camera viewmat and K must be finite")
+        self.width, self.height = _size(self.width, "width"), _size(self.height, "height")
+        self.viewmat = _matrix(self.viewmat, (4, 4), "viewmat")
+        self.K = _matrix(self.K, (3, 3), "K")
+        R = self.viewmat[:3, :3].astype(np.float64)
+        # a view matrix maps the world into the camera with determinant > 0: a singular one
+        # projects everything onto a plane, a mirrored one flips the image, so either render
+        # would quietly be something else. (A uniform scale is left alone: some captures have one.)
+        det = float(np.linalg.det(R))
+        if not abs(det) > 1e-6:
+            raise InputError(f"camera viewmat is singular (rotation determinant {det:.3g})")
+        if det < 0:
+            raise InputError(f"camera viewmat is mirrored (rotation determinant {det:.3g} < 0)")
+        if not np.array_equal(self.viewmat[3], np.array([0, 0, 0, 1], np.float32)):
+            raise InputError(f"camera viewmat's last row must be 0 0 0 1, got {self.viewmat[3].tolist()}")
+        fx, fy = float(self.K[0, 0]), float(self.K[1, 1])
+        if not (fx > 0 and fy > 0):
+            raise InputError(f"camera focal lengths must be positive, got fx={fx:g}, fy={fy:g}")
 
     @property
     def position(self) -> np.ndarray:
@@ -59,7 +98,7 @@ class Camera:
         return {"viewmat": self.viewmat.tolist(), "K": self.K.tolist(), "width": self.width, "height": self.height}
 
 
-class CameraFileError(ValueError):
+class CameraFileError(InputError):
     """A camera file that cannot be read (the message names the file and the problem)."""
 
 
@@ -173,20 +212,41 @@ def read_cameras(path) -> tuple[list[Camera], list[str], str]:
     )
 
 
+def camera_files(path) -> list[Path]:
+    """The files read_cameras reads for `path` (what a campaign hashes to notice a change)."""
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: no such camera file or folder")
+    if p.is_file() and p.name not in ("cameras.bin", "images.bin", "cameras.txt", "images.txt"):
+        return [p]
+    folder = p.parent if p.is_file() else p
+    if p.is_dir():
+        for name in ("cameras.json", "transforms.json", "CAMS.json"):
+            if (p / name).is_file():
+                return [p / name]
+        for sub in (p, p / "sparse" / "0", p / "sparse"):
+            if any((sub / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
+                folder = sub
+                break
+    ext = "bin" if (folder / "cameras.bin").is_file() and (folder / "images.bin").is_file() else "txt"
+    found = [folder / f"{stem}.{ext}" for stem in ("cameras", "images") if (folder / f"{stem}.{ext}").is_file()]
+    if len(found) != 2:
+        raise CameraFileError(
+            f"{p}: folder without cameras.json, transforms.json or a COLMAP model (cameras and images .bin/.txt)"
+        )
+    return found
+
+
 def _read_camera_folder(p: Path):
-    for name in ("cameras.json", "transforms.json", "CAMS.json"):
-        if (p / name).is_file():
-            return read_cameras(p / name)
-    for sub in (p, p / "sparse" / "0", p / "sparse"):
-        if any((sub / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
-            return _read_colmap(sub)
-    raise CameraFileError(
-        f"{p}: folder without cameras.json, transforms.json or a COLMAP model (cameras and images .bin/.txt)"
-    )
+    files = camera_files(p)
+    return read_cameras(files[0]) if files[0].suffix == ".json" else _read_colmap(files[0].parent)
 
 
 def _num(p: Path, where: str, v, shape=None) -> np.ndarray:
     try:
+        o = np.asarray(v, dtype=object)
+        if not all(_is_number(x) for x in o.ravel()):
+            raise ValueError
         a = np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError):
         raise CameraFileError(f"{p}: {where} is not numeric") from None
@@ -195,6 +255,15 @@ def _num(p: Path, where: str, v, shape=None) -> np.ndarray:
     if not np.isfinite(a).all():
         raise CameraFileError(f"{p}: {where} is not finite")
     return a
+
+
+def _scalar(v, what: str) -> float:
+    """A finite number from a camera file (booleans, None and text refused)."""
+    if not _is_number(v):
+        raise InputError(f"{what} must be a number, got {v!r}")
+    if not np.isfinite(v):
+        raise InputError(f"{what} must be finite, got {v!r}")
+    return float(v)
 
 
 def _intrinsics(fx, fy, cx, cy) -> np.ndarray:
@@ -240,10 +309,11 @@ def _read_inria(p: Path, data: list):
             raise CameraFileError(f"{p}: INRIA camera {i} lacks {', '.join(sorted(missing))}")
         rot = _num(p, f"camera {i} rotation", c["rotation"], (3, 3))
         pos = _num(p, f"camera {i} position", c["position"], (3,))
-        w, h = int(c["width"]), int(c["height"])
-        cx, cy = float(c.get("cx", w / 2)), float(c.get("cy", h / 2))
         try:
-            cams.append(Camera(_from_c2w(rot, pos), _intrinsics(float(c["fx"]), float(c["fy"]), cx, cy), w, h))
+            w, h = _size(c["width"], "width"), _size(c["height"], "height")
+            fx, fy = (_scalar(c[k], k) for k in ("fx", "fy"))
+            cx, cy = _scalar(c.get("cx", w / 2), "cx"), _scalar(c.get("cy", h / 2), "cy")
+            cams.append(Camera(_from_c2w(rot, pos), _intrinsics(fx, fy, cx, cy), w, h))
         except ValueError as e:
             raise CameraFileError(f"{p}: camera {i}: {e}") from None
         names.append(str(c.get("img_name", i)))
@@ -272,25 +342,24 @@ def _read_transforms_json(p: Path, data: dict):
         w, h = get(fr, "w"), get(fr, "h")
         if w is None or h is None:
             raise CameraFileError(f"{p}: frame {i}: image size w, h missing (top level or per frame)")
-        w, h = int(w), int(h)
-        fx = get(fr, "fl_x")
-        if fx is None and get(fr, "camera_angle_x") is not None:
-            fx = 0.5 * w / np.tan(0.5 * float(get(fr, "camera_angle_x")))
-        if fx is None:
-            raise CameraFileError(f"{p}: frame {i}: focal length fl_x missing (top level or per frame)")
-        fy = get(fr, "fl_y")
-        fy = fx if fy is None else fy
-        cx, cy = get(fr, "cx"), get(fr, "cy")
-        cx = w / 2 if cx is None else cx
-        cy = h / 2 if cy is None else cy
-        if any(float(get(fr, k) or 0.0) != 0.0 for k in ("k1", "k2", "k3", "k4", "p1", "p2")):
-            distorted = True
         T = _num(p, f"frame {i} transform_matrix", fr["transform_matrix"])
         if T.shape not in ((4, 4), (3, 4)):
             raise CameraFileError(f"{p}: frame {i} transform_matrix has shape {T.shape}, expected 4x4")
-        rot = T[:3, :3] @ _GL_TO_CV  # OpenGL camera axes (y up, z back) -> OpenCV (y down, z forward)
         try:
-            cams.append(Camera(_from_c2w(rot, T[:3, 3]), _intrinsics(float(fx), float(fy), float(cx), float(cy)), w, h))
+            w, h = _size(w, "w"), _size(h, "h")
+            fx = get(fr, "fl_x")
+            if fx is None and get(fr, "camera_angle_x") is not None:
+                fx = 0.5 * w / np.tan(0.5 * _scalar(get(fr, "camera_angle_x"), "camera_angle_x"))
+            if fx is None:
+                raise CameraFileError(f"{p}: frame {i}: focal length fl_x missing (top level or per frame)")
+            fx = _scalar(fx, "fl_x")
+            fy = fx if get(fr, "fl_y") is None else _scalar(get(fr, "fl_y"), "fl_y")
+            cx = w / 2 if get(fr, "cx") is None else _scalar(get(fr, "cx"), "cx")
+            cy = h / 2 if get(fr, "cy") is None else _scalar(get(fr, "cy"), "cy")
+            if any(_scalar(get(fr, k) or 0.0, k) != 0.0 for k in ("k1", "k2", "k3", "k4", "p1", "p2")):
+                distorted = True
+            rot = T[:3, :3] @ _GL_TO_CV  # OpenGL camera axes (y up, z back) -> OpenCV (y down, z forward)
+            cams.append(Camera(_from_c2w(rot, T[:3, 3]), _intrinsics(fx, fy, cx, cy), w, h))
         except ValueError as e:
             raise CameraFileError(f"{p}: frame {i}: {e}") from None
         names.append(str(fr.get("file_path", i)))

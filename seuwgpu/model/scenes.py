@@ -55,6 +55,7 @@ from functools import cache
 
 import numpy as np
 
+from seuwgpu.model.budget import check_scene
 from seuwgpu.model.cameras import Camera, orbit_cameras
 from seuwgpu.model.captures import CAPTURES, capture_model
 from seuwgpu.model.captures import UP as CAPTURE_UP
@@ -840,6 +841,7 @@ def make_scene(name: str = DEFAULT_SCENE, n: int | None = None, sh_degree: int =
         return capture_model(name, None if n is None else int(n), int(sh_degree), seed)
     spec = scene_spec(name)
     n = DEFAULT_N if n is None else int(n)
+    check_scene(n, int(sh_degree))
     parts = _parts(spec.name)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed) % (1 << 64), zlib.crc32(name.encode()), 0x3D65]))
     counts = _allocate(np.array([p.area * p.weight for p in parts]), n)

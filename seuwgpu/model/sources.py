@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from seuwgpu.model import scenes
+from seuwgpu.model.budget import check_model
 from seuwgpu.model.cameras import Camera, load_cameras, scale_cameras, select_views
 from seuwgpu.model.fields import Model
 from seuwgpu.model.formats import read_model
@@ -42,6 +43,8 @@ def load_source(
         mf = read_model(path)
         return Source(mf.model, mf.name, up or mf.up, None, mf.notes)
     name = scene or scenes.DEFAULT_SCENE
+    if n is not None and not scenes.is_capture(name):
+        check_model(n, sh_degree)
     model = scenes.make_scene(name, n=n, sh_degree=sh_degree, seed=seed)
     registered = "+y" if scenes.is_capture(name) else "+z"
     return Source(model, name, up or registered, name if up in (None, registered) else None)

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from seuwgpu.gpu.constants import TILE
+from seuwgpu.gpu.constants import PROFILE_CODE, TILE
 from seuwgpu.gpu.device import GPU, STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 
@@ -37,9 +37,9 @@ class Compositing:
     """composite.wgsl:main: one TILE x TILE workgroup per tile; owns the frames `image`
     ([K, H, W] vec4: rgb, final transmittance)."""
 
-    def __init__(self, gpu: GPU):
+    def __init__(self, gpu: GPU, profile: str = "strict"):
         self.gpu = gpu
-        self.kernel = Kernel(gpu, "composite", "main")
+        self.kernel = Kernel(gpu, "composite", "main", constants={"PROFILE": PROFILE_CODE[profile]})
 
     def set_views(self, k: int, width: int, height: int):
         self.image = self.gpu.buffer(16 * int(k) * int(width) * int(height), STORAGE, "composite.image")
@@ -61,9 +61,9 @@ class VariantCompositing:
     (depth bits, index) as the depth sort orders them). A pixel that neither record reaches is
     copied from the clean image. Owns the entries, the slabs and the `Recomp` parameters."""
 
-    def __init__(self, gpu: GPU, max_entries: int):
+    def __init__(self, gpu: GPU, max_entries: int, profile: str = "strict"):
         self.gpu = gpu
-        self.kernel = Kernel(gpu, "composite", "variants")
+        self.kernel = Kernel(gpu, "composite", "variants", constants={"PROFILE": PROFILE_CODE[profile]})
         self.params = Uniforms(gpu, self.kernel.struct("Recomp"), 1, "recomp")
         self.entry = self.kernel.struct("VariantEntry")
         self.max_entries = int(max_entries)
@@ -111,10 +111,11 @@ class VariantCompositing:
 
 
 # ---- numpy twin ---------------------------------------------------------------------------------
-def composite_tile(ids, pxs, pys, mx, my, conic, opac, rgb, bg, block0=32, block_max=512):
+def composite_tile(ids, pxs, pys, mx, my, conic, opac, rgb, bg, block0=32, block_max=512, profile="strict"):
     """Composite the depth-ordered primitive list `ids` over pixel centres (pxs, pys) [P]:
     (C + T * bg [P, 3], T [P]). Exactly the sequential per-pixel rule, vectorised over pixels and
-    blocks of primitives."""
+    blocks of primitives. Profile "gsplat": a NaN alpha becomes 0.99 (CUDA's fminf drops NaN)."""
+    nan_alpha = F(np.nan) if profile == "strict" else ALPHA_MAX
     P = pxs.shape[0]
     T = np.ones(P, dtype=F)
     C = np.zeros((P, 3), dtype=F)
@@ -131,7 +132,7 @@ def composite_tile(ids, pxs, pys, mx, my, conic, opac, rgb, bg, block0=32, block
             cxx, cxy, czz = conic[blk, 0, None], conic[blk, 1, None], conic[blk, 2, None]
             sigma = F(0.5) * ((cxx * dx) * dx + (czz * dy) * dy) + (cxy * dx) * dy
             a = opac[blk, None] * np.exp(-sigma)
-            alpha = np.minimum(ALPHA_MAX, a)  # NaN propagates
+            alpha = np.where(np.isnan(a), nan_alpha, np.minimum(ALPHA_MAX, a)).astype(F)
             skip = (sigma < 0) | (alpha < ALPHA_MIN)
             f = F(1) - np.where(skip, F(0), alpha)
             Ta = T[active]
@@ -163,7 +164,9 @@ def tile_pixels(tx: int, ty: int, width: int, height: int, origin=(0, 0)):
     return (slice(ya, yb), slice(xa, xb)), pxs, pys
 
 
-def composite_frame(ranges, prims, records: dict, width: int, height: int, background=(1.0, 1.0, 1.0), origin=(0, 0)):
+def composite_frame(
+    ranges, prims, records: dict, width: int, height: int, background=(1.0, 1.0, 1.0), origin=(0, 0), profile="strict"
+):
     """Twin of the main entry for one view: tile t draws prims[ranges[t, 0]:ranges[t, 1]] with
     the screen records (`mean2d` [N, 2], `conic` [N, 3], `opacity`, `rgb` [N, 3]). Returns
     [H, W, 4] float32 (rgb, T) like the GPU's image."""
@@ -177,7 +180,7 @@ def composite_frame(ranges, prims, records: dict, width: int, height: int, backg
             (ys, xs), pxs, pys = tile_pixels(tx, ty, width, height, origin)
             a, b = ranges[ty * tiles_x + tx]
             rgb, T = composite_tile(
-                prims[a:b], pxs, pys, mx, my, records["conic"], records["opacity"], records["rgb"], bg
+                prims[a:b], pxs, pys, mx, my, records["conic"], records["opacity"], records["rgb"], bg, profile=profile
             )
             img[ys, xs, :3] = rgb.reshape(img[ys, xs].shape[:2] + (3,))
             img[ys, xs, 3] = T.reshape(img[ys, xs].shape[:2])

@@ -38,8 +38,8 @@ class IncrementalCompositor:
         self.vlayout = StoredLayout(self.B, r.degree, r.precision, self.B)
         self.var_words = g.buffer(4 * self.vlayout.chunk_words, label="var_words")
         # view v's variant records at [v * B, v * B + B)
-        self.projection = Projection(g, k * self.B, k, "var")
-        self.compositing = VariantCompositing(g, self.max_entries)
+        self.projection = Projection(g, k * self.B, k, "var", r.profile)
+        self.compositing = VariantCompositing(g, self.max_entries, r.profile)
         self.tile_map = g.buffer(4 * self.B * k * r.n_tiles, label="tile_map")
         self.bound_version = None
         self.refresh()

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from seuwgpu.gpu.constants import PRECISION_CODE, TILE
+from seuwgpu.gpu.constants import PRECISION_CODE, PROFILE_CODE, TILE
 from seuwgpu.gpu.device import GPU, STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 from seuwgpu.model.cameras import Camera
@@ -81,6 +81,14 @@ def camera_params(cam: Camera):
     t = cam.viewmat[:3, 3].astype(F)
     campos = cam.position.astype(F)  # computed in float64 from the float32 viewmat, then rounded
     return R, t, fx, fy, cx, cy, campos
+
+
+def camera_space(means, R, t):
+    """Camera-space means (p.x, p.y, p.z) = R @ mean + t, each sum left to right."""
+    m = means
+    with np.errstate(all="ignore"):
+        p = ((m[:, 0, None] * R[None, :, 0] + m[:, 1, None] * R[None, :, 1]) + m[:, 2, None] * R[None, :, 2]) + t
+    return p[:, 0], p[:, 1], p[:, 2]
 
 
 def jacobian_limits(cam: Camera, fx, fy, cx, cy):
@@ -225,7 +233,13 @@ def quat_to_rotmat(quats: np.ndarray) -> np.ndarray:
     return R
 
 
-def project(model: Model, cam: Camera) -> dict:
+def check_profile(profile: str) -> str:
+    if profile not in PROFILE_CODE:
+        raise ValueError(f"unknown renderer profile {profile!r}; expected one of {', '.join(PROFILE_CODE)}")
+    return profile
+
+
+def project(model: Model, cam: Camera, profile: str = "strict") -> dict:
     """Per-primitive projection of `model` (decoded float32 values) for one camera.
 
     Returns arrays over all N primitives: depth (p.z), visible (bool), mean2d [N,2],
@@ -233,6 +247,8 @@ def project(model: Model, cam: Camera) -> dict:
     opacity [N], rgb [N,3], rect [N,4] int32 (x0, y0, x1, y1 in tiles, exclusive max; zeros
     when culled), n_tiles [N] int64 (0 when culled).
     """
+    if check_profile(profile) == "gsplat":
+        return project_gsplat(model, cam)
     n = model.n
     R, t, fx, fy, cx, cy, campos = camera_params(cam)
     TX, TY = n_tiles_xy(cam)
@@ -240,10 +256,7 @@ def project(model: Model, cam: Camera) -> dict:
     m = model.means
     with np.errstate(all="ignore"):
         # 2. camera-space mean
-        p = ((m[:, 0, None] * R[None, :, 0] + m[:, 1, None] * R[None, :, 1]) + m[:, 2, None] * R[None, :, 2]) + t[
-            None, :
-        ]
-        px, py, pz = p[:, 0], p[:, 1], p[:, 2]
+        px, py, pz = camera_space(m, R, t)
         ok = np.isfinite(pz) & (pz >= NEAR) & (pz <= FAR)
         # 3. screen mean
         rz = F(1) / pz
@@ -281,25 +294,109 @@ def project(model: Model, cam: Camera) -> dict:
         rectf[unb] = np.array([0, 0, TX, TY], dtype=F)
         rectf[~ok] = 0  # also clears NaN rows (culled) before the integer conversion
         ok &= (rectf[:, 2] > rectf[:, 0]) & (rectf[:, 3] > rectf[:, 1])
+        # 8. opacity, 9. colour
+        return records(model, campos, pz, ok, (mx, my), (a, b, c), conic, unb & ok, (rx, ry), rectf)
+
+
+def records(model: Model, campos, pz, ok, mean2d, cov, conic, unbounded, radius, rectf) -> dict:
+    """The projection's outputs (see `project`): culled rows' rectangles cleared, then opacity
+    and colour."""
+    with np.errstate(all="ignore"):
         rectf[~ok] = 0
         rect = rectf.astype(np.int32)
         n_tiles = (rect[:, 2] - rect[:, 0]).astype(np.int64) * (rect[:, 3] - rect[:, 1])
-        # 8. opacity, 9. colour
         opacity = sigmoid(model.opacity)
-        rgb = sh_to_rgb(model.sh_dc, model.sh_rest, m - campos[None, :])
+        rgb = sh_to_rgb(model.sh_dc, model.sh_rest, model.means - campos[None, :])
     return {
         "depth": pz.astype(F),
         "visible": ok,
-        "mean2d": np.stack([mx, my], axis=1).astype(F),
-        "cov2d": np.stack([a, b, c], axis=1).astype(F),
+        "mean2d": np.stack(mean2d, axis=1).astype(F),
+        "cov2d": np.stack(cov, axis=1).astype(F),
         "conic": conic.astype(F),
-        "unbounded": unb & ok,
-        "radius": np.stack([rx, ry], axis=1).astype(F),
+        "unbounded": unbounded,
+        "radius": np.stack(radius, axis=1).astype(F),
         "opacity": opacity.astype(F),
         "rgb": rgb.astype(F),
         "rect": rect,
         "n_tiles": n_tiles,
     }
+
+
+def glm_min(a, b):
+    """glm::min(a, b) = (b < a) ? b : a: a NaN b is dropped."""
+    return np.where(b < a, b, a)
+
+
+def glm_max(a, b):
+    """glm::max(a, b) = (a < b) ? b : a: a NaN b is dropped."""
+    return np.where(a < b, b, a)
+
+
+def cuda_f2i(x):
+    """CUDA's float-to-int32 conversion, kept in float: NaN -> 0, saturating at +-2^31."""
+    x = np.asarray(x, dtype=F)
+    return np.where(np.isnan(x), F(0), np.clip(x, F(-(2.0**31)), F(2.0**31))).astype(F)
+
+
+def project_gsplat(model: Model, cam: Camera) -> dict:
+    """The gsplat profile's projection (docs/renderer.md, "Profiles"): gsplat's CUDA arithmetic
+    (ProjectionEWA3DGSFused.cu, Utils.cuh persp_proj / quat_scale_to_covar_preci / add_blur,
+    IntersectTile.cu's tile box). Same outputs as `project`; `unbounded` is always False (a
+    non-finite covariance gives a NaN radius, culled, or an infinite one, the whole screen)."""
+    n = model.n
+    R, t, fx, fy, cx, cy, campos = camera_params(cam)
+    TX, TY = n_tiles_xy(cam)
+    W, H = F(cam.width), F(cam.height)
+    lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg = jacobian_limits(cam, fx, fy, cx, cy)
+    m = model.means
+    with np.errstate(all="ignore"):
+        px, py, pz = camera_space(m, R, t)
+        ok = ~((pz < NEAR) | (pz > FAR))  # NaN passes
+        rz = F(1) / pz
+        mx = (fx * px) * rz + cx
+        my = (fy * py) * rz + cy
+        s = np.exp(model.log_scales)
+        M = quat_to_rotmat(model.quats) * s[:, None, :]  # R S: column k scaled by s[k]
+        sigma = batched_matmul(M, M.transpose(0, 2, 1))
+        Wm = np.broadcast_to(R, (n, 3, 3))
+        cov_c = batched_matmul(batched_matmul(Wm, sigma), Wm.transpose(0, 2, 1))
+        tx = pz * glm_min(lim_x_pos, glm_max(-lim_x_neg, px * rz))
+        ty = pz * glm_min(lim_y_pos, glm_max(-lim_y_neg, py * rz))
+        J = np.zeros((n, 2, 3), dtype=F)
+        J[:, 0, 0] = fx * rz
+        J[:, 0, 2] = ((-fx * tx) * rz) * rz
+        J[:, 1, 1] = fy * rz
+        J[:, 1, 2] = ((-fy * ty) * rz) * rz
+        cov2 = batched_matmul(batched_matmul(J, cov_c), J.transpose(0, 2, 1))
+        a = cov2[:, 0, 0] + LOWPASS
+        c = cov2[:, 1, 1] + LOWPASS
+        b01, b10 = cov2[:, 1, 0], cov2[:, 0, 1]  # glm m[0][1] (column 0, row 1), m[1][0]
+        det = a * c - b01 * b10
+        ok &= ~(det <= 0)
+        inv = F(1) / det
+        conic = np.stack([c * inv, -b01 * inv, a * inv], axis=1)
+        rx = np.ceil(EXTENT * np.sqrt(a))
+        ry = np.ceil(EXTENT * np.sqrt(c))
+        ok &= ~((rx <= 0) & (ry <= 0))
+        ok &= ~((mx + rx <= 0) | (mx - rx >= W) | (my + ry <= 0) | (my - ry >= H))
+        irx, iry = cuda_f2i(rx), cuda_f2i(ry)
+        ok &= (irx > 0) & (iry > 0)
+        ft = F(TILE)
+
+        def bound(v, hi):
+            return np.clip(cuda_f2i(v), F(0), F(hi))
+
+        rectf = np.stack(
+            [
+                bound(np.floor(mx / ft - irx / ft), TX),
+                bound(np.floor(my / ft - iry / ft), TY),
+                bound(np.ceil(mx / ft + irx / ft), TX),
+                bound(np.ceil(my / ft + iry / ft), TY),
+            ],
+            axis=1,
+        )
+        ok &= (rectf[:, 2] > rectf[:, 0]) & (rectf[:, 3] > rectf[:, 1])
+    return records(model, campos, pz, ok, (mx, my), (a, b01, c), conic, np.zeros(n, dtype=bool), (rx, ry), rectf)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -317,9 +414,10 @@ class Projection:
     per (view, chunk) in `params` (fill with `set_view`, then `params.write()`). Culled
     primitives get only their rectangle and depth key written."""
 
-    def __init__(self, gpu: GPU, capacity: int, slots: int = 1, label: str = "proj"):
+    def __init__(self, gpu: GPU, capacity: int, slots: int = 1, label: str = "proj", profile: str = "strict"):
         self.gpu, self.label = gpu, label
-        self.kernel = Kernel(gpu, "project")
+        self.profile = check_profile(profile)
+        self.kernel = Kernel(gpu, "project", constants={"PROFILE": PROFILE_CODE[profile]})
         self.set_slots(slots)
         self.capacity = n = int(capacity)
         self.xy = gpu.buffer(8 * n, STORAGE, f"{label}.xy")

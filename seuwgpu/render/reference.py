@@ -1,5 +1,5 @@
 """The numpy twin of the whole renderer: the stage twins composed into full frames, and a naive
-per-pixel twin of that.
+per-pixel twin of that (strict profile).
 
 Each stage's twin lives beside its GPU wrapper (render/project.py `project`, render/sort.py
 `depth_order`, render/bin.py `tile_lists`, render/composite.py `composite_tile`) and follows
@@ -42,30 +42,33 @@ from seuwgpu.render.project import (
 from seuwgpu.render.sort import depth_order
 
 
-def render_view(model: Model, cam: Camera, background=(1.0, 1.0, 1.0)) -> np.ndarray:
-    """Float32 image [H, W, 3] (unclamped) of one view: project, depth order, bin, composite."""
+def render_view(model: Model, cam: Camera, background=(1.0, 1.0, 1.0), profile: str = "strict") -> np.ndarray:
+    """Float32 image [H, W, 3] (unclamped) of one view: project, depth order, bin, composite,
+    under a renderer profile (docs/renderer.md)."""
     bg = np.asarray(background, dtype=F).reshape(3)
     W, H = cam.width, cam.height
     TX, TY = n_tiles_xy(cam)
     img = np.empty((H, W, 3), dtype=F)
     with np.errstate(all="ignore"):
-        proj = project(model, cam)
+        proj = project(model, cam, profile)
         ranges, prims = tile_lists(proj["rect"], depth_order(proj), TX, TX * TY)
         mx, my = proj["mean2d"][:, 0], proj["mean2d"][:, 1]
         for ty in range(TY):
             for tx in range(TX):
                 (ys, xs), pxs, pys = tile_pixels(tx, ty, W, H)
                 a, b = ranges[ty * TX + tx]
-                out, _ = composite_tile(prims[a:b], pxs, pys, mx, my, proj["conic"], proj["opacity"], proj["rgb"], bg)
+                out, _ = composite_tile(
+                    prims[a:b], pxs, pys, mx, my, proj["conic"], proj["opacity"], proj["rgb"], bg, profile=profile
+                )
                 img[ys, xs] = out.reshape(ys.stop - ys.start, xs.stop - xs.start, 3)
     return img
 
 
-def render(model: Model, cams: list[Camera], background=(1.0, 1.0, 1.0)) -> np.ndarray:
+def render(model: Model, cams: list[Camera], background=(1.0, 1.0, 1.0), profile: str = "strict") -> np.ndarray:
     """Float32 images [K, H, W, 3] (unclamped), one per camera (cameras share a size)."""
     if isinstance(cams, Camera):
         cams = [cams]
-    return np.stack([render_view(model, c, background) for c in cams])
+    return np.stack([render_view(model, c, background, profile) for c in cams])
 
 
 # ---------------------------------------------------------------------------------------------

@@ -21,11 +21,12 @@ import numpy as np
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.model import encoding
+from seuwgpu.model.budget import check_render
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model, StoredLayout
 from seuwgpu.render.bin import Binning
 from seuwgpu.render.composite import Compositing
-from seuwgpu.render.project import Projection
+from seuwgpu.render.project import Projection, check_profile
 from seuwgpu.render.sort import Sorting
 
 
@@ -56,8 +57,11 @@ class Renderer:
         capacity: int | None = None,
         keep_views: bool = False,
         viewport=None,
+        profile: str = "strict",
     ):
         self.gpu = gpu or get_gpu()
+        # renderer profile (docs/renderer.md "Profiles"): what corrupted values draw
+        self.profile = check_profile(profile)
         # viewport (x0, y0, w, h): render only this tile-aligned region of every camera's frame (the
         # sort-first split of distributed rendering); pixels equal the full frame's bit for bit.
         self.viewport = None if viewport is None else tuple(int(v) for v in viewport)
@@ -69,15 +73,17 @@ class Renderer:
         self.background = np.asarray(background, dtype=np.float32).reshape(3)
         self.degree = model.sh_degree
         self.n = model.n
+        w, h = check_cameras(cameras)
+        check_render(self.gpu.limits, self.gpu.is_cpu, self.n, self.degree, len(cameras), w, h, keep_views)
         max_chunk = StoredLayout.max_chunk_prims(self.degree, precision, self.gpu.max_binding)
         self.layout = StoredLayout(self.n, self.degree, precision, min(chunk_prims or max_chunk, max_chunk))
         # Host copy of the clean stored words: flips are undone against it, variants built from it.
         self.clean_words = self.layout.encode(model)
         self.chunks = [self.gpu.upload(w, STORAGE, f"model-chunk-{k}") for k, w in enumerate(self.clean_words)]
-        self.projection = Projection(self.gpu, self.n)
+        self.projection = Projection(self.gpu, self.n, profile=self.profile)
         self.sorting = Sorting(self.gpu, self.n)
         self.binning = Binning(self.gpu, self.n)
-        self.compositing = Compositing(self.gpu)
+        self.compositing = Compositing(self.gpu, self.profile)
         # In-pipeline guard state (off by default): box of the clean model and clamp counters.
         self.guard_mask = 0
         bound = self.projection.kernel.struct("Bound")
@@ -104,6 +110,13 @@ class Renderer:
             self.cameras = list(cameras)
             self._write_params()
             return
+        frame_bytes = 16 * len(cameras) * (self.viewport[2] * self.viewport[3] if self.viewport else size[0] * size[1])
+        if frame_bytes > self.gpu.max_binding:
+            raise ValueError(
+                f"{len(cameras)} views of {size[0]}x{size[1]} need {frame_bytes / 2**20:.0f} MiB of frames, more "
+                f"than one storage binding holds ({self.gpu.max_binding / 2**20:.0f} MiB): use fewer views or a "
+                "smaller --scale (`seuwgpu render` splits such frames itself)"
+            )
         self.cam_width, self.cam_height = size
         self.origin = (0, 0)
         self.width, self.height = size
@@ -184,6 +197,12 @@ class Renderer:
                 g.submit(enc)
         self.version += 1  # the kept-view buffers may have been replaced
         self._write_params()
+
+    def set_viewport(self, viewport):
+        """Render another tile-aligned region (x0, y0, w, h) of the same cameras (or None)."""
+        self.viewport = None if viewport is None else tuple(int(v) for v in viewport)
+        cams, self.cameras = self.cameras, []
+        self.set_cameras(cams)
 
     # ---- encoding --------------------------------------------------------------------------------
     def encode_view(self, encoder, v: int):
@@ -269,3 +288,44 @@ class Renderer:
 def render(model: Model, cameras: list[Camera], precision: str = "fp32", **kw) -> np.ndarray:
     """One-shot convenience: [K, H, W, 3] float32."""
     return Renderer(model, cameras, precision, **kw).render()
+
+
+def split_plan(k: int, width: int, height: int, limit: int) -> tuple[int, int]:
+    """(views per submission, rows per band) so that one submission's frames fit `limit` bytes
+    (16 bytes a pixel): whole views in groups while one view fits, else one view at a time in
+    bands of whole tile rows."""
+    per_view = 16 * width * height
+    if per_view <= limit:
+        return max(1, min(k, limit // per_view)), height
+    rows = (limit // (16 * width)) // TILE * TILE
+    if rows < TILE:
+        raise ValueError(f"a {width} px wide tile row needs {16 * width * TILE} bytes, more than {limit}")
+    return 1, rows
+
+
+def render_split(
+    model: Model, cameras: list[Camera], precision: str = "fp32", split_bytes: int | None = None, **kw
+) -> np.ndarray:
+    """[K, H, W, 3] float32 frames of any size: frames that do not fit one storage binding
+    (`split_bytes`, default the adapter's limit) are rendered in groups of views, or a single
+    huge frame in bands of tile rows (sort-first viewports), bit-identical to one submission."""
+    width, height = check_cameras(cameras)
+    gpu = kw.pop("gpu", None) or get_gpu()
+    limit = int(split_bytes or gpu.max_binding)
+    group, rows = split_plan(len(cameras), width, height, limit)
+    out = np.empty((len(cameras), height, width, 3), np.float32)
+    renderers: dict[tuple, Renderer] = {}  # one per band shape (at most two): the model uploaded once each
+    for a in range(0, len(cameras), group):
+        views = cameras[a : a + group]
+        for y0 in range(0, height, rows):
+            h = min(rows, height - y0)
+            vp = None if rows == height else (0, y0, width, h)
+            key = (len(views), h)
+            if key not in renderers:
+                renderers[key] = Renderer(model, views, precision, gpu=gpu, viewport=vp, **kw)
+            r = renderers[key]
+            if r.viewport != vp:
+                r.set_viewport(vp)
+            r.set_cameras(views)
+            out[a : a + len(views), y0 : y0 + h] = r.render()
+    return out

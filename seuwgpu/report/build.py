@@ -31,8 +31,34 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from seuwgpu.analysis import studies as A
-from seuwgpu.analysis.studies import InsufficientData, provenance, provenance_text
+from seuwgpu.analysis import (
+    claims,
+    contamination,
+    criticality,
+    dose,
+    guard,
+    mitigation,
+    outcomes,
+    prediction,
+    reliability,
+    scaling,
+    scenes,
+    theory,
+)
+from seuwgpu.analysis import estimate as E
+from seuwgpu.analysis.records import (
+    FIELD_LABELS,
+    InsufficientData,
+    dose_records,
+    precisions_present,
+    prepare,
+    provenance,
+    provenance_text,
+    reference_precision,
+    single_upsets,
+    thresholds_of,
+)
+from seuwgpu.campaign import store
 from seuwgpu.version import __version__
 
 __all__ = [
@@ -72,12 +98,10 @@ def load_runs(run_dirs: Iterable[str | Path]) -> tuple[pd.DataFrame, list[dict]]
         while name in names:
             name, i = f"{base}#{i}", i + 1
         names.add(name)
-        mpath = p / "manifest.json"
-        manifest = json.loads(mpath.read_text()) if mpath.is_file() else {}
-        manifest = dict(manifest)
+        manifest = dict(store.read_manifest(p) or {})
+        parts = store.record_parts(p, manifest)  # the spec's parts only: a stray file is never counted
         manifest["_run"] = name
         manifest["_run_dir"] = str(p)
-        parts = sorted((p / "records").glob("part-*.parquet"))
         if not parts:
             raise FileNotFoundError(f"{p}: no records/part-*.parquet")
         n = 0
@@ -101,7 +125,7 @@ def load_runs(run_dirs: Iterable[str | Path]) -> tuple[pd.DataFrame, list[dict]]
     if not frames:
         raise ValueError("the runs hold no records")
     df = pd.concat(frames, ignore_index=True, sort=False)
-    return A.prepare(df), manifests
+    return prepare(df, thresholds_of(manifests)), manifests
 
 
 # ------------------------------------------------------------------------------- formatting
@@ -182,6 +206,7 @@ class TableItem:
     df: pd.DataFrame
     caption: str  # what it shows (provenance is appended)
     prov: dict | None = None
+    csv_only: bool = False  # a long table: linked as CSV/Markdown, not inlined in the page
 
     def full_caption(self) -> str:
         prov = self.prov if self.prov is not None else self.df.attrs.get("provenance", {})
@@ -219,31 +244,90 @@ def _prov(t) -> dict:
 # ----------------------------------------------------------------------------- the sections
 
 
+def _sec_claims(df, manifests, ctx) -> Section:
+    t = claims.claims_table(df, ctx["results"])
+    sec = Section(
+        "claims",
+        "Claims of the paper against these records",
+        "Each quantitative claim of the paper, the value measured here with its 95% interval, the "
+        "paper's value and the verdict: reproduced (the paper's value lies in the interval), differs, "
+        "or not measured. The paper's models are not these: a difference is a finding, not an error.",
+    )
+    sec.tables.append(TableItem("claims", "Claims", t, "Claims of the paper, measured on these records."))
+    sec.numbers["claims"] = t.to_dict("records")
+    return sec
+
+
+def _sec_outcomes(df, manifests, ctx) -> Section:
+    long = outcomes.outcome_table(df)
+    thr = long.attrs.get("thresholds", {})
+    sec = Section(
+        "outcomes",
+        "Outcome classes of single upsets",
+        "Every single upset in one class: masked (frame bit-identical to clean), tolerable (changed, "
+        f"no channel by more than {thr.get('pixel_threshold', 1 / 255):.4g}), SDC (visible change, "
+        f"footprint at most {100 * thr.get('footprint_threshold', 0.01):g}%), catastrophic (footprint "
+        f"over {100 * thr.get('footprint_threshold', 0.01):g}% or a non-finite pixel). Shares are weighted "
+        "by the stored bits each record stands for (a uniform upset's view), pooled over scenes.",
+    )
+    wide = outcomes.outcome_wide(long)
+    sec.tables.append(
+        TableItem(
+            "outcomes",
+            "Outcome classes by precision and defense",
+            wide,
+            "Weighted share (%) of single upsets per outcome class with its 95% stratified interval.",
+        )
+    )
+    sec.tables.append(
+        TableItem("outcomes_long", "Outcome classes (long form)", long, "The same, one row per class.", csv_only=True)
+    )
+    sec.numbers["outcome_thresholds"] = thr
+    sec.numbers["outcomes"] = long[
+        ["precision", "defense", "outcome", "n", "rate_pct", "ci_lo_pct", "ci_hi_pct"]
+    ].to_dict("records")
+    return sec
+
+
+def _sec_scenes(df, manifests, ctx) -> Section:
+    t, notes = scenes.scene_table(df, manifests)
+    sec = Section(
+        "scenes",
+        "Table 1: scenes",
+        "The models the records rest on; box_<field>: the widest component of the support guard's "
+        "box (max - min of the clean stored values) in each field.",
+    )
+    sec.tables.append(TableItem("scenes", "Scenes", t, "Scenes, primitive counts, SH degree and support boxes."))
+    sec.notes.extend(notes)
+    return sec
+
+
 def _sec_criticality(df, manifests, ctx) -> Section:
-    crit = A.criticality(df)
+    crit = criticality.criticality(df)
     prec = crit.attrs["precision"]
-    fb = A.field_bit_table(df)
+    fb = criticality.field_bit_table(df)
     sec = Section(
         "criticality",
         "Concentration of single-bit criticality",
         "Single-bit upsets of the single-upset campaign without defense. Footprint is "
         "the percent of pixels whose colour changes by more than 1/255 (mean over "
-        "views); catastrophic means footprint > 1% or a non-finite pixel.",
+        "views); catastrophic means footprint > 1% or a non-finite pixel. Quantiles, means "
+        "and rates are weighted by the stored bits each record stands for.",
     )
     sec.tables.append(
         TableItem(
             "criticality",
             f"Per-field severity at {prec}",
             crit,
-            f"Per-field single-bit upset severity at {prec}, pooled over scenes and bits: footprint "
-            "quantiles (% of frame) and catastrophe rate (%) with its 95% Wilson interval.",
+            f"Per-field single-bit upset severity at {prec}, pooled over scenes and bits: weighted footprint "
+            "quantiles (% of frame) and catastrophe rate (%) with its 95% stratified interval.",
         )
     )
     sec.figures.append(
         FigureItem(
             "fig_heatmap",
             "Field x bit mean footprint",
-            A.plot_field_bit_heatmap(fb),
+            criticality.plot_field_bit_heatmap(fb),
             "Mean corruption footprint (% of frame, log colour scale) over field and bit position, "
             "one panel per precision, pooled over scenes; grey cells: zero mean footprint.",
             _prov(fb),
@@ -254,22 +338,21 @@ def _sec_criticality(df, manifests, ctx) -> Section:
             "field_bit",
             "Per (precision, field, bit) cell",
             fb,
-            "Per-cell sample count, mean and max footprint (%) and catastrophe rate with 95% Wilson "
-            "interval; the data behind the heat map.",
+            "Per-cell sample count, weight share, mean and max footprint (%) and catastrophe rate with "
+            "its 95% Wilson interval; the data behind the heat map.",
+            csv_only=True,
         )
     )
-    s = A.single_upsets(df, prec, "none")
+    s = single_upsets(df, prec, "none")
     sign = s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")]
     if len(sign):
-        fp = sign["footprint"].to_numpy(float) * 100
+        fp, w = sign["footprint"].to_numpy(float) * 100, sign["weight"].to_numpy(float)
+        mean, p99 = E.wmean(fp, w), E.wquantile(fp, w, 0.99)
         sec.numbers.update(
-            scale_sign_footprint_mean_pct=float(np.nanmean(fp)),
-            scale_sign_footprint_p99_pct=float(np.nanquantile(fp, 0.99)),
-            scale_sign_n=int(len(sign)),
+            scale_sign_footprint_mean_pct=mean, scale_sign_footprint_p99_pct=p99, scale_sign_n=int(len(sign))
         )
         sec.notes.append(
-            f"log-scale sign bit at {prec}: mean footprint {np.nanmean(fp):.4g}%, "
-            f"p99 {np.nanquantile(fp, 0.99):.4g}% (n = {len(sign):,})."
+            f"log-scale sign bit at {prec}: mean footprint {mean:.4g}%, p99 {p99:.4g}% (n = {len(sign):,})."
         )
     cells = fb[fb["precision"] == prec]
     if len(cells):
@@ -282,8 +365,8 @@ def _sec_criticality(df, manifests, ctx) -> Section:
 
 
 def _sec_precision(df, manifests, ctx) -> Section:
-    rates = A.precision_rates(df)
-    precs = A.precisions_present(rates)
+    rates = criticality.precision_rates(df)
+    precs = precisions_present(rates)
     if len(precs) < 2:
         raise InsufficientData(
             f"single-upset records at one precision only ({', '.join(precs)})",
@@ -292,15 +375,15 @@ def _sec_precision(df, manifests, ctx) -> Section:
     sec = Section(
         "precision",
         "Numeric precision changes the exposure",
-        "Catastrophe rate by field for each stored precision (no defense).",
+        "Weighted catastrophe rate by field for each stored precision (no defense).",
     )
     sec.figures.append(
         FigureItem(
             "fig_precision",
             "Catastrophe rate by field and precision",
-            A.plot_precision_rates(rates),
-            "Catastrophic-upset rate (%) by field and numeric format, with 95% Wilson intervals, "
-            "pooled over scenes and bits.",
+            criticality.plot_precision_rates(rates),
+            "Weighted catastrophic-upset rate (%) by field and numeric format, with 95% stratified "
+            "intervals, pooled over scenes and bits.",
             _prov(rates),
         )
     )
@@ -309,14 +392,16 @@ def _sec_precision(df, manifests, ctx) -> Section:
             "precision_rates",
             "Catastrophe rate by precision and field",
             rates,
-            "Catastrophe rate (%) per precision and field with 95% Wilson intervals, and the mean footprint (%).",
+            "Weighted catastrophe rate (%) per precision and field with 95% stratified intervals, and "
+            "the weighted mean footprint (%).",
         )
     )
     return sec
 
 
 def _sec_theory(df, manifests, ctx) -> Section:
-    res = A.theory_check(df)
+    res = theory.theory_check(df)
+    ctx["results"]["theory"] = res
     t = res["table"]
     sec = Section(
         "theory",
@@ -329,21 +414,11 @@ def _sec_theory(df, manifests, ctx) -> Section:
         FigureItem(
             "fig_theory",
             "Peak error against mantissa bit",
-            A.plot_theory(res),
-            f"Mean peak error |dI|_inf against mantissa bit index for {res['field']} at "
+            theory.plot_theory(res),
+            f"Weighted mean peak error |dI|_inf against mantissa bit index for {res['field']} at "
             f"{res['precision']} (log2 axis), the fitted line over bits {res['fit_bits'][0]}.."
-            f"{res['fit_bits'][1]} (mean peak error in ({res['fit_range'][0]:g}, "
-            f"{res['fit_range'][1]:g}]) and the unit-slope prediction.",
+            f"{res['fit_bits'][1]} and the unit-slope prediction.",
             _prov(t),
-        )
-    )
-    sec.tables.append(
-        TableItem(
-            "theory",
-            "Mean peak error per mantissa bit",
-            t,
-            f"Mean and median peak error per mantissa bit of {res['field']} at {res['precision']}; "
-            "in_fit marks the bits of the slope fit.",
         )
     )
     fit = pd.DataFrame(
@@ -352,6 +427,8 @@ def _sec_theory(df, manifests, ctx) -> Section:
                 "field": res["field"],
                 "precision": res["precision"],
                 "fitted_log2_slope": res["slope"],
+                "slope_ci_lo": res["slope_lo"],
+                "slope_ci_hi": res["slope_hi"],
                 "predicted_slope": 1.0,
                 "r2": res["r2"],
                 "fit_bits": f"{res['fit_bits'][0]}..{res['fit_bits'][1]}",
@@ -364,32 +441,36 @@ def _sec_theory(df, manifests, ctx) -> Section:
             "theory_fit",
             "Fitted slope",
             fit,
-            "Fitted log2 slope of mean peak error per mantissa bit against the unit slope of the perturbation lemma.",
+            "Fitted log2 slope of the mean peak error per mantissa bit (95% t interval) against the unit "
+            "slope of the perturbation lemma.",
             _prov(t),
         )
     )
+    sec.tables.append(TableItem("theory", "Mean peak error per mantissa bit", t, "Per mantissa bit.", csv_only=True))
     if res["note"]:
         sec.notes.append(res["note"])
-    sec.numbers.update(theory_slope=res["slope"], theory_r2=res["r2"])
+    sec.numbers.update(
+        theory_slope=res["slope"], theory_slope_ci=[res["slope_lo"], res["slope_hi"]], theory_r2=res["r2"]
+    )
     return sec
 
 
 def _sec_guard(df, manifests, ctx) -> Section:
-    res = A.guard_analysis(df)
+    res = guard.guard_analysis(df)
+    ctx["results"]["guard"] = res
     sec = Section(
         "guard",
         "Support guard evaluation",
         "The same single-upset fault sites rendered without defense and with the "
-        "support guard (records paired by injection id).",
+        "support guard (records paired by injection id); rates and shares weighted.",
     )
     sec.figures.append(
         FigureItem(
             "fig_guard",
             "Footprint distribution with and without the guard",
-            A.plot_guard_ccdf(df),
-            "Complementary CDF of the corruption footprint (% of frame) "
-            "without defense and with the support guard, all precisions pooled; the dotted line is "
-            "the 1% catastrophe threshold.",
+            guard.plot_guard_ccdf(df),
+            "Weighted complementary CDF of the corruption footprint (% of frame) of a uniform upset, "
+            "without defense and with the support guard, all precisions pooled; dotted: the 1% threshold.",
             _prov(res["summary"]),
         )
     )
@@ -398,9 +479,8 @@ def _sec_guard(df, manifests, ctx) -> Section:
             "guard_summary",
             "Footprint and catastrophe rate by defense",
             res["summary"],
-            "Footprint statistics (% of frame) and "
-            "catastrophe rate with 95% Wilson interval, without and with "
-            "the guard, per precision.",
+            "Weighted footprint statistics (% of frame) and catastrophe rate with its 95% stratified "
+            "interval, without and with the guard, per precision.",
         )
     )
     sec.tables.append(
@@ -408,33 +488,31 @@ def _sec_guard(df, manifests, ctx) -> Section:
             "guard_paired",
             "Catastrophic upsets neutralised",
             res["paired"],
-            "On paired fault sites: catastrophic upsets "
-            "without defense, how many the guard neutralises (share with "
-            "95% Wilson interval), residual catastrophic events and the "
-            "worst guarded footprint (%).",
+            "On paired fault sites: catastrophic upsets without defense, the weighted share the guard "
+            "neutralises (95% stratified interval), residual catastrophic events, worst guarded footprint (%).",
         )
     )
     if len(res["sign_psnr"]):
         sec.tables.append(
             TableItem(
                 "guard_sign_psnr",
-                "PSNR of log-scale sign flips",
+                "Image quality after log-scale sign flips",
                 res["sign_psnr"],
-                "Log-scale sign-bit upsets: mean and "
-                "median PSNR (dB, clipped to [0, 100]) without and with the "
-                "guard, and their mean footprints (%).",
+                "Log-scale sign-bit upsets without and with the guard: share of frames with a non-finite "
+                "pixel (their PSNR and SSIM are undefined), median PSNR and PSNR of the mean MSE over the "
+                "finite frames (dB; identical frames count as infinite / zero error), mean SSIM, footprint.",
             )
         )
-    else:
-        sec.notes.append("no paired log-scale sign-bit upsets: PSNR before/after not reported")
     sec.notes.append(
         f"{res['n_guarded']:,} guarded single-bit upsets: worst footprint "
         f"{res['worst_guarded_footprint_pct']:.4g}% of the frame, "
         f"{res['residual_catastrophic']} residual catastrophic events; "
-        f"share of catastrophic upsets neutralised {res['share_pct']:.4g}%."
+        f"weighted share of catastrophic upsets neutralised {res['share_pct']:.4g}% "
+        f"[{res['share_ci'][0]:.4g}, {res['share_ci'][1]:.4g}]."
     )
     sec.numbers.update(
         guard_share_neutralised_pct=res["share_pct"],
+        guard_share_neutralised_ci_pct=list(res["share_ci"]),
         guard_worst_footprint_pct=res["worst_guarded_footprint_pct"],
         guard_residual_catastrophic=res["residual_catastrophic"],
         guard_n_sites=res["n_guarded"],
@@ -443,31 +521,35 @@ def _sec_guard(df, manifests, ctx) -> Section:
 
 
 def _sec_mitigation(df, manifests, ctx) -> Section:
-    t = A.mitigation_table(df, manifests)
+    t = mitigation.mitigation_table(df, manifests)
     sec = Section(
         "mitigation",
         "Alternative defenses",
         "Each defense on the shared fault grid (the fault sites measured under every "
-        "defense present) at one precision.",
+        "defense present) at one precision, with its measured cost.",
     )
     cap = (
         f"Mitigations at {t.attrs['precision']}"
-        + (
-            " on a shared (paired) fault grid"
-            if t.attrs.get("paired")
-            else " (no site measured under every defense: unpaired)"
-        )
-        + ": catastrophe rate (%) with 95% Wilson interval, footprint (%), memory overhead "
-        "(% of the stored model; basis column) and mean per-injection time relative to no "
-        "defense (time_ms, when recorded). Memory: guard = 2 fp32 box bounds per guarded "
-        "component per model; ECC = SEC-DED over sign+exponent per stored value; "
-        "duplication = three copies for majority voting (+200%)."
+        + (" on a shared (paired) fault grid" if t.attrs.get("paired") else " (unpaired: no shared site)")
+        + ": weighted catastrophe rate (%) with 95% stratified interval, footprint (%), memory overhead "
+        "(% of the stored model; memory_basis) and time overhead (% of one view's render time, measured "
+        "in the same run; time_basis)."
     )
     sec.tables.append(TableItem("mitigation", "Mitigation table", t, cap))
-    for _, r in t.iterrows():
-        sec.numbers[f"mitigation_cat_pct_{r['defense']}"] = float(r["cat_rate_pct"])
-    if t["time_ms_mean"].isna().all():
-        sec.notes.append("no time_ms recorded: time cost not reported")
+    sec.numbers["mitigation"] = t[
+        [
+            "defense",
+            "n",
+            "cat_rate_pct",
+            "cat_ci_lo_pct",
+            "cat_ci_hi_pct",
+            "memory_overhead_pct",
+            "time_ms",
+            "time_overhead_pct",
+        ]
+    ].to_dict("records")
+    if t["time_ms"].isna().all():
+        sec.notes.append("no time_ms recorded (records of an older run): time cost not reported")
     return sec
 
 
@@ -489,65 +571,83 @@ def _sec_defenses(df, manifests, ctx) -> Section:
 
 
 def _sec_dose(df, manifests, ctx) -> Section:
-    curves = A.dose_curves(df)
+    curves = dose.dose_curves(df)
+    fits = dose.dose_fits(curves)
+    ctx["results"]["dose_fits"] = fits
     sec = Section(
         "dose",
         "Behavior under accumulated dose",
-        "k simultaneous upsets drawn uniformly over the stored bit budget. PSNR is "
-        "clipped to [0, 100] dB per record (identical frames at 100, non-finite at 0) "
-        "before averaging.",
+        "k simultaneous upsets drawn uniformly over one model's stored bits; every defense sees the "
+        "same upset sets. Per model; PSNR over finite frames, non-finite frames counted apart (their "
+        "PSNR is undefined) and ranked lowest in medians.",
     )
     sec.figures.append(
         FigureItem(
             "fig_dose",
-            "PSNR against dose",
-            A.plot_dose(curves),
-            "PSNR against the number of simultaneous upsets k: median lines with interquartile bands "
-            "(spread over scenes and repeats), dots the mean; thin solid: no defense, bold dashed: "
-            "support guard; one colour per precision; dotted: 30 dB.",
+            "Quality and catastrophes against dose",
+            dose.plot_dose(curves, fits),
+            "Left: median PSNR against k with the interquartile band, per model, precision and defense "
+            "(solid: none, dashed: defended); triangles at the foot: the median frame is non-finite. "
+            "Right: catastrophic fraction with 95% Wilson intervals and the fitted 1-(1-p)^k; dotted: 30 dB.",
             _prov(curves),
         )
     )
-    for dfn in ("none", "guard"):
-        g = curves[(curves["precision"] == A.reference_precision(curves)) & (curves["defense"] == dfn)]
-        if len(g):
-            top = g[g["k"] == g["k"].max()].iloc[0]
-            sec.numbers[f"dose_psnr_mean_at_kmax_{dfn}_db"] = float(top["psnr_mean_db"])
-            sec.numbers["dose_kmax"] = int(top["k"])
+    sec.tables.append(
+        TableItem(
+            "dose_fits",
+            "Dose model fits",
+            fits,
+            "Per model, precision and defense: p of P(catastrophic | k) = 1-(1-p)^k by maximum likelihood "
+            "(%, profile-likelihood 95% interval), deviance G^2 with its degrees of freedom and p-value, "
+            "and the share of k points whose Wilson interval holds the fitted curve.",
+        )
+    )
     sec.tables.append(
         TableItem(
             "dose_curves",
             "Dose response",
             curves,
-            "Per precision, defense and k: samples, mean/median/quartile "
-            "PSNR (dB), mean SSIM and footprint (%), catastrophic fraction "
-            "with 95% Wilson interval.",
+            "Per model, precision, defense and k: samples, non-finite share (%), PSNR quantiles and PSNR "
+            "of the mean MSE over finite frames (dB), mean SSIM, footprint (%), catastrophic fraction "
+            "with its 95% Wilson interval.",
+            csv_only=True,
         )
     )
+    ref = reference_precision(curves)
+    for dfn in ("none", "guard"):
+        g = curves[(curves["precision"] == ref) & (curves["defense"] == dfn)]
+        if len(g):
+            top = g[g["k"] == g["k"].max()].sort_values("n_primitives").iloc[-1]
+            sec.numbers[f"dose_psnr_median_at_kmax_{dfn}_db"] = float(top["psnr_median_db"])
+            sec.numbers[f"dose_nonfinite_at_kmax_{dfn}_pct"] = float(top["nonfinite_pct"])
+            sec.numbers["dose_kmax"] = int(top["k"])
+    reps = dose_records(df).groupby(["scene", "n_primitives", "precision", "defense", "k"]).size()
+    if len(reps) and reps.min() < 10:
+        sec.notes.append(f"only {int(reps.min())} repeats at some dose points (>= 10 recommended)")
     return sec
 
 
 def _sec_budget(df, manifests, ctx) -> Section:
-    b = A.redundancy_budget(df)
+    b = dose.redundancy_budget(df)
     sec = Section(
         "budget",
         "Redundancy budget against primitive count",
-        "The dose k at which the mean PSNR first falls below 30 dB, interpolated in "
-        "log k; censored '>=' when it never falls below within the sweep, '<=' when "
-        "already below at the smallest k.",
+        "The dose k at which the median PSNR first falls to 30 dB (non-finite frames ranked lowest), "
+        "interpolated in log k inside its bracket (k_lo, k_hi] on the k grid; censored '>=' when it "
+        "never falls within the sweep, '<=' when the bracket is open below.",
     )
     if b["n_primitives"].nunique() >= 2:
         sec.figures.append(
             FigureItem(
                 "fig_budget",
                 "Redundancy budget against N",
-                A.plot_budget(b),
-                "Redundancy budget (k at 30 dB mean PSNR) against primitive count; open markers are censored bounds.",
+                dose.plot_budget(b),
+                "Redundancy budget against primitive count, with the k-grid bracket as error bar; open "
+                "markers are censored bounds.",
                 _prov(b),
             )
         )
     else:
-        sec.notes.append("one primitive count only: budget-vs-N figure needs a size campaign")
         ctx["skipped"].append(
             (
                 "Redundancy budget against N (figure)",
@@ -556,45 +656,30 @@ def _sec_budget(df, manifests, ctx) -> Section:
             )
         )
     for _, r in b.iterrows():
-        sec.numbers[f"budget_k_{r['scene']}_{r['precision']}_{r['defense']}"] = f"{r['censored']}{r['k_budget']:.4g}"
-    sec.tables.append(
-        TableItem(
-            "redundancy_budget",
-            "Redundancy budget",
-            b,
-            "Per scene, primitive count, precision and defense: the k where "
-            "mean PSNR crosses 30 dB (k_budget, censored marks bounds).",
-        )
-    )
+        key = f"budget_k_{r['scene']}_{r['n_primitives']}_{r['precision']}_{r['defense']}"
+        sec.numbers[key] = f"{r['censored']}{r['k_budget']:.4g}"
+    sec.tables.append(TableItem("redundancy_budget", "Redundancy budget", b, "Per model, precision and defense."))
     return sec
 
 
 def _sec_size(df, manifests, ctx) -> Section:
-    res = A.size_scaling(df)
+    res = scaling.size_scaling(df)
+    ctx["results"]["size"] = res
     sec = Section(
         "size",
         "Single-upset error against primitive count",
-        "Uniform single upsets on models of several sizes; error is the frame MSE "
-        "(from PSNR, peak 1). alpha = -exponent of the log-log fit "
-        "(sigma^2(N) = Theta(N^-alpha)).",
+        "Single upsets on models of several sizes; error is the frame MSE over finite frames (from "
+        "PSNR, peak 1), weighted. alpha = -exponent of the log-log fit (sigma^2(N) = Theta(N^-alpha)), "
+        "95% t interval; zero values cannot be fitted and are shown, not dropped.",
     )
     sec.figures.append(
         FigureItem(
             "fig_size",
             "Single-upset error against N",
-            A.plot_size_scaling(res),
-            "Median (solid) and mean (dashed) single-upset frame MSE against primitive count, log-log.",
+            scaling.plot_size_scaling(res),
+            "Weighted mean single-upset frame MSE against primitive count (log-log), fitted power laws "
+            "with alpha and its 95% interval in the legend; open triangles at the foot: zero.",
             _prov(res["table"]),
-        )
-    )
-    sec.tables.append(
-        TableItem(
-            "size_scaling",
-            "Error per size",
-            res["table"],
-            f"Per scene, precision, defense and N (source campaign: "
-            f"{res['source_campaign']}): median and mean MSE (non-finite "
-            "frames left out of the mean and counted), footprints (%).",
         )
     )
     sec.tables.append(
@@ -602,12 +687,26 @@ def _sec_size(df, manifests, ctx) -> Section:
             "size_fits",
             "Log-log fits",
             res["fits"],
-            "Log-log least-squares fits against N: exponent, alpha = -exponent, log10 prefactor, R^2.",
+            "Log-log least-squares fits against N: sizes, sizes fitted, zero points, exponent and alpha "
+            "with 95% t intervals (NaN with two sizes: a line fits two points exactly), R^2.",
+        )
+    )
+    sec.tables.append(
+        TableItem(
+            "size_scaling",
+            "Error per size",
+            res["table"],
+            f"Per scene, precision, defense and N (source campaign: {res['source_campaign']}).",
+            csv_only=True,
         )
     )
     f = res["fits"]
-    for _, r in f[f["metric"].isin(["median_mse", "mean_mse"])].iterrows():
-        sec.numbers[f"size_alpha_{r['metric']}_{r['scene']}_{r['precision']}_{r['defense']}"] = float(r["alpha"])
+    for _, r in f[f["metric"] == "mean_mse"].iterrows():
+        sec.numbers[f"size_alpha_{r['scene']}_{r['precision']}_{r['defense']}"] = [
+            float(r["alpha"]),
+            float(r["alpha_lo"]),
+            float(r["alpha_hi"]),
+        ]
     if len(res["guard_factor"]):
         sec.tables.append(
             TableItem(
@@ -621,24 +720,24 @@ def _sec_size(df, manifests, ctx) -> Section:
 
 
 def _sec_reliability(df, manifests, ctx) -> Section:
-    res = A.reliability(df, manifests)
+    res = reliability.reliability(df, manifests, dose_fits=ctx["results"].get("dose_fits"))
     prec = res["precision"]
     sec = Section(
         "reliability",
         "Reliability under realistic upset rates",
-        "p_c is the probability that one upset, uniform over the stored bits, is "
-        "catastrophic: the single-upset cells weighted by their share of stored bits. "
-        "MTBF = 1 / (rate per bit x stored bits x p_c). The upset rates are "
-        "order-of-magnitude assumptions (sources below): read the table as relative.",
+        "p_c is the probability that one upset, uniform over the stored bits, is catastrophic (the "
+        "weighted single-upset rate), or per model the dose fit's p (which counts upsets harmful only "
+        "together). Upsets accumulate until the next scrub, every "
+        f"{res['scrub_hours']:g} h: MTBF = T / (1 - exp(-rate x bits x p x T)). Rates and scrub interval: "
+        f"{res['rates_from']}.",
     )
     sec.tables.append(
         TableItem(
             "reliability_pc",
             "p_c",
             res["pc"],
-            "Per-upset catastrophe probability p_c per precision and defense "
-            "with its 95% interval (Wilson at the Kish effective n for the "
-            "stratified estimate), the sample and bit-budget coverage.",
+            "Per-upset catastrophe probability per precision and defense with its 95% stratified "
+            "interval and the share of stored bits covered by sampled cells.",
         )
     )
     if res["mtbf_wide"] is not None and len(res["mtbf_wide"]):
@@ -647,101 +746,62 @@ def _sec_reliability(df, manifests, ctx) -> Section:
                 "mtbf",
                 "Mean time between catastrophic frames",
                 res["mtbf_wide"],
-                f"Estimated mean time between catastrophic frames for a model of "
-                f"{res['bits']:.3g} stored bits at {prec} (mean primitive count of the scenes), "
-                "without and with the support guard ('> x': no catastrophic event observed, bound "
-                "from the 95% upper limit of p_c).",
+                f"For a model of {res['bits']:.3g} stored bits at {prec}, scrubbed every {res['scrub_hours']:g} h "
+                "('> x': no event, bound from the upper limit of p).",
                 _prov(res["mtbf"]),
             )
         )
         sec.tables.append(
-            TableItem(
-                "mtbf_detail",
-                "MTBF inputs and intervals",
-                res["mtbf"],
-                "Per environment and defense: upset rate (per bit-hour and "
-                "FIT/Mbit), p_c, MTBF in hours with the range from the p_c "
-                "interval, and the source of the rate.",
-            )
+            TableItem("mtbf_detail", "MTBF inputs and intervals", res["mtbf"], "Per environment.", csv_only=True)
         )
-    for env in A.UPSET_RATES:
-        sec.notes.append(
-            f"rate assumption, {env['environment']}: {env['per_bit_hour']:.3g} "
-            f"upsets/bit/h ({env['per_bit_hour'] * 1e15:.3g} FIT/Mbit). "
-            f"{env['source']}"
-        )
-    dm = res["dose_model"]
-    if dm is not None and len(dm):
         sec.figures.append(
             FigureItem(
-                "fig_dose_model",
-                "Dose model against measurement",
-                A.plot_dose_model(dm),
-                "Measured catastrophic-frame fraction against k (95% Wilson intervals) and the dose "
-                "model 1-(1-p_c)^k with p_c from the single-upset campaign.",
-                _prov(dm),
+                "fig_reliability",
+                "MTBF against the upset rate",
+                reliability.plot_sensitivity(res),
+                "MTBF of catastrophic frames against the per-bit upset rate, per defense and source of p "
+                "(bands: 95% interval of p); dotted: the named environments.",
+                _prov(res["mtbf"]),
             )
         )
-        sec.tables.append(
-            TableItem(
-                "dose_model",
-                "Dose model",
-                dm,
-                "Measured catastrophic fraction (%) with 95% Wilson interval "
-                "against the model 1-(1-p_c)^k (with its range from the p_c "
-                "interval); within_ci: the model lies in the measured "
-                "interval.",
-            )
+    for env in res["rates"]:
+        sec.notes.append(
+            f"rate, {env['environment']}: {float(env['per_bit_hour']):.3g} upsets/bit/h "
+            f"({float(env['per_bit_hour']) * 1e15:.3g} FIT/Mbit). {env.get('source', '')}"
         )
-        sec.numbers["dose_model_within_ci_share"] = float(dm["within_ci"].mean())
-    else:
-        ctx["skipped"].append(
-            ("Dose model 1-(1-p_c)^k against the measured curve", "no k > 1 records", "run a dose campaign")
-        )
-    sec.notes.extend(n for n in res["notes"] if not n.startswith("dose model not compared"))
+    sec.notes.extend(res["notes"])
     for dfn in ("none", "guard"):
-        r = A.pc_lookup(res["pc"], prec, dfn)
+        r = reliability.pc_lookup(res["pc"], prec, dfn)
         if r is not None:
-            sec.numbers[f"p_c_{dfn}_pct"] = 100 * float(r["p_c"])
+            sec.numbers[f"p_c_{dfn}_pct"] = [100 * float(r["p_c"]), 100 * float(r["ci_lo"]), 100 * float(r["ci_hi"])]
     sec.numbers["model_bits"] = res["bits"]
+    sec.numbers["scrub_hours"] = res["scrub_hours"]
     return sec
 
 
 def _sec_contamination(df, manifests, ctx) -> Section:
-    cont = A.contamination(df)
+    cont = contamination.contamination(df)
     sec = Section(
         "contamination",
         "Cross-node contamination in distributed rendering",
-        "Sort-first partitions of the screen into P regions (grid as square as "
-        "possible): the share of regions one upset contaminates, predicted from the "
-        "projected footprint and measured from changed pixels, and their IoU.",
+        "Sort-first partitions of the screen into P tile-aligned regions (the grid the Ray ranks "
+        "render): the weighted share of regions one upset contaminates, predicted from the projected "
+        "footprint and measured from changed pixels, and their IoU.",
     )
     sec.figures.append(
         FigureItem(
             "fig_contamination",
             "Contaminated regions against P",
-            A.plot_contamination(cont),
-            "Share of regions contaminated by one log-scale sign-bit upset against the partition "
-            "size P at the reference precision, predicted from the projected footprint (solid) and "
-            "measured from changed pixels (dashed), without and with the guard; the table has every "
-            "precision, defense and all single upsets.",
+            contamination.plot_contamination(cont),
+            "Share of regions contaminated by one log-scale sign-bit upset against P at the reference "
+            "precision, predicted (solid) and measured (dashed), without and with the guard.",
             _prov(cont),
         )
     )
-    sec.tables.append(
-        TableItem(
-            "contamination",
-            "Region contamination",
-            cont,
-            "Per subset, precision, defense and P: mean share of regions "
-            "contaminated (%, predicted and measured), mean IoU of the "
-            "region sets (records where either is non-empty), slowest-region "
-            "time (ms) and load imbalance (max/mean) where recorded.",
-        )
-    )
+    sec.tables.append(TableItem("contamination", "Region contamination", cont, "Per subset, precision, defense and P."))
     sub = cont[(cont["subset"] == "log-scale sign") & cont["defense"].isin(["none", "guard"])]
     if len(sub):
-        sub = sub[sub["precision"] == A.reference_precision(sub)]
+        sub = sub[sub["precision"] == reference_precision(sub)]
         pmax = int(sub["P"].max())
         for _, r in sub[sub["P"] == pmax].iterrows():
             key = f"{r['precision']}_{r['defense']}_P{pmax}"
@@ -761,87 +821,85 @@ def _sec_contamination(df, manifests, ctx) -> Section:
 
 
 def _sec_prediction(df, manifests, ctx) -> Section:
-    res = A.prediction(df, max_rows=ctx.get("max_pred_rows", 200_000))
+    res = prediction.prediction(df, max_rows=ctx.get("max_pred_rows", 200_000))
+    ctx["results"]["prediction"] = res
     sec = Section(
         "prediction",
         "Predicting criticality without injection",
-        f"Gradient-boosted classifiers of 'catastrophic' at {res['precision']} from "
-        "static fault-site features, evaluated on a stratified 30% held-out split and "
-        "leave-one-scene-out.",
+        f"At {res['precision']}: a gradient-boosted classifier of 'catastrophic' from static fault-site "
+        "features against the (field, bit) lookup and a constant, record-weighted, on a stratified 30% "
+        "held-out split and leave-one-scene-out; AUC with 95% bootstrap intervals.",
     )
-    sec.figures.append(
-        FigureItem(
-            "fig_roc",
-            "ROC curves",
-            A.plot_roc(res),
-            "Held-out ROC curves of the two classifiers.",
-            _prov(res["summary"]),
+    if res["roc"]:
+        sec.figures.append(
+            FigureItem(
+                "fig_roc",
+                "ROC curves",
+                prediction.plot_roc(res),
+                "Held-out ROC curves of the classifier and both baselines, AUC [95% bootstrap interval].",
+                _prov(res["summary"]),
+            )
         )
-    )
-    sec.tables.append(
-        TableItem(
-            "prediction",
-            "Classifier AUC",
-            res["summary"],
-            "ROC AUC on the held-out split, leave-one-scene-out mean and "
-            "minimum AUC, training/test sizes and positives.",
+    sec.tables.append(TableItem("prediction", "AUC against baselines", res["summary"], "Held-out and LOSO AUC, Brier."))
+    if len(res["importance"]):
+        sec.tables.append(
+            TableItem("prediction_importance", "Permutation importance", res["importance"], "Drop in held-out AUC.")
         )
-    )
-    sec.tables.append(
-        TableItem(
-            "prediction_importance",
-            "Permutation importance",
-            res["importance"],
-            "Drop in held-out ROC AUC when one feature of the full model is permuted (mean and std over repeats).",
-        )
-    )
     if len(res["loso"]):
         sec.tables.append(
-            TableItem(
-                "prediction_loso",
-                "Leave-one-scene-out AUC",
-                res["loso"],
-                "AUC on each held-out scene, trained on the others.",
-            )
+            TableItem("prediction_loso", "Leave-one-scene-out AUC", res["loso"], "Trained on the other scenes.")
         )
-    else:
-        ctx["skipped"].append(
-            (
-                "Leave-one-scene-out AUC",
-                "records from one scene only",
-                "run the single-upset campaign on two or more scenes",
-            )
-        )
-    sec.notes.append(f"top feature by permutation importance: {res['top_feature']}")
+    sec.notes.extend(res["notes"])
     s = res["summary"].set_index("model")
     sec.numbers.update(
-        pred_auc=float(s["auc_holdout"].iloc[0]),
-        pred_auc_fieldbit=float(s["auc_holdout"].iloc[1]),
+        pred_auc=[float(s["auc_holdout"].iloc[0]), float(s["auc_lo"].iloc[0]), float(s["auc_hi"].iloc[0])],
+        pred_auc_lookup=[float(s["auc_holdout"].iloc[1]), float(s["auc_lo"].iloc[1]), float(s["auc_hi"].iloc[1])],
+        pred_lookup_as_good=res["lookup_as_good"],
         pred_top_feature=res["top_feature"],
-        pred_loso_mean=float(s["loso_auc_mean"].iloc[0]),
-        pred_loso_min=float(s["loso_auc_min"].iloc[0]),
     )
     return sec
 
 
-# (key, title, builder, remedy when it fails for an unexpected reason)
+# (key, label, builder); the claims table is built last (it reads the others' results) but shown first
 SECTIONS: list[tuple[str, str, Callable]] = [
+    ("outcomes", "Outcome classes", _sec_outcomes),
+    ("scenes", "Table 1: scenes", _sec_scenes),
     ("criticality", "Criticality (per-field table, field x bit heat map)", _sec_criticality),
     ("precision", "Per-precision catastrophe rates", _sec_precision),
     ("theory", "Theory check (mantissa slope)", _sec_theory),
     ("guard", "Guard evaluation", _sec_guard),
     ("mitigation", "Mitigation table", _sec_mitigation),
     ("defenses", "Defenses against cost (Pareto)", _sec_defenses),
-    ("dose", "Dose response (PSNR against k)", _sec_dose),
+    ("dose", "Dose response (quality and catastrophes against k)", _sec_dose),
     ("budget", "Redundancy budget", _sec_budget),
     ("size", "Single-upset error against N", _sec_size),
-    ("reliability", "Reliability (p_c, dose model, MTBF)", _sec_reliability),
+    ("reliability", "Reliability (p_c, MTBF with scrubbing)", _sec_reliability),
     ("contamination", "Distributed contamination", _sec_contamination),
     ("prediction", "Prediction of criticality", _sec_prediction),
+    ("claims", "Claims table", _sec_claims),
 ]
 
 
 # ----------------------------------------------------------------------------- build report
+
+
+def run_sections(df: pd.DataFrame, manifests: list[dict], ctx: dict) -> list[Section]:
+    """Every analysis the records support, in report order; the others go to ctx["skipped"]."""
+    sections: list[Section] = []
+    ctx.setdefault("skipped", [])
+    ctx.setdefault("max_pred_rows", 200_000)
+    ctx.setdefault("results", {})
+    for _key, label, builder in SECTIONS:
+        try:
+            sections.append(builder(df, manifests, ctx))
+        except InsufficientData as e:
+            ctx["skipped"].append((label, e.reason, e.remedy))
+    return sections
+
+
+def section_figures(df: pd.DataFrame, manifests: list[dict]) -> dict:
+    """The report's matplotlib figures by name (what the Python API hands to a notebook)."""
+    return {fi.name: fi.fig for sec in run_sections(df, manifests, {}) for fi in sec.figures}
 
 
 def _png(fig) -> bytes:
@@ -881,14 +939,11 @@ def build_report(
     df, manifests = load_runs(run_dirs)
     previous = _previous_files(out)
     written: list[str] = []
-    ctx = {"skipped": [], "max_pred_rows": max_pred_rows}
-    sections: list[Section] = []
-    for _key, label, builder in SECTIONS:
-        try:
-            sections.append(builder(df, manifests, ctx))
-        except InsufficientData as e:
-            ctx["skipped"].append((label, e.reason, e.remedy))
+    ctx = {"skipped": [], "max_pred_rows": max_pred_rows, "results": {}}
+    sections = run_sections(df, manifests, ctx)
     skipped = ctx["skipped"]
+    # the claims table opens the report
+    sections.sort(key=lambda sec: sec.key != "claims")
 
     # files
     md_parts = [f"# {title}\n", _runs_markdown(df, manifests)]
@@ -921,12 +976,15 @@ def build_report(
             mdt = markdown_table(ti.df)
             (out / f"{ti.name}.md").write_text(f"**{ti.title}.** {cap}\n\n{mdt}")
             written += [f"{ti.name}.csv", f"{ti.name}.md"]
-            hs.append(
-                f"<h3>{html.escape(ti.title)}</h3><p class='cap'>{html.escape(cap)} "
-                f"(<a href='{ti.name}.csv'>{ti.name}.csv</a>, "
-                f"<a href='{ti.name}.md'>{ti.name}.md</a>)</p>{_html_table(ti.df)}"
+            links = f"(<a href='{ti.name}.csv'>{ti.name}.csv</a>, <a href='{ti.name}.md'>{ti.name}.md</a>)"
+            body = (
+                f"<p class='note'>{len(ti.df):,} rows: linked, not inlined.</p>" if ti.csv_only else _html_table(ti.df)
             )
-            md_parts.append(f"\n**{ti.title}.** {cap}\n\n{mdt}")
+            hs.append(f"<h3>{html.escape(ti.title)}</h3><p class='cap'>{html.escape(cap)} {links}</p>{body}")
+            if ti.csv_only:
+                md_parts.append(f"\n**{ti.title}.** {cap} ({len(ti.df):,} rows: [{ti.name}.csv]({ti.name}.csv))\n")
+            else:
+                md_parts.append(f"\n**{ti.title}.** {cap}\n\n{mdt}")
         if sec.notes:
             hs.append("<ul class='note'>" + "".join(f"<li>{html.escape(n)}</li>" for n in sec.notes) + "</ul>")
             md_parts.append("\n" + "".join(f"- {n}\n" for n in sec.notes))
@@ -955,6 +1013,8 @@ def build_report(
         "runs": [_run_info(m) for m in manifests],
         "sections": [s.key for s in sections],
         "skipped": [{"analysis": a, "missing": b, "remedy": c} for a, b, c in skipped],
+        "thresholds": dict(df.attrs.get("thresholds", {})),
+        "catastrophic": outcomes.catastrophic_summary(df),
         "numbers": numbers,
         "files": sorted(written + ["index.html", "report.md", "summary.json", "skipped.csv", "skipped.md"]),
     }
@@ -978,11 +1038,14 @@ def build_report(
 {"".join(html_sections)}
 <h2 id='skipped'>Skipped analyses</h2>{skip_html}
 <h2>Conventions</h2><ul class='note'>
-<li>Proportions carry 95% Wilson score intervals (never a normal approximation).</li>
+<li>Proportions carry 95% intervals (never a normal approximation).</li>
 <li>Footprint: % of pixels changed by more than 1/255 in any channel, mean over views;
 catastrophic: footprint &gt; 1% or any non-finite pixel.</li>
-<li>PSNR is clipped per record to [{A.PSNR_FLOOR_DB:g}, {A.PSNR_CAP_DB:g}] dB before means
-(identical frames have infinite PSNR; non-finite frames count at the floor).</li>
+<li>Every rate, mean and quantile is weighted by the stored bits each record stands for
+(a uniform upset's view; stratified (field, bit) cells are not pooled unweighted); intervals are
+Wilson per cell and stratified Wilson at the Korn-Graubard effective sample size when pooled.</li>
+<li>PSNR and SSIM of a frame with a non-finite pixel are undefined (NaN in the records); summaries
+are over the finite frames, with the share of non-finite frames beside them.</li>
 <li>Reference precision for single-precision tables: fp32 when present.</li>
 </ul>
 </body></html>
@@ -1039,13 +1102,13 @@ def _runs_markdown(df, manifests) -> str:
 
 def criticality_table_text(df: pd.DataFrame, precision: str | None = None) -> str:
     """The per-field criticality table as Markdown (what `seuwgpu report` prints)."""
-    crit = A.criticality(df, precision)
+    crit = criticality.criticality(df, precision)
     prec = crit.attrs["precision"]
     rows = []
     for _, r in crit.iterrows():
         rows.append(
             {
-                "Field": A.FIELD_LABELS.get(r["field"], r["field"]),
+                "Field": FIELD_LABELS.get(r["field"], r["field"]),
                 "n": int(r["n"]),
                 "median": f"{r['median_pct']:.3f}",
                 "p95": f"{r['p95_pct']:.3f}",
@@ -1059,7 +1122,7 @@ def criticality_table_text(df: pd.DataFrame, precision: str | None = None) -> st
     t = pd.DataFrame(rows)
     head = (
         f"Per-field single-bit upset severity at {prec} (no defense), pooled over scenes and "
-        "bits; footprint quantiles in % of frame; catastrophe rate with 95% Wilson interval.\n"
+        "bits; weighted footprint quantiles in % of frame; catastrophe rate with its 95% interval.\n"
         f"{provenance_text(crit.attrs.get('provenance', {}))}\n\n"
     )
     lines = ["| " + " | ".join(t.columns) + " |", "|---|" + "|".join("---:" for _ in t.columns[1:]) + "|"]

@@ -32,6 +32,7 @@ from seuwgpu.model.formats.errors import ModelFileError, NonFiniteWarning
 __all__ = [
     "FORMATS",
     "ModelFile",
+    "check_renderable",
     "ModelFileError",
     "NonFiniteWarning",
     "detect_format",
@@ -129,6 +130,7 @@ def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
         model = splat_format.read_splat(spath)
     else:
         model = gsplat.read_gsplat(spath)
+    check_renderable(model, spath)
     if warn_nonfinite:
         counts = nonfinite_counts(model)
         if counts:
@@ -152,6 +154,20 @@ def inria_output_model(folder) -> Path:
 def load_model(path) -> Model:
     """The Model in any supported file (read_model without the metadata)."""
     return read_model(path).model
+
+
+def check_renderable(model: Model, where: str):
+    """Refuse a model none of whose primitives has a finite position, scale, rotation and opacity:
+    it would render as an empty frame with no word of why (some NaN primitives only warn)."""
+    ok = np.ones(model.n, dtype=bool)
+    for f in ("means", "log_scales", "quats", "opacity"):
+        v = getattr(model, f)
+        ok &= np.isfinite(v.reshape(model.n, -1)).all(axis=1)
+    if model.n and not ok.any():
+        raise ModelFileError(
+            f"{where}: none of its {model.n} primitives has a finite position, scale, rotation and opacity "
+            "(all NaN or Inf): nothing to render"
+        )
 
 
 def nonfinite_counts(model: Model) -> dict[str, int]:

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from seuwgpu.errors import InputError
 
-class ModelFileError(ValueError):
+
+class ModelFileError(InputError):
     """A model file that cannot be read or written; the message names the file and the problem."""
 
 

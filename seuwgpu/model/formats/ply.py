@@ -312,6 +312,16 @@ def _read_binary_element(header: PlyHeader, index: int) -> np.ndarray:
                 f"{have} bytes follow ({have // max(dtype.itemsize, 1)} whole {noun}); "
                 f"file is {file_size} bytes, expected at least {need}"
             )
+        if index == len(header.elements) - 1 and file_size - need >= dtype.itemsize:
+            # whole rows beyond the header's count: the count is wrong (a tool that appended
+            # splats, an edited header), and reading only `n` would drop the rest silently.
+            # (Less than one row of trailing bytes is tolerated, as other readers do.)
+            held = (file_size - offset) // dtype.itemsize
+            noun = "vertices" if el.name == "vertex" else f"{el.name} rows"
+            raise PlyError(
+                f"{path}: the header declares {n} {noun} but the data holds {held} ({dtype.itemsize} bytes each, "
+                f"{file_size - offset} bytes): fix the header's element count"
+            )
         f.seek(offset)
         raw = np.fromfile(f, dtype=dtype, count=n)
     if raw.shape[0] != n:  # file shrank while reading
@@ -328,6 +338,12 @@ def _read_ascii_element(header: PlyHeader, index: int) -> np.ndarray:
     lines = text.splitlines()
     first = sum(e.count for e in header.elements[:index])
     rows = [ln for ln in lines[first : first + el.count]]
+    beyond = sum(1 for ln in lines[first + el.count :] if ln.strip())
+    if index == len(header.elements) - 1 and beyond:
+        raise PlyError(
+            f"{path}: the header declares {el.count} {el.name} rows but the file holds {el.count + beyond} "
+            "(more data than declared): fix the header's element count"
+        )
     if len(rows) < el.count or any(not ln.strip() for ln in rows):
         got = sum(1 for ln in rows if ln.strip())
         raise PlyError(f"{path}: truncated ASCII PLY: the header promises {el.count} {el.name} rows, found {got}")

@@ -1,0 +1,110 @@
+"""The claims table: each quantitative claim of the paper, the value measured from these records
+with its 95% interval, the paper's value, and a verdict: "reproduced" (the paper's value lies in
+the interval), "differs" (it does not), "not measured" (the records cannot say).
+
+The paper's values are copied here (Alpay and Basaran, "Single-Event Upsets in 3D Gaussian
+Splatting Rendering"); they are what is compared against, never a target of any computation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from seuwgpu.analysis import estimate as E
+from seuwgpu.analysis.records import single_upsets, tag
+
+# key: (claim, unit, paper value)
+PAPER = {
+    "sign_mean": ("log-scale sign flip: mean footprint, fp32", "% of frame", 10.3),
+    "sign_p99": ("log-scale sign flip: 99th-percentile footprint, fp32", "% of frame", 75.7),
+    "pc_none": ("p_c: a uniform upset is catastrophic, fp32, no defense", "%", 0.634),
+    "pc_guard": ("p_c with the support guard, fp32", "%", 0.0612),
+    "guard_share": ("share of catastrophic upsets the guard neutralises", "%", 90.4),
+    "theory_slope": ("log2 peak error per mantissa bit (log-scale), fp32", "per bit", 0.94),
+    "alpha": ("scaling exponent alpha of the mean single-upset error", "", 2.78),
+    "auc_fieldbit": ("AUC predicting catastrophic upsets from field and bit", "", 0.997),
+    "auc_full": ("AUC of the classifier on all static features", "", 0.999),
+}
+
+
+def _row(key, value=np.nan, lo=np.nan, hi=np.nan, basis=""):
+    claim, unit, paper = PAPER[key]
+    if not np.isfinite(value):
+        verdict = "not measured"
+    elif np.isfinite(lo) and np.isfinite(hi):
+        verdict = "reproduced" if lo <= paper <= hi else "differs"
+    else:
+        verdict = "not measured"  # no interval: no verdict
+        basis = (basis + "; " if basis else "") + "no interval"
+    return {
+        "claim": claim,
+        "unit": unit,
+        "measured": value,
+        "ci_lo": lo,
+        "ci_hi": hi,
+        "paper": paper,
+        "verdict": verdict,
+        "basis": basis,
+    }
+
+
+def claims_table(df: pd.DataFrame, results: dict | None = None, conf: float = 0.95) -> pd.DataFrame:
+    """The claims table from the records and, where given, analysis results already computed
+    (keys "theory", "guard", "size", "prediction" as the report's sections return them)."""
+    results = results or {}
+    rows = []
+    s = single_upsets(df, "fp32", "none")
+    sign = s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")]
+    if len(sign):
+
+        def mean_fp(x):
+            return 100 * E.wmean(x["footprint"], x["weight"])
+
+        def p99(x):
+            return 100 * E.wquantile(x["footprint"], x["weight"], 0.99)
+
+        for key, fn in (("sign_mean", mean_fp), ("sign_p99", p99)):
+            lo, hi = E.bootstrap(sign, fn, conf=conf)
+            rows.append(_row(key, fn(sign), lo, hi, f"n = {len(sign):,}, bootstrap within cells"))
+    else:
+        rows += [_row("sign_mean"), _row("sign_p99")]
+    for dfn, key in (("none", "pc_none"), ("guard", "pc_guard")):
+        g = single_upsets(df, "fp32", dfn)
+        g = g[g["bit"] >= 0]
+        if len(g):
+            r = E.one_rate(g, "catastrophic", conf)
+            rows.append(_row(key, 100 * r["rate"], 100 * r["ci_lo"], 100 * r["ci_hi"], f"n = {int(r['n']):,}"))
+        else:
+            rows.append(_row(key))
+    gd = results.get("guard")
+    if gd is not None:
+        rows.append(_row("guard_share", gd["share_pct"], *gd["share_ci"], "paired sites, weighted"))
+    else:
+        rows.append(_row("guard_share"))
+    th = results.get("theory")
+    if th is not None and th.get("precision") == "fp32":
+        rows.append(_row("theory_slope", th["slope"], th["slope_lo"], th["slope_hi"], f"{th['n_fit_bits']} bits"))
+    else:
+        rows.append(_row("theory_slope"))
+    sz = results.get("size")
+    if sz is not None:
+        f = sz["fits"]
+        f = f[(f["metric"] == "mean_mse") & (f["defense"] == "none") & (f["precision"] == "fp32")]
+        f = f[np.isfinite(f["alpha"])]
+        if len(f):
+            r = f.sort_values("n_sizes").iloc[-1]
+            rows.append(_row("alpha", r["alpha"], r["alpha_lo"], r["alpha_hi"], f"{r['scene']}, {r['n_fitted']} sizes"))
+        else:
+            rows.append(_row("alpha"))
+    else:
+        rows.append(_row("alpha"))
+    pr = results.get("prediction")
+    if pr is not None and len(pr["summary"]) and pr["precision"] == "fp32":
+        t = pr["summary"].set_index("model")
+        for key, model in (("auc_fieldbit", "(field, bit) lookup"), ("auc_full", t.index[0])):
+            r = t.loc[model]
+            rows.append(_row(key, r["auc_holdout"], r["auc_lo"], r["auc_hi"], f"held-out, {model}"))
+    else:
+        rows += [_row("auc_fieldbit"), _row("auc_full")]
+    return tag(pd.DataFrame(rows), single_upsets(df, None, None))

@@ -1,0 +1,255 @@
+"""Accumulated dose: k simultaneous upsets drawn uniformly over a model's stored bits (campaign
+"dose"; every defense arm sees the same upset set). Everything is per model, i.e. per (scene,
+primitive count): curves of different models are never averaged together.
+
+* Quality per k: `estimate.quality` (PSNR over finite frames, non-finite share beside it).
+  Medians and quartiles (lower, no interpolation) rank a non-finite frame below every finite one
+  (it is worse than any finite frame, though its PSNR is undefined); no number is made up for it.
+* Catastrophic fraction per k: Wilson interval (the draws are a simple random sample).
+* Dose model per model and defense: P(catastrophic | k) = 1 - (1 - p)^k, p fitted by maximum
+  likelihood to the binomial counts over k, with a profile-likelihood 95% interval and its fit
+  quality (deviance G^2 against the saturated model, degrees of freedom = points - 1, p-value).
+* Redundancy budget: the k at which the median PSNR first falls to `threshold_db` (30 dB),
+  interpolated in log k between the bracketing grid points (k_lo, k_hi), censored when the grid
+  does not bracket it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from seuwgpu.analysis import estimate as E
+from seuwgpu.analysis.records import DEFENSE_LABELS, InsufficientData, dose_records, figure, sort_rows, tag
+
+BUDGET_PSNR_DB = 30.0  # redundancy budget threshold (paper, Section 5.4)
+MODEL = ["scene", "n_primitives"]
+
+
+def _ranked_psnr(d: pd.DataFrame) -> np.ndarray:
+    """PSNR for ordering only: non-finite frames rank lowest (-inf)."""
+    return np.where(d["nonfinite"].to_numpy(bool), -np.inf, d["psnr"].to_numpy(float))
+
+
+def dose_curves(df: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
+    """Per (scene, n_primitives, precision, defense, k): samples, non-finite share (interval),
+    median and quartile PSNR (non-finite ranked lowest), PSNR of the mean MSE over finite frames,
+    mean SSIM (finite frames), mean footprint, catastrophic fraction with its Wilson interval."""
+    d = dose_records(df)
+    if d.empty or not (d["k"] > 1).any():
+        raise InsufficientData("no k > 1 records", "run a dose campaign (k simultaneous upsets)")
+    keys = MODEL + ["precision", "defense", "k"]
+    d = d.assign(_rank=_ranked_psnr(d))
+    q = E.quality(d, keys, conf)
+    med = d.groupby(keys, sort=False)["_rank"].quantile([0.25, 0.5, 0.75], interpolation="lower").unstack()
+    med.columns = ["psnr_q25_db", "psnr_median_db", "psnr_q75_db"]
+    q = q.drop(columns=["psnr_q25_db", "psnr_median_db", "psnr_q75_db"]).merge(med.reset_index(), on=keys)
+    r = E.percent(E.rate(d, "catastrophic", keys, conf, strata=())).rename(columns={"events": "catastrophic"})
+    out = q.merge(r[keys + ["catastrophic", "cat_rate_pct", "cat_ci_lo_pct", "cat_ci_hi_pct"]], on=keys)
+    out = sort_rows(out.sort_values(MODEL + ["k"], kind="stable"))
+    return tag(out, d)
+
+
+def fit_dose_model(k, events, n, conf: float = 0.95) -> dict:
+    """Maximum-likelihood p of P(k) = 1 - (1-p)^k from binomial counts (events of n at each k);
+    profile-likelihood interval; deviance G^2, degrees of freedom and p-value of the fit."""
+    from scipy.optimize import minimize_scalar
+    from scipy.stats import chi2
+
+    k = np.asarray(k, float)
+    x = np.asarray(events, float)
+    n = np.asarray(n, float)
+
+    def nll(logp):
+        p = math.exp(logp)
+        s = np.clip((1 - p) ** k, 1e-300, 1.0)  # P(not catastrophic)
+        q = np.clip(1 - s, 1e-300, 1.0)
+        return -float(np.sum(x * np.log(q) + (n - x) * np.log(s)))
+
+    out = {
+        "p": np.nan,
+        "p_lo": np.nan,
+        "p_hi": np.nan,
+        "deviance": np.nan,
+        "dof": int(k.size - 1),
+        "fit_pvalue": np.nan,
+    }
+    if k.size == 0 or n.sum() == 0:
+        return out
+    lo_b, hi_b = math.log(1e-12), math.log(1 - 1e-12)
+    if x.sum() == 0:
+        p_hat, f_hat = 0.0, 0.0
+    else:
+        res = minimize_scalar(nll, bounds=(lo_b, hi_b), method="bounded", options={"xatol": 1e-10})
+        p_hat, f_hat = math.exp(res.x), float(res.fun)
+    cut = float(chi2.ppf(conf, 1)) / 2
+
+    def excess(logp):
+        return nll(logp) - f_hat - cut
+
+    grid = np.linspace(lo_b, hi_b, 400)
+    ex = np.array([excess(g) for g in grid])
+    inside = grid[ex <= 0]
+    if inside.size:
+        out["p_lo"] = 0.0 if x.sum() == 0 else float(math.exp(inside.min()))
+        out["p_hi"] = float(math.exp(inside.max()))
+    # deviance against the saturated model (each k its own rate)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ph = x / n
+        s = (1 - p_hat) ** k
+        m = 1 - s
+        t1 = np.where(x > 0, x * np.log(ph / np.maximum(m, 1e-300)), 0.0)
+        t2 = np.where(n - x > 0, (n - x) * np.log((1 - ph) / np.maximum(s, 1e-300)), 0.0)
+    dev = float(2 * np.sum(t1 + t2))
+    out.update(p=p_hat, deviance=dev)
+    if k.size > 1:
+        out["fit_pvalue"] = float(chi2.sf(dev, k.size - 1))
+    return out
+
+
+def dose_fits(curves: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
+    """`fit_dose_model` per (scene, n_primitives, precision, defense) of `dose_curves`; also the
+    share of grid points whose Wilson interval holds the fitted curve."""
+    rows = []
+    for key, g in curves.groupby(MODEL + ["precision", "defense"], sort=False):
+        f = fit_dose_model(g["k"], g["catastrophic"], g["n"], conf)
+        model = 100 * (1 - (1 - f["p"]) ** g["k"].to_numpy(float)) if np.isfinite(f["p"]) else np.nan
+        within = (g["cat_ci_lo_pct"] <= model + 1e-9) & (model <= g["cat_ci_hi_pct"] + 1e-9)
+        row = dict(zip(MODEL + ["precision", "defense"], key))
+        row.update(n_k=len(g), n=int(g["n"].sum()), events=int(g["catastrophic"].sum()))
+        row.update({f"{a}_pct" if a.startswith("p") and a != "fit_pvalue" else a: v for a, v in f.items()})
+        for c in ("p_pct", "p_lo_pct", "p_hi_pct"):
+            row[c] = 100 * row[c]
+        row["points_within_ci"] = float(np.mean(within)) if np.isfinite(f["p"]) else np.nan
+        rows.append(row)
+    out = sort_rows(pd.DataFrame(rows))
+    out.attrs.update(curves.attrs)
+    return out
+
+
+def crossing_k(ks, values, threshold: float = BUDGET_PSNR_DB) -> tuple[float, str, float, float]:
+    """First k where `values` falls to or below `threshold`, interpolated linearly in log k
+    between finite neighbours. Returns (k, censor, k_lo, k_hi): censor "" for an interpolated
+    crossing, "<=" when the first k is already at or below it (or the value below is not finite:
+    the crossing lies in (k_lo, k_hi]), ">=" when no k reaches it."""
+    ks = np.asarray(ks, dtype=float)
+    v = np.asarray(values, dtype=float)
+    order = np.argsort(ks)
+    ks, v = ks[order], v[order]
+    below = np.nonzero(v <= threshold)[0]
+    if below.size == 0:
+        return float(ks[-1]), ">=", float(ks[-1]), float("inf")
+    i = int(below[0])
+    if i == 0:
+        return float(ks[0]), "<=", 0.0, float(ks[0])
+    v0, v1 = v[i - 1], v[i]
+    if not (np.isfinite(v0) and np.isfinite(v1)):
+        return float(ks[i]), "<=", float(ks[i - 1]), float(ks[i])
+    k0, k1 = math.log(ks[i - 1]), math.log(ks[i])
+    t = (v0 - threshold) / (v0 - v1) if v0 != v1 else 0.0
+    return float(math.exp(k0 + t * (k1 - k0))), "", float(ks[i - 1]), float(ks[i])
+
+
+def redundancy_budget(df: pd.DataFrame, threshold_db: float = BUDGET_PSNR_DB) -> pd.DataFrame:
+    """Per (scene, n_primitives, precision, defense): the k where the median PSNR (non-finite
+    frames ranked lowest) first falls to `threshold_db`, with its bracket on the k grid."""
+    curves = dose_curves(df)
+    rows = []
+    for key, g in curves.groupby(MODEL + ["precision", "defense"], sort=False):
+        if len(g) < 2:
+            continue
+        kb, cens, klo, khi = crossing_k(g["k"].to_numpy(), g["psnr_median_db"].to_numpy(), threshold_db)
+        rows.append(
+            dict(
+                zip(MODEL + ["precision", "defense"], key),
+                n=int(g["n"].sum()),
+                n_k=len(g),
+                k_min=int(g["k"].min()),
+                k_max=int(g["k"].max()),
+                k_budget=kb,
+                censored=cens,
+                k_lo=klo,
+                k_hi=khi,
+            )
+        )
+    if not rows:
+        raise InsufficientData("no dose sweep with two or more k values", "run a dose campaign sweeping k")
+    out = sort_rows(pd.DataFrame(rows).sort_values(MODEL))
+    out.attrs.update(curves.attrs)
+    out.attrs["threshold_db"] = threshold_db
+    return out
+
+
+def _label(key) -> str:
+    scene, n, prec, dfn = key
+    return f"{scene} N={int(n):,} {prec} {DEFENSE_LABELS.get(dfn, dfn)}"
+
+
+def plot_dose(curves: pd.DataFrame, fits: pd.DataFrame | None = None, threshold_db: float = BUDGET_PSNR_DB):
+    """Two panels against k, one line per model, precision and defense: median PSNR with its
+    interquartile band (a median frame that is non-finite is marked at the panel's foot, never
+    drawn at a made-up value) and the catastrophic fraction with Wilson intervals and the fitted
+    dose model."""
+    fig = figure(10.5, 4.2)
+    ax, bx = fig.subplots(1, 2)
+    keys = MODEL + ["precision", "defense"]
+    groups = list(curves.groupby(keys, sort=False))
+    fin = curves["psnr_median_db"].replace([np.inf, -np.inf], np.nan)
+    ymin = float(np.nanmin(fin)) - 3 if fin.notna().any() else 0.0
+    for i, (key, g) in enumerate(groups):
+        g = g.sort_values("k")
+        c = f"C{i % 10}"
+        ls = "-" if key[3] == "none" else "--"
+        y = g["psnr_median_db"].to_numpy(float)
+        yf = np.where(np.isfinite(y), y, np.nan)
+        ax.plot(g["k"], yf, ls, color=c, marker="o", ms=3, label=_label(key))
+        lo = np.where(np.isfinite(g["psnr_q25_db"]), g["psnr_q25_db"], ymin)
+        hi = np.where(np.isfinite(g["psnr_q75_db"]), g["psnr_q75_db"], np.nan)
+        ax.fill_between(g["k"], lo, hi, color=c, alpha=0.12, lw=0)
+        bad = np.isneginf(y)
+        if bad.any():
+            ax.plot(g["k"][bad], np.full(bad.sum(), ymin), "v", color=c, ms=6)
+        yc = g["cat_rate_pct"].to_numpy(float)
+        err = np.vstack([yc - g["cat_ci_lo_pct"], g["cat_ci_hi_pct"] - yc])
+        bx.errorbar(g["k"] * (1 + 0.04 * (i % 5)), yc, yerr=err, fmt="o", ms=3, capsize=2, color=c)
+        if fits is not None and len(fits):
+            f = fits
+            for col, v in zip(keys, key):
+                f = f[f[col] == v]
+            if len(f) and np.isfinite(f["p_pct"].iloc[0]):
+                kk = np.logspace(0, np.log10(g["k"].max()), 100)
+                bx.plot(kk, 100 * (1 - (1 - f["p_pct"].iloc[0] / 100) ** kk), ls, color=c, lw=1)
+    ax.axhline(threshold_db, color="grey", ls=":", lw=1)
+    for a in (ax, bx):
+        a.set_xscale("log")
+        a.set_xlabel("simultaneous upsets k")
+    ax.set_ylabel("median PSNR (dB), IQR band; v: median frame non-finite")
+    bx.set_ylabel("catastrophic frames (%, 95% Wilson) and 1-(1-p)^k fit")
+    ax.legend(fontsize=6)
+    return fig
+
+
+def plot_budget(budget: pd.DataFrame):
+    """Redundancy budget against N per scene, precision and defense, with the k-grid bracket as
+    the error bar; open markers are censored bounds."""
+    fig = figure(5.6, 3.8)
+    ax = fig.subplots()
+    for i, (key, g) in enumerate(budget.groupby(["scene", "precision", "defense"], sort=False)):
+        g = g.sort_values("n_primitives")
+        c = f"C{i % 10}"
+        ls = "-" if key[2] == "none" else "--"
+        ax.plot(g["n_primitives"], g["k_budget"], ls, color=c, label=" ".join(map(str, key)))
+        lo = np.clip(g["k_budget"] - g["k_lo"].where(g["k_lo"] > 0, g["k_budget"]), 0, None)
+        hi = np.clip(g["k_hi"].where(np.isfinite(g["k_hi"]), g["k_budget"]) - g["k_budget"], 0, None)
+        cens = g["censored"] != ""
+        ax.errorbar(g["n_primitives"], g["k_budget"], yerr=np.vstack([lo, hi]), fmt="none", ecolor=c, capsize=2)
+        ax.plot(g.loc[~cens, "n_primitives"], g.loc[~cens, "k_budget"], "o", color=c)
+        ax.plot(g.loc[cens, "n_primitives"], g.loc[cens, "k_budget"], "^", mfc="none", color=c)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("primitive count N")
+    ax.set_ylabel(f"redundancy budget k (median PSNR {budget.attrs.get('threshold_db', BUDGET_PSNR_DB):g} dB)")
+    ax.legend(fontsize=6, title="bars: k-grid bracket; open: censored", title_fontsize=6)
+    return fig

@@ -1,0 +1,157 @@
+"""The support guard against no defense on the same fault sites (single-upset campaign, records
+paired by injection id). Rates and shares are weighted (`analysis.estimate`); PSNR summaries are
+over frames without non-finite pixels, with the non-finite share beside them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from seuwgpu.analysis import estimate as E
+from seuwgpu.analysis.records import (
+    DEFENSE_LABELS,
+    InsufficientData,
+    figure,
+    pair_keys,
+    single_upsets,
+    sort_rows,
+    tag,
+)
+
+
+def paired(df: pd.DataFrame, a: str = "none", b: str = "guard") -> pd.DataFrame:
+    """Single-upset records of defenses a and b joined on the fault site (pair_keys). Site columns
+    (field, bit, weight, ...) come from a; measured columns get suffixes _a and _b."""
+    s = single_upsets(df, None, None)
+    keys = pair_keys(s)
+    site = ["n_primitives", "field", "bit", "bit_class", "weight"]
+    measured = ["footprint", "catastrophic", "outcome", "psnr", "ssim", "nonfinite", "peak_error", "time_ms"]
+    cols = [c for c in dict.fromkeys(keys + site + measured) if c in s]
+    left = s.loc[s["defense"] == a, cols].drop_duplicates(keys)
+    rcols = [c for c in cols if c in keys or c in measured]
+    right = s.loc[s["defense"] == b, rcols].drop_duplicates(keys)
+    return left.merge(right, on=keys, suffixes=(f"_{a}", f"_{b}"))
+
+
+def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -> dict:
+    """Returns {"summary": per (precision, defense) weighted footprint stats and catastrophe rate,
+    "paired": per precision (+ "all"): pairs, catastrophic without guard, weighted share of them
+    neutralised with its interval, residual catastrophic, worst guarded footprint,
+    "sign_psnr": log-scale sign flips: PSNR without and with the guard over finite frames and the
+    non-finite share, "worst_guarded_footprint_pct", "residual_catastrophic", "n_guarded",
+    "share_pct", "share_ci"}."""
+    s = single_upsets(df, None, None)
+    s = s[s["defense"].isin(["none", guard])]
+    if not (s["defense"] == guard).any():
+        raise InsufficientData(
+            f"no single-upset records with defense '{guard}'",
+            f"run the single-upset campaign with defenses none,{guard}",
+        )
+    p = paired(s, "none", guard)
+    if p.empty:
+        raise InsufficientData(
+            f"no fault sites measured both without and with '{guard}'",
+            f"run the single-upset campaign with defenses none,{guard} (same injection ids)",
+        )
+    r = E.percent(E.rate(s, "catastrophic", ["precision", "defense"], conf)).rename(columns={"events": "catastrophic"})
+    extra = []
+    for (prec, dfn), g in s.groupby(["precision", "defense"], sort=False):
+        fp, w = g["footprint"].to_numpy(float) * 100, g["weight"].to_numpy(float)
+        extra.append(
+            {
+                "precision": prec,
+                "defense": dfn,
+                "mean_footprint_pct": E.wmean(fp, w),
+                "p99_footprint_pct": E.wquantile(fp, w, 0.99),
+                "max_footprint_pct": float(np.nanmax(fp)),
+            }
+        )
+    summary = r.drop(columns=["weight", "n_eff", "method"]).merge(pd.DataFrame(extra), on=["precision", "defense"])
+    summary = tag(sort_rows(summary), s)
+
+    cn, cg = "catastrophic_none", f"catastrophic_{guard}"
+    p = p.assign(_neut=p[cn].astype(bool) & ~p[cg].astype(bool))
+    groups = [(prec, g) for prec, g in p.groupby("precision", sort=False)]
+    if len(groups) > 1:
+        groups.append(("all", p))
+    prow = []
+    for prec, g in groups:
+        cat = g[g[cn].astype(bool)]
+        sh = E.one_rate(cat, "_neut", conf) if len(cat) else {"rate": np.nan, "ci_lo": np.nan, "ci_hi": np.nan}
+        prow.append(
+            {
+                "precision": prec,
+                "pairs": len(g),
+                "catastrophic_none": len(cat),
+                "neutralised": int(cat["_neut"].sum()),
+                "share_neutralised_pct": 100 * sh["rate"],
+                "share_ci_lo_pct": 100 * sh["ci_lo"],
+                "share_ci_hi_pct": 100 * sh["ci_hi"],
+                "residual_catastrophic": int(g[cg].astype(bool).sum()),
+                "worst_guarded_footprint_pct": 100 * float(g[f"footprint_{guard}"].max()),
+            }
+        )
+    ptab = tag(sort_rows(pd.DataFrame(prow)), s)
+
+    sign = s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")]
+    stab = pd.DataFrame()
+    if len(sign):
+        q = E.quality(sign, ["precision", "defense"], conf)
+        stab = q[
+            [
+                "precision",
+                "defense",
+                "n",
+                "nonfinite_pct",
+                "psnr_median_db",
+                "psnr_mean_mse_db",
+                "ssim_mean",
+                "mean_footprint_pct",
+            ]
+        ]
+        stab = sort_rows(stab)
+    tag(stab, sign)
+
+    allg = s[s["defense"] == guard]
+    tot = ptab[ptab["precision"] == "all"] if (ptab["precision"] == "all").any() else ptab
+    return {
+        "summary": summary,
+        "paired": ptab,
+        "sign_psnr": stab,
+        "worst_guarded_footprint_pct": 100 * float(allg["footprint"].max()),
+        "residual_catastrophic": int(allg["catastrophic"].sum()),
+        "n_guarded": int(len(allg)),
+        "share_pct": float(tot["share_neutralised_pct"].iloc[0]) if len(tot) else np.nan,
+        "share_ci": (float(tot["share_ci_lo_pct"].iloc[0]), float(tot["share_ci_hi_pct"].iloc[0]))
+        if len(tot)
+        else (np.nan, np.nan),
+    }
+
+
+def plot_guard_ccdf(df: pd.DataFrame, guard: str = "guard", precision: str | None = None, threshold: float = 0.01):
+    """Weighted complementary CDF of the footprint with and without the guard (single upsets):
+    the probability that a uniform upset's footprint exceeds x."""
+    s = single_upsets(df, precision, None)
+    fig = figure(5.6, 3.8)
+    ax = fig.subplots()
+    x = np.logspace(-5, 2, 200)
+    for dfn, style in (("none", "-"), (guard, "--")):
+        g = s[(s["defense"] == dfn) & np.isfinite(s["footprint"])]
+        if g.empty:
+            continue
+        fp, w = g["footprint"].to_numpy(float) * 100, g["weight"].to_numpy(float)
+        order = np.argsort(fp)
+        fp, cw = fp[order], np.cumsum(w[order]) / w.sum()
+        surv = 1.0 - np.concatenate([[0.0], cw])[np.searchsorted(fp, x, side="right")]
+        ax.loglog(
+            x,
+            np.where(surv > 1e-12, surv, np.nan),
+            style,
+            label=f"{DEFENSE_LABELS.get(dfn, dfn)} (n={len(g):,})",
+            drawstyle="steps-post",
+        )
+    ax.axvline(100 * threshold, color="grey", ls=":", lw=1)
+    ax.set_xlabel("footprint x (% of frame)")
+    ax.set_ylabel("P(footprint > x), uniform upset")
+    ax.legend(fontsize=8)
+    return fig

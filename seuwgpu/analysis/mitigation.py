@@ -1,0 +1,154 @@
+"""Defenses side by side on the shared fault grid: weighted catastrophe rate with its interval,
+footprint, memory overhead (fraction of the model's stored bytes) and time overhead (fraction of
+one view's render time, measured in the same run: the runner times each defense's render of the
+clean model and writes it as ``time_ms``, ms per view)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+import pandas as pd
+
+from seuwgpu.analysis import estimate as E
+from seuwgpu.analysis.records import (
+    DEFAULT_SH_DEGREE,
+    DEFENSE_LABELS,
+    InsufficientData,
+    defenses_present,
+    pair_keys,
+    reference_precision,
+    sh_degree_of,
+    single_upsets,
+    tag,
+)
+from seuwgpu.model import encoding
+from seuwgpu.model.fields import FIELDS, field_components, n_components
+
+GUARD_BOX_BITS = 32  # the support box bounds are held as fp32 values
+# defenses whose read path the engine simulates on the stored words (no render-time work to time)
+SIMULATED_READ = ("ecc", "dup")
+
+
+def memory_overhead(
+    defense: str,
+    precision: str = "fp32",
+    n_primitives: int | None = None,
+    sh_degree: int = DEFAULT_SH_DEGREE,
+    manifests: Iterable[dict] = (),
+) -> tuple[float, str]:
+    """(fractional memory overhead, basis text) of a defense.
+
+    A manifest may state it: ``manifest["memory_overhead"][defense]`` or
+    ``manifest["defenses"][defense]["memory_overhead"]`` (a fraction); else documented constants:
+    * none: 0.
+    * guard: the support box, 2 fp32 bounds per guarded component per model (not per primitive);
+      the guard skips sh_rest, so 2 x 14 values for the whole model: 2*14*32 / (N*C*bits).
+    * selective: the box of log-scale and opacity only, 2 x 4 values per model.
+    * ecc: a SEC-DED (extended Hamming) code per stored value over its sign+exponent bits:
+      fp32 9 data bits -> 5 check bits (+15.6%), fp16 6 -> 5 (+31.3%), bf16 9 -> 5 (+31.3%).
+    * dup: duplication with majority voting needs three copies (triple modular redundancy), +200%.
+    """
+    for m in manifests or ():
+        for src in (
+            m.get("memory_overhead"),
+            (m.get("defenses") or {}).get(defense),
+            (m.get("spec", {}) or {}).get("memory_overhead"),
+        ):
+            if isinstance(src, dict):
+                v = src.get(defense) if defense in src else src.get("memory_overhead")
+                if isinstance(v, (int, float)):
+                    return float(v), "from the run manifest"
+    bits = encoding.BITS.get(precision, 32)
+    comps = n_components(sh_degree)
+    if defense == "none":
+        return 0.0, "no redundancy"
+    if defense in ("guard", "selective"):
+        guarded = (
+            sum(field_components(f, sh_degree) for f in FIELDS if f != "sh_rest")
+            if defense == "guard"
+            else field_components("log_scales", sh_degree) + field_components("opacity", sh_degree)
+        )
+        if not n_primitives:
+            return 0.0, f"2 x {guarded} fp32 box bounds per model (~0 per primitive)"
+        frac = 2 * guarded * GUARD_BOX_BITS / (float(n_primitives) * comps * bits)
+        return frac, f"2 x {guarded} fp32 box bounds per model, N = {int(n_primitives):,}"
+    if defense == "ecc":
+        from seuwgpu.faults.defenses import ecc_check_bits  # the code the ECC defense simulates
+
+        chk = ecc_check_bits(precision)
+        return chk / bits, f"SEC-DED over sign+exponent: {chk} check bits per {bits}-bit value"
+    if defense == "dup":
+        return 2.0, "three copies (TMR, majority vote)"
+    return float("nan"), "unknown defense"
+
+
+def mitigation_table(
+    df: pd.DataFrame, manifests: Iterable[dict] = (), precision: str | None = None, conf: float = 0.95
+) -> pd.DataFrame:
+    """Every defense present on the shared fault grid at one precision.
+
+    The shared grid is the set of fault sites (pair_keys) measured under every defense present;
+    if no site was measured under all of them, each defense uses all its sites (attrs["paired"]
+    is False). Columns: defense, label, n, catastrophic, cat_rate_pct (+ interval),
+    mean_footprint_pct, max_footprint_pct, memory_overhead_pct, memory_basis, time_ms (per view),
+    time_overhead_pct (time over that of 'none', minus 1; NaN where not measured), time_basis.
+    """
+    s = single_upsets(df, None, None)
+    if s.empty:
+        raise InsufficientData("no single-upset records", "run a single-upset campaign")
+    precision = precision or reference_precision(s)
+    s = s[s["precision"] == precision]
+    defs = defenses_present(s)
+    if len(defs) < 2:
+        raise InsufficientData(
+            f"only defense(s) {', '.join(defs)} at {precision}",
+            "run the single-upset campaign with --defenses none,guard,selective,ecc,dup",
+        )
+    keys = pair_keys(s)
+    sites = None
+    for x in defs:
+        idx = pd.MultiIndex.from_frame(s.loc[s["defense"] == x, keys].drop_duplicates())
+        sites = idx if sites is None else sites.intersection(idx)
+    is_paired = sites is not None and len(sites) > 0
+    if is_paired:
+        mi = pd.MultiIndex.from_frame(s[keys])
+        s = s[mi.isin(sites)]
+    manifests = list(manifests or ())
+    deg = sh_degree_of(s, manifests)
+    n_prims = float(s["n_primitives"].mean()) if "n_primitives" in s and len(s) else None
+    rates = E.percent(E.rate(s, "catastrophic", ["defense"], conf)).set_index("defense")
+    t_none = E.wmean(s.loc[s["defense"] == "none", "time_ms"], s.loc[s["defense"] == "none", "weight"])
+    rows = []
+    for x in defs:
+        g = s[s["defense"] == x]
+        ov, basis = memory_overhead(x, precision, n_prims, deg, manifests)
+        tm = float(g["time_ms"].mean()) if g["time_ms"].notna().any() else np.nan
+        if x in SIMULATED_READ:
+            tfrac, tbasis = np.nan, "not measured: the read-side decode is simulated on the stored words"
+        elif x == "none":
+            tfrac, tbasis = 0.0, "reference" if np.isfinite(tm) else "no time_ms recorded"
+        elif np.isfinite(tm) and np.isfinite(t_none) and t_none > 0:
+            tfrac, tbasis = tm / t_none - 1.0, "render of the clean model, same run"
+        else:
+            tfrac, tbasis = np.nan, "no time_ms recorded"
+        r = rates.loc[x]
+        rows.append(
+            {
+                "defense": x,
+                "label": DEFENSE_LABELS.get(x, x),
+                "n": int(r["n"]),
+                "catastrophic": int(r["events"]),
+                "cat_rate_pct": r["cat_rate_pct"],
+                "cat_ci_lo_pct": r["cat_ci_lo_pct"],
+                "cat_ci_hi_pct": r["cat_ci_hi_pct"],
+                "mean_footprint_pct": 100 * E.wmean(g["footprint"], g["weight"]),
+                "max_footprint_pct": 100 * g["footprint"].max(),
+                "memory_overhead_pct": 100 * ov,
+                "memory_basis": basis,
+                "time_ms": tm,
+                "time_overhead_pct": 100 * tfrac,
+                "time_basis": tbasis,
+            }
+        )
+    return tag(pd.DataFrame(rows), s, precision=precision, paired=is_paired, sh_degree=deg)

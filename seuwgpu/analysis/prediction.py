@@ -1,0 +1,245 @@
+"""Predicting criticality without injection: can static fault-site features say which upsets are
+catastrophic? Compared, on the same splits, with the obvious (field, bit) lookup and a constant,
+because a classifier that only re-learns the lookup adds nothing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from seuwgpu.analysis import stats
+from seuwgpu.analysis.records import figure, reference_precision, require_single, tag, unique_sorted
+
+PREDICTION_FEATURES = ("field", "bit", "bit_class", "log_abs_value", "sign")
+FIELD_BIT_FEATURES = ("field", "bit")
+
+
+def prediction_features(d: pd.DataFrame) -> pd.DataFrame:
+    """Static fault-site features: field, bit, bit class, log10|stored value|, sign of the value.
+    A zero value gets log10 = -46 (below the smallest fp32 subnormal), a non-finite one +39."""
+    v = d["clean_value"].to_numpy(float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        la = np.log10(np.abs(v))
+    la = np.where(v == 0, -46.0, la)
+    la = np.where(~np.isfinite(v), 39.0, la)
+    return pd.DataFrame(
+        {
+            "field": d["field"].astype(str).to_numpy(),
+            "bit": d["bit"].to_numpy(np.int64).astype(float),
+            "bit_class": d["bit_class"].astype(str).to_numpy(),
+            "log_abs_value": la,
+            "sign": np.signbit(v).astype(float),
+        },
+        index=d.index,
+    )
+
+
+def _classifier(features, seed):
+    from sklearn.compose import ColumnTransformer
+    from sklearn.ensemble import HistGradientBoostingClassifier
+    from sklearn.pipeline import Pipeline
+    from sklearn.preprocessing import OneHotEncoder
+
+    cat = [f for f in features if f in ("field", "bit_class")]
+    pre = ColumnTransformer(
+        [("cat", OneHotEncoder(handle_unknown="ignore", sparse_output=False), cat)], remainder="passthrough"
+    )
+    # early stopping on a 10% validation split (log-loss, 10 rounds without improvement)
+    clf = HistGradientBoostingClassifier(
+        max_iter=200,
+        learning_rate=0.1,
+        max_leaf_nodes=31,
+        early_stopping=True,
+        validation_fraction=0.1,
+        n_iter_no_change=10,
+        random_state=seed,
+    )
+    return Pipeline([("pre", pre), ("clf", clf)])
+
+
+def prediction(
+    df: pd.DataFrame,
+    precision: str | None = None,
+    seed: int = 0,
+    max_rows: int = 200_000,
+    test_size: float = 0.3,
+    n_repeats: int = 5,
+    n_boot: int = 200,
+    n_threads: int | None = 1,
+) -> dict:
+    """Predict "catastrophic" from static fault-site features (single-upset campaign, no defense,
+    one precision: a bit index means different things in different formats).
+
+    Three scorers, all evaluated with record weights (a uniform upset's view): a gradient-boosted
+    classifier (scikit-learn HistGradientBoosting) on field, bit, bit class, log10|stored value|
+    and sign; the (field, bit) lookup (each cell's weighted catastrophe rate in the training
+    data, the global rate for unseen cells); a constant (the training base rate: AUC 0.5, Brier
+    score of the base rate). Held-out ROC AUC on a stratified split with a bootstrap interval;
+    leave-one-scene-out AUC per held-out scene with >= 2 scenes; Brier scores; permutation
+    importance of the classifier. When the data cannot support it (too few events, one class in
+    a split) the numbers are NaN and `notes` says why: the report never fails on a small run.
+    Returns {"summary", "importance", "loso", "top_feature", "roc", "precision", "notes",
+    "lookup_as_good"}.
+    """
+    import sklearn.ensemble  # noqa: F401  (load its OpenMP runtime before limiting it)
+    from threadpoolctl import threadpool_limits
+
+    # One OpenMP thread by default: on small or shared machines gradient boosting with several
+    # spinning threads can be 20x slower than with one (seen on a loaded 2-core CI box).
+    with threadpool_limits(limits=n_threads):
+        return _prediction(df, precision, seed, max_rows, test_size, n_repeats, n_boot)
+
+
+def lookup_scores(train: pd.DataFrame, y_train: np.ndarray, test: pd.DataFrame, w_train=None) -> np.ndarray:
+    """The (field, bit) lookup: each test site scored by its cell's weighted catastrophe rate in
+    the training records (the training base rate for cells it never saw)."""
+    w = np.ones(len(train)) if w_train is None else np.asarray(w_train, float)
+    t = pd.DataFrame({"field": train["field"].to_numpy(), "bit": train["bit"].to_numpy(), "wy": w * y_train, "w": w})
+    cell = t.groupby(["field", "bit"])[["wy", "w"]].sum()
+    rate = (cell["wy"] / cell["w"]).to_dict()
+    base = float(t["wy"].sum() / t["w"].sum())
+    return np.array([rate.get((f, b), base) for f, b in zip(test["field"], test["bit"])], dtype=float)
+
+
+def _brier(y, score, w) -> float:
+    return float(np.sum(w * (score - y) ** 2) / np.sum(w)) if len(y) else float("nan")
+
+
+def _scores(Xtr, ytr, wtr, Xte, seed):
+    """(classifier, {model name: held-out scores}) trained on one split."""
+    feats = list(PREDICTION_FEATURES)
+    clf = _classifier(feats, seed).fit(Xtr[feats], ytr, clf__sample_weight=wtr)
+    base = float(np.sum(wtr * ytr) / np.sum(wtr))
+    return clf, {
+        "classifier (field, bit, class, value, sign)": clf.predict_proba(Xte[feats])[:, 1],
+        "(field, bit) lookup": lookup_scores(Xtr, ytr, Xte, wtr),
+        "constant (base rate)": np.full(len(Xte), base),
+    }
+
+
+def _prediction(df, precision, seed, max_rows, test_size, n_repeats, n_boot) -> dict:
+    from sklearn.inspection import permutation_importance
+    from sklearn.metrics import roc_curve
+    from sklearn.model_selection import train_test_split
+
+    s = require_single(df, "none")
+    precision = precision or reference_precision(s)
+    s = s[(s["precision"] == precision) & (s["bit"] >= 0)]
+    if len(s) > max_rows:
+        s = s.sample(n=max_rows, random_state=seed)
+    y = s["catastrophic"].astype(bool).to_numpy()
+    w = s["weight"].to_numpy(float)
+    npos, nneg = int(y.sum()), int((~y).sum())
+    X = prediction_features(s)
+    names = ["classifier (field, bit, class, value, sign)", "(field, bit) lookup", "constant (base rate)"]
+    notes, rows, loso_rows, roc = [], [], [], {}
+    imp = pd.DataFrame(columns=["feature", "importance_mean", "importance_std"])
+    scenes = unique_sorted(s["scene"])
+    if npos < 5 or nneg < 5:
+        notes.append(
+            f"too few catastrophic ({npos}) or benign ({nneg}) upsets at {precision} to train and test "
+            "a classifier (need >= 5 of each): AUCs not computed"
+        )
+        rows = [{"model": m, "auc_holdout": np.nan, "auc_lo": np.nan, "auc_hi": np.nan} for m in names]
+    else:
+        idx_tr, idx_te = train_test_split(np.arange(len(s)), test_size=test_size, stratify=y, random_state=seed)
+        Xtr, Xte = X.iloc[idx_tr], X.iloc[idx_te]
+        clf, sc = _scores(Xtr, y[idx_tr], w[idx_tr], Xte, seed)
+        for m in names:
+            a = stats.auc(y[idx_te], sc[m], w[idx_te])
+            lo, hi = stats.auc_interval(y[idx_te], sc[m], w[idx_te], n_boot, seed=seed)
+            fpr, tpr, _ = roc_curve(y[idx_te], sc[m], sample_weight=w[idx_te])
+            roc[m] = (fpr, tpr, a)
+            rows.append(
+                {
+                    "model": m,
+                    "auc_holdout": a,
+                    "auc_lo": lo,
+                    "auc_hi": hi,
+                    "brier": _brier(y[idx_te], sc[m], w[idx_te]),
+                    "n_train": len(idx_tr),
+                    "n_test": len(idx_te),
+                    "positives": npos,
+                }
+            )
+        feats = list(PREDICTION_FEATURES)
+        pi = permutation_importance(
+            clf, Xte[feats], y[idx_te], scoring="roc_auc", n_repeats=n_repeats, random_state=seed
+        )
+        imp = (
+            pd.DataFrame(
+                {"feature": feats, "importance_mean": pi.importances_mean, "importance_std": pi.importances_std}
+            )
+            .sort_values("importance_mean", ascending=False)
+            .reset_index(drop=True)
+        )
+    if len(scenes) >= 2 and npos >= 5:
+        for sc_name in scenes:
+            te = (s["scene"] == sc_name).to_numpy()
+            if y[~te].sum() < 2 or (~y[~te]).sum() < 2:
+                notes.append(f"leave-one-scene-out: training without {sc_name} leaves one class")
+                continue
+            _, scs = _scores(X[~te], y[~te], w[~te], X[te], seed)
+            for m in names:
+                a = stats.auc(y[te], scs[m], w[te])
+                lo, hi = stats.auc_interval(y[te], scs[m], w[te], n_boot, seed=seed)
+                loso_rows.append(
+                    {
+                        "model": m,
+                        "held_out_scene": sc_name,
+                        "n": int(te.sum()),
+                        "positives": int(y[te].sum()),
+                        "auc": a,
+                        "auc_lo": lo,
+                        "auc_hi": hi,
+                    }
+                )
+    elif len(scenes) < 2:
+        notes.append("one scene only: no leave-one-scene-out evaluation")
+    loso = pd.DataFrame(loso_rows, columns=["model", "held_out_scene", "n", "positives", "auc", "auc_lo", "auc_hi"])
+    summary = pd.DataFrame(rows)
+    for m in names:
+        a = loso.loc[loso["model"] == m, "auc"].dropna()
+        summary.loc[summary["model"] == m, "loso_auc_mean"] = float(a.mean()) if len(a) else np.nan
+        summary.loc[summary["model"] == m, "loso_auc_min"] = float(a.min()) if len(a) else np.nan
+        summary.loc[summary["model"] == m, "loso_scenes"] = len(a)
+    lookup_as_good = None
+    if len(summary) and summary["auc_holdout"].notna().all():
+        full = summary.iloc[0]
+        look = summary.iloc[1]
+        lookup_as_good = bool(look["auc_holdout"] >= full["auc_lo"]) if np.isfinite(full["auc_lo"]) else None
+        if lookup_as_good:
+            notes.append(
+                f"the (field, bit) lookup (AUC {look['auc_holdout']:.3f}) is as good as the classifier "
+                f"(AUC {full['auc_holdout']:.3f}, 95% CI {full['auc_lo']:.3f}..{full['auc_hi']:.3f}): "
+                "the value features add nothing measurable"
+            )
+    tag(summary, s, precision=precision)
+    tag(imp, s, precision=precision)
+    tag(loso, s)
+    return {
+        "summary": summary,
+        "importance": imp,
+        "loso": loso,
+        "top_feature": str(imp["feature"].iloc[0]) if len(imp) else "",
+        "roc": roc,
+        "precision": precision,
+        "notes": notes,
+        "lookup_as_good": lookup_as_good,
+    }
+
+
+def plot_roc(res: dict):
+    """Held-out ROC curves (record-weighted) of the classifier and both baselines, AUC with its
+    bootstrap interval in the legend."""
+    fig = figure(4.8, 4.4)
+    ax = fig.subplots()
+    s = res["summary"].set_index("model")
+    for name, (fpr, tpr, a) in res["roc"].items():
+        lo, hi = s.loc[name, "auc_lo"], s.loc[name, "auc_hi"]
+        ax.plot(fpr, tpr, label=f"{name}: AUC {a:.3f} [{lo:.3f}, {hi:.3f}]")
+    ax.plot([0, 1], [0, 1], "k:", lw=1)
+    ax.set_xlabel("false positive rate (weighted)")
+    ax.set_ylabel("true positive rate (weighted)")
+    ax.legend(fontsize=6, loc="lower right")
+    return fig

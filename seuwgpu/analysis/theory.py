@@ -1,0 +1,112 @@
+"""Validation of the perturbation lemma: a mantissa flip of bit b changes a value by 2^(e+b-p), so
+the peak image error doubles per bit (unit slope in log2) until one primitive saturates the pixels
+it covers. Mean peak errors per bit are weighted means (`analysis.estimate`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from seuwgpu.analysis import estimate as E
+from seuwgpu.analysis import stats
+from seuwgpu.analysis.records import InsufficientData, figure, reference_precision, require_single, tag
+from seuwgpu.model import encoding
+
+THEORY_FIT_RANGE = (1e-5, 0.1)  # peak-error window of the mantissa-slope fit (see theory_check)
+
+
+def theory_check(
+    df: pd.DataFrame,
+    field: str = "log_scales",
+    precision: str | None = None,
+    defense: str = "none",
+    fit_range: tuple[float, float] = THEORY_FIT_RANGE,
+) -> dict:
+    """Mean peak error against mantissa bit index, with the fitted log2 slope (Lemma: 1 per bit).
+
+    The fit uses the bits whose mean peak error lies inside `fit_range` (default 1e-5 .. 0.1):
+    below, float32 rounding of the render hides the change; above, one primitive's contribution
+    saturates the pixels it covers and the curve flattens (the pre-saturation regime of the
+    lemma). If fewer than 3 bits fall inside, all bits with a positive mean are fitted (noted).
+    Returns {"table", "slope", "intercept", "r2", "fit_bits", "n_fit_bits", "predicted_slope",
+    "precision", "field", "note"}.
+    """
+    s = require_single(df, defense)
+    precision = precision or reference_precision(s)
+    d = s[(s["precision"] == precision) & (s["field"] == field) & (s["bit"] >= 0)]
+    if "bit_class" in d:
+        d = d[d["bit_class"] == "mantissa"]
+    if precision in encoding.LAYOUT:
+        d = d[d["bit"] < encoding.LAYOUT[precision][0]]
+    d = d[np.isfinite(d["peak_error"])]
+    if d.empty:
+        raise InsufficientData(
+            f"no {field} mantissa records with peak_error at {precision}",
+            f"run a single-upset campaign covering {field} mantissa bits",
+        )
+    rows = []
+    for bit, g in d.groupby("bit"):
+        v, w = g["peak_error"].to_numpy(float), g["weight"].to_numpy(float)
+        rows.append(
+            {"bit": bit, "n": len(g), "mean_peak_error": E.wmean(v, w), "median_peak_error": E.wquantile(v, w, 0.5)}
+        )
+    t = pd.DataFrame(rows)
+    with np.errstate(divide="ignore"):
+        t["log2_mean_peak_error"] = np.log2(t["mean_peak_error"].where(t["mean_peak_error"] > 0))
+    lo, hi = fit_range
+    use = (t["mean_peak_error"] > lo) & (t["mean_peak_error"] <= hi)
+    note = ""
+    if use.sum() < 3:
+        use = t["mean_peak_error"] > 0
+        note = (
+            f"fewer than 3 bits had a mean peak error in [{lo:g}, {hi:g}]; the fit uses every bit with a positive mean"
+        )
+    if use.sum() < 2:
+        raise InsufficientData(
+            f"fewer than two {field} mantissa bits with a non-zero peak error",
+            f"run a single-upset campaign covering more {field} mantissa bits",
+        )
+    t["in_fit"] = use.to_numpy()
+    fit = stats.linear_fit(t.loc[use, "bit"], t.loc[use, "log2_mean_peak_error"])
+    bits_used = t.loc[use, "bit"]
+    tag(t, d, precision=precision)
+    return {
+        "table": t,
+        "slope": fit.slope,
+        "intercept": fit.intercept,
+        "r2": fit.r2,
+        "slope_lo": fit.slope_lo,
+        "slope_hi": fit.slope_hi,
+        "fit_bits": (int(bits_used.min()), int(bits_used.max())),
+        "n_fit_bits": int(use.sum()),
+        "predicted_slope": 1.0,
+        "precision": precision,
+        "field": field,
+        "fit_range": fit_range,
+        "note": note,
+    }
+
+
+def plot_theory(res: dict):
+    t = res["table"]
+    fig = figure(5.6, 3.8)
+    ax = fig.subplots()
+    pos = t[t["mean_peak_error"] > 0]
+    ax.semilogy(pos["bit"], pos["mean_peak_error"], "o-", base=2, label="measured mean peak error")
+    fit = t[t["in_fit"]]
+    if len(fit):
+        xb = fit["bit"].to_numpy(float)
+        ax.semilogy(
+            xb,
+            2.0 ** (res["slope"] * xb + res["intercept"]),
+            "-",
+            base=2,
+            label=f"fit: {res['slope']:.3f} per bit (R$^2$={res['r2']:.3f})",
+        )
+        xc = xb.mean()
+        yc = res["slope"] * xc + res["intercept"]
+        ax.semilogy(xb, 2.0 ** (yc + (xb - xc)), "k--", base=2, lw=1, label="unit slope (perturbation lemma)")
+    ax.set_xlabel(f"mantissa bit index ({res['field']}, {res['precision']})")
+    ax.set_ylabel(r"mean peak error $|\Delta I|_\infty$")
+    ax.legend(fontsize=8)
+    return fig

@@ -1,0 +1,445 @@
+"""The public Python API: what a script or a notebook needs, importable from the package root.
+
+    import seuwgpu as sg
+    scene = sg.load_model("leica-sofort")             # an embedded scene, or any model file
+    cams = sg.cameras(scene, views=2, size=(256, 256))  # or cameras=PATH: the capture's own
+    images = sg.render_views(scene, cams)                    # float32 [K, H, W, 3], unclamped
+    inj = sg.inject(scene, cams, field="log_scales", bit=31, defenses=("none", "guard"))
+    inj.metrics["none"]["footprint"]                   # a fraction of the frame's pixels
+    inj.save("out/")                                   # PNG, float32 TIFF, metrics.json
+    stats = sg.run_campaign({"scenes": ["spheres"], ...}, "runs/x", progress=print)
+    df = sg.read_records("runs/x")                     # a pandas DataFrame of the records
+    sg.make_report(["runs/x"], "runs/x/report")        # HTML, figures, tables, summary.json
+
+`render_views` is not called `render` because `seuwgpu.render` is the renderer's sub-package.
+The command line (apps/cli.py) is a thin layer over these functions. Units: the footprint is a
+fraction (0-1) in every record, dict and JSON file; only text for people prints it as a percent.
+Undefined values (PSNR of a frame with non-finite pixels, say) are NaN in data and null in JSON.
+Bad input raises seuwgpu.InputError (a ValueError) or FileNotFoundError whose message names the
+input and the problem, as the command line prints it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
+from seuwgpu.faults.defenses import DEFENSES, check_defense
+from seuwgpu.faults.guard import GuardAlert
+from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, VALUE_MODELS, model_bits
+from seuwgpu.gpu.constants import PROFILES
+from seuwgpu.model import encoding
+from seuwgpu.model.cameras import Camera
+from seuwgpu.model.fields import FIELDS, Model
+from seuwgpu.model.scenes import list_scenes
+from seuwgpu.model.sources import Source, load_source, source_views
+
+__all__ = [
+    "DEFENSES",
+    "FAULT_MODELS",
+    "FIELDS",
+    "FRAME_FORMATS",
+    "PRECISIONS",
+    "PROFILES",
+    "Camera",
+    "InputError",
+    "Injection",
+    "Model",
+    "RunInUse",
+    "Scene",
+    "SeuwgpuError",
+    "TooBig",
+    "cameras",
+    "inject",
+    "list_scenes",
+    "load_model",
+    "make_report",
+    "read_records",
+    "render_views",
+    "report_figures",
+    "run_campaign",
+    "save_frames",
+]
+
+PRECISIONS = tuple(encoding.PRECISIONS)
+FRAME_FORMATS = ("png", "tiff", "npz")
+"""png: 8-bit display frames (clipped to [0, 1], non-finite pixels black); tiff: float32,
+unclamped, non-finite values kept; npz: all frames of a call in one float32 array."""
+
+Scene = Source
+"""A loaded model (`.model`), its display name (`.name`), the up axis that frames it (`.up`) and
+notes for the user (`.notes`, e.g. "trained antialiased")."""
+
+
+# ---- models and cameras ---------------------------------------------------------------------------
+def load_model(
+    source: str | Path, *, n: int | None = None, sh_degree: int = 3, seed: int = 0, up: str | None = None
+) -> Scene:
+    """An embedded scene by name (`list_scenes()`: procedural ones and two real captures) or any
+    supported model file or INRIA output folder, recognised by content (INRIA PLY, compressed PLY,
+    .splat, .spz, gsplat .pt). `n`, `sh_degree` and `seed` shape procedural scenes; `up` overrides
+    the up axis used to frame the model without cameras ("+z", "-y", ...)."""
+    path = Path(source)
+    if isinstance(source, Path) or path.exists() or path.suffix or "/" in str(source):
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no such model file or folder")
+        return load_source(path=path, up=up)
+    name = str(source)
+    if name not in list_scenes():
+        raise InputError(f"{name!r} is neither a file nor an embedded scene; scenes: {', '.join(list_scenes())}")
+    return load_source(scene=name, n=n, sh_degree=sh_degree, seed=seed, up=up)
+
+
+def cameras(
+    scene: Scene,
+    *,
+    cameras: str | Path | None = None,
+    views: int | None = None,
+    size: tuple[int, int] = (256, 256),
+    scale: float | None = None,
+) -> list[Camera]:
+    """The views to render: a camera file's (CAMS.json, INRIA cameras.json, a COLMAP model,
+    nerfstudio transforms.json; all of them or `views` evenly), else `views` (default 4) orbit
+    views of `size` (width, height) that frame the model; `scale` multiplies the resolution."""
+    _check_scene(scene)
+    w, h = _size(size)
+    if scale is not None and not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
+        raise InputError(f"scale must be a positive number, got {scale!r}")
+    return source_views(scene, cameras, views, (w, h), scale, default_views=4)
+
+
+# ---- rendering ------------------------------------------------------------------------------------
+def render_views(
+    scene: Scene | Model, views: Sequence[Camera], *, precision: str = "fp32", profile: str = "strict"
+) -> np.ndarray:
+    """The views of the model stored at `precision`: float32 [K, H, W, 3], unclamped (values of a
+    corrupted model may be negative, above 1 or non-finite). `profile` is the renderer's rule set
+    for corrupted values (PROFILES: "strict", or "gsplat" as gsplat's CUDA kernels; docs/renderer.md)."""
+    from seuwgpu.render.renderer import render_split
+
+    model = _model_of(scene)
+    # frames larger than one storage binding are rendered in view groups or tile-row bands
+    return render_split(model, _views(views), encoding.check_precision(precision), profile=_profile(profile))
+
+
+@dataclass
+class Injection:
+    """One injection evaluated under several defenses: the site, the metrics per defense and the
+    frames (`frames["clean"]` and one [K, H, W, 3] float32 array per defense)."""
+
+    site: dict
+    metrics: dict[str, dict]
+    frames: dict[str, np.ndarray] = field(repr=False)
+
+    def error_map(self, defense: str = "none") -> np.ndarray:
+        """Per-pixel maximum absolute channel error against the clean frames, [K, H, W] (NaN where
+        a pixel is non-finite)."""
+        diff = np.abs(self.frames[defense].astype(np.float64) - self.frames["clean"])
+        bad = ~np.isfinite(diff).all(axis=-1)
+        err = np.nanmax(np.where(np.isfinite(diff), diff, 0.0), axis=-1)
+        err[bad] = np.nan
+        return err.astype(np.float32)
+
+    def table(self) -> pd.DataFrame:
+        """One row per defense: the site and its metrics, as a campaign record holds them."""
+        return pd.DataFrame([{**self.site, **m} for m in self.metrics.values()])
+
+    def save(self, out: str | Path, *, formats: Iterable[str] = ("png", "tiff")) -> list[Path]:
+        """Every frame in each format - `clean_000.png`, `faulted_000.png` (no defense),
+        `guard_000.png` (each defense by name), `error_faulted_000.png`, `error_guard_000.png`
+        (max absolute channel error) - and the metrics as `metrics.json` (footprint as a fraction;
+        NaN as null). Returns the files written."""
+        out = Path(out)
+        files = []
+        for name, frames in self.frames.items():
+            files += save_frames(frames, out, _frame_stem(name), formats=formats)
+        for d in self.metrics:
+            files += save_frames(self.error_map(d)[..., None], out, f"error_{_frame_stem(d)}", formats=formats)
+        out.mkdir(parents=True, exist_ok=True)
+        path = out / "metrics.json"
+        doc = {"site": self.site, "metrics": self.metrics, "units": {"footprint": "fraction of pixels (0-1)"}}
+        path.write_text(json.dumps(_json_safe(doc), indent=2, allow_nan=False) + "\n")
+        return [*files, path]
+
+
+def inject(
+    scene: Scene | Model,
+    views: Sequence[Camera],
+    *,
+    field: str,
+    bit: int | Sequence[int] | None,
+    component: int = 0,
+    primitive: int | None = None,
+    precision: str = "fp32",
+    defenses: Sequence[str] = ("none", "guard"),
+    sample: int = 32,
+    seed: int = 0,
+    profile: str = "strict",
+    fault: str = "bit",
+    width: int = 2,
+) -> Injection:
+    """Corrupt `field[primitive][component]` in the stored model with one fault and evaluate the
+    render under each defense against the clean render. `fault` is a FAULT_MODELS name: "bit"
+    flips `bit` (or each of several bits of the word), "adjacent" flips `width` neighbouring bits
+    ending at `bit` (a multi-cell upset), "stuck0"/"stuck1" force the bits, "zero"/"random" replace
+    the whole value (random: drawn from `seed`; `bit` is ignored) (footprint, peak
+    error, PSNR, SSIM, non-finite pixels, and LPIPS when `seuwgpu[lpips]` is installed). Without
+    `primitive`, the most harmful of `sample` randomly drawn primitives (seeded) is taken. The
+    stored model is restored exactly afterwards."""
+    from seuwgpu.faults.engine import Engine
+
+    defenses = tuple(dict.fromkeys(check_defense(d) for d in _names(defenses, "defenses")))
+    if not defenses:
+        raise InputError("defenses must name at least one defense")
+    if not isinstance(sample, int) or isinstance(sample, bool) or sample < 1:
+        raise InputError(f"sample must be a positive integer, got {sample!r}")
+    bits, op, value = _fault_bits(fault, bit, width, precision, seed)
+    model = _model_of(scene)
+    name = scene.name if isinstance(scene, Source) else "model"
+    eng = Engine(model, _views(views), encoding.check_precision(precision), scene=name, profile=_profile(profile))
+    if primitive is None:
+        primitive, _ = eng.worst_primitive(field, component, bits, sample, seed, defenses[0], op, value)
+    site = eng.site(field, int(primitive), component, bits, op, value)
+    frames = {"clean": eng.clean.copy()}
+    metrics = {}
+    site_info = None
+    for d in defenses:
+        rec = eng.inject(site, d)
+        handle = eng.apply([site], d)
+        try:
+            with warnings.catch_warnings():  # the guard's health alert: this corruption is deliberate
+                warnings.simplefilter("ignore", GuardAlert)
+                rgba, _ = eng.render_current(d)
+        finally:
+            eng.undo(handle)
+        frames[d] = rgba[..., :3].copy()
+        rec["lpips"] = _mean_lpips(frames["clean"], frames[d])
+        site_keys = ("scene", "n_primitives", "precision", "fault", "field", "primitive", "component", "bit_class")
+        site_info = site_info or {
+            **{k: rec[k] for k in site_keys},
+            "bits": list(site.bits),
+            "clean_value": rec["clean_value"],
+            "corrupted_value": rec["corrupted_value"],
+        }
+        metrics[d] = {k: v for k, v in rec.items() if k not in site_info and k not in ("bit", "k")}
+    return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames)
+
+
+def save_frames(images: np.ndarray, out: str | Path, stem: str, *, formats: Iterable[str] = ("png",)) -> list[Path]:
+    """Write [K, H, W, C] frames (C = 1 or 3) as `{stem}_{k:03d}.png` (display: clipped to [0, 1],
+    non-finite pixels black), `.tiff` (float32, unclamped, non-finite kept) and/or one `{stem}.npz`."""
+    formats = tuple(_names(formats, "formats"))
+    unknown = sorted(set(formats) - set(FRAME_FORMATS))
+    if unknown:
+        raise InputError(f"unknown frame format(s) {', '.join(unknown)}; expected some of {', '.join(FRAME_FORMATS)}")
+    images = np.asarray(images, np.float32)
+    if images.ndim != 4 or images.shape[-1] not in (1, 3):
+        raise InputError(f"frames must be [K, H, W, 1 or 3], got shape {list(images.shape)}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    if "npz" in formats:
+        paths.append(out / f"{stem}.npz")
+        np.savez_compressed(paths[-1], images=images)
+    for i, img in enumerate(images):
+        if "png" in formats:
+            import imageio.v3 as iio
+
+            disp = np.clip(np.nan_to_num(img, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+            paths.append(out / f"{stem}_{i:03d}.png")
+            pixels = (disp * 255 + 0.5).astype(np.uint8)
+            iio.imwrite(paths[-1], pixels[..., 0] if img.shape[-1] == 1 else pixels, extension=".png")
+        if "tiff" in formats:
+            import tifffile
+
+            paths.append(out / f"{stem}_{i:03d}.tiff")
+            grey = img.shape[-1] == 1
+            tifffile.imwrite(paths[-1], img[..., 0] if grey else img, photometric="minisblack" if grey else "rgb")
+    return paths
+
+
+# ---- campaigns and reports ------------------------------------------------------------------------
+def run_campaign(
+    spec: dict | str | Path,
+    out: str | Path,
+    *,
+    progress: Callable[[int, int, int], None] | bool | None = None,
+    full: bool = False,
+    shard: tuple[int, int] = (0, 1),
+) -> dict:
+    """Run (or resume) the campaign of a spec (a dict with the keys of a spec file, or a TOML path)
+    into the run directory `out`. `progress(done, total, catastrophic)` is called after each block
+    of injections; `progress=True` shows a rich progress bar (also in a notebook), None or False
+    shows nothing. Returns {injections, new, catastrophic, seconds}."""
+    from seuwgpu.campaign.runner import Runner
+    from seuwgpu.campaign.spec import load_spec, normalize_spec
+
+    if isinstance(spec, dict):
+        spec = normalize_spec(spec, base_dir=Path.cwd())
+    elif isinstance(spec, (str, Path)):
+        spec = load_spec(spec)
+    else:
+        raise InputError(f"spec must be a dict or the path of a TOML file, got {type(spec).__name__}")
+    runner = Runner(spec, Path(out), shard=shard, quiet=progress is not True, full=full)
+    return runner.run() if progress is True else runner.run(_Callback(progress or None, runner))
+
+
+class _Callback:
+    """Adapts a progress function to the runner's progress protocol (advance, close)."""
+
+    def __init__(self, fn, runner):
+        self.fn, self.total, self.cat = fn, sum(m for _, _, m in runner.blocks()), 0
+        self.done = self.total - sum(m for c, a, m in runner.blocks() if (a, m) not in runner.done_ids())
+
+    def advance(self, n: int, cat: int):
+        self.done += n
+        self.cat += cat
+        if callable(self.fn):
+            self.fn(self.done, self.total, self.cat)
+
+    def close(self):
+        pass
+
+
+def read_records(*runs: str | Path) -> pd.DataFrame:
+    """The Parquet records of one or more run directories as one DataFrame (one row per injection
+    and defense; the footprint is a fraction)."""
+    from seuwgpu.report.build import load_runs
+
+    if not runs:
+        raise InputError("read_records needs at least one run directory")
+    df, _ = load_runs([Path(_existing(r, "run directory")) for r in runs])
+    return df
+
+
+def make_report(runs: str | Path | Iterable[str | Path], out: str | Path) -> Path:
+    """Write the report of the runs (HTML, figures as PNG, tables as CSV and Markdown,
+    summary.json) into `out`; returns the path of index.html."""
+    from seuwgpu.report.build import build_report
+
+    runs = [runs] if isinstance(runs, (str, Path)) else list(runs)
+    return build_report([_existing(r, "run directory") for r in runs], out)
+
+
+def report_figures(runs: str | Path | Iterable[str | Path]) -> dict:
+    """The report's figures as matplotlib figures, by name (analyses the records cannot support
+    are left out, as the report skips them)."""
+    from seuwgpu.report import build
+
+    runs = [runs] if isinstance(runs, (str, Path)) else list(runs)
+    df, manifests = build.load_runs([_existing(r, "run directory") for r in runs])
+    return build.section_figures(df, manifests)
+
+
+# ---- helpers --------------------------------------------------------------------------------------
+def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], str, int]:
+    """(bits, op, value) of one fault, as faults/sites.py applies it."""
+    if fault not in FAULT_MODELS:
+        raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
+    if fault in VALUE_MODELS:
+        return model_bits(fault, -1, precision, int(np.random.default_rng(seed).integers(2**63)))
+    if bit is None:
+        raise InputError(f"fault {fault!r} needs bit=")
+    bits = [bit] if isinstance(bit, (int, np.integer)) else list(bit)
+    if fault == "adjacent" and len(bits) == 1:
+        if width not in ADJACENT_WIDTHS:
+            raise InputError(f"width must be one of {', '.join(map(str, ADJACENT_WIDTHS))}, got {width!r}")
+        return model_bits("adjacent", int(bits[0]), precision, ADJACENT_WIDTHS.index(width))
+    return tuple(int(b) for b in bits), ("flip" if fault in ("bit", "adjacent") else fault), 0
+
+
+def _profile(profile) -> str:
+    if profile not in PROFILES:
+        raise InputError(f"unknown renderer profile {profile!r}; expected one of {', '.join(PROFILES)}")
+    return profile
+
+
+def _check_scene(scene):
+    if not isinstance(scene, Source):
+        raise InputError(f"expected a scene from load_model(), got {type(scene).__name__}")
+
+
+def _model_of(scene) -> Model:
+    if isinstance(scene, Source):
+        return scene.model
+    if isinstance(scene, Model):
+        return scene
+    raise InputError(f"expected a scene from load_model() or a Model, got {type(scene).__name__}")
+
+
+def _views(views) -> list[Camera]:
+    if isinstance(views, Camera):
+        views = [views]
+    views = list(views) if isinstance(views, (list, tuple)) else None
+    if not views or not all(isinstance(c, Camera) for c in views):
+        raise InputError("views must be a non-empty list of Camera (from cameras())")
+    return views
+
+
+def _size(size) -> tuple[int, int]:
+    try:
+        w, h = size
+    except (TypeError, ValueError):
+        raise InputError(f"size must be (width, height), got {size!r}") from None
+    for v in (w, h):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
+            raise InputError(f"size must be two positive integers (width, height), got {size!r}")
+    return int(w), int(h)
+
+
+def _names(values, what: str) -> list[str]:
+    if isinstance(values, str):
+        return [values]
+    try:
+        values = list(values)
+    except TypeError:
+        raise InputError(f"{what} must be a name or a list of names, got {values!r}") from None
+    if not all(isinstance(v, str) for v in values):
+        raise InputError(f"{what} must be names (strings), got {values!r}")
+    return values
+
+
+def _existing(path, what: str) -> Path:
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: no such {what}")
+    return p
+
+
+def _mean_lpips(clean: np.ndarray, faulted: np.ndarray) -> float:
+    """LPIPS (AlexNet) mean over the views; NaN when its weights are not installed, a frame is
+    smaller than 32x32 or non-finite (undefined, not 0)."""
+    from seuwgpu.metrics import lpips
+
+    if not lpips.available() or min(clean.shape[1:3]) < 32:
+        return float("nan")
+    return float(np.mean(lpips.lpips(clean, faulted)))
+
+
+def _frame_stem(name: str) -> str:
+    return "faulted" if name == "none" else name
+
+
+def _plain(d: dict) -> dict:
+    """numpy scalars -> Python numbers, so the dicts serialise and compare plainly."""
+    return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in d.items()}
+
+
+def _json_safe(o):
+    if isinstance(o, dict):
+        return {k: _json_safe(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_json_safe(v) for v in o]
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o

@@ -1,0 +1,24 @@
+"""The project's own errors: every failure a user can cause or fix is one of these, and the
+command line prints it as one line (`seuwgpu CMD: error: ...`, exit status 2) with no traceback.
+
+Anything else escaping a command is a bug in seuwgpu, not in its input. The input errors stay
+ValueErrors so that callers that catch ValueError (and older tests) keep working.
+"""
+
+from __future__ import annotations
+
+
+class SeuwgpuError(Exception):
+    """Base of every error seuwgpu raises on purpose; the message names the input and the problem."""
+
+
+class InputError(SeuwgpuError, ValueError):
+    """Bad input: a file, spec value, camera or argument that cannot be used as given."""
+
+
+class RunInUse(SeuwgpuError):
+    """Another process holds the run directory (its lock file is taken)."""
+
+
+class TooBig(SeuwgpuError):
+    """The job would not fit the host's or the device's memory; the message says what would fit."""

@@ -1,0 +1,111 @@
+"""Memory estimates made before allocating, so that a job too big for the machine is refused with a
+message saying what would fit, instead of being killed by the kernel or failing deep in wgpu.
+
+The estimates are deliberately simple (bytes per stored value and per pixel, measured on this
+code: `make_scene` peaks at ~5.5 bytes per value; a renderer or engine holds the model, its
+flat copy, the clean stored words and their decoded copy) and a little generous. Host memory is
+what the OS reports as available (MemAvailable); `SEUWGPU_HOST_MEMORY` (bytes) overrides it,
+for tests and for sharing a machine. WebGPU does not expose a device's memory size, so the device
+side is checked against the adapter's limits: every buffer the renderer binds must fit
+max_storage_buffer_binding_size (the model and the sorts are already split into chunks that do);
+on a CPU adapter (lavapipe) device buffers live in host memory and count there.
+"""
+
+from __future__ import annotations
+
+import os
+
+from seuwgpu.errors import TooBig
+
+SCENE_BYTES_PER_VALUE = 6  # generating an embedded scene (float64 intermediates, float32 result)
+MODEL_BYTES_PER_VALUE = 16  # a loaded model plus the renderer's and engine's copies of it
+PROJECTED_BYTES = 16  # the largest per-primitive projection record (conic, rgb: vec4 f32)
+PIXEL_BYTES = 16  # one rgba f32 pixel of one view
+HOST_SHARE = 0.8  # of the available memory a job may plan to use
+
+
+def n_values(degree: int) -> int:
+    """Stored values per primitive at an SH degree."""
+    return 14 + 3 * ((int(degree) + 1) ** 2 - 1)
+
+
+def available_host_bytes() -> int:
+    env = os.environ.get("SEUWGPU_HOST_MEMORY")
+    if env:
+        return int(float(env))
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return 1 << 62  # unknown: do not refuse
+
+
+def gb(nbytes: float) -> str:
+    return f"{nbytes / 1e9:.1f} GB" if nbytes >= 1e9 else f"{nbytes / 1e6:.0f} MB"
+
+
+def check_scene(n: int, degree: int, what: str = "--n", per_value: int = SCENE_BYTES_PER_VALUE, use: str = "generate"):
+    """Refuse to make (`use`) a model of n primitives that would not fit in host memory."""
+    per = per_value * n_values(degree)
+    need, have = int(n) * per, HOST_SHARE * available_host_bytes()
+    if need > have:
+        fits = max(1, int(have // per))
+        raise TooBig(
+            f"{what} {n} needs about {gb(need)} of host memory to {use} the model; "
+            f"{gb(have / HOST_SHARE)} is available: at most {what} {fits} fits"
+        )
+
+
+def check_model(n: int, degree: int, what: str = "--n"):
+    """Refuse, before generating it, a model too big to render and inject into on this host."""
+    check_scene(n, degree, what, MODEL_BYTES_PER_VALUE, "render")
+
+
+def render_host_bytes(n: int, degree: int, k: int, width: int, height: int) -> int:
+    """Host memory of a renderer/engine: the model's copies, and a few copies of the frames."""
+    return int(n) * MODEL_BYTES_PER_VALUE * n_values(degree) + 4 * int(k) * int(width) * int(height) * PIXEL_BYTES
+
+
+def render_device_bytes(n: int, degree: int, k: int, width: int, height: int, keep_views: bool) -> int:
+    """Device memory of a renderer/engine: stored words, per-primitive projection and sort/bin
+    scratch (~64 B), the intersection buffers (~16 B for each of >= 4n pairs, per view when kept),
+    and the clean and current frames."""
+    per_prim = 4 * n_values(degree) + 64 + 64 * (k if keep_views else 1) + (48 * k if keep_views else 0)
+    return int(n) * per_prim + 2 * int(k) * int(width) * int(height) * PIXEL_BYTES
+
+
+def check_render(limits: dict, is_cpu: bool, n: int, degree: int, k: int, width: int, height: int, keep_views: bool):
+    """Refuse a render (n primitives, k views of width x height) that does not fit the device's
+    binding limit or the host's memory, saying what would."""
+    binding = int(min(limits["max-storage-buffer-binding-size"], limits["max-buffer-size"]))
+    per_prim = PROJECTED_BYTES * (k if keep_views else 1)
+    if int(n) * per_prim > binding:
+        raise TooBig(
+            f"{n:,} primitives x {k if keep_views else 1} view(s) need a {gb(int(n) * per_prim)} projection buffer, "
+            f"above the device's storage binding limit ({gb(binding)}): at most {binding // per_prim:,} primitives "
+            + ("fit at this view count (or use fewer views)" if keep_views and k > 1 else "fit")
+        )
+    frame = int(k) * int(width) * int(height) * PIXEL_BYTES
+    if frame > binding:
+        fits = max(0, binding // (int(width) * int(height) * PIXEL_BYTES))
+        raise TooBig(
+            f"{k} view(s) of {width}x{height} need a {gb(frame)} frame buffer, above the device's storage "
+            f"binding limit ({gb(binding)}): "
+            + (f"at most {fits} view(s) of that size fit" if fits else "render at a smaller size (--size or --scale)")
+        )
+    need = render_host_bytes(n, degree, k, width, height)
+    if is_cpu:
+        need += render_device_bytes(n, degree, k, width, height, keep_views)
+    have = HOST_SHARE * available_host_bytes()
+    if need > have:
+        per = need / max(1, int(n))
+        raise TooBig(
+            f"{n:,} primitives with {k} view(s) of {width}x{height} need about {gb(need)} of host memory; "
+            f"{gb(have / HOST_SHARE)} is available: about {int(have // per):,} primitives would fit"
+        )

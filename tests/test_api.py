@@ -1,0 +1,192 @@
+"""The public Python API (seuwgpu/api.py), used only through the package root, as a user would."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import tifffile
+
+import seuwgpu as sg
+
+SIZE = (40, 32)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return sg.load_model("spheres", n=600, sh_degree=1)
+
+
+@pytest.fixture(scope="module")
+def views(scene):
+    return sg.cameras(scene, views=2, size=SIZE)
+
+
+def test_root_exports_the_api():
+    from seuwgpu import api
+
+    assert set(sg.__all__) == {"__version__", *api.__all__}  # the lazy list in __init__ agrees with api.py
+    assert all(getattr(sg, name) is getattr(api, name) for name in api.__all__)
+    with pytest.raises(AttributeError):
+        sg.no_such_function  # noqa: B018
+
+
+def test_render_matches_the_numpy_twin(scene, views):
+    from seuwgpu.render.reference import render as render_twin
+
+    images = sg.render_views(scene, views)
+    assert images.shape == (2, SIZE[1], SIZE[0], 3) and images.dtype == np.float32
+    ref = render_twin(scene.model, views)[..., :3]
+    mse = float(np.mean((images.astype(np.float64) - ref) ** 2))
+    assert 10 * np.log10(1.0 / max(mse, 1e-20)) >= 50
+    assert np.array_equal(images, sg.render_views(scene.model, views))  # a Model works as well as a Scene
+
+
+def _footprint(clean, faulted):
+    """Independent footprint: share of pixels with a channel changed by more than 1/255 (or
+    non-finite), mean over views."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        d = np.abs(faulted.astype(np.float32) - clean)
+    changed = (~np.isfinite(d)).any(-1) | (np.where(np.isfinite(d), d, 0) > 1 / 255).any(-1)
+    return float(changed.mean(axis=(1, 2)).mean())
+
+
+def test_inject_measures_restores_and_saves(scene, views, tmp_path):
+    before = sg.render_views(scene, views)
+    inj = sg.inject(scene, views, field="log_scale", bit=30, primitive=7, defenses=["none", "guard"])
+    assert inj.site["field"] == "log_scales" and inj.site["bits"] == [30] and inj.site["primitive"] == 7
+    clean_bits = np.float32(scene.model.log_scales[7, 0]).view(np.uint32)
+    assert np.float32(inj.site["corrupted_value"]).view(np.uint32) == clean_bits ^ (1 << 30)
+    assert np.array_equal(inj.frames["clean"], before)
+    for d in ("none", "guard"):
+        m = inj.metrics[d]
+        assert 0.0 <= m["footprint"] <= 1.0  # a fraction, not a percent
+        assert m["footprint"] == pytest.approx(_footprint(inj.frames["clean"], inj.frames[d]), abs=1e-9)
+    assert inj.metrics["none"]["footprint"] > 0
+    from seuwgpu.metrics.lpips import lpips
+
+    for d in ("none", "guard"):  # LPIPS (AlexNet), mean over the views
+        want = float(np.mean(lpips(inj.frames["clean"], inj.frames[d])))
+        assert inj.metrics[d]["lpips"] == pytest.approx(want, rel=1e-6)
+    assert np.array_equal(sg.render_views(scene, views), before)  # the stored model is restored exactly
+    assert list(inj.table()["defense"]) == ["none", "guard"]
+
+    files = inj.save(tmp_path, formats=("png", "tiff"))
+    assert all(f.exists() for f in files)
+    assert np.array_equal(tifffile.imread(tmp_path / "faulted_001.tiff"), inj.frames["none"][1])
+    assert np.array_equal(tifffile.imread(tmp_path / "guard_000.tiff"), inj.frames["guard"][0])
+    err = tifffile.imread(tmp_path / "error_faulted_000.tiff")
+    assert np.array_equal(err, inj.error_map("none")[0])
+    doc = json.loads((tmp_path / "metrics.json").read_text())
+    assert doc["metrics"]["none"]["footprint"] == inj.metrics["none"]["footprint"]
+    assert doc["units"]["footprint"].startswith("fraction")
+
+
+def test_png_is_the_display_frame_and_tiff_keeps_unclamped_values(tmp_path):
+    import imageio.v3 as iio
+
+    img = np.array([[[[2.0, -1.0, np.nan], [0.5, np.inf, 0.25]]]], np.float32)  # [1, 1, 2, 3]
+    sg.save_frames(img, tmp_path, "x", formats=["png", "tiff", "npz"])
+    assert iio.imread(tmp_path / "x_000.png").tolist() == [[[255, 0, 0], [128, 255, 64]]]
+    back = tifffile.imread(tmp_path / "x_000.tiff")
+    assert back.dtype == np.float32 and np.array_equal(back, img[0], equal_nan=True)
+    assert np.array_equal(np.load(tmp_path / "x.npz")["images"], img, equal_nan=True)
+
+
+def test_campaign_records_and_report(tmp_path):
+    spec = {
+        "name": "api",
+        "seed": 3,
+        "views": 1,
+        "size": "32x32",
+        "batch": 4,
+        "scenes": [{"scene": "spheres", "n": 300}],
+        "single": {
+            "precisions": ["fp32"],
+            "fields": ["opacity", "log_scales"],
+            "bits": [30, 31],
+            "samples": 2,
+            "defenses": ["none", "guard"],
+        },
+    }
+    calls = []
+    stats = sg.run_campaign(spec, tmp_path / "run", progress=lambda *a: calls.append(a))
+    assert stats["injections"] == 8 and stats["new"] == 8
+    assert [c[0] for c in calls] == sorted(c[0] for c in calls) and calls[-1][:2] == (8, 8)
+    df = sg.read_records(tmp_path / "run")
+    assert len(df) == 16 and set(df["defense"]) == {"none", "guard"}
+    assert calls[-1][2] == int(df.loc[df.defense == "none", "catastrophic"].sum())
+    assert df["footprint"].between(0, 1).all()
+    again = sg.run_campaign(spec, tmp_path / "run")  # resume: nothing left to do
+    assert again["new"] == 0 and again["injections"] == 8
+
+    index = sg.make_report(tmp_path / "run", tmp_path / "report")
+    assert index.exists() and (tmp_path / "report" / "summary.json").exists()
+    figs = sg.report_figures([tmp_path / "run"])
+    import matplotlib.figure
+
+    assert figs and all(isinstance(f, matplotlib.figure.Figure) for f in figs.values())
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda s, v: sg.load_model("no-such-scene"), "neither a file nor an embedded scene"),
+        (lambda s, v: sg.load_model("missing/model.ply"), "no such model file"),
+        (lambda s, v: sg.cameras(s, size=(0, 10)), "size must be two positive integers"),
+        (lambda s, v: sg.cameras(s, scale=-1), "scale must be a positive number"),
+        (lambda s, v: sg.render_views(s, []), "views must be a non-empty list"),
+        (lambda s, v: sg.render_views(s, v, precision="fp8"), "unknown precision"),
+        (lambda s, v: sg.inject(s, v, field="colour", bit=1, primitive=0), "colour"),
+        (lambda s, v: sg.inject(s, v, field="opacity", bit=32, primitive=0), "bit"),
+        (lambda s, v: sg.inject(s, v, field="opacity", bit=3, primitive=10**6), "out of range"),
+        (lambda s, v: sg.inject(s, v, field="opacity", bit=3, defenses=["armour"]), "unknown defense"),
+        (lambda s, v: sg.inject(s, v, field="opacity", bit=3, sample=0), "sample must be a positive"),
+        (lambda s, v: sg.save_frames(np.zeros((1, 2, 2, 3)), "/tmp", "x", formats=["jpg"]), "unknown frame format"),
+        (lambda s, v: sg.run_campaign(5, "/tmp/x"), "spec must be a dict"),
+        (lambda s, v: sg.read_records("/no/such/run"), "no such run directory"),
+    ],
+)
+def test_bad_input_is_a_clear_error(scene, views, call, message):
+    with pytest.raises((ValueError, FileNotFoundError), match=message):
+        call(scene, views)
+
+
+def test_cli_inject_and_render_write_every_frame(tmp_path, capsys):
+    from seuwgpu.apps.cli import main
+
+    common = ["--scene", "spheres", "--n", "400", "--views", "1", "--size", "32x24"]
+    out = tmp_path / "inj"
+    assert main(["inject", *common, "--field", "opacity", "--bit", "30", "--primitive", "3", "--out", str(out)]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert {"panel.png", "metrics.json", "clean_000.tiff", "faulted_000.png", "guard_000.tiff"} <= names
+    printed = capsys.readouterr().out
+    fraction = json.loads((out / "metrics.json").read_text())["metrics"]["none"]["footprint"]
+    assert f"footprint: {100 * fraction:.4f}%" in printed  # a percent only in text for people
+    assert main(["render", *common, "--formats", "tiff,png", "--out", str(tmp_path / "r")]) == 0
+    assert {p.name for p in (tmp_path / "r").iterdir()} == {"view_000.tiff", "view_000.png"}
+    with pytest.raises(SystemExit) as e:  # argparse: usage and a one-line error, status 2
+        main(["render", *common, "--formats", "jpg", "--out", str(tmp_path / "r")])
+    assert e.value.code == 2 and "--formats takes" in capsys.readouterr().err
+
+
+def test_inject_fault_models(scene, views):
+    """Each fault model corrupts the stored word as it says (hand-computed bit patterns)."""
+    word = int(np.float32(scene.model.opacity[5]).view(np.uint32))
+
+    def stored(inj):
+        return int(np.float32(inj.site["corrupted_value"]).view(np.uint32))
+
+    adj = sg.inject(scene, views, field="opacity", bit=27, primitive=5, fault="adjacent", width=3, defenses="none")
+    assert adj.site["bits"] == [25, 26, 27] and stored(adj) == word ^ (0b111 << 25)
+    s1 = sg.inject(scene, views, field="opacity", bit=30, primitive=5, fault="stuck1", defenses="none")
+    assert stored(s1) == word | (1 << 30) and s1.site["fault"] == "stuck1"
+    s0 = sg.inject(scene, views, field="opacity", bit=31, primitive=5, fault="stuck0", defenses="none")
+    assert stored(s0) == word & ~(1 << 31) & 0xFFFFFFFF
+    zero = sg.inject(scene, views, field="opacity", bit=None, primitive=5, fault="zero", defenses="none")
+    assert stored(zero) == 0
+    with pytest.raises(ValueError, match="unknown fault model"):
+        sg.inject(scene, views, field="opacity", bit=3, primitive=5, fault="cosmic")
+    with pytest.raises(ValueError, match="needs bit"):
+        sg.inject(scene, views, field="opacity", bit=None, primitive=5, fault="stuck1")

@@ -1,0 +1,70 @@
+"""The API reference and the example notebook cannot go stale: both are rebuilt here."""
+
+from __future__ import annotations
+
+import importlib.util
+import inspect
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _tool(name: str):
+    spec = importlib.util.spec_from_file_location(f"tools_{name}", ROOT / "tools" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_every_public_name_is_documented():
+    from seuwgpu import api
+
+    for name in api.__all__:
+        obj = getattr(api, name)
+        if callable(obj):
+            assert (inspect.getdoc(obj) or "").strip(), f"seuwgpu.{name} has no docstring"
+            if inspect.isfunction(obj):
+                hints = inspect.get_annotations(obj)
+                assert "return" in hints, f"seuwgpu.{name} has no return type hint"
+                params = [p for p in inspect.signature(obj).parameters.values() if p.kind != p.VAR_KEYWORD]
+                assert all(p.name in hints for p in params), f"seuwgpu.{name}: a parameter without type hint"
+
+
+def test_api_reference_is_current(tmp_path):
+    built = _tool("build_docs").build(tmp_path / "api")
+    committed = ROOT / "docs" / "api"
+    names = sorted(p.relative_to(tmp_path / "api").as_posix() for p in built)
+    assert names == sorted(p.relative_to(committed).as_posix() for p in committed.rglob("*") if p.is_file())
+    for p in built:
+        rel = p.relative_to(tmp_path / "api")
+        assert p.read_bytes() == (committed / rel).read_bytes(), f"docs/api/{rel} is stale: run tools/build_docs.py"
+    page = (committed / "seuwgpu" / "api.html").read_text()
+    from seuwgpu import api
+
+    assert all(name in page for name in api.__all__)
+
+
+def test_committed_notebook_is_these_cells_executed():
+    import nbformat
+
+    nb = nbformat.read(ROOT / "docs" / "example.ipynb", as_version=4)
+    cells = _tool("notebook").CELLS
+    assert [(c.cell_type, c.source) for c in nb.cells] == [(k, s) for k, s in cells], "run tools/notebook.py"
+    code = [c for c in nb.cells if c.cell_type == "code"]
+    assert all(c.execution_count for c in code), "the committed notebook is not executed"
+    outputs = [o for c in code for o in c.outputs]
+    assert not [o for o in outputs if o.output_type == "error"]
+    assert sum("image/png" in o.get("data", {}) for o in outputs) >= 3
+
+
+@pytest.mark.slow
+def test_notebook_runs(tmp_path):
+    nbtool = _tool("notebook")
+    nb = nbtool.execute(nbtool.notebook(), small=True)
+    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs]
+    assert not [o for o in outputs if o.output_type == "error"]
+    assert sum("image/png" in o.get("data", {}) for o in outputs) >= 3
+    text = "".join(o.get("text", "") for o in outputs)
+    assert "leica-sofort" in text and "injections" in text
