@@ -198,3 +198,37 @@ def storm_figure(df: pd.DataFrame):
     a2.legend(fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def state_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Criticality of each pipeline-state target (faults/state.py records): catastrophic and DUE
+    rates with intervals, stratified by bit, per target and bit class (the float targets' sign,
+    exponent and mantissa; the integer targets' high half and low half)."""
+    from seuwgpu.analysis.estimate import rate
+
+    d = df.copy()
+    floats = d["target"].isin(["xy", "conic", "rgb", "pixel"])
+    cls = np.where(d["bit"] == 31, "sign", np.where(d["bit"] >= 23, "exponent", "mantissa"))
+    d["bit_class"] = np.where(floats, cls, np.where(d["bit"] >= 16, "high half", "low half"))
+    d["weight"] = 1.0  # each (target, bit) cell equally: the table is per cell class
+    out = []
+    for by in (["target"], ["target", "bit_class"]):
+        cat = rate(d, "catastrophic", by, strata=("target", "bit"), prefix="cat_")
+        due = rate(d, "due", by, strata=("target", "bit"), prefix="due_")
+        t = cat.merge(due[by + ["due_events", "due_rate", "due_ci_lo", "due_ci_hi"]], on=by)
+        if "bit_class" not in t:
+            t.insert(1, "bit_class", "all")
+        out.append(t)
+    t = pd.concat(out, ignore_index=True).sort_values(["target", "bit_class"], kind="stable")
+    keep = [
+        "target",
+        "bit_class",
+        "cat_n",
+        "cat_events",
+        "cat_rate",
+        "cat_ci_lo",
+        "cat_ci_hi",
+        "due_events",
+        "due_rate",
+    ]
+    return t[keep].reset_index(drop=True)
