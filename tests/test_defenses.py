@@ -163,3 +163,28 @@ def test_defenses_command_lists_every_defense_as_json(capsys):
     assert main(["defenses", "--scene", "blocks", "--n", "300", "--no-time", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)
     assert all(math.isnan(r["time_fraction"]) and r["time_basis"] == "not measured" for r in rows)
+
+
+@pytest.mark.parametrize("precision", encoding.PRECISIONS)
+def test_checksum_and_parity4r_undo_every_single_and_adjacent_flip(real, precision):
+    """Exhaustive over one primitive: every bit of every value, every burst of 2-4 bits: checksum
+    reloads all of them; parity4r all those touching its covered bits (the rest: low mantissa)."""
+    rows = stored_rows(real, precision)[[7]]
+    nb = encoding.bits_per_value(precision)
+    cover = dfn.parity_cover_mask(precision)
+    bad, covered = [], []
+    for c in range(rows.shape[1]):
+        for w in (1, 2, 3, 4):
+            for lo in range(nb - w + 1):
+                m = ((1 << w) - 1) << lo
+                r = rows.copy()
+                r[0, c] ^= r.dtype.type(m)
+                bad.append(r[0])
+                covered.append(bool(m & cover))
+    bad = np.stack(bad)
+    clean = np.repeat(rows, len(bad), axis=0)
+    np.testing.assert_array_equal(dfn.read("checksum", clean, bad, precision, 3), clean)
+    got = dfn.read("parity4r", clean, bad, precision, 3)
+    covered = np.array(covered)
+    np.testing.assert_array_equal(got[covered], clean[covered])
+    np.testing.assert_array_equal(got[~covered], bad[~covered])

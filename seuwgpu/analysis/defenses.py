@@ -2,8 +2,8 @@
 campaign) with 95% intervals, overall and on the dangerous cells, next to its memory overhead and
 time cost, the Pareto front, and the issue's goal check.
 
-Rates are stratified by (field, bit) cell: each cell's rate weighted by the stored bits it stands
-for (the records' `weight`), with a Wilson interval at the Kish effective n (analysis/stats.py).
+Rates come from the estimator layer (analysis/estimate.py `one_rate`): stratified by cell, each
+weighted by the stored bits it stands for, with a stratified Wilson interval.
 
 The dangerous cells (DANGEROUS_BITS) are where an unprotected trained model fails: a log-scale's
 sign and top exponent bit (a small splat becomes a frame-covering sheet) and opacity's top
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from seuwgpu.analysis import estimate as E
+from seuwgpu.analysis.estimate import one_rate
 from seuwgpu.faults.defenses import DEFENSES, memory_overhead
 from seuwgpu.model import encoding
 
@@ -41,10 +41,8 @@ def dangerous_mask(df: pd.DataFrame) -> pd.Series:
 
 
 def _rate(df: pd.DataFrame) -> tuple[float, float, float, int, int]:
-    """(rate, lo, hi, n, catastrophic): the weighted stratified rate of the estimator layer."""
-    if df.empty:
-        return float("nan"), float("nan"), float("nan"), 0, 0
-    r = E.one_rate(df)
+    """(rate, lo, hi, n, catastrophic), stratified (estimate.one_rate)."""
+    r = one_rate(df)
     return float(r["rate"]), float(r["ci_lo"]), float(r["ci_hi"]), int(r["n"]), int(r["events"])
 
 
@@ -200,3 +198,37 @@ def storm_figure(df: pd.DataFrame):
     a2.legend(fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def state_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Criticality of each pipeline-state target (faults/state.py records): catastrophic and DUE
+    rates with intervals, stratified by bit, per target and bit class (the float targets' sign,
+    exponent and mantissa; the integer targets' high half and low half)."""
+    from seuwgpu.analysis.estimate import rate
+
+    d = df.copy()
+    floats = d["target"].isin(["xy", "conic", "rgb", "pixel"])
+    cls = np.where(d["bit"] == 31, "sign", np.where(d["bit"] >= 23, "exponent", "mantissa"))
+    d["bit_class"] = np.where(floats, cls, np.where(d["bit"] >= 16, "high half", "low half"))
+    d["weight"] = 1.0  # each (target, bit) cell equally: the table is per cell class
+    out = []
+    for by in (["target"], ["target", "bit_class"]):
+        cat = rate(d, "catastrophic", by, strata=("target", "bit"), prefix="cat_")
+        due = rate(d, "due", by, strata=("target", "bit"), prefix="due_")
+        t = cat.merge(due[by + ["due_events", "due_rate", "due_ci_lo", "due_ci_hi"]], on=by)
+        if "bit_class" not in t:
+            t.insert(1, "bit_class", "all")
+        out.append(t)
+    t = pd.concat(out, ignore_index=True).sort_values(["target", "bit_class"], kind="stable")
+    keep = [
+        "target",
+        "bit_class",
+        "cat_n",
+        "cat_events",
+        "cat_rate",
+        "cat_ci_lo",
+        "cat_ci_hi",
+        "due_events",
+        "due_rate",
+    ]
+    return t[keep].reset_index(drop=True)

@@ -589,6 +589,31 @@ def cmd_storm(args):
     return 0
 
 
+def cmd_state(args):
+    """Transient pipeline-state flips of one frame: records and a criticality table per target."""
+    from seuwgpu.analysis.defenses import state_table
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.faults.state import state_campaign
+
+    src = load_source(args)
+    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name)
+    df = state_campaign(eng, args.targets, args.samples, args.bit or range(32), args.seed)
+    args.out.mkdir(parents=True, exist_ok=True)
+    df.to_parquet(args.out / "state.parquet", index=False)
+    t = state_table(df)
+    (args.out / "state_criticality.csv").write_text(t.to_csv(index=False))
+    with pd_display():
+        print(t.to_string(index=False))
+    print(f"records: {args.out / 'state.parquet'}; table: {args.out / 'state_criticality.csv'}")
+    return 0
+
+
+def pd_display():
+    import pandas as pd
+
+    return pd.option_context("display.width", 200, "display.max_columns", 20, "display.precision", 4)
+
+
 def cmd_view(args):
     """`seuwgpu view`: the interactive viewer (apps/viewer_window.py)."""
     from seuwgpu.apps.viewer_window import NO_DISPLAY_HELP, canvas_backend, display_problem
@@ -636,6 +661,7 @@ def cmd_view(args):
 
 def build_parser() -> argparse.ArgumentParser:
     from seuwgpu.faults.sites import FAULT_MODELS
+    from seuwgpu.faults.state import TARGETS as STATE_TARGETS
 
     p = argparse.ArgumentParser(
         prog="seuwgpu", description="Single-event-upset fault injection for 3D Gaussian splatting (WGSL, wgpu)"
@@ -839,6 +865,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--defense", nargs="+", default=["none", "guard", "parity4r"], choices=DEFENSES)
     s.add_argument("--out", type=Path, required=True)
     s.set_defaults(func=cmd_storm)
+
+    s = sub.add_parser("state", help="transient flips in one frame's pipeline state: criticality per target")
+    add_model_args(s)
+    add_camera_args(s, views=2, size="128x128")
+    s.add_argument("--targets", nargs="+", default=list(STATE_TARGETS), choices=STATE_TARGETS)
+    s.add_argument("--samples", type=int, default=10, help="flips per (target, bit) cell")
+    s.add_argument("--bit", type=int, nargs="+", help="bits (default: all 32)")
+    s.add_argument("--out", type=Path, required=True)
+    s.set_defaults(func=cmd_state)
 
     s = sub.add_parser("report", help="tables, figures and an HTML page from run directories")
     s.add_argument("runs", type=Path, nargs="+")

@@ -212,13 +212,18 @@ class Renderer:
         for c in range(L.n_chunks):
             lo, hi = L.chunk_range(c)
             p.encode(encoder, v * L.n_chunks + c, self.chunks[c], hi - lo, self.box_buf, self.guard_counts)
+        self._state_hook(encoder, v, "projected")
         self.sorting.encode_depth(encoder, p.depth_keys, p.depth_vals)
         b.encode_emit(encoder, v, p.rect, p.depth_vals)
+        self._state_hook(encoder, v, "emitted")
         self.sorting.encode_tiles(encoder, b.isect_tiles, b.isect_prims, b.total(v), self.n_tiles)
+        self._state_hook(encoder, v, "sorted")
         b.encode_ranges(encoder, v)
+        self._state_hook(encoder, v, "ranged")
         self.compositing.encode(
             encoder, b.params.binding(v), b.ranges, b.isect_prims, p.xy, p.conic, p.rgb, (self.tiles_x, self.tiles_y)
         )
+        self._state_hook(encoder, v, "composited")
         if self.keep_views and self.capture_views:
             n = self.n
             encoder.copy_buffer_to_buffer(p.xy, 0, self.kv_xy, 8 * n * v, 8 * n)
@@ -227,6 +232,15 @@ class Renderer:
             encoder.copy_buffer_to_buffer(p.rect, 0, self.kv_rect, 8 * n * v, 8 * n)
             encoder.copy_buffer_to_buffer(b.isect_prims, 0, self.kv_isect, 4 * self.capacity * v, 4 * self.capacity)
             encoder.copy_buffer_to_buffer(b.ranges, 0, self.kv_ranges, 8 * self.n_tiles * v, 8 * self.n_tiles)
+
+    # A transient fault in the pipeline state of one frame (faults/state.py): `state_fault` is
+    # None or an object with .view, .point and .encode(encoder), recorded after that stage.
+    state_fault = None
+
+    def _state_hook(self, encoder, v: int, point: str):
+        f = self.state_fault
+        if f is not None and f.view == v and f.point == point:
+            f.encode(encoder)
 
     def encode(self, encoder):
         for v in range(self.k):
