@@ -189,8 +189,10 @@ def test_uniform_upsets_cover_the_whole_budget():
 
 
 @pytest.mark.parametrize("precision", encoding.PRECISIONS)
-def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision):
-    from seuwgpu.faults.guard import clamp_bits
+@pytest.mark.parametrize("fields, wpt", [(FIELDS[:5], 4), (("log_scales", "opacity"), 128)])
+def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision, fields, wpt):
+    """The scrub against its twin, for both thread shapes (GPU: 4 words per thread, CPU: 128)."""
+    from seuwgpu.faults.guard import Scrub, clamp_bits
 
     model = random_model(97, seed=13)
     r = Renderer(model, scene_cameras("spheres", 1, 32, 32), precision)
@@ -202,13 +204,15 @@ def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision):
     bits[3, 4] ^= sign  # log-scale sign flip: above the box
     bits[5, 10] = top  # opacity NaN -> lower bound
     bits[7, 20] = snan  # signalling NaN in sh_rest: not guarded
-    bits[9, 0] = snan  # ... and in a mean: guarded
-    mask = component_mask(FIELDS[:5], 3)
+    bits[9, 0] = snan  # ... and in a mean: guarded by the full guard only
+    bits[96, 4] ^= sign  # the last primitive (the low half of a 16-bit word)
+    mask = component_mask(fields, 3)
     want, hit = clamp_bits(bits, box, mask)
     for c, words in enumerate(r.layout.encode_bits(bits)):
         r.gpu.write(r.chunks[c], words)
-    scrub(r, box, FIELDS[:5])
+    counts = Scrub(r, words_per_thread=wpt).run(box, component_mask(fields, 3))
     got = np.concatenate([r.read_words(c) for c in range(r.layout.n_chunks)])
     assert np.array_equal(got, np.concatenate(r.layout.encode_bits(want)))
-    assert hit[5, 10] and hit[9, 0] and not hit[7, 20]
+    assert hit[5, 10] and hit[96, 4] and hit[9, 0] == ("means" in fields) and not hit[7, 20]
+    assert sum(counts.values()) == hit.sum()
     assert want[7, 20] == snan  # payload untouched, bit for bit

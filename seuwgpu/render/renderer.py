@@ -183,20 +183,22 @@ class Renderer:
         if capacity == self.capacity and not force:
             return
         g = self.gpu
-        old_capacity, old_kv = self.capacity, getattr(self, "kv_isect", None)
+        old_capacity = self.capacity
+        old_kv = {name: getattr(self, name, None) for name in ("kv_isect", "kv_box")}
         if capacity != self.capacity:
             self.capacity = capacity
             self.binning.set_capacity(capacity)
             self.sorting.set_capacity(capacity)
         if self.keep_views:  # one tile list per view: follows both the capacity and the view count
-            self.kv_isect = g.buffer(4 * self.capacity * self.k, STORAGE, "kv_isect")
-            if old_kv is not None and not force:
-                enc = g.device.create_command_encoder()
-                for v in range(self.k):
-                    enc.copy_buffer_to_buffer(
-                        old_kv, 4 * old_capacity * v, self.kv_isect, 4 * self.capacity * v, 4 * old_capacity
-                    )
-                g.submit(enc)
+            enc = g.device.create_command_encoder()
+            for name, old in old_kv.items():  # the pairs' primitives and pixel boxes
+                new = g.buffer(4 * self.capacity * self.k, STORAGE, name)
+                setattr(self, name, new)
+                if old is not None and not force:
+                    for v in range(self.k):
+                        old_at, new_at = 4 * old_capacity * v, 4 * self.capacity * v
+                        enc.copy_buffer_to_buffer(old, old_at, new, new_at, 4 * old_capacity)
+            g.submit(enc)
         self.version += 1  # the kept-view buffers may have been replaced
         self._write_params()
 
@@ -221,7 +223,15 @@ class Renderer:
         b.encode_ranges(encoder, v)
         self._state_hook(encoder, v, "ranged")
         self.compositing.encode(
-            encoder, b.params.binding(v), b.ranges, b.isect_prims, p.xy, p.conic, p.rgb, (self.tiles_x, self.tiles_y)
+            encoder,
+            b.params.binding(v),
+            b.ranges,
+            b.isect_prims,
+            p.xy,
+            p.conic,
+            p.rgb,
+            (self.tiles_x, self.tiles_y),
+            b.isect_box,
         )
         self._state_hook(encoder, v, "composited")
         if self.keep_views and self.capture_views:
@@ -231,6 +241,7 @@ class Renderer:
             encoder.copy_buffer_to_buffer(p.rgb, 0, self.kv_rgb, 16 * n * v, 16 * n)
             encoder.copy_buffer_to_buffer(p.rect, 0, self.kv_rect, 8 * n * v, 8 * n)
             encoder.copy_buffer_to_buffer(b.isect_prims, 0, self.kv_isect, 4 * self.capacity * v, 4 * self.capacity)
+            encoder.copy_buffer_to_buffer(b.isect_box, 0, self.kv_box, 4 * self.capacity * v, 4 * self.capacity)
             encoder.copy_buffer_to_buffer(b.ranges, 0, self.kv_ranges, 8 * self.n_tiles * v, 8 * self.n_tiles)
 
     # A transient fault in the pipeline state of one frame (faults/state.py): `state_fault` is
