@@ -2,7 +2,7 @@
 
     python tools/study.py --out runs/study               # the full study (long: see docs/study)
     python tools/study.py --out runs/study-small --small # the same pipeline at a tiny scale
-    python tools/study.py --out runs/study-cpu --cpu     # a CPU-sized study (about an hour on lavapipe)
+    python tools/study.py --out runs/study-cpu --cpu     # a CPU-sized study (about half an hour on lavapipe)
 
 --small keeps the scenes, precisions, defenses and analyses but shrinks every spec (64 px, 2 views,
 2 samples per cell, 3 dose repeats up to k = 1,000, sizes sampled 2 per cell) so the whole chain
@@ -38,15 +38,15 @@ def shrink(raw: dict) -> dict:
 
 
 def cpu_sized(raw: dict) -> dict:
-    """The study at the scale a 2-core CPU (lavapipe) runs in about an hour: the same scenes, 256 px,
-    4 views, precisions, defenses and analyses, with fewer samples per cell (48 single upsets per
-    (field, bit) cell and scene, 8 per cell and size in the size sweep); the dose sweep unchanged."""
+    """The study at the scale a 2-core CPU (lavapipe) runs in about half an hour: the same scenes, 256 px,
+    4 views, precisions, defenses and analyses, with fewer samples per cell (16 single upsets per
+    (field, bit) cell and scene, 4 per cell and size in the size sweep); the dose sweep unchanged."""
     raw = dict(raw)
     raw["name"] = raw.get("name", "study") + "-cpu"
     if "single" in raw:
-        raw["single"] = dict(raw["single"], samples=48)
+        raw["single"] = dict(raw["single"], samples=16)
     if "sizes" in raw:
-        raw["sizes"] = dict(raw["sizes"], samples=8)
+        raw["sizes"] = dict(raw["sizes"], samples=4)
     return raw
 
 
@@ -55,7 +55,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, help="folder for the runs, the report and timings.json")
     scale = ap.add_mutually_exclusive_group()
     scale.add_argument("--small", action="store_true", help="a tiny version of every spec (minutes)")
-    scale.add_argument("--cpu", action="store_true", help="fewer samples per cell (about an hour on lavapipe)")
+    scale.add_argument("--cpu", action="store_true", help="fewer samples per cell (about half an hour on lavapipe)")
     ap.add_argument("--specs", nargs="*", default=list(SPECS), help="spec files of docs/study to run")
     args = ap.parse_args(argv)
 
