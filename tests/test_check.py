@@ -28,7 +28,7 @@ def test_gpu_checks_equal_the_twin(precision):
         w = 1 + i % 4
         top = int(rng.integers(w - 1, nb))
         bad[p, c] ^= bad.dtype.type(((1 << w) - 1) << (top - w + 1))
-    bad[hit[0], 20] ^= bad.dtype.type(1 << (nb - 2))  # sh_rest: only the checksum sees it
+    bad[hit[0], 20] ^= bad.dtype.type(1 << (nb - 2))  # sh_rest: the checksum and parity4r see it
     bad[hit[1], 4] = encoding.to_bits(np.float32([np.nan]), precision)[0]  # NaN log-scale: not scalebound's
     for c, words in enumerate(r.layout.encode_bits(bad)):
         r.gpu.write(r.chunks[c], words)

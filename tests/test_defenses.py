@@ -56,6 +56,13 @@ def test_parity_catches_what_it_covers_and_culls(real):
     bad[:, 20] ^= np.uint32(1 << 30)
     for d in ("parity", "parity4"):
         np.testing.assert_array_equal(dfn.read(d, rows, bad, p, deg), bad)
+    # parity4r covers sh_rest too and reloads: the sh_rest flip is undone, the low mantissa one not
+    got = dfn.read("parity4r", rows, bad, p, deg)
+    np.testing.assert_array_equal(got[:, 20], rows[:, 20])
+    np.testing.assert_array_equal(got[:, 3], rows[:, 3])  # reloaded whole: its primitive was flagged
+    only_low = rows.copy()
+    only_low[:, 3] ^= np.uint32(1 << 10)
+    np.testing.assert_array_equal(dfn.read("parity4r", rows, only_low, p, deg), only_low)
 
 
 def test_checksum_reloads_every_single_value_change(real):
@@ -136,3 +143,48 @@ def test_a_culled_primitive_renders_as_if_removed():
     assert not np.array_equal(got, eng.clean_rgba)  # the victim was visible
     rec = eng.inject(site, "parity4")
     assert rec["footprint"] == float(np.mean(np.any(np.abs(want[..., :3] - eng.clean) > 1 / 255, axis=-1)))
+
+
+def test_defenses_command_lists_every_defense_as_json(capsys):
+    import json
+    import math
+
+    from seuwgpu.apps.cli import main
+
+    assert main(["defenses", "--scene", "blocks", "--n", "300", "--size", "32x32", "--repeats", "1", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["name"] for r in rows] == list(dfn.DEFENSES)
+    for r in rows:
+        assert set(r) == {"name", "memory_overhead", "time_fraction", "time_basis", "description"}
+        assert r["memory_overhead"] == pytest.approx(dfn.memory_overhead(r["name"], "fp32", 3, 300))
+        gpu_side = r["name"] in dfn.CHECKED or r["name"] in dfn.PIPELINE_GUARD or r["name"] == "none"
+        assert math.isfinite(r["time_fraction"]) == gpu_side, r
+        assert r["time_basis"].startswith("measured") == gpu_side
+    assert main(["defenses", "--scene", "blocks", "--n", "300", "--no-time", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert all(math.isnan(r["time_fraction"]) and r["time_basis"] == "not measured" for r in rows)
+
+
+@pytest.mark.parametrize("precision", encoding.PRECISIONS)
+def test_checksum_and_parity4r_undo_every_single_and_adjacent_flip(real, precision):
+    """Exhaustive over one primitive: every bit of every value, every burst of 2-4 bits: checksum
+    reloads all of them; parity4r all those touching its covered bits (the rest: low mantissa)."""
+    rows = stored_rows(real, precision)[[7]]
+    nb = encoding.bits_per_value(precision)
+    cover = dfn.parity_cover_mask(precision)
+    bad, covered = [], []
+    for c in range(rows.shape[1]):
+        for w in (1, 2, 3, 4):
+            for lo in range(nb - w + 1):
+                m = ((1 << w) - 1) << lo
+                r = rows.copy()
+                r[0, c] ^= r.dtype.type(m)
+                bad.append(r[0])
+                covered.append(bool(m & cover))
+    bad = np.stack(bad)
+    clean = np.repeat(rows, len(bad), axis=0)
+    np.testing.assert_array_equal(dfn.read("checksum", clean, bad, precision, 3), clean)
+    got = dfn.read("parity4r", clean, bad, precision, 3)
+    covered = np.array(covered)
+    np.testing.assert_array_equal(got[covered], clean[covered])
+    np.testing.assert_array_equal(got[~covered], bad[~covered])

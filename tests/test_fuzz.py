@@ -211,7 +211,9 @@ SCENE = st.dictionaries(
     max_size=4,
 )
 TABLE = st.dictionaries(
-    st.sampled_from(["precisions", "fields", "bits", "samples", "sampling", "defenses", "regions", "k", "repeats"]),
+    st.sampled_from(
+        ["precisions", "fields", "bits", "samples", "sampling", "defenses", "regions", "k", "repeats", "fault"]
+    ),
     VALUE | st.sampled_from(["all", ["none", "none"], ["fp32"], ["opacity"], [0, 31], {"margin": 0.1}]),
     max_size=4,
 )
@@ -219,7 +221,11 @@ TABLE = st.dictionaries(
 
 @FUZZ
 @given(
-    top=st.dictionaries(st.sampled_from(["seed", "views", "size", "scale", "batch", "name"]), VALUE, max_size=4),
+    top=st.dictionaries(
+        st.sampled_from(["seed", "views", "size", "scale", "batch", "name", "profile", "outcomes"]),
+        VALUE | st.dictionaries(st.sampled_from(["pixel_threshold", "footprint", "x"]), VALUE, max_size=2),
+        max_size=4,
+    ),
     scenes=st.lists(SCENE, max_size=2),
     tables=st.dictionaries(st.sampled_from(["single", "dose", "sizes"]), TABLE, max_size=2),
 )

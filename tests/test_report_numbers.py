@@ -248,3 +248,52 @@ def test_dose_numbers(run):
     # 6 of 10 frames at k = 100 are non-finite: the median frame is non-finite, never "0 dB"
     assert num["dose_psnr_median_at_kmax_none_db"] == "-inf" and num["dose_nonfinite_at_kmax_none_pct"] == 60
     assert not re.search(r"(?<![0-9.])0(\.0+)? dB", (out / "report.md").read_text())
+
+
+def test_theory_budget_and_lookup_auc(run):
+    rec, out, summary = run
+    num = summary["numbers"]
+    # theory: weighted mean peak error per log-scale mantissa bit, log2 slope over the bits whose
+    # mean lies in (1e-5, 0.1] (all positive ones when fewer than 3 do)
+    s = rec[(rec["campaign"] == "single") & (rec["defense"] == "none")]
+    m = s[(s["field"] == "log_scales") & (s["bit"] < 23) & np.isfinite(s["peak_error"])]
+    mean = m.groupby("bit").apply(lambda g: np.average(g["peak_error"], weights=g["weight"]), include_groups=False)
+    use = mean[(mean > 1e-5) & (mean <= 0.1)]
+    if len(use) < 3:
+        use = mean[mean > 0]
+    slope = np.polyfit(use.index.to_numpy(float), np.log2(use.to_numpy()), 1)[0]
+    assert num["theory_slope"] == pytest.approx(slope)
+    # redundancy budget: first k where the lower median PSNR (non-finite lowest) is <= 30 dB,
+    # interpolated linearly in log k
+    d = rec[rec["campaign"] == "dose"]
+    for dfn, g in d.groupby("defense"):
+        med = g.groupby("k").apply(
+            lambda x: np.sort(np.where(x["nonfinite"], -np.inf, x["psnr"]))[(len(x) - 1) // 2], include_groups=False
+        )
+        ks, v = med.index.to_numpy(float), med.to_numpy()
+        below = np.nonzero(v <= 30)[0]
+        key = f"budget_k_big_4000_fp32_{dfn}"
+        if not below.size:
+            assert num[key] == f">={ks[-1]:.4g}"
+            continue
+        i = below[0]
+        if i == 0 or not np.isfinite(v[i]):
+            assert num[key] == f"<={ks[i]:.4g}"
+            continue
+        t = (v[i - 1] - 30) / (v[i - 1] - v[i])
+        kb = math.exp(math.log(ks[i - 1]) + t * (math.log(ks[i]) - math.log(ks[i - 1])))
+        assert num[key] == f"{kb:.4g}"
+    # the (field, bit) lookup's held-out AUC, weighted, on the same stratified 30% split
+    from sklearn.metrics import roc_auc_score
+    from sklearn.model_selection import train_test_split
+
+    p = s[s["bit"] >= 0]
+    y = p["catastrophic"].to_numpy(bool)
+    tr, te = train_test_split(np.arange(len(p)), test_size=0.3, stratify=y, random_state=0)
+    a, b = p.iloc[tr], p.iloc[te]
+    cell = a.assign(wy=a["weight"] * a["catastrophic"]).groupby(["field", "bit"])[["wy", "weight"]].sum()
+    rate = (cell["wy"] / cell["weight"]).to_dict()
+    base = (a["weight"] * a["catastrophic"]).sum() / a["weight"].sum()
+    score = [rate.get((f, bb), base) for f, bb in zip(b["field"], b["bit"])]
+    auc = roc_auc_score(b["catastrophic"], score, sample_weight=b["weight"])
+    assert num["pred_auc_lookup"][0] == pytest.approx(auc)

@@ -18,7 +18,7 @@ from seuwgpu.campaign.merge import merge
 from seuwgpu.campaign.runner import Runner
 from seuwgpu.campaign.spec import SpecError, load_spec, normalize_spec, spec_hash
 from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
-from seuwgpu.model.budget import check_render
+from seuwgpu.model.budget import check_frames, check_render
 from seuwgpu.model.cameras import CameraFileError, read_cameras
 from seuwgpu.model.formats import ModelFileError, read_model, save_model
 from seuwgpu.model.scenes import make_scene
@@ -44,7 +44,9 @@ def tiny_spec(tmp_path, scene='scene = "spheres"\n    n = 200', name="spec.toml"
 
 
 def records(run):
-    return store.read_records(run).sort_values(["injection_id", "defense"]).reset_index(drop=True)
+    """A run's records in a canonical order, without the wall-clock time_ms (never reproduced)."""
+    df = store.read_records(run).sort_values(["injection_id", "defense"]).reset_index(drop=True)
+    return df[store.REPRODUCIBLE_COLUMNS]
 
 
 @pytest.fixture(scope="module")
@@ -180,6 +182,8 @@ def test_too_big_jobs_are_refused_saying_what_fits(monkeypatch):
         check_render(limits, False, 9_000_000, 0, 1, 64, 64, False)
     with pytest.raises(TooBig, match="at most 2 view"):
         check_render(limits, False, 100, 0, 3, 2048, 2048, False)
+    with pytest.raises(TooBig, match="64 view.* of 2048x2048 need 3.2 GB of host memory for the frames"):
+        check_frames(64, 2048, 2048)
 
 
 def main_or_raise(argv):

@@ -2,6 +2,7 @@
 
     python tools/study.py --out runs/study               # the full study (long: see docs/study)
     python tools/study.py --out runs/study-small --small # the same pipeline at a tiny scale
+    python tools/study.py --out runs/study-cpu --cpu     # a CPU-sized study (about half an hour on lavapipe)
 
 --small keeps the scenes, precisions, defenses and analyses but shrinks every spec (64 px, 2 views,
 2 samples per cell, 3 dose repeats up to k = 1,000, sizes sampled 2 per cell) so the whole chain
@@ -19,7 +20,7 @@ import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SPECS = ("study.toml", "study_dose.toml", "study_size.toml")
+SPECS = ("study.toml", "study_gsplat.toml", "study_dose.toml", "study_size.toml")
 
 
 def shrink(raw: dict) -> dict:
@@ -36,10 +37,25 @@ def shrink(raw: dict) -> dict:
     return raw
 
 
+def cpu_sized(raw: dict) -> dict:
+    """The study at the scale a 2-core CPU (lavapipe) runs in about half an hour: the same scenes, 256 px,
+    4 views, precisions, defenses and analyses, with fewer samples per cell (16 single upsets per
+    (field, bit) cell and scene, 4 per cell and size in the size sweep); the dose sweep unchanged."""
+    raw = dict(raw)
+    raw["name"] = raw.get("name", "study") + "-cpu"
+    if "single" in raw:
+        raw["single"] = dict(raw["single"], samples=16)
+    if "sizes" in raw:
+        raw["sizes"] = dict(raw["sizes"], samples=4)
+    return raw
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, help="folder for the runs, the report and timings.json")
-    ap.add_argument("--small", action="store_true", help="a tiny version of every spec (minutes)")
+    scale = ap.add_mutually_exclusive_group()
+    scale.add_argument("--small", action="store_true", help="a tiny version of every spec (minutes)")
+    scale.add_argument("--cpu", action="store_true", help="fewer samples per cell (about half an hour on lavapipe)")
     ap.add_argument("--specs", nargs="*", default=list(SPECS), help="spec files of docs/study to run")
     args = ap.parse_args(argv)
 
@@ -51,13 +67,15 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     gpu = get_gpu()
-    timings = {"device": str(gpu.info.get("device", gpu.info)), "small": args.small, "steps": []}
+    timings = {"device": str(gpu.info.get("device", gpu.info)), "small": args.small, "cpu": args.cpu, "steps": []}
     runs = []
     for name in args.specs:
         path = ROOT / "docs" / "study" / name
         raw = tomllib.loads(path.read_text())
         if args.small:
             raw = shrink(raw)
+        elif args.cpu:
+            raw = cpu_sized(raw)
         spec = normalize_spec(raw, path.parent)
         run_dir = out / Path(name).stem
         t0 = time.perf_counter()

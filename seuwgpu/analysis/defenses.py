@@ -2,8 +2,8 @@
 campaign) with 95% intervals, overall and on the dangerous cells, next to its memory overhead and
 time cost, the Pareto front, and the issue's goal check.
 
-Rates are stratified by (field, bit) cell: each cell's rate weighted by the stored bits it stands
-for (the records' `weight`), with a Wilson interval at the Kish effective n (analysis/stats.py).
+Rates come from the estimator layer (analysis/estimate.py `one_rate`): stratified by cell, each
+weighted by the stored bits it stands for, with a stratified Wilson interval.
 
 The dangerous cells (DANGEROUS_BITS) are where an unprotected trained model fails: a log-scale's
 sign and top exponent bit (a small splat becomes a frame-covering sheet) and opacity's top
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from seuwgpu.analysis.stats import stratified_rate
+from seuwgpu.analysis.estimate import one_rate
 from seuwgpu.faults.defenses import DEFENSES, memory_overhead
 from seuwgpu.model import encoding
 
@@ -41,14 +41,14 @@ def dangerous_mask(df: pd.DataFrame) -> pd.Series:
 
 
 def _rate(df: pd.DataFrame) -> tuple[float, float, float, int, int]:
-    """(rate, lo, hi, n, catastrophic) stratified by (field, bit) cell."""
-    if df.empty:
-        return float("nan"), float("nan"), float("nan"), 0, 0
-    g = df.groupby(["field", "bit"], observed=True).agg(
-        k=("catastrophic", "sum"), n=("catastrophic", "size"), w=("weight", "sum")
-    )
-    p, lo, hi, _ = stratified_rate(g["k"], g["n"], g["w"])
-    return p, float(lo), float(hi), int(g["n"].sum()), int(g["k"].sum())
+    """(rate, lo, hi, n, catastrophic), stratified (estimate.one_rate)."""
+    r = one_rate(df)
+    return float(r["rate"]), float(r["ci_lo"]), float(r["ci_hi"]), int(r["n"]), int(r["events"])
+
+
+def has_new_defenses(df: pd.DataFrame) -> bool:
+    """Records hold a defense beyond the guard variants, ECC and duplication."""
+    return bool(set(df.get("defense", pd.Series(dtype=str)).unique()) - {"none", "guard", "selective", "ecc", "dup"})
 
 
 def load_timing(path) -> dict:
@@ -132,7 +132,19 @@ def _degree(part: pd.DataFrame) -> int:
 
 
 def pareto_plot(table: pd.DataFrame, path) -> Path:
-    """Residual catastrophic rate (95% interval) against memory overhead, one panel per scene."""
+    """`pareto_figure` saved as a PNG."""
+    import matplotlib.pyplot as plt
+
+    fig = pareto_figure(table)
+    path = Path(path)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def pareto_figure(table: pd.DataFrame):
+    """Residual catastrophic rate (95% interval) against memory overhead, one panel per scene;
+    the Pareto front dashed, its members in bold."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -158,7 +170,65 @@ def pareto_plot(table: pd.DataFrame, path) -> Path:
         ax.set_ylabel("residual catastrophic rate (%)")
         ax.set_title(scene)
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return fig
+
+
+def storm_figure(df: pd.DataFrame):
+    """Footprint and PSNR of every frame of a fault storm, one line per defense (campaign/storm.py
+    records); non-finite frames (PSNR undefined) are marked on the footprint panel."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    for d, t in df.groupby("defense", sort=False):
+        t = t.sort_values("frame")
+        (line,) = a1.plot(t["frame"], 100 * t["footprint"], label=d)
+        bad = t[t["nonfinite"]]
+        a1.plot(bad["frame"], 100 * bad["footprint"], "x", color=line.get_color())
+        a2.plot(t["frame"], t["psnr"].replace(np.inf, np.nan), label=d, color=line.get_color())
+    r = df.iloc[0]
+    a1.set_title(f"{r['scene']}: {r['k']} upsets/frame, scrub every {r['scrub_every'] or 'never'}")
+    a1.set_xlabel("frame")
+    a1.set_ylabel("footprint (% of pixels; x = non-finite)")
+    a1.set_yscale("symlog", linthresh=0.01)
+    a2.set_xlabel("frame")
+    a2.set_ylabel("PSNR (dB; gaps: identical or undefined)")
+    a2.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def state_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Criticality of each pipeline-state target (faults/state.py records): catastrophic and DUE
+    rates with intervals, stratified by bit, per target and bit class (the float targets' sign,
+    exponent and mantissa; the integer targets' high half and low half)."""
+    from seuwgpu.analysis.estimate import rate
+
+    d = df.copy()
+    floats = d["target"].isin(["xy", "conic", "rgb", "pixel"])
+    cls = np.where(d["bit"] == 31, "sign", np.where(d["bit"] >= 23, "exponent", "mantissa"))
+    d["bit_class"] = np.where(floats, cls, np.where(d["bit"] >= 16, "high half", "low half"))
+    d["weight"] = 1.0  # each (target, bit) cell equally: the table is per cell class
+    out = []
+    for by in (["target"], ["target", "bit_class"]):
+        cat = rate(d, "catastrophic", by, strata=("target", "bit"), prefix="cat_")
+        due = rate(d, "due", by, strata=("target", "bit"), prefix="due_")
+        t = cat.merge(due[by + ["due_events", "due_rate", "due_ci_lo", "due_ci_hi"]], on=by)
+        if "bit_class" not in t:
+            t.insert(1, "bit_class", "all")
+        out.append(t)
+    t = pd.concat(out, ignore_index=True).sort_values(["target", "bit_class"], kind="stable")
+    keep = [
+        "target",
+        "bit_class",
+        "cat_n",
+        "cat_events",
+        "cat_rate",
+        "cat_ci_lo",
+        "cat_ci_hi",
+        "due_events",
+        "due_rate",
+    ]
+    return t[keep].reset_index(drop=True)

@@ -515,6 +515,105 @@ def cmd_inject(args):
     return 0
 
 
+def cmd_defenses(args):
+    """Every defense with its memory overhead and its time cost, measured on this device for the
+    named model (or not measured with --no-time: time_fraction NaN)."""
+    from seuwgpu.faults.costs import defense_costs
+
+    if args.scene is None and args.model is None:
+        args.scene = "leica-sofort"
+    src = load_source(args)
+    cam = load_cams(args, src)[0]
+    rows = defense_costs(src.model, cam, args.precision, args.repeats, time_it=not args.no_time)
+    if args.json:
+        import json
+
+        print(json.dumps(rows, indent=1, allow_nan=True))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(
+        title=f"defenses on {src.name} ({src.model.n:,} primitives, {args.precision}); time: {rows[0]['time_basis']}"
+    )
+    for c in ("defense", "memory", "time / view", "what it does"):
+        t.add_column(c, justify="right" if c in ("memory", "time / view") else "left")
+    for r in rows:
+        tf = r["time_fraction"]
+        t.add_row(
+            r["name"],
+            f"{100 * r['memory_overhead']:.3f}%",
+            "n/a" if tf != tf else f"{100 * tf:+.1f}%",
+            r["description"],
+        )
+    Console().print(t)
+    return 0
+
+
+def cmd_worstcase(args):
+    """The single-bit flip with the largest footprint under a defense, by bounded search."""
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.faults.worstcase import worst_case
+    from seuwgpu.model.fields import canonical_field
+
+    src = load_source(args)
+    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name)
+    fields = [canonical_field(f) for f in args.fields]
+    for d in args.defense:
+        wc = worst_case(eng, d, fields, args.bit, max_evaluations=args.max_evaluations)
+        where = f"{wc.site.field}[{wc.site.primitive}][{wc.site.component}] bit {wc.site.bit}" if wc.site else "none"
+        print(
+            f"{d}: worst flip {where}: footprint {100 * wc.footprint:.4f}% (certified bound "
+            f"{100 * wc.certified:.4f}%), {wc.evaluated:,} of {wc.sites:,} flips rendered"
+        )
+    return 0
+
+
+def cmd_storm(args):
+    """k upsets per frame accumulating, scrubbed every S frames: records and a plot per defense."""
+    from seuwgpu.analysis.defenses import storm_figure
+    from seuwgpu.campaign.storm import storm
+    from seuwgpu.faults.engine import Engine
+
+    src = load_source(args)
+    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name)
+    df = storm(eng, args.k, args.frames, args.scrub_every, args.defense, args.seed)
+    args.out.mkdir(parents=True, exist_ok=True)
+    df.to_parquet(args.out / "storm.parquet", index=False)
+    storm_figure(df).savefig(args.out / "storm.png", dpi=120)
+    summary = df.groupby("defense", sort=False).agg(
+        catastrophic_frames=("catastrophic", "sum"), mean_footprint=("footprint", "mean")
+    )
+    print(summary.to_string())
+    print(f"records: {args.out / 'storm.parquet'}; plot: {args.out / 'storm.png'}")
+    return 0
+
+
+def cmd_state(args):
+    """Transient pipeline-state flips of one frame: records and a criticality table per target."""
+    from seuwgpu.analysis.defenses import state_table
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.faults.state import state_campaign
+
+    src = load_source(args)
+    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name)
+    df = state_campaign(eng, args.targets, args.samples, args.bit or range(32), args.seed)
+    args.out.mkdir(parents=True, exist_ok=True)
+    df.to_parquet(args.out / "state.parquet", index=False)
+    t = state_table(df)
+    (args.out / "state_criticality.csv").write_text(t.to_csv(index=False))
+    with pd_display():
+        print(t.to_string(index=False))
+    print(f"records: {args.out / 'state.parquet'}; table: {args.out / 'state_criticality.csv'}")
+    return 0
+
+
+def pd_display():
+    import pandas as pd
+
+    return pd.option_context("display.width", 200, "display.max_columns", 20, "display.precision", 4)
+
+
 def cmd_view(args):
     """`seuwgpu view`: the interactive viewer (apps/viewer_window.py)."""
     from seuwgpu.apps.viewer_window import NO_DISPLAY_HELP, canvas_backend, display_problem
@@ -562,6 +661,7 @@ def cmd_view(args):
 
 def build_parser() -> argparse.ArgumentParser:
     from seuwgpu.faults.sites import FAULT_MODELS
+    from seuwgpu.faults.state import TARGETS as STATE_TARGETS
 
     p = argparse.ArgumentParser(
         prog="seuwgpu", description="Single-event-upset fault injection for 3D Gaussian splatting (WGSL, wgpu)"
@@ -738,6 +838,42 @@ def build_parser() -> argparse.ArgumentParser:
         "with RENDERCANVAS_BACKEND=offscreen the default is 1)",
     )
     s.set_defaults(func=cmd_view)
+
+    s = sub.add_parser("defenses", help="every defense with its memory overhead and time cost on this device")
+    add_model_args(s)
+    add_camera_args(s, views=1, size="256x256")
+    s.add_argument("--repeats", type=int, default=7, help="timing rounds (medians)")
+    s.add_argument("--no-time", action="store_true", help="skip the timing (time_fraction NaN)")
+    s.add_argument("--json", action="store_true", help="print [{name, memory_overhead, time_fraction, ...}]")
+    s.set_defaults(func=cmd_defenses)
+
+    s = sub.add_parser("worstcase", help="the single flip with the largest footprint under a defense (bounded search)")
+    add_model_args(s)
+    add_camera_args(s, views=2, size="128x128")
+    s.add_argument("--defense", nargs="+", default=["none"], choices=DEFENSES)
+    s.add_argument("--fields", nargs="+", default=["means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest"])
+    s.add_argument("--bit", type=int, nargs="+", help="bits to search (default: all)")
+    s.add_argument("--max-evaluations", type=int, help="stop after this many renders (the bound stays certified)")
+    s.set_defaults(func=cmd_worstcase)
+
+    s = sub.add_parser("storm", help="k upsets per frame accumulating, scrubbed every S frames, per defense")
+    add_model_args(s)
+    add_camera_args(s, views=1, size="128x128")
+    s.add_argument("--k", type=int, default=10, help="upsets per frame")
+    s.add_argument("--frames", type=int, default=50)
+    s.add_argument("--scrub-every", type=int, default=10, help="reload the model every S frames (0 = never)")
+    s.add_argument("--defense", nargs="+", default=["none", "guard", "parity4r"], choices=DEFENSES)
+    s.add_argument("--out", type=Path, required=True)
+    s.set_defaults(func=cmd_storm)
+
+    s = sub.add_parser("state", help="transient flips in one frame's pipeline state: criticality per target")
+    add_model_args(s)
+    add_camera_args(s, views=2, size="128x128")
+    s.add_argument("--targets", nargs="+", default=list(STATE_TARGETS), choices=STATE_TARGETS)
+    s.add_argument("--samples", type=int, default=10, help="flips per (target, bit) cell")
+    s.add_argument("--bit", type=int, nargs="+", help="bits (default: all 32)")
+    s.add_argument("--out", type=Path, required=True)
+    s.set_defaults(func=cmd_state)
 
     s = sub.add_parser("report", help="tables, figures and an HTML page from run directories")
     s.add_argument("runs", type=Path, nargs="+")

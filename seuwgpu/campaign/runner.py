@@ -42,7 +42,7 @@ class Runner:
             "pixel_threshold": float(t.get("pixel_threshold", PIXEL_THRESHOLD)),
             "footprint_threshold": float(t.get("footprint", FOOTPRINT_THRESHOLD)),
         }
-        self._times: dict = {}  # (engine key, defense) -> ms per view
+        self._times: dict = {}  # engine key -> {defense: ms per view}
         if spec.get("lpips"):
             from seuwgpu.metrics.lpips import INSTALL_HINT, available
 
@@ -73,7 +73,7 @@ class Runner:
                 "outcomes": self.thresholds,
                 "region_grid": REGION_GRID_VERSION,
                 "time_ms": "median render time of one view of the clean model under the defense's "
-                "in-pipeline guard, measured once per (scene, N, precision) engine",
+                "in-pipeline guard: the defenses timed interleaved, 9 rounds, once per engine",
             }
             store.write_manifest(self.out, manifest)
         store.remove_stale_temps(rec)
@@ -170,13 +170,10 @@ class Runner:
 
     def view_times(self, eng, ctx: Context) -> dict:
         """ms per view of each defense's render of the clean model (measured once per engine)."""
-        key = (id(eng), ctx.kind, ctx.scene_index, ctx.n, ctx.precision)
-        out = {}
-        for d in ctx.defenses:
-            if (key, d) not in self._times:
-                self._times[(key, d)] = eng.view_time_ms(d)
-            out[d] = self._times[(key, d)]
-        return out
+        key = (id(eng), ctx.kind, ctx.scene_index, ctx.n, ctx.precision, tuple(ctx.defenses))
+        if key not in self._times:
+            self._times[key] = eng.view_times_ms(ctx.defenses)
+        return self._times[key]
 
     def lpips_of(self, eng, sites, defense: str) -> float:
         """LPIPS of the frame with `sites` flipped under `defense` against clean (a full render;

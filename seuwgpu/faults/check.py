@@ -40,7 +40,7 @@ class Checker:
             mode=MODES[defense],
             ways=1 if defense == "parity" else 4,
             cover=dfn.parity_cover_mask(L.precision),
-            comp_count=dfn.parity_components(L.degree),
+            comp_count=dfn.parity_components(defense, L.degree),
         )
         self.params.write()
         self.zero = np.zeros(4, np.uint32)

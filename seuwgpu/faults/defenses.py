@@ -24,8 +24,8 @@ defense is the identity on the clean model (tests/test_defenses.py).
   frame; a mismatch reloads the primitive from the golden copy (host memory or the model file,
   not charged to device memory). Each FNV step is a bijection of the running hash, so any change
   confined to one stored value is detected with certainty;
-- parity4r: parity4's check, but a flagged primitive is reloaded from the golden copy (as
-  checksum does) rather than culled.
+- parity4r: parity4's check over every value (sh_rest too: a reload is harmless where a cull
+  is not), a flagged primitive reloaded from the golden copy (as checksum does) instead of culled.
 The golden copy that reloads read from lives off the device and is not charged as device memory.
 """
 
@@ -48,7 +48,7 @@ DEFENSE_INFO = {
     "ecc_crit": "SEC-DED over sign+exponent of log-scales and opacity only; uncorrectable culls",
     "scalebound": "support guard plus a 4-bit scale class per primitive bounding its log-scales",
     "checksum": "32-bit checksum per primitive checked per frame; mismatch reloads it from the golden copy",
-    "parity4r": "parity4's check; a mismatch reloads the primitive from the golden copy instead of culling",
+    "parity4r": "parity4's check over every value; a mismatch reloads the primitive from the golden copy",
 }
 DEFENSES = tuple(DEFENSE_INFO)
 GUARDED_FIELDS = {
@@ -58,7 +58,8 @@ GUARDED_FIELDS = {
 }
 # the support-guard variant each defense clamps with in the pipeline
 PIPELINE_GUARD = {"guard": "guard", "selective": "selective", "scalebound": "guard"}
-PARITY_FIELDS = GUARDED_FIELDS["guard"]
+PARITY_FIELDS = GUARDED_FIELDS["guard"]  # culling parities: a cull for an inert sh_rest hit would only harm
+RELOAD_PARITY_FIELDS = FIELDS  # a reload is harmless, so parity4r covers every value
 PARITY_MANTISSA = 4  # top mantissa bits covered by the parity defenses, besides sign+exponent
 SCALE_CLASS_BITS = 4
 CRITICAL_FIELDS = ("log_scales", "opacity")
@@ -76,9 +77,13 @@ def _covered_components(fields, degree: int) -> np.ndarray:
     return np.array([FIELD_OFFSET[f] + c for f in fields for c in range(field_components(f, degree))], np.int64)
 
 
-def parity_components(degree: int) -> int:
-    """The parity defenses cover flat components 0 .. this - 1 (PARITY_FIELDS lead the layout)."""
-    cols = _covered_components(PARITY_FIELDS, degree)
+def parity_fields(defense: str) -> tuple[str, ...]:
+    return RELOAD_PARITY_FIELDS if defense == "parity4r" else PARITY_FIELDS
+
+
+def parity_components(defense: str, degree: int) -> int:
+    """A parity defense covers flat components 0 .. this - 1 (its fields lead the layout)."""
+    cols = _covered_components(parity_fields(defense), degree)
     assert np.array_equal(cols, np.arange(cols.size))
     return int(cols.size)
 
@@ -170,11 +175,11 @@ def parity_cover_mask(precision: str) -> int:
     return ((1 << encoding.bits_per_value(precision)) - 1) & ~((1 << (man - PARITY_MANTISSA)) - 1)
 
 
-def parity_bits(rows: np.ndarray, precision: str, degree: int, ways: int) -> np.ndarray:
-    """[M, ways] parity of the covered bits of each primitive's PARITY_FIELDS values, way w over
-    bit positions b with b % ways == w (interleaving: a burst of <= ways adjacent bits of one value
+def parity_bits(rows: np.ndarray, precision: str, degree: int, ways: int, fields=PARITY_FIELDS) -> np.ndarray:
+    """[M, ways] parity of the covered bits of each primitive's `fields` values, way w over bit
+    positions b with b % ways == w (interleaving: a burst of <= ways adjacent bits of one value
     flips at most one bit of each way)."""
-    cols = _covered_components(PARITY_FIELDS, degree)
+    cols = _covered_components(fields, degree)
     v = np.asarray(rows)[:, cols].astype(np.uint64) & np.uint64(parity_cover_mask(precision))
     out = np.zeros((v.shape[0], ways), dtype=np.uint8)
     for b in range(encoding.bits_per_value(precision)):
@@ -245,7 +250,8 @@ def side_data(defense: str, clean: np.ndarray, precision: str, degree: int, box=
     class (the table is shared by the model: `scale_table`)."""
     clean = np.asarray(clean)
     if defense in ("parity", "parity4", "parity4r"):
-        par = parity_bits(clean, precision, degree, 1 if defense == "parity" else 4).astype(np.uint32)
+        ways = 1 if defense == "parity" else 4
+        par = parity_bits(clean, precision, degree, ways, parity_fields(defense)).astype(np.uint32)
         return (par << np.arange(par.shape[1], dtype=np.uint32)).sum(axis=1).astype(np.uint32)
     if defense == "checksum":
         return checksum(clean)

@@ -208,9 +208,13 @@ class Engine:
         if not sites:
             return {}
         prims, clean, cur = self._faulted(sites)
-        delta = clean.astype(np.uint64) ^ self._read(clean, cur, defense).astype(np.uint64)
+        return self.xor_rows(prims, clean, self._read(clean, cur, defense))
+
+    def xor_rows(self, prims: np.ndarray, clean: np.ndarray, rows: np.ndarray) -> dict[int, np.ndarray]:
+        """Per chunk: [(word, xor mask)] turning primitives `prims` (clean bits `clean`) into `rows`."""
+        delta = clean.astype(np.uint64) ^ np.asarray(rows).astype(np.uint64)
         pi, c = np.nonzero(delta)
-        p = prims[pi]
+        p = np.asarray(prims)[pi]
         delta = delta[pi, c]
         chunk, word, shift = self.layout.locate(p, c)
         wmask = delta << shift.astype(np.uint64)
@@ -266,19 +270,23 @@ class Engine:
             self.monitor.update(counts)
         return images.reshape(r.k, r.height, r.width, 4), counts
 
-    def view_time_ms(self, defense: str = "none", repeats: int = 5) -> float:
-        """Median wall time (ms) of rendering one view of the model as it is now under the
-        defense's in-pipeline guard (K views rendered and waited for, divided by K; one warm-up
-        render first). The mitigation table's time cost comes from it, in the same run."""
+    def view_times_ms(self, defenses=("none",), repeats: int = 9) -> dict:
+        """Median wall time (ms) of rendering one view of the model as it is now under each
+        defense's in-pipeline guard (K views rendered and waited for, divided by K). The defenses
+        are timed interleaved, round by round after one warm-up round, so a drift of the machine's
+        load hits them alike. The mitigation table's time cost comes from it, in the same run."""
         import time
 
-        self._run_guarded(defense)
-        ts = []
+        defenses = list(dict.fromkeys(defenses))
+        for d in defenses:
+            self._run_guarded(d)
+        ts = {d: [] for d in defenses}
         for _ in range(max(int(repeats), 1)):
-            t0 = time.perf_counter()
-            self._run_guarded(defense)  # Renderer.run reads its totals back: the GPU is done
-            ts.append(time.perf_counter() - t0)
-        return 1e3 * float(np.median(ts)) / self.k
+            for d in defenses:
+                t0 = time.perf_counter()
+                self._run_guarded(d)  # Renderer.run reads its totals back: the GPU is done
+                ts[d].append(time.perf_counter() - t0)
+        return {d: 1e3 * float(np.median(v)) / self.k for d, v in ts.items()}
 
     def measure_current(self, defense: str = "none") -> dict:
         """GPU metrics of the current model against the current clean reference (the frame stays
@@ -389,12 +397,16 @@ class Engine:
         prims = np.array([s.primitive for s in sites], dtype=np.int64)
         comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
         clean = self.primitive_bits(prims)
-        bits = clean.copy()
         rows = np.arange(len(sites))
-        bits[rows, comps] = apply_sites(clean[rows, comps], sites)
+        return prims, *self.variant_rows(clean, comps, apply_sites(clean[rows, comps], sites), defense)
+
+    def variant_rows(self, clean: np.ndarray, comps: np.ndarray, values: np.ndarray, defense: str):
+        """(effective bits [M, ncomp], guard masks [M]) of primitives `clean` whose component
+        `comps[i]` now holds the stored pattern `values[i]`, as `defense` reads them."""
+        bits = clean.copy()
+        bits[np.arange(len(comps)), comps] = values
         bits = self._read(clean, bits, defense)
-        gm = np.full(len(sites), self._guard_mask(defense), dtype=np.int64)
-        return prims, bits, gm
+        return bits, np.full(len(comps), self._guard_mask(defense), dtype=np.int64)
 
     def evaluate(self, sites: list[Site], defenses=("none",), regions=()) -> list[dict]:
         """Records (dicts) for single-value sites under each defense; see evaluate_frame."""

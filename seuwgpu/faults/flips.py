@@ -28,6 +28,13 @@ class Flips:
         """XOR every pair of `xors` ({chunk: u32 [m, 2] (word, mask)}) into its chunk."""
         if not xors:
             return
+        enc = self.gpu.device.create_command_encoder()
+        self.encode(enc, xors)
+        self.gpu.submit(enc)
+
+    def encode(self, enc, xors: dict[int, np.ndarray]):
+        """Record the XORs into `enc` (their lists are uploaded now, so they land before the
+        submission): lets a flip sit between two stages of one frame."""
         g = self.gpu
         need = max(len(p) for p in xors.values())
         if self.capacity < need:
@@ -40,12 +47,10 @@ class Flips:
             g.write(self.pairs[ch], recs)
             self.params.rows["count"][ch] = len(pairs)
         self.params.write()
-        enc = g.device.create_command_encoder()
         for ch, pairs in xors.items():
             self.kernel.dispatch(
                 enc, {0: self.params.binding(ch), 1: self.pairs[ch], 2: self.chunks[ch]}, threads=len(pairs)
             )
-        g.submit(enc)
 
 
 def xor_words(words: np.ndarray, pairs: np.ndarray) -> np.ndarray:

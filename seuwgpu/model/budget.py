@@ -68,6 +68,17 @@ def check_model(n: int, degree: int, what: str = "--n"):
     check_scene(n, degree, what, MODEL_BYTES_PER_VALUE, "render")
 
 
+def check_frames(k: int, width: int, height: int):
+    """Refuse frames (k views of width x height, float32 RGB on the host) that do not fit in host
+    memory; frames larger than a storage binding are rendered in parts (render_split)."""
+    need, have = 12 * int(k) * int(width) * int(height), HOST_SHARE * available_host_bytes()
+    if need > have:
+        raise TooBig(
+            f"{k} view(s) of {width}x{height} need {gb(need)} of host memory for the frames alone; "
+            f"{gb(have / HOST_SHARE)} is available: render fewer views, or at a smaller size (--size or --scale)"
+        )
+
+
 def render_host_bytes(n: int, degree: int, k: int, width: int, height: int) -> int:
     """Host memory of a renderer/engine: the model's copies, and a few copies of the frames."""
     return int(n) * MODEL_BYTES_PER_VALUE * n_values(degree) + 4 * int(k) * int(width) * int(height) * PIXEL_BYTES

@@ -21,7 +21,7 @@ import numpy as np
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.model import encoding
-from seuwgpu.model.budget import check_render
+from seuwgpu.model.budget import check_frames, check_render
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model, StoredLayout
 from seuwgpu.render.bin import Binning
@@ -74,6 +74,8 @@ class Renderer:
         self.degree = model.sh_degree
         self.n = model.n
         w, h = check_cameras(cameras)
+        if self.viewport is not None:  # only the viewport's pixels are held (render_split's bands)
+            w, h = self.viewport[2], self.viewport[3]
         check_render(self.gpu.limits, self.gpu.is_cpu, self.n, self.degree, len(cameras), w, h, keep_views)
         max_chunk = StoredLayout.max_chunk_prims(self.degree, precision, self.gpu.max_binding)
         self.layout = StoredLayout(self.n, self.degree, precision, min(chunk_prims or max_chunk, max_chunk))
@@ -212,10 +214,14 @@ class Renderer:
         for c in range(L.n_chunks):
             lo, hi = L.chunk_range(c)
             p.encode(encoder, v * L.n_chunks + c, self.chunks[c], hi - lo, self.box_buf, self.guard_counts)
+        self._state_hook(encoder, v, "projected")
         self.sorting.encode_depth(encoder, p.depth_keys, p.depth_vals)
         b.encode_emit(encoder, v, p.rect, p.depth_vals)
+        self._state_hook(encoder, v, "emitted")
         self.sorting.encode_tiles(encoder, b.isect_tiles, b.isect_prims, b.total(v), self.n_tiles)
+        self._state_hook(encoder, v, "sorted")
         b.encode_ranges(encoder, v)
+        self._state_hook(encoder, v, "ranged")
         self.compositing.encode(
             encoder,
             b.params.binding(v),
@@ -227,6 +233,7 @@ class Renderer:
             (self.tiles_x, self.tiles_y),
             b.isect_box,
         )
+        self._state_hook(encoder, v, "composited")
         if self.keep_views and self.capture_views:
             n = self.n
             encoder.copy_buffer_to_buffer(p.xy, 0, self.kv_xy, 8 * n * v, 8 * n)
@@ -236,6 +243,15 @@ class Renderer:
             encoder.copy_buffer_to_buffer(b.isect_prims, 0, self.kv_isect, 4 * self.capacity * v, 4 * self.capacity)
             encoder.copy_buffer_to_buffer(b.isect_box, 0, self.kv_box, 4 * self.capacity * v, 4 * self.capacity)
             encoder.copy_buffer_to_buffer(b.ranges, 0, self.kv_ranges, 8 * self.n_tiles * v, 8 * self.n_tiles)
+
+    # A transient fault in the pipeline state of one frame (faults/state.py): `state_fault` is
+    # None or an object with .view, .point and .encode(encoder), recorded after that stage.
+    state_fault = None
+
+    def _state_hook(self, encoder, v: int, point: str):
+        f = self.state_fault
+        if f is not None and f.view == v and f.point == point:
+            f.encode(encoder)
 
     def encode(self, encoder):
         for v in range(self.k):
@@ -321,6 +337,7 @@ def render_split(
     (`split_bytes`, default the adapter's limit) are rendered in groups of views, or a single
     huge frame in bands of tile rows (sort-first viewports), bit-identical to one submission."""
     width, height = check_cameras(cameras)
+    check_frames(len(cameras), width, height)
     gpu = kw.pop("gpu", None) or get_gpu()
     limit = int(split_bytes or gpu.max_binding)
     group, rows = split_plan(len(cameras), width, height, limit)

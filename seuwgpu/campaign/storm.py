@@ -1,0 +1,76 @@
+"""Fault storms: k upsets per frame accumulating in the stored model over time, the memory
+reloaded from the golden copy every S frames (scrubbing), and the image quality of every frame
+under each defense.
+
+Per frame: k new single-bit upsets, uniform over the stored bits (the dose campaign's draw),
+XOR into the memory state; then the defense acts. Defenses that check and repair memory
+(defenses.CHECKED: parity culls, checksum and parity4r reload, scalebound clamps) write their
+repair back, so a repaired primitive stays repaired; read-time defenses (guard, ECC, duplication)
+leave the memory corrupted and correct what the renderer reads, so upsets pile up in one value
+until the scrub (two in an ECC word are no longer correctable). The frame is rendered and measured
+against the clean render (all K views). Every arm sees the same upset sequence (paired).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from seuwgpu.faults import defenses as dfn
+from seuwgpu.faults.sites import draw_uniform_sites, mask_of
+from seuwgpu.metrics.image import catastrophic
+
+
+def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), seed: int = 0, progress=None):
+    """Records (one per frame and defense) of a fault storm; scrub_every 0 = never."""
+    if k < 1 or frames < 1 or scrub_every < 0:
+        raise ValueError(f"storm needs k >= 1, frames >= 1, scrub_every >= 0 (got {k}, {frames}, {scrub_every})")
+    rng = np.random.default_rng(seed)
+    upsets = [draw_uniform_sites(engine.n, engine.degree, engine.precision, k, rng) for _ in range(frames)]
+    rows = []
+    for d in defenses:
+        dfn.check_defense(d)
+        memory: dict[int, np.ndarray] = {}  # primitive -> its stored bits now (absent: clean)
+        for f in range(frames):
+            if scrub_every and f and f % scrub_every == 0:
+                memory.clear()  # reloaded from the golden copy
+            for s in upsets[f]:
+                row = memory.get(s.primitive)
+                if row is None:
+                    row = engine.primitive_bits([s.primitive])[0]
+                row[s.flat_component()] ^= row.dtype.type(mask_of(s.bits))
+                memory[s.primitive] = row
+            prims = np.fromiter(memory, dtype=np.int64, count=len(memory))
+            clean = engine.primitive_bits(prims)
+            now = np.stack([memory[p] for p in prims]) if prims.size else clean
+            seen = dfn.read(d, clean, now, engine.precision, engine.degree, engine.box) if prims.size else clean
+            if d in dfn.CHECKED:  # the repair is written back
+                memory = {int(p): r.copy() for p, r in zip(prims, seen)}
+            xors = engine.xor_rows(prims, clean, seen)
+            engine.flips.apply(xors)
+            try:
+                m = engine.measure_current(d)
+            finally:
+                engine.flips.apply(xors)
+            corrupted = int((now != clean).any(axis=1).sum()) if prims.size else 0
+            rows.append(
+                {
+                    "scene": engine.scene,
+                    "precision": engine.precision,
+                    "defense": d,
+                    "frame": f,
+                    "k": k,
+                    "scrub_every": scrub_every,
+                    "corrupted_primitives": corrupted,
+                    "footprint": m["footprint"],
+                    "psnr": m["psnr"],
+                    "ssim": m["ssim"],
+                    "peak_error": m["peak_error"],
+                    "nonfinite": bool(m["nonfinite"]),
+                }
+            )
+            if progress:
+                progress()
+    df = pd.DataFrame(rows)
+    df["catastrophic"] = catastrophic(df["footprint"].to_numpy(), df["nonfinite"].to_numpy())
+    return df

@@ -1,0 +1,94 @@
+"""What each defense costs on this device: memory overhead (fraction of the model's stored bytes,
+defenses.memory_overhead) and time (extra time per rendered view as a fraction of an unprotected
+view, measured here).
+
+Time is measured for what runs on the GPU: the in-pipeline guard clamp (guard, selective,
+scalebound) and the per-primitive checks of shaders/check.wgsl (parity, parity4, parity4r,
+checksum, scalebound), one check per rendered view with its 4-byte readback of the detection count
+(repairs only happen after a detection, which a healthy device never makes). ECC, ecc_crit and
+duplication are modelled by what they read (defenses.read) and have no GPU decoder: their time is
+NaN, never a made-up number. Configurations are timed interleaved, medians of `repeats` rounds,
+so a busy machine slows them alike.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from seuwgpu.faults import defenses as dfn
+from seuwgpu.faults.check import MODES, Checker
+from seuwgpu.faults.guard import component_mask, support_box
+from seuwgpu.model import encoding
+from seuwgpu.render.renderer import Renderer
+
+
+def defense_costs(model, camera, precision: str = "fp32", repeats: int = 7, gpu=None, time_it: bool = True) -> list:
+    """[{name, memory_overhead, time_fraction, time_basis, description}] for every defense, the time
+    measured on one view of `camera`."""
+    rows = []
+    t = _times(model, camera, precision, repeats, gpu) if time_it else {}
+    for d in dfn.DEFENSES:
+        frac = t.get(d, float("nan"))
+        if not time_it:
+            basis = "not measured"
+        elif d in t:
+            basis = (
+                f"measured: {t['_device']}, {model.n} primitives, {camera.width}x{camera.height}, median of {repeats}"
+            )
+        else:
+            basis = "no GPU implementation (modelled by what it reads)"
+        rows.append(
+            {
+                "name": d,
+                "memory_overhead": dfn.memory_overhead(d, precision, model.sh_degree, model.n),
+                "time_fraction": frac,
+                "time_basis": basis,
+                "description": dfn.DEFENSE_INFO[d],
+            }
+        )
+    return rows
+
+
+def _times(model, camera, precision, repeats, gpu) -> dict:
+    r = Renderer(model, [camera], precision, gpu=gpu)
+    box = support_box(r.layout.decode(r.clean_words), precision)
+    clean = encoding.to_bits(model.flat(), precision)  # what the chunks hold (layout.encode)
+    r.set_guard(box.rows(), 0)
+    checkers = {d: Checker(r, d, clean, box) for d in MODES}
+    masks = {d: component_mask(dfn.GUARDED_FIELDS[v], r.degree) for d, v in dfn.PIPELINE_GUARD.items()}
+
+    def view(mask):
+        r.set_guard(None, mask)
+        r.run()
+
+    configs = {"none": lambda: view(0)}
+    for d, m in masks.items():
+        configs[d] = lambda m=m: view(m)
+    for d, c in checkers.items():
+        configs[f"check:{d}"] = c.run
+    for f in configs.values():  # warm up (pipelines, bind groups)
+        f()
+    samples = {k: [] for k in configs}
+    for _ in range(repeats):
+        for k, f in configs.items():
+            t0 = time.perf_counter()
+            f()
+            samples[k].append(time.perf_counter() - t0)
+    r.set_guard(None, 0)
+    med = {k: float(np.median(v)) for k, v in samples.items()}
+    base = med["none"]
+    out = {"none": 0.0, "_device": r.gpu.info.get("device", "?")}
+    for d in dfn.DEFENSES:
+        extra = 0.0
+        known = False
+        if d in masks:
+            extra += med[d] - base
+            known = True
+        if d in checkers:
+            extra += med[f"check:{d}"]
+            known = True
+        if known:
+            out[d] = extra / base
+    return out

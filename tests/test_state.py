@@ -1,0 +1,92 @@
+"""Pipeline-state faults (faults/state.py): a flip in a compositor input of one view equals the
+compositing twin run on the same flipped inputs, other views and the next frame stay clean bit
+for bit, a pixel flip is exactly that XOR, and runaway ranges are DUE."""
+
+import numpy as np
+import pytest
+
+from seuwgpu.faults.engine import Engine
+from seuwgpu.faults.state import TARGETS, StateFaults, state_campaign
+from seuwgpu.model.scenes import make_scene, scene_cameras
+from seuwgpu.render.composite import composite_frame
+from tests.conftest import psnr_finite
+
+
+@pytest.fixture(scope="module")
+def sf():
+    model = make_scene("blocks", n=400, seed=3)
+    return StateFaults(Engine(model, scene_cameras("blocks", 2, 48, 40), "fp32", scene="blocks"))
+
+
+def kept(sf, v):
+    r, g = sf.r, sf.engine.gpu
+    n = r.n
+    return {
+        "xy": g.read(r.kv_xy, np.uint32, 8 * n * v, 8 * n).reshape(n, 2),
+        "conic": g.read(r.kv_conic, np.uint32, 16 * n * v, 16 * n).reshape(n, 4),
+        "rgb": g.read(r.kv_rgb, np.uint32, 16 * n * v, 16 * n).reshape(n, 4),
+        "isect_prim": g.read(r.kv_isect, np.uint32, 4 * r.capacity * v, 4 * int(sf.totals[v])).reshape(-1, 1),
+        "tile_range": sf.ranges[v].copy(),
+    }
+
+
+@pytest.mark.parametrize(
+    "target, index, comp, bit",
+    [("xy", 5, 0, 28), ("conic", 9, 0, 27), ("rgb", 7, 1, 30), ("isect_prim", 11, 0, 3), ("tile_range", 4, 1, 0)],
+)
+def test_compositor_input_flips_equal_the_twin(sf, target, index, comp, bit):
+    v = 1
+    state = kept(sf, v)
+    index = index % len(state[target])
+    if target == "tile_range":  # a flip that keeps the range inside the list
+        rng = state[target][index]
+        bit = 0 if rng[1] ^ 1 <= sf.totals[v] and rng[0] <= rng[1] ^ 1 else 1
+        assert not sf.is_due(target, v, index, comp, bit)
+    got = sf.render(target, v, index, comp, bit)
+    state[target][index, comp] ^= np.uint32(1 << bit)
+    f = {k: state[k].view(np.float32) for k in ("xy", "conic", "rgb")}
+    n = sf.r.n
+    ids = np.minimum(state["isect_prim"][:, 0], n - 1)  # an id past the records reads the last (robust access)
+    records = {"mean2d": f["xy"], "conic": f["conic"][:, :3], "opacity": f["conic"][:, 3], "rgb": f["rgb"][:, :3]}
+    want = composite_frame(state["tile_range"], ids, records, sf.r.width, sf.r.height)
+    assert psnr_finite(got[v], want) > 60
+    np.testing.assert_array_equal(got[0], sf.engine.clean_rgba[0])  # the other view: clean
+    np.testing.assert_array_equal(sf.engine.render_current("none")[0], sf.engine.clean_rgba)  # transient
+
+
+def test_pixel_flip_is_that_xor_and_ranges_past_the_list_are_due(sf):
+    got = sf.render("pixel", 0, 123, 2, 30)
+    want = sf.engine.clean_rgba.copy()
+    y, x = divmod(123, sf.r.width)
+    want.view(np.uint32)[0, y, x, 2] ^= np.uint32(1 << 30)
+    np.testing.assert_array_equal(got.view(np.uint32), want.view(np.uint32))
+    t = int(np.argmax(sf.ranges[0, :, 1] - sf.ranges[0, :, 0]))
+    assert sf.is_due("tile_range", 0, t, 1, 31) and sf.is_due("tile_range", 0, t, 0, 31)
+    rec = sf.inject("tile_range", 0, t, 1, 31)
+    assert rec["due"] and np.isnan(rec["footprint"]) and not rec["catastrophic"]
+
+
+def test_state_campaign_covers_every_target(sf):
+    df = state_campaign(sf.engine, samples=1, bits=[30], seed=1)
+    assert set(df.target) == set(TARGETS) and len(df) == len(TARGETS)
+    assert df.loc[~df.due, "footprint"].notna().all()
+
+
+def test_state_table_recomputed_with_pandas(tmp_path):
+    import pandas as pd
+
+    from seuwgpu.analysis.defenses import state_table
+    from seuwgpu.apps.cli import main
+
+    out = tmp_path / "st"
+    args = ["state", "--scene", "blocks", "--n", "300", "--size", "32x32", "--samples", "2", "--bit", "3", "30"]
+    assert main([*args, "--targets", "xy", "tile_range", "--out", str(out)]) == 0
+    df = pd.read_parquet(out / "state.parquet")
+    t = state_table(df).set_index(["target", "bit_class"])
+    for tgt, g in df.groupby("target"):
+        row = t.loc[(tgt, "all")]
+        assert row["cat_n"] == len(g) and row["cat_events"] == g.catastrophic.sum()
+        # equal cells: the stratified rate is the mean of the per-bit rates
+        assert row["cat_rate"] == pytest.approx(g.groupby("bit").catastrophic.mean().mean())
+        assert row["due_events"] == g.due.sum()
+    assert t.loc[("xy", "exponent"), "cat_n"] == (df[df.target == "xy"].bit == 30).sum()
