@@ -78,11 +78,23 @@ def test_checksum_reloads_every_single_value_change(real):
     changed = (bad != rows).any(axis=1)
     assert changed.sum() > 290
     np.testing.assert_array_equal(dfn.read("checksum", rows, bad, p, deg), rows)
-    # known FNV-1a value of one row of zeros: hash of 59 zero steps
+
+    # a row of zeros, by hand: 59 MurmurHash3 finaliser steps from the seed
+    def fmix(h):
+        h ^= h >> 16
+        h = (h * 0x85EBCA6B) & 0xFFFFFFFF
+        h ^= h >> 13
+        h = (h * 0xC2B2AE35) & 0xFFFFFFFF
+        return h ^ (h >> 16)
+
     h = 0x811C9DC5
     for _ in range(59):
-        h = (h * 0x01000193) & 0xFFFFFFFF
+        h = fmix(h)
     assert dfn.checksum(np.zeros((1, 59), np.uint16))[0] == h
+    # two sign-bit flips in one primitive (they cancel in FNV-1a) are caught
+    two = rows.copy()
+    two[:, [39, 50]] ^= np.uint16(0x8000)
+    np.testing.assert_array_equal(dfn.read("checksum", rows, two, p, deg), rows)
 
 
 def test_ecc_crit_corrects_singles_culls_doubles_and_ignores_other_fields(real):

@@ -20,9 +20,10 @@ defense is the identity on the clean model (tests/test_defenses.py).
   cells); a detected uncorrectable error culls the primitive;
 - scalebound: the guard plus a 4-bit scale class per primitive bounding its log-scales from above
   (16 equal classes across the box);
-- checksum: a 32-bit FNV-1a checksum per primitive over all its stored values, checked before the
+- checksum: a 32-bit checksum per primitive over all its stored values, checked before the
   frame; a mismatch reloads the primitive from the golden copy (host memory or the model file,
-  not charged to device memory). Each FNV step is a bijection of the running hash, so any change
+  not charged to device memory). Each step, h = fmix32(h ^ value) (MurmurHash3's finaliser), is a
+  bijection of the running hash, so any change
   confined to one stored value is detected with certainty;
 - cellbox: the support guard with one box per cell of an 8x8x8 grid over the clean means (robust
   1-99% region, outer cells open), each primitive storing its 9-bit cell id; every value except
@@ -191,11 +192,26 @@ def parity_bits(rows: np.ndarray, precision: str, degree: int, ways: int, fields
     return out
 
 
+CHECKSUM_SEED = 0x811C9DC5
+
+
+def fmix32(h: np.ndarray) -> np.ndarray:
+    """MurmurHash3's 32-bit finaliser (a bijection that avalanches), on uint64 arrays of u32 values."""
+    m = np.uint64(0xFFFFFFFF)
+    h = h ^ (h >> np.uint64(16))
+    h = (h * np.uint64(0x85EBCA6B)) & m
+    h = h ^ (h >> np.uint64(13))
+    h = (h * np.uint64(0xC2B2AE35)) & m
+    return h ^ (h >> np.uint64(16))
+
+
 def checksum(rows: np.ndarray) -> np.ndarray:
-    """[M] 32-bit FNV-1a over each primitive's stored patterns (one step per value)."""
-    h = np.full(np.asarray(rows).shape[0], 0x811C9DC5, dtype=np.uint64)
+    """[M] 32-bit checksum of each primitive's stored patterns: h = fmix32(h ^ value) per value.
+    (FNV-1a's multiply-only step was dropped: it moves a difference only upwards, so two sign-bit
+    flips in one primitive cancel; a fault storm found such a pair.)"""
+    h = np.full(np.asarray(rows).shape[0], CHECKSUM_SEED, dtype=np.uint64)
     for c in range(rows.shape[1]):
-        h = ((h ^ rows[:, c].astype(np.uint64)) * np.uint64(0x01000193)) & np.uint64(0xFFFFFFFF)
+        h = fmix32(h ^ rows[:, c].astype(np.uint64))
     return h.astype(np.uint32)
 
 
