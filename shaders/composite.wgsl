@@ -1,87 +1,268 @@
-// Front-to-back compositing (render/composite.py): one TILE x TILE workgroup per tile,
-// intersections staged through workgroup memory in batches of TILE_PIXELS. Rules (skips,
-// NaN-propagating min, early stop) are in docs/renderer.md. Output pixel = (C + T * background, T).
+// Front-to-back compositing (render/composite.py): one workgroup per TILE x TILE tile. Each
+// invocation composites a column of QPI x QUAD (2 x 4) pixels, held as vec4 lanes (one Quad per 4
+// rows): a staged record is read once for eight pixels, and the workgroup has 8x fewer
+// invocations to switch between at barriers (CPU Vulkan runs a workgroup's invocations in SIMD
+// groups, and gathers every per-invocation workgroup-memory read). Intersections are staged
+// through workgroup memory in batches of BATCH records. Rules (skips, NaN-propagating min, early
+// stop) are in docs/renderer.md. Output pixel = (C + T * background, T).
+//
+// Exactness: every pixel runs the per-pixel rule with the same operations in the same order as a
+// one-pixel-per-invocation loop (lanes are independent; skips and stops are masks), so the image
+// is the same bit for bit. Three shortcuts skip only work that cannot change a pixel:
+// - `cut`: a sigma beyond which alpha < 1/255 for certain (from the opacity o: ln(255 o) + 0.01,
+//   a margin far above exp's error; -Inf when o < 0.001, where alpha < 1/255 for every
+//   sigma >= 0; +Inf, never cut, when o is NaN or |o| > 1e30): lanes past it skip without exp;
+// - `box`: the tile-local pixel rectangle outside which sigma > cut for certain (below), so an
+//   invocation or a quad outside it skips the record after one integer test;
+// - an invocation whose pixels have all stopped leaves the batch loop; the workgroup leaves the
+//   tile when all of them have.
 //
 // Two entry points share the blending code, so their arithmetic is identical bit for bit:
 // - main: a tile of a full frame;
 // - variants: a tile of a single-upset variant, re-composited from the clean frame's tile list
 //   with the corrupted primitive removed and its re-projected record merged in at its depth
-//   (render/incremental.py; equal to a full re-render bit for bit).
+//   (render/incremental.py; equal to a full re-render bit for bit). Only the pixels that the
+//   clean or the corrupted record reaches are re-blended; the others are copied. main leaves
+//   every pair's pixel box in isect_box (kept with the clean frame), so a variant tile stages only
+//   the entries whose box meets the bounding box of its re-blended pixels, and reads nothing of
+//   the others (they skip those pixels for certain).
 
 // Renderer profile (docs/renderer.md, "Profiles"): PROFILE_STRICT (default) or PROFILE_GSPLAT.
 override PROFILE: u32 = PROFILE_STRICT;
 
-var<workgroup> s_xy: array<vec2<f32>, TILE_PIXELS>;
-var<workgroup> s_conic: array<vec4<f32>, TILE_PIXELS>;
-var<workgroup> s_rgb: array<vec4<f32>, TILE_PIXELS>;
+const QUAD: u32 = 4u;                       // pixels per Quad (vec4 lanes, one column)
+const QPI: u32 = 2u;                        // Quads per invocation
+const SPAN: u32 = QUAD * QPI;               // rows per invocation
+const ROWS: u32 = TILE / SPAN;              // invocation rows per tile
+const LANES: u32 = TILE * ROWS;             // invocations per workgroup
+const BATCH: u32 = TILE_PIXELS;             // records staged per batch
+const PER_LANE: u32 = BATCH / LANES;        // records each invocation stages per batch
+const FULL_BOX: u32 = (TILE - 1u) << 8u | (TILE - 1u) << 24u;
+const EMPTY_BOX: u32 = 1u;                  // x0 = 1 > x1 = 0
+
+var<workgroup> s_box: array<u32, BATCH>;          // x0 | x1 << 8 | y0 << 16 | y1 << 24 (inclusive)
+var<workgroup> s_pos: array<vec4<f32>, BATCH>;    // mean x, mean y, cut, 0
+var<workgroup> s_conic: array<vec4<f32>, BATCH>;  // conic, opacity
+var<workgroup> s_rgb: array<vec4<f32>, BATCH>;
 var<workgroup> s_done: atomic<u32>;
 var<workgroup> s_all_done: u32;
 
-struct Pixel {
-    pix: vec2<f32>,
-    C: vec3<f32>,
-    T: f32,
-    done: bool,
+// Four pixels (x, y + i), i = 0..3, in vec4 lanes (centres in full-frame coordinates).
+struct Quad {
+    x: f32,
+    y: vec4<f32>,
+    r: vec4<f32>,
+    g: vec4<f32>,
+    b: vec4<f32>,
+    T: vec4<f32>,
+    done: vec4<bool>,
 };
 
-fn begin_pixel(li: u32, inside: bool, px: u32, py: u32) -> Pixel {
-    if (li == 0u) {
-        atomicStore(&s_done, 0u);
-        s_all_done = 0u;
-    }
-    workgroupBarrier();
-    if (!inside) {
-        atomicAdd(&s_done, 1u);
-    }
-    return Pixel(vec2<f32>(f32(px) + 0.5, f32(py) + 0.5), vec3<f32>(0.0), 1.0, !inside);
+fn inf_f32() -> f32 {
+    return bitcast<f32>(0x7f800000u);
 }
 
-// Blend the m staged intersections into one pixel.
-fn blend_batch(px: ptr<function, Pixel>, m: u32) {
-    if ((*px).done) {
+fn nan4(v: vec4<f32>) -> vec4<bool> {
+    return (bitcast<vec4<u32>>(v) & vec4<u32>(0x7fffffffu)) > vec4<u32>(0x7f800000u);
+}
+
+// Sigma beyond which a record of opacity o cannot reach alpha >= 1/255 (see the header).
+fn cut_of(o: f32) -> f32 {
+    if ((bitcast<u32>(o) & 0x7fffffffu) > 0x7149f2cau) {
+        return inf_f32();  // NaN, infinite or |o| > 1e30: never cut
+    }
+    if (o < 0.001) {
+        return -inf_f32();
+    }
+    return log(255.0 * o) + 0.01;
+}
+
+// Half-extents (x, y) of the region outside which sigma > cut for certain, or +Inf (no bound).
+// The minimum over dy of sigma(dx, dy) = 0.5 (A dx^2 + C dy^2) + B dx dy is 0.5 dx^2 D / C with
+// D = A C - B^2, so |dx| >= sqrt(2 S C / D) gives sigma >= S; S = 1.01 max(cut, 1e-3) and a
+// further 1% on the extent leave a margin of 3% in sigma. Only for conics where the float
+// evaluation of sigma is provably within 1e-4 of its value (A, C in [1e-12, 1e6], |B| <= 1e6,
+// B^2 <= 0.99 A C: no overflow, no cancellation beyond a factor 200) and means within 1e6 px
+// (dx, dy exact to 0.06 px); otherwise +Inf.
+fn reach_of(xy: vec2<f32>, co: vec4<f32>, cut: f32) -> vec2<f32> {
+    let A = co.x;
+    let B = co.y;
+    let C = co.z;
+    if (!is_finite_f32(A) || !is_finite_f32(B) || !is_finite_f32(C) || !is_finite_f32(xy.x) || !is_finite_f32(xy.y)) {
+        return vec2<f32>(inf_f32());
+    }
+    let ok = A >= 1e-12 && C >= 1e-12 && A <= 1e6 && C <= 1e6 && abs(B) <= 1e6 && abs(xy.x) <= 1e6
+        && abs(xy.y) <= 1e6 && cut < 1e30 && B * B <= 0.99 * (A * C);
+    if (!ok) {
+        return vec2<f32>(inf_f32());
+    }
+    let s = 2.02 * max(cut, 1e-3) / (A * C - B * B);
+    return 1.01 * sqrt(vec2<f32>(s * C, s * A));
+}
+
+// Tile-local pixel rectangle of a record (tile's first pixel at `origin`, full-frame
+// coordinates): the columns and rows whose centres lie within `reach` of the mean, widened by
+// one pixel for the rounding of dx = mx - px (<= 0.06 px here); EMPTY_BOX when none.
+fn box_of(xy: vec2<f32>, co: vec4<f32>, cut: f32, origin: vec2<f32>) -> u32 {
+    let reach = reach_of(xy, co, cut);
+    if (!is_finite_f32(reach.x) || !is_finite_f32(reach.y)) {
+        return FULL_BOX;
+    }
+    let last = f32(TILE - 1u);
+    let lo = floor(xy - reach - origin - 0.5) - 1.0;
+    let hi = ceil(xy + reach - origin - 0.5) + 1.0;
+    if (hi.x < 0.0 || hi.y < 0.0 || lo.x > last || lo.y > last) {
+        return EMPTY_BOX;
+    }
+    let l = vec2<u32>(max(lo, vec2<f32>(0.0)));
+    let h = vec2<u32>(min(hi, vec2<f32>(last)));
+    return l.x | (h.x << 8u) | (l.y << 16u) | (h.y << 24u);
+}
+
+// Stage one record (screen mean, conic + opacity, rgb) at slot i with its pixel box `bx`.
+fn stage_boxed(i: u32, xy: vec2<f32>, co: vec4<f32>, rgb: vec4<f32>, bx: u32) {
+    s_box[i] = bx;
+    s_pos[i] = vec4<f32>(xy, cut_of(co.w), 0.0);
+    s_conic[i] = co;
+    s_rgb[i] = rgb;
+}
+
+// Stage one record at slot i for the tile at `origin`; returns its pixel box.
+fn stage(i: u32, xy: vec2<f32>, co: vec4<f32>, rgb: vec4<f32>, origin: vec2<f32>) -> u32 {
+    let bx = box_of(xy, co, cut_of(co.w), origin);
+    stage_boxed(i, xy, co, rgb, bx);
+    return bx;
+}
+
+// The invocation's pixels: column x, rows y0 .. y0 + SPAN - 1 (full-frame coordinates), Quad j
+// holding rows y0 + QUAD j ..; `inside` says which lie in the viewport (w x h from `first`, the
+// viewport's first pixel); the others are done from the start.
+struct Pixels {
+    q: array<Quad, QPI>,
+};
+
+fn make_pixels(x: u32, y0: u32, first: vec2<u32>, size: vec2<u32>) -> Pixels {
+    var p: Pixels;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        let ys = vec4<u32>(y0 + QUAD * j) + vec4<u32>(0u, 1u, 2u, 3u);
+        let inside = vec4<bool>(x - first.x < size.x) & (ys - vec4<u32>(first.y) < vec4<u32>(size.y));
+        let yf = vec4<f32>(ys) + 0.5;
+        p.q[j] = Quad(f32(x) + 0.5, yf, vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(1.0), !inside);
+    }
+    return p;
+}
+
+fn all_pixels_done(p: ptr<function, Pixels>) -> bool {
+    var d = true;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        d = d && all((*p).q[j].done);
+    }
+    return d;
+}
+
+// Count an invocation whose pixels are all finished before the first batch (after s_done's reset
+// and a barrier).
+fn count_if_done(p: ptr<function, Pixels>) {
+    if (all_pixels_done(p)) {
+        atomicAdd(&s_done, 1u);
+    }
+}
+
+// sigma of a record at the quad's pixels, in the per-pixel rule's operation order.
+fn sigma_of(xy: vec2<f32>, co: vec4<f32>, q: Quad) -> vec4<f32> {
+    let dx = xy.x - q.x;
+    let dy = vec4<f32>(xy.y) - q.y;
+    return 0.5 * (vec4<f32>(co.x * dx * dx) + co.z * dy * dy) + (co.y * dx) * dy;
+}
+
+// alpha (NaN propagating) of a record at sigma, and whether each lane takes part in the blend.
+struct Alpha {
+    alpha: vec4<f32>,
+    hit: vec4<bool>,
+};
+
+fn alpha_of(sigma: vec4<f32>, o: f32) -> Alpha {
+    let s_nan = nan4(sigma);
+    let x = -sigma;
+    var e = exp(x);
+    e = select(e, vec4<f32>(0.0), x < vec4<f32>(-103.97208));
+    e = select(e, vec4<f32>(inf_f32()), x > vec4<f32>(88.72283));
+    e = select(e, x, s_nan);
+    let a = o * e;
+    // a NaN alpha propagates (strict); gsplat: CUDA's min (fminf) drops the NaN
+    let alpha = select(min(vec4<f32>(0.99), a), select(a, vec4<f32>(0.99), PROFILE == PROFILE_GSPLAT), nan4(a));
+    let skip = (!s_nan & (sigma < vec4<f32>(0.0))) | (!nan4(alpha) & (alpha < vec4<f32>(1.0 / 255.0)));
+    return Alpha(alpha, !skip);
+}
+
+// Staged record k blended into a quad.
+fn blend_quad(q0: Quad, st: vec4<f32>, co: vec4<f32>, k: u32) -> Quad {
+    var q = q0;
+    let done = q.done;
+    let sigma = sigma_of(st.xy, co, q);
+    // lanes that skip for certain: sigma negative or past the cut
+    let gone = !nan4(sigma) & ((sigma < vec4<f32>(0.0)) | (sigma > vec4<f32>(st.z)));
+    if (!any(!done & !gone)) {
+        return q;
+    }
+    let al = alpha_of(sigma, co.w);
+    let alpha = al.alpha;
+    let T = q.T;
+    let hit = al.hit & !done;
+    let next_t = T * (1.0 - alpha);
+    let stop = hit & !nan4(next_t) & (next_t <= vec4<f32>(1e-4));
+    let upd = hit & !stop;
+    let rgb = s_rgb[k];
+    let w = alpha * T;
+    q.r = select(q.r, q.r + rgb.x * w, upd);
+    q.g = select(q.g, q.g + rgb.y * w, upd);
+    q.b = select(q.b, q.b + rgb.z * w, upd);
+    q.T = select(T, next_t, upd);
+    q.done = done | stop;
+    return q;
+}
+
+// Blend the m staged records into the invocation's pixels (tile-local column `col`, first row
+// `row0`).
+fn blend_batch(p: ptr<function, Pixels>, col: u32, row0: u32, m: u32) {
+    if (all_pixels_done(p)) {
         return;
     }
-    var T = (*px).T;
-    var C = (*px).C;
     for (var k = 0u; k < m; k = k + 1u) {
+        let bx = s_box[k];
+        let y0 = (bx >> 16u) & 0xffu;
+        let y1 = bx >> 24u;
+        if (col < (bx & 0xffu) || col > ((bx >> 8u) & 0xffu) || row0 + SPAN - 1u < y0 || row0 > y1) {
+            continue;
+        }
+        let st = s_pos[k];
         let co = s_conic[k];
-        let d = s_xy[k] - (*px).pix;
-        let sigma = 0.5 * (co.x * d.x * d.x + co.z * d.y * d.y) + co.y * d.x * d.y;
-        // NaN never takes a skip or stop branch: it must reach the pixel (bit tests, since
-        // compilers may assume finite math).
-        if (!is_nan_f32(sigma) && sigma < 0.0) {
-            continue;
+        for (var j = 0u; j < QPI; j = j + 1u) {
+            let r = row0 + QUAD * j;
+            if (r + QUAD - 1u >= y0 && r <= y1) {
+                (*p).q[j] = blend_quad((*p).q[j], st, co, k);
+            }
         }
-        let a = co.w * exp_ieee(-sigma);
-        var alpha = a;
-        if (!is_nan_f32(a)) {
-            alpha = min(0.99, a);
-        } else if (PROFILE == PROFILE_GSPLAT) {
-            alpha = 0.99;  // gsplat: CUDA's min (fminf) drops the NaN
-        }
-        if (!is_nan_f32(alpha) && alpha < 1.0 / 255.0) {
-            continue;
-        }
-        let next_t = T * (1.0 - alpha);
-        if (!is_nan_f32(next_t) && next_t <= 1e-4) {
-            (*px).done = true;
+        if (all_pixels_done(p)) {
             atomicAdd(&s_done, 1u);
             break;
         }
-        C = C + s_rgb[k].xyz * (alpha * T);
-        T = next_t;
     }
-    (*px).T = T;
-    (*px).C = C;
 }
 
-// After a batch: true (uniformly) when every pixel of the tile is finished.
+// After a batch: true (uniformly) when every invocation of the tile is finished.
 fn all_done(li: u32) -> bool {
     workgroupBarrier();
     if (li == 0u) {
         s_all_done = atomicLoad(&s_done);
     }
-    return workgroupUniformLoad(&s_all_done) == TILE_PIXELS;
+    return workgroupUniformLoad(&s_all_done) == LANES;
+}
+
+// Pixel i of a quad as the output (C + T * background, T).
+fn out_pixel(q: Quad, i: u32, bg: vec3<f32>) -> vec4<f32> {
+    let T = q.T[i];
+    return vec4<f32>(vec3<f32>(q.r[i], q.g[i], q.b[i]) + T * bg, T);
 }
 
 // ---- full frame -----------------------------------------------------------------------------
@@ -92,35 +273,56 @@ fn all_done(li: u32) -> bool {
 @group(0) @binding(4) var<storage, read> proj_conic: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read> proj_rgb: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read_write> image: array<vec4<f32>>;
+// The pixel box of every pair (FULL_BOX past the point where the tile stopped): the variants
+// entry reads the clean frame's copy instead of re-reading records that cannot reach its pixels.
+@group(0) @binding(7) var<storage, read_write> isect_box: array<u32>;
 
-@compute @workgroup_size(TILE, TILE)
+@compute @workgroup_size(TILE, ROWS)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
         @builtin(local_invocation_index) li: u32) {
     let tile = wg.y * bin.tiles_x + wg.x;
-    let px = wg.x * TILE + lid.x;
-    let py = wg.y * TILE + lid.y;
-    let inside = px < bin.width && py < bin.height;
-    // pixel centres in full-frame coordinates (a sort-first region starts at `origin`)
-    var p = begin_pixel(li, inside, px + (bin.origin & 0xffffu), py + (bin.origin >> 16u));
+    let row0 = lid.y * SPAN;
+    // pixel centres in full-frame coordinates (a sort-first viewport starts at `origin`)
+    let first = vec2<u32>(bin.origin & 0xffffu, bin.origin >> 16u);
+    let tile0 = first + vec2<u32>(wg.x * TILE, wg.y * TILE);
+    var p = make_pixels(tile0.x + lid.x, tile0.y + row0, first, vec2<u32>(bin.width, bin.height));
+    if (li == 0u) {
+        atomicStore(&s_done, 0u);
+    }
+    workgroupBarrier();
+    count_if_done(&p);
     let range = ranges[tile];
     let n = range.y - range.x;
-    let batches = (n + TILE_PIXELS - 1u) / TILE_PIXELS;
-    for (var b = 0u; b < batches; b = b + 1u) {
-        let idx = range.x + b * TILE_PIXELS + li;
-        if (idx < range.y) {
-            let g = isect_prims[idx];
-            s_xy[li] = proj_xy[g];
-            s_conic[li] = proj_conic[g];
-            s_rgb[li] = proj_rgb[g];
+    let batches = (n + BATCH - 1u) / BATCH;
+    let origin = vec2<f32>(tile0);
+    for (var bt = 0u; bt < batches; bt = bt + 1u) {
+        for (var s = 0u; s < PER_LANE; s = s + 1u) {
+            let i = s * LANES + li;
+            let idx = range.x + bt * BATCH + i;
+            if (idx < range.y) {
+                let g = isect_prims[idx];
+                isect_box[idx] = stage(i, proj_xy[g], proj_conic[g], proj_rgb[g], origin);
+            }
         }
         workgroupBarrier();
-        blend_batch(&p, min(TILE_PIXELS, n - b * TILE_PIXELS));
+        blend_batch(&p, lid.x, row0, min(BATCH, n - bt * BATCH));
         if (all_done(li)) {
+            // the pairs never staged: no box known
+            for (var idx = range.x + (bt + 1u) * BATCH + li; idx < range.y; idx = idx + LANES) {
+                isect_box[idx] = FULL_BOX;
+            }
             break;
         }
     }
-    if (inside) {
-        image[(bin.stats_index * bin.height + py) * bin.width + px] = vec4<f32>(p.C + p.T * bin.background.xyz, p.T);
+    let bg = bin.background.xyz;
+    let x = wg.x * TILE + lid.x;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            let y = wg.y * TILE + row0 + QUAD * j + i;
+            if (x < bin.width && y < bin.height) {
+                image[(bin.stats_index * bin.height + y) * bin.width + x] = out_pixel(p.q[j], i, bg);
+            }
+        }
     }
 }
 
@@ -158,24 +360,57 @@ struct VariantEntry {
 @group(0) @binding(20) var<storage, read> var_rect: array<vec2<u32>>;
 @group(0) @binding(21) var<storage, read_write> slabs: array<vec4<f32>>;
 @group(0) @binding(22) var<storage, read> clean_image: array<vec4<f32>>;  // [K, H, W]
+@group(0) @binding(23) var<storage, read> kv_box: array<u32>;              // pixel box per kept pair
+
+// Tile-local bounds of the pixels still to blend (x0 | x1 << 8 | y0 << 16 | y1 << 24 once
+// gathered; empty when x0 > x1).
+var<workgroup> s_active: array<atomic<u32>, 4>;  // min col, max col, min row, max row
+
+var<workgroup> s_count: array<u32, LANES>;  // staged entries per invocation, then their offsets
+var<workgroup> s_kept: u32;
+
+// Offsets of a compaction in list order: each invocation passes how many of its PER_LANE
+// consecutive entries it keeps; returns (its first slot, the batch's total, uniform).
+fn compact(li: u32, kept: u32) -> vec2<u32> {
+    s_count[li] = kept;
+    workgroupBarrier();
+    if (li == 0u) {
+        var sum = 0u;
+        for (var t = 0u; t < LANES; t = t + 1u) {
+            let c = s_count[t];
+            s_count[t] = sum;
+            sum = sum + c;
+        }
+        s_kept = sum;
+    }
+    let total = workgroupUniformLoad(&s_kept);
+    return vec2<u32>(s_count[li], total);
+}
+
+// Position in the clean tile list of entry i of the variant's list.
+fn clean_pos(i: u32, insert: u32, removed: u32) -> u32 {
+    var j = i;
+    if (insert != 0xffffffffu && i > insert) { j = j - 1u; }
+    if (removed != 0xffffffffu && j >= removed) { j = j + 1u; }
+    return j;
+}
+
+// Whether two pixel boxes share a pixel.
+fn boxes_meet(a: u32, b: u32) -> bool {
+    let x0 = max(a & 0xffu, b & 0xffu);
+    let x1 = min((a >> 8u) & 0xffu, (b >> 8u) & 0xffu);
+    let y0 = max((a >> 16u) & 0xffu, (b >> 16u) & 0xffu);
+    let y1 = min(a >> 24u, b >> 24u);
+    return x0 <= x1 && y0 <= y1;
+}
 
 var<workgroup> s_list: vec4<u32>;   // (n virtual, insert position or 0xffffffff, removed position or 0xffffffff, 0)
 
-// Whether a record takes part in a pixel's blend (the same arithmetic and skip rules as
+// Lanes of the quad that a record takes part in (the same arithmetic and skip rules as
 // blend_batch). A pixel that neither the clean nor the corrupted record reaches composites
 // exactly as the clean frame did, so it is copied instead of re-blended.
-fn contributes(xy: vec2<f32>, co: vec4<f32>, pix: vec2<f32>) -> bool {
-    let d = xy - pix;
-    let sigma = 0.5 * (co.x * d.x * d.x + co.z * d.y * d.y) + co.y * d.x * d.y;
-    if (!is_nan_f32(sigma) && sigma < 0.0) {
-        return false;
-    }
-    let a = co.w * exp_ieee(-sigma);
-    var alpha = a;
-    if (!is_nan_f32(a)) {
-        alpha = min(0.99, a);
-    }
-    return !(!is_nan_f32(alpha) && alpha < 1.0 / 255.0);
+fn contributes(xy: vec2<f32>, co: vec4<f32>, q: Quad) -> vec4<bool> {
+    return alpha_of(sigma_of(xy, co, q), co.w).hit;
 }
 
 // (key, index) ordering of the depth sort: depth bits, ties by primitive index.
@@ -204,7 +439,7 @@ fn count_before(v: u32, start: u32, end: u32, key: u32, idx: u32) -> u32 {
     return lo - start;
 }
 
-@compute @workgroup_size(TILE, TILE)
+@compute @workgroup_size(TILE, ROWS)
 fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
             @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     let e = linear_wg(wg, nwg);
@@ -218,13 +453,17 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let prim = entry.prim;
     let tx = tile % rc.tiles_x;
     let ty = tile / rc.tiles_x;
-    let px = tx * TILE + lid.x;
-    let py = ty * TILE + lid.y;
-    let inside = px < rc.width && py < rc.height;
-    var p = begin_pixel(li, inside, px, py);
+    let row0 = lid.y * SPAN;
+    let tile0 = vec2<u32>(tx * TILE, ty * TILE);
+    var p = make_pixels(tile0.x + lid.x, tile0.y + row0, vec2<u32>(0u), vec2<u32>(rc.width, rc.height));
     let range = kv_ranges[v * rc.n_tiles + tile];
     let vi = v * rc.n_variants + b;
     if (li == 0u) {
+        atomicStore(&s_done, 0u);
+        atomicStore(&s_active[0], 0xffu);
+        atomicStore(&s_active[1], 0u);
+        atomicStore(&s_active[2], 0xffu);
+        atomicStore(&s_active[3], 0u);
         let n = range.y - range.x;
         // the clean entry of the corrupted primitive, if this tile lists it
         let ck = clean_key(v, prim);
@@ -252,45 +491,87 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let nv = list.x;
     let insert = list.y;
     let removed = list.z;
-    var copy_clean = false;
-    if (inside) {
-        let o = v * rc.n_prims + prim;
-        let old_hits = removed != 0xffffffffu && contributes(kv_xy[o], kv_conic[o], p.pix);
-        let new_hits = insert != 0xffffffffu && contributes(var_xy[vi], var_conic[vi], p.pix);
-        if (!old_hits && !new_hits) {
-            copy_clean = true;
-            p.done = true;
-            atomicAdd(&s_done, 1u);
+    // pixels that neither the clean nor the corrupted record reaches: copied from the clean frame
+    let o = v * rc.n_prims + prim;
+    var copy_clean: array<vec4<bool>, QPI>;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        let old_hits = contributes(kv_xy[o], kv_conic[o], p.q[j]) & vec4<bool>(removed != 0xffffffffu);
+        let new_hits = contributes(var_xy[vi], var_conic[vi], p.q[j]) & vec4<bool>(insert != 0xffffffffu);
+        copy_clean[j] = !p.q[j].done & !old_hits & !new_hits;
+        p.q[j].done = p.q[j].done | copy_clean[j];
+    }
+    count_if_done(&p);
+    // the box of the pixels to re-blend: a clean record whose box misses it is not read
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        let rows = select(vec4<u32>(0xffu), vec4<u32>(row0 + QUAD * j) + vec4<u32>(0u, 1u, 2u, 3u), !p.q[j].done);
+        if (any(!p.q[j].done)) {
+            atomicMin(&s_active[0], lid.x);
+            atomicMax(&s_active[1], lid.x);
+            atomicMin(&s_active[2], min(min(rows.x, rows.y), min(rows.z, rows.w)));
+            let top = select(vec4<u32>(0u), rows, !p.q[j].done);
+            atomicMax(&s_active[3], max(max(top.x, top.y), max(top.z, top.w)));
         }
     }
-    let batches = (nv + TILE_PIXELS - 1u) / TILE_PIXELS;
+    workgroupBarrier();
+    let live = atomicLoad(&s_active[0]) | (atomicLoad(&s_active[1]) << 8u) | (atomicLoad(&s_active[2]) << 16u)
+        | (atomicLoad(&s_active[3]) << 24u);
+    let origin = vec2<f32>(tile0);
+    let batches = (nv + BATCH - 1u) / BATCH;
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
-        let i = bt * TILE_PIXELS + li;
-        if (i < nv) {
-            if (i == insert) {
-                s_xy[li] = var_xy[vi];
-                s_conic[li] = var_conic[vi];
-                s_rgb[li] = var_rgb[vi];
-            } else {
-                var j = i;
-                if (insert != 0xffffffffu && i > insert) { j = j - 1u; }
-                if (removed != 0xffffffffu && j >= removed) { j = j + 1u; }
-                let g = kv_isect[v * rc.capacity + range.x + j];
-                let o = v * rc.n_prims + g;
-                s_xy[li] = kv_xy[o];
-                s_conic[li] = kv_conic[o];
-                s_rgb[li] = kv_rgb[o];
+        // Each invocation takes PER_LANE consecutive list entries; only those whose pixel box
+        // meets the live pixels are staged, compacted in list order (an exclusive scan of the
+        // per-invocation counts), so the blend loop never visits the others.
+        var boxes: array<u32, PER_LANE>;
+        var kept = 0u;
+        for (var s = 0u; s < PER_LANE; s = s + 1u) {
+            let i = bt * BATCH + li * PER_LANE + s;
+            var bx = EMPTY_BOX;
+            if (i < nv) {
+                if (i == insert) {
+                    bx = box_of(var_xy[vi], var_conic[vi], cut_of(var_conic[vi].w), origin);
+                } else {
+                    bx = kv_box[v * rc.capacity + range.x + clean_pos(i, insert, removed)];
+                }
+            }
+            if (!boxes_meet(bx, live)) {
+                bx = EMPTY_BOX;
+            }
+            boxes[s] = bx;
+            kept = kept + u32(bx != EMPTY_BOX);
+        }
+        let at_m = compact(li, kept);
+        let m = at_m.y;
+        var slot = at_m.x;
+        for (var s = 0u; s < PER_LANE; s = s + 1u) {
+            let bx = boxes[s];
+            if (bx != EMPTY_BOX) {
+                let i = bt * BATCH + li * PER_LANE + s;
+                if (i == insert) {
+                    stage_boxed(slot, var_xy[vi], var_conic[vi], var_rgb[vi], bx);
+                } else {
+                    let at = v * rc.capacity + range.x + clean_pos(i, insert, removed);
+                    let og = v * rc.n_prims + kv_isect[at];  // its box: the clean frame's, for this very pair
+                    stage_boxed(slot, kv_xy[og], kv_conic[og], kv_rgb[og], bx);
+                }
+                slot = slot + 1u;
             }
         }
         workgroupBarrier();
-        blend_batch(&p, min(TILE_PIXELS, nv - bt * TILE_PIXELS));
+        blend_batch(&p, lid.x, row0, m);
         if (all_done(li)) {
             break;
         }
     }
-    if (copy_clean) {
-        slabs[e * TILE_PIXELS + li] = clean_image[(v * rc.height + py) * rc.width + px];
-    } else {
-        slabs[e * TILE_PIXELS + li] = vec4<f32>(p.C + p.T * rc.background.xyz, p.T);
+    let bg = rc.background.xyz;
+    let x = tile0.x + lid.x;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            let ly = row0 + QUAD * j + i;
+            var px = out_pixel(p.q[j], i, bg);
+            if (copy_clean[j][i]) {
+                px = clean_image[(v * rc.height + tile0.y + ly) * rc.width + x];
+            }
+            slabs[e * TILE_PIXELS + ly * TILE + lid.x] = px;
+        }
     }
 }

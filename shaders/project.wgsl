@@ -1,6 +1,14 @@
 // Projection (render/project.py): decode the stored primitive, EWA-project it into one view,
 // evaluate SH colour, and compute its tile rectangle. One thread per primitive of one model chunk.
 // Rules (culling, unbounded footprints, saturating rectangles) are in docs/renderer.md.
+//
+// One pipeline per (stored precision, SH degree, guard mask): the overrides below turn the
+// per-component format and guard branches into straight-line code (render/project.py picks the
+// pipeline from the slot's `fmt`, `sh_degree`, `guard_lo` and `guard_hi`).
+override FMT: u32 = 0u;           // FMT_FP32, FMT_FP16 or FMT_BF16
+override SH_DEGREE: u32 = 3u;
+override GUARD_LO: u32 = 0u;      // in-pipeline guard: components 0..31 to clamp
+override GUARD_HI: u32 = 0u;      // components 32..63
 
 struct View {
     viewmat: mat4x4<f32>,     // world-to-camera, column-major (as WGSL stores it)
@@ -15,11 +23,11 @@ struct View {
     chunk_base: u32,          // first primitive of this chunk
     chunk_count: u32,         // primitives in this chunk
     plane_words: u32,         // u32 words per component plane
-    sh_degree: u32,
-    fmt: u32,                 // FMT_FP32, FMT_FP16, FMT_BF16
+    sh_degree: u32,           // = SH_DEGREE of the pipeline that reads this slot
+    fmt: u32,                 // = FMT of that pipeline
     view_index: u32,
-    guard_lo: u32,            // in-pipeline guard: components 0..31 to clamp
-    guard_hi: u32,            // components 32..63
+    guard_lo: u32,            // = GUARD_LO of that pipeline
+    guard_hi: u32,            // = GUARD_HI
     tile_x0: f32,             // viewport origin in tiles (sort-first regions); 0 for a full frame
     tile_y0: f32,
     _p2: u32,
@@ -45,18 +53,18 @@ const SH_C0: f32 = 0.28209479177387814;
 const SH_C1: f32 = 0.4886025119029199;
 
 fn stored(j: u32, c: u32) -> f32 {
-    if (view.fmt == FMT_FP32) {
+    if (FMT == FMT_FP32) {
         return bitcast<f32>(model[c * view.plane_words + j]);
     }
     let w = model[c * view.plane_words + (j >> 1u)];
-    return decode_value(w, (j & 1u) == 1u, view.fmt);
+    return decode_value(w, (j & 1u) == 1u, FMT);
 }
 
 fn guard_on(c: u32) -> bool {
     if (c < 32u) {
-        return ((view.guard_lo >> c) & 1u) == 1u;
+        return ((GUARD_LO >> c) & 1u) == 1u;
     }
-    return ((view.guard_hi >> (c - 32u)) & 1u) == 1u;
+    return ((GUARD_HI >> (c - 32u)) & 1u) == 1u;
 }
 
 // Each component is read exactly once per primitive and view, so clamps are counted once (view 0).
@@ -94,7 +102,7 @@ fn shc(j: u32, k: u32) -> vec3<f32> {
 // dynamic indices are slow on CPU Vulkan).
 fn sh_colour(j: u32, dir: vec3<f32>) -> vec3<f32> {
     var c = SH_C0 * shc(j, 0u);
-    let deg = view.sh_degree;
+    let deg = SH_DEGREE;
     if (deg > 0u) {
         let x = dir.x;
         let y = dir.y;

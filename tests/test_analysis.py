@@ -335,6 +335,13 @@ def test_size_scaling_recovers_exponent():
     f = res["fits"].set_index("metric")
     assert f.loc["median_mse", "alpha"] == pytest.approx(0.5, abs=1e-9)
     assert f.loc["mean_mse", "r2"] == pytest.approx(1.0, abs=1e-9)
+    assert f.loc["mean_mse", "n_fitted"] == 4 and f.loc["mean_mse", "n_zero"] == 0
+    # two sizes whose median error is 0 (identical frames): shown, counted, and no exponent made
+    # up from the two points left
+    zeros = [r.assign(psnr=np.inf) if i < 2 else r for i, r in enumerate(rows)]
+    fz = scaling.size_scaling(pd.concat(zeros, ignore_index=True))["fits"].set_index("metric")
+    assert fz.loc["median_mse", "n_zero"] == 2 and fz.loc["median_mse", "n_fitted"] == 2
+    assert math.isnan(fz.loc["median_mse", "alpha"])
     with pytest.raises(records.InsufficientData) as e:
         scaling.size_scaling(rows[0])
     assert "size campaign" in e.value.remedy

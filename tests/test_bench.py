@@ -18,12 +18,23 @@ def bench():
     return mod
 
 
+def test_floors_are_measured(bench, gpu):
+    fl = bench.measure_floors(gpu, repeats=1, groups=16, iters=16, copy_mb=1)
+    assert fl["exp_per_s"] > 0 and fl["copy_bytes_per_s"] > 0 and fl["exp_evals"] == 4 * 64 * 16 * 16
+    # a stage's floor: its bytes at the copy rate; compositing: pairs x tile pixels at the exp rate
+    kw = {"n": 1000, "pairs": 5000, "n_tiles": 16, "model_bytes": 4 * 59 * 1000, "floors": fl}
+    assert bench.stage_floor_s("project", **kw) == (4 * 59 * 1000 + 56 * 1000) / (2 * fl["copy_bytes_per_s"])
+    assert bench.stage_floor_s("composite", **kw) == 5000 * 256 / fl["exp_per_s"]
+    assert bench.stage_floor_s("ranges", **kw) is None
+
+
 def test_bench_config_fields(bench, gpu):
     from seuwgpu.model import scenes
 
     model = scenes.make_scene("spheres", 2000, 3, 0)
     twin = bench.measure_twin("spheres", model, 32)
-    rec = bench.bench_config(model, "spheres", 32, 2, repeats=2, gpu=gpu, twin=twin)
+    floors = bench.measure_floors(gpu, repeats=1, groups=16, iters=16, copy_mb=1)
+    rec = bench.bench_config(model, "spheres", 32, 2, repeats=2, gpu=gpu, twin=twin, floors=floors)
     json.dumps(rec)  # JSON-serialisable (the twin image is not in the record)
     assert rec["n"] == 2000 and rec["width"] == rec["height"] == 32 and rec["k"] == 2
     assert 1 <= rec["repeats"] <= 2 and len(rec["times_s"]) == rec["repeats"]
@@ -38,6 +49,7 @@ def test_bench_config_fields(bench, gpu):
             assert st[s] >= 0, s
         assert st["project"] > 0 and st["composite"] > 0
         assert rec["untimed_passes"] == 0 and rec["timed_passes"] > 0
+        assert rec["floors_ms_per_view"]["composite"] > 0 and rec["floors_ms_per_view"]["project"] > 0
     else:
         assert rec["stages_ms"] is None and "timestamp-query" in rec["stage_source"]
 
@@ -52,15 +64,18 @@ def test_twin_above_max_n_gives_no_ratio(bench, gpu):
     assert rec["twin_ratio"] is None and rec["stages_ms"] is None and rec["mpix_per_s"] > 0
 
 
-def test_main_writes_json_and_table(bench, gpu, tmp_path, capsys):
+def test_main_writes_json_only_where_told(bench, gpu, tmp_path, capsys, monkeypatch):
     out = tmp_path / "b.json"
-    assert (
-        bench.main(
-            ["--scenes", "spheres", "--n", "2000", "--sizes", "32", "--views", "1", "--repeats", "1", "--out", str(out)]
-        )
-        == 0
-    )
+    monkeypatch.chdir(tmp_path)
+    args = ["--scenes", "spheres", "--n", "2000", "--sizes", "32", "--views", "1", "--repeats", "1"]
+    assert bench.main([*args, "--campaign-samples", "8", "--out", str(out)]) == 0
     doc = json.loads(out.read_text())
     assert doc["adapter"]["backend"] and doc["adapter"]["device"]
     assert len(doc["results"]) == 1 and doc["results"][0]["mpix_per_s"] > 0 and doc["total_wall_s"] > 0
-    assert "Mpix/s" in capsys.readouterr().out
+    assert doc["floors"]["exp_per_s"] > 0 and doc["settings"]["date"]
+    assert doc["campaigns"][0]["injections_per_s"] > 0 and doc["campaigns"][0]["injections"] == 8
+    printed = capsys.readouterr().out
+    assert "Mpix/s" in printed and "injections/s" in printed
+    out.unlink()
+    assert bench.main([*args, "--campaign-samples", "0", "--no-twin"]) == 0
+    assert list(tmp_path.iterdir()) == []  # no --out: nothing written

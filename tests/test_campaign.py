@@ -208,6 +208,22 @@ def test_size_sweep_and_uniform_sampling(tmp_path):
     assert uni.field.nunique() >= 2 and uni.bit.nunique() > 5
 
 
+def test_size_sweep_over_several_scenes():
+    base = {
+        "size": "32x32",
+        "scenes": [{"scene": "plant", "n": 999}, {"scene": "spheres", "n": 999}],
+        "sizes": {"n": [100, 200], "fields": ["opacity"], "bits": [31], "samples": 2, "defenses": ["none"]},
+    }
+    one = enumerate_contexts(normalize_spec(base))
+    assert {c.scene_index for c in one} == {0} and "scenes" not in normalize_spec(base)["sizes"]
+    base["sizes"]["scenes"] = "all"
+    both = enumerate_contexts(normalize_spec(base))
+    assert sorted((c.scene_index, c.n) for c in both) == [(0, 100), (0, 200), (1, 100), (1, 200)]
+    base["sizes"]["scenes"] = [2]
+    with pytest.raises(SpecError, match="sizes.scenes"):
+        normalize_spec(base)
+
+
 def test_samples_planned_from_a_margin(tmp_path):
     from seuwgpu.campaign.plan import sample_size
 

@@ -29,6 +29,33 @@ def assert_close(got, want):
     assert err.max(initial=0) <= TOL, err.max()
 
 
+def gpu_frame(gpu, ranges, prims, rec: dict, w: int, h: int, background) -> np.ndarray:
+    """composite.wgsl:main on the given tile lists and screen records: [h, w, 4] (rgb, T)."""
+    tx, ty = -(-w // 16), -(-h // 16)
+    frame = Binning(gpu, len(rec["opacity"]))
+    frame.set_views(1, tx * ty)
+    frame.set_capacity(len(prims))
+    frame.set_view(0, tiles_x=tx, size=(w, h), origin=(0, 0), background=background)
+    frame.params.write()
+    stage = Compositing(gpu)
+    stage.set_views(1, w, h)
+    depth = rec.get("depth", np.zeros(len(rec["opacity"])))
+    enc = gpu.device.create_command_encoder()
+    stage.encode(
+        enc,
+        frame.params.binding(0),
+        gpu.upload(np.asarray(ranges).astype(np.uint32)),
+        gpu.upload(np.asarray(prims).astype(np.uint32)),
+        gpu.upload(rec["mean2d"]),
+        gpu.upload(np.column_stack([rec["conic"], rec["opacity"]]).astype(np.float32)),
+        gpu.upload(np.column_stack([rec["rgb"], depth]).astype(np.float32)),
+        (tx, ty),
+        gpu.buffer(4 * len(prims)),
+    )
+    gpu.submit(enc)
+    return gpu.read(stage.image, np.float32).reshape(h, w, 4)
+
+
 def test_frame_matches_twin(gpu):
     model = random_model(2000, seed=2)
     flat = model.flat()
@@ -43,26 +70,7 @@ def test_frame_matches_twin(gpu):
         rec = project(model, cam)
     ranges, prims = tile_lists(rec["rect"], depth_order(rec), tx, tx * ty)
     want = composite_frame(ranges, prims, rec, w, h, background=(0.2, 0.3, 0.4))
-    frame = Binning(gpu, model.n)
-    frame.set_views(1, tx * ty)
-    frame.set_capacity(len(prims))
-    frame.set_view(0, tiles_x=tx, size=(w, h), origin=(0, 0), background=(0.2, 0.3, 0.4))
-    frame.params.write()
-    stage = Compositing(gpu)
-    stage.set_views(1, w, h)
-    enc = gpu.device.create_command_encoder()
-    stage.encode(
-        enc,
-        frame.params.binding(0),
-        gpu.upload(ranges.astype(np.uint32)),
-        gpu.upload(prims.astype(np.uint32)),
-        gpu.upload(rec["mean2d"]),
-        gpu.upload(np.column_stack([rec["conic"], rec["opacity"]]).astype(np.float32)),
-        gpu.upload(np.column_stack([rec["rgb"], rec["depth"]]).astype(np.float32)),
-        (tx, ty),
-    )
-    gpu.submit(enc)
-    got = gpu.read(stage.image, np.float32).reshape(h, w, 4)
+    got = gpu_frame(gpu, ranges, prims, rec, w, h, (0.2, 0.3, 0.4))
     assert (~np.isfinite(want)).any() and (want[..., 3] < 0.5).any()
     assert_close(got, want)
 
@@ -115,3 +123,63 @@ def test_variants_match_twin(gpu):
         got = slabs[e, : ys.stop - ys.start, : xs.stop - xs.start].reshape(-1, 4)
         assert_close(got[:, :3], want)
         assert_close(got[:, 3], T)
+
+
+def _edge_records(n: int, rng) -> dict:
+    """Screen records around the compositor's shortcuts (the opacity cut, the per-tile pixel box):
+    opacities at and near 1/255 and 0.001, above 1, huge, negative, zero, subnormal; conics from
+    round to nearly singular (B^2 = A C (1 - 10^-k)), tiny, huge, zero, negative; means near and
+    far. All finite: NaN would reach every pixel and hide the rest (test_frame_matches_twin
+    covers non-finite records)."""
+    ang = rng.uniform(0, np.pi, n)
+    s1, s2 = np.exp(rng.uniform(np.log(0.2), np.log(40), (2, n)))
+    c, s = np.cos(ang), np.sin(ang)
+    a = c * c * s1 * s1 + s * s * s2 * s2 + 0.3
+    b = c * s * (s1 * s1 - s2 * s2)
+    cc = s * s * s1 * s1 + c * c * s2 * s2 + 0.3
+    det = a * cc - b * b
+    conic = np.column_stack([cc / det, -b / det, a / det])
+    k = rng.integers(0, 8, n)
+    near = rng.random(n) < 0.25  # nearly singular: B^2 = A C (1 - 10^-k)
+    conic[near, 1] = np.sign(conic[near, 1] + 1e-30) * np.sqrt(conic[near, 0] * conic[near, 2] * (1 - 10.0 ** -k[near]))
+    odd = rng.integers(0, 8, n)
+    conic[odd == 1] *= 1e7
+    conic[odd == 2] *= 1e-14
+    conic[odd == 3] = 0.0
+    conic[odd == 4, 0] *= -1
+    op = rng.uniform(0, 0.05, n)
+    which = rng.integers(0, 10, n)
+    op[which == 1] = (1 / 255) * (1 + rng.uniform(-2e-3, 2e-3, (which == 1).sum()))
+    op[which == 2] = 0.001 * (1 + rng.uniform(-1e-3, 1e-3, (which == 2).sum()))
+    op[which == 3] = rng.choice([1.5, 1e31, -0.5, 0.0, 1e-40], (which == 3).sum())
+    mean2d = rng.uniform(-12, 52, (n, 2))
+    mean2d[rng.random(n) < 0.03] = [[1e5, 20.0]]
+    mean2d[rng.random(n) < 0.03] = [[20.0, -3e7]]
+    return {
+        "mean2d": mean2d.astype(np.float32),
+        "conic": conic.astype(np.float32),
+        "opacity": op.astype(np.float32),
+        "rgb": rng.uniform(0, 1, (n, 3)).astype(np.float32),
+    }
+
+
+def test_shortcuts_match_twin(gpu):
+    """Records crafted around the skips the GPU takes without evaluating exp (the opacity cut and
+    the per-tile pixel box, composite.wgsl): every tile draws all of them, and any contribution
+    wrongly skipped (at least 1/255 of T) would show far beyond the tolerance."""
+    rng = np.random.default_rng(7)
+    n, w, h = 700, 40, 36
+    rec = _edge_records(n, rng)
+    tx, ty = -(-w // 16), -(-h // 16)
+    # records that saturate pixels go last, so the others are all evaluated
+    loud = ~(np.abs(rec["opacity"]) <= 1)
+    order = np.concatenate([rng.permutation(np.flatnonzero(~loud)), np.flatnonzero(loud)])
+    prims = np.tile(order, tx * ty)
+    ranges = np.stack([np.arange(tx * ty) * n, np.arange(1, tx * ty + 1) * n], axis=1)
+    with np.errstate(all="ignore"):
+        want = composite_frame(ranges, prims, rec, w, h)
+    got = gpu_frame(gpu, ranges, prims, rec, w, h, (1.0, 1.0, 1.0))
+    quiet = composite_frame(np.array([[0, (~loud).sum()]] * (tx * ty)), order, rec, w, h)
+    assert (quiet[..., 3] > 0.01).mean() > 0.9  # no pixel stops early: each sees the whole list
+    assert np.isfinite(want).all()
+    assert_close(got, want)

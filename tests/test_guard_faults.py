@@ -157,14 +157,27 @@ def test_ecc_corrects_every_single_sign_exponent_flip_and_dup_every_flip(precisi
         assert np.array_equal(dup_read(vals, flipped), vals)
 
 
-def test_defenses_on_the_gpu_model(engines):
+def test_defenses_on_the_gpu_model(engines, monkeypatch):
+    """ECC corrects a single exponent upset and passes a mantissa one; duplication outvotes both.
+    The primitive is the most harmful of a sample and the undefended render is asserted changed
+    first, so every defended zero is the defense's doing (a primitive hidden from the views would
+    give zeros under any defense); with the defenses' reads made pass-through, the checks fail."""
+    import seuwgpu.faults.defenses as defenses_module
+
     eng = engines["fp32"]
-    site = eng.site("sh_dc", 17, 1, 30)
+    prim, _ = eng.worst_primitive("sh_dc", 1, [30], sample=64, seed=0)
+    site, mant = eng.site("sh_dc", prim, 1, 30), eng.site("sh_dc", prim, 1, 22)
     recs = {d: eng.inject(site, d) for d in DEFENSES}
+    assert recs["none"]["footprint"] > 0 and recs["none"]["psnr"] != np.inf  # NaN when non-finite
     assert recs["ecc"]["footprint"] == 0 and recs["ecc"]["psnr"] == np.inf
-    assert recs["dup"]["footprint"] == 0
-    mant = eng.site("sh_dc", 17, 1, 22)
-    assert eng.inject(mant, "ecc")["peak_error"] == eng.inject(mant, "none")["peak_error"]
+    assert recs["dup"]["footprint"] == 0 and recs["dup"]["psnr"] == np.inf
+    none, ecc, dup = (eng.inject(mant, d) for d in ("none", "ecc", "dup"))
+    assert none["peak_error"] > 0
+    assert ecc["peak_error"] == none["peak_error"] and ecc["footprint"] == none["footprint"]
+    assert dup["peak_error"] == 0
+    monkeypatch.setattr(defenses_module, "ecc_read", lambda clean, stored, precision: stored)
+    monkeypatch.setattr(defenses_module, "dup_read", lambda clean, stored: stored)
+    assert eng.inject(site, "ecc")["footprint"] > 0 and eng.inject(site, "dup")["footprint"] > 0
 
 
 def test_uniform_upsets_cover_the_whole_budget():
@@ -176,8 +189,10 @@ def test_uniform_upsets_cover_the_whole_budget():
 
 
 @pytest.mark.parametrize("precision", encoding.PRECISIONS)
-def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision):
-    from seuwgpu.faults.guard import clamp_bits
+@pytest.mark.parametrize("fields, wpt", [(FIELDS[:5], 4), (("log_scales", "opacity"), 128)])
+def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision, fields, wpt):
+    """The scrub against its twin, for both thread shapes (GPU: 4 words per thread, CPU: 128)."""
+    from seuwgpu.faults.guard import Scrub, clamp_bits
 
     model = random_model(97, seed=13)
     r = Renderer(model, scene_cameras("spheres", 1, 32, 32), precision)
@@ -189,13 +204,15 @@ def test_clamp_bits_twin_equals_the_scrub_shader_word_for_word(precision):
     bits[3, 4] ^= sign  # log-scale sign flip: above the box
     bits[5, 10] = top  # opacity NaN -> lower bound
     bits[7, 20] = snan  # signalling NaN in sh_rest: not guarded
-    bits[9, 0] = snan  # ... and in a mean: guarded
-    mask = component_mask(FIELDS[:5], 3)
+    bits[9, 0] = snan  # ... and in a mean: guarded by the full guard only
+    bits[96, 4] ^= sign  # the last primitive (the low half of a 16-bit word)
+    mask = component_mask(fields, 3)
     want, hit = clamp_bits(bits, box, mask)
     for c, words in enumerate(r.layout.encode_bits(bits)):
         r.gpu.write(r.chunks[c], words)
-    scrub(r, box, FIELDS[:5])
+    counts = Scrub(r, words_per_thread=wpt).run(box, component_mask(fields, 3))
     got = np.concatenate([r.read_words(c) for c in range(r.layout.n_chunks)])
     assert np.array_equal(got, np.concatenate(r.layout.encode_bits(want)))
-    assert hit[5, 10] and hit[9, 0] and not hit[7, 20]
+    assert hit[5, 10] and hit[96, 4] and hit[9, 0] == ("means" in fields) and not hit[7, 20]
+    assert sum(counts.values()) == hit.sum()
     assert want[7, 20] == snan  # payload untouched, bit for bit

@@ -44,14 +44,14 @@ def test_incremental_equals_full_rerender(precision):
     eng = Engine(model, scene_cameras("blocks", 2, 48, 40), precision, scene="blocks")
     rng = np.random.default_rng(11)
     sites = sample_sites(eng, rng)
-    defenses = ("none", "guard", "ecc")
+    defenses = ("none", "guard", "ecc", "dup")
     inc = eng.evaluate(sites, defenses)
     assert len(inc) == len(sites) * len(defenses)
     catastrophic = 0
     for rec in inc:
         site = eng.site(rec["field"], rec["primitive"], rec["component"], rec["bit"])
         full = eng.inject(site, rec["defense"])
-        for key in METRICS:
+        for key in METRICS + ("clean_value", "corrupted_value"):  # values: the stored ones, in every arm
             assert same(rec[key], full[key]), (rec, key, full[key])
         catastrophic += rec["catastrophic"]
     assert catastrophic > 0, "the sample should hold frame-covering flips"

@@ -120,7 +120,8 @@ def test_constants_header_defines_the_shared_values_once():
     src = shader_source("composite")
     values = wgsl_constants(src)
     assert values["TILE_PIXELS"] == TILE * TILE and values["MAX_GROUPS_X"] == MAX_GROUPS_X
-    assert workgroup_size(src, "main") == (TILE, TILE, 1)
+    assert values["LANES"] == TILE * TILE // 8  # 8 pixels per invocation
+    assert workgroup_size(src, "main") == (TILE, TILE // 8, 1)
     assert workgroup_size(shader_source("scan"), "ps_reduce") == (WG, 1, 1)
     assert workgroup_size(shader_source("metrics"), "tile_partials") == (TILE * TILE // 4, 1, 1)
     with pytest.raises(ValueError):

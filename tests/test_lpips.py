@@ -61,3 +61,29 @@ def test_missing_weights_name_the_extra(monkeypatch):
             lpips.lpips(_img("ex_ref"), _img("ex_p0"))
     finally:
         lpips._load.cache_clear()
+
+
+def test_campaign_records_lpips_when_asked(tmp_path):
+    from seuwgpu.campaign.runner import Runner
+    from seuwgpu.campaign.spec import normalize_spec
+    from seuwgpu.campaign.store import read_records
+
+    spec = normalize_spec(
+        {
+            "views": 1,
+            "size": "32x32",
+            "lpips": True,
+            "scenes": [{"scene": "spheres", "n": 300}],
+            "single": {"fields": ["log_scales", "sh_dc"], "bits": [0, 30, 31], "samples": 2},
+        }
+    )
+    Runner(spec, tmp_path / "run", quiet=True).run()
+    df = read_records(tmp_path / "run")
+    assert df.loc[df["peak_error"] == 0, "lpips"].eq(0).all()
+    assert df.loc[df["nonfinite"], "lpips"].isna().all()
+    # visibly changed pixels: a positive distance; no visible change: ~0 (float32 noise)
+    shown = (df["footprint"] > 0) & ~df["nonfinite"]
+    assert shown.any() and (df.loc[shown, "lpips"] > 0).all()
+    assert (df.loc[df["footprint"] == 0, "lpips"] < 1e-6).all()
+    without = normalize_spec({"scenes": [{"scene": "spheres", "n": 300}], "single": {"samples": 1}, "lpips": False})
+    assert "lpips" not in without  # off by default, and an explicit false keeps the hash

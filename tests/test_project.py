@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from conftest import random_model
 
+from seuwgpu.faults.guard import clamp_values, component_mask, guard_fields, support_box
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import orbit_cameras
@@ -20,10 +21,10 @@ from seuwgpu.render.renderer import Renderer
 SPECIAL = [np.nan, np.inf, -np.inf, 1e30, -1e30, 30.0, 0.0, -0.0]
 
 
-def corrupted(n, seed, n_bad=40):
+def corrupted(n, seed, n_bad=40, degree=3):
     """A random scene with special values planted in random components (sheets, NaN colours,
     culled means, zero quaternions, ...)."""
-    m = random_model(n, seed=seed)
+    m = random_model(n, degree=degree, seed=seed)
     flat = m.flat()
     rng = np.random.default_rng(seed)
     for _ in range(n_bad):
@@ -35,12 +36,14 @@ def corrupted(n, seed, n_bad=40):
     return Model.from_flat(flat, m.sh_degree)
 
 
-def gpu_project(gpu, model, cam, precision, chunk_prims):
-    """Run the Projection stage alone over every chunk of the stored model."""
+def gpu_project(gpu, model, cam, precision, chunk_prims, guard=None):
+    """Run the Projection stage alone over every chunk of the stored model; `guard` = (Bound
+    rows, component mask) turns the in-pipeline guard on. Returns (records, chunks, clamp counts)."""
     L = StoredLayout(model.n, model.sh_degree, precision, chunk_prims)
     words = [gpu.upload(w) for w in L.encode(model)]
     stage = Projection(gpu, model.n, L.n_chunks)
-    box, counts = gpu.buffer(16 * L.ncomp), gpu.buffer(32)
+    box = gpu.upload(guard[0]) if guard else gpu.buffer(16 * L.ncomp)
+    counts = gpu.upload(np.zeros(8, np.uint32))
     for c in range(L.n_chunks):
         a, b = L.chunk_range(c)
         stage.set_view(
@@ -53,6 +56,7 @@ def gpu_project(gpu, model, cam, precision, chunk_prims):
             degree=model.sh_degree,
             precision=precision,
             view_index=0,
+            guard_mask=guard[1] if guard else 0,
         )
     stage.params.write()
     enc = gpu.device.create_command_encoder()
@@ -60,7 +64,7 @@ def gpu_project(gpu, model, cam, precision, chunk_prims):
         a, b = L.chunk_range(c)
         stage.encode(enc, c, words[c], b - a, box, counts)
     gpu.submit(enc)
-    return stage.read(model.n), L.n_chunks
+    return stage.read(model.n), L.n_chunks, gpu.read(counts)[:6]
 
 
 def close_records(got, want, tol=1e-5):
@@ -79,17 +83,23 @@ def close_records(got, want, tol=1e-5):
 def test_projection_matches_twin(gpu, precision):
     model = corrupted(3001, seed=1)
     cam = orbit_cameras(3, 72, 40)[1]
-    got, n_chunks = gpu_project(gpu, model, cam, precision, chunk_prims=1024)
+    got, n_chunks, _ = gpu_project(gpu, model, cam, precision, chunk_prims=1024)
     assert n_chunks == 3
     with np.errstate(all="ignore"):
         want = project(model.quantized(precision), cam)
     vis = want["visible"]
-    assert 0.5 * model.n < vis.sum() < model.n and not vis[3] and vis[6]
+    assert 0.5 * model.n < vis.sum() < model.n and not vis[3] and vis[6] and want["unbounded"][[4, 5]].all()
+    assert_records_match(got, want, cam)
+
+
+def assert_records_match(got, want, cam):
+    """GPU records against the twin's: the exact parts exactly, floats to the module's tolerances."""
+    vis = want["visible"]
     # exact: drawn or culled, tile rectangles (zero when culled), primitive ids, culled keys
     np.testing.assert_array_equal(got["depth_keys"] != 0xFFFFFFFF, vis)
     np.testing.assert_array_equal(got["rect"], want["rect"])
-    np.testing.assert_array_equal(got["depth_vals"], np.arange(model.n))
-    assert want["unbounded"][[4, 5]].all() and (got["rect"][want["unbounded"]] == [0, 0, *n_tiles_xy(cam)]).all()
+    np.testing.assert_array_equal(got["depth_vals"], np.arange(len(vis)))
+    assert (got["rect"][want["unbounded"]] == [0, 0, *n_tiles_xy(cam)]).all()
     assert (got["conic"][want["unbounded"]] == 0).all()
     # float records of the drawn primitives
     close_records(got["xy"][vis], want["mean2d"][vis])
@@ -125,3 +135,25 @@ def test_viewport_rectangles_are_the_full_frames_shifted(gpu):
     empty = (shifted[:, 2] <= shifted[:, 0]) | (shifted[:, 3] <= shifted[:, 1])
     shifted[empty] = 0
     np.testing.assert_array_equal(rp, shifted)
+
+
+@pytest.mark.parametrize(
+    "precision, degree, fields", [("fp32", 1, "guard"), ("fp16", 2, "selective"), ("bf16", 0, "guard")]
+)
+def test_guarded_projection_variants_match_twin(gpu, precision, degree, fields):
+    """The pipelines specialised per precision, SH degree and guard mask: the guarded projection
+    of a corrupted model equals the twin's projection of the model clamped by the guard's twin,
+    and the clamp counts are the twin's."""
+    model = corrupted(2000, seed=3, degree=degree)
+    cam = orbit_cameras(3, 72, 40)[2]
+    stored = model.quantized(precision)
+    clean = random_model(2000, degree=degree, seed=3).quantized(precision)
+    box = support_box(clean, precision)
+    mask = component_mask(guard_fields(fields), degree)
+    got, _, counts = gpu_project(gpu, model, cam, precision, chunk_prims=1024, guard=(box.rows(), mask))
+    clamped, want_counts = clamp_values(stored.flat(), box, mask)
+    with np.errstate(all="ignore"):
+        want = project(Model.from_flat(clamped, degree), cam)
+    assert want_counts.sum() > 0
+    np.testing.assert_array_equal(counts, want_counts)
+    assert_records_match(got, want, cam)

@@ -1,8 +1,11 @@
 """Rendering benchmark: Mpix/s, ms per view, per-stage GPU times, and the speed ratio to the numpy twin.
 
-    python tools/bench.py                      # the default grid (see below), writes bench.json
+    python tools/bench.py                      # the default grid (see below); tables only
     python tools/bench.py --quick              # a tiny grid (seconds), for a smoke check
     python tools/bench.py --scenes spheres --n 100000 --sizes 256 --views 1 8 --repeats 5 --out b.json
+
+Runs from any directory with the package installed (or from a checkout); the JSON goes only where
+--out says (never into the repository by default).
 
 For each (scene, N, size, K) the embedded scene is rendered from K orbit views in ONE submission
 (the Renderer's unit of work). What is measured, per configuration:
@@ -26,6 +29,17 @@ For each (scene, N, size, K) the embedded scene is rendered from K orbit views i
   scene, N and size; the twin renders views one by one, so its per-view time does not depend on K.
   The GPU's view 0 is read back once, untimed, and compared with the twin (PSNR) as a sanity check.
 
+- measured floors, in the same run, on the same device: an exp-loop microbenchmark (WGSL, vec4
+  exp chains: exp evaluations per second) and a buffer copy (bytes per second). Each stage's time
+  per view is set against a floor: compositing against (tile-list pairs x TILE^2 pixels) exp
+  evaluations at the measured exp rate (what a renderer evaluating every listed pair at every
+  pixel of its tile would need; ours skips most evaluations that provably cannot contribute, so
+  it may run faster than this floor), every other stage against the bytes it must read and write
+  at the measured copy rate (a lower bound: STAGE_BYTES below). "% of floor" = floor / time.
+- injections per second of a campaign (the incremental single-upset path of faults/engine.py on
+  the same scene: K = 4 views at 128x128, stratified sites as tools/bench_campaign.py draws them),
+  unless --campaign-samples 0.
+
 Default grid (the issue's required one): scene spheres, N = 100k and 1M, 256x256 and 512x512,
 K = 1 and 8 (`--scenes all` for every embedded scene). On lavapipe (2 CPU cores) it takes several
 minutes, most of it 1M-primitive submissions.
@@ -34,6 +48,7 @@ minutes, most of it 1M-primitive submissions.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import platform
@@ -48,10 +63,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import wgpu  # noqa: E402
 
+from seuwgpu.gpu.constants import TILE  # noqa: E402
 from seuwgpu.gpu.device import GPU, get_gpu  # noqa: E402
 from seuwgpu.model import scenes  # noqa: E402
-from seuwgpu.render import reference
+from seuwgpu.render import reference  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
+from seuwgpu.render.sort import tile_key_bits  # noqa: E402
 
 STAGES = ("project", "depth sort", "count+scan", "emit", "tile sort", "ranges", "composite")
 
@@ -180,6 +197,119 @@ class StageTimedRenderer(Renderer):
         return out
 
 
+# ---- floors -----------------------------------------------------------------------------------------
+_EXP_LOOP = """
+override ITERS: u32 = 256u;
+@group(0) @binding(0) var<storage, read_write> out: array<vec4<f32>>;
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    // four independent dependent chains per invocation; x stays in (0, 1], exp(-x) in [0.36, 1]
+    var x = vec4<f32>(f32(gid.x & 255u) * 1e-3, 0.25, 0.5, 0.75);
+    for (var i = 0u; i < ITERS; i = i + 1u) {
+        x = exp(-x);
+    }
+    out[gid.x] = x;
+}
+"""
+
+
+def _median_s(fn, repeats: int) -> float:
+    fn()  # warm-up
+    ts = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return statistics.median(ts)
+
+
+def measure_floors(gpu: GPU, repeats: int = 3, groups: int = 1024, iters: int = 256, copy_mb: int = 32) -> dict:
+    """Exp evaluations per second (the WGSL exp loop, `groups` x 64 invocations x `iters` vec4 exps)
+    and copy bytes per second (copy_buffer_to_buffer of `copy_mb` MiB), each the median of
+    `repeats` submissions waited for."""
+    dev = gpu.device
+    module = dev.create_shader_module(label="floor-exp", code=_EXP_LOOP)
+    pipe = dev.create_compute_pipeline(
+        label="floor-exp",
+        layout="auto",
+        compute={"module": module, "entry_point": "main", "constants": {"ITERS": iters}},
+    )
+    out = gpu.buffer(16 * 64 * groups)
+    bg = gpu.bind(pipe, {0: out})
+
+    def exp_loop():
+        enc = dev.create_command_encoder()
+        cp = enc.begin_compute_pass()
+        cp.set_pipeline(pipe)
+        cp.set_bind_group(0, bg)
+        cp.dispatch_workgroups(groups, 1, 1)
+        cp.end()
+        gpu.submit(enc)
+        gpu.sync()
+
+    nbytes = copy_mb << 20
+    src, dst = gpu.buffer(nbytes), gpu.buffer(nbytes)
+
+    def copy():
+        enc = dev.create_command_encoder()
+        enc.copy_buffer_to_buffer(src, 0, dst, 0, nbytes)
+        gpu.submit(enc)
+        gpu.sync()
+
+    t_exp, t_copy, t_sync = _median_s(exp_loop, repeats), _median_s(copy, repeats), _median_s(gpu.sync, repeats)
+    evals = 4 * 64 * groups * iters
+    return {
+        "exp_per_s": evals / max(t_exp - t_sync, 1e-9),
+        "copy_bytes_per_s": nbytes / max(t_copy - t_sync, 1e-9),
+        "exp_evals": evals,
+        "copy_bytes": nbytes,
+        "what": f"exp: {evals:,} vec4-lane exps in one dispatch; copy: {copy_mb} MiB buffer to buffer; "
+        "each the median of submissions waited for, minus an empty round trip",
+    }
+
+
+def stage_floor_s(stage: str, *, n: int, pairs: int, n_tiles: int, model_bytes: int, floors: dict) -> float | None:
+    """Floor of one stage for one view (seconds): compositing from the exp rate, the others from
+    the bytes they must move (STAGE_BYTES) at the copy rate (a copy reads and writes each byte)."""
+    if stage == "composite":
+        return pairs * TILE * TILE / floors["exp_per_s"]
+    moved = STAGE_BYTES[stage](n=n, pairs=pairs, n_tiles=n_tiles, model_bytes=model_bytes)
+    return None if moved is None else moved / (2 * floors["copy_bytes_per_s"])
+
+
+# Bytes each stage must read + write per view, at least (n primitives, `pairs` tile intersections):
+# projection reads the stored model and writes 56 B of records per primitive; a 4-bit LSD radix
+# sort pass reads and writes a (key, value) pair per element; binning reads rectangles and the
+# order, writes counts, scans them and emits 8 B per pair.
+STAGE_BYTES = {
+    "project": lambda n, pairs, n_tiles, model_bytes: model_bytes + 56 * n,
+    "depth sort": lambda n, pairs, n_tiles, model_bytes: 8 * 16 * n,
+    "count+scan": lambda n, pairs, n_tiles, model_bytes: 24 * n,
+    "emit": lambda n, pairs, n_tiles, model_bytes: 16 * n + 8 * pairs,
+    "tile sort": lambda n, pairs, n_tiles, model_bytes: -(-tile_key_bits(n_tiles) // 4) * 16 * pairs,
+    "ranges": lambda n, pairs, n_tiles, model_bytes: None,
+}
+
+
+def measure_campaign(scene: str, model, samples: int, views: int = 4, size: int = 128) -> dict:
+    """Injections per second of the incremental single-upset path (faults/engine.py) on `model`,
+    K = `views` at size x size, sites drawn as tools/bench_campaign.py draws them."""
+    from seuwgpu.faults.engine import Engine
+
+    spec = importlib.util.spec_from_file_location(
+        "seuwgpu_bench_campaign", Path(__file__).with_name("bench_campaign.py")
+    )
+    camp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(camp)
+    eng = Engine(model, scenes.scene_cameras(scene, views, size, size), "fp32", scene=scene)
+    sites = camp.draw_sites(eng, samples, 0)
+    eng.evaluate(sites[: min(32, samples)])  # warm-up: pipelines, buffers
+    t = time.perf_counter()
+    eng.evaluate(sites)
+    dt = time.perf_counter() - t
+    return {"injections": samples, "seconds": dt, "injections_per_s": samples / dt, "views": views, "size": size}
+
+
 # ---- measurement -----------------------------------------------------------------------------------
 def _psnr(a: np.ndarray, b: np.ndarray) -> float:
     mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
@@ -204,9 +334,11 @@ def bench_config(
     gpu: GPU | None = None,
     twin: dict | None = None,
     stages: bool = True,
+    floors: dict | None = None,
 ) -> dict:
     """Measure one (scene, N, size, K). `twin` (from measure_twin) adds the ratio when its N and
-    size are this config's. Returns the JSON record."""
+    size are this config's; `floors` (from measure_floors) the stages' floors. Returns the JSON
+    record."""
     gpu = gpu or get_gpu()
     w = h = int(size)
     cams = scenes.scene_cameras(scene, k, w, h)
@@ -257,6 +389,19 @@ def bench_config(
         # Consistency check: the stages + gaps should add up to about the instrumented wall time.
         rec["stage_sum_ms"] = sum(rec["stages_ms"].values())
         rec["timed_passes"], rec["untimed_passes"] = st["passes"], st["untimed_passes"]
+        if floors is not None:
+            model_bytes = sum(4 * r.layout.chunk_words for _ in range(r.layout.n_chunks))
+            rec["floors_ms_per_view"] = {}
+            for stage in STAGES:
+                f = stage_floor_s(
+                    stage,
+                    n=r.n,
+                    pairs=int(np.mean(totals[:k])),
+                    n_tiles=r.n_tiles,
+                    model_bytes=model_bytes,
+                    floors=floors,
+                )
+                rec["floors_ms_per_view"][stage] = None if f is None else 1e3 * f
     else:
         rec["stage_source"] = (
             "none: the device has no timestamp-query feature; only the whole submission's wall time is measured"
@@ -329,11 +474,17 @@ def run_grid(
     stages=True,
     sh_degree=3,
     seed=0,
+    campaign_samples=256,
     log=print,
 ) -> dict:
     """The whole benchmark; returns the JSON document."""
     gpu = get_gpu()
     t0 = time.perf_counter()
+    floors = measure_floors(gpu)
+    log(
+        f"floors: {floors['exp_per_s'] / 1e6:,.0f} M exp/s, copy {floors['copy_bytes_per_s'] / 1e9:.2f} GB/s "
+        f"({floors['what']})"
+    )
     doc = {
         "adapter": adapter_info(gpu),
         "host": {"platform": platform.platform(), "cpus": os.cpu_count(), "loadavg_start": list(os.getloadavg())},
@@ -345,8 +496,11 @@ def run_grid(
             "sh_degree": sh_degree,
             "seed": seed,
             "precision": "fp32",
+            "date": time.strftime("%Y-%m-%d"),
         },
+        "floors": floors,
         "results": [],
+        "campaigns": [],
     }
     for scene in scene_names:
         for n in ns:
@@ -360,13 +514,26 @@ def run_grid(
                     log(f"[{scene} N={n} {size}x{size}] twin: {tw['seconds_per_view']:.2f} s/view ({tw['what']})")
                 for k in ks:
                     rec = bench_config(
-                        model, scene, size, k, repeats=repeats, budget=budget, gpu=gpu, twin=tw, stages=stages
+                        model,
+                        scene,
+                        size,
+                        k,
+                        repeats=repeats,
+                        budget=budget,
+                        gpu=gpu,
+                        twin=tw,
+                        stages=stages,
+                        floors=floors,
                     )
                     doc["results"].append(rec)
                     log(
                         f"[{scene} N={n} {size}x{size} K={k}] {rec['mpix_per_s']:.3f} Mpix/s, "
                         f"{rec['ms_per_view']:.1f} ms/view (median of {rec['repeats']})"
                     )
+            if campaign_samples:
+                c = measure_campaign(scene, model, campaign_samples)
+                doc["campaigns"].append({"scene": scene, "n": int(n), **c})
+                log(f"[{scene} N={n}] campaign: {c['injections_per_s']:,.1f} injections/s (incremental, K=4, 128x128)")
             del model
     doc["host"]["loadavg_end"] = list(os.getloadavg())
     doc["total_wall_s"] = time.perf_counter() - t0
@@ -443,6 +610,36 @@ def print_table(doc: dict, console=None) -> None:
     )
     for n in notes:
         console.print(n)
+    fl = doc.get("floors")
+    if fl and any(r.get("floors_ms_per_view") for r in doc["results"]):
+        ft = Table(
+            title=f"stages against measured floors (per view): exp {fl['exp_per_s'] / 1e6:,.0f} M/s, "
+            f"copy {fl['copy_bytes_per_s'] / 1e9:.2f} GB/s",
+            title_justify="left",
+        )
+        for col in ("scene", "N", "size", "K", *STAGES):
+            ft.add_column(col, justify="left" if col == "scene" else "right")
+        for r in doc["results"]:
+            fms, st = r.get("floors_ms_per_view"), r.get("stages_ms")
+            if not fms or not st:
+                continue
+            cells = []
+            for s in STAGES:
+                t = st[s] / r["k"]
+                f = fms.get(s)
+                cells.append(f"{t:.1f} ms" if f is None else f"{t:.1f} / {f:.1f} ms ({100 * f / max(t, 1e-9):.0f}%)")
+            ft.add_row(r["scene"], f"{r['n']:,}", f"{r['width']}x{r['height']}", str(r["k"]), *cells)
+        console.print(ft)
+        console.print(
+            "Cells: stage time / floor (ms per view) and % of floor (floor / time). Compositing's floor evaluates "
+            "every listed pair at every pixel of its tile at the exp-loop rate; the others move their bytes at the "
+            "copy rate (tools/bench.py STAGE_BYTES)."
+        )
+    for c in doc.get("campaigns", []):
+        console.print(
+            f"Campaign ({c['scene']}, N={c['n']:,}, K={c['views']} at {c['size']}x{c['size']}, incremental path): "
+            f"{c['injections_per_s']:,.1f} injections/s ({c['injections']} injections in {c['seconds']:.2f} s)"
+        )
 
 
 def main(argv=None) -> int:
@@ -475,13 +672,20 @@ def main(argv=None) -> int:
     ap.add_argument("--sh-degree", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true", help="tiny grid: every scene, N=20k, 128x128, K=1 and 4")
-    ap.add_argument("--out", default="bench.json", help="JSON output path (default bench.json)")
+    ap.add_argument(
+        "--campaign-samples",
+        type=int,
+        default=256,
+        help="injections timed per (scene, N) on the incremental campaign path; 0 skips it",
+    )
+    ap.add_argument("--out", type=Path, help="write the JSON document here (default: none)")
     args = ap.parse_args(argv)
 
     names = scenes.list_scenes() if "all" in args.scenes else args.scenes
     ns, sizes, ks = args.n, args.sizes, args.views
     if args.quick:
         names, ns, sizes, ks = scenes.list_scenes(), [20_000], [128], [1, 4]
+        args.campaign_samples = min(args.campaign_samples, 64)
     for s in names:
         if s not in scenes.list_scenes():
             ap.error(f"unknown scene {s!r}; valid: {', '.join(scenes.list_scenes())}")
@@ -502,11 +706,13 @@ def main(argv=None) -> int:
         stages=not args.no_stages,
         sh_degree=args.sh_degree,
         seed=args.seed,
+        campaign_samples=args.campaign_samples,
         log=lambda m: console.print(m, highlight=False, markup=False),
     )
     print_table(doc, console)
-    Path(args.out).write_text(json.dumps(doc, indent=1))
-    console.print(f"wrote {args.out}")
+    if args.out:
+        args.out.write_text(json.dumps(doc, indent=1))
+        console.print(f"wrote {args.out}")
     return 0
 
 

@@ -174,7 +174,8 @@ def quality(d: pd.DataFrame, by=(), conf: float = 0.95) -> pd.DataFrame:
     PSNR/SSIM are undefined), n_finite, psnr_median_db, psnr_q25_db, psnr_q75_db (weighted
     quantiles over finite frames; identical frames are +inf), psnr_mean_mse_db (PSNR of the
     weighted mean frame MSE over finite frames: an average that stays defined when some frames
-    are identical), ssim_mean (finite frames), mean_footprint_pct (all frames)."""
+    are identical), ssim_mean and lpips_mean (finite frames; LPIPS NaN where not computed),
+    mean_footprint_pct (all frames)."""
     by = list(by)
     nf = rate(d, "nonfinite", by, conf, prefix="nf_")
     rows = []
@@ -193,6 +194,7 @@ def quality(d: pd.DataFrame, by=(), conf: float = 0.95) -> pd.DataFrame:
             psnr_q75_db=wquantile(ps, w, 0.75),
             psnr_mean_mse_db=psnr_of_mse(wmean(mse, w)),
             ssim_mean=wmean(fin["ssim"].to_numpy(float), w),
+            lpips_mean=wmean(fin["lpips"].to_numpy(float), w) if "lpips" in fin else np.nan,
             mean_footprint_pct=100 * wmean(g["footprint"].to_numpy(float), g["weight"].to_numpy(float)),
         )
         rows.append(row)

@@ -88,7 +88,7 @@ def _stratum_weights(d: pd.DataFrame, deg: int) -> np.ndarray:
 def prepare(df: pd.DataFrame, thresholds: dict | None = None) -> pd.DataFrame:
     """Fill optional columns, attach weights and outcome classes (idempotent; a new frame).
 
-    * PSNR and SSIM of frames with a non-finite pixel are set to NaN (older records hold a
+    * PSNR, SSIM and LPIPS of frames with a non-finite pixel are set to NaN (older records hold a
       display-referred number there; it is not defined).
     * ``weight``: stored bits each record stands for (written by the runner; derived per cell
       for records without it).
@@ -136,7 +136,7 @@ def prepare(df: pd.DataFrame, thresholds: dict | None = None) -> pd.DataFrame:
         if col not in d:
             d[col] = np.nan
         d[col] = pd.to_numeric(d[col], errors="coerce").astype(float)
-    d.loc[d["nonfinite"], ["psnr", "ssim"]] = np.nan
+    d.loc[d["nonfinite"], ["psnr", "ssim", "lpips"]] = np.nan
     if "repeat" not in d:
         d["repeat"] = 0
     if "n_primitives" in d:

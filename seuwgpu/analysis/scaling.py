@@ -8,7 +8,8 @@ Per (scene, precision, defense, N), weighted over the stored bits (`analysis.est
 A zero median (most upsets leave the frame identical) has no logarithm: such points are shown
 in the table and figure (in_fit = False), not silently dropped, and the fit says how many it used.
 Fits are least squares in log-log space with a Student-t interval on the exponent; alpha =
--exponent. With two sizes a line fits exactly: no interval, and the report says so.
+-exponent. At least three sizes with a positive value are needed (two points fit any line
+exactly); with fewer the exponent is NaN.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from seuwgpu.analysis import stats
 from seuwgpu.analysis.records import InsufficientData, figure, prepare, sort_rows, tag
 
 METRICS = ("mean_mse", "median_mse", "mean_footprint_pct")
+MIN_SIZES = 3  # sizes with a positive value needed for a fit (two points fit any line exactly)
 
 
 def size_scaling(df: pd.DataFrame, conf: float = 0.95) -> dict:
@@ -69,9 +71,9 @@ def size_scaling(df: pd.DataFrame, conf: float = 0.95) -> dict:
         for metric in METRICS:
             y = g[metric].to_numpy(float)
             usable = np.isfinite(y) & (y > 0)
-            try:
+            if usable.sum() >= MIN_SIZES:
                 f = stats.loglog_fit(g["n_primitives"], y, conf)
-            except ValueError:
+            else:  # a line through two points fits whatever they are: no exponent, not a made-up one
                 f = stats.PowerFit(np.nan, np.nan, np.nan)
             frows.append(
                 {

@@ -42,7 +42,12 @@ class Runner:
             "pixel_threshold": float(t.get("pixel_threshold", PIXEL_THRESHOLD)),
             "footprint_threshold": float(t.get("footprint", FOOTPRINT_THRESHOLD)),
         }
-        self._times: dict = {}  # (engine key, defense) -> ms per view
+        self._times: dict = {}  # engine key -> {defense: ms per view}
+        if spec.get("lpips"):
+            from seuwgpu.metrics.lpips import INSTALL_HINT, available
+
+            if not available():
+                raise SpecError(f"lpips = true: {INSTALL_HINT}")
 
     # -- run directory --
     def prepare_dir(self):
@@ -68,7 +73,7 @@ class Runner:
                 "outcomes": self.thresholds,
                 "region_grid": REGION_GRID_VERSION,
                 "time_ms": "median render time of one view of the clean model under the defense's "
-                "in-pipeline guard, measured once per (scene, N, precision) engine",
+                "in-pipeline guard: the defenses timed interleaved, 9 rounds, once per engine",
             }
             store.write_manifest(self.out, manifest)
         store.remove_stale_temps(rec)
@@ -165,13 +170,22 @@ class Runner:
 
     def view_times(self, eng, ctx: Context) -> dict:
         """ms per view of each defense's render of the clean model (measured once per engine)."""
-        key = (id(eng), ctx.kind, ctx.scene_index, ctx.n, ctx.precision)
-        out = {}
-        for d in ctx.defenses:
-            if (key, d) not in self._times:
-                self._times[(key, d)] = eng.view_time_ms(d)
-            out[d] = self._times[(key, d)]
-        return out
+        key = (id(eng), ctx.kind, ctx.scene_index, ctx.n, ctx.precision, tuple(ctx.defenses))
+        if key not in self._times:
+            self._times[key] = eng.view_times_ms(ctx.defenses)
+        return self._times[key]
+
+    def lpips_of(self, eng, sites, defense: str) -> float:
+        """LPIPS of the frame with `sites` flipped under `defense` against clean (a full render;
+        NaN for a frame with a non-finite pixel)."""
+        from seuwgpu.metrics.lpips import lpips
+
+        handle = eng.apply(sites, defense)
+        try:
+            img, _ = eng.render_current(defense)
+        finally:
+            eng.undo(handle)
+        return float(np.mean(lpips(eng.clean_rgba[..., :3], img[..., :3])))  # NaN if any view is
 
     def finish(self, df: pd.DataFrame, eng, ctx: Context) -> pd.DataFrame:
         """Outcome class and catastrophic flag under the spec's thresholds; time_ms per defense."""
@@ -201,6 +215,8 @@ class Runner:
             else:
                 df = eng.evaluate_frame(sites, ctx.defenses, ctx.regions)
             arms = len(ctx.defenses)  # rows are defense-major: arm d holds rows d*count .. d*count+count-1
+            if self.spec.get("lpips"):
+                df["lpips"] = [self.lpips_of(eng, [s], d) for d in ctx.defenses for s in sites]
             df["campaign"] = ctx.kind
             df["repeat"] = 0
             df["weight"] = np.tile(weights, arms)
@@ -217,6 +233,8 @@ class Runner:
             for d in ctx.defenses:
                 rec = eng.inject(sites, d)
                 rec.update(campaign="dose", repeat=rep, weight=1.0, seed=int(s), injection_id=int(i))
+                if self.spec.get("lpips"):
+                    rec["lpips"] = self.lpips_of(eng, sites, d)
                 rows.append(rec)
         return self.finish(pd.DataFrame(rows), eng, ctx)
 

@@ -89,12 +89,12 @@ def enumerate_contexts(spec: dict) -> list[Context]:
                 nid += c.count
     if "sizes" in spec:
         t = spec["sizes"]
-        for n in t["n"]:
+        for si, n in [(si, n) for si in t.get("scenes", [0]) for n in t["n"]]:
             for p in t["precisions"]:
                 cells = _cells(t["fields"], t["bits"], p, t.get("fault", "bit"))
                 c = Context(
                     "size",
-                    0,
+                    si,
                     n,
                     p,
                     t["defenses"],

@@ -1,5 +1,11 @@
 """Campaign specs: parse, validate and normalise a TOML spec; its hash names the run.
 
+Files a spec names (model, cameras) are resolved to absolute paths and recorded with the sha256
+of their content (`model_sha256`, `cameras_sha256`; reading costs about a second per GB); the hash
+covers the content, not the path, so a changed file is another run and a moved one the same.
+Lists of names (precisions, defenses, fields with their aliases) must not repeat an entry; lists of
+numbers (bits, k, sizes.n, regions) are merged. Seeds are integers in [0, 2**63).
+
 Spec (TOML; unknown keys and bad values fail at once, naming the key):
 
     seed = 0                 # master seed
@@ -41,6 +47,9 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     repeats = 3
     defenses = ["none", "guard"]
 
+    lpips = true             # optional: LPIPS (AlexNet) of every record, re-rendered in full
+                             # (slow: ~1 s per 256 px view on a CPU; pip install 'seuwgpu[lpips]')
+
     [outcomes]               # optional: outcome-class thresholds (defaults: the paper's)
     pixel_threshold = 0.00392156862745098  # a channel change above it is visible (SDC), 1/255
     footprint = 0.01         # a frame with more changed pixels than this share is catastrophic
@@ -49,8 +58,9 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     scrub_hours = 24.0       # the model is restored from protected storage this often
     rates = [{environment = "ground", per_bit_hour = 1e-12, source = "where the rate comes from"}]
 
-    [sizes]                  # primitive-count sweep of the first scene: single upsets at each N
+    [sizes]                  # primitive-count sweep: single upsets at each N
     n = [5000, 20000, 80000]
+    scenes = "all"           # optional: [[scenes]] indices swept, or "all" (default: [0], the first)
     precisions = ["fp32"]
     fields = "all"
     bits = "all"
@@ -71,6 +81,7 @@ from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.model import encoding
+from seuwgpu.model.budget import n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
 from seuwgpu.model.formats import UP_AXES
 
@@ -85,14 +96,15 @@ _TOP = {
     "dose",
     "sizes",
     "name",
-    "outcomes",
+    "outcomes",  # analysis inputs (thresholds, upset rates) and the optional LPIPS metric
     "reliability",
+    "lpips",
     "profile",
 }
 _SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
 _SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions", "fault"}
 _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
-_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions", "fault"}
+_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions", "fault", "scenes"}
 
 
 SEED_MAX = 2**63 - 1  # seeds are TOML integers (signed 64-bit), used as unsigned 64-bit hash keys
@@ -393,6 +405,11 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             out["cameras_sha256"] = content_hash("cameras", out["cameras"])
         spec["scenes"].append(out)
     # recorded only when given, so older specs keep their hash (the manifest states the thresholds)
+    if "lpips" in raw:
+        if not isinstance(raw["lpips"], bool):
+            raise SpecError(f"lpips must be true or false, got {raw['lpips']!r}")
+        if raw["lpips"]:
+            spec["lpips"] = True
     if "outcomes" in raw:
         spec["outcomes"] = _outcomes(raw["outcomes"])
     if "reliability" in raw:
@@ -432,17 +449,38 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "repeats": _int(t, "repeats", "dose", 3, 1),
             "defenses": _names(t, "defenses", "dose", ["none", "guard"], DEFENSES),
         }
+        for i, sc in enumerate(spec["scenes"]):  # model files: checked when loaded (runner)
+            for p in spec["dose"]["precisions"]:
+                stored = sc["n"] * n_values(sc["sh_degree"]) * encoding.bits_per_value(p) if "n" in sc else None
+                if stored is not None and spec["dose"]["k"][-1] > stored:
+                    raise SpecError(
+                        f"dose.k = {spec['dose']['k'][-1]} is more upsets than scenes[{i}] stores bits at {p} "
+                        f"({sc['n']} primitives x {n_values(sc['sh_degree'])} values x "
+                        f"{encoding.bits_per_value(p)} bits = {stored})"
+                    )
     if "sizes" in raw:
         t = raw["sizes"]
         _keys(t, _SIZES, "sizes")
-        if "scene" not in spec["scenes"][0]:
-            raise SpecError("sizes: the first [[scenes]] entry must be an embedded scene (it is generated at each n)")
+        which = t.get("scenes", [0])
+        if which == "all":
+            which = list(range(len(spec["scenes"])))
+        if (
+            not isinstance(which, list)
+            or not which
+            or not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(spec["scenes"]) for i in which)
+        ):
+            raise SpecError(f'sizes.scenes must be "all" or a list of [[scenes]] indices 0..{len(spec["scenes"]) - 1}')
         ns = _list(t, "n", "sizes", None)
         if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in ns):
             raise SpecError("sizes.n must be a list of positive integers")
-        first = spec["scenes"][0]["scene"]
-        if is_capture(first) and max(ns) > make_scene(first).n:
-            raise SpecError(f"sizes.n: the real capture {first} has {make_scene(first).n} splats; n must not exceed it")
+        for i in which:
+            if "scene" not in spec["scenes"][i]:
+                raise SpecError(f"sizes: [[scenes]] entry {i} must be an embedded scene (it is generated at each n)")
+            name = spec["scenes"][i]["scene"]
+            if is_capture(name) and max(ns) > make_scene(name).n:
+                raise SpecError(
+                    f"sizes.n: the real capture {name} has {make_scene(name).n} splats; n must not exceed it"
+                )
         precisions = _names(t, "precisions", "sizes", ["fp32"], encoding.PRECISIONS)
         spec["sizes"] = {
             "n": sorted(set(ns)),
@@ -454,6 +492,8 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "defenses": _names(t, "defenses", "sizes", ["none"], DEFENSES),
             "regions": _regions(t, "sizes", spec["size"]),
         }
+        if "scenes" in t:  # recorded only when given (the first scene by default), older hashes stay
+            spec["sizes"]["scenes"] = sorted(set(which))
         _fault(t, spec["sizes"], "sizes")
     return spec
 

@@ -50,6 +50,7 @@ COLUMNS = [
     "peak_error",
     "psnr",
     "ssim",
+    "lpips",
     "nonfinite",
     "catastrophic",
     "outcome",

@@ -276,19 +276,23 @@ class Engine:
             self.monitor.update(counts)
         return images.reshape(r.k, r.height, r.width, 4), counts
 
-    def view_time_ms(self, defense: str = "none", repeats: int = 5) -> float:
-        """Median wall time (ms) of rendering one view of the model as it is now under the
-        defense's in-pipeline guard (K views rendered and waited for, divided by K; one warm-up
-        render first). The mitigation table's time cost comes from it, in the same run."""
+    def view_times_ms(self, defenses=("none",), repeats: int = 9) -> dict:
+        """Median wall time (ms) of rendering one view of the model as it is now under each
+        defense's in-pipeline guard (K views rendered and waited for, divided by K). The defenses
+        are timed interleaved, round by round after one warm-up round, so a drift of the machine's
+        load hits them alike. The mitigation table's time cost comes from it, in the same run."""
         import time
 
-        self._run_guarded(defense)
-        ts = []
+        defenses = list(dict.fromkeys(defenses))
+        for d in defenses:
+            self._run_guarded(d)
+        ts = {d: [] for d in defenses}
         for _ in range(max(int(repeats), 1)):
-            t0 = time.perf_counter()
-            self._run_guarded(defense)  # Renderer.run reads its totals back: the GPU is done
-            ts.append(time.perf_counter() - t0)
-        return 1e3 * float(np.median(ts)) / self.k
+            for d in defenses:
+                t0 = time.perf_counter()
+                self._run_guarded(d)  # Renderer.run reads its totals back: the GPU is done
+                ts[d].append(time.perf_counter() - t0)
+        return {d: 1e3 * float(np.median(v)) / self.k for d, v in ts.items()}
 
     def measure_current(self, defense: str = "none") -> dict:
         """GPU metrics of the current model against the current clean reference (the frame stays
@@ -434,12 +438,15 @@ class Engine:
             "k": np.ones(m_sites, np.int64),
         }
         frames = []
-        rows = np.arange(m_sites)
+        prims = np.array([s.primitive for s in sites], dtype=np.int64)
+        clean_b = self.stored_bits(prims, comps)
+        # clean_value / corrupted_value: the stored value before and after the upset, whatever the
+        # defense then reads (the same in every arm, and equal to inject()'s)
+        clean_v = encoding.from_bits(clean_b, self.precision)
+        corr_v = encoding.from_bits(apply_sites(clean_b, sites), self.precision)
         for d in defenses:
             dfn.check_defense(d)
             prims, bits, gm = self.variant_bits(sites, d)
-            clean_v = encoding.from_bits(self.stored_bits(prims, comps), self.precision)
-            corr_v = encoding.from_bits(bits[rows, comps], self.precision)
             self.use_reference(d)
             m = self.evaluator.evaluate(prims, bits, gm, regions, self.primitive_bits(prims) if gm.any() else None)
             cols = dict(base)

@@ -312,7 +312,8 @@ def summarize(raw: dict, width: int, height: int) -> dict:
 ImageMetrics.summarize = staticmethod(summarize)
 
 
-PIXEL_THRESHOLD = 1.0 / 255.0  # a channel change above one 8-bit level is visible (paper's definition)
+# a channel change above one 8-bit level is visible (paper's definition): THRESHOLD in float64
+PIXEL_THRESHOLD = 1.0 / 255.0
 FOOTPRINT_THRESHOLD = 0.01  # a frame with more than 1% of its pixels changed is catastrophic
 OUTCOMES = ("masked", "tolerable", "sdc", "catastrophic")
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 
 from seuwgpu.errors import TooBig
+from seuwgpu.model.fields import n_components
 
 SCENE_BYTES_PER_VALUE = 6  # generating an embedded scene (float64 intermediates, float32 result)
 MODEL_BYTES_PER_VALUE = 16  # a loaded model plus the renderer's and engine's copies of it
@@ -26,7 +27,7 @@ HOST_SHARE = 0.8  # of the available memory a job may plan to use
 
 def n_values(degree: int) -> int:
     """Stored values per primitive at an SH degree."""
-    return 14 + 3 * ((int(degree) + 1) ** 2 - 1)
+    return n_components(int(degree))
 
 
 def available_host_bytes() -> int:
@@ -65,6 +66,17 @@ def check_scene(n: int, degree: int, what: str = "--n", per_value: int = SCENE_B
 def check_model(n: int, degree: int, what: str = "--n"):
     """Refuse, before generating it, a model too big to render and inject into on this host."""
     check_scene(n, degree, what, MODEL_BYTES_PER_VALUE, "render")
+
+
+def check_frames(k: int, width: int, height: int):
+    """Refuse frames (k views of width x height, float32 RGB on the host) that do not fit in host
+    memory; frames larger than a storage binding are rendered in parts (render_split)."""
+    need, have = 12 * int(k) * int(width) * int(height), HOST_SHARE * available_host_bytes()
+    if need > have:
+        raise TooBig(
+            f"{k} view(s) of {width}x{height} need {gb(need)} of host memory for the frames alone; "
+            f"{gb(have / HOST_SHARE)} is available: render fewer views, or at a smaller size (--size or --scale)"
+        )
 
 
 def render_host_bytes(n: int, degree: int, k: int, width: int, height: int) -> int:

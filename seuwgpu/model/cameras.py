@@ -446,9 +446,16 @@ def _read_colmap(folder: Path):
     return cams, names, "colmap"
 
 
+def _text(path: Path) -> str:
+    try:
+        return path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise CameraFileError(f"{path}: not a UTF-8 text file ({e.reason} at byte {e.start})") from None
+
+
 def _colmap_cameras_txt(path: Path) -> dict:
     out = {}
-    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+    for lineno, line in enumerate(_text(path).splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
@@ -469,7 +476,7 @@ def _colmap_cameras_txt(path: Path) -> dict:
 def _colmap_images_txt(path: Path) -> list:
     """Two lines an image: IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, then its 2D points (maybe
     empty); comment lines start with '#'."""
-    lines = path.read_text(encoding="utf-8").splitlines()
+    lines = _text(path).splitlines()
     out, i = [], 0
     while i < len(lines):
         line = lines[i].strip()
@@ -502,6 +509,11 @@ class _Reader:
         self.off += size
         return v
 
+    def skip(self, size: int):
+        if self.off + size > len(self.data):
+            raise CameraFileError(f"{self.path}: truncated COLMAP binary file (at byte {self.off})")
+        self.off += size
+
     def cstring(self) -> str:
         end = self.data.find(b"\0", self.off)
         if end < 0:
@@ -532,6 +544,6 @@ def _colmap_images_bin(path: Path) -> list:
         v = r.take("<idddddddi")
         name = r.cstring()
         (npoints,) = r.take("<Q")
-        r.take(f"<{24 * npoints}x")
+        r.skip(24 * npoints)
         out.append((name, list(v[1:5]), list(v[5:8]), v[8]))
     return out

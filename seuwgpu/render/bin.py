@@ -22,7 +22,7 @@ from seuwgpu.gpu.sort import PrefixSum, exclusive_scan
 class Binning:
     """Tile binning of `n` primitives: owns the counts and offsets, the per-view intersection
     totals (`stats`, u32 [K]), the per-tile `ranges` (u32 [n_tiles, 2]), the intersection lists
-    (`isect_tiles`, `isect_prims`, `capacity` each) and the `Binning` parameters (`params`, one
+    (`isect_tiles`, `isect_prims`, `isect_box`, `capacity` each) and the `Binning` parameters (`params`, one
     slot per view)."""
 
     def __init__(self, gpu: GPU, n: int):
@@ -49,6 +49,9 @@ class Binning:
         self.capacity = int(capacity)
         self.isect_tiles = self.gpu.buffer(4 * self.capacity, STORAGE, "bin.isect_tiles")
         self.isect_prims = self.gpu.buffer(4 * self.capacity, STORAGE, "bin.isect_prims")
+        # per pair, written by compositing: the pixel box of the pair's record in its tile
+        # (composite.wgsl), kept with the tile lists for the incremental re-compositor
+        self.isect_box = self.gpu.buffer(4 * self.capacity, STORAGE, "bin.isect_box")
 
     def set_view(self, v: int, *, tiles_x: int, size: tuple[int, int], origin: tuple[int, int], background):
         """Parameters of view v: its viewport (size in pixels, tile-aligned origin) and background."""

@@ -44,12 +44,14 @@ class Compositing:
     def set_views(self, k: int, width: int, height: int):
         self.image = self.gpu.buffer(16 * int(k) * int(width) * int(height), STORAGE, "composite.image")
 
-    def encode(self, encoder, frame, ranges, isect_prims, xy, conic, rgb, tiles: tuple[int, int]):
+    def encode(self, encoder, frame, ranges, isect_prims, xy, conic, rgb, tiles: tuple[int, int], isect_box):
         """One view: `frame` its Binning slot (render/bin.py), `ranges` / `isect_prims` its tile
-        lists, `xy` / `conic` / `rgb` the screen records (render/project.py), tiles = (TX, TY)."""
+        lists, `xy` / `conic` / `rgb` the screen records (render/project.py), tiles = (TX, TY);
+        `isect_box` (u32 per pair) receives each pair's pixel box (FULL_BOX where a tile stopped
+        early), which the variants entry reuses."""
         self.kernel.dispatch(
             encoder,
-            {0: frame, 1: ranges, 2: isect_prims, 3: xy, 4: conic, 5: rgb, 6: self.image},
+            {0: frame, 1: ranges, 2: isect_prims, 3: xy, 4: conic, 5: rgb, 6: self.image, 7: isect_box},
             workgroups=(int(tiles[0]), int(tiles[1]), 1),
         )
 
@@ -72,7 +74,8 @@ class VariantCompositing:
 
     def encode(self, encoder, entries: dict, kept: dict, variant: dict, clean_image, **params):
         """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}).
-        kept: the clean frame's per-view `ranges`, `isect` (tile lists, `capacity` apart), `xy`,
+        kept: the clean frame's per-view `ranges`, `isect` and `box` (tile lists and the pairs'
+        pixel boxes, `capacity` apart), `xy`,
         `conic`, `rgb` (w = depth) of n_prims records per view; variant: the variants' `xy`,
         `conic`, `rgb`, `rect` (n_variants per view); params: width, height, tiles_x, n_tiles,
         n_prims, n_variants, capacity, background. Queue writes: one encode per submission."""
@@ -92,6 +95,7 @@ class VariantCompositing:
                     11: self.entries,
                     12: kept["ranges"],
                     13: kept["isect"],
+                    23: kept["box"],
                     14: kept["xy"],
                     15: kept["conic"],
                     16: kept["rgb"],

@@ -126,7 +126,14 @@ class IncrementalCompositor:
         self.compositing.encode(
             encoder,
             {"variant": b_idx + first, "view": v_idx, "tile": t_idx, "prim": prims[b_idx]},
-            kept={"ranges": r.kv_ranges, "isect": r.kv_isect, "xy": r.kv_xy, "conic": r.kv_conic, "rgb": r.kv_rgb},
+            kept={
+                "ranges": r.kv_ranges,
+                "isect": r.kv_isect,
+                "box": r.kv_box,
+                "xy": r.kv_xy,
+                "conic": r.kv_conic,
+                "rgb": r.kv_rgb,
+            },
             variant={"xy": p.xy, "conic": p.conic, "rgb": p.rgb, "rect": p.rect},
             clean_image=self.clean_buf,
             width=r.width,

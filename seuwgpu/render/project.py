@@ -412,12 +412,18 @@ class Projection:
     (x0 | y0 << 16, x1 | y1 << 16), zero when culled), `depth_keys` / `depth_vals` (f32 bits of
     p.z, 0xffffffff when culled; primitive index) for the depth sort. Parameters: one `View` slot
     per (view, chunk) in `params` (fill with `set_view`, then `params.write()`). Culled
-    primitives get only their rectangle and depth key written."""
+    primitives get only their rectangle and depth key written.
+
+    The shader is specialised (WGSL overrides) per stored precision, SH degree and in-pipeline
+    guard mask (a handful of pipelines per renderer): `encode` picks the pipeline from the slot's
+    `fmt`, `sh_degree`, `guard_lo` and `guard_hi`, so a variant cannot disagree with the
+    parameters."""
 
     def __init__(self, gpu: GPU, capacity: int, slots: int = 1, label: str = "proj", profile: str = "strict"):
         self.gpu, self.label = gpu, label
         self.profile = check_profile(profile)
-        self.kernel = Kernel(gpu, "project", constants={"PROFILE": PROFILE_CODE[profile]})
+        self._kernels: dict[tuple, Kernel] = {}
+        self.kernel = self.variant(PRECISION_CODE["fp32"], 3, 0, 0)
         self.set_slots(slots)
         self.capacity = n = int(capacity)
         self.xy = gpu.buffer(8 * n, STORAGE, f"{label}.xy")
@@ -474,10 +480,22 @@ class Projection:
             tile_y0=tile_origin[1],
         )
 
+    def variant(self, fmt: int, degree: int, guard_lo: int, guard_hi: int) -> Kernel:
+        """The pipeline for stored precision code `fmt`, SH `degree` and guard mask words."""
+        key = (int(fmt), int(degree), int(guard_lo), int(guard_hi))
+        k = self._kernels.get(key)
+        if k is None:
+            names = ("FMT", "SH_DEGREE", "GUARD_LO", "GUARD_HI")
+            constants = {**dict(zip(names, key)), "PROFILE": PROFILE_CODE[self.profile]}
+            k = self._kernels[key] = Kernel(self.gpu, "project", constants=constants)
+        return k
+
     def encode(self, encoder, slot: int, words, count: int, box, guard_counts):
         """Project `count` primitives of the stored chunk `words` with slot `slot`'s parameters.
         `box`: the guard's Bound per component; `guard_counts`: its atomic clamp counters."""
-        self.kernel.dispatch(
+        row = self.params.rows[slot]
+        kernel = self.variant(row["fmt"], row["sh_degree"], row["guard_lo"], row["guard_hi"])
+        kernel.dispatch(
             encoder,
             {
                 0: self.params.binding(slot),

@@ -21,7 +21,7 @@ import numpy as np
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.model import encoding
-from seuwgpu.model.budget import check_render
+from seuwgpu.model.budget import check_frames, check_render
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model, StoredLayout
 from seuwgpu.render.bin import Binning
@@ -74,6 +74,8 @@ class Renderer:
         self.degree = model.sh_degree
         self.n = model.n
         w, h = check_cameras(cameras)
+        if self.viewport is not None:  # only the viewport's pixels are held (render_split's bands)
+            w, h = self.viewport[2], self.viewport[3]
         check_render(self.gpu.limits, self.gpu.is_cpu, self.n, self.degree, len(cameras), w, h, keep_views)
         max_chunk = StoredLayout.max_chunk_prims(self.degree, precision, self.gpu.max_binding)
         self.layout = StoredLayout(self.n, self.degree, precision, min(chunk_prims or max_chunk, max_chunk))
@@ -181,20 +183,22 @@ class Renderer:
         if capacity == self.capacity and not force:
             return
         g = self.gpu
-        old_capacity, old_kv = self.capacity, getattr(self, "kv_isect", None)
+        old_capacity = self.capacity
+        old_kv = {name: getattr(self, name, None) for name in ("kv_isect", "kv_box")}
         if capacity != self.capacity:
             self.capacity = capacity
             self.binning.set_capacity(capacity)
             self.sorting.set_capacity(capacity)
         if self.keep_views:  # one tile list per view: follows both the capacity and the view count
-            self.kv_isect = g.buffer(4 * self.capacity * self.k, STORAGE, "kv_isect")
-            if old_kv is not None and not force:
-                enc = g.device.create_command_encoder()
-                for v in range(self.k):
-                    enc.copy_buffer_to_buffer(
-                        old_kv, 4 * old_capacity * v, self.kv_isect, 4 * self.capacity * v, 4 * old_capacity
-                    )
-                g.submit(enc)
+            enc = g.device.create_command_encoder()
+            for name, old in old_kv.items():  # the pairs' primitives and pixel boxes
+                new = g.buffer(4 * self.capacity * self.k, STORAGE, name)
+                setattr(self, name, new)
+                if old is not None and not force:
+                    for v in range(self.k):
+                        old_at, new_at = 4 * old_capacity * v, 4 * self.capacity * v
+                        enc.copy_buffer_to_buffer(old, old_at, new, new_at, 4 * old_capacity)
+            g.submit(enc)
         self.version += 1  # the kept-view buffers may have been replaced
         self._write_params()
 
@@ -219,7 +223,15 @@ class Renderer:
         b.encode_ranges(encoder, v)
         self._state_hook(encoder, v, "ranged")
         self.compositing.encode(
-            encoder, b.params.binding(v), b.ranges, b.isect_prims, p.xy, p.conic, p.rgb, (self.tiles_x, self.tiles_y)
+            encoder,
+            b.params.binding(v),
+            b.ranges,
+            b.isect_prims,
+            p.xy,
+            p.conic,
+            p.rgb,
+            (self.tiles_x, self.tiles_y),
+            b.isect_box,
         )
         self._state_hook(encoder, v, "composited")
         if self.keep_views and self.capture_views:
@@ -229,6 +241,7 @@ class Renderer:
             encoder.copy_buffer_to_buffer(p.rgb, 0, self.kv_rgb, 16 * n * v, 16 * n)
             encoder.copy_buffer_to_buffer(p.rect, 0, self.kv_rect, 8 * n * v, 8 * n)
             encoder.copy_buffer_to_buffer(b.isect_prims, 0, self.kv_isect, 4 * self.capacity * v, 4 * self.capacity)
+            encoder.copy_buffer_to_buffer(b.isect_box, 0, self.kv_box, 4 * self.capacity * v, 4 * self.capacity)
             encoder.copy_buffer_to_buffer(b.ranges, 0, self.kv_ranges, 8 * self.n_tiles * v, 8 * self.n_tiles)
 
     # A transient fault in the pipeline state of one frame (faults/state.py): `state_fault` is
@@ -324,6 +337,7 @@ def render_split(
     (`split_bytes`, default the adapter's limit) are rendered in groups of views, or a single
     huge frame in bands of tile rows (sort-first viewports), bit-identical to one submission."""
     width, height = check_cameras(cameras)
+    check_frames(len(cameras), width, height)
     gpu = kw.pop("gpu", None) or get_gpu()
     limit = int(split_bytes or gpu.max_binding)
     group, rows = split_plan(len(cameras), width, height, limit)

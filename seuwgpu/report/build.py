@@ -4,7 +4,9 @@
     index = build_report(["runs/a", "runs/b"], "report/")      # -> report/index.html
     print(criticality_table_text(df))                          # the CLI's per-field table
 
-`build_report` writes into out_dir (flat):
+The analyses are `seuwgpu.analysis`'s; `report.sections` turns each into a section (tables, figures,
+notes, headline numbers) and `report.format` writes values and tables. `build_report` writes into
+out_dir (flat):
   index.html      self-contained page (figures embedded as base64 PNG), one section per analysis,
                   each table and figure captioned with the runs, scenes, precisions and record
                   counts it rests on, and a "Skipped analyses" section saying what is missing
@@ -22,43 +24,26 @@ import datetime as _dt
 import html
 import io
 import json
-import math
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass
-from dataclasses import field as dc_field
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis import (
-    claims,
-    contamination,
     criticality,
-    dose,
-    guard,
-    mitigation,
     outcomes,
-    prediction,
-    reliability,
-    scaling,
-    scenes,
-    theory,
 )
-from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis.records import (
     FIELD_LABELS,
-    InsufficientData,
-    dose_records,
-    precisions_present,
     prepare,
     provenance,
     provenance_text,
-    reference_precision,
-    single_upsets,
     thresholds_of,
 )
 from seuwgpu.campaign import store
+from seuwgpu.report.format import html_table, json_default, json_safe, markdown_table
+from seuwgpu.report.sections import SECTIONS, FigureItem, Section, TableItem, run_sections, section_figures
 from seuwgpu.version import __version__
 
 __all__ = [
@@ -70,6 +55,8 @@ __all__ = [
     "TableItem",
     "FigureItem",
     "SECTIONS",
+    "run_sections",
+    "section_figures",
 ]
 
 OPTIONAL_COLUMNS = ("campaign", "repeat", "time_ms")
@@ -128,778 +115,7 @@ def load_runs(run_dirs: Iterable[str | Path]) -> tuple[pd.DataFrame, list[dict]]
     return prepare(df, thresholds_of(manifests)), manifests
 
 
-# ------------------------------------------------------------------------------- formatting
-
-
-def _fmt(v) -> str:
-    if v is None:
-        return ""
-    if isinstance(v, (bool, np.bool_)):
-        return "yes" if v else "no"
-    if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    if isinstance(v, (float, np.floating)):
-        x = float(v)
-        if math.isnan(x):
-            return "n/a"
-        if math.isinf(x):
-            return "inf" if x > 0 else "-inf"
-        if x == 0:
-            return "0"
-        if x == int(x) and abs(x) < 1e12:
-            return str(int(x))
-        ax = abs(x)
-        if ax >= 1e4 and ax < 1e12:
-            return f"{x:.0f}"
-        return f"{x:.4g}"
-    if isinstance(v, (list, tuple)):
-        return ", ".join(_fmt(x) for x in v)
-    return str(v)
-
-
-def _formatted(df: pd.DataFrame) -> pd.DataFrame:
-    return pd.DataFrame({c: [_fmt(v) for v in df[c].tolist()] for c in df.columns}, index=range(len(df)), dtype=object)
-
-
-def markdown_table(df: pd.DataFrame) -> str:
-    """A GitHub-style Markdown table of a DataFrame (values formatted to 4 significant digits)."""
-    f = _formatted(df)
-    cols = [str(c) for c in f.columns]
-
-    def esc(s):
-        return str(s).replace("|", "\\|").replace("\n", " ")
-
-    lines = [
-        "| " + " | ".join(esc(c) for c in cols) + " |",
-        "|" + "|".join("---" if f[c].map(lambda s: not _numlike(s)).any() else "---:" for c in f.columns) + "|",
-    ]
-    for row in f.itertuples(index=False):
-        lines.append("| " + " | ".join(esc(x) for x in row) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def _numlike(s: str) -> bool:
-    try:
-        float(str(s).replace(",", ""))
-        return True
-    except ValueError:
-        return s in ("n/a", "inf", "-inf", "")
-
-
-def _html_table(df: pd.DataFrame) -> str:
-    f = _formatted(df)
-    head = "".join(f"<th>{html.escape(str(c))}</th>" for c in f.columns)
-    body = []
-    for row in f.itertuples(index=False):
-        cells = "".join(f"<td class='{'num' if _numlike(x) else 'txt'}'>{html.escape(x)}</td>" for x in row)
-        body.append(f"<tr>{cells}</tr>")
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
-
-
-# ------------------------------------------------------------------------------ report model
-
-
-@dataclass
-class TableItem:
-    name: str  # file stem
-    title: str
-    df: pd.DataFrame
-    caption: str  # what it shows (provenance is appended)
-    prov: dict | None = None
-    csv_only: bool = False  # a long table: linked as CSV/Markdown, not inlined in the page
-
-    def full_caption(self) -> str:
-        prov = self.prov if self.prov is not None else self.df.attrs.get("provenance", {})
-        return f"{self.caption} {provenance_text(prov)}".strip()
-
-
-@dataclass
-class FigureItem:
-    name: str
-    title: str
-    fig: object  # matplotlib Figure
-    caption: str
-    prov: dict | None = None
-
-    def full_caption(self) -> str:
-        return f"{self.caption} {provenance_text(self.prov or {})}".strip()
-
-
-@dataclass
-class Section:
-    key: str
-    title: str
-    text: str = ""
-    tables: list[TableItem] = dc_field(default_factory=list)
-    figures: list[FigureItem] = dc_field(default_factory=list)
-    notes: list[str] = dc_field(default_factory=list)
-    skipped: list[tuple[str, str, str]] = dc_field(default_factory=list)  # partial skips
-    numbers: dict = dc_field(default_factory=dict)
-
-
-def _prov(t) -> dict:
-    return t.attrs.get("provenance", {}) if hasattr(t, "attrs") else {}
-
-
-# ----------------------------------------------------------------------------- the sections
-
-
-def _sec_claims(df, manifests, ctx) -> Section:
-    t = claims.claims_table(df, ctx["results"])
-    sec = Section(
-        "claims",
-        "Claims of the paper against these records",
-        "Each quantitative claim of the paper, the value measured here with its 95% interval, the "
-        "paper's value and the verdict: reproduced (the paper's value lies in the interval), differs, "
-        "or not measured. The paper's models are not these: a difference is a finding, not an error.",
-    )
-    sec.tables.append(TableItem("claims", "Claims", t, "Claims of the paper, measured on these records."))
-    sec.numbers["claims"] = t.to_dict("records")
-    return sec
-
-
-def _sec_outcomes(df, manifests, ctx) -> Section:
-    long = outcomes.outcome_table(df)
-    thr = long.attrs.get("thresholds", {})
-    sec = Section(
-        "outcomes",
-        "Outcome classes of single upsets",
-        "Every single upset in one class: masked (frame bit-identical to clean), tolerable (changed, "
-        f"no channel by more than {thr.get('pixel_threshold', 1 / 255):.4g}), SDC (visible change, "
-        f"footprint at most {100 * thr.get('footprint_threshold', 0.01):g}%), catastrophic (footprint "
-        f"over {100 * thr.get('footprint_threshold', 0.01):g}% or a non-finite pixel). Shares are weighted "
-        "by the stored bits each record stands for (a uniform upset's view), pooled over scenes.",
-    )
-    wide = outcomes.outcome_wide(long)
-    sec.tables.append(
-        TableItem(
-            "outcomes",
-            "Outcome classes by precision and defense",
-            wide,
-            "Weighted share (%) of single upsets per outcome class with its 95% stratified interval.",
-        )
-    )
-    sec.tables.append(
-        TableItem("outcomes_long", "Outcome classes (long form)", long, "The same, one row per class.", csv_only=True)
-    )
-    sec.numbers["outcome_thresholds"] = thr
-    sec.numbers["outcomes"] = long[
-        ["precision", "defense", "outcome", "n", "rate_pct", "ci_lo_pct", "ci_hi_pct"]
-    ].to_dict("records")
-    return sec
-
-
-def _sec_scenes(df, manifests, ctx) -> Section:
-    t, notes = scenes.scene_table(df, manifests)
-    sec = Section(
-        "scenes",
-        "Table 1: scenes",
-        "The models the records rest on; box_<field>: the widest component of the support guard's "
-        "box (max - min of the clean stored values) in each field.",
-    )
-    sec.tables.append(TableItem("scenes", "Scenes", t, "Scenes, primitive counts, SH degree and support boxes."))
-    sec.notes.extend(notes)
-    return sec
-
-
-def _sec_criticality(df, manifests, ctx) -> Section:
-    crit = criticality.criticality(df)
-    prec = crit.attrs["precision"]
-    fb = criticality.field_bit_table(df)
-    sec = Section(
-        "criticality",
-        "Concentration of single-bit criticality",
-        "Single-bit upsets of the single-upset campaign without defense. Footprint is "
-        "the percent of pixels whose colour changes by more than 1/255 (mean over "
-        "views); catastrophic means footprint > 1% or a non-finite pixel. Quantiles, means "
-        "and rates are weighted by the stored bits each record stands for.",
-    )
-    sec.tables.append(
-        TableItem(
-            "criticality",
-            f"Per-field severity at {prec}",
-            crit,
-            f"Per-field single-bit upset severity at {prec}, pooled over scenes and bits: weighted footprint "
-            "quantiles (% of frame) and catastrophe rate (%) with its 95% stratified interval.",
-        )
-    )
-    sec.figures.append(
-        FigureItem(
-            "fig_heatmap",
-            "Field x bit mean footprint",
-            criticality.plot_field_bit_heatmap(fb),
-            "Mean corruption footprint (% of frame, log colour scale) over field and bit position, "
-            "one panel per precision, pooled over scenes; grey cells: zero mean footprint.",
-            _prov(fb),
-        )
-    )
-    sec.tables.append(
-        TableItem(
-            "field_bit",
-            "Per (precision, field, bit) cell",
-            fb,
-            "Per-cell sample count, weight share, mean and max footprint (%) and catastrophe rate with "
-            "its 95% Wilson interval; the data behind the heat map.",
-            csv_only=True,
-        )
-    )
-    s = single_upsets(df, prec, "none")
-    sign = s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")]
-    if len(sign):
-        fp, w = sign["footprint"].to_numpy(float) * 100, sign["weight"].to_numpy(float)
-        mean, p99 = E.wmean(fp, w), E.wquantile(fp, w, 0.99)
-        sec.numbers.update(
-            scale_sign_footprint_mean_pct=mean, scale_sign_footprint_p99_pct=p99, scale_sign_n=int(len(sign))
-        )
-        sec.notes.append(
-            f"log-scale sign bit at {prec}: mean footprint {mean:.4g}%, p99 {p99:.4g}% (n = {len(sign):,})."
-        )
-    cells = fb[fb["precision"] == prec]
-    if len(cells):
-        sec.notes.append(
-            f"{prec}: {len(cells)} (field, bit) cells sampled; fewest samples in a "
-            f"cell: {int(cells['n'].min()):,}, most: {int(cells['n'].max()):,}."
-        )
-        sec.numbers["min_samples_per_cell"] = int(cells["n"].min())
-    return sec
-
-
-def _sec_precision(df, manifests, ctx) -> Section:
-    rates = criticality.precision_rates(df)
-    precs = precisions_present(rates)
-    if len(precs) < 2:
-        raise InsufficientData(
-            f"single-upset records at one precision only ({', '.join(precs)})",
-            "run the single-upset campaign at fp32, fp16 and bf16",
-        )
-    sec = Section(
-        "precision",
-        "Numeric precision changes the exposure",
-        "Weighted catastrophe rate by field for each stored precision (no defense).",
-    )
-    sec.figures.append(
-        FigureItem(
-            "fig_precision",
-            "Catastrophe rate by field and precision",
-            criticality.plot_precision_rates(rates),
-            "Weighted catastrophic-upset rate (%) by field and numeric format, with 95% stratified "
-            "intervals, pooled over scenes and bits.",
-            _prov(rates),
-        )
-    )
-    sec.tables.append(
-        TableItem(
-            "precision_rates",
-            "Catastrophe rate by precision and field",
-            rates,
-            "Weighted catastrophe rate (%) per precision and field with 95% stratified intervals, and "
-            "the weighted mean footprint (%).",
-        )
-    )
-    return sec
-
-
-def _sec_theory(df, manifests, ctx) -> Section:
-    res = theory.theory_check(df)
-    ctx["results"]["theory"] = res
-    t = res["table"]
-    sec = Section(
-        "theory",
-        "Validation of the perturbation bound",
-        "Lemma (value perturbation): a mantissa flip of bit b changes the value by "
-        "2^(e+b-p), so the peak image error doubles per bit (unit slope in log2) until "
-        "one primitive's contribution saturates the pixels it covers.",
-    )
-    sec.figures.append(
-        FigureItem(
-            "fig_theory",
-            "Peak error against mantissa bit",
-            theory.plot_theory(res),
-            f"Weighted mean peak error |dI|_inf against mantissa bit index for {res['field']} at "
-            f"{res['precision']} (log2 axis), the fitted line over bits {res['fit_bits'][0]}.."
-            f"{res['fit_bits'][1]} and the unit-slope prediction.",
-            _prov(t),
-        )
-    )
-    fit = pd.DataFrame(
-        [
-            {
-                "field": res["field"],
-                "precision": res["precision"],
-                "fitted_log2_slope": res["slope"],
-                "slope_ci_lo": res["slope_lo"],
-                "slope_ci_hi": res["slope_hi"],
-                "predicted_slope": 1.0,
-                "r2": res["r2"],
-                "fit_bits": f"{res['fit_bits'][0]}..{res['fit_bits'][1]}",
-                "n_fit_bits": res["n_fit_bits"],
-            }
-        ]
-    )
-    sec.tables.append(
-        TableItem(
-            "theory_fit",
-            "Fitted slope",
-            fit,
-            "Fitted log2 slope of the mean peak error per mantissa bit (95% t interval) against the unit "
-            "slope of the perturbation lemma.",
-            _prov(t),
-        )
-    )
-    sec.tables.append(TableItem("theory", "Mean peak error per mantissa bit", t, "Per mantissa bit.", csv_only=True))
-    if res["note"]:
-        sec.notes.append(res["note"])
-    sec.numbers.update(
-        theory_slope=res["slope"], theory_slope_ci=[res["slope_lo"], res["slope_hi"]], theory_r2=res["r2"]
-    )
-    return sec
-
-
-def _sec_guard(df, manifests, ctx) -> Section:
-    res = guard.guard_analysis(df)
-    ctx["results"]["guard"] = res
-    sec = Section(
-        "guard",
-        "Support guard evaluation",
-        "The same single-upset fault sites rendered without defense and with the "
-        "support guard (records paired by injection id); rates and shares weighted.",
-    )
-    sec.figures.append(
-        FigureItem(
-            "fig_guard",
-            "Footprint distribution with and without the guard",
-            guard.plot_guard_ccdf(df),
-            "Weighted complementary CDF of the corruption footprint (% of frame) of a uniform upset, "
-            "without defense and with the support guard, all precisions pooled; dotted: the 1% threshold.",
-            _prov(res["summary"]),
-        )
-    )
-    sec.tables.append(
-        TableItem(
-            "guard_summary",
-            "Footprint and catastrophe rate by defense",
-            res["summary"],
-            "Weighted footprint statistics (% of frame) and catastrophe rate with its 95% stratified "
-            "interval, without and with the guard, per precision.",
-        )
-    )
-    sec.tables.append(
-        TableItem(
-            "guard_paired",
-            "Catastrophic upsets neutralised",
-            res["paired"],
-            "On paired fault sites: catastrophic upsets without defense, the weighted share the guard "
-            "neutralises (95% stratified interval), residual catastrophic events, worst guarded footprint (%).",
-        )
-    )
-    if len(res["sign_psnr"]):
-        sec.tables.append(
-            TableItem(
-                "guard_sign_psnr",
-                "Image quality after log-scale sign flips",
-                res["sign_psnr"],
-                "Log-scale sign-bit upsets without and with the guard: share of frames with a non-finite "
-                "pixel (their PSNR and SSIM are undefined), median PSNR and PSNR of the mean MSE over the "
-                "finite frames (dB; identical frames count as infinite / zero error), mean SSIM, footprint.",
-            )
-        )
-    sec.notes.append(
-        f"{res['n_guarded']:,} guarded single-bit upsets: worst footprint "
-        f"{res['worst_guarded_footprint_pct']:.4g}% of the frame, "
-        f"{res['residual_catastrophic']} residual catastrophic events; "
-        f"weighted share of catastrophic upsets neutralised {res['share_pct']:.4g}% "
-        f"[{res['share_ci'][0]:.4g}, {res['share_ci'][1]:.4g}]."
-    )
-    sec.numbers.update(
-        guard_share_neutralised_pct=res["share_pct"],
-        guard_share_neutralised_ci_pct=list(res["share_ci"]),
-        guard_worst_footprint_pct=res["worst_guarded_footprint_pct"],
-        guard_residual_catastrophic=res["residual_catastrophic"],
-        guard_n_sites=res["n_guarded"],
-    )
-    return sec
-
-
-def _sec_mitigation(df, manifests, ctx) -> Section:
-    t = mitigation.mitigation_table(df, manifests)
-    sec = Section(
-        "mitigation",
-        "Alternative defenses",
-        "Each defense on the shared fault grid (the fault sites measured under every "
-        "defense present) at one precision, with its measured cost.",
-    )
-    cap = (
-        f"Mitigations at {t.attrs['precision']}"
-        + (" on a shared (paired) fault grid" if t.attrs.get("paired") else " (unpaired: no shared site)")
-        + ": weighted catastrophe rate (%) with 95% stratified interval, footprint (%), memory overhead "
-        "(% of the stored model; memory_basis) and time overhead (% of one view's render time, measured "
-        "in the same run; time_basis)."
-    )
-    sec.tables.append(TableItem("mitigation", "Mitigation table", t, cap))
-    sec.numbers["mitigation"] = t[
-        [
-            "defense",
-            "n",
-            "cat_rate_pct",
-            "cat_ci_lo_pct",
-            "cat_ci_hi_pct",
-            "memory_overhead_pct",
-            "time_ms",
-            "time_overhead_pct",
-        ]
-    ].to_dict("records")
-    if t["time_ms"].isna().all():
-        sec.notes.append("no time_ms recorded (records of an older run): time cost not reported")
-    return sec
-
-
-def _sec_defenses(df, manifests, ctx) -> Section:
-    from seuwgpu.analysis import defenses as D  # issue 16: defenses against cost (own module)
-
-    if not D.has_new_defenses(df):
-        raise InsufficientData("no defense beyond guard/ECC/duplication in the records", "run defenses = [...]")
-    t = D.defense_table(df)
-    sec = Section("defenses", "Defenses against cost", "Residual catastrophic rate of every defense (paired arms).")
-    cap = (
-        "Per scene and defense: catastrophic rate (%) stratified by (field, bit) cell with 95% interval, "
-        "the same on the dangerous cells (log-scale sign and top exponent bit, opacity top exponent bit) and "
-        "relative to no defense, memory overhead (% of the stored model). Time: `seuwgpu defenses`."
-    )
-    sec.tables.append(TableItem("defenses", "Defenses against cost", t, cap))
-    sec.figures.append(FigureItem("fig_pareto", "Pareto", D.pareto_figure(t), "Residual rate against memory."))
-    return sec
-
-
-def _sec_dose(df, manifests, ctx) -> Section:
-    curves = dose.dose_curves(df)
-    fits = dose.dose_fits(curves)
-    ctx["results"]["dose_fits"] = fits
-    sec = Section(
-        "dose",
-        "Behavior under accumulated dose",
-        "k simultaneous upsets drawn uniformly over one model's stored bits; every defense sees the "
-        "same upset sets. Per model; PSNR over finite frames, non-finite frames counted apart (their "
-        "PSNR is undefined) and ranked lowest in medians.",
-    )
-    sec.figures.append(
-        FigureItem(
-            "fig_dose",
-            "Quality and catastrophes against dose",
-            dose.plot_dose(curves, fits),
-            "Left: median PSNR against k with the interquartile band, per model, precision and defense "
-            "(solid: none, dashed: defended); triangles at the foot: the median frame is non-finite. "
-            "Right: catastrophic fraction with 95% Wilson intervals and the fitted 1-(1-p)^k; dotted: 30 dB.",
-            _prov(curves),
-        )
-    )
-    sec.tables.append(
-        TableItem(
-            "dose_fits",
-            "Dose model fits",
-            fits,
-            "Per model, precision and defense: p of P(catastrophic | k) = 1-(1-p)^k by maximum likelihood "
-            "(%, profile-likelihood 95% interval), deviance G^2 with its degrees of freedom and p-value, "
-            "and the share of k points whose Wilson interval holds the fitted curve.",
-        )
-    )
-    sec.tables.append(
-        TableItem(
-            "dose_curves",
-            "Dose response",
-            curves,
-            "Per model, precision, defense and k: samples, non-finite share (%), PSNR quantiles and PSNR "
-            "of the mean MSE over finite frames (dB), mean SSIM, footprint (%), catastrophic fraction "
-            "with its 95% Wilson interval.",
-            csv_only=True,
-        )
-    )
-    ref = reference_precision(curves)
-    for dfn in ("none", "guard"):
-        g = curves[(curves["precision"] == ref) & (curves["defense"] == dfn)]
-        if len(g):
-            top = g[g["k"] == g["k"].max()].sort_values("n_primitives").iloc[-1]
-            sec.numbers[f"dose_psnr_median_at_kmax_{dfn}_db"] = float(top["psnr_median_db"])
-            sec.numbers[f"dose_nonfinite_at_kmax_{dfn}_pct"] = float(top["nonfinite_pct"])
-            sec.numbers["dose_kmax"] = int(top["k"])
-    reps = dose_records(df).groupby(["scene", "n_primitives", "precision", "defense", "k"]).size()
-    if len(reps) and reps.min() < 10:
-        sec.notes.append(f"only {int(reps.min())} repeats at some dose points (>= 10 recommended)")
-    return sec
-
-
-def _sec_budget(df, manifests, ctx) -> Section:
-    b = dose.redundancy_budget(df)
-    sec = Section(
-        "budget",
-        "Redundancy budget against primitive count",
-        "The dose k at which the median PSNR first falls to 30 dB (non-finite frames ranked lowest), "
-        "interpolated in log k inside its bracket (k_lo, k_hi] on the k grid; censored '>=' when it "
-        "never falls within the sweep, '<=' when the bracket is open below.",
-    )
-    if b["n_primitives"].nunique() >= 2:
-        sec.figures.append(
-            FigureItem(
-                "fig_budget",
-                "Redundancy budget against N",
-                dose.plot_budget(b),
-                "Redundancy budget against primitive count, with the k-grid bracket as error bar; open "
-                "markers are censored bounds.",
-                _prov(b),
-            )
-        )
-    else:
-        ctx["skipped"].append(
-            (
-                "Redundancy budget against N (figure)",
-                "dose records at a single primitive count",
-                "run a size campaign (dose sweeps on subsampled models)",
-            )
-        )
-    for _, r in b.iterrows():
-        key = f"budget_k_{r['scene']}_{r['n_primitives']}_{r['precision']}_{r['defense']}"
-        sec.numbers[key] = f"{r['censored']}{r['k_budget']:.4g}"
-    sec.tables.append(TableItem("redundancy_budget", "Redundancy budget", b, "Per model, precision and defense."))
-    return sec
-
-
-def _sec_size(df, manifests, ctx) -> Section:
-    res = scaling.size_scaling(df)
-    ctx["results"]["size"] = res
-    sec = Section(
-        "size",
-        "Single-upset error against primitive count",
-        "Single upsets on models of several sizes; error is the frame MSE over finite frames (from "
-        "PSNR, peak 1), weighted. alpha = -exponent of the log-log fit (sigma^2(N) = Theta(N^-alpha)), "
-        "95% t interval; zero values cannot be fitted and are shown, not dropped.",
-    )
-    sec.figures.append(
-        FigureItem(
-            "fig_size",
-            "Single-upset error against N",
-            scaling.plot_size_scaling(res),
-            "Weighted mean single-upset frame MSE against primitive count (log-log), fitted power laws "
-            "with alpha and its 95% interval in the legend; open triangles at the foot: zero.",
-            _prov(res["table"]),
-        )
-    )
-    sec.tables.append(
-        TableItem(
-            "size_fits",
-            "Log-log fits",
-            res["fits"],
-            "Log-log least-squares fits against N: sizes, sizes fitted, zero points, exponent and alpha "
-            "with 95% t intervals (NaN with two sizes: a line fits two points exactly), R^2.",
-        )
-    )
-    sec.tables.append(
-        TableItem(
-            "size_scaling",
-            "Error per size",
-            res["table"],
-            f"Per scene, precision, defense and N (source campaign: {res['source_campaign']}).",
-            csv_only=True,
-        )
-    )
-    f = res["fits"]
-    for _, r in f[f["metric"] == "mean_mse"].iterrows():
-        sec.numbers[f"size_alpha_{r['scene']}_{r['precision']}_{r['defense']}"] = [
-            float(r["alpha"]),
-            float(r["alpha_lo"]),
-            float(r["alpha_hi"]),
-        ]
-    if len(res["guard_factor"]):
-        sec.tables.append(
-            TableItem(
-                "size_guard_factor",
-                "Guard factor at the largest N",
-                res["guard_factor"],
-                "Mean single-upset MSE without / with the guard at the largest primitive count.",
-            )
-        )
-    return sec
-
-
-def _sec_reliability(df, manifests, ctx) -> Section:
-    res = reliability.reliability(df, manifests, dose_fits=ctx["results"].get("dose_fits"))
-    prec = res["precision"]
-    sec = Section(
-        "reliability",
-        "Reliability under realistic upset rates",
-        "p_c is the probability that one upset, uniform over the stored bits, is catastrophic (the "
-        "weighted single-upset rate), or per model the dose fit's p (which counts upsets harmful only "
-        "together). Upsets accumulate until the next scrub, every "
-        f"{res['scrub_hours']:g} h: MTBF = T / (1 - exp(-rate x bits x p x T)). Rates and scrub interval: "
-        f"{res['rates_from']}.",
-    )
-    sec.tables.append(
-        TableItem(
-            "reliability_pc",
-            "p_c",
-            res["pc"],
-            "Per-upset catastrophe probability per precision and defense with its 95% stratified "
-            "interval and the share of stored bits covered by sampled cells.",
-        )
-    )
-    if res["mtbf_wide"] is not None and len(res["mtbf_wide"]):
-        sec.tables.append(
-            TableItem(
-                "mtbf",
-                "Mean time between catastrophic frames",
-                res["mtbf_wide"],
-                f"For a model of {res['bits']:.3g} stored bits at {prec}, scrubbed every {res['scrub_hours']:g} h "
-                "('> x': no event, bound from the upper limit of p).",
-                _prov(res["mtbf"]),
-            )
-        )
-        sec.tables.append(
-            TableItem("mtbf_detail", "MTBF inputs and intervals", res["mtbf"], "Per environment.", csv_only=True)
-        )
-        sec.figures.append(
-            FigureItem(
-                "fig_reliability",
-                "MTBF against the upset rate",
-                reliability.plot_sensitivity(res),
-                "MTBF of catastrophic frames against the per-bit upset rate, per defense and source of p "
-                "(bands: 95% interval of p); dotted: the named environments.",
-                _prov(res["mtbf"]),
-            )
-        )
-    for env in res["rates"]:
-        sec.notes.append(
-            f"rate, {env['environment']}: {float(env['per_bit_hour']):.3g} upsets/bit/h "
-            f"({float(env['per_bit_hour']) * 1e15:.3g} FIT/Mbit). {env.get('source', '')}"
-        )
-    sec.notes.extend(res["notes"])
-    for dfn in ("none", "guard"):
-        r = reliability.pc_lookup(res["pc"], prec, dfn)
-        if r is not None:
-            sec.numbers[f"p_c_{dfn}_pct"] = [100 * float(r["p_c"]), 100 * float(r["ci_lo"]), 100 * float(r["ci_hi"])]
-    sec.numbers["model_bits"] = res["bits"]
-    sec.numbers["scrub_hours"] = res["scrub_hours"]
-    return sec
-
-
-def _sec_contamination(df, manifests, ctx) -> Section:
-    cont = contamination.contamination(df)
-    sec = Section(
-        "contamination",
-        "Cross-node contamination in distributed rendering",
-        "Sort-first partitions of the screen into P tile-aligned regions (the grid the Ray ranks "
-        "render): the weighted share of regions one upset contaminates, predicted from the projected "
-        "footprint and measured from changed pixels, and their IoU.",
-    )
-    sec.figures.append(
-        FigureItem(
-            "fig_contamination",
-            "Contaminated regions against P",
-            contamination.plot_contamination(cont),
-            "Share of regions contaminated by one log-scale sign-bit upset against P at the reference "
-            "precision, predicted (solid) and measured (dashed), without and with the guard.",
-            _prov(cont),
-        )
-    )
-    sec.tables.append(TableItem("contamination", "Region contamination", cont, "Per subset, precision, defense and P."))
-    sub = cont[(cont["subset"] == "log-scale sign") & cont["defense"].isin(["none", "guard"])]
-    if len(sub):
-        sub = sub[sub["precision"] == reference_precision(sub)]
-        pmax = int(sub["P"].max())
-        for _, r in sub[sub["P"] == pmax].iterrows():
-            key = f"{r['precision']}_{r['defense']}_P{pmax}"
-            sec.numbers[f"contam_sign_pred_pct_{key}"] = float(r["pred_fraction_pct"])
-            sec.numbers[f"contam_sign_meas_pct_{key}"] = float(r["meas_fraction_pct"])
-            sec.numbers[f"contam_sign_iou_{key}"] = float(r["iou_mean"])
-    if cont["slowest_region_ms"].isna().all():
-        ctx["skipped"].append(
-            (
-                "Slowest-region render time and load imbalance",
-                "no region_ms_max_P / region_ms_mean_P columns",
-                "time the regions with `seuwgpu distributed --scene NAME --ranks 4 16 64` "
-                "(each region rendered on its own Ray rank)",
-            )
-        )
-    return sec
-
-
-def _sec_prediction(df, manifests, ctx) -> Section:
-    res = prediction.prediction(df, max_rows=ctx.get("max_pred_rows", 200_000))
-    ctx["results"]["prediction"] = res
-    sec = Section(
-        "prediction",
-        "Predicting criticality without injection",
-        f"At {res['precision']}: a gradient-boosted classifier of 'catastrophic' from static fault-site "
-        "features against the (field, bit) lookup and a constant, record-weighted, on a stratified 30% "
-        "held-out split and leave-one-scene-out; AUC with 95% bootstrap intervals.",
-    )
-    if res["roc"]:
-        sec.figures.append(
-            FigureItem(
-                "fig_roc",
-                "ROC curves",
-                prediction.plot_roc(res),
-                "Held-out ROC curves of the classifier and both baselines, AUC [95% bootstrap interval].",
-                _prov(res["summary"]),
-            )
-        )
-    sec.tables.append(TableItem("prediction", "AUC against baselines", res["summary"], "Held-out and LOSO AUC, Brier."))
-    if len(res["importance"]):
-        sec.tables.append(
-            TableItem("prediction_importance", "Permutation importance", res["importance"], "Drop in held-out AUC.")
-        )
-    if len(res["loso"]):
-        sec.tables.append(
-            TableItem("prediction_loso", "Leave-one-scene-out AUC", res["loso"], "Trained on the other scenes.")
-        )
-    sec.notes.extend(res["notes"])
-    s = res["summary"].set_index("model")
-    sec.numbers.update(
-        pred_auc=[float(s["auc_holdout"].iloc[0]), float(s["auc_lo"].iloc[0]), float(s["auc_hi"].iloc[0])],
-        pred_auc_lookup=[float(s["auc_holdout"].iloc[1]), float(s["auc_lo"].iloc[1]), float(s["auc_hi"].iloc[1])],
-        pred_lookup_as_good=res["lookup_as_good"],
-        pred_top_feature=res["top_feature"],
-    )
-    return sec
-
-
-# (key, label, builder); the claims table is built last (it reads the others' results) but shown first
-SECTIONS: list[tuple[str, str, Callable]] = [
-    ("outcomes", "Outcome classes", _sec_outcomes),
-    ("scenes", "Table 1: scenes", _sec_scenes),
-    ("criticality", "Criticality (per-field table, field x bit heat map)", _sec_criticality),
-    ("precision", "Per-precision catastrophe rates", _sec_precision),
-    ("theory", "Theory check (mantissa slope)", _sec_theory),
-    ("guard", "Guard evaluation", _sec_guard),
-    ("mitigation", "Mitigation table", _sec_mitigation),
-    ("defenses", "Defenses against cost (Pareto)", _sec_defenses),
-    ("dose", "Dose response (quality and catastrophes against k)", _sec_dose),
-    ("budget", "Redundancy budget", _sec_budget),
-    ("size", "Single-upset error against N", _sec_size),
-    ("reliability", "Reliability (p_c, MTBF with scrubbing)", _sec_reliability),
-    ("contamination", "Distributed contamination", _sec_contamination),
-    ("prediction", "Prediction of criticality", _sec_prediction),
-    ("claims", "Claims table", _sec_claims),
-]
-
-
 # ----------------------------------------------------------------------------- build report
-
-
-def run_sections(df: pd.DataFrame, manifests: list[dict], ctx: dict) -> list[Section]:
-    """Every analysis the records support, in report order; the others go to ctx["skipped"]."""
-    sections: list[Section] = []
-    ctx.setdefault("skipped", [])
-    ctx.setdefault("max_pred_rows", 200_000)
-    ctx.setdefault("results", {})
-    for _key, label, builder in SECTIONS:
-        try:
-            sections.append(builder(df, manifests, ctx))
-        except InsufficientData as e:
-            ctx["skipped"].append((label, e.reason, e.remedy))
-    return sections
-
-
-def section_figures(df: pd.DataFrame, manifests: list[dict]) -> dict:
-    """The report's matplotlib figures by name (what the Python API hands to a notebook)."""
-    return {fi.name: fi.fig for sec in run_sections(df, manifests, {}) for fi in sec.figures}
 
 
 def _png(fig) -> bytes:
@@ -914,7 +130,8 @@ padding:0 1em;color:#222;line-height:1.45}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
 h3{font-size:1.05em;margin-bottom:.3em}
 table{border-collapse:collapse;font-size:.82em;margin:.4em 0 1em 0;display:block;overflow-x:auto}
-th,td{border:1px solid #ddd;padding:.2em .5em}th{background:#f3f3f3}td.num{text-align:right;
+th,td{border:1px solid #ddd;padding:.2em .5em}th{background:#f3f3f3}td.txt{max-width:18em;white-space:normal;
+overflow-wrap:anywhere}td.num{text-align:right;
 font-variant-numeric:tabular-nums}
 figure{margin:1em 0}figure img{max-width:100%;border:1px solid #eee}
 .cap{font-size:.86em;color:#444}.note{font-size:.88em;color:#555}
@@ -978,7 +195,7 @@ def build_report(
             written += [f"{ti.name}.csv", f"{ti.name}.md"]
             links = f"(<a href='{ti.name}.csv'>{ti.name}.csv</a>, <a href='{ti.name}.md'>{ti.name}.md</a>)"
             body = (
-                f"<p class='note'>{len(ti.df):,} rows: linked, not inlined.</p>" if ti.csv_only else _html_table(ti.df)
+                f"<p class='note'>{len(ti.df):,} rows: linked, not inlined.</p>" if ti.csv_only else html_table(ti.df)
             )
             hs.append(f"<h3>{html.escape(ti.title)}</h3><p class='cap'>{html.escape(cap)} {links}</p>{body}")
             if ti.csv_only:
@@ -994,7 +211,7 @@ def build_report(
     toc.append("<li><a href='#skipped'>Skipped analyses</a></li>")
     if len(skip_rows):
         skip_html = (
-            "<div class='skip'><p>These analyses were skipped for lack of data:</p>" + _html_table(skip_rows) + "</div>"
+            "<div class='skip'><p>These analyses were skipped for lack of data:</p>" + html_table(skip_rows) + "</div>"
         )
     else:
         skip_html = "<p>None: every analysis had the data it needs.</p>"
@@ -1025,7 +242,7 @@ def build_report(
             (out / name).unlink()
         except OSError:
             pass
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
+    (out / "summary.json").write_text(json.dumps(json_safe(summary), indent=2, default=json_default, allow_nan=False))
 
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
@@ -1033,7 +250,7 @@ def build_report(
 <h1>{html.escape(title)}</h1>
 <p class='note'>Generated {html.escape(summary["generated"])} by seuwgpu {html.escape(__version__)}.
 {html.escape(provenance_text(provenance(df)))}</p>
-<h2>Runs</h2>{_html_table(_runs_table(manifests))}
+<h2>Runs</h2>{html_table(_runs_table(manifests))}
 <h2>Contents</h2><ul>{"".join(toc)}</ul>
 {"".join(html_sections)}
 <h2 id='skipped'>Skipped analyses</h2>{skip_html}
@@ -1062,16 +279,6 @@ def _previous_files(out: Path) -> set[str]:
     except (OSError, ValueError, AttributeError):
         return set()
     return {f for f in files if isinstance(f, str) and f == Path(f).name and f}
-
-
-def _json_default(o):
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
 
 
 def _run_info(m: dict) -> dict:

@@ -1,0 +1,154 @@
+"""Every command of the command line, end to end at tiny sizes, checked against the library
+calls it stands for. (`view` runs end to end on an offscreen canvas in tests/test_viewer.py:
+test_view_offscreen_command and test_view_without_display_says_what_to_do.)"""
+
+import re
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from seuwgpu.apps.cli import main
+from seuwgpu.campaign.store import REPRODUCIBLE_COLUMNS, read_manifest, read_records
+from seuwgpu.model.formats import read_model
+from seuwgpu.model.scenes import make_scene, scene_cameras
+from seuwgpu.render.renderer import Renderer
+from seuwgpu.version import __version__
+
+ROOT = Path(__file__).resolve().parents[1]
+SPEC = textwrap.dedent("""
+    seed = 3
+    views = 1
+    size = "16x16"
+    batch = 3
+    [[scenes]]
+    scene = "spheres"
+    n = 120
+    [single]
+    fields = ["opacity", "log_scales"]
+    bits = [30, 31]
+    samples = 2
+    defenses = ["none", "guard"]
+""")
+
+
+def run(argv, capsys):
+    rc = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def test_version_and_errors_through_a_real_process(tmp_path):
+    p = subprocess.run([sys.executable, "-m", "seuwgpu", "--version"], capture_output=True, text=True, cwd=ROOT)
+    assert p.returncode == 0 and p.stdout.strip() == f"seuwgpu {__version__}"
+    p = subprocess.run(
+        [sys.executable, "-m", "seuwgpu", "campaign", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "r")],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    assert p.stderr.strip() == f"seuwgpu campaign: error: {tmp_path / 'missing.toml'}: file not found"
+
+
+def test_info(capsys):
+    from seuwgpu.gpu.device import get_gpu
+
+    rc, out, _ = run(["info"], capsys)
+    assert rc == 0
+    limit = get_gpu().limits["max-storage-buffer-binding-size"]
+    assert f"max-storage-buffer-binding-size: {limit}" in out
+
+
+def test_scene_list_and_export(tmp_path, capsys):
+    rc, out, _ = run(["scene", "--list"], capsys)
+    assert rc == 0 and re.search(r"^spheres\s", out, re.M)
+    rc, out, _ = run(["scene", "spheres", "--n", "50", "--sh-degree", "1", "--out", tmp_path / "s.ply"], capsys)
+    assert rc == 0
+    got, want = read_model(tmp_path / "s.ply").model, make_scene("spheres", n=50, sh_degree=1)
+    assert np.array_equal(got.flat(), want.flat())
+
+
+def test_render_equals_the_renderer(tmp_path, capsys):
+    rc, _, _ = run(
+        ["render", "--scene", "spheres", "--n", "300", "--views", "2", "--size", "32x24", "--out", tmp_path / "r.npz"],
+        capsys,
+    )
+    assert rc == 0
+    images = np.load(tmp_path / "r.npz")["images"]
+    want = Renderer(make_scene("spheres", n=300), scene_cameras("spheres", 2, 32, 24)).render()
+    assert images.shape == (2, 24, 32, 3) and np.array_equal(images, want)
+    rc, out, _ = run(
+        ["render", "--scene", "spheres", "--n", "300", "--size", "32x24", "--out", tmp_path / "png"], capsys
+    )
+    assert rc == 0 and len(list((tmp_path / "png").glob("view_*.png"))) == 4
+
+
+def test_inject_reports_the_flip_and_writes_the_panel(tmp_path, capsys):
+    rc, out, _ = run(
+        [
+            "inject", "--scene", "spheres", "--n", "300", "--views", "1", "--size", "32x32",
+            "--field", "log_scales", "--primitive", "5", "--component", "1", "--bit", "31", "--out", tmp_path,
+        ],
+        capsys,
+    )  # fmt: skip
+    assert rc == 0
+    lines = dict(line.split(": ", 1) for line in out.splitlines() if ": " in line)
+    assert lines["field"] == "log_scales" and lines["primitive"] == "5" and lines["bit"] == "31"
+    clean = make_scene("spheres", n=300).log_scales[5, 1]
+    assert float(lines["clean_value"]) == pytest.approx(clean) and float(lines["corrupted_value"]) == -float(
+        lines["clean_value"]
+    )
+    assert (tmp_path / "panel.png").is_file()
+
+
+def test_plan_campaign_shards_merge_and_report(tmp_path, capsys):
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC)
+    rc, out, _ = run(["plan", spec, "--margin", "0.1"], capsys)
+    assert rc == 0
+    total = int(re.search(r"total: ([\d,]+) injections", out).group(1).replace(",", ""))
+    assert total == 2 * 2 * 2  # fields x bits x samples
+    for i in range(2):
+        rc, out, _ = run(["campaign", spec, "--out", tmp_path / f"s{i}", "--shard", f"{i}/2", "--quiet"], capsys)
+        assert rc == 0
+    rc, out, err = run(["merge", tmp_path / "s0", "--out", tmp_path / "m"], capsys)
+    assert rc == 2 and "--allow-partial" in err
+    rc, out, _ = run(["merge", tmp_path / "s0", tmp_path / "s1", "--out", tmp_path / "m"], capsys)
+    assert rc == 0 and "merged" in out
+    rc, out, _ = run(["campaign", spec, "--out", tmp_path / "one", "--quiet"], capsys)
+    assert rc == 0 and f"{total} of {total} injections recorded" in out
+    # every column but the wall-clock time_ms is reproduced bit for bit
+    a = read_records(tmp_path / "m").sort_values(["injection_id", "defense"]).reset_index(drop=True)
+    b = read_records(tmp_path / "one").sort_values(["injection_id", "defense"]).reset_index(drop=True)
+    assert len(a) == 2 * total and a[REPRODUCIBLE_COLUMNS].equals(b[REPRODUCIBLE_COLUMNS])
+    assert read_manifest(tmp_path / "m")["total_injections"] == total
+    rc, out, _ = run(["report", tmp_path / "m", "--out", tmp_path / "rep"], capsys)
+    assert rc == 0 and (tmp_path / "rep" / "index.html").is_file()
+
+
+@pytest.mark.slow
+def test_demo_on_a_tiny_scene(tmp_path, capsys):
+    rc, out, _ = run(
+        ["demo", "--scene", "spheres", "--n", "200", "--views", "1", "--size", "16x16", "--samples", "1", "--quiet",
+         "--out", tmp_path / "demo"],
+        capsys,
+    )  # fmt: skip
+    assert rc == 0 and "Per-field single-upset criticality at fp32" in out
+    m = read_manifest(tmp_path / "demo")
+    assert len(read_records(tmp_path / "demo")) == m["total_injections"] * len(m["spec"]["single"]["defenses"])
+    assert (tmp_path / "demo" / "report" / "index.html").is_file()
+
+
+@pytest.mark.slow
+def test_distributed_sort_first(capsys):
+    pytest.importorskip("ray")
+    rc, out, _ = run(
+        ["distributed", "--scene", "spheres", "--n", "300", "--views", "1", "--size", "32x32", "--ranks", "2",
+         "--repeats", "1", "--upset", "log_scales:31", "--primitive", "3"],
+        capsys,
+    )  # fmt: skip
+    assert rc == 0 and "rank" in out.lower()

@@ -1,0 +1,354 @@
+"""Bad inputs, interrupted and concurrent runs, merges and oversized jobs: each ends in the project's
+own one-line error naming the input, or in a correct result (issue 14)."""
+
+import contextlib
+import json
+import os
+import shutil
+import textwrap
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from seuwgpu.apps.cli import main
+from seuwgpu.campaign import store
+from seuwgpu.campaign.budget import check_campaign
+from seuwgpu.campaign.merge import merge
+from seuwgpu.campaign.runner import Runner
+from seuwgpu.campaign.spec import SpecError, load_spec, normalize_spec, spec_hash
+from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
+from seuwgpu.model.budget import check_frames, check_render
+from seuwgpu.model.cameras import CameraFileError, read_cameras
+from seuwgpu.model.formats import ModelFileError, read_model, save_model
+from seuwgpu.model.scenes import make_scene
+
+TINY = textwrap.dedent("""
+    views = 1
+    size = "16x16"
+    batch = 2
+    [[scenes]]
+    {scene}
+    [single]
+    fields = ["opacity"]
+    bits = [30]
+    samples = 4
+    defenses = ["none"]
+""")
+
+
+def tiny_spec(tmp_path, scene='scene = "spheres"\n    n = 200', name="spec.toml"):
+    p = tmp_path / name
+    p.write_text(TINY.format(scene=scene))
+    return p
+
+
+def records(run):
+    """A run's records in a canonical order, without the wall-clock time_ms (never reproduced)."""
+    df = store.read_records(run).sort_values(["injection_id", "defense"]).reset_index(drop=True)
+    return df[store.REPRODUCIBLE_COLUMNS]
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("tiny")
+    spec = load_spec(tiny_spec(tmp))
+    Runner(spec, tmp / "run", quiet=True).run()
+    return spec, tmp / "run", records(tmp / "run")
+
+
+def test_every_error_type_is_a_seuwgpu_error():
+    for e in (SpecError, ModelFileError, CameraFileError, RunInUse, TooBig, InputError):
+        assert issubclass(e, SeuwgpuError)
+    assert issubclass(SpecError, ValueError) and issubclass(ModelFileError, ValueError)
+
+
+# ---- run directories ---------------------------------------------------------------------------
+def test_a_second_campaign_on_a_held_directory_is_refused(tiny_run, tmp_path):
+    spec, run, _ = tiny_run
+    with store.lock(tmp_path / "busy"):
+        with pytest.raises(RunInUse, match=f"pid {os.getpid()}"):
+            Runner(spec, tmp_path / "busy", quiet=True).run()
+    assert store.read_manifest(tmp_path / "busy") is None  # nothing was written by the refused run
+    # another shard of the same directory is not blocked by it
+    with store.lock(tmp_path / "busy", (0, 2)):
+        Runner(spec, tmp_path / "busy", shard=(1, 2), quiet=True).run()
+
+
+def test_resuming_after_the_model_changed_is_refused_naming_the_file(tmp_path):
+    model = tmp_path / "m.ply"
+    save_model(make_scene("spheres", n=150, seed=1), model)
+    spec_path = tiny_spec(tmp_path, 'model = "m.ply"')
+    Runner(load_spec(spec_path), tmp_path / "run", quiet=True).run()
+    Runner(load_spec(spec_path), tmp_path / "run", quiet=True).run()  # same content: resumes
+    save_model(make_scene("spheres", n=150, seed=2), model)
+    with pytest.raises(SpecError, match=r"other content in .*m\.ply.*scenes\[0\]\.model"):
+        Runner(load_spec(spec_path), tmp_path / "run", quiet=True).run()
+
+
+def test_the_same_spec_through_another_path_is_the_same_run(tmp_path):
+    save_model(make_scene("spheres", n=150, seed=1), tmp_path / "m.ply")
+    p = tiny_spec(tmp_path, 'model = "m.ply"')
+    (tmp_path / "sub").mkdir()
+    os.symlink(tmp_path / "m.ply", tmp_path / "sub" / "link.ply")
+    (tmp_path / "sub" / "s.toml").write_text(TINY.format(scene='model = "link.ply"'))
+    a = load_spec(p)
+    b = load_spec(tmp_path / "sub" / ".." / "spec.toml")
+    c = load_spec(tmp_path / "sub" / "s.toml")
+    assert a == b and spec_hash(a) == spec_hash(b) == spec_hash(c)
+    assert os.path.isabs(a["scenes"][0]["model"]) and len(a["scenes"][0]["model_sha256"]) == 64
+
+
+def test_a_run_that_failed_to_load_its_model_does_not_block_the_corrected_spec(tmp_path):
+    (tmp_path / "m.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 1\nend_header\n")
+    bad = tiny_spec(tmp_path, 'model = "m.ply"', "bad.toml")
+    with pytest.raises(ModelFileError):
+        Runner(load_spec(bad), tmp_path / "run", quiet=True).run()
+    good = load_spec(tiny_spec(tmp_path))
+    Runner(good, tmp_path / "run", quiet=True).run()
+    assert store.read_manifest(tmp_path / "run")["spec_hash"] == spec_hash(good)
+
+
+def test_damaged_parts_are_redone_and_stray_parts_never_counted(tiny_run, tmp_path):
+    spec, run, want = tiny_run
+    shutil.copytree(run, tmp_path / "run")
+    parts = store.part_files(tmp_path / "run")
+    shutil.copy(parts[0], store.records_dir(tmp_path / "run") / store.part_name(9_000_000, 2))  # a stray
+    parts[0].write_bytes(b"")  # a 0-byte part (a full disk, a copy cut short)
+    parts[1].write_bytes(b"PAR1 not really")  # an unreadable one
+    stats = Runner(spec, tmp_path / "run", quiet=True).run()
+    assert stats["new"] == 4  # the two damaged parts of 2 injections each
+    pd.testing.assert_frame_equal(records(tmp_path / "run"), want)
+
+
+def test_out_under_a_file_is_a_clear_error(tiny_run, tmp_path):
+    spec, _, _ = tiny_run
+    (tmp_path / "f").write_text("x")
+    for out in (tmp_path / "f", tmp_path / "f" / "run"):
+        with pytest.raises(InputError, match="--out"):
+            Runner(spec, out, quiet=True).run()
+
+
+# ---- merge -------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def shards(tiny_run, tmp_path_factory):
+    spec, _, _ = tiny_run
+    tmp = tmp_path_factory.mktemp("shards")
+    dirs = [tmp / f"s{i}" for i in range(3)]
+    for i, d in enumerate(dirs):
+        Runner(spec, d, shard=(i, 3), quiet=True).run()
+    return dirs
+
+
+def test_merge_refuses_an_incomplete_shard_set_unless_allowed(tiny_run, shards, tmp_path):
+    _, _, want = tiny_run
+    with pytest.raises(SpecError, match="the shards hold 1 of the campaign's 2 parts: 2 injections are missing"):
+        merge(tmp_path / "m", shards[:1])
+    assert not store.part_files(tmp_path / "m")
+    merge(tmp_path / "p", shards[:1], allow_partial=True)
+    m = store.read_manifest(tmp_path / "p")
+    assert m["missing_parts"] == [[2, 2]] and m["injections_recorded"] == 2 and m["total_injections"] == 4
+    merge(tmp_path / "full", shards)
+    assert "missing_parts" not in store.read_manifest(tmp_path / "full")
+    pd.testing.assert_frame_equal(records(tmp_path / "full"), want)
+
+
+def test_merge_refuses_other_specs_its_own_inputs_and_foreign_outputs(tiny_run, shards, tmp_path):
+    spec, run, _ = tiny_run
+    other = dict(spec, seed=99)
+    Runner(other, tmp_path / "other", quiet=True).run()
+    with pytest.raises(SpecError, match="different specs"):
+        merge(tmp_path / "m", [shards[0], tmp_path / "other"])
+    with pytest.raises(SpecError, match="one of the shards"):
+        merge(shards[0], shards)
+    with pytest.raises(SpecError, match="already holds a run of another spec"):
+        merge(tmp_path / "other", shards)
+    with pytest.raises(SpecError, match="not a run directory"):
+        merge(tmp_path / "m", [tmp_path])
+
+
+# ---- memory ------------------------------------------------------------------------------------
+def test_too_big_jobs_are_refused_saying_what_fits(monkeypatch):
+    monkeypatch.setenv("SEUWGPU_HOST_MEMORY", str(2 * 10**9))
+    with pytest.raises(TooBig, match=r"--n 50000000 needs about .* at most --n \d+ fits"):
+        main_or_raise(["render", "--scene", "spheres", "--n", "50000000", "--out", "x.npz"])
+    spec = normalize_spec(
+        {"scenes": [{"scene": "spheres", "n": 100}], "single": {"samples": 10**12, "defenses": ["none"]}}
+    )
+    with pytest.raises(TooBig, match=r"at most about samples = [\d,]+ in \[single\] fits"):
+        check_campaign(spec)
+    limits = {"max-storage-buffer-binding-size": 1 << 27, "max-buffer-size": 1 << 31}
+    with pytest.raises(TooBig, match="at most 8,388,608 primitives fit"):
+        check_render(limits, False, 9_000_000, 0, 1, 64, 64, False)
+    with pytest.raises(TooBig, match="at most 2 view"):
+        check_render(limits, False, 100, 0, 3, 2048, 2048, False)
+    with pytest.raises(TooBig, match="64 view.* of 2048x2048 need 3.2 GB of host memory for the frames"):
+        check_frames(64, 2048, 2048)
+
+
+def main_or_raise(argv):
+    """Run a CLI command's function itself (errors propagate instead of being printed)."""
+    from seuwgpu.apps.cli import build_parser
+
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+# ---- inputs ------------------------------------------------------------------------------------
+SPEC_CASES = {
+    'model = "."': "is a folder, not a model file",
+    "ply = 5": "must be a file name in quotes",
+    'scene = "spheres"\nseed = 18446744073709551616': r"seed = .* out of range",
+    'scene = "spheres"\nseed = -1': r"seed = -1 is out of range",
+    'scene = "spheres"\nmodel = "x.ply"': "exactly one of",
+    'scene = "spheres"\nup = 3': "is no axis",
+}
+
+
+@pytest.mark.parametrize("scene", list(SPEC_CASES))
+def test_bad_scene_entries_are_refused(tmp_path, scene):
+    with pytest.raises(SpecError, match=SPEC_CASES[scene]):
+        load_spec(tiny_spec(tmp_path, scene.replace("\n", "\n    ")))
+
+
+@pytest.mark.parametrize(
+    "table, message",
+    [
+        ({"defenses": ["none", "none"]}, "lists 'none' more than once"),
+        ({"precisions": ["fp16", "fp16"]}, "lists 'fp16' more than once"),
+        ({"fields": ["log_scales", "log_scale"]}, "names log_scales more than once"),
+        ({"defenses": [["none"]]}, "unknown value"),
+    ],
+)
+def test_duplicate_list_entries_are_refused(table, message):
+    with pytest.raises(SpecError, match=message):
+        normalize_spec({"scenes": [{"scene": "spheres", "n": 50}], "single": table})
+
+
+def test_spec_files_that_are_no_spec(tmp_path):
+    with pytest.raises(SpecError, match="is a folder"):
+        load_spec(tmp_path)
+    (tmp_path / "b.toml").write_bytes(b"\xff\xfe\x00binary")
+    with pytest.raises(SpecError, match="not a text file"):
+        load_spec(tmp_path / "b.toml")
+    with pytest.raises(SpecError, match=r"dose.k = 100000 is more upsets than scenes\[0\] stores bits"):
+        normalize_spec({"scenes": [{"scene": "spheres", "n": 2}], "dose": {"k": [100000]}})
+
+
+CAMERA = {"viewmat": np.eye(4).tolist(), "K": [[50, 0, 8], [0, 50, 8], [0, 0, 1]], "width": 16, "height": 16}
+CAMERA_CASES = {
+    "non-finite": ({"viewmat": [[float("nan")] * 4] * 4}, "must be finite|not valid JSON|not a camera file"),
+    "singular": ({"viewmat": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 0], [0, 0, 0, 1]]}, "singular"),
+    "mirrored": ({"viewmat": [[-1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]}, "mirrored"),
+    "focal": ({"K": [[0, 0, 8], [0, 50, 8], [0, 0, 1]]}, "focal lengths must be positive"),
+    "fraction": ({"width": 12.5}, "width must be a positive integer"),
+    "bool": ({"width": True}, "width must be a positive integer"),
+    "null": ({"width": None}, "width must be a positive integer"),
+    "zero": ({"height": 0}, "height must be a positive integer"),
+    "bool matrix": ({"K": [[True, 0, 8], [0, 50, 8], [0, 0, 1]]}, "numbers only"),
+}
+
+
+@pytest.mark.parametrize("case", list(CAMERA_CASES))
+def test_bad_cameras_are_refused(tmp_path, case):
+    change, message = CAMERA_CASES[case]
+    p = tmp_path / "cams.json"
+    p.write_text(json.dumps({"cameras": [dict(CAMERA, **change)]}).replace("NaN", "NaN"))
+    with pytest.raises(CameraFileError, match=message):
+        read_cameras(p)
+
+
+def test_camera_files_of_the_wrong_shape(tmp_path):
+    p = tmp_path / "c.json"
+    for text, message in (('{"cameras": 5}', "must be a list"), ("[1, 2]", "no known camera file")):
+        p.write_text(text)
+        with pytest.raises(CameraFileError, match=message):
+            read_cameras(p)
+    inria = [{"img_name": "a", "width": None, "height": 16, "position": [0, 0, 0], "rotation": np.eye(3).tolist()}]
+    inria[0].update(fx=50, fy=50)
+    p.write_text(json.dumps(inria))
+    with pytest.raises(CameraFileError, match="camera 0: camera width must be a positive integer, got None"):
+        read_cameras(p)
+
+
+def test_a_ply_whose_header_count_is_below_its_data_names_both_counts(tmp_path):
+    save_model(make_scene("spheres", n=10, seed=1), tmp_path / "m.ply")
+    data = (tmp_path / "m.ply").read_bytes().replace(b"element vertex 10\n", b"element vertex 7\n")
+    (tmp_path / "short.ply").write_bytes(data)
+    with pytest.raises(ModelFileError, match="declares 7 vertices but the data holds 10"):
+        read_model(tmp_path / "short.ply")
+
+
+def test_an_all_nan_model_is_refused(tmp_path):
+    m = make_scene("spheres", n=5, seed=1)
+    m.means[:] = np.nan
+    save_model(m, tmp_path / "nan.ply")
+    with pytest.raises(ModelFileError, match="none of its 5 primitives has a finite position"):
+        read_model(tmp_path / "nan.ply")
+
+
+def test_cli_errors_are_one_line_without_traceback(tmp_path, capsys):
+    (tmp_path / "f").write_text("x")
+    spec = tiny_spec(tmp_path)
+    cases = [
+        [
+            "inject",
+            "--scene",
+            "spheres",
+            "--n",
+            "50",
+            "--field",
+            "opacity",
+            "--bit",
+            "3",
+            "--sample",
+            "0",
+            "--out",
+            "o",
+        ],
+        ["campaign", str(spec), "--out", str(tmp_path / "f" / "run")],
+        ["campaign", str(tmp_path), "--out", str(tmp_path / "r")],
+        ["render", "--model", str(tmp_path / "f"), "--out", str(tmp_path / "o.npz")],
+        ["merge", str(tmp_path / "nope"), "--out", str(tmp_path / "m")],
+    ]
+    for argv in cases:
+        with pytest.raises(SystemExit) if "--sample" in argv else contextlib.nullcontext():
+            assert main(argv) == 2, argv  # (argparse's own errors exit with 2 by SystemExit)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err and "Traceback" not in "\n".join(err), argv
+        assert "error:" in err[-1], (argv, err)
+
+
+# ---- exhaustive sweep --------------------------------------------------------------------------
+@pytest.mark.slow
+@pytest.mark.parametrize("precision", ["fp32", "fp16", "bf16"])
+def test_every_bit_of_a_tiny_model_under_every_defense(precision):
+    """Every field, component and bit of one primitive, in every precision, under every defense:
+    each renders (finite metrics or NaN-marked records, no crash or hang), the stored words come
+    back exactly, the clean render is unchanged afterwards, and a sample agrees with full renders."""
+    from seuwgpu.faults.defenses import DEFENSES
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.model import encoding
+    from seuwgpu.model.fields import FIELDS, field_components
+    from seuwgpu.model.scenes import scene_cameras
+
+    eng = Engine(make_scene("spheres", n=4, seed=1), scene_cameras("spheres", 1, 16, 16), precision)
+    r = eng.renderer
+    words = [r.read_words(c).copy() for c in range(r.layout.n_chunks)]
+    sites = [
+        eng.site(f, 1, c, b)
+        for f in FIELDS
+        for c in range(field_components(f, eng.degree))
+        for b in range(encoding.bits_per_value(precision))
+    ]
+    df = eng.evaluate_frame(sites, DEFENSES)
+    assert len(sites) == 59 * encoding.bits_per_value(precision) and len(df) == len(sites) * len(DEFENSES)
+    assert df["footprint"].between(0, 1).all() and (df["clamps"] >= 0).all()
+    assert ((df["psnr"] > 0) | df["nonfinite"]).all()
+    assert all(np.array_equal(a, r.read_words(c)) for c, a in enumerate(words))
+    assert np.array_equal(r.render_rgba().view(np.uint32), eng.clean_rgba.view(np.uint32))
+    for i in range(0, len(df), 211):
+        rec = df.iloc[i]
+        full = eng.inject(eng.site(rec["field"], 1, int(rec["component"]), int(rec["bit"])), rec["defense"])
+        assert full["footprint"] == rec["footprint"] and full["clamps"] == rec["clamps"], (rec, full)
+    assert all(np.array_equal(a, r.read_words(c)) for c, a in enumerate(words))

@@ -1,0 +1,856 @@
+"""A battery of bad inputs, interruptions and oversized jobs against the `seuwgpu` command line.
+
+Each case runs one command (in this process through `main(argv)`, or as a real process where a
+kill or a second process is the point) and its outcome is classified:
+
+- clear error:  exit status 2 (3 for `view` without a display), one line saying `error:`, no traceback
+- correct:      exit status 0 and the result checked (a render of the right size, records equal to an
+                uninterrupted reference run, a manifest listing what is missing, ...)
+- refused:      a clear error where a correct result was expected (a valid input refused)
+- traceback:    an exception escaped (a Python traceback)
+- crash:        killed by a signal, hung past its timeout, or another exit status
+- silent wrong: exit status 0 where an error was due, or a result that fails its check
+
+    python tools/robustness_battery.py --out battery.json [--only SUBSTRING] [--work DIR]
+
+prints a table per class and category and writes every case (argv, outcome, the stderr's last line)
+as JSON to --out. Kill-and-resume cases need a few seconds each; the whole battery takes minutes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from seuwgpu.apps.cli import main  # noqa: E402
+from seuwgpu.campaign import store  # noqa: E402
+from seuwgpu.model.cameras import save_cameras  # noqa: E402
+from seuwgpu.model.formats import save_model  # noqa: E402
+from seuwgpu.model.scenes import make_scene, scene_cameras  # noqa: E402
+
+
+@dataclass
+class Case:
+    category: str
+    name: str
+    argv: list
+    expect: str = "error"  # "error" | "ok"
+    check: object = None  # callable(stdout) -> None, raising AssertionError when the result is wrong
+    process: bool = False  # run as a real process
+    env: dict = field(default_factory=dict)
+    before: object = None  # callable run just before the case (damage a run directory, change a file)
+    kill: tuple | None = None  # (signal, seconds, times): interrupt that often, then run to the end
+    concurrent: bool = False  # start a first campaign on the same --out, then this one
+
+
+@dataclass
+class Outcome:
+    rc: int | None
+    out: str
+    err: str
+    traceback: bool = False
+    timeout: bool = False
+    notes: str = ""
+
+
+TOP = {"views": "1", "size": '"16x16"', "batch": "4"}
+SCENE = 'scene = "spheres"\nn = 60\n'
+SINGLE = {"fields": '["opacity"]', "bits": "[30]", "samples": "2", "defenses": '["none"]'}
+
+
+def table(name: str, base: dict, **over) -> str:
+    """A TOML table from base values with some replaced (None: left out)."""
+    vals = {**base, **over}
+    return f"[{name}]\n" + "".join(f"{k} = {v}\n" for k, v in vals.items() if v is not None)
+
+
+def spec_text(top=None, scene=None, single=None, extra=""):
+    """A tiny valid spec, with top-level values replaced (`top`: {key: TOML value}), another scene
+    entry, another [single] table ("" for none) and extra tables."""
+    head = "".join(f"{k} = {v}\n" for k, v in {**TOP, **(top or {})}.items() if v is not None)
+    return (
+        head
+        + "[[scenes]]\n"
+        + (SCENE if scene is None else scene)
+        + (table("single", SINGLE) if single is None else single)
+        + extra
+    )
+
+
+class Battery:
+    def __init__(self, work: Path):
+        self.work = work
+        self.cases: list[Case] = []
+        self.n = 0
+
+    def path(self, name: str) -> Path:
+        return self.work / name
+
+    def fresh(self, stem: str) -> Path:
+        self.n += 1
+        return self.work / f"{stem}{self.n}"
+
+    def add(self, *a, **k):
+        self.cases.append(Case(*a, **k))
+
+    # ---- set-up --------------------------------------------------------------------------------
+    def files(self):
+        w = self.work
+        model = make_scene("spheres", n=80, seed=4)
+        save_model(model, w / "good.ply")
+        save_model(model, w / "good.spz")
+        self.good_ply = (w / "good.ply").read_bytes()
+        save_cameras(scene_cameras("spheres", 2, 16, 16), w / "cams.json")
+        (w / "file").write_text("a file, not a folder")
+        (w / "empty").write_bytes(b"")
+        (w / "dir").mkdir()
+
+    # ---- checks --------------------------------------------------------------------------------
+    @staticmethod
+    def npz_shape(path, shape):
+        def check(_out):
+            images = np.load(path)["images"]
+            assert images.shape == shape, images.shape
+            assert np.isfinite(images).all()
+
+        return check
+
+    # ---- cases ---------------------------------------------------------------------------------
+    def spec_cases(self):
+        bad_top = {
+            "seed": ["-1", "1.5", "true", '"x"', "18446744073709551616"],
+            "views": ["0", "-3", "65", "1.5", "true", '"4"'],
+            "size": ['"0x0"', '"15x16"', '"abc"', "[16]", "[16.5, 16]", '"16x16x16"', "5"],
+            "scale": ["0", "-1", "17", "true", '"x"', "nan", "inf"],
+            "batch": ["0", "65537", "1.5", "true"],
+            "name": ["5", '""'],
+            "bogus": ["1"],
+        }
+        good_top = {"seed": ["5"], "views": ["3"], "size": ['"16x32"', "[32, 16]"], "scale": ["0.5"], "batch": ["1"]}
+        for key, vals in bad_top.items():
+            for v in vals:
+                self.plan_case(f"{key} = {v}", spec_text(top={key: v}), "error")
+        for key, vals in good_top.items():
+            for v in vals:
+                self.plan_case(f"{key} = {v}", spec_text(top={key: v}), "ok")
+        bad_scene = [
+            'scene = "nope"',
+            "scene = 5",
+            'scene = "spheres"\nn = 0',
+            'scene = "spheres"\nn = -1',
+            'scene = "spheres"\nn = 1.5',
+            'scene = "spheres"\nn = true',
+            'scene = "spheres"\nsh_degree = 4',
+            'scene = "spheres"\nsh_degree = -1',
+            'scene = "spheres"\nmodel = "good.ply"',
+            'model = "good.ply"\nply = "good.ply"',
+            "ply = 5",
+            'model = "missing.ply"',
+            'model = "dir"',
+            'model = "."',
+            'scene = "spheres"\ncameras = "missing.json"',
+            'scene = "spheres"\ncameras = 5',
+            'scene = "spheres"\nup = "q"',
+            'scene = "spheres"\nup = 3',
+            'scene = "spheres"\nseed = -1',
+            'scene = "spheres"\nbogus = 1',
+            "n = 5",
+        ]
+        for s in bad_scene:
+            self.plan_case(s.replace("\n", "; "), spec_text(scene=s + "\n"), "error")
+        for s in ('model = "good.ply"', 'ply = "good.spz"', 'scene = "spheres"\ncameras = "cams.json"'):
+            self.plan_case(s.replace("\n", "; "), spec_text(scene=s + "\n"), "ok")
+        self.plan_case("no scenes", "views = 1\n" + table("single", SINGLE), "error")
+        self.plan_case("scenes = 5", "scenes = 5\n" + table("single", SINGLE), "error")
+        self.plan_case("no campaign table", spec_text(single=""), "error")
+        single = {
+            "precisions": ['["fp64"]', "[]", '"fp32"', '["fp32", "fp32"]'],
+            "fields": ['["nope"]', "[]", '["opacity", "opacity"]', '["log_scales", "log_scale"]', "5"],
+            "bits": ["[32]", "[-1]", "[true]", '"some"', "[]"],
+            "samples": ["0", "-1", "1.5", "{margin = 2}", "{margin = 0.1, bogus = 1}", "true"],
+            "sampling": ['"bogus"', "5"],
+            "defenses": ['["nope"]', '["none", "none"]', "[]", '"none"'],
+            "regions": ["[1]", "[65]", "[true]", "5"],
+            "bogus": ["1"],
+        }
+        for key, vals in single.items():
+            for v in vals:
+                self.plan_case(f"single.{key} = {v}", spec_text(single=table("single", SINGLE, **{key: v})), "error")
+        self.plan_case(
+            "single bit 16 at fp16",
+            spec_text(single='[single]\nprecisions = ["fp16"]\nbits = [16]\nsamples = 1\n'),
+            "error",
+        )
+        for t in (
+            '[single]\nfields = "all"\nbits = [0, 31]\nsamples = 1\n',
+            '[single]\nsamples = {margin = 0.3}\nfields = ["opacity"]\nbits = [1]\n',
+            '[single]\nfields = ["opacity"]\nbits = [30, 30]\nsamples = 1\n',
+        ):
+            self.plan_case(f"single ok: {t.splitlines()[1]}", spec_text(single=t), "ok")
+        dose = [
+            "k = []",
+            "k = [0]",
+            "k = [-1]",
+            "k = [1.5]",
+            "k = [true]",
+            "k = [1]\nk_max = 10",
+            "k_max = 0",
+            "points = 0",
+            "points = 201",
+            "repeats = 0",
+            'k = [1]\ndefenses = ["guard", "guard"]',
+            "k = [100000000]",
+            "bogus = 1",
+        ]
+        for d in dose:
+            self.plan_case(f"dose {d}".replace("\n", "; "), spec_text(single="", extra=f"[dose]\n{d}\n"), "error")
+        self.plan_case("dose ok", spec_text(single="", extra="[dose]\nk = [1, 2, 2]\nrepeats = 1\n"), "ok")
+        sizes = ["n = []", "n = [0]", "n = [1.5]", 'n = ["x"]', "n = [10]\nbogus = 1"]
+        for z in sizes:
+            self.plan_case(f"sizes {z}".replace("\n", "; "), spec_text(single="", extra=f"[sizes]\n{z}\n"), "error")
+        self.plan_case(
+            "sizes on a model file",
+            spec_text(scene='model = "good.ply"\n', single="", extra="[sizes]\nn = [10]\n"),
+            "error",
+        )
+        self.plan_case("not TOML", "[[scenes\n", "error")
+        self.add("spec", "spec is a folder", ["plan", self.work / "dir"])
+        self.add("spec", "spec missing", ["plan", self.work / "nope.toml"])
+        self.add("spec", "spec binary", ["plan", self.work / "good.ply"])
+        self.add("spec", "spec empty", ["plan", self.work / "empty"])
+
+    def plan_case(self, name, text, expect):
+        p = self.fresh("spec").with_suffix(".toml")
+        p.write_text(text)
+        check = None
+        if expect == "ok":
+
+            def check(out):
+                assert "total:" in out
+
+        self.add("spec", name, ["plan", p], expect, check)
+
+    def camera_cases(self):
+        good = {
+            "viewmat": scene_cameras("spheres", 1, 16, 16)[0].viewmat.tolist(),
+            "K": [[20, 0, 8], [0, 20, 8], [0, 0, 1]],
+        }
+        good.update(width=16, height=16)
+        bad = {
+            "nan viewmat": {"viewmat": [[float("nan")] * 4] * 4},
+            "inf K": {"K": [[float("inf"), 0, 8], [0, 20, 8], [0, 0, 1]]},
+            "singular": {"viewmat": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 4], [0, 0, 0, 1]]},
+            "mirrored": {"viewmat": [[-1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]},
+            "fx 0": {"K": [[0, 0, 8], [0, 20, 8], [0, 0, 1]]},
+            "fy negative": {"K": [[20, 0, 8], [0, -20, 8], [0, 0, 1]]},
+            "width 12.5": {"width": 12.5},
+            "width true": {"width": True},
+            "width null": {"width": None},
+            "width 0": {"width": 0},
+            "height -16": {"height": -16},
+            "width text": {"width": "16"},
+            "viewmat 3x3": {"viewmat": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]},
+            "viewmat text": {"viewmat": "eye"},
+            "K booleans": {"K": [[True, 0, 8], [0, 20, 8], [0, 0, 1]]},
+            "last row": {"viewmat": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 1, 1]]},
+        }
+        for name, change in bad.items():
+            p = self.fresh("cams").with_suffix(".json")
+            p.write_text(json.dumps({"cameras": [dict(good, **change)]}))
+            self.render_case("cameras", name, ["--cameras", p], "error")
+        for name, text in {
+            '{"cameras": 5}': '{"cameras": 5}',
+            '{"cameras": []}': '{"cameras": []}',
+            "not JSON": "{",
+            "a list of numbers": "[1, 2]",
+            "camera lacks K": json.dumps({"cameras": [{k: v for k, v in good.items() if k != "K"}]}),
+            "frames = 5": '{"frames": 5}',
+            "frame w null": json.dumps(
+                {"fl_x": 20, "w": None, "h": 16, "frames": [{"transform_matrix": np.eye(4).tolist()}]}
+            ),
+            "frame fl_x text": json.dumps(
+                {"fl_x": "x", "w": 16, "h": 16, "frames": [{"transform_matrix": np.eye(4).tolist()}]}
+            ),
+            "inria width null": json.dumps(
+                [
+                    {
+                        "width": None,
+                        "height": 16,
+                        "position": [0, 0, 4],
+                        "rotation": np.eye(3).tolist(),
+                        "fx": 20,
+                        "fy": 20,
+                    }
+                ]
+            ),
+            "inria fx bool": json.dumps(
+                [
+                    {
+                        "width": 16,
+                        "height": 16,
+                        "position": [0, 0, 4],
+                        "rotation": np.eye(3).tolist(),
+                        "fx": True,
+                        "fy": 20,
+                    }
+                ]
+            ),
+        }.items():
+            p = self.fresh("cams").with_suffix(".json")
+            p.write_text(text)
+            self.render_case("cameras", name, ["--cameras", p], "error")
+        self.render_case("cameras", "cameras missing", ["--cameras", self.work / "nope.json"], "error")
+        self.render_case("cameras", "cameras folder without cameras", ["--cameras", self.work / "dir"], "error")
+        self.render_case("cameras", "cameras binary", ["--cameras", self.work / "good.ply"], "error")
+        p = self.fresh("cams").with_suffix(".json")
+        p.write_text(json.dumps({"cameras": [good, good]}))
+        self.render_case("cameras", "valid CAMS.json", ["--cameras", p], "ok", (2, 16, 16, 3))
+
+    def render_case(self, category, name, extra, expect, shape=None, model=None):
+        out = self.fresh("render").with_suffix(".npz")
+        src = ["--model", model] if model is not None else ["--scene", "spheres", "--n", "80"]
+        check = self.npz_shape(out, shape) if expect == "ok" else None
+        self.add(category, name, ["render", *src, *extra, "--out", out], expect, check)
+
+    def model_cases(self):
+        g = self.good_ply
+        head, body = g.split(b"end_header\n", 1)
+        nan_model = make_scene("spheres", n=10, seed=2)
+        nan_model.means[:] = np.nan
+        save_model(nan_model, self.work / "allnan.ply")
+        part = make_scene("spheres", n=10, seed=2)
+        part.means[3] = np.nan
+        save_model(part, self.work / "somenan.ply")
+        variants = {
+            "empty file": b"",
+            "garbage": b"\x00\x01garbage" * 10,
+            "header only": head + b"end_header\n",
+            "truncated header": head[: len(head) // 2],
+            "truncated data": head + b"end_header\n" + body[: len(body) // 2],
+            "one byte short": g[:-1],
+            "header count below data": g.replace(b"element vertex 80\n", b"element vertex 60\n"),
+            "header count above data": g.replace(b"element vertex 80\n", b"element vertex 99\n"),
+            "zero vertices": g.replace(b"element vertex 80\n", b"element vertex 0\n"),
+            "negative count": g.replace(b"element vertex 80\n", b"element vertex -5\n"),
+            "unknown format": g.replace(b"binary_little_endian", b"binary_middle_endian"),
+            "missing opacity": g.replace(b"property float opacity\n", b""),
+            "property twice": g.replace(
+                b"property float opacity\n", b"property float opacity\nproperty float opacity\n"
+            ),
+            "unknown type": g.replace(b"property float opacity\n", b"property quad opacity\n"),
+            "non-UTF-8 header": g.replace(b"format", b"\xff\xfeformat", 1),
+            "spz truncated": (self.work / "good.spz").read_bytes()[:40],
+            "spz garbage after magic": b"\x1f\x8b\x08\x00" + b"\x00" * 50,
+            "splat odd size": b"\x00" * 33,
+            "torch magic": b"PK\x03\x04" + b"\x00" * 60,
+            "ascii malformed": b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\nabc\n",
+        }
+        for name, data in variants.items():
+            p = self.fresh("model").with_suffix(".ply" if "spz" not in name else ".spz")
+            p.write_bytes(data)
+            self.render_case("model", name, ["--views", "1", "--size", "16x16"], "error", model=p)
+        self.render_case(
+            "model", "all-NaN model", ["--views", "1", "--size", "16x16"], "error", model=self.work / "allnan.ply"
+        )
+        self.render_case(
+            "model", "model missing", ["--views", "1", "--size", "16x16"], "error", model=self.work / "nope.ply"
+        )
+        self.render_case(
+            "model", "model is a folder", ["--views", "1", "--size", "16x16"], "error", model=self.work / "dir"
+        )
+        for name, p in (("valid PLY", "good.ply"), ("valid SPZ", "good.spz"), ("one NaN primitive", "somenan.ply")):
+            self.render_case("model", name, ["--views", "1", "--size", "16x16"], "ok", (1, 16, 16, 3), self.work / p)
+
+    def argument_cases(self):
+        bad = {
+            "--n 0": ["--n", "0"],
+            "--n -5": ["--n", "-5"],
+            "--n abc": ["--n", "abc"],
+            "--views 0": ["--views", "0"],
+            "--size 0x0": ["--size", "0x0"],
+            "--size 10x": ["--size", "10x"],
+            "--scale 0": ["--scale", "0"],
+            "--scale -1": ["--scale", "-1"],
+            "--scale nan": ["--scale", "nan"],
+            "--scale inf": ["--scale", "inf"],
+            "--precision fp64": ["--precision", "fp64"],
+            "--up q": ["--up", "q"],
+            "--sh-degree 4": ["--sh-degree", "4"],
+            "--scene nope": ["--scene", "nope"],
+        }
+        for name, extra in bad.items():
+            argv = ["render", "--scene", "spheres", "--n", "50", *extra, "--out", self.fresh("o").with_suffix(".npz")]
+            if extra[0] == "--scene":
+                argv = ["render", *extra, "--out", self.fresh("o").with_suffix(".npz")]
+            self.add("arguments", name, argv)
+        self.add(
+            "arguments", "render --out under a file", ["render", "--n", "50", "--out", self.work / "file" / "x.npz"]
+        )
+        self.add("arguments", "render --out in /proc", ["render", "--n", "50", "--out", "/proc/seuwgpu/x.npz"])
+        inj = ["inject", "--scene", "spheres", "--n", "60", "--views", "1", "--size", "16x16"]
+        for name, extra in {
+            "inject --sample 0": ["--field", "opacity", "--bit", "3", "--sample", "0"],
+            "inject --primitive -1": ["--field", "opacity", "--bit", "3", "--primitive", "-1"],
+            "inject --primitive 60": ["--field", "opacity", "--bit", "3", "--primitive", "60"],
+            "inject --component 9": ["--field", "opacity", "--bit", "3", "--primitive", "1", "--component", "9"],
+            "inject --bit 32": ["--field", "opacity", "--bit", "32", "--primitive", "1"],
+            "inject --bit 16 at fp16": ["--field", "opacity", "--bit", "16", "--primitive", "1", "--precision", "fp16"],
+            "inject --field nope": ["--field", "nope", "--bit", "3", "--primitive", "1"],
+            "inject --defense nope": ["--field", "opacity", "--bit", "3", "--defense", "nope"],
+        }.items():
+            self.add("arguments", name, [*inj, *extra, "--out", self.fresh("inj")])
+        out = self.fresh("inj")
+
+        def sign_flip(stdout):
+            lines = dict(line.split(": ", 1) for line in stdout.splitlines() if ": " in line)
+            assert float(lines["corrupted_value"]) == -float(lines["clean_value"]), lines
+            assert (out / "panel.png").is_file()
+
+        self.add(
+            "arguments",
+            "inject a sign flip",
+            [*inj, "--field", "log_scales", "--primitive", "2", "--bit", "31", "--out", out],
+            "ok",
+            sign_flip,
+        )
+        spec = self.fresh("spec").with_suffix(".toml")
+        spec.write_text(spec_text())
+        for name, shard in {
+            "--shard 2/2": "2/2",
+            "--shard 0/0": "0/0",
+            "--shard x": "x",
+            "--shard -1/2": "-1/2",
+        }.items():
+            self.add("arguments", name, ["campaign", spec, "--out", self.fresh("run"), "--shard", shard])
+        self.add("arguments", "campaign --workers 0", ["campaign", spec, "--out", self.fresh("run"), "--workers", "0"])
+        self.add("arguments", "campaign --out is a file", ["campaign", spec, "--out", self.work / "file"])
+        self.add("arguments", "campaign --out under a file", ["campaign", spec, "--out", self.work / "file" / "run"])
+        self.add("arguments", "campaign --out in /proc", ["campaign", spec, "--out", "/proc/seuwgpu-run"])
+        self.add("arguments", "report of a missing dir", ["report", self.work / "nope", "--out", self.fresh("rep")])
+        self.add("arguments", "report of an empty dir", ["report", self.work / "dir", "--out", self.fresh("rep")])
+        self.add("arguments", "scene without --out", ["scene", "spheres", "--n", "10"])
+        self.add(
+            "arguments",
+            "scene to .obj",
+            ["scene", "spheres", "--n", "10", "--out", self.fresh("s").with_suffix(".obj")],
+        )
+        self.add("arguments", "plan --margin 2", ["plan", spec, "--margin", "2"])
+        self.add("arguments", "plan --confidence 0", ["plan", spec, "--confidence", "0"])
+        self.add("arguments", "distributed --ranks 0", ["distributed", "--n", "50", "--ranks", "0"])
+        self.add("arguments", "distributed --upset bad", ["distributed", "--n", "50", "--upset", "nope"])
+        self.add("arguments", "view --sample 0", ["view", "--n", "50", "--sample", "0"])
+        self.add("arguments", "no command", [])
+        self.add("arguments", "unknown command", ["frobnicate"])
+
+    def run_dir_cases(self):
+        spec = self.work / "rd.toml"
+        spec.write_text(spec_text(top={"batch": "2"}, single=table("single", SINGLE, samples="6")))  # 3 parts
+        ref = self.work / "rd_ref"
+        self.ref_spec, self.ref_dir = spec, ref
+        self.add(
+            "run directory",
+            "reference run",
+            ["campaign", spec, "--out", ref, "--quiet"],
+            "ok",
+            self.records_equal(ref, ref),
+        )
+        # same spec through another path: resumes with nothing new
+        (self.work / "sub").mkdir(exist_ok=True)
+        self.add(
+            "run directory",
+            "same spec by another path resumes",
+            ["campaign", self.work / "sub" / ".." / "rd.toml", "--out", ref, "--quiet"],
+            "ok",
+            lambda out: self.assert_in("6 of 6 injections recorded (0 new", out),
+        )
+        other = self.work / "rd_other.toml"
+        other.write_text(spec_text(top={"seed": "9"}))
+        self.add("run directory", "another spec on the same --out", ["campaign", other, "--out", ref, "--quiet"])
+        # a model changed between runs
+        mspec = self.work / "rd_model.toml"
+        shutil.copy(self.work / "good.ply", self.work / "changing.ply")
+        mspec.write_text(spec_text(scene='model = "changing.ply"\n'))
+        self.model_run = self.work / "rd_model"
+        self.add("run directory", "run on a model file", ["campaign", mspec, "--out", self.model_run, "--quiet"], "ok")
+        self.add(
+            "run directory",
+            "resume after the model changed",
+            ["campaign", mspec, "--out", self.model_run, "--quiet"],
+            "error",
+            before=lambda: save_model(make_scene("spheres", n=80, seed=5), self.work / "changing.ply"),
+        )
+        # a failed validation does not block the corrected spec
+        bad = self.work / "rd_bad.toml"
+        (self.work / "bad.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 1\nend_header\n")
+        bad.write_text(spec_text(scene='model = "bad.ply"\n'))
+        fixed_out = self.work / "rd_fixed"
+        self.add("run directory", "a spec whose model fails to load", ["campaign", bad, "--out", fixed_out, "--quiet"])
+        self.add(
+            "run directory",
+            "the corrected spec on the same --out",
+            ["campaign", spec, "--out", fixed_out, "--quiet"],
+            "ok",
+            self.records_equal(fixed_out, ref),
+        )
+        # damaged and stray parts
+        for name, damage in {
+            "a 0-byte part": lambda d: store.part_files(d)[0].write_bytes(b""),
+            "an unreadable part": lambda d: store.part_files(d)[0].write_bytes(b"PAR1xx"),
+            "a stray part": lambda d: shutil.copy(store.part_files(d)[0], store.part_path(d, 999_999, 2)),
+            "a deleted part": lambda d: store.part_files(d)[0].unlink(),
+            "a part of another batch": lambda d: shutil.copy(store.part_files(d)[0], store.part_path(d, 0, 5)),
+        }.items():
+            d = self.fresh("rd_damaged")
+
+            def prepare(d=d, damage=damage):
+                shutil.copytree(ref, d)
+                damage(d)
+
+            self.add(
+                "run directory",
+                f"resume over {name}",
+                ["campaign", spec, "--out", d, "--quiet"],
+                "ok",
+                self.records_equal(d, ref),
+                before=prepare,
+            )
+        d = self.fresh("rd_manifest")
+
+        def garble(d=d):
+            shutil.copytree(ref, d)
+            (d / "manifest.json").write_text("{not json")
+
+        self.add("run directory", "an unreadable manifest", ["campaign", spec, "--out", d, "--quiet"], before=garble)
+        # merges
+        shards = [self.work / f"rd_shard{i}" for i in range(3)]
+        for i, s in enumerate(shards):
+            self.add("merge", f"shard {i}/3", ["campaign", spec, "--out", s, "--shard", f"{i}/3", "--quiet"], "ok")
+        self.add("merge", "2 of 3 shards", ["merge", *shards[:2], "--out", self.fresh("merged")])
+        partial = self.fresh("merged")
+
+        def lists_missing(_out):
+            m = store.read_manifest(partial)
+            assert m["missing_parts"] and m["injections_recorded"] < m["total_injections"], m
+
+        self.add(
+            "merge",
+            "2 of 3 shards, --allow-partial",
+            ["merge", *shards[:2], "--out", partial, "--allow-partial"],
+            "ok",
+            lists_missing,
+        )
+        full = self.fresh("merged")
+        self.add("merge", "all shards", ["merge", *shards, "--out", full], "ok", self.records_equal(full, ref))
+        self.add("merge", "--out is an input", ["merge", *shards, "--out", shards[0]])
+        self.add("merge", "shards of two specs", ["merge", shards[0], self.model_run, "--out", self.fresh("merged")])
+        self.add("merge", "into a run of another spec", ["merge", *shards, "--out", self.model_run])
+        self.add("merge", "a folder that is no run", ["merge", self.work / "dir", "--out", self.fresh("merged")])
+        self.add("merge", "a missing folder", ["merge", self.work / "nope", "--out", self.fresh("merged")])
+
+    @staticmethod
+    def assert_in(text, out):
+        assert text in out, out
+
+    @staticmethod
+    def records_equal(run, ref):
+        def check(_out):
+            a, b = (
+                store.read_records(d)
+                .sort_values(["injection_id", "defense"])
+                .reset_index(drop=True)[store.REPRODUCIBLE_COLUMNS]
+                for d in (run, ref)
+            )
+            assert len(a) == len(b) and a.equals(b), (len(a), len(b))
+            assert len(set(zip(a["injection_id"], a["defense"]))) == len(a), "duplicated records"
+
+        return check
+
+    def interruption_cases(self):
+        spec = self.work / "kill.toml"
+        spec.write_text(
+            spec_text(
+                single=table(
+                    "single",
+                    SINGLE,
+                    fields='["opacity", "log_scales"]',
+                    bits="[0, 30, 31]",
+                    samples="12",
+                    defenses='["none", "guard"]',
+                )
+            )
+        )
+        ref = self.work / "kill_ref"
+        self.kill_spec, self.kill_ref = spec, ref
+        self.add(
+            "interruption", "uninterrupted reference", ["campaign", spec, "--out", ref, "--quiet"], "ok", process=True
+        )
+        for i, delay in enumerate((0.0, 0.3, 0.6, 0.1, 0.45)):
+            d = self.work / f"kill_{i}"
+            self.add(
+                "interruption",
+                f"3 x SIGKILL {delay}s after a new part, resume",
+                ["campaign", spec, "--out", d, "--quiet"],
+                "ok",
+                self.records_equal(d, ref),
+                process=True,
+                kill=(signal.SIGKILL, delay, 3),
+            )
+        d = self.work / "kill_int"
+        self.add(
+            "interruption",
+            "SIGINT, then resume",
+            ["campaign", spec, "--out", d, "--quiet"],
+            "ok",
+            self.records_equal(d, ref),
+            process=True,
+            kill=(signal.SIGINT, 0.2, 1),
+        )
+        d = self.work / "busy"
+        self.add(
+            "interruption",
+            "a second campaign while the first runs",
+            ["campaign", spec, "--out", d, "--quiet"],
+            "error",
+            process=True,
+            concurrent=True,
+        )
+
+    def oversize_cases(self):
+        self.add(
+            "memory",
+            "--n 50000000",
+            ["render", "--scene", "spheres", "--n", "50000000", "--out", self.fresh("o").with_suffix(".npz")],
+        )
+        self.add(
+            "memory",
+            "--n 9000000 (binding limit)",
+            [
+                "render",
+                "--scene",
+                "spheres",
+                "--n",
+                "9000000",
+                "--views",
+                "1",
+                "--size",
+                "16x16",
+                "--out",
+                self.fresh("o").with_suffix(".npz"),
+            ],
+            env={"SEUWGPU_HOST_MEMORY": str(10**12)},
+        )
+        small = {"SEUWGPU_HOST_MEMORY": str(2 * 10**9)}
+        for name, extra in {
+            "64 views of 2048x2048, 2 GB host": ["--views", "64", "--size", "2048x2048"],
+            "one view of 20000x20000, 2 GB host": ["--views", "1", "--size", "20000x20000"],
+            "--scale 100, 2 GB host": ["--views", "1", "--size", "256x256", "--scale", "100"],
+        }.items():
+            out = self.fresh("o").with_suffix(".npz")
+            self.add("memory", name, ["render", "--n", "50", *extra, "--out", out], env=small)
+        out = self.fresh("o").with_suffix(".npz")
+        # a frame over one storage binding (lavapipe: 128 MiB, 8.4 Mpx) is rendered in bands
+        self.add(
+            "memory",
+            "one 4096x2112 view: bands of tile rows",
+            ["render", "--n", "80", "--views", "1", "--size", "4096x2112", "--out", out],
+            "ok",
+            self.npz_shape(out, (1, 2112, 4096, 3)),
+        )
+        self.add(
+            "memory",
+            "little host memory",
+            ["render", "--n", "100000", "--out", self.fresh("o").with_suffix(".npz")],
+            env={"SEUWGPU_HOST_MEMORY": "100000000"},
+        )
+        for name, samples in (("samples = 1000000000000", "1000000000000"), ("samples = 10**15", "1000000000000000")):
+            p = self.fresh("spec").with_suffix(".toml")
+            p.write_text(spec_text(single=f'[single]\nsamples = {samples}\ndefenses = ["none"]\n'))
+            self.add("memory", name, ["campaign", p, "--out", self.fresh("run"), "--quiet"])
+        p = self.fresh("spec").with_suffix(".toml")
+        p.write_text(spec_text(scene='scene = "spheres"\nn = 50000000\n'))
+        self.add("memory", "spec n = 50000000", ["campaign", p, "--out", self.fresh("run"), "--quiet"])
+        p = self.fresh("spec").with_suffix(".toml")
+        p.write_text(spec_text(single="", extra="[sizes]\nn = [100, 60000000]\nsamples = 1\n"))
+        self.add("memory", "sizes.n up to 60000000", ["campaign", p, "--out", self.fresh("run"), "--quiet"])
+
+
+def run_in_process(case: Case) -> Outcome:
+    out, err = io.StringIO(), io.StringIO()
+    old_env = {k: os.environ.get(k) for k in case.env}
+    os.environ.update(case.env)
+    rc, tb = None, False
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
+            warnings.simplefilter("default")
+            try:
+                rc = main([str(a) for a in case.argv])
+            except SystemExit as e:  # argparse
+                rc = e.code if isinstance(e.code, int) else 2
+            except BaseException:  # noqa: BLE001 - a traceback is what the battery looks for
+                tb = True
+                err.write(traceback.format_exc())
+    finally:
+        for k, v in old_env.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    return Outcome(rc, out.getvalue(), err.getvalue(), tb)
+
+
+def command(argv):
+    return [sys.executable, "-m", "seuwgpu", *[str(a) for a in argv]]
+
+
+def run_process(case: Case, timeout: float = 300) -> Outcome:
+    env = dict(os.environ, **case.env)
+    if case.concurrent:  # hold the directory with a first campaign, start a second one on it
+        first = subprocess.Popen(command(case.argv), cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        out_dir = Path(case.argv[case.argv.index("--out") + 1])
+        t0 = time.time()
+        while not (out_dir / "manifest.json").exists() and time.time() - t0 < 60 and first.poll() is None:
+            time.sleep(0.1)
+        p = subprocess.run(command(case.argv), cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+        first.kill()
+        first.wait()
+        return Outcome(p.returncode, p.stdout, p.stderr, "Traceback" in p.stderr)
+    notes = []
+    if case.kill:  # interrupt `times` runs, each `delay` s after it wrote a new part, then finish
+        sig, delay, times = case.kill
+        out_dir = Path(case.argv[case.argv.index("--out") + 1])
+        for _ in range(times):
+            before = len(store.part_files(out_dir)) if out_dir.exists() else 0
+            proc = subprocess.Popen(
+                command(case.argv), cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+            )
+            t0 = time.time()
+            while proc.poll() is None and time.time() - t0 < 120:
+                if out_dir.exists() and len(store.part_files(out_dir)) > before:
+                    break
+                time.sleep(0.02)
+            time.sleep(delay)
+            if proc.poll() is None:
+                proc.send_signal(sig)
+            _, e = proc.communicate(timeout=60)
+            notes.append(f"{signal.Signals(sig).name} at {len(store.part_files(out_dir))} parts")
+            if sig == signal.SIGINT and proc.returncode not in (0, 130):
+                return Outcome(proc.returncode, "", e.decode(), b"Traceback" in e)
+            if sig == signal.SIGINT and proc.returncode == 130 and b"interrupted" not in e:
+                return Outcome(1, "", "SIGINT without the 'interrupted' message: " + e.decode())
+    try:
+        p = subprocess.run(command(case.argv), cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return Outcome(None, "", "", timeout=True)
+    return Outcome(p.returncode, p.stdout, p.stderr, "Traceback" in p.stderr, notes="; ".join(notes))
+
+
+def classify(case: Case, o: Outcome) -> tuple[str, str]:
+    if o.traceback:
+        return "traceback", o.err.strip().splitlines()[-1] if o.err.strip() else ""
+    if o.timeout:
+        return "crash", "timed out"
+    last = o.err.strip().splitlines()[-1] if o.err.strip() else ""
+    if o.rc in (2, 3):
+        errors = [line for line in o.err.splitlines() if "error:" in line or "seuwgpu view:" in line]
+        if len(errors) == 1 or (o.rc == 3 and "view" in case.argv[:1]):
+            return ("clear error" if case.expect == "error" else "refused"), last
+        return "crash", f"exit {o.rc} without a one-line error: {last}"
+    if o.rc == 0:
+        if case.expect == "error":
+            return "silent wrong", "exit 0 where an error was due"
+        if case.check is not None:
+            try:
+                case.check(o.out)
+            except Exception as e:  # noqa: BLE001
+                return "silent wrong", f"result check failed: {type(e).__name__}: {e}"[:300]
+        return "correct", o.notes
+    return "crash", f"exit status {o.rc}: {last}"
+
+
+CLASSES = ("clear error", "correct", "refused", "traceback", "crash", "silent wrong")
+
+
+def main_battery(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, required=True, help="JSON file for every case's outcome")
+    ap.add_argument("--only", help="run only cases whose category or name contains this")
+    ap.add_argument("--work", type=Path, help="scratch folder (default: a temporary one, removed afterwards)")
+    args = ap.parse_args(argv)
+    work = args.work or Path(tempfile.mkdtemp(prefix="seuwgpu-battery-"))
+    work.mkdir(parents=True, exist_ok=True)
+    os.chdir(work)  # relative outputs (e.g. an --out without a folder) land here
+    b = Battery(work)
+    b.files()
+    for group in (
+        b.spec_cases,
+        b.camera_cases,
+        b.model_cases,
+        b.argument_cases,
+        b.run_dir_cases,
+        b.interruption_cases,
+        b.oversize_cases,
+    ):
+        group()
+    cases = [c for c in b.cases if not args.only or args.only in c.category or args.only in c.name]
+    results, t0 = [], time.time()
+    for i, case in enumerate(cases, 1):
+        if case.before is not None:
+            case.before()
+        t = time.time()
+        o = run_process(case) if case.process or case.kill or case.concurrent else run_in_process(case)
+        cls, detail = classify(case, o)
+        results.append(
+            {
+                "category": case.category,
+                "name": case.name,
+                "argv": [str(a) for a in case.argv],
+                "expect": case.expect,
+                "class": cls,
+                "exit": o.rc,
+                "detail": detail,
+                "seconds": round(time.time() - t, 2),
+            }
+        )
+        mark = "" if cls in ("clear error", "correct") else "   <-- " + cls
+        print(f"[{i:3d}/{len(cases)}] {case.category:13s} {case.name[:50]:50s} {cls}{mark}", flush=True)
+        if mark:
+            print(f"        {detail[:200]}", flush=True)
+    cats = sorted({r["category"] for r in results})
+    print(f"\n{'category':14s}" + "".join(f"{c:>14s}" for c in CLASSES) + f"{'total':>8s}")
+    for cat in [*cats, "all"]:
+        rows = [r for r in results if cat in ("all", r["category"])]
+        print(f"{cat:14s}" + "".join(f"{sum(r['class'] == c for r in rows):14d}" for c in CLASSES) + f"{len(rows):8d}")
+    summary = {c: sum(r["class"] == c for r in results) for c in CLASSES}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(
+        json.dumps(
+            {"summary": summary, "cases": len(results), "seconds": round(time.time() - t0, 1), "results": results},
+            indent=1,
+        )
+    )
+    print(f"\n{len(results)} cases in {time.time() - t0:.0f} s; wrote {args.out}")
+    if args.work is None:
+        shutil.rmtree(work, ignore_errors=True)
+    return 0 if summary["traceback"] == summary["crash"] == summary["silent wrong"] == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main_battery())
