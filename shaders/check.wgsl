@@ -1,6 +1,6 @@
 // Per-primitive checks of the stored model (faults/check.py; twin: faults/defenses.py detect):
 // recompute what each primitive stored beside the clean model (4 interleaved or 1 parity bit(s),
-// a 32-bit FNV-1a checksum, or its scale class) from its words as they are now, flag mismatches
+// a 32-bit checksum, or its scale class) from its words as they are now, flag mismatches
 // and count them, so the host learns in one small read whether to repair. One thread per
 // primitive of one chunk; the words are only read.
 
@@ -45,6 +45,15 @@ fn stored(j: u32, c: u32) -> u32 {
     return (words[c * params.plane_words + (j >> 1u)] >> (16u * (j & 1u))) & 0xffffu;
 }
 
+// MurmurHash3's finaliser: a bijection of u32 that avalanches (twin: defenses.fmix32)
+fn fmix32(x: u32) -> u32 {
+    var h = x ^ (x >> 16u);
+    h = h * 0x85ebca6bu;
+    h = h ^ (h >> 13u);
+    h = h * 0xc2b2ae35u;
+    return h ^ (h >> 16u);
+}
+
 @compute @workgroup_size(WG)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let j = linear_id(gid, nwg);
@@ -65,7 +74,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     } else if (params.mode == MODE_CHECKSUM) {
         var h = 0x811C9DC5u;
         for (var c = 0u; c < params.ncomp; c = c + 1u) {
-            h = (h ^ stored(j, c)) * 0x01000193u;
+            h = fmix32(h ^ stored(j, c));
         }
         flagged = h != side[params.prim_base + j];
     } else {

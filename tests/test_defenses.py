@@ -25,8 +25,11 @@ def stored_rows(model, precision):
 def test_every_defense_is_the_identity_on_the_clean_model(real, precision):
     rows = stored_rows(real, precision)
     box = support_box(Model.from_flat(encoding.from_bits(rows, precision), real.sh_degree), precision)
+    cells = dfn.CellBoxes(rows, precision, real.sh_degree)
+    prims = np.arange(real.n)
     for d in dfn.DEFENSES:
-        np.testing.assert_array_equal(dfn.read(d, rows, rows, precision, real.sh_degree, box), rows, err_msg=d)
+        got = dfn.read(d, rows, rows, precision, real.sh_degree, box, prims, cells)
+        np.testing.assert_array_equal(got, rows, err_msg=d)
     # the scale classes hold every clean log-scale
     bound = dfn.scale_class_bounds(rows, float(box.lo[3:6].min()), float(box.hi[3:6].max()), precision)
     assert (encoding.from_bits(rows[:, 3:6], precision) <= bound[:, None]).all()
@@ -75,11 +78,23 @@ def test_checksum_reloads_every_single_value_change(real):
     changed = (bad != rows).any(axis=1)
     assert changed.sum() > 290
     np.testing.assert_array_equal(dfn.read("checksum", rows, bad, p, deg), rows)
-    # known FNV-1a value of one row of zeros: hash of 59 zero steps
+
+    # a row of zeros, by hand: 59 MurmurHash3 finaliser steps from the seed
+    def fmix(h):
+        h ^= h >> 16
+        h = (h * 0x85EBCA6B) & 0xFFFFFFFF
+        h ^= h >> 13
+        h = (h * 0xC2B2AE35) & 0xFFFFFFFF
+        return h ^ (h >> 16)
+
     h = 0x811C9DC5
     for _ in range(59):
-        h = (h * 0x01000193) & 0xFFFFFFFF
+        h = fmix(h)
     assert dfn.checksum(np.zeros((1, 59), np.uint16))[0] == h
+    # two sign-bit flips in one primitive (they cancel in FNV-1a) are caught
+    two = rows.copy()
+    two[:, [39, 50]] ^= np.uint16(0x8000)
+    np.testing.assert_array_equal(dfn.read("checksum", rows, two, p, deg), rows)
 
 
 def test_ecc_crit_corrects_singles_culls_doubles_and_ignores_other_fields(real):
@@ -111,6 +126,23 @@ def test_scalebound_clamps_a_grown_log_scale_to_its_class(real):
     np.testing.assert_array_equal(got[0, 4:], bad[0, 4:])
 
 
+def test_cellbox_clamps_into_the_cell_and_is_tighter_than_the_guard(real):
+    p = "fp32"
+    rows = stored_rows(real, p)
+    cells = dfn.CellBoxes(rows, p, real.sh_degree)
+    box = support_box(real, p)
+    assert np.unique(cells.cell).size > 20  # the object spreads over many cells
+    i = int(np.argmin(encoding.from_bits(rows[:, 3], p)))
+    bad = rows[[i]].copy()
+    bad[0, 3] ^= np.uint32(1 << 31)  # the smallest splat's log-scale sign
+    got = dfn.read("cellbox", rows[[i]], bad, p, real.sh_degree, prims=[i], cells=cells)
+    top = encoding.from_bits(got[0, 3], p)
+    mine = cells.cell == cells.cell[i]
+    assert top == encoding.from_bits(rows[mine, 3], p).max() <= box.hi[3]
+    with pytest.raises(ValueError, match="cellbox needs"):
+        dfn.read("cellbox", rows[[i]], bad, p, real.sh_degree)
+
+
 def test_memory_overheads_by_hand():
     bits = 59 * 32
     n = 1000
@@ -123,6 +155,7 @@ def test_memory_overheads_by_hand():
     assert dfn.memory_overhead("dup", "bf16", 0, n) == pytest.approx(2.0)
     assert dfn.memory_overhead("guard", "fp32", 3, n) == pytest.approx(2 * 14 * 32 / (n * bits))
     assert dfn.memory_overhead("scalebound", "fp32", 3, n) == pytest.approx((4 * n + 2 * 14 * 32) / (n * bits))
+    assert dfn.memory_overhead("cellbox", "fp32", 3, n) == pytest.approx((9 * n + 2 * 14 * 32 * 512) / (n * bits))
     with pytest.raises(ValueError, match="unknown defense 'tmr'"):
         dfn.memory_overhead("tmr", "fp32", 3, n)
 

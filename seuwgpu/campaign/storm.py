@@ -43,7 +43,7 @@ def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), see
             prims = np.fromiter(memory, dtype=np.int64, count=len(memory))
             clean = engine.primitive_bits(prims)
             now = np.stack([memory[p] for p in prims]) if prims.size else clean
-            seen = dfn.read(d, clean, now, engine.precision, engine.degree, engine.box) if prims.size else clean
+            seen = engine.read_through(prims, clean, now, d) if prims.size else clean
             if d in dfn.CHECKED:  # the repair is written back
                 memory = {int(p): r.copy() for p, r in zip(prims, seen)}
             xors = engine.xor_rows(prims, clean, seen)

@@ -20,10 +20,14 @@ defense is the identity on the clean model (tests/test_defenses.py).
   cells); a detected uncorrectable error culls the primitive;
 - scalebound: the guard plus a 4-bit scale class per primitive bounding its log-scales from above
   (16 equal classes across the box);
-- checksum: a 32-bit FNV-1a checksum per primitive over all its stored values, checked before the
+- checksum: a 32-bit checksum per primitive over all its stored values, checked before the
   frame; a mismatch reloads the primitive from the golden copy (host memory or the model file,
-  not charged to device memory). Each FNV step is a bijection of the running hash, so any change
+  not charged to device memory). Each step, h = fmix32(h ^ value) (MurmurHash3's finaliser), is a
+  bijection of the running hash, so any change
   confined to one stored value is detected with certainty;
+- cellbox: the support guard with one box per cell of an 8x8x8 grid over the clean means (robust
+  1-99% region, outer cells open), each primitive storing its 9-bit cell id; every value except
+  sh_rest is clamped into its cell's box (NaN -> lower bound, as the guard);
 - parity4r: parity4's check over every value (sh_rest too: a reload is harmless where a cull
   is not), a flagged primitive reloaded from the golden copy (as checksum does) instead of culled.
 The golden copy that reloads read from lives off the device and is not charged as device memory.
@@ -49,6 +53,7 @@ DEFENSE_INFO = {
     "scalebound": "support guard plus a 4-bit scale class per primitive bounding its log-scales",
     "checksum": "32-bit checksum per primitive checked per frame; mismatch reloads it from the golden copy",
     "parity4r": "parity4's check over every value; a mismatch reloads the primitive from the golden copy",
+    "cellbox": "support boxes per spatial cell (8x8x8 grid, 9-bit cell id per primitive): clamp into its cell's box",
 }
 DEFENSES = tuple(DEFENSE_INFO)
 GUARDED_FIELDS = {
@@ -187,11 +192,26 @@ def parity_bits(rows: np.ndarray, precision: str, degree: int, ways: int, fields
     return out
 
 
+CHECKSUM_SEED = 0x811C9DC5
+
+
+def fmix32(h: np.ndarray) -> np.ndarray:
+    """MurmurHash3's 32-bit finaliser (a bijection that avalanches), on uint64 arrays of u32 values."""
+    m = np.uint64(0xFFFFFFFF)
+    h = h ^ (h >> np.uint64(16))
+    h = (h * np.uint64(0x85EBCA6B)) & m
+    h = h ^ (h >> np.uint64(13))
+    h = (h * np.uint64(0xC2B2AE35)) & m
+    return h ^ (h >> np.uint64(16))
+
+
 def checksum(rows: np.ndarray) -> np.ndarray:
-    """[M] 32-bit FNV-1a over each primitive's stored patterns (one step per value)."""
-    h = np.full(np.asarray(rows).shape[0], 0x811C9DC5, dtype=np.uint64)
+    """[M] 32-bit checksum of each primitive's stored patterns: h = fmix32(h ^ value) per value.
+    (FNV-1a's multiply-only step was dropped: it moves a difference only upwards, so two sign-bit
+    flips in one primitive cancel; a fault storm found such a pair.)"""
+    h = np.full(np.asarray(rows).shape[0], CHECKSUM_SEED, dtype=np.uint64)
     for c in range(rows.shape[1]):
-        h = ((h ^ rows[:, c].astype(np.uint64)) * np.uint64(0x01000193)) & np.uint64(0xFFFFFFFF)
+        h = fmix32(h ^ rows[:, c].astype(np.uint64))
     return h.astype(np.uint32)
 
 
@@ -292,12 +312,70 @@ def repair(defense: str, clean: np.ndarray, corrupt: np.ndarray, hit: np.ndarray
     return out
 
 
-def read(defense: str, clean: np.ndarray, corrupt: np.ndarray, precision: str, degree: int, box=None) -> np.ndarray:
+CELL_GRID = 8
+
+
+class CellBoxes:
+    """cellbox's stored state: the grid, each primitive's cell, and per-cell boxes [cells, 14]."""
+
+    def __init__(self, rows: np.ndarray, precision: str, degree: int):
+        rows = np.asarray(rows)
+        vals = encoding.from_bits(rows, precision)
+        means = vals[:, :3].astype(np.float64)
+        fin = np.isfinite(means).all(axis=1)
+        self.lo, self.hi = np.percentile(means[fin], 1, axis=0), np.percentile(means[fin], 99, axis=0)
+        self.cell = self.cell_of(means)
+        self.cols = _covered_components(GUARDED_FIELDS["guard"], degree)
+        v = vals[:, self.cols].astype(np.float32)
+        ncell = CELL_GRID**3
+        self.box_lo = np.zeros((ncell, self.cols.size), np.float32)
+        self.box_hi = np.zeros((ncell, self.cols.size), np.float32)
+        for c in np.unique(self.cell):
+            x = v[self.cell == c]
+            f = np.isfinite(x)
+            lo, hi = np.where(f, x, np.inf).min(0), np.where(f, x, -np.inf).max(0)
+            empty = ~np.isfinite(lo)
+            lo[empty], hi[empty] = 0, 0
+            self.box_lo[c], self.box_hi[c] = lo, hi
+        self.precision = precision
+
+    def cell_of(self, means: np.ndarray) -> np.ndarray:
+        with np.errstate(invalid="ignore"):
+            q = np.floor((means - self.lo) / np.maximum(self.hi - self.lo, 1e-30) * CELL_GRID)
+        q = np.clip(np.nan_to_num(q, nan=0), 0, CELL_GRID - 1).astype(np.int64)
+        return (q[:, 0] * CELL_GRID + q[:, 1]) * CELL_GRID + q[:, 2]
+
+
+def cellbox_read(clean: np.ndarray, corrupt: np.ndarray, prims: np.ndarray, cells: CellBoxes) -> np.ndarray:
+    """Clamp the guarded values of `corrupt` (primitives `prims`) into their stored cell's box."""
+    out = corrupt.copy()
+    p = cells.precision
+    cid = cells.cell[np.asarray(prims, dtype=np.int64)]
+    lo, hi = cells.box_lo[cid], cells.box_hi[cid]
+    v = encoding.from_bits(out[:, cells.cols], p)
+    with np.errstate(invalid="ignore"):
+        low = np.isnan(v) | (v < lo)
+        high = v > hi
+    sub = out[:, cells.cols]
+    sub[low] = encoding.to_bits(lo[low], p)
+    sub[high] = encoding.to_bits(hi[high], p)
+    out[:, cells.cols] = sub
+    return out
+
+
+def read(
+    defense: str, clean: np.ndarray, corrupt: np.ndarray, precision: str, degree: int, box=None, prims=None, cells=None
+) -> np.ndarray:
     """What `defense` reads from primitives whose stored patterns went from `clean` to `corrupt`
     ([M, ncomp] each). The support-guard clamp (PIPELINE_GUARD) is left to the pipeline; `box`
-    (faults/guard.Box of the clean model) is needed by scalebound."""
+    (faults/guard.Box of the clean model) is needed by scalebound, the primitives' indices and
+    the model's CellBoxes by cellbox."""
     check_defense(defense)
     clean, corrupt = np.asarray(clean), np.asarray(corrupt)
+    if defense == "cellbox":
+        if cells is None or prims is None:
+            raise ValueError("cellbox needs the primitives' indices and the model's cell boxes")
+        return cellbox_read(clean, corrupt, prims, cells)
     if defense == "ecc":
         return ecc_read(clean, corrupt, precision)
     if defense == "dup":
@@ -328,5 +406,8 @@ def memory_overhead(defense: str, precision: str, degree: int, n: int) -> float:
         "ecc_crit": ecc_check_bits(precision) * _covered_components(CRITICAL_FIELDS, degree).size,
         "scalebound": SCALE_CLASS_BITS,
         "checksum": 32,
+        "cellbox": 9,
     }.get(defense, 0)
+    if defense == "cellbox":  # 2 fp32 bounds per guarded component per cell
+        box = {"cellbox": 2 * 32 * _covered_components(GUARDED_FIELDS["guard"], degree).size * CELL_GRID**3}
     return (extra_per_prim * n + box.get(defense, 0)) / (per_prim * n)

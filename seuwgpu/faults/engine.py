@@ -89,6 +89,7 @@ class Engine:
         self.reference_clamps = 0
         self.flips = Flips(self.gpu, self.renderer.chunks)
         self._active: list[dict] = []  # applied XOR lists, for undo
+        self._cells = None  # cellbox's per-cell boxes (faults/defenses.CellBoxes), built on first use
         self.monitor = GuardMonitor(threshold=0)  # health signal of interactive/guarded renders
         self._set_up_views()
 
@@ -178,10 +179,15 @@ class Engine:
         b = self.stored_bits([site.primitive], [site.flat_component()])
         return float(encoding.from_bits(apply_sites(b, [site]), self.precision)[0])
 
-    def _read(self, clean: np.ndarray, corrupt: np.ndarray, defense: str) -> np.ndarray:
-        """What `defense` reads from primitives (stored bits [M, ncomp]) that went from `clean` to
-        `corrupt` (the support guard is applied later, in the pipeline or by clamp_bits)."""
-        return dfn.read(defense, clean, corrupt, self.precision, self.degree, self.box)
+    def read_through(self, prims, clean: np.ndarray, corrupt: np.ndarray, defense: str) -> np.ndarray:
+        """What `defense` reads from primitives `prims` (stored bits [M, ncomp]) that went from
+        `clean` to `corrupt` (the support guard is applied later, in the pipeline or by clamp_bits)."""
+        cells = None
+        if defense == "cellbox":
+            if self._cells is None:  # stored beside the model: built once, from the clean model
+                self._cells = dfn.CellBoxes(self.primitive_bits(np.arange(self.n)), self.precision, self.degree)
+            cells = self._cells
+        return dfn.read(defense, clean, corrupt, self.precision, self.degree, self.box, prims, cells)
 
     def _faulted(self, sites: list[Site]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(primitives [P] hit, their clean bits [P, ncomp], their bits after every site in order:
@@ -208,7 +214,7 @@ class Engine:
         if not sites:
             return {}
         prims, clean, cur = self._faulted(sites)
-        return self.xor_rows(prims, clean, self._read(clean, cur, defense))
+        return self.xor_rows(prims, clean, self.read_through(prims, clean, cur, defense))
 
     def xor_rows(self, prims: np.ndarray, clean: np.ndarray, rows: np.ndarray) -> dict[int, np.ndarray]:
         """Per chunk: [(word, xor mask)] turning primitives `prims` (clean bits `clean`) into `rows`."""
@@ -398,14 +404,14 @@ class Engine:
         comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
         clean = self.primitive_bits(prims)
         rows = np.arange(len(sites))
-        return prims, *self.variant_rows(clean, comps, apply_sites(clean[rows, comps], sites), defense)
+        return prims, *self.variant_rows(prims, clean, comps, apply_sites(clean[rows, comps], sites), defense)
 
-    def variant_rows(self, clean: np.ndarray, comps: np.ndarray, values: np.ndarray, defense: str):
-        """(effective bits [M, ncomp], guard masks [M]) of primitives `clean` whose component
-        `comps[i]` now holds the stored pattern `values[i]`, as `defense` reads them."""
+    def variant_rows(self, prims, clean: np.ndarray, comps: np.ndarray, values: np.ndarray, defense: str):
+        """(effective bits [M, ncomp], guard masks [M]) of primitives `prims` (clean bits `clean`)
+        whose component `comps[i]` now holds the stored pattern `values[i]`, as `defense` reads them."""
         bits = clean.copy()
         bits[np.arange(len(comps)), comps] = values
-        bits = self._read(clean, bits, defense)
+        bits = self.read_through(prims, clean, bits, defense)
         return bits, np.full(len(comps), self._guard_mask(defense), dtype=np.int64)
 
     def evaluate(self, sites: list[Site], defenses=("none",), regions=()) -> list[dict]:

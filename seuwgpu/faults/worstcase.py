@@ -55,7 +55,7 @@ def _effective(engine, prims, comps, bits, defense):
     clean = engine.primitive_bits(prims)
     rows = np.arange(prims.size)
     flipped = clean[rows, comps] ^ (np.uint64(1) << bits.astype(np.uint64)).astype(clean.dtype)
-    eff, gm = engine.variant_rows(clean, comps, flipped, defense)
+    eff, gm = engine.variant_rows(prims, clean, comps, flipped, defense)
     if gm.size and gm[0]:
         eff, _ = clamp_bits(eff, engine.box, int(gm[0]))
     return clean, eff, gm
