@@ -45,6 +45,15 @@ def outcome_wide(long: pd.DataFrame, by=("precision", "defense")) -> pd.DataFram
     return out
 
 
+def catastrophic_by_profile(df: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
+    """Weighted catastrophe rate of single upsets per (profile, scene, precision, defense), as
+    proportions with their intervals: the headline numbers under each renderer profile."""
+    s = single_upsets(df, None, None)
+    if s.empty:
+        return pd.DataFrame()
+    return sort_rows(E.rate(s, "catastrophic", ["profile", "scene", "precision", "defense"], conf))
+
+
 def catastrophic_summary(df: pd.DataFrame, conf: float = 0.95) -> list[dict]:
     """summary.json's ``catastrophic``: one entry per (scene, precision, defense) of the single-upset
     campaign: {scene, precision, defense, rate, ci_low, ci_high, n} (proportions, weighted)."""

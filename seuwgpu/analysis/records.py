@@ -111,6 +111,9 @@ def prepare(df: pd.DataFrame, thresholds: dict | None = None) -> pd.DataFrame:
         d["campaign"] = camp.where(camp.notna(), inferred).astype(str)
     else:
         d["campaign"] = inferred.astype(str)
+    # the renderer profile (docs/renderer.md); records written before profiles existed are strict
+    profile = d["profile"].astype(object) if "profile" in d else pd.Series("strict", index=d.index, dtype=object)
+    d["profile"] = profile.where(profile.notna(), "strict").astype(str)
     if "run" not in d:
         d["run"] = "run"
     d["run"] = d["run"].astype(str)

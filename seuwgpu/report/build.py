@@ -43,7 +43,15 @@ from seuwgpu.analysis.records import (
 )
 from seuwgpu.campaign import store
 from seuwgpu.report.format import html_table, json_default, json_safe, markdown_table
-from seuwgpu.report.sections import SECTIONS, FigureItem, Section, TableItem, run_sections, section_figures
+from seuwgpu.report.sections import (
+    SECTIONS,
+    FigureItem,
+    Section,
+    TableItem,
+    profile_section,
+    run_sections,
+    section_figures,
+)
 from seuwgpu.version import __version__
 
 __all__ = [
@@ -157,7 +165,12 @@ def build_report(
     previous = _previous_files(out)
     written: list[str] = []
     ctx = {"skipped": [], "max_pred_rows": max_pred_rows, "results": {}}
+    by_profile = profile_section(df)
+    if by_profile is not None:  # never pool renderer profiles: the analyses rest on strict records
+        df = df[df["profile"] == "strict"].copy()
     sections = run_sections(df, manifests, ctx)
+    if by_profile is not None:
+        sections.append(by_profile)
     skipped = ctx["skipped"]
     # the claims table opens the report
     sections.sort(key=lambda sec: sec.key != "claims")

@@ -91,6 +91,42 @@ def _sec_claims(df, manifests, ctx) -> Section:
     return sec
 
 
+def profile_section(all_records: pd.DataFrame) -> Section | None:
+    """Headline catastrophe rates under each renderer profile, when the runs hold more than one
+    (the other sections then rest on the strict profile's records alone, never on a mix)."""
+    if all_records["profile"].nunique() < 2:
+        return None
+    t = outcomes.catastrophic_by_profile(all_records)
+    if t.empty:
+        return None
+    sec = Section(
+        "profiles",
+        "Renderer profiles",
+        "The runs hold records under several renderer profiles (docs/renderer.md, Profiles: strict "
+        "draws a non-finite covariance as a frame-covering sheet, gsplat follows gsplat's CUDA "
+        "arithmetic and culls it). Every other section rests on the strict records alone; this "
+        "table gives the weighted single-upset catastrophe rate under each profile.",
+    )
+    sec.tables.append(
+        TableItem(
+            "profiles",
+            "Catastrophe rate by renderer profile",
+            E.percent(t[["profile", "scene", "precision", "defense", "n", "events", "rate", "ci_lo", "ci_hi"]]),
+            "Weighted catastrophe rate (%) of single upsets per profile, scene, precision and defense, "
+            "with its 95% interval (Wilson per cell, stratified when pooled over cells).",
+        )
+    )
+    sec.numbers["catastrophic_by_profile"] = [
+        {
+            k: (x[k] if k in ("profile", "scene", "precision", "defense") else float(x[k]))
+            for k in ("profile", "scene", "precision", "defense", "rate", "ci_lo", "ci_hi")
+        }
+        | {"n": int(x["n"])}
+        for _, x in t.iterrows()
+    ]
+    return sec
+
+
 def _sec_outcomes(df, manifests, ctx) -> Section:
     long = outcomes.outcome_table(df)
     thr = long.attrs.get("thresholds", {})
