@@ -434,3 +434,20 @@ def test_real_window_under_xvfb(tmp_path):
     render_clean, render_sheet = clean[:, PANEL_WIDTH:], sheet[:, PANEL_WIDTH:]
     assert (render_clean < 250).any(axis=-1).mean() > 0.05  # the model covers part of the white view
     assert (np.abs(render_sheet.astype(int) - render_clean).max(axis=-1) > 2).mean() > 0.01
+
+
+def test_viewer_renders_under_the_chosen_profile(model):
+    """`seuwgpu view --profile gsplat`: the viewer's engine draws corrupted values by gsplat's rules
+    (a NaN quaternion is culled there and a frame-covering sheet under strict)."""
+    from seuwgpu.apps.cli import build_parser
+    from seuwgpu.apps.viewer import OrbitCamera, ViewerState
+
+    assert build_parser().parse_args(["view", "--profile", "gsplat"]).profile == "gsplat"
+    seen = {}
+    for profile in ("strict", "gsplat"):
+        orbit = OrbitCamera.for_scene("spheres")
+        st = ViewerState(model, "fp32", (64, 64), scene="spheres", orbit=orbit, profile=profile)
+        assert st.engine.profile == profile
+        site = st.engine.site("quats", 0, 0, tuple(range(32)), "set", 0x7FC00000)  # w = NaN
+        seen[profile] = st.engine.inject(site)["footprint"]
+    assert seen["strict"] > seen["gsplat"]

@@ -656,6 +656,7 @@ def cmd_view(args):
         frames=args.frames,
         views=views,
         view_names=names,
+        profile=args.profile,
     )
 
 
@@ -808,6 +809,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("view", help="interactive viewer: toggle faults and the guard live")
     add_model_args(s)
+    add_profile_arg(s)
     s.add_argument(
         "--cameras",
         type=Path,

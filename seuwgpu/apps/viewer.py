@@ -171,11 +171,13 @@ class ViewerState:
         gpu=None,
         views: list[Camera] | None = None,
         view_names: list[str] | None = None,
+        profile: str = "strict",
     ):
         from seuwgpu.gpu.device import get_gpu
 
         self.model = model
         self.scene = scene
+        self.profile = profile  # the renderer's rules for corrupted values (docs/renderer.md)
         self.gpu = gpu or get_gpu()
         self.orbit = orbit or OrbitCamera.fit(model.means)
         self.views = list(views or [])
@@ -206,7 +208,9 @@ class ViewerState:
         from seuwgpu.faults.engine import Engine
 
         self.engine = None  # free the old model's GPU buffers before making the new ones
-        self.engine = Engine(self.model, [self.camera()], precision, gpu=self.gpu, scene=self.scene)
+        self.engine = Engine(
+            self.model, [self.camera()], precision, gpu=self.gpu, scene=self.scene, profile=self.profile
+        )
         if hasattr(self.engine, "monitor"):  # the engine's guard health signal, at our threshold
             self.engine.monitor.threshold = self.clamp_threshold
         self.precision = precision

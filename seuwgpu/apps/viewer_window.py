@@ -565,6 +565,7 @@ def run_viewer(
     frames: int = 0,
     views=None,
     view_names=None,
+    profile: str = "strict",
 ) -> int:
     """Open the viewer. frames > 0 (or an offscreen canvas): draw that many frames, save a
     window screenshot in screenshot_dir, and return."""
@@ -583,6 +584,7 @@ def run_viewer(
         clamp_threshold=clamp_threshold,
         views=views,
         view_names=view_names,
+        profile=profile,
     )
     app = ViewerApp(state, canvas, screenshot_dir)
     if loop is None:  # offscreen: no event loop, we draw
