@@ -37,14 +37,14 @@ def shrink(raw: dict) -> dict:
     return raw
 
 
-def cpu_sized(raw: dict) -> dict:
+def cpu_sized(raw: dict, samples: int = 16) -> dict:
     """The study at the scale a 2-core CPU (lavapipe) runs in about half an hour: the same scenes, 256 px,
     4 views, precisions, defenses and analyses, with fewer samples per cell (16 single upsets per
     (field, bit) cell and scene, 4 per cell and size in the size sweep); the dose sweep unchanged."""
     raw = dict(raw)
     raw["name"] = raw.get("name", "study") + "-cpu"
     if "single" in raw:
-        raw["single"] = dict(raw["single"], samples=16)
+        raw["single"] = dict(raw["single"], samples=samples)
     if "sizes" in raw:
         raw["sizes"] = dict(raw["sizes"], samples=4)
     return raw
@@ -56,6 +56,7 @@ def main(argv=None) -> int:
     scale = ap.add_mutually_exclusive_group()
     scale.add_argument("--small", action="store_true", help="a tiny version of every spec (minutes)")
     scale.add_argument("--cpu", action="store_true", help="fewer samples per cell (about half an hour on lavapipe)")
+    ap.add_argument("--samples", type=int, default=16, help="with --cpu: single upsets per (field, bit) cell and model")
     ap.add_argument("--specs", nargs="*", default=list(SPECS), help="spec files of docs/study to run")
     args = ap.parse_args(argv)
 
@@ -75,7 +76,7 @@ def main(argv=None) -> int:
         if args.small:
             raw = shrink(raw)
         elif args.cpu:
-            raw = cpu_sized(raw)
+            raw = cpu_sized(raw, args.samples)
         spec = normalize_spec(raw, path.parent)
         run_dir = out / Path(name).stem
         t0 = time.perf_counter()
