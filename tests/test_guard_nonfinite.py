@@ -71,3 +71,24 @@ def test_campaign_notes_the_guard_effect_once(eng, tmp_path):
     note = json.loads(guard_note_path(tmp_path, "blocks", "fp32", "strict").read_text())
     assert note["nonfinite_values"] == {"log_scales": 1, "quats": 1, "opacity": 1}
     assert note["guard"]["clamps"] == 3 and "selective" not in note
+
+
+def test_health_monitor_alerts_on_upsets_not_on_the_clean_models_own_nan(eng):
+    """The guard clamps the clean model's NaN/Inf on every guarded render; the health monitor
+    (viewer, interactive use) must not alert on that, only on clamps an upset adds."""
+    import warnings
+
+    from seuwgpu.faults.guard import GuardAlert
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", GuardAlert)
+        _, counts = eng.render_current("guard")
+    assert sum(counts.values()) == 3 and not eng.monitor.alert  # raw clamps: the clean model's own
+    site = eng.site("log_scales", 30, 1, 30)  # exponent bit: far outside the box
+    handle = eng.apply([site], "guard")
+    try:
+        with pytest.warns(GuardAlert, match="log_scales: 1"):
+            eng.render_current("guard")
+    finally:
+        eng.undo(handle)
+    assert eng.monitor.alert

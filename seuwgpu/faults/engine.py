@@ -100,6 +100,13 @@ class Engine:
         self.width, self.height, self.k = r.width, r.height, r.k
         self.clean_buf = self.gpu.buffer(r.image.size, STORAGE, "clean_images")
         self._capture_reference(0)
+        # the guard's clamps on the clean model itself, per field, for each guard mask that meets
+        # its non-finite values (only such models pay these renders): the health monitor alerts on
+        # clamps beyond them, not forever on the clean model's own NaN/Inf
+        self._clean_clamps = {}
+        for d, m in self.masks.items():
+            if m & self.nonfinite_mask and m not in self._clean_clamps:
+                self._clean_clamps[m] = self._run_guarded(d)
         self.metrics = ImageMetrics(self.gpu, self.width, self.height, self.k, max_variants=1)
         self._evaluator = None
 
@@ -272,8 +279,10 @@ class Engine:
         counts = self._run_guarded(defense)
         r = self.renderer
         images = r.gpu.read(r.image, np.float32, 0, 16 * r.k * r.width * r.height)
-        if self._guard_mask(defense):
-            self.monitor.update(counts)
+        mask = self._guard_mask(defense)
+        if mask:
+            base = self._clean_clamps.get(mask, {})
+            self.monitor.update({f: max(0, c - base.get(f, 0)) for f, c in counts.items()})
         return images.reshape(r.k, r.height, r.width, 4), counts
 
     def view_times_ms(self, defenses=("none",), repeats: int = 9) -> dict:
