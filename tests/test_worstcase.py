@@ -16,7 +16,7 @@ def test_search_equals_exhaustive_sweep(defense):
     eng = Engine(model, scene_cameras("spheres", 1, 64, 64), "fp32")
     fields = ("means", "log_scales", "opacity")
     prims, comps, bits = site_space(eng, fields)
-    _, eff, gm = _effective(eng, prims, comps, bits, defense)
+    _, eff, gm = _effective(eng, prims, comps, bits, defense, clamped=False)
     full = eng.evaluator.evaluate(prims, eff, gm)["footprint"]
     bound = footprint_bounds(eng, prims, comps, bits, defense, chunk=1000)
     assert (bound >= full).all() and (bound <= 1).all()
@@ -29,6 +29,17 @@ def test_search_equals_exhaustive_sweep(defense):
     assert wc.evaluated < prims.size  # the bounds spared most renders
     cut = worst_case(eng, defense, fields, max_evaluations=1)
     assert cut.evaluated <= 1 and cut.certified >= wc.footprint >= cut.footprint
+
+
+def test_guarded_worst_case_record_is_the_injection_of_its_site():
+    """Under the guard the search's record equals a full injection of the flip it found, clamp
+    count included (the guard clamps once, in the pipeline, and is counted there)."""
+    model = random_model(10, seed=7)
+    eng = Engine(model, scene_cameras("spheres", 1, 64, 64), "fp32")
+    wc = worst_case(eng, "guard", ("log_scales",), bits=[30, 31])
+    rec = eng.inject(wc.site, "guard")
+    assert wc.record["footprint"] == rec["footprint"] > 0
+    assert wc.record["clamps"] == rec["clamps"] >= 1
 
 
 def test_worstcase_command(capsys):

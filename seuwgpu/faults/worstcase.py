@@ -51,12 +51,15 @@ def site_space(engine, fields=FIELDS, bits=None, primitives=None):
     return p.reshape(-1), c.reshape(-1), b.reshape(-1)
 
 
-def _effective(engine, prims, comps, bits, defense):
+def _effective(engine, prims, comps, bits, defense, clamped: bool):
+    """(clean, effective bits, guard masks) of the flips as `defense` reads them. `clamped`: with
+    the in-pipeline guard's clamp applied (for the bounds); unclamped for the evaluator, which
+    clamps in the pipeline itself and counts the clamps."""
     clean = engine.primitive_bits(prims)
     rows = np.arange(prims.size)
     flipped = clean[rows, comps] ^ (np.uint64(1) << bits.astype(np.uint64)).astype(clean.dtype)
     eff, gm = engine.variant_rows(prims, clean, comps, flipped, defense)
-    if gm.size and gm[0]:
+    if clamped and gm.size and gm[0]:
         eff, _ = clamp_bits(eff, engine.box, int(gm[0]))
     return clean, eff, gm
 
@@ -79,7 +82,7 @@ def footprint_bounds(engine, prims, comps, bits, defense: str = "none", chunk: i
     for a in range(0, prims.size, chunk):
         sl = slice(a, a + chunk)
         p = prims[sl]
-        clean, eff, _ = _effective(engine, p, comps[sl], bits[sl], defense)
+        clean, eff, _ = _effective(engine, p, comps[sl], bits[sl], defense, clamped=True)
         moved = (eff[:, :GEOMETRY] != clean[:, :GEOMETRY]).any(axis=1)
         rects = comp.clean_rects[:, p].copy()  # [K, m, 4]
         idx = np.flatnonzero(moved)
@@ -105,7 +108,7 @@ def worst_case(
     while done < limit and bound[order[done]] > best:
         take = order[done : min(done + B, limit)]
         take = take[bound[take] > best]
-        _, eff, gm = _effective(engine, prims[take], comps[take], bts[take], defense)
+        _, eff, gm = _effective(engine, prims[take], comps[take], bts[take], defense, clamped=False)
         m = engine.evaluator.evaluate(prims[take], eff, gm)
         evaluated += take.size
         j = int(np.argmax(m["footprint"]))
