@@ -15,7 +15,8 @@ def records():
             for i, c in enumerate(cats if field == "log_scales" else [0, 0, 1 if d == "guard" else 0, 0]):
                 rows.append(
                     dict(scene="s", precision="fp32", n_primitives=100, k=1, defense=d, field=field, bit=bit,
-                         component=0, catastrophic=bool(c), weight=w, primitive=i)
+                         component=0, catastrophic=bool(c), footprint=0.5 if c else 0.0, nonfinite=False,
+                         weight=w, primitive=i)
                 )  # fmt: skip
     return pd.DataFrame(rows)
 

@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis.estimate import one_rate
+from seuwgpu.analysis.records import single_upsets
 from seuwgpu.faults.defenses import DEFENSES, memory_overhead
 from seuwgpu.model import encoding
 
@@ -61,9 +62,7 @@ def defense_table(df: pd.DataFrame, timing: dict | None = None) -> pd.DataFrame:
     """One row per (scene, defense): residual catastrophic rates (overall and on the dangerous
     cells) with intervals, the dangerous-cell rate relative to no defense, memory overhead,
     time fraction (NaN where not measured), Pareto membership and the goal check."""
-    df = df[df["k"] == 1] if "k" in df else df
-    if "weight" not in df or df["weight"].isna().all():
-        df = df.assign(weight=1.0)
+    df = single_upsets(df, None, None)  # the single-upset campaign's records, weighted
     danger = dangerous_mask(df)
     timing = timing or {}
     rows = []

@@ -22,8 +22,6 @@ from seuwgpu.analysis.records import (
     single_upsets,
     tag,
 )
-from seuwgpu.model import encoding
-from seuwgpu.model.fields import FIELDS, field_components, n_components
 
 GUARD_BOX_BITS = 32  # the support box bounds are held as fp32 values
 # defenses whose read path the engine simulates on the stored words (no render-time work to time)
@@ -59,28 +57,18 @@ def memory_overhead(
                 v = src.get(defense) if defense in src else src.get("memory_overhead")
                 if isinstance(v, (int, float)):
                     return float(v), "from the run manifest"
-    bits = encoding.BITS.get(precision, 32)
-    comps = n_components(sh_degree)
+    from seuwgpu.faults import defenses as dfn  # the stored bits each defense adds, defined there
+
+    if defense not in dfn.DEFENSE_INFO:
+        return float("nan"), "unknown defense"
     if defense == "none":
         return 0.0, "no redundancy"
-    if defense in ("guard", "selective"):
-        guarded = (
-            sum(field_components(f, sh_degree) for f in FIELDS if f != "sh_rest")
-            if defense == "guard"
-            else field_components("log_scales", sh_degree) + field_components("opacity", sh_degree)
-        )
-        if not n_primitives:
-            return 0.0, f"2 x {guarded} fp32 box bounds per model (~0 per primitive)"
-        frac = 2 * guarded * GUARD_BOX_BITS / (float(n_primitives) * comps * bits)
-        return frac, f"2 x {guarded} fp32 box bounds per model, N = {int(n_primitives):,}"
-    if defense == "ecc":
-        from seuwgpu.faults.defenses import ecc_check_bits  # the code the ECC defense simulates
-
-        chk = ecc_check_bits(precision)
-        return chk / bits, f"SEC-DED over sign+exponent: {chk} check bits per {bits}-bit value"
-    if defense == "dup":
-        return 2.0, "three copies (TMR, majority vote)"
-    return float("nan"), "unknown defense"
+    if not n_primitives and defense in dfn.PIPELINE_GUARD and defense != "scalebound":
+        return 0.0, "fp32 box bounds per model (~0 per primitive)"
+    n = int(n_primitives or 1)  # without N only per-primitive overheads are stated (exact for them)
+    frac = dfn.memory_overhead(defense, precision, sh_degree, n)
+    where = f", N = {n:,}" if n_primitives else ""
+    return frac, f"{dfn.DEFENSE_INFO[defense]}{where}"
 
 
 def mitigation_table(
@@ -123,7 +111,7 @@ def mitigation_table(
     for x in defs:
         g = s[s["defense"] == x]
         ov, basis = memory_overhead(x, precision, n_prims, deg, manifests)
-        tm = float(g["time_ms"].mean()) if g["time_ms"].notna().any() else np.nan
+        tm = E.wmean(g["time_ms"], g["weight"]) if g["time_ms"].notna().any() else np.nan
         if x in SIMULATED_READ:
             tfrac, tbasis = np.nan, "not measured: the read-side decode is simulated on the stored words"
         elif x == "none":
