@@ -277,13 +277,17 @@ class Engine:
         """Render the model as it is now (faults applied) under a defense's in-pipeline guard.
         Returns ([K, H, W, 4] images, clamps per field); guarded renders feed the health monitor."""
         counts = self._run_guarded(defense)
-        r = self.renderer
-        images = r.gpu.read(r.image, np.float32, 0, 16 * r.k * r.width * r.height)
         mask = self._guard_mask(defense)
         if mask:
             base = self._clean_clamps.get(mask, {})
             self.monitor.update({f: max(0, c - base.get(f, 0)) for f, c in counts.items()})
-        return images.reshape(r.k, r.height, r.width, 4), counts
+        return self.last_frame(), counts
+
+    def last_frame(self) -> np.ndarray:
+        """[K, H, W, 4] frames of the last render (render_current, or inject's faulted frame: the
+        restore after it flips stored words back but renders nothing)."""
+        r = self.renderer
+        return r.gpu.read(r.image, np.float32, 0, 16 * r.k * r.width * r.height).reshape(r.k, r.height, r.width, 4)
 
     def view_times_ms(self, defenses=("none",), repeats: int = 9) -> dict:
         """Median wall time (ms) of rendering one view of the model as it is now under each
