@@ -101,9 +101,6 @@ class Battery:
         self.cases: list[Case] = []
         self.n = 0
 
-    def path(self, name: str) -> Path:
-        return self.work / name
-
     def fresh(self, stem: str) -> Path:
         self.n += 1
         return self.work / f"{stem}{self.n}"
@@ -598,7 +595,6 @@ class Battery:
             )
         )
         ref = self.work / "kill_ref"
-        self.kill_spec, self.kill_ref = spec, ref
         self.add(
             "interruption", "uninterrupted reference", ["campaign", spec, "--out", ref, "--quiet"], "ok", process=True
         )

@@ -12,9 +12,6 @@ exponent bit (a faint splat becomes opaque or a strong one half transparent).
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 
@@ -50,12 +47,6 @@ def _rate(df: pd.DataFrame) -> tuple[float, float, float, int, int]:
 def has_new_defenses(df: pd.DataFrame) -> bool:
     """Records hold a defense beyond the guard variants, ECC and duplication."""
     return bool(set(df.get("defense", pd.Series(dtype=str)).unique()) - {"none", "guard", "selective", "ecc", "dup"})
-
-
-def load_timing(path) -> dict:
-    """`seuwgpu defenses --json` output saved to a file: {name: {time_fraction, ...}}."""
-    rows = json.loads(Path(path).read_text())
-    return {r["name"]: r for r in rows}
 
 
 def defense_table(df: pd.DataFrame, timing: dict | None = None) -> pd.DataFrame:
@@ -128,17 +119,6 @@ def _degree(part: pd.DataFrame) -> int:
         return 3
     comps = int(sh.max()) + 1
     return next((d for d in (0, 1, 2, 3) if 3 * ((d + 1) ** 2 - 1) >= comps), 3)
-
-
-def pareto_plot(table: pd.DataFrame, path) -> Path:
-    """`pareto_figure` saved as a PNG."""
-    import matplotlib.pyplot as plt
-
-    fig = pareto_figure(table)
-    path = Path(path)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
 
 
 def pareto_figure(table: pd.DataFrame):

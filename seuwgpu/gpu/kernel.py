@@ -306,11 +306,6 @@ def _shader_struct(shader: str, name: str, defines: tuple) -> Struct:
 
 
 @functools.cache
-def _shader_constants(shader: str, defines: tuple, constants: tuple) -> dict:
-    return wgsl_constants(shader_source(shader, dict(defines)), dict(constants))
-
-
-@functools.cache
 def _entry_workgroup_size(shader: str, entry: str, defines: tuple, constants: tuple) -> tuple[int, int, int]:
     return workgroup_size(shader_source(shader, dict(defines)), entry, dict(constants))
 
@@ -385,12 +380,6 @@ class Kernel:
     def struct(self, name: str) -> Struct:
         """A struct of this kernel's shader source."""
         return Struct.from_shader(self.shader, name, self.defines)
-
-    def constant(self, name: str) -> int:
-        """An integer `const` or `override` of this kernel's shader as its pipeline sees it."""
-        return _shader_constants(
-            self.shader, tuple(sorted(self.defines.items())), tuple(sorted(self.constants.items()))
-        )[name]
 
     # ---- bind groups ---------------------------------------------------------------------------
     def bind(self, resources: dict, group: int = 0):
