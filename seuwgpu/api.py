@@ -34,6 +34,7 @@ from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.faults.defenses import DEFENSES, check_defense
 from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, VALUE_MODELS, model_bits
 from seuwgpu.gpu.constants import PROFILES
+from seuwgpu.metrics.image import display
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import FIELDS, Model
@@ -140,10 +141,10 @@ class Injection:
     def error_map(self, defense: str = "none") -> np.ndarray:
         """Per-pixel maximum absolute channel error against the clean frames, [K, H, W] (NaN where
         a pixel is non-finite)."""
-        diff = np.abs(self.frames[defense].astype(np.float64) - self.frames["clean"])
-        bad = ~np.isfinite(diff).all(axis=-1)
-        err = np.nanmax(np.where(np.isfinite(diff), diff, 0.0), axis=-1)
-        err[bad] = np.nan
+        from seuwgpu.report.panel import error_map
+
+        err = error_map(self.frames["clean"], self.frames[defense])  # non-finite pixels: +inf there
+        err[np.isinf(err)] = np.nan
         return err.astype(np.float32)
 
     def table(self) -> pd.DataFrame:
@@ -244,7 +245,7 @@ def save_frames(images: np.ndarray, out: str | Path, stem: str, *, formats: Iter
         if "png" in formats:
             import imageio.v3 as iio
 
-            disp = np.clip(np.nan_to_num(img, nan=0.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+            disp = display(img)  # the display-referred frame the metrics use
             paths.append(out / f"{stem}_{i:03d}.png")
             pixels = (disp * 255 + 0.5).astype(np.uint8)
             iio.imwrite(paths[-1], pixels[..., 0] if img.shape[-1] == 1 else pixels, extension=".png")
