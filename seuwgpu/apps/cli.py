@@ -557,7 +557,7 @@ def cmd_worstcase(args):
     from seuwgpu.model.fields import canonical_field
 
     src = load_source(args)
-    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name)
+    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
     fields = [canonical_field(f) for f in args.fields]
     for d in args.defense:
         wc = worst_case(eng, d, fields, args.bit, max_evaluations=args.max_evaluations)
@@ -576,7 +576,7 @@ def cmd_storm(args):
     from seuwgpu.faults.engine import Engine
 
     src = load_source(args)
-    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name)
+    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
     df = storm(eng, args.k, args.frames, args.scrub_every, args.defense, args.seed)
     args.out.mkdir(parents=True, exist_ok=True)
     df.to_parquet(args.out / "storm.parquet", index=False)
@@ -596,7 +596,7 @@ def cmd_state(args):
     from seuwgpu.faults.state import state_campaign
 
     src = load_source(args)
-    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name)
+    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
     df = state_campaign(eng, args.targets, args.samples, args.bit or range(32), args.seed)
     args.out.mkdir(parents=True, exist_ok=True)
     df.to_parquet(args.out / "state.parquet", index=False)
@@ -844,7 +844,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("defenses", help="every defense with its memory overhead and time cost on this device")
     add_model_args(s)
     add_camera_args(s, views=1, size="256x256")
-    s.add_argument("--repeats", type=int, default=7, help="timing rounds (medians)")
+    s.add_argument("--repeats", type=positive_int, default=7, help="timing rounds (medians)")
     s.add_argument("--no-time", action="store_true", help="skip the timing (time_fraction NaN)")
     s.add_argument("--json", action="store_true", help="print [{name, memory_overhead, time_fraction, ...}]")
     s.set_defaults(func=cmd_defenses)
@@ -852,17 +852,21 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("worstcase", help="the single flip with the largest footprint under a defense (bounded search)")
     add_model_args(s)
     add_camera_args(s, views=2, size="128x128")
+    add_profile_arg(s)
     s.add_argument("--defense", nargs="+", default=["none"], choices=DEFENSES)
     s.add_argument("--fields", nargs="+", default=["means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest"])
     s.add_argument("--bit", type=int, nargs="+", help="bits to search (default: all)")
-    s.add_argument("--max-evaluations", type=int, help="stop after this many renders (the bound stays certified)")
+    s.add_argument(
+        "--max-evaluations", type=positive_int, help="stop after this many renders (the bound stays certified)"
+    )
     s.set_defaults(func=cmd_worstcase)
 
     s = sub.add_parser("storm", help="k upsets per frame accumulating, scrubbed every S frames, per defense")
     add_model_args(s)
     add_camera_args(s, views=1, size="128x128")
-    s.add_argument("--k", type=int, default=10, help="upsets per frame")
-    s.add_argument("--frames", type=int, default=50)
+    add_profile_arg(s)
+    s.add_argument("--k", type=positive_int, default=10, help="upsets per frame")
+    s.add_argument("--frames", type=positive_int, default=50)
     s.add_argument("--scrub-every", type=int, default=10, help="reload the model every S frames (0 = never)")
     s.add_argument("--defense", nargs="+", default=["none", "guard", "parity4r"], choices=DEFENSES)
     s.add_argument("--out", type=Path, required=True)
@@ -871,8 +875,9 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("state", help="transient flips in one frame's pipeline state: criticality per target")
     add_model_args(s)
     add_camera_args(s, views=2, size="128x128")
+    add_profile_arg(s)
     s.add_argument("--targets", nargs="+", default=list(STATE_TARGETS), choices=STATE_TARGETS)
-    s.add_argument("--samples", type=int, default=10, help="flips per (target, bit) cell")
+    s.add_argument("--samples", type=positive_int, default=10, help="flips per (target, bit) cell")
     s.add_argument("--bit", type=int, nargs="+", help="bits (default: all 32)")
     s.add_argument("--out", type=Path, required=True)
     s.set_defaults(func=cmd_state)
