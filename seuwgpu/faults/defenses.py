@@ -35,6 +35,8 @@ The golden copy that reloads read from lives off the device and is not charged a
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from seuwgpu.model import encoding
@@ -215,9 +217,11 @@ def checksum(rows: np.ndarray) -> np.ndarray:
     return h.astype(np.uint32)
 
 
+@functools.cache
 def scale_class_table(lo: float, hi: float, precision: str) -> np.ndarray:
     """The 2**SCALE_CLASS_BITS log-scale upper bounds a class stands for: the model's log-scale
-    range [lo, hi] cut into equal classes, each top rounded up to a stored value; the last is hi."""
+    range [lo, hi] cut into equal classes, each top rounded up to a stored value; the last is hi.
+    Cached per (range, precision), since every read of a scalebound primitive needs it; read-only."""
     k = 1 << SCALE_CLASS_BITS
     edges = (lo + (np.arange(1, k + 1) / k) * max(hi - lo, 0.0)).astype(np.float32)
     q = encoding.quantize(edges, precision)
@@ -229,7 +233,9 @@ def scale_class_table(lo: float, hi: float, precision: str) -> np.ndarray:
         nxt = np.where(q[below] == 0, 1, np.where(np.signbit(q[below]), b - 1, b + 1))
         q[below] = encoding.from_bits(nxt.astype(np.uint32), precision)
     q[-1] = hi
-    return np.maximum.accumulate(np.minimum(q, np.float32(hi)))
+    table = np.maximum.accumulate(np.minimum(q, np.float32(hi)))
+    table.flags.writeable = False
+    return table
 
 
 def scale_classes(clean: np.ndarray, table: np.ndarray, precision: str) -> np.ndarray:
@@ -294,14 +300,16 @@ def detect(defense: str, side: np.ndarray, rows: np.ndarray, precision: str, deg
     return side_data(defense, rows, precision, degree, box) != np.asarray(side, dtype=np.uint32)
 
 
-def repair(defense: str, clean: np.ndarray, corrupt: np.ndarray, hit: np.ndarray, precision: str, box=None):
+def repair(defense: str, clean: np.ndarray, corrupt: np.ndarray, hit: np.ndarray, precision: str, box=None, side=None):
     """What a flagged primitive becomes: culled (parity), reloaded (checksum) or its log-scales
-    clamped to the class bound (scalebound); unflagged rows are returned as they are."""
+    clamped to the class bound (scalebound; `side`: the clean rows' classes when already known);
+    unflagged rows are returned as they are."""
     if defense in ("parity", "parity4"):
         return _cull(corrupt, hit, precision)
     if defense in RELOADED:
         return np.where(hit[:, None], clean, corrupt)
-    bound = scale_table(box, precision)[side_data(defense, clean, precision, 0, box).astype(np.int64)]
+    side = side_data(defense, clean, precision, 0, box) if side is None else side
+    bound = scale_table(box, precision)[np.asarray(side, dtype=np.int64)]
     vals = encoding.from_bits(corrupt[:, 3:6], precision)
     with np.errstate(invalid="ignore"):
         over = (vals > bound[:, None]) & hit[:, None]
@@ -385,7 +393,7 @@ def read(
     if defense in CHECKED:
         side = side_data(defense, clean, precision, degree, box)
         hit = detect(defense, side, corrupt, precision, degree, box)
-        return repair(defense, clean, corrupt, hit, precision, box)
+        return repair(defense, clean, corrupt, hit, precision, box, side)
     return corrupt
 
 
