@@ -123,12 +123,8 @@ class Renderer:
         self.origin = (0, 0)
         self.width, self.height = size
         if self.viewport is not None:
+            self._check_viewport(size)
             x0, y0, w, h = self.viewport
-            if x0 % TILE or y0 % TILE or w <= 0 or h <= 0 or x0 + w > size[0] or y0 + h > size[1]:
-                raise ValueError(
-                    f"viewport {self.viewport} must be tile-aligned ({TILE} px) and inside the "
-                    f"{size[0]}x{size[1]} frame"
-                )
             self.origin = (x0, y0)
             self.width, self.height = w, h
         self.cameras = list(cameras)
@@ -202,9 +198,24 @@ class Renderer:
         self.version += 1  # the kept-view buffers may have been replaced
         self._write_params()
 
+    def _check_viewport(self, size):
+        x0, y0, w, h = self.viewport
+        if x0 % TILE or y0 % TILE or w <= 0 or h <= 0 or x0 + w > size[0] or y0 + h > size[1]:
+            raise ValueError(
+                f"viewport {self.viewport} must be tile-aligned ({TILE} px) and inside the {size[0]}x{size[1]} frame"
+            )
+
     def set_viewport(self, viewport):
-        """Render another tile-aligned region (x0, y0, w, h) of the same cameras (or None)."""
-        self.viewport = None if viewport is None else tuple(int(v) for v in viewport)
+        """Render another tile-aligned region (x0, y0, w, h) of the same cameras (or None). A region
+        of the current one's size only moves the origin (parameters rewritten, buffers kept)."""
+        new = None if viewport is None else tuple(int(v) for v in viewport)
+        moved_only = new is not None and self.viewport is not None and new[2:] == self.viewport[2:] and self.cameras
+        self.viewport = new
+        if moved_only:
+            self._check_viewport((self.cam_width, self.cam_height))
+            self.origin = new[:2]
+            self._write_params()
+            return
         cams, self.cameras = self.cameras, []
         self.set_cameras(cams)
 
@@ -354,6 +365,7 @@ def render_split(
             r = renderers[key]
             if r.viewport != vp:
                 r.set_viewport(vp)
-            r.set_cameras(views)
+            if len(r.cameras) != len(views) or any(a is not b for a, b in zip(r.cameras, views)):
+                r.set_cameras(views)
             out[a : a + len(views), y0 : y0 + h] = r.render()
     return out
