@@ -58,44 +58,22 @@ struct Quad {
     done: vec4<bool>,
 };
 
-fn inf_f32() -> f32 {
-    return bitcast<f32>(0x7f800000u);
-}
-
 fn nan4(v: vec4<f32>) -> vec4<bool> {
     return (bitcast<vec4<u32>>(v) & vec4<u32>(0x7fffffffu)) > vec4<u32>(0x7f800000u);
-}
-
-// Sigma beyond which a record of opacity o cannot reach alpha >= 1/255 (see the header).
-fn cut_of(o: f32) -> f32 {
-    if ((bitcast<u32>(o) & 0x7fffffffu) > 0x7149f2cau) {
-        return inf_f32();  // NaN, infinite or |o| > 1e30: never cut
-    }
-    if (o < 0.001) {
-        return -inf_f32();
-    }
-    return log(255.0 * o) + 0.01;
 }
 
 // Half-extents (x, y) of the region outside which sigma > cut for certain, or +Inf (no bound).
 // The minimum over dy of sigma(dx, dy) = 0.5 (A dx^2 + C dy^2) + B dx dy is 0.5 dx^2 D / C with
 // D = A C - B^2, so |dx| >= sqrt(2 S C / D) gives sigma >= S; S = 1.01 max(cut, 1e-3) and a
-// further 1% on the extent leave a margin of 3% in sigma. Only for conics where the float
-// evaluation of sigma is provably within 1e-4 of its value (A, C in [1e-12, 1e6], |B| <= 1e6,
-// B^2 <= 0.99 A C: no overflow, no cancellation beyond a factor 200) and means within 1e6 px
-// (dx, dy exact to 0.06 px); otherwise +Inf.
+// further 1% on the extent leave a margin of 3% in sigma. Only for bounded footprints
+// (footprint_bounded, common.wgsl); otherwise +Inf.
 fn reach_of(xy: vec2<f32>, co: vec4<f32>, cut: f32) -> vec2<f32> {
+    if (!footprint_bounded(xy, co, cut)) {
+        return vec2<f32>(inf_f32());
+    }
     let A = co.x;
     let B = co.y;
     let C = co.z;
-    if (!is_finite_f32(A) || !is_finite_f32(B) || !is_finite_f32(C) || !is_finite_f32(xy.x) || !is_finite_f32(xy.y)) {
-        return vec2<f32>(inf_f32());
-    }
-    let ok = A >= 1e-12 && C >= 1e-12 && A <= 1e6 && C <= 1e6 && abs(B) <= 1e6 && abs(xy.x) <= 1e6
-        && abs(xy.y) <= 1e6 && cut < 1e30 && B * B <= 0.99 * (A * C);
-    if (!ok) {
-        return vec2<f32>(inf_f32());
-    }
     let s = 2.02 * max(cut, 1e-3) / (A * C - B * B);
     return 1.01 * sqrt(vec2<f32>(s * C, s * A));
 }
