@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.faults import defenses as dfn
+from seuwgpu.faults.costs import interleaved_medians
 from seuwgpu.faults.flips import Flips
 from seuwgpu.faults.guard import Box, GuardMonitor, component_mask, support_box
 from seuwgpu.faults.sites import Site, apply_sites, fault_name, make_site, site_bit_class
@@ -294,18 +295,9 @@ class Engine:
         defense's in-pipeline guard (K views rendered and waited for, divided by K). The defenses
         are timed interleaved, round by round after one warm-up round, so a drift of the machine's
         load hits them alike. The mitigation table's time cost comes from it, in the same run."""
-        import time
-
-        defenses = list(dict.fromkeys(defenses))
-        for d in defenses:
-            self._run_guarded(d)
-        ts = {d: [] for d in defenses}
-        for _ in range(max(int(repeats), 1)):
-            for d in defenses:
-                t0 = time.perf_counter()
-                self._run_guarded(d)  # Renderer.run reads its totals back: the GPU is done
-                ts[d].append(time.perf_counter() - t0)
-        return {d: 1e3 * float(np.median(v)) / self.k for d, v in ts.items()}
+        # Renderer.run reads its totals back: the GPU is done when _run_guarded returns
+        configs = {d: (lambda d=d: self._run_guarded(d)) for d in dict.fromkeys(defenses)}
+        return {d: 1e3 * s / self.k for d, s in interleaved_medians(configs, repeats).items()}
 
     def measure_current(self, defense: str = "none") -> dict:
         """GPU metrics of the current model against the current clean reference (the frame stays
