@@ -17,7 +17,7 @@ import pandas as pd
 
 from seuwgpu.analysis.estimate import one_rate
 from seuwgpu.analysis.records import single_upsets
-from seuwgpu.faults.defenses import DEFENSES, memory_overhead
+from seuwgpu.faults.defenses import DEFENSES, FIRST_DEFENSES, memory_overhead
 from seuwgpu.model import encoding
 
 # goal of issue 16, on each real model
@@ -45,8 +45,8 @@ def _rate(df: pd.DataFrame) -> tuple[float, float, float, int, int]:
 
 
 def has_new_defenses(df: pd.DataFrame) -> bool:
-    """Records hold a defense beyond the guard variants, ECC and duplication."""
-    return bool(set(df.get("defense", pd.Series(dtype=str)).unique()) - {"none", "guard", "selective", "ecc", "dup"})
+    """Records hold a defense beyond the first study's (guard variants, ECC, duplication)."""
+    return bool(set(df.get("defense", pd.Series(dtype=str)).unique()) - set(FIRST_DEFENSES))
 
 
 def defense_table(df: pd.DataFrame, timing: dict | None = None) -> pd.DataFrame:

@@ -22,7 +22,8 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis import estimate as E
-from seuwgpu.analysis.records import DEFENSE_LABELS, InsufficientData, dose_records, figure, sort_rows, tag
+from seuwgpu.analysis.records import InsufficientData, dose_records, figure, sort_rows, tag
+from seuwgpu.faults.defenses import defense_label
 
 BUDGET_PSNR_DB = 30.0  # redundancy budget threshold (paper, Section 5.4)
 MODEL = ["scene", "n_primitives"]
@@ -184,7 +185,7 @@ def redundancy_budget(df: pd.DataFrame, threshold_db: float = BUDGET_PSNR_DB) ->
 
 def _label(key) -> str:
     scene, n, prec, dfn = key
-    return f"{scene} N={int(n):,} {prec} {DEFENSE_LABELS.get(dfn, dfn)}"
+    return f"{scene} N={int(n):,} {prec} {defense_label(dfn)}"
 
 
 def plot_dose(curves: pd.DataFrame, fits: pd.DataFrame | None = None, threshold_db: float = BUDGET_PSNR_DB):
