@@ -351,9 +351,13 @@ def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], st
 
 
 def _profile(profile) -> str:
-    if profile not in PROFILES:
-        raise InputError(f"unknown renderer profile {profile!r}; expected one of {', '.join(PROFILES)}")
-    return profile
+    """render's check_profile (the one definition of the names) raising the API's InputError."""
+    from seuwgpu.render.project import check_profile
+
+    try:
+        return check_profile(profile if isinstance(profile, str) else repr(profile))
+    except ValueError as e:
+        raise InputError(str(e)) from None
 
 
 def _check_scene(scene):
