@@ -444,16 +444,19 @@ class Engine:
         }
         frames = []
         prims = np.array([s.primitive for s in sites], dtype=np.int64)
-        clean_b = self.stored_bits(prims, comps)
+        clean = self.primitive_bits(prims)  # the hit primitives' clean rows, read once for every arm
+        clean.flags.writeable = False  # shared by the arms: a twin writing into it would raise
+        clean_b = clean[np.arange(m_sites), comps]
+        corrupt_b = apply_sites(clean_b, sites)
         # clean_value / corrupted_value: the stored value before and after the upset, whatever the
         # defense then reads (the same in every arm, and equal to inject()'s)
         clean_v = encoding.from_bits(clean_b, self.precision)
-        corr_v = encoding.from_bits(apply_sites(clean_b, sites), self.precision)
+        corr_v = encoding.from_bits(corrupt_b, self.precision)
         for d in defenses:
             dfn.check_defense(d)
-            prims, bits, gm = self.variant_bits(sites, d)
+            bits, gm = self.variant_rows(prims, clean, comps, corrupt_b, d)
             self.use_reference(d)
-            m = self.evaluator.evaluate(prims, bits, gm, regions, self.primitive_bits(prims) if gm.any() else None)
+            m = self.evaluator.evaluate(prims, bits, gm, regions, clean if gm.any() else None)
             cols = dict(base)
             with np.errstate(invalid="ignore"):  # NaN values are data here
                 cols.update(
