@@ -103,12 +103,16 @@ def defense_table(df: pd.DataFrame, timing: dict | None = None) -> pd.DataFrame:
     gt = float(guard_t.iloc[0]) if len(guard_t) else float("nan")
     with np.errstate(invalid="ignore"):
         time_ok = out["time_fraction"] <= GOAL["time_vs_guard"] * gt
-    out["meets_goal"] = (
+    # Unknown time (not measured in this run) leaves the verdict unknown (<NA>) unless another
+    # criterion already fails: never a pass on a missing number.
+    known = (
         (out["memory_overhead_pct"] <= 100 * GOAL["memory_overhead"])
         & (out["danger_vs_none"] <= GOAL["danger_vs_none"])
         & (out["rate_hi_pct"] <= 100 * GOAL["overall_rate"])
-        & (time_ok | out["time_fraction"].isna())
     )
+    verdict = pd.array(known & time_ok, dtype="boolean")
+    verdict[(known & out["time_fraction"].isna()).to_numpy()] = pd.NA
+    out["meets_goal"] = verdict
     return out
 
 

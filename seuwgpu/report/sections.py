@@ -433,7 +433,8 @@ def _sec_defenses(df, manifests, ctx) -> Section:
     cap = (
         "Per scene and defense: catastrophic rate (%) stratified by (field, bit) cell with 95% interval, "
         "the same on the dangerous cells (log-scale sign and top exponent bit, opacity top exponent bit) and "
-        "relative to no defense, memory overhead (% of the stored model). Time: `seuwgpu defenses`. "
+        "relative to no defense, memory overhead (% of the stored model). Time: `seuwgpu defenses` "
+        "(not measured here, so meets_goal is <NA> where every other criterion passes). "
         "Pooled over scenes on the shared fault grid, with footprints and the time measured in the run: "
         "the mitigation table (Alternative defenses)."
     )
