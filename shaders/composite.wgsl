@@ -15,7 +15,12 @@
 // - `box`: the tile-local pixel rectangle outside which sigma > cut for certain (below), so an
 //   invocation or a quad outside it skips the record after one integer test;
 // - an invocation whose pixels have all stopped leaves the batch loop; the workgroup leaves the
-//   tile when all of them have.
+//   tile when all of them have;
+// - `main` stages each invocation's PER_LANE consecutive slots with one bit per slot and quadrant
+//   (8 x 8 pixels; an invocation's pixels lie in one) saying whether the record's box meets it, so
+//   an invocation visits only the records of its quadrant, in list order (the others fail its box
+//   test anyway): on CPU Vulkan, where a quadrant is one SIMD group, this cut compositing by a
+//   quarter (spheres 100k, 256x256).
 //
 // Two entry points share the blending code, so their arithmetic is identical bit for bit:
 // - main: a tile of a full frame;
@@ -45,6 +50,9 @@ var<workgroup> s_pos: array<vec4<f32>, BATCH>;    // mean x, mean y, cut, 0
 var<workgroup> s_conic: array<vec4<f32>, BATCH>;  // conic, opacity
 var<workgroup> s_rgb: array<vec4<f32>, BATCH>;
 var<workgroup> s_done: atomic<u32>;
+// Per quadrant (8 x 8 pixels; an invocation's pixels lie in one), per staging invocation: which of
+// its PER_LANE consecutive slots hold a record whose pixel box meets the quadrant (bit s).
+var<workgroup> s_qmask: array<u32, 4 * LANES>;
 var<workgroup> s_all_done: u32;
 
 // Four pixels (x, y + i), i = 0..3, in vec4 lanes (centres in full-frame coordinates).
@@ -228,6 +236,67 @@ fn blend_batch(p: ptr<function, Pixels>, col: u32, row0: u32, m: u32) {
     }
 }
 
+// Bit q (0..3) set when pixel box bx meets quadrant q: columns 8 (q % 2) .. + 7, rows 8 (q / 2) .. + 7.
+fn quadrants(bx: u32) -> u32 {
+    let h = TILE / 2u;
+    let x0 = bx & 0xffu;
+    let x1 = (bx >> 8u) & 0xffu;
+    let y0 = (bx >> 16u) & 0xffu;
+    let y1 = bx >> 24u;
+    if (x0 > x1 || y0 > y1) {
+        return 0u;
+    }
+    let xs = select(0u, 1u, x0 < h) | select(0u, 2u, x1 >= h);
+    let ys = select(0u, 1u, y0 < h) | select(0u, 2u, y1 >= h);
+    return (xs * select(0u, 1u, (ys & 1u) != 0u)) | ((xs << 2u) * select(0u, 1u, (ys & 2u) != 0u));
+}
+
+// Record the quadrant masks of the invocation's PER_LANE consecutive slots (boxes in bx).
+fn write_qmask(li: u32, bx: array<u32, PER_LANE>) {
+    var m = vec4<u32>(0u);
+    for (var s = 0u; s < PER_LANE; s = s + 1u) {
+        let q = quadrants(bx[s]);
+        m = m | (vec4<u32>((vec4<u32>(q) >> vec4<u32>(0u, 1u, 2u, 3u)) & vec4<u32>(1u)) << vec4<u32>(s));
+    }
+    s_qmask[li] = m.x;
+    s_qmask[LANES + li] = m.y;
+    s_qmask[2u * LANES + li] = m.z;
+    s_qmask[3u * LANES + li] = m.w;
+}
+
+// blend_batch over the staged records whose box meets the invocation's quadrant q only (in slot
+// order, which is list order): the others fail the box test for all its pixels.
+fn blend_batch_masked(p: ptr<function, Pixels>, col: u32, row0: u32, q: u32) {
+    if (all_pixels_done(p)) {
+        return;
+    }
+    for (var w = 0u; w < LANES; w = w + 1u) {
+        var bits = s_qmask[q * LANES + w];
+        while (bits != 0u) {
+            let k = w * PER_LANE + firstTrailingBit(bits);
+            bits = bits & (bits - 1u);
+            let bx = s_box[k];
+            let y0 = (bx >> 16u) & 0xffu;
+            let y1 = bx >> 24u;
+            if (col < (bx & 0xffu) || col > ((bx >> 8u) & 0xffu) || row0 + SPAN - 1u < y0 || row0 > y1) {
+                continue;
+            }
+            let st = s_pos[k];
+            let co = s_conic[k];
+            for (var j = 0u; j < QPI; j = j + 1u) {
+                let r = row0 + QUAD * j;
+                if (r + QUAD - 1u >= y0 && r <= y1) {
+                    (*p).q[j] = blend_quad((*p).q[j], st, co, k);
+                }
+            }
+            if (all_pixels_done(p)) {
+                atomicAdd(&s_done, 1u);
+                return;
+            }
+        }
+    }
+}
+
 // After a batch: true (uniformly) when every invocation of the tile is finished.
 fn all_done(li: u32) -> bool {
     workgroupBarrier();
@@ -274,16 +343,20 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
     let batches = (n + BATCH - 1u) / BATCH;
     let origin = vec2<f32>(tile0);
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
+        var boxes: array<u32, PER_LANE>;
         for (var s = 0u; s < PER_LANE; s = s + 1u) {
-            let i = s * LANES + li;
+            let i = li * PER_LANE + s;
             let idx = range.x + bt * BATCH + i;
+            boxes[s] = EMPTY_BOX;
             if (idx < range.y) {
                 let g = isect_prims[idx];
-                isect_box[idx] = stage(i, proj_xy[g], proj_conic[g], proj_rgb[g], origin);
+                boxes[s] = stage(i, proj_xy[g], proj_conic[g], proj_rgb[g], origin);
+                isect_box[idx] = boxes[s];
             }
         }
+        write_qmask(li, boxes);
         workgroupBarrier();
-        blend_batch(&p, lid.x, row0, min(BATCH, n - bt * BATCH));
+        blend_batch_masked(&p, lid.x, row0, lid.x / (TILE / 2u) + 2u * (row0 / (TILE / 2u)));
         if (all_done(li)) {
             // the pairs never staged: no box known
             for (var idx = range.x + (bt + 1u) * BATCH + li; idx < range.y; idx = idx + LANES) {
