@@ -79,3 +79,19 @@ def test_main_writes_json_only_where_told(bench, gpu, tmp_path, capsys, monkeypa
     out.unlink()
     assert bench.main([*args, "--campaign-samples", "0", "--no-twin"]) == 0
     assert list(tmp_path.iterdir()) == []  # no --out: nothing written
+
+
+def test_memory_tool_accounts_every_buffer(tmp_path):
+    """tools/memory.py: the stored model is exactly 4 bytes per fp32 value, the buckets add up to
+    the device total, the pair buffers are 3 u32 per pair slot."""
+    spec = importlib.util.spec_from_file_location("seuwgpu_memory", BENCH.parent / "memory.py")
+    mem = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mem)
+    out = tmp_path / "m.json"
+    assert mem.main(["--n", "3000", "--size", "48x32", "--json", str(out)]) == 0
+    (rec,) = json.loads(out.read_text())
+    model = sum(v for k, v in rec["by_label"].items() if k.startswith("model-chunk"))
+    assert 236 * 3000 <= model < 236 * 3000 + 16  # 59 fp32 values per primitive, 16-byte padding
+    assert sum(rec["by_label"].values()) == rec["device_bytes"]
+    assert rec["bytes_per_pair_capacity"] == 12 and 0 < rec["pairs"] <= rec["capacity"]
+    assert rec["pixel_bytes"] == 16 * 48 * 32 and rec["view_s"] > 0
