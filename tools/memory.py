@@ -133,7 +133,8 @@ def main(argv=None) -> int:
             f"{rec['sort_scratch_bytes_per_entry']:.0f} B x (primitives + pair capacity) + "
             f"{rec['pixel_bytes'] / 2**20:.1f} MiB frames; "
             f"peak RSS {rec['peak_rss_bytes'] / 2**30:.2f} GiB; view {1000 * rec['view_s']:.0f} ms "
-            f"(first frame {rec['first_frame_s']:.1f} s, scene {rec['make_scene_s']:.1f} s)\n  largest (B/primitive): {top}"
+            f"(first frame {rec['first_frame_s']:.1f} s, scene {rec['make_scene_s']:.1f} s)\n"
+            f"  largest (B/primitive): {top}"
         )
     if a.json:
         a.json.write_text(json.dumps(out, indent=1))
