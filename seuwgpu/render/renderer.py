@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from seuwgpu.gpu.constants import TILE
+from seuwgpu.gpu.constants import CHUNK, TILE
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.model import encoding
 from seuwgpu.model.budget import check_frames, check_render
@@ -58,6 +58,7 @@ class Renderer:
         keep_views: bool = False,
         viewport=None,
         profile: str = "strict",
+        chunk: int = CHUNK,
     ):
         self.gpu = gpu or get_gpu()
         # renderer profile (docs/renderer.md "Profiles"): what corrupted values draw
@@ -85,7 +86,9 @@ class Renderer:
         self.projection = Projection(self.gpu, self.n, profile=self.profile)
         self.sorting = Sorting(self.gpu, self.n)
         self.binning = Binning(self.gpu, self.n)
-        self.compositing = Compositing(self.gpu, self.profile)
+        # chunk: pairs of a tile list per compositing workgroup (render/composite.py; not chunk_prims,
+        # the model's storage chunks); tests force small ones
+        self.compositing = Compositing(self.gpu, self.profile, chunk)
         # In-pipeline guard state (off by default): box of the clean model and clamp counters.
         self.guard_mask = 0
         bound = self.projection.kernel.struct("Bound")
@@ -182,6 +185,7 @@ class Renderer:
         old_capacity = self.capacity
         old_kv = {name: getattr(self, name, None) for name in ("kv_isect", "kv_box")}
         if capacity != self.capacity:
+            self.compositing.set_capacity(capacity)  # first: it refuses slabs past one binding
             self.capacity = capacity
             self.binning.set_capacity(capacity)
             self.sorting.set_capacity(capacity)
