@@ -1,4 +1,5 @@
-// Front-to-back compositing (render/composite.py): one workgroup per TILE x TILE tile. Each
+// Front-to-back compositing (render/composite.py): one workgroup per chunk of a TILE x TILE
+// tile's list (CHUNK_PAIRS pairs: most tiles are one chunk; docs/renderer.md "Long tile lists"). Each
 // invocation composites a column of QPI x QUAD (2 x 4) pixels, held as vec4 lanes (one Quad per 4
 // rows): a staged record is read once for eight pixels, and the workgroup has 8x fewer
 // invocations to switch between at barriers (CPU Vulkan runs a workgroup's invocations in SIMD
@@ -17,12 +18,15 @@
 // - an invocation whose pixels have all stopped leaves the batch loop; the workgroup leaves the
 //   tile when all of them have.
 //
-// Two entry points share the blending code, so their arithmetic is identical bit for bit:
-// - main: a tile of a full frame;
+// The entry points share the blending code (and merge_quad, the one merge of chunks), so their
+// arithmetic is identical bit for bit:
+// - main: chunk 0 of every tile of a full frame (the image of a one-chunk tile); chunks: the later
+//   chunks of long tiles, in parallel, into slabs; merge: those slabs into the image;
 // - variants: a tile of a single-upset variant, re-composited from the clean frame's tile list
 //   with the corrupted primitive removed and its re-projected record merged in at its depth
-//   (render/incremental.py; equal to a full re-render bit for bit). Only the pixels that the
-//   clean or the corrupted record reaches are re-blended; the others are copied. main leaves
+//   (render/incremental.py; equal to a full re-render bit for bit), its chunks in sequence. Only
+//   the pixels that the clean or the corrupted record reaches are re-blended when both lists are
+//   one chunk; the others are copied. main and chunks leave
 //   every pair's pixel box in isect_box (kept with the clean frame), so a variant tile stages only
 //   the entries whose box meets the bounding box of its re-blended pixels, and reads nothing of
 //   the others (they skip those pixels for certain).

@@ -79,3 +79,16 @@ def test_main_writes_json_only_where_told(bench, gpu, tmp_path, capsys, monkeypa
     out.unlink()
     assert bench.main([*args, "--campaign-samples", "0", "--no-twin"]) == 0
     assert list(tmp_path.iterdir()) == []  # no --out: nothing written
+
+
+def test_chunking_fields(bench, gpu):
+    """--dense: the shrunk scene lists long tiles (chunks of 256 here); both timings are measured
+    and draw nearly the same image (the chunk rule differs only where pixels saturate)."""
+    from seuwgpu.model import scenes
+
+    model = bench.dense_model(scenes.make_scene("spheres", 3000, 1, 0), 0.3)
+    rec = bench.measure_chunking(model, "spheres", 32, 1, repeats=1, gpu=gpu, chunk=256)
+    json.dumps(rec)
+    assert rec["ms_per_view_chunked"] > 0 and rec["ms_per_view_off"] > 0 and rec["speedup"] > 0
+    assert rec["max_pairs_per_tile"] > 256 and rec["long_tiles"] > 0 and rec["tiles"] == 4
+    assert rec["psnr_view0_chunked_vs_off_db"] > 40

@@ -332,3 +332,15 @@ def test_chunked_incremental_equals_full_rerender(gpu, profile):
             ty, tx = divmod(int(t), r.tiles_x)
             want = full[v, ty * 16 : ty * 16 + 16, tx * 16 : tx * 16 + 16]
             assert np.array_equal(slabs[e], want), (b, v, t)
+
+
+def test_chunk_and_slab_limits(gpu):
+    """A chunk that is not a positive multiple of the batch, and slabs past one storage binding,
+    are refused with a one-line error naming the chunk."""
+    for bad in (0, 100, -256):
+        with pytest.raises(ValueError, match=f"chunk={bad}"):
+            Compositing(gpu, chunk=bad)
+    stage = Compositing(gpu, chunk=256)
+    with pytest.raises(ValueError, match="chunks of 256 pairs need .* more than one storage binding"):
+        stage.set_capacity(gpu.max_binding // 4)
+    stage.set_capacity(1 << 16)  # what a small scene needs: fine

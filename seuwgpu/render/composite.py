@@ -4,9 +4,17 @@ Front to back over each tile's depth-ordered list, per pixel (docs/renderer.md):
 sigma < 0 or alpha < 1/255, alpha = min(0.99, o * exp(-sigma)) with NaN propagating, stop before
 T drops to 1e-4 or below, output (C + T * background, T). Nothing is clamped.
 
-Two GPU entry points share the blending code, so their arithmetic is identical bit for bit:
-`Compositing` (main: the tiles of full frames) and `VariantCompositing` (variants: tiles of
-single-upset variants re-composited from a clean frame's kept lists, render/incremental.py).
+Long tile lists (docs/renderer.md, "Long tile lists"): a tile list of n pairs is cut by list
+position into ceil(n / CHUNK) chunks; each chunk runs that rule from C = 0, T = 1 (with its own
+early stop) and the chunks merge front to back per pixel: the first chunk's (C, T) as is, each
+later one as C = C + T * c, T = T * t; a pixel ends (later chunks ignored) once a chunk stopped
+early at it or T <= 1e-4 after a merge. A tile of at most CHUNK pairs is thus composited as
+before chunks existed, bit for bit; longer ones run their chunks on separate workgroups.
+
+The GPU entry points share the blending and merging code, so their arithmetic is identical bit
+for bit: `Compositing` (main, chunks, merge: the tiles of full frames) and `VariantCompositing`
+(variants: tiles of single-upset variants re-composited from a clean frame's kept lists, their
+chunks in sequence, render/incremental.py).
 
 Twin: `composite_tile` blends one tile exactly as the sequential per-pixel rule does, vectorised
 over pixels and blocks of primitives: the transmittance and colour recurrences use
@@ -105,8 +113,9 @@ class VariantCompositing:
     """composite.wgsl:variants: re-composite listed (variant, view, tile, primitive) entries into
     slabs (one TILE x TILE vec4 tile each), from a clean frame's kept per-view state with the
     primitive's clean entry removed and its variant record merged in at its depth (ordered by
-    (depth bits, index) as the depth sort orders them). A pixel that neither record reaches is
-    copied from the clean image. Owns the entries, the slabs and the `Recomp` parameters."""
+    (depth bits, index) as the depth sort orders them), its chunks in sequence. A pixel that
+    neither record reaches is copied from the clean image when both lists are one chunk. Owns the
+    entries, the slabs and the `Recomp` parameters."""
 
     def __init__(self, gpu: GPU, max_entries: int, profile: str = "strict", chunk: int = CHUNK):
         self.gpu = gpu
