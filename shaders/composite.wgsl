@@ -357,7 +357,14 @@ fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, 
     workgroupBarrier();
     count_if_done(p);
     let n = b - a;
-    let batches = (n + BATCH - 1u) / BATCH;
+    var batches = (n + BATCH - 1u) / BATCH;
+    if (all_done(li)) {
+        // every pixel finished before (a later chunk of pixels that ended in chunk 0)
+        for (var idx = a + li; idx < b; idx = idx + LANES) {
+            isect_box[idx] = FULL_BOX;
+        }
+        batches = 0u;
+    }
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
         for (var s = 0u; s < PER_LANE; s = s + 1u) {
             let i = s * LANES + li;
@@ -480,6 +487,12 @@ fn chunks(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: ve
         let tx = item.x % bin.tiles_x;
         let ty = item.x / bin.tiles_x;
         var p = tile_pixels(tx, ty, lid.x, row0);
+        // pixels that stopped in chunk 0 have ended: the merge ignores their later chunks, so they
+        // are not composited (a dense opaque region costs one chunk, not all of them)
+        let first = read_slab(item.z - item.y, lid.x, row0, p);
+        for (var j = 0u; j < QPI; j = j + 1u) {
+            p.q[j].done = p.q[j].done | first.q[j].done;
+        }
         let range = ranges[item.x];
         let a = range.x + item.y * CHUNK_PAIRS;
         composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), vec2<f32>(tile_first(tx, ty)), lid.x, row0, li);
