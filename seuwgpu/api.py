@@ -40,6 +40,7 @@ from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import FIELDS, Model
 from seuwgpu.model.scenes import list_scenes
 from seuwgpu.model.sources import Source, load_source, source_views
+from seuwgpu.report.format import json_safe
 
 __all__ = [
     "DEFENSES",
@@ -155,7 +156,7 @@ class Injection:
         """Every frame in each format - `clean_000.png`, `faulted_000.png` (no defense),
         `guard_000.png` (each defense by name), `error_faulted_000.png`, `error_guard_000.png`
         (max absolute channel error) - and the metrics as `metrics.json` (footprint as a fraction;
-        NaN as null). Returns the files written."""
+        NaN as null, an infinite value such as an identical frame's PSNR as "inf"). Returns the files written."""
         out = Path(out)
         files = []
         for name, frames in self.frames.items():
@@ -165,7 +166,7 @@ class Injection:
         out.mkdir(parents=True, exist_ok=True)
         path = out / "metrics.json"
         doc = {"site": self.site, "metrics": self.metrics, "units": {"footprint": "fraction of pixels (0-1)"}}
-        path.write_text(json.dumps(_json_safe(doc), indent=2, allow_nan=False) + "\n")
+        path.write_text(json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n")
         return [*files, path]
 
 
@@ -350,9 +351,13 @@ def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], st
 
 
 def _profile(profile) -> str:
-    if profile not in PROFILES:
-        raise InputError(f"unknown renderer profile {profile!r}; expected one of {', '.join(PROFILES)}")
-    return profile
+    """render's check_profile (the one definition of the names) raising the API's InputError."""
+    from seuwgpu.render.project import check_profile
+
+    try:
+        return check_profile(profile if isinstance(profile, str) else repr(profile))
+    except ValueError as e:
+        raise InputError(str(e)) from None
 
 
 def _check_scene(scene):
@@ -424,15 +429,3 @@ def _frame_stem(name: str) -> str:
 def _plain(d: dict) -> dict:
     """numpy scalars -> Python numbers, so the dicts serialise and compare plainly."""
     return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in d.items()}
-
-
-def _json_safe(o):
-    if isinstance(o, dict):
-        return {k: _json_safe(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_json_safe(v) for v in o]
-    if isinstance(o, np.generic):
-        o = o.item()
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    return o

@@ -2,6 +2,13 @@
 // (tile, primitive) pairs at the scanned offsets, and per-tile ranges of the tile-sorted list.
 // Between them the host scans the counts (gpu/sort.py PrefixSum) and sorts the pairs by tile
 // (render/sort.py). Rectangles are packed (x0 | y0 << 16, x1 | y1 << 16) in tiles, exclusive max.
+//
+// Exact binning (docs/renderer.md): a primitive is paired with the tiles of its rectangle that its
+// footprint may reach (common.wgsl reach / row_tiles: per tile row, the columns the ellipse
+// crosses), not with the whole rectangle: the tiles it provably cannot reach would only be staged
+// and skipped at every pixel. Both passes compute the same rows, so counts and pairs agree. EXACT_BIN = false
+// pairs the whole rectangle (the images are the same bit for bit; tests compare the two).
+override EXACT_BIN: bool = true;
 
 @group(0) @binding(0) var<uniform> bin: Binning;
 @group(0) @binding(1) var<storage, read> rects: array<vec2<u32>>;
@@ -12,27 +19,59 @@
 @group(0) @binding(6) var<storage, read_write> isect_prims: array<u32>;
 @group(0) @binding(7) var<storage, read> stats: array<u32>;
 @group(0) @binding(8) var<storage, read_write> ranges: array<vec2<u32>>;
+@group(0) @binding(9) var<storage, read> proj_xy: array<vec2<f32>>;
+@group(0) @binding(10) var<storage, read> proj_conic: array<vec4<f32>>;  // conic, opacity
 
-fn rect_count(r: vec2<u32>) -> u32 {
-    let x0 = r.x & 0xffffu;
-    let y0 = r.x >> 16u;
-    let x1 = r.y & 0xffffu;
-    let y1 = r.y >> 16u;
-    return (x1 - x0) * (y1 - y0);
+// A primitive's rectangle (tiles, exclusive max) and its reach (REACH_ALL without exact binning).
+struct Footprint {
+    x0: u32,
+    y0: u32,
+    x1: u32,
+    y1: u32,
+    r: Reach,
+};
+
+fn footprint(g: u32) -> Footprint {
+    let q = rects[g];
+    var f = Footprint(q.x & 0xffffu, q.x >> 16u, q.y & 0xffffu, q.y >> 16u,
+        Reach(REACH_ALL, vec2<f32>(0.0), vec4<f32>(0.0), 0.0, 0.0, 0.0, 0.0));
+    if (f.x1 <= f.x0 || f.y1 <= f.y0) {
+        f.y1 = f.y0;  // culled: no rows
+    } else if (EXACT_BIN) {
+        f.r = reach(proj_xy[g], proj_conic[g]);
+    }
+    return f;
 }
 
-// counts[s] = tiles touched by the s-th primitive in depth order (culled ones have empty rects).
+// Columns [c0, c1) of tile row ty that the primitive is paired with.
+fn row_of(f: Footprint, ty: u32) -> vec2<u32> {
+    let first = vec2<f32>(f32(bin.origin & 0xffffu), f32(bin.origin >> 16u));
+    return row_tiles(f.r, first.y + f32(ty * TILE), first.x, f.x0, f.x1);
+}
+
+// counts[s] = tiles paired with the s-th primitive in depth order (culled ones have empty rects).
 @compute @workgroup_size(WG)
 fn count_tiles(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
     if (s >= bin.n_total) {
         return;
     }
-    counts[s] = rect_count(rects[sorted_prims[s]]);
+    let f = footprint(sorted_prims[s]);
+    var c = 0u;
+    if (f.r.kind == REACH_ALL) {
+        c = (f.x1 - f.x0) * (f.y1 - f.y0);
+    } else {
+        for (var ty = f.y0; ty < f.y1; ty = ty + 1u) {
+            let cols = row_of(f, ty);
+            c = c + (cols.y - cols.x);
+        }
+    }
+    counts[s] = c;
 }
 
-// One (tile id, primitive) pair per touched tile, in depth order, at the scanned offsets; pairs
-// past the capacity are dropped (the host sees the total, grows the buffers and re-runs).
+// One (tile id, primitive) pair per paired tile, in depth order, row-major, at the scanned
+// offsets; pairs past the capacity are dropped (the host sees the total, grows the buffers and
+// re-runs).
 @compute @workgroup_size(WG)
 fn emit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
@@ -40,14 +79,11 @@ fn emit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         return;
     }
     let g = sorted_prims[s];
-    let r = rects[g];
-    let x0 = r.x & 0xffffu;
-    let y0 = r.x >> 16u;
-    let x1 = r.y & 0xffffu;
-    let y1 = r.y >> 16u;
+    let f = footprint(g);
     var o = offsets[s];
-    for (var ty = y0; ty < y1; ty = ty + 1u) {
-        for (var tx = x0; tx < x1; tx = tx + 1u) {
+    for (var ty = f.y0; ty < f.y1; ty = ty + 1u) {
+        let cols = row_of(f, ty);
+        for (var tx = cols.x; tx < cols.y; tx = tx + 1u) {
             if (o < bin.capacity) {
                 isect_tiles[o] = ty * bin.tiles_x + tx;
                 isect_prims[o] = g;

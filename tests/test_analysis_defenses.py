@@ -34,3 +34,16 @@ def test_defense_table_by_hand():
     assert t.loc["parity", "memory_overhead_pct"] == pytest.approx(100 * memory_overhead("parity", "fp32", 3, 100))
     assert bool(t.loc["parity", "pareto"]) and bool(t.loc["none", "pareto"]) and not bool(t.loc["guard", "pareto"])
     assert t["time_fraction"].isna().all()
+
+
+def test_goal_verdict_is_unknown_without_time_and_false_on_a_failed_criterion():
+    """meets_goal never passes on a missing number: no timing -> <NA> where the measured criteria
+    pass, False where one fails (none: its dangerous-cell rate is the baseline itself)."""
+    df = records()
+    df = pd.concat([df] + [df[df["defense"] == "parity"]] * 1500, ignore_index=True)  # a narrow interval
+    t = defense_table(df).set_index("defense")
+    assert t.loc["parity", "rate_hi_pct"] <= 0.05 and t.loc["parity", "memory_overhead_pct"] <= 5
+    assert not pd.isna(t.loc["none", "meets_goal"]) and not t.loc["none", "meets_goal"]
+    assert pd.isna(t.loc["parity", "meets_goal"])
+    timed = defense_table(df, {"guard": {"time_fraction": 0.01}, "parity": {"time_fraction": 0.5}})
+    assert not timed.set_index("defense").loc["parity", "meets_goal"]  # 0.5 > 2 x guard's 0.01

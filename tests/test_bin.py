@@ -1,12 +1,16 @@
 """Binning stage (render/bin.py): count_tiles + scan + emit and tile_ranges on the GPU against the
-numpy twin, exactly, on the same rectangles and depth order."""
+numpy twin, exactly, on the same rectangles, screen records and depth order; exact binning's
+dropped pairs checked against a brute-force float64 evaluation at every pixel of their tile, and
+images with and without it compared bit for bit."""
 
 import numpy as np
 from conftest import random_model
 
 from seuwgpu.model.cameras import orbit_cameras
+from seuwgpu.model.fields import Model
 from seuwgpu.render.bin import Binning, emit, tile_lists, tile_ranges
 from seuwgpu.render.project import n_tiles_xy, project
+from seuwgpu.render.renderer import Renderer
 from seuwgpu.render.sort import depth_order
 
 
@@ -16,62 +20,121 @@ def packed(rects):
 
 
 def inputs(n=1500, seed=3, size=(72, 40)):
-    """Rectangles of a twin projection, with a frame-covering sheet, and the full depth order
-    (culled primitives last, as the GPU's depth sort leaves them)."""
+    """Rectangles and screen records of a twin projection, with a frame-covering sheet, and the
+    full depth order (culled primitives last, as the GPU's depth sort leaves them)."""
     model = random_model(n, seed=seed)
     model.log_scales[7] = [60.0, 60.0, 60.0]  # overflowing scale: the whole frame
+    model.opacity[9] = np.nan  # NaN opacity: never cut
+    model.opacity[11] = -8.0  # alpha < 1/255 everywhere: paired with no tile
     cam = orbit_cameras(2, *size)[1]
     with np.errstate(all="ignore"):
         proj = project(model, cam)
     order = depth_order(proj)
     full = np.concatenate([order, np.setdiff1d(np.arange(n), order)])
-    return proj["rect"], full, n_tiles_xy(cam), size
+    records = {"xy": proj["mean2d"], "conic": np.column_stack([proj["conic"], proj["opacity"]]).astype(np.float32)}
+    return proj["rect"], full, n_tiles_xy(cam), size, records
 
 
-def run_stage(gpu, rects, order, tiles, size, capacity):
+def run_stage(gpu, rects, order, tiles, size, capacity, records, exact=True):
     tx, ty = tiles
     n = len(order)
-    stage = Binning(gpu, n)
+    stage = Binning(gpu, n, exact=exact)
     stage.set_views(1, tx * ty)
     stage.set_capacity(capacity)
     stage.set_view(0, tiles_x=tx, size=size, origin=(0, 0), background=(1, 1, 1))
     stage.params.write()
     enc = gpu.device.create_command_encoder()
-    stage.encode_emit(enc, 0, gpu.upload(packed(rects)), gpu.upload(order.astype(np.uint32)))
+    xy, conic = gpu.upload(records["xy"].astype(np.float32)), gpu.upload(records["conic"])
+    stage.encode_emit(enc, 0, gpu.upload(packed(rects)), gpu.upload(order.astype(np.uint32)), xy, conic)
     gpu.submit(enc)
     return stage
 
 
-def test_emit_matches_twin(gpu):
-    rects, order, tiles, size = inputs()
-    want = emit(rects, order, tiles[0])
+def check_emit(gpu, stage, want, n):
     total = len(want["isect_tiles"])
-    stage = run_stage(gpu, rects, order, tiles, size, capacity=total + 64)
-    n = len(order)
     np.testing.assert_array_equal(gpu.read(stage.counts)[:n], want["counts"])
     np.testing.assert_array_equal(gpu.read(stage.offsets)[:n], want["offsets"])
-    assert gpu.read(stage.stats)[0] == total > tiles[0] * tiles[1]  # the sheet covers every tile
+    assert gpu.read(stage.stats)[0] == total
     np.testing.assert_array_equal(gpu.read(stage.isect_tiles)[:total], want["isect_tiles"])
     np.testing.assert_array_equal(gpu.read(stage.isect_prims)[:total], want["isect_prims"])
 
 
+def test_emit_matches_twin(gpu):
+    rects, order, tiles, size, records = inputs()
+    for exact in (True, False):
+        want = emit(rects, order, tiles[0], records if exact else None)
+        total = len(want["isect_tiles"])
+        assert total > tiles[0] * tiles[1]  # the sheet covers every tile
+        stage = run_stage(gpu, rects, order, tiles, size, total + 64, records, exact)
+        check_emit(gpu, stage, want, len(order))
+
+
+def test_exact_binning_drops_only_unreachable_pairs():
+    """Every pair exact binning drops is one the compositor skips at every pixel of its tile
+    (alpha < 1/255 or sigma < 0, evaluated here in float64 at all TILE^2 pixel centres, with no
+    margin), the sheet and the NaN-opacity record keep every tile, the invisible record none, and
+    a good share of the rectangles' pairs goes."""
+    rects, order, tiles, size, records = inputs()
+    full = emit(rects, order, tiles[0])
+    exact = emit(rects, order, tiles[0], records)
+    pair = lambda e: set(zip(e["isect_tiles"].tolist(), e["isect_prims"].tolist()))  # noqa: E731
+    kept, every = pair(exact), pair(full)
+    assert kept <= every
+    dropped = every - kept
+    assert 0.05 * len(every) < len(dropped) < 0.6 * len(every)
+    xy = records["xy"].astype(np.float64)
+    co = records["conic"].astype(np.float64)
+    ii, jj = np.meshgrid(np.arange(16) + 0.5, np.arange(16) + 0.5)
+    for t, g in dropped:
+        px, py = (t % tiles[0]) * 16 + ii, (t // tiles[0]) * 16 + jj
+        dx, dy = xy[g, 0] - px, xy[g, 1] - py
+        sigma = 0.5 * (co[g, 0] * dx * dx + co[g, 2] * dy * dy) + co[g, 1] * dx * dy
+        alpha = co[g, 3] * np.exp(-sigma)
+        assert ((sigma < 0) | (alpha < 1 / 255)).all(), (t, g)
+    n_tiles = tiles[0] * tiles[1]
+    assert sum(1 for t, g in kept if g == 7) == n_tiles
+    assert sum(1 for t, g in kept if g == 9) == sum(1 for t, g in every if g == 9) > 0
+    assert not any(g == 11 for t, g in kept) and any(g == 11 for t, g in every)
+
+
+def test_exact_binning_leaves_images_bit_for_bit(gpu):
+    """Exact binning against whole rectangles, on a model with non-finite and huge values, under
+    both renderer profiles: the same frames bit for bit, with fewer pairs."""
+    model = random_model(1200, seed=8)
+    flat = model.flat()
+    flat[3, 3:6] = 60.0  # frame-covering sheet
+    flat[4, 10] = np.nan  # NaN opacity
+    flat[5, 0] = np.nan  # NaN mean
+    flat[6, 6:10] = [1e30, 0, 0, 1e-30]  # degenerate rotation
+    flat[8, 3] = 12.0  # a needle
+    flat[10, 11] = np.inf  # infinite colour
+    model = Model.from_flat(flat, model.sh_degree)
+    cams = orbit_cameras(3, 80, 48)
+    for profile in ("strict", "gsplat"):
+        a = Renderer(model, cams, gpu=gpu, profile=profile)
+        b = Renderer(model, cams, gpu=gpu, profile=profile, exact_binning=False)
+        img_a, img_b = a.render_rgba(), b.render_rgba()
+        assert np.array_equal(img_a.view(np.uint32), img_b.view(np.uint32)), profile
+        assert (a.last_totals[:3] < b.last_totals[:3]).all() and (~np.isfinite(img_a)).any()
+
+
 def test_pairs_past_the_capacity_are_dropped_but_counted(gpu):
-    rects, order, tiles, size = inputs(n=800, seed=4)
-    want = emit(rects, order, tiles[0])
+    rects, order, tiles, size, records = inputs(n=800, seed=4)
+    want = emit(rects, order, tiles[0], records)
     cap = len(want["isect_tiles"]) // 2
-    stage = run_stage(gpu, rects, order, tiles, size, capacity=cap)
+    stage = run_stage(gpu, rects, order, tiles, size, cap, records)
     assert gpu.read(stage.stats)[0] == len(want["isect_tiles"])  # the renderer grows and re-runs
     np.testing.assert_array_equal(gpu.read(stage.isect_tiles)[:cap], want["isect_tiles"][:cap])
     np.testing.assert_array_equal(gpu.read(stage.isect_prims)[:cap], want["isect_prims"][:cap])
 
 
 def test_tile_ranges_match_twin(gpu):
-    rects, order, tiles, size = inputs(seed=5)
+    rects, order, tiles, size, records = inputs(seed=5)
     n_tiles = tiles[0] * tiles[1]
     want_ranges, want_prims = tile_lists(rects, order, tiles[0], n_tiles)
     e = emit(rects, order, tiles[0])
     sorted_tiles = np.sort(e["isect_tiles"], kind="stable")
-    stage = run_stage(gpu, rects, order, tiles, size, capacity=len(sorted_tiles) + 16)
+    stage = run_stage(gpu, rects, order, tiles, size, len(sorted_tiles) + 16, records, exact=False)
     gpu.write(stage.isect_tiles, sorted_tiles.astype(np.uint32))  # the tile sort's output
     enc = gpu.device.create_command_encoder()
     stage.encode_ranges(enc, 0)

@@ -144,11 +144,31 @@ def test_demo_on_a_tiny_scene(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_distributed_sort_first(capsys):
+def test_distributed_sort_first(capsys, monkeypatch):
     pytest.importorskip("ray")
+    from seuwgpu.campaign import sortfirst
+
+    shown = []  # what the command computed, as handed to its printer
+    printer = sortfirst.print_sort_first
+    monkeypatch.setattr(
+        sortfirst, "print_sort_first", lambda res, console=None: (shown.append(res), printer(res, console))
+    )
     rc, out, _ = run(
         ["distributed", "--scene", "spheres", "--n", "300", "--views", "1", "--size", "32x32", "--ranks", "2",
          "--repeats", "1", "--upset", "log_scales:31", "--primitive", "3"],
         capsys,
     )  # fmt: skip
-    assert rc == 0 and "rank" in out.lower()
+    assert rc == 0 and len(shown) == 1
+    res = shown[0]
+    # two ranks whose regions tile the frame, each timed; the asked-for upset: a scale's sign flip
+    assert res["ranks"] == 2 and len(res["regions"]) == len(res["times"]) == len(res["per_rank"]) == 2
+    assert sum(w * h for _, _, w, h in res["regions"]) == 32 * 32 and all(t > 0 for t in res["times"])
+    s = res["site"]
+    assert (s.field, s.primitive, s.component, s.bits) == ("log_scales", 3, 0, (31,))
+    assert res["corrupted_value"] == -res["clean_value"]
+    # a rank is contaminated only where the corrupted (or the clamped) footprint reaches
+    assert res["touched_none"] <= res["reach_upset"] and res["touched_guard"] <= res["reach_guarded"]
+    assert {r for r, pr in enumerate(res["per_rank"]) if pr["none"]["changed"]} == res["touched_none"]
+    # and the printed table says the same
+    assert re.search(rf"ranks contaminated, no guard: +\S.* \({len(res['touched_none'])} of 2\)", out)
+    assert "upset: log_scales[3][0] bit 31" in out

@@ -295,14 +295,16 @@ def test_chunked_renders_are_exact(gpu):
     assert not np.array_equal(a, default)  # the chunk reaches the shader
 
 
-@pytest.mark.parametrize("profile", ["strict", "gsplat"])
-def test_chunked_incremental_equals_full_rerender(gpu, profile):
+@pytest.mark.parametrize("profile, exact", [("strict", True), ("gsplat", True), ("strict", False)])
+def test_chunked_incremental_equals_full_rerender(gpu, profile, exact):
     """The variants entry under chunks of 256 re-composites every dirty tile exactly as a full
     re-render of the variant does, bit for bit, for upsets that move a primitive inside long tile
-    lists (depth), make it a sheet, opaque or NaN, or remove it."""
+    lists (depth), make it a sheet, opaque or NaN, or remove it; with exact binning (the variant is
+    listed only on the tiles its footprint reaches, as the binning lists it) and without."""
     model = _dense_model(1500, 4)
     cams = orbit_cameras(2, 32, 32)
-    r = Renderer(model, cams, gpu=gpu, keep_views=True, chunk=256, profile=profile)
+    kw = {"gpu": gpu, "chunk": 256, "profile": profile, "exact_binning": exact}
+    r = Renderer(model, cams, keep_views=True, **kw)
     r.capture_views = True
     clean = r.render_rgba()
     r.capture_views = False
@@ -327,7 +329,7 @@ def test_chunked_incremental_equals_full_rerender(gpu, profile):
     for b, p in enumerate(prims):
         f = flat.copy()
         f[p] = encoding.from_bits(bits[b : b + 1], "fp32")[0]
-        full = Renderer(Model.from_flat(f, r.degree), cams, gpu=gpu, chunk=256, profile=profile).render_rgba()
+        full = Renderer(Model.from_flat(f, r.degree), cams, **kw).render_rgba()
         full = full.view(np.uint32)
         for e in np.flatnonzero(b_idx == b):
             v, t = v_idx[e], t_idx[e]

@@ -160,6 +160,13 @@ def test_memory_overheads_by_hand():
         dfn.memory_overhead("tmr", "fp32", 3, n)
 
 
+def test_defense_names_outside_the_list_are_defined_only_in_it():
+    """Labels and the first study's set name real defenses (a rename cannot leave them stale)."""
+    assert set(dfn.DEFENSE_LABELS) <= set(dfn.DEFENSES)
+    assert set(dfn.FIRST_DEFENSES) <= set(dfn.DEFENSES)
+    assert dfn.defense_label("guard") == "support guard" and dfn.defense_label("parity4") == "parity4"
+
+
 def test_a_culled_primitive_renders_as_if_removed():
     model = make_scene("blocks", n=400, seed=5)
     cams = scene_cameras("blocks", 2, 48, 48)

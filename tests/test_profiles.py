@@ -114,5 +114,7 @@ def test_spec_profile_key():
     raw = {"scenes": [{"scene": "spheres", "n": 100}], "single": {"samples": 1}}
     assert "profile" not in normalize_spec(raw)  # default strict, old specs keep their hash
     assert normalize_spec({**raw, "profile": "gsplat"})["profile"] == "gsplat"
-    with pytest.raises(SpecError, match="profile: 'cuda'"):
+    with pytest.raises(SpecError, match="^profile: unknown renderer profile 'cuda'; expected one of strict, gsplat$"):
         normalize_spec({**raw, "profile": "cuda"})
+    with pytest.raises(SpecError, match=r"^profile: unknown renderer profile \"\['gsplat'\]\""):
+        normalize_spec({**raw, "profile": ["gsplat"]})

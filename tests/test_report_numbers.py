@@ -237,6 +237,8 @@ def test_dose_numbers(run):
         r = cur[(cur["defense"] == dfn) & (cur["k"] == k)].iloc[0]
         ranked = np.sort(np.where(g["nonfinite"], -np.inf, g["psnr"]))  # non-finite frames rank lowest
         assert r["psnr_median_db"] == ranked[(len(g) - 1) // 2]  # the lower median
+        # quartiles: the smallest frame whose share reaches q (dose draws weigh 1 each)
+        assert (r["psnr_q25_db"], r["psnr_q75_db"]) == (ranked[-(-len(g) // 4) - 1], ranked[-(-3 * len(g) // 4) - 1])
         assert r["nonfinite_pct"] == pytest.approx(100 * g["nonfinite"].mean())
         lo, hi = wilson(int(g["catastrophic"].sum()), len(g))
         assert r["cat_rate_pct"] == pytest.approx(100 * g["catastrophic"].mean())

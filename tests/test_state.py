@@ -8,7 +8,9 @@ import pytest
 from seuwgpu.faults.engine import Engine
 from seuwgpu.faults.state import TARGETS, StateFaults, state_campaign
 from seuwgpu.model.scenes import make_scene, scene_cameras
+from seuwgpu.render.bin import tile_lists
 from seuwgpu.render.composite import composite_frame
+from seuwgpu.render.project import unpack_rects
 from tests.conftest import psnr_finite
 
 
@@ -48,7 +50,14 @@ def test_compositor_input_flips_equal_the_twin(sf, target, index, comp, bit):
     n = sf.r.n
     ids = np.minimum(state["isect_prim"][:, 0], n - 1)  # an id past the records reads the last (robust access)
     records = {"mean2d": f["xy"], "conic": f["conic"][:, :3], "opacity": f["conic"][:, 3], "rgb": f["rgb"][:, :3]}
-    want = composite_frame(state["tile_range"], ids, records, sf.r.width, sf.r.height)
+    ranges = state["tile_range"]
+    if target in ("xy", "conic"):  # flipped before binning, which reads them (exact binning): re-bin
+        g = sf.engine.gpu
+        rects = unpack_rects(g.read(sf.r.kv_rect, np.uint32, 8 * n * v, 8 * n).reshape(n, 2))
+        order = np.lexsort((np.arange(n), state["rgb"][:, 3]))  # depth bits, ties by index
+        bin_records = {"xy": f["xy"], "conic": f["conic"]}
+        ranges, ids = tile_lists(rects, order, sf.r.tiles_x, sf.r.n_tiles, bin_records)
+    want = composite_frame(ranges, ids, records, sf.r.width, sf.r.height)
     assert psnr_finite(got[v], want) > 60
     np.testing.assert_array_equal(got[0], sf.engine.clean_rgba[0])  # the other view: clean
     np.testing.assert_array_equal(sf.engine.render_current("none")[0], sf.engine.clean_rgba)  # transient

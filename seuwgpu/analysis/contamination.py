@@ -14,13 +14,13 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis.records import (
-    DEFENSE_LABELS,
     InsufficientData,
     figure,
     reference_precision,
     single_upsets,
     tag,
 )
+from seuwgpu.faults.defenses import defense_label
 from seuwgpu.render.regions import region_edges
 
 
@@ -254,16 +254,14 @@ def plot_contamination(cont: pd.DataFrame, precision: str | None = None, defense
             sub = sub[sub["defense"].isin(defenses)]
     for dfn, g in sub.groupby("defense", sort=False):
         g = g.sort_values("P")
-        (line,) = ax.plot(
-            g["P"], g["pred_fraction_pct"], "-o", ms=3, label=f"{DEFENSE_LABELS.get(dfn, dfn)}: predicted"
-        )
+        (line,) = ax.plot(g["P"], g["pred_fraction_pct"], "-o", ms=3, label=f"{defense_label(dfn)}: predicted")
         ax.plot(
             g["P"],
             g["meas_fraction_pct"],
             "--s",
             ms=3,
             color=line.get_color(),
-            label=f"{DEFENSE_LABELS.get(dfn, dfn)}: measured",
+            label=f"{defense_label(dfn)}: measured",
         )
     ax.set_xscale("log", base=2)
     if len(sub):

@@ -16,8 +16,8 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis.estimate import one_rate
-from seuwgpu.analysis.records import single_upsets
-from seuwgpu.faults.defenses import DEFENSES, memory_overhead
+from seuwgpu.analysis.records import figure, single_upsets
+from seuwgpu.faults.defenses import DEFENSES, FIRST_DEFENSES, memory_overhead
 from seuwgpu.model import encoding
 
 # goal of issue 16, on each real model
@@ -45,8 +45,8 @@ def _rate(df: pd.DataFrame) -> tuple[float, float, float, int, int]:
 
 
 def has_new_defenses(df: pd.DataFrame) -> bool:
-    """Records hold a defense beyond the guard variants, ECC and duplication."""
-    return bool(set(df.get("defense", pd.Series(dtype=str)).unique()) - {"none", "guard", "selective", "ecc", "dup"})
+    """Records hold a defense beyond the first study's (guard variants, ECC, duplication)."""
+    return bool(set(df.get("defense", pd.Series(dtype=str)).unique()) - set(FIRST_DEFENSES))
 
 
 def defense_table(df: pd.DataFrame, timing: dict | None = None) -> pd.DataFrame:
@@ -103,12 +103,16 @@ def defense_table(df: pd.DataFrame, timing: dict | None = None) -> pd.DataFrame:
     gt = float(guard_t.iloc[0]) if len(guard_t) else float("nan")
     with np.errstate(invalid="ignore"):
         time_ok = out["time_fraction"] <= GOAL["time_vs_guard"] * gt
-    out["meets_goal"] = (
+    # Unknown time (not measured in this run) leaves the verdict unknown (<NA>) unless another
+    # criterion already fails: never a pass on a missing number.
+    known = (
         (out["memory_overhead_pct"] <= 100 * GOAL["memory_overhead"])
         & (out["danger_vs_none"] <= GOAL["danger_vs_none"])
         & (out["rate_hi_pct"] <= 100 * GOAL["overall_rate"])
-        & (time_ok | out["time_fraction"].isna())
     )
+    verdict = pd.array(known & time_ok, dtype="boolean")
+    verdict[(known & out["time_fraction"].isna()).to_numpy()] = pd.NA
+    out["meets_goal"] = verdict
     return out
 
 
@@ -124,13 +128,9 @@ def _degree(part: pd.DataFrame) -> int:
 def pareto_figure(table: pd.DataFrame):
     """Residual catastrophic rate (95% interval) against memory overhead, one panel per scene;
     the Pareto front dashed, its members in bold."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     scenes = list(table["scene"].unique())
-    fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 4), squeeze=False)
+    fig = figure(5 * len(scenes), 4)  # pyplot-free: nothing to close
+    axes = fig.subplots(1, len(scenes), squeeze=False)
     for ax, scene in zip(axes[0], scenes):
         t = table[table["scene"] == scene]
         x = np.maximum(t["memory_overhead_pct"], 1e-4)
@@ -148,19 +148,14 @@ def pareto_figure(table: pd.DataFrame):
         ax.set_xlabel("memory overhead (% of the model; 1e-4 = none)")
         ax.set_ylabel("residual catastrophic rate (%)")
         ax.set_title(scene)
-    fig.tight_layout()
     return fig
 
 
 def storm_figure(df: pd.DataFrame):
     """Footprint and PSNR of every frame of a fault storm, one line per defense (campaign/storm.py
     records); non-finite frames (PSNR undefined) are marked on the footprint panel."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    fig = figure(11, 4)  # pyplot-free: nothing to close
+    a1, a2 = fig.subplots(1, 2)
     for d, t in df.groupby("defense", sort=False):
         t = t.sort_values("frame")
         (line,) = a1.plot(t["frame"], 100 * t["footprint"], label=d)
@@ -175,7 +170,6 @@ def storm_figure(df: pd.DataFrame):
     a2.set_xlabel("frame")
     a2.set_ylabel("PSNR (dB; gaps: identical or undefined)")
     a2.legend(fontsize=8)
-    fig.tight_layout()
     return fig
 
 

@@ -3,8 +3,9 @@
 primitive count): curves of different models are never averaged together.
 
 * Quality per k: `estimate.quality` (PSNR over finite frames, non-finite share beside it).
-  Medians and quartiles (lower, no interpolation) rank a non-finite frame below every finite one
-  (it is worse than any finite frame, though its PSNR is undefined); no number is made up for it.
+  Medians and quartiles (estimate.wquantile, no interpolation) rank a non-finite frame below every
+  finite one (it is worse than any finite frame, though its PSNR is undefined); no number is made
+  up for it.
 * Catastrophic fraction per k: Wilson interval (the draws are a simple random sample).
 * Dose model per model and defense: P(catastrophic | k) = 1 - (1 - p)^k, p fitted by maximum
   likelihood to the binomial counts over k, with a profile-likelihood 95% interval and its fit
@@ -22,7 +23,8 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis import estimate as E
-from seuwgpu.analysis.records import DEFENSE_LABELS, InsufficientData, dose_records, figure, sort_rows, tag
+from seuwgpu.analysis.records import InsufficientData, dose_records, figure, sort_rows, tag
+from seuwgpu.faults.defenses import defense_label
 
 BUDGET_PSNR_DB = 30.0  # redundancy budget threshold (paper, Section 5.4)
 MODEL = ["scene", "n_primitives"]
@@ -43,9 +45,14 @@ def dose_curves(df: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
     keys = MODEL + ["precision", "defense", "k"]
     d = d.assign(_rank=_ranked_psnr(d))
     q = E.quality(d, keys, conf)
-    med = d.groupby(keys, sort=False)["_rank"].quantile([0.25, 0.5, 0.75], interpolation="lower").unstack()
-    med.columns = ["psnr_q25_db", "psnr_median_db", "psnr_q75_db"]
-    q = q.drop(columns=["psnr_q25_db", "psnr_median_db", "psnr_q75_db"]).merge(med.reset_index(), on=keys)
+    # E.quality's quartiles are over finite frames only; here every frame counts, a non-finite one
+    # ranked lowest, through the same weighted quantile (dose draws are a simple random sample:
+    # weight 1 each, so this is the plain order statistic at ceil(q n))
+    qs = {"psnr_q25_db": 0.25, "psnr_median_db": 0.5, "psnr_q75_db": 0.75}
+    med = d.groupby(keys, sort=False)[["_rank", "weight"]].apply(
+        lambda g: pd.Series({c: E.wquantile(g["_rank"], g["weight"], p) for c, p in qs.items()})
+    )
+    q = q.drop(columns=list(qs)).merge(med.reset_index(), on=keys)
     r = E.percent(E.rate(d, "catastrophic", keys, conf, strata=())).rename(columns={"events": "catastrophic"})
     out = q.merge(r[keys + ["catastrophic", "cat_rate_pct", "cat_ci_lo_pct", "cat_ci_hi_pct"]], on=keys)
     out = sort_rows(out.sort_values(MODEL + ["k"], kind="stable"))
@@ -184,7 +191,7 @@ def redundancy_budget(df: pd.DataFrame, threshold_db: float = BUDGET_PSNR_DB) ->
 
 def _label(key) -> str:
     scene, n, prec, dfn = key
-    return f"{scene} N={int(n):,} {prec} {DEFENSE_LABELS.get(dfn, dfn)}"
+    return f"{scene} N={int(n):,} {prec} {defense_label(dfn)}"
 
 
 def plot_dose(curves: pd.DataFrame, fits: pd.DataFrame | None = None, threshold_db: float = BUDGET_PSNR_DB):

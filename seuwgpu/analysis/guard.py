@@ -9,7 +9,6 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis.records import (
-    DEFENSE_LABELS,
     InsufficientData,
     figure,
     pair_keys,
@@ -17,6 +16,7 @@ from seuwgpu.analysis.records import (
     sort_rows,
     tag,
 )
+from seuwgpu.faults.defenses import defense_label
 
 
 def paired(df: pd.DataFrame, a: str = "none", b: str = "guard") -> pd.DataFrame:
@@ -147,7 +147,7 @@ def plot_guard_ccdf(df: pd.DataFrame, guard: str = "guard", precision: str | Non
             x,
             np.where(surv > 1e-12, surv, np.nan),
             style,
-            label=f"{DEFENSE_LABELS.get(dfn, dfn)} (n={len(g):,})",
+            label=f"{defense_label(dfn)} (n={len(g):,})",
             drawstyle="steps-post",
         )
     ax.axvline(100 * threshold, color="grey", ls=":", lw=1)

@@ -13,7 +13,6 @@ import pandas as pd
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis.records import (
     DEFAULT_SH_DEGREE,
-    DEFENSE_LABELS,
     InsufficientData,
     defenses_present,
     pair_keys,
@@ -22,6 +21,7 @@ from seuwgpu.analysis.records import (
     single_upsets,
     tag,
 )
+from seuwgpu.faults.defenses import defense_label
 
 GUARD_BOX_BITS = 32  # the support box bounds are held as fp32 values
 # defenses whose read path the engine simulates on the stored words (no render-time work to time)
@@ -124,7 +124,7 @@ def mitigation_table(
         rows.append(
             {
                 "defense": x,
-                "label": DEFENSE_LABELS.get(x, x),
+                "label": defense_label(x),
                 "n": int(r["n"]),
                 "catastrophic": int(r["events"]),
                 "cat_rate_pct": r["cat_rate_pct"],

@@ -23,13 +23,6 @@ from seuwgpu.metrics.image import FOOTPRINT_THRESHOLD, PIXEL_THRESHOLD, outcome_
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELDS, field_components, sh_rest_count
 
-DEFENSE_LABELS = {
-    "none": "none",
-    "guard": "support guard",
-    "selective": "selective guard (log-scale + opacity)",
-    "ecc": "ECC sign+exp (SEC-DED)",
-    "dup": "full duplication (TMR vote)",
-}
 FIELD_LABELS = {
     "means": "mean",
     "log_scales": "log-scale",

@@ -79,7 +79,6 @@ import numpy as np
 
 from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
-from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.model import encoding
 from seuwgpu.model.budget import n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
@@ -366,11 +365,13 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             raise SpecError(f"scale must be a number in (0, 16], got {scale!r}")
         spec["scale"] = float(scale)
     if "profile" in raw:  # renderer profile (docs/renderer.md); recorded only when given (hash)
-        if raw["profile"] not in PROFILES:
-            raise SpecError(
-                f"profile: {raw['profile']!r} is no renderer profile; expected one of {', '.join(PROFILES)}"
-            )
-        spec["profile"] = raw["profile"]
+        from seuwgpu.render.project import check_profile  # the one definition of the profile names
+
+        p = raw["profile"]
+        try:
+            spec["profile"] = check_profile(p if isinstance(p, str) else repr(p))  # a TOML list: unhashable
+        except ValueError as e:
+            raise SpecError(f"profile: {e}") from None
     scenes = raw.get("scenes")
     if not isinstance(scenes, list) or not scenes:
         raise SpecError("the spec needs at least one [[scenes]] table")

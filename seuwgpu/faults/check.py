@@ -15,7 +15,10 @@ from seuwgpu.faults.guard import fill_chunk_params
 from seuwgpu.gpu.device import STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 
-MODES = {"parity": 0, "parity4": 0, "parity4r": 0, "checksum": 1, "scalebound": 2}
+# shaders/check.wgsl's MODE_PARITY, MODE_CHECKSUM, MODE_SCALE, per kind of check; the defenses are
+# defenses.CHECKED (a checked defense of a new kind fails here, at import, until it has a mode)
+_KIND_MODE = {"parity": 0, "checksum": 1, "scalebound": 2}
+MODES = {d: _KIND_MODE["parity" if d.startswith("parity") else d] for d in dfn.CHECKED}
 
 
 class Checker:

@@ -51,6 +51,21 @@ def defense_costs(model, camera, precision: str = "fp32", repeats: int = 7, gpu=
     return rows
 
 
+def interleaved_medians(configs: dict, repeats: int) -> dict:
+    """{name: median seconds} of calling each of `configs` (name -> callable that returns when the
+    GPU is done), after one warm-up round (pipelines, bind groups). Timed interleaved, round by
+    round, so a drift of the machine's load hits every configuration alike."""
+    for f in configs.values():
+        f()
+    samples = {k: [] for k in configs}
+    for _ in range(max(int(repeats), 1)):
+        for k, f in configs.items():
+            t0 = time.perf_counter()
+            f()
+            samples[k].append(time.perf_counter() - t0)
+    return {k: float(np.median(v)) for k, v in samples.items()}
+
+
 def _times(model, camera, precision, repeats, gpu) -> dict:
     r = Renderer(model, [camera], precision, gpu=gpu)
     box = support_box(r.layout.decode(r.clean_words), precision)
@@ -68,16 +83,8 @@ def _times(model, camera, precision, repeats, gpu) -> dict:
         configs[d] = lambda m=m: view(m)
     for d, c in checkers.items():
         configs[f"check:{d}"] = c.run
-    for f in configs.values():  # warm up (pipelines, bind groups)
-        f()
-    samples = {k: [] for k in configs}
-    for _ in range(repeats):
-        for k, f in configs.items():
-            t0 = time.perf_counter()
-            f()
-            samples[k].append(time.perf_counter() - t0)
+    med = interleaved_medians(configs, repeats)
     r.set_guard(None, 0)
-    med = {k: float(np.median(v)) for k, v in samples.items()}
     base = med["none"]
     out = {"none": 0.0, "_device": r.gpu.info.get("device", "?")}
     for d in dfn.DEFENSES:

@@ -58,6 +58,16 @@ DEFENSE_INFO = {
     "cellbox": "support boxes per spatial cell (8x8x8 grid, 9-bit cell id per primitive): clamp into its cell's box",
 }
 DEFENSES = tuple(DEFENSE_INFO)
+# the first study's defenses (guard variants, ECC, duplication); the others came with issue 16
+FIRST_DEFENSES = ("none", "guard", "selective", "ecc", "dup")
+# short names for figures and tables; a defense without one is shown by its name
+DEFENSE_LABELS = {
+    "none": "none",
+    "guard": "support guard",
+    "selective": "selective guard (log-scale + opacity)",
+    "ecc": "ECC sign+exp (SEC-DED)",
+    "dup": "full duplication (TMR vote)",
+}
 GUARDED_FIELDS = {
     "guard": ("means", "log_scales", "quats", "opacity", "sh_dc"),
     "guard_all": FIELDS,
@@ -265,6 +275,11 @@ def ecc_crit_read(clean: np.ndarray, corrupt: np.ndarray, precision: str, degree
 # data stored with the model, and the check that flags a primitive
 CHECKED = ("parity", "parity4", "parity4r", "checksum", "scalebound")
 RELOADED = ("checksum", "parity4r")  # flagged primitives reloaded from the golden copy
+
+
+def defense_label(name: str) -> str:
+    """The defense's short name in figures and tables (its name where it has none)."""
+    return DEFENSE_LABELS.get(name, name)
 
 
 def scale_table(box, precision: str) -> np.ndarray:

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.faults import defenses as dfn
+from seuwgpu.faults.costs import interleaved_medians
 from seuwgpu.faults.flips import Flips
 from seuwgpu.faults.guard import Box, GuardMonitor, component_mask, support_box
 from seuwgpu.faults.sites import Site, apply_sites, fault_name, make_site, site_bit_class
@@ -294,18 +295,9 @@ class Engine:
         defense's in-pipeline guard (K views rendered and waited for, divided by K). The defenses
         are timed interleaved, round by round after one warm-up round, so a drift of the machine's
         load hits them alike. The mitigation table's time cost comes from it, in the same run."""
-        import time
-
-        defenses = list(dict.fromkeys(defenses))
-        for d in defenses:
-            self._run_guarded(d)
-        ts = {d: [] for d in defenses}
-        for _ in range(max(int(repeats), 1)):
-            for d in defenses:
-                t0 = time.perf_counter()
-                self._run_guarded(d)  # Renderer.run reads its totals back: the GPU is done
-                ts[d].append(time.perf_counter() - t0)
-        return {d: 1e3 * float(np.median(v)) / self.k for d, v in ts.items()}
+        # Renderer.run reads its totals back: the GPU is done when _run_guarded returns
+        configs = {d: (lambda d=d: self._run_guarded(d)) for d in dict.fromkeys(defenses)}
+        return {d: 1e3 * s / self.k for d, s in interleaved_medians(configs, repeats).items()}
 
     def measure_current(self, defense: str = "none") -> dict:
         """GPU metrics of the current model against the current clean reference (the frame stays
@@ -452,16 +444,19 @@ class Engine:
         }
         frames = []
         prims = np.array([s.primitive for s in sites], dtype=np.int64)
-        clean_b = self.stored_bits(prims, comps)
+        clean = self.primitive_bits(prims)  # the hit primitives' clean rows, read once for every arm
+        clean.flags.writeable = False  # shared by the arms: a twin writing into it would raise
+        clean_b = clean[np.arange(m_sites), comps]
+        corrupt_b = apply_sites(clean_b, sites)
         # clean_value / corrupted_value: the stored value before and after the upset, whatever the
         # defense then reads (the same in every arm, and equal to inject()'s)
         clean_v = encoding.from_bits(clean_b, self.precision)
-        corr_v = encoding.from_bits(apply_sites(clean_b, sites), self.precision)
+        corr_v = encoding.from_bits(corrupt_b, self.precision)
         for d in defenses:
             dfn.check_defense(d)
-            prims, bits, gm = self.variant_bits(sites, d)
+            bits, gm = self.variant_rows(prims, clean, comps, corrupt_b, d)
             self.use_reference(d)
-            m = self.evaluator.evaluate(prims, bits, gm, regions, self.primitive_bits(prims) if gm.any() else None)
+            m = self.evaluator.evaluate(prims, bits, gm, regions, clean if gm.any() else None)
             cols = dict(base)
             with np.errstate(invalid="ignore"):  # NaN values are data here
                 cols.update(

@@ -4,7 +4,8 @@ stream, renderer.state_fault). The next frame is clean: every stage rewrites its
 
 Targets (the stage after which the flip lands, the buffer, its words per record):
 - xy, conic, rgb: the projected per-splat records (screen mean; conic + opacity; colour), after
-  projection; depth_key: the depth sort keys, before the depth sort;
+  projection (binning reads xy and conic too: exact binning pairs tiles by the footprint);
+  depth_key: the depth sort keys, before the depth sort;
 - tile_key: the (tile) keys of the intersection list, before the tile sort; isect_prim: the
   tile-sorted primitive ids, before the ranges are found;
 - tile_range: each tile's [start, end) of the sorted list, before compositing;

@@ -117,10 +117,12 @@ class VariantCompositing:
     neither record reaches is copied from the clean image when both lists are one chunk. Owns the
     entries, the slabs and the `Recomp` parameters."""
 
-    def __init__(self, gpu: GPU, max_entries: int, profile: str = "strict", chunk: int = CHUNK):
+    def __init__(self, gpu: GPU, max_entries: int, profile: str = "strict", chunk: int = CHUNK, exact: bool = True):
         self.gpu = gpu
         self.chunk = check_chunk(chunk)
-        constants = {"PROFILE": PROFILE_CODE[profile], "CHUNK_PAIRS": self.chunk}
+        # exact: the clean frames were binned exactly (render/bin.py), so a variant record is listed
+        # where the binning would list it (its footprint reaches the tile), not on its whole rectangle
+        constants = {"PROFILE": PROFILE_CODE[profile], "CHUNK_PAIRS": self.chunk, "EXACT_BIN": int(bool(exact))}
         self.kernel = Kernel(gpu, "composite", "variants", constants=constants)
         self.params = Uniforms(gpu, self.kernel.struct("Recomp"), 1, "recomp")
         self.entry = self.kernel.struct("VariantEntry")

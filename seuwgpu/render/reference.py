@@ -51,7 +51,8 @@ def render_view(model: Model, cam: Camera, background=(1.0, 1.0, 1.0), profile: 
     img = np.empty((H, W, 3), dtype=F)
     with np.errstate(all="ignore"):
         proj = project(model, cam, profile)
-        ranges, prims = tile_lists(proj["rect"], depth_order(proj), TX, TX * TY)
+        records = {"xy": proj["mean2d"], "conic": np.column_stack([proj["conic"], proj["opacity"]])}
+        ranges, prims = tile_lists(proj["rect"], depth_order(proj), TX, TX * TY, records)
         mx, my = proj["mean2d"][:, 0], proj["mean2d"][:, 1]
         for ty in range(TY):
             for tx in range(TX):

@@ -58,6 +58,7 @@ class Renderer:
         keep_views: bool = False,
         viewport=None,
         profile: str = "strict",
+        exact_binning: bool = True,
         chunk: int = CHUNK,
     ):
         self.gpu = gpu or get_gpu()
@@ -85,7 +86,8 @@ class Renderer:
         self.chunks = [self.gpu.upload(w, STORAGE, f"model-chunk-{k}") for k, w in enumerate(self.clean_words)]
         self.projection = Projection(self.gpu, self.n, profile=self.profile)
         self.sorting = Sorting(self.gpu, self.n)
-        self.binning = Binning(self.gpu, self.n)
+        # exact_binning=False pairs whole rectangles (same images; render/bin.py)
+        self.binning = Binning(self.gpu, self.n, exact=exact_binning)
         # chunk: pairs of a tile list per compositing workgroup (render/composite.py; not chunk_prims,
         # the model's storage chunks); tests force small ones
         self.compositing = Compositing(self.gpu, self.profile, chunk)
@@ -231,7 +233,7 @@ class Renderer:
             p.encode(encoder, v * L.n_chunks + c, self.chunks[c], hi - lo, self.box_buf, self.guard_counts)
         self._state_hook(encoder, v, "projected")
         self.sorting.encode_depth(encoder, p.depth_keys, p.depth_vals)
-        b.encode_emit(encoder, v, p.rect, p.depth_vals)
+        b.encode_emit(encoder, v, p.rect, p.depth_vals, p.xy, p.conic)
         self._state_hook(encoder, v, "emitted")
         self.sorting.encode_tiles(encoder, b.isect_tiles, b.isect_prims, b.total(v), self.n_tiles)
         self._state_hook(encoder, v, "sorted")
