@@ -394,6 +394,7 @@ struct Work {
 @group(0) @binding(34) var<storage, read> work_counts: array<u32>;
 
 var<workgroup> s_work: vec4<u32>;
+const VOID: u32 = 0xffffffffu;  // an extra_list item of a tile composited in main
 
 // Composite the pairs [a, b) of the tile at `origin` (one chunk) into p, leaving every pair's
 // pixel box in isect_box (FULL_BOX for those never staged).
@@ -515,12 +516,35 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
         let slot = atomicAdd(&work.slots, n_chunks);
         let at = atomicAdd(&work.extra, n_chunks - 1u);
         atomicMax(&work.extra_groups, min(at + n_chunks - 1u, MAX_GROUPS_X));
-        let m = atomicAdd(&work.merges, 1u);
-        atomicMax(&work.merge_groups, min(m + 1u, MAX_GROUPS_X));
-        merge_list[m] = vec2<u32>(tile, slot);
-        s_work = vec4<u32>(slot, at, 0u, 0u);
+        let fits = slot + n_chunks <= arrayLength(&chunk_slabs) / TILE_PIXELS
+            && at + n_chunks - 1u <= arrayLength(&extra_list);
+        if (fits) {
+            let m = atomicAdd(&work.merges, 1u);
+            atomicMax(&work.merge_groups, min(m + 1u, MAX_GROUPS_X));
+            merge_list[m] = vec2<u32>(tile, slot);
+        }
+        s_work = vec4<u32>(slot, at, u32(fits), 0u);
     }
     let w = workgroupUniformLoad(&s_work);
+    if (w.z == 0u) {
+        // No room for this tile's slabs or work items (only where the ranges list more pairs than
+        // the capacity, e.g. a flipped range): its items are void, its chunks run here in sequence.
+        for (var e = w.y + li; e < min(w.y + n_chunks - 1u, arrayLength(&extra_list)); e = e + LANES) {
+            extra_list[e] = vec4<u32>(VOID, 0u, 0u, 0u);
+        }
+        var acc = p;
+        for (var c = 1u; c < n_chunks; c = c + 1u) {
+            for (var j = 0u; j < QPI; j = j + 1u) {
+                p.q[j] = Quad(acc.q[j].x, acc.q[j].y, vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(1.0),
+                    acc.q[j].done);
+            }
+            let a = range.x + c * CHUNK_PAIRS;
+            composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), origin, lid.x, row0, li);
+            merge_pixels(&acc, &p, false);
+        }
+        write_image(&acc, wg.x, wg.y, lid.x, row0);
+        return;
+    }
     for (var c = 1u + li; c < n_chunks; c = c + LANES) {
         extra_list[w.y + c - 1u] = vec4<u32>(tile, c, w.x + c, 0u);
     }
@@ -531,10 +555,13 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
 @compute @workgroup_size(TILE, ROWS)
 fn chunks(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
           @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    let count = work_counts[1];
+    let count = min(work_counts[1], arrayLength(&extra_list));
     let row0 = lid.y * SPAN;
     for (var e = wg.x; e < count; e = e + nwg.x) {
         let item = extra_list[e];
+        if (item.x == VOID) {
+            continue;
+        }
         let tx = item.x % bin.tiles_x;
         let ty = item.x / bin.tiles_x;
         var p = tile_pixels(tx, ty, lid.x, row0);

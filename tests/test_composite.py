@@ -267,6 +267,22 @@ def test_chunked_frame_matches_twin(gpu):
     assert_close(got, want)
 
 
+def test_chunks_past_the_capacity(gpu):
+    """Ranges that list more pairs than the capacity (as a flipped tile range can): every tile lists
+    the same 1,200 pairs, in chunks of 256, with slabs for one frame of 1,200 pairs. The tiles that
+    find no room composite their chunks in sequence: the same rule, so the twin's image."""
+    rng = np.random.default_rng(22)
+    n, w, h = 1200, 48, 48
+    rec = _dense_records(n, rng, w, h)
+    tiles = (w // 16) * (h // 16)
+    prims = rng.permutation(n)
+    ranges = np.tile([0, n], (tiles, 1))
+    with np.errstate(all="ignore"):
+        want = composite_frame(ranges, prims, rec, w, h, chunk=256)
+    got = gpu_frame(gpu, ranges, prims, rec, w, h, (1.0, 1.0, 1.0), chunk=256)
+    assert_close(got, want)
+
+
 def _dense_model(n: int, seed: int) -> Model:
     """A 32 x 32 frame's worth of primitives: every tile lists ~900 of them (several chunks of 256)."""
     model = random_model(n, seed=seed)

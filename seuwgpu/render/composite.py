@@ -68,7 +68,9 @@ class Compositing:
         takes ceil(n / chunk) < 2 n / chunk slab slots and lists ceil(n / chunk) - 1 <= n / chunk
         later chunks. Slots are taken in the order tiles finish chunk 0 (an atomic counter): where
         a chunk's pixels wait does not change them, and the slabs scale with the pairs, not with
-        the number of tiles."""
+        the number of tiles. Ranges that list more pairs than the capacity (a flipped tile range,
+        faults/state.py) can outgrow them: a tile that finds no room composites its chunks in
+        sequence on its own workgroup (same rule, same image)."""
         cap = int(capacity)
         slots = 2 * (cap // self.chunk) + 2
         need = slots * SLAB_BYTES
@@ -82,7 +84,7 @@ class Compositing:
         self.capacity = cap
         self.slabs = g.buffer(need, STORAGE, "composite.slabs")
         self.extra_list = g.buffer(16 * (cap // self.chunk + 1), STORAGE, "composite.extra_list")
-        self.merge_list = g.buffer(8 * (cap // (self.chunk + 1) + 1), STORAGE, "composite.merge_list")
+        self.merge_list = g.buffer(8 * (slots // 2 + 1), STORAGE, "composite.merge_list")  # >= 2 slots a tile
 
     def encode(self, encoder, frame, ranges, isect_prims, xy, conic, rgb, tiles: tuple[int, int], isect_box):
         """One view: `frame` its Binning slot (render/bin.py), `ranges` / `isect_prims` its tile
