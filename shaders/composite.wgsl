@@ -1,6 +1,7 @@
-// Front-to-back compositing (render/composite.py): one workgroup per TILE x TILE tile. Each
-// invocation composites a column of QPI x QUAD (2 x 4) pixels, held as vec4 lanes (one Quad per 4
-// rows): a staged record is read once for eight pixels, and the workgroup has 8x fewer
+// Front-to-back compositing (render/composite.py): one workgroup per chunk of a TILE x TILE
+// tile's list (CHUNK_PAIRS pairs: most tiles are one chunk; docs/renderer.md "Long tile lists").
+// Each invocation composites a column of QPI x QUAD (2 x 4) pixels, held as vec4 lanes (one Quad
+// per 4 rows): a staged record is read once for eight pixels, and the workgroup has 8x fewer
 // invocations to switch between at barriers (CPU Vulkan runs a workgroup's invocations in SIMD
 // groups, and gathers every per-invocation workgroup-memory read). Intersections are staged
 // through workgroup memory in batches of BATCH records. Rules (skips, NaN-propagating min, early
@@ -16,21 +17,24 @@
 //   invocation or a quad outside it skips the record after one integer test;
 // - an invocation whose pixels have all stopped leaves the batch loop; the workgroup leaves the
 //   tile when all of them have;
-// - `main` stages each invocation's PER_LANE consecutive slots with one bit per slot and quadrant
+// - `main` and `chunks` stage each invocation's PER_LANE consecutive slots with one bit per slot and quadrant
 //   (8 x 8 pixels; an invocation's pixels lie in one) saying whether the record's box meets it, so
 //   an invocation visits only the records of its quadrant, in list order (the others fail its box
 //   test anyway): on CPU Vulkan, where a quadrant is one SIMD group, this cut compositing by a
 //   quarter (spheres 100k, 256x256).
 //
-// Two entry points share the blending code, so their arithmetic is identical bit for bit:
-// - main: a tile of a full frame;
+// The entry points share the blending code (and merge_quad, the one merge of chunks), so their
+// arithmetic is identical bit for bit:
+// - main: chunk 0 of every tile of a full frame (the image of a one-chunk tile); chunks: the later
+//   chunks of long tiles, in parallel, into slabs; merge: those slabs into the image;
 // - variants: a tile of a single-upset variant, re-composited from the clean frame's tile list
 //   with the corrupted primitive removed and its re-projected record merged in at its depth
-//   (render/incremental.py; equal to a full re-render bit for bit). Only the pixels that the
-//   clean or the corrupted record reaches are re-blended; the others are copied. main leaves
-//   every pair's pixel box in isect_box (kept with the clean frame), so a variant tile stages only
-//   the entries whose box meets the bounding box of its re-blended pixels, and reads nothing of
-//   the others (they skip those pixels for certain).
+//   (render/incremental.py; equal to a full re-render bit for bit), its chunks in sequence. Only
+//   the pixels that the clean or the corrupted record reaches are re-blended when both lists are
+//   one chunk; the others are copied. main and chunks leave every pair's pixel box in isect_box
+//   (kept with the clean frame), so a variant tile stages only the entries whose box meets the
+//   bounding box of its re-blended pixels, and reads nothing of the others (they skip those
+//   pixels for certain).
 
 // Renderer profile (docs/renderer.md, "Profiles"): PROFILE_STRICT (default) or PROFILE_GSPLAT.
 override PROFILE: u32 = PROFILE_STRICT;
@@ -309,6 +313,47 @@ fn out_pixel(q: Quad, i: u32, bg: vec3<f32>) -> vec4<f32> {
     return vec4<f32>(vec3<f32>(q.r[i], q.g[i], q.b[i]) + T * bg, T);
 }
 
+// ---- long tile lists: chunks merged front to back ---------------------------------------
+// A tile list of n pairs is cut by list position into ceil(n / CHUNK_PAIRS) chunks; each chunk
+// runs the per-pixel rule from C = 0, T = 1 (with its own early stop), and the chunks merge front
+// to back per pixel (merge_quad, the one merge every path uses): the first chunk's (C, T) is taken
+// as is, each later one as C = C + T * c, T = T * t, and a pixel ends (later chunks ignored) once
+// a chunk stopped early at it or T <= 1e-4 after a merge (docs/renderer.md, "Long tile lists").
+
+// Pairs per chunk (a multiple of BATCH); tests force small chunks on tiny scenes.
+override CHUNK_PAIRS: u32 = CHUNK;
+// Whether the frames were binned exactly (bin.wgsl EXACT_BIN): the variants entry pairs a variant
+// record with a tile as the binning would.
+override EXACT_BIN: bool = true;
+
+// A chunk's pixels (c, t, stopped) merged into the pixels' running (C, T, ended) `acc`.
+fn merge_quad(acc: Quad, c: Quad, first: bool) -> Quad {
+    var q = acc;
+    if (first) {
+        q.r = c.r;
+        q.g = c.g;
+        q.b = c.b;
+        q.T = c.T;
+        q.done = acc.done | c.done;
+        return q;
+    }
+    let live = !acc.done;
+    let T = acc.T;
+    let t = T * c.T;
+    q.r = select(acc.r, acc.r + T * c.r, live);
+    q.g = select(acc.g, acc.g + T * c.g, live);
+    q.b = select(acc.b, acc.b + T * c.b, live);
+    q.T = select(T, t, live);
+    q.done = acc.done | (live & (c.done | (!nan4(t) & (t <= vec4<f32>(1e-4)))));
+    return q;
+}
+
+fn merge_pixels(acc: ptr<function, Pixels>, c: ptr<function, Pixels>, first: bool) {
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        (*acc).q[j] = merge_quad((*acc).q[j], (*c).q[j], first);
+    }
+}
+
 // ---- full frame -----------------------------------------------------------------------------
 @group(0) @binding(0) var<uniform> bin: Binning;
 @group(0) @binding(1) var<storage, read> ranges: array<vec2<u32>>;
@@ -317,35 +362,64 @@ fn out_pixel(q: Quad, i: u32, bg: vec3<f32>) -> vec4<f32> {
 @group(0) @binding(4) var<storage, read> proj_conic: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read> proj_rgb: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read_write> image: array<vec4<f32>>;
-// The pixel box of every pair (FULL_BOX past the point where the tile stopped): the variants
+// The pixel box of every pair (FULL_BOX past the point where its chunk stopped): the variants
 // entry reads the clean frame's copy instead of re-reading records that cannot reach its pixels.
 @group(0) @binding(7) var<storage, read_write> isect_box: array<u32>;
 
-@compute @workgroup_size(TILE, ROWS)
-fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
-        @builtin(local_invocation_index) li: u32) {
-    let tile = wg.y * bin.tiles_x + wg.x;
-    let row0 = lid.y * SPAN;
-    // pixel centres in full-frame coordinates (a sort-first viewport starts at `origin`)
-    let first = vec2<u32>(bin.origin & 0xffffu, bin.origin >> 16u);
-    let tile0 = first + vec2<u32>(wg.x * TILE, wg.y * TILE);
-    var p = make_pixels(tile0.x + lid.x, tile0.y + row0, first, vec2<u32>(bin.width, bin.height));
+// The work main lists for the later passes (zeroed before main, render/composite.py): slab slots
+// taken, later chunks listed, long tiles listed, and the indirect dispatch arguments of `chunks`
+// (byte 16) and `merge` (byte 32): min(listed, MAX_GROUPS_X) workgroups, each striding the list.
+struct Work {
+    slots: atomic<u32>,
+    extra: atomic<u32>,
+    merges: atomic<u32>,
+    pad0: u32,
+    extra_groups: atomic<u32>,
+    extra_y: u32,
+    extra_z: u32,
+    pad1: u32,
+    merge_groups: atomic<u32>,
+    merge_y: u32,
+    merge_z: u32,
+    pad2: u32,
+};
+
+@group(0) @binding(30) var<storage, read_write> work: Work;
+// One slot of TILE x TILE (c.rgb, t) per chunk of a long tile; t is stored negated where the chunk
+// stopped early (t > 1e-4 there, so the sign is free; a NaN t never stops).
+@group(0) @binding(31) var<storage, read_write> chunk_slabs: array<vec4<f32>>;
+@group(0) @binding(32) var<storage, read_write> extra_list: array<vec4<u32>>;  // tile, chunk, slot, 0
+@group(0) @binding(33) var<storage, read_write> merge_list: array<vec2<u32>>;  // tile, first slot
+// the same buffer as `work`, read-only: the later passes also take their indirect arguments from it
+@group(0) @binding(34) var<storage, read> work_counts: array<u32>;
+
+var<workgroup> s_work: vec4<u32>;
+const VOID: u32 = 0xffffffffu;  // an extra_list item of a tile composited in main
+
+// Composite the pairs [a, b) of the tile at `origin` (one chunk) into p, leaving every pair's
+// pixel box in isect_box (FULL_BOX for those never staged).
+fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, col: u32, row0: u32, li: u32) {
     if (li == 0u) {
         atomicStore(&s_done, 0u);
     }
     workgroupBarrier();
-    count_if_done(&p);
-    let range = ranges[tile];
-    let n = range.y - range.x;
-    let batches = (n + BATCH - 1u) / BATCH;
-    let origin = vec2<f32>(tile0);
+    count_if_done(p);
+    let n = b - a;
+    var batches = (n + BATCH - 1u) / BATCH;
+    if (all_done(li)) {
+        // every pixel finished before (a later chunk of pixels that ended in chunk 0)
+        for (var idx = a + li; idx < b; idx = idx + LANES) {
+            isect_box[idx] = FULL_BOX;
+        }
+        batches = 0u;
+    }
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
         var boxes: array<u32, PER_LANE>;
         for (var s = 0u; s < PER_LANE; s = s + 1u) {
             let i = li * PER_LANE + s;
-            let idx = range.x + bt * BATCH + i;
+            let idx = a + bt * BATCH + i;
             boxes[s] = EMPTY_BOX;
-            if (idx < range.y) {
+            if (idx < b) {
                 let g = isect_prims[idx];
                 boxes[s] = stage(i, proj_xy[g], proj_conic[g], proj_rgb[g], origin);
                 isect_box[idx] = boxes[s];
@@ -353,24 +427,178 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
         }
         write_qmask(li, boxes);
         workgroupBarrier();
-        blend_batch_masked(&p, lid.x, row0, lid.x / (TILE / 2u) + 2u * (row0 / (TILE / 2u)));
+        blend_batch_masked(p, col, row0, col / (TILE / 2u) + 2u * (row0 / (TILE / 2u)));
         if (all_done(li)) {
             // the pairs never staged: no box known
-            for (var idx = range.x + (bt + 1u) * BATCH + li; idx < range.y; idx = idx + LANES) {
+            for (var idx = a + (bt + 1u) * BATCH + li; idx < b; idx = idx + LANES) {
                 isect_box[idx] = FULL_BOX;
             }
             break;
         }
     }
+}
+
+// A chunk's pixels into slab `slot` (t negated where stopped: done lanes outside the viewport are
+// never merged).
+fn write_slab(p: ptr<function, Pixels>, slot: u32, col: u32, row0: u32) {
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        let q = (*p).q[j];
+        let t = select(q.T, -q.T, q.done);
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            let ly = row0 + QUAD * j + i;
+            chunk_slabs[slot * TILE_PIXELS + ly * TILE + col] = vec4<f32>(q.r[i], q.g[i], q.b[i], t[i]);
+        }
+    }
+}
+
+fn read_slab(slot: u32, col: u32, row0: u32, p0: Pixels) -> Pixels {
+    var p = p0;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        var t: vec4<f32>;
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            let v = chunk_slabs[slot * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + col];
+            p.q[j].r[i] = v.x;
+            p.q[j].g[i] = v.y;
+            p.q[j].b[i] = v.z;
+            t[i] = v.w;
+        }
+        let stopped = t < vec4<f32>(0.0);
+        p.q[j].T = select(t, -t, stopped);
+        p.q[j].done = stopped;
+    }
+    return p;
+}
+
+// The viewport's pixels of a tile (tile-local column `col`, rows row0 ..) into the image.
+fn write_image(p: ptr<function, Pixels>, tx: u32, ty: u32, col: u32, row0: u32) {
     let bg = bin.background.xyz;
-    let x = wg.x * TILE + lid.x;
+    let x = tx * TILE + col;
     for (var j = 0u; j < QPI; j = j + 1u) {
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            let y = wg.y * TILE + row0 + QUAD * j + i;
+            let y = ty * TILE + row0 + QUAD * j + i;
             if (x < bin.width && y < bin.height) {
-                image[(bin.stats_index * bin.height + y) * bin.width + x] = out_pixel(p.q[j], i, bg);
+                image[(bin.stats_index * bin.height + y) * bin.width + x] = out_pixel((*p).q[j], i, bg);
             }
         }
+    }
+}
+
+// The first pixel of tile (tx, ty) in full-frame coordinates (a sort-first viewport starts at
+// `origin`).
+fn tile_first(tx: u32, ty: u32) -> vec2<u32> {
+    return vec2<u32>(bin.origin & 0xffffu, bin.origin >> 16u) + vec2<u32>(tx * TILE, ty * TILE);
+}
+
+fn tile_pixels(tx: u32, ty: u32, col: u32, row0: u32) -> Pixels {
+    let tile0 = tile_first(tx, ty);
+    let first = vec2<u32>(bin.origin & 0xffffu, bin.origin >> 16u);
+    return make_pixels(tile0.x + col, tile0.y + row0, first, vec2<u32>(bin.width, bin.height));
+}
+
+// Chunk 0 of every tile; a tile of one chunk writes its pixels, a longer one its slab, and lists
+// its later chunks (for `chunks`) and its merge (for `merge`).
+@compute @workgroup_size(TILE, ROWS)
+fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
+        @builtin(local_invocation_index) li: u32) {
+    let tile = wg.y * bin.tiles_x + wg.x;
+    let row0 = lid.y * SPAN;
+    var p = tile_pixels(wg.x, wg.y, lid.x, row0);
+    let range = ranges[tile];
+    let n = range.y - range.x;
+    let origin = vec2<f32>(tile_first(wg.x, wg.y));
+    composite_range(&p, range.x, range.x + min(n, CHUNK_PAIRS), origin, lid.x, row0, li);
+    if (n <= CHUNK_PAIRS) {
+        write_image(&p, wg.x, wg.y, lid.x, row0);
+        return;
+    }
+    let n_chunks = (n + CHUNK_PAIRS - 1u) / CHUNK_PAIRS;
+    if (li == 0u) {
+        let slot = atomicAdd(&work.slots, n_chunks);
+        let at = atomicAdd(&work.extra, n_chunks - 1u);
+        atomicMax(&work.extra_groups, min(at + n_chunks - 1u, MAX_GROUPS_X));
+        let fits = slot + n_chunks <= arrayLength(&chunk_slabs) / TILE_PIXELS
+            && at + n_chunks - 1u <= arrayLength(&extra_list);
+        if (fits) {
+            let m = atomicAdd(&work.merges, 1u);
+            atomicMax(&work.merge_groups, min(m + 1u, MAX_GROUPS_X));
+            merge_list[m] = vec2<u32>(tile, slot);
+        }
+        s_work = vec4<u32>(slot, at, u32(fits), 0u);
+    }
+    let w = workgroupUniformLoad(&s_work);
+    if (w.z == 0u) {
+        // No room for this tile's slabs or work items (only where the ranges list more pairs than
+        // the capacity, e.g. a flipped range): its items are void, its chunks run here in sequence.
+        for (var e = w.y + li; e < min(w.y + n_chunks - 1u, arrayLength(&extra_list)); e = e + LANES) {
+            extra_list[e] = vec4<u32>(VOID, 0u, 0u, 0u);
+        }
+        var acc = p;
+        for (var c = 1u; c < n_chunks; c = c + 1u) {
+            for (var j = 0u; j < QPI; j = j + 1u) {
+                p.q[j] = Quad(acc.q[j].x, acc.q[j].y, vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(1.0),
+                    acc.q[j].done);
+            }
+            let a = range.x + c * CHUNK_PAIRS;
+            composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), origin, lid.x, row0, li);
+            merge_pixels(&acc, &p, false);
+        }
+        write_image(&acc, wg.x, wg.y, lid.x, row0);
+        return;
+    }
+    for (var c = 1u + li; c < n_chunks; c = c + LANES) {
+        extra_list[w.y + c - 1u] = vec4<u32>(tile, c, w.x + c, 0u);
+    }
+    write_slab(&p, w.x, lid.x, row0);
+}
+
+// The later chunks of long tiles, from main's list, each into its slab.
+@compute @workgroup_size(TILE, ROWS)
+fn chunks(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+          @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    let count = min(work_counts[1], arrayLength(&extra_list));
+    let row0 = lid.y * SPAN;
+    for (var e = wg.x; e < count; e = e + nwg.x) {
+        let item = extra_list[e];
+        if (item.x == VOID) {
+            continue;
+        }
+        let tx = item.x % bin.tiles_x;
+        let ty = item.x / bin.tiles_x;
+        var p = tile_pixels(tx, ty, lid.x, row0);
+        // pixels that stopped in chunk 0 have ended: the merge ignores their later chunks, so they
+        // are not composited (a dense opaque region costs one chunk, not all of them)
+        let first = read_slab(item.z - item.y, lid.x, row0, p);
+        for (var j = 0u; j < QPI; j = j + 1u) {
+            p.q[j].done = p.q[j].done | first.q[j].done;
+        }
+        let range = ranges[item.x];
+        let a = range.x + item.y * CHUNK_PAIRS;
+        composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), vec2<f32>(tile_first(tx, ty)), lid.x, row0, li);
+        write_slab(&p, item.z, lid.x, row0);
+    }
+}
+
+// The image pixels of long tiles: their chunks' slabs merged front to back.
+@compute @workgroup_size(TILE, ROWS)
+fn merge(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+         @builtin(local_invocation_id) lid: vec3<u32>) {
+    let count = work_counts[2];
+    let row0 = lid.y * SPAN;
+    for (var e = wg.x; e < count; e = e + nwg.x) {
+        let item = merge_list[e];
+        let tx = item.x % bin.tiles_x;
+        let ty = item.x / bin.tiles_x;
+        var acc = tile_pixels(tx, ty, lid.x, row0);
+        let range = ranges[item.x];
+        let n_chunks = (range.y - range.x + CHUNK_PAIRS - 1u) / CHUNK_PAIRS;
+        for (var c = 0u; c < n_chunks; c = c + 1u) {
+            var ch = read_slab(item.y + c, lid.x, row0, acc);
+            merge_pixels(&acc, &ch, c == 0u);
+            if (all_pixels_done(&acc)) {
+                break;
+            }
+        }
+        write_image(&acc, tx, ty, lid.x, row0);
     }
 }
 
@@ -452,7 +680,9 @@ fn boxes_meet(a: u32, b: u32) -> bool {
     return x0 <= x1 && y0 <= y1;
 }
 
-var<workgroup> s_list: vec4<u32>;   // (n virtual, insert position or 0xffffffff, removed position or 0xffffffff, 0)
+// (n virtual, insert position or 0xffffffff, removed position or 0xffffffff, 1 if the clean or
+// the virtual list has more than one chunk)
+var<workgroup> s_list: vec4<u32>;
 
 // Lanes of the quad that a record takes part in (the same arithmetic and skip rules as
 // blend_batch). A pixel that neither the clean nor the corrupted record reaches composites
@@ -521,9 +751,17 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
             removed = qpos;
         }
         // the re-projected variant, if its rectangle covers this tile
+        // the re-projected variant, if the binning pairs it with this tile (its rectangle covers the
+        // tile and, under exact binning, its footprint reaches it: bin.wgsl's rule; an extra pair
+        // that draws nothing would still move the chunk boundaries of a long list)
         let r = var_rect[vi];
         var insert = 0xffffffffu;
-        if ((r.x & 0xffffu) <= tx && tx < (r.y & 0xffffu) && (r.x >> 16u) <= ty && ty < (r.y >> 16u)) {
+        var paired = (r.x & 0xffffu) <= tx && tx < (r.y & 0xffffu) && (r.x >> 16u) <= ty && ty < (r.y >> 16u);
+        if (paired && EXACT_BIN) {
+            let cols = row_tiles(reach(var_xy[vi], var_conic[vi]), f32(ty * TILE), 0.0, r.x & 0xffffu, r.y & 0xffffu);
+            paired = cols.x <= tx && tx < cols.y;
+        }
+        if (paired) {
             var ip = count_before(v, range.x, range.y, bitcast<u32>(var_rgb[vi].w), prim);
             if (removed != 0xffffffffu && removed < ip) {
                 ip = ip - 1u;
@@ -533,19 +771,21 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         var nv = n;
         if (removed != 0xffffffffu) { nv = nv - 1u; }
         if (insert != 0xffffffffu) { nv = nv + 1u; }
-        s_list = vec4<u32>(nv, insert, removed, 0u);
+        s_list = vec4<u32>(nv, insert, removed, u32(n > CHUNK_PAIRS || nv > CHUNK_PAIRS));
     }
     let list = workgroupUniformLoad(&s_list);
     let nv = list.x;
     let insert = list.y;
     let removed = list.z;
-    // pixels that neither the clean nor the corrupted record reaches: copied from the clean frame
+    let multi = list.w != 0u;
+    // pixels that neither the clean nor the corrupted record reaches: copied from the clean frame,
+    // only when both lists are one chunk (a removal or an insertion shifts the chunk boundaries)
     let o = v * rc.n_prims + prim;
     var copy_clean: array<vec4<bool>, QPI>;
     for (var j = 0u; j < QPI; j = j + 1u) {
         let old_hits = contributes(kv_xy[o], kv_conic[o], p.q[j]) & vec4<bool>(removed != 0xffffffffu);
         let new_hits = contributes(var_xy[vi], var_conic[vi], p.q[j]) & vec4<bool>(insert != 0xffffffffu);
-        copy_clean[j] = !p.q[j].done & !old_hits & !new_hits;
+        copy_clean[j] = !p.q[j].done & !old_hits & !new_hits & vec4<bool>(!multi);
         p.q[j].done = p.q[j].done | copy_clean[j];
     }
     count_if_done(&p);
@@ -565,7 +805,30 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         | (atomicLoad(&s_active[3]) << 24u);
     let origin = vec2<f32>(tile0);
     let batches = (nv + BATCH - 1u) / BATCH;
+    // the chunk rule of main, sequentially: `acc` holds the chunks merged so far, p the current
+    // chunk (virtual list entries [CHUNK_PAIRS c, CHUNK_PAIRS (c + 1)); batches never straddle two)
+    var acc = p;
+    var chunk = 0u;
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
+        if (bt * BATCH == (chunk + 1u) * CHUNK_PAIRS) {
+            merge_pixels(&acc, &p, chunk == 0u);
+            chunk = chunk + 1u;
+            for (var j = 0u; j < QPI; j = j + 1u) {
+                p.q[j].r = vec4<f32>(0.0);
+                p.q[j].g = vec4<f32>(0.0);
+                p.q[j].b = vec4<f32>(0.0);
+                p.q[j].T = vec4<f32>(1.0);
+                p.q[j].done = acc.q[j].done;
+            }
+            if (li == 0u) {
+                atomicStore(&s_done, 0u);
+            }
+            workgroupBarrier();
+            count_if_done(&p);
+            if (all_done(li)) {
+                break;  // every pixel ended: the later chunks are ignored
+            }
+        }
         // Each invocation takes PER_LANE consecutive list entries; only those whose pixel box
         // meets the live pixels are staged, compacted in list order (an exclusive scan of the
         // per-invocation counts), so the blend loop never visits the others.
@@ -609,6 +872,11 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         if (all_done(li)) {
             break;
         }
+    }
+    if (multi) {
+        // the last chunk (a no-op where every pixel had ended at a chunk boundary)
+        merge_pixels(&acc, &p, chunk == 0u);
+        p = acc;
     }
     let bg = rc.background.xyz;
     let x = tile0.x + lid.x;

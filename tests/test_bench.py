@@ -83,7 +83,7 @@ def test_main_writes_json_only_where_told(bench, gpu, tmp_path, capsys, monkeypa
 
 def test_memory_tool_accounts_every_buffer(tmp_path):
     """tools/memory.py: the stored model is exactly 4 bytes per fp32 value, the buckets add up to
-    the device total, the pair buffers are 3 u32 per pair slot."""
+    the device total, the tile lists are 3 u32 per pair slot."""
     spec = importlib.util.spec_from_file_location("seuwgpu_memory", BENCH.parent / "memory.py")
     mem = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mem)
@@ -93,5 +93,20 @@ def test_memory_tool_accounts_every_buffer(tmp_path):
     model = sum(v for k, v in rec["by_label"].items() if k.startswith("model-chunk"))
     assert 236 * 3000 <= model < 236 * 3000 + 16  # 59 fp32 values per primitive, 16-byte padding
     assert sum(rec["by_label"].values()) == rec["device_bytes"]
-    assert rec["bytes_per_pair_capacity"] == 12 and 0 < rec["pairs"] <= rec["capacity"]
+    lists = sum(v for k, v in rec["by_label"].items() if k.startswith("bin.isect"))
+    assert lists == 12 * rec["capacity"] and 12 < rec["bytes_per_pair_capacity"] < 16  # + chunk slabs
+    assert 0 < rec["pairs"] <= rec["capacity"]
     assert rec["pixel_bytes"] == 16 * 48 * 32 and rec["view_s"] > 0
+
+
+def test_chunking_fields(bench, gpu):
+    """--dense: the shrunk scene lists long tiles (chunks of 256 here); both timings are measured
+    and draw nearly the same image (the chunk rule differs only where pixels saturate)."""
+    from seuwgpu.model import scenes
+
+    model = bench.dense_model(scenes.make_scene("spheres", 3000, 1, 0), 0.3)
+    rec = bench.measure_chunking(model, "spheres", 32, 1, repeats=1, gpu=gpu, chunk=256)
+    json.dumps(rec)
+    assert rec["ms_per_view_chunked"] > 0 and rec["ms_per_view_off"] > 0 and rec["speedup"] > 0
+    assert rec["max_pairs_per_tile"] > 256 and rec["long_tiles"] > 0 and rec["tiles"] == 4
+    assert rec["psnr_view0_chunked_vs_off_db"] > 40

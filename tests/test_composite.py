@@ -5,8 +5,10 @@ Which pixels are non-finite is exact; finite values agree to 1e-5 of max(1, |val
 exp and fused multiply-adds may differ from numpy's float32 by an ulp (measured: <= 2.4e-7)."""
 
 import numpy as np
+import pytest
 from conftest import random_model
 
+from seuwgpu.gpu.constants import CHUNK
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import orbit_cameras
 from seuwgpu.model.fields import Model
@@ -29,7 +31,7 @@ def assert_close(got, want):
     assert err.max(initial=0) <= TOL, err.max()
 
 
-def gpu_frame(gpu, ranges, prims, rec: dict, w: int, h: int, background) -> np.ndarray:
+def gpu_frame(gpu, ranges, prims, rec: dict, w: int, h: int, background, chunk=CHUNK) -> np.ndarray:
     """composite.wgsl:main on the given tile lists and screen records: [h, w, 4] (rgb, T)."""
     tx, ty = -(-w // 16), -(-h // 16)
     frame = Binning(gpu, len(rec["opacity"]))
@@ -37,8 +39,9 @@ def gpu_frame(gpu, ranges, prims, rec: dict, w: int, h: int, background) -> np.n
     frame.set_capacity(len(prims))
     frame.set_view(0, tiles_x=tx, size=(w, h), origin=(0, 0), background=background)
     frame.params.write()
-    stage = Compositing(gpu)
+    stage = Compositing(gpu, chunk=chunk)
     stage.set_views(1, w, h)
+    stage.set_capacity(len(prims))
     depth = rec.get("depth", np.zeros(len(rec["opacity"])))
     enc = gpu.device.create_command_encoder()
     stage.encode(
@@ -183,3 +186,181 @@ def test_shortcuts_match_twin(gpu):
     assert (quiet[..., 3] > 0.01).mean() > 0.9  # no pixel stops early: each sees the whole list
     assert np.isfinite(want).all()
     assert_close(got, want)
+
+
+# ---- long tile lists: chunks merged front to back -------------------------------------------------
+def _flat_records(opacity, rgb, w=16, h=16) -> dict:
+    """Records with conic 0 (sigma = 0 at every pixel: alpha = min(0.99, o) everywhere)."""
+    n = len(opacity)
+    return {
+        "mean2d": np.full((n, 2), [w / 2, h / 2], np.float32),
+        "conic": np.zeros((n, 3), np.float32),
+        "opacity": np.asarray(opacity, np.float32),
+        "rgb": np.asarray(rgb, np.float32),
+    }
+
+
+def test_chunk_merge_by_hand(gpu):
+    """Three chunks of 256: chunk 0 holds a red alpha = 3/4, chunk 1 seven greens alpha = 3/4 and
+    chunk 2 a blue (the rest alpha = 0, skipped). All values are short binary fractions, so the
+    results are exact on any device. Chunk 0: c = (3/4, 0, 0), t = 1/4. Chunk 1 from T = 1: six
+    greens add 3/4 (1 + 1/4 + ... + 1/4^5) = 1 - 4^-6 and the seventh stops it (T would be 4^-7 <=
+    1e-4): c = (0, 1 - 4^-6, 0), t = 4^-6, stopped. Merged: C = (3/4, (1 - 4^-6) / 4, 0),
+    T = 4^-7, and the pixel ends (chunk 1 stopped), so the blue is ignored. One chunk (the per-pixel
+    rule): the fifth green stops it, at green = 3/16 (1 + ... + 1/4^4), T = 4^-6."""
+    op = np.zeros(513)
+    rgb = np.zeros((513, 3))
+    op[0], rgb[0] = 0.75, [1, 0, 0]
+    op[256:263], rgb[256:263] = 0.75, [0, 1, 0]
+    op[512], rgb[512] = 0.75, [0, 0, 1]
+    rec = _flat_records(op, rgb)
+    ranges, prims, bg = np.array([[0, 513]]), np.arange(513), (0.5, 0.5, 0.5)
+    chunked = [0.75, (1 - 4.0**-6) / 4, 0.0, 4.0**-7]
+    whole = [0.75, 3 / 16 * (1 + 1 / 4 + 1 / 16 + 1 / 64 + 1 / 256), 0.0, 4.0**-6]
+    for chunk, (r, g, b, T) in ((256, chunked), (4096, whole)):
+        want = np.array([r + 0.5 * T, g + 0.5 * T, b + 0.5 * T, T], np.float32)
+        got = gpu_frame(gpu, ranges, prims, rec, 16, 16, bg, chunk=chunk)
+        twin = composite_frame(ranges, prims, rec, 16, 16, background=bg, chunk=chunk)
+        assert (got == want).all() and (twin == want).all(), (chunk, got[0, 0], twin[0, 0], want)
+
+
+def _dense_records(n: int, rng, w: int, h: int) -> dict:
+    """Many small splats over a w x h frame, mostly faint (pixels go through several chunks before
+    they saturate), some opaque, a few non-finite colours."""
+    s = np.exp(rng.uniform(np.log(1.0), np.log(6.0), (2, n)))
+    ang = rng.uniform(0, np.pi, n)
+    c, si = np.cos(ang), np.sin(ang)
+    a = c * c * s[0] ** 2 + si * si * s[1] ** 2 + 0.3
+    b = c * si * (s[0] ** 2 - s[1] ** 2)
+    cc = si * si * s[0] ** 2 + c * c * s[1] ** 2 + 0.3
+    det = a * cc - b * b
+    op = rng.uniform(0.0, 0.3, n)
+    op[rng.random(n) < 0.03] = 0.99
+    rgb = rng.uniform(0, 1, (n, 3))
+    rgb[rng.choice(n, 3, replace=False), 1] = [np.inf, np.nan, 0.5]
+    return {
+        "mean2d": rng.uniform(-4, [w + 4, h + 4], (n, 2)).astype(np.float32),
+        "conic": np.column_stack([cc / det, -b / det, a / det]).astype(np.float32),
+        "opacity": op.astype(np.float32),
+        "rgb": rgb.astype(np.float32),
+    }
+
+
+def test_chunked_frame_matches_twin(gpu):
+    """Tiles of ~1,200 pairs in chunks of 256 (five per tile): GPU against the twin under the same
+    chunk rule; the rule itself is visible (the twin without chunks differs beyond the tolerance)."""
+    rng = np.random.default_rng(21)
+    n, w, h = 1200, 40, 36
+    rec = _dense_records(n, rng, w, h)
+    tx, ty = -(-w // 16), -(-h // 16)
+    order = rng.permutation(n)
+    prims = np.tile(order, tx * ty)
+    ranges = np.stack([np.arange(tx * ty) * n, np.arange(1, tx * ty + 1) * n], axis=1)
+    bg = (0.2, 0.3, 0.4)
+    with np.errstate(all="ignore"):
+        want = composite_frame(ranges, prims, rec, w, h, background=bg, chunk=256)
+        whole = composite_frame(ranges, prims, rec, w, h, background=bg)
+    got = gpu_frame(gpu, ranges, prims, rec, w, h, bg, chunk=256)
+    assert (~np.isfinite(want)).any() and (want[..., 3] < 1e-4).any() and (want[..., 3] > 0.01).any()
+    fin = np.isfinite(want) & np.isfinite(whole)
+    assert np.abs(want[fin] - whole[fin]).max() > 100 * TOL
+    assert_close(got, want)
+
+
+def test_chunks_past_the_capacity(gpu):
+    """Ranges that list more pairs than the capacity (as a flipped tile range can): every tile lists
+    the same 1,200 pairs, in chunks of 256, with slabs for one frame of 1,200 pairs. The tiles that
+    find no room composite their chunks in sequence: the same rule, so the twin's image."""
+    rng = np.random.default_rng(22)
+    n, w, h = 1200, 48, 48
+    rec = _dense_records(n, rng, w, h)
+    tiles = (w // 16) * (h // 16)
+    prims = rng.permutation(n)
+    ranges = np.tile([0, n], (tiles, 1))
+    with np.errstate(all="ignore"):
+        want = composite_frame(ranges, prims, rec, w, h, chunk=256)
+    got = gpu_frame(gpu, ranges, prims, rec, w, h, (1.0, 1.0, 1.0), chunk=256)
+    assert_close(got, want)
+
+
+def _dense_model(n: int, seed: int) -> Model:
+    """A 32 x 32 frame's worth of primitives: every tile lists ~900 of them (several chunks of 256)."""
+    model = random_model(n, seed=seed)
+    flat = model.flat()
+    flat[:, 10] -= 2.0  # fainter: pixels go through several chunks
+    return Model.from_flat(flat, model.sh_degree)
+
+
+def test_chunked_renders_are_exact(gpu):
+    """With chunks of 256: re-renders and a sort-first viewport are bit-exact; the default chunk
+    (every tile one chunk here) gives the image of chunking switched off, bit for bit."""
+    model = _dense_model(1500, 3)
+    cams = orbit_cameras(2, 32, 32)
+    r = Renderer(model, cams, gpu=gpu, chunk=256)
+    a = r.render_rgba()
+    counts = np.diff(gpu.read(r.binning.ranges).reshape(-1, 2), axis=1)
+    assert counts.min() > 512  # every tile of the last view has at least three chunks
+    b = Renderer(model, cams, gpu=gpu, chunk=256).render_rgba()
+    assert np.array_equal(a.view(np.uint32), b.view(np.uint32))
+    assert np.array_equal(a.view(np.uint32), r.render_rgba().view(np.uint32))
+    band = Renderer(model, cams, gpu=gpu, chunk=256, viewport=(16, 0, 16, 32)).render_rgba()  # sort-first
+    assert np.array_equal(band.view(np.uint32), a[:, :, 16:32].view(np.uint32))
+    default = Renderer(model, cams, gpu=gpu).render_rgba()
+    off = Renderer(model, cams, gpu=gpu, chunk=1 << 30).render_rgba()
+    assert np.array_equal(default.view(np.uint32), off.view(np.uint32))
+    assert not np.array_equal(a, default)  # the chunk reaches the shader
+
+
+@pytest.mark.parametrize("profile, exact", [("strict", True), ("gsplat", True), ("strict", False)])
+def test_chunked_incremental_equals_full_rerender(gpu, profile, exact):
+    """The variants entry under chunks of 256 re-composites every dirty tile exactly as a full
+    re-render of the variant does, bit for bit, for upsets that move a primitive inside long tile
+    lists (depth), make it a sheet, opaque or NaN, or remove it; with exact binning (the variant is
+    listed only on the tiles its footprint reaches, as the binning lists it) and without."""
+    model = _dense_model(1500, 4)
+    cams = orbit_cameras(2, 32, 32)
+    kw = {"gpu": gpu, "chunk": 256, "profile": profile, "exact_binning": exact}
+    r = Renderer(model, cams, keep_views=True, **kw)
+    r.capture_views = True
+    clean = r.render_rgba()
+    r.capture_views = False
+    comp = IncrementalCompositor(r, gpu.upload(clean), max_variants=8, max_entries=512)
+    prims = np.array([5, 77, 300, 301, 900, 1200, 1499])
+    flat = r.layout.decode(r.clean_words).flat()
+    bits = encoding.to_bits(flat[prims], "fp32")
+    bits[0, 2] ^= np.uint32(1 << 29)  # mean z: moves in depth
+    bits[1, 2] ^= np.uint32(1 << 22)  # mean z mantissa: a small move in the list
+    bits[2, 3] ^= np.uint32(1 << 31)  # log-scale sign: a sheet over every tile
+    bits[3, 10] ^= np.uint32(1 << 30)  # opacity exponent
+    bits[4, 11] = 0x7FC00000  # NaN colour
+    bits[5, 0] = 0x7FC00000  # NaN mean: removed from every list
+    bits[6, 5] ^= np.uint32(1 << 30)  # log-scale exponent: huge
+    new_rects = comp.project(bits)
+    dirty = comp.dirty_tiles(prims, new_rects)
+    enc = gpu.device.create_command_encoder()
+    _, b_idx, v_idx, t_idx = comp.encode(enc, prims, dirty, 0)
+    gpu.submit(enc)
+    slabs = comp.read_slabs(len(b_idx)).view(np.uint32)
+    assert len(b_idx) >= 20
+    for b, p in enumerate(prims):
+        f = flat.copy()
+        f[p] = encoding.from_bits(bits[b : b + 1], "fp32")[0]
+        full = Renderer(Model.from_flat(f, r.degree), cams, **kw).render_rgba()
+        full = full.view(np.uint32)
+        for e in np.flatnonzero(b_idx == b):
+            v, t = v_idx[e], t_idx[e]
+            ty, tx = divmod(int(t), r.tiles_x)
+            want = full[v, ty * 16 : ty * 16 + 16, tx * 16 : tx * 16 + 16]
+            assert np.array_equal(slabs[e], want), (b, v, t)
+
+
+def test_chunk_and_slab_limits(gpu):
+    """A chunk that is not a positive multiple of the batch, and slabs past one storage binding,
+    are refused with a one-line error naming the chunk."""
+    for bad in (0, 100, -256):
+        with pytest.raises(ValueError, match=f"chunk={bad}"):
+            Compositing(gpu, chunk=bad)
+    stage = Compositing(gpu, chunk=256)
+    with pytest.raises(ValueError, match="chunks of 256 pairs need .* more than one storage binding"):
+        stage.set_capacity(gpu.max_binding // 4)
+    stage.set_capacity(1 << 16)  # what a small scene needs: fine

@@ -36,6 +36,9 @@ For each (scene, N, size, K) the embedded scene is rendered from K orbit views i
   pixel of its tile would need; ours skips most evaluations that provably cannot contribute, so
   it may run faster than this floor), every other stage against the bytes it must read and write
   at the measured copy rate (a lower bound: STAGE_BYTES below). "% of floor" = floor / time.
+- with --dense FACTOR: load balance of long tile lists. The scene shrunk about its centre by
+  FACTOR (means and scales; a few tiles list most pairs) is timed with the default CHUNK and with
+  chunking off (every tile list on one workgroup), in the same run (render/composite.py).
 - injections per second of a campaign (the incremental single-upset path of faults/engine.py on
   the same scene: K = 4 views at 128x128, stratified sites as tools/bench_campaign.py draws them),
   unless --campaign-samples 0.
@@ -63,9 +66,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import wgpu  # noqa: E402
 
-from seuwgpu.gpu.constants import TILE  # noqa: E402
+from seuwgpu.gpu.constants import CHUNK, TILE  # noqa: E402
 from seuwgpu.gpu.device import GPU, get_gpu  # noqa: E402
 from seuwgpu.model import scenes  # noqa: E402
+from seuwgpu.model.fields import Model  # noqa: E402
 from seuwgpu.render import reference  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
 from seuwgpu.render.sort import tile_key_bits  # noqa: E402
@@ -82,6 +86,8 @@ _STAGE_OF = {
     "bin:emit": "emit",
     "bin:tile_ranges": "ranges",
     "composite:main": "composite",
+    "composite:chunks": "composite",
+    "composite:merge": "composite",
 }
 
 
@@ -422,6 +428,44 @@ def bench_config(
     return rec
 
 
+CHUNK_OFF = 1 << 30  # a chunk longer than any tile list: every tile on one workgroup
+
+
+def dense_model(model, factor: float = 0.1):
+    """The scene shrunk about its centre by `factor` (means and scales): the same primitives drawn
+    into a few tiles, each listing a large share of them (the load-balance case of long tile lists)."""
+    flat = model.flat().copy()
+    centre = flat[:, 0:3].mean(axis=0)
+    flat[:, 0:3] = centre + factor * (flat[:, 0:3] - centre)
+    flat[:, 3:6] += np.log(factor)
+    return Model.from_flat(flat, model.sh_degree)
+
+
+def measure_chunking(
+    model, scene: str, size: int, k: int, *, repeats: int = 3, gpu: GPU | None = None, chunk: int = CHUNK
+) -> dict:
+    """ms per view of the same frames composited in chunks of `chunk` pairs (default CHUNK) and
+    with chunking off (CHUNK_OFF), in this run, on the same device; `model` is typically
+    dense_model(...)."""
+    gpu = gpu or get_gpu()
+    cams = scenes.scene_cameras(scene, k, size, size)
+    out = {"scene": scene, "n": int(model.n), "width": size, "height": size, "k": k, "chunk": int(chunk)}
+    images = {}
+    for name, ch in (("chunked", chunk), ("off", CHUNK_OFF)):
+        r = Renderer(model, cams, gpu=gpu, chunk=ch)
+        _submission(r)  # warm-up
+        times = [_submission(r)[0] for _ in range(max(1, int(repeats)))]
+        out[f"ms_per_view_{name}"] = 1e3 * statistics.median(times) / k
+        images[name] = gpu.read(r.image, np.float32, 0, 16 * size * size).reshape(size, size, 4)[..., :3]
+        counts = np.diff(gpu.read(r.binning.ranges).reshape(-1, 2), axis=1)[:, 0]  # the last view's tiles
+    out["max_pairs_per_tile"] = int(counts.max())
+    out["long_tiles"] = int((counts > chunk).sum())
+    out["tiles"] = int(counts.size)
+    out["speedup"] = out["ms_per_view_off"] / out["ms_per_view_chunked"]
+    out["psnr_view0_chunked_vs_off_db"] = _psnr(images["chunked"], images["off"])
+    return out
+
+
 def measure_twin(scene: str, model, size: int, views: int = 1, max_n: int = 1_000_000, seed: int = 0) -> dict:
     """Seconds per view of reference.render on view(s) 0.. of the orbit set, at the model's N
     (or at `max_n` primitives of the same scene when the model is larger)."""
@@ -475,6 +519,7 @@ def run_grid(
     sh_degree=3,
     seed=0,
     campaign_samples=256,
+    dense=None,
     log=print,
 ) -> dict:
     """The whole benchmark; returns the JSON document."""
@@ -501,6 +546,7 @@ def run_grid(
         "floors": floors,
         "results": [],
         "campaigns": [],
+        "chunking": [],
     }
     for scene in scene_names:
         for n in ns:
@@ -530,6 +576,15 @@ def run_grid(
                         f"[{scene} N={n} {size}x{size} K={k}] {rec['mpix_per_s']:.3f} Mpix/s, "
                         f"{rec['ms_per_view']:.1f} ms/view (median of {rec['repeats']})"
                     )
+                    if dense:
+                        c = measure_chunking(dense_model(model, dense), scene, size, k, repeats=repeats, gpu=gpu)
+                        c["dense_factor"] = dense
+                        doc["chunking"].append(c)
+                        log(
+                            f"[{scene} N={n} {size}x{size} K={k} shrunk x{dense}] {c['ms_per_view_chunked']:.1f} "
+                            f"ms/view in chunks of {CHUNK}, {c['ms_per_view_off']:.1f} without "
+                            f"({c['speedup']:.2f}x; up to {c['max_pairs_per_tile']:,} pairs a tile)"
+                        )
             if campaign_samples:
                 c = measure_campaign(scene, model, campaign_samples)
                 doc["campaigns"].append({"scene": scene, "n": int(n), **c})
@@ -635,6 +690,14 @@ def print_table(doc: dict, console=None) -> None:
             "every listed pair at every pixel of its tile at the exp-loop rate; the others move their bytes at the "
             "copy rate (tools/bench.py STAGE_BYTES)."
         )
+    for c in doc.get("chunking", []):
+        console.print(
+            f"Long tile lists ({c['scene']}, N={c['n']:,} shrunk x{c['dense_factor']}, {c['width']}x{c['height']}, "
+            f"K={c['k']}; {c['long_tiles']} of {c['tiles']} tiles over {c['chunk']} pairs, up to "
+            f"{c['max_pairs_per_tile']:,}): {c['ms_per_view_chunked']:.1f} ms/view in chunks, "
+            f"{c['ms_per_view_off']:.1f} ms/view with chunking off ({c['speedup']:.2f}x; PSNR between them "
+            f"{c['psnr_view0_chunked_vs_off_db']:.1f} dB)"
+        )
     for c in doc.get("campaigns", []):
         console.print(
             f"Campaign ({c['scene']}, N={c['n']:,}, K={c['views']} at {c['size']}x{c['size']}, incremental path): "
@@ -678,6 +741,13 @@ def main(argv=None) -> int:
         default=256,
         help="injections timed per (scene, N) on the incremental campaign path; 0 skips it",
     )
+    ap.add_argument(
+        "--dense",
+        type=float,
+        metavar="FACTOR",
+        help="also time each configuration's scene shrunk by FACTOR (e.g. 0.1: a dense region of a few tiles) "
+        "with the default CHUNK and with chunking off",
+    )
     ap.add_argument("--out", type=Path, help="write the JSON document here (default: none)")
     args = ap.parse_args(argv)
 
@@ -707,6 +777,7 @@ def main(argv=None) -> int:
         sh_degree=args.sh_degree,
         seed=args.seed,
         campaign_samples=args.campaign_samples,
+        dense=args.dense,
         log=lambda m: console.print(m, highlight=False, markup=False),
     )
     print_table(doc, console)

@@ -29,10 +29,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from seuwgpu.model.scenes import make_scene, scene_cameras  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
 
-# What a buffer holds, from its label: the tile-list pairs, the pixels, the radix sorts' ping-pong
+# What a buffer holds, from its label: the tile-list pairs (and the chunk slabs sized by them),
+# the pixels, the radix sorts' ping-pong
 # scratch (shared by the depth and the tile sort: one entry per primitive plus one per pair slot),
 # or the primitives (everything else that is not a fixed-size parameter block).
-PAIR_LABELS = ("bin.isect",)
+PAIR_LABELS = ("bin.isect", "composite.slabs", "composite.extra_list", "composite.merge_list")
 PIXEL_LABELS = ("composite.image",)
 SCRATCH_LABELS = ("sort.keys_tmp", "sort.vals_tmp")
 

@@ -10,6 +10,13 @@ from __future__ import annotations
 TILE = 16
 """Pixels per side of a screen tile: binning, one compositing workgroup, one metrics slab."""
 
+CHUNK = 4096
+"""Pairs of a tile list composited by one workgroup (a multiple of the compositor's batch,
+TILE * TILE): a longer list is cut by list position into chunks composited in parallel and merged
+front to back (docs/renderer.md, "Long tile lists"). Ordinary tiles (hundreds to a few thousand
+pairs) are one chunk. composite.wgsl's `CHUNK_PAIRS` override (default this) lets tests use
+small chunks."""
+
 PRECISION_CODE = {"fp32": 0, "fp16": 1, "bf16": 2}
 """Code of each stored precision in the shaders' uniforms (`FMT_FP32`, `FMT_FP16`, `FMT_BF16`)."""
 
@@ -32,6 +39,7 @@ in the wild (host only)."""
 
 SHARED = {
     "TILE": TILE,
+    "CHUNK": CHUNK,
     "WG": WG,
     "MAX_GROUPS_X": MAX_GROUPS_X,
     **{f"FMT_{p.upper()}": code for p, code in PRECISION_CODE.items()},

@@ -4,9 +4,17 @@ Front to back over each tile's depth-ordered list, per pixel (docs/renderer.md):
 sigma < 0 or alpha < 1/255, alpha = min(0.99, o * exp(-sigma)) with NaN propagating, stop before
 T drops to 1e-4 or below, output (C + T * background, T). Nothing is clamped.
 
-Two GPU entry points share the blending code, so their arithmetic is identical bit for bit:
-`Compositing` (main: the tiles of full frames) and `VariantCompositing` (variants: tiles of
-single-upset variants re-composited from a clean frame's kept lists, render/incremental.py).
+Long tile lists (docs/renderer.md, "Long tile lists"): a tile list of n pairs is cut by list
+position into ceil(n / CHUNK) chunks; each chunk runs that rule from C = 0, T = 1 (with its own
+early stop) and the chunks merge front to back per pixel: the first chunk's (C, T) as is, each
+later one as C = C + T * c, T = T * t; a pixel ends (later chunks ignored) once a chunk stopped
+early at it or T <= 1e-4 after a merge. A tile of at most CHUNK pairs is thus composited as
+before chunks existed, bit for bit; longer ones run their chunks on separate workgroups.
+
+The GPU entry points share the blending and merging code, so their arithmetic is identical bit
+for bit: `Compositing` (main, chunks, merge: the tiles of full frames) and `VariantCompositing`
+(variants: tiles of single-upset variants re-composited from a clean frame's kept lists, their
+chunks in sequence, render/incremental.py).
 
 Twin: `composite_tile` blends one tile exactly as the sequential per-pixel rule does, vectorised
 over pixels and blocks of primitives: the transmittance and colour recurrences use
@@ -22,37 +30,84 @@ from __future__ import annotations
 
 import numpy as np
 
-from seuwgpu.gpu.constants import PROFILE_CODE, TILE
-from seuwgpu.gpu.device import GPU, STORAGE
+from seuwgpu.gpu.constants import CHUNK, PROFILE_CODE, TILE
+from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 
 F = np.float32
 ALPHA_MAX = F(0.99)
 ALPHA_MIN = F(1.0 / 255.0)
 T_MIN = F(1e-4)
-SLAB_BYTES = TILE * TILE * 16  # one re-composited tile: TILE x TILE vec4 (rgb, T)
+TILE_PIXELS = TILE * TILE
+SLAB_BYTES = TILE_PIXELS * 16  # one re-composited tile: TILE x TILE vec4 (rgb, T)
 
 
 class Compositing:
-    """composite.wgsl:main: one TILE x TILE workgroup per tile; owns the frames `image`
-    ([K, H, W] vec4: rgb, final transmittance)."""
+    """composite.wgsl main / chunks / merge: one TILE x TILE workgroup per tile runs the first
+    `chunk` pairs of its list; the later chunks of long tiles run in parallel (`chunks`, an
+    indirect dispatch over the work main lists) into slabs that `merge` blends front to back into
+    the image. Owns the frames `image` ([K, H, W] vec4: rgb, final transmittance), the slabs and
+    the work lists (sized by the intersection capacity: `set_capacity`)."""
 
-    def __init__(self, gpu: GPU, profile: str = "strict"):
+    def __init__(self, gpu: GPU, profile: str = "strict", chunk: int = CHUNK):
         self.gpu = gpu
-        self.kernel = Kernel(gpu, "composite", "main", constants={"PROFILE": PROFILE_CODE[profile]})
+        self.chunk = check_chunk(chunk)
+        constants = {"PROFILE": PROFILE_CODE[profile], "CHUNK_PAIRS": self.chunk}
+        self.kernel = Kernel(gpu, "composite", "main", constants=constants)
+        self.k_chunks = Kernel(gpu, "composite", "chunks", constants=constants)
+        self.k_merge = Kernel(gpu, "composite", "merge", constants=constants)
+        # Work (composite.wgsl): counters zeroed per view; the dispatch arguments' y, z stay 1
+        self.work = gpu.upload(np.array([0, 0, 0, 0, 0, 1, 1, 0, 0, 1, 1, 0], np.uint32), INDIRECT, "composite.work")
+        self.capacity = None
 
     def set_views(self, k: int, width: int, height: int):
         self.image = self.gpu.buffer(16 * int(k) * int(width) * int(height), STORAGE, "composite.image")
 
+    def set_capacity(self, capacity: int):
+        """Slabs and work lists for frames of up to `capacity` pairs: a tile of n > chunk pairs
+        takes ceil(n / chunk) < 2 n / chunk slab slots and lists ceil(n / chunk) - 1 <= n / chunk
+        later chunks. Slots are taken in the order tiles finish chunk 0 (an atomic counter): where
+        a chunk's pixels wait does not change them, and the slabs scale with the pairs, not with
+        the number of tiles. Ranges that list more pairs than the capacity (a flipped tile range,
+        faults/state.py) can outgrow them: a tile that finds no room composites its chunks in
+        sequence on its own workgroup (same rule, same image)."""
+        cap = int(capacity)
+        slots = 2 * (cap // self.chunk) + 2
+        need = slots * SLAB_BYTES
+        if need > self.gpu.max_binding:
+            raise ValueError(
+                f"compositing chunks of {self.chunk} pairs need {need / 2**20:.0f} MiB of slabs for {cap} tile "
+                f"intersections, more than one storage binding holds ({self.gpu.max_binding / 2**20:.0f} MiB): "
+                "use a larger chunk, a smaller image or fewer primitives"
+            )
+        g = self.gpu
+        self.capacity = cap
+        self.slabs = g.buffer(need, STORAGE, "composite.slabs")
+        self.extra_list = g.buffer(16 * (cap // self.chunk + 1), STORAGE, "composite.extra_list")
+        self.merge_list = g.buffer(8 * (slots // 2 + 1), STORAGE, "composite.merge_list")  # >= 2 slots a tile
+
     def encode(self, encoder, frame, ranges, isect_prims, xy, conic, rgb, tiles: tuple[int, int], isect_box):
         """One view: `frame` its Binning slot (render/bin.py), `ranges` / `isect_prims` its tile
         lists, `xy` / `conic` / `rgb` the screen records (render/project.py), tiles = (TX, TY);
-        `isect_box` (u32 per pair) receives each pair's pixel box (FULL_BOX where a tile stopped
-        early), which the variants entry reuses."""
+        `isect_box` (u32 per pair) receives each pair's pixel box (FULL_BOX where a chunk stopped
+        early), which the variants entry reuses. Three passes: main over every tile, then chunks
+        and merge (indirect: no workgroup when no tile is longer than a chunk)."""
+        if self.capacity is None:
+            raise RuntimeError("Compositing.set_capacity must be called before encode")
+        encoder.clear_buffer(self.work, 0, 20)  # counters and the chunks' group count
+        encoder.clear_buffer(self.work, 32, 4)  # the merge's group count
+        records = {0: frame, 1: ranges, 2: isect_prims, 3: xy, 4: conic, 5: rgb, 7: isect_box}
+        lists = {31: self.slabs, 32: self.extra_list, 33: self.merge_list}
         self.kernel.dispatch(
+            encoder, {**records, 6: self.image, 30: self.work, **lists}, workgroups=(int(tiles[0]), int(tiles[1]), 1)
+        )
+        self.k_chunks.dispatch(
+            encoder, {**records, 31: self.slabs, 32: self.extra_list, 34: self.work}, indirect=(self.work, 16)
+        )
+        self.k_merge.dispatch(
             encoder,
-            {0: frame, 1: ranges, 2: isect_prims, 3: xy, 4: conic, 5: rgb, 6: self.image, 7: isect_box},
-            workgroups=(int(tiles[0]), int(tiles[1]), 1),
+            {0: frame, 1: ranges, 6: self.image, 31: self.slabs, 33: self.merge_list, 34: self.work},
+            indirect=(self.work, 32),
         )
 
 
@@ -60,12 +115,17 @@ class VariantCompositing:
     """composite.wgsl:variants: re-composite listed (variant, view, tile, primitive) entries into
     slabs (one TILE x TILE vec4 tile each), from a clean frame's kept per-view state with the
     primitive's clean entry removed and its variant record merged in at its depth (ordered by
-    (depth bits, index) as the depth sort orders them). A pixel that neither record reaches is
-    copied from the clean image. Owns the entries, the slabs and the `Recomp` parameters."""
+    (depth bits, index) as the depth sort orders them), its chunks in sequence. A pixel that
+    neither record reaches is copied from the clean image when both lists are one chunk. Owns the
+    entries, the slabs and the `Recomp` parameters."""
 
-    def __init__(self, gpu: GPU, max_entries: int, profile: str = "strict"):
+    def __init__(self, gpu: GPU, max_entries: int, profile: str = "strict", chunk: int = CHUNK, exact: bool = True):
         self.gpu = gpu
-        self.kernel = Kernel(gpu, "composite", "variants", constants={"PROFILE": PROFILE_CODE[profile]})
+        self.chunk = check_chunk(chunk)
+        # exact: the clean frames were binned exactly (render/bin.py), so a variant record is listed
+        # where the binning would list it (its footprint reaches the tile), not on its whole rectangle
+        constants = {"PROFILE": PROFILE_CODE[profile], "CHUNK_PAIRS": self.chunk, "EXACT_BIN": int(bool(exact))}
+        self.kernel = Kernel(gpu, "composite", "variants", constants=constants)
         self.params = Uniforms(gpu, self.kernel.struct("Recomp"), 1, "recomp")
         self.entry = self.kernel.struct("VariantEntry")
         self.max_entries = int(max_entries)
@@ -115,14 +175,23 @@ class VariantCompositing:
 
 
 # ---- numpy twin ---------------------------------------------------------------------------------
-def composite_tile(ids, pxs, pys, mx, my, conic, opac, rgb, bg, block0=32, block_max=512, profile="strict"):
-    """Composite the depth-ordered primitive list `ids` over pixel centres (pxs, pys) [P]:
-    (C + T * bg [P, 3], T [P]). Exactly the sequential per-pixel rule, vectorised over pixels and
-    blocks of primitives. Profile "gsplat": a NaN alpha becomes 0.99 (CUDA's fminf drops NaN)."""
+def check_chunk(chunk) -> int:
+    """Pairs per compositing chunk: a positive multiple of the batch (TILE * TILE records)."""
+    c = int(chunk)
+    if c <= 0 or c % TILE_PIXELS:
+        raise ValueError(f"chunk={chunk!r} must be a positive multiple of {TILE_PIXELS} pairs (TILE * TILE)")
+    return c
+
+
+def blend_chunk(ids, pxs, pys, mx, my, conic, opac, rgb, block0=32, block_max=512, profile="strict"):
+    """The per-pixel rule over the list `ids` from C = 0, T = 1 at pixel centres (pxs, pys) [P]:
+    (C [P, 3], T [P], stopped [P]: the pixel stopped early), vectorised over pixels and blocks of
+    primitives."""
     nan_alpha = F(np.nan) if profile == "strict" else ALPHA_MAX
     P = pxs.shape[0]
     T = np.ones(P, dtype=F)
     C = np.zeros((P, 3), dtype=F)
+    stopped = np.zeros(P, dtype=bool)
     active = np.arange(P)  # pixels not yet stopped
     pos, L, B = 0, len(ids), block0
     with np.errstate(all="ignore"):
@@ -152,8 +221,43 @@ def composite_tile(ids, pxs, pys, mx, my, conic, opac, rgb, bg, block0=32, block
             cols = np.arange(active.size)
             C[active] = Cc[first, cols]
             T[active] = Tc[first, cols]
+            stopped[active[any_stop]] = True
             active = active[~any_stop]
             B = min(2 * B, block_max)
+    return C, T, stopped
+
+
+def merge_chunk(C, T, ended, c, t, stopped):
+    """Merge a later chunk's (c, t, stopped) into the pixels' (C, T, ended) front to back, in
+    place: C = C + T * c, T = T * t where not ended; a pixel ends once its chunk stopped early or
+    T <= 1e-4 after the merge (composite.wgsl `merge_quad`)."""
+    live = ~ended
+    with np.errstate(all="ignore"):
+        C[live] = C[live] + T[live, None] * c[live]
+        T[live] = T[live] * t[live]
+    ended |= live & (stopped | (T <= T_MIN))
+
+
+def composite_tile(
+    ids, pxs, pys, mx, my, conic, opac, rgb, bg, block0=32, block_max=512, profile="strict", chunk=CHUNK
+):
+    """Composite the depth-ordered primitive list `ids` over pixel centres (pxs, pys) [P]:
+    (C + T * bg [P, 3], T [P]). The list is cut into chunks of `chunk` pairs, each blended from
+    C = 0, T = 1 by the per-pixel rule (`blend_chunk`), then merged front to back (`merge_chunk`;
+    the first chunk taken as is). Profile "gsplat": a NaN alpha becomes 0.99 (CUDA's fminf)."""
+    chunk = check_chunk(chunk)
+    kw = {"block0": block0, "block_max": block_max, "profile": profile}
+    C, T, ended = blend_chunk(ids[:chunk], pxs, pys, mx, my, conic, opac, rgb, **kw)
+    for a in range(chunk, len(ids), chunk):
+        live = np.flatnonzero(~ended)
+        if not live.size:
+            break
+        c, t, stopped = (np.zeros((len(T), 3), F), np.ones(len(T), F), np.zeros(len(T), bool))
+        c[live], t[live], stopped[live] = blend_chunk(
+            ids[a : a + chunk], pxs[live], pys[live], mx, my, conic, opac, rgb, **kw
+        )
+        merge_chunk(C, T, ended, c, t, stopped)
+    with np.errstate(all="ignore"):
         return C + T[:, None] * bg[None, :], T
 
 
@@ -169,7 +273,15 @@ def tile_pixels(tx: int, ty: int, width: int, height: int, origin=(0, 0)):
 
 
 def composite_frame(
-    ranges, prims, records: dict, width: int, height: int, background=(1.0, 1.0, 1.0), origin=(0, 0), profile="strict"
+    ranges,
+    prims,
+    records: dict,
+    width: int,
+    height: int,
+    background=(1.0, 1.0, 1.0),
+    origin=(0, 0),
+    profile="strict",
+    chunk=CHUNK,
 ):
     """Twin of the main entry for one view: tile t draws prims[ranges[t, 0]:ranges[t, 1]] with
     the screen records (`mean2d` [N, 2], `conic` [N, 3], `opacity`, `rgb` [N, 3]). Returns
@@ -184,7 +296,17 @@ def composite_frame(
             (ys, xs), pxs, pys = tile_pixels(tx, ty, width, height, origin)
             a, b = ranges[ty * tiles_x + tx]
             rgb, T = composite_tile(
-                prims[a:b], pxs, pys, mx, my, records["conic"], records["opacity"], records["rgb"], bg, profile=profile
+                prims[a:b],
+                pxs,
+                pys,
+                mx,
+                my,
+                records["conic"],
+                records["opacity"],
+                records["rgb"],
+                bg,
+                profile=profile,
+                chunk=chunk,
             )
             img[ys, xs, :3] = rgb.reshape(img[ys, xs].shape[:2] + (3,))
             img[ys, xs, 3] = T.reshape(img[ys, xs].shape[:2])

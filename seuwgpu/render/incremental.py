@@ -39,7 +39,7 @@ class IncrementalCompositor:
         self.var_words = g.buffer(4 * self.vlayout.chunk_words, label="var_words")
         # view v's variant records at [v * B, v * B + B)
         self.projection = Projection(g, k * self.B, k, "var", r.profile)
-        self.compositing = VariantCompositing(g, self.max_entries, r.profile)
+        self.compositing = VariantCompositing(g, self.max_entries, r.profile, r.compositing.chunk, r.binning.exact)
         self.tile_map = g.buffer(4 * self.B * k * r.n_tiles, label="tile_map")
         self.bound_version = None
         self.refresh()

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from seuwgpu.gpu.constants import TILE
+from seuwgpu.gpu.constants import CHUNK, TILE
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.model import encoding
 from seuwgpu.model.budget import check_frames, check_render
@@ -59,6 +59,7 @@ class Renderer:
         viewport=None,
         profile: str = "strict",
         exact_binning: bool = True,
+        chunk: int = CHUNK,
     ):
         self.gpu = gpu or get_gpu()
         # renderer profile (docs/renderer.md "Profiles"): what corrupted values draw
@@ -87,7 +88,9 @@ class Renderer:
         self.sorting = Sorting(self.gpu, self.n)
         # exact_binning=False pairs whole rectangles (same images; render/bin.py)
         self.binning = Binning(self.gpu, self.n, exact=exact_binning)
-        self.compositing = Compositing(self.gpu, self.profile)
+        # chunk: pairs of a tile list per compositing workgroup (render/composite.py; not chunk_prims,
+        # the model's storage chunks); tests force small ones
+        self.compositing = Compositing(self.gpu, self.profile, chunk)
         # In-pipeline guard state (off by default): box of the clean model and clamp counters.
         self.guard_mask = 0
         bound = self.projection.kernel.struct("Bound")
@@ -184,6 +187,7 @@ class Renderer:
         old_capacity = self.capacity
         old_kv = {name: getattr(self, name, None) for name in ("kv_isect", "kv_box")}
         if capacity != self.capacity:
+            self.compositing.set_capacity(capacity)  # first: it refuses slabs past one binding
             self.capacity = capacity
             self.binning.set_capacity(capacity)
             self.sorting.set_capacity(capacity)
