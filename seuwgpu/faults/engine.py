@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from seuwgpu.errors import TooBig
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.costs import interleaved_medians
 from seuwgpu.faults.flips import Flips
@@ -132,6 +133,18 @@ class Engine:
         self.gpu.submit(enc)
         r.version += 1  # kept views re-captured: the incremental compositor re-reads them
         self._ref_mask = mask
+        # the longest clean tile list (the incremental path walks whole lists: gpu.max_walked_pairs)
+        self.longest_list = 0
+        if r.keep_views:
+            rng = self.gpu.read(r.kv_ranges, np.uint32, 0, 8 * r.n_tiles * r.k).reshape(-1, 2).astype(np.int64)
+            self.longest_list = int((rng[:, 1] - rng[:, 0]).max(initial=0))
+
+    @property
+    def incremental_walks_safely(self) -> bool:
+        """Whether the device can re-composite this frame's longest tile list (with a margin for
+        the one pair a variant adds) on one workgroup; else evaluate_frame renders in full."""
+        limit = self.gpu.max_walked_pairs
+        return limit is None or self.longest_list + 1 <= limit
 
     def reference_mask(self, defense: str) -> int:
         """Guard mask of the clean reference of `defense`: its own mask where the clean model holds
@@ -427,6 +440,15 @@ class Engine:
         """Records for single-value sites under each defense (paired: same sites for every arm,
         rows defense-major), by incremental re-compositing, built column-wise."""
         sites = list(sites)
+        if not self.incremental_walks_safely:
+            # the same records by full re-renders (bit for bit: tests/test_incremental.py)
+            if regions:
+                raise TooBig(
+                    f"a tile of this frame lists {self.longest_list:,} pairs, more than this device's "
+                    f"{self.gpu.max_walked_pairs:,} for incremental re-compositing, on which sort-first "
+                    "regions are measured: render at a smaller size or with fewer primitives, or use a GPU"
+                )
+            return pd.DataFrame([self.inject(s, d) for d in defenses for s in sites])
         m_sites = len(sites)
         comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
         base = {
