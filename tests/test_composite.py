@@ -364,3 +364,24 @@ def test_chunk_and_slab_limits(gpu):
     with pytest.raises(ValueError, match="chunks of 256 pairs need .* more than one storage binding"):
         stage.set_capacity(gpu.max_binding // 4)
     stage.set_capacity(1 << 16)  # what a small scene needs: fine
+
+
+def test_a_tile_longer_than_the_cpu_loop_limit(gpu):
+    """One tile listing 60,000 faint records around its centre (each box meets all four quadrants)
+    that leave most pixels far from saturated, so every workgroup walks its whole chunk: chunks
+    keep each walk under llvmpipe's 65,535 loop iterations (one workgroup over the whole list
+    there leaves pixels unwritten), and the frame matches the twin."""
+    rng = np.random.default_rng(9)
+    n = 60_000
+    rec = {
+        "mean2d": rng.uniform(7, 9, (n, 2)).astype(np.float32),
+        "conic": np.tile(np.array([[0.5, 0.0, 0.5]], np.float32), (n, 1)),
+        "opacity": np.full(n, 0.0045, np.float32),  # alpha >= 1/255 within ~0.7 px of the mean
+        "rgb": rng.uniform(0, 1, (n, 3)).astype(np.float32),
+    }
+    ranges, prims = np.array([[0, n]]), np.arange(n)
+    got = gpu_frame(gpu, ranges, prims, rec, 16, 16, (1, 1, 1))
+    want = composite_frame(ranges, prims, rec, 16, 16, background=(1, 1, 1))
+    assert (want[..., 3] > 0.5).sum() > 200  # most pixels untouched: every record is walked
+    assert not (got == 0).all(-1).any()
+    assert_close(got, want)

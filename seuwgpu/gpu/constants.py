@@ -10,12 +10,15 @@ from __future__ import annotations
 TILE = 16
 """Pixels per side of a screen tile: binning, one compositing workgroup, one metrics slab."""
 
-CHUNK = 4096
+CHUNK = 32768
 """Pairs of a tile list composited by one workgroup (a multiple of the compositor's batch,
 TILE * TILE): a longer list is cut by list position into chunks composited in parallel and merged
-front to back (docs/renderer.md, "Long tile lists"). Ordinary tiles (hundreds to a few thousand
-pairs) are one chunk. composite.wgsl's `CHUNK_PAIRS` override (default this) lets tests use
-small chunks."""
+front to back (docs/renderer.md, "Long tile lists"). Why 32768: a variant that touches a tile of
+more than one chunk re-blends the whole tile (list positions shift), which cost campaigns 7x at
+4096 (spheres 100k, 4 views of 128x128: 63 vs 436 injections/s on lavapipe, 2026-11-25); below
+one chunk nothing changes; and one workgroup's walk stays under llvmpipe's loop limit
+(GPU.max_walked_pairs). A 65,856-pair tile (1M primitives at 256x256) still splits three ways.
+composite.wgsl's `CHUNK_PAIRS` override (default this) lets tests use small chunks."""
 
 PRECISION_CODE = {"fp32": 0, "fp16": 1, "bf16": 2}
 """Code of each stored precision in the shaders' uniforms (`FMT_FP32`, `FMT_FP16`, `FMT_BF16`)."""
