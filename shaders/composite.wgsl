@@ -219,24 +219,30 @@ fn blend_quads(p: ptr<function, Pixels>, st: vec4<f32>, co: vec4<f32>, k: u32, r
     }
 }
 
-// Blend the m staged records into the invocation's pixels (tile-local column `col`, first row
-// `row0`).
+// Staged record k blended into the invocation's pixels (tile-local column `col`, first row
+// `row0`) where its box reaches them; true (and counted in s_done) once they have all stopped.
+fn blend_record(p: ptr<function, Pixels>, col: u32, row0: u32, k: u32) -> bool {
+    let bx = s_box[k];
+    let y0 = (bx >> 16u) & 0xffu;
+    let y1 = bx >> 24u;
+    if (col < (bx & 0xffu) || col > ((bx >> 8u) & 0xffu) || row0 + SPAN - 1u < y0 || row0 > y1) {
+        return false;
+    }
+    blend_quads(p, s_pos[k], s_conic[k], k, row0, y0, y1);
+    if (all_pixels_done(p)) {
+        atomicAdd(&s_done, 1u);
+        return true;
+    }
+    return false;
+}
+
+// Blend the m staged records into the invocation's pixels.
 fn blend_batch(p: ptr<function, Pixels>, col: u32, row0: u32, m: u32) {
     if (all_pixels_done(p)) {
         return;
     }
     for (var k = 0u; k < m; k = k + 1u) {
-        let bx = s_box[k];
-        let y0 = (bx >> 16u) & 0xffu;
-        let y1 = bx >> 24u;
-        if (col < (bx & 0xffu) || col > ((bx >> 8u) & 0xffu) || row0 + SPAN - 1u < y0 || row0 > y1) {
-            continue;
-        }
-        let st = s_pos[k];
-        let co = s_conic[k];
-        blend_quads(p, st, co, k, row0, y0, y1);
-        if (all_pixels_done(p)) {
-            atomicAdd(&s_done, 1u);
+        if (blend_record(p, col, row0, k)) {
             break;
         }
     }
@@ -281,17 +287,7 @@ fn blend_batch_masked(p: ptr<function, Pixels>, col: u32, row0: u32, q: u32) {
         while (bits != 0u) {
             let k = w * PER_LANE + firstTrailingBit(bits);
             bits = bits & (bits - 1u);
-            let bx = s_box[k];
-            let y0 = (bx >> 16u) & 0xffu;
-            let y1 = bx >> 24u;
-            if (col < (bx & 0xffu) || col > ((bx >> 8u) & 0xffu) || row0 + SPAN - 1u < y0 || row0 > y1) {
-                continue;
-            }
-            let st = s_pos[k];
-            let co = s_conic[k];
-            blend_quads(p, st, co, k, row0, y0, y1);
-            if (all_pixels_done(p)) {
-                atomicAdd(&s_done, 1u);
+            if (blend_record(p, col, row0, k)) {
                 return;
             }
         }
