@@ -87,7 +87,7 @@ def render_host_bytes(n: int, degree: int, k: int, width: int, height: int) -> i
 def render_device_bytes(n: int, degree: int, k: int, width: int, height: int, keep_views: bool) -> int:
     """Device memory of a renderer/engine: stored words, per-primitive projection and sort/bin
     scratch (~64 B), the intersection buffers (~16 B for each of >= 4n pairs, per view when kept,
-    and the slabs of long tiles' chunks: 2 B a pair at the default chunk), and the clean and
+    and the slabs of long tiles' chunks: under 1 B a pair at the default chunk), and the clean and
     current frames."""
     per_prim = 4 * n_values(degree) + 64 + 8 + 64 * (k if keep_views else 1) + (48 * k if keep_views else 0)
     return int(n) * per_prim + 2 * int(k) * int(width) * int(height) * PIXEL_BYTES
