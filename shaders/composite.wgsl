@@ -318,6 +318,9 @@ fn out_pixel(q: Quad, i: u32, bg: vec3<f32>) -> vec4<f32> {
 
 // Pairs per chunk (a multiple of BATCH); tests force small chunks on tiny scenes.
 override CHUNK_PAIRS: u32 = CHUNK;
+// Whether main and chunks leave the pairs' pixel boxes in isect_box: only a frame kept for the
+// incremental re-compositor needs them (render/renderer.py capture_views).
+override KEEP_BOXES: bool = true;
 // Whether the frames were binned exactly (bin.wgsl EXACT_BIN): the variants entry pairs a variant
 // record with a tile as the binning would.
 override EXACT_BIN: bool = true;
@@ -404,7 +407,7 @@ fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, 
     var batches = (n + BATCH - 1u) / BATCH;
     if (all_done(li)) {
         // every pixel finished before (a later chunk of pixels that ended in chunk 0)
-        for (var idx = a + li; idx < b; idx = idx + LANES) {
+        for (var idx = a + li; KEEP_BOXES && idx < b; idx = idx + LANES) {
             isect_box[idx] = FULL_BOX;
         }
         batches = 0u;
@@ -418,7 +421,7 @@ fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, 
             if (idx < b) {
                 let g = isect_prims[idx];
                 boxes[s] = stage(i, proj_xy[g], proj_conic[g], proj_rgb[g], origin);
-                isect_box[idx] = boxes[s];
+                if (KEEP_BOXES) { isect_box[idx] = boxes[s]; }
             }
         }
         write_qmask(li, boxes);
@@ -426,7 +429,7 @@ fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, 
         blend_batch_masked(p, col, row0, col / (TILE / 2u) + 2u * (row0 / (TILE / 2u)));
         if (all_done(li)) {
             // the pairs never staged: no box known
-            for (var idx = a + (bt + 1u) * BATCH + li; idx < b; idx = idx + LANES) {
+            for (var idx = a + (bt + 1u) * BATCH + li; KEEP_BOXES && idx < b; idx = idx + LANES) {
                 isect_box[idx] = FULL_BOX;
             }
             break;

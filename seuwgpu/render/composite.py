@@ -56,6 +56,12 @@ class Compositing:
         self.kernel = Kernel(gpu, "composite", "main", constants=constants)
         self.k_chunks = Kernel(gpu, "composite", "chunks", constants=constants)
         self.k_merge = Kernel(gpu, "composite", "merge", constants=constants)
+        # the same without writing the pairs' pixel boxes (frames not kept for re-compositing)
+        lean = {**constants, "KEEP_BOXES": 0}
+        self._lean = (
+            Kernel(gpu, "composite", "main", constants=lean),
+            Kernel(gpu, "composite", "chunks", constants=lean),
+        )
         # Work (composite.wgsl): counters zeroed per view; the dispatch arguments' y, z stay 1
         self.work = gpu.upload(np.array([0, 0, 0, 0, 0, 1, 1, 0, 0, 1, 1, 0], np.uint32), INDIRECT, "composite.work")
         self.capacity = None
@@ -86,22 +92,26 @@ class Compositing:
         self.extra_list = g.buffer(16 * (cap // self.chunk + 1), STORAGE, "composite.extra_list")
         self.merge_list = g.buffer(8 * (slots // 2 + 1), STORAGE, "composite.merge_list")  # >= 2 slots a tile
 
-    def encode(self, encoder, frame, ranges, isect_prims, xy, conic, rgb, tiles: tuple[int, int], isect_box):
+    def encode(
+        self, encoder, frame, ranges, isect_prims, xy, conic, rgb, tiles: tuple[int, int], isect_box, keep_boxes=True
+    ):
         """One view: `frame` its Binning slot (render/bin.py), `ranges` / `isect_prims` its tile
         lists, `xy` / `conic` / `rgb` the screen records (render/project.py), tiles = (TX, TY);
         `isect_box` (u32 per pair) receives each pair's pixel box (FULL_BOX where a chunk stopped
-        early), which the variants entry reuses. Three passes: main over every tile, then chunks
-        and merge (indirect: no workgroup when no tile is longer than a chunk)."""
+        early), which the variants entry reuses (keep_boxes=False leaves it untouched: same
+        image, less traffic). Three passes: main over every tile, then chunks and merge
+        (indirect: no workgroup when no tile is longer than a chunk)."""
         if self.capacity is None:
             raise RuntimeError("Compositing.set_capacity must be called before encode")
         encoder.clear_buffer(self.work, 0, 20)  # counters and the chunks' group count
         encoder.clear_buffer(self.work, 32, 4)  # the merge's group count
         records = {0: frame, 1: ranges, 2: isect_prims, 3: xy, 4: conic, 5: rgb, 7: isect_box}
         lists = {31: self.slabs, 32: self.extra_list, 33: self.merge_list}
-        self.kernel.dispatch(
+        main, chunks = (self.kernel, self.k_chunks) if keep_boxes else self._lean
+        main.dispatch(
             encoder, {**records, 6: self.image, 30: self.work, **lists}, workgroups=(int(tiles[0]), int(tiles[1]), 1)
         )
-        self.k_chunks.dispatch(
+        chunks.dispatch(
             encoder, {**records, 31: self.slabs, 32: self.extra_list, 34: self.work}, indirect=(self.work, 16)
         )
         self.k_merge.dispatch(

@@ -249,6 +249,7 @@ class Renderer:
             p.rgb,
             (self.tiles_x, self.tiles_y),
             b.isect_box,
+            keep_boxes=self.keep_views and self.capture_views,  # only a kept frame's boxes are read
         )
         self._state_hook(encoder, v, "composited")
         if self.keep_views and self.capture_views:
