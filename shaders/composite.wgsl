@@ -32,7 +32,7 @@
 //   (render/incremental.py; equal to a full re-render bit for bit), its chunks in sequence. Only
 //   the pixels that the clean or the corrupted record reaches are re-blended when both lists are
 //   one chunk; the others are copied. main and chunks leave every pair's pixel box in isect_box
-//   (kept with the clean frame), so a variant tile stages only the entries whose box meets the
+//   when KEEP_BOXES (a frame kept with the clean state), so a variant tile stages only the entries whose box meets the
 //   bounding box of its re-blended pixels, and reads nothing of the others (they skip those
 //   pixels for certain).
 
