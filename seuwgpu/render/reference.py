@@ -2,7 +2,7 @@
 per-pixel twin of that (strict profile).
 
 Each stage's twin lives beside its GPU wrapper (render/project.py `project`, render/sort.py
-`depth_order`, render/bin.py `tile_lists`, render/composite.py `composite_tile`) and follows
+`depth_order`, render/bin.py `tile_lists`, render/composite.py `composite_frame`) and follows
 docs/renderer.md to the letter, with gsplat's conventions, in float32 arithmetic. Composed here,
 they give `render_view` / `render`, against which tests compare the GPU image (PSNR >= 50 dB) and
 the benchmark reports a speed ratio. NaN and Inf are ordinary inputs: a corrupted parameter takes
@@ -23,7 +23,7 @@ from seuwgpu.gpu.constants import TILE
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model
 from seuwgpu.render.bin import tile_lists
-from seuwgpu.render.composite import ALPHA_MAX, ALPHA_MIN, T_MIN, composite_tile, tile_pixels
+from seuwgpu.render.composite import ALPHA_MAX, ALPHA_MIN, T_MIN, composite_frame
 from seuwgpu.render.project import (
     EXTENT,
     FAR,
@@ -45,24 +45,13 @@ from seuwgpu.render.sort import depth_order
 def render_view(model: Model, cam: Camera, background=(1.0, 1.0, 1.0), profile: str = "strict") -> np.ndarray:
     """Float32 image [H, W, 3] (unclamped) of one view: project, depth order, bin, composite,
     under a renderer profile (docs/renderer.md)."""
-    bg = np.asarray(background, dtype=F).reshape(3)
-    W, H = cam.width, cam.height
     TX, TY = n_tiles_xy(cam)
-    img = np.empty((H, W, 3), dtype=F)
     with np.errstate(all="ignore"):
         proj = project(model, cam, profile)
         records = {"xy": proj["mean2d"], "conic": np.column_stack([proj["conic"], proj["opacity"]])}
         ranges, prims = tile_lists(proj["rect"], depth_order(proj), TX, TX * TY, records)
-        mx, my = proj["mean2d"][:, 0], proj["mean2d"][:, 1]
-        for ty in range(TY):
-            for tx in range(TX):
-                (ys, xs), pxs, pys = tile_pixels(tx, ty, W, H)
-                a, b = ranges[ty * TX + tx]
-                out, _ = composite_tile(
-                    prims[a:b], pxs, pys, mx, my, proj["conic"], proj["opacity"], proj["rgb"], bg, profile=profile
-                )
-                img[ys, xs] = out.reshape(ys.stop - ys.start, xs.stop - xs.start, 3)
-    return img
+        frame = composite_frame(ranges, prims, proj, cam.width, cam.height, background, profile=profile)
+    return frame[..., :3].copy()
 
 
 def render(model: Model, cams: list[Camera], background=(1.0, 1.0, 1.0), profile: str = "strict") -> np.ndarray:
