@@ -12,7 +12,7 @@ footprint may reach (`reach`, `row_tiles`: per tile row, the columns crossed by 
 sigma is within 5% of the opacity's cut, widened by 1/8 px), not with every tile of the
 rectangle; a dropped pair is one the compositor would skip at every pixel of the tile, so the
 images are the same bit for bit (tests compare `exact=False`, the whole rectangle). This removes
-17% of the pairs of the embedded scenes at 256x256.
+14-17% of the pairs of the embedded scenes at 256x256 (docs/renderer.md).
 
 The per-view `Binning` uniform (shaders/common.wgsl) is shared with compositing.
 """
