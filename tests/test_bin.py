@@ -9,6 +9,7 @@ from conftest import random_model
 from seuwgpu.model.cameras import orbit_cameras
 from seuwgpu.model.fields import Model
 from seuwgpu.render.bin import Binning, emit, tile_lists, tile_ranges
+from seuwgpu.render.composite import ellipse_quadrants
 from seuwgpu.render.project import n_tiles_xy, project
 from seuwgpu.render.renderer import Renderer
 from seuwgpu.render.sort import depth_order
@@ -97,9 +98,39 @@ def test_exact_binning_drops_only_unreachable_pairs():
     assert not any(g == 11 for t, g in kept) and any(g == 11 for t, g in every)
 
 
+def test_quadrant_masks_drop_only_unreachable_quadrants():
+    """The compositor visits a record only in the 8 x 8 quadrants of its tile that its ellipse may
+    reach (render/composite.py ellipse_quadrants): every (pair, quadrant) the rule drops has
+    alpha < 1/255 or sigma < 0 at all 64 pixel centres (float64, no margin); the sheet and the
+    NaN-opacity record keep every quadrant, and the rule drops a good share of the quadrants."""
+    rects, order, tiles, size, records = inputs(n=2500, seed=12)
+    e = emit(rects, order, tiles[0], records)
+    t, g = e["isect_tiles"], e["isect_prims"]
+    origin = np.stack([(t % tiles[0]) * 16, (t // tiles[0]) * 16], axis=1)
+    quads = ellipse_quadrants(records["xy"][g], records["conic"][g], origin)
+    assert (quads[g == 7] == 15).all() and (quads[g == 9] == 15).all()
+    xy = records["xy"].astype(np.float64)
+    co = records["conic"].astype(np.float64)
+    ii, jj = np.meshgrid(np.arange(8) + 0.5, np.arange(8) + 0.5)
+    dropped = 0
+    for p in range(len(t)):
+        for q in range(4):
+            if quads[p] >> q & 1:
+                continue
+            dropped += 1
+            px = origin[p, 0] + 8 * (q % 2) + ii
+            py = origin[p, 1] + 8 * (q // 2) + jj
+            dx, dy = xy[g[p], 0] - px, xy[g[p], 1] - py
+            sigma = 0.5 * (co[g[p], 0] * dx * dx + co[g[p], 2] * dy * dy) + co[g[p], 1] * dx * dy
+            alpha = co[g[p], 3] * np.exp(-sigma)
+            assert ((sigma < 0) | (alpha < 1 / 255)).all(), (t[p], g[p], q)
+    assert 0.2 * 4 * len(t) < dropped < 0.9 * 4 * len(t)
+
+
 def test_exact_binning_leaves_images_bit_for_bit(gpu):
-    """Exact binning against whole rectangles, on a model with non-finite and huge values, under
-    both renderer profiles: the same frames bit for bit, with fewer pairs."""
+    """Exact binning (and the compositor's quadrant masks) against whole rectangles (and pixel
+    boxes), on a model with non-finite and huge values, under both renderer profiles: the same
+    frames bit for bit, with fewer pairs."""
     model = random_model(1200, seed=8)
     flat = model.flat()
     flat[3, 3:6] = 60.0  # frame-covering sheet

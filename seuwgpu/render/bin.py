@@ -148,22 +148,29 @@ def _edge(r: dict, uy: np.ndarray, side: float) -> np.ndarray:
     return (-B * uy + F(side) * np.sqrt(disc)) / A
 
 
-def row_tiles(r: dict, y: np.ndarray, fx: float, x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Twin of common.wgsl row_tiles (band_extent included), per row of `r` (float32, the same
-    operations): the paired columns [c0, c1) of the tile row whose first pixel row is y."""
-    y, ts = np.asarray(y, F), F(TILE)
+def band_extent(r: dict, y0: np.ndarray, y1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Twin of common.wgsl band_extent, per row of `r`: the pixel-x interval [ex, ey] reached
+    within the band of pixel-centre rows [y0, y1], and where the band misses the ellipse."""
     with np.errstate(all="ignore"):
-        y0, y1 = y + F(0.5), y + ts - F(0.5)
-        lo = np.maximum(y0 - F(0.125) - r["xy"][:, 1], -r["ry"])
-        hi = np.minimum(y1 + F(0.125) - r["xy"][:, 1], r["ry"])
+        lo = np.maximum(np.asarray(y0, F) - F(0.125) - r["xy"][:, 1], -r["ry"])
+        hi = np.minimum(np.asarray(y1, F) + F(0.125) - r["xy"][:, 1], r["ry"])
         B, k = r["co"][:, 1], r["k"]
         right = _edge(r, np.clip(-B * k, lo, hi), 1.0)
         left = _edge(r, np.clip(B * k, lo, hi), -1.0)
         ex, ey = r["xy"][:, 0] + left - F(0.125), r["xy"][:, 0] + right + F(0.125)
+    return ex, ey, lo > hi
+
+
+def row_tiles(r: dict, y: np.ndarray, fx: float, x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Twin of common.wgsl row_tiles, per row of `r` (float32, the same operations): the paired
+    columns [c0, c1) of the tile row whose first pixel row is y."""
+    y, ts = np.asarray(y, F), F(TILE)
+    ex, ey, miss = band_extent(r, y + F(0.5), y + ts - F(0.5))
+    with np.errstate(all="ignore"):
         c0 = np.clip(np.ceil((ex - F(fx) - (ts - F(0.5))) / ts), x0.astype(F), x1.astype(F))
         c1 = np.clip(np.floor((ey - F(fx) - F(0.5)) / ts) + F(1), x0.astype(F), x1.astype(F))
         c1 = np.maximum(c0, c1)
-        empty = (r["kind"] == REACH_NONE) | (lo > hi) | (ex > ey)
+        empty = (r["kind"] == REACH_NONE) | miss | (ex > ey)
     c0 = np.where(r["kind"] == REACH_ALL, x0, np.where(empty, x0, np.nan_to_num(c0).astype(np.int64)))
     c1 = np.where(r["kind"] == REACH_ALL, x1, np.where(empty, x0, np.nan_to_num(c1).astype(np.int64)))
     return c0.astype(np.int64), c1.astype(np.int64)

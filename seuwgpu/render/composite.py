@@ -33,6 +33,7 @@ import numpy as np
 from seuwgpu.gpu.constants import CHUNK, PROFILE_CODE, TILE
 from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
+from seuwgpu.render.bin import REACH_ALL, REACH_ELLIPSE, band_extent, reach
 
 F = np.float32
 ALPHA_MAX = F(0.99)
@@ -49,10 +50,12 @@ class Compositing:
     the image. Owns the frames `image` ([K, H, W] vec4: rgb, final transmittance), the slabs and
     the work lists (sized by the intersection capacity: `set_capacity`)."""
 
-    def __init__(self, gpu: GPU, profile: str = "strict", chunk: int = CHUNK):
+    def __init__(self, gpu: GPU, profile: str = "strict", chunk: int = CHUNK, exact: bool = True):
         self.gpu = gpu
         self.chunk = check_chunk(chunk)
-        constants = {"PROFILE": PROFILE_CODE[profile], "CHUNK_PAIRS": self.chunk}
+        # exact: a record visits only the quadrants its ellipse may reach (ellipse_quadrants), as
+        # exact binning pairs it only with such tiles; False: its pixel box decides (same image)
+        constants = {"PROFILE": PROFILE_CODE[profile], "CHUNK_PAIRS": self.chunk, "EXACT_BIN": int(exact)}
         self.kernel = Kernel(gpu, "composite", "main", constants=constants)
         self.k_chunks = Kernel(gpu, "composite", "chunks", constants=constants)
         self.k_merge = Kernel(gpu, "composite", "merge", constants=constants)
@@ -185,6 +188,27 @@ class VariantCompositing:
 
 
 # ---- numpy twin ---------------------------------------------------------------------------------
+def ellipse_quadrants(xy: np.ndarray, co: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """Twin of composite.wgsl ellipse_quadrants, per row (xy [M, 2], co [M, 4]: conic and
+    opacity, origin [M, 2]: the first pixel of the record's tile, full frame): bit 2 j + i set
+    when the record's margined ellipse (render/bin.py reach) may reach a pixel centre of the
+    quadrant in column half i, row half j; all four bits for a record without a bound. The
+    compositor visits a record only in those quadrants (and those its pixel box meets)."""
+    r = reach(xy, co)
+    origin = np.asarray(origin, F)
+    h = F(TILE // 2)
+    q = np.zeros(len(r["kind"]), np.int64)
+    for j in range(2):
+        y0 = origin[:, 1] + F(j) * h + F(0.5)
+        ex, ey, miss = band_extent(r, y0, y0 + h - F(1))
+        with np.errstate(invalid="ignore"):
+            hit = (r["kind"] == REACH_ELLIPSE) & ~miss & (ex <= ey)
+            left = hit & (ex <= origin[:, 0] + h - F(0.5)) & (ey >= origin[:, 0] + F(0.5))
+            right = hit & (ex <= origin[:, 0] + F(2) * h - F(0.5)) & (ey >= origin[:, 0] + h + F(0.5))
+        q |= (left.astype(np.int64) | (right.astype(np.int64) << 1)) << (2 * j)
+    return np.where(r["kind"] == REACH_ALL, 15, q)
+
+
 def check_chunk(chunk) -> int:
     """Pairs per compositing chunk: a positive multiple of the batch (TILE * TILE records)."""
     c = int(chunk)

@@ -86,11 +86,12 @@ class Renderer:
         self.chunks = [self.gpu.upload(w, STORAGE, f"model-chunk-{k}") for k, w in enumerate(self.clean_words)]
         self.projection = Projection(self.gpu, self.n, profile=self.profile)
         self.sorting = Sorting(self.gpu, self.n)
-        # exact_binning=False pairs whole rectangles (same images; render/bin.py)
+        # exact_binning=False pairs whole rectangles and composites by pixel boxes alone (same images;
+        # render/bin.py, render/composite.py)
         self.binning = Binning(self.gpu, self.n, exact=exact_binning)
         # chunk: pairs of a tile list per compositing workgroup (render/composite.py; not chunk_prims,
         # the model's storage chunks); tests force small ones
-        self.compositing = Compositing(self.gpu, self.profile, chunk)
+        self.compositing = Compositing(self.gpu, self.profile, chunk, exact=exact_binning)
         # In-pipeline guard state (off by default): box of the clean model and clamp counters.
         self.guard_mask = 0
         bound = self.projection.kernel.struct("Bound")
