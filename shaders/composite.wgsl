@@ -14,14 +14,16 @@
 //   a margin far above exp's error; -Inf when o < 0.001, where alpha < 1/255 for every
 //   sigma >= 0; +Inf, never cut, when o is NaN or |o| > 1e30): lanes past it skip without exp;
 // - `box`: the tile-local pixel rectangle outside which sigma > cut for certain (below), so an
-//   invocation or a quad outside it skips the record after one integer test;
+//   invocation or a quad of the variants entry outside it skips the record after one integer test
+//   (main and chunks fold it into the quadrant masks below);
 // - an invocation whose pixels have all stopped leaves the batch loop; the workgroup leaves the
 //   tile when all of them have;
 // - `main` and `chunks` stage each invocation's PER_LANE consecutive slots with one bit per slot and quadrant
-//   (8 x 8 pixels; an invocation's pixels lie in one) saying whether the record's box meets it, so
-//   an invocation visits only the records of its quadrant, in list order (the others fail its box
-//   test anyway): on CPU Vulkan, where a quadrant is one SIMD group, this cut compositing by a
-//   quarter (spheres 100k, 256x256).
+//   (8 x 8 pixels; an invocation's pixels lie in one) saying whether the record may reach it (its
+//   box meets the quadrant and, with exact binning, its ellipse reaches one of the quadrant's pixel
+//   centres), so an invocation visits only the records of its quadrant, in list order (the others
+//   skip all its pixels anyway): on CPU Vulkan, where a quadrant is one SIMD group and a branch
+//   never skips code, the number of such visits is what compositing costs.
 //
 // The entry points share the blending code (and merge_quad, the one merge of chunks), so their
 // arithmetic is identical bit for bit:
@@ -298,9 +300,12 @@ fn write_qmask(li: u32, qs: array<u32, PER_LANE>) {
     s_qmask[3u * LANES + li] = m.w;
 }
 
-// blend_batch over the staged records whose box meets the invocation's quadrant q only (in slot
-// order, which is list order): the others fail the box test for all its pixels.
-fn blend_batch_masked(p: ptr<function, Pixels>, col: u32, row0: u32, q: u32) {
+// blend_batch over the staged records that may reach the invocation's quadrant q only (in slot
+// order, which is list order): the others skip all its pixels for certain. The quadrant's records
+// are blended into both Quads without the box test of blend_record: on CPU Vulkan a branch never
+// skips code (docs/renderer.md), so the test only costs (8% of compositing, spheres 100k), and a
+// pixel past the cut still skips the record without exp.
+fn blend_batch_masked(p: ptr<function, Pixels>, q: u32) {
     if (all_pixels_done(p)) {
         return;
     }
@@ -309,7 +314,12 @@ fn blend_batch_masked(p: ptr<function, Pixels>, col: u32, row0: u32, q: u32) {
         while (bits != 0u) {
             let k = w * PER_LANE + firstTrailingBit(bits);
             bits = bits & (bits - 1u);
-            if (blend_record(p, col, row0, k)) {
+            let st = s_pos[k];
+            let co = s_conic[k];
+            (*p).q[0] = blend_quad((*p).q[0], st, co, k);
+            (*p).q[1] = blend_quad((*p).q[1], st, co, k);  // QPI = 2
+            if (all_pixels_done(p)) {
+                atomicAdd(&s_done, 1u);
                 return;
             }
         }
@@ -453,7 +463,7 @@ fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, 
         }
         write_qmask(li, quads);
         workgroupBarrier();
-        blend_batch_masked(p, col, row0, col / (TILE / 2u) + 2u * (row0 / (TILE / 2u)));
+        blend_batch_masked(p, col / (TILE / 2u) + 2u * (row0 / (TILE / 2u)));
         if (all_done(li)) {
             // the pairs never staged: no box known
             for (var idx = a + (bt + 1u) * BATCH + li; KEEP_BOXES && idx < b; idx = idx + LANES) {
