@@ -680,6 +680,7 @@ var<workgroup> s_active: array<atomic<u32>, 4>;  // min col, max col, min row, m
 
 var<workgroup> s_count: array<u32, LANES>;  // staged entries per invocation, then their offsets
 var<workgroup> s_kept: u32;
+var<workgroup> s_kept_entry: array<u32, BATCH>;  // list entries staged, in list order
 
 // Offsets of a compaction in list order: each invocation passes how many of its PER_LANE
 // consecutive entries it keeps; returns (its first slot, the batch's total, uniform).
@@ -840,7 +841,11 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let live = atomicLoad(&s_active[0]) | (atomicLoad(&s_active[1]) << 8u) | (atomicLoad(&s_active[2]) << 16u)
         | (atomicLoad(&s_active[3]) << 24u);
     let origin = vec2<f32>(tile0);
-    let batches = (nv + BATCH - 1u) / BATCH;
+    var batches = (nv + BATCH - 1u) / BATCH;
+    if (workgroupUniformLoad(&s_done) == LANES) {
+        batches = 0u;  // neither record reaches a pixel: every pixel is the clean frame's
+    }
+    let insert_box = box_of(var_xy[vi], var_conic[vi], cut_of(var_conic[vi].w), origin);
     // the chunk rule of main, sequentially: `acc` holds the chunks merged so far, p the current
     // chunk (virtual list entries [CHUNK_PAIRS c, CHUNK_PAIRS (c + 1)); batches never straddle two)
     var acc = p;
@@ -867,40 +872,36 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         }
         // Each invocation takes PER_LANE consecutive list entries; only those whose pixel box
         // meets the live pixels are staged, compacted in list order (an exclusive scan of the
-        // per-invocation counts), so the blend loop never visits the others.
-        var boxes: array<u32, PER_LANE>;
-        var kept = 0u;
+        // per-invocation counts), so the blend loop never visits the others. The entries are
+        // listed first and staged by a loop over the kept ones: on CPU Vulkan, where a branch
+        // never skips code, reading the records of every entry cost most of a campaign.
+        var kept_bits = 0u;
         for (var s = 0u; s < PER_LANE; s = s + 1u) {
             let i = bt * BATCH + li * PER_LANE + s;
-            var bx = EMPTY_BOX;
-            if (i < nv) {
-                if (i == insert) {
-                    bx = box_of(var_xy[vi], var_conic[vi], cut_of(var_conic[vi].w), origin);
-                } else {
-                    bx = kv_box[v * rc.capacity + range.x + clean_pos(i, insert, removed)];
-                }
+            var bx = insert_box;
+            if (i != insert) {
+                bx = kv_box[v * rc.capacity + range.x + clean_pos(min(i, nv - 1u), insert, removed)];
             }
-            if (!boxes_meet(bx, live)) {
-                bx = EMPTY_BOX;
-            }
-            boxes[s] = bx;
-            kept = kept + u32(bx != EMPTY_BOX);
+            kept_bits = kept_bits | (u32(i < nv && boxes_meet(bx, live)) << s);
         }
-        let at_m = compact(li, kept);
+        let at_m = compact(li, countOneBits(kept_bits));
         let m = at_m.y;
-        var slot = at_m.x;
-        for (var s = 0u; s < PER_LANE; s = s + 1u) {
-            let bx = boxes[s];
-            if (bx != EMPTY_BOX) {
-                let i = bt * BATCH + li * PER_LANE + s;
-                if (i == insert) {
-                    stage_boxed(slot, var_xy[vi], var_conic[vi], var_rgb[vi], bx);
-                } else {
-                    let at = v * rc.capacity + range.x + clean_pos(i, insert, removed);
-                    let og = v * rc.n_prims + kv_isect[at];  // its box: the clean frame's, for this very pair
-                    stage_boxed(slot, kv_xy[og], kv_conic[og], kv_rgb[og], bx);
-                }
-                slot = slot + 1u;
+        var bits = kept_bits;
+        var at = at_m.x;
+        while (bits != 0u) {
+            s_kept_entry[at] = bt * BATCH + li * PER_LANE + firstTrailingBit(bits);
+            bits = bits & (bits - 1u);
+            at = at + 1u;
+        }
+        workgroupBarrier();
+        for (var slot = li; slot < m; slot = slot + LANES) {
+            let i = s_kept_entry[slot];
+            if (i == insert) {
+                stage_boxed(slot, var_xy[vi], var_conic[vi], var_rgb[vi], insert_box);
+            } else {
+                let at = v * rc.capacity + range.x + clean_pos(i, insert, removed);
+                let og = v * rc.n_prims + kv_isect[at];  // its box: the clean frame's, for this very pair
+                stage_boxed(slot, kv_xy[og], kv_conic[og], kv_rgb[og], kv_box[at]);
             }
         }
         workgroupBarrier();
