@@ -680,7 +680,8 @@ var<workgroup> s_active: array<atomic<u32>, 4>;  // min col, max col, min row, m
 
 var<workgroup> s_count: array<u32, LANES>;  // staged entries per invocation, then their offsets
 var<workgroup> s_kept: u32;
-var<workgroup> s_kept_entry: array<u32, BATCH>;  // list entries staged, in list order
+const ROUND_MAX: u32 = 4u * BATCH;  // list entries a variant tests per round
+var<workgroup> s_kept_entry: array<u32, ROUND_MAX>;  // entries of a round to stage, in list order
 
 // Offsets of a compaction in list order: each invocation passes how many of its PER_LANE
 // consecutive entries it keeps; returns (its first slot, the batch's total, uniform).
@@ -841,17 +842,34 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let live = atomicLoad(&s_active[0]) | (atomicLoad(&s_active[1]) << 8u) | (atomicLoad(&s_active[2]) << 16u)
         | (atomicLoad(&s_active[3]) << 24u);
     let origin = vec2<f32>(tile0);
-    var batches = (nv + BATCH - 1u) / BATCH;
+    // The list is walked in rounds of `round` entries (up to ROUND_MAX, dividing CHUNK_PAIRS, so
+    // no round straddles two chunks): each invocation tests round / LANES consecutive entries'
+    // pixel boxes against the live pixels; those that meet them are listed in list order (an
+    // exclusive scan of the per-invocation counts), then staged and blended BATCH at a time, so
+    // the blend loop never visits the others. Listing before reading the records, and rounds of
+    // many entries, matter on CPU Vulkan, where a branch never skips code and a barrier costs
+    // microseconds: reading every entry's record, and batches of 256 entries, cost most of a
+    // campaign.
+    var round = BATCH;
+    if (CHUNK_PAIRS % ROUND_MAX == 0u) {
+        round = ROUND_MAX;
+    } else if (CHUNK_PAIRS % (2u * BATCH) == 0u) {
+        round = 2u * BATCH;
+    }
+    let per_lane = round / LANES;
+    var rounds = (nv + round - 1u) / round;
     if (workgroupUniformLoad(&s_done) == LANES) {
-        batches = 0u;  // neither record reaches a pixel: every pixel is the clean frame's
+        rounds = 0u;  // neither record reaches a pixel: every pixel is the clean frame's
     }
     let insert_box = box_of(var_xy[vi], var_conic[vi], cut_of(var_conic[vi].w), origin);
     // the chunk rule of main, sequentially: `acc` holds the chunks merged so far, p the current
-    // chunk (virtual list entries [CHUNK_PAIRS c, CHUNK_PAIRS (c + 1)); batches never straddle two)
+    // chunk (virtual list entries [CHUNK_PAIRS c, CHUNK_PAIRS (c + 1)))
     var acc = p;
     var chunk = 0u;
-    for (var bt = 0u; bt < batches; bt = bt + 1u) {
-        if (bt * BATCH == (chunk + 1u) * CHUNK_PAIRS) {
+    var ended = false;
+    for (var rd = 0u; rd < rounds && !ended; rd = rd + 1u) {
+        let first = rd * round;
+        if (first == (chunk + 1u) * CHUNK_PAIRS) {
             merge_pixels(&acc, &p, chunk == 0u);
             chunk = chunk + 1u;
             for (var j = 0u; j < QPI; j = j + 1u) {
@@ -870,14 +888,9 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
                 break;  // every pixel ended: the later chunks are ignored
             }
         }
-        // Each invocation takes PER_LANE consecutive list entries; only those whose pixel box
-        // meets the live pixels are staged, compacted in list order (an exclusive scan of the
-        // per-invocation counts), so the blend loop never visits the others. The entries are
-        // listed first and staged by a loop over the kept ones: on CPU Vulkan, where a branch
-        // never skips code, reading the records of every entry cost most of a campaign.
         var kept_bits = 0u;
-        for (var s = 0u; s < PER_LANE; s = s + 1u) {
-            let i = bt * BATCH + li * PER_LANE + s;
+        for (var s = 0u; s < per_lane; s = s + 1u) {
+            let i = first + li * per_lane + s;
             var bx = insert_box;
             if (i != insert) {
                 bx = kv_box[v * rc.capacity + range.x + clean_pos(min(i, nv - 1u), insert, removed)];
@@ -889,25 +902,29 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         var bits = kept_bits;
         var at = at_m.x;
         while (bits != 0u) {
-            s_kept_entry[at] = bt * BATCH + li * PER_LANE + firstTrailingBit(bits);
+            s_kept_entry[at] = first + li * per_lane + firstTrailingBit(bits);
             bits = bits & (bits - 1u);
             at = at + 1u;
         }
         workgroupBarrier();
-        for (var slot = li; slot < m; slot = slot + LANES) {
-            let i = s_kept_entry[slot];
-            if (i == insert) {
-                stage_boxed(slot, var_xy[vi], var_conic[vi], var_rgb[vi], insert_box);
-            } else {
-                let at = v * rc.capacity + range.x + clean_pos(i, insert, removed);
-                let og = v * rc.n_prims + kv_isect[at];  // its box: the clean frame's, for this very pair
-                stage_boxed(slot, kv_xy[og], kv_conic[og], kv_rgb[og], kv_box[at]);
+        for (var sb = 0u; sb < m; sb = sb + BATCH) {
+            let mb = min(m - sb, BATCH);
+            for (var slot = li; slot < mb; slot = slot + LANES) {
+                let i = s_kept_entry[sb + slot];
+                if (i == insert) {
+                    stage_boxed(slot, var_xy[vi], var_conic[vi], var_rgb[vi], insert_box);
+                } else {
+                    let at = v * rc.capacity + range.x + clean_pos(i, insert, removed);
+                    let og = v * rc.n_prims + kv_isect[at];  // its box: the clean frame's, for this very pair
+                    stage_boxed(slot, kv_xy[og], kv_conic[og], kv_rgb[og], kv_box[at]);
+                }
             }
-        }
-        workgroupBarrier();
-        blend_batch(&p, lid.x, row0, m);
-        if (all_done(li)) {
-            break;
+            workgroupBarrier();
+            blend_batch(&p, lid.x, row0, mb);
+            if (all_done(li)) {
+                ended = true;
+                break;
+            }
         }
     }
     if (multi) {

@@ -311,15 +311,19 @@ def test_chunked_renders_are_exact(gpu):
     assert not np.array_equal(a, default)  # the chunk reaches the shader
 
 
-@pytest.mark.parametrize("profile, exact", [("strict", True), ("gsplat", True), ("strict", False)])
-def test_chunked_incremental_equals_full_rerender(gpu, profile, exact):
-    """The variants entry under chunks of 256 re-composites every dirty tile exactly as a full
+@pytest.mark.parametrize(
+    "profile, exact, chunk",
+    [("strict", True, 256), ("gsplat", True, 256), ("strict", False, 256), ("strict", True, 512)],
+)
+def test_chunked_incremental_equals_full_rerender(gpu, profile, exact, chunk):
+    """The variants entry under chunks of 256 (or 512: it then walks the lists 512 entries a round)
+    re-composites every dirty tile exactly as a full
     re-render of the variant does, bit for bit, for upsets that move a primitive inside long tile
     lists (depth), make it a sheet, opaque or NaN, or remove it; with exact binning (the variant is
     listed only on the tiles its footprint reaches, as the binning lists it) and without."""
     model = _dense_model(1500, 4)
     cams = orbit_cameras(2, 32, 32)
-    kw = {"gpu": gpu, "chunk": 256, "profile": profile, "exact_binning": exact}
+    kw = {"gpu": gpu, "chunk": chunk, "profile": profile, "exact_binning": exact}
     r = Renderer(model, cams, keep_views=True, **kw)
     r.capture_views = True
     clean = r.render_rgba()
