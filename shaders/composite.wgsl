@@ -31,7 +31,7 @@
 //   chunks of long tiles, in parallel, into slabs; merge: those slabs into the image;
 // - variants: a tile of a single-upset variant, re-composited from the clean frame's tile list
 //   with the corrupted primitive removed and its re-projected record merged in at its depth
-//   (render/incremental.py; equal to a full re-render bit for bit), its chunks in sequence. Only
+//   (render/incremental.py; equal to a full re-render bit for bit), one chunk per dispatch. Only
 //   the pixels that the clean or the corrupted record reaches are re-blended when both lists are
 //   one chunk; the others are copied. main and chunks leave every pair's pixel box in isect_box
 //   when KEEP_BOXES (a frame kept with the clean state), so a variant tile stages only the entries whose box meets the
@@ -649,6 +649,7 @@ struct Recomp {
     capacity: u32,      // stride of the per-view clean tile lists
     n_entries: u32,
     background: vec4<f32>,
+    chunk_pass: u32,    // the chunk of every entry's list this dispatch composites
 };
 
 @group(0) @binding(10) var<uniform> rc: Recomp;
@@ -671,6 +672,7 @@ struct VariantEntry {
 @group(0) @binding(19) var<storage, read> var_rgb: array<vec4<f32>>;
 @group(0) @binding(20) var<storage, read> var_rect: array<vec2<u32>>;
 @group(0) @binding(21) var<storage, read_write> slabs: array<vec4<f32>>;
+@group(0) @binding(24) var<storage, read_write> variant_ended: array<u32>;  // between chunk dispatches
 @group(0) @binding(22) var<storage, read> clean_image: array<vec4<f32>>;  // [K, H, W]
 @group(0) @binding(23) var<storage, read> kv_box: array<u32>;              // pixel box per kept pair
 
@@ -753,6 +755,37 @@ fn count_before(v: u32, start: u32, end: u32, key: u32, idx: u32) -> u32 {
         }
     }
     return lo - start;
+}
+
+// A variant's running chunks between dispatches: (rgb, T) in its slab, and which pixels ended in
+// `variant_ended` (one word per invocation of the entry, bit QUAD j + i for Quad j, lane i; a
+// flag, not a sign on T: T may be NaN).
+fn write_variant_state(e: u32, li: u32, p: ptr<function, Pixels>, col: u32, row0: u32) {
+    var ended = 0u;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        let q = (*p).q[j];
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            slabs[e * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + col] = vec4<f32>(q.r[i], q.g[i], q.b[i], q.T[i]);
+            ended = ended | (u32(q.done[i]) << (QUAD * j + i));
+        }
+    }
+    variant_ended[e * LANES + li] = ended;
+}
+
+fn read_variant_state(e: u32, li: u32, col: u32, row0: u32, p0: Pixels) -> Pixels {
+    var p = p0;
+    let ended = variant_ended[e * LANES + li];
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            let v = slabs[e * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + col];
+            p.q[j].r[i] = v.x;
+            p.q[j].g[i] = v.y;
+            p.q[j].b[i] = v.z;
+            p.q[j].T[i] = v.w;
+        }
+        p.q[j].done = (vec4<u32>(ended >> (QUAD * j)) & vec4<u32>(1u, 2u, 4u, 8u)) != vec4<u32>(0u);
+    }
+    return p;
 }
 
 @compute @workgroup_size(TILE, ROWS)
@@ -842,14 +875,36 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let live = atomicLoad(&s_active[0]) | (atomicLoad(&s_active[1]) << 8u) | (atomicLoad(&s_active[2]) << 16u)
         | (atomicLoad(&s_active[3]) << 24u);
     let origin = vec2<f32>(tile0);
-    // The list is walked in rounds of `round` entries (up to ROUND_MAX, dividing CHUNK_PAIRS, so
-    // no round straddles two chunks): each invocation tests round / LANES consecutive entries'
-    // pixel boxes against the live pixels; those that meet them are listed in list order (an
-    // exclusive scan of the per-invocation counts), then staged and blended BATCH at a time, so
-    // the blend loop never visits the others. Listing before reading the records, and rounds of
-    // many entries, matter on CPU Vulkan, where a branch never skips code and a barrier costs
-    // microseconds: reading every entry's record, and batches of 256 entries, cost most of a
-    // campaign.
+    // One chunk of the list per dispatch (rc.chunk_pass; the host dispatches as many as the
+    // longest clean list has, plus one for an inserted pair): on CPU Vulkan a workgroup walking a
+    // whole long list would run past llvmpipe's loop limit (docs/renderer.md). Between dispatches
+    // the slab holds the chunks merged so far (rgb, T negated where a pixel ended); the entry's
+    // last chunk writes the output pixels.
+    let c = rc.chunk_pass;
+    let n_chunks = max(1u, (nv + CHUNK_PAIRS - 1u) / CHUNK_PAIRS);
+    if (c >= n_chunks) {
+        return;  // uniform: this entry's list has fewer chunks
+    }
+    var acc = p;
+    if (c > 0u) {
+        // the chunks so far; ended pixels take no part in this one
+        acc = read_variant_state(e, li, lid.x, row0, p);
+        for (var j = 0u; j < QPI; j = j + 1u) {
+            p.q[j].done = acc.q[j].done;
+        }
+        if (li == 0u) {
+            atomicStore(&s_done, 0u);
+        }
+        workgroupBarrier();
+        count_if_done(&p);
+    }
+    // The chunk is walked in rounds of `round` entries (up to ROUND_MAX, dividing CHUNK_PAIRS):
+    // each invocation tests round / LANES consecutive entries' pixel boxes against the live
+    // pixels; those that meet them are listed in list order (an exclusive scan of the
+    // per-invocation counts), then staged and blended BATCH at a time, so the blend loop never
+    // visits the others. Listing before reading the records, and rounds of many entries, matter
+    // on CPU Vulkan, where a branch never skips code and a barrier costs microseconds: reading
+    // every entry's record, and batches of 256 entries, cost most of a campaign.
     var round = BATCH;
     if (CHUNK_PAIRS % ROUND_MAX == 0u) {
         round = ROUND_MAX;
@@ -857,45 +912,24 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         round = 2u * BATCH;
     }
     let per_lane = round / LANES;
-    var rounds = (nv + round - 1u) / round;
+    let lo = c * CHUNK_PAIRS;
+    let hi = min(nv, lo + CHUNK_PAIRS);
+    var rounds = (hi - lo + round - 1u) / round;
     if (workgroupUniformLoad(&s_done) == LANES) {
-        rounds = 0u;  // neither record reaches a pixel: every pixel is the clean frame's
+        rounds = 0u;  // no pixel left to blend: copied from the clean frame, or ended before
     }
     let insert_box = box_of(var_xy[vi], var_conic[vi], cut_of(var_conic[vi].w), origin);
-    // the chunk rule of main, sequentially: `acc` holds the chunks merged so far, p the current
-    // chunk (virtual list entries [CHUNK_PAIRS c, CHUNK_PAIRS (c + 1)))
-    var acc = p;
-    var chunk = 0u;
     var ended = false;
     for (var rd = 0u; rd < rounds && !ended; rd = rd + 1u) {
-        let first = rd * round;
-        if (first == (chunk + 1u) * CHUNK_PAIRS) {
-            merge_pixels(&acc, &p, chunk == 0u);
-            chunk = chunk + 1u;
-            for (var j = 0u; j < QPI; j = j + 1u) {
-                p.q[j].r = vec4<f32>(0.0);
-                p.q[j].g = vec4<f32>(0.0);
-                p.q[j].b = vec4<f32>(0.0);
-                p.q[j].T = vec4<f32>(1.0);
-                p.q[j].done = acc.q[j].done;
-            }
-            if (li == 0u) {
-                atomicStore(&s_done, 0u);
-            }
-            workgroupBarrier();
-            count_if_done(&p);
-            if (all_done(li)) {
-                break;  // every pixel ended: the later chunks are ignored
-            }
-        }
+        let first = lo + rd * round;
         var kept_bits = 0u;
         for (var s = 0u; s < per_lane; s = s + 1u) {
             let i = first + li * per_lane + s;
             var bx = insert_box;
             if (i != insert) {
-                bx = kv_box[v * rc.capacity + range.x + clean_pos(min(i, nv - 1u), insert, removed)];
+                bx = kv_box[v * rc.capacity + range.x + clean_pos(min(i, hi - 1u), insert, removed)];
             }
-            kept_bits = kept_bits | (u32(i < nv && boxes_meet(bx, live)) << s);
+            kept_bits = kept_bits | (u32(i < hi && boxes_meet(bx, live)) << s);
         }
         let at_m = compact(li, countOneBits(kept_bits));
         let m = at_m.y;
@@ -928,9 +962,12 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         }
     }
     if (multi) {
-        // the last chunk (a no-op where every pixel had ended at a chunk boundary)
-        merge_pixels(&acc, &p, chunk == 0u);
+        merge_pixels(&acc, &p, c == 0u);
         p = acc;
+        if (c + 1u < n_chunks) {
+            write_variant_state(e, li, &p, lid.x, row0);
+            return;
+        }
     }
     let bg = rc.background.xyz;
     let x = tile0.x + lid.x;

@@ -311,25 +311,15 @@ def test_chunked_renders_are_exact(gpu):
     assert not np.array_equal(a, default)  # the chunk reaches the shader
 
 
-@pytest.mark.parametrize(
-    "profile, exact, chunk",
-    [("strict", True, 256), ("gsplat", True, 256), ("strict", False, 256), ("strict", True, 512)],
-)
-def test_chunked_incremental_equals_full_rerender(gpu, profile, exact, chunk):
-    """The variants entry under chunks of 256 (or 512: it then walks the lists 512 entries a round)
-    re-composites every dirty tile exactly as a full
-    re-render of the variant does, bit for bit, for upsets that move a primitive inside long tile
-    lists (depth), make it a sheet, opaque or NaN, or remove it; with exact binning (the variant is
-    listed only on the tiles its footprint reaches, as the binning lists it) and without."""
-    model = _dense_model(1500, 4)
-    cams = orbit_cameras(2, 32, 32)
-    kw = {"gpu": gpu, "chunk": chunk, "profile": profile, "exact_binning": exact}
+def _incremental_equals_full(gpu, model, cams, kw, prims, min_entries=20) -> int:
+    """Upsets of `prims` that move a primitive inside the tile lists (depth), make it a sheet,
+    opaque or NaN, or remove it, re-composited by the variants entry: every dirty tile equals a
+    full re-render of the variant bit for bit. Returns the longest clean tile list."""
     r = Renderer(model, cams, keep_views=True, **kw)
     r.capture_views = True
     clean = r.render_rgba()
     r.capture_views = False
     comp = IncrementalCompositor(r, gpu.upload(clean), max_variants=8, max_entries=512)
-    prims = np.array([5, 77, 300, 301, 900, 1200, 1499])
     flat = r.layout.decode(r.clean_words).flat()
     bits = encoding.to_bits(flat[prims], "fp32")
     bits[0, 2] ^= np.uint32(1 << 29)  # mean z: moves in depth
@@ -345,7 +335,7 @@ def test_chunked_incremental_equals_full_rerender(gpu, profile, exact, chunk):
     _, b_idx, v_idx, t_idx = comp.encode(enc, prims, dirty, 0)
     gpu.submit(enc)
     slabs = comp.read_slabs(len(b_idx)).view(np.uint32)
-    assert len(b_idx) >= 20
+    assert len(b_idx) >= min_entries
     for b, p in enumerate(prims):
         f = flat.copy()
         f[p] = encoding.from_bits(bits[b : b + 1], "fp32")[0]
@@ -356,6 +346,41 @@ def test_chunked_incremental_equals_full_rerender(gpu, profile, exact, chunk):
             ty, tx = divmod(int(t), r.tiles_x)
             want = full[v, ty * 16 : ty * 16 + 16, tx * 16 : tx * 16 + 16]
             assert np.array_equal(slabs[e], want), (b, v, t)
+    return comp.longest_list
+
+
+@pytest.mark.parametrize(
+    "profile, exact, chunk",
+    [("strict", True, 256), ("gsplat", True, 256), ("strict", False, 256), ("strict", True, 512)],
+)
+def test_chunked_incremental_equals_full_rerender(gpu, profile, exact, chunk):
+    """The variants entry under chunks of 256 (or 512: it then walks the lists 512 entries a
+    round), one chunk per dispatch, re-composites every dirty tile exactly as a full re-render of
+    the variant does, bit for bit, with exact binning (the variant is listed only on the tiles its
+    footprint reaches, as the binning lists it) and without."""
+    model = _dense_model(1500, 4)
+    kw = {"gpu": gpu, "chunk": chunk, "profile": profile, "exact_binning": exact}
+    longest = _incremental_equals_full(
+        gpu, model, orbit_cameras(2, 32, 32), kw, np.array([5, 77, 300, 301, 900, 1200, 1499])
+    )
+    assert longest > chunk  # two chunks and more: later dispatches carry the running state
+
+
+def test_incremental_lists_past_the_cpu_loop_limit(gpu):
+    """A one-tile frame listing ~90k faint records (pixels stay unsaturated), past llvmpipe's
+    walk bound (gpu.max_walked_pairs): the variants entry walks one default chunk per dispatch, and
+    every variant's tile equals a full re-render bit for bit, the frame-covering sheet (which walks
+    every entry) included. Walking the whole list on one workgroup, as before, fails here on
+    lavapipe (the first variant's tile already differs)."""
+    model = random_model(100_000, seed=6)
+    flat = model.flat()
+    flat[:, 10] -= 5.0  # faint: most pixels are walked through the whole list
+    model = Model.from_flat(flat, model.sh_degree)
+    kw = {"gpu": gpu}
+    longest = _incremental_equals_full(
+        gpu, model, orbit_cameras(1, 16, 16), kw, np.array([3, 900, 17000, 30001, 41000, 52000, 99999]), 7
+    )
+    assert longest > CHUNK
 
 
 def test_chunk_and_slab_limits(gpu):

@@ -135,9 +135,10 @@ def test_full_renders_in_between_leave_the_incremental_state_clean():
 
 
 def test_lists_past_the_devices_walk_limit_are_rendered_in_full(monkeypatch):
-    """On a device whose shader loops stop early (llvmpipe: gpu.max_walked_pairs), a frame with a
-    tile list past the bound is evaluated by full re-renders: the same records, and sort-first
-    regions refused with a clear error instead of a silently wrong number."""
+    """On a device whose shader loops stop early (llvmpipe: gpu.max_walked_pairs), a frame whose
+    incremental walk (one chunk of a tile list, or the whole list where shorter) is past the bound
+    is evaluated by full re-renders: the same records, and sort-first regions refused with a clear
+    error instead of a silently wrong number."""
     from seuwgpu.errors import TooBig
     from seuwgpu.gpu.device import GPU
 

@@ -133,7 +133,7 @@ class Engine:
         self.gpu.submit(enc)
         r.version += 1  # kept views re-captured: the incremental compositor re-reads them
         self._ref_mask = mask
-        # the longest clean tile list (the incremental path walks whole lists: gpu.max_walked_pairs)
+        # the longest clean tile list (the incremental path walks a chunk of it per dispatch)
         self.longest_list = 0
         if r.keep_views:
             rng = self.gpu.read(r.kv_ranges, np.uint32, 0, 8 * r.n_tiles * r.k).reshape(-1, 2).astype(np.int64)
@@ -141,10 +141,13 @@ class Engine:
 
     @property
     def incremental_walks_safely(self) -> bool:
-        """Whether the device can re-composite this frame's longest tile list (with a margin for
-        the one pair a variant adds) on one workgroup; else evaluate_frame renders in full."""
+        """Whether one workgroup of the incremental re-compositor stays within the device's walk
+        limit; else evaluate_frame renders in full. It walks one chunk of a tile list per dispatch,
+        so its longest walk is the chunk, or the longest list plus the pair a variant adds where
+        that is shorter: with the default chunk no frame needs full renders."""
         limit = self.gpu.max_walked_pairs
-        return limit is None or self.longest_list + 1 <= limit
+        walk = min(self.longest_list + 1, self.renderer.compositing.chunk)
+        return limit is None or walk <= limit
 
     def reference_mask(self, defense: str) -> int:
         """Guard mask of the clean reference of `defense`: its own mask where the clean model holds

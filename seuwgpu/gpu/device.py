@@ -87,8 +87,9 @@ class GPU:
         loop of a shader invocation once all its loops together have run 65,535 iterations
         (gallivm LP_MAX_TGSI_LOOP_ITERATIONS), silently: a tile list walked by one invocation costs
         about 1.2 iterations per pair (composite.wgsl), so lists past ~54k pairs would come out
-        wrong. Full frames never walk more than CHUNK pairs per workgroup; the incremental
-        re-compositor walks a whole tile list, so it is used only below this bound (with margin)."""
+        wrong. Full frames and the incremental re-compositor never walk more than CHUNK pairs per
+        workgroup (one chunk per workgroup or per dispatch): a renderer with a larger chunk is
+        re-composited only below this bound (faults/engine.py incremental_walks_safely)."""
         return 32768 if self.is_cpu else None
 
     # ---- shaders and pipelines -----------------------------------------------------------------

@@ -13,8 +13,8 @@ before chunks existed, bit for bit; longer ones run their chunks on separate wor
 
 The GPU entry points share the blending and merging code, so their arithmetic is identical bit
 for bit: `Compositing` (main, chunks, merge: the tiles of full frames) and `VariantCompositing`
-(variants: tiles of single-upset variants re-composited from a clean frame's kept lists, their
-chunks in sequence, render/incremental.py).
+(variants: tiles of single-upset variants re-composited from a clean frame's kept lists, one
+chunk per dispatch, render/incremental.py).
 
 Twin: `composite_tile` blends one tile exactly as the sequential per-pixel rule does, vectorised
 over pixels and blocks of primitives: the transmittance and colour recurrences use
@@ -128,9 +128,11 @@ class VariantCompositing:
     """composite.wgsl:variants: re-composite listed (variant, view, tile, primitive) entries into
     slabs (one TILE x TILE vec4 tile each), from a clean frame's kept per-view state with the
     primitive's clean entry removed and its variant record merged in at its depth (ordered by
-    (depth bits, index) as the depth sort orders them), its chunks in sequence. A pixel that
-    neither record reaches is copied from the clean image when both lists are one chunk. Owns the
-    entries, the slabs and the `Recomp` parameters."""
+    (depth bits, index) as the depth sort orders them). Chunk c of every entry's list runs in
+    dispatch c, merged into the entry's slab (running state between dispatches), so no workgroup
+    walks more than one chunk (llvmpipe's loop limit: docs/renderer.md). A pixel that neither
+    record reaches is copied from the clean image when both lists are one chunk. Owns the
+    entries, the slabs and the `Recomp` parameters (one slot per chunk dispatch)."""
 
     def __init__(self, gpu: GPU, max_entries: int, profile: str = "strict", chunk: int = CHUNK, exact: bool = True):
         self.gpu = gpu
@@ -144,9 +146,13 @@ class VariantCompositing:
         self.max_entries = int(max_entries)
         self.entries = gpu.buffer(self.entry.size * self.max_entries, STORAGE, "variants.entries")
         self.slabs = gpu.buffer(SLAB_BYTES * self.max_entries, STORAGE, "variants.slabs")
+        # which pixels ended, between chunk dispatches: one u32 per invocation of an entry
+        lanes = TILE * TILE // 8  # composite.wgsl LANES: 8 pixels an invocation
+        self.ended = gpu.buffer(4 * lanes * self.max_entries, STORAGE, "variants.ended")
 
-    def encode(self, encoder, entries: dict, kept: dict, variant: dict, clean_image, **params):
-        """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}).
+    def encode(self, encoder, entries: dict, kept: dict, variant: dict, clean_image, longest: int, **params):
+        """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}); `longest`:
+        the longest clean tile list (a variant's list holds at most one pair more).
         kept: the clean frame's per-view `ranges`, `isect` and `box` (tile lists and the pairs'
         pixel boxes, `capacity` apart), `xy`,
         `conic`, `rgb` (w = depth) of n_prims records per view; variant: the variants' `xy`,
@@ -158,13 +164,17 @@ class VariantCompositing:
         if n_e:
             self.gpu.write(self.entries, self.entry.fill(self.entry.zeros(n_e), **entries))
         params["background"] = np.append(np.asarray(params["background"], np.float32), 0.0)
-        self.params.struct.fill(self.params.rows[0:1], n_entries=n_e, **params)
+        passes = max(1, -(-(int(longest) + 1) // self.chunk))
+        if passes > self.params.slots:
+            self.params = Uniforms(self.gpu, self.params.struct, passes, "recomp")
+        self.params.struct.fill(self.params.rows[:passes], n_entries=n_e, **params)
+        self.params.rows["chunk_pass"][:passes] = np.arange(passes)
         self.params.write()
-        if n_e:
+        for c in range(passes if n_e else 0):
             self.kernel.dispatch(
                 encoder,
                 {
-                    10: self.params.binding(0),
+                    10: self.params.binding(c),
                     11: self.entries,
                     12: kept["ranges"],
                     13: kept["isect"],
@@ -178,6 +188,7 @@ class VariantCompositing:
                     20: variant["rect"],
                     21: self.slabs,
                     22: clean_image,
+                    24: self.ended,
                 },
                 workgroups=n_e,
             )

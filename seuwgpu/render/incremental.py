@@ -56,6 +56,8 @@ class IncrementalCompositor:
         r, g = self.r, self.gpu
         rects = g.read(r.kv_rect, np.uint32, 0, 8 * r.n * r.k).reshape(r.k, r.n, 2)
         self.clean_rects = unpack_rects(rects)  # [K, N, 4] x0, y0, x1, y1
+        ranges = g.read(r.kv_ranges, np.uint32, 0, 8 * r.n_tiles * r.k).reshape(-1, 2).astype(np.int64)
+        self.longest_list = int((ranges[:, 1] - ranges[:, 0]).max(initial=0))  # chunk dispatches
         rows = self.projection.params.rows
         rows[:] = r.projection.params.rows[:: r.layout.n_chunks]  # chunk 0 of each view
         # chunk_base = v * B puts view v's outputs at [v*B, v*B + B); no in-pipeline guard
@@ -136,6 +138,7 @@ class IncrementalCompositor:
             },
             variant={"xy": p.xy, "conic": p.conic, "rgb": p.rgb, "rect": p.rect},
             clean_image=self.clean_buf,
+            longest=self.longest_list,
             width=r.width,
             height=r.height,
             tiles_x=r.tiles_x,
