@@ -673,6 +673,8 @@ struct VariantEntry {
 @group(0) @binding(20) var<storage, read> var_rect: array<vec2<u32>>;
 @group(0) @binding(21) var<storage, read_write> slabs: array<vec4<f32>>;
 @group(0) @binding(24) var<storage, read_write> variant_ended: array<u32>;  // between chunk dispatches
+@group(0) @binding(25) var<storage, read_write> slab_changed: array<u32>;  // 1: the slab differs from clean
+var<workgroup> s_differs: atomic<u32>;
 @group(0) @binding(22) var<storage, read> clean_image: array<vec4<f32>>;  // [K, H, W]
 @group(0) @binding(23) var<storage, read> kv_box: array<u32>;              // pixel box per kept pair
 
@@ -809,6 +811,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let vi = v * rc.n_variants + b;
     if (li == 0u) {
         atomicStore(&s_done, 0u);
+        atomicStore(&s_differs, 0u);
         atomicStore(&s_active[0], 0xffu);
         atomicStore(&s_active[1], 0u);
         atomicStore(&s_active[2], 0xffu);
@@ -971,14 +974,28 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     }
     let bg = rc.background.xyz;
     let x = tile0.x + lid.x;
+    var differs = false;
     for (var j = 0u; j < QPI; j = j + 1u) {
         for (var i = 0u; i < QUAD; i = i + 1u) {
             let ly = row0 + QUAD * j + i;
+            let y = tile0.y + ly;
+            let clean_px = clean_image[(v * rc.height + min(y, rc.height - 1u)) * rc.width + min(x, rc.width - 1u)];
             var px = out_pixel(p.q[j], i, bg);
             if (copy_clean[j][i]) {
-                px = clean_image[(v * rc.height + tile0.y + ly) * rc.width + x];
+                px = clean_px;
             }
             slabs[e * TILE_PIXELS + ly * TILE + lid.x] = px;
+            let same = all(bitcast<vec3<u32>>(px.xyz) == bitcast<vec3<u32>>(clean_px.xyz));
+            differs = differs || (x < rc.width && y < rc.height && !same);
         }
+    }
+    // whether the tile differs from the clean frame's in any pixel's rgb bits: the metrics skip
+    // the tiles that do not (and their neighbours), which contribute exactly nothing
+    if (differs) {
+        atomicOr(&s_differs, 1u);
+    }
+    workgroupBarrier();
+    if (li == 0u) {
+        slab_changed[e] = atomicLoad(&s_differs);
     }
 }

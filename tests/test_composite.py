@@ -336,6 +336,14 @@ def _incremental_equals_full(gpu, model, cams, kw, prims, min_entries=20) -> int
     gpu.submit(enc)
     slabs = comp.read_slabs(len(b_idx)).view(np.uint32)
     assert len(b_idx) >= min_entries
+    # which slabs differ from the clean tile (rgb bits inside the frame): the metrics reduce only those
+    clean_bits = clean.view(np.uint32)
+    want = [
+        not np.array_equal(slabs[e, :, :, :3], clean_bits[v, ty * 16 : ty * 16 + 16, tx * 16 : tx * 16 + 16, :3])
+        for e, (v, (ty, tx)) in enumerate(zip(v_idx, (divmod(int(t), r.tiles_x) for t in t_idx)))
+    ]
+    changed = comp.read_changed(len(b_idx))
+    assert changed.tolist() == want and 0 < changed.sum() < len(want)
     for b, p in enumerate(prims):
         f = flat.copy()
         f[p] = encoding.from_bits(bits[b : b + 1], "fp32")[0]

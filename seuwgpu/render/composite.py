@@ -149,6 +149,8 @@ class VariantCompositing:
         # which pixels ended, between chunk dispatches: one u32 per invocation of an entry
         lanes = TILE * TILE // 8  # composite.wgsl LANES: 8 pixels an invocation
         self.ended = gpu.buffer(4 * lanes * self.max_entries, STORAGE, "variants.ended")
+        # 1 where an entry's slab differs from the clean tile in some pixel's rgb bits
+        self.changed = gpu.buffer(4 * self.max_entries, STORAGE, "variants.changed")
 
     def encode(self, encoder, entries: dict, kept: dict, variant: dict, clean_image, longest: int, **params):
         """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}); `longest`:
@@ -189,9 +191,15 @@ class VariantCompositing:
                     21: self.slabs,
                     22: clean_image,
                     24: self.ended,
+                    25: self.changed,
                 },
                 workgroups=n_e,
             )
+
+    def read_changed(self, n: int) -> np.ndarray:
+        """[n] bool of the last submitted encode: whether each entry's slab differs from the
+        clean tile (rgb bits of a pixel inside the frame)."""
+        return self.gpu.read(self.changed, np.uint32, 0, 4 * n) != 0
 
     def read_slabs(self, n: int) -> np.ndarray:
         """[n, TILE, TILE, 4] float32 of the last submitted encode."""

@@ -153,6 +153,9 @@ class IncrementalCompositor:
     def read_slabs(self, n: int) -> np.ndarray:
         return self.compositing.read_slabs(n)
 
+    def read_changed(self, n: int) -> np.ndarray:
+        return self.compositing.read_changed(n)
+
     def predicted_regions(self, new_rects: np.ndarray, P: int) -> np.ndarray:
         """Regions of the P-way sort-first grid that each variant primitive's tile rectangle (its
         projected 3.33-sigma footprint, as binned) reaches in any view, as int64 bitmasks.
