@@ -183,8 +183,8 @@ fn alpha_of(sigma: vec4<f32>, o: f32) -> Alpha {
     return Alpha(alpha, !skip);
 }
 
-// Staged record k blended into a quad.
-fn blend_quad(q0: Quad, st: vec4<f32>, co: vec4<f32>, k: u32) -> Quad {
+// A staged record (mean and cut in st, conic and opacity in co, colour in rgb) blended into a quad.
+fn blend_quad(q0: Quad, st: vec4<f32>, co: vec4<f32>, rgb: vec4<f32>) -> Quad {
     var q = q0;
     let done = q.done;
     let sigma = sigma_of(st.xy, co, q);
@@ -200,7 +200,6 @@ fn blend_quad(q0: Quad, st: vec4<f32>, co: vec4<f32>, k: u32) -> Quad {
     let next_t = T * (1.0 - alpha);
     let stop = hit & !nan4(next_t) & (next_t <= vec4<f32>(1e-4));
     let upd = hit & !stop;
-    let rgb = s_rgb[k];
     let w = alpha * T;
     q.r = select(q.r, q.r + rgb.x * w, upd);
     q.g = select(q.g, q.g + rgb.y * w, upd);
@@ -213,11 +212,12 @@ fn blend_quad(q0: Quad, st: vec4<f32>, co: vec4<f32>, k: u32) -> Quad {
 // Staged record k blended into the invocation's quads that its rows y0..y1 reach (QPI = 2 written
 // out: a loop over the private array is not unrolled on CPU Vulkan, ~8% of compositing).
 fn blend_quads(p: ptr<function, Pixels>, st: vec4<f32>, co: vec4<f32>, k: u32, row0: u32, y0: u32, y1: u32) {
+    let rgb = s_rgb[k];
     if (row0 + QUAD - 1u >= y0 && row0 <= y1) {
-        (*p).q[0] = blend_quad((*p).q[0], st, co, k);
+        (*p).q[0] = blend_quad((*p).q[0], st, co, rgb);
     }
     if (row0 + 2u * QUAD - 1u >= y0 && row0 + QUAD <= y1) {
-        (*p).q[1] = blend_quad((*p).q[1], st, co, k);
+        (*p).q[1] = blend_quad((*p).q[1], st, co, rgb);
     }
 }
 
@@ -316,8 +316,9 @@ fn blend_batch_masked(p: ptr<function, Pixels>, q: u32) {
             bits = bits & (bits - 1u);
             let st = s_pos[k];
             let co = s_conic[k];
-            (*p).q[0] = blend_quad((*p).q[0], st, co, k);
-            (*p).q[1] = blend_quad((*p).q[1], st, co, k);  // QPI = 2
+            let rgb = s_rgb[k];
+            (*p).q[0] = blend_quad((*p).q[0], st, co, rgb);
+            (*p).q[1] = blend_quad((*p).q[1], st, co, rgb);  // QPI = 2
             if (all_pixels_done(p)) {
                 atomicAdd(&s_done, 1u);
                 return;
