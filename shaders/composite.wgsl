@@ -305,7 +305,9 @@ fn write_qmask(li: u32, qs: array<u32, PER_LANE>) {
 // are blended into both Quads without the box test of blend_record: on CPU Vulkan a branch never
 // skips code (docs/renderer.md), so the test only costs (8% of compositing, spheres 100k), and a
 // pixel past the cut still skips the record without exp.
-fn blend_batch_masked(p: ptr<function, Pixels>, q: u32) {
+// KEEP_BOXES: `stops` receives the list position (slot k at base + k) of the record each pixel
+// stopped at (the incremental re-compositor copies pixels that a change behind it cannot reach).
+fn blend_batch_masked(p: ptr<function, Pixels>, q: u32, base: u32, stops: ptr<function, array<vec4<u32>, QPI>>) {
     if (all_pixels_done(p)) {
         return;
     }
@@ -317,8 +319,14 @@ fn blend_batch_masked(p: ptr<function, Pixels>, q: u32) {
             let st = s_pos[k];
             let co = s_conic[k];
             let rgb = s_rgb[k];
+            let done0 = (*p).q[0].done;
+            let done1 = (*p).q[1].done;
             (*p).q[0] = blend_quad((*p).q[0], st, co, rgb);
             (*p).q[1] = blend_quad((*p).q[1], st, co, rgb);  // QPI = 2
+            if (KEEP_BOXES) {
+                (*stops)[0] = select((*stops)[0], vec4<u32>(base + k), (*p).q[0].done & !done0);
+                (*stops)[1] = select((*stops)[1], vec4<u32>(base + k), (*p).q[1].done & !done1);
+            }
             if (all_pixels_done(p)) {
                 atomicAdd(&s_done, 1u);
                 return;
@@ -431,7 +439,8 @@ const VOID: u32 = 0xffffffffu;  // an extra_list item of a tile composited in ma
 
 // Composite the pairs [a, b) of the tile at `origin` (one chunk) into p, leaving every pair's
 // pixel box in isect_box (FULL_BOX for those never staged).
-fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, col: u32, row0: u32, li: u32) {
+fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, col: u32, row0: u32, li: u32,
+                   pos0: u32, stops: ptr<function, array<vec4<u32>, QPI>>) {
     if (li == 0u) {
         atomicStore(&s_done, 0u);
     }
@@ -464,7 +473,7 @@ fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, 
         }
         write_qmask(li, quads);
         workgroupBarrier();
-        blend_batch_masked(p, col / (TILE / 2u) + 2u * (row0 / (TILE / 2u)));
+        blend_batch_masked(p, col / (TILE / 2u) + 2u * (row0 / (TILE / 2u)), pos0 + bt * BATCH, stops);
         if (all_done(li)) {
             // the pairs never staged: no box known
             for (var idx = a + (bt + 1u) * BATCH + li; KEEP_BOXES && idx < b; idx = idx + LANES) {
@@ -520,6 +529,23 @@ fn write_image(p: ptr<function, Pixels>, tx: u32, ty: u32, col: u32, row0: u32) 
     }
 }
 
+// KEEP_BOXES frames: per pixel, the position in its tile's list of the record it stopped at, or
+// NEVER (it never stopped, or its list is longer than a chunk), as the image is indexed.
+const NEVER: u32 = 0xffffffffu;
+@group(0) @binding(35) var<storage, read_write> stop_pos: array<u32>;
+
+fn write_stops(stops: ptr<function, array<vec4<u32>, QPI>>, tx: u32, ty: u32, col: u32, row0: u32) {
+    let x = tx * TILE + col;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            let y = ty * TILE + row0 + QUAD * j + i;
+            if (x < bin.width && y < bin.height) {
+                stop_pos[(bin.stats_index * bin.height + y) * bin.width + x] = (*stops)[j][i];
+            }
+        }
+    }
+}
+
 // The first pixel of tile (tx, ty) in full-frame coordinates (a sort-first viewport starts at
 // `origin`).
 fn tile_first(tx: u32, ty: u32) -> vec2<u32> {
@@ -543,10 +569,18 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
     let range = ranges[tile];
     let n = range.y - range.x;
     let origin = vec2<f32>(tile_first(wg.x, wg.y));
-    composite_range(&p, range.x, range.x + min(n, CHUNK_PAIRS), origin, lid.x, row0, li);
+    var stops = array<vec4<u32>, QPI>(vec4<u32>(NEVER), vec4<u32>(NEVER));
+    composite_range(&p, range.x, range.x + min(n, CHUNK_PAIRS), origin, lid.x, row0, li, 0u, &stops);
     if (n <= CHUNK_PAIRS) {
         write_image(&p, wg.x, wg.y, lid.x, row0);
+        if (KEEP_BOXES) {
+            write_stops(&stops, wg.x, wg.y, lid.x, row0);
+        }
         return;
+    }
+    if (KEEP_BOXES) {
+        stops = array<vec4<u32>, QPI>(vec4<u32>(NEVER), vec4<u32>(NEVER));  // long lists: unknown
+        write_stops(&stops, wg.x, wg.y, lid.x, row0);
     }
     let n_chunks = (n + CHUNK_PAIRS - 1u) / CHUNK_PAIRS;
     if (li == 0u) {
@@ -576,7 +610,7 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
                     acc.q[j].done);
             }
             let a = range.x + c * CHUNK_PAIRS;
-            composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), origin, lid.x, row0, li);
+            composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), origin, lid.x, row0, li, c * CHUNK_PAIRS, &stops);
             merge_pixels(&acc, &p, false);
         }
         write_image(&acc, wg.x, wg.y, lid.x, row0);
@@ -610,7 +644,8 @@ fn chunks(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: ve
         }
         let range = ranges[item.x];
         let a = range.x + item.y * CHUNK_PAIRS;
-        composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), vec2<f32>(tile_first(tx, ty)), lid.x, row0, li);
+        var stops: array<vec4<u32>, QPI>;  // not kept for later chunks
+        composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), vec2<f32>(tile_first(tx, ty)), lid.x, row0, li, 0u, &stops);
         write_slab(&p, item.z, lid.x, row0);
     }
 }
@@ -675,6 +710,7 @@ struct VariantEntry {
 @group(0) @binding(21) var<storage, read_write> slabs: array<vec4<f32>>;
 @group(0) @binding(24) var<storage, read_write> variant_ended: array<u32>;  // between chunk dispatches
 @group(0) @binding(25) var<storage, read_write> slab_changed: array<u32>;  // 1: the slab differs from clean
+@group(0) @binding(26) var<storage, read> kv_stop: array<u32>;  // clean frame: list position each pixel stopped at
 var<workgroup> s_differs: atomic<u32>;
 @group(0) @binding(22) var<storage, read> clean_image: array<vec4<f32>>;  // [K, H, W]
 @group(0) @binding(23) var<storage, read> kv_box: array<u32>;              // pixel box per kept pair
@@ -726,6 +762,7 @@ fn boxes_meet(a: u32, b: u32) -> bool {
 // (n virtual, insert position or 0xffffffff, removed position or 0xffffffff, 1 if the clean or
 // the virtual list has more than one chunk)
 var<workgroup> s_list: vec4<u32>;
+var<workgroup> s_insert_at: u32;  // the corrupted record's place in the clean list (before that entry)
 
 // Lanes of the quad that a record takes part in (the same arithmetic and skip rules as
 // blend_batch). A pixel that neither the clean nor the corrupted record reaches composites
@@ -836,8 +873,10 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
             let cols = row_tiles(reach(var_xy[vi], var_conic[vi]), f32(ty * TILE), 0.0, r.x & 0xffffu, r.y & 0xffffu);
             paired = cols.x <= tx && tx < cols.y;
         }
+        s_insert_at = 0xffffffffu;
         if (paired) {
             var ip = count_before(v, range.x, range.y, bitcast<u32>(var_rgb[vi].w), prim);
+            s_insert_at = ip;  // the clean list's position it goes before
             if (removed != 0xffffffffu && removed < ip) {
                 ip = ip - 1u;
             }
@@ -853,14 +892,27 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let insert = list.y;
     let removed = list.z;
     let multi = list.w != 0u;
-    // pixels that neither the clean nor the corrupted record reaches: copied from the clean frame,
-    // only when both lists are one chunk (a removal or an insertion shifts the chunk boundaries)
+    let insert_at = workgroupUniformLoad(&s_insert_at);
+    // Pixels the change cannot reach, copied from the clean frame (only when both lists are one
+    // chunk: a removal or an insertion shifts the chunk boundaries): a pixel's value depends only
+    // on the records that do not skip it, in list order, up to the one it stopped at in the clean
+    // frame (kv_stop, a position in the clean list; NEVER where it did not stop). So neither
+    // record reaching it, or each that does lying behind its stop, leaves it as it was: on opaque
+    // surfaces most upsets of hidden primitives then re-blend nothing.
     let o = v * rc.n_prims + prim;
     var copy_clean: array<vec4<bool>, QPI>;
+    let x_stop = min(tile0.x + lid.x, rc.width - 1u);
     for (var j = 0u; j < QPI; j = j + 1u) {
+        var stop: vec4<u32>;
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            let y = min(tile0.y + row0 + QUAD * j + i, rc.height - 1u);
+            stop[i] = kv_stop[(v * rc.height + y) * rc.width + x_stop];
+        }
         let old_hits = contributes(kv_xy[o], kv_conic[o], p.q[j]) & vec4<bool>(removed != 0xffffffffu);
         let new_hits = contributes(var_xy[vi], var_conic[vi], p.q[j]) & vec4<bool>(insert != 0xffffffffu);
-        copy_clean[j] = !p.q[j].done & !old_hits & !new_hits & vec4<bool>(!multi);
+        let old_reaches = old_hits & (vec4<u32>(removed) <= stop);
+        let new_reaches = new_hits & (vec4<u32>(insert_at) <= stop);
+        copy_clean[j] = !p.q[j].done & !old_reaches & !new_reaches & vec4<bool>(!multi);
         p.q[j].done = p.q[j].done | copy_clean[j];
     }
     count_if_done(&p);

@@ -2,7 +2,9 @@
 re-compositing of the dirty tiles (render/incremental.py), and the metric reductions over them
 (metrics/image.py, sparse mode), in one submission per group of variants.
 
-Metrics are reduced over the dirty tiles whose re-composited pixels differ from the clean frame's
+The re-compositor re-blends only pixels the change can reach (in front of where the clean frame
+stopped blending them: render/incremental.py, docs/renderer.md). Metrics are reduced over the
+dirty tiles whose re-composited pixels differ from the clean frame's
 (the variants pass flags them), dilated by one (SSIM windows reach 3 px), with unchanged windows
 counting exactly 1, so every number equals a full re-render's bit for bit. Reading the flags back
 splits a group into two submissions; it halved the metric work of a campaign (only a quarter of

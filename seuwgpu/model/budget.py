@@ -88,9 +88,10 @@ def render_device_bytes(n: int, degree: int, k: int, width: int, height: int, ke
     """Device memory of a renderer/engine: stored words, per-primitive projection and sort/bin
     scratch (~64 B), the intersection buffers (~16 B for each of >= 4n pairs, per view when kept,
     and the slabs of long tiles' chunks: under 1 B a pair at the default chunk), and the clean and
-    current frames."""
+    current frames (and, kept, where each pixel stopped: 4 B a pixel)."""
     per_prim = 4 * n_values(degree) + 64 + 8 + 64 * (k if keep_views else 1) + (48 * k if keep_views else 0)
-    return int(n) * per_prim + 2 * int(k) * int(width) * int(height) * PIXEL_BYTES
+    per_pixel = 2 * PIXEL_BYTES + (4 if keep_views else 0)
+    return int(n) * per_prim + int(k) * int(width) * int(height) * per_pixel
 
 
 def check_render(limits: dict, is_cpu: bool, n: int, degree: int, k: int, width: int, height: int, keep_views: bool):

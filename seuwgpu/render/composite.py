@@ -67,6 +67,7 @@ class Compositing:
         )
         # Work (composite.wgsl): counters zeroed per view; the dispatch arguments' y, z stay 1
         self.work = gpu.upload(np.array([0, 0, 0, 0, 0, 1, 1, 0, 0, 1, 1, 0], np.uint32), INDIRECT, "composite.work")
+        self.no_stops = gpu.buffer(16, STORAGE, "composite.no_stops")  # bound where no frame is kept
         self.capacity = None
 
     def set_views(self, k: int, width: int, height: int):
@@ -96,14 +97,28 @@ class Compositing:
         self.merge_list = g.buffer(8 * (slots // 2 + 1), STORAGE, "composite.merge_list")  # >= 2 slots a tile
 
     def encode(
-        self, encoder, frame, ranges, isect_prims, xy, conic, rgb, tiles: tuple[int, int], isect_box, keep_boxes=True
+        self,
+        encoder,
+        frame,
+        ranges,
+        isect_prims,
+        xy,
+        conic,
+        rgb,
+        tiles: tuple[int, int],
+        isect_box,
+        keep_boxes=True,
+        stops=None,
     ):
         """One view: `frame` its Binning slot (render/bin.py), `ranges` / `isect_prims` its tile
         lists, `xy` / `conic` / `rgb` the screen records (render/project.py), tiles = (TX, TY);
         `isect_box` (u32 per pair) receives each pair's pixel box (FULL_BOX where a chunk stopped
         early), which the variants entry reuses (keep_boxes=False leaves it untouched: same
-        image, less traffic). Three passes: main over every tile, then chunks and merge
-        (indirect: no workgroup when no tile is longer than a chunk)."""
+        image, less traffic). `stops` (u32 per pixel, indexed as the image): where keep_boxes,
+        receives the position in its tile's list of the record each pixel stopped at (0xffffffff:
+        none, or a list longer than a chunk), which the variants entry reads. Three passes: main
+        over every tile, then chunks and merge (indirect: no workgroup when no tile is longer than
+        a chunk)."""
         if self.capacity is None:
             raise RuntimeError("Compositing.set_capacity must be called before encode")
         encoder.clear_buffer(self.work, 0, 20)  # counters and the chunks' group count
@@ -112,7 +127,9 @@ class Compositing:
         lists = {31: self.slabs, 32: self.extra_list, 33: self.merge_list}
         main, chunks = (self.kernel, self.k_chunks) if keep_boxes else self._lean
         main.dispatch(
-            encoder, {**records, 6: self.image, 30: self.work, **lists}, workgroups=(int(tiles[0]), int(tiles[1]), 1)
+            encoder,
+            {**records, 6: self.image, 30: self.work, 35: self.no_stops if stops is None else stops, **lists},
+            workgroups=(int(tiles[0]), int(tiles[1]), 1),
         )
         chunks.dispatch(
             encoder, {**records, 31: self.slabs, 32: self.extra_list, 34: self.work}, indirect=(self.work, 16)
@@ -156,7 +173,7 @@ class VariantCompositing:
         """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}); `longest`:
         the longest clean tile list (a variant's list holds at most one pair more).
         kept: the clean frame's per-view `ranges`, `isect` and `box` (tile lists and the pairs'
-        pixel boxes, `capacity` apart), `xy`,
+        pixel boxes, `capacity` apart), `stop` (per pixel, where each stopped in its list), `xy`,
         `conic`, `rgb` (w = depth) of n_prims records per view; variant: the variants' `xy`,
         `conic`, `rgb`, `rect` (n_variants per view); params: width, height, tiles_x, n_tiles,
         n_prims, n_variants, capacity, background. Queue writes: one encode per submission."""
@@ -192,6 +209,7 @@ class VariantCompositing:
                     22: clean_image,
                     24: self.ended,
                     25: self.changed,
+                    26: kept["stop"],
                 },
                 workgroups=n_e,
             )

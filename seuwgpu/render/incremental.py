@@ -132,6 +132,7 @@ class IncrementalCompositor:
                 "ranges": r.kv_ranges,
                 "isect": r.kv_isect,
                 "box": r.kv_box,
+                "stop": r.kv_stop,
                 "xy": r.kv_xy,
                 "conic": r.kv_conic,
                 "rgb": r.kv_rgb,

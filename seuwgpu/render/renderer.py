@@ -150,6 +150,8 @@ class Renderer:
             self.kv_rgb = g.buffer(16 * n * k, STORAGE, "kv_rgb")
             self.kv_rect = g.buffer(8 * n * k, STORAGE, "kv_rect")
             self.kv_ranges = g.buffer(8 * self.n_tiles * k, STORAGE, "kv_ranges")
+            # per pixel of each view, the list position of the record it stopped at (composite.wgsl)
+            self.kv_stop = g.buffer(4 * k * self.width * self.height, STORAGE, "kv_stop")
         want = self._want_capacity or max(65536, 4 * self.n)
         self._set_capacity(max(self.capacity, min(_next_pow2(want), self.max_capacity)), force=True)
 
@@ -251,6 +253,7 @@ class Renderer:
             (self.tiles_x, self.tiles_y),
             b.isect_box,
             keep_boxes=self.keep_views and self.capture_views,  # only a kept frame's boxes are read
+            stops=self.kv_stop if self.keep_views and self.capture_views else None,
         )
         self._state_hook(encoder, v, "composited")
         if self.keep_views and self.capture_views:
