@@ -709,9 +709,9 @@ struct VariantEntry {
 @group(0) @binding(20) var<storage, read> var_rect: array<vec2<u32>>;
 @group(0) @binding(21) var<storage, read_write> slabs: array<vec4<f32>>;
 @group(0) @binding(24) var<storage, read_write> variant_ended: array<u32>;  // between chunk dispatches
-@group(0) @binding(25) var<storage, read_write> slab_changed: array<u32>;  // 1: the slab differs from clean
+@group(0) @binding(25) var<storage, read_write> slab_changed: array<u32>;  // box of the pixels that differ from clean
 @group(0) @binding(26) var<storage, read> kv_stop: array<u32>;  // clean frame: list position each pixel stopped at
-var<workgroup> s_differs: atomic<u32>;
+var<workgroup> s_changed: array<atomic<u32>, 4>;  // min col, max col, min row, max row
 @group(0) @binding(22) var<storage, read> clean_image: array<vec4<f32>>;  // [K, H, W]
 @group(0) @binding(23) var<storage, read> kv_box: array<u32>;              // pixel box per kept pair
 
@@ -849,7 +849,10 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let vi = v * rc.n_variants + b;
     if (li == 0u) {
         atomicStore(&s_done, 0u);
-        atomicStore(&s_differs, 0u);
+        atomicStore(&s_changed[0], 0xffu);
+        atomicStore(&s_changed[1], 0u);
+        atomicStore(&s_changed[2], 0xffu);
+        atomicStore(&s_changed[3], 0u);
         atomicStore(&s_active[0], 0xffu);
         atomicStore(&s_active[1], 0u);
         atomicStore(&s_active[2], 0xffu);
@@ -1027,7 +1030,6 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     }
     let bg = rc.background.xyz;
     let x = tile0.x + lid.x;
-    var differs = false;
     for (var j = 0u; j < QPI; j = j + 1u) {
         for (var i = 0u; i < QUAD; i = i + 1u) {
             let ly = row0 + QUAD * j + i;
@@ -1039,16 +1041,20 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
             }
             slabs[e * TILE_PIXELS + ly * TILE + lid.x] = px;
             let same = all(bitcast<vec3<u32>>(px.xyz) == bitcast<vec3<u32>>(clean_px.xyz));
-            differs = differs || (x < rc.width && y < rc.height && !same);
+            if (x < rc.width && y < rc.height && !same) {
+                atomicMin(&s_changed[0], lid.x);
+                atomicMax(&s_changed[1], lid.x);
+                atomicMin(&s_changed[2], ly);
+                atomicMax(&s_changed[3], ly);
+            }
         }
     }
-    // whether the tile differs from the clean frame's in any pixel's rgb bits: the metrics skip
-    // the tiles that do not (and their neighbours), which contribute exactly nothing
-    if (differs) {
-        atomicOr(&s_differs, 1u);
-    }
+    // the tile-local box of the pixels whose rgb bits differ from the clean frame's (EMPTY_BOX's
+    // x0 > x1 where none): the metrics reduce only such tiles, and the neighbours whose SSIM
+    // windows reach those pixels; the rest contribute exactly nothing
     workgroupBarrier();
     if (li == 0u) {
-        slab_changed[e] = atomicLoad(&s_differs);
+        slab_changed[e] = atomicLoad(&s_changed[0]) | (atomicLoad(&s_changed[1]) << 8u)
+            | (atomicLoad(&s_changed[2]) << 16u) | (atomicLoad(&s_changed[3]) << 24u);
     }
 }

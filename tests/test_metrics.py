@@ -69,9 +69,11 @@ def _check_close(gpu_r, cpu_r, w=W, h=H):
     np.testing.assert_allclose(1 - gpu_r["ssim_deficit"] / n_int, s_cpu, rtol=0, atol=1e-5)
 
 
-def _sparse_inputs(clean, faulted, extra_identical=0, rng=None):
+def _sparse_inputs(clean, faulted, extra_identical=0, rng=None, boxes=False):
     """Slabs for every tile that differs (bitwise) from clean, plus `extra_identical` unchanged
-    tiles mapped to slabs anyway; work list = mapped tiles dilated by one tile."""
+    tiles mapped to slabs anyway; work list = mapped tiles dilated by one tile, or (boxes) the
+    tiles with changed pixels and the neighbours their boxes come within PAD px of
+    (changed_tiles_mask, as campaigns build it)."""
     B, k_, h, w = faulted.shape[:4]
     TX, TY = M.tiles_of(w, h)
     NT = TX * TY
@@ -95,7 +97,22 @@ def _sparse_inputs(clean, faulted, extra_identical=0, rng=None):
         b, k, t = idx[j]
         tile_map[b, k, t] = s
         slabs[s] = tiles[b, k, t]
-    worklist, offsets = M.build_worklist(M.tile_map_to_mask(tile_map, w, h, dilate=1))
+    if boxes:
+        px = (
+            (tiles[..., :3].view(np.uint32) != ctiles[None, ..., :3].view(np.uint32)).any(-1).reshape(B, k_, NT, 16, 16)
+        )
+        bidx, kidx, tidx = np.nonzero(px.any(axis=(-1, -2)))
+        box = np.array(
+            [
+                [xs.min(), xs.max(), ys.min(), ys.max()]
+                for ys, xs in (np.nonzero(px[b, k, t]) for b, k, t in zip(bidx, kidx, tidx))
+            ]
+        ).reshape(-1, 4)
+        mask = M.changed_tiles_mask((B, k_, NT), bidx, kidx, tidx, box, w, h)
+        assert mask.sum() < M.tile_map_to_mask(tile_map, w, h, dilate=1).sum()  # fewer tiles than dilating
+    else:
+        mask = M.tile_map_to_mask(tile_map, w, h, dilate=1)
+    worklist, offsets = M.build_worklist(mask)
     return slabs, tile_map, worklist, offsets
 
 
@@ -177,8 +194,8 @@ def test_sparse_equals_dense(gpu):
     im = M.ImageMetrics(gpu, W, H, K, B)
     cb = gpu.upload(clean)
     rd = im.run_dense(cb, gpu.upload(f), B)
-    for extra in (0, 5):
-        slabs, tile_map, wl, off = _sparse_inputs(clean, f, extra_identical=extra, rng=rng)
+    for extra, boxes in ((0, False), (5, False), (0, True)):
+        slabs, tile_map, wl, off = _sparse_inputs(clean, f, extra_identical=extra, rng=rng, boxes=boxes)
         rs = im.run_sparse(cb, gpu.upload(slabs), gpu.upload(tile_map), gpu.upload(wl), gpu.upload(off), B)
         for key in ("changed", "peak", "sse", "nonfinite", "ssim_deficit"):
             np.testing.assert_array_equal(rs[key], rd[key], err_msg=key)
@@ -192,6 +209,33 @@ def test_sparse_equals_dense(gpu):
         np.testing.assert_allclose(
             (rs["ssim_sum"] + n_int - rs["ssim_count"]) / n_int, 1 - rs["ssim_deficit"] / n_int, rtol=0, atol=1e-12
         )
+
+
+def test_changed_boxes_reach_exactly_the_windows_that_see_them(gpu):
+    """One changed pixel per variant at 0..3 and 12..15 px from an edge or corner of an interior
+    tile of a 48x48 frame: the tiles changed_tiles_mask keeps (the tile, and the neighbours whose
+    SSIM windows of PAD px reach the pixel) give the dense metrics bit for bit, while the rule
+    keeps neighbours only for pixels within PAD px of them."""
+    rng = np.random.default_rng(11)
+    w = h = 48
+    clean = _clean(rng, k=1, h=h, w=w)
+    spots = [(16 + dx, 16 + dy) for dx in (0, 2, 3, 12, 13, 15) for dy in (0, 3, 13, 15)]
+    f = np.repeat(clean[None], len(spots), axis=0)
+    for b, (x, y) in enumerate(spots):
+        f[b, 0, y, x, :3] += 0.25
+    im = M.ImageMetrics(gpu, w, h, 1, len(spots))
+    cb = gpu.upload(clean)
+    rd = im.run_dense(cb, gpu.upload(f), len(spots))
+    slabs, tile_map, wl, off = _sparse_inputs(clean, f, boxes=True)
+    rs = im.run_sparse(cb, gpu.upload(slabs), gpu.upload(tile_map), gpu.upload(wl), gpu.upload(off), len(spots))
+    for key in ("changed", "peak", "sse", "nonfinite", "ssim_deficit"):
+        np.testing.assert_array_equal(rs[key], rd[key], err_msg=key)
+    n_tiles = np.diff(off.astype(np.int64))
+    for b, (x, y) in enumerate(spots):
+        lx, ly = x - 16, y - 16
+        near_x = int(lx < M.PAD) + int(lx > 15 - M.PAD)
+        near_y = int(ly < M.PAD) + int(ly > 15 - M.PAD)
+        assert n_tiles[b] == (1 + near_x) * (1 + near_y), (x, y)
 
 
 def test_sparse_empty_worklist_and_overflow(gpu):

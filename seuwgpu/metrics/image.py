@@ -30,7 +30,9 @@ Storage modes
   offsets[bk+1]]). Tiles outside the work list are taken as identical to clean: 0 changed pixels,
   0 error, SSIM exactly 1 at every window centred in them. A window centred in a listed tile reads
   its neighbours correctly (slab if mapped, else clean), so the work list must hold the tiles a
-  fault changed dilated by one tile (``build_worklist(tile_map_to_mask(...))`` does that).
+  fault changed dilated by one tile (``build_worklist(tile_map_to_mask(...))`` does that), or,
+  where the box of each tile's changed pixels is known, those tiles and the neighbours whose
+  windows reach the box (``changed_tiles_mask``, what campaigns use).
 
 Results (``read``) per (b, k): changed, peak, sse, nonfinite, ssim_sum, ssim_count and
 ssim_deficit. ``ssim_count`` is the number of evaluated interior window centres and
@@ -253,6 +255,36 @@ def tile_map_to_mask(tile_map: np.ndarray, width: int, height: int, dilate: int 
                 xd = slice(max(-dx, 0), TX + min(-dx, 0))
                 out[:, :, yd, xd] |= src[:, :, ys, xs]
     return out.reshape(tm.shape[0], tm.shape[1], TY * TX)
+
+
+def changed_tiles_mask(shape, b, k, tile, boxes, width: int, height: int) -> np.ndarray:
+    """Tiles to evaluate when the changed pixels are known: each tile (b, k, tile) whose box
+    [N, 4] (x0, x1, y0, y1, tile-local, inclusive; x0 > x1: nothing changed) holds a change, and
+    the neighbours whose SSIM windows (PAD px around their centres) reach one of its changed
+    pixels. Every other tile has partials of exactly zero. shape = (B, K, TY*TX) -> bool."""
+    TX, TY = tiles_of(width, height)
+    out = np.zeros((shape[0], shape[1], TY, TX), bool)
+    boxes = np.asarray(boxes, np.int64).reshape(-1, 4)
+    hit = boxes[:, 0] <= boxes[:, 1]
+    b, k, tile, boxes = np.asarray(b)[hit], np.asarray(k)[hit], np.asarray(tile)[hit], boxes[hit]
+    ty, tx = tile // TX, tile % TX
+    near = {  # whether the changed pixels come within PAD px of each side
+        (-1, "x"): boxes[:, 0] < PAD,
+        (1, "x"): boxes[:, 1] > TILE - 1 - PAD,
+        (-1, "y"): boxes[:, 2] < PAD,
+        (1, "y"): boxes[:, 3] > TILE - 1 - PAD,
+    }
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            sel = np.ones(len(b), bool)
+            if dx:
+                sel &= near[(dx, "x")]
+            if dy:
+                sel &= near[(dy, "y")]
+            y, x = ty + dy, tx + dx
+            sel &= (y >= 0) & (y < TY) & (x >= 0) & (x < TX)
+            out[b[sel], k[sel], y[sel], x[sel]] = True
+    return out.reshape(shape[0], shape[1], TY * TX)
 
 
 def build_worklist(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -166,7 +166,7 @@ class VariantCompositing:
         # which pixels ended, between chunk dispatches: one u32 per invocation of an entry
         lanes = TILE * TILE // 8  # composite.wgsl LANES: 8 pixels an invocation
         self.ended = gpu.buffer(4 * lanes * self.max_entries, STORAGE, "variants.ended")
-        # 1 where an entry's slab differs from the clean tile in some pixel's rgb bits
+        # per entry, the tile-local box of the pixels whose rgb bits differ from the clean frame's
         self.changed = gpu.buffer(4 * self.max_entries, STORAGE, "variants.changed")
 
     def encode(self, encoder, entries: dict, kept: dict, variant: dict, clean_image, longest: int, **params):
@@ -215,9 +215,11 @@ class VariantCompositing:
             )
 
     def read_changed(self, n: int) -> np.ndarray:
-        """[n] bool of the last submitted encode: whether each entry's slab differs from the
-        clean tile (rgb bits of a pixel inside the frame)."""
-        return self.gpu.read(self.changed, np.uint32, 0, 4 * n) != 0
+        """[n, 4] int (x0, x1, y0, y1, inclusive, tile-local) of the last submitted encode: the box
+        of each entry's pixels inside the frame whose rgb bits differ from the clean frame's;
+        x0 > x1 where none does."""
+        b = self.gpu.read(self.changed, np.uint32, 0, 4 * n).astype(np.int64)
+        return np.stack([b & 0xFF, (b >> 8) & 0xFF, (b >> 16) & 0xFF, b >> 24], axis=1)
 
     def read_slabs(self, n: int) -> np.ndarray:
         """[n, TILE, TILE, 4] float32 of the last submitted encode."""
