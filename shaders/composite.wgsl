@@ -937,8 +937,8 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     // One chunk of the list per dispatch (rc.chunk_pass; the host dispatches as many as the
     // longest clean list has, plus one for an inserted pair): on CPU Vulkan a workgroup walking a
     // whole long list would run past llvmpipe's loop limit (docs/renderer.md). Between dispatches
-    // the slab holds the chunks merged so far (rgb, T negated where a pixel ended); the entry's
-    // last chunk writes the output pixels.
+    // the slab holds the chunks merged so far and variant_ended the pixels that ended
+    // (write_variant_state); the entry's last chunk writes the output pixels.
     let c = rc.chunk_pass;
     let n_chunks = max(1u, (nv + CHUNK_PAIRS - 1u) / CHUNK_PAIRS);
     if (c >= n_chunks) {
