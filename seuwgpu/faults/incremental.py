@@ -86,9 +86,9 @@ class IncrementalEvaluator:
         enc = g.device.create_command_encoder()
         tile_map, b_idx, v_idx, t_idx = comp.encode(enc, prims, dirty, first)
         g.submit(enc)
-        # Only the slabs that differ from the clean tiles (a quarter of the dirty tiles in a
-        # stratified campaign on spheres 100k) and their neighbours are reduced: the others add
-        # exact zeros (metrics/image.py), so the numbers are those of the whole dirty set.
+        # Only the slabs that differ from the clean tiles, and the neighbours whose SSIM windows
+        # reach their changed pixels, are reduced: the others add exact zeros (metrics/image.py),
+        # so the numbers are those of the whole dirty set.
         boxes = comp.read_changed(b_idx.size)
         same = boxes[:, 0] > boxes[:, 1]
         tile_map[b_idx[same], v_idx[same], t_idx[same]] = -1

@@ -147,8 +147,9 @@ class VariantCompositing:
     primitive's clean entry removed and its variant record merged in at its depth (ordered by
     (depth bits, index) as the depth sort orders them). Chunk c of every entry's list runs in
     dispatch c, merged into the entry's slab (running state between dispatches), so no workgroup
-    walks more than one chunk (llvmpipe's loop limit: docs/renderer.md). A pixel that neither
-    record reaches is copied from the clean image when both lists are one chunk. Owns the
+    walks more than one chunk (llvmpipe's loop limit: docs/renderer.md). When both lists are one
+    chunk, a pixel that neither record reaches, or whose reaching records lie behind the record
+    it stopped at in the clean frame (`kept["stop"]`), is copied from the clean image. Owns the
     entries, the slabs and the `Recomp` parameters (one slot per chunk dispatch)."""
 
     def __init__(self, gpu: GPU, max_entries: int, profile: str = "strict", chunk: int = CHUNK, exact: bool = True):
