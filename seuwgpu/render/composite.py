@@ -165,7 +165,7 @@ class VariantCompositing:
         self.entries = gpu.buffer(self.entry.size * self.max_entries, STORAGE, "variants.entries")
         self.slabs = gpu.buffer(SLAB_BYTES * self.max_entries, STORAGE, "variants.slabs")
         # which pixels ended, between chunk dispatches: one u32 per invocation of an entry
-        lanes = TILE * TILE // 8  # composite.wgsl LANES: 8 pixels an invocation
+        lanes = int(np.prod(self.kernel.workgroup_size))
         self.ended = gpu.buffer(4 * lanes * self.max_entries, STORAGE, "variants.ended")
         # per entry, the tile-local box of the pixels whose rgb bits differ from the clean frame's
         self.changed = gpu.buffer(4 * self.max_entries, STORAGE, "variants.changed")
