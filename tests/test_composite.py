@@ -380,7 +380,7 @@ def test_chunked_incremental_equals_full_rerender(gpu, profile, exact, chunk):
 
 def test_incremental_lists_past_the_cpu_loop_limit(gpu):
     """A one-tile frame listing ~90k faint records (pixels stay unsaturated), past llvmpipe's
-    walk bound (gpu.max_walked_pairs): the variants entry walks one default chunk per dispatch, and
+    walk bound (~54k pairs: gpu/constants.py CHUNK): the variants entry walks one default chunk per dispatch, and
     every variant's tile equals a full re-render bit for bit, the frame-covering sheet (which walks
     every entry) included. Walking the whole list on one workgroup, as before, fails here on
     lavapipe (the first variant's tile already differs)."""

@@ -132,26 +132,3 @@ def test_full_renders_in_between_leave_the_incremental_state_clean():
     for a, b in zip(before, after):
         for key in METRICS:
             assert same(a[key], b[key]), (a, key)
-
-
-def test_lists_past_the_devices_walk_limit_are_rendered_in_full(monkeypatch):
-    """On a device whose shader loops stop early (llvmpipe: gpu.max_walked_pairs), a frame whose
-    incremental walk (one chunk of a tile list, or the whole list where shorter) is past the bound
-    is evaluated by full re-renders: the same records, and sort-first regions refused with a clear
-    error instead of a silently wrong number."""
-    from seuwgpu.errors import TooBig
-    from seuwgpu.gpu.device import GPU
-
-    model = make_scene("blocks", n=1500, seed=4)
-    eng = Engine(model, scene_cameras("blocks", 2, 48, 40), "fp32", scene="blocks")
-    sites = sample_sites(eng, np.random.default_rng(5), per_class=1)[:20]
-    assert eng.longest_list > 8 and eng.incremental_walks_safely
-    inc = eng.evaluate_frame(sites, ("none", "guard"))
-    monkeypatch.setattr(GPU, "max_walked_pairs", property(lambda self: 8))
-    assert not eng.incremental_walks_safely
-    full = eng.evaluate_frame(sites, ("none", "guard"))
-    for key in METRICS + ("defense", "primitive", "bit"):
-        for a, b in zip(inc[key].tolist(), full[key].tolist()):
-            assert same(a, b), key
-    with pytest.raises(TooBig, match="pairs"):
-        eng.evaluate_frame(sites, ("none",), regions=(4,))

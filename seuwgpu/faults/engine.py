@@ -17,7 +17,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from seuwgpu.errors import TooBig
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.costs import interleaved_medians
 from seuwgpu.faults.flips import Flips
@@ -133,21 +132,6 @@ class Engine:
         self.gpu.submit(enc)
         r.version += 1  # kept views re-captured: the incremental compositor re-reads them
         self._ref_mask = mask
-        # the longest clean tile list (the incremental path walks a chunk of it per dispatch)
-        self.longest_list = 0
-        if r.keep_views:
-            rng = self.gpu.read(r.kv_ranges, np.uint32, 0, 8 * r.n_tiles * r.k).reshape(-1, 2).astype(np.int64)
-            self.longest_list = int((rng[:, 1] - rng[:, 0]).max(initial=0))
-
-    @property
-    def incremental_walks_safely(self) -> bool:
-        """Whether one workgroup of the incremental re-compositor stays within the device's walk
-        limit; else evaluate_frame renders in full. It walks one chunk of a tile list per dispatch,
-        so its longest walk is the chunk, or the longest list plus the pair a variant adds where
-        that is shorter: with the default chunk no frame needs full renders."""
-        limit = self.gpu.max_walked_pairs
-        walk = min(self.longest_list + 1, self.renderer.compositing.chunk)
-        return limit is None or walk <= limit
 
     def reference_mask(self, defense: str) -> int:
         """Guard mask of the clean reference of `defense`: its own mask where the clean model holds
@@ -443,15 +427,6 @@ class Engine:
         """Records for single-value sites under each defense (paired: same sites for every arm,
         rows defense-major), by incremental re-compositing, built column-wise."""
         sites = list(sites)
-        if not self.incremental_walks_safely:
-            # the same records by full re-renders (bit for bit: tests/test_incremental.py)
-            if regions:
-                raise TooBig(
-                    f"a tile of this frame lists {self.longest_list:,} pairs, more than this device's "
-                    f"{self.gpu.max_walked_pairs:,} for incremental re-compositing, on which sort-first "
-                    "regions are measured: render at a smaller size or with fewer primitives, or use a GPU"
-                )
-            return pd.DataFrame([self.inject(s, d) for d in defenses for s in sites])
         m_sites = len(sites)
         comps = np.array([s.flat_component() for s in sites], dtype=np.int64)
         base = {

@@ -16,8 +16,11 @@ TILE * TILE): a longer list is cut by list position into chunks composited in pa
 front to back (docs/renderer.md, "Long tile lists"). Why 32768: a variant that touches a tile of
 more than one chunk re-blends the whole tile (list positions shift), which cost campaigns 7x at
 4096 (spheres 100k, 4 views of 128x128: 63 vs 436 injections/s on lavapipe, 2026-11-25); below
-one chunk nothing changes; and one workgroup's walk stays under llvmpipe's loop limit
-(GPU.max_walked_pairs). A 65,856-pair tile (1M primitives at 256x256) still splits three ways.
+one chunk nothing changes; and no workgroup walks more than one chunk (full frames: one per
+workgroup; variants: one per dispatch), which keeps every walk under llvmpipe's silent limit of
+65,535 loop iterations per invocation (gallivm LP_MAX_TGSI_LOOP_ITERATIONS; about 1.2 iterations
+a pair, so lists past ~54k pairs came out wrong): do not raise it past that. A 65,856-pair tile
+(1M primitives at 256x256) still splits three ways.
 composite.wgsl's `CHUNK_PAIRS` override (default this) lets tests use small chunks."""
 
 PRECISION_CODE = {"fp32": 0, "fp16": 1, "bf16": 2}

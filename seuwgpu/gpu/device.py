@@ -81,17 +81,6 @@ class GPU:
     def is_cpu(self) -> bool:
         return str(self.info.get("adapter_type", "")).lower() == "cpu"
 
-    @property
-    def max_walked_pairs(self) -> int | None:
-        """Longest tile list one workgroup may walk, or None (no limit). Mesa's llvmpipe stops every
-        loop of a shader invocation once all its loops together have run 65,535 iterations
-        (gallivm LP_MAX_TGSI_LOOP_ITERATIONS), silently: a tile list walked by one invocation costs
-        about 1.2 iterations per pair (composite.wgsl), so lists past ~54k pairs would come out
-        wrong. Full frames and the incremental re-compositor never walk more than CHUNK pairs per
-        workgroup (one chunk per workgroup or per dispatch): a renderer with a larger chunk is
-        re-composited only below this bound (faults/engine.py incremental_walks_safely)."""
-        return 32768 if self.is_cpu else None
-
     # ---- shaders and pipelines -----------------------------------------------------------------
     def module(self, name: str, defines: dict | None = None):
         key = (name, tuple(sorted((defines or {}).items())))
