@@ -132,3 +132,33 @@ def test_full_renders_in_between_leave_the_incremental_state_clean():
     for a, b in zip(before, after):
         for key in METRICS:
             assert same(a[key], b[key]), (a, key)
+
+
+def test_arms_that_draw_the_same_frames_recomposite_nothing(monkeypatch):
+    """ECC corrects sign/exponent upsets and repeats the unprotected arm's mantissa ones; TMR
+    corrects all: neither re-composites a tile beyond the unprotected arm's, and their records
+    still equal full re-renders (test_incremental_equals_full_rerender)."""
+    from seuwgpu.render.incremental import IncrementalCompositor
+
+    model = make_scene("spheres", n=1500, seed=8)
+    eng = Engine(model, scene_cameras("spheres", 2, 48, 40), "fp32")
+    sites = sample_sites(eng, np.random.default_rng(9), per_class=2)
+    slabs = []
+    encode = IncrementalCompositor.encode
+
+    def counting(self, enc, prims, dirty, first):
+        out = encode(self, enc, prims, dirty, first)
+        slabs.append(out[1].size)
+        return out
+
+    monkeypatch.setattr(IncrementalCompositor, "encode", counting)
+    eng.evaluate_frame(sites, ("none",))
+    n_alone, slabs[:] = sum(slabs), []
+    arms = eng.evaluate_frame(sites, ("none", "ecc", "dup"))
+    assert n_alone > 0 and sum(slabs) == n_alone
+    by = {d: g.reset_index(drop=True) for d, g in arms.groupby("defense")}
+    assert (by["dup"]["footprint"] == 0).all() and (by["dup"]["psnr"] == np.inf).all()
+    mantissa = (by["ecc"]["bit_class"] == "mantissa").to_numpy()
+    for key in METRICS:  # ECC does not cover mantissa bits: the same frames as unprotected
+        assert by["ecc"][key][mantissa].equals(by["none"][key][mantissa]), key
+    assert (by["ecc"]["footprint"][~mantissa] == 0).all() and (by["none"]["footprint"][~mantissa] > 0).any()

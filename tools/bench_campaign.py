@@ -2,10 +2,13 @@
 measured in one run on the same engine set-up and the same sites.
 
     python tools/bench_campaign.py [--scene spheres] [--n 100000] [--views 4] [--size 128x128]
-                                   [--samples 512] [--full-samples 64] [--json out.json]
+                                   [--samples 512] [--full-samples 64] [--defenses none]
+                                   [--json out.json]
 
-Sites are drawn stratified over every (field, bit) cell at fp32 (defense "none"), as the default
-campaign does; the full path re-renders all K views for each injection (what the paper's engine does).
+Sites are drawn stratified over every (field, bit) cell at fp32, as the default campaign does; each
+injection is evaluated under every arm of --defenses (paired, as a campaign does: the study's
+`none,guard,selective,ecc,dup`), and injections/s counts injections with all their arms. The full
+path re-renders all K views for each injection and arm (what the paper's engine does).
 """
 
 from __future__ import annotations
@@ -45,22 +48,25 @@ def main(argv=None):
     ap.add_argument("--precision", default="fp32")
     ap.add_argument("--samples", type=int, default=512, help="injections timed on the incremental path")
     ap.add_argument("--full-samples", type=int, default=48, help="injections timed with full re-rendering")
+    ap.add_argument("--defenses", default="none", help="comma-separated arms per injection, e.g. none,guard,ecc")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.split("x"))
     model = make_scene(args.scene, n=args.n)
     eng = Engine(model, scene_cameras(args.scene, args.views, w, h), args.precision, scene=args.scene)
+    arms = tuple(d.strip() for d in args.defenses.split(",") if d.strip())
     sites = draw_sites(eng, args.samples, 0)
-    eng.evaluate(sites[:32])  # warm-up: pipelines, buffers
+    eng.evaluate(sites[:32], arms)  # warm-up: pipelines, buffers
     t = time.perf_counter()
-    inc = eng.evaluate(sites)
+    inc = eng.evaluate(sites, arms)  # rows arm-major: arm a's records at a * len(sites) ..
     t_inc = time.perf_counter() - t
     full_sites = sites[: args.full_samples]
     eng.inject(full_sites[0])
     t = time.perf_counter()
-    full = [eng.inject(s) for s in full_sites]
+    full = [eng.inject(s, d) for d in arms for s in full_sites]
     t_full = time.perf_counter() - t
-    same = all(a["footprint"] == b["footprint"] and a["peak_error"] == b["peak_error"] for a, b in zip(inc, full))
+    common = [r for a in range(len(arms)) for r in inc[a * len(sites) : a * len(sites) + len(full_sites)]]
+    same = all(a["footprint"] == b["footprint"] and a["peak_error"] == b["peak_error"] for a, b in zip(common, full))
     res = {
         "adapter": eng.gpu.info.get("device"),
         "backend": eng.gpu.info.get("backend_type"),
@@ -69,6 +75,7 @@ def main(argv=None):
         "views": args.views,
         "size": args.size,
         "precision": args.precision,
+        "defenses": list(arms),
         "incremental_injections": len(sites),
         "incremental_seconds": t_inc,
         "incremental_per_s": len(sites) / t_inc,
@@ -83,7 +90,7 @@ def main(argv=None):
 
     tab = Table(
         title=f"campaign throughput: {args.scene} {args.n} primitives, K={args.views}, {args.size}, "
-        f"{args.precision} on {res['adapter']} ({res['backend']})"
+        f"{args.precision}, arms {','.join(arms)} on {res['adapter']} ({res['backend']})"
     )
     for c in ("path", "injections", "seconds", "injections/s"):
         tab.add_column(c, justify="right")

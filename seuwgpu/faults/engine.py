@@ -20,7 +20,7 @@ import pandas as pd
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.costs import interleaved_medians
 from seuwgpu.faults.flips import Flips
-from seuwgpu.faults.guard import Box, GuardMonitor, component_mask, support_box
+from seuwgpu.faults.guard import Box, GuardMonitor, clamp_bits, component_mask, support_box
 from seuwgpu.faults.sites import Site, apply_sites, fault_name, make_site, site_bit_class
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.metrics.image import ImageMetrics, catastrophic, summarize
@@ -138,6 +138,14 @@ class Engine:
         non-finite values the guard changes, else 0 (the guard is then the identity on it)."""
         mask = self._guard_mask(defense)
         return mask if mask & self.nonfinite_mask else 0
+
+    def reference_rows(self, prims) -> np.ndarray:
+        """[M, ncomp] stored bits the clean reference draws for primitives `prims`: the clean ones,
+        clamped by the reference's guard mask where it has one."""
+        rows = self.primitive_bits(prims)
+        if self._ref_mask:
+            rows = clamp_bits(rows, self.box, self._ref_mask)[0]
+        return rows
 
     def use_reference(self, defense: str):
         """Make the clean reference of `defense` current (a re-render only when it changes)."""
@@ -419,6 +427,32 @@ class Engine:
         bits = self.read_through(prims, clean, bits, defense)
         return bits, np.full(len(comps), self._guard_mask(defense), dtype=np.int64)
 
+    def _arm_metrics(self, prims, rows: np.ndarray, regions, drawn: list) -> dict:
+        """Metrics of one arm's variants (drawn stored bits `rows`). A variant that draws the same
+        bits as an earlier arm's, against the same clean reference, is the same frame: its metrics
+        are copied from that arm instead of re-composited (ECC and duplication correct most upsets,
+        and the guards leave most unclamped, so an arm often repeats another's frames). `drawn`
+        collects (reference mask, rows, metrics) per arm."""
+        todo = np.ones(len(rows), dtype=bool)
+        source = np.full(len(rows), -1, dtype=np.int64)
+        for j, (mask, rows0, _) in enumerate(drawn):
+            if mask == self._ref_mask:
+                same = todo & (rows0 == rows).all(axis=1)
+                source[same], todo[same] = j, False
+        fresh = self.evaluator.evaluate_rows(prims[todo], rows[todo], regions) if todo.any() else None
+        template = fresh if fresh is not None else drawn[int(source[0])][2]
+        m = {}
+        for key, ref in template.items():
+            col = np.empty(len(rows), dtype=np.asarray(ref).dtype)
+            if fresh is not None:
+                col[todo] = fresh[key]
+            for j in np.unique(source[~todo]):
+                sel = source == j
+                col[sel] = drawn[int(j)][2][key][sel]
+            m[key] = col
+        drawn.append((self._ref_mask, rows, m))
+        return m
+
     def evaluate(self, sites: list[Site], defenses=("none",), regions=()) -> list[dict]:
         """Records (dicts) for single-value sites under each defense; see evaluate_frame."""
         return self.evaluate_frame(sites, defenses, regions).to_dict("records")
@@ -452,11 +486,13 @@ class Engine:
         # defense then reads (the same in every arm, and equal to inject()'s)
         clean_v = encoding.from_bits(clean_b, self.precision)
         corr_v = encoding.from_bits(corrupt_b, self.precision)
+        drawn = []  # (reference mask, drawn rows, metrics) of the arms evaluated so far
         for d in defenses:
             dfn.check_defense(d)
             bits, gm = self.variant_rows(prims, clean, comps, corrupt_b, d)
             self.use_reference(d)
-            m = self.evaluator.evaluate(prims, bits, gm, regions, clean if gm.any() else None)
+            rows, clamps = self.evaluator.drawn_rows(bits, gm, clean if gm.any() else None)
+            m = dict(self._arm_metrics(prims, rows, regions, drawn), clamps=clamps)
             cols = dict(base)
             with np.errstate(invalid="ignore"):  # NaN values are data here
                 cols.update(

@@ -45,11 +45,16 @@ class IncrementalEvaluator:
         regions_meas_P (regions with a changed pixel in any view) as int64 bitmasks. `clean_bits`
         [M, ncomp]: the primitives' clean stored bits; clamps then count beyond the clean
         primitive's own (the reference's), as the full path does."""
-        prims = np.asarray(prims, dtype=np.int64)
+        rows, clamps = self.drawn_rows(bits, guard_masks, clean_bits)
+        out = self.evaluate_rows(prims, rows, regions)
+        out["clamps"] = clamps
+        return out
+
+    def drawn_rows(self, bits: np.ndarray, guard_masks: np.ndarray | None = None, clean_bits=None):
+        """(the stored bits [M, ncomp] the pipeline draws once the support guard clamped `bits`,
+        clamps [M] beyond the clean primitive's own when `clean_bits` is given); see evaluate."""
         bits = np.asarray(bits)
-        m = prims.size
-        self.compositor.ensure_current()
-        clamps = np.zeros(m, dtype=np.int64)
+        clamps = np.zeros(bits.shape[0], dtype=np.int64)
         if guard_masks is not None:
             bits = bits.copy()
             for mask in np.unique(guard_masks):
@@ -59,17 +64,31 @@ class IncrementalEvaluator:
                     clamps[sel] = hit.sum(axis=1)
                     if clean_bits is not None:
                         clamps[sel] -= clamp_bits(clean_bits[sel], self.engine.box, int(mask))[1].sum(axis=1)
+        return bits, clamps
+
+    def evaluate_rows(self, prims: np.ndarray, rows: np.ndarray, regions=()) -> dict:
+        """Metrics of variants whose primitive `prims[i]` is drawn from the stored bits `rows[i]`
+        (guard already applied), against the engine's current clean reference. A variant drawing
+        exactly the reference's own bits is the clean frame: it is projected (for the predicted
+        regions) but re-composites no tile, so its metrics are those of an unchanged frame."""
+        prims = np.asarray(prims, dtype=np.int64)
+        rows = np.asarray(rows)
+        m = prims.size
+        self.compositor.ensure_current()
+        unchanged = (rows == self.engine.reference_rows(prims)).all(axis=1)
         out = None
         for a in range(0, m, self.B):
-            part = self._evaluate_batch(prims[a : a + self.B], bits[a : a + self.B], tuple(regions))
+            sl = slice(a, a + self.B)
+            part = self._evaluate_batch(prims[sl], rows[sl], tuple(regions), unchanged[sl])
             out = part if out is None else {k: np.concatenate([out[k], part[k]]) for k in out}
-        out["clamps"] = clamps
         return out
 
-    def _evaluate_batch(self, prims: np.ndarray, bits: np.ndarray, regions=()) -> dict:
+    def _evaluate_batch(self, prims: np.ndarray, bits: np.ndarray, regions=(), unchanged=None) -> dict:
         comp = self.compositor
         new = comp.project(bits)
         dirty = comp.dirty_tiles(prims, new)
+        if unchanged is not None:
+            dirty[unchanged] = False
         results = {}
         for start, end in comp.groups(dirty):
             part = self._recomposite(prims[start:end], dirty[start:end], start, regions)
@@ -83,13 +102,18 @@ class IncrementalEvaluator:
     def _recomposite(self, prims, dirty, first: int, regions=()) -> dict:
         r, g, comp = self.r, self.gpu, self.compositor
         m = prims.size
-        enc = g.device.create_command_encoder()
-        tile_map, b_idx, v_idx, t_idx = comp.encode(enc, prims, dirty, first)
-        g.submit(enc)
-        # Only the slabs that differ from the clean tiles, and the neighbours whose SSIM windows
-        # reach their changed pixels, are reduced: the others add exact zeros (metrics/image.py),
-        # so the numbers are those of the whole dirty set.
-        boxes = comp.read_changed(b_idx.size)
+        if dirty.any():
+            enc = g.device.create_command_encoder()
+            tile_map, b_idx, v_idx, t_idx = comp.encode(enc, prims, dirty, first)
+            g.submit(enc)
+            # Only the slabs that differ from the clean tiles, and the neighbours whose SSIM windows
+            # reach their changed pixels, are reduced: the others add exact zeros (metrics/image.py),
+            # so the numbers are those of the whole dirty set.
+            boxes = comp.read_changed(b_idx.size)
+        else:  # variants that draw the clean frame (evaluate_rows): nothing to re-composite
+            tile_map = np.full(dirty.shape, -1, dtype=np.int32)
+            b_idx = v_idx = t_idx = np.zeros(0, dtype=np.int64)
+            boxes = np.zeros((0, 4), dtype=np.int64)
         same = boxes[:, 0] > boxes[:, 1]
         tile_map[b_idx[same], v_idx[same], t_idx[same]] = -1
         g.write(comp.tile_map, tile_map)
@@ -106,28 +130,29 @@ class IncrementalEvaluator:
         out = summarize(raw, r.width, r.height)
         out["dirty_tiles"] = dirty.reshape(m, -1).sum(axis=1)
         if regions:
-            out.update(self._measured_regions(b_idx, v_idx, t_idx, m, regions))
+            # a slab whose rgb bits all equal the clean tile's has no changed pixel: skip it
+            keep = ~same
+            out.update(self._measured_regions(np.flatnonzero(keep), b_idx[keep], v_idx[keep], t_idx[keep], m, regions))
         return out
 
-    def _measured_regions(self, b_idx, v_idx, t_idx, m: int, regions) -> dict:
-        """Regions with a changed pixel (metrics.image.changed_pixels) in any view,
-        from the re-composited slabs against the clean frame."""
+    def _measured_regions(self, slab_idx, b_idx, v_idx, t_idx, m: int, regions) -> dict:
+        """Regions with a changed pixel (metrics.image.changed_pixels) in any view, from the
+        re-composited slabs `slab_idx` (of variants b_idx, views v_idx, tiles t_idx) against the
+        clean frame."""
         r, n_e = self.r, b_idx.size
         out = {f"regions_meas_{P}": np.zeros(m, dtype=np.int64) for P in regions}
         if n_e == 0:
             return out
-        slabs = self.compositor.read_slabs(n_e)  # [E, TILE, TILE, 4]
+        slabs = self.compositor.read_slabs(int(slab_idx.max()) + 1)[slab_idx]  # [E, TILE, TILE, 4]
         ys = (t_idx // r.tiles_x)[:, None, None] * TILE + np.arange(TILE)[None, :, None]
         xs = (t_idx % r.tiles_x)[:, None, None] * TILE + np.arange(TILE)[None, None, :]
         inside = (ys < r.height) & (xs < r.width)
         yc, xc = np.minimum(ys, r.height - 1), np.minimum(xs, r.width - 1)
         clean = self.engine.clean_rgba[v_idx[:, None, None], yc, xc, :3]
-        changed = changed_pixels(slabs, clean) & inside
+        e, py, px = np.nonzero(changed_pixels(slabs, clean) & inside)  # the changed pixels
         for P in regions:
-            rid = region_id_map(P, r.height, r.width)[yc, xc]
-            bits = np.where(changed, np.left_shift(np.uint64(1), rid.astype(np.uint64)), np.uint64(0))
-            per_entry = np.bitwise_or.reduce(bits.reshape(n_e, -1), axis=1)
+            rid = region_id_map(P, r.height, r.width)[yc[e, py, 0], xc[e, 0, px]]
             acc = np.zeros(m, dtype=np.uint64)
-            np.bitwise_or.at(acc, b_idx, per_entry)
+            np.bitwise_or.at(acc, b_idx[e], np.left_shift(np.uint64(1), rid.astype(np.uint64)))
             out[f"regions_meas_{P}"] = acc.view(np.int64)
         return out
