@@ -224,6 +224,26 @@ def test_size_sweep_over_several_scenes():
         normalize_spec(base)
 
 
+def test_cell_sites_are_drawn_with_replacement():
+    """Why the planner uses no finite-population correction: a cell's draws repeat sites."""
+    from seuwgpu.campaign.sampling import draw_sites, enumerate_contexts, injection_seeds
+
+    spec = normalize_spec(
+        {
+            "views": 1,
+            "size": "32x32",
+            "scenes": [{"scene": "blocks", "n": 4}],
+            "single": {"fields": ["opacity"], "bits": [3], "samples": 12},
+        }
+    )
+    ctx = enumerate_contexts(spec)[0]
+    ids = np.arange(12)
+    sites, weights = draw_sites(ctx, ids, injection_seeds(spec["seed"], ids), 4, 3)
+    prims = [s.primitive for s in sites]
+    assert len(set(prims)) < len(prims) <= 12  # 12 draws from 4 sites: repeats
+    assert np.allclose(weights, 4 / 12)
+
+
 def test_samples_planned_from_a_margin(tmp_path):
     from seuwgpu.campaign.plan import sample_size
 
@@ -235,7 +255,9 @@ def test_samples_planned_from_a_margin(tmp_path):
             "single": {"samples": {"margin": 0.05, "confidence": 0.9}},
         }
     )
-    assert spec["single"]["samples"] == sample_size(0.05, 0.9, population=2000)
+    # sites are drawn with replacement, so the plan takes no finite-population correction (a
+    # correction for 2,000 primitives would plan 239 instead of 271)
+    assert spec["single"]["samples"] == sample_size(0.05, 0.9) == 271
     with pytest.raises(SpecError, match="single.samples.margin"):
         normalize_spec({"scenes": [{"scene": "blocks"}], "single": {"samples": {"margin": 5}}})
     with pytest.raises(SpecError, match="unknown key 'margn' in single.samples"):

@@ -332,7 +332,9 @@ def cmd_plan(args):
     from seuwgpu.campaign.spec import load_spec
 
     spec = load_spec(args.spec)
-    tab = Table(title=f"{args.spec}: campaign plan (margins: 95% confidence, worst case p = 0.5, Leveugle et al. 2009)")
+    tab = Table(
+        title=f"{args.spec}: campaign plan (margins: 95% confidence, worst case p = 0.5, sites drawn with replacement)"
+    )
     for c in (
         "campaign",
         "scene",
@@ -351,7 +353,7 @@ def cmd_plan(args):
         sc = spec["scenes"][ctx.scene_index]
         name = sc.get("scene") or Path(sc["model"]).stem
         n = ctx.n or sc.get("n")
-        margin = "-" if ctx.kind == "dose" else f"+-{100 * margin_of_error(ctx.per_cell, 0.95, n):.2f} pt"
+        margin = "-" if ctx.kind == "dose" else f"+-{100 * margin_of_error(ctx.per_cell, 0.95):.2f} pt"
         tab.add_row(
             ctx.kind,
             name,
@@ -372,7 +374,8 @@ def cmd_plan(args):
         n = sample_size(args.margin, args.confidence)
         print(
             f"for +-{100 * args.margin:g} pt at {100 * args.confidence:g}% confidence a cell needs {n:,} samples "
-            f"(unbounded population; set samples = {{margin = {args.margin}, confidence = {args.confidence}}})"
+            "(sites drawn with replacement: no finite-population correction; "
+            f"set samples = {{margin = {args.margin}, confidence = {args.confidence}}})"
         )
     return 0
 

@@ -2,7 +2,10 @@
 sample gives (Leveugle et al., "Statistical fault injection: quantified error and confidence",
 DATE 2009): n = N / (1 + e^2 (N-1) / (t^2 p (1-p))), N the population (fault sites in the cell),
 e the margin, t the two-sided normal quantile of the confidence level, p the expected proportion
-(worst case 0.5). With no population (N -> infinity) it is n = t^2 p (1-p) / e^2."""
+(worst case 0.5). With no population (N -> infinity) it is n = t^2 p (1-p) / e^2.
+
+The finite-population form holds for draws without replacement. Campaigns draw each cell's sites
+with replacement (campaign/sampling.py), so specs plan with the unbounded form (campaign/spec.py)."""
 
 from __future__ import annotations
 

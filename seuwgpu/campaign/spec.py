@@ -30,7 +30,8 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     bits = "all"             # or a list of bit indices (those valid for each precision)
     samples = 20             # injections per (field, bit) cell, or a plan:
                              # samples = {margin = 0.02, confidence = 0.95} (Leveugle et al. 2009,
-                             # worst case p = 0.5, finite population of the smallest cell)
+                             # worst case p = 0.5; sites drawn with replacement, so no
+                             # finite-population correction)
     sampling = "stratified"  # or "uniform": `samples` x cells injections drawn uniformly over
                              # all stored bits (weight column = bits each sample stands for)
     defenses = ["none", "guard"]   # `seuwgpu defenses` lists them all
@@ -177,8 +178,8 @@ def _bits(table, where, precisions):
     return sorted(set(v))
 
 
-def _samples(table, where, default, n_min: int | None):
-    """`samples` as an int, or planned from {margin, confidence} (stats.sample_size)."""
+def _samples(table, where, default):
+    """`samples` as an int, or planned from {margin, confidence} (campaign.plan.sample_size)."""
     v = table.get("samples", default)
     if isinstance(v, dict):
         _keys(v, {"margin", "confidence"}, f"{where}.samples")
@@ -189,8 +190,10 @@ def _samples(table, where, default, n_min: int | None):
             raise SpecError(f"{where}.samples.margin must be a proportion in (0, 1), e.g. 0.02")
         if not isinstance(conf, (int, float)) or not 0 < conf < 1:
             raise SpecError(f"{where}.samples.confidence must be in (0, 1), e.g. 0.95")
-        # the smallest cell is one field's values at one bit: n_primitives x 1 component at least
-        return int(sample_size(float(margin), float(conf), population=n_min))
+        # No finite-population correction: a cell's sites are drawn with replacement (each
+        # injection from its own hash stream, campaign/sampling.py, so any block can be re-run or
+        # resumed alone), and the correction only holds for draws without replacement.
+        return int(sample_size(float(margin), float(conf)))
     return _int(table, "samples", where, default, 1)
 
 
@@ -425,7 +428,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "precisions": precisions,
             "fields": _fields(t, "single"),
             "bits": _bits(t, "single", precisions),
-            "samples": _samples(t, "single", 20, min((sc.get("n") or 10**9) for sc in spec["scenes"])),
+            "samples": _samples(t, "single", 20),
             "sampling": t.get("sampling", "stratified"),
             "defenses": _names(t, "defenses", "single", ["none", "guard"], DEFENSES),
             "regions": _regions(t, "single", spec["size"]),
@@ -488,7 +491,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "precisions": precisions,
             "fields": _fields(t, "sizes"),
             "bits": _bits(t, "sizes", precisions),
-            "samples": _samples(t, "sizes", 10, min(ns)),
+            "samples": _samples(t, "sizes", 10),
             "sampling": t.get("sampling", "stratified"),
             "defenses": _names(t, "defenses", "sizes", ["none"], DEFENSES),
             "regions": _regions(t, "sizes", spec["size"]),
