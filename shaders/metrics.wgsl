@@ -47,7 +47,7 @@
 // MetricsStatus (entries requested (sparse: offsets[B*K]), entries evaluated (min with
 // capacity), sparse flag). The host reads both through the same structs (gpu/kernel.py Struct).
 // Workgroup memory: 15.5 KB at TILE = 16 (WebGPU's default limit is 16 KiB), all written before
-// it is read.
+// it is read. Besides its partial record, each entry writes its changed-pixel mask (m_masks).
 
 struct MetricsParams {
     width: u32,
@@ -90,6 +90,9 @@ struct MetricsResults {
 @group(0) @binding(6) var<storage, read_write> m_partials: array<MetricsRecord>;
 @group(0) @binding(7) var<storage, read_write> m_results: MetricsResults;
 @group(0) @binding(8) var<storage, read_write> m_indirect: array<u32>;
+// changed-pixel mask of each evaluated entry: M_MASK_WORDS words, bit p of the tile's pixel
+// p = ty * TILE + tx (word p / 32, bit p % 32): the sort-first contamination measure's input
+@group(0) @binding(9) var<storage, read_write> m_masks: array<u32>;
 
 const M_THREADS: u32 = TILE_PIXELS / 4u;  // 4 vertically adjacent pixels per thread
 const M_SPAN: u32 = TILE + 6u;            // a tile and its 3-px SSIM halo on each side
@@ -97,11 +100,13 @@ const M_PLANE: u32 = M_SPAN * M_SPAN;
 const M_THR: f32 = 1.0 / 255.0;
 const M_C1: f32 = 0.0001;           // (0.01 * 1)^2
 const M_C2: f32 = 0.0009;           // (0.03 * 1)^2
+const M_MASK_WORDS: u32 = TILE_PIXELS / 32u;
 
 // Display-referred rgb of the tile plus its 3-px halo: clean at [i], faulted at [M_PLANE + i]
 // (i = hy * 22 + hx). Reused for the reduction once SSIM is done.
 var<workgroup> m_blk: array<vec4<f32>, 2u * M_PLANE>;
 var<workgroup> m_differs: atomic<u32>;
+var<workgroup> m_cmask: array<atomic<u32>, M_MASK_WORDS>;
 
 fn m_inf() -> f32 {
     return bitcast<f32>(0x7f800000u);
@@ -264,6 +269,9 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     if (tid == 0u) {
         atomicStore(&m_differs, 0u);
     }
+    if (tid < M_MASK_WORDS) {
+        atomicStore(&m_cmask[tid], 0u);
+    }
     workgroupBarrier();
 
     // ---- load the 22x22 block (every cell of m_blk is written: no stale workgroup memory);
@@ -317,6 +325,8 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
                 }
                 if (over) {
                     changed += 1.0;
+                    let p = (hy - 3u) * TILE + (hx - 3u);
+                    atomicOr(&m_cmask[p / 32u], 1u << (p % 32u));
                 }
                 peak = max(peak, pk);
                 let dd = fd - cd;
@@ -337,6 +347,9 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     // ---- SSIM at interior window centres (skipped when the whole block is identical: every
     //      deficit would be exactly 0 anyway) ----
     let any_diff = atomicLoad(&m_differs);
+    if (tid < M_MASK_WORDS) {
+        m_masks[e * M_MASK_WORDS + tid] = atomicLoad(&m_cmask[tid]);
+    }
     var count = 0.0;
     var deficit = 0.0;
     let lx = tid % TILE;

@@ -186,13 +186,16 @@ def test_identical_is_exact(gpu):
     assert (s["ssim"] == 1.0).all() and np.isinf(s["psnr"]).all()
 
 
-def test_sparse_equals_dense(gpu):
-    rng = np.random.default_rng(3)
+def _planted_setup(gpu, seed: int):
+    """(rng, clean, planted variants, B, ImageMetrics for them, the clean image uploaded)."""
+    rng = np.random.default_rng(seed)
     clean = _clean(rng)
     f = _planted(rng, clean)
-    B = f.shape[0]
-    im = M.ImageMetrics(gpu, W, H, K, B)
-    cb = gpu.upload(clean)
+    return rng, clean, f, f.shape[0], M.ImageMetrics(gpu, W, H, K, f.shape[0]), gpu.upload(clean)
+
+
+def test_sparse_equals_dense(gpu):
+    rng, clean, f, B, im, cb = _planted_setup(gpu, 3)
     rd = im.run_dense(cb, gpu.upload(f), B)
     for extra, boxes in ((0, False), (5, False), (0, True)):
         slabs, tile_map, wl, off = _sparse_inputs(clean, f, extra_identical=extra, rng=rng, boxes=boxes)
@@ -321,3 +324,27 @@ def test_summarize_and_catastrophic():
     assert s["nonfinite"].tolist() == [False, True] and s["nonfinite_pixels"].tolist() == [0, 2]
     assert M.catastrophic(s["footprint"], s["nonfinite"]).tolist() == [True, True]
     assert M.catastrophic([0.01, 0.0101], [False, False]).tolist() == [False, True]
+
+
+def test_changed_pixel_masks_match_the_twin(gpu):
+    """The per-entry changed-pixel masks (sort-first contamination's input) are changed_pixels of
+    the faulted images, dense and sparse, NaN/Inf and below-threshold changes included."""
+    rng, clean, f, B, im, cb = _planted_setup(gpu, 7)
+    want = M.changed_pixels(f, clean[None])  # [B, K, H, W]
+    assert want.any() and not want.all()
+    im.run_dense(cb, gpu.upload(f), B)
+    TX, TY = M.tiles_of(W, H)
+    got = im.read_changed_pixels(B * K * TX * TY).reshape(B, K, TY, TX, 16, 16)
+    got = got.transpose(0, 1, 2, 4, 3, 5).reshape(B, K, TY * 16, TX * 16)
+    np.testing.assert_array_equal(got[:, :, :H, :W], want)
+    assert not got[:, :, H:].any() and not got[:, :, :, W:].any()  # outside the frame
+    slabs, tile_map, wl, off = _sparse_inputs(clean, f, extra_identical=0, rng=rng, boxes=True)
+    im.run_sparse(cb, gpu.upload(slabs), gpu.upload(tile_map), gpu.upload(wl), gpu.upload(off), B)
+    n_e = int(off[-1])
+    masks = im.read_changed_pixels(n_e)
+    bk = np.repeat(np.arange(B * K), np.diff(off.astype(np.int64)))
+    full = np.zeros((B * K, TY * 16, TX * 16), bool)
+    for e in range(n_e):
+        ty, tx = divmod(int(wl[e]), TX)
+        full[bk[e], ty * 16 : ty * 16 + 16, tx * 16 : tx * 16 + 16] = masks[e]
+    np.testing.assert_array_equal(full.reshape(B, K, TY * 16, TX * 16)[:, :, :H, :W], want)

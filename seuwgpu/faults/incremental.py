@@ -18,7 +18,7 @@ import numpy as np
 from seuwgpu.faults.guard import clamp_bits
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import STORAGE
-from seuwgpu.metrics.image import ImageMetrics, build_worklist, changed_pixels, changed_tiles_mask, summarize
+from seuwgpu.metrics.image import ImageMetrics, build_worklist, changed_tiles_mask, summarize
 from seuwgpu.render.incremental import IncrementalCompositor
 from seuwgpu.render.regions import region_id_map
 
@@ -130,29 +130,25 @@ class IncrementalEvaluator:
         out = summarize(raw, r.width, r.height)
         out["dirty_tiles"] = dirty.reshape(m, -1).sum(axis=1)
         if regions:
-            # a slab whose rgb bits all equal the clean tile's has no changed pixel: skip it
-            keep = ~same
-            out.update(self._measured_regions(np.flatnonzero(keep), b_idx[keep], v_idx[keep], t_idx[keep], m, regions))
+            out.update(self._measured_regions(worklist, offsets, m, regions))
         return out
 
-    def _measured_regions(self, slab_idx, b_idx, v_idx, t_idx, m: int, regions) -> dict:
+    def _measured_regions(self, worklist, offsets, m: int, regions) -> dict:
         """Regions with a changed pixel (metrics.image.changed_pixels) in any view, from the
-        re-composited slabs `slab_idx` (of variants b_idx, views v_idx, tiles t_idx) against the
-        clean frame."""
-        r, n_e = self.r, b_idx.size
+        metrics pass's changed-pixel masks of the work list's tiles (every tile with a changed
+        pixel is on it)."""
+        r, K = self.r, self.r.k
         out = {f"regions_meas_{P}": np.zeros(m, dtype=np.int64) for P in regions}
-        if n_e == 0:
+        n_e = int(offsets[-1])
+        e, py, px = np.nonzero(self.metrics.read_changed_pixels(n_e))  # the changed pixels
+        if e.size == 0:
             return out
-        slabs = self.compositor.read_slabs(int(slab_idx.max()) + 1)[slab_idx]  # [E, TILE, TILE, 4]
-        ys = (t_idx // r.tiles_x)[:, None, None] * TILE + np.arange(TILE)[None, :, None]
-        xs = (t_idx % r.tiles_x)[:, None, None] * TILE + np.arange(TILE)[None, None, :]
-        inside = (ys < r.height) & (xs < r.width)
-        yc, xc = np.minimum(ys, r.height - 1), np.minimum(xs, r.width - 1)
-        clean = self.engine.clean_rgba[v_idx[:, None, None], yc, xc, :3]
-        e, py, px = np.nonzero(changed_pixels(slabs, clean) & inside)  # the changed pixels
+        variant = np.repeat(np.arange(m * K), np.diff(offsets.astype(np.int64)))[e] // K
+        tile = worklist[e].astype(np.int64)
+        ys, xs = (tile // r.tiles_x) * TILE + py, (tile % r.tiles_x) * TILE + px
         for P in regions:
-            rid = region_id_map(P, r.height, r.width)[yc[e, py, 0], xc[e, 0, px]]
+            rid = region_id_map(P, r.height, r.width)[ys, xs]
             acc = np.zeros(m, dtype=np.uint64)
-            np.bitwise_or.at(acc, b_idx[e], np.left_shift(np.uint64(1), rid.astype(np.uint64)))
+            np.bitwise_or.at(acc, variant, np.left_shift(np.uint64(1), rid.astype(np.uint64)))
             out[f"regions_meas_{P}"] = acc.view(np.int64)
         return out

@@ -63,6 +63,7 @@ from seuwgpu.gpu.kernel import Kernel, Uniforms
 WIN = 7
 PAD = (WIN - 1) // 2
 THRESHOLD = np.float32(1.0 / 255.0)
+MASK_BYTES = TILE * TILE // 8  # one entry's changed-pixel mask (metrics.wgsl m_masks)
 FIELDS = ("changed", "peak", "sse", "nonfinite", "ssim_sum", "ssim_count", "ssim_deficit")
 
 
@@ -99,7 +100,7 @@ class ImageMetrics:
         self.k_dispatch = Kernel(gpu, "metrics", "sparse_dispatch")
         self.record = self.k_tile.struct("MetricsRecord")
         self.layout = self.k_tile.struct("MetricsResults")  # status, then records
-        if self.capacity * self.record.size > gpu.max_binding:
+        if self.capacity * max(self.record.size, MASK_BYTES) > gpu.max_binding:
             raise ValueError(
                 f"max_entries={self.capacity} needs more than one storage binding "
                 f"({gpu.max_binding} bytes): evaluate fewer variants per call"
@@ -110,6 +111,7 @@ class ImageMetrics:
         self.results = gpu.buffer(
             self.layout.offset("records") + n_results * self.record.size, STORAGE, "metrics.results"
         )
+        self.masks = gpu.buffer(self.capacity * MASK_BYTES, STORAGE, "metrics.masks")
         self.indirect = gpu.buffer(16, INDIRECT, "metrics.indirect")
         self._dummy = gpu.buffer(16, STORAGE, "metrics.dummy")
         self._mode = None
@@ -147,8 +149,9 @@ class ImageMetrics:
             6: self.partials,
             7: self.results,
             8: self.indirect,
+            9: self.masks,
         }
-        tile = {i: common[i] for i in range(7)}
+        tile = {i: common[i] for i in (*range(7), 9)}
         cp = encoder.begin_compute_pass()
         if n_entries is None:  # sparse: size from offsets[B*K] on the GPU
             self.k_dispatch.record(cp, {i: common[i] for i in (0, 5, 8)}, workgroups=(1, 1, 1))
@@ -203,6 +206,17 @@ class ImageMetrics:
                 f"{self.capacity}: results incomplete (raise max_entries)"
             )
         return _unpack(raw[start:].view(self.record.dtype).reshape(B, K))
+
+    def read_changed_pixels(self, n_entries: int) -> np.ndarray:
+        """[n_entries, TILE, TILE] bool of the last submitted encode: the pixels of each evaluated
+        work-list entry (dense: entry bk * n_tiles + tile; sparse: the work list's order) that
+        count as changed (`changed_pixels`, inside the frame). Sort-first contamination reads
+        these instead of the faulted tiles."""
+        n = int(n_entries)
+        if n == 0:
+            return np.zeros((0, TILE, TILE), dtype=bool)
+        words = self.gpu.read(self.masks, np.uint32, 0, MASK_BYTES * n)
+        return np.unpackbits(words.view(np.uint8), bitorder="little").reshape(n, TILE, TILE).astype(bool)
 
     def run_dense(self, clean_buf, faulted_buf, n_variants: int) -> dict:
         """encode_dense + submit + read."""

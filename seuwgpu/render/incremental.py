@@ -151,9 +151,6 @@ class IncrementalCompositor:
         )
         return tile_map, b_idx, v_idx, t_idx
 
-    def read_slabs(self, n: int) -> np.ndarray:
-        return self.compositing.read_slabs(n)
-
     def read_changed(self, n: int) -> np.ndarray:
         return self.compositing.read_changed(n)
 
