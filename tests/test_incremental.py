@@ -162,3 +162,5 @@ def test_arms_that_draw_the_same_frames_recomposite_nothing(monkeypatch):
     for key in METRICS:  # ECC does not cover mantissa bits: the same frames as unprotected
         assert by["ecc"][key][mantissa].equals(by["none"][key][mantissa]), key
     assert (by["ecc"]["footprint"][~mantissa] == 0).all() and (by["none"]["footprint"][~mantissa] > 0).any()
+    empty = eng.evaluate_frame([], ("none", "ecc", "dup"))  # no sites: no rows, the same columns
+    assert len(empty) == 0 and list(empty.columns) == list(arms.columns)

@@ -433,6 +433,12 @@ class Engine:
         are copied from that arm instead of re-composited (ECC and duplication correct most upsets,
         and the guards leave most unclamped, so an arm often repeats another's frames). `drawn`
         collects (reference mask, rows, metrics) per arm."""
+        if len(rows) == 0:  # no sites: empty columns
+            empty = {key: np.zeros(0) for key in ("footprint", "footprint_max", "peak_error", "psnr", "ssim")}
+            empty["nonfinite"] = np.zeros(0, bool)
+            for P in regions:
+                empty[f"regions_pred_{P}"] = empty[f"regions_meas_{P}"] = np.zeros(0, np.int64)
+            return empty
         todo = np.ones(len(rows), dtype=bool)
         source = np.full(len(rows), -1, dtype=np.int64)
         for j, (mask, rows0, _) in enumerate(drawn):
