@@ -290,3 +290,18 @@ def test_outcome_and_reliability_tables_of_the_spec():
     ):
         with pytest.raises(SpecError, match=what):
             normalize_spec(base | bad)
+
+
+def test_quiet_progress_lines_carry_an_eta(capsys, monkeypatch):
+    import re
+
+    from seuwgpu.campaign import runner as R
+
+    clock = iter([0.0, 20.0, 40.0])  # t0, then one call per advance
+    monkeypatch.setattr(R.time, "perf_counter", lambda: next(clock))
+    p = R.Progress(total=1000, done=100, quiet=True)
+    p.advance(300, 2)  # 300 in 20 s: 15/s, 600 left: 40 s
+    p.advance(600, 1)  # done
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[0] == "400/1000 injections, 15.0/s, ETA 00:00:40, catastrophic 2"
+    assert re.fullmatch(r"1000/1000 injections, 22\.5/s, ETA 00:00:00, catastrophic 3", lines[1])

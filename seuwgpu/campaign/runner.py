@@ -282,8 +282,12 @@ class Progress:
             self.p.update(self.task, completed=self.done, rate=rate, cat=self.cat)
         elif now - self.last > 10 or self.done == self.total:
             self.last = now
+            eta = "-"  # no rate yet
+            if rate > 0:
+                left = (self.total - self.done) / rate
+                eta = time.strftime("%H:%M:%S", time.gmtime(left)) if left < 86400 else f"{left / 3600:.0f} h"
             print(
-                f"{self.done}/{self.total} injections, {rate:.1f}/s, catastrophic {self.cat}",
+                f"{self.done}/{self.total} injections, {rate:.1f}/s, ETA {eta}, catastrophic {self.cat}",
                 file=sys.stderr,
                 flush=True,
             )
