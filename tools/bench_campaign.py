@@ -23,6 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from seuwgpu.faults.defenses import check_defense  # noqa: E402
 from seuwgpu.faults.engine import Engine  # noqa: E402
 from seuwgpu.model import encoding  # noqa: E402
 from seuwgpu.model.fields import FIELDS, field_components  # noqa: E402
@@ -51,10 +52,13 @@ def main(argv=None):
     ap.add_argument("--defenses", default="none", help="comma-separated arms per injection, e.g. none,guard,ecc")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
-    w, h = (int(v) for v in args.size.split("x"))
+    try:
+        w, h = (int(v) for v in args.size.lower().split("x"))
+        arms = tuple(check_defense(d.strip()) for d in args.defenses.split(",") if d.strip()) or ("none",)
+    except ValueError as e:
+        ap.error(f"--size WxH (e.g. 128x128) and --defenses a comma-separated list: {e}")
     model = make_scene(args.scene, n=args.n)
     eng = Engine(model, scene_cameras(args.scene, args.views, w, h), args.precision, scene=args.scene)
-    arms = tuple(d.strip() for d in args.defenses.split(",") if d.strip())
     sites = draw_sites(eng, args.samples, 0)
     eng.evaluate(sites[:32], arms)  # warm-up: pipelines, buffers
     t = time.perf_counter()
