@@ -134,6 +134,9 @@ def test_kill_and_resume_gives_the_uninterrupted_records(reference_run, tmp_path
     Runner(load_spec(spec_path), run, quiet=True).run()
     got = canonical(read_records(run))
     pd.testing.assert_frame_equal(got, ref)
+    # every part carries the time it took, the killed invocation's parts included
+    seconds, untimed = store.run_seconds(run)
+    assert untimed == 0 and seconds > 0
 
 
 def test_changed_spec_is_refused(reference_run, tmp_path):
@@ -305,3 +308,12 @@ def test_quiet_progress_lines_carry_an_eta(capsys, monkeypatch):
     lines = capsys.readouterr().err.strip().splitlines()
     assert lines[0] == "400/1000 injections, 15.0/s, ETA 00:00:40, catastrophic 2"
     assert re.fullmatch(r"1000/1000 injections, 22\.5/s, ETA 00:00:00, catastrophic 3", lines[1])
+
+
+def test_parts_carry_their_compute_time(tmp_path):
+    df = pd.DataFrame({"injection_id": np.arange(3), "footprint": [0.0, 0.5, 1.0]})
+    store.records_dir(tmp_path).mkdir(parents=True)
+    store.write_part(tmp_path, 0, 3, df, seconds=1.5)
+    store.write_part(tmp_path, 3, 3, df)  # a part written without its time
+    assert store.run_seconds(tmp_path) == (1.5, 1)
+    pd.testing.assert_frame_equal(pd.read_parquet(store.part_path(tmp_path, 0, 3)), df)

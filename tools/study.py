@@ -60,6 +60,7 @@ def main(argv=None) -> int:
     ap.add_argument("--specs", nargs="*", default=list(SPECS), help="spec files of docs/study to run")
     args = ap.parse_args(argv)
 
+    from seuwgpu.campaign import store
     from seuwgpu.campaign.runner import Runner
     from seuwgpu.campaign.spec import normalize_spec
     from seuwgpu.gpu.device import get_gpu
@@ -82,14 +83,33 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         stats = Runner(spec, run_dir, quiet=True, gpu=gpu).run()
         dt = time.perf_counter() - t0
-        timings["steps"].append({"step": f"campaign {name}", "seconds": dt, "injections": stats["injections"]})
-        print(f"{name}: {stats['injections']:,} injections in {dt:.1f} s", file=sys.stderr)
+        # a resumed campaign's wall time here covers only this invocation's blocks; its parts
+        # carry their own compute time, so the sum over them is the campaign's whole cost
+        compute, untimed = store.run_seconds(run_dir)
+        timings["steps"].append(
+            {
+                "step": f"campaign {name}",
+                "seconds": dt,
+                "injections": stats["injections"],
+                "new_injections": stats["new"],
+                "compute_seconds": compute,
+                "untimed_parts": untimed,
+            }
+        )
+        (out / "timings.json").write_text(json.dumps(timings, indent=2))
+        print(
+            f"{name}: {stats['injections']:,} injections ({stats['new']:,} new) in {dt:.1f} s; "
+            f"{compute:.1f} s of compute over all its parts"
+            + (f" ({untimed} parts without a recorded time)" if untimed else ""),
+            file=sys.stderr,
+        )
         runs.append(run_dir)
     t0 = time.perf_counter()
     build_report(runs, out / "report")
     dt = time.perf_counter() - t0
     timings["steps"].append({"step": "report", "seconds": dt})
     timings["total_seconds"] = sum(s["seconds"] for s in timings["steps"])
+    timings["total_compute_seconds"] = sum(s.get("compute_seconds", s["seconds"]) for s in timings["steps"])
     (out / "timings.json").write_text(json.dumps(timings, indent=2))
     print(f"report: {dt:.1f} s; total {timings['total_seconds']:.1f} s on {timings['device']}", file=sys.stderr)
     return 0

@@ -116,6 +116,7 @@ class Runner:
         t0 = time.perf_counter()
         try:
             for ctx, first, count in todo:
+                t_block = time.perf_counter()
                 key = (ctx.kind, ctx.scene_index, ctx.n, ctx.precision)
                 if key not in engines:
                     engines.clear()  # one engine at a time: bounded memory
@@ -123,7 +124,7 @@ class Runner:
                     self.note_clean_model(engines[key], ctx)
                 eng = engines[key]
                 df = self.run_block(eng, ctx, first, count)
-                store.write_part(self.out, first, count, df)
+                store.write_part(self.out, first, count, df, seconds=time.perf_counter() - t_block)
                 cat = int(df.loc[df.defense == ctx.defenses[0], "catastrophic"].sum())
                 stats["injections"] += count
                 stats["new"] += count

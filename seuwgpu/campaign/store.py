@@ -271,14 +271,44 @@ def git_commit() -> str:
         return "unknown"
 
 
-def parquet_bytes(df: pd.DataFrame) -> bytes:
+PART_META = "seuwgpu.block_seconds"  # Parquet schema metadata of a part: the seconds it took
+
+
+def parquet_bytes(df: pd.DataFrame, seconds: float | None = None) -> bytes:
+    """The records as Parquet; `seconds` (the compute time of the block, engine set-up included
+    when the block paid it) is kept in the file's schema metadata, so a run's compute time is
+    the sum over its parts, however often it was interrupted and resumed (`run_seconds`)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    if seconds is not None:
+        meta = dict(table.schema.metadata or {})
+        meta[PART_META.encode()] = repr(float(seconds)).encode()
+        table = table.replace_schema_metadata(meta)
     buf = io.BytesIO()
-    df.to_parquet(buf, index=False)
+    pq.write_table(table, buf)
     return buf.getvalue()
 
 
-def write_part(run_dir, first: int, count: int, df: pd.DataFrame):
-    atomic_write(part_path(run_dir, first, count), parquet_bytes(df))
+def write_part(run_dir, first: int, count: int, df: pd.DataFrame, seconds: float | None = None):
+    atomic_write(part_path(run_dir, first, count), parquet_bytes(df, seconds))
+
+
+def run_seconds(run_dir, manifest: dict | None = None) -> tuple[float, int]:
+    """(compute seconds summed over the run's parts that record them, parts that do not: written
+    before parts carried their time, or by other tools)."""
+    import pyarrow.parquet as pq
+
+    total, untimed = 0.0, 0
+    for path in record_parts(run_dir, manifest):
+        meta = pq.read_schema(path).metadata or {}
+        value = meta.get(PART_META.encode())
+        if value is None:
+            untimed += 1
+        else:
+            total += float(value)
+    return total, untimed
 
 
 def host() -> str:
