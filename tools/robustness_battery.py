@@ -443,6 +443,9 @@ class Battery:
         self.add("arguments", "campaign --out in /proc", ["campaign", spec, "--out", "/proc/seuwgpu-run"])
         self.add("arguments", "report of a missing dir", ["report", self.work / "nope", "--out", self.fresh("rep")])
         self.add("arguments", "report of an empty dir", ["report", self.work / "dir", "--out", self.fresh("rep")])
+        self.add("arguments", "rates of a missing dir", ["rates", self.work / "nope"])
+        self.add("arguments", "rates of an empty dir", ["rates", self.work / "dir"])
+        self.add("arguments", "rates --by typo", ["rates", self.work / "dir", "--by", "precison"])
         self.add("arguments", "scene without --out", ["scene", "spheres", "--n", "10"])
         self.add(
             "arguments",

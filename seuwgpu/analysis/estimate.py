@@ -62,7 +62,9 @@ def stratified_interval(p_h, n_h, W_h, conf: float = 0.95) -> tuple[float, float
 def _cells(d: pd.DataFrame, y: np.ndarray, by: list[str], strata: list[str]) -> pd.DataFrame:
     w = d["weight"].to_numpy(float)
     t = pd.DataFrame({c: d[c].to_numpy() for c in dict.fromkeys(by + strata)})
-    t["_w"], t["_wy"], t["_y"], t["_n"] = w, w * y, y, 1.0
+    # rows folded by analysis.cells stand for n_records records each, y counting their events
+    n = d["n_records"].to_numpy(float) if "n_records" in d else 1.0
+    t["_w"], t["_wy"], t["_y"], t["_n"] = w * n, w * y, y, n
     return t.groupby(list(dict.fromkeys(by + strata)), sort=False, dropna=False)[["_w", "_wy", "_y", "_n"]].sum()
 
 
@@ -76,7 +78,8 @@ def rate(
 ) -> pd.DataFrame:
     """Weighted rate of a 0/1 outcome per group, with its interval (see module notes).
 
-    y: a column name or a boolean array aligned with d. Returns one row per group (in order of
+    y: a column name or a boolean array aligned with d (on rows folded by analysis.cells: a
+    count column, each row standing for n_records records). Returns one row per group (in order of
     appearance) with columns ``by`` + n, events, weight, rate, ci_lo, ci_hi, n_eff, method
     (rates as proportions; `prefix` is put before the names of the added columns)."""
     by = list(by)

@@ -322,6 +322,43 @@ def cmd_distributed(args):
     return 0
 
 
+def cmd_rates(args):
+    """Weighted outcome rates of runs (finished or still running), folded part by part."""
+    import sys
+
+    from rich.console import Console
+    from rich.progress import Progress
+    from rich.table import Table
+
+    from seuwgpu.analysis.cells import COUNTS, fold_runs, outcome_rates
+    from seuwgpu.campaign.store import COLUMNS
+
+    by = [c.strip() for c in args.by.split(",") if c.strip()]
+    unknown = [c for c in by if c != "run" and c not in COLUMNS]
+    if unknown:
+        known = ", ".join(["run", *COLUMNS])
+        raise SystemExit(f"seuwgpu rates: --by {', '.join(unknown)}: not a record column (one of {known})")
+    quiet = not sys.stderr.isatty()
+    with Progress(transient=True, disable=quiet) as bar:
+        task = bar.add_task("reading parts", total=None)
+        cells, n_parts = fold_runs(args.runs, by, args.campaign, lambda i, n: bar.update(task, completed=i, total=n))
+    t = outcome_rates(cells, by)
+    if args.csv:
+        t.to_csv(args.csv, index=False)
+    tab = Table(
+        title=f"{args.campaign} upsets, {int(cells['n_records'].sum()):,} records in {n_parts:,} parts: weighted "
+        "rate per outcome, % [95% interval: Wilson per cell, stratified Wilson when pooled]"
+    )
+    for c in [*by, "n", *COUNTS]:
+        tab.add_column(c, justify="right")
+    for _, r in t.iterrows():
+        pct = [[100 * r[f"{c}_{x}"] for x in ("rate", "ci_lo", "ci_hi")] for c in COUNTS]
+        cells_text = (f"{p:.3g} [{lo:.3g}, {hi:.3g}]" for p, lo, hi in pct)
+        tab.add_row(*(str(r[c]) for c in by), f"{int(r['n']):,}", *cells_text)
+    Console(width=200).print(tab)
+    return 0
+
+
 def cmd_plan(args):
     """What a spec will run: injections per context, and the margin each cell's sample gives."""
     from rich.console import Console
@@ -884,6 +921,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--bit", type=int, nargs="+", help="bits (default: all 32)")
     s.add_argument("--out", type=Path, required=True)
     s.set_defaults(func=cmd_state)
+
+    s = sub.add_parser(
+        "rates", help="weighted outcome rates with intervals, read part by part (any size, runs still going)"
+    )
+    s.add_argument("runs", type=Path, nargs="+")
+    s.add_argument("--by", default="scene,precision,defense", help="comma-separated record columns (or run)")
+    s.add_argument("--campaign", default="single", choices=["single", "size"])
+    s.add_argument("--csv", type=Path, help="write the table as CSV (rates as proportions)")
+    s.set_defaults(func=cmd_rates)
 
     s = sub.add_parser("report", help="tables, figures and an HTML page from run directories")
     s.add_argument("runs", type=Path, nargs="+")

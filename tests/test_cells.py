@@ -1,0 +1,111 @@
+"""Records folded into stratum cells part by part (analysis/cells.py) give the rates, intervals
+and counts of the records themselves, checked against estimate.rate on the whole frame and
+against a plain pandas recomputation of the weighted rates."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from seuwgpu.analysis import cells as C
+from seuwgpu.analysis import estimate as E
+from seuwgpu.campaign import store
+from seuwgpu.metrics.image import OUTCOMES
+
+
+def synthetic_records(rng, n: int, weight_scale: float) -> pd.DataFrame:
+    """Stratified-looking records: the weight is constant per (scene, precision, field, bit) cell
+    (as the runner writes it), outcomes random with cell-dependent rates."""
+    scene = rng.choice(["a", "b"], n)
+    precision = rng.choice(["fp32", "fp16"], n)
+    field = rng.choice(["means", "opacity", "sh_rest"], n)
+    bit = rng.integers(0, 4, n)
+    ncomp = pd.Series(field).map({"means": 3, "opacity": 1, "sh_rest": 45}).to_numpy()
+    p_cat = 0.02 + 0.2 * (bit == 3) + 0.1 * (field == "opacity")
+    u = rng.random(n)
+    outcome = np.where(u < p_cat, "catastrophic", np.where(u < 0.4, "sdc", np.where(u < 0.7, "tolerable", "masked")))
+    return pd.DataFrame(
+        {
+            "campaign": rng.choice(["single", "single", "single", "size"], n),
+            "k": np.where(rng.random(n) < 0.95, 1, 3),
+            "scene": scene,
+            "n_primitives": np.where(scene == "a", 500, 800),
+            "precision": precision,
+            "field": field,
+            "bit": bit,
+            "defense": rng.choice(["none", "guard"], n),
+            "weight": weight_scale * ncomp * np.where(scene == "a", 500, 800) / 7.0,
+            "outcome": outcome,
+            "nonfinite": (outcome == "catastrophic") & (rng.random(n) < 0.5),
+        }
+    )
+
+
+@pytest.fixture
+def runs(tmp_path):
+    """Two run directories of parts (no manifest: every part file counts), with different
+    per-record weights, as runs of different sample sizes have."""
+    rng = np.random.default_rng(12)
+    dirs, frames = [], []
+    for r, scale in enumerate((1.0, 0.37)):
+        d = tmp_path / f"run{r}"
+        store.records_dir(d).mkdir(parents=True)
+        for j in range(5):
+            df = synthetic_records(rng, 400, scale)
+            store.write_part(d, 400 * j, 400, df)
+            frames.append(df.assign(run=d.name))
+        dirs.append(d)
+    return dirs, pd.concat(frames, ignore_index=True)
+
+
+@pytest.mark.parametrize("by", [["precision", "defense"], ["run", "scene"], []])
+def test_folded_cells_give_the_records_rates(runs, by, monkeypatch):
+    monkeypatch.setattr(C, "FOLD_EVERY", 2)  # exercise the re-folding of accumulated cells
+    dirs, records = runs
+    seen = []
+    cells, n_parts = C.fold_runs(dirs, by, progress=lambda i, n: seen.append((i, n)))
+    assert n_parts == 10 and seen[-1] == (10, 10)
+    single = records[(records.campaign == "single") & (records.k == 1)]
+    assert cells["n_records"].sum() == len(single)
+    assert len(cells) < len(single) / 5  # folded
+    for y in (*OUTCOMES, "nonfinite"):
+        ref = E.rate(single.assign(**{o: single.outcome == o for o in OUTCOMES}), y, by)
+        got = E.rate(cells, y, by)
+        if by:
+            got = got.set_index(by).loc[ref.set_index(by).index].reset_index()
+        assert got["n"].tolist() == ref["n"].tolist() and got["events"].tolist() == ref["events"].tolist()
+        for col in ("weight", "rate", "ci_lo", "ci_hi", "n_eff"):
+            np.testing.assert_allclose(got[col].to_numpy(float), ref[col].to_numpy(float), rtol=1e-12, err_msg=col)
+        assert got["method"].tolist() == ref["method"].tolist()
+
+
+def test_rates_command_matches_pandas(runs, tmp_path):
+    dirs, records = runs
+    out = tmp_path / "rates.csv"
+    cmd = [sys.executable, "-m", "seuwgpu", "rates", *map(str, dirs), "--by", "precision", "--csv", str(out)]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "catastrophic" in res.stdout and "fp16" in res.stdout
+    got = pd.read_csv(out).set_index("precision")
+    single = records[(records.campaign == "single") & (records.k == 1)]
+    for prec, g in single.groupby("precision"):
+        w = g["weight"].to_numpy()
+        for o in OUTCOMES:
+            want = (w * (g["outcome"] == o)).sum() / w.sum()  # the weighted rate, recomputed plainly
+            assert got.loc[prec, f"{o}_rate"] == pytest.approx(want, rel=1e-12)
+            assert got.loc[prec, f"{o}_ci_lo"] <= want <= got.loc[prec, f"{o}_ci_hi"]
+        assert got.loc[prec, "n"] == len(g)
+
+
+def test_missing_columns_and_empty_runs_are_clear_errors(tmp_path):
+    d = tmp_path / "old"
+    store.records_dir(d).mkdir(parents=True)
+    store.write_part(d, 0, 2, pd.DataFrame({"campaign": ["single"] * 2, "k": [1, 1], "scene": ["a", "a"]}))
+    with pytest.raises(ValueError, match="records lack .*weight.*seuwgpu report"):
+        C.fold_runs([d])
+    with pytest.raises(FileNotFoundError, match="no records"):
+        C.fold_runs([tmp_path / "old" / "records"])
+    with pytest.raises(FileNotFoundError, match="not a run directory"):
+        C.fold_runs([tmp_path / "missing"])
