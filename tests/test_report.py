@@ -364,3 +364,15 @@ def test_only_single_defense_skips_mitigation(synthetic, tmp_path):
     skipped = {s["analysis"] for s in summary["skipped"]}
     assert {"Mitigation table", "Guard evaluation", "Per-precision catastrophe rates"} <= skipped
     assert (out / "criticality.csv").is_file()
+
+
+def test_a_report_too_big_for_memory_is_refused_before_loading(synthetic, tmp_path, monkeypatch):
+    from seuwgpu.errors import TooBig
+    from seuwgpu.report.build import REPORT_BYTES_PER_RECORD, check_report_memory
+
+    n = check_report_memory([synthetic["full"]])
+    assert n == len(load_runs([synthetic["full"]])[0])  # counted from the footers, nothing loaded
+    monkeypatch.setenv("SEUWGPU_HOST_MEMORY", str(n * REPORT_BYTES_PER_RECORD // 2))
+    with pytest.raises(TooBig, match=f"{n:,} records needs .*seuwgpu rates"):
+        build_report([synthetic["full"]], tmp_path / "rep")
+    assert not (tmp_path / "rep" / "index.html").exists()

@@ -73,6 +73,32 @@ OPTIONAL_COLUMNS = ("campaign", "repeat", "time_ms")
 # ------------------------------------------------------------------------------------ loading
 
 
+# Peak host memory per record while a report is built: 907 MB for the 474,592 records of
+# docs/study/cpu (lavapipe host, pandas 3.1, 2026-11-25), i.e. 1.9 KB with the interpreter's own.
+REPORT_BYTES_PER_RECORD = 2000
+
+
+def check_report_memory(run_dirs) -> int:
+    """Refuse, before loading anything, runs whose report would not fit in host memory (their
+    record count from the Parquet footers); returns that count. The rates of any number of
+    records are `seuwgpu rates`'s (analysis/cells.py)."""
+    from seuwgpu.errors import TooBig
+    from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, gb
+
+    n = 0
+    for rd in run_dirs:
+        if Path(rd).is_dir():
+            n += sum(store.part_rows(p) or 0 for p in store.record_parts(rd))
+    need, have = n * REPORT_BYTES_PER_RECORD, HOST_SHARE * available_host_bytes()
+    if need > have:
+        raise TooBig(
+            f"a report of {n:,} records needs about {gb(need)} of host memory, {gb(have / HOST_SHARE)} is "
+            "available: report fewer runs, or read the weighted outcome rates of any number of records "
+            "with `seuwgpu rates RUN...`"
+        )
+    return n
+
+
 def load_runs(run_dirs: Iterable[str | Path]) -> tuple[pd.DataFrame, list[dict]]:
     """Concatenate the records of campaign run directories.
 
@@ -83,6 +109,8 @@ def load_runs(run_dirs: Iterable[str | Path]) -> tuple[pd.DataFrame, list[dict]]
     error."""
     if isinstance(run_dirs, (str, Path)):
         run_dirs = [run_dirs]
+    run_dirs = list(run_dirs)
+    check_report_memory(run_dirs)
     frames, manifests, names = [], [], set()
     for rd in run_dirs:
         p = Path(rd)
