@@ -63,6 +63,7 @@ def main(argv=None) -> int:
     from seuwgpu.campaign import store
     from seuwgpu.campaign.runner import Runner
     from seuwgpu.campaign.spec import normalize_spec
+    from seuwgpu.errors import TooBig
     from seuwgpu.gpu.device import get_gpu
     from seuwgpu.report.build import build_report
 
@@ -105,15 +106,31 @@ def main(argv=None) -> int:
         )
         runs.append(run_dir)
     t0 = time.perf_counter()
-    build_report(runs, out / "report")
+    status = 0
+    try:
+        build_report(runs, out / "report")
+    except TooBig as e:  # the campaigns are kept; their rates are `seuwgpu rates`'s
+        timings["report_skipped"] = str(e)
+        print(f"report: skipped: {e}", file=sys.stderr)
+        status = 2
     dt = time.perf_counter() - t0
     timings["steps"].append({"step": "report", "seconds": dt})
     timings["total_seconds"] = sum(s["seconds"] for s in timings["steps"])
     timings["total_compute_seconds"] = sum(s.get("compute_seconds", s["seconds"]) for s in timings["steps"])
     (out / "timings.json").write_text(json.dumps(timings, indent=2))
-    print(f"report: {dt:.1f} s; total {timings['total_seconds']:.1f} s on {timings['device']}", file=sys.stderr)
-    return 0
+    print(
+        f"report: {dt:.1f} s; {timings['total_seconds']:.1f} s this run, {timings['total_compute_seconds']:.1f} s of "
+        f"compute in all (campaign parts of earlier, interrupted runs included) on {timings['device']}",
+        file=sys.stderr,
+    )
+    return status
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from seuwgpu.errors import SeuwgpuError
+
+    try:
+        sys.exit(main())
+    except (SeuwgpuError, ValueError) as e:  # a spec or a size this machine cannot take: one line
+        print(f"study.py: error: {e}", file=sys.stderr)
+        sys.exit(2)
