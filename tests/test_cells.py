@@ -97,6 +97,9 @@ def test_rates_command_matches_pandas(runs, tmp_path):
             assert got.loc[prec, f"{o}_rate"] == pytest.approx(want, rel=1e-12)
             assert got.loc[prec, f"{o}_ci_lo"] <= want <= got.loc[prec, f"{o}_ci_hi"]
         assert got.loc[prec, "n"] == len(g)
+    typo = subprocess.run([*cmd[:-4], "--by", "precison"], capture_output=True, text=True, timeout=300)
+    assert typo.returncode == 2 and "--by precison: not a record column" in typo.stderr
+    assert "Traceback" not in typo.stderr
 
 
 def test_missing_columns_and_empty_runs_are_clear_errors(tmp_path):

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seuwgpu.errors import SeuwgpuError
+from seuwgpu.errors import InputError, SeuwgpuError
 from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.model.encoding import PRECISIONS
 from seuwgpu.model.formats import UP_AXES
@@ -337,7 +337,7 @@ def cmd_rates(args):
     unknown = [c for c in by if c != "run" and c not in COLUMNS]
     if unknown:
         known = ", ".join(["run", *COLUMNS])
-        raise SystemExit(f"seuwgpu rates: --by {', '.join(unknown)}: not a record column (one of {known})")
+        raise InputError(f"--by {', '.join(unknown)}: not a record column (one of {known})")
     quiet = not sys.stderr.isatty()
     with Progress(transient=True, disable=quiet) as bar:
         task = bar.add_task("reading parts", total=None)
