@@ -151,6 +151,11 @@ class IncrementalCompositor:
         )
         return tile_map, b_idx, v_idx, t_idx
 
+    def read_slabs(self, n: int) -> np.ndarray:
+        """The first n re-composited tiles ([n, TILE, TILE, 4]): what the tests compare with full
+        renders and the twin (campaigns read only boxes and metrics)."""
+        return self.compositing.read_slabs(n)
+
     def read_changed(self, n: int) -> np.ndarray:
         return self.compositing.read_changed(n)
 
