@@ -112,3 +112,16 @@ def test_missing_columns_and_empty_runs_are_clear_errors(tmp_path):
         C.fold_runs([tmp_path / "old" / "records"])
     with pytest.raises(FileNotFoundError, match="not a run directory"):
         C.fold_runs([tmp_path / "missing"])
+
+
+def test_runs_sharing_a_folder_name_stay_apart(runs, tmp_path):
+    """Two runs in folders of one name are two runs (labelled as the report labels them)."""
+    dirs, records = runs
+    twin = tmp_path / "elsewhere" / dirs[0].name
+    store.records_dir(twin).mkdir(parents=True)
+    store.write_part(twin, 0, 400, records[records.run == dirs[0].name].iloc[:400].drop(columns="run"))
+    assert store.run_names([dirs[0], twin, dirs[1]]) == ["run0", "run0#2", "run1"]
+    cells, _ = C.fold_runs([dirs[0], twin], ["run"])
+    got = cells.groupby("run")["n_records"].sum().to_dict()
+    first = records[(records.run == "run0") & (records.campaign == "single") & (records.k == 1)]
+    assert got == {"run0": len(first), "run0#2": len(first.loc[first.index < 400])}

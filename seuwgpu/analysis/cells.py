@@ -46,17 +46,19 @@ def fold(records: pd.DataFrame, by=()) -> pd.DataFrame:
 
 def fold_runs(run_dirs, by=("scene", "precision", "defense"), campaign: str = "single", progress=None):
     """(cell rows of the k = 1 records of `campaign` in the runs' parts, parts read). `by` may name
-    any record column and `run` (the run directory's name). `progress(i, n)` is called per part."""
+    any record column and `run` (store.run_names: the label the report gives the run).
+    `progress(i, n)` is called per part."""
     by = list(by)
     parts = []
-    for rd in run_dirs:
+    run_dirs = list(run_dirs)
+    for rd, name in zip(run_dirs, store.run_names(run_dirs)):
         rd = Path(rd)
         if not rd.is_dir():
             raise FileNotFoundError(f"{rd}: not a run directory")
         found = store.record_parts(rd)
         if not found:
             raise FileNotFoundError(f"{rd}: no records/part-*.parquet")
-        parts += [(rd.resolve().name, p) for p in found]
+        parts += [(name, p) for p in found]
     want = [c for c in dict.fromkeys([*by, *estimate.STRATA, *NEEDED]) if c != "run"]
     acc, pending = None, []
     for i, (run, path) in enumerate(parts):

@@ -295,6 +295,21 @@ def write_part(run_dir, first: int, count: int, df: pd.DataFrame, seconds: float
     atomic_write(part_path(run_dir, first, count), parquet_bytes(df, seconds))
 
 
+def run_names(run_dirs) -> list[str]:
+    """The `run` label of each run directory: its folder's name, made unique ("study#2") when two
+    runs share one, as the report and `seuwgpu rates` label records."""
+    names, seen = [], set()
+    for rd in run_dirs:
+        p = Path(rd)
+        name = p.resolve().name or str(p)
+        base, i = name, 2
+        while name in seen:
+            name, i = f"{base}#{i}", i + 1
+        seen.add(name)
+        names.append(name)
+    return names
+
+
 def run_seconds(run_dir, manifest: dict | None = None) -> tuple[float, int]:
     """(compute seconds summed over the run's parts that record them, parts that do not: written
     before parts carried their time, or by other tools)."""

@@ -111,16 +111,11 @@ def load_runs(run_dirs: Iterable[str | Path]) -> tuple[pd.DataFrame, list[dict]]
         run_dirs = [run_dirs]
     run_dirs = list(run_dirs)
     check_report_memory(run_dirs)
-    frames, manifests, names = [], [], set()
-    for rd in run_dirs:
+    frames, manifests = [], []
+    for rd, name in zip(run_dirs, store.run_names(run_dirs)):
         p = Path(rd)
         if not p.is_dir():
             raise FileNotFoundError(f"{p}: not a run directory")
-        name = p.resolve().name or str(p)
-        base, i = name, 2
-        while name in names:
-            name, i = f"{base}#{i}", i + 1
-        names.add(name)
         manifest = dict(store.read_manifest(p) or {})
         parts = store.record_parts(p, manifest)  # the spec's parts only: a stray file is never counted
         manifest["_run"] = name
