@@ -54,6 +54,7 @@ def gpu_frame(gpu, ranges, prims, rec: dict, w: int, h: int, background, chunk=C
         gpu.upload(np.column_stack([rec["rgb"], depth]).astype(np.float32)),
         (tx, ty),
         gpu.buffer(4 * len(prims)),
+        stops=gpu.buffer(4 * w * h),  # a kept frame: the kernel that also writes boxes and stops
     )
     gpu.submit(enc)
     return gpu.read(stage.image, np.float32).reshape(h, w, 4)

@@ -67,7 +67,7 @@ class Compositing:
         )
         # Work (composite.wgsl): counters zeroed per view; the dispatch arguments' y, z stay 1
         self.work = gpu.upload(np.array([0, 0, 0, 0, 0, 1, 1, 0, 0, 1, 1, 0], np.uint32), INDIRECT, "composite.work")
-        self.no_stops = gpu.buffer(16, STORAGE, "composite.no_stops")  # bound where no frame is kept
+        self.no_stops = gpu.buffer(16, STORAGE, "composite.no_stops")  # bound (never written) by _lean
         self.capacity = None
 
     def set_views(self, k: int, width: int, height: int):
@@ -107,25 +107,24 @@ class Compositing:
         rgb,
         tiles: tuple[int, int],
         isect_box,
-        keep_boxes=True,
         stops=None,
     ):
         """One view: `frame` its Binning slot (render/bin.py), `ranges` / `isect_prims` its tile
-        lists, `xy` / `conic` / `rgb` the screen records (render/project.py), tiles = (TX, TY);
-        `isect_box` (u32 per pair) receives each pair's pixel box (FULL_BOX where a chunk stopped
-        early), which the variants entry reuses (keep_boxes=False leaves it untouched: same
-        image, less traffic). `stops` (u32 per pixel, indexed as the image): where keep_boxes,
-        receives the position in its tile's list of the record each pixel stopped at (0xffffffff:
-        none, or a list longer than a chunk), which the variants entry reads. Three passes: main
-        over every tile, then chunks and merge (indirect: no workgroup when no tile is longer than
-        a chunk)."""
+        lists, `xy` / `conic` / `rgb` the screen records (render/project.py), tiles = (TX, TY).
+        A frame kept for re-compositing passes `stops` (u32 per pixel, indexed as the image),
+        which receives the position in its tile's list of the record each pixel stopped at
+        (0xffffffff: none, or a list longer than a chunk), while `isect_box` (u32 per pair)
+        receives each pair's pixel box (FULL_BOX where a chunk stopped early): the variants entry
+        reads both. Without `stops` neither is written (same image, less traffic). Three passes:
+        main over every tile, then chunks and merge (indirect: no workgroup when no tile is
+        longer than a chunk)."""
         if self.capacity is None:
             raise RuntimeError("Compositing.set_capacity must be called before encode")
         encoder.clear_buffer(self.work, 0, 20)  # counters and the chunks' group count
         encoder.clear_buffer(self.work, 32, 4)  # the merge's group count
         records = {0: frame, 1: ranges, 2: isect_prims, 3: xy, 4: conic, 5: rgb, 7: isect_box}
         lists = {31: self.slabs, 32: self.extra_list, 33: self.merge_list}
-        main, chunks = (self.kernel, self.k_chunks) if keep_boxes else self._lean
+        main, chunks = self._lean if stops is None else (self.kernel, self.k_chunks)
         main.dispatch(
             encoder,
             {**records, 6: self.image, 30: self.work, 35: self.no_stops if stops is None else stops, **lists},

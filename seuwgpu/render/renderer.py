@@ -252,8 +252,7 @@ class Renderer:
             p.rgb,
             (self.tiles_x, self.tiles_y),
             b.isect_box,
-            keep_boxes=self.keep_views and self.capture_views,  # only a kept frame's boxes are read
-            stops=self.kv_stop if self.keep_views and self.capture_views else None,
+            stops=self.kv_stop if self.keep_views and self.capture_views else None,  # a kept frame
         )
         self._state_hook(encoder, v, "composited")
         if self.keep_views and self.capture_views:
