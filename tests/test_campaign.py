@@ -228,23 +228,27 @@ def test_size_sweep_over_several_scenes():
 
 
 def test_cell_sites_are_drawn_with_replacement():
-    """Why the planner uses no finite-population correction: a cell's draws repeat sites."""
+    """Why the planner uses no finite-population correction: each injection draws its site from
+    its own stream (so any block can be re-run alone), i.e. with replacement: as many draws as a
+    cell has sites repeat some (a draw without replacement would be a permutation)."""
     from seuwgpu.campaign.sampling import draw_sites, enumerate_contexts, injection_seeds
 
     spec = normalize_spec(
         {
             "views": 1,
             "size": "32x32",
-            "scenes": [{"scene": "blocks", "n": 4}],
-            "single": {"fields": ["opacity"], "bits": [3], "samples": 12},
+            "scenes": [{"scene": "blocks", "n": 64}],
+            "single": {"fields": ["opacity"], "bits": [3], "samples": 64},
         }
     )
     ctx = enumerate_contexts(spec)[0]
-    ids = np.arange(12)
-    sites, weights = draw_sites(ctx, ids, injection_seeds(spec["seed"], ids), 4, 3)
+    ids = np.arange(64)
+    sites, weights = draw_sites(ctx, ids, injection_seeds(spec["seed"], ids), 64, 3)
     prims = [s.primitive for s in sites]
-    assert len(set(prims)) < len(prims) <= 12  # 12 draws from 4 sites: repeats
-    assert np.allclose(weights, 4 / 12)
+    assert len(set(prims)) < 64  # 64 draws over the cell's 64 sites: repeats
+    assert np.allclose(weights, 64 / 64)
+    alone, _ = draw_sites(ctx, ids[40:41], injection_seeds(spec["seed"], ids[40:41]), 64, 3)
+    assert alone[0] == sites[40]  # one injection's site does not depend on the others drawn
 
 
 def test_samples_planned_from_a_margin(tmp_path):
