@@ -73,8 +73,9 @@ OPTIONAL_COLUMNS = ("campaign", "repeat", "time_ms")
 # ------------------------------------------------------------------------------------ loading
 
 
-# Peak host memory per record while a report is built: 907 MB for the 474,592 records of
-# docs/study/cpu (lavapipe host, pandas 3.1, 2026-11-25), i.e. 1.9 KB with the interpreter's own.
+# Peak host memory per record while a report is built: 907,264 and 914,988 KiB (maxrss, two
+# runs) for the 474,048 records of docs/study/cpu (pandas 3.1, 2026-11-25/26), i.e. 1.96-1.98 KB
+# a record with the interpreter's own.
 REPORT_BYTES_PER_RECORD = 2000
 
 
