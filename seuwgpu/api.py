@@ -314,13 +314,14 @@ def read_records(*runs: str | Path) -> pd.DataFrame:
     return df
 
 
-def make_report(runs: str | Path | Iterable[str | Path], out: str | Path) -> Path:
+def make_report(runs: str | Path | Iterable[str | Path], out: str | Path, fold: bool | None = None) -> Path:
     """Write the report of the runs (HTML, figures as PNG, tables as CSV and Markdown,
-    summary.json) into `out`; returns the path of index.html."""
+    summary.json) into `out`; returns the path of index.html. fold: fold the records as they
+    are read (the same numbers in less memory; None: only when they would not fit unfolded)."""
     from seuwgpu.report.build import build_report
 
     runs = [runs] if isinstance(runs, (str, Path)) else list(runs)
-    return build_report([_existing(r, "run directory") for r in runs], out)
+    return build_report([_existing(r, "run directory") for r in runs], out, fold=fold)
 
 
 def report_figures(runs: str | Path | Iterable[str | Path]) -> dict:

@@ -2,6 +2,7 @@
 calls it stands for. (`view` runs end to end on an offscreen canvas in tests/test_viewer.py:
 test_view_offscreen_command and test_view_without_display_says_what_to_do.)"""
 
+import json
 import re
 import subprocess
 import sys
@@ -128,6 +129,11 @@ def test_plan_campaign_shards_merge_and_report(tmp_path, capsys):
     assert read_manifest(tmp_path / "m")["total_injections"] == total
     rc, out, _ = run(["report", tmp_path / "m", "--out", tmp_path / "rep"], capsys)
     assert rc == 0 and (tmp_path / "rep" / "index.html").is_file()
+    # folded as read: the same tables, and the criticality table from the report's own file
+    rc, out2, _ = run(["report", tmp_path / "m", "--out", tmp_path / "rep2", "--fold", "yes"], capsys)
+    assert rc == 0 and "records folded as read" in out2
+    assert (tmp_path / "rep2" / "criticality.md").read_text() == (tmp_path / "rep" / "criticality.md").read_text()
+    assert json.loads((tmp_path / "rep2" / "summary.json").read_text())["folded"]["records"] == 2 * total
 
 
 @pytest.mark.slow

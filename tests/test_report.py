@@ -374,5 +374,9 @@ def test_a_report_too_big_for_memory_is_refused_before_loading(synthetic, tmp_pa
     assert n == len(load_runs([synthetic["full"]])[0])  # counted from the footers, nothing loaded
     monkeypatch.setenv("SEUWGPU_HOST_MEMORY", str(n * REPORT_BYTES_PER_RECORD // 2))
     with pytest.raises(TooBig, match=f"{n:,} records needs .*seuwgpu rates"):
+        load_runs([synthetic["full"]])
+    # the report then folds the records as it reads them (tests/test_folding.py); these records,
+    # written without weights, cannot be folded, and it says so before writing anything
+    with pytest.raises(ValueError, match="without weights .* cannot be folded"):
         build_report([synthetic["full"]], tmp_path / "rep")
     assert not (tmp_path / "rep" / "index.html").exists()

@@ -53,8 +53,8 @@ def wq(v, w, q):
     return float(np.asarray(v)[o][np.searchsorted(cw, q * cw[-1] * (1 - 1e-12))])
 
 
-@pytest.fixture(scope="module")
-def run(tmp_path_factory):
+@pytest.fixture(scope="module", params=[False, True], ids=["records", "folded"])
+def run(tmp_path_factory, request):
     rng = np.random.default_rng(7)
     rows, iid = [], 0
     for scene, n in SCENES.items():
@@ -131,10 +131,11 @@ def run(tmp_path_factory):
     (rd / "records").mkdir(parents=True)
     manifest = {"spec": {"scenes": [{"scene": s, "n": n} for s, n in SCENES.items()]}, "spec_hash": "x"}
     (rd / "manifest.json").write_text(json.dumps(manifest))
-    for i, chunk in enumerate(np.array_split(np.arange(len(df)), 3)):
-        df.iloc[chunk].to_parquet(rd / "records" / f"part-{i:05d}.parquet", index=False)
+    # three parts, each holding all the defenses of its fault sites (as the runner writes blocks)
+    for i, ids in enumerate(np.array_split(np.unique(df["injection_id"]), 3)):
+        df[df["injection_id"].isin(ids)].to_parquet(rd / "records" / f"part-{i:05d}.parquet", index=False)
     out = base / "report"
-    build_report([rd], out, max_pred_rows=20_000)
+    build_report([rd], out, max_pred_rows=20_000, fold=request.param)  # folded: analysis.folding
     records = pd.concat([pd.read_parquet(p) for p in sorted((rd / "records").glob("*.parquet"))], ignore_index=True)
     return records, out, json.loads((out / "summary.json").read_text())
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pandas as pd
+import pytest
 
 import seuwgpu as sg
 
@@ -28,14 +29,21 @@ def _spec(profile: str) -> dict:
     }
 
 
-def test_profiles_get_their_own_table_and_the_rest_rests_on_strict(tmp_path):
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    base = tmp_path_factory.mktemp("profiles")
     for p in ("strict", "gsplat"):
-        sg.run_campaign(_spec(p), tmp_path / p)
-    sg.make_report([tmp_path / "strict", tmp_path / "gsplat"], tmp_path / "rep")
+        sg.run_campaign(_spec(p), base / p)
+    return base
+
+
+@pytest.mark.parametrize("fold", [False, True])  # folded: the gsplat records keep only their rates
+def test_profiles_get_their_own_table_and_the_rest_rests_on_strict(runs, tmp_path, fold):
+    sg.make_report([runs / "strict", runs / "gsplat"], tmp_path / "rep", fold=fold)
     summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
     assert "profiles" in summary["sections"]
-    strict = sg.read_records(tmp_path / "strict")
-    both = pd.concat([strict, sg.read_records(tmp_path / "gsplat")])
+    strict = sg.read_records(runs / "strict")
+    both = pd.concat([strict, sg.read_records(runs / "gsplat")])
     # the headline list rests on the strict records alone (12 single upsets per defense)
     assert {(c["defense"], c["n"]) for c in summary["catastrophic"]} == {("none", 12), ("guard", 12)}
     by_profile = summary["numbers"]["catastrophic_by_profile"]
@@ -48,3 +56,16 @@ def test_profiles_get_their_own_table_and_the_rest_rests_on_strict(tmp_path):
         weights = g.groupby(["field", "bit"])["weight"].sum()  # the stored bits each record stands for
         want = float((cells * weights).sum() / weights.sum())
         assert c["n"] == len(g) and abs(c["rate"] - want) < 1e-12
+
+
+def test_folded_report_of_two_profiles_equals_the_records_report(runs, tmp_path):
+    from test_folding import _same_numbers, _same_table, _tables
+
+    out = {f: sg.make_report([runs / "strict", runs / "gsplat"], tmp_path / str(f), fold=f).parent for f in (0, 1)}
+    a, b = _tables(out[0]), _tables(out[1])
+    assert set(a) == set(b) and "profiles.csv" in a
+    for name in a:
+        _same_table(name, a[name], b[name])
+    sa, sb = (json.loads((out[f] / "summary.json").read_text()) for f in (0, 1))
+    _same_numbers(sa["numbers"], sb["numbers"], "numbers")
+    _same_numbers(sa["catastrophic"], sb["catastrophic"], "catastrophic")

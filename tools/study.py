@@ -107,8 +107,15 @@ def main(argv=None) -> int:
         runs.append(run_dir)
     t0 = time.perf_counter()
     status = 0
-    try:
-        build_report(runs, out / "report")
+    try:  # folds the records as it reads them when they would not fit in memory unfolded
+        last = [0.0]
+
+        def progress(i, n):
+            if time.perf_counter() - last[0] > 60 or i == n:
+                last[0] = time.perf_counter()
+                print(f"report: read {i:,} of {n:,} parts", file=sys.stderr)
+
+        build_report(runs, out / "report", progress=progress)
     except TooBig as e:  # the campaigns are kept; their rates are `seuwgpu rates`'s
         timings["report_skipped"] = str(e)
         print(f"report: skipped: {e}", file=sys.stderr)

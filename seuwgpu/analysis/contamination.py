@@ -12,10 +12,10 @@ import re
 import numpy as np
 import pandas as pd
 
-from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis.records import (
     InsufficientData,
     figure,
+    multiplicity,
     reference_precision,
     single_upsets,
     tag,
@@ -173,14 +173,39 @@ def region_stats(pred_col: pd.Series, meas_col: pd.Series, P: int):
 REGION_COLUMN = re.compile(r"^regions_pred_(\d+)$")
 
 
+REGION_SUM = re.compile(r"^region_fp_(\d+)_sum$")
+REGION_STATS = ("fp", "fm", "iou")
+
+
 def contamination_partitions(df: pd.DataFrame) -> list[int]:
-    """Partition sizes P with both regions_pred_{P} and regions_meas_{P} columns."""
-    ps = []
+    """Partition sizes P with both regions_pred_{P} and regions_meas_{P} columns (or, on a folded
+    frame, their per-row sums: `region_sums`)."""
+    ps = set()
     for c in df.columns:
         m = REGION_COLUMN.match(str(c))
         if m and f"regions_meas_{m.group(1)}" in df.columns:
-            ps.append(int(m.group(1)))
+            ps.add(int(m.group(1)))
+        m = REGION_SUM.match(str(c))
+        if m:
+            ps.add(int(m.group(1)))
     return sorted(ps)
+
+
+def region_sums(d: pd.DataFrame, P: int) -> dict[str, np.ndarray]:
+    """Per row: for each of fp (predicted share of the P regions), fm (measured share) and iou,
+    the sum over the row's records where it is defined and their count, as
+    {"fp_sum", "fp_n", ...}. Folded rows (analysis.folding) carry them as region_{stat}_{P}_sum
+    and _n columns; a record's sum is its value (0 where undefined) and its count 1 or 0."""
+    if f"region_fp_{P}_sum" in d:
+        return {f"{k}_{x}": d[f"region_{k}_{P}_{x}"].to_numpy(float).copy() for k in REGION_STATS for x in ("sum", "n")}
+    if f"regions_pred_{P}" not in d or f"regions_meas_{P}" not in d:
+        return {f"{k}_{x}": np.zeros(len(d)) for k in REGION_STATS for x in ("sum", "n")}
+    npred, nmeas, iou = region_stats(d[f"regions_pred_{P}"], d[f"regions_meas_{P}"], P)
+    out = {}
+    for k, v in (("fp", npred / P), ("fm", nmeas / P), ("iou", iou)):
+        ok = np.isfinite(v)
+        out[f"{k}_sum"], out[f"{k}_n"] = np.where(ok, v, 0.0), ok.astype(float)
+    return out
 
 
 def contamination(df: pd.DataFrame) -> pd.DataFrame:
@@ -199,19 +224,19 @@ def contamination(df: pd.DataFrame) -> pd.DataFrame:
             "table (sort-first partitions; `seuwgpu distributed` times the regions)",
         )
     rows = []
+    m = multiplicity(d).astype(float)
     for P in ps:
-        npred, nmeas, iou = region_stats(d[f"regions_pred_{P}"], d[f"regions_meas_{P}"], P)
+        sums = region_sums(d, P)
         tmax = d.get(f"region_ms_max_{P}")
         tmean = d.get(f"region_ms_mean_{P}")
         e = pd.DataFrame(
             {
                 "weight": d["weight"].to_numpy(float),
+                "m": m,
                 "precision": d["precision"].to_numpy(),
                 "defense": d["defense"].to_numpy(),
                 "sign_scale": ((d["field"] == "log_scales") & (d["bit_class"] == "sign")).to_numpy(),
-                "fp": npred / P,
-                "fm": nmeas / P,
-                "iou": iou,
+                **sums,
                 "tmax": np.nan if tmax is None else pd.to_numeric(tmax).to_numpy(float),
                 "tmean": np.nan if tmean is None else pd.to_numeric(tmean).to_numpy(float),
             }
@@ -219,24 +244,39 @@ def contamination(df: pd.DataFrame) -> pd.DataFrame:
         for subset, sel in (("all single upsets", slice(None)), ("log-scale sign", e["sign_scale"])):
             es = e[sel] if not isinstance(sel, slice) else e
             for (prec, dfn), g in es.groupby(["precision", "defense"], sort=False):
+                w = g["weight"].to_numpy(float)
                 rows.append(
                     {
                         "subset": subset,
                         "precision": prec,
                         "defense": dfn,
                         "P": P,
-                        "n": len(g),
-                        "pred_fraction_pct": 100 * E.wmean(g["fp"], g["weight"]),
-                        "meas_fraction_pct": 100 * E.wmean(g["fm"], g["weight"]),
-                        "iou_mean": E.wmean(g["iou"], g["weight"]),
-                        "n_iou": int(g["iou"].notna().sum()),
-                        "slowest_region_ms": g["tmax"].mean(),
-                        "imbalance": (g["tmax"] / g["tmean"]).mean(),
+                        "n": int(g["m"].sum()),
+                        "pred_fraction_pct": 100 * _wmean_of_sums(g["fp_sum"], g["fp_n"], w),
+                        "meas_fraction_pct": 100 * _wmean_of_sums(g["fm_sum"], g["fm_n"], w),
+                        "iou_mean": _wmean_of_sums(g["iou_sum"], g["iou_n"], w),
+                        "n_iou": int(g["iou_n"].sum()),
+                        "slowest_region_ms": _mean_of_rows(g["tmax"], g["m"]),
+                        "imbalance": _mean_of_rows(g["tmax"] / g["tmean"], g["m"]),
                     }
                 )
     out = pd.DataFrame(rows)
     out = out.sort_values(["subset", "precision", "defense", "P"], kind="stable").reset_index(drop=True)
     return tag(out, d)
+
+
+def _wmean_of_sums(sums, counts, w) -> float:
+    """Weighted mean over the defined values, from per-row sums and counts (estimate.wmean's
+    definition: NaN when none is defined)."""
+    den = float(np.sum(w * np.asarray(counts, float)))
+    return float(np.sum(w * np.asarray(sums, float)) / den) if den > 0 else float("nan")
+
+
+def _mean_of_rows(values, m) -> float:
+    """Unweighted mean over the records (each row counted m times) where the value is defined."""
+    v, m = np.asarray(values, float), np.asarray(m, float)
+    ok = ~np.isnan(v)
+    return float(np.sum(v[ok] * m[ok]) / np.sum(m[ok])) if ok.any() else float("nan")
 
 
 def plot_contamination(cont: pd.DataFrame, precision: str | None = None, defenses: tuple[str, ...] = ("none", "guard")):

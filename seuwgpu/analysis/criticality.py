@@ -17,6 +17,7 @@ from seuwgpu.analysis.records import (
     fields_present,
     figure,
     precisions_present,
+    record_weights,
     reference_precision,
     require_single,
     tag,
@@ -45,7 +46,7 @@ def criticality(df: pd.DataFrame, precision: str | None = None, defense: str = "
     rows = []
     for field in fields_present(s):
         g = s[s["field"] == field]
-        fp, w = g["footprint"].to_numpy(float) * 100.0, g["weight"].to_numpy(float)
+        fp, w = g["footprint"].to_numpy(float) * 100.0, record_weights(g)
         rows.append(
             {
                 "field": field,
@@ -66,10 +67,11 @@ def field_bit_table(df: pd.DataFrame, defense: str = "none", conf: float = 0.95)
     s = require_single(df, defense)
     s = s[s["bit"] >= 0]
     out = _rates(s, ["precision", "field", "bit"], conf)
+    rw = record_weights(s)
     extra = (
-        s.assign(_fw=s["footprint"] * s["weight"])
+        s.assign(_fw=s["footprint"] * rw, _rw=rw)
         .groupby(["precision", "field", "bit"], sort=False)
-        .agg(_fw=("_fw", "sum"), _w=("weight", "sum"), max_footprint_pct=("footprint", "max"))
+        .agg(_fw=("_fw", "sum"), _w=("_rw", "sum"), max_footprint_pct=("footprint", "max"))
         .reset_index()
     )
     extra["mean_footprint_pct"] = 100 * extra.pop("_fw") / extra["_w"]
@@ -107,10 +109,11 @@ def precision_rates(df: pd.DataFrame, defense: str = "none", conf: float = 0.95)
     stratified interval; plus the weighted mean footprint (%)."""
     s = require_single(df, defense)
     out = _rates(s, ["precision", "field"], conf)
+    rw = record_weights(s)
     mf = (
-        s.assign(_fw=s["footprint"] * s["weight"])
+        s.assign(_fw=s["footprint"] * rw, _rw=rw)
         .groupby(["precision", "field"], sort=False)
-        .agg(_fw=("_fw", "sum"), _w=("weight", "sum"))
+        .agg(_fw=("_fw", "sum"), _w=("_rw", "sum"))
         .reset_index()
     )
     mf["mean_footprint_pct"] = 100 * mf.pop("_fw") / mf.pop("_w")

@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis import stats
+from seuwgpu.analysis.records import multiplicity, n_records, record_weights
 
 STRATA = ("scene", "n_primitives", "precision", "field", "bit")
 METHOD_CELL = "Wilson"
@@ -62,8 +63,11 @@ def stratified_interval(p_h, n_h, W_h, conf: float = 0.95) -> tuple[float, float
 def _cells(d: pd.DataFrame, y: np.ndarray, by: list[str], strata: list[str]) -> pd.DataFrame:
     w = d["weight"].to_numpy(float)
     t = pd.DataFrame({c: d[c].to_numpy() for c in dict.fromkeys(by + strata)})
-    # rows folded by analysis.cells stand for n_records records each, y counting their events
-    n = d["n_records"].to_numpy(float) if "n_records" in d else 1.0
+    if "n_records" in d:  # cell rows of analysis.cells: n_records records each, y counts their events
+        n = d["n_records"].to_numpy(float)
+    else:  # records, or folded rows (analysis.folding): `multiplicity` identical records each
+        n = multiplicity(d).astype(float)
+        y = y * n
     t["_w"], t["_wy"], t["_y"], t["_n"] = w * n, w * y, y, n
     return t.groupby(list(dict.fromkeys(by + strata)), sort=False, dropna=False)[["_w", "_wy", "_y", "_n"]].sum()
 
@@ -186,19 +190,19 @@ def quality(d: pd.DataFrame, by=(), conf: float = 0.95) -> pd.DataFrame:
     for key, g in groups:
         key = key if isinstance(key, tuple) else (key,)
         fin = g[~g["nonfinite"].astype(bool)]
-        w = fin["weight"].to_numpy(float)
+        w = record_weights(fin)
         ps = fin["psnr"].to_numpy(float)
         mse = mse_of_psnr(ps)
         row = dict(zip(by, key))
         row.update(
-            n_finite=len(fin),
+            n_finite=n_records(fin),
             psnr_median_db=wquantile(ps, w, 0.5),
             psnr_q25_db=wquantile(ps, w, 0.25),
             psnr_q75_db=wquantile(ps, w, 0.75),
             psnr_mean_mse_db=psnr_of_mse(wmean(mse, w)),
             ssim_mean=wmean(fin["ssim"].to_numpy(float), w),
             lpips_mean=wmean(fin["lpips"].to_numpy(float), w) if "lpips" in fin else np.nan,
-            mean_footprint_pct=100 * wmean(g["footprint"].to_numpy(float), g["weight"].to_numpy(float)),
+            mean_footprint_pct=100 * wmean(g["footprint"].to_numpy(float), record_weights(g)),
         )
         rows.append(row)
     q = pd.DataFrame(rows)
@@ -212,6 +216,8 @@ def quality(d: pd.DataFrame, by=(), conf: float = 0.95) -> pd.DataFrame:
 def bootstrap(d: pd.DataFrame, fn, n_boot: int = 200, conf: float = 0.95, seed: int = 0, strata=STRATA):
     """Percentile bootstrap interval of a statistic fn(records) -> float, resampling records
     with replacement within each stratum (the design). Returns (lo, hi); NaN when undefined."""
+    if (multiplicity(d) != 1).any():
+        raise ValueError("bootstrap resamples records: it needs unfolded rows")
     strata = [c for c in strata if c in d]
     rng = np.random.default_rng(seed)
     idx = list(d.groupby(strata, sort=False).indices.values()) if strata else [np.arange(len(d))]

@@ -1,5 +1,5 @@
 """The support guard against no defense on the same fault sites (single-upset campaign, records
-paired by injection id). Rates and shares are weighted (`analysis.estimate`); PSNR summaries are
+paired by fault site: records.pair_columns). Rates and shares are weighted (`analysis.estimate`); PSNR summaries are
 over frames without non-finite pixels, with the non-finite share beside them."""
 
 from __future__ import annotations
@@ -9,28 +9,36 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis.records import (
+    MULTIPLICITY,
+    NONE_CATASTROPHIC,
+    PROVENANCE_COLUMNS,
+    SITE_DEFENSES,
     InsufficientData,
     figure,
-    pair_keys,
+    n_records,
+    pair_columns,
+    record_weights,
     single_upsets,
     sort_rows,
     tag,
 )
 from seuwgpu.faults.defenses import defense_label
 
-
-def paired(df: pd.DataFrame, a: str = "none", b: str = "guard") -> pd.DataFrame:
-    """Single-upset records of defenses a and b joined on the fault site (pair_keys). Site columns
-    (field, bit, weight, ...) come from a; measured columns get suffixes _a and _b."""
-    s = single_upsets(df, None, None)
-    keys = pair_keys(s)
-    site = ["n_primitives", "field", "bit", "bit_class", "weight"]
-    measured = ["footprint", "catastrophic", "outcome", "psnr", "ssim", "nonfinite", "peak_error", "time_ms"]
-    cols = [c for c in dict.fromkeys(keys + site + measured) if c in s]
-    left = s.loc[s["defense"] == a, cols].drop_duplicates(keys)
-    rcols = [c for c in cols if c in keys or c in measured]
-    right = s.loc[s["defense"] == b, rcols].drop_duplicates(keys)
-    return left.merge(right, on=keys, suffixes=(f"_{a}", f"_{b}"))
+GUARD_COLUMNS = (
+    *PROVENANCE_COLUMNS,
+    "bit_class",
+    "catastrophic",
+    "footprint",
+    "weight",
+    "nonfinite",
+    "psnr",
+    "ssim",
+    "lpips",
+    "injection_id",
+    MULTIPLICITY,
+    NONE_CATASTROPHIC,
+    SITE_DEFENSES,
+)
 
 
 def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -> dict:
@@ -41,13 +49,16 @@ def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -
     non-finite share, "worst_guarded_footprint_pct", "residual_catastrophic", "n_guarded",
     "share_pct", "share_ci"}."""
     s = single_upsets(df, None, None)
+    # the columns read here (a lazy selection: the filters below then copy only these)
+    s = s[[c for c in s.columns if c in GUARD_COLUMNS or c in E.STRATA]]
     s = s[s["defense"].isin(["none", guard])]
     if not (s["defense"] == guard).any():
         raise InsufficientData(
             f"no single-upset records with defense '{guard}'",
             f"run the single-upset campaign with defenses none,{guard}",
         )
-    p = paired(s, "none", guard)
+    s = pair_columns(s)
+    p = s[(s["defense"] == guard) & s[NONE_CATASTROPHIC].notna()]
     if p.empty:
         raise InsufficientData(
             f"no fault sites measured both without and with '{guard}'",
@@ -56,7 +67,7 @@ def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -
     r = E.percent(E.rate(s, "catastrophic", ["precision", "defense"], conf)).rename(columns={"events": "catastrophic"})
     extra = []
     for (prec, dfn), g in s.groupby(["precision", "defense"], sort=False):
-        fp, w = g["footprint"].to_numpy(float) * 100, g["weight"].to_numpy(float)
+        fp, w = g["footprint"].to_numpy(float) * 100, record_weights(g)
         extra.append(
             {
                 "precision": prec,
@@ -69,26 +80,27 @@ def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -
     summary = r.drop(columns=["weight", "n_eff", "method"]).merge(pd.DataFrame(extra), on=["precision", "defense"])
     summary = tag(sort_rows(summary), s)
 
-    cn, cg = "catastrophic_none", f"catastrophic_{guard}"
-    p = p.assign(_neut=p[cn].astype(bool) & ~p[cg].astype(bool))
+    # the guarded records of sites also measured without it: neutralised = catastrophic without
+    # the guard, not with it (weights are the site's, the same under both)
+    p = p.assign(_neut=(p[NONE_CATASTROPHIC] == 1) & ~p["catastrophic"].astype(bool))
     groups = [(prec, g) for prec, g in p.groupby("precision", sort=False)]
     if len(groups) > 1:
         groups.append(("all", p))
     prow = []
     for prec, g in groups:
-        cat = g[g[cn].astype(bool)]
+        cat = g[g[NONE_CATASTROPHIC] == 1]
         sh = E.one_rate(cat, "_neut", conf) if len(cat) else {"rate": np.nan, "ci_lo": np.nan, "ci_hi": np.nan}
         prow.append(
             {
                 "precision": prec,
-                "pairs": len(g),
-                "catastrophic_none": len(cat),
-                "neutralised": int(cat["_neut"].sum()),
+                "pairs": n_records(g),
+                "catastrophic_none": n_records(cat),
+                "neutralised": n_records(cat[cat["_neut"]]),
                 "share_neutralised_pct": 100 * sh["rate"],
                 "share_ci_lo_pct": 100 * sh["ci_lo"],
                 "share_ci_hi_pct": 100 * sh["ci_hi"],
-                "residual_catastrophic": int(g[cg].astype(bool).sum()),
-                "worst_guarded_footprint_pct": 100 * float(g[f"footprint_{guard}"].max()),
+                "residual_catastrophic": n_records(g[g["catastrophic"].astype(bool)]),
+                "worst_guarded_footprint_pct": 100 * float(g["footprint"].max()),
             }
         )
     ptab = tag(sort_rows(pd.DataFrame(prow)), s)
@@ -119,8 +131,8 @@ def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -
         "paired": ptab,
         "sign_psnr": stab,
         "worst_guarded_footprint_pct": 100 * float(allg["footprint"].max()),
-        "residual_catastrophic": int(allg["catastrophic"].sum()),
-        "n_guarded": int(len(allg)),
+        "residual_catastrophic": n_records(allg[allg["catastrophic"].astype(bool)]),
+        "n_guarded": n_records(allg),
         "share_pct": float(tot["share_neutralised_pct"].iloc[0]) if len(tot) else np.nan,
         "share_ci": (float(tot["share_ci_lo_pct"].iloc[0]), float(tot["share_ci_hi_pct"].iloc[0]))
         if len(tot)
@@ -139,7 +151,7 @@ def plot_guard_ccdf(df: pd.DataFrame, guard: str = "guard", precision: str | Non
         g = s[(s["defense"] == dfn) & np.isfinite(s["footprint"])]
         if g.empty:
             continue
-        fp, w = g["footprint"].to_numpy(float) * 100, g["weight"].to_numpy(float)
+        fp, w = g["footprint"].to_numpy(float) * 100, record_weights(g)
         order = np.argsort(fp)
         fp, cw = fp[order], np.cumsum(w[order]) / w.sum()
         surv = 1.0 - np.concatenate([[0.0], cw])[np.searchsorted(fp, x, side="right")]
@@ -147,7 +159,7 @@ def plot_guard_ccdf(df: pd.DataFrame, guard: str = "guard", precision: str | Non
             x,
             np.where(surv > 1e-12, surv, np.nan),
             style,
-            label=f"{defense_label(dfn)} (n={len(g):,})",
+            label=f"{defense_label(dfn)} (n={n_records(g):,})",
             drawstyle="steps-post",
         )
     ax.axvline(100 * threshold, color="grey", ls=":", lw=1)

@@ -15,7 +15,10 @@ from seuwgpu.analysis.records import (
     DEFAULT_SH_DEGREE,
     InsufficientData,
     defenses_present,
-    pair_keys,
+    measured_under,
+    multiplicity,
+    pair_columns,
+    record_weights,
     reference_precision,
     sh_degree_of,
     single_upsets,
@@ -93,25 +96,22 @@ def mitigation_table(
             f"only defense(s) {', '.join(defs)} at {precision}",
             "run the single-upset campaign with --defenses none,guard,selective,ecc,dup",
         )
-    keys = pair_keys(s)
-    sites = None
-    for x in defs:
-        idx = pd.MultiIndex.from_frame(s.loc[s["defense"] == x, keys].drop_duplicates())
-        sites = idx if sites is None else sites.intersection(idx)
-    is_paired = sites is not None and len(sites) > 0
+    s = pair_columns(s)
+    shared = measured_under(s, defs)
+    is_paired = bool(shared.any())
     if is_paired:
-        mi = pd.MultiIndex.from_frame(s[keys])
-        s = s[mi.isin(sites)]
+        s = s[shared]
     manifests = list(manifests or ())
     deg = sh_degree_of(s, manifests)
-    n_prims = float(s["n_primitives"].mean()) if "n_primitives" in s and len(s) else None
+    n_prims = float(np.average(s["n_primitives"], weights=multiplicity(s))) if "n_primitives" in s and len(s) else None
     rates = E.percent(E.rate(s, "catastrophic", ["defense"], conf)).set_index("defense")
-    t_none = E.wmean(s.loc[s["defense"] == "none", "time_ms"], s.loc[s["defense"] == "none", "weight"])
+    base = s[s["defense"] == "none"]
+    t_none = E.wmean(base["time_ms"], record_weights(base))
     rows = []
     for x in defs:
         g = s[s["defense"] == x]
         ov, basis = memory_overhead(x, precision, n_prims, deg, manifests)
-        tm = E.wmean(g["time_ms"], g["weight"]) if g["time_ms"].notna().any() else np.nan
+        tm = E.wmean(g["time_ms"], record_weights(g)) if g["time_ms"].notna().any() else np.nan
         if x in SIMULATED_READ:
             tfrac, tbasis = np.nan, "not measured: the read-side decode is simulated on the stored words"
         elif x == "none":
@@ -130,7 +130,7 @@ def mitigation_table(
                 "cat_rate_pct": r["cat_rate_pct"],
                 "cat_ci_lo_pct": r["cat_ci_lo_pct"],
                 "cat_ci_hi_pct": r["cat_ci_hi_pct"],
-                "mean_footprint_pct": 100 * E.wmean(g["footprint"], g["weight"]),
+                "mean_footprint_pct": 100 * E.wmean(g["footprint"], record_weights(g)),
                 "max_footprint_pct": 100 * g["footprint"].max(),
                 "memory_overhead_pct": 100 * ov,
                 "memory_basis": basis,

@@ -8,7 +8,14 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis import stats
-from seuwgpu.analysis.records import figure, reference_precision, require_single, tag, unique_sorted
+from seuwgpu.analysis.records import (
+    PREDICTION_SAMPLE,
+    figure,
+    reference_precision,
+    require_single,
+    tag,
+    unique_sorted,
+)
 
 PREDICTION_FEATURES = ("field", "bit", "bit_class", "log_abs_value", "sign")
 FIELD_BIT_FEATURES = ("field", "bit")
@@ -128,6 +135,8 @@ def _prediction(df, precision, seed, max_rows, test_size, n_repeats, n_boot) -> 
     s = require_single(df, "none")
     precision = precision or reference_precision(s)
     s = s[(s["precision"] == precision) & (s["bit"] >= 0)]
+    if PREDICTION_SAMPLE in s:  # a folded frame: the records analysis.folding kept for this
+        s = s[s[PREDICTION_SAMPLE].fillna(False).astype(bool)]
     if len(s) > max_rows:
         s = s.sample(n=max_rows, random_state=seed)
     y = s["catastrophic"].astype(bool).to_numpy()

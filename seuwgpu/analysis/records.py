@@ -34,6 +34,30 @@ FIELD_LABELS = {
 DEFAULT_SH_DEGREE = 3
 
 
+# Rows of a folded frame (analysis/folding.py) each stand for `multiplicity` records that agree in
+# every column the analyses read; a frame without the column holds one record per row.
+MULTIPLICITY = "multiplicity"
+# On a folded frame, the unfolded records that form the prediction's random sample.
+PREDICTION_SAMPLE = "prediction_sample"
+
+
+def multiplicity(d: pd.DataFrame) -> np.ndarray:
+    """Records per row (ones for a plain record frame)."""
+    if MULTIPLICITY in d:
+        return d[MULTIPLICITY].to_numpy(np.int64)
+    return np.ones(len(d), np.int64)
+
+
+def n_records(d: pd.DataFrame) -> int:
+    """Records a frame stands for (its rows, on a plain record frame)."""
+    return int(d[MULTIPLICITY].sum()) if MULTIPLICITY in d else len(d)
+
+
+def record_weights(d: pd.DataFrame) -> np.ndarray:
+    """Stored bits each row stands for: its records' weight times their number."""
+    return d["weight"].to_numpy(float) * multiplicity(d)
+
+
 class InsufficientData(Exception):
     """An analysis cannot run on these records; `remedy` names the campaign that would help."""
 
@@ -165,6 +189,9 @@ def unique_sorted(values) -> list:
     return sorted(out, key=lambda x: (str(type(x)), x))
 
 
+PROVENANCE_COLUMNS = ("run", "scene", "precision", "defense", "campaign", "k", "profile")
+
+
 def provenance(d: pd.DataFrame) -> dict:
     """What a table or figure rests on: runs, scenes, precisions, defenses, campaigns, k, n."""
     order = {"precision": encoding.PRECISIONS, "defense": DEFENSES}
@@ -184,7 +211,7 @@ def provenance(d: pd.DataFrame) -> dict:
         "defenses": col("defense"),
         "campaigns": col("campaign"),
         "k_range": [int(min(ks)), int(max(ks))] if ks else [],
-        "n_records": int(len(d)),
+        "n_records": n_records(d),
     }
 
 
@@ -259,7 +286,8 @@ def single_upsets(df: pd.DataFrame, precision: str | None = None, defense: str |
         m &= d["precision"] == precision
     if defense is not None:
         m &= d["defense"] == defense
-    return d[m]
+    # every record selected (a single-upset run): a lazy copy (copy-on-write), not a second frame
+    return d.copy(deep=False) if m.all() else d[m]
 
 
 def require_single(df, defense="none") -> pd.DataFrame:
@@ -282,6 +310,43 @@ def pair_keys(df: pd.DataFrame) -> list[str]:
     return [c for c in ("run", "scene", "precision", "campaign", "injection_id") if c in df]
 
 
+# Per record, what the same fault site gave under the other defenses (folded frames carry these,
+# as the sites themselves are gone): the catastrophic flag under "none" (NaN where not measured)
+# and the defenses measured at the site, as a bit mask over DEFENSES (`defense_bit`).
+NONE_CATASTROPHIC = "none_catastrophic"
+SITE_DEFENSES = "site_defenses"
+OTHER_DEFENSE_BIT = 62  # a defense name the package does not know (older records): one bit for all
+
+
+def defense_bit(names) -> np.ndarray:
+    """Each defense's bit in a SITE_DEFENSES mask."""
+    pos = {d: i for i, d in enumerate(DEFENSES)}
+    return np.array([1 << pos.get(str(n), OTHER_DEFENSE_BIT) for n in names], dtype=np.int64)
+
+
+def pair_columns(s: pd.DataFrame) -> pd.DataFrame:
+    """Records with NONE_CATASTROPHIC and SITE_DEFENSES (computed over `s` from pair_keys unless
+    present). A site measured twice under one defense takes the first record's flag."""
+    if NONE_CATASTROPHIC in s and SITE_DEFENSES in s:
+        return s
+    keys = pair_keys(s)
+    if not len(s):
+        return s.assign(**{NONE_CATASTROPHIC: np.nan, SITE_DEFENSES: np.int64(0)})
+    site = pd.MultiIndex.from_frame(s[keys])
+    none = s.loc[s["defense"] == "none", keys + ["catastrophic"]].drop_duplicates(keys)
+    flag = none.set_index(keys)["catastrophic"].astype(float).reindex(site).to_numpy()
+    codes, names = pd.factorize(s["defense"])
+    arms = s[keys].assign(_bit=defense_bit(names)[codes])
+    arms = arms.drop_duplicates(keys + ["_bit"]).groupby(keys, sort=False)["_bit"].sum()
+    return s.assign(**{NONE_CATASTROPHIC: flag, SITE_DEFENSES: arms.reindex(site).to_numpy(np.int64)})
+
+
+def measured_under(s: pd.DataFrame, defenses) -> np.ndarray:
+    """Rows (with pair_columns) whose fault site was measured under every one of `defenses`."""
+    need = np.bitwise_or.reduce(defense_bit(list(defenses))) if len(defenses) else np.int64(0)
+    return (s[SITE_DEFENSES].to_numpy(np.int64) & need) == need
+
+
 def sh_degree_of(df: pd.DataFrame | None = None, manifests: Iterable[dict] = ()) -> int:
     """SH degree of the models: from a manifest's spec ("sh_degree") when stated, else inferred
     from the largest sh_rest component index in the records (when at least 50 sh_rest records
@@ -296,12 +361,13 @@ def sh_degree_of(df: pd.DataFrame | None = None, manifests: Iterable[dict] = ())
                 except (TypeError, ValueError):
                     pass
     if df is not None and len(df) and "field" in df and "component" in df:
-        comp = df.loc[df["field"].astype(str) == "sh_rest", "component"]
-        comp = pd.to_numeric(comp, errors="coerce")
-        comp = comp[comp >= 0]
+        sh = df[df["field"].astype(str) == "sh_rest"]
+        comp = pd.to_numeric(sh["component"], errors="coerce")
+        ok = (comp >= 0).to_numpy()
+        comp = comp[ok]
         # with few samples, or a campaign that targets a few components, the largest index
         # sampled says little about the degree
-        if len(comp) >= 50 and comp.nunique() >= 5:
+        if multiplicity(sh)[ok].sum() >= 50 and comp.nunique() >= 5:
             need = int(comp.max()) + 1
             for deg in (1, 2, 3):
                 if 3 * sh_rest_count(deg) >= need:

@@ -9,7 +9,15 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis import stats
-from seuwgpu.analysis.records import InsufficientData, figure, reference_precision, require_single, tag
+from seuwgpu.analysis.records import (
+    InsufficientData,
+    figure,
+    n_records,
+    record_weights,
+    reference_precision,
+    require_single,
+    tag,
+)
 from seuwgpu.model import encoding
 
 THEORY_FIT_RANGE = (1e-5, 0.1)  # peak-error window of the mantissa-slope fit (see theory_check)
@@ -46,9 +54,14 @@ def theory_check(
         )
     rows = []
     for bit, g in d.groupby("bit"):
-        v, w = g["peak_error"].to_numpy(float), g["weight"].to_numpy(float)
+        v, w = g["peak_error"].to_numpy(float), record_weights(g)
         rows.append(
-            {"bit": bit, "n": len(g), "mean_peak_error": E.wmean(v, w), "median_peak_error": E.wquantile(v, w, 0.5)}
+            {
+                "bit": bit,
+                "n": n_records(g),
+                "mean_peak_error": E.wmean(v, w),
+                "median_peak_error": E.wquantile(v, w, 0.5),
+            }
         )
     t = pd.DataFrame(rows)
     with np.errstate(divide="ignore"):

@@ -260,9 +260,9 @@ def run_campaign(
 
 def print_criticality(run_dirs):
     from seuwgpu.analysis.records import InsufficientData
-    from seuwgpu.report.build import criticality_table_text, load_runs
+    from seuwgpu.report.build import criticality_table_text, load_runs, needs_folding
 
-    df, _ = load_runs(run_dirs)
+    df, _ = load_runs(run_dirs, fold=needs_folding(run_dirs))
     single = df[(df["k"] == 1) & (df["campaign"].isin(["single", "size"]))]
     for prec in sorted(single["precision"].unique()):
         try:
@@ -474,11 +474,26 @@ def cmd_merge(args):
 
 
 def cmd_report(args):
-    from seuwgpu.report.build import build_report
+    import sys
 
-    index = build_report(args.runs, args.out)
+    from rich.progress import Progress
+
+    from seuwgpu.report.build import build_report, needs_folding
+
+    fold = {"auto": needs_folding(args.runs), "yes": True, "no": False}[args.fold]
+    with Progress(transient=True, disable=not sys.stderr.isatty()) as bar:
+        task = bar.add_task("reading parts" + (" (folding)" if fold else ""), total=None)
+        index = build_report(
+            args.runs, args.out, fold=fold, progress=lambda i, n: bar.update(task, completed=i, total=n)
+        )
     print(f"wrote {index}")
-    print_criticality(args.runs)
+    if fold:  # reading the records a second time would double a long load: the report's own table
+        table = index.parent / "criticality.md"
+        print(f"\nrecords folded as read (analysis/folding.py); per-field criticality: {table}")
+        if table.is_file():
+            print(table.read_text())
+    else:
+        print_criticality(args.runs)
     return 0
 
 
@@ -934,6 +949,13 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("report", help="tables, figures and an HTML page from run directories")
     s.add_argument("runs", type=Path, nargs="+")
     s.add_argument("--out", type=Path, required=True)
+    s.add_argument(
+        "--fold",
+        choices=["auto", "yes", "no"],
+        default="auto",
+        help="fold the records as they are read (the same numbers in far less memory; auto: when "
+        "they would not fit unfolded)",
+    )
     s.set_defaults(func=cmd_report)
     return p
 

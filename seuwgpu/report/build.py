@@ -32,10 +32,13 @@ import pandas as pd
 
 from seuwgpu.analysis import (
     criticality,
+    folding,
     outcomes,
 )
 from seuwgpu.analysis.records import (
     FIELD_LABELS,
+    MULTIPLICITY,
+    PREDICTION_SAMPLE,
     prepare,
     provenance,
     provenance_text,
@@ -77,12 +80,16 @@ OPTIONAL_COLUMNS = ("campaign", "repeat", "time_ms")
 # runs) for the 474,048 records of docs/study/cpu (pandas 3.1, 2026-11-25/26), i.e. 1.96-1.98 KB
 # a record with the interpreter's own.
 REPORT_BYTES_PER_RECORD = 2000
+# The same with the records folded as read (analysis/folding.py): 3,942,828 KiB for 29,098,240
+# records of the planner-sized study (spheres and blocks, 7.8 records a row; 2026-11-26). Scenes
+# whose records fold less need more.
+FOLDED_BYTES_PER_RECORD = 139
 
 
-def check_report_memory(run_dirs) -> int:
+def check_report_memory(run_dirs, folded: bool = False) -> int:
     """Refuse, before loading anything, runs whose report would not fit in host memory (their
-    record count from the Parquet footers); returns that count. The rates of any number of
-    records are `seuwgpu rates`'s (analysis/cells.py)."""
+    record count from the Parquet footers; folded: as analysis/folding.py reads them); returns
+    that count. The rates of any number of records are `seuwgpu rates`'s (analysis/cells.py)."""
     from seuwgpu.errors import TooBig
     from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, gb
 
@@ -90,29 +97,50 @@ def check_report_memory(run_dirs) -> int:
     for rd in run_dirs:
         if Path(rd).is_dir():
             n += sum(store.part_rows(p) or 0 for p in store.record_parts(rd))
-    need, have = n * REPORT_BYTES_PER_RECORD, HOST_SHARE * available_host_bytes()
+    need = n * (FOLDED_BYTES_PER_RECORD if folded else REPORT_BYTES_PER_RECORD)
+    have = HOST_SHARE * available_host_bytes()
     if need > have:
+        how = "even folded as read" if folded else "unfolded (`--fold yes` needs about 14x less)"
         raise TooBig(
-            f"a report of {n:,} records needs about {gb(need)} of host memory, {gb(have / HOST_SHARE)} is "
+            f"a report of {n:,} records needs about {gb(need)} of host memory {how}, {gb(have / HOST_SHARE)} is "
             "available: report fewer runs, or read the weighted outcome rates of any number of records "
             "with `seuwgpu rates RUN...`"
         )
     return n
 
 
-def load_runs(run_dirs: Iterable[str | Path]) -> tuple[pd.DataFrame, list[dict]]:
+FOLD_CHUNK = 256  # folded parts joined into one frame while reading
+
+
+def needs_folding(run_dirs) -> bool:
+    """Whether the runs' records fit in host memory only folded (check_report_memory)."""
+    from seuwgpu.errors import TooBig
+
+    try:
+        check_report_memory(run_dirs)
+    except TooBig:
+        return True
+    return False
+
+
+def load_runs(
+    run_dirs: Iterable[str | Path], *, fold: bool = False, max_pred_rows: int = 200_000, progress=None
+) -> tuple[pd.DataFrame, list[dict]]:
     """Concatenate the records of campaign run directories.
 
     Each run directory holds manifest.json and records/part-*.parquet. Returns the records (with
     a ``run`` column naming the run directory, optional columns filled by
     `analysis.prepare`) and the manifests (each with ``_run`` and ``_run_dir`` added).
     A missing manifest is tolerated (an empty one is used); a run without parquet parts is an
-    error."""
+    error. fold=True folds the records part by part as they are read (analysis.folding; every
+    number of the report unchanged, memory bounded by the distinct rows), keeping a random
+    sample of about max_pred_rows records per precision for the prediction. `progress(i, n)` is
+    called per part read."""
     if isinstance(run_dirs, (str, Path)):
         run_dirs = [run_dirs]
     run_dirs = list(run_dirs)
-    check_report_memory(run_dirs)
-    frames, manifests = [], []
+    check_report_memory(run_dirs, folded=fold)
+    runs, manifests = [], []
     for rd, name in zip(run_dirs, store.run_names(run_dirs)):
         p = Path(rd)
         if not p.is_dir():
@@ -123,28 +151,103 @@ def load_runs(run_dirs: Iterable[str | Path]) -> tuple[pd.DataFrame, list[dict]]
         manifest["_run_dir"] = str(p)
         if not parts:
             raise FileNotFoundError(f"{p}: no records/part-*.parquet")
-        n = 0
+        runs.append((name, parts))
+        manifests.append(manifest)
+    thresholds = thresholds_of(manifests)
+    total = sum(len(parts) for _, parts in runs) * (2 if fold else 1)  # folding reads twice
+    shares = _prediction_shares(runs, max_pred_rows, progress, total) if fold else {}
+    # several profiles: the report rests on the strict records but for the others' rates
+    profiles = {p for p, _ in shares}
+    rates_only = profiles - {"strict"} if "strict" in profiles else set()
+    frames, pending, n_all = [], [], 0
+    done = total // 2 if fold else 0
+    for (name, parts), manifest in zip(runs, manifests):
+        n, sites = 0, []
         for part in parts:
-            f = pd.read_parquet(part)
+            f = _read_part(part, name)
+            done += 1
+            if progress:
+                progress(done, total)
             if len(f) == 0:
                 continue
-            f["run"] = name
-            for c in f.columns:
-                # region bitmasks: keep them exact integers when other parts lack the column
-                # (a plain int64 column would widen to float64 and lose bits above 2^53)
-                if str(c).startswith("regions_") and pd.api.types.is_integer_dtype(f[c]):
-                    v = f[c].to_numpy()
-                    if v.dtype == np.uint64:
-                        v = v.view(np.int64)
-                    f[c] = pd.array(v, dtype="Int64")
-            frames.append(f)
             n += len(f)
+            if fold:
+                if "weight" not in f or f["weight"].isna().any():
+                    raise ValueError(
+                        f"{part}: records without weights (an older version) cannot be folded: report fewer runs"
+                    )
+                f = prepare(f, thresholds)
+                sites.append(folding.site_hashes(f))
+                f = folding.fold_part(f, shares, rates_only)
+            pending.append(f)
+            if fold and len(pending) >= FOLD_CHUNK:  # a few big frames, not thousands of small ones
+                frames.append(pd.concat(pending, ignore_index=True, sort=False))
+                pending = []
+        if fold and sites:
+            h = np.concatenate(sites)
+            if len(np.unique(h)) < len(h):
+                raise ValueError(
+                    f"{name}: fault sites whose defenses lie in different parts (records written by "
+                    "another tool?); folding pairs defenses within a part: report these runs unfolded"
+                )
         manifest["_n_records"] = n
-        manifests.append(manifest)
+        n_all += n
+    frames += pending
     if not frames:
         raise ValueError("the runs hold no records")
     df = pd.concat(frames, ignore_index=True, sort=False)
-    return prepare(df, thresholds_of(manifests)), manifests
+    del frames, pending
+    if not fold:
+        return prepare(df, thresholds), manifests
+    import pyarrow as pa
+
+    pa.default_memory_pool().release_unused()  # the parts' buffers, freed but kept by the pool
+    df[MULTIPLICITY] = df[MULTIPLICITY].astype(np.int64)
+    df[PREDICTION_SAMPLE] = df[PREDICTION_SAMPLE].astype(bool)
+    sums = [c for c in df.columns if str(c).startswith("region_") and str(c).endswith(("_sum", "_n"))]
+    df[sums] = df[sums].fillna(0.0)  # parts without the columns: nothing measured there
+    df.attrs.update(_seuwgpu_prepared=True, thresholds=dict(thresholds), folded={"records": n_all, "rows": len(df)})
+    return df, manifests
+
+
+def _read_part(part: Path, run: str) -> pd.DataFrame:
+    f = pd.read_parquet(part)
+    f["run"] = run
+    for c in f.columns:
+        # region bitmasks: keep them exact integers when other parts lack the column
+        # (a plain int64 column would widen to float64 and lose bits above 2^53)
+        if str(c).startswith("regions_") and pd.api.types.is_integer_dtype(f[c]):
+            v = f[c].to_numpy()
+            if v.dtype == np.uint64:
+                v = v.view(np.int64)
+            f[c] = pd.array(v, dtype="Int64")
+    return f
+
+
+def _prediction_shares(runs, max_pred_rows: int, progress=None, total: int = 0) -> dict:
+    """Per (profile, precision): the probability with which folding keeps a record for the
+    prediction's sample, from a first pass over a few columns of every part."""
+    import pyarrow.parquet as pq
+
+    counts: dict = {}
+    cols = ["campaign", "k", "defense", "bit", "precision", "profile"]
+    done = 0
+    for _, parts in runs:
+        for part in parts:
+            done += 1
+            if progress:
+                progress(done, total)
+            have = set(pq.read_schema(part).names)
+            f = pd.read_parquet(part, columns=[c for c in cols if c in have])
+            if "profile" not in f:
+                f["profile"] = "strict"
+            for c, v in (("campaign", "single"), ("k", 1), ("defense", "none")):
+                if c not in f:
+                    f[c] = v
+            f["profile"] = f["profile"].fillna("strict")
+            for key, n in folding.prediction_population(f).items():
+                counts[key] = counts.get(key, 0) + int(n)
+    return {key: min(1.0, max_pred_rows / n) for key, n in counts.items()}
 
 
 # ----------------------------------------------------------------------------- build report
@@ -178,14 +281,20 @@ def build_report(
     *,
     title: str = "seuwgpu: single-event upsets in 3D Gaussian splatting",
     max_pred_rows: int = 200_000,
+    fold: bool | None = None,
+    progress=None,
 ) -> Path:
-    """Write the report of the given runs into out_dir; returns the path of index.html."""
+    """Write the report of the given runs into out_dir; returns the path of index.html.
+    fold: fold the records as they are read (load_runs); None folds only runs whose records would
+    not fit in host memory unfolded (check_report_memory)."""
     if isinstance(run_dirs, (str, Path)):
         run_dirs = [run_dirs]
     run_dirs = [Path(r) for r in run_dirs]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    df, manifests = load_runs(run_dirs)
+    if fold is None:
+        fold = needs_folding(run_dirs)
+    df, manifests = load_runs(run_dirs, fold=fold, max_pred_rows=max_pred_rows, progress=progress)
     previous = _previous_files(out)
     written: list[str] = []
     ctx = {"skipped": [], "max_pred_rows": max_pred_rows, "results": {}}
@@ -268,6 +377,7 @@ def build_report(
         "sections": [s.key for s in sections],
         "skipped": [{"analysis": a, "missing": b, "remedy": c} for a, b, c in skipped],
         "thresholds": dict(df.attrs.get("thresholds", {})),
+        "folded": df.attrs.get("folded"),
         "catastrophic": outcomes.catastrophic_summary(df),
         "numbers": numbers,
         "files": sorted(written + ["index.html", "report.md", "summary.json", "skipped.csv", "skipped.md"]),

@@ -28,8 +28,10 @@ from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis.records import (
     InsufficientData,
     dose_records,
+    n_records,
     precisions_present,
     provenance_text,
+    record_weights,
     reference_precision,
     single_upsets,
 )
@@ -215,13 +217,13 @@ def _sec_criticality(df, manifests, ctx) -> Section:
     s = single_upsets(df, prec, "none")
     sign = s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")]
     if len(sign):
-        fp, w = sign["footprint"].to_numpy(float) * 100, sign["weight"].to_numpy(float)
+        fp, w = sign["footprint"].to_numpy(float) * 100, record_weights(sign)
         mean, p99 = E.wmean(fp, w), E.wquantile(fp, w, 0.99)
         sec.numbers.update(
-            scale_sign_footprint_mean_pct=mean, scale_sign_footprint_p99_pct=p99, scale_sign_n=int(len(sign))
+            scale_sign_footprint_mean_pct=mean, scale_sign_footprint_p99_pct=p99, scale_sign_n=n_records(sign)
         )
         sec.notes.append(
-            f"log-scale sign bit at {prec}: mean footprint {mean:.4g}%, p99 {p99:.4g}% (n = {len(sign):,})."
+            f"log-scale sign bit at {prec}: mean footprint {mean:.4g}%, p99 {p99:.4g}% (n = {n_records(sign):,})."
         )
     cells = fb[fb["precision"] == prec]
     if len(cells):

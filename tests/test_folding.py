@@ -1,0 +1,161 @@
+"""A report built from records folded as they are read (analysis.folding) says exactly what the
+report of the records themselves says: every table, figure list and headline number."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from test_report import SCENES, _dose_rows, _single_rows, _size_rows
+
+from seuwgpu.analysis import folding
+from seuwgpu.analysis.records import MULTIPLICITY, PREDICTION_SAMPLE, n_records, prepare
+from seuwgpu.report.build import build_report, load_runs
+
+# the prediction trains on a different random sample once it is folded (a Bernoulli sample
+# instead of pandas' draw), so its numbers are compared only when every record is kept
+PREDICTION_FILES = ("prediction", "pred_", "claims")
+PREDICTION_NUMBERS = ("pred_", "claims")
+
+
+def _write(run_dir, df, manifest):
+    """One part per (scene, precision) block: a block writes all its defenses together, as the
+    runner does (folding pairs a site's defenses within its part)."""
+    (run_dir / "records").mkdir(parents=True)
+    (run_dir / "manifest.json").write_text(json.dumps(manifest))
+    for i, (_, g) in enumerate(df.groupby(["campaign", "scene", "precision"], sort=False)):
+        g.to_parquet(run_dir / "records" / f"part-{i:05d}.parquet", index=False)
+    return run_dir
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    rng = np.random.default_rng(3)
+    df = pd.concat(
+        [pd.DataFrame(_single_rows(rng, per_cell=6)), pd.DataFrame(_dose_rows(rng)), pd.DataFrame(_size_rows(rng))],
+        ignore_index=True,
+    )
+    df["weight"] = prepare(df)["weight"].to_numpy()  # the runner writes each record's weight
+    # many records alike in what the analyses read: footprints on a coarse grid
+    df["footprint"] = np.round(df["footprint"] * 200) / 200
+    manifest = {"spec": {"scenes": list(SCENES), "sh_degree": 3}, "spec_hash": "f0"}
+    return _write(tmp_path_factory.mktemp("fold") / "run", df, manifest), df
+
+
+def _tables(out):
+    return {p.name: pd.read_csv(p) for p in sorted(out.glob("*.csv"))}
+
+
+def _same_table(name, a, b):
+    assert list(a.columns) == list(b.columns), name
+    assert len(a) == len(b), name
+    for c in a.columns:
+        x, y = a[c], b[c]
+        if pd.api.types.is_numeric_dtype(x) and pd.api.types.is_numeric_dtype(y):
+            np.testing.assert_allclose(
+                x.to_numpy(float), y.to_numpy(float), rtol=1e-9, atol=1e-12, err_msg=f"{name}:{c}"
+            )
+        else:
+            assert x.astype(str).tolist() == y.astype(str).tolist(), f"{name}:{c}"
+
+
+def _same_numbers(a, b, path=""):
+    if isinstance(a, dict):
+        assert set(a) == set(b), path
+        for k in a:
+            _same_numbers(a[k], b[k], f"{path}.{k}")
+    elif isinstance(a, list):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b)):
+            _same_numbers(x, y, f"{path}[{i}]")
+    elif isinstance(a, float) and isinstance(b, (int, float)):
+        assert b == pytest.approx(a, rel=1e-9, abs=1e-12) or (math.isnan(a) and math.isnan(b)), path
+    else:
+        assert a == b, path
+
+
+@pytest.mark.parametrize("max_pred_rows", [200_000, 40])
+def test_folded_report_equals_the_records_report(run, tmp_path, max_pred_rows):
+    rd, df = run
+    plain = build_report([rd], tmp_path / "plain", max_pred_rows=max_pred_rows, fold=False).parent
+    folded = build_report([rd], tmp_path / "folded", max_pred_rows=max_pred_rows, fold=True).parent
+    sp, sf = (json.loads((d / "summary.json").read_text()) for d in (plain, folded))
+    assert sf["folded"]["records"] == len(df) and sp["folded"] is None
+    everything = max_pred_rows >= len(df)
+    assert sp["files"] == sf["files"] and sp["sections"] == sf["sections"] and sp["skipped"] == sf["skipped"]
+    tp, tf = _tables(plain), _tables(folded)
+    compared = 0
+    for name in tp:
+        if not everything and name.startswith(PREDICTION_FILES):
+            continue
+        _same_table(name, tp[name], tf[name])
+        compared += 1
+    assert compared >= 20
+    for key in ("catastrophic", "provenance", "thresholds"):
+        _same_numbers(sp[key], sf[key], key)
+    for key, v in sp["numbers"].items():
+        if everything or not key.startswith(PREDICTION_NUMBERS):
+            _same_numbers(v, sf["numbers"][key], key)
+
+
+def test_folding_keeps_what_each_analysis_reads(run):
+    rd, df = run
+    f, _ = load_runs([rd], fold=True, max_pred_rows=40)
+    assert n_records(f) == len(df) and f[MULTIPLICITY].min() >= 1
+    assert len(f) < len(df) / 2  # it folds: alike records are one row
+    single = (f["campaign"] == "single") & (f["k"] == 1)
+    # kept whole: other campaigns, log-scale sign flips and the prediction sample (about 40 per precision)
+    whole = f[~single | ((f["field"] == "log_scales") & (f["bit_class"] == "sign")) | f[PREDICTION_SAMPLE]]
+    assert (whole[MULTIPLICITY] == 1).all() and (whole["injection_id"] >= 0).all()
+    per_prec = f[f[PREDICTION_SAMPLE]].groupby("precision").size()
+    assert set(per_prec.index) == set(df["precision"].dropna()) and per_prec.between(15, 80).all()
+    # blanked elsewhere (integers to -1, the records' "none"): site and image metrics; but the
+    # theory keeps peak_error, and the degree inference keeps the SH component
+    rest = f[single & ~f[PREDICTION_SAMPLE] & (f["field"] != "log_scales")]
+    assert (rest["injection_id"] == -1).all() and rest["psnr"].isna().all()
+    assert (
+        rest.loc[rest["field"] == "sh_rest", "component"].max() == df.loc[df["field"] == "sh_rest", "component"].max()
+    )
+    theory = f[single & (f["field"] == "log_scales") & (f["defense"] == "none") & (f["bit_class"] == "mantissa")]
+    assert theory["peak_error"].notna().all()
+
+
+def test_the_prediction_sample_does_not_depend_on_part_order(run):
+    rd, df = run
+    s = prepare(df[(df["campaign"] == "single")])
+    share = {("strict", p): 0.25 for p in ("fp32", "fp16", "bf16")}
+    a = folding.fold_part(s, share)
+    b = folding.fold_part(s.iloc[::-1], share)
+    key = ["scene", "precision", "injection_id"]
+    ka = a.loc[a[PREDICTION_SAMPLE], key].sort_values(key).reset_index(drop=True)
+    kb = b.loc[b[PREDICTION_SAMPLE], key].sort_values(key).reset_index(drop=True)
+    pd.testing.assert_frame_equal(ka, kb)
+    assert 0.15 < len(ka) / (s["defense"] == "none").sum() < 0.35
+
+
+def test_sites_split_across_parts_are_refused(run, tmp_path):
+    _, df = run
+    single = df[df["campaign"] == "single"]
+    rd = tmp_path / "split"
+    (rd / "records").mkdir(parents=True)
+    (rd / "manifest.json").write_text(json.dumps({"spec": {"scenes": list(SCENES)}}))
+    half = len(single) // 2 + 1  # the cut falls inside one site's five defenses
+    single.iloc[:half].to_parquet(rd / "records" / "part-00000.parquet", index=False)
+    single.iloc[half:].to_parquet(rd / "records" / "part-00001.parquet", index=False)
+    with pytest.raises(ValueError, match="defenses lie in different parts"):
+        load_runs([rd], fold=True)
+    assert n_records(load_runs([rd])[0]) == len(single)  # unfolded, they pair wherever they lie
+
+
+def test_runs_too_big_even_folded_are_refused_before_loading(run, monkeypatch):
+    from seuwgpu.errors import TooBig
+    from seuwgpu.report.build import FOLDED_BYTES_PER_RECORD, check_report_memory
+
+    rd, df = run
+    assert check_report_memory([rd], folded=True) == len(df)
+    monkeypatch.setenv("SEUWGPU_HOST_MEMORY", str(len(df) * FOLDED_BYTES_PER_RECORD // 2))
+    with pytest.raises(TooBig, match="even folded as read.*seuwgpu rates"):
+        load_runs([rd], fold=True)
