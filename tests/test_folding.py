@@ -12,13 +12,8 @@ import pytest
 from test_report import SCENES, _dose_rows, _single_rows, _size_rows
 
 from seuwgpu.analysis import folding
-from seuwgpu.analysis.records import MULTIPLICITY, PREDICTION_SAMPLE, n_records, prepare
+from seuwgpu.analysis.records import MULTIPLICITY, PREDICTION_SAMPLE, draw_share, n_records, prepare
 from seuwgpu.report.build import build_report, load_runs
-
-# the prediction trains on a different random sample once it is folded (a Bernoulli sample
-# instead of pandas' draw), so its numbers are compared only when every record is kept
-PREDICTION_FILES = ("prediction", "pred_", "claims")
-PREDICTION_NUMBERS = ("pred_", "claims")
 
 
 def _write(run_dir, df, manifest):
@@ -77,28 +72,22 @@ def _same_numbers(a, b, path=""):
         assert a == b, path
 
 
-@pytest.mark.parametrize("max_pred_rows", [200_000, 40])
+@pytest.mark.parametrize("max_pred_rows", [200_000, 1000])  # 1000: a sample of the 2,304 records at fp32
 def test_folded_report_equals_the_records_report(run, tmp_path, max_pred_rows):
     rd, df = run
     plain = build_report([rd], tmp_path / "plain", max_pred_rows=max_pred_rows, fold=False).parent
     folded = build_report([rd], tmp_path / "folded", max_pred_rows=max_pred_rows, fold=True).parent
     sp, sf = (json.loads((d / "summary.json").read_text()) for d in (plain, folded))
     assert sf["folded"]["records"] == len(df) and sp["folded"] is None
-    everything = max_pred_rows >= len(df)
     assert sp["files"] == sf["files"] and sp["sections"] == sf["sections"] and sp["skipped"] == sf["skipped"]
     tp, tf = _tables(plain), _tables(folded)
-    compared = 0
-    for name in tp:
-        if not everything and name.startswith(PREDICTION_FILES):
-            continue
+    assert len(tp) >= 20 and "prediction.csv" in tp
+    for name in tp:  # the prediction too: both draw its sample by the same hash of the sites
         _same_table(name, tp[name], tf[name])
-        compared += 1
-    assert compared >= 20
-    for key in ("catastrophic", "provenance", "thresholds"):
+    for key in ("catastrophic", "provenance", "thresholds", "numbers"):
         _same_numbers(sp[key], sf[key], key)
-    for key, v in sp["numbers"].items():
-        if everything or not key.startswith(PREDICTION_NUMBERS):
-            _same_numbers(v, sf["numbers"][key], key)
+    n_train = pd.read_csv(plain / "prediction.csv")["n_train"].iloc[0]
+    assert (n_train <= 700) if max_pred_rows == 1000 else (n_train > 1600)  # 70% of the sample trains
 
 
 def test_folding_keeps_what_each_analysis_reads(run):
@@ -127,6 +116,9 @@ def test_the_prediction_sample_does_not_depend_on_part_order(run):
     rd, df = run
     s = prepare(df[(df["campaign"] == "single")])
     share = {("strict", p): 0.25 for p in ("fp32", "fp16", "bf16")}
+    # nor on how a part stores its site columns
+    d = s.assign(injection_id=s["injection_id"].astype(float))
+    np.testing.assert_array_equal(draw_share(d), draw_share(s))
     a = folding.fold_part(s, share)
     b = folding.fold_part(s.iloc[::-1], share)
     key = ["scene", "precision", "injection_id"]
@@ -159,3 +151,40 @@ def test_runs_too_big_even_folded_are_refused_before_loading(run, monkeypatch):
     monkeypatch.setenv("SEUWGPU_HOST_MEMORY", str(len(df) * FOLDED_BYTES_PER_RECORD // 2))
     with pytest.raises(TooBig, match="even folded as read.*seuwgpu rates"):
         load_runs([rd], fold=True)
+
+
+def test_partly_paired_sites_and_mixed_parts_fold_alike(run, tmp_path):
+    """Sites missing some defenses (the mitigation table's shared grid, the guard's pairs) and
+    parts that mix single upsets with dose records (whose pairing columns are empty)."""
+    _, df = run
+    single = df[df["campaign"] == "single"]
+    rng = np.random.default_rng(5)
+    drop = set(rng.choice(single["injection_id"].unique(), 300, replace=False))
+    gone = single["injection_id"].isin(drop) & single["defense"].isin(["guard", "ecc"])
+    mixed = pd.concat([single[~gone], df[df["campaign"] == "dose"]], ignore_index=True)
+    rd = tmp_path / "mixed"
+    (rd / "records").mkdir(parents=True)
+    (rd / "manifest.json").write_text(json.dumps({"spec": {"scenes": list(SCENES), "sh_degree": 3}}))
+    for i, (_, g) in enumerate(mixed.groupby("scene", sort=False)):  # dose rows share a part
+        g.to_parquet(rd / "records" / f"part-{i:05d}.parquet", index=False)
+    out = {f: build_report([rd], tmp_path / f"r{f}", fold=bool(f)).parent for f in (0, 1)}
+    a, b = _tables(out[0]), _tables(out[1])
+    assert set(a) == set(b) and {"mitigation.csv", "guard_paired.csv"} <= set(a)
+    for name in a:
+        _same_table(name, a[name], b[name])
+    sa, sb = (json.loads((out[f] / "summary.json").read_text()) for f in (0, 1))
+    _same_numbers(sa["numbers"], sb["numbers"], "numbers")
+    # the shared grid left the sites without ecc out
+    none32 = mixed[(mixed["defense"] == "none") & (mixed["precision"] == "fp32")]
+    shared = none32["injection_id"].isin(mixed.loc[mixed["defense"] == "ecc", "injection_id"])
+    assert a["mitigation.csv"]["n"].iloc[0] == shared.sum() < len(none32)
+
+
+@pytest.mark.parametrize("fold", [False, True])
+def test_an_unreadable_part_is_named(tmp_path, fold):
+    from seuwgpu.errors import InputError
+
+    (tmp_path / "run" / "records").mkdir(parents=True)
+    (tmp_path / "run" / "records" / "part-00000.parquet").write_text("not parquet")
+    with pytest.raises(InputError, match="part-00000.parquet: not a readable record part"):
+        load_runs([tmp_path / "run"], fold=fold)

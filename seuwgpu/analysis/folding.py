@@ -31,7 +31,16 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis.contamination import REGION_COLUMN, REGION_STATS, region_sums
-from seuwgpu.analysis.records import MULTIPLICITY, PREDICTION_SAMPLE, pair_columns, pair_keys
+from seuwgpu.analysis.records import (
+    MULTIPLICITY,
+    NONE_CATASTROPHIC,
+    PREDICTION_SAMPLE,
+    SITE_DEFENSES,
+    draw_share,
+    key_hash,
+    pair_columns,
+    pair_keys,
+)
 
 # columns read only of the records that keep them (see the module notes)
 DETAIL = (
@@ -53,18 +62,10 @@ RATES_ONLY = ("run", "campaign", "scene", "n_primitives", "precision", "profile"
 RATES_ONLY += ("defense", "nonfinite", "catastrophic", "outcome", "k", "repeat", "weight")
 # columns no analysis reads: not carried at all
 UNREAD = ("seed", "fault", "clamps", "footprint_max", "corrupted_value")
-SITE = ("run", "scene", "precision", "field", "bit", "injection_id", "primitive", "component", "seed")
 
 
 def single_mask(d: pd.DataFrame) -> np.ndarray:
     return ((d["campaign"] == "single") & (d["k"] == 1)).to_numpy()
-
-
-def sample_share(d: pd.DataFrame) -> np.ndarray:
-    """A uniform number in [0, 1) per record from a hash of its site (order-independent)."""
-    cols = [c for c in SITE if c in d]
-    h = pd.util.hash_pandas_object(d[cols], index=False).to_numpy(np.uint64)
-    return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
 def prediction_population(d: pd.DataFrame) -> pd.Series:
@@ -86,20 +87,21 @@ def fold_part(d: pd.DataFrame, keep_share: dict, rates_only=()) -> pd.DataFrame:
     sign = (field == "log_scales") & (bit_class == "sign")
     coarse = single & d["profile"].isin(list(rates_only)).to_numpy()
     share = np.array([keep_share.get(k, 1.0) for k in zip(d["profile"], d["precision"])], float)
-    sample = single & ~coarse & (defense == "none") & (d["bit"].to_numpy() >= 0) & (sample_share(d) < share)
+    sample = single & ~coarse & (defense == "none") & (d["bit"].to_numpy() >= 0) & (draw_share(d) < share)
     whole = ~single | ((sign | sample) & ~coarse)
     out = d.drop(columns=[c for c in UNREAD if c in d])
     for c in out.columns:
         if c in RATES_ONLY or (c not in DETAIL and not coarse.any()) or str(c).endswith(("_sum", "_n")):
             continue
         keep = whole.copy() if c in DETAIL else ~coarse
+        blank = 0 if c == SITE_DEFENSES else -1  # no defense known, not "every one"
         if c == "peak_error":
             keep |= (field == "log_scales") & (defense == "none") & (bit_class == "mantissa") & ~coarse
         elif c == "component":
             keep |= (field == "sh_rest") & ~coarse
         if not keep.all():
             v = out[c]
-            out[c] = v.where(keep, -1 if pd.api.types.is_integer_dtype(v) else np.nan)
+            out[c] = v.where(keep, blank if pd.api.types.is_integer_dtype(v) else np.nan)
     out[PREDICTION_SAMPLE] = sample
     out[MULTIPLICITY] = np.ones(len(out), np.int64)
     # records kept whole stay one row each, even where two agree in every column (repeats)
@@ -114,14 +116,19 @@ def site_hashes(d: pd.DataFrame) -> np.ndarray:
     """Distinct hashes of the single-upset fault sites (records.pair_keys) of one part: folding
     pairs a site's defenses within its part, so no site may appear in two parts."""
     s = d[single_mask(d)]
-    return np.unique(pd.util.hash_pandas_object(s[pair_keys(s)], index=False).to_numpy(np.uint64))
+    return np.unique(key_hash(s, pair_keys(s)))
 
 
 def pair_columns_of_single(d: pd.DataFrame) -> pd.DataFrame:
     """records.pair_columns over the part's single upsets, contamination as per-row sums."""
     single = single_mask(d)
     paired = pair_columns(d[single])
-    d = d.assign(**{c: paired[c].reindex(d.index) for c in paired.columns if c not in d})
+    d = d.assign(
+        **{
+            NONE_CATASTROPHIC: paired[NONE_CATASTROPHIC].reindex(d.index),
+            SITE_DEFENSES: paired[SITE_DEFENSES].reindex(d.index).fillna(0).astype(np.int64),
+        }
+    )
     ps = sorted(
         {int(m.group(1)) for c in d.columns if (m := REGION_COLUMN.match(str(c))) and f"regions_meas_{m.group(1)}" in d}
     )

@@ -10,7 +10,9 @@ import pandas as pd
 from seuwgpu.analysis import stats
 from seuwgpu.analysis.records import (
     PREDICTION_SAMPLE,
+    draw_share,
     figure,
+    prediction_draw,
     reference_precision,
     require_single,
     tag,
@@ -135,8 +137,13 @@ def _prediction(df, precision, seed, max_rows, test_size, n_repeats, n_boot) -> 
     s = require_single(df, "none")
     precision = precision or reference_precision(s)
     s = s[(s["precision"] == precision) & (s["bit"] >= 0)]
-    if PREDICTION_SAMPLE in s:  # a folded frame: the records analysis.folding kept for this
+    # a random draw of about max_rows records (records.draw_share: what folding keeps of a
+    # planner-sized run, so that a report gives the same numbers folded or not), then exactly
+    # max_rows of them
+    if PREDICTION_SAMPLE in s:  # folded: the records analysis.folding kept
         s = s[s[PREDICTION_SAMPLE].fillna(False).astype(bool)]
+    elif len(s) > max_rows:
+        s = s[draw_share(s) < prediction_draw(len(s), max_rows)]
     if len(s) > max_rows:
         s = s.sample(n=max_rows, random_state=seed)
     y = s["catastrophic"].astype(bool).to_numpy()

@@ -112,7 +112,7 @@ def prepare(df: pd.DataFrame, thresholds: dict | None = None) -> pd.DataFrame:
     * ``outcome``: masked / tolerable / sdc / catastrophic (`metrics.image.outcome_class`) with
       the runs' thresholds; ``catastrophic`` is recomputed from it so both agree.
     """
-    if df.attrs.get("_seuwgpu_prepared"):
+    if df.attrs.get("_seuwgpu_prepared") or MULTIPLICITY in df:  # a folded frame is prepared by folding
         return df
     thr = thresholds or {"pixel_threshold": PIXEL_THRESHOLD, "footprint_threshold": FOOTPRINT_THRESHOLD}
     d = df.copy()
@@ -310,12 +310,45 @@ def pair_keys(df: pd.DataFrame) -> list[str]:
     return [c for c in ("run", "scene", "precision", "campaign", "injection_id") if c in df]
 
 
+def key_hash(d: pd.DataFrame, columns) -> np.ndarray:
+    """A uint64 hash per row of the given columns, independent of how a part happened to store
+    them (integers with or without nulls hash alike; -1 stands for a missing integer)."""
+    cols = {}
+    for c in columns:
+        v = d[c]
+        if pd.api.types.is_numeric_dtype(v) and not pd.api.types.is_bool_dtype(v):
+            x = pd.to_numeric(v, errors="coerce")
+            whole = x.isna() | (x == np.round(x))
+            cols[c] = x.fillna(-1).astype(np.int64) if whole.all() else x.astype(float)
+        else:
+            cols[c] = v.astype(str)
+    return pd.util.hash_pandas_object(pd.DataFrame(cols), index=False).to_numpy(np.uint64)
+
+
+# what identifies a record's fault site for the prediction's random draw
+DRAW_SITE = ("run", "scene", "precision", "field", "bit", "injection_id", "primitive", "component", "seed")
+
+
+def draw_share(d: pd.DataFrame) -> np.ndarray:
+    """A uniform number in [0, 1) per record from a hash of its site: a random draw that does not
+    depend on the order records are read in (the prediction's sample, folded or not)."""
+    h = key_hash(d, [c for c in DRAW_SITE if c in d])
+    return (h >> np.uint64(11)).astype(np.float64) / float(1 << 53)
+
+
+def prediction_draw(population: int, max_rows: int) -> float:
+    """The probability with which the prediction keeps each of `population` records."""
+    return min(1.0, max_rows / population) if population else 1.0
+
+
 # Per record, what the same fault site gave under the other defenses (folded frames carry these,
 # as the sites themselves are gone): the catastrophic flag under "none" (NaN where not measured)
 # and the defenses measured at the site, as a bit mask over DEFENSES (`defense_bit`).
 NONE_CATASTROPHIC = "none_catastrophic"
 SITE_DEFENSES = "site_defenses"
-OTHER_DEFENSE_BIT = 62  # a defense name the package does not know (older records): one bit for all
+# A defense name the package does not know (records of an older version: campaign specs accept only
+# DEFENSES): one bit for all such names, below 2^53 so that it survives a float column.
+OTHER_DEFENSE_BIT = 52
 
 
 def defense_bit(names) -> np.ndarray:
@@ -326,7 +359,8 @@ def defense_bit(names) -> np.ndarray:
 
 def pair_columns(s: pd.DataFrame) -> pd.DataFrame:
     """Records with NONE_CATASTROPHIC and SITE_DEFENSES (computed over `s` from pair_keys unless
-    present). A site measured twice under one defense takes the first record's flag."""
+    present). A site measured twice under "none" takes the first record's flag; each record under
+    another defense counts (folded frames cannot tell repeats apart)."""
     if NONE_CATASTROPHIC in s and SITE_DEFENSES in s:
         return s
     keys = pair_keys(s)

@@ -263,6 +263,8 @@ def print_criticality(run_dirs):
     from seuwgpu.report.build import criticality_table_text, load_runs, needs_folding
 
     df, _ = load_runs(run_dirs, fold=needs_folding(run_dirs))
+    if df["profile"].nunique() > 1:  # as the report: the tables rest on the strict profile
+        df = df[df["profile"] == "strict"]
     single = df[(df["k"] == 1) & (df["campaign"].isin(["single", "size"]))]
     for prec in sorted(single["precision"].unique()):
         try:
@@ -489,7 +491,10 @@ def cmd_report(args):
     print(f"wrote {index}")
     if fold:  # reading the records a second time would double a long load: the report's own table
         table = index.parent / "criticality.md"
-        print(f"\nrecords folded as read (analysis/folding.py); per-field criticality: {table}")
+        print(
+            f"\nrecords folded as read (analysis/folding.py); per-field criticality at the reference "
+            f"precision ({table}; every precision: {index.parent / 'field_bit.csv'}):"
+        )
         if table.is_file():
             print(table.read_text())
     else:

@@ -39,6 +39,7 @@ from seuwgpu.analysis.records import (
     FIELD_LABELS,
     MULTIPLICITY,
     PREDICTION_SAMPLE,
+    prediction_draw,
     prepare,
     provenance,
     provenance_text,
@@ -210,8 +211,17 @@ def load_runs(
     return df, manifests
 
 
+def _parquet(part: Path, columns=None) -> pd.DataFrame:
+    from seuwgpu.errors import InputError
+
+    try:
+        return pd.read_parquet(part, columns=columns)
+    except (OSError, ValueError) as e:  # pyarrow's ArrowInvalid is a ValueError
+        raise InputError(f"{part}: not a readable record part ({e})") from None
+
+
 def _read_part(part: Path, run: str) -> pd.DataFrame:
-    f = pd.read_parquet(part)
+    f = _parquet(part)
     f["run"] = run
     for c in f.columns:
         # region bitmasks: keep them exact integers when other parts lack the column
@@ -237,8 +247,11 @@ def _prediction_shares(runs, max_pred_rows: int, progress=None, total: int = 0) 
             done += 1
             if progress:
                 progress(done, total)
-            have = set(pq.read_schema(part).names)
-            f = pd.read_parquet(part, columns=[c for c in cols if c in have])
+            try:
+                have = set(pq.read_schema(part).names)
+            except (OSError, ValueError):
+                have = set(cols)  # unreadable: _parquet says so, naming the file
+            f = _parquet(part, [c for c in cols if c in have])
             if "profile" not in f:
                 f["profile"] = "strict"
             for c, v in (("campaign", "single"), ("k", 1), ("defense", "none")):
@@ -247,7 +260,7 @@ def _prediction_shares(runs, max_pred_rows: int, progress=None, total: int = 0) 
             f["profile"] = f["profile"].fillna("strict")
             for key, n in folding.prediction_population(f).items():
                 counts[key] = counts.get(key, 0) + int(n)
-    return {key: min(1.0, max_pred_rows / n) for key, n in counts.items()}
+    return {key: prediction_draw(n, max_pred_rows) for key, n in counts.items()}
 
 
 # ----------------------------------------------------------------------------- build report
