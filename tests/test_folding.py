@@ -79,6 +79,9 @@ def test_folded_report_equals_the_records_report(run, tmp_path, max_pred_rows):
     folded = build_report([rd], tmp_path / "folded", max_pred_rows=max_pred_rows, fold=True).parent
     sp, sf = (json.loads((d / "summary.json").read_text()) for d in (plain, folded))
     assert sf["folded"]["records"] == len(df) and sp["folded"] is None
+    said = f"The {len(df):,} records were folded as they were read into {sf['folded']['rows']:,} rows"
+    assert said in (folded / "report.md").read_text() and said in (folded / "index.html").read_text()
+    assert "folded" not in (plain / "report.md").read_text().split("##")[0]
     assert sp["files"] == sf["files"] and sp["sections"] == sf["sections"] and sp["skipped"] == sf["skipped"]
     tp, tf = _tables(plain), _tables(folded)
     assert len(tp) >= 20 and "prediction.csv" in tp

@@ -409,7 +409,7 @@ def build_report(
 <style>{_CSS}</style></head><body>
 <h1>{html.escape(title)}</h1>
 <p class='note'>Generated {html.escape(summary["generated"])} by seuwgpu {html.escape(__version__)}.
-{html.escape(provenance_text(provenance(df)))}</p>
+{html.escape(provenance_text(provenance(df)))} {html.escape(_folded_text(df))}</p>
 <h2>Runs</h2>{html_table(_runs_table(manifests))}
 <h2>Contents</h2><ul>{"".join(toc)}</ul>
 {"".join(html_sections)}
@@ -460,8 +460,25 @@ def _runs_table(manifests: list[dict]) -> pd.DataFrame:
     return pd.DataFrame([_run_info(m) for m in manifests])
 
 
+def _folded_text(df) -> str:
+    f = df.attrs.get("folded")
+    if not f:
+        return ""
+    return (
+        f"The {f['records']:,} records were folded as they were read into {f['rows']:,} rows of alike "
+        "records (analysis/folding.py): every number is that of the records themselves."
+    )
+
+
 def _runs_markdown(df, manifests) -> str:
-    return "\n" + provenance_text(provenance(df)) + "\n\n" + markdown_table(_runs_table(manifests))
+    folded = _folded_text(df)
+    return (
+        "\n"
+        + provenance_text(provenance(df))
+        + (f" {folded}" if folded else "")
+        + "\n\n"
+        + (markdown_table(_runs_table(manifests)))
+    )
 
 
 # ------------------------------------------------------------------------------ CLI helper
