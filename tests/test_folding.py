@@ -191,3 +191,20 @@ def test_an_unreadable_part_is_named(tmp_path, fold):
     (tmp_path / "run" / "records" / "part-00000.parquet").write_text("not parquet")
     with pytest.raises(InputError, match="part-00000.parquet: not a readable record part"):
         load_runs([tmp_path / "run"], fold=fold)
+
+
+def test_several_runs_fold_alike(run, tmp_path):
+    import shutil
+
+    rd, _ = run
+    other = tmp_path / "other" / "run"  # the same folder name: the report labels it run#2
+    shutil.copytree(rd, other)
+    out = {f: build_report([rd, other], tmp_path / f"r{f}", max_pred_rows=1000, fold=bool(f)).parent for f in (0, 1)}
+    a, b = _tables(out[0]), _tables(out[1])
+    assert set(a) == set(b)
+    for name in a:
+        _same_table(name, a[name], b[name])
+    sa, sb = (json.loads((out[f] / "summary.json").read_text()) for f in (0, 1))
+    for key in ("numbers", "catastrophic", "provenance", "runs"):
+        _same_numbers(sa[key], sb[key], key)
+    assert sa["provenance"]["runs"] == ["run", "run#2"]
