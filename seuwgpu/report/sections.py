@@ -35,6 +35,7 @@ from seuwgpu.analysis.records import (
     reference_precision,
     single_upsets,
 )
+from seuwgpu.faults.defenses import DEFENSES, FIRST_DEFENSES
 
 
 @dataclass
@@ -429,7 +430,11 @@ def _sec_defenses(df, manifests, ctx) -> Section:
     from seuwgpu.analysis import defenses as D  # issue 16: defenses against cost (own module)
 
     if not D.has_new_defenses(df):
-        raise InsufficientData("no defense beyond guard/ECC/duplication in the records", "run defenses = [...]")
+        others = ", ".join(d for d in DEFENSES if d not in FIRST_DEFENSES)
+        raise InsufficientData(
+            "no defense beyond guard/ECC/duplication in the records",
+            f"run the single-upset campaign with defenses from {others} beside none (`seuwgpu defenses` lists them)",
+        )
     t = D.defense_table(df)
     sec = Section("defenses", "Defenses against cost", "Residual catastrophic rate of every defense (paired arms).")
     cap = (
