@@ -175,6 +175,12 @@ REGION_COLUMN = re.compile(r"^regions_pred_(\d+)$")
 
 REGION_SUM = re.compile(r"^region_fp_(\d+)_sum$")
 REGION_STATS = ("fp", "fm", "iou")
+REGION_SUM_COLUMN = re.compile(r"^region_(fp|fm|iou)_\d+_(sum|n)$")
+
+
+def region_sum_columns(columns) -> list:
+    """The per-row contamination sums among `columns` (`region_sums`; added up when rows fold)."""
+    return [c for c in columns if REGION_SUM_COLUMN.match(str(c))]
 
 
 def contamination_partitions(df: pd.DataFrame) -> list[int]:

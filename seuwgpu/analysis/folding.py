@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from seuwgpu.analysis.contamination import REGION_COLUMN, REGION_STATS, region_sums
+from seuwgpu.analysis.contamination import REGION_STATS, contamination_partitions, region_sum_columns, region_sums
 from seuwgpu.analysis.records import (
     MULTIPLICITY,
     NONE_CATASTROPHIC,
@@ -40,6 +40,7 @@ from seuwgpu.analysis.records import (
     key_hash,
     pair_columns,
     pair_keys,
+    single_mask,
 )
 
 # columns read only of the records that keep them (see the module notes)
@@ -64,15 +65,14 @@ RATES_ONLY += ("defense", "nonfinite", "catastrophic", "outcome", "k", "repeat",
 UNREAD = ("seed", "fault", "clamps", "footprint_max", "corrupted_value")
 
 
-def single_mask(d: pd.DataFrame) -> np.ndarray:
-    return ((d["campaign"] == "single") & (d["k"] == 1)).to_numpy()
+def prediction_mask(d: pd.DataFrame) -> np.ndarray:
+    """Prepared records the prediction samples from: k = 1 single upsets at a bit, no defense."""
+    return single_mask(d) & (d["defense"] == "none").to_numpy() & (d["bit"] >= 0).to_numpy()
 
 
 def prediction_population(d: pd.DataFrame) -> pd.Series:
-    """Records per (profile, precision) that the prediction samples from (defense none, k = 1
-    single upsets at a bit)."""
-    m = single_mask(d) & (d["defense"] == "none").to_numpy() & (d["bit"] >= 0).to_numpy()
-    return d[m].groupby(["profile", "precision"]).size()
+    """Records per (profile, precision) that the prediction samples from (prediction_mask)."""
+    return d[prediction_mask(d)].groupby(["profile", "precision"]).size()
 
 
 def fold_part(d: pd.DataFrame, keep_share: dict, rates_only=()) -> pd.DataFrame:
@@ -87,11 +87,12 @@ def fold_part(d: pd.DataFrame, keep_share: dict, rates_only=()) -> pd.DataFrame:
     sign = (field == "log_scales") & (bit_class == "sign")
     coarse = single & d["profile"].isin(list(rates_only)).to_numpy()
     share = np.array([keep_share.get(k, 1.0) for k in zip(d["profile"], d["precision"])], float)
-    sample = single & ~coarse & (defense == "none") & (d["bit"].to_numpy() >= 0) & (draw_share(d) < share)
+    sample = prediction_mask(d) & ~coarse & (draw_share(d) < share)
     whole = ~single | ((sign | sample) & ~coarse)
     out = d.drop(columns=[c for c in UNREAD if c in d])
+    sums = region_sum_columns(out.columns)
     for c in out.columns:
-        if c in RATES_ONLY or (c not in DETAIL and not coarse.any()) or str(c).endswith(("_sum", "_n")):
+        if c in RATES_ONLY or c in sums or (c not in DETAIL and not coarse.any()):
             continue
         keep = whole.copy() if c in DETAIL else ~coarse
         blank = 0 if c == SITE_DEFENSES else -1  # no defense known, not "every one"
@@ -106,7 +107,6 @@ def fold_part(d: pd.DataFrame, keep_share: dict, rates_only=()) -> pd.DataFrame:
     out[MULTIPLICITY] = np.ones(len(out), np.int64)
     # records kept whole stay one row each, even where two agree in every column (repeats)
     out["_row"] = np.where(whole, np.arange(len(out)), -1)
-    sums = [c for c in out.columns if str(c).startswith("region_") and str(c).endswith(("_sum", "_n"))]
     keys = [c for c in out.columns if c not in sums and c != MULTIPLICITY]
     folded = out.groupby(keys, sort=False, dropna=False, as_index=False, observed=True)[[MULTIPLICITY, *sums]].sum()
     return folded.drop(columns="_row")
@@ -129,10 +129,7 @@ def pair_columns_of_single(d: pd.DataFrame) -> pd.DataFrame:
             SITE_DEFENSES: paired[SITE_DEFENSES].reindex(d.index).fillna(0).astype(np.int64),
         }
     )
-    ps = sorted(
-        {int(m.group(1)) for c in d.columns if (m := REGION_COLUMN.match(str(c))) and f"regions_meas_{m.group(1)}" in d}
-    )
-    for P in ps:
+    for P in contamination_partitions(d):
         sums = region_sums(d, P)
         d = d.assign(**{f"region_{k}_{P}_{x}": sums[f"{k}_{x}"] for k in REGION_STATS for x in ("sum", "n")})
     drop = [c for c in d.columns if str(c).startswith(("regions_pred_", "regions_meas_"))]

@@ -278,14 +278,19 @@ def sort_rows(t: pd.DataFrame) -> pd.DataFrame:
     return t.sort_values(list(key), kind="stable").drop(columns=list(key)).reset_index(drop=True)
 
 
+def single_mask(d: pd.DataFrame) -> np.ndarray:
+    """Rows of prepared records that are k = 1 upsets of the single-upset campaign."""
+    return ((d["k"] == 1) & (d["campaign"] == "single")).to_numpy()
+
+
 def single_upsets(df: pd.DataFrame, precision: str | None = None, defense: str | None = "none") -> pd.DataFrame:
     """k = 1 records of the single-upset campaign, optionally at one precision and defense."""
     d = prepare(df)
-    m = (d["k"] == 1) & (d["campaign"] == "single")
+    m = single_mask(d)
     if precision is not None:
-        m &= d["precision"] == precision
+        m = m & (d["precision"] == precision).to_numpy()
     if defense is not None:
-        m &= d["defense"] == defense
+        m = m & (d["defense"] == defense).to_numpy()
     # every record selected (a single-upset run): a lazy copy (copy-on-write), not a second frame
     return d.copy(deep=False) if m.all() else d[m]
 

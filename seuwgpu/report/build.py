@@ -35,6 +35,7 @@ from seuwgpu.analysis import (
     folding,
     outcomes,
 )
+from seuwgpu.analysis.contamination import region_sum_columns
 from seuwgpu.analysis.records import (
     FIELD_LABELS,
     MULTIPLICITY,
@@ -205,7 +206,7 @@ def load_runs(
     pa.default_memory_pool().release_unused()  # the parts' buffers, freed but kept by the pool
     df[MULTIPLICITY] = df[MULTIPLICITY].astype(np.int64)
     df[PREDICTION_SAMPLE] = df[PREDICTION_SAMPLE].astype(bool)
-    sums = [c for c in df.columns if str(c).startswith("region_") and str(c).endswith(("_sum", "_n"))]
+    sums = region_sum_columns(df.columns)
     df[sums] = df[sums].fillna(0.0)  # parts without the columns: nothing measured there
     df.attrs.update(_seuwgpu_prepared=True, thresholds=dict(thresholds), folded={"records": n_all, "rows": len(df)})
     return df, manifests
@@ -251,13 +252,7 @@ def _prediction_shares(runs, max_pred_rows: int, progress=None, total: int = 0) 
                 have = set(pq.read_schema(part).names)
             except (OSError, ValueError):
                 have = set(cols)  # unreadable: _parquet says so, naming the file
-            f = _parquet(part, [c for c in cols if c in have])
-            if "profile" not in f:
-                f["profile"] = "strict"
-            for c, v in (("campaign", "single"), ("k", 1), ("defense", "none")):
-                if c not in f:
-                    f[c] = v
-            f["profile"] = f["profile"].fillna("strict")
+            f = prepare(_parquet(part, [c for c in cols if c in have]))  # its defaults for absent columns
             for key, n in folding.prediction_population(f).items():
                 counts[key] = counts.get(key, 0) + int(n)
     return {key: prediction_draw(n, max_pred_rows) for key, n in counts.items()}
