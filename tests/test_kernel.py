@@ -176,3 +176,15 @@ def test_steady_state_work_creates_no_bind_group(gpu, monkeypatch):
     work()
     work()
     assert made == []
+
+
+def test_binding_limit_is_floored_to_the_buffer_granularity(gpu, monkeypatch):
+    """NVIDIA reports 2**31 - 4 bytes per binding; buffers are bound whole and sized in 16-byte
+    steps, so the usable limit is 2**31 - 16 (a 2**29-entry list rounded to 2**31 bytes, over it)."""
+    monkeypatch.setitem(gpu.limits, "max-storage-buffer-binding-size", 2**31 - 4)
+    monkeypatch.setitem(gpu.limits, "max-buffer-size", 2**32 - 2**21)
+    assert gpu.max_binding == 2**31 - 16
+    largest_list = 4 * (gpu.max_binding // 4)  # the renderer's intersection capacity, in bytes
+    assert -(-largest_list // 16) * 16 <= 2**31 - 4
+    monkeypatch.setitem(gpu.limits, "max-storage-buffer-binding-size", 1 << 27)  # lavapipe's
+    assert gpu.max_binding == 1 << 27

@@ -167,6 +167,22 @@ def test_max_chunk_prims_hand_computed():
             assert lay.chunk_prims == c and lay.chunk_words * 4 <= mib128
 
 
+def test_balanced_chunk_prims_hand_computed():
+    """Chunks are allocated whole, so the renderer splits a model evenly: 10M degree-3 fp32
+    primitives at a 2 GiB binding (at most 9,099,506 a chunk) take two chunks of 5M, not 9.1M."""
+    mx = StoredLayout.max_chunk_prims(3, "fp32", 2**31 - 4)
+    assert mx == 9_099_506
+    assert StoredLayout.balanced_chunk_prims(10_000_000, mx) == 5_000_000
+    assert StoredLayout.balanced_chunk_prims(9, 6) == 6  # two chunks: ceil(9 / 2) = 5, made even
+    assert StoredLayout.balanced_chunk_prims(7, 4) == 4
+    assert StoredLayout.balanced_chunk_prims(3, 100) == 4  # one chunk, even
+    for n in range(1, 80):
+        for cap in (2, 4, 6, 10, 64):
+            c = StoredLayout.balanced_chunk_prims(n, cap)
+            assert c % 2 == 0 and c <= max(cap, n + (n & 1)), (n, cap)
+            assert -(-n // c) == -(-n // cap), (n, cap)  # no more chunks than the cap needs
+
+
 # ------------------------------------------------------------------------------ stored layout
 
 CASES = [(1, 1), (2, 2), (7, 2), (7, 3), (11, 4), (13, 13), (5, 100), (9, 8), (33, 10)]

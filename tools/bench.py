@@ -297,7 +297,9 @@ STAGE_BYTES = {
 }
 
 
-def measure_campaign(scene: str, model, samples: int, views: int = 4, size: int = 128) -> dict:
+def measure_campaign(
+    scene: str, model, samples: int, views: int = 4, size: int = 128, chunk: int | None = None
+) -> dict:
     """Injections per second of the incremental single-upset path (faults/engine.py) on `model`,
     K = `views` at size x size, sites drawn as tools/bench_campaign.py draws them."""
     from seuwgpu.faults.engine import Engine
@@ -307,13 +309,20 @@ def measure_campaign(scene: str, model, samples: int, views: int = 4, size: int 
     )
     camp = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(camp)
-    eng = Engine(model, scenes.scene_cameras(scene, views, size, size), "fp32", scene=scene)
+    eng = Engine(model, scenes.scene_cameras(scene, views, size, size), "fp32", scene=scene, chunk=chunk)
     sites = camp.draw_sites(eng, samples, 0)
-    eng.evaluate(sites[: min(32, samples)])  # warm-up: pipelines, buffers
+    eng.evaluate_frame(sites[: min(32, samples)])  # warm-up: pipelines, buffers
     t = time.perf_counter()
-    eng.evaluate(sites)
+    eng.evaluate_frame(sites)  # what campaign/runner.py calls (evaluate adds a per-record dict conversion)
     dt = time.perf_counter() - t
-    return {"injections": samples, "seconds": dt, "injections_per_s": samples / dt, "views": views, "size": size}
+    return {
+        "injections": samples,
+        "seconds": dt,
+        "injections_per_s": samples / dt,
+        "views": views,
+        "size": size,
+        "chunk": eng.renderer.compositing.chunk,
+    }
 
 
 # ---- measurement -----------------------------------------------------------------------------------
@@ -466,6 +475,37 @@ def measure_chunking(
     return out
 
 
+def measure_chunk_sweep(
+    model, scene: str, size: int, k: int, chunks, *, repeats: int = 3, gpu: GPU | None = None
+) -> list:
+    """ms per view of the same frames at each compositing chunk (pairs a workgroup walks), in this
+    run, with each image's PSNR to the first chunk's: where the critical path is the longest
+    walk (a GPU with more workgroup slots than a frame has tiles), smaller chunks shorten it."""
+    gpu = gpu or get_gpu()
+    cams = scenes.scene_cameras(scene, k, size, size)
+    out, first = [], None
+    for ch in chunks:
+        r = Renderer(model, cams, gpu=gpu, chunk=int(ch))
+        _submission(r)  # warm-up
+        times = [_submission(r)[0] for _ in range(max(1, int(repeats)))]
+        img = gpu.read(r.image, np.float32, 0, 16 * size * size).reshape(size, size, 4)[..., :3]
+        first = img if first is None else first
+        out.append(
+            {
+                "scene": scene,
+                "n": int(model.n),
+                "width": size,
+                "height": size,
+                "k": k,
+                "chunk": int(ch),
+                "ms_per_view": 1e3 * statistics.median(times) / k,
+                "psnr_view0_vs_first_chunk_db": _psnr(img, first),
+            }
+        )
+        del r
+    return out
+
+
 def measure_twin(scene: str, model, size: int, views: int = 1, max_n: int = 1_000_000, seed: int = 0) -> dict:
     """Seconds per view of reference.render on view(s) 0.. of the orbit set, at the model's N
     (or at `max_n` primitives of the same scene when the model is larger)."""
@@ -520,6 +560,7 @@ def run_grid(
     seed=0,
     campaign_samples=256,
     dense=None,
+    chunks=None,
     log=print,
 ) -> dict:
     """The whole benchmark; returns the JSON document."""
@@ -547,6 +588,8 @@ def run_grid(
         "results": [],
         "campaigns": [],
         "chunking": [],
+        "chunk_sweep": [],
+        "campaign_chunks": [],
     }
     for scene in scene_names:
         for n in ns:
@@ -576,6 +619,13 @@ def run_grid(
                         f"[{scene} N={n} {size}x{size} K={k}] {rec['mpix_per_s']:.3f} Mpix/s, "
                         f"{rec['ms_per_view']:.1f} ms/view (median of {rec['repeats']})"
                     )
+                    if chunks:
+                        sweep = measure_chunk_sweep(model, scene, size, k, chunks, repeats=repeats, gpu=gpu)
+                        doc["chunk_sweep"].extend(sweep)
+                        log(
+                            f"[{scene} N={n} {size}x{size} K={k}] ms/view by chunk: "
+                            + ", ".join(f"{c['chunk']}: {c['ms_per_view']:.2f}" for c in sweep)
+                        )
                     if dense:
                         c = measure_chunking(dense_model(model, dense), scene, size, k, repeats=repeats, gpu=gpu)
                         c["dense_factor"] = dense
@@ -589,6 +639,10 @@ def run_grid(
                 c = measure_campaign(scene, model, campaign_samples)
                 doc["campaigns"].append({"scene": scene, "n": int(n), **c})
                 log(f"[{scene} N={n}] campaign: {c['injections_per_s']:,.1f} injections/s (incremental, K=4, 128x128)")
+                for ch in chunks or ():
+                    c = measure_campaign(scene, model, campaign_samples, chunk=int(ch))
+                    doc["campaign_chunks"].append({"scene": scene, "n": int(n), **c})
+                    log(f"[{scene} N={n}] campaign at chunk {ch}: {c['injections_per_s']:,.1f} injections/s")
             del model
     doc["host"]["loadavg_end"] = list(os.getloadavg())
     doc["total_wall_s"] = time.perf_counter() - t0
@@ -748,6 +802,14 @@ def main(argv=None) -> int:
         help="also time each configuration's scene shrunk by FACTOR (e.g. 0.1: a dense region of a few tiles) "
         "with the default CHUNK and with chunking off",
     )
+    ap.add_argument(
+        "--chunks",
+        nargs="+",
+        type=int,
+        metavar="PAIRS",
+        help="also time every configuration, and the campaign, at each of these compositing chunks "
+        "(pairs of a tile list per workgroup; the device's default is chosen by render/composite.py default_chunk)",
+    )
     ap.add_argument("--out", type=Path, help="write the JSON document here (default: none)")
     args = ap.parse_args(argv)
 
@@ -778,6 +840,7 @@ def main(argv=None) -> int:
         seed=args.seed,
         campaign_samples=args.campaign_samples,
         dense=args.dense,
+        chunks=args.chunks,
         log=lambda m: console.print(m, highlight=False, markup=False),
     )
     print_table(doc, console)

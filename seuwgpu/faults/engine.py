@@ -22,9 +22,11 @@ from seuwgpu.faults.costs import interleaved_medians
 from seuwgpu.faults.flips import Flips
 from seuwgpu.faults.guard import Box, GuardMonitor, clamp_bits, component_mask, support_box
 from seuwgpu.faults.sites import Site, apply_sites, fault_name, make_site, site_bit_class
+from seuwgpu.gpu.constants import CHUNK
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.metrics.image import ImageMetrics, catastrophic, summarize
 from seuwgpu.model import encoding
+from seuwgpu.model.budget import check_model
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, n_components
 from seuwgpu.render.renderer import Renderer
@@ -49,10 +51,12 @@ class Engine:
         incremental: bool = True,
         capacity: int | None = None,
         profile: str = "strict",
+        chunk: int | None = None,
     ):
         self.gpu = gpu or get_gpu()
         self.precision = encoding.check_precision(precision)
         self.scene = scene
+        check_model(model.n, model.sh_degree, "a model of", "inject into")  # the engine's copies
         self.renderer = Renderer(
             model,
             cameras,
@@ -63,6 +67,8 @@ class Engine:
             keep_views=incremental,
             capacity=capacity,
             profile=profile,
+            # campaigns composite in CHUNK pieces on every device (gpu/constants.py GPU_CHUNK says why)
+            chunk=CHUNK if chunk is None else chunk,
         )
         self.profile = self.renderer.profile
         self.incremental = incremental

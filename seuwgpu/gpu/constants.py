@@ -23,6 +23,15 @@ a pair, so lists past ~54k pairs came out wrong): do not raise it past that. A 6
 (1M primitives at 256x256) still splits three ways.
 composite.wgsl's `CHUNK_PAIRS` override (default this) lets tests use small chunks."""
 
+GPU_CHUNK = 2048
+"""CHUNK for full frames on a GPU adapter (render/composite.py default_chunk). A GPU holds every
+tile's workgroup at once, so a frame lasts as long as its longest walk: 1M primitives at 256x256
+(K = 8) took 13.8 ms a view at 32768, 8.8 at 8192, 4.9 at 2048, 4.5 at 512 and 256; at 512x512
+5.8 / 6.3 / 4.2 / 4.2 / 4.4; 100k primitives moved under 15% (NVIDIA H200, tools/bench.py
+--chunks, 2026-11-26). 2048 is within 10% of the best there at a quarter of 512's slab memory.
+Campaigns keep CHUNK (faults/engine.py): a variant touching a tile of several chunks re-blends
+the whole tile, and 100k primitives ran 30,926 injections/s at 32768 against 8,950 at 2048."""
+
 PRECISION_CODE = {"fp32": 0, "fp16": 1, "bf16": 2}
 """Code of each stored precision in the shaders' uniforms (`FMT_FP32`, `FMT_FP16`, `FMT_BF16`)."""
 

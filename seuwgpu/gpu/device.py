@@ -37,6 +37,7 @@ def shader_source(name: str, defines: dict | None = None) -> str:
 STORAGE = wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST
 UNIFORM = wgpu.BufferUsage.UNIFORM | wgpu.BufferUsage.COPY_DST
 INDIRECT = STORAGE | wgpu.BufferUsage.INDIRECT
+BUFFER_ALIGN = 16  # every buffer's size is a multiple of this (vec4 records, copy alignment)
 
 # Limits we ask for, up to what the adapter offers (WebGPU defaults are too small for big models).
 _WANTED_LIMITS = (
@@ -75,7 +76,11 @@ class GPU:
 
     @property
     def max_binding(self) -> int:
-        return int(min(self.limits["max-storage-buffer-binding-size"], self.limits["max-buffer-size"]))
+        """Bytes one binding may hold, floored to `buffer`'s 16-byte granularity: buffers are bound
+        whole, and NVIDIA's limit (2**31 - 4) would otherwise round up past itself (a 2**29-entry
+        u32 list became a 2**31-byte buffer and failed to bind at 100M primitives on an H200)."""
+        limit = int(min(self.limits["max-storage-buffer-binding-size"], self.limits["max-buffer-size"]))
+        return limit // BUFFER_ALIGN * BUFFER_ALIGN
 
     @property
     def is_cpu(self) -> bool:
@@ -115,7 +120,7 @@ class GPU:
 
     # ---- buffers -------------------------------------------------------------------------------
     def buffer(self, size: int, usage=STORAGE, label: str = ""):
-        size = max(16, (int(size) + 15) // 16 * 16)
+        size = max(BUFFER_ALIGN, -(-int(size) // BUFFER_ALIGN) * BUFFER_ALIGN)
         return self.device.create_buffer(size=size, usage=usage, label=label)
 
     def upload(self, array, usage=STORAGE, label: str = ""):

@@ -2,8 +2,8 @@
 message saying what would fit, instead of being killed by the kernel or failing deep in wgpu.
 
 The estimates are deliberately simple (bytes per stored value and per pixel, measured on this
-code: `make_scene` peaks at ~5.5 bytes per value; a renderer or engine holds the model, its
-flat copy, the clean stored words and their decoded copy) and a little generous. Host memory is
+code: `make_scene` peaks at ~5.5 bytes per value; a renderer holds the model and the clean stored
+words, an engine also their decoded copy and its flat views) and a little generous. Host memory is
 what the OS reports as available (MemAvailable); `SEUWGPU_HOST_MEMORY` (bytes) overrides it,
 for tests and for sharing a machine. WebGPU does not expose a device's memory size, so the device
 side is checked against the adapter's limits: every buffer the renderer binds must fit
@@ -20,6 +20,9 @@ from seuwgpu.model.fields import n_components
 
 SCENE_BYTES_PER_VALUE = 6  # generating an embedded scene (float64 intermediates, float32 result)
 MODEL_BYTES_PER_VALUE = 16  # a loaded model plus the renderer's and engine's copies of it
+# A renderer alone: the caller's model and the clean stored words (4 + 4 at fp32), plus the
+# float planes and bits of the one storage chunk being encoded (StoredLayout.encode).
+RENDER_BYTES_PER_VALUE = 8
 PROJECTED_BYTES = 16  # the largest per-primitive projection record (conic, rgb: vec4 f32)
 PIXEL_BYTES = 16  # one rgba f32 pixel of one view
 HOST_SHARE = 0.8  # of the available memory a job may plan to use
@@ -63,9 +66,9 @@ def check_scene(n: int, degree: int, what: str = "--n", per_value: int = SCENE_B
         )
 
 
-def check_model(n: int, degree: int, what: str = "--n"):
+def check_model(n: int, degree: int, what: str = "--n", use: str = "render"):
     """Refuse, before generating it, a model too big to render and inject into on this host."""
-    check_scene(n, degree, what, MODEL_BYTES_PER_VALUE, "render")
+    check_scene(n, degree, what, MODEL_BYTES_PER_VALUE, use)
 
 
 def check_frames(k: int, width: int, height: int):
@@ -79,9 +82,13 @@ def check_frames(k: int, width: int, height: int):
         )
 
 
-def render_host_bytes(n: int, degree: int, k: int, width: int, height: int) -> int:
-    """Host memory of a renderer/engine: the model's copies, and a few copies of the frames."""
-    return int(n) * MODEL_BYTES_PER_VALUE * n_values(degree) + 4 * int(k) * int(width) * int(height) * PIXEL_BYTES
+def render_host_bytes(n: int, degree: int, k: int, width: int, height: int, binding: int = 0) -> int:
+    """Host memory of a renderer: the model and its stored words, one storage chunk's encoding
+    (at most two binding-sized arrays), and a few copies of the frames. A fault engine holds more
+    (MODEL_BYTES_PER_VALUE): FaultEngine checks that with check_model."""
+    model = int(n) * RENDER_BYTES_PER_VALUE * n_values(degree)
+    chunk = min(2 * int(binding), model) if binding else 0
+    return model + chunk + 4 * int(k) * int(width) * int(height) * PIXEL_BYTES
 
 
 def render_device_bytes(n: int, degree: int, k: int, width: int, height: int, keep_views: bool) -> int:
@@ -97,7 +104,8 @@ def render_device_bytes(n: int, degree: int, k: int, width: int, height: int, ke
 def check_render(limits: dict, is_cpu: bool, n: int, degree: int, k: int, width: int, height: int, keep_views: bool):
     """Refuse a render (n primitives, k views of width x height) that does not fit the device's
     binding limit or the host's memory, saying what would."""
-    binding = int(min(limits["max-storage-buffer-binding-size"], limits["max-buffer-size"]))
+    # floored to the 16-byte buffer granularity, as GPU.max_binding
+    binding = int(min(limits["max-storage-buffer-binding-size"], limits["max-buffer-size"])) // 16 * 16
     per_prim = PROJECTED_BYTES * (k if keep_views else 1)
     if int(n) * per_prim > binding:
         raise TooBig(
@@ -113,7 +121,7 @@ def check_render(limits: dict, is_cpu: bool, n: int, degree: int, k: int, width:
             f"binding limit ({gb(binding)}): "
             + (f"at most {fits} view(s) of that size fit" if fits else "render at a smaller size (--size or --scale)")
         )
-    need = render_host_bytes(n, degree, k, width, height)
+    need = render_host_bytes(n, degree, k, width, height, binding)
     if is_cpu:
         need += render_device_bytes(n, degree, k, width, height, keep_views)
     have = HOST_SHARE * available_host_bytes()

@@ -182,11 +182,31 @@ class StoredLayout:
             return chunk, comp * self.plane_words + (j >> 1), 16 * (j & 1)
         return chunk, comp * self.plane_words + j, np.zeros_like(j)
 
+    @staticmethod
+    def balanced_chunk_prims(n: int, max_chunk_prims: int) -> int:
+        """The smallest even chunk size that splits n primitives into as few chunks as
+        `max_chunk_prims` allows: every chunk is allocated whole, so 10M fp32 primitives at a 2 GiB
+        binding take two chunks of 5M (2.4 GB), not two of 9.1M (4.3 GB)."""
+        n_chunks = -(-int(n) // int(max_chunk_prims))
+        c = -(-int(n) // n_chunks)
+        return c + (c & 1)
+
     def encode(self, model: Model) -> list[np.ndarray]:
-        """Model -> list of u32 word arrays, one per chunk."""
+        """Model -> list of u32 word arrays, one per chunk. Converted one chunk at a time, so the
+        host holds the model, the words and one chunk's planes (no whole flat or bit copy)."""
         if model.n != self.n or model.sh_degree != self.degree:
             raise ValueError("model does not match this layout")
-        return self.encode_bits(encoding.to_bits(model.flat(), self.precision))
+        out = []
+        for k in range(self.n_chunks):
+            a, b = self.chunk_range(k)
+            planes = np.zeros((self.ncomp, self.chunk_prims), dtype=np.float32)
+            col = 0
+            for f in FIELDS:
+                v = model.field(f)[a:b]
+                planes[col : col + v.shape[1], : b - a] = v.T
+                col += v.shape[1]
+            out.append(self._words(encoding.to_bits(planes, self.precision)))
+        return out
 
     def encode_bits(self, bits: np.ndarray) -> list[np.ndarray]:
         """Stored bit patterns [N, ncomp] (uint32 or uint16) -> list of u32 chunk word arrays."""
@@ -196,13 +216,17 @@ class StoredLayout:
             a, b = self.chunk_range(k)
             planes = np.zeros((self.ncomp, self.chunk_prims), dtype=bits.dtype)
             planes[:, : b - a] = bits[a:b].T
-            if self.halves:
-                p = planes.astype(np.uint32).reshape(self.ncomp, self.plane_words, 2)
-                words = p[:, :, 0] | (p[:, :, 1] << 16)
-            else:
-                words = planes.astype(np.uint32)
-            out.append(np.ascontiguousarray(words.reshape(-1)))
+            out.append(self._words(planes))
         return out
+
+    def _words(self, planes: np.ndarray) -> np.ndarray:
+        """Bit planes [ncomp, chunk_prims] (uint32 or uint16) -> the chunk's flat u32 words."""
+        if self.halves:
+            p = planes.astype(np.uint32).reshape(self.ncomp, self.plane_words, 2)
+            words = p[:, :, 0] | (p[:, :, 1] << 16)
+        else:
+            words = planes.astype(np.uint32, copy=False)
+        return np.ascontiguousarray(words.reshape(-1))
 
     def decode(self, chunks: list[np.ndarray]) -> Model:
         """Inverse of encode: u32 chunk words -> Model of the stored values (as float32)."""

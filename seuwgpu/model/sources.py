@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from seuwgpu.model import scenes
-from seuwgpu.model.budget import check_model
+from seuwgpu.model.budget import RENDER_BYTES_PER_VALUE, SCENE_BYTES_PER_VALUE, check_scene
 from seuwgpu.model.cameras import Camera, load_cameras, scale_cameras, select_views
 from seuwgpu.model.fields import Model
 from seuwgpu.model.formats import read_model
@@ -44,7 +44,9 @@ def load_source(
         return Source(mf.model, mf.name, up or mf.up, None, mf.notes)
     name = scene or scenes.DEFAULT_SCENE
     if n is not None and not scenes.is_capture(name):
-        check_model(n, sh_degree)
+        # before generating: enough memory to generate and render it (an engine checks its own
+        # copies: faults/engine.py, campaign specs: campaign/budget.py)
+        check_scene(n, sh_degree, "--n", max(SCENE_BYTES_PER_VALUE, RENDER_BYTES_PER_VALUE), "render")
     model = scenes.make_scene(name, n=n, sh_degree=sh_degree, seed=seed)
     registered = "+y" if scenes.is_capture(name) else "+z"
     return Source(model, name, up or registered, name if up in (None, registered) else None)

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from seuwgpu.gpu.constants import CHUNK, PROFILE_CODE, TILE
+from seuwgpu.gpu.constants import CHUNK, GPU_CHUNK, PROFILE_CODE, TILE
 from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 from seuwgpu.render.bin import REACH_ALL, REACH_ELLIPSE, band_extent, reach
@@ -80,16 +80,12 @@ class Compositing:
         a chunk's pixels wait does not change them, and the slabs scale with the pairs, not with
         the number of tiles. Ranges that list more pairs than the capacity (a flipped tile range,
         faults/state.py) can outgrow them: a tile that finds no room composites its chunks in
-        sequence on its own workgroup (same rule, same image)."""
+        sequence on its own workgroup (same rule, same image). So the slabs are capped at one
+        binding, which huge frames at small chunks would pass (100M primitives at GPU_CHUNK: 536M
+        pairs want 2 GiB of slabs): their long tiles past the cap run in sequence."""
         cap = int(capacity)
-        slots = 2 * (cap // self.chunk) + 2
+        slots = min(2 * (cap // self.chunk) + 2, self.gpu.max_binding // SLAB_BYTES)
         need = slots * SLAB_BYTES
-        if need > self.gpu.max_binding:
-            raise ValueError(
-                f"compositing chunks of {self.chunk} pairs need {need / 2**20:.0f} MiB of slabs for {cap} tile "
-                f"intersections, more than one storage binding holds ({self.gpu.max_binding / 2**20:.0f} MiB): "
-                "use a larger chunk, a smaller image or fewer primitives"
-            )
         g = self.gpu
         self.capacity = cap
         self.slabs = g.buffer(need, STORAGE, "composite.slabs")
@@ -246,6 +242,12 @@ def ellipse_quadrants(xy: np.ndarray, co: np.ndarray, origin: np.ndarray) -> np.
             right = hit & (ex <= origin[:, 0] + F(2) * h - F(0.5)) & (ey >= origin[:, 0] + h + F(0.5))
         q |= (left.astype(np.int64) | (right.astype(np.int64) << 1)) << (2 * j)
     return np.where(r["kind"] == REACH_ALL, 15, q)
+
+
+def default_chunk(gpu: GPU) -> int:
+    """Pairs a compositing workgroup walks on this device: CHUNK on a CPU adapter (lavapipe, where
+    the cores, not the walk, bound a frame), GPU_CHUNK on a GPU (gpu/constants.py says why)."""
+    return CHUNK if gpu.is_cpu else GPU_CHUNK
 
 
 def check_chunk(chunk) -> int:

@@ -18,14 +18,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from seuwgpu.gpu.constants import CHUNK, TILE
+from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
 from seuwgpu.model import encoding
 from seuwgpu.model.budget import check_frames, check_render
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model, StoredLayout
 from seuwgpu.render.bin import Binning
-from seuwgpu.render.composite import Compositing
+from seuwgpu.render.composite import Compositing, default_chunk
 from seuwgpu.render.project import Projection, check_profile
 from seuwgpu.render.sort import Sorting
 
@@ -59,7 +59,7 @@ class Renderer:
         viewport=None,
         profile: str = "strict",
         exact_binning: bool = True,
-        chunk: int = CHUNK,
+        chunk: int | None = None,
     ):
         self.gpu = gpu or get_gpu()
         # renderer profile (docs/renderer.md "Profiles"): what corrupted values draw
@@ -80,7 +80,8 @@ class Renderer:
             w, h = self.viewport[2], self.viewport[3]
         check_render(self.gpu.limits, self.gpu.is_cpu, self.n, self.degree, len(cameras), w, h, keep_views)
         max_chunk = StoredLayout.max_chunk_prims(self.degree, precision, self.gpu.max_binding)
-        self.layout = StoredLayout(self.n, self.degree, precision, min(chunk_prims or max_chunk, max_chunk))
+        chunk_prims = min(chunk_prims or StoredLayout.balanced_chunk_prims(self.n, max_chunk), max_chunk)
+        self.layout = StoredLayout(self.n, self.degree, precision, chunk_prims)
         # Host copy of the clean stored words: flips are undone against it, variants built from it.
         self.clean_words = self.layout.encode(model)
         self.chunks = [self.gpu.upload(w, STORAGE, f"model-chunk-{k}") for k, w in enumerate(self.clean_words)]
@@ -90,7 +91,8 @@ class Renderer:
         # render/bin.py, render/composite.py)
         self.binning = Binning(self.gpu, self.n, exact=exact_binning)
         # chunk: pairs of a tile list per compositing workgroup (render/composite.py; not chunk_prims,
-        # the model's storage chunks); tests force small ones
+        # the model's storage chunks); None: the device's default; tests force small ones
+        chunk = default_chunk(self.gpu) if chunk is None else chunk
         self.compositing = Compositing(self.gpu, self.profile, chunk, exact=exact_binning)
         # In-pipeline guard state (off by default): box of the clean model and clamp counters.
         self.guard_mask = 0
@@ -190,7 +192,7 @@ class Renderer:
         old_capacity = self.capacity
         old_kv = {name: getattr(self, name, None) for name in ("kv_isect", "kv_box")}
         if capacity != self.capacity:
-            self.compositing.set_capacity(capacity)  # first: it refuses slabs past one binding
+            self.compositing.set_capacity(capacity)  # its slabs: at most one binding
             self.capacity = capacity
             self.binning.set_capacity(capacity)
             self.sorting.set_capacity(capacity)
