@@ -326,6 +326,27 @@ def test_slabs_capped_at_one_binding_give_the_same_image(gpu, monkeypatch):
     assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
 
 
+def test_default_chunk_follows_the_adapter(gpu, monkeypatch):
+    """Full frames composite in CHUNK pieces on a CPU adapter and GPU_CHUNK on a GPU; a campaign's
+    engine keeps CHUNK everywhere (gpu/constants.py says why). Pretending the adapter is a GPU
+    switches the constant; the frames are then the ones of Renderer(chunk=GPU_CHUNK)."""
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.gpu.constants import GPU_CHUNK
+    from seuwgpu.render.composite import default_chunk
+
+    model = _dense_model(1500, 3)
+    cams = orbit_cameras(1, 32, 32)
+    assert gpu.is_cpu and default_chunk(gpu) == CHUNK
+    assert Renderer(model, cams, gpu=gpu).compositing.chunk == CHUNK
+    want = Renderer(model, cams, gpu=gpu, chunk=GPU_CHUNK).render_rgba()
+    monkeypatch.setattr(type(gpu), "is_cpu", property(lambda self: False))
+    assert default_chunk(gpu) == GPU_CHUNK != CHUNK
+    r = Renderer(model, cams, gpu=gpu)
+    assert r.compositing.chunk == GPU_CHUNK
+    assert np.array_equal(r.render_rgba().view(np.uint32), want.view(np.uint32))
+    assert Engine(model, cams, gpu=gpu).renderer.compositing.chunk == CHUNK
+
+
 def _incremental_equals_full(gpu, model, cams, kw, prims, min_entries=20) -> int:
     """Upsets of `prims` that move a primitive inside the tile lists (depth), make it a sheet,
     opaque or NaN, or remove it, re-composited by the variants entry: every dirty tile equals a
