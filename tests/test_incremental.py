@@ -164,3 +164,18 @@ def test_arms_that_draw_the_same_frames_recomposite_nothing(monkeypatch):
     assert (by["ecc"]["footprint"][~mantissa] == 0).all() and (by["none"]["footprint"][~mantissa] > 0).any()
     empty = eng.evaluate_frame([], ("none", "ecc", "dup"))  # no sites: no rows, the same columns
     assert len(empty) == 0 and list(empty.columns) == list(arms.columns)
+
+
+def test_kept_views_tile_lists_fit_one_binding(gpu, monkeypatch):
+    """A kept view set holds K tile lists in one buffer bound whole (kv_isect, kv_box), so the
+    most pairs a view may have is a binding over 4 K bytes: with a 512 KiB binding and 4 kept
+    views, 32,768 (the default capacity, 65,536, would make 1 MiB buffers that fail to bind)."""
+    monkeypatch.setitem(gpu.limits, "max-storage-buffer-binding-size", 1 << 19)
+    model = make_scene("spheres", 2000, 1, 0)
+    cams = scene_cameras("spheres", 4, 32, 32)
+    eng = Engine(model, cams, "fp32", gpu=gpu)
+    r = eng.renderer
+    assert r.max_capacity == (1 << 19) // 16 and r.capacity == r.max_capacity
+    assert r.kv_isect.size <= 1 << 19 and r.kv_box.size <= 1 << 19
+    recs = eng.evaluate_frame([eng.site("log_scales", 0, 0, 31)])  # a sheet: binds the kept lists
+    assert len(recs) == 1 and recs["footprint"].iloc[0] > 0

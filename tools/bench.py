@@ -71,6 +71,7 @@ from seuwgpu.gpu.device import GPU, get_gpu  # noqa: E402
 from seuwgpu.model import scenes  # noqa: E402
 from seuwgpu.model.fields import Model  # noqa: E402
 from seuwgpu.render import reference  # noqa: E402
+from seuwgpu.render.composite import check_chunk  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
 from seuwgpu.render.sort import tile_key_bits  # noqa: E402
 
@@ -378,6 +379,7 @@ def bench_config(
         "width": w,
         "height": h,
         "k": k,
+        "chunk": r.compositing.chunk,  # pairs a compositing workgroup walks (the device's default)
         "repeats": reps,
         "warmup_s": warm,
         "times_s": times,
@@ -499,7 +501,8 @@ def measure_chunk_sweep(
                 "k": k,
                 "chunk": int(ch),
                 "ms_per_view": 1e3 * statistics.median(times) / k,
-                "psnr_view0_vs_first_chunk_db": _psnr(img, first),
+                # None, not inf, for the first chunk (JSON has no infinity)
+                "psnr_view0_vs_first_chunk_db": None if img is first else _psnr(img, first),
             }
         )
         del r
@@ -813,6 +816,11 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, help="write the JSON document here (default: none)")
     args = ap.parse_args(argv)
 
+    for c in args.chunks or ():
+        try:
+            check_chunk(c)
+        except ValueError as e:
+            ap.error(f"--chunks: {e}")
     names = scenes.list_scenes() if "all" in args.scenes else args.scenes
     ns, sizes, ks = args.n, args.sizes, args.views
     if args.quick:

@@ -12,7 +12,8 @@
 set -u
 OUT=${1:?usage: tools/gpu_check.sh OUT [PYTHON]}
 PY=${2:-python3}
-mkdir -p "$OUT"
+mkdir -p "$OUT" && OUT=$(cd "$OUT" && pwd)  # absolute: the script runs from the repository root
+PY=$(command -v "$PY" || realpath "$PY")
 cd "$(dirname "$0")/.." || exit 1
 export PYTHONUNBUFFERED=1
 $PY -c "import wgpu; a = wgpu.gpu.request_adapter_sync(power_preference='high-performance'); print(a.info)" \

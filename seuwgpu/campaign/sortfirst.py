@@ -219,9 +219,12 @@ def sort_first(
     from seuwgpu.faults.guard import clamp_values, component_mask, support_box
     from seuwgpu.faults.sites import make_site
     from seuwgpu.model import encoding
+    from seuwgpu.model.budget import check_model
     from seuwgpu.render.renderer import check_cameras
 
     width, height = check_cameras(cameras)
+    # each rank holds a renderer and a decoded copy, the driver the model and Ray's copy of it
+    check_model(model.n, model.sh_degree, "a model of", "render sort-first")
     regions, grid = split_regions(ranks, width, height)
     started = init_ray(address)
     actors = []

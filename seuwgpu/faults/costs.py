@@ -21,6 +21,7 @@ from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.check import MODES, Checker
 from seuwgpu.faults.guard import component_mask, support_box
 from seuwgpu.model import encoding
+from seuwgpu.model.budget import check_model
 from seuwgpu.render.renderer import Renderer
 
 
@@ -67,6 +68,8 @@ def interleaved_medians(configs: dict, repeats: int) -> dict:
 
 
 def _times(model, camera, precision, repeats, gpu) -> dict:
+    # a renderer plus the decoded model, its flat copy and bits: an engine's share, not a renderer's
+    check_model(model.n, model.sh_degree, "a model of", "time the defenses of")
     r = Renderer(model, [camera], precision, gpu=gpu)
     box = support_box(r.layout.decode(r.clean_words), precision)
     clean = encoding.to_bits(model.flat(), precision)  # what the chunks hold (layout.encode)

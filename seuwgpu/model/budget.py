@@ -21,7 +21,7 @@ from seuwgpu.model.fields import n_components
 SCENE_BYTES_PER_VALUE = 6  # generating an embedded scene (float64 intermediates, float32 result)
 MODEL_BYTES_PER_VALUE = 16  # a loaded model plus the renderer's and engine's copies of it
 # A renderer alone: the caller's model and the clean stored words (4 + 4 at fp32), plus the
-# float planes and bits of the one storage chunk being encoded (StoredLayout.encode).
+# temporaries of the one component plane being encoded (StoredLayout.encode).
 RENDER_BYTES_PER_VALUE = 8
 PROJECTED_BYTES = 16  # the largest per-primitive projection record (conic, rgb: vec4 f32)
 PIXEL_BYTES = 16  # one rgba f32 pixel of one view
@@ -83,9 +83,10 @@ def check_frames(k: int, width: int, height: int):
 
 
 def render_host_bytes(n: int, degree: int, k: int, width: int, height: int, binding: int = 0) -> int:
-    """Host memory of a renderer: the model and its stored words, one storage chunk's encoding
-    (at most two binding-sized arrays), and a few copies of the frames. A fault engine holds more
-    (MODEL_BYTES_PER_VALUE): FaultEngine checks that with check_model."""
+    """Host memory of a renderer: the model and its stored words, the encoding's temporaries
+    (one component plane at a time: counted generously as two binding-sized arrays), and a few
+    copies of the frames. An engine, the defense timings and sort-first hold more
+    (MODEL_BYTES_PER_VALUE): they call check_model."""
     model = int(n) * RENDER_BYTES_PER_VALUE * n_values(degree)
     chunk = min(2 * int(binding), model) if binding else 0
     return model + chunk + 4 * int(k) * int(width) * int(height) * PIXEL_BYTES

@@ -187,25 +187,30 @@ class StoredLayout:
         """The smallest even chunk size that splits n primitives into as few chunks as
         `max_chunk_prims` allows: every chunk is allocated whole, so 10M fp32 primitives at a 2 GiB
         binding take two chunks of 5M (2.4 GB), not two of 9.1M (4.3 GB)."""
+        if int(n) <= 0:  # no model: StoredLayout says so
+            return int(max_chunk_prims)
         n_chunks = -(-int(n) // int(max_chunk_prims))
         c = -(-int(n) // n_chunks)
         return c + (c & 1)
 
     def encode(self, model: Model) -> list[np.ndarray]:
-        """Model -> list of u32 word arrays, one per chunk. Converted one chunk at a time, so the
-        host holds the model, the words and one chunk's planes (no whole flat or bit copy)."""
+        """Model -> list of u32 word arrays, one per chunk. Converted one component plane at a
+        time, so the host holds the model, the words and one plane's temporaries (bf16's
+        conversion takes ~35 bytes a value: a whole-model pass would need ~9x the model)."""
         if model.n != self.n or model.sh_degree != self.degree:
             raise ValueError("model does not match this layout")
+        columns = [(f, j) for f in FIELDS for j in range(model.field(f).shape[1])]  # flat order
         out = []
+        plane = np.zeros(self.chunk_prims, dtype=np.float32)
         for k in range(self.n_chunks):
             a, b = self.chunk_range(k)
-            planes = np.zeros((self.ncomp, self.chunk_prims), dtype=np.float32)
-            col = 0
-            for f in FIELDS:
-                v = model.field(f)[a:b]
-                planes[col : col + v.shape[1], : b - a] = v.T
-                col += v.shape[1]
-            out.append(self._words(encoding.to_bits(planes, self.precision)))
+            words = np.empty(self.chunk_words, dtype=np.uint32)
+            for c, (f, j) in enumerate(columns):
+                plane[: b - a] = model.field(f)[a:b, j]
+                plane[b - a :] = 0
+                lo = c * self.plane_words
+                words[lo : lo + self.plane_words] = self._words(encoding.to_bits(plane, self.precision)[None, :])
+            out.append(words)
         return out
 
     def encode_bits(self, bits: np.ndarray) -> list[np.ndarray]:
@@ -220,9 +225,10 @@ class StoredLayout:
         return out
 
     def _words(self, planes: np.ndarray) -> np.ndarray:
-        """Bit planes [ncomp, chunk_prims] (uint32 or uint16) -> the chunk's flat u32 words."""
+        """Bit planes [P, chunk_prims] (uint32 or uint16) -> their flat u32 words (P planes:
+        the chunk's ncomp, or one)."""
         if self.halves:
-            p = planes.astype(np.uint32).reshape(self.ncomp, self.plane_words, 2)
+            p = planes.astype(np.uint32).reshape(planes.shape[0], self.plane_words, 2)
             words = p[:, :, 0] | (p[:, :, 1] << 16)
         else:
             words = planes.astype(np.uint32, copy=False)

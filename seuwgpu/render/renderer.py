@@ -154,8 +154,11 @@ class Renderer:
             self.kv_ranges = g.buffer(8 * self.n_tiles * k, STORAGE, "kv_ranges")
             # per pixel of each view, the list position of the record it stopped at (composite.wgsl)
             self.kv_stop = g.buffer(4 * k * self.width * self.height, STORAGE, "kv_stop")
+        # the kept views' tile lists (kv_isect, kv_box: K lists in one buffer, bound whole) must fit
+        # one binding too, so a kept view set lowers the most pairs a view may have
+        self.max_capacity = self.gpu.max_binding // (4 * (self.k if self.keep_views else 1))
         want = self._want_capacity or max(65536, 4 * self.n)
-        self._set_capacity(max(self.capacity, min(_next_pow2(want), self.max_capacity)), force=True)
+        self._set_capacity(min(max(self.capacity, _next_pow2(want)), self.max_capacity), force=True)
 
     def _write_params(self):
         L, tile_origin = self.layout, (self.origin[0] // TILE, self.origin[1] // TILE)
@@ -292,9 +295,10 @@ class Renderer:
             if need <= self.capacity:
                 return totals
             if need > self.max_capacity:
+                kept = f" per view with {self.k} kept views" if self.keep_views and self.k > 1 else ""
                 raise RuntimeError(
                     f"frame needs {need} tile intersections, more than one storage binding "
-                    f"holds ({self.max_capacity}); render at a smaller size or fewer primitives"
+                    f"holds ({self.max_capacity}{kept}); render at a smaller size, fewer views or fewer primitives"
                 )
             self._set_capacity(min(_next_pow2(need), self.max_capacity))
 
