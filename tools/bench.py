@@ -51,6 +51,7 @@ minutes, most of it 1M-primitive submissions.
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import json
 import os
@@ -298,6 +299,17 @@ STAGE_BYTES = {
 }
 
 
+@functools.cache
+def _bench_campaign():
+    """tools/bench_campaign.py (its site draw), loaded once however many campaigns are timed."""
+    spec = importlib.util.spec_from_file_location(
+        "seuwgpu_bench_campaign", Path(__file__).with_name("bench_campaign.py")
+    )
+    camp = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(camp)
+    return camp
+
+
 def measure_campaign(
     scene: str, model, samples: int, views: int = 4, size: int = 128, chunk: int | None = None
 ) -> dict:
@@ -305,11 +317,7 @@ def measure_campaign(
     K = `views` at size x size, sites drawn as tools/bench_campaign.py draws them."""
     from seuwgpu.faults.engine import Engine
 
-    spec = importlib.util.spec_from_file_location(
-        "seuwgpu_bench_campaign", Path(__file__).with_name("bench_campaign.py")
-    )
-    camp = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(camp)
+    camp = _bench_campaign()
     eng = Engine(model, scenes.scene_cameras(scene, views, size, size), "fp32", scene=scene, chunk=chunk)
     sites = camp.draw_sites(eng, samples, 0)
     eng.evaluate_frame(sites[: min(32, samples)])  # warm-up: pipelines, buffers
@@ -452,6 +460,18 @@ def dense_model(model, factor: float = 0.1):
     return Model.from_flat(flat, model.sh_degree)
 
 
+def _time_at_chunk(model, cams, chunk: int, repeats: int, gpu: GPU) -> tuple[float, np.ndarray, np.ndarray]:
+    """(ms per view, view 0's rgb, the last view's pairs per tile) of `cams` composited in chunks
+    of `chunk` pairs: one warm-up, then the median of `repeats` submissions."""
+    r = Renderer(model, cams, gpu=gpu, chunk=int(chunk))
+    _submission(r)  # warm-up
+    times = [_submission(r)[0] for _ in range(max(1, int(repeats)))]
+    w, h = r.width, r.height
+    img = gpu.read(r.image, np.float32, 0, 16 * w * h).reshape(h, w, 4)[..., :3]
+    counts = np.diff(gpu.read(r.binning.ranges).reshape(-1, 2), axis=1)[:, 0]
+    return 1e3 * statistics.median(times) / len(cams), img, counts
+
+
 def measure_chunking(
     model, scene: str, size: int, k: int, *, repeats: int = 3, gpu: GPU | None = None, chunk: int = CHUNK
 ) -> dict:
@@ -463,12 +483,7 @@ def measure_chunking(
     out = {"scene": scene, "n": int(model.n), "width": size, "height": size, "k": k, "chunk": int(chunk)}
     images = {}
     for name, ch in (("chunked", chunk), ("off", CHUNK_OFF)):
-        r = Renderer(model, cams, gpu=gpu, chunk=ch)
-        _submission(r)  # warm-up
-        times = [_submission(r)[0] for _ in range(max(1, int(repeats)))]
-        out[f"ms_per_view_{name}"] = 1e3 * statistics.median(times) / k
-        images[name] = gpu.read(r.image, np.float32, 0, 16 * size * size).reshape(size, size, 4)[..., :3]
-        counts = np.diff(gpu.read(r.binning.ranges).reshape(-1, 2), axis=1)[:, 0]  # the last view's tiles
+        out[f"ms_per_view_{name}"], images[name], counts = _time_at_chunk(model, cams, ch, repeats, gpu)
     out["max_pairs_per_tile"] = int(counts.max())
     out["long_tiles"] = int((counts > chunk).sum())
     out["tiles"] = int(counts.size)
@@ -487,11 +502,7 @@ def measure_chunk_sweep(
     cams = scenes.scene_cameras(scene, k, size, size)
     out, first = [], None
     for ch in chunks:
-        r = Renderer(model, cams, gpu=gpu, chunk=int(ch))
-        _submission(r)  # warm-up
-        times = [_submission(r)[0] for _ in range(max(1, int(repeats)))]
-        img = gpu.read(r.image, np.float32, 0, 16 * size * size).reshape(size, size, 4)[..., :3]
-        first = img if first is None else first
+        ms, img, _ = _time_at_chunk(model, cams, ch, repeats, gpu)
         out.append(
             {
                 "scene": scene,
@@ -500,12 +511,12 @@ def measure_chunk_sweep(
                 "height": size,
                 "k": k,
                 "chunk": int(ch),
-                "ms_per_view": 1e3 * statistics.median(times) / k,
+                "ms_per_view": ms,
                 # None, not inf, for the first chunk (JSON has no infinity)
-                "psnr_view0_vs_first_chunk_db": None if img is first else _psnr(img, first),
+                "psnr_view0_vs_first_chunk_db": None if first is None else _psnr(img, first),
             }
         )
-        del r
+        first = img if first is None else first
     return out
 
 

@@ -17,6 +17,7 @@ import numpy as np
 import wgpu
 
 from seuwgpu.gpu.constants import MAX_GROUPS_X, wgsl_header
+from seuwgpu.model.budget import BUFFER_ALIGN, binding_limit
 
 
 def shader_text(name: str) -> str:
@@ -37,7 +38,6 @@ def shader_source(name: str, defines: dict | None = None) -> str:
 STORAGE = wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST
 UNIFORM = wgpu.BufferUsage.UNIFORM | wgpu.BufferUsage.COPY_DST
 INDIRECT = STORAGE | wgpu.BufferUsage.INDIRECT
-BUFFER_ALIGN = 16  # every buffer's size is a multiple of this (vec4 records, copy alignment)
 
 # Limits we ask for, up to what the adapter offers (WebGPU defaults are too small for big models).
 _WANTED_LIMITS = (
@@ -76,11 +76,8 @@ class GPU:
 
     @property
     def max_binding(self) -> int:
-        """Bytes one binding may hold, floored to `buffer`'s 16-byte granularity: buffers are bound
-        whole, and NVIDIA's limit (2**31 - 4) would otherwise round up past itself (a 2**29-entry
-        u32 list became a 2**31-byte buffer and failed to bind at 100M primitives on an H200)."""
-        limit = int(min(self.limits["max-storage-buffer-binding-size"], self.limits["max-buffer-size"]))
-        return limit // BUFFER_ALIGN * BUFFER_ALIGN
+        """Bytes one binding may hold (model/budget.py binding_limit: floored to BUFFER_ALIGN)."""
+        return binding_limit(self.limits)
 
     @property
     def is_cpu(self) -> bool:

@@ -25,6 +25,7 @@ MODEL_BYTES_PER_VALUE = 16  # a loaded model plus the renderer's and engine's co
 RENDER_BYTES_PER_VALUE = 8
 PROJECTED_BYTES = 16  # the largest per-primitive projection record (conic, rgb: vec4 f32)
 PIXEL_BYTES = 16  # one rgba f32 pixel of one view
+BUFFER_ALIGN = 16  # every GPU buffer's size is a multiple of this (gpu/device.py GPU.buffer)
 HOST_SHARE = 0.8  # of the available memory a job may plan to use
 
 
@@ -102,11 +103,18 @@ def render_device_bytes(n: int, degree: int, k: int, width: int, height: int, ke
     return int(n) * per_prim + int(k) * int(width) * int(height) * per_pixel
 
 
+def binding_limit(limits: dict) -> int:
+    """Bytes one storage binding may hold, floored to BUFFER_ALIGN: buffers are bound whole, and
+    NVIDIA's limit (2**31 - 4) would otherwise round up past itself (a 2**29-entry u32 list became
+    a 2**31-byte buffer and failed to bind at 100M primitives on an H200)."""
+    limit = int(min(limits["max-storage-buffer-binding-size"], limits["max-buffer-size"]))
+    return limit // BUFFER_ALIGN * BUFFER_ALIGN
+
+
 def check_render(limits: dict, is_cpu: bool, n: int, degree: int, k: int, width: int, height: int, keep_views: bool):
     """Refuse a render (n primitives, k views of width x height) that does not fit the device's
     binding limit or the host's memory, saying what would."""
-    # floored to the 16-byte buffer granularity, as GPU.max_binding
-    binding = int(min(limits["max-storage-buffer-binding-size"], limits["max-buffer-size"])) // 16 * 16
+    binding = binding_limit(limits)
     per_prim = PROJECTED_BYTES * (k if keep_views else 1)
     if int(n) * per_prim > binding:
         raise TooBig(

@@ -99,12 +99,17 @@ class Renderer:
         bound = self.projection.kernel.struct("Bound")
         self.box_buf = self.gpu.buffer(bound.size * self.layout.ncomp, STORAGE, "box")
         self.guard_counts = self.gpu.buffer(4 * 8, STORAGE, "guard_counts")
-        self.max_capacity = self.gpu.max_binding // 4
         self.capacity = 0
         self.version = 0  # bumped when the intersection / kept-view buffers are replaced
         self._want_capacity = capacity
         self.cameras: list[Camera] = []
         self.set_cameras(cameras)
+
+    @property
+    def max_capacity(self) -> int:
+        """Most pairs a view's tile list may hold: one binding of u32, and with kept views, the K
+        lists of kv_isect and kv_box (one buffer each, bound whole) in one binding."""
+        return self.gpu.max_binding // (4 * (self.k if self.keep_views else 1))
 
     @property
     def image(self):
@@ -154,9 +159,6 @@ class Renderer:
             self.kv_ranges = g.buffer(8 * self.n_tiles * k, STORAGE, "kv_ranges")
             # per pixel of each view, the list position of the record it stopped at (composite.wgsl)
             self.kv_stop = g.buffer(4 * k * self.width * self.height, STORAGE, "kv_stop")
-        # the kept views' tile lists (kv_isect, kv_box: K lists in one buffer, bound whole) must fit
-        # one binding too, so a kept view set lowers the most pairs a view may have
-        self.max_capacity = self.gpu.max_binding // (4 * (self.k if self.keep_views else 1))
         want = self._want_capacity or max(65536, 4 * self.n)
         self._set_capacity(min(max(self.capacity, _next_pow2(want)), self.max_capacity), force=True)
 
