@@ -196,7 +196,7 @@ class StoredLayout:
     def encode(self, model: Model) -> list[np.ndarray]:
         """Model -> list of u32 word arrays, one per chunk. Converted one component plane at a
         time, so the host holds the model, the words and one plane's temporaries (bf16's
-        conversion takes ~35 bytes a value: a whole-model pass would need ~9x the model)."""
+        conversion peaks at 33 bytes a value, measured: a whole-model pass would need 8x the model)."""
         if model.n != self.n or model.sh_degree != self.degree:
             raise ValueError("model does not match this layout")
         columns = [(f, j) for f in FIELDS for j in range(model.field(f).shape[1])]  # flat order
