@@ -208,3 +208,33 @@ def test_several_runs_fold_alike(run, tmp_path):
     for key in ("numbers", "catastrophic", "provenance", "runs"):
         _same_numbers(sa[key], sb[key], key)
     assert sa["provenance"]["runs"] == ["run", "run#2"]
+
+
+def test_parts_folded_by_worker_processes_give_the_same_frame(run):
+    """Folding parts in spawned worker processes (load_runs workers=2) returns the very frame of
+    folding them in this process: the same rows in the same order, the same counts."""
+    rd, df = run
+    a, ma = load_runs([rd], fold=True, workers=1)
+    b, mb = load_runs([rd], fold=True, workers=2)
+    pd.testing.assert_frame_equal(a, b)
+    assert a.attrs == b.attrs and a.attrs["folded"]["records"] == len(df)
+    assert [m["_n_records"] for m in ma] == [m["_n_records"] for m in mb] == [len(df)]
+
+
+def test_a_worker_s_error_reaches_the_caller(tmp_path):
+    from seuwgpu.errors import InputError
+
+    (tmp_path / "run" / "records").mkdir(parents=True)
+    (tmp_path / "run" / "records" / "part-00000.parquet").write_text("not parquet")
+    with pytest.raises(InputError, match="part-00000.parquet: not a readable record part"):
+        load_runs([tmp_path / "run"], fold=True, workers=2)
+
+
+def test_fold_workers_default_and_bounds():
+    from seuwgpu.report.build import PARALLEL_MIN_PARTS, fold_workers
+
+    assert fold_workers(PARALLEL_MIN_PARTS - 1) == 1  # a small run stays in this process
+    assert 1 <= fold_workers(PARALLEL_MIN_PARTS) <= 8
+    assert fold_workers(10, workers=3) == 3
+    with pytest.raises(ValueError, match="at least 1"):
+        fold_workers(10, workers=0)

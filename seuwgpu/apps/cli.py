@@ -486,7 +486,11 @@ def cmd_report(args):
     with Progress(transient=True, disable=not sys.stderr.isatty()) as bar:
         task = bar.add_task("reading parts" + (" (folding)" if fold else ""), total=None)
         index = build_report(
-            args.runs, args.out, fold=fold, progress=lambda i, n: bar.update(task, completed=i, total=n)
+            args.runs,
+            args.out,
+            fold=fold,
+            progress=lambda i, n: bar.update(task, completed=i, total=n),
+            workers=args.workers,
         )
     print(f"wrote {index}")
     if fold:  # reading the records a second time would double a long load: the report's own table
@@ -960,6 +964,11 @@ def build_parser() -> argparse.ArgumentParser:
         default="auto",
         help="fold the records as they are read (the same numbers in far less memory; auto: when "
         "they would not fit unfolded)",
+    )
+    s.add_argument(
+        "--workers",
+        type=positive_int,
+        help="processes folding parts side by side (default: one per CPU, at most 8, from 256 parts on)",
     )
     s.set_defaults(func=cmd_report)
     return p

@@ -126,7 +126,12 @@ def needs_folding(run_dirs) -> bool:
 
 
 def load_runs(
-    run_dirs: Iterable[str | Path], *, fold: bool = False, max_pred_rows: int = 200_000, progress=None
+    run_dirs: Iterable[str | Path],
+    *,
+    fold: bool = False,
+    max_pred_rows: int = 200_000,
+    progress=None,
+    workers: int | None = None,
 ) -> tuple[pd.DataFrame, list[dict]]:
     """Concatenate the records of campaign run directories.
 
@@ -137,7 +142,8 @@ def load_runs(
     error. fold=True folds the records part by part as they are read (analysis.folding; every
     number of the report unchanged, memory bounded by the distinct rows), keeping a random
     sample of about max_pred_rows records per precision for the prediction. `progress(i, n)` is
-    called per part read."""
+    called per part read. workers: processes folding parts side by side (fold_workers; the
+    frame is the same, part for part in the same order, whatever their number)."""
     if isinstance(run_dirs, (str, Path)):
         run_dirs = [run_dirs]
     run_dirs = list(run_dirs)
@@ -157,43 +163,43 @@ def load_runs(
         manifests.append(manifest)
     thresholds = thresholds_of(manifests)
     total = sum(len(parts) for _, parts in runs) * (2 if fold else 1)  # folding reads twice
-    shares = _prediction_shares(runs, max_pred_rows, progress, total) if fold else {}
-    # several profiles: the report rests on the strict records but for the others' rates
-    profiles = {p for p, _ in shares}
-    rates_only = profiles - {"strict"} if "strict" in profiles else set()
-    frames, pending, n_all = [], [], 0
-    done = total // 2 if fold else 0
-    for (name, parts), manifest in zip(runs, manifests):
-        n, sites = 0, []
-        for part in parts:
-            f = _read_part(part, name)
-            done += 1
-            if progress:
-                progress(done, total)
-            if len(f) == 0:
-                continue
-            n += len(f)
+    workers = fold_workers(total // 2, workers) if fold else 1
+    with _part_mapper(workers) as map_parts:
+        shares = _prediction_shares(runs, max_pred_rows, progress, total, map_parts) if fold else {}
+        # several profiles: the report rests on the strict records but for the others' rates
+        profiles = {p for p, _ in shares}
+        rates_only = profiles - {"strict"} if "strict" in profiles else set()
+        frames, pending, n_all = [], [], 0
+        done = total // 2 if fold else 0
+        for (name, parts), manifest in zip(runs, manifests):
+            n, sites = 0, []
             if fold:
-                if "weight" not in f or f["weight"].isna().any():
+                jobs = [(part, name, thresholds, shares, rates_only) for part in parts]
+                read = map_parts(_fold_part_file, jobs)
+            else:
+                read = ((f, None, len(f)) for f in (_read_part(part, name) for part in parts))
+            for f, hashes, records in read:
+                done += 1
+                if progress:
+                    progress(done, total)
+                if not records:
+                    continue
+                n += records
+                if fold:
+                    sites.append(hashes)
+                pending.append(f)
+                if fold and len(pending) >= FOLD_CHUNK:  # a few big frames, not thousands of small ones
+                    frames.append(pd.concat(pending, ignore_index=True, sort=False))
+                    pending = []
+            if fold and sites:
+                h = np.concatenate(sites)
+                if len(np.unique(h)) < len(h):
                     raise ValueError(
-                        f"{part}: records without weights (an older version) cannot be folded: report fewer runs"
+                        f"{name}: fault sites whose defenses lie in different parts (records written by "
+                        "another tool?); folding pairs defenses within a part: report these runs unfolded"
                     )
-                f = prepare(f, thresholds)
-                sites.append(folding.site_hashes(f))
-                f = folding.fold_part(f, shares, rates_only)
-            pending.append(f)
-            if fold and len(pending) >= FOLD_CHUNK:  # a few big frames, not thousands of small ones
-                frames.append(pd.concat(pending, ignore_index=True, sort=False))
-                pending = []
-        if fold and sites:
-            h = np.concatenate(sites)
-            if len(np.unique(h)) < len(h):
-                raise ValueError(
-                    f"{name}: fault sites whose defenses lie in different parts (records written by "
-                    "another tool?); folding pairs defenses within a part: report these runs unfolded"
-                )
-        manifest["_n_records"] = n
-        n_all += n
+            manifest["_n_records"] = n
+            n_all += n
     frames += pending
     if not frames:
         raise ValueError("the runs hold no records")
@@ -235,27 +241,89 @@ def _read_part(part: Path, run: str) -> pd.DataFrame:
     return f
 
 
-def _prediction_shares(runs, max_pred_rows: int, progress=None, total: int = 0) -> dict:
+def _prediction_shares(runs, max_pred_rows: int, progress=None, total: int = 0, map_parts=map) -> dict:
     """Per (profile, precision): the probability with which folding keeps a record for the
     prediction's sample, from a first pass over a few columns of every part."""
-    import pyarrow.parquet as pq
-
     counts: dict = {}
-    cols = ["campaign", "k", "defense", "bit", "precision", "profile"]
     done = 0
     for _, parts in runs:
-        for part in parts:
+        for population in map_parts(_prediction_population_of, parts):
             done += 1
             if progress:
                 progress(done, total)
-            try:
-                have = set(pq.read_schema(part).names)
-            except (OSError, ValueError):
-                have = set(cols)  # unreadable: _parquet says so, naming the file
-            f = prepare(_parquet(part, [c for c in cols if c in have]))  # its defaults for absent columns
-            for key, n in folding.prediction_population(f).items():
+            for key, n in population.items():
                 counts[key] = counts.get(key, 0) + int(n)
     return {key: prediction_draw(n, max_pred_rows) for key, n in counts.items()}
+
+
+def _prediction_population_of(part: Path) -> dict:
+    import pyarrow.parquet as pq
+
+    cols = ["campaign", "k", "defense", "bit", "precision", "profile"]
+    try:
+        have = set(pq.read_schema(part).names)
+    except (OSError, ValueError):
+        have = set(cols)  # unreadable: _parquet says so, naming the file
+    f = prepare(_parquet(part, [c for c in cols if c in have]))  # its defaults for absent columns
+    return dict(folding.prediction_population(f))
+
+
+def _fold_part_file(job) -> tuple[pd.DataFrame | None, np.ndarray | None, int]:
+    """One part read, prepared and folded (a worker's task): (folded rows, the hashes of its
+    fault sites, its record count); (None, None, 0) for an empty part."""
+    part, name, thresholds, shares, rates_only = job
+    f = _read_part(part, name)
+    if len(f) == 0:
+        return None, None, 0
+    if "weight" not in f or f["weight"].isna().any():
+        raise ValueError(f"{part}: records without weights (an older version) cannot be folded: report fewer runs")
+    n = len(f)
+    f = prepare(f, thresholds)
+    hashes = folding.site_hashes(f)
+    return folding.fold_part(f, shares, rates_only), hashes, n
+
+
+# Parts below which folding stays in this process: starting a worker (a fresh interpreter that
+# imports pandas and this package) costs about as much as folding a hundred parts.
+PARALLEL_MIN_PARTS = 256
+
+
+def fold_workers(n_parts: int, workers: int | None = None) -> int:
+    """Processes that fold parts: `workers` when given, else one per CPU (at most 8) for runs of at
+    least PARALLEL_MIN_PARTS parts, else 1 (this process)."""
+    import os
+
+    if workers is not None:
+        if int(workers) < 1:
+            raise ValueError(f"workers must be at least 1, got {workers}")
+        return int(workers)
+    if n_parts < PARALLEL_MIN_PARTS:
+        return 1
+    return max(1, min(8, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
+
+
+class _part_mapper:
+    """`map` over parts, in order: this process's own for one worker, else a pool of fresh
+    processes (spawned, not forked: a caller such as tools/study.py holds a GPU device whose
+    threads a fork would copy mid-flight)."""
+
+    def __init__(self, workers: int):
+        self.workers = workers
+        self.pool = None
+
+    def __enter__(self):
+        if self.workers <= 1:
+            return map
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        self.pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+        return lambda fn, items: self.pool.map(fn, items, chunksize=8)
+
+    def __exit__(self, *exc):
+        if self.pool is not None:
+            self.pool.shutdown(cancel_futures=True)
+        return False
 
 
 # ----------------------------------------------------------------------------- build report
@@ -291,10 +359,12 @@ def build_report(
     max_pred_rows: int = 200_000,
     fold: bool | None = None,
     progress=None,
+    workers: int | None = None,
 ) -> Path:
     """Write the report of the given runs into out_dir; returns the path of index.html.
     fold: fold the records as they are read (load_runs); None folds only runs whose records would
-    not fit in host memory unfolded (check_report_memory)."""
+    not fit in host memory unfolded (check_report_memory); workers: processes folding the parts
+    (load_runs)."""
     if isinstance(run_dirs, (str, Path)):
         run_dirs = [run_dirs]
     run_dirs = [Path(r) for r in run_dirs]
@@ -302,7 +372,7 @@ def build_report(
     out.mkdir(parents=True, exist_ok=True)
     if fold is None:
         fold = needs_folding(run_dirs)
-    df, manifests = load_runs(run_dirs, fold=fold, max_pred_rows=max_pred_rows, progress=progress)
+    df, manifests = load_runs(run_dirs, fold=fold, max_pred_rows=max_pred_rows, progress=progress, workers=workers)
     previous = _previous_files(out)
     written: list[str] = []
     ctx = {"skipped": [], "max_pred_rows": max_pred_rows, "results": {}}
