@@ -164,7 +164,7 @@ def load_runs(
     thresholds = thresholds_of(manifests)
     total = sum(len(parts) for _, parts in runs) * (2 if fold else 1)  # folding reads twice
     workers = fold_workers(total // 2, workers) if fold else 1
-    with _part_mapper(workers) as map_parts:
+    with _PartMapper(workers) as map_parts:
         shares = _prediction_shares(runs, max_pred_rows, progress, total, map_parts) if fold else {}
         # several profiles: the report rests on the strict records but for the others' rates
         profiles = {p for p, _ in shares}
@@ -302,7 +302,7 @@ def fold_workers(n_parts: int, workers: int | None = None) -> int:
     return max(1, min(8, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
 
 
-class _part_mapper:
+class _PartMapper:
     """`map` over parts, in order: this process's own for one worker, else a pool of fresh
     processes (spawned, not forked: a caller such as tools/study.py holds a GPU device whose
     threads a fork would copy mid-flight)."""
