@@ -20,6 +20,7 @@ out_dir (flat):
 from __future__ import annotations
 
 import base64
+import contextlib
 import datetime as _dt
 import html
 import io
@@ -164,7 +165,7 @@ def load_runs(
     thresholds = thresholds_of(manifests)
     total = sum(len(parts) for _, parts in runs) * (2 if fold else 1)  # folding reads twice
     workers = fold_workers(total // 2, workers) if fold else 1
-    with _PartMapper(workers) as map_parts:
+    with _part_mapper(workers) as map_parts:
         shares = _prediction_shares(runs, max_pred_rows, progress, total, map_parts) if fold else {}
         # several profiles: the report rests on the strict records but for the others' rates
         profiles = {p for p, _ in shares}
@@ -302,28 +303,22 @@ def fold_workers(n_parts: int, workers: int | None = None) -> int:
     return max(1, min(8, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))
 
 
-class _PartMapper:
+@contextlib.contextmanager
+def _part_mapper(workers: int):
     """`map` over parts, in order: this process's own for one worker, else a pool of fresh
     processes (spawned, not forked: a caller such as tools/study.py holds a GPU device whose
-    threads a fork would copy mid-flight)."""
+    threads a fork would copy mid-flight). On an error the parts not yet folded are dropped."""
+    if workers <= 1:
+        yield map
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
 
-    def __init__(self, workers: int):
-        self.workers = workers
-        self.pool = None
-
-    def __enter__(self):
-        if self.workers <= 1:
-            return map
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        self.pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
-        return lambda fn, items: self.pool.map(fn, items, chunksize=8)
-
-    def __exit__(self, *exc):
-        if self.pool is not None:
-            self.pool.shutdown(cancel_futures=True)
-        return False
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        yield lambda fn, items: pool.map(fn, items, chunksize=8)
+    finally:
+        pool.shutdown(cancel_futures=True)
 
 
 # ----------------------------------------------------------------------------- build report
