@@ -166,11 +166,16 @@ def test_arms_that_draw_the_same_frames_recomposite_nothing(monkeypatch):
     assert len(empty) == 0 and list(empty.columns) == list(arms.columns)
 
 
-def test_kept_views_tile_lists_fit_one_binding(gpu, monkeypatch):
+@pytest.mark.parametrize("as_gpu", [False, True])
+def test_kept_views_tile_lists_fit_one_binding(gpu, monkeypatch, as_gpu):
     """A kept view set holds K tile lists in one buffer bound whole (kv_isect, kv_box), so the
     most pairs a view may have is a binding over 4 K bytes: with a 512 KiB binding and 4 kept
-    views, 32,768 (the default capacity, 65,536, would make 1 MiB buffers that fail to bind)."""
+    views, 32,768 (the default capacity, 65,536, would make 1 MiB buffers that fail to bind).
+    The evaluator's batches shrink to fit too (as_gpu: the batch size a GPU adapter asks for,
+    2048 variants, whose metrics would need 2 MiB; it failed so on an H200, 2026-11-26)."""
     monkeypatch.setitem(gpu.limits, "max-storage-buffer-binding-size", 1 << 19)
+    if as_gpu:
+        monkeypatch.setattr(type(gpu), "is_cpu", property(lambda self: False))
     model = make_scene("spheres", 2000, 1, 0)
     cams = scene_cameras("spheres", 4, 32, 32)
     eng = Engine(model, cams, "fp32", gpu=gpu)
@@ -179,3 +184,61 @@ def test_kept_views_tile_lists_fit_one_binding(gpu, monkeypatch):
     assert r.kv_isect.size <= 1 << 19 and r.kv_box.size <= 1 << 19
     recs = eng.evaluate_frame([eng.site("log_scales", 0, 0, 31)])  # a sheet: binds the kept lists
     assert len(recs) == 1 and recs["footprint"].iloc[0] > 0
+    from seuwgpu.metrics.image import max_variants_of
+
+    fit = max_variants_of(gpu, 32, 32, 4)
+    assert fit < 2048  # the binding is what bounds the batch here
+    assert eng.evaluator.B == min(256 if gpu.is_cpu else 2048, fit)
+
+
+def test_run_interleaved_keeps_one_job_per_lane_and_the_order():
+    """faults/incremental.py run_interleaved: results in job order; a lane runs its jobs one after
+    another (a job's steps are never interleaved with another job on the same lane); jobs that
+    finish at once or take many steps mix freely."""
+    from seuwgpu.faults.incremental import run_interleaved
+
+    busy, log = {}, []
+
+    def job(i, steps):
+        def start(lane):
+            assert busy.get(lane) is None, f"lane {lane} already runs job {busy[lane]}"
+            busy[lane] = i
+            for s in range(steps):
+                log.append((i, lane, s))
+                yield
+            busy[lane] = None
+            return i * 10
+
+        return start
+
+    steps = [3, 0, 1, 5, 2, 0, 4]
+    out = run_interleaved([job(i, s) for i, s in enumerate(steps)], ["x", "y"])
+    assert out == [i * 10 for i in range(len(steps))]
+    assert sum(steps) == len(log)
+    first_steps = [i for i, _, s in log if s == 0]
+    assert first_steps[:2] == [0, 2]  # job 1 ends before its first yield, so lane y goes on to job 2
+    assert {lane for i, lane, _ in log if i == 0} == {"x"}
+    assert run_interleaved([], ["x", "y"]) == []
+    assert run_interleaved([job(0, 2)], ["x", "y"]) == [0]
+
+
+def test_two_lanes_give_the_records_of_full_rerenders():
+    """Batches of 8 variants, two in flight (IncrementalEvaluator lanes=2), groups split by a small
+    slab budget so that batches take different numbers of steps: every record equals a full
+    re-render's, and the sort-first regions those of one lane."""
+    from seuwgpu.faults.incremental import IncrementalEvaluator
+
+    model = make_scene("spheres", n=1200, seed=4)
+    eng = Engine(model, scene_cameras("spheres", 2, 48, 40), "fp32", scene="spheres")
+    sites = sample_sites(eng, np.random.default_rng(5), per_class=1)
+    one = eng.evaluate_frame(sites, ("none", "guard"), regions=(4,))
+    eng._evaluator = IncrementalEvaluator(eng, max_variants=8, max_entries=24, lanes=2)
+    two = eng.evaluate_frame(sites, ("none", "guard"), regions=(4,))
+    assert len(eng._evaluator.lanes) == 2
+    import pandas as pd
+
+    pd.testing.assert_frame_equal(one, two)
+    for rec in two[two.defense == "none"].to_dict("records"):
+        full = eng.inject(eng.site(rec["field"], rec["primitive"], rec["component"], rec["bit"]), "none")
+        for key in METRICS:
+            assert same(rec[key], full[key]), (rec, key, full[key])

@@ -188,3 +188,29 @@ def test_binding_limit_is_floored_to_the_buffer_granularity(gpu, monkeypatch):
     assert -(-largest_list // 16) * 16 <= 2**31 - 4
     monkeypatch.setitem(gpu.limits, "max-storage-buffer-binding-size", 1 << 27)  # lavapipe's
     assert gpu.max_binding == 1 << 27
+
+
+def test_readback_returns_the_copy_of_its_own_submission(gpu):
+    """gpu/device.py Readback: the bytes as they were when its submission ran (not later writes),
+    two readbacks in flight each with their own, and a copy larger than the buffer grows it."""
+    from seuwgpu.gpu.device import STORAGE, Readback
+
+    src = gpu.upload(np.arange(64, dtype=np.uint32), STORAGE, "src")
+    a, b = Readback(gpu, 64, "a"), Readback(gpu, 16, "b")
+    enc = gpu.device.create_command_encoder()
+    a.encode(enc, src, 16, 64)  # words 4..19
+    gpu.submit(enc)
+    gpu.write(src, np.full(64, 7, np.uint32))  # lands after the first submission
+    enc = gpu.device.create_command_encoder()
+    b.encode(enc, src, 0, 256)  # grows to 256 bytes
+    gpu.submit(enc)
+    np.testing.assert_array_equal(a.read(np.uint32), np.arange(4, 20, dtype=np.uint32))
+    np.testing.assert_array_equal(b.read(np.uint32), np.full(64, 7, np.uint32))
+    assert b.buffer.size >= 256
+    # read again after a new copy: the buffer was unmapped, and an empty copy reads nothing
+    enc = gpu.device.create_command_encoder()
+    a.encode(enc, src, 0, 8)
+    b.encode(enc, src, 0, 0)
+    gpu.submit(enc)
+    np.testing.assert_array_equal(a.read(np.uint32), [7, 7])
+    assert b.read(np.uint32).size == 0

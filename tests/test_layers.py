@@ -120,6 +120,12 @@ def test_no_import_circles():
     assert not cycles, f"import circles: {cycles}"
 
 
+# wgpu-py objects whose internals a module uses on purpose (the version is pinned in pyproject.toml):
+# gpu/device.py `_wait` polls the device without blocking and reads a mapping promise's state, as
+# wgpu-py's public API only waits for all queued work (see Readback).
+WGPU_INTERNALS = {"seuwgpu.gpu.device": ("promise", "device")}
+
+
 def _private_reach_ins(module: str) -> list[str]:
     path = MODULES[module]
     tree = ast.parse(path.read_text(), str(path))
@@ -147,6 +153,8 @@ def _private_reach_ins(module: str) -> list[str]:
             continue
         owner = node.value
         if isinstance(owner, ast.Name) and (owner.id in ("self", "cls") or owner.id in foreign):
+            continue
+        if isinstance(owner, ast.Name) and owner.id in WGPU_INTERNALS.get(module, ()):
             continue
         if isinstance(owner, ast.Call) and isinstance(owner.func, ast.Name) and owner.func.id == "super":
             continue

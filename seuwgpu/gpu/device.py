@@ -10,6 +10,7 @@ helpers, once), then its own file. Stages record their work through gpu/kernel.p
 from __future__ import annotations
 
 import os
+import time
 from importlib import resources
 from pathlib import Path
 
@@ -38,6 +39,7 @@ def shader_source(name: str, defines: dict | None = None) -> str:
 STORAGE = wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST
 UNIFORM = wgpu.BufferUsage.UNIFORM | wgpu.BufferUsage.COPY_DST
 INDIRECT = STORAGE | wgpu.BufferUsage.INDIRECT
+MAP_READ = wgpu.BufferUsage.MAP_READ | wgpu.BufferUsage.COPY_DST
 
 # Limits we ask for, up to what the adapter offers (WebGPU defaults are too small for big models).
 _WANTED_LIMITS = (
@@ -143,6 +145,57 @@ class GPU:
         if not hasattr(self, "_sync_buf"):
             self._sync_buf = self.buffer(16, STORAGE, "sync")
         self.queue.read_buffer(self._sync_buf, 0, 4)
+
+
+class Readback:
+    """Results copied, inside the submission that computes them, to a mappable buffer of their
+    own. Waiting for them waits for that submission only, so the host can work on one batch's
+    results while later submissions run (faults/incremental.py keeps two batches in flight):
+    queue.read_buffer submits its copy behind everything queued, and waits for all of it."""
+
+    def __init__(self, gpu: GPU, size: int, label: str = "readback"):
+        self.gpu, self.label = gpu, label
+        self.buffer = gpu.buffer(max(int(size), 4), MAP_READ, label)
+        self.size = 0  # bytes copied by the last encode
+
+    def encode(self, encoder, src, offset: int = 0, size: int | None = None):
+        """Record the copy of `size` bytes of `src` from `offset` (to be read after the submit)."""
+        size = src.size - offset if size is None else int(size)
+        if size > self.buffer.size:  # nothing of it is in flight: the last copy was read
+            self.buffer = self.gpu.buffer(size, MAP_READ, self.label)
+        self.size = size
+        if size:
+            encoder.copy_buffer_to_buffer(src, offset, self.buffer, 0, size)
+
+    def read(self, dtype=np.uint32) -> np.ndarray:
+        """The copied bytes (after the submission that holds the copy)."""
+        if self.size == 0:
+            return np.zeros(0, dtype)
+        promise = self.buffer.map_async(_MAP_NOW, 0, self.size)
+        _wait(self.gpu.device, promise)
+        data = np.frombuffer(self.buffer.read_mapped(0, self.size), dtype=dtype).copy()
+        self.buffer.unmap()
+        return data
+
+
+# wgpu-py 0.32 (pinned <0.33 in pyproject.toml) would submit an empty command buffer before a read
+# mapping ("READ"; wgpu-native issue 305), which lavapipe makes wait for all queued work; the copy
+# this mapping reads was submitted already, as queue.read_buffer's own "READ_NOSYNC" assumes.
+_MAP_NOW = "READ_NOSYNC"
+
+
+def _wait(device, promise):
+    """Wait for a mapping by polling without blocking: wgpu-py's poll thread blocks until all
+    queued work is done before it resolves any mapping, which would serialise the batches. Both
+    names are wgpu-py 0.32 internals (pinned <0.33); without them this is a plain blocking wait."""
+    try:
+        while promise._state == "pending":
+            device._poll(False)
+            if promise._state == "pending":
+                time.sleep(5e-5)
+    except AttributeError:
+        pass
+    promise.sync_wait()
 
 
 def _raw(array) -> np.ndarray:

@@ -57,7 +57,7 @@ from __future__ import annotations
 import numpy as np
 
 from seuwgpu.gpu.constants import TILE
-from seuwgpu.gpu.device import INDIRECT, STORAGE
+from seuwgpu.gpu.device import INDIRECT, STORAGE, Readback
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 
 WIN = 7
@@ -65,6 +65,15 @@ PAD = (WIN - 1) // 2
 THRESHOLD = np.float32(1.0 / 255.0)
 MASK_BYTES = TILE * TILE // 8  # one entry's changed-pixel mask (metrics.wgsl m_masks)
 FIELDS = ("changed", "peak", "sse", "nonfinite", "ssim_sum", "ssim_count", "ssim_deficit")
+
+
+def max_variants_of(gpu, width: int, height: int, n_views: int) -> int:
+    """Most variants whose every tile (n_views frames) one ImageMetrics can hold in one binding (its
+    per-entry partials and masks)."""
+    record = Kernel(gpu, "metrics", "tile_partials").struct("MetricsRecord")
+    tx, ty = tiles_of(width, height)
+    fit = gpu.max_binding // (n_views * tx * ty * max(record.size, MASK_BYTES))
+    return max(2, fit - fit % 2)  # the compositor's batches are even (render/incremental.py)
 
 
 def tiles_of(width: int, height: int) -> tuple[int, int]:
@@ -112,6 +121,7 @@ class ImageMetrics:
             self.layout.offset("records") + n_results * self.record.size, STORAGE, "metrics.results"
         )
         self.masks = gpu.buffer(self.capacity * MASK_BYTES, STORAGE, "metrics.masks")
+        self.results_readback = Readback(gpu, self.results.size, "metrics.results.readback")
         self.indirect = gpu.buffer(16, INDIRECT, "metrics.indirect")
         self._dummy = gpu.buffer(16, STORAGE, "metrics.dummy")
         self._mode = None
@@ -160,6 +170,7 @@ class ImageMetrics:
             self.k_tile.record(cp, tile, workgroups=n_entries)
         self.k_reduce.record(cp, {i: common[i] for i in (0, 5, 6, 7)}, threads=n_bk)
         cp.end()
+        self.results_readback.encode(encoder, self.results, 0, self.layout.offset("records") + n_bk * self.record.size)
 
     def encode_dense(self, encoder, clean_buf, faulted_buf, n_variants: int):
         """clean_buf: [K, H, W, 4] f32; faulted_buf: [B, K, H, W, 4] f32 with B >= n_variants.
@@ -192,13 +203,17 @@ class ImageMetrics:
 
     # ---- results -------------------------------------------------------------------------------
     def read(self, n_variants: int | None = None) -> dict:
-        """Results of the last submitted encode: dict of [B, K] numpy arrays (see FIELDS)."""
+        """Results of the last submitted encode: dict of [B, K] numpy arrays (see FIELDS). Waits
+        for that submission only (gpu/device.py Readback)."""
         if self._mode is None:
             raise RuntimeError("nothing encoded")
         B = self._mode[1] if n_variants is None else int(n_variants)
         K = self.n_views
         start = self.layout.offset("records")
-        raw = self.gpu.read(self.results, np.uint8, 0, start + B * K * self.record.size)
+        raw = self.results_readback.read(np.uint8)
+        if raw.size < start + B * K * self.record.size:
+            raise ValueError(f"the last encode measured fewer than {B} variants")
+        raw = raw[: start + B * K * self.record.size]
         status = raw[: self.layout.size].view(self.layout.dtype)["status"][0]
         if status["requested"] > status["evaluated"]:
             raise RuntimeError(

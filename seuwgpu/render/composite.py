@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from seuwgpu.gpu.constants import CHUNK, GPU_CHUNK, PROFILE_CODE, TILE
-from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE
+from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE, Readback
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 from seuwgpu.render.bin import REACH_ALL, REACH_ELLIPSE, band_extent, reach
 
@@ -164,6 +164,7 @@ class VariantCompositing:
         self.ended = gpu.buffer(4 * lanes * self.max_entries, STORAGE, "variants.ended")
         # per entry, the tile-local box of the pixels whose rgb bits differ from the clean frame's
         self.changed = gpu.buffer(4 * self.max_entries, STORAGE, "variants.changed")
+        self.changed_readback = Readback(gpu, 4 * self.max_entries, "variants.changed.readback")
 
     def encode(self, encoder, entries: dict, kept: dict, variant: dict, clean_image, longest: int, **params):
         """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}); `longest`:
@@ -209,12 +210,16 @@ class VariantCompositing:
                 },
                 workgroups=n_e,
             )
+        self.changed_readback.encode(encoder, self.changed, 0, 4 * n_e)
 
     def read_changed(self, n: int) -> np.ndarray:
         """[n, 4] int (x0, x1, y0, y1, inclusive, tile-local) of the last submitted encode: the box
         of each entry's pixels inside the frame whose rgb bits differ from the clean frame's;
-        x0 > x1 where none does."""
-        b = self.gpu.read(self.changed, np.uint32, 0, 4 * n).astype(np.int64)
+        x0 > x1 where none does. Waits for that submission only (gpu/device.py Readback)."""
+        b = self.changed_readback.read(np.uint32).astype(np.int64)
+        if b.size < n:
+            raise ValueError(f"the last encode listed {b.size} entries, not {n}")
+        b = b[:n]
         return np.stack([b & 0xFF, (b >> 8) & 0xFF, (b >> 16) & 0xFF, b >> 24], axis=1)
 
     def read_slabs(self, n: int) -> np.ndarray:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from seuwgpu.gpu.constants import TILE
+from seuwgpu.gpu.device import Readback
 from seuwgpu.model.fields import StoredLayout
 from seuwgpu.render.composite import VariantCompositing
 from seuwgpu.render.project import Projection, unpack_rects
@@ -39,6 +40,7 @@ class IncrementalCompositor:
         self.var_words = g.buffer(4 * self.vlayout.chunk_words, label="var_words")
         # view v's variant records at [v * B, v * B + B)
         self.projection = Projection(g, k * self.B, k, "var", r.profile)
+        self.rects_readback = Readback(g, 8 * k * self.B, "var_rects.readback")
         self.compositing = VariantCompositing(g, self.max_entries, r.profile, r.compositing.chunk, r.binning.exact)
         self.tile_map = g.buffer(4 * self.B * k * r.n_tiles, label="tile_map")
         self.bound_version = None
@@ -76,6 +78,10 @@ class IncrementalCompositor:
     def project(self, bits: np.ndarray) -> np.ndarray:
         """Project up to B variant primitives (stored bits [m, ncomp]) for every view; returns
         their tile rectangles [K, m, 4] (x0, y0, x1, y1, exclusive max)."""
+        return self.projected_rects(self.submit_project(bits))
+
+    def submit_project(self, bits: np.ndarray) -> int:
+        """The projection of `project`, submitted; returns the variant count for projected_rects."""
         g, B, K, p = self.gpu, self.B, self.r.k, self.projection
         m = bits.shape[0]
         padded = np.zeros((B, bits.shape[1]), dtype=bits.dtype)
@@ -86,8 +92,14 @@ class IncrementalCompositor:
         enc = g.device.create_command_encoder()
         for v in range(K):
             p.encode(enc, v, self.var_words, m, self.r.box_buf, self.r.guard_counts)
+        self.rects_readback.encode(enc, p.rect, 0, 8 * K * B)
         g.submit(enc)
-        return unpack_rects(g.read(p.rect, np.uint32, 0, 8 * K * B).reshape(K, B, 2)[:, :m])
+        return m
+
+    def projected_rects(self, m: int) -> np.ndarray:
+        """Tile rectangles [K, m, 4] of the last submit_project (waits for that submission only)."""
+        rects = self.rects_readback.read(np.uint32).reshape(self.r.k, self.B, 2)
+        return unpack_rects(rects[:, :m])
 
     def dirty_tiles(self, prims: np.ndarray, new_rects: np.ndarray) -> np.ndarray:
         """[m, K, T] bool: tiles inside the clean or the new rectangle of each variant's primitive."""
