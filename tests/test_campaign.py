@@ -5,6 +5,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -107,6 +108,36 @@ def test_sharded_and_merged_equals_unsharded(reference_run, tmp_path):
     merge(tmp_path / "merged", dirs)
     got = canonical(read_records(tmp_path / "merged"))
     pd.testing.assert_frame_equal(got, ref)
+
+
+def test_blocks_evaluated_one_by_one_equal_grouped_ones(reference_run, tmp_path, monkeypatch):
+    """The runner evaluates consecutive single-upset blocks in one call (Runner.next_group); with
+    groups of one block the records are the same, and each part still holds its own block."""
+    spec, ref = reference_run
+    monkeypatch.setattr(Runner, "GROUP_BATCHES", 0)  # every group is its first block alone
+    groups = []
+    real = Runner.run_blocks
+    monkeypatch.setattr(
+        Runner, "run_blocks", lambda self, eng, ctx, blocks: groups.append(blocks) or real(self, eng, ctx, blocks)
+    )
+    Runner(spec, tmp_path / "run", quiet=True).run()
+    assert groups and all(len(g) == 1 for g in groups)
+    pd.testing.assert_frame_equal(canonical(read_records(tmp_path / "run")), ref)
+    for path in store.records_dir(tmp_path / "run").glob("part-*.parquet"):
+        first, count = store.parse_part_name(path.name)
+        ids = pd.read_parquet(path, columns=["injection_id"]).injection_id
+        assert set(ids) == set(range(first, first + count)), path.name
+    # the reference run grouped: consecutive blocks of one single-upset context, up to 8 batches
+    monkeypatch.undo()
+    runner = Runner(spec, tmp_path / "other", quiet=True)
+    todo = list(runner.blocks())
+    eng = SimpleNamespace(evaluator=SimpleNamespace(B=spec["batch"]))  # groups of 8 blocks
+    group, j = runner.next_group(todo, 0, eng)
+    single = [b for b in todo if b[0] is todo[0][0]]  # the first context's blocks
+    assert len(group) == min(8, len(single)) > 1 and j == len(group)
+    assert all(b[0] is todo[0][0] for b in group)
+    dose_at = next(i for i, b in enumerate(todo) if b[0].kind == "dose")
+    assert runner.next_group(todo, dose_at, eng) == ([todo[dose_at]], dose_at + 1)
 
 
 def test_replay_one_injection_by_id(reference_run):
@@ -321,3 +352,21 @@ def test_parts_carry_their_compute_time(tmp_path):
     store.write_part(tmp_path, 3, 3, df)  # a part written without its time
     assert store.run_seconds(tmp_path) == (1.5, 1)
     pd.testing.assert_frame_equal(pd.read_parquet(store.part_path(tmp_path, 0, 3)), df)
+
+
+def test_part_writer_writes_every_queued_part_and_reports_errors(tmp_path):
+    """campaign/store.py PartWriter: every part queued before close is on disk, with its time;
+    a write that fails (here: no records folder) is raised by close, not lost in the thread."""
+    df = pd.DataFrame({"injection_id": np.arange(4), "footprint": np.linspace(0, 1, 4)})
+    store.records_dir(tmp_path).mkdir(parents=True)
+    writer = store.PartWriter(tmp_path, depth=2)
+    for a in range(0, 40, 4):
+        writer.put(a, 4, df.assign(injection_id=df.injection_id + a), seconds=0.25)
+    writer.close()
+    got = read_records(tmp_path)
+    assert sorted(got.injection_id) == list(range(40))
+    assert store.run_seconds(tmp_path) == (2.5, 0)
+    broken = store.PartWriter(tmp_path / "missing")
+    broken.put(0, 4, df)
+    with pytest.raises(OSError):
+        broken.close()

@@ -114,26 +114,55 @@ class Runner:
         bar = progress or Progress(shard_total, already, self.quiet)
         engines = {}
         t0 = time.perf_counter()
+        writer = store.PartWriter(self.out)
         try:
-            for ctx, first, count in todo:
-                t_block = time.perf_counter()
+            i = 0
+            while i < len(todo):
+                t_group = time.perf_counter()
+                ctx = todo[i][0]
                 key = (ctx.kind, ctx.scene_index, ctx.n, ctx.precision)
                 if key not in engines:
                     engines.clear()  # one engine at a time: bounded memory
                     engines[key] = self.engine_for(ctx)
                     self.note_clean_model(engines[key], ctx)
                 eng = engines[key]
-                df = self.run_block(eng, ctx, first, count)
-                store.write_part(self.out, first, count, df, seconds=time.perf_counter() - t_block)
-                cat = int(df.loc[df.defense == ctx.defenses[0], "catastrophic"].sum())
-                stats["injections"] += count
-                stats["new"] += count
-                stats["catastrophic"] += cat
-                bar.advance(count, cat)
+                group, i = self.next_group(todo, i, eng)
+                frames = self.run_blocks(eng, ctx, [(first, count) for _, first, count in group])
+                seconds = time.perf_counter() - t_group
+                total = sum(count for _, _, count in group)
+                for (_, first, count), df in zip(group, frames):
+                    # a block's share of its group's time (recorded per part, summed by the reports)
+                    writer.put(first, count, df, seconds=seconds * count / total)
+                    cat = int(df.loc[df.defense == ctx.defenses[0], "catastrophic"].sum())
+                    stats["injections"] += count
+                    stats["new"] += count
+                    stats["catastrophic"] += cat
+                    bar.advance(count, cat)
         finally:
             bar.close()
+            writer.close()  # the parts computed so far, written before an error or interrupt goes on
         stats["seconds"] = time.perf_counter() - t0
         return stats
+
+    # batches of the incremental evaluator evaluated per call: with two in flight (faults/incremental.py
+    # lanes), the first and the last of a call run alone
+    GROUP_BATCHES = 8
+
+    def next_group(self, todo: list, i: int, eng) -> tuple[list, int]:
+        """(blocks todo[i:j] evaluated in one call, j): consecutive blocks of one single-upset context
+        on the incremental path, up to GROUP_BATCHES evaluator batches of sites, so that a spec's
+        small `batch` (the unit written and resumed) still fills a GPU's batches and pipeline.
+        An interrupted run loses at most the group in progress."""
+        ctx, group, sites = todo[i][0], [todo[i]], todo[i][2]
+        i += 1
+        if ctx.kind not in ("single", "size") or self.full or self.spec.get("lpips"):
+            return group, i
+        target = self.GROUP_BATCHES * eng.evaluator.B
+        while i < len(todo) and todo[i][0] is ctx and sites + todo[i][2] <= target:
+            group.append(todo[i])
+            sites += todo[i][2]
+            i += 1
+        return group, i
 
     def note_clean_model(self, eng, ctx: Context):
         """A clean model holding NaN/Inf: the guard's own effect on it (per guard arm), written
@@ -204,19 +233,32 @@ class Runner:
         return df.reindex(columns=store.columns_of(ctx))
 
     def run_block(self, eng, ctx: Context, first: int, count: int) -> pd.DataFrame:
-        ids = np.arange(first, first + count, dtype=np.int64)
-        seeds = injection_seeds(self.spec["seed"], ids)
-        if ctx.kind in ("single", "size"):
+        return self.run_blocks(eng, ctx, [(first, count)])[0]
+
+    def run_blocks(self, eng, ctx: Context, blocks: list) -> list[pd.DataFrame]:
+        """The records of each (first id, count) block of `ctx`; single-upset blocks are evaluated in
+        one call (each variant's numbers do not depend on its batch: tests/test_campaign.py)."""
+        if ctx.kind not in ("single", "size"):
+            return [self._dose_block(eng, ctx, first, count) for first, count in blocks]
+        drawn = []
+        for first, count in blocks:
+            ids = np.arange(first, first + count, dtype=np.int64)
+            seeds = injection_seeds(self.spec["seed"], ids)
             sites, weights = draw_sites(ctx, ids - ctx.first_id, seeds, eng.n, eng.degree)
-            if self.full:
-                if ctx.regions:
-                    raise SpecError(
-                        "regions (sort-first contamination) are measured on the incremental path; drop --full"
-                    )
-                df = pd.DataFrame([eng.inject(s, d) for d in ctx.defenses for s in sites])
-            else:
-                df = eng.evaluate_frame(sites, ctx.defenses, ctx.regions)
-            arms = len(ctx.defenses)  # rows are defense-major: arm d holds rows d*count .. d*count+count-1
+            drawn.append((ids, seeds, sites, weights))
+        every = [s for _, _, sites, _ in drawn for s in sites]
+        if self.full:
+            if ctx.regions:
+                raise SpecError("regions (sort-first contamination) are measured on the incremental path; drop --full")
+            whole = pd.DataFrame([eng.inject(s, d) for d in ctx.defenses for s in every])
+        else:
+            whole = eng.evaluate_frame(every, ctx.defenses, ctx.regions)
+        arms = len(ctx.defenses)  # rows are defense-major: arm d holds rows d*total .. d*total+total-1
+        out, at = [], 0
+        for ids, seeds, sites, weights in drawn:
+            rows = (np.arange(arms)[:, None] * len(every) + at + np.arange(len(sites))[None, :]).ravel()
+            at += len(sites)
+            df = whole.iloc[rows].reset_index(drop=True)
             if self.spec.get("lpips"):
                 df["lpips"] = [self.lpips_of(eng, [s], d) for d in ctx.defenses for s in sites]
             df["campaign"] = ctx.kind
@@ -224,7 +266,12 @@ class Runner:
             df["weight"] = np.tile(weights, arms)
             df["seed"] = np.tile(seeds, arms)
             df["injection_id"] = np.tile(ids, arms)
-            return self.finish(df, eng, ctx)
+            out.append(self.finish(df, eng, ctx))
+        return out
+
+    def _dose_block(self, eng, ctx: Context, first: int, count: int) -> pd.DataFrame:
+        ids = np.arange(first, first + count, dtype=np.int64)
+        seeds = injection_seeds(self.spec["seed"], ids)
         rows = []
         for i, s in zip(ids, seeds):
             k, rep = ctx.cell_of(int(i) - ctx.first_id)

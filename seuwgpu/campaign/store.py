@@ -20,7 +20,9 @@ import io
 import json
 import os
 import platform
+import queue
 import subprocess
+import threading
 from pathlib import Path
 
 import pandas as pd
@@ -293,6 +295,38 @@ def parquet_bytes(df: pd.DataFrame, seconds: float | None = None) -> bytes:
 
 def write_part(run_dir, first: int, count: int, df: pd.DataFrame, seconds: float | None = None):
     atomic_write(part_path(run_dir, first, count), parquet_bytes(df, seconds))
+
+
+class PartWriter:
+    """Writes parts in a thread of its own, so that their Parquet encoding and fsync overlap the
+    evaluation of the next blocks (on an H200 the 192 parts of a 49,152-injection campaign took
+    longer to write than to compute). `close` writes every part queued, even after an interrupt,
+    and raises the first error a write met."""
+
+    def __init__(self, run_dir, depth: int = 64):
+        self.run_dir, self.error = run_dir, None
+        self.queue = queue.Queue(maxsize=depth)  # bounded: records wait in memory, not without end
+        self.thread = threading.Thread(target=self._loop, name="seuwgpu-part-writer", daemon=True)
+        self.thread.start()
+
+    def _loop(self):
+        while (item := self.queue.get()) is not None:
+            if self.error is None:
+                try:
+                    write_part(self.run_dir, *item)
+                except BaseException as e:  # reported by the next put or by close
+                    self.error = e
+
+    def put(self, first: int, count: int, df: pd.DataFrame, seconds: float | None = None):
+        if self.error is not None:
+            raise self.error
+        self.queue.put((first, count, df, seconds))
+
+    def close(self):
+        self.queue.put(None)
+        self.thread.join()
+        if self.error is not None:
+            raise self.error
 
 
 def run_names(run_dirs) -> list[str]:
