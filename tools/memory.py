@@ -70,15 +70,23 @@ def kind(label: str) -> str:
     return "primitives"
 
 
+def note(text: str):
+    """Progress on stderr: at 100M primitives each phase takes minutes."""
+    print(text, file=sys.stderr, flush=True)
+
+
 def measure(scene: str, n: int, w: int, h: int, precision: str) -> dict:
     t = time.perf_counter()
     model = make_scene(scene, n, 3, 0)
     make_s = time.perf_counter() - t
+    note(f"N={n:,}: scene made in {make_s:.1f} s")
     cams = scene_cameras(scene, 1, w, h)
     t = time.perf_counter()
     r = Renderer(model, cams, precision=precision)
+    note(f"N={n:,}: encoded and uploaded in {time.perf_counter() - t:.1f} s")
     totals = r.run()
     first_s = time.perf_counter() - t
+    note(f"N={n:,}: first frame done {first_s:.1f} s after the upload began")
     times = []
     for _ in range(3):
         t = time.perf_counter()
