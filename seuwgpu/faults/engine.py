@@ -405,7 +405,7 @@ class Engine:
 
             # a CPU adapter gains nothing from huge batches; a GPU needs them to stay busy. Two batches
             # in flight (faults/incremental.py): the host prepares one while the device runs the
-            # other (lavapipe too: 13-33% more injections/s at 20k-100k primitives, 2026-11-26).
+            # other (lavapipe too: 8-33% more injections/s at 20k-100k primitives, 2026-11-26).
             # A batch's metrics (every tile of its variants' views) must fit one binding.
             fit = max_variants_of(self.gpu, self.width, self.height, self.k)
             if self.gpu.is_cpu:
