@@ -135,3 +135,20 @@ def test_viewport_regions_equal_the_full_frame_bit_for_bit():
         assert np.array_equal(part.view(np.uint32), full[:, y0 : y0 + h, x0 : x0 + w].view(np.uint32))
     with pytest.raises(ValueError, match="tile-aligned"):
         Renderer(model, cams, viewport=(8, 0, 16, 16))
+
+
+def test_views_submitted_one_by_one_equal_one_command_buffer(gpu):
+    """Renderer.run submits each view in a command buffer of its own (submission_groups); the
+    frames and totals are those of all K views recorded in one command buffer, bit for bit."""
+    model = make_scene("blocks", 3000, seed=1)
+    r = Renderer(model, scene_cameras("blocks", 3, 48, 40), gpu=gpu)
+    assert [list(g) for g in r.submission_groups()] == [[0], [1], [2]]
+    split = r.render_rgba()
+    totals = r.last_totals[:3].copy()
+    enc = gpu.device.create_command_encoder()
+    r.encode(enc)
+    gpu.submit(enc)
+    one = gpu.read(r.image, np.float32, 0, 16 * 3 * 48 * 40).reshape(3, 40, 48, 4)
+    assert np.array_equal(split.view(np.uint32), one.view(np.uint32))
+    assert np.array_equal(totals, gpu.read(r.binning.stats, np.uint32)[:3])
+    assert np.unique(split[..., :3].reshape(3, -1), axis=0).shape[0] == 3  # three different views

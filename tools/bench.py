@@ -7,8 +7,10 @@
 Runs from any directory with the package installed (or from a checkout); the JSON goes only where
 --out says (never into the repository by default).
 
-For each (scene, N, size, K) the embedded scene is rendered from K orbit views in ONE submission
-(the Renderer's unit of work). What is measured, per configuration:
+For each (scene, N, size, K) the embedded scene is rendered from K orbit views by one
+`Renderer.run()` (the Renderer's unit of work; it submits the views one command buffer each, so
+that encoding view v + 1 overlaps the device's work on view v; a "submission" below is one such
+run). What is measured, per configuration:
 
 - wall time of a submission: time.perf_counter() around encode + submit + the Renderer's tiny
   readback of its per-view intersection totals (which waits for the GPU), i.e. `Renderer.run()`.
@@ -170,12 +172,15 @@ class StageTimedRenderer(Renderer):
             self._ts = (qs, want, buf)
         return self._ts
 
-    def encode(self, encoder):
+    def submission_groups(self) -> list[range]:
+        return [range(self.k)] if self.timed else super().submission_groups()  # timed: one encoder
+
+    def encode(self, encoder, views=None):
         if not self.timed:
-            return super().encode(encoder)
+            return super().encode(encoder, views)
         qs, cap, buf = self._ensure_queries()
         proxy = _TimedEncoder(encoder, qs, cap)
-        super().encode(proxy)
+        super().encode(proxy, views)
         if proxy.records:
             encoder.resolve_query_set(qs, 0, 2 * len(proxy.records), buf, 0)
         self._last = proxy

@@ -1,13 +1,14 @@
-"""The WGSL 3DGS renderer: GPU-resident model, K views per submission.
+"""The WGSL 3DGS renderer: GPU-resident model, K views per `run`.
 
-A thin orchestration of the stages, all inside one command encoder per submission. Per view:
+A thin orchestration of the stages, recorded one command encoder per view and submitted as each
+is recorded, so the device renders view v while Python records view v + 1. Per view:
 projection of every model chunk (render/project.py) -> depth sort of the primitives
 (render/sort.py) -> binning: tiles touched per primitive in depth order, their scan and the
 emission of (tile, primitive) pairs (render/bin.py) -> tile sort (render/sort.py) -> per-tile
 ranges (render/bin.py) -> compositing (render/composite.py). Because the pairs are emitted in
 depth order and both sorts are stable, each tile's list is front to back with ties broken by
 primitive index, exactly as the numpy twin (render/reference.py) orders them. The stages' scratch
-buffers are shared by the views of a submission (the passes are ordered).
+buffers are shared by the K views (submissions run in order, as passes do).
 
 If a frame needs more intersections than the buffers hold (a corrupted primitive can touch every
 tile), the totals that come back with the image reveal it; the buffers grow and the frame is
@@ -281,17 +282,24 @@ class Renderer:
         if f is not None and f.view == v and f.point == point:
             f.encode(encoder)
 
-    def encode(self, encoder):
-        for v in range(self.k):
+    def encode(self, encoder, views=None):
+        for v in range(self.k) if views is None else views:
             self.encode_view(v=v, encoder=encoder)
+
+    def submission_groups(self) -> list[range]:
+        """The views of each command buffer `run` submits: one view each, so that the device works
+        on view v while Python encodes view v + 1 (at 100k primitives an H200 composites a view in
+        about the time Python takes to encode one). Same passes in the same order: same frames."""
+        return [range(v, v + 1) for v in range(self.k)]
 
     def run(self) -> np.ndarray:
         """Encode, submit and wait for the K views (growing the intersection buffers and re-running
         as needed); returns the per-view intersection totals."""
         while True:
-            enc = self.gpu.device.create_command_encoder()
-            self.encode(enc)
-            self.gpu.submit(enc)
+            for views in self.submission_groups():
+                enc = self.gpu.device.create_command_encoder()
+                self.encode(enc, views)
+                self.gpu.submit(enc)
             totals = self.gpu.read(self.binning.stats, np.uint32)
             need = int(totals.max())
             if need <= self.capacity:
