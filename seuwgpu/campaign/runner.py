@@ -254,19 +254,19 @@ class Runner:
         else:
             whole = eng.evaluate_frame(every, ctx.defenses, ctx.regions)
         arms = len(ctx.defenses)  # rows are defense-major: arm d holds rows d*total .. d*total+total-1
+        if self.spec.get("lpips"):
+            whole["lpips"] = [self.lpips_of(eng, [s], d) for d in ctx.defenses for s in every]
+        whole["campaign"] = ctx.kind
+        whole["repeat"] = 0
+        whole["weight"] = np.tile(np.concatenate([weights for *_, weights in drawn]), arms)
+        whole["seed"] = np.tile(np.concatenate([seeds for _, seeds, _, _ in drawn]), arms)
+        whole["injection_id"] = np.tile(np.concatenate([ids for ids, *_ in drawn]), arms)
+        whole = self.finish(whole, eng, ctx)  # once per group: the columns are row by row
         out, at = [], 0
-        for ids, seeds, sites, weights in drawn:
+        for _, _, sites, _ in drawn:
             rows = (np.arange(arms)[:, None] * len(every) + at + np.arange(len(sites))[None, :]).ravel()
             at += len(sites)
-            df = whole.iloc[rows].reset_index(drop=True)
-            if self.spec.get("lpips"):
-                df["lpips"] = [self.lpips_of(eng, [s], d) for d in ctx.defenses for s in sites]
-            df["campaign"] = ctx.kind
-            df["repeat"] = 0
-            df["weight"] = np.tile(weights, arms)
-            df["seed"] = np.tile(seeds, arms)
-            df["injection_id"] = np.tile(ids, arms)
-            out.append(self.finish(df, eng, ctx))
+            out.append(whole.iloc[rows].reset_index(drop=True))
         return out
 
     def _dose_block(self, eng, ctx: Context, first: int, count: int) -> pd.DataFrame:
