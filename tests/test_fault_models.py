@@ -112,3 +112,21 @@ def test_campaigns_draw_the_spec_fault_model():
     sites, _ = draw_sites(ctx, np.arange(4), injection_seeds(0, np.arange(4)), 500, 3)
     assert all(s.op == "set" and s.bits == tuple(range(16)) for s in sites)
     assert len({s.value for s in sites}) == 4
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16", "bf16"])
+@pytest.mark.parametrize("chunk_prims", [None, 128])
+def test_stored_bits_are_the_models_encoded_values(precision, chunk_prims):
+    """Engine.stored_bits (what every injection reads its clean pattern from) at every (primitive,
+    component): the model's values encoded at the precision, whether the model is one storage
+    chunk or several (half-word packing included)."""
+    from seuwgpu.model import encoding
+
+    model = make_scene("blocks", n=300, seed=3)
+    eng = Engine(model, scene_cameras("blocks", 1, 32, 32), precision, chunk_prims=chunk_prims)
+    assert eng.layout.n_chunks == (1 if chunk_prims is None else 3)
+    nc = eng.layout.ncomp
+    got = eng.stored_bits(np.repeat(np.arange(300), nc), np.tile(np.arange(nc), 300)).reshape(300, nc)
+    want = encoding.to_bits(model.flat(), precision)
+    assert got.dtype == want.dtype
+    np.testing.assert_array_equal(got, want)

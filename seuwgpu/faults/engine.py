@@ -32,6 +32,18 @@ from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, n_components
 from seuwgpu.render.renderer import Renderer
 
 
+def _per_bits(sites, of) -> list:
+    """of(site) for every site, computed once per (op, bits): a campaign's sites share a few dozen."""
+    cache = {}
+    out = []
+    for s in sites:
+        key = (s.op, s.bits)
+        if key not in cache:
+            cache[key] = of(s)
+        out.append(cache[key])
+    return out
+
+
 def field_of_components(degree: int) -> np.ndarray:
     """Field index (FIELDS order) of each flat component."""
     offs = [FIELD_OFFSET[f] for f in FIELDS]
@@ -187,12 +199,17 @@ class Engine:
         """Clean stored bit patterns (uint32 or uint16) at (primitive, flat component) pairs."""
         chunk, word, shift = self.layout.locate(primitive, flat_component)
         chunk, word, shift = np.atleast_1d(chunk), np.atleast_1d(word), np.atleast_1d(shift)
-        w = np.empty(word.shape, dtype=np.uint64)
-        for c in np.unique(chunk):
-            sel = chunk == c
-            w[sel] = self.renderer.clean_words[int(c)][word[sel]]
-        vals = (w >> shift.astype(np.uint64)) & np.uint64(0xFFFFFFFF if not self.layout.halves else 0xFFFF)
-        return vals.astype(np.uint32 if not self.layout.halves else np.uint16)
+        words = self.renderer.clean_words
+        if len(words) == 1:  # most models: no per-chunk split (a campaign reads ~60 values a site)
+            w = words[0][word]
+        else:
+            w = np.empty(word.shape, dtype=np.uint32)
+            for c in np.unique(chunk):
+                sel = chunk == c
+                w[sel] = words[int(c)][word[sel]]
+        if not self.layout.halves:
+            return w.astype(np.uint32, copy=False)
+        return ((w >> shift.astype(np.uint32)) & np.uint32(0xFFFF)).astype(np.uint16)
 
     def clean_value(self, site: Site) -> float:
         return float(encoding.from_bits(self.stored_bits([site.primitive], [site.flat_component()]), self.precision)[0])
@@ -489,7 +506,7 @@ class Engine:
             "primitive": np.array([s.primitive for s in sites], np.int64),
             "component": np.array([s.component for s in sites], np.int64),
             "bit": np.array([s.record_bit for s in sites], np.int64),
-            "bit_class": [site_bit_class(s, self.precision) for s in sites],
+            "bit_class": _per_bits(sites, lambda s: site_bit_class(s, self.precision)),
             "fault": [fault_name(s, self.precision) for s in sites],
             "k": np.ones(m_sites, np.int64),
         }
