@@ -32,18 +32,6 @@ from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, n_components
 from seuwgpu.render.renderer import Renderer
 
 
-def _per_bits(sites, of) -> list:
-    """of(site) for every site, computed once per (op, bits): a campaign's sites share a few dozen."""
-    cache = {}
-    out = []
-    for s in sites:
-        key = (s.op, s.bits)
-        if key not in cache:
-            cache[key] = of(s)
-        out.append(cache[key])
-    return out
-
-
 def field_of_components(degree: int) -> np.ndarray:
     """Field index (FIELDS order) of each flat component."""
     offs = [FIELD_OFFSET[f] for f in FIELDS]
@@ -506,7 +494,7 @@ class Engine:
             "primitive": np.array([s.primitive for s in sites], np.int64),
             "component": np.array([s.component for s in sites], np.int64),
             "bit": np.array([s.record_bit for s in sites], np.int64),
-            "bit_class": _per_bits(sites, lambda s: site_bit_class(s, self.precision)),
+            "bit_class": [site_bit_class(s, self.precision) for s in sites],
             "fault": [fault_name(s, self.precision) for s in sites],
             "k": np.ones(m_sites, np.int64),
         }

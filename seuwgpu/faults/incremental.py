@@ -56,8 +56,15 @@ class IncrementalEvaluator:
         self.r = engine.renderer
         self.lanes = [Lane(engine, max_variants, max_entries)]
         self.want_lanes, self._sizes = lanes, (max_variants, max_entries)
-        self.compositor = self.lanes[0].compositor
-        self.B = self.compositor.B
+
+    @property
+    def compositor(self) -> IncrementalCompositor:
+        """The first lane's (faults/worstcase.py projects with it between evaluations)."""
+        return self.lanes[0].compositor
+
+    @property
+    def B(self) -> int:
+        return self.lanes[0].B
 
     def evaluate(
         self, prims: np.ndarray, bits: np.ndarray, guard_masks: np.ndarray | None = None, regions=(), clean_bits=None

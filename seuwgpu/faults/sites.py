@@ -13,6 +13,7 @@ stored word, so applying the same mask again restores the value exactly.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -107,9 +108,15 @@ def fault_name(site: Site, precision: str) -> str:
 
 
 def site_bit_class(site: Site, precision: str) -> str:
-    if site.op == "set" and len(site.bits) == encoding.bits_per_value(precision):
+    return _bit_class(site.op, tuple(site.bits), precision)
+
+
+@functools.lru_cache(maxsize=4096)
+def _bit_class(op: str, bits: tuple, precision: str) -> str:
+    """Memoised: a campaign's records name the class of a few dozen (op, bits), once per site."""
+    if op == "set" and len(bits) == encoding.bits_per_value(precision):
         return "value"
-    classes = {encoding.bit_class(precision, b) for b in site.bits}
+    classes = {encoding.bit_class(precision, b) for b in bits}
     return classes.pop() if len(classes) == 1 else "mixed"
 
 

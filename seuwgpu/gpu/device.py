@@ -173,7 +173,7 @@ class Readback:
             return np.zeros(0, dtype)
         promise = self.buffer.map_async(_MAP_NOW, 0, self.size)
         _wait(self.gpu.device, promise)
-        data = np.frombuffer(self.buffer.read_mapped(0, self.size), dtype=dtype).copy()
+        data = np.frombuffer(self.buffer.read_mapped(0, self.size), dtype=dtype)  # a copy (copy=True)
         self.buffer.unmap()
         return data
 
