@@ -287,9 +287,15 @@ class Renderer:
             self.encode_view(v=v, encoder=encoder)
 
     def submission_groups(self) -> list[range]:
-        """The views of each command buffer `run` submits: one view each, so that the device works
-        on view v while Python encodes view v + 1 (at 100k primitives an H200 composites a view in
-        about the time Python takes to encode one). Same passes in the same order: same frames."""
+        """The views of each command buffer `run` submits. On a GPU one view each, so that the
+        device works on view v while Python encodes view v + 1 (at 100k primitives an H200
+        composites a view in about the time Python takes to encode one). On a CPU adapter all K in
+        one: recording is 1% of a view there, and one by one was slower on lavapipe (100k, 256x256,
+        K = 8, one process, 2026-11-26, three runs each: 90.6-99.2 ms a view against 77.8-82.4; a
+        second test, alternating: 71.8-92.4 against 68.2-85.1; the cause, presumably a cost per
+        submission, was not traced). Same passes in the same order either way: same frames."""
+        if self.gpu.is_cpu:
+            return [range(self.k)]
         return [range(v, v + 1) for v in range(self.k)]
 
     def run(self) -> np.ndarray:
