@@ -1,7 +1,8 @@
 """The WGSL 3DGS renderer: GPU-resident model, K views per `run`.
 
-A thin orchestration of the stages, recorded one command encoder per view and submitted as each
-is recorded, so the device renders view v while Python records view v + 1. Per view:
+A thin orchestration of the stages; on a GPU each view's command encoder is submitted as soon
+as it is recorded, so the device renders view v while Python records view v + 1, and on a CPU
+adapter all K views go into one (`submission_groups`). Per view:
 projection of every model chunk (render/project.py) -> depth sort of the primitives
 (render/sort.py) -> binning: tiles touched per primitive in depth order, their scan and the
 emission of (tile, primitive) pairs (render/bin.py) -> tile sort (render/sort.py) -> per-tile
