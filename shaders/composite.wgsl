@@ -37,94 +37,24 @@
 //   when KEEP_BOXES (a frame kept with the clean state), so a variant tile stages only the entries whose box meets the
 //   bounding box of its re-blended pixels, and reads nothing of the others (they skip those
 //   pixels for certain).
+//
+// The per-pixel rule, staging, the merge of chunks and the full-frame bindings are in blend.wgsl,
+// shared with composite_wide.wgsl (one pixel per invocation, for GPUs); here its lanes are vec4.
 
-// Renderer profile (docs/renderer.md, "Profiles"): PROFILE_STRICT (default) or PROFILE_GSPLAT.
-override PROFILE: u32 = PROFILE_STRICT;
+alias PF = vec4<f32>;
+alias PB = vec4<bool>;
+alias PU = vec4<u32>;
 
 const QUAD: u32 = 4u;                       // pixels per Quad (vec4 lanes, one column)
 const QPI: u32 = 2u;                        // Quads per invocation (2 written out in blend_quads)
 const SPAN: u32 = QUAD * QPI;               // rows per invocation
 const ROWS: u32 = TILE / SPAN;              // invocation rows per tile
 const LANES: u32 = TILE * ROWS;             // invocations per workgroup
-const BATCH: u32 = TILE_PIXELS;             // records staged per batch
 const PER_LANE: u32 = BATCH / LANES;        // records each invocation stages per batch
-const FULL_BOX: u32 = (TILE - 1u) << 8u | (TILE - 1u) << 24u;
-const EMPTY_BOX: u32 = 1u;                  // x0 = 1 > x1 = 0
 
-var<workgroup> s_box: array<u32, BATCH>;          // x0 | x1 << 8 | y0 << 16 | y1 << 24 (inclusive)
-var<workgroup> s_pos: array<vec4<f32>, BATCH>;    // mean x, mean y, cut, 0
-var<workgroup> s_conic: array<vec4<f32>, BATCH>;  // conic, opacity
-var<workgroup> s_rgb: array<vec4<f32>, BATCH>;
-var<workgroup> s_done: atomic<u32>;
 // Per quadrant (8 x 8 pixels; an invocation's pixels lie in one), per staging invocation: which of
 // its PER_LANE consecutive slots hold a record whose pixel box meets the quadrant (bit s).
 var<workgroup> s_qmask: array<u32, 4 * LANES>;
-var<workgroup> s_all_done: u32;
-
-// Four pixels (x, y + i), i = 0..3, in vec4 lanes (centres in full-frame coordinates).
-struct Quad {
-    x: f32,
-    y: vec4<f32>,
-    r: vec4<f32>,
-    g: vec4<f32>,
-    b: vec4<f32>,
-    T: vec4<f32>,
-    done: vec4<bool>,
-};
-
-fn nan4(v: vec4<f32>) -> vec4<bool> {
-    return (bitcast<vec4<u32>>(v) & vec4<u32>(0x7fffffffu)) > vec4<u32>(0x7f800000u);
-}
-
-// Half-extents (x, y) of the region outside which sigma > cut for certain, or +Inf (no bound).
-// The minimum over dy of sigma(dx, dy) = 0.5 (A dx^2 + C dy^2) + B dx dy is 0.5 dx^2 D / C with
-// D = A C - B^2, so |dx| >= sqrt(2 S C / D) gives sigma >= S; S = 1.01 max(cut, 1e-3) and a
-// further 1% on the extent leave a margin of 3% in sigma. Only for bounded footprints
-// (footprint_bounded, common.wgsl); otherwise +Inf.
-fn reach_of(xy: vec2<f32>, co: vec4<f32>, cut: f32) -> vec2<f32> {
-    if (!footprint_bounded(xy, co, cut)) {
-        return vec2<f32>(inf_f32());
-    }
-    let A = co.x;
-    let B = co.y;
-    let C = co.z;
-    let s = 2.02 * max(cut, 1e-3) / (A * C - B * B);
-    return 1.01 * sqrt(vec2<f32>(s * C, s * A));
-}
-
-// Tile-local pixel rectangle of a record (tile's first pixel at `origin`, full-frame
-// coordinates): the columns and rows whose centres lie within `reach` of the mean, widened by
-// one pixel for the rounding of dx = mx - px (<= 0.06 px here); EMPTY_BOX when none.
-fn box_of(xy: vec2<f32>, co: vec4<f32>, cut: f32, origin: vec2<f32>) -> u32 {
-    let reach = reach_of(xy, co, cut);
-    if (!is_finite_f32(reach.x) || !is_finite_f32(reach.y)) {
-        return FULL_BOX;
-    }
-    let last = f32(TILE - 1u);
-    let lo = floor(xy - reach - origin - 0.5) - 1.0;
-    let hi = ceil(xy + reach - origin - 0.5) + 1.0;
-    if (hi.x < 0.0 || hi.y < 0.0 || lo.x > last || lo.y > last) {
-        return EMPTY_BOX;
-    }
-    let l = vec2<u32>(max(lo, vec2<f32>(0.0)));
-    let h = vec2<u32>(min(hi, vec2<f32>(last)));
-    return l.x | (h.x << 8u) | (l.y << 16u) | (h.y << 24u);
-}
-
-// Stage one record (screen mean, conic + opacity, rgb) at slot i with its pixel box `bx`.
-fn stage_boxed(i: u32, xy: vec2<f32>, co: vec4<f32>, rgb: vec4<f32>, bx: u32) {
-    s_box[i] = bx;
-    s_pos[i] = vec4<f32>(xy, cut_of(co.w), 0.0);
-    s_conic[i] = co;
-    s_rgb[i] = rgb;
-}
-
-// Stage one record at slot i for the tile at `origin`; returns its pixel box.
-fn stage(i: u32, xy: vec2<f32>, co: vec4<f32>, rgb: vec4<f32>, origin: vec2<f32>) -> u32 {
-    let bx = box_of(xy, co, cut_of(co.w), origin);
-    stage_boxed(i, xy, co, rgb, bx);
-    return bx;
-}
 
 // The invocation's pixels: column x, rows y0 .. y0 + SPAN - 1 (full-frame coordinates), Quad j
 // holding rows y0 + QUAD j ..; `inside` says which lie in the viewport (w x h from `first`, the
@@ -154,59 +84,6 @@ fn count_if_done(p: ptr<function, Pixels>) {
     if (all_pixels_done(p)) {
         atomicAdd(&s_done, 1u);
     }
-}
-
-// sigma of a record at the quad's pixels, in the per-pixel rule's operation order.
-fn sigma_of(xy: vec2<f32>, co: vec4<f32>, q: Quad) -> vec4<f32> {
-    let dx = xy.x - q.x;
-    let dy = vec4<f32>(xy.y) - q.y;
-    return 0.5 * (vec4<f32>(co.x * dx * dx) + co.z * dy * dy) + (co.y * dx) * dy;
-}
-
-// alpha (NaN propagating) of a record at sigma, and whether each lane takes part in the blend.
-struct Alpha {
-    alpha: vec4<f32>,
-    hit: vec4<bool>,
-};
-
-fn alpha_of(sigma: vec4<f32>, o: f32) -> Alpha {
-    let s_nan = nan4(sigma);
-    let x = -sigma;
-    var e = exp(x);
-    e = select(e, vec4<f32>(0.0), x < vec4<f32>(-103.97208));
-    e = select(e, vec4<f32>(inf_f32()), x > vec4<f32>(88.72283));
-    e = select(e, x, s_nan);
-    let a = o * e;
-    // a NaN alpha propagates (strict); gsplat: CUDA's min (fminf) drops the NaN
-    let alpha = select(min(vec4<f32>(0.99), a), select(a, vec4<f32>(0.99), PROFILE == PROFILE_GSPLAT), nan4(a));
-    let skip = (!s_nan & (sigma < vec4<f32>(0.0))) | (!nan4(alpha) & (alpha < vec4<f32>(1.0 / 255.0)));
-    return Alpha(alpha, !skip);
-}
-
-// A staged record (mean and cut in st, conic and opacity in co, colour in rgb) blended into a quad.
-fn blend_quad(q0: Quad, st: vec4<f32>, co: vec4<f32>, rgb: vec4<f32>) -> Quad {
-    var q = q0;
-    let done = q.done;
-    let sigma = sigma_of(st.xy, co, q);
-    // lanes that skip for certain: sigma negative or past the cut
-    let gone = !nan4(sigma) & ((sigma < vec4<f32>(0.0)) | (sigma > vec4<f32>(st.z)));
-    if (!any(!done & !gone)) {
-        return q;
-    }
-    let al = alpha_of(sigma, co.w);
-    let alpha = al.alpha;
-    let T = q.T;
-    let hit = al.hit & !done;
-    let next_t = T * (1.0 - alpha);
-    let stop = hit & !nan4(next_t) & (next_t <= vec4<f32>(1e-4));
-    let upd = hit & !stop;
-    let w = alpha * T;
-    q.r = select(q.r, q.r + rgb.x * w, upd);
-    q.g = select(q.g, q.g + rgb.y * w, upd);
-    q.b = select(q.b, q.b + rgb.z * w, upd);
-    q.T = select(T, next_t, upd);
-    q.done = done | stop;
-    return q;
 }
 
 // Staged record k blended into the invocation's quads that its rows y0..y1 reach (QPI = 2 written
@@ -335,58 +212,10 @@ fn blend_batch_masked(p: ptr<function, Pixels>, q: u32, base: u32, stops: ptr<fu
     }
 }
 
-// After a batch: true (uniformly) when every invocation of the tile is finished.
-fn all_done(li: u32) -> bool {
-    workgroupBarrier();
-    if (li == 0u) {
-        s_all_done = atomicLoad(&s_done);
-    }
-    return workgroupUniformLoad(&s_all_done) == LANES;
-}
-
 // Pixel i of a quad as the output (C + T * background, T).
 fn out_pixel(q: Quad, i: u32, bg: vec3<f32>) -> vec4<f32> {
     let T = q.T[i];
     return vec4<f32>(vec3<f32>(q.r[i], q.g[i], q.b[i]) + T * bg, T);
-}
-
-// ---- long tile lists: chunks merged front to back ---------------------------------------
-// A tile list of n pairs is cut by list position into ceil(n / CHUNK_PAIRS) chunks; each chunk
-// runs the per-pixel rule from C = 0, T = 1 (with its own early stop), and the chunks merge front
-// to back per pixel (merge_quad, the one merge every path uses): the first chunk's (C, T) is taken
-// as is, each later one as C = C + T * c, T = T * t, and a pixel ends (later chunks ignored) once
-// a chunk stopped early at it or T <= 1e-4 after a merge (docs/renderer.md, "Long tile lists").
-
-// Pairs per chunk (a multiple of BATCH); tests force small chunks on tiny scenes.
-override CHUNK_PAIRS: u32 = CHUNK;
-// Whether main and chunks leave the pairs' pixel boxes in isect_box: only a frame kept for the
-// incremental re-compositor needs them (render/renderer.py capture_views).
-override KEEP_BOXES: bool = true;
-// Whether the frames were binned exactly (bin.wgsl EXACT_BIN): the variants entry pairs a variant
-// record with a tile as the binning would, and main and chunks mask the quadrants a record's
-// ellipse cannot reach (ellipse_quadrants; otherwise its pixel box alone decides).
-override EXACT_BIN: bool = true;
-
-// A chunk's pixels (c, t, stopped) merged into the pixels' running (C, T, ended) `acc`.
-fn merge_quad(acc: Quad, c: Quad, first: bool) -> Quad {
-    var q = acc;
-    if (first) {
-        q.r = c.r;
-        q.g = c.g;
-        q.b = c.b;
-        q.T = c.T;
-        q.done = acc.done | c.done;
-        return q;
-    }
-    let live = !acc.done;
-    let T = acc.T;
-    let t = T * c.T;
-    q.r = select(acc.r, acc.r + T * c.r, live);
-    q.g = select(acc.g, acc.g + T * c.g, live);
-    q.b = select(acc.b, acc.b + T * c.b, live);
-    q.T = select(T, t, live);
-    q.done = acc.done | (live & (c.done | (!nan4(t) & (t <= vec4<f32>(1e-4)))));
-    return q;
 }
 
 fn merge_pixels(acc: ptr<function, Pixels>, c: ptr<function, Pixels>, first: bool) {
@@ -395,66 +224,11 @@ fn merge_pixels(acc: ptr<function, Pixels>, c: ptr<function, Pixels>, first: boo
     }
 }
 
-// ---- full frame -----------------------------------------------------------------------------
-@group(0) @binding(0) var<uniform> bin: Binning;
-@group(0) @binding(1) var<storage, read> ranges: array<vec2<u32>>;
-@group(0) @binding(2) var<storage, read> isect_prims: array<u32>;
-@group(0) @binding(3) var<storage, read> proj_xy: array<vec2<f32>>;
-@group(0) @binding(4) var<storage, read> proj_conic: array<vec4<f32>>;
-@group(0) @binding(5) var<storage, read> proj_rgb: array<vec4<f32>>;
-@group(0) @binding(6) var<storage, read_write> image: array<vec4<f32>>;
-// The pixel box of every pair (FULL_BOX past the point where its chunk stopped): the variants
-// entry reads the clean frame's copy instead of re-reading records that cannot reach its pixels.
-@group(0) @binding(7) var<storage, read_write> isect_box: array<u32>;
-
-// The work main lists for the later passes (zeroed before main, render/composite.py): slab slots
-// taken, later chunks listed, long tiles listed, and the indirect dispatch arguments of `chunks`
-// (byte 16) and `merge` (byte 32): min(listed, MAX_GROUPS_X) workgroups, each striding the list.
-struct Work {
-    slots: atomic<u32>,
-    extra: atomic<u32>,
-    merges: atomic<u32>,
-    pad0: u32,
-    extra_groups: atomic<u32>,
-    extra_y: u32,
-    extra_z: u32,
-    pad1: u32,
-    merge_groups: atomic<u32>,
-    merge_y: u32,
-    merge_z: u32,
-    pad2: u32,
-};
-
-@group(0) @binding(30) var<storage, read_write> work: Work;
-// One slot of TILE x TILE (c.rgb, t) per chunk of a long tile; t is stored negated where the chunk
-// stopped early (t > 1e-4 there, so the sign is free; a NaN t never stops).
-@group(0) @binding(31) var<storage, read_write> chunk_slabs: array<vec4<f32>>;
-@group(0) @binding(32) var<storage, read_write> extra_list: array<vec4<u32>>;  // tile, chunk, slot, 0
-@group(0) @binding(33) var<storage, read_write> merge_list: array<vec2<u32>>;  // tile, first slot
-// the same buffer as `work`, read-only: the later passes also take their indirect arguments from it
-@group(0) @binding(34) var<storage, read> work_counts: array<u32>;
-
-var<workgroup> s_work: vec4<u32>;
-const VOID: u32 = 0xffffffffu;  // an extra_list item of a tile composited in main
-
 // Composite the pairs [a, b) of the tile at `origin` (one chunk) into p, leaving every pair's
 // pixel box in isect_box (FULL_BOX for those never staged).
 fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, col: u32, row0: u32, li: u32,
                    pos0: u32, stops: ptr<function, array<vec4<u32>, QPI>>) {
-    if (li == 0u) {
-        atomicStore(&s_done, 0u);
-    }
-    workgroupBarrier();
-    count_if_done(p);
-    let n = b - a;
-    var batches = (n + BATCH - 1u) / BATCH;
-    if (all_done(li)) {
-        // every pixel finished before (a later chunk of pixels that ended in chunk 0)
-        for (var idx = a + li; KEEP_BOXES && idx < b; idx = idx + LANES) {
-            isect_box[idx] = FULL_BOX;
-        }
-        batches = 0u;
-    }
+    let batches = begin_range(a, b, li, all_pixels_done(p));
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
         var quads: array<u32, PER_LANE>;
         for (var s = 0u; s < PER_LANE; s = s + 1u) {
@@ -475,10 +249,7 @@ fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, 
         workgroupBarrier();
         blend_batch_masked(p, col / (TILE / 2u) + 2u * (row0 / (TILE / 2u)), pos0 + bt * BATCH, stops);
         if (all_done(li)) {
-            // the pairs never staged: no box known
-            for (var idx = a + (bt + 1u) * BATCH + li; KEEP_BOXES && idx < b; idx = idx + LANES) {
-                isect_box[idx] = FULL_BOX;
-            }
+            unboxed(a + (bt + 1u) * BATCH, b, li);
             break;
         }
     }
@@ -529,11 +300,6 @@ fn write_image(p: ptr<function, Pixels>, tx: u32, ty: u32, col: u32, row0: u32) 
     }
 }
 
-// KEEP_BOXES frames: per pixel, the position in its tile's list of the record it stopped at, or
-// NEVER (it never stopped, or its list is longer than a chunk), as the image is indexed.
-const NEVER: u32 = 0xffffffffu;
-@group(0) @binding(35) var<storage, read_write> stop_pos: array<u32>;
-
 fn write_stops(stops: ptr<function, array<vec4<u32>, QPI>>, tx: u32, ty: u32, col: u32, row0: u32) {
     let x = tx * TILE + col;
     for (var j = 0u; j < QPI; j = j + 1u) {
@@ -544,12 +310,6 @@ fn write_stops(stops: ptr<function, array<vec4<u32>, QPI>>, tx: u32, ty: u32, co
             }
         }
     }
-}
-
-// The first pixel of tile (tx, ty) in full-frame coordinates (a sort-first viewport starts at
-// `origin`).
-fn tile_first(tx: u32, ty: u32) -> vec2<u32> {
-    return vec2<u32>(bin.origin & 0xffffu, bin.origin >> 16u) + vec2<u32>(tx * TILE, ty * TILE);
 }
 
 fn tile_pixels(tx: u32, ty: u32, col: u32, row0: u32) -> Pixels {
@@ -583,26 +343,9 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
         write_stops(&stops, wg.x, wg.y, lid.x, row0);
     }
     let n_chunks = (n + CHUNK_PAIRS - 1u) / CHUNK_PAIRS;
-    if (li == 0u) {
-        let slot = atomicAdd(&work.slots, n_chunks);
-        let at = atomicAdd(&work.extra, n_chunks - 1u);
-        atomicMax(&work.extra_groups, min(at + n_chunks - 1u, MAX_GROUPS_X));
-        let fits = slot + n_chunks <= arrayLength(&chunk_slabs) / TILE_PIXELS
-            && at + n_chunks - 1u <= arrayLength(&extra_list);
-        if (fits) {
-            let m = atomicAdd(&work.merges, 1u);
-            atomicMax(&work.merge_groups, min(m + 1u, MAX_GROUPS_X));
-            merge_list[m] = vec2<u32>(tile, slot);
-        }
-        s_work = vec4<u32>(slot, at, u32(fits), 0u);
-    }
-    let w = workgroupUniformLoad(&s_work);
+    let w = list_long_tile(tile, n_chunks, li);
     if (w.z == 0u) {
-        // No room for this tile's slabs or work items (only where the ranges list more pairs than
-        // the capacity, e.g. a flipped range): its items are void, its chunks run here in sequence.
-        for (var e = w.y + li; e < min(w.y + n_chunks - 1u, arrayLength(&extra_list)); e = e + LANES) {
-            extra_list[e] = vec4<u32>(VOID, 0u, 0u, 0u);
-        }
+        // no room for its slabs: its chunks run here in sequence
         var acc = p;
         for (var c = 1u; c < n_chunks; c = c + 1u) {
             for (var j = 0u; j < QPI; j = j + 1u) {
@@ -615,9 +358,6 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
         }
         write_image(&acc, wg.x, wg.y, lid.x, row0);
         return;
-    }
-    for (var c = 1u + li; c < n_chunks; c = c + LANES) {
-        extra_list[w.y + c - 1u] = vec4<u32>(tile, c, w.x + c, 0u);
     }
     write_slab(&p, w.x, lid.x, row0);
 }

@@ -31,15 +31,16 @@ def assert_close(got, want):
     assert err.max(initial=0) <= TOL, err.max()
 
 
-def gpu_frame(gpu, ranges, prims, rec: dict, w: int, h: int, background, chunk=CHUNK) -> np.ndarray:
-    """composite.wgsl:main on the given tile lists and screen records: [h, w, 4] (rgb, T)."""
+def gpu_frame(gpu, ranges, prims, rec: dict, w: int, h: int, background, chunk=CHUNK, shape="lanes") -> np.ndarray:
+    """The full-frame compositor of `shape` (composite.wgsl or composite_wide.wgsl main, chunks,
+    then merge) on the given tile lists and screen records: [h, w, 4] (rgb, T)."""
     tx, ty = -(-w // 16), -(-h // 16)
     frame = Binning(gpu, len(rec["opacity"]))
     frame.set_views(1, tx * ty)
     frame.set_capacity(len(prims))
     frame.set_view(0, tiles_x=tx, size=(w, h), origin=(0, 0), background=background)
     frame.params.write()
-    stage = Compositing(gpu, chunk=chunk)
+    stage = Compositing(gpu, chunk=chunk, shape=shape)
     stage.set_views(1, w, h)
     stage.set_capacity(len(prims))
     depth = rec.get("depth", np.zeros(len(rec["opacity"])))
@@ -60,7 +61,11 @@ def gpu_frame(gpu, ranges, prims, rec: dict, w: int, h: int, background, chunk=C
     return gpu.read(stage.image, np.float32).reshape(h, w, 4)
 
 
-def test_frame_matches_twin(gpu):
+SHAPES = pytest.mark.parametrize("shape", ["lanes", "wide"])
+
+
+@SHAPES
+def test_frame_matches_twin(gpu, shape):
     model = random_model(2000, seed=2)
     flat = model.flat()
     flat[11, 11:14] = [np.inf, np.nan, -np.inf]  # non-finite colour: reaches its pixels
@@ -74,7 +79,7 @@ def test_frame_matches_twin(gpu):
         rec = project(model, cam)
     ranges, prims = tile_lists(rec["rect"], depth_order(rec), tx, tx * ty)
     want = composite_frame(ranges, prims, rec, w, h, background=(0.2, 0.3, 0.4))
-    got = gpu_frame(gpu, ranges, prims, rec, w, h, (0.2, 0.3, 0.4))
+    got = gpu_frame(gpu, ranges, prims, rec, w, h, (0.2, 0.3, 0.4), shape=shape)
     assert (~np.isfinite(want)).any() and (want[..., 3] < 0.5).any()
     assert_close(got, want)
 
@@ -247,7 +252,8 @@ def _dense_records(n: int, rng, w: int, h: int) -> dict:
     }
 
 
-def test_chunked_frame_matches_twin(gpu):
+@SHAPES
+def test_chunked_frame_matches_twin(gpu, shape):
     """Tiles of ~1,200 pairs in chunks of 256 (five per tile): GPU against the twin under the same
     chunk rule; the rule itself is visible (the twin without chunks differs beyond the tolerance)."""
     rng = np.random.default_rng(21)
@@ -261,14 +267,15 @@ def test_chunked_frame_matches_twin(gpu):
     with np.errstate(all="ignore"):
         want = composite_frame(ranges, prims, rec, w, h, background=bg, chunk=256)
         whole = composite_frame(ranges, prims, rec, w, h, background=bg)
-    got = gpu_frame(gpu, ranges, prims, rec, w, h, bg, chunk=256)
+    got = gpu_frame(gpu, ranges, prims, rec, w, h, bg, chunk=256, shape=shape)
     assert (~np.isfinite(want)).any() and (want[..., 3] < 1e-4).any() and (want[..., 3] > 0.01).any()
     fin = np.isfinite(want) & np.isfinite(whole)
     assert np.abs(want[fin] - whole[fin]).max() > 100 * TOL
     assert_close(got, want)
 
 
-def test_chunks_past_the_capacity(gpu):
+@SHAPES
+def test_chunks_past_the_capacity(gpu, shape):
     """Ranges that list more pairs than the capacity (as a flipped tile range can): every tile lists
     the same 1,200 pairs, in chunks of 256, with slabs for one frame of 1,200 pairs. The tiles that
     find no room composite their chunks in sequence: the same rule, so the twin's image."""
@@ -280,7 +287,7 @@ def test_chunks_past_the_capacity(gpu):
     ranges = np.tile([0, n], (tiles, 1))
     with np.errstate(all="ignore"):
         want = composite_frame(ranges, prims, rec, w, h, chunk=256)
-    got = gpu_frame(gpu, ranges, prims, rec, w, h, (1.0, 1.0, 1.0), chunk=256)
+    got = gpu_frame(gpu, ranges, prims, rec, w, h, (1.0, 1.0, 1.0), chunk=256, shape=shape)
     assert_close(got, want)
 
 
@@ -324,6 +331,64 @@ def test_slabs_capped_at_one_binding_give_the_same_image(gpu, monkeypatch):
     assert r.compositing.slabs.size <= 1 << 16 < 2 * (r.capacity // 256) * 16 * 16 * 16
     got = r.render_rgba()
     assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+
+
+def _kept_frame(gpu, model, cams, **kw) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A kept frame's (image, pair boxes, stop positions) as u32 bits: what the variants entry reads."""
+    r = Renderer(model, cams, gpu=gpu, keep_views=True, **kw)
+    r.capture_views = True
+    img = r.render_rgba().view(np.uint32)
+    return img, gpu.read(r.kv_box)[: r.k * r.capacity], gpu.read(r.kv_stop)
+
+
+def _extreme_model(n: int, seed: int) -> Model:
+    """_dense_model with the values upsets make: non-finite colour and opacity, a sheet, a needle."""
+    model = _dense_model(n, seed)
+    flat = model.flat()
+    flat[11, 11:14] = [np.inf, np.nan, -np.inf]
+    flat[12, 3:6] = 60.0  # frame-covering sheet
+    flat[13, 10] = np.nan
+    flat[14, 3] = 30.0  # a needle
+    flat[15, 6:10] = 0.0  # zero quaternion: unbounded
+    return Model.from_flat(flat, model.sh_degree)
+
+
+@pytest.mark.parametrize(
+    "profile, exact, chunk",
+    [("strict", True, 256), ("gsplat", True, 256), ("strict", False, 256), ("strict", True, CHUNK)],
+)
+def test_wide_compositor_equals_lanes_bit_for_bit(gpu, profile, exact, chunk):
+    """composite_wide.wgsl (one pixel per invocation) gives composite.wgsl's frames, pair boxes and
+    stop positions bit for bit: long tiles in chunks of 256 (merged by composite.wgsl's merge) or
+    one chunk a tile, both profiles, exact binning or whole rectangles, NaN and Inf pixels."""
+    model = _extreme_model(1500, 5)
+    cams = orbit_cameras(2, 40, 36)
+    kw = {"chunk": chunk, "profile": profile, "exact_binning": exact}
+    lanes = _kept_frame(gpu, model, cams, compositor="lanes", **kw)
+    wide = _kept_frame(gpu, model, cams, compositor="wide", **kw)
+    img = lanes[0].view(np.float32)
+    assert np.isnan(img).any() and (img[..., 3] <= 1e-4).sum() < img[..., 3].size  # NaN, and pixels left open
+    assert (lanes[2] != 0xFFFFFFFF).any() and (lanes[1] == 0xF00 | 0xF << 24).any()  # stops, and FULL_BOXes
+    for a, b in zip(lanes, wide):
+        assert np.array_equal(a, b)
+
+
+def test_wide_compositor_viewports_and_capped_slabs(gpu, monkeypatch):
+    """The wide compositor in a sort-first viewport equals its full frame's pixels, and with slabs
+    capped at 64 KiB (tiles that find no room run their chunks in sequence) it equals the lanes
+    compositor under the same cap, bit for bit; an unknown shape is refused by name."""
+    model = _dense_model(1500, 3)
+    cams = orbit_cameras(2, 32, 32)
+    full = Renderer(model, cams, gpu=gpu, chunk=256, compositor="wide").render_rgba()
+    band = Renderer(model, cams, gpu=gpu, chunk=256, compositor="wide", viewport=(16, 0, 16, 32)).render_rgba()
+    assert np.array_equal(band.view(np.uint32), full[:, :, 16:32].view(np.uint32))
+    monkeypatch.setitem(gpu.limits, "max-storage-buffer-binding-size", 1 << 16)
+    capped = {s: _kept_frame(gpu, model, cams, chunk=256, compositor=s) for s in ("lanes", "wide")}
+    assert np.array_equal(capped["wide"][0], full.view(np.uint32))
+    for a, b in zip(capped["lanes"], capped["wide"]):
+        assert np.array_equal(a, b)
+    with pytest.raises(ValueError, match="unknown compositor shape 'wdie'"):
+        Compositing(gpu, shape="wdie")
 
 
 def test_default_chunk_follows_the_adapter(gpu, monkeypatch):
@@ -399,16 +464,23 @@ def _incremental_equals_full(gpu, model, cams, kw, prims, min_entries=20) -> int
 
 
 @pytest.mark.parametrize(
-    "profile, exact, chunk",
-    [("strict", True, 256), ("gsplat", True, 256), ("strict", False, 256), ("strict", True, 512)],
+    "profile, exact, chunk, shape",
+    [
+        ("strict", True, 256, "lanes"),
+        ("gsplat", True, 256, "lanes"),
+        ("strict", False, 256, "lanes"),
+        ("strict", True, 512, "lanes"),
+        ("strict", True, 256, "wide"),
+    ],
 )
-def test_chunked_incremental_equals_full_rerender(gpu, profile, exact, chunk):
+def test_chunked_incremental_equals_full_rerender(gpu, profile, exact, chunk, shape):
     """The variants entry under chunks of 256 (or 512: it then walks the lists 512 entries a
     round), one chunk per dispatch, re-composites every dirty tile exactly as a full re-render of
     the variant does, bit for bit, with exact binning (the variant is listed only on the tiles its
-    footprint reaches, as the binning lists it) and without."""
+    footprint reaches, as the binning lists it) and without; also where the clean frame (its pair
+    boxes and stop positions) and the full re-renders come from the wide compositor."""
     model = _dense_model(1500, 4)
-    kw = {"gpu": gpu, "chunk": chunk, "profile": profile, "exact_binning": exact}
+    kw = {"gpu": gpu, "chunk": chunk, "profile": profile, "exact_binning": exact, "compositor": shape}
     longest = _incremental_equals_full(
         gpu, model, orbit_cameras(2, 32, 32), kw, np.array([5, 77, 300, 301, 900, 1200, 1499])
     )

@@ -4,7 +4,8 @@ Device creation (~0.6 s on lavapipe) and pipelines (~60 ms each) are paid once. 
 the repository's top-level `shaders/` folder, which the wheel ships as the resource package
 `seuwgpu.shaders` (an editable install maps it to the folder). Every stage is compiled as the
 generated constants header (gpu/constants.py), then `common.wgsl` (the decode and activation
-helpers, once), then its own file. Stages record their work through gpu/kernel.py's Kernel.
+helpers, once), then the helpers it shares with other stages (`STAGE_HELPERS`), then its own
+file. Stages record their work through gpu/kernel.py's Kernel.
 """
 
 from __future__ import annotations
@@ -30,10 +31,17 @@ def shader_text(name: str) -> str:
         return (Path(__file__).resolve().parents[2] / "shaders" / f"{name}.wgsl").read_text()
 
 
+STAGE_HELPERS = {"composite": ("blend",), "composite_wide": ("blend",)}
+"""Helper files a stage shares with others, compiled between common.wgsl and the stage's own
+file: the two full-frame compositors share blend.wgsl (the per-pixel rule, written once over the
+lane types each of them declares)."""
+
+
 def shader_source(name: str, defines: dict | None = None) -> str:
     """What a stage is compiled from: the constants header (shared values, then the module's own
-    `defines`), common.wgsl, then shaders/NAME.wgsl."""
-    return wgsl_header(defines) + shader_text("common") + "\n" + shader_text(name)
+    `defines`), common.wgsl, its STAGE_HELPERS, then shaders/NAME.wgsl."""
+    parts = ["common", *STAGE_HELPERS.get(name, ()), name]
+    return wgsl_header(defines) + "\n".join(shader_text(p) for p in parts)
 
 
 STORAGE = wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST

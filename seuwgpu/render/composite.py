@@ -43,27 +43,52 @@ TILE_PIXELS = TILE * TILE
 SLAB_BYTES = TILE_PIXELS * 16  # one re-composited tile: TILE x TILE vec4 (rgb, T)
 
 
-class Compositing:
-    """composite.wgsl main / chunks / merge: one TILE x TILE workgroup per tile runs the first
-    `chunk` pairs of its list; the later chunks of long tiles run in parallel (`chunks`, an
-    indirect dispatch over the work main lists) into slabs that `merge` blends front to back into
-    the image. Owns the frames `image` ([K, H, W] vec4: rgb, final transmittance), the slabs and
-    the work lists (sized by the intersection capacity: `set_capacity`)."""
+SHAPES = {"lanes": "composite", "wide": "composite_wide"}
+"""Full-frame compositor shapes and their shaders (docs/renderer.md): "lanes", 8 pixels per
+invocation and 32 invocations a tile (the shape for CPU Vulkan); "wide", one pixel per invocation
+and 256 a tile (the shape GPUs fill). Same operations per pixel (shaders/blend.wgsl), so the
+same frames, bit for bit."""
 
-    def __init__(self, gpu: GPU, profile: str = "strict", chunk: int = CHUNK, exact: bool = True):
+
+def check_shape(shape: str) -> str:
+    if shape not in SHAPES:
+        raise ValueError(f"unknown compositor shape {shape!r}: choose one of {', '.join(SHAPES)}")
+    return shape
+
+
+def default_shape(gpu: GPU) -> str:
+    """The compositor a Renderer uses unless told: "lanes" on every adapter. "wide" is the usual
+    GPU shape, but it has not yet been timed on a GPU against "lanes" (tools/bench.py times both
+    on GPU adapters), so it stays opt-in until a measurement says it wins."""
+    return "lanes"
+
+
+class Compositing:
+    """composite.wgsl main / chunks / merge (or composite_wide.wgsl main / chunks for the "wide"
+    shape, then composite.wgsl merge): one TILE x TILE workgroup per tile runs the first `chunk`
+    pairs of its list; the later chunks of long tiles run in parallel (`chunks`, an indirect
+    dispatch over the work main lists) into slabs that `merge` blends front to back into the
+    image. Owns the frames `image` ([K, H, W] vec4: rgb, final transmittance), the slabs and the
+    work lists (sized by the intersection capacity: `set_capacity`)."""
+
+    def __init__(self, gpu: GPU, profile: str = "strict", chunk: int = CHUNK, exact: bool = True, shape: str = "lanes"):
         self.gpu = gpu
         self.chunk = check_chunk(chunk)
-        # exact: a record visits only the quadrants its ellipse may reach (ellipse_quadrants), as
-        # exact binning pairs it only with such tiles; False: its pixel box decides (same image)
-        constants = {"PROFILE": PROFILE_CODE[profile], "CHUNK_PAIRS": self.chunk, "EXACT_BIN": int(exact)}
-        self.kernel = Kernel(gpu, "composite", "main", constants=constants)
-        self.k_chunks = Kernel(gpu, "composite", "chunks", constants=constants)
+        self.shape = check_shape(shape)
+        shader = SHAPES[self.shape]
+        constants = {"PROFILE": PROFILE_CODE[profile], "CHUNK_PAIRS": self.chunk}
+        # exact (lanes): a record visits only the quadrants its ellipse may reach
+        # (ellipse_quadrants), as exact binning pairs it only with such tiles; False: its pixel box
+        # decides (same image). The wide shape tests each pixel against the box alone.
+        full = {**constants, "EXACT_BIN": int(exact)} if shape == "lanes" else constants
+        self.kernel = Kernel(gpu, shader, "main", constants=full)
+        self.k_chunks = Kernel(gpu, shader, "chunks", constants=full)
         self.k_merge = Kernel(gpu, "composite", "merge", constants=constants)
         # the same without writing the pairs' pixel boxes (frames not kept for re-compositing)
-        lean = {**constants, "KEEP_BOXES": 0}
+        lean = {**full, "KEEP_BOXES": 0}
         self._lean = (
-            Kernel(gpu, "composite", "main", constants=lean),
-            Kernel(gpu, "composite", "chunks", constants=lean),
+            Kernel(gpu, shader, "main", constants=lean),
+            Kernel(gpu, shader, "chunks", constants=lean),
         )
         # Work (composite.wgsl): counters zeroed per view; the dispatch arguments' y, z stay 1
         self.work = gpu.upload(np.array([0, 0, 0, 0, 0, 1, 1, 0, 0, 1, 1, 0], np.uint32), INDIRECT, "composite.work")

@@ -27,7 +27,7 @@ from seuwgpu.model.budget import check_frames, check_render
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model, StoredLayout
 from seuwgpu.render.bin import Binning
-from seuwgpu.render.composite import Compositing, default_chunk
+from seuwgpu.render.composite import Compositing, default_chunk, default_shape
 from seuwgpu.render.project import Projection, check_profile
 from seuwgpu.render.sort import Sorting
 
@@ -62,6 +62,7 @@ class Renderer:
         profile: str = "strict",
         exact_binning: bool = True,
         chunk: int | None = None,
+        compositor: str | None = None,
     ):
         self.gpu = gpu or get_gpu()
         # renderer profile (docs/renderer.md "Profiles"): what corrupted values draw
@@ -95,7 +96,10 @@ class Renderer:
         # chunk: pairs of a tile list per compositing workgroup (render/composite.py; not chunk_prims,
         # the model's storage chunks); None: the device's default; tests force small ones
         chunk = default_chunk(self.gpu) if chunk is None else chunk
-        self.compositing = Compositing(self.gpu, self.profile, chunk, exact=exact_binning)
+        # compositor: the full-frame compositor's shape, "lanes" or "wide" (render/composite.py
+        # SHAPES; the same frames bit for bit); None: the device's default
+        shape = default_shape(self.gpu) if compositor is None else compositor
+        self.compositing = Compositing(self.gpu, self.profile, chunk, exact=exact_binning, shape=shape)
         # In-pipeline guard state (off by default): box of the clean model and clamp counters.
         self.guard_mask = 0
         bound = self.projection.kernel.struct("Bound")
