@@ -37,6 +37,7 @@ def test_bench_config_fields(bench, gpu):
     rec = bench.bench_config(model, "spheres", 32, 2, repeats=2, gpu=gpu, twin=twin, floors=floors)
     json.dumps(rec)  # JSON-serialisable (the twin image is not in the record)
     assert rec["n"] == 2000 and rec["width"] == rec["height"] == 32 and rec["k"] == 2
+    assert rec["compositor"] == "lanes" and len(rec["view0_sha256"]) == 64
     assert 1 <= rec["repeats"] <= 2 and len(rec["times_s"]) == rec["repeats"]
     for key in ("mpix_per_s", "ms_per_view", "seconds_per_submission", "warmup_s", "twin_ratio"):
         assert rec[key] > 0, key
@@ -79,6 +80,44 @@ def test_main_writes_json_only_where_told(bench, gpu, tmp_path, capsys, monkeypa
     out.unlink()
     assert bench.main([*args, "--campaign-samples", "0", "--no-twin"]) == 0
     assert list(tmp_path.iterdir()) == []  # no --out: nothing written
+
+
+def test_bench_times_both_compositors_and_checks_their_frames(bench, gpu, tmp_path, monkeypatch):
+    """--compositors lanes wide: one record per shape and configuration, with the shape named and
+    view 0's bits hashed; the shapes' frames are the same bit for bit, so the digests are equal,
+    and a view's digest is the SHA-256 of the image the renderer reads back. A GPU adapter times
+    both shapes unless told, and sweeps the chunks with each (here posed by pretending the adapter
+    is not a CPU)."""
+    import hashlib
+
+    from seuwgpu.model import scenes
+    from seuwgpu.render.renderer import Renderer
+
+    out = tmp_path / "b.json"
+    args = ["--scenes", "spheres", "--n", "2000", "--sizes", "32", "--views", "2", "--repeats", "1", "--no-twin"]
+    assert bench.main([*args, "--campaign-samples", "0", "--compositors", "lanes", "wide", "--out", str(out)]) == 0
+    recs = json.loads(out.read_text())["results"]
+    assert [r["compositor"] for r in recs] == ["lanes", "wide"]
+    assert recs[0]["view0_sha256"] == recs[1]["view0_sha256"] and recs[1]["view0_same_as_first_compositor"]
+    model = scenes.make_scene("spheres", 2000, 3, 0)
+    r = Renderer(model, scenes.scene_cameras("spheres", 2, 32, 32), gpu=gpu)
+    img = r.render_rgba()
+    assert hashlib.sha256(img[0].tobytes()).hexdigest() == recs[0]["view0_sha256"]
+    monkeypatch.setattr(type(gpu), "is_cpu", property(lambda self: False))
+    doc = bench.run_grid(
+        ["spheres"],
+        [2000],
+        [32],
+        [1],
+        repeats=1,
+        twin=False,
+        stages=False,
+        campaign_samples=0,
+        chunks=[256],
+        log=lambda m: None,
+    )
+    assert [r["compositor"] for r in doc["results"]] == ["lanes", "wide"]
+    assert [(c["compositor"], c["chunk"]) for c in doc["chunk_sweep"]] == [("lanes", 256), ("wide", 256)]
 
 
 def test_memory_tool_accounts_every_buffer(tmp_path):

@@ -41,6 +41,11 @@ run). What is measured, per configuration:
   pixel of its tile would need; ours skips most evaluations that provably cannot contribute, so
   it may run faster than this floor), every other stage against the bytes it must read and write
   at the measured copy rate (a lower bound: STAGE_BYTES below). "% of floor" = floor / time.
+- per compositor shape (--compositors; render/composite.py SHAPES): on a GPU adapter every
+  configuration is timed with both full-frame compositors, "lanes" (8 pixels per invocation, the
+  default) and "wide" (one pixel per invocation, 256 a tile), one after the other in the same run;
+  each record carries a SHA-256 of view 0's bits, and the log says whether the shapes' frames are
+  bit-equal (they must be). On a CPU adapter only the default is timed unless asked.
 - with --dense FACTOR: load balance of long tile lists. The scene shrunk about its centre by
   FACTOR (means and scales; a few tiles list most pairs) is timed with the default CHUNK and with
   chunking off (every tile list on one workgroup), in the same run (render/composite.py).
@@ -57,6 +62,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import hashlib
 import importlib.util
 import json
 import os
@@ -77,7 +83,7 @@ from seuwgpu.gpu.device import GPU, get_gpu  # noqa: E402
 from seuwgpu.model import scenes  # noqa: E402
 from seuwgpu.model.fields import Model  # noqa: E402
 from seuwgpu.render import reference  # noqa: E402
-from seuwgpu.render.composite import check_chunk  # noqa: E402
+from seuwgpu.render.composite import SHAPES, check_chunk  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
 from seuwgpu.render.sort import tile_key_bits  # noqa: E402
 
@@ -95,6 +101,8 @@ _STAGE_OF = {
     "composite:main": "composite",
     "composite:chunks": "composite",
     "composite:merge": "composite",
+    "composite_wide:main": "composite",
+    "composite_wide:chunks": "composite",
 }
 
 
@@ -381,14 +389,15 @@ def bench_config(
     twin: dict | None = None,
     stages: bool = True,
     floors: dict | None = None,
+    compositor: str | None = None,
 ) -> dict:
-    """Measure one (scene, N, size, K). `twin` (from measure_twin) adds the ratio when its N and
-    size are this config's; `floors` (from measure_floors) the stages' floors. Returns the JSON
-    record."""
+    """Measure one (scene, N, size, K) with the full-frame `compositor` shape (None: the device's
+    default). `twin` (from measure_twin) adds the ratio when its N and size are this config's;
+    `floors` (from measure_floors) the stages' floors. Returns the JSON record."""
     gpu = gpu or get_gpu()
     w = h = int(size)
     cams = scenes.scene_cameras(scene, k, w, h)
-    r = StageTimedRenderer(model, cams, gpu=gpu)
+    r = StageTimedRenderer(model, cams, gpu=gpu, compositor=compositor)
     warm, totals = _warm_up(r)  # discarded (first use of buffers, possible buffer growth, GPU clocks)
     # Repeats: at most `repeats`, and no more than the budget allows (at least one).
     reps = max(1, min(int(repeats), int(budget // max(warm, 1e-9))))
@@ -410,6 +419,10 @@ def bench_config(
         "height": h,
         "k": k,
         "chunk": r.compositing.chunk,  # pairs a compositing workgroup walks (the device's default)
+        "compositor": r.compositing.shape,
+        # the bits of view 0 (rgb, T) of the last timed submission: equal digests = the same frame
+        # (the compositor shapes must agree bit for bit on every device)
+        "view0_sha256": hashlib.sha256(gpu.read(r.image, np.uint32, 0, 16 * w * h).tobytes()).hexdigest(),
         "repeats": reps,
         "warmup_s": warm,
         "times_s": times,
@@ -482,10 +495,13 @@ def dense_model(model, factor: float = 0.1):
     return Model.from_flat(flat, model.sh_degree)
 
 
-def _time_at_chunk(model, cams, chunk: int, repeats: int, gpu: GPU) -> tuple[float, np.ndarray, np.ndarray]:
+def _time_at_chunk(
+    model, cams, chunk: int, repeats: int, gpu: GPU, compositor: str | None = None
+) -> tuple[float, np.ndarray, np.ndarray]:
     """(ms per view, view 0's rgb, the last view's pairs per tile) of `cams` composited in chunks
-    of `chunk` pairs: one warm-up, then the median of `repeats` submissions."""
-    r = Renderer(model, cams, gpu=gpu, chunk=int(chunk))
+    of `chunk` pairs by the `compositor` shape: one warm-up, then the median of `repeats`
+    submissions."""
+    r = Renderer(model, cams, gpu=gpu, chunk=int(chunk), compositor=compositor)
     _warm_up(r)
     times = [_submission(r)[0] for _ in range(max(1, int(repeats)))]
     w, h = r.width, r.height
@@ -515,7 +531,15 @@ def measure_chunking(
 
 
 def measure_chunk_sweep(
-    model, scene: str, size: int, k: int, chunks, *, repeats: int = 3, gpu: GPU | None = None
+    model,
+    scene: str,
+    size: int,
+    k: int,
+    chunks,
+    *,
+    repeats: int = 3,
+    gpu: GPU | None = None,
+    compositor: str | None = None,
 ) -> list:
     """ms per view of the same frames at each compositing chunk (pairs a workgroup walks), in this
     run, with each image's PSNR to the first chunk's: where the critical path is the longest
@@ -524,7 +548,7 @@ def measure_chunk_sweep(
     cams = scenes.scene_cameras(scene, k, size, size)
     out, first = [], None
     for ch in chunks:
-        ms, img, _ = _time_at_chunk(model, cams, ch, repeats, gpu)
+        ms, img, _ = _time_at_chunk(model, cams, ch, repeats, gpu, compositor)
         out.append(
             {
                 "scene": scene,
@@ -533,6 +557,7 @@ def measure_chunk_sweep(
                 "height": size,
                 "k": k,
                 "chunk": int(ch),
+                "compositor": compositor or "default",
                 "ms_per_view": ms,
                 # None, not inf, for the first chunk (JSON has no infinity)
                 "psnr_view0_vs_first_chunk_db": None if first is None else _psnr(img, first),
@@ -597,10 +622,16 @@ def run_grid(
     campaign_samples=256,
     dense=None,
     chunks=None,
+    compositors=None,
     log=print,
 ) -> dict:
-    """The whole benchmark; returns the JSON document."""
+    """The whole benchmark; returns the JSON document. `compositors`: the full-frame compositor
+    shapes to time each configuration with (render/composite.py SHAPES); None: both on a GPU
+    adapter, where "wide" is the candidate, and the default alone on a CPU adapter (there "wide" is
+    several times slower: docs/renderer.md)."""
     gpu = get_gpu()
+    if compositors is None:
+        compositors = ["lanes"] if gpu.is_cpu else list(SHAPES)
     t0 = time.perf_counter()
     floors = measure_floors(gpu)
     log(
@@ -638,28 +669,37 @@ def run_grid(
                     tw = measure_twin(scene, model, size, twin_views, twin_max_n, seed)
                     log(f"[{scene} N={n} {size}x{size}] twin: {tw['seconds_per_view']:.2f} s/view ({tw['what']})")
                 for k in ks:
-                    rec = bench_config(
-                        model,
-                        scene,
-                        size,
-                        k,
-                        repeats=repeats,
-                        budget=budget,
-                        gpu=gpu,
-                        twin=tw,
-                        stages=stages,
-                        floors=floors,
-                    )
-                    doc["results"].append(rec)
-                    log(
-                        f"[{scene} N={n} {size}x{size} K={k}] {rec['mpix_per_s']:.3f} Mpix/s, "
-                        f"{rec['ms_per_view']:.1f} ms/view (median of {rec['repeats']})"
-                    )
-                    if chunks:
-                        sweep = measure_chunk_sweep(model, scene, size, k, chunks, repeats=repeats, gpu=gpu)
+                    first = None
+                    for shape in compositors:
+                        rec = bench_config(
+                            model,
+                            scene,
+                            size,
+                            k,
+                            repeats=repeats,
+                            budget=budget,
+                            gpu=gpu,
+                            twin=tw,
+                            stages=stages,
+                            floors=floors,
+                            compositor=shape,
+                        )
+                        first = first or rec
+                        rec["view0_same_as_first_compositor"] = rec["view0_sha256"] == first["view0_sha256"]
+                        doc["results"].append(rec)
+                        same = "" if rec is first else f"; view 0 bit-equal to {first['compositor']}'s: "
+                        same += "" if rec is first else ("yes" if rec["view0_same_as_first_compositor"] else "NO")
+                        log(
+                            f"[{scene} N={n} {size}x{size} K={k} {shape}] {rec['mpix_per_s']:.3f} Mpix/s, "
+                            f"{rec['ms_per_view']:.1f} ms/view (median of {rec['repeats']}){same}"
+                        )
+                    for shape in compositors if chunks else ():
+                        sweep = measure_chunk_sweep(
+                            model, scene, size, k, chunks, repeats=repeats, gpu=gpu, compositor=shape
+                        )
                         doc["chunk_sweep"].extend(sweep)
                         log(
-                            f"[{scene} N={n} {size}x{size} K={k}] ms/view by chunk: "
+                            f"[{scene} N={n} {size}x{size} K={k} {shape}] ms/view by chunk: "
                             + ", ".join(f"{c['chunk']}: {c['ms_per_view']:.2f}" for c in sweep)
                         )
                     if dense:
@@ -699,8 +739,8 @@ def print_table(doc: dict, console=None) -> None:
     stages_known = any(r.get("stages_ms") for r in doc["results"])
     title = f"seuwgpu render benchmark - {a['device']} ({a['backend']}, {a['adapter_type']}; {a['description']})"
     table = Table(title=title, title_justify="left")
-    for col in ("scene", "N", "size", "K", "R", "Mpix/s", "ms/view", "min ms/view"):
-        table.add_column(col, justify="right" if col not in ("scene",) else "left")
+    for col in ("scene", "N", "size", "K", "compositor", "R", "Mpix/s", "ms/view", "min ms/view"):
+        table.add_column(col, justify="right" if col not in ("scene", "compositor") else "left")
     if stages_known:
         for s in (*STAGES, "gaps"):
             table.add_column(s, justify="right")
@@ -713,6 +753,7 @@ def print_table(doc: dict, console=None) -> None:
             f"{r['n']:,}",
             f"{r['width']}x{r['height']}",
             str(r["k"]),
+            r.get("compositor", "lanes"),
             str(r["repeats"]),
             f"{r['mpix_per_s']:.3f}",
             f"{r['ms_per_view']:.1f}",
@@ -762,8 +803,8 @@ def print_table(doc: dict, console=None) -> None:
             f"copy {fl['copy_bytes_per_s'] / 1e9:.2f} GB/s",
             title_justify="left",
         )
-        for col in ("scene", "N", "size", "K", *STAGES):
-            ft.add_column(col, justify="left" if col == "scene" else "right")
+        for col in ("scene", "N", "size", "K", "compositor", *STAGES):
+            ft.add_column(col, justify="left" if col in ("scene", "compositor") else "right")
         for r in doc["results"]:
             fms, st = r.get("floors_ms_per_view"), r.get("stages_ms")
             if not fms or not st:
@@ -773,7 +814,14 @@ def print_table(doc: dict, console=None) -> None:
                 t = st[s] / r["k"]
                 f = fms.get(s)
                 cells.append(f"{t:.1f} ms" if f is None else f"{t:.1f} / {f:.1f} ms ({100 * f / max(t, 1e-9):.0f}%)")
-            ft.add_row(r["scene"], f"{r['n']:,}", f"{r['width']}x{r['height']}", str(r["k"]), *cells)
+            ft.add_row(
+                r["scene"],
+                f"{r['n']:,}",
+                f"{r['width']}x{r['height']}",
+                str(r["k"]),
+                r.get("compositor", "lanes"),
+                *cells,
+            )
         console.print(ft)
         console.print(
             "Cells: stage time / floor (ms per view) and % of floor (floor / time). Compositing's floor evaluates "
@@ -846,6 +894,13 @@ def main(argv=None) -> int:
         help="also time every configuration, and the campaign, at each of these compositing chunks "
         "(pairs of a tile list per workgroup; the device's default is chosen by render/composite.py default_chunk)",
     )
+    ap.add_argument(
+        "--compositors",
+        nargs="+",
+        choices=list(SHAPES),
+        help="full-frame compositor shapes to time every configuration with (render/composite.py SHAPES); "
+        "default: all of them on a GPU adapter, the default shape on a CPU adapter",
+    )
     ap.add_argument("--out", type=Path, help="write the JSON document here (default: none)")
     args = ap.parse_args(argv)
 
@@ -882,6 +937,7 @@ def main(argv=None) -> int:
         campaign_samples=args.campaign_samples,
         dense=args.dense,
         chunks=args.chunks,
+        compositors=args.compositors,
         log=lambda m: console.print(m, highlight=False, markup=False),
     )
     print_table(doc, console)
