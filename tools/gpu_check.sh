@@ -4,8 +4,9 @@
 #     tools/gpu_check.sh OUT [PYTHON]        # OUT: a folder for the JSON and logs; PYTHON: default python3
 #
 # 1. the stage tests against their numpy twins on this adapter (pytest -n 8 where pytest-xdist is
-#    installed); 2. tools/bench.py at 100k and 1M primitives, 256 and 512 px, K = 1 and 8, with the
-#    compositing-chunk sweep and a 20,000-injection campaign; 3. tools/memory.py at 10M and 100M
+#    installed); 2. tools/bench.py at 100k and 1M primitives, 256 and 512 px, K = 1 and 8, each with
+#    both compositor shapes ("lanes" and "wide", and whether their frames are bit-equal), with the
+#    compositing-chunk sweep for each shape and a 20,000-injection campaign; 3. tools/memory.py at 10M and 100M
 #    primitives (100M needs about 50 GB of host memory and 35 GB of GPU memory). Each step has its
 #    own time limit (SECONDS_TESTS, SECONDS_BENCH, SECONDS_MEMORY) and writes its log as it goes, so
 #    a step cut short leaves the others' results.
@@ -24,9 +25,9 @@ timeout "${SECONDS_TESTS:-150}" $PY -m pytest -q -p no:cacheprovider $XDIST test
     tests/test_split.py tests/test_decode.py tests/test_guard_faults.py tests/test_guard_nonfinite.py tests/test_kernel.py \
     tests/test_reference.py > "$OUT/tests.txt" 2>&1
 echo "tests: exit $?" | tee -a "$OUT/tests.txt"
-timeout "${SECONDS_BENCH:-240}" $PY tools/bench.py --scenes spheres --n 100000 1000000 --sizes 256 512 --views 1 8 \
+timeout "${SECONDS_BENCH:-300}" $PY tools/bench.py --scenes spheres --n 100000 1000000 --sizes 256 512 --views 1 8 \
     --repeats 10 --budget 3 --twin-views 1 --twin-max-n 100000 --campaign-samples 20000 \
-    --chunks 32768 8192 2048 512 --out "$OUT/bench.json" > "$OUT/bench.txt" 2>&1
+    --chunks 8192 2048 512 --out "$OUT/bench.json" > "$OUT/bench.txt" 2>&1
 echo "bench: exit $?" | tee -a "$OUT/bench.txt"
 timeout "${SECONDS_MEMORY:-360}" $PY tools/memory.py --scene spheres --n 10000000 100000000 --size 256x256 \
     --json "$OUT/memory.json" > "$OUT/memory.txt" 2>&1
