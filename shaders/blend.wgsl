@@ -4,9 +4,10 @@
 // (the shape GPUs fill). It holds the per-pixel rule, the staging of records through workgroup
 // memory, the merge of chunks and the full-frame bindings. The per-pixel arithmetic is written
 // once, over the lane types PF / PB / PU that each including stage declares (vec4<f32>,
-// vec4<bool>, vec4<u32> there; f32, bool, u32 in the wide one): lanes are independent, so both
-// compositors run the same operations in the same order on every pixel, and their frames, stop
-// positions and pair boxes are the same bit for bit (tests/test_composite.py).
+// vec4<bool>, vec4<u32> there; f32, bool, u32 in the wide one) and `any_lane` (`any` of a
+// vector; a scalar bool answers for itself, as SPIR-V's OpAny takes vectors only). Lanes are
+// independent, so both compositors run the same operations in the same order on every pixel, and
+// their frames, stop positions and pair boxes are the same bit for bit (tests/test_composite.py).
 
 // Renderer profile (docs/renderer.md, "Profiles"): PROFILE_STRICT (default) or PROFILE_GSPLAT.
 override PROFILE: u32 = PROFILE_STRICT;
@@ -122,7 +123,7 @@ fn blend_quad(q0: Quad, st: vec4<f32>, co: vec4<f32>, rgb: vec4<f32>) -> Quad {
     let sigma = sigma_of(st.xy, co, q);
     // lanes that skip for certain: sigma negative or past the cut
     let gone = !nan_lanes(sigma) & ((sigma < PF(0.0)) | (sigma > PF(st.z)));
-    if (!any(!done & !gone)) {
+    if (!any_lane(!done & !gone)) {
         return q;
     }
     let al = alpha_of(sigma, co.w);

@@ -45,6 +45,10 @@ alias PF = vec4<f32>;
 alias PB = vec4<bool>;
 alias PU = vec4<u32>;
 
+fn any_lane(b: PB) -> bool {
+    return any(b);
+}
+
 const QUAD: u32 = 4u;                       // pixels per Quad (vec4 lanes, one column)
 const QPI: u32 = 2u;                        // Quads per invocation (2 written out in blend_quads)
 const SPAN: u32 = QUAD * QPI;               // rows per invocation

@@ -18,6 +18,10 @@ alias PF = f32;
 alias PB = bool;
 alias PU = u32;
 
+fn any_lane(b: PB) -> bool {
+    return b;
+}
+
 const LANES: u32 = TILE_PIXELS;  // invocations per workgroup: one a pixel
 
 // Pixel (x, y) (full-frame coordinates), done from the start outside the viewport (w x h from
