@@ -118,16 +118,26 @@ def cameras(
 
 # ---- rendering ------------------------------------------------------------------------------------
 def render_views(
-    scene: Scene | Model, views: Sequence[Camera], *, precision: str = "fp32", profile: str = "strict"
+    scene: Scene | Model,
+    views: Sequence[Camera],
+    *,
+    precision: str = "fp32",
+    profile: str = "strict",
+    compositor: str | None = None,
 ) -> np.ndarray:
     """The views of the model stored at `precision`: float32 [K, H, W, 3], unclamped (values of a
     corrupted model may be negative, above 1 or non-finite). `profile` is the renderer's rule set
-    for corrupted values (PROFILES: "strict", or "gsplat" as gsplat's CUDA kernels; docs/renderer.md)."""
+    for corrupted values (PROFILES: "strict", or "gsplat" as gsplat's CUDA kernels; docs/renderer.md).
+    `compositor`: the compositor's shape, "lanes" or "wide" (the same frames bit for bit; "wide"
+    is the shape GPUs fill, docs/renderer.md); None: the device's default."""
     from seuwgpu.render.renderer import render_split
 
     model = _model_of(scene)
+    shape = None if compositor is None else _compositor(compositor)
     # frames larger than one storage binding are rendered in view groups or tile-row bands
-    return render_split(model, _views(views), encoding.check_precision(precision), profile=_profile(profile))
+    return render_split(
+        model, _views(views), encoding.check_precision(precision), profile=_profile(profile), compositor=shape
+    )
 
 
 @dataclass
@@ -357,6 +367,16 @@ def _profile(profile) -> str:
 
     try:
         return check_profile(profile if isinstance(profile, str) else repr(profile))
+    except ValueError as e:
+        raise InputError(str(e)) from None
+
+
+def _compositor(shape) -> str:
+    """render/composite.py's check_shape raising the API's InputError."""
+    from seuwgpu.render.composite import check_shape
+
+    try:
+        return check_shape(shape if isinstance(shape, str) else repr(shape))
     except ValueError as e:
         raise InputError(str(e)) from None
 

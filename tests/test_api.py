@@ -142,6 +142,7 @@ def test_campaign_records_and_report(tmp_path):
         (lambda s, v: sg.render_views(s, []), "views must be a non-empty list"),
         (lambda s, v: sg.render_views(s, v, precision="fp8"), "unknown precision"),
         (lambda s, v: sg.render_views(s, v, profile="cuda"), "^unknown renderer profile 'cuda'; expected one of"),
+        (lambda s, v: sg.render_views(s, v, compositor="quad"), "^unknown compositor shape 'quad': choose one of"),
         (lambda s, v: sg.inject(s, v, field="colour", bit=1, primitive=0), "colour"),
         (lambda s, v: sg.inject(s, v, field="opacity", bit=32, primitive=0), "bit"),
         (lambda s, v: sg.inject(s, v, field="opacity", bit=3, primitive=10**6), "out of range"),

@@ -86,6 +86,12 @@ def test_render_equals_the_renderer(tmp_path, capsys):
         ["render", "--scene", "spheres", "--n", "300", "--size", "32x24", "--out", tmp_path / "png"], capsys
     )
     assert rc == 0 and len(list((tmp_path / "png").glob("view_*.png"))) == 4
+    rc, _, _ = run(
+        ["render", "--scene", "spheres", "--n", "300", "--views", "2", "--size", "32x24", "--compositor", "wide",
+         "--out", tmp_path / "w.npz"],
+        capsys,
+    )  # fmt: skip
+    assert rc == 0 and np.array_equal(np.load(tmp_path / "w.npz")["images"], want)  # the same frames bit for bit
 
 
 def test_inject_reports_the_flip_and_writes_the_panel(tmp_path, capsys):

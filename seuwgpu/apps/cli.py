@@ -89,6 +89,17 @@ def add_model_args(p: argparse.ArgumentParser):
     )
 
 
+def add_compositor_arg(p: argparse.ArgumentParser):
+    from seuwgpu.gpu.constants import COMPOSITORS
+
+    p.add_argument(
+        "--compositor",
+        choices=COMPOSITORS,
+        help="the compositor's shape: lanes (8 pixels an invocation, the default) or wide (one pixel an "
+        "invocation, the shape GPUs fill); the same frames bit for bit (docs/renderer.md)",
+    )
+
+
 def add_profile_arg(p: argparse.ArgumentParser, default: str | None = "strict"):
     from seuwgpu.gpu.constants import PROFILES
 
@@ -189,7 +200,7 @@ def cmd_render(args):
 
     src = load_source(args)
     cams = load_cams(args, src)
-    images = api.render_views(src, cams, precision=args.precision, profile=args.profile)
+    images = api.render_views(src, cams, precision=args.precision, profile=args.profile, compositor=args.compositor)
     out: Path = args.out
     if out.suffix == ".npz":
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -757,6 +768,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="frame files: png (display), tiff (float32, unclamped), npz; comma-separated (default png)",
     )
     add_profile_arg(s)
+    add_compositor_arg(s)
     s.set_defaults(func=cmd_render)
 
     s = sub.add_parser("inject", help="flip one stored bit (or several of one value), measure, write the panel")

@@ -41,6 +41,11 @@ override of project.wgsl and composite.wgsl (`PROFILE_STRICT`, `PROFILE_GSPLAT`)
 
 PROFILES = tuple(PROFILE_CODE)
 
+COMPOSITORS = ("lanes", "wide")
+"""Shapes of the full-frame compositor (render/composite.py SHAPES, docs/renderer.md): "lanes",
+8 pixels per invocation and 32 invocations a tile (composite.wgsl), and "wide", one pixel per
+invocation and 256 a tile (composite_wide.wgsl). The same frames bit for bit."""
+
 WG = 256
 """Threads per workgroup of the one-thread-per-element kernels and of the scan and radix sort."""
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from seuwgpu.gpu.constants import CHUNK, GPU_CHUNK, PROFILE_CODE, TILE
+from seuwgpu.gpu.constants import CHUNK, COMPOSITORS, GPU_CHUNK, PROFILE_CODE, TILE
 from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE, Readback
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 from seuwgpu.render.bin import REACH_ALL, REACH_ELLIPSE, band_extent, reach
@@ -43,10 +43,9 @@ TILE_PIXELS = TILE * TILE
 SLAB_BYTES = TILE_PIXELS * 16  # one re-composited tile: TILE x TILE vec4 (rgb, T)
 
 
-SHAPES = {"lanes": "composite", "wide": "composite_wide"}
-"""Full-frame compositor shapes and their shaders (docs/renderer.md): "lanes", 8 pixels per
-invocation and 32 invocations a tile (the shape for CPU Vulkan); "wide", one pixel per invocation
-and 256 a tile (the shape GPUs fill). Same operations per pixel (shaders/blend.wgsl), so the
+SHAPES = dict(zip(COMPOSITORS, ("composite", "composite_wide")))
+"""The shader of each full-frame compositor shape (gpu/constants.py COMPOSITORS): "lanes" for CPU
+Vulkan, "wide" the shape GPUs fill; the same operations per pixel (shaders/blend.wgsl), so the
 same frames, bit for bit."""
 
 
