@@ -11,10 +11,11 @@ later one as C = C + T * c, T = T * t; a pixel ends (later chunks ignored) once 
 early at it or T <= 1e-4 after a merge. A tile of at most CHUNK pairs is thus composited as
 before chunks existed, bit for bit; longer ones run their chunks on separate workgroups.
 
-The GPU entry points share the blending and merging code, so their arithmetic is identical bit
-for bit: `Compositing` (main, chunks, merge: the tiles of full frames) and `VariantCompositing`
-(variants: tiles of single-upset variants re-composited from a clean frame's kept lists, one
-chunk per dispatch, render/incremental.py).
+The GPU entry points share the blending and merging code (shaders/blend.wgsl), so their
+arithmetic is identical bit for bit: `Compositing` (main, chunks, merge: the tiles of full frames,
+in either compositor shape, `SHAPES`) and `VariantCompositing` (variants: tiles of single-upset
+variants re-composited from a clean frame's kept lists, one chunk per dispatch,
+render/incremental.py).
 
 Twin: `composite_tile` blends one tile exactly as the sequential per-pixel rule does, vectorised
 over pixels and blocks of primitives: the transmittance and colour recurrences use
