@@ -7,7 +7,12 @@
 // vec4<bool>, vec4<u32> there; f32, bool, u32 in the wide one) and `any_lane` (`any` of a
 // vector; a scalar bool answers for itself, as SPIR-V's OpAny takes vectors only). Lanes are
 // independent, so both compositors run the same operations in the same order on every pixel, and
-// their frames, stop positions and pair boxes are the same bit for bit (tests/test_composite.py).
+// their frames and stop positions are the same bit for bit (tests/test_composite.py), and so are
+// the pair boxes wherever the same long tiles find slab room: which ones do follows the order in
+// which workgroups reach `list_long_tile`'s counter (any order is right, and a tile without room
+// records FULL_BOX for more pairs, which only widens what the variants entry reads). A GPU driver
+// may fuse multiply-adds in the scalar and the vec4 code differently: tools/bench.py compares
+// the two shapes' frames bit for bit on every device it runs on.
 
 // Renderer profile (docs/renderer.md, "Profiles"): PROFILE_STRICT (default) or PROFILE_GSPLAT.
 override PROFILE: u32 = PROFILE_STRICT;
@@ -23,8 +28,9 @@ var<workgroup> s_rgb: array<vec4<f32>, BATCH>;
 var<workgroup> s_done: atomic<u32>;  // invocations whose pixels have all finished
 var<workgroup> s_all_done: u32;
 
-// Pixels of one column held in lanes: (x, y + i) for each lane i of PF (centres in full-frame
-// coordinates), their running colour and transmittance, and whether each has finished.
+// Pixels of one column held in lanes (one pixel in the wide shape): the column's centre x, each
+// lane's row centre y (full-frame coordinates), their running colour and transmittance, and
+// whether each has finished.
 struct Quad {
     x: f32,
     y: PF,
@@ -190,9 +196,10 @@ override CHUNK_PAIRS: u32 = CHUNK;
 // Whether main and chunks leave the pairs' pixel boxes in isect_box: only a frame kept for the
 // incremental re-compositor needs them (render/renderer.py capture_views).
 override KEEP_BOXES: bool = true;
-// Whether the frames were binned exactly (bin.wgsl EXACT_BIN): the variants entry pairs a variant
-// record with a tile as the binning would, and main and chunks mask the quadrants a record's
-// ellipse cannot reach (ellipse_quadrants; otherwise its pixel box alone decides).
+// Whether the frames were binned exactly (bin.wgsl EXACT_BIN): composite.wgsl's variants entry
+// pairs a variant record with a tile as the binning would, and its main and chunks mask the
+// quadrants a record's ellipse cannot reach (ellipse_quadrants; otherwise its pixel box alone
+// decides). composite_wide.wgsl does not read it: each pixel tests the record's box.
 override EXACT_BIN: bool = true;
 
 // A chunk's pixels (c, t, stopped) merged into the pixels' running (C, T, ended) `acc`.

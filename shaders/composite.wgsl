@@ -9,7 +9,7 @@
 //
 // Exactness: every pixel runs the per-pixel rule with the same operations in the same order as a
 // one-pixel-per-invocation loop (lanes are independent; skips and stops are masks), so the image
-// is the same bit for bit. Three shortcuts skip only work that cannot change a pixel:
+// is the same bit for bit. Four shortcuts skip only work that cannot change a pixel:
 // - `cut`: a sigma beyond which alpha < 1/255 for certain (from the opacity o: ln(255 o) + 0.01,
 //   a margin far above exp's error; -Inf when o < 0.001, where alpha < 1/255 for every
 //   sigma >= 0; +Inf, never cut, when o is NaN or |o| > 1e30): lanes past it skip without exp;

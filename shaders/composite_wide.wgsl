@@ -3,7 +3,7 @@
 // rasterizers do (gsplat, the INRIA rasterizer). composite.wgsl's main and chunks give each of 32
 // invocations 8 pixels, the right shape for CPU Vulkan, but one warp a tile on a GPU: 1,024 tiles
 // fill about an eighth of an H200's thread slots (docs/renderer.md). The tiles, chunks, slabs and
-// work lists are composite.wgsl's, and so is the pass that merges long tiles' slabs (its `merge`).
+// work lists are blend.wgsl's, shared with composite.wgsl, whose `merge` blends long tiles' slabs.
 //
 // Each invocation stages one record of a batch of BATCH (blend.wgsl stage), then visits the
 // batch's records in list order, blending those whose pixel box holds its pixel with blend.wgsl's

@@ -90,7 +90,7 @@ class Compositing:
             Kernel(gpu, shader, "main", constants=lean),
             Kernel(gpu, shader, "chunks", constants=lean),
         )
-        # Work (composite.wgsl): counters zeroed per view; the dispatch arguments' y, z stay 1
+        # Work (blend.wgsl): counters zeroed per view; the dispatch arguments' y, z stay 1
         self.work = gpu.upload(np.array([0, 0, 0, 0, 0, 1, 1, 0, 0, 1, 1, 0], np.uint32), INDIRECT, "composite.work")
         self.no_stops = gpu.buffer(16, STORAGE, "composite.no_stops")  # bound (never written) by _lean
         self.capacity = None
