@@ -120,6 +120,26 @@ def test_bench_times_both_compositors_and_checks_their_frames(bench, gpu, tmp_pa
     assert [(c["compositor"], c["chunk"]) for c in doc["chunk_sweep"]] == [("lanes", 256), ("wide", 256)]
 
 
+def test_a_failing_candidate_compositor_is_dropped_not_fatal(bench, gpu, monkeypatch):
+    """A shape after the first that fails on the device (a driver rejecting its pipeline, say) is
+    recorded with its error and dropped from the rest of the run; the first shape's failure is
+    fatal (it is the measurement)."""
+    real = bench.bench_config
+
+    def flaky(*args, compositor=None, **kw):
+        if compositor == "wide":
+            raise RuntimeError("pipeline rejected\nby a driver")
+        return real(*args, compositor=compositor, **kw)
+
+    monkeypatch.setattr(bench, "bench_config", flaky)
+    kw = {"repeats": 1, "twin": False, "stages": False, "campaign_samples": 0, "log": lambda m: None}
+    doc = bench.run_grid(["spheres"], [2000], [32], [1, 2], compositors=["lanes", "wide"], **kw)
+    assert [(r["compositor"], r["k"]) for r in doc["results"]] == [("lanes", 1), ("lanes", 2)]
+    assert doc["compositor_errors"] == {"wide": "RuntimeError: pipeline rejected\nby a driver"}
+    with pytest.raises(RuntimeError, match="pipeline rejected"):
+        bench.run_grid(["spheres"], [2000], [32], [1], compositors=["wide", "lanes"], **kw)
+
+
 def test_memory_tool_accounts_every_buffer(tmp_path):
     """tools/memory.py: the stored model is exactly 4 bytes per fp32 value, the buckets add up to
     the device total, the tile lists are 3 u32 per pair slot."""

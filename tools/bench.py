@@ -657,6 +657,7 @@ def run_grid(
         "chunking": [],
         "chunk_sweep": [],
         "campaign_chunks": [],
+        "compositor_errors": {},  # shape -> the error that dropped it from the run
     }
     for scene in scene_names:
         for n in ns:
@@ -670,20 +671,31 @@ def run_grid(
                     log(f"[{scene} N={n} {size}x{size}] twin: {tw['seconds_per_view']:.2f} s/view ({tw['what']})")
                 for k in ks:
                     first = None
-                    for shape in compositors:
-                        rec = bench_config(
-                            model,
-                            scene,
-                            size,
-                            k,
-                            repeats=repeats,
-                            budget=budget,
-                            gpu=gpu,
-                            twin=tw,
-                            stages=stages,
-                            floors=floors,
-                            compositor=shape,
-                        )
+                    for shape in [s for s in compositors if s not in doc["compositor_errors"]]:
+                        try:
+                            rec = bench_config(
+                                model,
+                                scene,
+                                size,
+                                k,
+                                repeats=repeats,
+                                budget=budget,
+                                gpu=gpu,
+                                twin=tw,
+                                stages=stages,
+                                floors=floors,
+                                compositor=shape,
+                            )
+                        except Exception as e:  # noqa: BLE001 - a candidate shape failing on a device is a result
+                            if shape == compositors[0]:
+                                raise
+                            # the rest of the run (device time is scarce) goes on without this shape
+                            doc["compositor_errors"][shape] = f"{type(e).__name__}: {str(e).strip()}"[:2000]
+                            log(
+                                f"[{scene} N={n} {size}x{size} K={k} {shape}] FAILED, dropped from this run: "
+                                + doc["compositor_errors"][shape].splitlines()[0]
+                            )
+                            continue
                         first = first or rec
                         rec["view0_same_as_first_compositor"] = rec["view0_sha256"] == first["view0_sha256"]
                         doc["results"].append(rec)
@@ -693,7 +705,7 @@ def run_grid(
                             f"[{scene} N={n} {size}x{size} K={k} {shape}] {rec['mpix_per_s']:.3f} Mpix/s, "
                             f"{rec['ms_per_view']:.1f} ms/view (median of {rec['repeats']}){same}"
                         )
-                    for shape in compositors if chunks else ():
+                    for shape in [s for s in compositors if s not in doc["compositor_errors"]] if chunks else ():
                         sweep = measure_chunk_sweep(
                             model, scene, size, k, chunks, repeats=repeats, gpu=gpu, compositor=shape
                         )
@@ -836,6 +848,8 @@ def print_table(doc: dict, console=None) -> None:
             f"{c['ms_per_view_off']:.1f} ms/view with chunking off ({c['speedup']:.2f}x; PSNR between them "
             f"{c['psnr_view0_chunked_vs_off_db']:.1f} dB)"
         )
+    for shape, err in doc.get("compositor_errors", {}).items():
+        console.print(f"Compositor {shape} failed on this device and was dropped from the run: {err.splitlines()[0]}")
     for c in doc.get("campaigns", []):
         console.print(
             f"Campaign ({c['scene']}, N={c['n']:,}, K={c['views']} at {c['size']}x{c['size']}, incremental path): "
