@@ -37,7 +37,7 @@ PRECISION_CODE = {"fp32": 0, "fp16": 1, "bf16": 2}
 
 PROFILE_CODE = {"strict": 0, "gsplat": 1}
 """Renderer profile codes (docs/renderer.md, "Profiles"): the value of the `PROFILE` pipeline
-override of project.wgsl and composite.wgsl (`PROFILE_STRICT`, `PROFILE_GSPLAT`)."""
+override of project.wgsl and blend.wgsl (`PROFILE_STRICT`, `PROFILE_GSPLAT`)."""
 
 PROFILES = tuple(PROFILE_CODE)
 
