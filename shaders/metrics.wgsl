@@ -105,8 +105,7 @@ const M_MASK_WORDS: u32 = TILE_PIXELS / 32u;
 // Display-referred rgb of the tile plus its 3-px halo: clean at [i], faulted at [M_PLANE + i]
 // (i = hy * 22 + hx). Reused for the reduction once SSIM is done.
 var<workgroup> m_blk: array<vec4<f32>, 2u * M_PLANE>;
-var<workgroup> m_differs: atomic<u32>;
-// block cells (hx, hy) whose display rgb differ: min hx, max hx, min hy, max hy
+// block cells (hx, hy) whose display rgb differ: min hx, max hx, min hy, max hy (empty: min > max)
 var<workgroup> m_box: array<atomic<u32>, 4>;
 var<workgroup> m_cmask: array<atomic<u32>, M_MASK_WORDS>;
 
@@ -269,7 +268,6 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     let oy = (tile / mp.tiles_x) * TILE;
 
     if (tid == 0u) {
-        atomicStore(&m_differs, 0u);
         atomicStore(&m_box[0], 0xffffffffu);
         atomicStore(&m_box[1], 0u);
         atomicStore(&m_box[2], 0xffffffffu);
@@ -286,7 +284,6 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     var nonfin = 0.0;
     var peak = 0.0;
     var sse = 0.0;
-    var differs = false;
     var dbox = vec4<u32>(0xffffffffu, 0u, 0xffffffffu, 0u);  // this thread's differing cells
     for (var i = tid; i < M_PLANE; i += M_THREADS) {
         let hx = i % M_SPAN;
@@ -343,12 +340,10 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
         m_blk[i] = vec4<f32>(cd, 0.0);
         m_blk[M_PLANE + i] = vec4<f32>(fd, 0.0);
         if (any(bitcast<vec3<u32>>(cd) != bitcast<vec3<u32>>(fd))) {
-            differs = true;
             dbox = vec4<u32>(min(dbox.x, hx), max(dbox.y, hx), min(dbox.z, hy), max(dbox.w, hy));
         }
     }
-    if (differs) {
-        atomicStore(&m_differs, 1u);
+    if (dbox.x <= dbox.y) {  // some cell of this thread differs
         atomicMin(&m_box[0], dbox.x);
         atomicMax(&m_box[1], dbox.y);
         atomicMin(&m_box[2], dbox.z);
@@ -357,9 +352,8 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     workgroupBarrier();
 
     // ---- SSIM at interior window centres, skipped where every window is identical in clean and
-    //      faulted (its deficit would be exactly 0: e1 = e2 = 0, see above): the whole block, or
-    //      the thread's 7 x 10 cells (its 4 windows) outside the box of the differing cells ----
-    let any_diff = atomicLoad(&m_differs);
+    //      faulted (its deficit would be exactly 0: e1 = e2 = 0, see above): a thread whose 7 x 10
+    //      cells (its 4 windows) miss the box of the differing cells, every thread when none differs ----
     let diff_box = vec4<u32>(atomicLoad(&m_box[0]), atomicLoad(&m_box[1]), atomicLoad(&m_box[2]), atomicLoad(&m_box[3]));
     if (tid < M_MASK_WORDS) {
         m_masks[e * M_MASK_WORDS + tid] = atomicLoad(&m_cmask[tid]);
@@ -375,9 +369,10 @@ fn tile_partials(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) 
     if (any(interior)) {
         let flag = select(vec4<f32>(0.0), vec4<f32>(1.0), interior);
         count = flag.x + flag.y + flag.z + flag.w;
-        // cells lx .. lx + 6, ly0 .. ly0 + 9 (block coordinates) meet the box
+        // cells lx .. lx + 6, ly0 .. ly0 + 9 (block coordinates) meet the box (never an empty one:
+        // its min is 0xffffffff)
         let meets = diff_box.x <= lx + 6u && diff_box.y >= lx && diff_box.z <= ly0 + 9u && diff_box.w >= ly0;
-        if (any_diff != 0u && meets) {
+        if (meets) {
             let q = m_ssim4(lx, ly0) * flag;
             deficit = q.x + q.y + q.z + q.w;
         }
