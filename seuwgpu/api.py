@@ -133,7 +133,9 @@ def render_views(
     from seuwgpu.render.renderer import render_split
 
     model = _model_of(scene)
-    shape = None if compositor is None else _compositor(compositor)
+    from seuwgpu.render.composite import check_shape
+
+    shape = None if compositor is None else check_shape(compositor)
     # frames larger than one storage binding are rendered in view groups or tile-row bands
     return render_split(
         model, _views(views), encoding.check_precision(precision), profile=_profile(profile), compositor=shape
@@ -367,16 +369,6 @@ def _profile(profile) -> str:
 
     try:
         return check_profile(profile if isinstance(profile, str) else repr(profile))
-    except ValueError as e:
-        raise InputError(str(e)) from None
-
-
-def _compositor(shape) -> str:
-    """render/composite.py's check_shape raising the API's InputError."""
-    from seuwgpu.render.composite import check_shape
-
-    try:
-        return check_shape(shape if isinstance(shape, str) else repr(shape))
     except ValueError as e:
         raise InputError(str(e)) from None
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from seuwgpu.errors import InputError
 from seuwgpu.gpu.constants import CHUNK, COMPOSITORS, GPU_CHUNK, PROFILE_CODE, TILE
 from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE, Readback
 from seuwgpu.gpu.kernel import Kernel, Uniforms
@@ -50,17 +51,16 @@ Vulkan, "wide" the shape GPUs fill; the same operations per pixel (shaders/blend
 same frames, bit for bit."""
 
 
-def check_shape(shape: str) -> str:
-    if shape not in SHAPES:
-        raise ValueError(f"unknown compositor shape {shape!r}: choose one of {', '.join(SHAPES)}")
+DEFAULT_SHAPE = "lanes"
+"""The compositor a Renderer uses unless told, on every adapter. "wide" is the usual GPU shape,
+but it has not yet been timed on a GPU against "lanes" (tools/bench.py times both on GPU
+adapters), so it stays opt-in until a measurement says it wins there."""
+
+
+def check_shape(shape) -> str:
+    if shape not in COMPOSITORS:
+        raise InputError(f"unknown compositor shape {shape!r}: choose one of {', '.join(COMPOSITORS)}")
     return shape
-
-
-def default_shape(gpu: GPU) -> str:
-    """The compositor a Renderer uses unless told: "lanes" on every adapter. "wide" is the usual
-    GPU shape, but it has not yet been timed on a GPU against "lanes" (tools/bench.py times both
-    on GPU adapters), so it stays opt-in until a measurement says it wins."""
-    return "lanes"
 
 
 class Compositing:
@@ -76,16 +76,15 @@ class Compositing:
         self.chunk = check_chunk(chunk)
         self.shape = check_shape(shape)
         shader = SHAPES[self.shape]
-        constants = {"PROFILE": PROFILE_CODE[profile], "CHUNK_PAIRS": self.chunk}
         # exact (lanes): a record visits only the quadrants its ellipse may reach
         # (ellipse_quadrants), as exact binning pairs it only with such tiles; False: its pixel box
         # decides (same image). The wide shape tests each pixel against the box alone.
-        full = {**constants, "EXACT_BIN": int(exact)} if shape == "lanes" else constants
-        self.kernel = Kernel(gpu, shader, "main", constants=full)
-        self.k_chunks = Kernel(gpu, shader, "chunks", constants=full)
+        constants = {"PROFILE": PROFILE_CODE[profile], "CHUNK_PAIRS": self.chunk, "EXACT_BIN": int(exact)}
+        self.kernel = Kernel(gpu, shader, "main", constants=constants)
+        self.k_chunks = Kernel(gpu, shader, "chunks", constants=constants)
         self.k_merge = Kernel(gpu, "composite", "merge", constants=constants)
         # the same without writing the pairs' pixel boxes (frames not kept for re-compositing)
-        lean = {**full, "KEEP_BOXES": 0}
+        lean = {**constants, "KEEP_BOXES": 0}
         self._lean = (
             Kernel(gpu, shader, "main", constants=lean),
             Kernel(gpu, shader, "chunks", constants=lean),
