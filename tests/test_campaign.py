@@ -195,6 +195,41 @@ def test_interrupt_writes_the_parts_computed_and_resumes(reference_run, tmp_path
     pd.testing.assert_frame_equal(canonical(read_records(run)), ref)
 
 
+def test_a_write_error_never_replaces_the_error_that_ended_the_run(reference_run, tmp_path, monkeypatch):
+    """A part fails to write (the writer thread keeps the error) and then evaluation fails: the
+    run ends with the evaluation's error, not the write error raised again on the way out; on a
+    run that ends normally the write error is raised. The write is held until evaluation fails, so
+    no put() can meet the error first."""
+    import threading
+
+    spec, _ = reference_run
+    release = threading.Event()
+
+    def failing_write(*a, **k):
+        release.wait(60)
+        raise OSError("disk full")
+
+    monkeypatch.setattr(store, "write_part", failing_write)
+    real = Runner.run_blocks
+    calls = []
+
+    def failing_second(self, *a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            release.set()  # the queued write now fails, while this error ends the run
+            raise RuntimeError("device lost")
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(Runner, "run_blocks", failing_second)
+    monkeypatch.setattr(Runner, "GROUP_BATCHES", 1)  # one batch a group: several calls
+    with pytest.raises(RuntimeError, match="device lost"):
+        Runner(spec, tmp_path / "a", quiet=True).run()
+    assert len(calls) == 2
+    monkeypatch.setattr(Runner, "run_blocks", real)
+    with pytest.raises(OSError, match="disk full"):
+        Runner(spec, tmp_path / "b", quiet=True).run()
+
+
 def test_changed_spec_is_refused(reference_run, tmp_path):
     spec, _ = reference_run
     run = tmp_path / "run"

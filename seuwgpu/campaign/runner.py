@@ -115,6 +115,7 @@ class Runner:
         engines = {}
         t0 = time.perf_counter()
         writer = store.PartWriter(self.out)
+        finished = False
         try:
             i = 0
             while i < len(todo):
@@ -138,9 +139,12 @@ class Runner:
                     stats["new"] += count
                     stats["catastrophic"] += cat
                     bar.advance(count, cat)
+            finished = True
         finally:
             bar.close()
-            writer.close()  # the parts computed so far, written before an error or interrupt goes on
+            # the parts computed so far, written before an error or interrupt goes on; a write error
+            # is raised on a normal exit only, never in place of the exception that ended the run
+            writer.close(raise_error=finished)
         stats["seconds"] = time.perf_counter() - t0
         return stats
 
