@@ -406,18 +406,16 @@ class Engine:
     def evaluator(self):
         if self._evaluator is None:
             from seuwgpu.faults.incremental import IncrementalEvaluator
-            from seuwgpu.metrics.image import max_variants_of
 
-            # a CPU adapter gains nothing from huge batches; a GPU needs them to stay busy. Two batches
+            # a CPU adapter gains nothing from huge batches; a GPU needs them to stay busy (the
+            # evaluator shrinks a batch to what one binding holds for its metrics). Two batches
             # in flight (faults/incremental.py): the host prepares one while the device runs the
             # other (lavapipe too: 8-33% more injections/s at 20k-100k primitives, 2026-11-26).
-            # A batch's metrics (every tile of its variants' views) must fit one binding.
-            fit = max_variants_of(self.gpu, self.width, self.height, self.k)
             if self.gpu.is_cpu:
-                self._evaluator = IncrementalEvaluator(self, min(256, fit), max_entries=8192, lanes=2)
+                self._evaluator = IncrementalEvaluator(self, 256, max_entries=8192, lanes=2)
             else:
                 entries = int(min(65536, self.gpu.max_binding // (256 * 16)))
-                self._evaluator = IncrementalEvaluator(self, min(2048, fit), max_entries=entries, lanes=2)
+                self._evaluator = IncrementalEvaluator(self, 2048, max_entries=entries, lanes=2)
         return self._evaluator
 
     def primitive_bits(self, prims) -> np.ndarray:

@@ -26,17 +26,19 @@ import numpy as np
 from seuwgpu.faults.guard import clamp_bits
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import STORAGE
-from seuwgpu.metrics.image import ImageMetrics, build_worklist, changed_tiles_mask, summarize
+from seuwgpu.metrics.image import ImageMetrics, build_worklist, changed_tiles_mask, max_variants_of, summarize
 from seuwgpu.render.incremental import IncrementalCompositor
 from seuwgpu.render.regions import region_id_map
 
 
 class Lane:
     """The GPU buffers of one batch of variants in flight: the compositor's variant projection and
-    slabs, the metric work list and reductions, each with its own readback."""
+    slabs, the metric work list and reductions, each with its own readback. A batch holds at most
+    `max_variants`, and no more than the metrics of every tile of their views fit one binding."""
 
     def __init__(self, engine, max_variants: int, max_entries: int):
         r, g = engine.renderer, engine.gpu
+        max_variants = min(int(max_variants), max_variants_of(g, r.width, r.height, r.k))
         self.compositor = IncrementalCompositor(r, engine.clean_buf, max_variants, max_entries)
         self.B, k = self.compositor.B, r.k
         self.worklist = g.buffer(4 * self.B * k * r.n_tiles, STORAGE, "worklist")

@@ -58,7 +58,7 @@ import numpy as np
 
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import INDIRECT, STORAGE, Readback
-from seuwgpu.gpu.kernel import Kernel, Uniforms
+from seuwgpu.gpu.kernel import Kernel, Struct, Uniforms
 
 WIN = 7
 PAD = (WIN - 1) // 2
@@ -67,12 +67,16 @@ MASK_BYTES = TILE * TILE // 8  # one entry's changed-pixel mask (metrics.wgsl m_
 FIELDS = ("changed", "peak", "sse", "nonfinite", "ssim_sum", "ssim_count", "ssim_deficit")
 
 
+def entry_bytes() -> int:
+    """Bytes one work-list entry takes in the largest per-entry buffer (its partials record or its
+    changed-pixel mask): what bounds the entries of one ImageMetrics to one binding."""
+    return max(Struct.from_shader("metrics", "MetricsRecord").size, MASK_BYTES)
+
+
 def max_variants_of(gpu, width: int, height: int, n_views: int) -> int:
-    """Most variants whose every tile (n_views frames) one ImageMetrics can hold in one binding (its
-    per-entry partials and masks)."""
-    record = Kernel(gpu, "metrics", "tile_partials").struct("MetricsRecord")
+    """Most variants whose every tile (n_views frames) one ImageMetrics can hold in one binding."""
     tx, ty = tiles_of(width, height)
-    fit = gpu.max_binding // (n_views * tx * ty * max(record.size, MASK_BYTES))
+    fit = gpu.max_binding // (n_views * tx * ty * entry_bytes())
     return max(2, fit - fit % 2)  # the compositor's batches are even (render/incremental.py)
 
 
@@ -109,7 +113,7 @@ class ImageMetrics:
         self.k_dispatch = Kernel(gpu, "metrics", "sparse_dispatch")
         self.record = self.k_tile.struct("MetricsRecord")
         self.layout = self.k_tile.struct("MetricsResults")  # status, then records
-        if self.capacity * max(self.record.size, MASK_BYTES) > gpu.max_binding:
+        if self.capacity * entry_bytes() > gpu.max_binding:
             raise ValueError(
                 f"max_entries={self.capacity} needs more than one storage binding "
                 f"({gpu.max_binding} bytes): evaluate fewer variants per call"
