@@ -73,7 +73,7 @@ def test_scene_list_and_export(tmp_path, capsys):
     assert np.array_equal(got.flat(), want.flat())
 
 
-def test_render_equals_the_renderer(tmp_path, capsys):
+def test_render_equals_the_renderer(tmp_path, capsys, monkeypatch):
     rc, _, _ = run(
         ["render", "--scene", "spheres", "--n", "300", "--views", "2", "--size", "32x24", "--out", tmp_path / "r.npz"],
         capsys,
@@ -86,12 +86,21 @@ def test_render_equals_the_renderer(tmp_path, capsys):
         ["render", "--scene", "spheres", "--n", "300", "--size", "32x24", "--out", tmp_path / "png"], capsys
     )
     assert rc == 0 and len(list((tmp_path / "png").glob("view_*.png"))) == 4
+    shapes = []  # the shape each Renderer was built with: "wide" frames equal "lanes" ones by design
+    real_init = Renderer.__init__
+
+    def spy(self, *a, **k):
+        real_init(self, *a, **k)
+        shapes.append(self.compositing.shape)
+
+    monkeypatch.setattr(Renderer, "__init__", spy)
     rc, _, _ = run(
         ["render", "--scene", "spheres", "--n", "300", "--views", "2", "--size", "32x24", "--compositor", "wide",
          "--out", tmp_path / "w.npz"],
         capsys,
     )  # fmt: skip
-    assert rc == 0 and np.array_equal(np.load(tmp_path / "w.npz")["images"], want)  # the same frames bit for bit
+    assert rc == 0 and shapes == ["wide"]  # the option reaches the renderer through api.render_views
+    assert np.array_equal(np.load(tmp_path / "w.npz")["images"], want)  # the same frames bit for bit
 
 
 def test_inject_reports_the_flip_and_writes_the_panel(tmp_path, capsys):
