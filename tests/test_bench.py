@@ -104,6 +104,7 @@ def test_bench_times_both_compositors_and_checks_their_frames(bench, gpu, tmp_pa
     img = r.render_rgba()
     assert hashlib.sha256(img[0].tobytes()).hexdigest() == recs[0]["view0_sha256"]
     monkeypatch.setattr(type(gpu), "is_cpu", property(lambda self: False))
+    monkeypatch.setattr(bench, "WARM_UP_S", 0.0)  # no clocks to raise here
     doc = bench.run_grid(
         ["spheres"],
         [2000],
@@ -138,6 +139,20 @@ def test_a_failing_candidate_compositor_is_dropped_not_fatal(bench, gpu, monkeyp
     assert doc["compositor_errors"] == {"wide": "RuntimeError: pipeline rejected\nby a driver"}
     with pytest.raises(RuntimeError, match="pipeline rejected"):
         bench.run_grid(["spheres"], [2000], [32], [1], compositors=["wide", "lanes"], **kw)
+    # the same where the shape fails in its chunk sweep (new pipelines per chunk)
+    monkeypatch.setattr(bench, "bench_config", real)
+    real_sweep = bench.measure_chunk_sweep
+
+    def flaky_sweep(*args, compositor=None, **kw):
+        if compositor == "wide":
+            raise RuntimeError("chunk pipeline rejected")
+        return real_sweep(*args, compositor=compositor, **kw)
+
+    monkeypatch.setattr(bench, "measure_chunk_sweep", flaky_sweep)
+    doc = bench.run_grid(["spheres"], [2000], [32], [1, 2], compositors=["lanes", "wide"], chunks=[256], **kw)
+    assert [(r["compositor"], r["k"]) for r in doc["results"]] == [("lanes", 1), ("lanes", 2)]
+    assert [c["compositor"] for c in doc["chunk_sweep"]] == ["lanes", "lanes"]
+    assert doc["compositor_errors"] == {"wide": "RuntimeError: chunk pipeline rejected"}
 
 
 def test_memory_tool_accounts_every_buffer(tmp_path):

@@ -45,7 +45,9 @@ run). What is measured, per configuration:
   configuration is timed with both full-frame compositors, "lanes" (8 pixels per invocation, the
   default) and "wide" (one pixel per invocation, 256 a tile), one after the other in the same run;
   each record carries a SHA-256 of view 0's bits, and the log says whether the shapes' frames are
-  bit-equal (they must be). On a CPU adapter only the default is timed unless asked.
+  bit-equal (expected: the shapes run the same operations per pixel, but a driver may fuse
+  multiply-adds differently in them; a mismatch is logged). On a CPU adapter only the default is
+  timed unless asked.
 - with --dense FACTOR: load balance of long tile lists. The scene shrunk about its centre by
   FACTOR (means and scales; a few tiles list most pairs) is timed with the default CHUNK and with
   chunking off (every tile list on one workgroup), in the same run (render/composite.py).
@@ -78,12 +80,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import wgpu  # noqa: E402
 
-from seuwgpu.gpu.constants import CHUNK, TILE  # noqa: E402
+from seuwgpu.gpu.constants import CHUNK, COMPOSITORS, TILE  # noqa: E402
 from seuwgpu.gpu.device import GPU, get_gpu  # noqa: E402
 from seuwgpu.model import scenes  # noqa: E402
 from seuwgpu.model.fields import Model  # noqa: E402
 from seuwgpu.render import reference  # noqa: E402
-from seuwgpu.render.composite import SHAPES, check_chunk  # noqa: E402
+from seuwgpu.render.composite import DEFAULT_SHAPE, check_chunk  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
 from seuwgpu.render.sort import tile_key_bits  # noqa: E402
 
@@ -421,7 +423,7 @@ def bench_config(
         "chunk": r.compositing.chunk,  # pairs a compositing workgroup walks (the device's default)
         "compositor": r.compositing.shape,
         # the bits of view 0 (rgb, T) of the last timed submission: equal digests = the same frame
-        # (the compositor shapes must agree bit for bit on every device)
+        # (the compositor shapes are expected to agree bit for bit; the log says where they do not)
         "view0_sha256": hashlib.sha256(gpu.read(r.image, np.uint32, 0, 16 * w * h).tobytes()).hexdigest(),
         "repeats": reps,
         "warmup_s": warm,
@@ -557,7 +559,7 @@ def measure_chunk_sweep(
                 "height": size,
                 "k": k,
                 "chunk": int(ch),
-                "compositor": compositor or "default",
+                "compositor": compositor or DEFAULT_SHAPE,  # what the Renderer uses when told none
                 "ms_per_view": ms,
                 # None, not inf, for the first chunk (JSON has no infinity)
                 "psnr_view0_vs_first_chunk_db": None if first is None else _psnr(img, first),
@@ -631,7 +633,7 @@ def run_grid(
     several times slower: docs/renderer.md)."""
     gpu = get_gpu()
     if compositors is None:
-        compositors = ["lanes"] if gpu.is_cpu else list(SHAPES)
+        compositors = [DEFAULT_SHAPE] if gpu.is_cpu else list(COMPOSITORS)
     t0 = time.perf_counter()
     floors = measure_floors(gpu)
     log(
@@ -686,6 +688,13 @@ def run_grid(
                                 floors=floors,
                                 compositor=shape,
                             )
+                            sweep = (
+                                measure_chunk_sweep(
+                                    model, scene, size, k, chunks, repeats=repeats, gpu=gpu, compositor=shape
+                                )
+                                if chunks
+                                else []
+                            )
                         except Exception as e:  # noqa: BLE001 - a candidate shape failing on a device is a result
                             if shape == compositors[0]:
                                 raise
@@ -696,24 +705,25 @@ def run_grid(
                                 + doc["compositor_errors"][shape].splitlines()[0]
                             )
                             continue
-                        first = first or rec
+                        if first is None:
+                            first = rec
                         rec["view0_same_as_first_compositor"] = rec["view0_sha256"] == first["view0_sha256"]
                         doc["results"].append(rec)
-                        same = "" if rec is first else f"; view 0 bit-equal to {first['compositor']}'s: "
-                        same += "" if rec is first else ("yes" if rec["view0_same_as_first_compositor"] else "NO")
+                        same = ""
+                        if rec is not first:
+                            same = f"; view 0 bit-equal to {first['compositor']}'s: " + (
+                                "yes" if rec["view0_same_as_first_compositor"] else "NO"
+                            )
                         log(
                             f"[{scene} N={n} {size}x{size} K={k} {shape}] {rec['mpix_per_s']:.3f} Mpix/s, "
                             f"{rec['ms_per_view']:.1f} ms/view (median of {rec['repeats']}){same}"
                         )
-                    for shape in [s for s in compositors if s not in doc["compositor_errors"]] if chunks else ():
-                        sweep = measure_chunk_sweep(
-                            model, scene, size, k, chunks, repeats=repeats, gpu=gpu, compositor=shape
-                        )
-                        doc["chunk_sweep"].extend(sweep)
-                        log(
-                            f"[{scene} N={n} {size}x{size} K={k} {shape}] ms/view by chunk: "
-                            + ", ".join(f"{c['chunk']}: {c['ms_per_view']:.2f}" for c in sweep)
-                        )
+                        if sweep:
+                            doc["chunk_sweep"].extend(sweep)
+                            log(
+                                f"[{scene} N={n} {size}x{size} K={k} {shape}] ms/view by chunk: "
+                                + ", ".join(f"{c['chunk']}: {c['ms_per_view']:.2f}" for c in sweep)
+                            )
                     if dense:
                         c = measure_chunking(dense_model(model, dense), scene, size, k, repeats=repeats, gpu=gpu)
                         c["dense_factor"] = dense
@@ -911,7 +921,7 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--compositors",
         nargs="+",
-        choices=list(SHAPES),
+        choices=COMPOSITORS,
         help="full-frame compositor shapes to time every configuration with (render/composite.py SHAPES); "
         "default: all of them on a GPU adapter, the default shape on a CPU adapter",
     )

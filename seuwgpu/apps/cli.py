@@ -96,7 +96,7 @@ def add_compositor_arg(p: argparse.ArgumentParser):
         "--compositor",
         choices=COMPOSITORS,
         help="the compositor's shape: lanes (8 pixels an invocation, the default) or wide (one pixel an "
-        "invocation, the shape GPUs fill); the same frames bit for bit (docs/renderer.md)",
+        "invocation, the shape GPUs fill); the same frames (bit for bit on lavapipe, tested; docs/renderer.md)",
     )
 
 
