@@ -228,7 +228,8 @@ def test_run_interleaved_keeps_one_job_per_lane_and_the_order():
 def test_two_lanes_give_the_records_of_full_rerenders():
     """Batches of 8 variants, two in flight (IncrementalEvaluator lanes=2), groups split by a small
     slab budget so that batches take different numbers of steps: every record equals a full
-    re-render's, and the sort-first regions those of one lane."""
+    re-render's, and the sort-first regions those of one lane. The lanes share one host copy of
+    the clean views' rectangles."""
     from seuwgpu.faults.incremental import IncrementalEvaluator
 
     model = make_scene("spheres", n=1200, seed=4)
@@ -237,7 +238,8 @@ def test_two_lanes_give_the_records_of_full_rerenders():
     one = eng.evaluate_frame(sites, ("none", "guard"), regions=(4,))
     eng._evaluator = IncrementalEvaluator(eng, max_variants=8, max_entries=24, lanes=2)
     two = eng.evaluate_frame(sites, ("none", "guard"), regions=(4,))
-    assert len(eng._evaluator.lanes) == 2
+    lanes = eng._evaluator.lanes
+    assert len(lanes) == 2 and lanes[1].compositor.clean is lanes[0].compositor.clean  # one host copy
     import pandas as pd
 
     pd.testing.assert_frame_equal(one, two)

@@ -27,7 +27,7 @@ from seuwgpu.faults.guard import clamp_bits
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import STORAGE
 from seuwgpu.metrics.image import ImageMetrics, build_worklist, changed_tiles_mask, max_variants_of, summarize
-from seuwgpu.render.incremental import IncrementalCompositor
+from seuwgpu.render.incremental import CleanViews, IncrementalCompositor
 from seuwgpu.render.regions import region_id_map
 
 
@@ -36,10 +36,10 @@ class Lane:
     slabs, the metric work list and reductions, each with its own readback. A batch holds at most
     `max_variants`, and no more than the metrics of every tile of their views fit one binding."""
 
-    def __init__(self, engine, max_variants: int, max_entries: int):
+    def __init__(self, engine, max_variants: int, max_entries: int, clean: CleanViews | None = None):
         r, g = engine.renderer, engine.gpu
         max_variants = min(int(max_variants), max_variants_of(g, r.width, r.height, r.k))
-        self.compositor = IncrementalCompositor(r, engine.clean_buf, max_variants, max_entries)
+        self.compositor = IncrementalCompositor(r, engine.clean_buf, max_variants, max_entries, clean)
         self.B, k = self.compositor.B, r.k
         self.worklist = g.buffer(4 * self.B * k * r.n_tiles, STORAGE, "worklist")
         self.offsets = g.buffer(4 * (self.B * k + 1), STORAGE, "offsets")
@@ -109,8 +109,8 @@ class IncrementalEvaluator:
         rows = np.asarray(rows)
         m = prims.size
         starts = range(0, m, self.B)
-        if len(starts) > 1 and len(self.lanes) < self.want_lanes:
-            self.lanes.append(Lane(self.engine, *self._sizes))
+        if len(starts) > 1 and len(self.lanes) < self.want_lanes:  # the clean views are the first lane's
+            self.lanes.append(Lane(self.engine, *self._sizes, clean=self.compositor.clean))
         for lane in self.lanes:
             lane.compositor.ensure_current()
         unchanged = (rows == self.engine.reference_rows(prims)).all(axis=1)

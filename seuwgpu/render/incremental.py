@@ -25,13 +25,38 @@ from seuwgpu.render.project import Projection, unpack_rects
 from seuwgpu.render.regions import region_edges
 
 
-class IncrementalCompositor:
-    """Variant re-compositing against a keep_views renderer's clean frame (`clean_buf`, [K, H, W, 4])."""
+class CleanViews:
+    """A keep_views renderer's clean per-view tile rectangles (host, [K, N, 4] x0, y0, x1, y1) and
+    its longest clean tile list, read back once per set of kept buffers (the renderer's `version`)
+    and shared by every compositor re-compositing against them (faults/incremental.py: one per
+    batch in flight; at 1M primitives and K = 4 the rectangles take 128 MB of host memory)."""
 
-    def __init__(self, renderer, clean_buf, max_variants: int = 256, max_entries: int = 8192):
-        r = renderer
-        if not r.keep_views:
+    def __init__(self, renderer):
+        if not renderer.keep_views:
             raise ValueError("the renderer must keep its per-view state (keep_views=True)")
+        self.r, self.version = renderer, None
+        self.ensure_current()
+
+    def ensure_current(self):
+        r, g = self.r, self.r.gpu
+        if self.version == r.version:
+            return
+        rects = g.read(r.kv_rect, np.uint32, 0, 8 * r.n * r.k).reshape(r.k, r.n, 2)
+        self.rects = unpack_rects(rects)
+        ranges = g.read(r.kv_ranges, np.uint32, 0, 8 * r.n_tiles * r.k).reshape(-1, 2).astype(np.int64)
+        self.longest_list = int((ranges[:, 1] - ranges[:, 0]).max(initial=0))  # chunk dispatches
+        self.version = r.version
+
+
+class IncrementalCompositor:
+    """Variant re-compositing against a keep_views renderer's clean frame (`clean_buf`, [K, H, W, 4]);
+    `clean`: the renderer's CleanViews when several compositors share them (default: its own)."""
+
+    def __init__(
+        self, renderer, clean_buf, max_variants: int = 256, max_entries: int = 8192, clean: CleanViews | None = None
+    ):
+        r = renderer
+        self.clean = clean or CleanViews(r)
         self.r, self.gpu, self.clean_buf = r, r.gpu, clean_buf
         self.B = int(max_variants) + (int(max_variants) & 1)
         self.max_entries = int(max_entries)
@@ -51,15 +76,20 @@ class IncrementalCompositor:
         return self.compositing.slabs
 
     # ---- clean state -----------------------------------------------------------------------------
+    @property
+    def clean_rects(self) -> np.ndarray:
+        return self.clean.rects
+
+    @property
+    def longest_list(self) -> int:
+        return self.clean.longest_list
+
     def refresh(self):
-        """Clean per-view rectangles (host) and the variant projection's parameters (the
-        renderer's view parameters with this compositor's chunk layout), re-read when the
-        renderer replaced its kept buffers (its `version` moved)."""
-        r, g = self.r, self.gpu
-        rects = g.read(r.kv_rect, np.uint32, 0, 8 * r.n * r.k).reshape(r.k, r.n, 2)
-        self.clean_rects = unpack_rects(rects)  # [K, N, 4] x0, y0, x1, y1
-        ranges = g.read(r.kv_ranges, np.uint32, 0, 8 * r.n_tiles * r.k).reshape(-1, 2).astype(np.int64)
-        self.longest_list = int((ranges[:, 1] - ranges[:, 0]).max(initial=0))  # chunk dispatches
+        """The clean views (shared) and the variant projection's parameters (the renderer's view
+        parameters with this compositor's chunk layout), renewed when the renderer replaced its
+        kept buffers (its `version` moved)."""
+        r = self.r
+        self.clean.ensure_current()
         rows = self.projection.params.rows
         rows[:] = r.projection.params.rows[:: r.layout.n_chunks]  # chunk 0 of each view
         # chunk_base = v * B puts view v's outputs at [v*B, v*B + B); no in-pipeline guard
