@@ -332,15 +332,15 @@ def test_changed_pixel_masks_match_the_twin(gpu):
     rng, clean, f, B, im, cb = _planted_setup(gpu, 7)
     want = M.changed_pixels(f, clean[None])  # [B, K, H, W]
     assert want.any() and not want.all()
-    im.run_dense(cb, gpu.upload(f), B)
     TX, TY = M.tiles_of(W, H)
+    im.run_dense(cb, gpu.upload(f), B, masks=B * K * TX * TY)
     got = im.read_changed_pixels(B * K * TX * TY).reshape(B, K, TY, TX, 16, 16)
     got = got.transpose(0, 1, 2, 4, 3, 5).reshape(B, K, TY * 16, TX * 16)
     np.testing.assert_array_equal(got[:, :, :H, :W], want)
     assert not got[:, :, H:].any() and not got[:, :, :, W:].any()  # outside the frame
     slabs, tile_map, wl, off = _sparse_inputs(clean, f, extra_identical=0, rng=rng, boxes=True)
-    im.run_sparse(cb, gpu.upload(slabs), gpu.upload(tile_map), gpu.upload(wl), gpu.upload(off), B)
     n_e = int(off[-1])
+    im.run_sparse(cb, gpu.upload(slabs), gpu.upload(tile_map), gpu.upload(wl), gpu.upload(off), B, masks=n_e)
     masks = im.read_changed_pixels(n_e)
     bk = np.repeat(np.arange(B * K), np.diff(off.astype(np.int64)))
     full = np.zeros((B * K, TY * 16, TX * 16), bool)
@@ -348,3 +348,6 @@ def test_changed_pixel_masks_match_the_twin(gpu):
         ty, tx = divmod(int(wl[e]), TX)
         full[bk[e], ty * 16 : ty * 16 + 16, tx * 16 : tx * 16 + 16] = masks[e]
     np.testing.assert_array_equal(full.reshape(B, K, TY * 16, TX * 16)[:, :, :H, :W], want)
+    im.run_sparse(cb, gpu.upload(slabs), gpu.upload(tile_map), gpu.upload(wl), gpu.upload(off), B)  # no masks asked
+    with pytest.raises(ValueError, match="copied 0 masks"):
+        im.read_changed_pixels(n_e)

@@ -126,6 +126,7 @@ class ImageMetrics:
         )
         self.masks = gpu.buffer(self.capacity * MASK_BYTES, STORAGE, "metrics.masks")
         self.results_readback = Readback(gpu, self.results.size, "metrics.results.readback")
+        self.masks_readback = Readback(gpu, 0, "metrics.masks.readback")  # sized by the first copy
         self.indirect = gpu.buffer(16, INDIRECT, "metrics.indirect")
         self._dummy = gpu.buffer(16, STORAGE, "metrics.dummy")
         self._mode = None
@@ -152,7 +153,7 @@ class ImageMetrics:
         if buf.size < nbytes:
             raise ValueError(f"{what} buffer holds {buf.size} bytes, needs {nbytes}")
 
-    def _record(self, encoder, clean_buf, fimg_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, n_entries):
+    def _record(self, encoder, clean_buf, fimg_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, n_entries, masks):
         common = {
             0: self.params.binding(0),
             1: clean_buf,
@@ -175,10 +176,12 @@ class ImageMetrics:
         self.k_reduce.record(cp, {i: common[i] for i in (0, 5, 6, 7)}, threads=n_bk)
         cp.end()
         self.results_readback.encode(encoder, self.results, 0, self.layout.offset("records") + n_bk * self.record.size)
+        self.masks_readback.encode(encoder, self.masks, 0, MASK_BYTES * min(int(masks), self.capacity))
 
-    def encode_dense(self, encoder, clean_buf, faulted_buf, n_variants: int):
+    def encode_dense(self, encoder, clean_buf, faulted_buf, n_variants: int, masks: int = 0):
         """clean_buf: [K, H, W, 4] f32; faulted_buf: [B, K, H, W, 4] f32 with B >= n_variants.
-        Evaluates every tile."""
+        Evaluates every tile. `masks`: the entries whose changed-pixel masks are copied back with
+        the submission (read_changed_pixels)."""
         n_bk = int(n_variants) * self.n_views
         n_entries = n_bk * self.n_tiles
         if n_entries > self.capacity:
@@ -187,22 +190,24 @@ class ImageMetrics:
         self._need(clean_buf, self.n_views * px, "clean")
         self._need(faulted_buf, n_bk * px, "faulted")
         self._params(n_variants, False)
-        self._record(encoder, clean_buf, faulted_buf, self._dummy, self._dummy, self._dummy, n_bk, n_entries)
+        self._record(encoder, clean_buf, faulted_buf, self._dummy, self._dummy, self._dummy, n_bk, n_entries, masks)
         self._mode = ("dense", int(n_variants))
 
-    def encode_sparse(self, encoder, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants: int):
+    def encode_sparse(
+        self, encoder, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants: int, masks: int = 0
+    ):
         """slabs_buf [S, 256, 4] f32; tile_map_buf i32 [B, K, TY*TX]; worklist_buf u32 [E] tile
         indices grouped by bk = b*K + k (increasing bk; within a group in increasing tile order
         for results bit-identical to dense mode); offsets_buf u32 [B*K + 1] (CSR, offsets[0] = 0).
         The number of entries is read on the GPU (offsets[B*K]) and the tile kernel dispatched
         indirectly, so the work list may be built on the GPU; more entries than max_entries
-        makes ``read`` raise."""
+        makes ``read`` raise. `masks`: as encode_dense (the host knows the count: offsets[B*K])."""
         n_bk = int(n_variants) * self.n_views
         self._need(clean_buf, self.n_views * self.height * self.width * 16, "clean")
         self._need(tile_map_buf, n_bk * self.n_tiles * 4, "tile_map")
         self._need(offsets_buf, (n_bk + 1) * 4, "offsets")
         self._params(n_variants, True)
-        self._record(encoder, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, None)
+        self._record(encoder, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, None, masks)
         self._mode = ("sparse", int(n_variants))
 
     # ---- results -------------------------------------------------------------------------------
@@ -227,27 +232,34 @@ class ImageMetrics:
         return _unpack(raw[start:].view(self.record.dtype).reshape(B, K))
 
     def read_changed_pixels(self, n_entries: int) -> np.ndarray:
-        """[n_entries, TILE, TILE] bool of the last submitted encode: the pixels of each evaluated
-        work-list entry (dense: entry bk * n_tiles + tile; sparse: the work list's order) that
-        count as changed (`changed_pixels`, inside the frame). Sort-first contamination reads
-        these instead of the faulted tiles."""
+        """[n_entries, TILE, TILE] bool of the last submitted encode, which copied at least that
+        many (its `masks`): the pixels of each evaluated work-list entry (dense: entry
+        bk * n_tiles + tile; sparse: the work list's order) that count as changed
+        (`changed_pixels`, inside the frame). Sort-first contamination reads these instead of the
+        faulted tiles. Waits for that submission only (gpu/device.py Readback)."""
         n = int(n_entries)
         if n == 0:
             return np.zeros((0, TILE, TILE), dtype=bool)
-        words = self.gpu.read(self.masks, np.uint32, 0, MASK_BYTES * n)
+        if MASK_BYTES * n > self.masks_readback.size:
+            raise ValueError(
+                f"the last encode copied {self.masks_readback.size // MASK_BYTES} masks, not {n}: pass masks="
+            )
+        words = self.masks_readback.read(np.uint32)[: MASK_BYTES * n // 4]
         return np.unpackbits(words.view(np.uint8), bitorder="little").reshape(n, TILE, TILE).astype(bool)
 
-    def run_dense(self, clean_buf, faulted_buf, n_variants: int) -> dict:
+    def run_dense(self, clean_buf, faulted_buf, n_variants: int, masks: int = 0) -> dict:
         """encode_dense + submit + read."""
         enc = self.gpu.device.create_command_encoder()
-        self.encode_dense(enc, clean_buf, faulted_buf, n_variants)
+        self.encode_dense(enc, clean_buf, faulted_buf, n_variants, masks)
         self.gpu.submit(enc)
         return self.read(n_variants)
 
-    def run_sparse(self, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants: int) -> dict:
+    def run_sparse(
+        self, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants: int, masks: int = 0
+    ) -> dict:
         """encode_sparse + submit + read."""
         enc = self.gpu.device.create_command_encoder()
-        self.encode_sparse(enc, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants)
+        self.encode_sparse(enc, clean_buf, slabs_buf, tile_map_buf, worklist_buf, offsets_buf, n_variants, masks)
         self.gpu.submit(enc)
         return self.read(n_variants)
 
