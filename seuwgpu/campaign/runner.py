@@ -244,13 +244,9 @@ class Runner:
         one call (each variant's numbers do not depend on its batch: tests/test_campaign.py)."""
         if ctx.kind not in ("single", "size"):
             return [self._dose_block(eng, ctx, first, count) for first, count in blocks]
-        drawn = []
-        for first, count in blocks:
-            ids = np.arange(first, first + count, dtype=np.int64)
-            seeds = injection_seeds(self.spec["seed"], ids)
-            sites, weights = draw_sites(ctx, ids - ctx.first_id, seeds, eng.n, eng.degree)
-            drawn.append((ids, seeds, sites, weights))
-        every = [s for _, _, sites, _ in drawn for s in sites]
+        ids = np.concatenate([np.arange(first, first + count, dtype=np.int64) for first, count in blocks])
+        seeds = injection_seeds(self.spec["seed"], ids)
+        every, weights = draw_sites(ctx, ids - ctx.first_id, seeds, eng.n, eng.degree)  # per injection
         if self.full:
             if ctx.regions:
                 raise SpecError("regions (sort-first contamination) are measured on the incremental path; drop --full")
@@ -262,16 +258,16 @@ class Runner:
             whole["lpips"] = [self.lpips_of(eng, [s], d) for d in ctx.defenses for s in every]
         whole["campaign"] = ctx.kind
         whole["repeat"] = 0
-        whole["weight"] = np.tile(np.concatenate([weights for *_, weights in drawn]), arms)
-        whole["seed"] = np.tile(np.concatenate([seeds for _, seeds, _, _ in drawn]), arms)
-        whole["injection_id"] = np.tile(np.concatenate([ids for ids, *_ in drawn]), arms)
+        whole["weight"] = np.tile(weights, arms)
+        whole["seed"] = np.tile(seeds, arms)
+        whole["injection_id"] = np.tile(ids, arms)
         whole = self.finish(whole, eng, ctx)  # once per group: the columns are row by row
-        out, at = [], 0
-        for _, _, sites, _ in drawn:
-            rows = (np.arange(arms)[:, None] * len(every) + at + np.arange(len(sites))[None, :]).ravel()
-            at += len(sites)
-            out.append(whole.iloc[rows].reset_index(drop=True))
-        return out
+        ends = np.cumsum([count for _, count in blocks])
+        arm_rows = np.arange(arms)[:, None] * len(ids)
+        return [
+            whole.iloc[(arm_rows + np.arange(end - count, end)[None, :]).ravel()].reset_index(drop=True)
+            for (_, count), end in zip(blocks, ends)
+        ]
 
     def _dose_block(self, eng, ctx: Context, first: int, count: int) -> pd.DataFrame:
         ids = np.arange(first, first + count, dtype=np.int64)
