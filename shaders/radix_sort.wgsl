@@ -6,6 +6,8 @@
 // the block in rs_offs; PrefixSum scans the digit-major hist, so hist[d * blocks + b] becomes the
 // output position of block b's first element with digit d; `rs_scatter` walks each thread's run
 // in order and writes every pair to hist + thread offset + its rank among equal digits so far.
+// Small histograms skip the PrefixSum: `rs_scatter` with RS_FUSED computes its block's 16 positions from
+// the unscanned hist (two dispatches a pass instead of three).
 // Threads own contiguous runs, so equal keys keep their input order (stable), and no workgroup
 // waits for another (no forward-progress assumption).
 //
@@ -211,9 +213,34 @@ fn rs_upsweep(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
     rs_offs_w[o + 1u] = rs_cnt[WG + t] + rs_part[16u + (t >> 4u)];
 }
 
-// Scatter: each thread walks its run in order and writes every pair to its digit's scanned
-// block base + the thread's first position in the block (upsweep) + its rank among equal digits
-// so far in the run (8-bit counters in registers). No workgroup memory, no barrier.
+// Fused-scan scratch: thread t's sums of digit t / 16 over the blocks b = t (mod 16), all of them
+// and those before this workgroup's block; then per digit (16 threads).
+var<workgroup> rs_tot: array<u32, WG>;
+var<workgroup> rs_pre: array<u32, WG>;
+var<workgroup> rs_dtot: array<u32, 16>;
+var<workgroup> rs_dpre: array<u32, 16>;
+
+// Exclusive scan of the four components, plus `carry`.
+fn rs_excl4(v: vec4<u32>, carry: u32) -> vec4<u32> {
+    return vec4<u32>(carry, carry + v.x, carry + v.x + v.y, carry + v.x + v.y + v.z);
+}
+
+// Digits 4q .. 4q + 3 of hist column `block` (after the PrefixSum: that block's bases).
+fn rs_hist4(q: u32, nb: u32, block: u32) -> vec4<u32> {
+    let r = 4u * q * nb + block;
+    return vec4<u32>(rs_hist[r], rs_hist[r + nb], rs_hist[r + 2u * nb], rs_hist[r + 3u * nb]);
+}
+
+// RS_FUSED: the hist is unscanned, and each workgroup computes its block's 16 bases itself (digit
+// d: the counts of all digits below d in every block, plus digit d's counts in the blocks before
+// this one), so a pass needs no PrefixSum dispatch between upsweep and scatter; sort.py sets it
+// while a histogram has at most FUSED_MAX_BLOCKS blocks (a thread then reads at most 64 of its
+// words). The bases, and so the output, are those read from the scanned hist.
+override RS_FUSED: bool = false;
+
+// Scatter: each thread walks its run in order and writes every pair to its digit's block base +
+// the thread's first position in the block (upsweep) + its rank among equal digits so far in the
+// run (8-bit counters in registers). No workgroup memory and no barrier unless RS_FUSED.
 @compute @workgroup_size(WG)
 fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
               @builtin(local_invocation_index) t: u32) {
@@ -225,6 +252,51 @@ fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
         return;
     }
     let block = rs_pass.block0 + wid;
+    // Base of digit d at [d / 4][d % 4].
+    var b0: vec4<u32>;
+    var b1: vec4<u32>;
+    var b2: vec4<u32>;
+    var b3: vec4<u32>;
+    if (RS_FUSED) {
+        let row = (t >> 4u) * nb;
+        var tot = 0u;
+        var pre = 0u;
+        for (var b = t & 15u; b < nb; b += 16u) {
+            let c = rs_hist[row + b];
+            tot += c;
+            pre += select(0u, c, b < block);
+        }
+        rs_tot[t] = tot;
+        rs_pre[t] = pre;
+        workgroupBarrier();
+        if (t < 16u) {
+            var dt = 0u;
+            var dp = 0u;
+            for (var s = 0u; s < 16u; s++) {
+                dt += rs_tot[16u * t + s];
+                dp += rs_pre[16u * t + s];
+            }
+            rs_dtot[t] = dt;
+            rs_dpre[t] = dp;
+        }
+        workgroupBarrier();
+        let t0 = vec4<u32>(rs_dtot[0], rs_dtot[1], rs_dtot[2], rs_dtot[3]);
+        let t1 = vec4<u32>(rs_dtot[4], rs_dtot[5], rs_dtot[6], rs_dtot[7]);
+        let t2 = vec4<u32>(rs_dtot[8], rs_dtot[9], rs_dtot[10], rs_dtot[11]);
+        let t3 = vec4<u32>(rs_dtot[12], rs_dtot[13], rs_dtot[14], rs_dtot[15]);
+        let c1 = t0.x + t0.y + t0.z + t0.w;
+        let c2 = c1 + t1.x + t1.y + t1.z + t1.w;
+        let c3 = c2 + t2.x + t2.y + t2.z + t2.w;
+        b0 = rs_excl4(t0, 0u) + vec4<u32>(rs_dpre[0], rs_dpre[1], rs_dpre[2], rs_dpre[3]);
+        b1 = rs_excl4(t1, c1) + vec4<u32>(rs_dpre[4], rs_dpre[5], rs_dpre[6], rs_dpre[7]);
+        b2 = rs_excl4(t2, c2) + vec4<u32>(rs_dpre[8], rs_dpre[9], rs_dpre[10], rs_dpre[11]);
+        b3 = rs_excl4(t3, c3) + vec4<u32>(rs_dpre[12], rs_dpre[13], rs_dpre[14], rs_dpre[15]);
+    } else {
+        b0 = rs_hist4(0u, nb, block);
+        b1 = rs_hist4(1u, nb, block);
+        b2 = rs_hist4(2u, nb, block);
+        b3 = rs_hist4(3u, nb, block);
+    }
     let lbase = wid * RS_BLOCK + t * RS_PER;
     let gbase = block * RS_BLOCK + t * RS_PER;
     let o = RS_OFFS + 2u * (block * WG + t);
@@ -233,14 +305,10 @@ fn rs_scatter(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg
     // Output position of this thread's first element of each digit: f0..f3 (digit d at [d/4][d%4]);
     // lo.x = digits 0 | 2 << 16, lo.y = 1 | 3 << 16, lo.z = 4 | 6 << 16, lo.w = 5 | 7 << 16.
     let m = 0xffffu;
-    let f0 = vec4<u32>(rs_hist[block], rs_hist[nb + block], rs_hist[2u * nb + block], rs_hist[3u * nb + block])
-           + vec4<u32>(lo.x & m, lo.y & m, lo.x >> 16u, lo.y >> 16u);
-    let f1 = vec4<u32>(rs_hist[4u * nb + block], rs_hist[5u * nb + block], rs_hist[6u * nb + block], rs_hist[7u * nb + block])
-           + vec4<u32>(lo.z & m, lo.w & m, lo.z >> 16u, lo.w >> 16u);
-    let f2 = vec4<u32>(rs_hist[8u * nb + block], rs_hist[9u * nb + block], rs_hist[10u * nb + block], rs_hist[11u * nb + block])
-           + vec4<u32>(hi.x & m, hi.y & m, hi.x >> 16u, hi.y >> 16u);
-    let f3 = vec4<u32>(rs_hist[12u * nb + block], rs_hist[13u * nb + block], rs_hist[14u * nb + block], rs_hist[15u * nb + block])
-           + vec4<u32>(hi.z & m, hi.w & m, hi.z >> 16u, hi.w >> 16u);
+    let f0 = b0 + vec4<u32>(lo.x & m, lo.y & m, lo.x >> 16u, lo.y >> 16u);
+    let f1 = b1 + vec4<u32>(lo.z & m, lo.w & m, lo.z >> 16u, lo.w >> 16u);
+    let f2 = b2 + vec4<u32>(hi.x & m, hi.y & m, hi.x >> 16u, hi.y >> 16u);
+    let f3 = b3 + vec4<u32>(hi.z & m, hi.w & m, hi.z >> 16u, hi.w >> 16u);
     var seen = vec4<u32>(0u);
     for (var j = 0u; j < RS_PER / 4u; j++) {
         if (gbase + 4u * j < n) {

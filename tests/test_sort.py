@@ -12,6 +12,9 @@ from seuwgpu.gpu.sort import WG, PrefixSum, RadixSort
 
 SENTINEL = 0xDEADBEEF
 PERS = (16, 64)  # elements per thread: the GPU and the CPU-adapter defaults
+# RadixSort's fused_max_blocks: the default (these sizes scatter from the unscanned histogram) and
+# 0 (a PrefixSum between upsweep and scatter, the path of histograms over FUSED_MAX_BLOCKS blocks).
+FUSED = {"fused": {}, "scanned": {"fused_max_blocks": 0}}
 
 
 def run(gpu, *encodes):
@@ -98,6 +101,7 @@ def test_scan_dynamic_count_three_levels(gpu):
 
 
 # ---- radix sort ------------------------------------------------------------------------------
+@pytest.mark.parametrize("path", FUSED)
 @pytest.mark.parametrize("per", PERS)
 @pytest.mark.parametrize(
     "n,key_bits,hi",
@@ -110,12 +114,13 @@ def test_scan_dynamic_count_three_levels(gpu):
         (4_096, 13, 2**32),  # one block at 16 per thread, partial last digit
     ],
 )
-def test_radix_sort_stable(gpu, n, key_bits, hi, per):
+def test_radix_sort_stable(gpu, n, key_bits, hi, per, path):
     rng = np.random.default_rng(n + key_bits)
     keys = rng.integers(0, hi, n, dtype=np.uint64).astype(np.uint32)
     keys[::97] = 0xFFFFFFFF
     vals = np.arange(n, dtype=np.uint32)
-    rs = RadixSort(gpu, n, per=per)
+    rs = RadixSort(gpu, n, per=per, **FUSED[path])
+    assert rs.fused == (path == "fused") and (rs.scan is None) == rs.fused
     kb, vb = gpu.upload(keys), gpu.upload(vals)
     run(gpu, lambda e: rs.encode(e, kb, vb, n, key_bits=key_bits))
     check_sort(gpu, keys, vals, kb, vb, n, key_bits)
@@ -136,15 +141,16 @@ def test_radix_sort_small_counts(gpu, n):
     check_sort(gpu, keys, vals, kb, vb, n, 32)
 
 
+@pytest.mark.parametrize("path", FUSED)
 @pytest.mark.parametrize("per", [4, None])
-def test_radix_sort_dynamic_count(gpu, per):
+def test_radix_sort_dynamic_count(gpu, per, path):
     """Count from a GPU buffer, below capacity: only that prefix is sorted, the rest untouched;
     a count beyond the capacity is clamped to it."""
     cap = 30_000
     rng = np.random.default_rng(3)
     keys = rng.integers(0, 300, cap + 1000).astype(np.uint32)
     vals = np.arange(cap + 1000, dtype=np.uint32)
-    rs = RadixSort(gpu, cap, per=per)
+    rs = RadixSort(gpu, cap, per=per, **FUSED[path])
     counts = gpu.upload(np.array([0, 12_345, 2**31, 0], np.uint32))
     kb1, vb1 = gpu.upload(keys), gpu.upload(vals)
     kb2, vb2 = gpu.upload(keys), gpu.upload(vals)
@@ -157,8 +163,9 @@ def test_radix_sort_dynamic_count(gpu, per):
     check_sort(gpu, keys, vals, kb2, vb2, cap, 9)
 
 
+@pytest.mark.parametrize("path", FUSED)
 @pytest.mark.parametrize("per", PERS)
-def test_radix_sort_two_bindings(gpu, per):
+def test_radix_sort_two_bindings(gpu, per, path):
     """96 KiB bindings: 16384-element chunks, so 30000 pairs span two bindings (chunked reads,
     split writes); 2-D dispatch rows of 3 workgroups; dynamic count; odd and even passes."""
     n = 30_000
@@ -166,7 +173,7 @@ def test_radix_sort_two_bindings(gpu, per):
     keys = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)
     keys[rng.random(n) < 0.3] = 77
     vals = np.arange(n, dtype=np.uint32)
-    rs = RadixSort(gpu, n, per=per, max_binding=98304, max_groups_x=3)
+    rs = RadixSort(gpu, n, per=per, max_binding=98304, max_groups_x=3, **FUSED[path])
     assert rs.nch == 2
     # runs are lengthened when the per-thread offsets would not fit one binding
     assert RadixSort(gpu, n, per=4, max_binding=98304).per == 16
@@ -219,3 +226,30 @@ def test_bad_arguments(gpu):
         rs.encode(enc, odd, vb, 10)
     with pytest.raises(ValueError):
         PrefixSum(gpu, 100).encode(enc, odd, vb, 10)
+
+
+class _Counting:
+    """A command encoder's stand-in that counts the dispatches recorded in its passes."""
+
+    def __init__(self):
+        self.dispatches = 0
+
+    def begin_compute_pass(self, **kw):
+        return self
+
+    def __getattr__(self, name):
+        if name.startswith("dispatch_workgroups"):
+            self.dispatches += 1
+        return lambda *a, **kw: None
+
+
+@pytest.mark.parametrize("path", FUSED)
+def test_fused_scatter_saves_a_dispatch_per_pass(gpu, path):
+    """The depth sort's 8 passes: a plan, then upsweep + scatter each (17) when fused; a scanned
+    histogram adds a plan for the PrefixSum and its scan (one dispatch at this size) per pass."""
+    n = 20_000
+    rs = RadixSort(gpu, n, **FUSED[path])
+    kb, vb = gpu.buffer(4 * n), gpu.buffer(4 * n)
+    enc = _Counting()
+    rs.encode(enc, kb, vb, n)
+    assert enc.dispatches == (17 if path == "fused" else 1 + 1 + 8 * 3)

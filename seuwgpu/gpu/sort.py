@@ -44,6 +44,12 @@ _OFFS_HEADER = 16 * RADIX_PLAN["RS_OFFS"]  # bytes
 if WG != 256:  # both shaders scan a workgroup's values as 16 groups of 16
     raise ImportError(f"scan.wgsl and radix_sort.wgsl need 256-thread workgroups, constants.WG is {WG}")
 _CACHE_SIZE = 512
+# A sort whose histogram has at most this many blocks (4 Mi pairs at 16 per thread, 16 Mi at 64)
+# scatters with rs_scatter's RS_FUSED variant, which computes its bases from the unscanned
+# histogram: no PrefixSum between upsweep and scatter, so 2 dependent dispatches a pass instead of
+# 3, and 17 instead of 26 for a 32-bit sort (a GPU waits on each; Python spends ~8 us recording
+# each, measured on lavapipe's host). Each scatter thread then reads at most 64 histogram words.
+FUSED_MAX_BLOCKS = 1024
 
 
 def _ceil_div(a: int, b: int) -> int:
@@ -282,7 +288,8 @@ class RadixSort:
     `key_bits` bits of the keys (higher bits are ignored and kept), equal keys in input order,
     result in place in `keys`/`values`; elements at or past count are not touched. `count` is a
     python int or (buffer, byte_offset) of a u32 on the GPU (clamped to the capacity and to the
-    buffer sizes; the dispatches are then indirect). Needs ceil(key_bits / 4) passes; an odd
+    buffer sizes; the dispatches are then indirect). Needs ceil(key_bits / 4) passes of two
+    dispatches (three, with a PrefixSum of the histogram, past FUSED_MAX_BLOCKS blocks); an odd
     number of passes costs one extra copy into the internal buffers first. `keys` and `values`
     must be distinct buffers whose sizes are multiples of 16 bytes. Twin: `stable_sort`.
 
@@ -299,8 +306,11 @@ class RadixSort:
         per: int | None = None,
         max_binding: int | None = None,
         max_groups_x: int | None = None,
+        fused_max_blocks: int = FUSED_MAX_BLOCKS,
     ):
-        """`per`, `max_binding` and `max_groups_x`: as for PrefixSum."""
+        """`per`, `max_binding` and `max_groups_x`: as for PrefixSum. `fused_max_blocks`: the
+        largest histogram (in blocks, at full capacity) scattered without a PrefixSum (0: never;
+        the tests use it to reach both paths)."""
         self.gpu = gpu
         self.capacity = max(1, int(capacity))
         self.per = _per_thread(gpu, per)
@@ -325,7 +335,11 @@ class RadixSort:
             raise ValueError(f"RadixSort capacity {capacity} too large for this device's storage bindings")
         self.plan = gpu.buffer(4 * (RADIX_PLAN["RS_ARGS"] + 3 * self.nch), INDIRECT, "sort.plan")
         self._dummy = gpu.buffer(16, STORAGE, "sort.dummy")
-        self.scan = PrefixSum(gpu, 16 * nb, per=per, max_binding=max_binding, max_groups_x=max_groups_x)
+        # Decided by the capacity, so that every count the sort may be given takes the same path.
+        self.fused = nb <= int(fused_max_blocks)
+        self.scan = (
+            None if self.fused else PrefixSum(gpu, 16 * nb, per=per, max_binding=max_binding, max_groups_x=max_groups_x)
+        )
 
         consts = {"RS_PER": self.per}
 
@@ -337,7 +351,8 @@ class RadixSort:
             "rs_plan_main", dict(consts, RS_MAX_X=max_groups_x) if max_groups_x else consts
         )
         # The second output half is compiled in only when a sort spans two bindings.
-        self._k["rs_scatter"] = kernel("rs_scatter", dict(consts, RS_TWO_PARTS=1) if self.nch > 1 else consts)
+        scatter = dict(consts, RS_FUSED=int(self.fused))
+        self._k["rs_scatter"] = kernel("rs_scatter", dict(scatter, RS_TWO_PARTS=1) if self.nch > 1 else scatter)
         # Uniform slot per (pass, digit width, chunk).
         self._pass = Uniforms(gpu, self._k["rs_upsweep"].struct("RsPass"), 8 * 4 * self.nch, "sort.pass")
         p, m, c = (a.reshape(-1) for a in np.meshgrid(np.arange(8), np.arange(4), np.arange(self.nch), indexing="ij"))
@@ -376,7 +391,8 @@ class RadixSort:
             return
         cpass = encoder.begin_compute_pass(label="radix_sort")
         self._encode_plan(cpass, count, limit)
-        self.scan.encode_plan(cpass, (self.plan, 4 * RADIX_PLAN["RS_HIST_COUNT"]), self.scan.capacity)
+        if self.scan is not None:
+            self.scan.encode_plan(cpass, (self.plan, 4 * RADIX_PLAN["RS_HIST_COUNT"]), self.scan.capacity)
         chunks = [c for c in range(self.nch) if c * self.chunk < limit]
         # each array's chunk-c input range and its two output halves, computed once per call
         io = {b: ([self._in(b, c) for c in chunks], self._out(b)) for b in (keys, values, self.keys_tmp, self.vals_tmp)}
@@ -395,7 +411,8 @@ class RadixSort:
                 self._dispatch(
                     cpass, "rs_upsweep", p, m, c, {0: io[cur[0]][0][c], 7: self.hist, 8: self.plan, 15: self.offs}
                 )
-            self.scan.encode_scan(cpass, self.hist, self.hist, self.scan.capacity)
+            if self.scan is not None:
+                self.scan.encode_scan(cpass, self.hist, self.hist, self.scan.capacity)
             (klo, khi), (vlo, vhi) = io[oth[0]][1], io[oth[1]][1]
             for c in chunks:
                 bindings = {0: io[cur[0]][0][c], 1: io[cur[1]][0][c], 2: klo, 3: khi, 4: vlo, 5: vhi, 6: self.hist}
