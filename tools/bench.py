@@ -20,7 +20,10 @@ run). What is measured, per configuration:
   against 5.6 ms in 3 s of back-to-back submissions at 1,980 MHz, 2026-11-26); the reported time
   is the median of R timed submissions (fewer than --repeats when one submission
   is slower than the --budget allows; the JSON and the table give R). Python-side encoding is
-  part of the time (command buffers cannot be replayed in WebGPU); `encode_ms` reports it apart.
+  part of the time (command buffers cannot be replayed in WebGPU); `encode_ms` reports it apart,
+  with `dispatches_per_view` and `encode_ceiling_mpix_s` = K * W * H / encode time: the most a
+  submission could reach if the device took no time (on a GPU, where view v + 1 is recorded while
+  view v renders, the bound that recording puts on Mpix/s).
 - Mpix/s = K * W * H / median seconds per submission; ms/view = median / K.
 - per-stage GPU times, from timestamp queries when the device has "timestamp-query": one more,
   separate, instrumented submission (so the timestamps cannot slow the timed ones), each compute
@@ -122,6 +125,43 @@ class _TimedPass:
 
     def __getattr__(self, name):
         return getattr(self._p, name)
+
+
+class _CountingEncoder:
+    """Forwards to a real command encoder and counts the dispatches recorded in its passes."""
+
+    def __init__(self, encoder):
+        self._e, self.dispatches = encoder, 0
+
+    def begin_compute_pass(self, **kw):
+        return _CountingPass(self._e.begin_compute_pass(**kw), self)
+
+    def __getattr__(self, name):
+        return getattr(self._e, name)
+
+
+class _CountingPass:
+    def __init__(self, cpass, counter: _CountingEncoder):
+        self._p, self._c = cpass, counter
+
+    def dispatch_workgroups(self, *a):
+        self._c.dispatches += 1
+        self._p.dispatch_workgroups(*a)
+
+    def dispatch_workgroups_indirect(self, *a):
+        self._c.dispatches += 1
+        self._p.dispatch_workgroups_indirect(*a)
+
+    def __getattr__(self, name):
+        return getattr(self._p, name)
+
+
+def count_dispatches(r: Renderer) -> int:
+    """Dispatches `r` records for its K views (recorded, then dropped unsubmitted)."""
+    enc = _CountingEncoder(r.gpu.device.create_command_encoder())
+    r.encode(enc)
+    enc.finish()
+    return enc.dispatches
 
 
 class _TimedEncoder:
@@ -433,6 +473,8 @@ def bench_config(
         "mpix_per_s": k * w * h / med / 1e6,
         "min_ms_per_view": 1e3 * min(times) / k,  # the least disturbed run (shared machines are noisy)
         "encode_ms": 1e3 * encode_s,
+        "encode_ceiling_mpix_s": k * w * h / encode_s / 1e6,
+        "dispatches_per_view": count_dispatches(r) / k,
         "model_chunks": r.layout.n_chunks,
         "intersections_per_view": [int(x) for x in totals[:k]],
     }
@@ -716,7 +758,9 @@ def run_grid(
                             )
                         log(
                             f"[{scene} N={n} {size}x{size} K={k} {shape}] {rec['mpix_per_s']:.3f} Mpix/s, "
-                            f"{rec['ms_per_view']:.1f} ms/view (median of {rec['repeats']}){same}"
+                            f"{rec['ms_per_view']:.1f} ms/view (median of {rec['repeats']}){same}; recording "
+                            f"{rec['encode_ms'] / k:.2f} ms/view, {rec['dispatches_per_view']:g} dispatches/view "
+                            f"(at most {rec['encode_ceiling_mpix_s']:,.0f} Mpix/s if the device took no time)"
                         )
                         if sweep:
                             doc["chunk_sweep"].extend(sweep)
