@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 
 from seuwgpu.analysis import (
+    claims,
     contamination,
     criticality,
     dose,
@@ -104,18 +105,52 @@ def test_auc_perfect_and_random():
     assert math.isnan(stats.auc(np.ones(5, bool), np.arange(5)))
 
 
-def test_stratified_interval_korn_graubard_and_zero_counts():
-    # two strata, weights 0.9 / 0.1, rates 0 and 0.5: V = 0.01 * 0.25 / 100, n_eff = p(1-p)/V
+def test_stratified_interval_design_effect_and_zero_counts():
+    # two strata, weights 0.9 / 0.1, 0 of 100 and 50 of 100: the variance uses the add-half
+    # rates (0.5 / 101 and 50.5 / 101), the rate the raw ones
     p, lo, hi, neff = estimate.stratified_interval([0.0, 0.5], [100, 100], [0.9, 0.1])
+    s = np.array([0.5, 50.5]) / 101
+    W = np.array([0.9, 0.1])
+    ps = float(W @ s)
     assert p == pytest.approx(0.05)
-    assert neff == pytest.approx(min(0.05 * 0.95 / (0.01 * 0.25 / 100), 200))
+    assert neff == pytest.approx(min(ps * (1 - ps) / float((W * W * s * (1 - s) / 100).sum()), 200))
     assert (lo, hi) == pytest.approx(stats.wilson_interval(0.05 * neff, neff))
-    # no event anywhere: V = 0, Kish n_eff, exact Wilson edge (lower 0, upper > 0)
+    # no event anywhere: equal strata give n_eff = n (the add-half rates are equal), so the exact
+    # Wilson edge of 0 in 200: lower bound 0, upper bound > 0
     p0, lo0, hi0, n0 = estimate.stratified_interval([0.0, 0.0], [100, 100], [0.5, 0.5])
-    assert p0 == 0 and lo0 == 0 and hi0 > 0 and n0 == pytest.approx(200)
+    assert p0 == 0 and lo0 == 0 and n0 == pytest.approx(200)
     assert hi0 == pytest.approx(stats.wilson_interval(0, 200)[1])
     # one stratum: the plain Wilson interval of (k, n)
     assert estimate.stratified_interval([0.3], [10], [1.0])[1:3] == pytest.approx(stats.wilson_interval(3, 10))
+
+
+def test_stratified_interval_continuous_in_sparse_strata():
+    """One event in a light stratum must not shrink the interval: with the raw rates it cut the
+    upper bound from 0.27 to 0.0004 (n_eff jumped to the record count). And half the weight on
+    one record leaves the rate anywhere in [0.5, 1], so the interval must stay wide."""
+    hi0 = estimate.stratified_interval([0, 0], [10, 10_000], [0.99, 0.01])[2]
+    hi1 = estimate.stratified_interval([0, 1e-4], [10, 10_000], [0.99, 0.01])[2]
+    assert hi0 > 0.2 and hi1 == pytest.approx(hi0, rel=0.02)
+    _, lo, hi, _ = estimate.stratified_interval([1, 0.5], [1, 100], [0.5, 0.5])
+    assert lo < 0.5 and hi > 0.9  # the raw-rate variance gave [0.657, 0.824]
+
+
+def test_stratified_interval_covers_at_campaign_shape():
+    """Coverage by simulation at a campaign's shape: 192 (field, bit) strata of 8 records with
+    fp32-like weights, a 1% rate in half of them (mostly 0 or 1 event a stratum). 95.1% of these
+    intervals cover the truth; the raw-rate variance covered 82.7% (same seed)."""
+    rng = np.random.default_rng(11)
+    H, n = 192, 8
+    W = rng.choice([256.0, 768.0, 3840.0, 85.3], H)
+    truth_h = np.where(rng.random(H) < 0.5, 0.01, 0.0)
+    truth = float((W / W.sum()) @ truth_h)
+    hits = 0
+    reps = 1500
+    for _ in range(reps):
+        k = rng.binomial(n, truth_h)
+        _, lo, hi, _ = estimate.stratified_interval(k / n, np.full(H, n), W)
+        hits += lo <= truth <= hi
+    assert hits / reps > 0.93
 
 
 def test_weighted_rate_differs_from_pooled_counts():
@@ -234,6 +269,64 @@ def test_theory_check_unit_slope_on_exact_power_law():
     assert res["r2"] == pytest.approx(1.0, abs=1e-9)
     # window (1e-5, 0.1]: 0.25 * 2^(b-23) > 1e-5 from b = 9, <= 0.1 up to b = 21
     assert res["fit_bits"] == (9, 21) and res["predicted_slope"] == 1.0
+
+
+def test_common_loglog_fit_one_exponent_across_scenes():
+    x = np.array([1e3, 3e3, 1e4, 3e4])
+    # two scenes at different sizes, the same exponent -1.5, intercepts 10^4 apart: the common
+    # fit recovers -1.5 exactly, where a single pooled line would not
+    g = ["a"] * 4 + ["b"] * 4
+    xs, ys = np.r_[x, 100 * x], np.r_[3.0 * x**-1.5, 3e4 * (100 * x) ** -1.5]
+    f = stats.common_loglog_fit(g, xs, ys)
+    assert f.exponent == pytest.approx(-1.5, abs=1e-12) and f.n == 8 and f.r2 == pytest.approx(1.0)
+    assert stats.loglog_fit(xs, ys).exponent != pytest.approx(-1.5, abs=0.1)
+    # one scene: the ordinary fit, interval included
+    noise = np.array([1.3, 0.8, 1.2, 0.9])
+    one = stats.common_loglog_fit(["a"] * 4, x, 3.0 * x**-1.5 * noise)
+    ref = stats.loglog_fit(x, 3.0 * x**-1.5 * noise)
+    assert (one.exponent, one.exponent_lo, one.exponent_hi) == pytest.approx(
+        (ref.exponent, ref.exponent_lo, ref.exponent_hi)
+    )
+    # by hand for two noisy scenes: slope of the within-scene centred logs, t on 8 - 2 - 1 dof
+    ys = ys * np.r_[noise, noise[::-1]]
+    f = stats.common_loglog_fit(g, xs, ys)
+    lx, ly = np.log10(xs), np.log10(ys)
+    xc = np.r_[lx[:4] - lx[:4].mean(), lx[4:] - lx[4:].mean()]
+    yc = np.r_[ly[:4] - ly[:4].mean(), ly[4:] - ly[4:].mean()]
+    b = (xc @ yc) / (xc @ xc)
+    se = np.sqrt(np.sum((yc - b * xc) ** 2) / 5 / (xc @ xc))
+    assert f.exponent == pytest.approx(b) and f.exponent_hi - b == pytest.approx(2.570581835636314 * se)
+    # zeros have no logarithm; a scene left with one point drops out
+    f0 = stats.common_loglog_fit(g + ["c"] * 2, np.r_[xs, 1e3, 1e4], np.r_[ys, 0.0, 1.0])
+    assert f0.exponent == pytest.approx(f.exponent) and f0.n == 8
+    with pytest.raises(ValueError):
+        stats.common_loglog_fit(["a", "a"], [1, 2], [0, 0])
+
+
+def test_claims_guard_share_is_fp32_not_pooled():
+    """The claim sits beside fp32 p_c claims: it must take the fp32 row of the paired table, not
+    the pool of every precision (which the guard section reports, labelled as such)."""
+    n = 20
+    kw = dict(field="log_scales", bit=31, bit_class="sign")
+    parts = []
+    for prec, fixed in (("fp32", 8), ("fp16", 2)):  # fp32: 8 of 10 neutralised, fp16: 2 of 10
+        fp_none = np.where(np.arange(n) < 10, 0.5, 0.0)
+        fp_guard = np.where(np.arange(n) < 10 - fixed, 0.5, 0.0)
+        parts += [
+            _records(n, precision=prec, footprint=fp_none, psnr=np.where(fp_none > 0, 10.0, np.inf), **kw),
+            _records(n, precision=prec, defense="guard", footprint=fp_guard, psnr=10.0, **kw),
+        ]
+    df = pd.concat(parts, ignore_index=True)
+    res = guard.guard_analysis(df)
+    assert res["share_precision"] == "all" and res["share_pct"] == pytest.approx(50.0)
+    t = claims.claims_table(df, {"guard": res}).set_index("claim")
+    r = t.loc["share of catastrophic upsets the guard neutralises, fp32"]
+    assert r["measured"] == pytest.approx(80.0)
+    assert r["ci_lo"] == pytest.approx(100 * stats.wilson_interval(8, 10)[0])
+    # 20 sign flips: a bootstrap cannot bound a 99th percentile above their maximum, so none
+    r = t.loc["log-scale sign flip: 99th-percentile footprint, fp32"]
+    assert r["measured"] == pytest.approx(50.0) and math.isnan(r["ci_hi"]) and r["verdict"] == "not measured"
+    assert "< 100" in r["basis"]
 
 
 def test_guard_share_neutralised_and_sign_psnr():
@@ -377,6 +470,9 @@ def test_pc_stratified_weights_and_mtbf():
     assert ground["mtbf_hours"] == pytest.approx(24.0 / (1 - math.exp(-x)))
     assert reliability.mtbf(1e-12, bits, 3 / 59 / 16, math.inf) == pytest.approx(1 / (1e-12 * bits * 3 / 59 / 16))
     assert reliability.mtbf(1e-3, bits, 0.5, 24.0) == pytest.approx(24.0)  # every interval is hit
+    # an unmeasured p stays unmeasured (it used to read as "never": inf and 0%)
+    assert math.isnan(reliability.mtbf(1e-12, bits, float("nan"), 24.0))
+    assert math.isnan(reliability.catastrophic_frame_share(1e-12, bits, float("nan"), 24.0))
     # the rates are documented inputs with sources
     assert all(env["source"] for env in reliability.UPSET_RATES)
 

@@ -125,3 +125,63 @@ def test_runs_sharing_a_folder_name_stay_apart(runs, tmp_path):
     got = cells.groupby("run")["n_records"].sum().to_dict()
     first = records[(records.run == "run0") & (records.campaign == "single") & (records.k == 1)]
     assert got == {"run0": len(first), "run0#2": len(first.loc[first.index < 400])}
+
+
+def _manifest(run_dir, spec_hash: str, profile: str):
+    import json
+
+    store.manifest_path(run_dir).write_text(json.dumps({"spec_hash": spec_hash, "profile": profile}))
+
+
+def test_the_same_sites_twice_are_refused_unless_grouped_by_run(runs, tmp_path):
+    """A run copied (or re-run with the same spec, seed and profile) holds the same sites: pooled,
+    n would double and the interval shrink by sqrt(2) with no new information."""
+    dirs, records = runs
+    copy = tmp_path / "again"
+    store.records_dir(copy).mkdir(parents=True)
+    first = records[records.run == dirs[0].name].drop(columns="run")
+    for j in range(5):
+        store.write_part(copy, 400 * j, 400, first.iloc[400 * j : 400 * (j + 1)])
+    for d in (dirs[0], copy):
+        _manifest(d, "abc", "strict")
+    _manifest(dirs[1], "abc", "gsplat")  # the same spec under another profile: other frames
+    assert store.repeated_sites([dirs[0], dirs[1], copy]) == [("run0", "again", 5)]
+    with pytest.raises(C.InputError, match="run0 and again hold 5 part"):
+        C.fold_runs([dirs[0], copy])
+    cells, _ = C.fold_runs([dirs[0], copy], ["run"])  # compared side by side: allowed
+    assert set(cells["run"]) == {"run0", "again"}
+    C.fold_runs([dirs[0], dirs[1]])  # different profiles: not the same sites
+
+
+def test_profiles_are_never_pooled(runs, tmp_path):
+    """Records of two renderer profiles get a row each, equal to each profile's records alone."""
+    dirs, records = runs
+    mixed = tmp_path / "mixed"
+    store.records_dir(mixed).mkdir(parents=True)
+    rec = records[records.run == dirs[0].name].drop(columns="run")
+    rec = rec.assign(profile=np.where(np.arange(len(rec)) % 3 == 0, "gsplat", "strict"))
+    for j in range(5):
+        store.write_part(mixed, 400 * j, 400, rec.iloc[400 * j : 400 * (j + 1)])
+    cells, _ = C.fold_runs([mixed], ["precision"])
+    by = C.groups(cells, ["precision"])
+    assert by == ["precision", "profile"]
+    got = C.outcome_rates(cells, by).set_index(by)
+    single = rec[(rec.campaign == "single") & (rec.k == 1)]
+    for (prec, prof), g in single.groupby(["precision", "profile"]):
+        ref = E.rate(g.assign(catastrophic=g.outcome == "catastrophic"), "catastrophic")
+        assert got.loc[(prec, prof), "n"] == len(g)
+        assert got.loc[(prec, prof), "catastrophic_rate"] == pytest.approx(ref["rate"].iloc[0], rel=1e-12)
+        assert got.loc[(prec, prof), "catastrophic_ci_hi"] == pytest.approx(ref["ci_hi"].iloc[0], rel=1e-12)
+    # one profile (or records from before profiles): no extra column
+    assert C.groups(C.fold_runs([dirs[1]], ["precision"])[0], ["precision"]) == ["precision"]
+
+
+def test_the_report_refuses_the_same_sites_twice(runs, tmp_path):
+    from seuwgpu.report.build import load_runs
+
+    dirs, _ = runs
+    for d in dirs:
+        _manifest(d, "abc", "strict")
+    store.part_path(dirs[1], 0, 400).unlink()  # run1 keeps parts 1..4 in common with run0
+    with pytest.raises(C.InputError, match="run0 and run1 hold 4 part"):
+        load_runs(dirs)

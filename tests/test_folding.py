@@ -199,6 +199,9 @@ def test_several_runs_fold_alike(run, tmp_path):
     rd, _ = run
     other = tmp_path / "other" / "run"  # the same folder name: the report labels it run#2
     shutil.copytree(rd, other)
+    # as another spec's run (the same spec's parts twice are refused: the same sites twice)
+    m = json.loads((other / "manifest.json").read_text())
+    (other / "manifest.json").write_text(json.dumps(dict(m, spec_hash="another")))
     out = {f: build_report([rd, other], tmp_path / f"r{f}", max_pred_rows=1000, fold=bool(f)).parent for f in (0, 1)}
     a, b = _tables(out[0]), _tables(out[1])
     assert set(a) == set(b)

@@ -181,11 +181,11 @@ def _size_rows(rng):
     return rows
 
 
-def write_run(run_dir: Path, df: pd.DataFrame, parts: int = 2) -> Path:
+def write_run(run_dir: Path, df: pd.DataFrame, parts: int = 2, spec_hash: str = "abc123") -> Path:
     (run_dir / "records").mkdir(parents=True, exist_ok=True)
     manifest = {
         "spec": {"scenes": list(SCENES), "sh_degree": 3},
-        "spec_hash": "abc123",
+        "spec_hash": spec_hash,
         "version": "0.1.0",
         "git_commit": "deadbeef",
         "adapter": {"name": "llvmpipe (LLVM)", "backend": "Vulkan"},
@@ -207,7 +207,7 @@ def synthetic(tmp_path_factory):
     # a run without dose rows and without optional columns (campaign, repeat, time_ms)
     nodose = single.drop(columns=["campaign", "repeat", "time_ms"])
     nodose = nodose.drop(columns=[c for c in nodose if c.startswith("regions_")])
-    lean = write_run(base / "run_single", nodose)
+    lean = write_run(base / "run_single", nodose, spec_hash="lean01")  # another spec: load_runs may pool them
     return {"full": full, "single": lean, "base": base, "single_df": single}
 
 

@@ -32,7 +32,8 @@ def wilson(k, n):
 
 
 def stratified(g: pd.DataFrame, y: str):
-    """Weighted rate over (scene, N, precision, field, bit) strata and its Korn-Graubard Wilson interval."""
+    """Weighted rate over (scene, N, precision, field, bit) strata and its Wilson interval at the
+    design-effect n_eff (variance from add-half stratum rates)."""
     cells = g.groupby(["scene", "n_primitives", "precision", "field", "bit"])
     W = cells["weight"].sum()
     p_h = cells.apply(lambda c: (c["weight"] * c[y]).sum() / c["weight"].sum(), include_groups=False)
@@ -41,9 +42,10 @@ def stratified(g: pd.DataFrame, y: str):
     p = float((Wn * p_h).sum())
     if len(W) == 1:
         return (p, *wilson(p * n_h.iloc[0], n_h.iloc[0]))
-    var = float((Wn**2 * p_h * (1 - p_h) / n_h).sum())
-    n_eff = p * (1 - p) / var if var > 0 else 1 / float((Wn**2 / n_h).sum())
-    n_eff = min(n_eff, float(n_h.sum()))
+    sm = (p_h * n_h + 0.5) / (n_h + 1)
+    var = float((Wn**2 * sm * (1 - sm) / n_h).sum())
+    ps = float((Wn * sm).sum())
+    n_eff = min(ps * (1 - ps) / var, float(n_h.sum()))
     return (p, *wilson(p * n_eff, n_eff))
 
 

@@ -21,6 +21,7 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate
 from seuwgpu.campaign import store
+from seuwgpu.errors import InputError
 from seuwgpu.metrics.image import OUTCOMES
 
 COUNTS = (*OUTCOMES, "nonfinite")
@@ -47,10 +48,23 @@ def fold(records: pd.DataFrame, by=()) -> pd.DataFrame:
 def fold_runs(run_dirs, by=("scene", "precision", "defense"), campaign: str = "single", progress=None):
     """(cell rows of the k = 1 records of `campaign` in the runs' parts, parts read). `by` may name
     any record column and `run` (store.run_names: the label the report gives the run).
-    `progress(i, n)` is called per part."""
+    `progress(i, n)` is called per part.
+
+    The cells always keep the renderer `profile` (`groups` adds it when several are present: a
+    profile renders other frames, never pooled). Runs holding the same parts of one spec and
+    profile (the same sites twice) are refused unless `by` names `run`."""
     by = list(by)
     parts = []
     run_dirs = list(run_dirs)
+    if "run" not in by:
+        twice = store.repeated_sites(run_dirs)
+        if twice:
+            a, b, k = twice[0]
+            raise InputError(
+                f"runs {a} and {b} hold {k} part(s) of the same spec and profile: the same fault sites twice, "
+                "which pooled would count as twice the sample; pass one of them, or group by run (--by ...,run)"
+            )
+
     for rd, name in zip(run_dirs, store.run_names(run_dirs)):
         rd = Path(rd)
         if not rd.is_dir():
@@ -61,15 +75,18 @@ def fold_runs(run_dirs, by=("scene", "precision", "defense"), campaign: str = "s
         parts += [(name, p) for p in found]
     want = [c for c in dict.fromkeys([*by, *estimate.STRATA, *NEEDED]) if c != "run"]
     acc, pending = None, []
+    keep = by if "profile" in by else [*by, "profile"]
     for i, (run, path) in enumerate(parts):
-        d = _read(path, want)
+        d = _read(path, want, optional=("profile",))  # records of older versions have no profile
         d = d[(d["campaign"] == campaign) & (d["k"] == 1)]
         if len(d):
             if "run" in by:
                 d = d.assign(run=run)
-            pending.append(fold(d, by))
+            if "profile" not in d:
+                d = d.assign(profile="strict")  # the only renderer before profiles existed
+            pending.append(fold(d, keep))
         if pending and (len(pending) >= FOLD_EVERY or i == len(parts) - 1):
-            acc = fold(pd.concat(([acc] if acc is not None else []) + pending, ignore_index=True), by)
+            acc = fold(pd.concat(([acc] if acc is not None else []) + pending, ignore_index=True), keep)
             pending = []
         if progress:
             progress(i + 1, len(parts))
@@ -78,7 +95,7 @@ def fold_runs(run_dirs, by=("scene", "precision", "defense"), campaign: str = "s
     return acc, len(parts)
 
 
-def _read(path: Path, columns: list[str]) -> pd.DataFrame:
+def _read(path: Path, columns: list[str], optional=()) -> pd.DataFrame:
     import pyarrow.parquet as pq
 
     have = set(pq.read_schema(path).names)
@@ -87,7 +104,15 @@ def _read(path: Path, columns: list[str]) -> pd.DataFrame:
         raise ValueError(
             f"{path}: records lack {', '.join(missing)} (written by an older version?): `seuwgpu report` derives them"
         )
-    return pd.read_parquet(path, columns=columns)
+    return pd.read_parquet(path, columns=[*columns, *(c for c in optional if c in have and c not in columns)])
+
+
+def groups(cells: pd.DataFrame, by) -> list[str]:
+    """`by`, plus `profile` where the cells hold more than one renderer profile."""
+    by = list(by)
+    if "profile" in cells and "profile" not in by and cells["profile"].nunique(dropna=False) > 1:
+        by.append("profile")
+    return by
 
 
 def outcome_rates(cells: pd.DataFrame, by=(), conf: float = 0.95) -> pd.DataFrame:

@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis import estimate as E
+from seuwgpu.analysis import stats
 from seuwgpu.analysis.records import single_upsets, tag
 
 # key: (claim, unit, paper value)
@@ -20,7 +21,7 @@ PAPER = {
     "sign_p99": ("log-scale sign flip: 99th-percentile footprint, fp32", "% of frame", 75.7),
     "pc_none": ("p_c: a uniform upset is catastrophic, fp32, no defense", "%", 0.634),
     "pc_guard": ("p_c with the support guard, fp32", "%", 0.0612),
-    "guard_share": ("share of catastrophic upsets the guard neutralises", "%", 90.4),
+    "guard_share": ("share of catastrophic upsets the guard neutralises, fp32", "%", 90.4),
     "theory_slope": ("log2 peak error per mantissa bit (log-scale), fp32", "per bit", 0.94),
     "alpha": ("scaling exponent alpha of the mean single-upset error", "", 2.78),
     "auc_fieldbit": ("AUC predicting catastrophic upsets from field and bit", "", 0.997),
@@ -65,6 +66,11 @@ def claims_table(df: pd.DataFrame, results: dict | None = None, conf: float = 0.
             return 100 * E.wquantile(x["footprint"], x["weight"], 0.99)
 
         for key, fn in (("sign_mean", mean_fp), ("sign_p99", p99)):
+            if key == "sign_p99" and len(sign) < 100:
+                # a resample's 99th percentile is at most the sample's largest value: with fewer
+                # than 100 records the bootstrap's upper bound is that value, not a bound
+                rows.append(_row(key, fn(sign), basis=f"n = {len(sign):,} < 100: no bootstrap interval"))
+                continue
             lo, hi = E.bootstrap(sign, fn, conf=conf)
             rows.append(_row(key, fn(sign), lo, hi, f"n = {len(sign):,}, bootstrap within cells"))
     else:
@@ -78,8 +84,19 @@ def claims_table(df: pd.DataFrame, results: dict | None = None, conf: float = 0.
         else:
             rows.append(_row(key))
     gd = results.get("guard")
-    if gd is not None:
-        rows.append(_row("guard_share", gd["share_pct"], *gd["share_ci"], "paired sites, weighted"))
+    pt = gd["paired"] if gd is not None else pd.DataFrame(columns=["precision"])
+    pt = pt[pt["precision"] == "fp32"]  # like the p_c claims beside it, never a pool of precisions
+    if len(pt):
+        r = pt.iloc[0]
+        rows.append(
+            _row(
+                "guard_share",
+                r["share_neutralised_pct"],
+                r["share_ci_lo_pct"],
+                r["share_ci_hi_pct"],
+                "paired sites, weighted",
+            )
+        )
     else:
         rows.append(_row("guard_share"))
     th = results.get("theory")
@@ -88,15 +105,17 @@ def claims_table(df: pd.DataFrame, results: dict | None = None, conf: float = 0.
     else:
         rows.append(_row("theory_slope"))
     sz = results.get("size")
-    if sz is not None:
-        f = sz["fits"]
-        f = f[(f["metric"] == "mean_mse") & (f["defense"] == "none") & (f["precision"] == "fp32")]
-        f = f[np.isfinite(f["alpha"])]
-        if len(f):
-            r = f.sort_values("n_sizes").iloc[-1]
-            rows.append(_row("alpha", r["alpha"], r["alpha_lo"], r["alpha_hi"], f"{r['scene']}, {r['n_fitted']} sizes"))
-        else:
-            rows.append(_row("alpha"))
+    f = sz["fits"] if sz is not None else pd.DataFrame(columns=["metric", "defense", "precision", "alpha"])
+    f = f[(f["metric"] == "mean_mse") & (f["defense"] == "none") & (f["precision"] == "fp32")]
+    scenes = list(f.loc[np.isfinite(f["alpha"].astype(float)), "scene"]) if len(f) else []
+    if scenes:
+        # every scene that has a fit (size_fits), one exponent, an intercept each: not one scene
+        # picked among several
+        t = sz["table"]
+        t = t[(t["defense"] == "none") & (t["precision"] == "fp32") & t["scene"].isin(scenes)]
+        fit = stats.common_loglog_fit(t["scene"], t["n_primitives"], t["mean_mse"], conf)
+        basis = f"{len(scenes)} scene(s), one exponent, an intercept each, {fit.n} points; per scene in size_fits"
+        rows.append(_row("alpha", -fit.exponent, -fit.exponent_hi, -fit.exponent_lo, basis))
     else:
         rows.append(_row("alpha"))
     pr = results.get("prediction")

@@ -63,7 +63,8 @@ def criticality(df: pd.DataFrame, precision: str | None = None, defense: str = "
 
 def field_bit_table(df: pd.DataFrame, defense: str = "none", conf: float = 0.95) -> pd.DataFrame:
     """Long table per (precision, field, bit): n, bit class, mean and max footprint %, weight share
-    of the cell in its precision's stored bits, catastrophe rate with its Wilson interval."""
+    of the cell in its precision's stored bits, catastrophe rate with its interval (Wilson; pooled
+    over scenes, estimate.rate's stratified one)."""
     s = require_single(df, defense)
     s = s[s["bit"] >= 0]
     out = _rates(s, ["precision", "field", "bit"], conf)

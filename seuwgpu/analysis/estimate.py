@@ -10,12 +10,16 @@ and a population quantity is a weighted one:
   one upset drawn uniformly over the group's stored bits has y. Per stratum h (a (scene, N,
   precision, field, bit) cell) p_h is the weighted mean inside the cell, W_h its weight share.
 * **interval** (95% by default): in one stratum the Wilson score interval of (k, n). Pooled over
-  strata: the Wilson interval at the design-based effective sample size of Korn & Graubard
-  ("Confidence intervals for proportions with small expected number of positive counts estimated
-  from survey data", Survey Methodology 24(2), 1998): n_eff = p(1-p) / V with the stratified
-  variance V = sum_h W_h^2 p_h (1-p_h) / n_h, capped at the record count. When V = 0 (every cell
-  all-0 or all-1, e.g. no event anywhere) n_eff is Kish's 1 / sum_h (W_h^2 / n_h), so zero counts
-  get the exact Wilson edge: lower bound 0 and a non-zero upper bound.
+  strata: the Wilson interval at a design-based effective sample size n_eff = p~(1-p~) / V, with
+  the stratified variance V = sum_h W_h^2 p~_h (1-p~_h) / n_h of add-half stratum rates
+  p~_h = (k_h + 1/2) / (n_h + 1), p~ = sum_h W_h p~_h, capped at the record count (the idea of
+  Korn & Graubard, Survey Methodology 24(2), 1998, without their degrees-of-freedom
+  adjustment). The smoothing enters the variance only, never the rate p = sum_h W_h p_h: with the
+  raw p_h, a stratum with no event, all events or one record adds nothing to V, so one event in a
+  light stratum could shrink the interval 700-fold and pooled intervals covered 81-87% at the
+  campaigns' 6-9 samples a cell. Smoothed, simulated designs of the campaigns' shape (192 strata,
+  6-50 records each, rates 0.4-30%) covered 93.5-96.4% (tests/test_analysis.py checks one). One
+  stratum gives n_eff = n: the plain Wilson interval.
 * **means and quantiles** of a measured quantity are weighted over the records where it is
   defined (finite); the share of undefined (non-finite frame) records is reported beside them,
   weighted the same way. Nothing undefined is replaced by a number.
@@ -33,7 +37,7 @@ from seuwgpu.analysis.records import multiplicity, n_records, record_weights
 
 STRATA = ("scene", "n_primitives", "precision", "field", "bit")
 METHOD_CELL = "Wilson"
-METHOD_POOLED = "stratified Wilson (Korn-Graubard n_eff)"
+METHOD_POOLED = "stratified Wilson (design-effect n_eff)"
 
 
 def stratified_interval(p_h, n_h, W_h, conf: float = 0.95) -> tuple[float, float, float, float]:
@@ -51,10 +55,10 @@ def stratified_interval(p_h, n_h, W_h, conf: float = 0.95) -> tuple[float, float
     if p_h.size == 1:
         n_eff = n_tot
     else:
-        var = float(np.sum(W * W * p_h * (1.0 - p_h) / n_h))
-        kish = float(1.0 / np.sum(W * W / n_h))
-        n_eff = p * (1.0 - p) / var if var > 0 else kish
-        n_eff = min(n_eff, n_tot)
+        smooth = (p_h * n_h + 0.5) / (n_h + 1.0)  # in (0, 1): V > 0 (module notes)
+        var = float(np.sum(W * W * smooth * (1.0 - smooth) / n_h))
+        p_s = float(np.sum(W * smooth))
+        n_eff = min(p_s * (1.0 - p_s) / var, n_tot)
     k_eff = min(max(p * n_eff, 0.0), n_eff)
     lo, hi = stats.wilson_interval(k_eff, n_eff, conf)
     return p, float(lo), float(hi), float(n_eff)

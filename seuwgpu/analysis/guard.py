@@ -133,6 +133,8 @@ def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -
         "worst_guarded_footprint_pct": 100 * float(allg["footprint"].max()),
         "residual_catastrophic": n_records(allg[allg["catastrophic"].astype(bool)]),
         "n_guarded": n_records(allg),
+        # the pooled row ("all": every precision, weighted by stored bits) or the one precision
+        "share_precision": str(tot["precision"].iloc[0]) if len(tot) else "",
         "share_pct": float(tot["share_neutralised_pct"].iloc[0]) if len(tot) else np.nan,
         "share_ci": (float(tot["share_ci_lo_pct"].iloc[0]), float(tot["share_ci_hi_pct"].iloc[0]))
         if len(tot)

@@ -147,8 +147,10 @@ def model_bits(df: pd.DataFrame, precision: str, sh_degree: int = DEFAULT_SH_DEG
 
 def mtbf(rate_per_bit_hour: float, bits: float, p: float, scrub_hours: float) -> float:
     """Mean time (h) between scrub intervals that hold a catastrophic frame (module notes);
-    inf when p = 0; 1 / (L p) without scrubbing (scrub_hours = inf)."""
+    inf when p = 0; 1 / (L p) without scrubbing (scrub_hours = inf); NaN when p is (unmeasured)."""
     lam = float(rate_per_bit_hour) * float(bits) * float(p)
+    if math.isnan(lam):
+        return float("nan")
     if not lam > 0:
         return float("inf")
     if not math.isfinite(scrub_hours):
@@ -158,8 +160,11 @@ def mtbf(rate_per_bit_hour: float, bits: float, p: float, scrub_hours: float) ->
 
 
 def catastrophic_frame_share(rate_per_bit_hour: float, bits: float, p: float, scrub_hours: float) -> float:
-    """Share of frames that are catastrophic, upsets accumulating over a scrub interval."""
+    """Share of frames that are catastrophic, upsets accumulating over a scrub interval (NaN when
+    p is: undefined stays undefined)."""
     x = float(rate_per_bit_hour) * float(bits) * float(p) * scrub_hours
+    if math.isnan(x):
+        return float("nan")
     if not x > 0:
         return 0.0
     if not math.isfinite(x):

@@ -22,12 +22,14 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+import pandas as pd
 
 from seuwgpu.campaign.plan import z_value
 
 __all__ = [
     "wilson_interval",
     "PowerFit",
+    "common_loglog_fit",
     "LinearFit",
     "loglog_fit",
     "linear_fit",
@@ -127,6 +129,36 @@ def loglog_fit(x, y, conf: float = 0.95) -> PowerFit:
         raise ValueError("a log-log fit needs at least two points with positive x and y")
     f = linear_fit(np.log10(x[ok]), np.log10(y[ok]), conf)
     return PowerFit(f.slope, f.intercept, f.r2, f.slope_lo, f.slope_hi, f.n)
+
+
+def common_loglog_fit(groups, x, y, conf: float = 0.95) -> PowerFit:
+    """One exponent for several series (e.g. scenes), each with its own intercept: least squares
+    of log10 y on log10 x with a dummy per group (x and y centred within each group), the
+    exponent's Student-t interval on N - G - 1 degrees of freedom. `intercept` is NaN (there is
+    one per group). Points without a logarithm are dropped, then groups with under two distinct x."""
+    g = np.asarray(groups)
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    ok = np.isfinite(x) & np.isfinite(y) & (x > 0) & (y > 0)
+    d = pd.DataFrame({"g": g[ok], "x": np.log10(x[ok]), "y": np.log10(y[ok])})
+    d = d[d.groupby("g")["x"].transform("nunique") >= 2]
+    if d.empty:
+        raise ValueError("a common log-log fit needs a group with two distinct positive x values")
+    xc = (d["x"] - d.groupby("g")["x"].transform("mean")).to_numpy()
+    yc = (d["y"] - d.groupby("g")["y"].transform("mean")).to_numpy()
+    slope = float(xc @ yc / (xc @ xc))
+    ss_res = float(np.sum((yc - slope * xc) ** 2))
+    ss_tot = float(yc @ yc)
+    r2 = 1.0 - ss_res / ss_tot if ss_tot > 0 else (1.0 if ss_res == 0 else 0.0)
+    dof = len(d) - d["g"].nunique() - 1
+    lo = hi = float("nan")
+    if dof > 0:
+        from scipy.stats import t as student_t
+
+        se = np.sqrt(ss_res / dof / float(xc @ xc))
+        q = float(student_t.ppf(0.5 + conf / 2, dof))
+        lo, hi = slope - q * se, slope + q * se
+    return PowerFit(slope, float("nan"), float(r2), float(lo), float(hi), int(len(d)))
 
 
 def auc(y, score, weight=None) -> float:

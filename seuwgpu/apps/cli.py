@@ -343,7 +343,7 @@ def cmd_rates(args):
     from rich.progress import Progress
     from rich.table import Table
 
-    from seuwgpu.analysis.cells import COUNTS, fold_runs, outcome_rates
+    from seuwgpu.analysis.cells import COUNTS, fold_runs, groups, outcome_rates
     from seuwgpu.campaign.store import COLUMNS
 
     by = [c.strip() for c in args.by.split(",") if c.strip()]
@@ -355,6 +355,7 @@ def cmd_rates(args):
     with Progress(transient=True, disable=quiet) as bar:
         task = bar.add_task("reading parts", total=None)
         cells, n_parts = fold_runs(args.runs, by, args.campaign, lambda i, n: bar.update(task, completed=i, total=n))
+    by = groups(cells, by)  # several renderer profiles: a row each, never pooled
     t = outcome_rates(cells, by)
     if args.csv:
         t.to_csv(args.csv, index=False)

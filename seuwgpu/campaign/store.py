@@ -168,6 +168,27 @@ def record_parts(run_dir, manifest: dict | None = None) -> list[Path]:
     return [p for p in parts if parse_part_name(p.name) in want]
 
 
+def repeated_sites(run_dirs) -> list[tuple[str, str, int]]:
+    """Pairs of runs holding the same parts of the same spec under the same renderer profile:
+    the same fault sites measured twice, which a pooled estimate would count as twice the sample
+    (shards of one spec hold different parts; another profile renders other frames). Returns
+    (run name, run name, parts in common) per such pair, names as `run_names` gives them."""
+    seen: dict[tuple, list[tuple[str, set]]] = {}
+    out = []
+    for rd, name in zip(run_dirs, run_names(run_dirs)):
+        m = read_manifest(rd) or {}
+        if not m.get("spec_hash"):
+            continue  # not written by a campaign: nothing to compare
+        key = (m["spec_hash"], m.get("profile", "strict"))
+        parts = {p.name for p in record_parts(rd, m)}
+        for other, other_parts in seen.setdefault(key, []):
+            common = len(parts & other_parts)
+            if common:
+                out.append((other, name, common))
+        seen[key].append((name, parts))
+    return out
+
+
 def read_manifest(run_dir) -> dict | None:
     from seuwgpu.campaign.spec import SpecError
 

@@ -48,6 +48,7 @@ from seuwgpu.analysis.records import (
     thresholds_of,
 )
 from seuwgpu.campaign import store
+from seuwgpu.errors import InputError
 from seuwgpu.report.format import html_table, json_default, json_safe, markdown_table
 from seuwgpu.report.sections import (
     SECTIONS,
@@ -148,6 +149,13 @@ def load_runs(
     if isinstance(run_dirs, (str, Path)):
         run_dirs = [run_dirs]
     run_dirs = list(run_dirs)
+    twice = store.repeated_sites(run_dirs)
+    if twice:  # every analysis pools runs: the same sites twice would count as twice the sample
+        a, b, k = twice[0]
+        raise InputError(
+            f"runs {a} and {b} hold {k} part(s) of the same spec and profile: "
+            "the same fault sites twice; report one of them"
+        )
     check_report_memory(run_dirs, folded=fold)
     runs, manifests = [], []
     for rd, name in zip(run_dirs, store.run_names(run_dirs)):
@@ -480,7 +488,8 @@ def build_report(
 catastrophic: footprint &gt; 1% or any non-finite pixel.</li>
 <li>Every rate, mean and quantile is weighted by the stored bits each record stands for
 (a uniform upset's view; stratified (field, bit) cells are not pooled unweighted); intervals are
-Wilson per cell and stratified Wilson at the Korn-Graubard effective sample size when pooled.</li>
+Wilson per cell and, pooled, stratified Wilson at the design-effect effective sample size
+(stratum variances from add-half rates).</li>
 <li>PSNR and SSIM of a frame with a non-finite pixel are undefined (NaN in the records); summaries
 are over the finite frames, with the share of non-finite frames beside them.</li>
 <li>Reference precision for single-precision tables: fp32 when present.</li>

@@ -211,7 +211,8 @@ def _sec_criticality(df, manifests, ctx) -> Section:
             "Per (precision, field, bit) cell",
             fb,
             "Per-cell sample count, weight share, mean and max footprint (%) and catastrophe rate with "
-            "its 95% Wilson interval; the data behind the heat map.",
+            "its 95% interval (Wilson; stratified over scenes where a cell pools several); the data "
+            "behind the heat map.",
             csv_only=True,
         )
     )
@@ -380,7 +381,12 @@ def _sec_guard(df, manifests, ctx) -> Section:
         f"{res['worst_guarded_footprint_pct']:.4g}% of the frame, "
         f"{res['residual_catastrophic']} residual catastrophic events; "
         f"weighted share of catastrophic upsets neutralised {res['share_pct']:.4g}% "
-        f"[{res['share_ci'][0]:.4g}, {res['share_ci'][1]:.4g}]."
+        f"[{res['share_ci'][0]:.4g}, {res['share_ci'][1]:.4g}] "
+        + (
+            "(every precision pooled, weighted by stored bits; per precision in the paired table)."
+            if res["share_precision"] == "all"
+            else f"({res['share_precision']})."
+        )
     )
     sec.numbers.update(
         guard_share_neutralised_pct=res["share_pct"],
@@ -626,7 +632,10 @@ def _sec_reliability(df, manifests, ctx) -> Section:
             "p_c",
             res["pc"],
             "Per-upset catastrophe probability per precision and defense with its 95% stratified "
-            "interval and the share of stored bits covered by sampled cells.",
+            "interval and the share of stored bits covered by sampled cells. Upsets are drawn over "
+            "the model's stored values only: ECC's check bits and duplication's second copy are "
+            "assumed intact (faults/defenses.py), so for those arms p_c is per upset in the data "
+            "bits, and duplication's 0 follows from that assumption, not from the sample.",
         )
     )
     if res["mtbf_wide"] is not None and len(res["mtbf_wide"]):
