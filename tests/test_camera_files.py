@@ -192,6 +192,13 @@ def test_camera_file_errors(tmp_path):
     (tmp_path / "trunc" / "images.bin").write_bytes(data[:50])
     with pytest.raises(CameraFileError, match="truncated"):
         read_cameras(tmp_path / "trunc")
+    # the file and frame are named once, not twice
+    frame = {"transform_matrix": np.eye(4).tolist(), "w": 32, "h": 32}
+    (tmp_path / "transforms.json").write_text(json.dumps({"frames": [frame]}))
+    with pytest.raises(CameraFileError) as e:
+        read_cameras(tmp_path / "transforms.json")
+    want = "frame 0: focal length fl_x missing (top level or per frame)"
+    assert str(e.value) == f"{tmp_path / 'transforms.json'}: {want}"
 
 
 def test_select_views_and_scale(reference):

@@ -97,6 +97,9 @@ def test_rates_command_matches_pandas(runs, tmp_path):
             assert got.loc[prec, f"{o}_rate"] == pytest.approx(want, rel=1e-12)
             assert got.loc[prec, f"{o}_ci_lo"] <= want <= got.loc[prec, f"{o}_ci_hi"]
         assert got.loc[prec, "n"] == len(g)
+    deep = tmp_path / "new" / "dir" / "rates.csv"  # --csv creates its folder
+    res = subprocess.run([*cmd[:-1], str(deep)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0 and pd.read_csv(deep).equals(pd.read_csv(out))
     typo = subprocess.run([*cmd[:-4], "--by", "precison"], capture_output=True, text=True, timeout=300)
     assert typo.returncode == 2 and "--by precison: not a record column" in typo.stderr
     assert "Traceback" not in typo.stderr
@@ -185,3 +188,18 @@ def test_the_report_refuses_the_same_sites_twice(runs, tmp_path):
     store.part_path(dirs[1], 0, 400).unlink()  # run1 keeps parts 1..4 in common with run0
     with pytest.raises(C.InputError, match="run0 and run1 hold 4 part"):
         load_runs(dirs)
+
+
+def test_rates_says_when_a_run_is_unfinished(runs):
+    import json
+
+    dirs, _ = runs
+    store.manifest_path(dirs[0]).write_text(json.dumps({"total_injections": 2600}))  # 5 parts of 400 written
+    assert store.completion(dirs[0]) == (2000, 2600)
+    cmd = [sys.executable, "-m", "seuwgpu", "rates", *map(str, dirs)]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert (
+        "Unfinished: run0 holds 2,000 of 2,600 injections" in res.stdout
+        and "run1" not in res.stdout.split("Unfinished")[1]
+    )

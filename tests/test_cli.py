@@ -73,6 +73,25 @@ def test_scene_list_and_export(tmp_path, capsys):
     assert np.array_equal(got.flat(), want.flat())
 
 
+def test_output_paths_checked_before_the_work(tmp_path, capsys, monkeypatch):
+    """A file where --out wants a folder is refused before anything runs (inject used to render
+    for seconds and then print "File exists"); `scene --out` without a NAME says which is missing."""
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    from seuwgpu.apps import cli
+
+    def no_work(*a, **k):
+        raise AssertionError("loaded the model before checking --out")
+
+    monkeypatch.setattr(cli, "load_source", no_work)
+    for out in (afile, afile / "sub"):
+        args = ["inject", "--scene", "spheres", "--n", "500", "--field", "log_scale", "--bit", "31", "--out", str(out)]
+        assert main(args) == 2
+        assert "is a file, not a folder" in capsys.readouterr().err
+    assert main(["scene", "--out", str(tmp_path / "q.ply")]) == 2
+    assert "which scene? give its NAME" in capsys.readouterr().err and not (tmp_path / "q.ply").exists()
+
+
 def test_render_equals_the_renderer(tmp_path, capsys, monkeypatch):
     rc, _, _ = run(
         ["render", "--scene", "spheres", "--n", "300", "--views", "2", "--size", "32x24", "--out", tmp_path / "r.npz"],

@@ -216,3 +216,35 @@ def test_inria_output_folder_to_report_in_one_command(tmp_path):
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["spec"]["scenes"][0]["cameras"] == str(run) and manifest["spec"]["scale"] == 0.5
     assert (out / "report" / "index.html").is_file()
+    # records name the capture after its output folder, not "point_cloud" (every INRIA output's
+    # file name): two captures in one spec would otherwise be pooled as one scene
+    import pandas as pd
+
+    from seuwgpu.campaign import store
+
+    scenes_of = {s for p in store.record_parts(out) for s in pd.read_parquet(p, columns=["scene"])["scene"]}
+    assert scenes_of == {"run"}
+    # a complete run is not flagged; with a part gone, the report and `rates` say it is unfinished
+    assert json.loads((out / "report" / "summary.json").read_text())["partial"] is None
+    done = sum(store.parse_part_name(p.name)[1] for p in store.record_parts(out))
+    m = json.loads((out / "manifest.json").read_text())
+    assert m["total_injections"] == done
+    (out / "manifest.json").write_text(json.dumps(dict(m, total_injections=done + 96)))  # as if unfinished
+    assert main(["report", str(out), "--out", str(tmp_path / "rep2")]) == 0
+    note = json.loads((tmp_path / "rep2" / "summary.json").read_text())["partial"]
+    assert note.startswith(f"Unfinished: mine holds {done:,} of {done + 96:,} injections")
+    assert "Unfinished: mine holds" in (tmp_path / "rep2" / "index.html").read_text()
+    other = tmp_path / "output" / "other"
+    (other / "point_cloud" / "iteration_100").mkdir(parents=True)
+    save_ply(make_scene("blocks", n=700), other / "point_cloud" / "iteration_100" / "point_cloud.ply")
+    twin = tmp_path / "elsewhere" / "run"  # another capture in a folder of the same name
+    (twin / "point_cloud" / "iteration_5").mkdir(parents=True)
+    save_ply(make_scene("blocks", n=600), twin / "point_cloud" / "iteration_5" / "point_cloud.ply")
+    from seuwgpu.campaign.spec import SpecError, normalize_spec
+
+    def spec(*models):
+        return {"scenes": [{"model": str(m)} for m in models], "single": {"samples": 1}}
+
+    assert len(normalize_spec(spec(run, other, run))["scenes"]) == 3  # the same model twice is one scene
+    with pytest.raises(SpecError, match="scenes\\[0\\] and scenes\\[1\\] are different models .* 'run'"):
+        normalize_spec(spec(run, twin))

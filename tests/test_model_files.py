@@ -309,7 +309,7 @@ def test_splat_against_the_spec(tmp_path):
     rec["scale"] = [[0.01, 0.02, 0.5], [1, 1, 1], [2e-4, 1e-3, 3.0], [0.1, 0.1, 0.1]]
     rec["rgba"] = [[255, 0, 128, 200], [10, 20, 30, 255], [0, 0, 0, 0], [128, 128, 128, 1]]
     rec["rot"] = [[255, 128, 128, 128], [128, 255, 0, 128], [128, 128, 128, 128], [200, 100, 150, 50]]
-    p = tmp_path / "scene.data"  # no extension: recognised by content
+    p = tmp_path / "scene.splat"
     p.write_bytes(rec.tobytes())
     mf = read_model(p)
     assert mf.format == "splat" and mf.model.sh_degree == 0
@@ -326,6 +326,30 @@ def test_splat_against_the_spec(tmp_path):
     (tmp_path / "bad.splat").write_bytes(rec.tobytes()[:-3])
     with pytest.raises(ModelFileError, match="multiple of the 32-byte record"):
         load_model(tmp_path / "bad.splat")
+
+
+def test_splat_recognised_by_content_but_not_text(tmp_path):
+    """Without the extension, 8 or more records of encoded unit quaternions are a .splat; text
+    (whose bytes read as finite positive floats) and short files are not."""
+    rng = np.random.default_rng(3)
+    n = 9
+    rec = np.zeros(n, [("pos", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
+    rec["pos"] = rng.normal(size=(n, 3))
+    rec["scale"] = rng.uniform(0.01, 0.1, (n, 3))
+    q = rng.normal(size=(n, 4))
+    rec["rot"] = np.clip(np.round(q / np.linalg.norm(q, axis=1, keepdims=True) * 128 + 128), 0, 255)
+    p = tmp_path / "scene.data"
+    p.write_bytes(rec.tobytes())
+    assert read_model(p).format == "splat" and read_model(p).model.n == n
+    for name, data in (
+        ("notes.ply", b"abcdefghijklmnopqrstuvwxyz012345" * 10),
+        ("short.data", rec[:7].tobytes()),  # 7 records: too few to tell without the extension
+    ):
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(ModelFileError, match="unrecognised model file"):
+            read_model(tmp_path / name)
+    (tmp_path / "short.splat").write_bytes(rec[:7].tobytes())
+    assert read_model(tmp_path / "short.splat").model.n == 7
 
 
 # ------------------------------------------------------------------------------------- gsplat

@@ -11,7 +11,7 @@ import numpy as np
 from seuwgpu.errors import InputError, SeuwgpuError
 from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.model.encoding import PRECISIONS
-from seuwgpu.model.formats import UP_AXES
+from seuwgpu.model.formats import UP_AXES, model_label
 from seuwgpu.version import __version__
 
 
@@ -170,6 +170,8 @@ def cmd_scene(args):
     from seuwgpu.model.formats import save_model
     from seuwgpu.model.scenes import is_capture, list_scenes, make_scene, scene_description
 
+    if not args.list and not args.name and args.out is not None:
+        raise CliError("which scene? give its NAME before --out (`seuwgpu scene --list` names them)")
     if args.list or not args.name:
         width = max(len(s) for s in list_scenes())
         for s in list_scenes():
@@ -260,7 +262,10 @@ def run_campaign(
 
     runner = Runner(spec, out, shard=shard, quiet=quiet, full=full)
     stats = runner.run()
-    rate = stats["new"] / stats["seconds"] if stats["seconds"] > 0 and stats["new"] else float("nan")
+    if not stats["new"]:
+        print(f"{out}: {stats['injections']} of {runner.total} injections recorded (nothing new to run)")
+        return stats
+    rate = stats["new"] / stats["seconds"] if stats["seconds"] > 0 else float("nan")
     print(
         f"{out}: {stats['injections']} of {runner.total} injections recorded"
         f" ({stats['new']} new in {stats['seconds']:.1f} s, {rate:.1f} injections/s"
@@ -344,7 +349,7 @@ def cmd_rates(args):
     from rich.table import Table
 
     from seuwgpu.analysis.cells import COUNTS, fold_runs, groups, outcome_rates
-    from seuwgpu.campaign.store import COLUMNS
+    from seuwgpu.campaign.store import COLUMNS, partial_runs_text
 
     by = [c.strip() for c in args.by.split(",") if c.strip()]
     unknown = [c for c in by if c != "run" and c not in COLUMNS]
@@ -357,7 +362,9 @@ def cmd_rates(args):
         cells, n_parts = fold_runs(args.runs, by, args.campaign, lambda i, n: bar.update(task, completed=i, total=n))
     by = groups(cells, by)  # several renderer profiles: a row each, never pooled
     t = outcome_rates(cells, by)
+    partial = partial_runs_text(args.runs)
     if args.csv:
+        _out_folder(args.csv.parent, "--csv").mkdir(parents=True, exist_ok=True)
         t.to_csv(args.csv, index=False)
     tab = Table(
         title=f"{args.campaign} upsets, {int(cells['n_records'].sum()):,} records in {n_parts:,} parts: weighted "
@@ -370,6 +377,8 @@ def cmd_rates(args):
         cells_text = (f"{p:.3g} [{lo:.3g}, {hi:.3g}]" for p, lo, hi in pct)
         tab.add_row(*(str(r[c]) for c in by), f"{int(r['n']):,}", *cells_text)
     Console(width=200).print(tab)
+    if partial:
+        print(partial)
     return 0
 
 
@@ -402,7 +411,7 @@ def cmd_plan(args):
     total = rows = 0
     for ctx in enumerate_contexts(spec):
         sc = spec["scenes"][ctx.scene_index]
-        name = sc.get("scene") or Path(sc["model"]).stem
+        name = sc.get("scene") or model_label(sc["model"])
         n = ctx.n or sc.get("n")
         margin = "-" if ctx.kind == "dose" else f"+-{100 * margin_of_error(ctx.per_cell, 0.95):.2f} pt"
         tab.add_row(
@@ -526,10 +535,19 @@ def lpips_text(value: float) -> str:
     return "nan (undefined: frames under 32x32 or non-finite)" if lpips.available() else f"n/a ({lpips.INSTALL_HINT})"
 
 
+def _out_folder(path: Path, option: str = "--out") -> Path:
+    """An output folder checked before any work: an existing file, or a file on its way, cannot be one."""
+    for p in (path, *path.parents):
+        if p.exists() and not p.is_dir():
+            raise CliError(f"{option} {path}: {p} is a file, not a folder")
+    return path
+
+
 def cmd_inject(args):
     from seuwgpu import api
     from seuwgpu.report.panel import save_panel
 
+    _out_folder(args.out)
     src = load_source(args)
     cams = load_cams(args, src)
     defenses = tuple(dict.fromkeys((args.defense, "guard")))
@@ -996,14 +1014,18 @@ def main(argv=None) -> int:
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print(f"seuwgpu {args.command}: interrupted (completed parts are kept; re-run to resume)", file=sys.stderr)
+        kept = " (completed parts are kept; re-run to resume)" if args.command in ("campaign", "demo") else ""
+        print(f"seuwgpu {args.command}: interrupted{kept}", file=sys.stderr)
         return 130
     except (SeuwgpuError, ValueError) as e:  # the project's errors, and plain ValueErrors naming a bad value
         print(f"seuwgpu {args.command}: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # a file or folder that cannot be read or written: name it, no traceback
         where = f"{e.filename}: " if e.filename else ""
-        print(f"seuwgpu {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
+        why = e.strerror or str(e)
+        if isinstance(e, (FileExistsError, NotADirectoryError)):
+            why = "a file is in the way of a folder (or of a path under it)"
+        print(f"seuwgpu {args.command}: error: {where}{why}", file=sys.stderr)
         return 2
     except MemoryError:
         print(

@@ -350,6 +350,24 @@ def _reliability(t) -> dict:
     return out
 
 
+def _distinct_labels(scenes: list[dict]):
+    """Records name a scene by its label (an embedded scene's name, a model's file or INRIA
+    output folder name: formats.model_label); two different models under one label would be
+    pooled as one scene in every estimate."""
+    from seuwgpu.model.formats import model_label
+
+    seen: dict[str, tuple[int, str]] = {}
+    for i, sc in enumerate(scenes):
+        label = sc.get("scene") or model_label(sc["model"])
+        what = sc.get("model_sha256") or f"embedded {sc.get('scene')}"
+        j, other = seen.setdefault(label, (i, what))
+        if other != what:
+            raise SpecError(
+                f"scenes[{j}] and scenes[{i}] are different models that records would both name {label!r} "
+                "(the same file or folder name): rename one of them"
+            )
+
+
 def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
     """Validated spec with defaults filled in (what is hashed and stored in the manifest)."""
     from seuwgpu.model.scenes import is_capture, list_scenes, make_scene
@@ -408,6 +426,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             out["cameras"] = _spec_file(s, "cameras", where, base_dir)
             out["cameras_sha256"] = content_hash("cameras", out["cameras"])
         spec["scenes"].append(out)
+    _distinct_labels(spec["scenes"])
     # recorded only when given, so older specs keep their hash (the manifest states the thresholds)
     if "lpips" in raw:
         if not isinstance(raw["lpips"], bool):

@@ -168,6 +168,35 @@ def record_parts(run_dir, manifest: dict | None = None) -> list[Path]:
     return [p for p in parts if parse_part_name(p.name) in want]
 
 
+def completion(run_dir, manifest: dict | None = None) -> tuple[int, int | None]:
+    """(injections the run's parts hold, injections its spec plans: None when the manifest does
+    not say). A stratified campaign writes its cells in order, so an unfinished run's estimates
+    lack whole cells, not a random share of each: reports must say so."""
+    manifest = manifest if manifest is not None else (read_manifest(run_dir) or {})
+    done = 0
+    for p in record_parts(run_dir, manifest):
+        first_count = parse_part_name(p.name)
+        done += first_count[1] if first_count else 0
+    total = manifest.get("total_injections")
+    return done, (int(total) if isinstance(total, int) else None)
+
+
+def partial_runs_text(run_dirs) -> str:
+    """One sentence naming the runs that hold fewer injections than their spec plans ("" if none)."""
+    parts = []
+    for rd, name in zip(run_dirs, run_names(run_dirs)):
+        done, total = completion(rd)
+        if total is not None and done < total:
+            parts.append(f"{name} holds {done:,} of {total:,} injections")
+        # a run without a campaign manifest cannot say
+    if not parts:
+        return ""
+    return (
+        "Unfinished: " + "; ".join(parts) + ". A campaign writes its cells in order, so the cells not yet run are "
+        "missing from every estimate (rates describe the cells run so far, not the spec's population)."
+    )
+
+
 def repeated_sites(run_dirs) -> list[tuple[str, str, int]]:
     """Pairs of runs holding the same parts of the same spec under the same renderer profile:
     the same fault sites measured twice, which a pooled estimate would count as twice the sample

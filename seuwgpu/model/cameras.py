@@ -351,7 +351,7 @@ def _read_transforms_json(p: Path, data: dict):
             if fx is None and get(fr, "camera_angle_x") is not None:
                 fx = 0.5 * w / np.tan(0.5 * _scalar(get(fr, "camera_angle_x"), "camera_angle_x"))
             if fx is None:
-                raise CameraFileError(f"{p}: frame {i}: focal length fl_x missing (top level or per frame)")
+                raise CameraFileError("focal length fl_x missing (top level or per frame)")  # prefixed below
             fx = _scalar(fx, "fl_x")
             fy = fx if get(fr, "fl_y") is None else _scalar(get(fr, "fl_y"), "fl_y")
             cx = w / 2 if get(fr, "cx") is None else _scalar(get(fr, "cx"), "cx")

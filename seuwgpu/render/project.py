@@ -36,6 +36,7 @@ from seuwgpu.gpu.device import GPU, STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model
+from seuwgpu.model.sh import SH_C0, SH_C1, SH_C2, SH_C3, sh_basis  # noqa: F401 (the twin's names)
 
 # ---------------------------------------------------------------------------------------------
 # numpy twin
@@ -47,26 +48,6 @@ FAR = F(1e10)
 LOWPASS = F(0.3)
 EXTENT = F(3.33)
 CLIP = F(0.3)
-
-# Real SH constants (INRIA's sh_utils / gsplat).
-SH_C0 = F(0.28209479177387814)
-SH_C1 = F(0.4886025119029199)
-SH_C2 = tuple(
-    F(v)
-    for v in (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-)
-SH_C3 = tuple(
-    F(v)
-    for v in (
-        -0.5900435899266435,
-        2.890611442640554,
-        -0.4570457994644658,
-        0.3731763325901154,
-        -0.4570457994644658,
-        1.445305721320277,
-        -0.5900435899266435,
-    )
-)
 
 
 def n_tiles_xy(cam: Camera) -> tuple[int, int]:
@@ -106,37 +87,6 @@ def jacobian_limits(cam: Camera, fx, fy, cx, cy):
 # ---------------------------------------------------------------------------------------------
 # Spherical harmonics
 # ---------------------------------------------------------------------------------------------
-
-
-def sh_basis(dirs: np.ndarray, degree: int) -> np.ndarray:
-    """Real SH basis values [N, (degree+1)^2] at unit directions [N, 3] (INRIA's signs and
-    expressions; float32, operations in the order written)."""
-    d = np.asarray(dirs, dtype=F)
-    x, y, z = d[:, 0], d[:, 1], d[:, 2]
-    n = d.shape[0]
-    out = np.empty((n, (degree + 1) ** 2), dtype=F)
-    out[:, 0] = SH_C0
-    if degree >= 1:
-        out[:, 1] = -(SH_C1 * y)
-        out[:, 2] = SH_C1 * z
-        out[:, 3] = -(SH_C1 * x)
-    if degree >= 2:
-        xx, yy, zz = x * x, y * y, z * z
-        xy, yz, xz = x * y, y * z, x * z
-        out[:, 4] = SH_C2[0] * xy
-        out[:, 5] = SH_C2[1] * yz
-        out[:, 6] = SH_C2[2] * ((F(2) * zz - xx) - yy)
-        out[:, 7] = SH_C2[3] * xz
-        out[:, 8] = SH_C2[4] * (xx - yy)
-    if degree >= 3:
-        out[:, 9] = (SH_C3[0] * y) * (F(3) * xx - yy)
-        out[:, 10] = (SH_C3[1] * xy) * z
-        out[:, 11] = (SH_C3[2] * y) * ((F(4) * zz - xx) - yy)
-        out[:, 12] = (SH_C3[3] * z) * ((F(2) * zz - F(3) * xx) - F(3) * yy)
-        out[:, 13] = (SH_C3[4] * x) * ((F(4) * zz - xx) - yy)
-        out[:, 14] = (SH_C3[5] * z) * (xx - yy)
-        out[:, 15] = (SH_C3[6] * x) * (xx - F(3) * yy)
-    return out
 
 
 def normalize_dirs(d: np.ndarray) -> np.ndarray:

@@ -350,6 +350,7 @@ font-variant-numeric:tabular-nums}
 figure{margin:1em 0}figure img{max-width:100%;border:1px solid #eee}
 .cap{font-size:.86em;color:#444}.note{font-size:.88em;color:#555}
 .skip{background:#fff8e6;border-left:4px solid #f0b429;padding:.5em 1em}
+.warn{background:#fdecea;border-left:4px solid #d93025;padding:.5em 1em}
 code{background:#f5f5f5;padding:0 .2em}
 """
 
@@ -390,7 +391,8 @@ def build_report(
     sections.sort(key=lambda sec: sec.key != "claims")
 
     # files
-    md_parts = [f"# {title}\n", _runs_markdown(df, manifests)]
+    partial = store.partial_runs_text([m["_run_dir"] for m in manifests])
+    md_parts = [f"# {title}\n", f"\n**{partial}**\n" if partial else "", _runs_markdown(df, manifests)]
     html_sections = []
     toc = []
     numbers: dict = {}
@@ -451,6 +453,7 @@ def build_report(
 
     summary = {
         "title": title,
+        "partial": partial or None,
         "generated": _dt.datetime.now(_dt.UTC).isoformat(),
         "seuwgpu_version": __version__,
         "provenance": provenance(df),
@@ -478,6 +481,7 @@ def build_report(
 <h1>{html.escape(title)}</h1>
 <p class='note'>Generated {html.escape(summary["generated"])} by seuwgpu {html.escape(__version__)}.
 {html.escape(provenance_text(provenance(df)))} {html.escape(_folded_text(df))}</p>
+{f"<p class='warn'><b>{html.escape(partial)}</b></p>" if partial else ""}
 <h2>Runs</h2>{html_table(_runs_table(manifests))}
 <h2>Contents</h2><ul>{"".join(toc)}</ul>
 {"".join(html_sections)}

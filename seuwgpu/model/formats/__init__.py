@@ -66,11 +66,24 @@ class ModelFile:
 
     @property
     def name(self) -> str:
-        name = self.path.name
-        for suffix in (".compressed.ply", ".ply", ".spz", ".splat", ".pt", ".pth", ".ckpt"):
-            if name.lower().endswith(suffix):
-                return name[: -len(suffix)]
-        return self.path.stem
+        return model_label(self.path)
+
+
+def model_label(path) -> str:
+    """The name records, reports and `plan` give a model: the file's name without its format's
+    extension, or for an INRIA output folder (or the point_cloud.ply of one of its iterations)
+    the folder's name: every INRIA output holds a point_cloud.ply, and two captures labelled
+    "point_cloud" would be pooled as one scene."""
+    p = Path(path)
+    if p.is_dir():
+        return p.resolve().name
+    if p.name == "point_cloud.ply" and p.parent.name.startswith("iteration_") and p.parent.parent.name == "point_cloud":
+        return p.resolve().parents[2].name
+    name = p.name
+    for suffix in (".compressed.ply", ".ply", ".spz", ".splat", ".pt", ".pth", ".ckpt"):
+        if name.lower().endswith(suffix):
+            return name[: -len(suffix)]
+    return p.stem
 
 
 def detect_format(path) -> str:
@@ -92,7 +105,8 @@ def detect_format(path) -> str:
     if spath.lower().endswith(".splat") or splat_format.looks_like_splat(spath, size, head):
         return "splat"
     raise ModelFileError(
-        f"{spath}: unrecognised model file (not a PLY, SPZ, .splat or PyTorch checkpoint); "
+        f"{spath}: unrecognised model file (not a PLY, SPZ, .splat or PyTorch checkpoint; a .splat file, "
+        "which has no header, is recognised by its extension); "
         f"supported: {', '.join(FORMATS.values())}"
     )
 
@@ -182,12 +196,21 @@ def nonfinite_counts(model: Model) -> dict[str, int]:
 
 def save_model(model: Model, path, format: str | None = None, up: str | None = None, **options) -> str:
     """Write `model` as an INRIA PLY (`.ply`) or an SPZ (`.spz`; options: version=3,
-    antialiased=False), chosen by `format` or the file extension. Returns the format written."""
+    antialiased=False), chosen by `format` or the file extension. Returns the format written.
+
+    `up`: the model's up axis. A PLY records it (`comment up +z`, which read_model honours). SPZ
+    has no such field and its frame is y-up (RUB), so a model whose up is another axis is turned
+    to +y first (model.sh.rotate_model: positions, orientations and SH together), and the file
+    stands upright in every SPZ viewer, this one included."""
     spath = os.fspath(path)
     fmt = format or {".ply": "ply", ".spz": "spz"}.get(Path(spath).suffix.lower())
     if fmt == "ply":
         ply.save_ply(model, spath, comments=[f"up {up}"] if up else ())
     elif fmt == "spz":
+        if up not in (None, "+y"):
+            from seuwgpu.model.sh import rotate_model, rotation_to_y
+
+            model = rotate_model(model, rotation_to_y(up))
         spz.save_spz(model, spath, **options)
     else:
         raise ModelFileError(f"{spath}: cannot write this format; write .ply (INRIA PLY) or .spz (Niantic SPZ)")
