@@ -73,7 +73,8 @@ def add_model_args(p: argparse.ArgumentParser):
         "--ply",
         dest="model",
         type=Path,
-        help="a 3DGS model file: INRIA PLY, compressed PLY, .spz, .splat or a gsplat .pt (recognised by content)",
+        help="a 3DGS model file: INRIA PLY, compressed PLY, .spz, .splat or a gsplat .pt (recognised by "
+        "content; a .splat, which has no header, by its extension)",
     )
     src.add_argument("--scene", help="an embedded scene (see `seuwgpu scene --list`)")
     p.add_argument(
