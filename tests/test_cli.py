@@ -92,6 +92,33 @@ def test_output_paths_checked_before_the_work(tmp_path, capsys, monkeypatch):
     assert "which scene? give its NAME" in capsys.readouterr().err and not (tmp_path / "q.ply").exists()
 
 
+def test_options_the_others_make_meaningless_are_refused(tmp_path, capsys):
+    """An option that would be ignored is refused with the reason (a user who asked for 64x64
+    frames from a cameras file got the file's sizes, silently)."""
+    (tmp_path / "m.ply").write_bytes(b"")  # never read: the options are checked first
+    cams = tmp_path / "CAMS.json"
+    cams.write_text("[]")
+    base = ["--out", str(tmp_path / "o")]
+    cases = [
+        (["render", "--model", str(tmp_path / "m.ply"), "--n", "10", *base], "--n sets the primitives"),
+        (["render", "--scene", "spheres", "--cameras", str(cams), "--size", "64x64", *base], "--size sets orbit"),
+        (["demo", "--model", str(tmp_path / "m.ply"), "--n", "10", *base], "--n sets the primitives"),
+        (
+            ["render", "--scene", "spheres", "--n", "500", "--out", str(tmp_path / "x.npz"), "--formats", "png"],
+            "one npz",
+        ),
+        (["inject", "--scene", "spheres", "--field", "opacity", "--bit", "3", "--width", "3", *base], "--width sets"),
+        (
+            ["inject", "--scene", "spheres", "--field", "opacity", "--fault", "zero", "--bit", "3", *base],
+            "--bit does not",
+        ),
+    ]
+    for args, why in cases:
+        assert main(args) == 2, args
+        assert why in capsys.readouterr().err, args
+    assert not (tmp_path / "o").exists() and not (tmp_path / "x.npz").exists()
+
+
 def test_render_equals_the_renderer(tmp_path, capsys, monkeypatch):
     rc, _, _ = run(
         ["render", "--scene", "spheres", "--n", "300", "--views", "2", "--size", "32x24", "--out", tmp_path / "r.npz"],
@@ -120,6 +147,16 @@ def test_render_equals_the_renderer(tmp_path, capsys, monkeypatch):
     )  # fmt: skip
     assert rc == 0 and shapes == ["wide"]  # the option reaches the renderer through api.render_views
     assert np.array_equal(np.load(tmp_path / "w.npz")["images"], want)  # the same frames bit for bit
+    # more --views than a cameras file holds: all are rendered, and the user is told
+    cams = [
+        {"viewmat": c.viewmat.tolist(), "K": c.K.tolist(), "width": c.width, "height": c.height}
+        for c in scene_cameras("spheres", 2, 32, 24)
+    ]
+    (tmp_path / "CAMS.json").write_text(json.dumps({"cameras": cams}))
+    args = ["render", "--scene", "spheres", "--n", "300", "--cameras", tmp_path / "CAMS.json", "--views", "5"]
+    rc, _, err = run([*args, "--out", tmp_path / "c.npz"], capsys)
+    assert rc == 0 and "--views 5:" in err and "holds 2, all rendered" in err
+    assert np.array_equal(np.load(tmp_path / "c.npz")["images"], want)
 
 
 def test_inject_reports_the_flip_and_writes_the_panel(tmp_path, capsys):

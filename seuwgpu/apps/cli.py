@@ -124,14 +124,16 @@ def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "256
         type=positive_int,
         help=f"orbit views (default {views}), or with --cameras: this many of them, evenly",
     )
-    p.add_argument("--size", type=parse_size, default=parse_size(size), help=f"WxH of orbit views (default {size})")
+    p.add_argument("--size", type=parse_size, help=f"WxH of orbit views (default {size})")
     p.add_argument("--scale", type=positive_float, help="render at this fraction of the views' resolution (e.g. 0.25)")
-    p.set_defaults(default_views=views)
+    p.set_defaults(default_views=views, default_size=parse_size(size))
 
 
 def load_source(args):
     """The model the arguments name (sources.load_source), its notes printed once."""
     from seuwgpu.model.sources import load_source as load
+
+    refuse_ignored_options(args)
 
     src = load(scene=args.scene, path=args.model, n=args.n, sh_degree=args.sh_degree, seed=args.seed, up=args.up)
     if src.notes:
@@ -139,10 +141,26 @@ def load_source(args):
     return src
 
 
+def refuse_ignored_options(args):
+    """Options the other arguments make meaningless are refused, not silently ignored."""
+    if getattr(args, "model", None) is not None and getattr(args, "n", None) is not None:
+        raise CliError("--n sets the primitives of an embedded scene; a model file keeps all of its own")
+    if getattr(args, "cameras", None) is not None and getattr(args, "size", None) is not None:
+        raise CliError("--size sets orbit views; a cameras file gives each view its own size (use --scale)")
+
+
+def view_size(args) -> tuple[int, int]:
+    """--size, or the command's default."""
+    return args.size or args.default_size
+
+
 def load_cams(args, src):
     from seuwgpu.model.sources import source_views
 
-    return source_views(src, args.cameras, args.views, args.size, args.scale, args.default_views)
+    cams = source_views(src, args.cameras, args.views, view_size(args), args.scale, args.default_views)
+    if args.cameras is not None and args.views is not None and args.views > len(cams):
+        print(f"seuwgpu: --views {args.views}: {args.cameras} holds {len(cams)}, all rendered", file=sys.stderr)
+    return cams
 
 
 # ---- commands -------------------------------------------------------------------------------------
@@ -201,17 +219,20 @@ def parse_formats(text: str) -> tuple[str, ...]:
 def cmd_render(args):
     from seuwgpu import api
 
+    out: Path = args.out
+    if out.suffix == ".npz" and args.formats not in (None, ("npz",)):
+        raise CliError(f"--out {out} writes one npz of every view; give a folder for {', '.join(args.formats)} files")
     src = load_source(args)
     cams = load_cams(args, src)
     images = api.render_views(src, cams, precision=args.precision, profile=args.profile, compositor=args.compositor)
-    out: Path = args.out
     if out.suffix == ".npz":
         out.parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(out, images=images.astype(np.float32))
         print(f"wrote {out}: images {list(images.shape)} float32")
     else:
-        paths = api.save_frames(images, out, "view", formats=args.formats)
-        print(f"wrote {len(paths)} files ({', '.join(args.formats)}) to {out}")
+        formats = args.formats or ("png",)
+        paths = api.save_frames(images, out, "view", formats=formats)
+        print(f"wrote {len(paths)} files ({', '.join(formats)}) to {out}")
     bad = int((~np.isfinite(images)).any(axis=-1).sum())
     if bad:
         print(f"warning: {bad} non-finite pixels (black in PNGs, kept in TIFF and npz)", file=sys.stderr)
@@ -448,6 +469,7 @@ def cmd_demo(args):
     from seuwgpu.campaign.spec import normalize_spec
     from seuwgpu.model.scenes import is_capture, make_scene
 
+    refuse_ignored_options(args)
     raw = tomllib.loads(files("seuwgpu.campaign.specs").joinpath("default.toml").read_text())
     if args.model is not None or args.scene is not None:  # the default campaign on another model
         raw["scenes"] = [{"model": str(args.model)} if args.model is not None else {"scene": args.scene}]
@@ -549,6 +571,12 @@ def cmd_inject(args):
     from seuwgpu.report.panel import save_panel
 
     _out_folder(args.out)
+    if args.width is not None and args.fault != "adjacent":
+        raise CliError(f"--width sets an adjacent burst; --fault {args.fault} does not use it")
+    from seuwgpu.faults.sites import VALUE_MODELS
+
+    if args.bit is not None and args.fault in VALUE_MODELS:
+        raise CliError(f"--fault {args.fault} replaces the whole value; --bit does not apply")
     src = load_source(args)
     cams = load_cams(args, src)
     defenses = tuple(dict.fromkeys((args.defense, "guard")))
@@ -565,7 +593,7 @@ def cmd_inject(args):
         seed=args.seed,
         profile=args.profile,
         fault=args.fault,
-        width=args.width,
+        width=args.width or 2,
     )
     site, rec, g = inj.site, inj.metrics[args.defense], inj.metrics["guard"]
     if args.primitive is None:
@@ -742,7 +770,7 @@ def cmd_view(args):
         model,
         name,
         args.precision,
-        tuple(args.size),
+        tuple(args.size or args.default_size),
         orbit=orbit,
         backend=backend,
         sample=args.sample,
@@ -784,7 +812,6 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--formats",
         type=parse_formats,
-        default=("png",),
         help="frame files: png (display), tiff (float32, unclamped), npz; comma-separated (default png)",
     )
     add_profile_arg(s)
@@ -809,7 +836,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="bit/adjacent: flip the bits (adjacent with one --bit: --width bits ending there); "
         "stuck0/stuck1: the bits stuck; zero/random: the whole value replaced (random from --seed)",
     )
-    s.add_argument("--width", type=int, default=2, choices=(2, 3, 4), help="adjacent burst width")
+    s.add_argument("--width", type=int, choices=(2, 3, 4), help="adjacent burst width (default 2)")
     s.add_argument("--defense", default="none", choices=DEFENSES)
     s.add_argument("--sample", type=positive_int, default=64, help="primitives tried when --primitive is not given")
     s.add_argument("--out", type=Path, required=True)
