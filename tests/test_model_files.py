@@ -227,6 +227,12 @@ def test_spz_errors(tmp_path):
         with pytest.raises(ModelFileError, match=frag) as e:
             load_model(p)
         assert str(p) in str(e.value)
+    # bytes after the data with no extensions flagged: read as the reference reads it, with a word
+    (tmp_path / "tail.spz").write_bytes(gzip.compress(good + b"tail"))
+    with pytest.warns(UserWarning, match="4 bytes after the SPZ data ignored"):
+        tail = load_model(tmp_path / "tail.spz")
+    (tmp_path / "plain.spz").write_bytes(gzip.compress(good))
+    assert np.array_equal(tail.flat(), load_model(tmp_path / "plain.spz").flat())
     with pytest.raises(ModelFileError, match="non-finite"):
         save_spz(Model.from_flat(np.full((1, 14), np.nan, F32), 0), tmp_path / "nan.spz")
     far = Model.from_flat(np.zeros((1, 14), F32), 0)

@@ -144,6 +144,8 @@ def _planes_legacy(path: str, data: bytes) -> tuple[SpzInfo, dict[str, bytes]]:
         off += size
     if info.flags & FLAG_EXTENSIONS:
         warnings.warn(f"{path}: SPZ extensions skipped (they may change how the data was packed)")
+    elif len(raw) > need:  # read as Niantic's reader reads it, but not without a word
+        warnings.warn(f"{path}: {len(raw) - need} bytes after the SPZ data ignored (no extensions flagged)")
     return info, planes
 
 
