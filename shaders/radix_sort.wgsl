@@ -17,7 +17,7 @@
 // (8-bit fields, four digits per u32: a run has at most RS_PER <= 252 of a digit) and are
 // exchanged as vec4 of 16-bit fields (a block has at most 256 RS_PER < 65536 of a digit: no
 // carry between fields), output positions are selected from registers, and the scatter has no
-// barrier and no workgroup memory.
+// barrier and no workgroup memory (but for RS_FUSED, which only GPUs compile: sort.py).
 //
 // Arrays larger than one storage binding: inputs are read chunk by chunk (one dispatch per chunk,
 // bound at the chunk's offset), outputs are bound as two halves split at `rs_pass.split`; the
@@ -234,8 +234,8 @@ fn rs_hist4(q: u32, nb: u32, block: u32) -> vec4<u32> {
 // RS_FUSED: the hist is unscanned, and each workgroup computes its block's 16 bases itself (digit
 // d: the counts of all digits below d in every block, plus digit d's counts in the blocks before
 // this one), so a pass needs no PrefixSum dispatch between upsweep and scatter; sort.py sets it
-// while a histogram has at most FUSED_MAX_BLOCKS blocks (a thread then reads at most 64 of its
-// words). The bases, and so the output, are those read from the scanned hist.
+// on GPUs while a histogram has at most FUSED_MAX_BLOCKS blocks (a thread then reads at most 16
+// of its words). The bases, and so the output, are those read from the scanned hist.
 override RS_FUSED: bool = false;
 
 // Scatter: each thread walks its run in order and writes every pair to its digit's block base +

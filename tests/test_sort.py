@@ -8,13 +8,13 @@ and 2-D dispatch paths that real sizes (tens of millions) would take, at test-fr
 import numpy as np
 import pytest
 
-from seuwgpu.gpu.sort import WG, PrefixSum, RadixSort
+from seuwgpu.gpu.sort import FUSED_MAX_BLOCKS, WG, PrefixSum, RadixSort
 
 SENTINEL = 0xDEADBEEF
 PERS = (16, 64)  # elements per thread: the GPU and the CPU-adapter defaults
-# RadixSort's fused_max_blocks: the default (these sizes scatter from the unscanned histogram) and
-# 0 (a PrefixSum between upsweep and scatter, the path of histograms over FUSED_MAX_BLOCKS blocks).
-FUSED = {"fused": {}, "scanned": {"fused_max_blocks": 0}}
+# RadixSort's fused_max_blocks: a GPU's (these sizes scatter from the unscanned histogram) and 0 (a
+# PrefixSum between upsweep and scatter: CPU adapters, and histograms over FUSED_MAX_BLOCKS blocks).
+FUSED = {"fused": {"fused_max_blocks": FUSED_MAX_BLOCKS}, "scanned": {"fused_max_blocks": 0}}
 
 
 def run(gpu, *encodes):
@@ -253,3 +253,19 @@ def test_fused_scatter_saves_a_dispatch_per_pass(gpu, path):
     enc = _Counting()
     rs.encode(enc, kb, vb, n)
     assert enc.dispatches == (17 if path == "fused" else 1 + 1 + 8 * 3)
+
+
+def test_fused_path_by_adapter_and_threshold(gpu):
+    """The default is the adapter's (CPU adapters never fuse: the scatter's barriers cost lavapipe
+    more than the dispatch saved); a histogram of exactly the threshold's blocks is fused, one
+    more block is scanned, and both sort alike."""
+    assert RadixSort(gpu, 5000).fused == (not gpu.is_cpu)
+    rng = np.random.default_rng(8)
+    for cap, fused in ((3 * 1024, True), (3 * 1024 + 1, False)):  # per=4: 1024 pairs a block
+        rs = RadixSort(gpu, cap, per=4, fused_max_blocks=3)
+        assert rs.fused == fused and (rs.scan is None) == fused
+        keys = rng.integers(0, 2**32, cap, dtype=np.uint64).astype(np.uint32)
+        vals = np.arange(cap, dtype=np.uint32)
+        kb, vb = gpu.upload(keys), gpu.upload(vals)
+        run(gpu, lambda e, rs=rs, kb=kb, vb=vb, cap=cap: rs.encode(e, kb, vb, cap))
+        check_sort(gpu, keys, vals, kb, vb, cap, 32)

@@ -446,14 +446,16 @@ def bench_config(
     reps = max(1, min(int(repeats), int(budget // max(warm, 1e-9))))
     times = [_submission(r)[0] for _ in range(reps)]
     med = statistics.median(times)
-    # Python-side encoding alone (recorded, then dropped unsubmitted): the fastest of 5, since one
-    # recording of a few ms is easily doubled by other load on the host (seen on lavapipe's VM)
+    # Python-side encoding alone (recorded as run() records it, one encoder per submission group,
+    # then dropped unsubmitted): the fastest of 5, since one recording of a few ms is easily
+    # doubled by other load on the host (seen on lavapipe's VM)
     encode_times = []
     for _ in range(5):
         t = time.perf_counter()
-        enc = gpu.device.create_command_encoder()
-        r.encode(enc)
-        enc.finish()
+        for views in r.submission_groups():
+            enc = gpu.device.create_command_encoder()
+            r.encode(enc, views)
+            enc.finish()
         encode_times.append(time.perf_counter() - t)
     encode_s = min(encode_times)
 

@@ -14,7 +14,8 @@ chunks, so a sort holds up to two bindings' worth of elements (64 Mi on such dev
 Speed on lavapipe (what CI and the development machines run): it executes 8 invocations per SIMD
 instruction but every memory access lane by lane, and a workgroup barrier costs ~5 us (it runs a
 workgroup as 32 coroutines). Hence vec4 loads, per-thread counters in registers, a barrier-free
-scatter, and 64 elements per thread on CPU adapters (16 on GPUs, which need many workgroups).
+scatter on CPU adapters (GPUs take a fused one with two barriers: FUSED_MAX_BLOCKS), and 64
+elements per thread on CPU adapters (16 on GPUs, which need many workgroups).
 Buffers passed in must therefore have sizes that are multiples of 16 bytes (GPU.buffer's are).
 
 Per-call parameters (counts, digit shifts) never go through `queue.write_buffer` into a shared
@@ -44,12 +45,15 @@ _OFFS_HEADER = 16 * RADIX_PLAN["RS_OFFS"]  # bytes
 if WG != 256:  # both shaders scan a workgroup's values as 16 groups of 16
     raise ImportError(f"scan.wgsl and radix_sort.wgsl need 256-thread workgroups, constants.WG is {WG}")
 _CACHE_SIZE = 512
-# A sort whose histogram has at most this many blocks (4 Mi pairs at 16 per thread, 16 Mi at 64)
+# On a GPU, a sort whose histogram has at most this many blocks (1 Mi pairs at 16 per thread)
 # scatters with rs_scatter's RS_FUSED variant, which computes its bases from the unscanned
 # histogram: no PrefixSum between upsweep and scatter, so 2 dependent dispatches a pass instead of
 # 3, and 17 instead of 26 for a 32-bit sort (a GPU waits on each; Python spends ~8 us recording
-# each, measured on lavapipe's host). Each scatter thread then reads at most 64 histogram words.
-FUSED_MAX_BLOCKS = 1024
+# each). Each scatter thread then reads at most 16 histogram words (the reads grow as blocks
+# squared: 256 keeps them at 4 MiB a pass; untimed on a GPU). CPU adapters keep the scanned path:
+# the fused scatter's two barriers made lavapipe's sort 8-19% slower at 4 to 1,024 blocks
+# (2026-11-26, review of 2d0f0f8), more than the recording it saves.
+FUSED_MAX_BLOCKS = 256
 
 
 def _ceil_div(a: int, b: int) -> int:
@@ -289,7 +293,8 @@ class RadixSort:
     result in place in `keys`/`values`; elements at or past count are not touched. `count` is a
     python int or (buffer, byte_offset) of a u32 on the GPU (clamped to the capacity and to the
     buffer sizes; the dispatches are then indirect). Needs ceil(key_bits / 4) passes of two
-    dispatches (three, with a PrefixSum of the histogram, past FUSED_MAX_BLOCKS blocks); an odd
+    dispatches when fused (see FUSED_MAX_BLOCKS), else of upsweep, the PrefixSum's one to three
+    and scatter, plus one plan dispatch per sort (two when scanned); an odd
     number of passes costs one extra copy into the internal buffers first. `keys` and `values`
     must be distinct buffers whose sizes are multiples of 16 bytes. Twin: `stable_sort`.
 
@@ -306,11 +311,12 @@ class RadixSort:
         per: int | None = None,
         max_binding: int | None = None,
         max_groups_x: int | None = None,
-        fused_max_blocks: int = FUSED_MAX_BLOCKS,
+        fused_max_blocks: int | None = None,
     ):
         """`per`, `max_binding` and `max_groups_x`: as for PrefixSum. `fused_max_blocks`: the
-        largest histogram (in blocks, at full capacity) scattered without a PrefixSum (0: never;
-        the tests use it to reach both paths)."""
+        largest histogram (in blocks, at full capacity) scattered without a PrefixSum (None: the
+        adapter's default, FUSED_MAX_BLOCKS on GPUs and 0, never, on CPU adapters; the tests set
+        it to reach both paths)."""
         self.gpu = gpu
         self.capacity = max(1, int(capacity))
         self.per = _per_thread(gpu, per)
@@ -336,6 +342,8 @@ class RadixSort:
         self.plan = gpu.buffer(4 * (RADIX_PLAN["RS_ARGS"] + 3 * self.nch), INDIRECT, "sort.plan")
         self._dummy = gpu.buffer(16, STORAGE, "sort.dummy")
         # Decided by the capacity, so that every count the sort may be given takes the same path.
+        if fused_max_blocks is None:
+            fused_max_blocks = 0 if gpu.is_cpu else FUSED_MAX_BLOCKS
         self.fused = nb <= int(fused_max_blocks)
         self.scan = (
             None if self.fused else PrefixSum(gpu, 16 * nb, per=per, max_binding=max_binding, max_groups_x=max_groups_x)
