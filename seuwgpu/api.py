@@ -357,7 +357,10 @@ def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], st
         raise InputError(f"fault {fault!r} needs bit=")
     bits = [bit] if isinstance(bit, (int, np.integer)) else list(bit)
     for b in bits:  # the bit asked for, named before an adjacent burst moves below it
-        encoding.check_bit(precision, b)
+        try:
+            encoding.check_bit(precision, b)
+        except ValueError as e:
+            raise InputError(str(e)) from None
     if fault == "adjacent" and len(bits) == 1:
         if width not in ADJACENT_WIDTHS:
             raise InputError(f"width must be one of {', '.join(map(str, ADJACENT_WIDTHS))}, got {width!r}")

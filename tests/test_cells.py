@@ -195,7 +195,7 @@ def test_rates_says_when_a_run_is_unfinished(runs):
 
     dirs, _ = runs
     store.manifest_path(dirs[0]).write_text(json.dumps({"total_injections": 2600}))  # 5 parts of 400 written
-    assert store.completion(dirs[0]) == (2000, 2600)
+    assert store.partial_runs_text(dirs).startswith("Unfinished: run0 holds 2,000 of 2,600 injections.")
     cmd = [sys.executable, "-m", "seuwgpu", "rates", *map(str, dirs)]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
@@ -203,3 +203,22 @@ def test_rates_says_when_a_run_is_unfinished(runs):
         "Unfinished: run0 holds 2,000 of 2,600 injections" in res.stdout
         and "run1" not in res.stdout.split("Unfinished")[1]
     )
+
+
+def test_shards_in_folders_of_their_own_are_counted_together(runs, tmp_path):
+    """Each shard's manifest plans the whole spec: the shards of one campaign, given together, are
+    complete when their parts are, and a missing part is reported once for the group."""
+    import json
+
+    dirs, records = runs
+    rec = records[records.run == dirs[0].name].drop(columns="run")
+    shards = [tmp_path / "exp" / f"shard-{i}" for i in range(2)]
+    for i, d in enumerate(shards):
+        store.records_dir(d).mkdir(parents=True)
+        store.manifest_path(d).write_text(json.dumps({"spec_hash": "s1", "total_injections": 2000}))
+        for j in range(i, 5, 2):  # shard 0: parts 0, 2, 4; shard 1: parts 1, 3
+            store.write_part(d, 400 * j, 400, rec.iloc[400 * j : 400 * (j + 1)])
+    assert store.repeated_sites(shards) == [] and store.partial_runs_text(shards) == ""
+    store.part_path(shards[1], 1200, 400).unlink()
+    assert store.partial_runs_text(shards).startswith("Unfinished: shard-0 + shard-1 hold 1,600 of 2,000 injections.")
+    assert store.partial_runs_text(shards[:1]).startswith("Unfinished: shard-0 holds 1,200 of 2,000")

@@ -113,10 +113,24 @@ def test_options_the_others_make_meaningless_are_refused(tmp_path, capsys):
             "--bit does not",
         ),
     ]
+    cases.append(
+        (
+            ["inject", "--scene", "spheres", "--field", "opacity", "--bit", "3", "4", "--width", "3", *base],
+            "--width sets the burst",
+        )
+    )
     for args, why in cases:
         assert main(args) == 2, args
         assert why in capsys.readouterr().err, args
     assert not (tmp_path / "o").exists() and not (tmp_path / "x.npz").exists()
+    # `view`'s --size is its window, which goes with --cameras
+    from seuwgpu.apps.cli import build_parser, refuse_ignored_options
+
+    refuse_ignored_options(build_parser().parse_args(["view", "--scene", "spheres", "--cameras", str(cams)]))
+    with pytest.raises(Exception, match="--size sets orbit"):
+        refuse_ignored_options(
+            build_parser().parse_args(["render", "--cameras", str(cams), "--size", "8x8", "--out", "o"])
+        )
 
 
 def test_render_equals_the_renderer(tmp_path, capsys, monkeypatch):

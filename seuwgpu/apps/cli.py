@@ -145,7 +145,9 @@ def refuse_ignored_options(args):
     """Options the other arguments make meaningless are refused, not silently ignored."""
     if getattr(args, "model", None) is not None and getattr(args, "n", None) is not None:
         raise CliError("--n sets the primitives of an embedded scene; a model file keeps all of its own")
-    if getattr(args, "cameras", None) is not None and getattr(args, "size", None) is not None:
+    # --size of the commands that take camera options (add_camera_args; `view`'s is its window)
+    orbit_size = getattr(args, "size", None) if hasattr(args, "default_size") else None
+    if getattr(args, "cameras", None) is not None and orbit_size is not None:
         raise CliError("--size sets orbit views; a cameras file gives each view its own size (use --scale)")
 
 
@@ -571,8 +573,8 @@ def cmd_inject(args):
     from seuwgpu.report.panel import save_panel
 
     _out_folder(args.out)
-    if args.width is not None and args.fault != "adjacent":
-        raise CliError(f"--width sets an adjacent burst; --fault {args.fault} does not use it")
+    if args.width is not None and (args.fault != "adjacent" or len(args.bit or ()) > 1):
+        raise CliError("--width sets the burst of --fault adjacent from one --bit; here it would be ignored")
     from seuwgpu.faults.sites import VALUE_MODELS
 
     if args.bit is not None and args.fault in VALUE_MODELS:

@@ -168,31 +168,32 @@ def record_parts(run_dir, manifest: dict | None = None) -> list[Path]:
     return [p for p in parts if parse_part_name(p.name) in want]
 
 
-def completion(run_dir, manifest: dict | None = None) -> tuple[int, int | None]:
-    """(injections the run's parts hold, injections its spec plans: None when the manifest does
-    not say). A stratified campaign writes its cells in order, so an unfinished run's estimates
-    lack whole cells, not a random share of each: reports must say so."""
-    manifest = manifest if manifest is not None else (read_manifest(run_dir) or {})
-    done = 0
-    for p in record_parts(run_dir, manifest):
-        first_count = parse_part_name(p.name)
-        done += first_count[1] if first_count else 0
-    total = manifest.get("total_injections")
-    return done, (int(total) if isinstance(total, int) else None)
-
-
 def partial_runs_text(run_dirs) -> str:
-    """One sentence naming the runs that hold fewer injections than their spec plans ("" if none)."""
-    parts = []
+    """One sentence naming the runs that hold fewer injections than their spec plans ("" if none).
+    A stratified campaign writes its cells in order, so an unfinished run's estimates lack whole
+    cells, not a random share of each: reports must say so. Runs of one spec and profile (the
+    shards of a campaign in folders of their own, or a partial merge and the shard that fills it)
+    are counted together, by the parts they hold between them."""
+    groups: dict[tuple, tuple[list[str], set, int | None]] = {}
     for rd, name in zip(run_dirs, run_names(run_dirs)):
-        done, total = completion(rd)
-        if total is not None and done < total:
-            parts.append(f"{name} holds {done:,} of {total:,} injections")
-        # a run without a campaign manifest cannot say
-    if not parts:
+        m = read_manifest(rd) or {}
+        total = m.get("total_injections")
+        if not isinstance(total, int):
+            continue  # a run without a campaign manifest cannot say
+        key = (m.get("spec_hash") or name, m.get("profile", "strict"))
+        names, parts, _ = groups.setdefault(key, ([], set(), total))
+        names.append(name)
+        parts.update(p.name for p in record_parts(rd, m))
+    out = []
+    for names, parts, total in groups.values():
+        done = sum((parse_part_name(p) or (0, 0))[1] for p in parts)
+        if done < total:
+            held = "hold" if len(names) > 1 else "holds"
+            out.append(f"{' + '.join(names)} {held} {done:,} of {total:,} injections")
+    if not out:
         return ""
     return (
-        "Unfinished: " + "; ".join(parts) + ". A campaign writes its cells in order, so the cells not yet run are "
+        "Unfinished: " + "; ".join(out) + ". A campaign writes its cells in order, so the cells not yet run are "
         "missing from every estimate (rates describe the cells run so far, not the spec's population)."
     )
 
