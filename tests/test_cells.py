@@ -149,6 +149,7 @@ def test_the_same_sites_twice_are_refused_unless_grouped_by_run(runs, tmp_path):
         _manifest(d, "abc", "strict")
     _manifest(dirs[1], "abc", "gsplat")  # the same spec under another profile: other frames
     assert store.repeated_sites([dirs[0], dirs[1], copy]) == [("run0", "again", 5)]
+    assert store.repeated_sites([dirs[1], dirs[1]]) == [("run1", "run1#2", 5)]  # one folder twice
     with pytest.raises(C.InputError, match="run0 and again hold 5 part"):
         C.fold_runs([dirs[0], copy])
     cells, _ = C.fold_runs([dirs[0], copy], ["run"])  # compared side by side: allowed

@@ -88,6 +88,10 @@ def test_output_paths_checked_before_the_work(tmp_path, capsys, monkeypatch):
         args = ["inject", "--scene", "spheres", "--n", "500", "--field", "log_scale", "--bit", "31", "--out", str(out)]
         assert main(args) == 2
         assert "is a file, not a folder" in capsys.readouterr().err
+    for cmd in ("render", "storm", "state"):  # render: a folder, or an npz under a file
+        for out in (afile, afile / "x.npz") if cmd == "render" else (afile,):
+            assert main([cmd, "--scene", "spheres", "--n", "500", "--out", str(out)]) == 2
+            assert "is a file, not a folder" in capsys.readouterr().err
     assert main(["scene", "--out", str(tmp_path / "q.ply")]) == 2
     assert "which scene? give its NAME" in capsys.readouterr().err and not (tmp_path / "q.ply").exists()
 

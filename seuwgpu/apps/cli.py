@@ -224,6 +224,7 @@ def cmd_render(args):
     out: Path = args.out
     if out.suffix == ".npz" and args.formats not in (None, ("npz",)):
         raise CliError(f"--out {out} writes one npz of every view; give a folder for {', '.join(args.formats)} files")
+    _out_folder(out.parent if out.suffix == ".npz" else out)
     src = load_source(args)
     cams = load_cams(args, src)
     images = api.render_views(src, cams, precision=args.precision, profile=args.profile, compositor=args.compositor)
@@ -700,6 +701,7 @@ def cmd_storm(args):
     from seuwgpu.campaign.storm import storm
     from seuwgpu.faults.engine import Engine
 
+    _out_folder(args.out)
     src = load_source(args)
     eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
     df = storm(eng, args.k, args.frames, args.scrub_every, args.defense, args.seed)
@@ -720,6 +722,7 @@ def cmd_state(args):
     from seuwgpu.faults.engine import Engine
     from seuwgpu.faults.state import state_campaign
 
+    _out_folder(args.out)
     src = load_source(args)
     eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
     df = state_campaign(eng, args.targets, args.samples, args.bit or range(32), args.seed)

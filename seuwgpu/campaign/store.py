@@ -205,7 +205,13 @@ def repeated_sites(run_dirs) -> list[tuple[str, str, int]]:
     (run name, run name, parts in common) per such pair, names as `run_names` gives them."""
     seen: dict[tuple, list[tuple[str, set]]] = {}
     out = []
+    folders: dict[Path, str] = {}
     for rd, name in zip(run_dirs, run_names(run_dirs)):
+        here = Path(rd).resolve()
+        if here in folders:  # one folder given twice (with or without a manifest)
+            out.append((folders[here], name, len(record_parts(rd))))
+            continue
+        folders[here] = name
         m = read_manifest(rd) or {}
         if not m.get("spec_hash"):
             continue  # not written by a campaign: nothing to compare
