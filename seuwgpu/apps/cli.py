@@ -224,12 +224,14 @@ def cmd_render(args):
     out: Path = args.out
     if out.suffix == ".npz" and args.formats not in (None, ("npz",)):
         raise CliError(f"--out {out} writes one npz of every view; give a folder for {', '.join(args.formats)} files")
-    _out_folder(out.parent if out.suffix == ".npz" else out)
+    from seuwgpu.campaign.store import make_out_dir
+
+    refuse_ignored_options(args)  # before anything is created
+    make_out_dir(out.parent if out.suffix == ".npz" else out, what="output folder")
     src = load_source(args)
     cams = load_cams(args, src)
     images = api.render_views(src, cams, precision=args.precision, profile=args.profile, compositor=args.compositor)
     if out.suffix == ".npz":
-        out.parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(out, images=images.astype(np.float32))
         print(f"wrote {out}: images {list(images.shape)} float32")
     else:
@@ -389,7 +391,9 @@ def cmd_rates(args):
     t = outcome_rates(cells, by)
     partial = partial_runs_text(args.runs)
     if args.csv:
-        _out_folder(args.csv.parent, "--csv").mkdir(parents=True, exist_ok=True)
+        from seuwgpu.campaign.store import make_out_dir
+
+        make_out_dir(args.csv.parent, "--csv", "folder")
         t.to_csv(args.csv, index=False)
     tab = Table(
         title=f"{args.campaign} upsets, {int(cells['n_records'].sum()):,} records in {n_parts:,} parts: weighted "
@@ -561,25 +565,20 @@ def lpips_text(value: float) -> str:
     return "nan (undefined: frames under 32x32 or non-finite)" if lpips.available() else f"n/a ({lpips.INSTALL_HINT})"
 
 
-def _out_folder(path: Path, option: str = "--out") -> Path:
-    """An output folder checked before any work: an existing file, or a file on its way, cannot be one."""
-    for p in (path, *path.parents):
-        if p.exists() and not p.is_dir():
-            raise CliError(f"{option} {path}: {p} is a file, not a folder")
-    return path
-
-
 def cmd_inject(args):
     from seuwgpu import api
     from seuwgpu.report.panel import save_panel
 
-    _out_folder(args.out)
     if args.width is not None and (args.fault != "adjacent" or len(args.bit or ()) > 1):
         raise CliError("--width sets the burst of --fault adjacent from one --bit; here it would be ignored")
     from seuwgpu.faults.sites import VALUE_MODELS
 
     if args.bit is not None and args.fault in VALUE_MODELS:
         raise CliError(f"--fault {args.fault} replaces the whole value; --bit does not apply")
+    from seuwgpu.campaign.store import make_out_dir
+
+    refuse_ignored_options(args)  # before anything is created
+    make_out_dir(args.out, what="output folder")
     src = load_source(args)
     cams = load_cams(args, src)
     defenses = tuple(dict.fromkeys((args.defense, "guard")))
@@ -607,7 +606,6 @@ def cmd_inject(args):
         f"[{site['primitive']}][{site['component']}] bit{'s' if len(bits) > 1 else ''} {','.join(map(str, bits))} "
         f"({site['bit_class']}) {site['clean_value']:.6g} -> {site['corrupted_value']:.6g}; defense {args.defense}"
     )
-    args.out.mkdir(parents=True, exist_ok=True)
     frames = inj.frames
     panel = save_panel(args.out / "panel.png", frames["clean"], frames[args.defense], frames["guard"], title)
     files = inj.save(args.out, formats=args.formats)
@@ -698,14 +696,15 @@ def cmd_worstcase(args):
 def cmd_storm(args):
     """k upsets per frame accumulating, scrubbed every S frames: records and a plot per defense."""
     from seuwgpu.analysis.defenses import storm_figure
+    from seuwgpu.campaign.store import make_out_dir
     from seuwgpu.campaign.storm import storm
     from seuwgpu.faults.engine import Engine
 
-    _out_folder(args.out)
+    refuse_ignored_options(args)  # before anything is created
+    make_out_dir(args.out, what="output folder")
     src = load_source(args)
     eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
     df = storm(eng, args.k, args.frames, args.scrub_every, args.defense, args.seed)
-    args.out.mkdir(parents=True, exist_ok=True)
     df.to_parquet(args.out / "storm.parquet", index=False)
     storm_figure(df).savefig(args.out / "storm.png", dpi=120)
     summary = df.groupby("defense", sort=False).agg(
@@ -719,14 +718,15 @@ def cmd_storm(args):
 def cmd_state(args):
     """Transient pipeline-state flips of one frame: records and a criticality table per target."""
     from seuwgpu.analysis.defenses import state_table
+    from seuwgpu.campaign.store import make_out_dir
     from seuwgpu.faults.engine import Engine
     from seuwgpu.faults.state import state_campaign
 
-    _out_folder(args.out)
+    refuse_ignored_options(args)  # before anything is created
+    make_out_dir(args.out, what="output folder")
     src = load_source(args)
     eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
     df = state_campaign(eng, args.targets, args.samples, args.bit or range(32), args.seed)
-    args.out.mkdir(parents=True, exist_ok=True)
     df.to_parquet(args.out / "state.parquet", index=False)
     t = state_table(df)
     (args.out / "state_criticality.csv").write_text(t.to_csv(index=False))

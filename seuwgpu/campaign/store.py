@@ -168,28 +168,37 @@ def record_parts(run_dir, manifest: dict | None = None) -> list[Path]:
     return [p for p in parts if parse_part_name(p.name) in want]
 
 
+def _campaign_runs(run_dirs) -> list[tuple[str, Path, dict, tuple | None, set[str]]]:
+    """Per run: (name as run_names gives it, resolved folder, manifest, (spec hash, profile) or None
+    without a campaign's manifest, names of the part files its spec names)."""
+    out = []
+    for rd, name in zip(run_dirs, run_names(run_dirs)):
+        m = read_manifest(rd) or {}
+        key = (m["spec_hash"], m.get("profile", "strict")) if m.get("spec_hash") else None
+        out.append((name, Path(rd).resolve(), m, key, {p.name for p in record_parts(rd, m)}))
+    return out
+
+
 def partial_runs_text(run_dirs) -> str:
     """One sentence naming the runs that hold fewer injections than their spec plans ("" if none).
     A stratified campaign writes its cells in order, so an unfinished run's estimates lack whole
     cells, not a random share of each: reports must say so. Runs of one spec and profile (the
     shards of a campaign in folders of their own, or a partial merge and the shard that fills it)
     are counted together, by the parts they hold between them."""
-    groups: dict[tuple, tuple[list[str], set, int | None]] = {}
-    for rd, name in zip(run_dirs, run_names(run_dirs)):
-        m = read_manifest(rd) or {}
+    groups: dict[tuple, tuple[list[str], set, int]] = {}
+    for name, _, m, key, parts in _campaign_runs(run_dirs):
         total = m.get("total_injections")
         if not isinstance(total, int):
             continue  # a run without a campaign manifest cannot say
-        key = (m.get("spec_hash") or name, m.get("profile", "strict"))
-        names, parts, _ = groups.setdefault(key, ([], set(), total))
+        names, held, _ = groups.setdefault(key or (name,), ([], set(), total))
         names.append(name)
-        parts.update(p.name for p in record_parts(rd, m))
+        held.update(parts)
     out = []
     for names, parts, total in groups.values():
         done = sum((parse_part_name(p) or (0, 0))[1] for p in parts)
         if done < total:
-            held = "hold" if len(names) > 1 else "holds"
-            out.append(f"{' + '.join(names)} {held} {done:,} of {total:,} injections")
+            verb = "hold" if len(names) > 1 else "holds"
+            out.append(f"{' + '.join(names)} {verb} {done:,} of {total:,} injections")
     if not out:
         return ""
     return (
@@ -199,29 +208,18 @@ def partial_runs_text(run_dirs) -> str:
 
 
 def repeated_sites(run_dirs) -> list[tuple[str, str, int]]:
-    """Pairs of runs holding the same parts of the same spec under the same renderer profile:
-    the same fault sites measured twice, which a pooled estimate would count as twice the sample
-    (shards of one spec hold different parts; another profile renders other frames). Returns
-    (run name, run name, parts in common) per such pair, names as `run_names` gives them."""
-    seen: dict[tuple, list[tuple[str, set]]] = {}
+    """Pairs of runs holding the same parts of the same spec under the same renderer profile, or
+    one folder given twice: the same fault sites measured twice, which a pooled estimate would
+    count as twice the sample (shards of one spec hold different parts; another profile renders
+    other frames). Returns (run name, run name, parts in common) per such pair."""
     out = []
-    folders: dict[Path, str] = {}
-    for rd, name in zip(run_dirs, run_names(run_dirs)):
-        here = Path(rd).resolve()
-        if here in folders:  # one folder given twice (with or without a manifest)
-            out.append((folders[here], name, len(record_parts(rd))))
-            continue
-        folders[here] = name
-        m = read_manifest(rd) or {}
-        if not m.get("spec_hash"):
-            continue  # not written by a campaign: nothing to compare
-        key = (m["spec_hash"], m.get("profile", "strict"))
-        parts = {p.name for p in record_parts(rd, m)}
-        for other, other_parts in seen.setdefault(key, []):
-            common = len(parts & other_parts)
+    seen: list[tuple[str, Path, tuple | None, set]] = []
+    for name, here, _, key, parts in _campaign_runs(run_dirs):
+        for other, there, other_key, other_parts in seen:
+            common = len(parts) if here == there else len(parts & other_parts) if key and key == other_key else 0
             if common:
                 out.append((other, name, common))
-        seen[key].append((name, parts))
+        seen.append((name, here, key, parts))
     return out
 
 
@@ -266,17 +264,20 @@ def check_same_run(run_dir, manifest: dict | None, spec: dict, spec_hash: str):
     )
 
 
-def make_run_dir(run_dir):
-    """Create the run directory (and its parents), or say in one line why it cannot be."""
-    p = Path(run_dir)
-    if p.exists() and not p.is_dir():
-        raise InputError(f"--out {p}: is a file, not a run directory")
+def make_out_dir(path, option: str = "--out", what: str = "run directory") -> Path:
+    """Create an output folder (and its parents) before any work is done, or say in one line why
+    it cannot be: a file where it or one of its parents would be, no permission."""
+    p = Path(path)
+    for q in (p, *p.parents):
+        if q.exists() and not q.is_dir():
+            raise InputError(f"{option} {p}: {'it' if q == p else q} is a file, not a folder")
     try:
         p.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        raise InputError(f"--out {p}: cannot create the run directory ({e.strerror or e})") from None
+        raise InputError(f"{option} {p}: cannot create the {what} ({e.strerror or e})") from None
     if not os.access(p, os.W_OK | os.X_OK):
-        raise InputError(f"--out {p}: the run directory is not writable")
+        raise InputError(f"{option} {p}: the {what} is not writable")
+    return p
 
 
 @contextlib.contextmanager
@@ -286,7 +287,7 @@ def lock(run_dir, shard: tuple[int, int] = (0, 1)):
     import fcntl
 
     i, n = shard
-    make_run_dir(run_dir)
+    make_out_dir(run_dir)
     path = Path(run_dir) / f".lock-{i}-of-{n}"
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
     try:
