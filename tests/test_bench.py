@@ -128,14 +128,17 @@ def test_a_failing_candidate_compositor_is_dropped_not_fatal(bench, gpu, monkeyp
     """A shape after the first that fails on the device (a driver rejecting its pipeline, say) is
     recorded with its error and dropped from the rest of the run; the first shape's failure is
     fatal (it is the measurement)."""
+
+    def failing_for_wide(fn, message):
+        def wrapped(*args, compositor=None, **kw):
+            if compositor == "wide":
+                raise RuntimeError(message)
+            return fn(*args, compositor=compositor, **kw)
+
+        return wrapped
+
     real = bench.bench_config
-
-    def flaky(*args, compositor=None, **kw):
-        if compositor == "wide":
-            raise RuntimeError("pipeline rejected\nby a driver")
-        return real(*args, compositor=compositor, **kw)
-
-    monkeypatch.setattr(bench, "bench_config", flaky)
+    monkeypatch.setattr(bench, "bench_config", failing_for_wide(real, "pipeline rejected\nby a driver"))
     kw = {"repeats": 1, "twin": False, "stages": False, "campaign_samples": 0, "log": lambda m: None}
     doc = bench.run_grid(["spheres"], [2000], [32], [1, 2], compositors=["lanes", "wide"], **kw)
     assert [(r["compositor"], r["k"]) for r in doc["results"]] == [("lanes", 1), ("lanes", 2)]
@@ -144,14 +147,9 @@ def test_a_failing_candidate_compositor_is_dropped_not_fatal(bench, gpu, monkeyp
         bench.run_grid(["spheres"], [2000], [32], [1], compositors=["wide", "lanes"], **kw)
     # the same where the shape fails in its chunk sweep (new pipelines per chunk)
     monkeypatch.setattr(bench, "bench_config", real)
-    real_sweep = bench.measure_chunk_sweep
-
-    def flaky_sweep(*args, compositor=None, **kw):
-        if compositor == "wide":
-            raise RuntimeError("chunk pipeline rejected")
-        return real_sweep(*args, compositor=compositor, **kw)
-
-    monkeypatch.setattr(bench, "measure_chunk_sweep", flaky_sweep)
+    monkeypatch.setattr(
+        bench, "measure_chunk_sweep", failing_for_wide(bench.measure_chunk_sweep, "chunk pipeline rejected")
+    )
     doc = bench.run_grid(["spheres"], [2000], [32], [1, 2], compositors=["lanes", "wide"], chunks=[256], **kw)
     assert [(r["compositor"], r["k"]) for r in doc["results"]] == [("lanes", 1), ("lanes", 2)]
     assert [c["compositor"] for c in doc["chunk_sweep"]] == ["lanes", "lanes"]

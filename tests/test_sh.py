@@ -8,17 +8,7 @@ from seuwgpu.model import sh
 from seuwgpu.model.fields import Model
 from seuwgpu.model.formats import read_model, save_model
 from seuwgpu.model.scenes import make_scene
-
-
-def _quat_matrix(q):
-    w, x, y, z = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
-    return np.stack(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    ).transpose(2, 0, 1)
+from seuwgpu.render.project import quat_to_rotmat
 
 
 def _colour(model, dirs):
@@ -49,7 +39,7 @@ def test_rotate_model_turns_everything_together(up):
     np.testing.assert_allclose(r.means, m.means @ R.T, atol=1e-6)
     # covariances turn as R S R^T
     s2 = np.exp(2 * m.log_scales.astype(np.float64))
-    Q, Qr = _quat_matrix(m.quats.astype(np.float64)), _quat_matrix(r.quats.astype(np.float64))
+    Q, Qr = quat_to_rotmat(m.quats).astype(np.float64), quat_to_rotmat(r.quats).astype(np.float64)  # the twin's
     cov = np.einsum("nij,nj,nkj->nik", Q, s2, Q)
     cov_r = np.einsum("nij,nj,nkj->nik", Qr, s2, Qr)
     np.testing.assert_allclose(cov_r, np.einsum("ij,njk,lk->nil", R, cov, R), atol=1e-5)

@@ -61,6 +61,7 @@ from seuwgpu.model.captures import CAPTURES, capture_model
 from seuwgpu.model.captures import UP as CAPTURE_UP
 from seuwgpu.model.fields import Model, sh_rest_count
 from seuwgpu.model.framing import orbit_views
+from seuwgpu.model.sh import rotmat_to_quat
 
 C0 = 0.28209479177387814
 DEFAULT_SCENE = "spheres"
@@ -273,36 +274,6 @@ def _frame(e3, e1_hint=None):
     e1 = _normalize(e1)
     e2 = np.cross(e3, e1)
     return np.stack([e1, e2, e3], axis=-1)
-
-
-def _rotmat_to_quat(R):
-    """Rotation matrices [N, 3, 3] -> unit quaternions [N, 4] (w, x, y, z), Shepperd's method."""
-    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
-    d = np.stack([R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2], R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], axis=1)
-    which = np.argmax(d, axis=1)
-    q = np.empty((R.shape[0], 4))
-    for k in range(4):
-        sel = np.nonzero(which == k)[0]
-        if sel.size == 0:
-            continue
-        m = R[sel]
-        m00, m01, m02 = m[:, 0, 0], m[:, 0, 1], m[:, 0, 2]
-        m10, m11, m12 = m[:, 1, 0], m[:, 1, 1], m[:, 1, 2]
-        m20, m21, m22 = m[:, 2, 0], m[:, 2, 1], m[:, 2, 2]
-        if k == 0:
-            s = 2.0 * np.sqrt(1.0 + m00 + m11 + m22)
-            c = (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
-        elif k == 1:
-            s = 2.0 * np.sqrt(1.0 + m00 - m11 - m22)
-            c = ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
-        elif k == 2:
-            s = 2.0 * np.sqrt(1.0 + m11 - m00 - m22)
-            c = ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
-        else:
-            s = 2.0 * np.sqrt(1.0 + m22 - m00 - m11)
-            c = ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
-        q[sel] = np.stack(c, axis=1)
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
 class _Noise:
@@ -909,7 +880,7 @@ def _sample_part(part: _Part, spacing: float, m: int, rng, nrest: int) -> dict:
     logs[low] += 0.35
 
     # quaternion: the frame (t1, t2, normal) with a small wobble and a near-unit norm
-    q = _rotmat_to_quat(fr) + 0.01 * rng.standard_normal((m, 4))
+    q = rotmat_to_quat(fr) + 0.01 * rng.standard_normal((m, 4))
     q *= (np.exp(0.03 * rng.standard_normal(m)) / np.linalg.norm(q, axis=1))[:, None]
 
     # colour: base colour, procedural texture, per-primitive noise

@@ -107,7 +107,7 @@ def rotate_model(model: Model, R: np.ndarray) -> Model:
     direction R d equals the original's from d. Scales, opacity and DC are unchanged."""
     R = np.asarray(R, np.float64)
     means = (model.means.astype(np.float64) @ R.T).astype(F)
-    qr = _quat_of(R)
+    qr = rotmat_to_quat(R)[0]
     q = model.quats.astype(np.float64)
     w1, x1, y1, z1 = qr
     w2, x2, y2, z2 = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
@@ -136,18 +136,31 @@ def rotate_model(model: Model, R: np.ndarray) -> Model:
     )
 
 
-def _quat_of(R: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) of a proper rotation matrix (Shepperd's method)."""
-    t = np.trace(R)
-    if t > 0:
-        s = 2.0 * np.sqrt(1.0 + t)
-        return np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s])
-    i = int(np.argmax(np.diag(R)))
-    j, k = (i + 1) % 3, (i + 2) % 3
-    s = 2.0 * np.sqrt(1.0 + R[i, i] - R[j, j] - R[k, k])
-    q = np.empty(4)
-    q[0] = (R[k, j] - R[j, k]) / s
-    q[1 + i] = 0.25 * s
-    q[1 + j] = (R[j, i] + R[i, j]) / s
-    q[1 + k] = (R[k, i] + R[i, k]) / s
-    return q
+def rotmat_to_quat(R):
+    """Rotation matrices [N, 3, 3] -> unit quaternions [N, 4] (w, x, y, z), Shepperd's method."""
+    R = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
+    d = np.stack([R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2], R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], axis=1)
+    which = np.argmax(d, axis=1)
+    q = np.empty((R.shape[0], 4))
+    for k in range(4):
+        sel = np.nonzero(which == k)[0]
+        if sel.size == 0:
+            continue
+        m = R[sel]
+        m00, m01, m02 = m[:, 0, 0], m[:, 0, 1], m[:, 0, 2]
+        m10, m11, m12 = m[:, 1, 0], m[:, 1, 1], m[:, 1, 2]
+        m20, m21, m22 = m[:, 2, 0], m[:, 2, 1], m[:, 2, 2]
+        if k == 0:
+            s = 2.0 * np.sqrt(1.0 + m00 + m11 + m22)
+            c = (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
+        elif k == 1:
+            s = 2.0 * np.sqrt(1.0 + m00 - m11 - m22)
+            c = ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
+        elif k == 2:
+            s = 2.0 * np.sqrt(1.0 + m11 - m00 - m22)
+            c = ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
+        else:
+            s = 2.0 * np.sqrt(1.0 + m22 - m00 - m11)
+            c = ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
+        q[sel] = np.stack(c, axis=1)
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
