@@ -39,7 +39,8 @@
 //   pixels for certain).
 //
 // The per-pixel rule, staging, the merge of chunks and the full-frame bindings are in blend.wgsl,
-// shared with composite_wide.wgsl (one pixel per invocation, for GPUs); here its lanes are vec4.
+// and the entry points main and chunks in composite_frame.wgsl, both shared with
+// composite_wide.wgsl (one pixel per invocation, for GPUs); here the lanes are vec4.
 
 alias PF = vec4<f32>;
 alias PB = vec4<bool>;
@@ -66,6 +67,8 @@ var<workgroup> s_qmask: array<u32, 4 * LANES>;
 struct Pixels {
     q: array<Quad, QPI>,
 };
+
+alias Stops = array<vec4<u32>, QPI>;      // their stop positions (composite_frame.wgsl)
 
 fn make_pixels(x: u32, y0: u32, first: vec2<u32>, size: vec2<u32>) -> Pixels {
     var p: Pixels;
@@ -188,7 +191,7 @@ fn write_qmask(li: u32, qs: array<u32, PER_LANE>) {
 // pixel past the cut still skips the record without exp.
 // KEEP_BOXES: `stops` receives the list position (slot k at base + k) of the record each pixel
 // stopped at (the incremental re-compositor copies pixels that a change behind it cannot reach).
-fn blend_batch_masked(p: ptr<function, Pixels>, q: u32, base: u32, stops: ptr<function, array<vec4<u32>, QPI>>) {
+fn blend_batch_masked(p: ptr<function, Pixels>, q: u32, base: u32, stops: ptr<function, Stops>) {
     if (all_pixels_done(p)) {
         return;
     }
@@ -231,7 +234,7 @@ fn merge_pixels(acc: ptr<function, Pixels>, c: ptr<function, Pixels>, first: boo
 // Composite the pairs [a, b) of the tile at `origin` (one chunk) into p, leaving every pair's
 // pixel box in isect_box (FULL_BOX for those never staged).
 fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, col: u32, row0: u32, li: u32,
-                   pos0: u32, stops: ptr<function, array<vec4<u32>, QPI>>) {
+                   pos0: u32, stops: ptr<function, Stops>) {
     let batches = begin_range(a, b, li, all_pixels_done(p));
     for (var bt = 0u; bt < batches; bt = bt + 1u) {
         var quads: array<u32, PER_LANE>;
@@ -304,7 +307,16 @@ fn write_image(p: ptr<function, Pixels>, tx: u32, ty: u32, col: u32, row0: u32) 
     }
 }
 
-fn write_stops(stops: ptr<function, array<vec4<u32>, QPI>>, tx: u32, ty: u32, col: u32, row0: u32) {
+fn no_stops() -> Stops {
+    return Stops(vec4<u32>(NEVER), vec4<u32>(NEVER));
+}
+
+// KEEP_BOXES frames: the list positions of the records the pixels stopped at (NEVER: none, or a
+// list longer than a chunk), indexed as the image.
+fn write_stops(stops: ptr<function, Stops>, tx: u32, ty: u32, col: u32, row0: u32) {
+    if (!KEEP_BOXES) {
+        return;
+    }
     let x = tx * TILE + col;
     for (var j = 0u; j < QPI; j = j + 1u) {
         for (var i = 0u; i < QUAD; i = i + 1u) {
@@ -316,82 +328,27 @@ fn write_stops(stops: ptr<function, array<vec4<u32>, QPI>>, tx: u32, ty: u32, co
     }
 }
 
+// A later chunk's start: the pixels' positions and ended lanes, C = 0, T = 1.
+fn restart(acc: ptr<function, Pixels>) -> Pixels {
+    var p: Pixels;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        let a = (*acc).q[j];
+        p.q[j] = Quad(a.x, a.y, vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(1.0), a.done);
+    }
+    return p;
+}
+
+// Pixels that ended in `first` (a tile's chunk 0, read back from its slab) stay ended.
+fn keep_ended(p: ptr<function, Pixels>, first: Pixels) {
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        (*p).q[j].done = (*p).q[j].done | first.q[j].done;
+    }
+}
+
 fn tile_pixels(tx: u32, ty: u32, col: u32, row0: u32) -> Pixels {
     let tile0 = tile_first(tx, ty);
     let first = vec2<u32>(bin.origin & 0xffffu, bin.origin >> 16u);
     return make_pixels(tile0.x + col, tile0.y + row0, first, vec2<u32>(bin.width, bin.height));
-}
-
-// Chunk 0 of every tile; a tile of one chunk writes its pixels, a longer one its slab, and lists
-// its later chunks (for `chunks`) and its merge (for `merge`).
-@compute @workgroup_size(TILE, ROWS)
-fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
-        @builtin(local_invocation_index) li: u32) {
-    let tile = wg.y * bin.tiles_x + wg.x;
-    let row0 = lid.y * SPAN;
-    var p = tile_pixels(wg.x, wg.y, lid.x, row0);
-    let range = ranges[tile];
-    let n = range.y - range.x;
-    let origin = vec2<f32>(tile_first(wg.x, wg.y));
-    var stops = array<vec4<u32>, QPI>(vec4<u32>(NEVER), vec4<u32>(NEVER));
-    composite_range(&p, range.x, range.x + min(n, CHUNK_PAIRS), origin, lid.x, row0, li, 0u, &stops);
-    if (n <= CHUNK_PAIRS) {
-        write_image(&p, wg.x, wg.y, lid.x, row0);
-        if (KEEP_BOXES) {
-            write_stops(&stops, wg.x, wg.y, lid.x, row0);
-        }
-        return;
-    }
-    if (KEEP_BOXES) {
-        stops = array<vec4<u32>, QPI>(vec4<u32>(NEVER), vec4<u32>(NEVER));  // long lists: unknown
-        write_stops(&stops, wg.x, wg.y, lid.x, row0);
-    }
-    let n_chunks = (n + CHUNK_PAIRS - 1u) / CHUNK_PAIRS;
-    let w = list_long_tile(tile, n_chunks, li);
-    if (w.z == 0u) {
-        // no room for its slabs: its chunks run here in sequence
-        var acc = p;
-        for (var c = 1u; c < n_chunks; c = c + 1u) {
-            for (var j = 0u; j < QPI; j = j + 1u) {
-                p.q[j] = Quad(acc.q[j].x, acc.q[j].y, vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(1.0),
-                    acc.q[j].done);
-            }
-            let a = range.x + c * CHUNK_PAIRS;
-            composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), origin, lid.x, row0, li, c * CHUNK_PAIRS, &stops);
-            merge_pixels(&acc, &p, false);
-        }
-        write_image(&acc, wg.x, wg.y, lid.x, row0);
-        return;
-    }
-    write_slab(&p, w.x, lid.x, row0);
-}
-
-// The later chunks of long tiles, from main's list, each into its slab.
-@compute @workgroup_size(TILE, ROWS)
-fn chunks(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-          @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    let count = min(work_counts[1], arrayLength(&extra_list));
-    let row0 = lid.y * SPAN;
-    for (var e = wg.x; e < count; e = e + nwg.x) {
-        let item = extra_list[e];
-        if (item.x == VOID) {
-            continue;
-        }
-        let tx = item.x % bin.tiles_x;
-        let ty = item.x / bin.tiles_x;
-        var p = tile_pixels(tx, ty, lid.x, row0);
-        // pixels that stopped in chunk 0 have ended: the merge ignores their later chunks, so they
-        // are not composited (a dense opaque region costs one chunk, not all of them)
-        let first = read_slab(item.z - item.y, lid.x, row0, p);
-        for (var j = 0u; j < QPI; j = j + 1u) {
-            p.q[j].done = p.q[j].done | first.q[j].done;
-        }
-        let range = ranges[item.x];
-        let a = range.x + item.y * CHUNK_PAIRS;
-        var stops: array<vec4<u32>, QPI>;  // not kept for later chunks
-        composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), vec2<f32>(tile_first(tx, ty)), lid.x, row0, li, 0u, &stops);
-        write_slab(&p, item.z, lid.x, row0);
-    }
 }
 
 // The image pixels of long tiles: their chunks' slabs merged front to back.

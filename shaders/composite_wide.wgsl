@@ -3,7 +3,8 @@
 // rasterizers do (gsplat, the INRIA rasterizer). composite.wgsl's main and chunks give each of 32
 // invocations 8 pixels, the right shape for CPU Vulkan, but one warp a tile on a GPU: 1,024 tiles
 // fill about an eighth of an H200's thread slots (docs/renderer.md). The tiles, chunks, slabs and
-// work lists are blend.wgsl's, shared with composite.wgsl, whose `merge` blends long tiles' slabs.
+// work lists are blend.wgsl's and the entry points main and chunks composite_frame.wgsl's, shared
+// with composite.wgsl, whose `merge` blends long tiles' slabs.
 //
 // Each invocation stages one record of a batch of BATCH (blend.wgsl stage), then visits the
 // batch's records in list order, blending those whose pixel box holds its pixel with blend.wgsl's
@@ -23,6 +24,10 @@ fn any_lane(b: PB) -> bool {
 }
 
 const LANES: u32 = TILE_PIXELS;  // invocations per workgroup: one a pixel
+const SPAN: u32 = 1u;            // rows per invocation
+const ROWS: u32 = TILE;          // invocation rows per tile
+
+alias Stops = u32;               // the pixel's stop position (composite_frame.wgsl)
 
 // Pixel (x, y) (full-frame coordinates), done from the start outside the viewport (w x h from
 // `first`, its first pixel).
@@ -31,7 +36,7 @@ fn make_pixel(x: u32, y: u32, first: vec2<u32>, size: vec2<u32>) -> Quad {
     return Quad(f32(x) + 0.5, f32(y) + 0.5, 0.0, 0.0, 0.0, 1.0, !inside);
 }
 
-fn tile_pixel(tx: u32, ty: u32, col: u32, row: u32) -> Quad {
+fn tile_pixels(tx: u32, ty: u32, col: u32, row: u32) -> Quad {
     let tile0 = tile_first(tx, ty);
     let first = vec2<u32>(bin.origin & 0xffffu, bin.origin >> 16u);
     return make_pixel(tile0.x + col, tile0.y + row, first, vec2<u32>(bin.width, bin.height));
@@ -83,8 +88,9 @@ fn composite_range(p: ptr<function, Quad>, a: u32, b: u32, origin: vec2<f32>, co
 }
 
 // A chunk's pixel into slab `slot` (t negated where stopped, as composite.wgsl write_slab).
-fn write_slab(p: Quad, slot: u32, col: u32, row: u32) {
-    chunk_slabs[slot * TILE_PIXELS + row * TILE + col] = vec4<f32>(p.r, p.g, p.b, select(p.T, -p.T, p.done));
+fn write_slab(p: ptr<function, Quad>, slot: u32, col: u32, row: u32) {
+    let q = *p;
+    chunk_slabs[slot * TILE_PIXELS + row * TILE + col] = vec4<f32>(q.r, q.g, q.b, select(q.T, -q.T, q.done));
 }
 
 fn read_slab(slot: u32, col: u32, row: u32, p0: Quad) -> Quad {
@@ -101,79 +107,40 @@ fn read_slab(slot: u32, col: u32, row: u32, p0: Quad) -> Quad {
 
 // The pixel (C + T * background, T) into the image (tile-local column `col`, row `row` of tile
 // (tx, ty)), if it lies in the viewport.
-fn write_pixel(p: Quad, tx: u32, ty: u32, col: u32, row: u32) {
+fn write_image(p: ptr<function, Quad>, tx: u32, ty: u32, col: u32, row: u32) {
     let x = tx * TILE + col;
     let y = ty * TILE + row;
     if (x < bin.width && y < bin.height) {
+        let q = *p;
         image[(bin.stats_index * bin.height + y) * bin.width + x] =
-            vec4<f32>(vec3<f32>(p.r, p.g, p.b) + p.T * bin.background.xyz, p.T);
+            vec4<f32>(vec3<f32>(q.r, q.g, q.b) + q.T * bin.background.xyz, q.T);
     }
 }
 
 // KEEP_BOXES frames: the list position of the record the pixel stopped at (NEVER: none, or a list
 // longer than a chunk), indexed as the image.
-fn write_stop(stop: u32, tx: u32, ty: u32, col: u32, row: u32) {
+fn write_stops(stop: ptr<function, u32>, tx: u32, ty: u32, col: u32, row: u32) {
     let x = tx * TILE + col;
     let y = ty * TILE + row;
     if (KEEP_BOXES && x < bin.width && y < bin.height) {
-        stop_pos[(bin.stats_index * bin.height + y) * bin.width + x] = stop;
+        stop_pos[(bin.stats_index * bin.height + y) * bin.width + x] = *stop;
     }
 }
 
-// Chunk 0 of every tile; a tile of one chunk writes its pixels, a longer one its slab, and lists
-// its later chunks (for `chunks`) and its merge (for composite.wgsl's `merge`).
-@compute @workgroup_size(TILE, TILE)
-fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
-        @builtin(local_invocation_index) li: u32) {
-    let tile = wg.y * bin.tiles_x + wg.x;
-    var p = tile_pixel(wg.x, wg.y, lid.x, lid.y);
-    let range = ranges[tile];
-    let n = range.y - range.x;
-    let origin = vec2<f32>(tile_first(wg.x, wg.y));
-    var stop = NEVER;
-    composite_range(&p, range.x, range.x + min(n, CHUNK_PAIRS), origin, lid.x, lid.y, li, 0u, &stop);
-    if (n <= CHUNK_PAIRS) {
-        write_pixel(p, wg.x, wg.y, lid.x, lid.y);
-        write_stop(stop, wg.x, wg.y, lid.x, lid.y);
-        return;
-    }
-    write_stop(NEVER, wg.x, wg.y, lid.x, lid.y);  // long lists: unknown
-    let n_chunks = (n + CHUNK_PAIRS - 1u) / CHUNK_PAIRS;
-    let w = list_long_tile(tile, n_chunks, li);
-    if (w.z == 0u) {
-        // no room for its slabs: its chunks run here in sequence
-        var acc = p;
-        for (var c = 1u; c < n_chunks; c = c + 1u) {
-            p = Quad(acc.x, acc.y, 0.0, 0.0, 0.0, 1.0, acc.done);
-            let a = range.x + c * CHUNK_PAIRS;
-            composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), origin, lid.x, lid.y, li, c * CHUNK_PAIRS, &stop);
-            acc = merge_quad(acc, p, false);
-        }
-        write_pixel(acc, wg.x, wg.y, lid.x, lid.y);
-        return;
-    }
-    write_slab(p, w.x, lid.x, lid.y);
+fn no_stops() -> u32 {
+    return NEVER;
 }
 
-// The later chunks of long tiles, from main's list, each into its slab.
-@compute @workgroup_size(TILE, TILE)
-fn chunks(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-          @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    let count = min(work_counts[1], arrayLength(&extra_list));
-    for (var e = wg.x; e < count; e = e + nwg.x) {
-        let item = extra_list[e];
-        if (item.x == VOID) {
-            continue;
-        }
-        let tx = item.x % bin.tiles_x;
-        let ty = item.x / bin.tiles_x;
-        var p = tile_pixel(tx, ty, lid.x, lid.y);
-        // a pixel that stopped in chunk 0 has ended: the merge ignores its later chunks
-        p.done = p.done | read_slab(item.z - item.y, lid.x, lid.y, p).done;
-        let range = ranges[item.x];
-        let a = range.x + item.y * CHUNK_PAIRS;
-        var stop: u32;  // not kept for later chunks
-        composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), vec2<f32>(tile_first(tx, ty)), lid.x, lid.y, li, 0u, &stop);
-        write_slab(p, item.z, lid.x, lid.y);
-    }
+// A later chunk's start: the pixel's position and whether it has ended, C = 0, T = 1.
+fn restart(acc: ptr<function, Quad>) -> Quad {
+    return Quad((*acc).x, (*acc).y, 0.0, 0.0, 0.0, 1.0, (*acc).done);
+}
+
+// A pixel that ended in `first` (its tile's chunk 0, read back from the slab) stays ended.
+fn keep_ended(p: ptr<function, Quad>, first: Quad) {
+    (*p).done = (*p).done | first.done;
+}
+
+fn merge_pixels(acc: ptr<function, Quad>, c: ptr<function, Quad>, first: bool) {
+    *acc = merge_quad(*acc, *c, first);
 }

@@ -31,10 +31,11 @@ def shader_text(name: str) -> str:
         return (Path(__file__).resolve().parents[2] / "shaders" / f"{name}.wgsl").read_text()
 
 
-STAGE_HELPERS = {"composite": ("blend",), "composite_wide": ("blend",)}
+STAGE_HELPERS = {"composite": ("blend", "composite_frame"), "composite_wide": ("blend", "composite_frame")}
 """Helper files a stage shares with others, compiled between common.wgsl and the stage's own
 file: the two full-frame compositors share blend.wgsl (the per-pixel rule, written once over the
-lane types each of them declares)."""
+lane types each of them declares) and composite_frame.wgsl (their entry points main and chunks,
+written once over the pixel functions each of them supplies)."""
 
 
 def shader_source(name: str, defines: dict | None = None) -> str:

@@ -1,0 +1,72 @@
+// The full-frame entry points `main` and `chunks`, written once for both compositors
+// (gpu/device.py STAGE_HELPERS compiles this file into composite.wgsl and composite_wide.wgsl,
+// after blend.wgsl). Each compositor supplies its invocation's pixels and what it does with them:
+// - the pixels of one invocation (composite.wgsl: Pixels, a column of SPAN = 8 pixels in vec4
+//   lanes; composite_wide.wgsl: one Quad of scalar lanes, SPAN = 1), `Stops`, their stop
+//   positions, and ROWS = TILE / SPAN invocation rows a tile;
+// - tile_pixels, restart (a chunk's start: the pixels' positions and ended lanes, C = 0, T = 1),
+//   keep_ended, composite_range, merge_pixels, write_image, no_stops, write_stops (KEEP_BOXES
+//   frames only), write_slab and read_slab.
+// composite.wgsl's `merge` then blends the slabs of long tiles for either shape.
+
+// Chunk 0 of every tile; a tile of one chunk writes its pixels, a longer one its slab, and lists
+// its later chunks (for `chunks`) and its merge (for composite.wgsl's `merge`).
+@compute @workgroup_size(TILE, ROWS)
+fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
+        @builtin(local_invocation_index) li: u32) {
+    let tile = wg.y * bin.tiles_x + wg.x;
+    let row0 = lid.y * SPAN;
+    var p = tile_pixels(wg.x, wg.y, lid.x, row0);
+    let range = ranges[tile];
+    let n = range.y - range.x;
+    let origin = vec2<f32>(tile_first(wg.x, wg.y));
+    var stops = no_stops();
+    composite_range(&p, range.x, range.x + min(n, CHUNK_PAIRS), origin, lid.x, row0, li, 0u, &stops);
+    if (n <= CHUNK_PAIRS) {
+        write_image(&p, wg.x, wg.y, lid.x, row0);
+        write_stops(&stops, wg.x, wg.y, lid.x, row0);
+        return;
+    }
+    stops = no_stops();  // long lists: unknown
+    write_stops(&stops, wg.x, wg.y, lid.x, row0);
+    let n_chunks = (n + CHUNK_PAIRS - 1u) / CHUNK_PAIRS;
+    let w = list_long_tile(tile, n_chunks, li);
+    if (w.z == 0u) {
+        // no room for its slabs: its chunks run here in sequence
+        var acc = p;
+        for (var c = 1u; c < n_chunks; c = c + 1u) {
+            p = restart(&acc);
+            let a = range.x + c * CHUNK_PAIRS;
+            composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), origin, lid.x, row0, li, c * CHUNK_PAIRS, &stops);
+            merge_pixels(&acc, &p, false);
+        }
+        write_image(&acc, wg.x, wg.y, lid.x, row0);
+        return;
+    }
+    write_slab(&p, w.x, lid.x, row0);
+}
+
+// The later chunks of long tiles, from main's list, each into its slab.
+@compute @workgroup_size(TILE, ROWS)
+fn chunks(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+          @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    let count = min(work_counts[1], arrayLength(&extra_list));
+    let row0 = lid.y * SPAN;
+    for (var e = wg.x; e < count; e = e + nwg.x) {
+        let item = extra_list[e];
+        if (item.x == VOID) {
+            continue;
+        }
+        let tx = item.x % bin.tiles_x;
+        let ty = item.x / bin.tiles_x;
+        var p = tile_pixels(tx, ty, lid.x, row0);
+        // pixels that stopped in chunk 0 have ended: the merge ignores their later chunks, so they
+        // are not composited (a dense opaque region costs one chunk, not all of them)
+        keep_ended(&p, read_slab(item.z - item.y, lid.x, row0, p));
+        let range = ranges[item.x];
+        let a = range.x + item.y * CHUNK_PAIRS;
+        var stops: Stops;  // not kept for later chunks
+        composite_range(&p, a, min(range.y, a + CHUNK_PAIRS), vec2<f32>(tile_first(tx, ty)), lid.x, row0, li, 0u, &stops);
+        write_slab(&p, item.z, lid.x, row0);
+    }
+}
