@@ -223,3 +223,123 @@ def test_shards_in_folders_of_their_own_are_counted_together(runs, tmp_path):
     store.part_path(shards[1], 1200, 400).unlink()
     assert store.partial_runs_text(shards).startswith("Unfinished: shard-0 + shard-1 hold 1,600 of 2,000 injections.")
     assert store.partial_runs_text(shards[:1]).startswith("Unfinished: shard-0 holds 1,200 of 2,000")
+
+
+def test_runs_read_each_manifest_once(runs, monkeypatch, capsys):
+    """`seuwgpu rates` reads each run's manifest once (the refusal of repeated sites, the parts and
+    the unfinished-run sentence used to read every manifest again)."""
+    import json
+
+    from seuwgpu.apps.cli import main
+
+    dirs, _ = runs
+    store.manifest_path(dirs[0]).write_text(json.dumps({"total_injections": 2600}))
+    reads, real = [], store.read_manifest
+    monkeypatch.setattr(store, "read_manifest", lambda rd: reads.append(rd.name) or real(rd))
+    assert main(["rates", *map(str, dirs)]) == 0
+    assert "Unfinished: run0 holds 2,000 of 2,600 injections" in capsys.readouterr().out
+    assert sorted(reads) == ["run0", "run1"]
+
+
+def test_damaged_parts_do_not_count_toward_completion(runs):
+    """A part that cannot be read, or holds fewer rows than its name says, is redone when the
+    campaign resumes (store.completed_parts): until then the run is unfinished, and says which."""
+    import json
+
+    dirs, records = runs
+    run = dirs[0]
+    store.manifest_path(run).write_text(json.dumps({"total_injections": 2000}))
+    assert store.partial_runs_text([run]) == ""
+    cut = store.part_path(run, 800, 400)
+    cut.write_bytes(cut.read_bytes()[:200])  # truncated: no Parquet footer
+    store.write_part(run, 1600, 400, records[records.run == "run0"].iloc[:300].drop(columns="run"))
+    assert store.partial_runs_text([run]).startswith(
+        "Unfinished: run0 holds 1,200 of 2,000 injections (2 damaged parts, unreadable or of the wrong row count, "
+        "not counted: part-0000000800-000400.parquet, part-0000001600-000400.parquet; resuming the campaign "
+        "redoes them). "
+    )
+
+
+SITES_SPEC = {
+    "name": "a",
+    "seed": 1,
+    "views": 1,
+    "size": "64x64",
+    "batch": 100,
+    "scenes": [{"scene": "spheres", "n": 100}],
+    "single": {"fields": ["opacity"], "bits": [30, 31], "samples": 200, "defenses": ["none", "guard"]},
+}
+
+
+def _spec_run(run_dir, records, raw: dict, ids=range(0, 400)) -> dict:
+    """A run directory of the campaign `raw` (normalised) holding the parts of its blocks whose
+    first id is in `ids` (records of the right row count; their values do not matter here)."""
+    import json
+
+    from seuwgpu.campaign.spec import normalize_spec, spec_hash
+
+    spec = normalize_spec(raw)
+    store.records_dir(run_dir).mkdir(parents=True)
+    manifest = {"spec": spec, "spec_hash": spec_hash(spec), "profile": spec.get("profile", "strict")}
+    store.manifest_path(run_dir).write_text(json.dumps({**manifest, "total_injections": 400}))
+    rec = records.drop(columns="run")
+    for (first, count), rows in store.expected_parts(spec).items():
+        if first in ids:
+            store.write_part(run_dir, first, count, rec.iloc[:rows])
+    return spec
+
+
+def test_the_same_sites_under_another_spec_hash_are_caught(runs, tmp_path):
+    """Specs that differ only in what draws and measures no site (a name, the batch, thresholds,
+    LPIPS, region columns, an explicit default profile) have other spec hashes but the same sites
+    key: their runs hold the same sites, and pooled would count them twice."""
+    from seuwgpu.campaign.spec import sites_key, spec_hash
+    from seuwgpu.report.build import load_runs
+
+    _, records = runs
+    a = _spec_run(tmp_path / "a", records, SITES_SPEC)
+    cosmetic = {
+        **SITES_SPEC,
+        "name": "b",
+        "batch": 50,  # other part boundaries: compared by injection id
+        "lpips": True,
+        "profile": "strict",
+        "outcomes": {"footprint": 0.05},
+        "reliability": {"scrub_hours": 1.0},
+        "single": {**SITES_SPEC["single"], "regions": [4]},
+    }
+    b = _spec_run(tmp_path / "b", records, cosmetic, ids=range(0, 150))  # parts 0-49, 50-99, 100-149
+    assert spec_hash(a) != spec_hash(b) and sites_key(a) == sites_key(b)
+    assert store.repeated_sites([tmp_path / "a", tmp_path / "b"]) == [("a", "b", 3)]
+    assert store.repeated_sites([tmp_path / "b", tmp_path / "a"]) == [("b", "a", 2)]  # parts 0-99, 100-199
+    with pytest.raises(C.InputError, match="runs a and b hold 3 part.* same fault sites.*report one of them"):
+        load_runs([tmp_path / "a", tmp_path / "b"])
+    with pytest.raises(C.InputError, match="pass one of them, or group by run"):
+        C.fold_runs([tmp_path / "a", tmp_path / "b"])
+    # the same sites key, other ids (the two halves of the campaign): no site in common
+    _spec_run(tmp_path / "half", records, cosmetic, ids=range(200, 400))
+    assert store.repeated_sites([tmp_path / "b", tmp_path / "half"]) == []
+    # other sites, or other frames: never flagged
+    others = {
+        "seed": {**SITES_SPEC, "seed": 2},
+        "samples": {**SITES_SPEC, "single": {**SITES_SPEC["single"], "samples": 100, "bits": [29, 30, 31, 28]}},
+        "defenses": {**SITES_SPEC, "single": {**SITES_SPEC["single"], "defenses": ["none", "ecc"]}},
+        "size": {**SITES_SPEC, "size": "64x48"},
+        "gsplat": {**SITES_SPEC, "profile": "gsplat"},
+    }
+    for name, raw in others.items():
+        spec = _spec_run(tmp_path / name, records, raw)
+        assert sites_key(spec) != sites_key(a) or raw.get("profile") == "gsplat", name
+        assert store.repeated_sites([tmp_path / "a", tmp_path / name]) == [], name
+
+
+def test_a_part_of_the_wrong_row_count_for_its_spec_is_damaged(runs, tmp_path):
+    """With a spec, a part is whole when it holds a row per injection and defense."""
+    _, records = runs
+    _spec_run(tmp_path / "a", records, SITES_SPEC)
+    assert store.partial_runs_text([tmp_path / "a"]) == ""
+    store.write_part(tmp_path / "a", 100, 100, records.drop(columns="run").iloc[:100])  # one arm of two
+    assert store.partial_runs_text([tmp_path / "a"]).startswith(
+        "Unfinished: a holds 300 of 400 injections (1 damaged part, unreadable or of the wrong row count, not "
+        "counted: part-0000000100-000100.parquet;"
+    )

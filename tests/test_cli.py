@@ -133,7 +133,7 @@ def test_options_the_others_make_meaningless_are_refused(tmp_path, capsys):
     refuse_ignored_options(build_parser().parse_args(["view", "--scene", "spheres", "--cameras", str(cams)]))
     with pytest.raises(Exception, match="--size sets orbit"):
         refuse_ignored_options(
-            build_parser().parse_args(["render", "--cameras", str(cams), "--size", "8x8", "--out", "o"])
+            build_parser().parse_args(["render", "--cameras", str(cams), "--size", "64x64", "--out", "o"])
         )
 
 
@@ -267,3 +267,45 @@ def test_distributed_sort_first(capsys, monkeypatch):
     # and the printed table says the same
     assert re.search(rf"ranks contaminated, no guard: +\S.* \({len(res['touched_none'])} of 2\)", out)
     assert "upset: log_scales[3][0] bit 31" in out
+
+
+def test_the_command_line_and_a_spec_share_the_size_and_view_limits(capsys):
+    """One set of limits (model/budget.py): a --size or --views a command accepts, a campaign spec
+    accepts too (`demo` turns them into one), and the other way round."""
+    import tomllib
+
+    from seuwgpu.apps.cli import build_parser
+    from seuwgpu.campaign.spec import SpecError, normalize_spec
+    from seuwgpu.model.budget import MAX_VIEWS, MIN_VIEW_SIZE
+
+    required = {"render": ["--out", "o"], "inject": ["--field", "opacity", "--bit", "3", "--out", "o"]}
+
+    def cli(cmd, option, value):
+        try:
+            build_parser().parse_args([cmd, "--scene", "spheres", *required.get(cmd, []), option, value])
+        except SystemExit:
+            err = capsys.readouterr().err
+            assert f"argument {option}: " in err and value in err, err  # one line naming the option
+            return False
+        return True
+
+    def spec(key, value):
+        raw = tomllib.loads(SPEC)
+        raw[key] = value
+        try:
+            normalize_spec(raw)
+        except SpecError:
+            return False
+        return True
+
+    lo = MIN_VIEW_SIZE
+    for w, h in [(lo - 1, lo), (lo, lo - 1), (lo, lo), (lo + 1, 300), (0, 0)]:
+        ok = min(w, h) >= lo
+        for cmd in ("render", "inject", "demo"):
+            assert cli(cmd, "--size", f"{w}x{h}") == ok, (cmd, w, h)
+        assert spec("size", f"{w}x{h}") == ok, (w, h)
+    for k in (0, 1, MAX_VIEWS, MAX_VIEWS + 1):
+        ok = 1 <= k <= MAX_VIEWS
+        for cmd in ("render", "inject", "demo", "view"):
+            assert cli(cmd, "--views", str(k)) == ok, (cmd, k)
+        assert spec("views", k) == ok, k

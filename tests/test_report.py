@@ -380,3 +380,19 @@ def test_a_report_too_big_for_memory_is_refused_before_loading(synthetic, tmp_pa
     with pytest.raises(ValueError, match="without weights .* cannot be folded"):
         build_report([synthetic["full"]], tmp_path / "rep")
     assert not (tmp_path / "rep" / "index.html").exists()
+
+
+def test_a_report_reads_each_manifest_and_footer_once(synthetic, tmp_path, monkeypatch):
+    """The refusal of repeated sites, the memory check, the loading and the unfinished-run
+    sentence share one read of each run's manifest and of each part's footer."""
+    from seuwgpu.campaign import store
+    from seuwgpu.report import build
+
+    reads, footers = [], []
+    read_manifest, part_rows = store.read_manifest, store.part_rows
+    monkeypatch.setattr(store, "read_manifest", lambda rd: reads.append(Path(rd).name) or read_manifest(rd))
+    monkeypatch.setattr(store, "part_rows", lambda p: footers.append(str(p)) or part_rows(p))
+    monkeypatch.setattr(build, "run_sections", lambda df, manifests, ctx: [])  # the analyses read nothing
+    build_report([synthetic["full"], synthetic["single"]], tmp_path / "rep", max_pred_rows=5_000)
+    assert sorted(reads) == ["run_full", "run_single"]
+    assert len(footers) == 4 and len(set(footers)) == 4  # two parts each

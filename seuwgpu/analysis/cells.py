@@ -21,7 +21,7 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate
 from seuwgpu.campaign import store
-from seuwgpu.errors import InputError
+from seuwgpu.errors import InputError  # noqa: F401 (what fold_runs raises: callers catch cells.InputError)
 from seuwgpu.metrics.image import OUTCOMES
 
 COUNTS = (*OUTCOMES, "nonfinite")
@@ -52,27 +52,20 @@ def fold_runs(run_dirs, by=("scene", "precision", "defense"), campaign: str = "s
 
     The cells always keep the renderer `profile` (`groups` adds it when several are present: a
     profile renders other frames, never pooled). Runs holding the same parts of one spec and
-    profile (the same sites twice) are refused unless `by` names `run`."""
+    profile (the same sites twice, store.repeated_sites) are refused unless `by` names `run`.
+    run_dirs: run directories, or their store.campaign_runs (each manifest read once)."""
     by = list(by)
     parts = []
-    run_dirs = list(run_dirs)
+    runs = store.campaign_runs(run_dirs)
     if "run" not in by:
-        twice = store.repeated_sites(run_dirs)
-        if twice:
-            a, b, k = twice[0]
-            raise InputError(
-                f"runs {a} and {b} hold {k} part(s) of the same spec and profile: the same fault sites twice, "
-                "which pooled would count as twice the sample; pass one of them, or group by run (--by ...,run)"
-            )
+        store.refuse_repeated_sites(runs, "pass one of them, or group by run (--by ...,run)")
 
-    for rd, name in zip(run_dirs, store.run_names(run_dirs)):
-        rd = Path(rd)
-        if not rd.is_dir():
-            raise FileNotFoundError(f"{rd}: not a run directory")
-        found = store.record_parts(rd)
-        if not found:
-            raise FileNotFoundError(f"{rd}: no records/part-*.parquet")
-        parts += [(name, p) for p in found]
+    for run in runs:
+        if not run.path.is_dir():
+            raise FileNotFoundError(f"{run.path}: not a run directory")
+        if not run.parts:
+            raise FileNotFoundError(f"{run.path}: no records/part-*.parquet")
+        parts += [(run.name, p) for p in run.parts]
     want = [c for c in dict.fromkeys([*by, *estimate.STRATA, *NEEDED]) if c != "run"]
     acc, pending = None, []
     keep = by if "profile" in by else [*by, "profile"]

@@ -20,12 +20,15 @@ class CliError(SeuwgpuError):
 
 
 def parse_size(text: str) -> tuple[int, int]:
+    """WxH of views, each at least budget.MIN_VIEW_SIZE (a campaign spec's `size` limit too)."""
+    from seuwgpu.model.budget import MIN_VIEW_SIZE
+
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"size must look like 128x96, got {text!r}") from None
-    if w <= 0 or h <= 0:
-        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
+    if w < MIN_VIEW_SIZE or h < MIN_VIEW_SIZE:
+        raise argparse.ArgumentTypeError(f"width and height must be at least {MIN_VIEW_SIZE} px, got {text!r}")
     return w, h
 
 
@@ -42,6 +45,16 @@ def _whole(text: str, lo: int) -> int:
 def positive_int(text: str) -> int:
     """An argument that counts something (primitives, views, samples): an integer >= 1."""
     return _whole(text, 1)
+
+
+def view_count(text: str) -> int:
+    """A number of views: 1 to budget.MAX_VIEWS (a campaign spec's `views` limit too)."""
+    from seuwgpu.model.budget import MAX_VIEWS
+
+    v = _whole(text, 1)
+    if v > MAX_VIEWS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_VIEWS} views, got {v}")
+    return v
 
 
 def index_int(text: str) -> int:
@@ -121,7 +134,7 @@ def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "256
     )
     p.add_argument(
         "--views",
-        type=positive_int,
+        type=view_count,
         help=f"orbit views (default {views}), or with --cameras: this many of them, evenly",
     )
     p.add_argument("--size", type=parse_size, help=f"WxH of orbit views (default {size})")
@@ -302,6 +315,7 @@ def run_campaign(
 
 
 def print_criticality(run_dirs):
+    """run_dirs: run directories, or their store.campaign_runs."""
     from seuwgpu.analysis.records import InsufficientData
     from seuwgpu.report.build import criticality_table_text, load_runs, needs_folding
 
@@ -376,7 +390,7 @@ def cmd_rates(args):
     from rich.table import Table
 
     from seuwgpu.analysis.cells import COUNTS, fold_runs, groups, outcome_rates
-    from seuwgpu.campaign.store import COLUMNS, partial_runs_text
+    from seuwgpu.campaign.store import COLUMNS, campaign_runs, partial_runs_text
 
     by = [c.strip() for c in args.by.split(",") if c.strip()]
     unknown = [c for c in by if c != "run" and c not in COLUMNS]
@@ -384,12 +398,13 @@ def cmd_rates(args):
         known = ", ".join(["run", *COLUMNS])
         raise InputError(f"--by {', '.join(unknown)}: not a record column (one of {known})")
     quiet = not sys.stderr.isatty()
+    runs = campaign_runs(args.runs)  # each manifest read once
     with Progress(transient=True, disable=quiet) as bar:
         task = bar.add_task("reading parts", total=None)
-        cells, n_parts = fold_runs(args.runs, by, args.campaign, lambda i, n: bar.update(task, completed=i, total=n))
+        cells, n_parts = fold_runs(runs, by, args.campaign, lambda i, n: bar.update(task, completed=i, total=n))
     by = groups(cells, by)  # several renderer profiles: a row each, never pooled
     t = outcome_rates(cells, by)
-    partial = partial_runs_text(args.runs)
+    partial = partial_runs_text(runs)
     if args.csv:
         from seuwgpu.campaign.store import make_out_dir
 
@@ -506,11 +521,14 @@ def cmd_demo(args):
         f"{spec['single']['samples']} samples per (field, bit) cell, defenses {spec['single']['defenses']}"
     )
     run_campaign(spec, args.out, quiet=args.quiet)
-    print_criticality([args.out])
+    from seuwgpu.campaign.store import campaign_runs
+
+    runs = campaign_runs([args.out])  # the manifest read once for the table and the report
+    print_criticality(runs)
     if not args.no_report:
         from seuwgpu.report.build import build_report
 
-        index = build_report([args.out], args.out / "report")
+        index = build_report(runs, args.out / "report")
         print(f"\nreport: {index}")
     return 0
 
@@ -531,13 +549,15 @@ def cmd_report(args):
 
     from rich.progress import Progress
 
+    from seuwgpu.campaign.store import campaign_runs
     from seuwgpu.report.build import build_report, needs_folding
 
-    fold = {"auto": needs_folding(args.runs), "yes": True, "no": False}[args.fold]
+    runs = campaign_runs(args.runs)  # each manifest (and part footer) read once
+    fold = {"auto": needs_folding(runs), "yes": True, "no": False}[args.fold]
     with Progress(transient=True, disable=not sys.stderr.isatty()) as bar:
         task = bar.add_task("reading parts" + (" (folding)" if fold else ""), total=None)
         index = build_report(
-            args.runs,
+            runs,
             args.out,
             fold=fold,
             progress=lambda i, n: bar.update(task, completed=i, total=n),
@@ -553,7 +573,7 @@ def cmd_report(args):
         if table.is_file():
             print(table.read_text())
     else:
-        print_criticality(args.runs)
+        print_criticality(runs)
     return 0
 
 
@@ -915,7 +935,7 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--model", "--ply", dest="model", type=Path, help="run it on this model file (any format)")
     src.add_argument("--scene", help="run it on this embedded scene (`seuwgpu scene --list`)")
     s.add_argument("--cameras", type=Path, help="the capture's cameras (any format `render` takes)")
-    s.add_argument("--views", type=positive_int, help="orbit views, or this many of the capture's (default 4)")
+    s.add_argument("--views", type=view_count, help="orbit views, or this many of the capture's (default 4)")
     s.add_argument("--size", type=parse_size, help="WxH of orbit views (default from the spec)")
     s.add_argument("--scale", type=positive_float, help="render at this fraction of the views' resolution")
     s.add_argument("--up", choices=UP_AXES, help="up axis of the orbit views")
@@ -943,7 +963,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="the capture's cameras (any format `render` takes): step through them with [ and ] or the panel",
     )
-    s.add_argument("--views", type=positive_int, help="with --cameras: this many of them, evenly")
+    s.add_argument("--views", type=view_count, help="with --cameras: this many of them, evenly")
     s.add_argument(
         "--size",
         type=parse_size,

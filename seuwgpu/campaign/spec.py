@@ -81,7 +81,7 @@ import numpy as np
 from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.model import encoding
-from seuwgpu.model.budget import n_values
+from seuwgpu.model.budget import MAX_VIEWS, MIN_VIEW_SIZE, n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
 from seuwgpu.model.formats import UP_AXES
 
@@ -296,8 +296,8 @@ def parse_size(v, where="size"):
         w, h = v
     else:
         raise SpecError(f'{where} must look like "128x128", got {v!r}')
-    if not (isinstance(w, int) and isinstance(h, int)) or w < 16 or h < 16:
-        raise SpecError(f"{where}: width and height must be integers >= 16, got {v!r}")
+    if not (isinstance(w, int) and isinstance(h, int)) or w < MIN_VIEW_SIZE or h < MIN_VIEW_SIZE:
+        raise SpecError(f"{where}: width and height must be integers >= {MIN_VIEW_SIZE}, got {v!r}")
     return int(w), int(h)
 
 
@@ -376,7 +376,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
     spec = {
         "name": _name(raw),
         "seed": _int(raw, "seed", "spec", 0, 0, SEED_MAX),
-        "views": _int(raw, "views", "spec", 4, 1, 64),
+        "views": _int(raw, "views", "spec", 4, 1, MAX_VIEWS),
         "size": list(parse_size(raw.get("size", "256x256"))),
         "batch": _int(raw, "batch", "spec", 256, 1, 65536),
     }
@@ -547,4 +547,36 @@ def spec_hash(spec: dict) -> str:
         {k: v for k, v in sc.items() if not (k in ("model", "cameras") and f"{k}_sha256" in sc)}
         for sc in spec.get("scenes", [])
     ]
+    return hashlib.sha256(json.dumps(keyed, sort_keys=True).encode()).hexdigest()[:16]
+
+
+# Spec entries that change no drawn site and no measurement of one: the campaign's label, the
+# part size (injection ids, and so every draw, do not depend on it), the analysis inputs, and
+# extra metrics recorded beside the others (LPIPS, sort-first region columns).
+_NOT_SITES = ("name", "batch", "outcomes", "reliability", "lpips", "profile")
+_NOT_SITES_IN = ("regions",)
+
+
+def sites_key(spec: dict) -> str:
+    """A hash of what decides a campaign's fault sites and how each is measured (seed, scenes and
+    their content, views, size, scale, sections with their precisions, cells, samples, sampling,
+    fault model and defenses), defaults spelled out. Two specs of one sites key (and one renderer
+    profile: the manifest's, kept apart by the caller) draw the same site for each injection id, so
+    their records pooled would count the same sites twice; their spec hashes may differ
+    (`spec_hash` covers every entry, as it names the run directory's contents)."""
+    keyed = {k: v for k, v in spec.items() if k not in _NOT_SITES}
+    keyed["scenes"] = [
+        {k: v for k, v in sc.items() if not (k in ("model", "cameras") and f"{k}_sha256" in sc)}
+        for sc in spec.get("scenes", [])
+    ]
+    if keyed.get("scale") == 1.0:
+        del keyed["scale"]  # the views' own resolution, as without scale
+    for section in ("single", "dose", "sizes"):
+        if section in keyed:
+            t = {k: v for k, v in keyed[section].items() if k not in _NOT_SITES_IN}
+            if section != "dose":
+                t.setdefault("fault", "bit")
+            if section == "sizes":
+                t.setdefault("scenes", [0])
+            keyed[section] = t
     return hashlib.sha256(json.dumps(keyed, sort_keys=True).encode()).hexdigest()[:16]

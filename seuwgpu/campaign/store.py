@@ -15,6 +15,7 @@ its lock; the lock is an flock, so a killed campaign releases it and can be resu
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import io
 import json
@@ -23,6 +24,7 @@ import platform
 import queue
 import subprocess
 import threading
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
@@ -155,27 +157,75 @@ def completed_parts(run_dir, expected: dict[tuple[int, int], int]) -> set[tuple[
     return done
 
 
+def _spec_parts(manifest: dict) -> dict[tuple[int, int], int] | None:
+    """expected_parts of a manifest's campaign spec, or None without one (runs of other tools)."""
+    try:
+        return expected_parts(manifest["spec"])
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _named_parts(parts: list[Path], want) -> list[Path]:
+    return parts if want is None else [p for p in parts if parse_part_name(p.name) in want]
+
+
 def record_parts(run_dir, manifest: dict | None = None) -> list[Path]:
     """The parts of a run that hold its records: the blocks its spec names (stray part files are
     left out). Without a manifest holding a campaign spec (runs written by other tools), every
     part file."""
     manifest = manifest if manifest is not None else read_manifest(run_dir)
-    parts = part_files(run_dir)
-    try:
-        want = expected_parts(manifest["spec"])
-    except (KeyError, TypeError, ValueError):
-        return parts
-    return [p for p in parts if parse_part_name(p.name) in want]
+    return _named_parts(part_files(run_dir), _spec_parts(manifest or {}))
 
 
-def _campaign_runs(run_dirs) -> list[tuple[str, Path, dict, tuple | None, set[str]]]:
-    """Per run: (name as run_names gives it, resolved folder, manifest, (spec hash, profile) or None
-    without a campaign's manifest, names of the part files its spec names)."""
+@dataclass(eq=False)
+class CampaignRun:
+    """A run directory as reports and `seuwgpu rates` read it, its manifest read (and its spec's
+    parts enumerated) once: `campaign_runs` makes them, and `repeated_sites`, `partial_runs_text`,
+    report.build.load_runs and analysis.cells.fold_runs take them in place of the folders."""
+
+    name: str  # as run_names gives it
+    path: Path  # as given
+    here: Path  # resolved: one folder given twice is one run
+    manifest: dict  # {} without one
+    key: tuple | None  # (spec hash, profile), None without a campaign's manifest
+    sites: tuple | None  # (spec.sites_key, profile), None without a campaign spec
+    expected: dict | None  # {(first id, count): rows} of the parts its spec names, None without one
+    parts: list[Path]  # record_parts
+    _rows: dict | None = field(default=None, repr=False)
+
+    def rows(self) -> dict[str, int | None]:
+        """{part file name: rows in its Parquet footer, None when unreadable}, read once."""
+        if self._rows is None:
+            self._rows = {p.name: part_rows(p) for p in self.parts}
+        return self._rows
+
+    def whole(self, part: str) -> bool:
+        """Whether a part holds the rows its block should: the spec's count (injections x defenses),
+        or, without a spec, a readable multiple of its injections."""
+        rows, key = self.rows().get(part), parse_part_name(part)
+        if rows is None or key is None:
+            return False
+        if self.expected is not None:
+            return rows == self.expected.get(key)
+        return key[1] > 0 and rows >= key[1] and rows % key[1] == 0
+
+
+def campaign_runs(run_dirs) -> list[CampaignRun]:
+    """Each run directory's CampaignRun (a list of them is returned as it is)."""
+    from seuwgpu.campaign.spec import sites_key
+
+    run_dirs = list(run_dirs)
+    if all(isinstance(r, CampaignRun) for r in run_dirs):
+        return run_dirs
     out = []
     for rd, name in zip(run_dirs, run_names(run_dirs)):
         m = read_manifest(rd) or {}
-        key = (m["spec_hash"], m.get("profile", "strict")) if m.get("spec_hash") else None
-        out.append((name, Path(rd).resolve(), m, key, {p.name for p in record_parts(rd, m)}))
+        profile = m.get("profile", "strict")
+        key = (m["spec_hash"], profile) if m.get("spec_hash") else None
+        want = _spec_parts(m)
+        sites = (sites_key(m["spec"]), profile) if want is not None else None
+        parts = _named_parts(part_files(rd), want)
+        out.append(CampaignRun(name, Path(rd), Path(rd).resolve(), m, key, sites, want, parts))
     return out
 
 
@@ -184,21 +234,32 @@ def partial_runs_text(run_dirs) -> str:
     A stratified campaign writes its cells in order, so an unfinished run's estimates lack whole
     cells, not a random share of each: reports must say so. Runs of one spec and profile (the
     shards of a campaign in folders of their own, or a partial merge and the shard that fills it)
-    are counted together, by the parts they hold between them."""
-    groups: dict[tuple, tuple[list[str], set, int]] = {}
-    for name, _, m, key, parts in _campaign_runs(run_dirs):
-        total = m.get("total_injections")
+    are counted together, by the parts they hold between them. Only whole parts count (their rows
+    from the Parquet footers, as a resumed campaign checks them): a damaged one is named.
+    `run_dirs`: run directories, or their campaign_runs."""
+    groups: dict[tuple, tuple[list[str], dict[str, bool], int]] = {}
+    for run in campaign_runs(run_dirs):
+        total = run.manifest.get("total_injections")
         if not isinstance(total, int):
             continue  # a run without a campaign manifest cannot say
-        names, held, _ = groups.setdefault(key or (name,), ([], set(), total))
-        names.append(name)
-        held.update(parts)
+        names, held, _ = groups.setdefault(run.key or (run.name,), ([], {}, total))
+        names.append(run.name)
+        for p in run.parts:
+            held[p.name] = held.get(p.name, False) or run.whole(p.name)
     out = []
-    for names, parts, total in groups.values():
-        done = sum((parse_part_name(p) or (0, 0))[1] for p in parts)
+    for names, held, total in groups.values():
+        done = sum((parse_part_name(p) or (0, 0))[1] for p, ok in held.items() if ok)
         if done < total:
             verb = "hold" if len(names) > 1 else "holds"
-            out.append(f"{' + '.join(names)} {verb} {done:,} of {total:,} injections")
+            text = f"{' + '.join(names)} {verb} {done:,} of {total:,} injections"
+            damaged = sorted(p for p, ok in held.items() if not ok)
+            if damaged:
+                shown = ", ".join(damaged[:3]) + (f" and {len(damaged) - 3} more" if len(damaged) > 3 else "")
+                text += (
+                    f" ({len(damaged)} damaged part{'s' if len(damaged) > 1 else ''}, unreadable or of the wrong "
+                    f"row count, not counted: {shown}; resuming the campaign redoes them)"
+                )
+            out.append(text)
     if not out:
         return ""
     return (
@@ -207,20 +268,67 @@ def partial_runs_text(run_dirs) -> str:
     )
 
 
+def _overlapping(parts: list[Path], other: list[Path]) -> int:
+    """How many of `parts` hold an injection id that one of `other` holds too (by their names)."""
+    keys = [parse_part_name(p.name) for p in other]
+    spans = sorted((k[0], k[0] + k[1]) for k in keys if k and k[1] > 0)
+    starts, ends = [], []  # the other's ids as disjoint [start, end) spans
+    for a, b in spans:
+        if ends and a <= ends[-1]:
+            ends[-1] = max(ends[-1], b)
+        else:
+            starts.append(a)
+            ends.append(b)
+    n = 0
+    for p in parts:
+        k = parse_part_name(p.name)
+        if k is None or k[1] < 1:
+            continue
+        i = bisect.bisect_right(starts, k[0] + k[1] - 1) - 1  # the last span starting before the part ends
+        if i >= 0 and ends[i] > k[0]:
+            n += 1
+    return n
+
+
 def repeated_sites(run_dirs) -> list[tuple[str, str, int]]:
-    """Pairs of runs holding the same parts of the same spec under the same renderer profile, or
-    one folder given twice: the same fault sites measured twice, which a pooled estimate would
-    count as twice the sample (shards of one spec hold different parts; another profile renders
-    other frames). Returns (run name, run name, parts in common) per such pair."""
+    """Pairs of runs holding the same fault sites under the same renderer profile, or one folder
+    given twice: the same sites measured twice, which a pooled estimate would count as twice the
+    sample. Runs of one spec share sites where they hold the same parts (shards hold different
+    parts); runs of specs that differ only in what draws and measures no site (spec.sites_key: a
+    name, the batch, thresholds, extra metrics) where their parts hold the same injection ids.
+    Another profile renders other frames. Returns (run name, run name, parts in common) per such
+    pair. `run_dirs`: run directories, or their campaign_runs."""
     out = []
-    seen: list[tuple[str, Path, tuple | None, set]] = []
-    for name, here, _, key, parts in _campaign_runs(run_dirs):
-        for other, there, other_key, other_parts in seen:
-            common = len(parts) if here == there else len(parts & other_parts) if key and key == other_key else 0
+    seen: list[tuple[CampaignRun, set]] = []
+    for run in campaign_runs(run_dirs):
+        names = {p.name for p in run.parts}
+        for other, other_names in seen:
+            if run.here == other.here:
+                common = len(run.parts)
+            elif run.key and run.key == other.key:
+                common = len(names & other_names)
+            elif run.sites and run.sites == other.sites:
+                common = _overlapping(run.parts, other.parts)
+            else:
+                common = 0
             if common:
-                out.append((other, name, common))
-        seen.append((name, here, key, parts))
+                out.append((other.name, run.name, common))
+        seen.append((run, names))
     return out
+
+
+def refuse_repeated_sites(runs, hint: str):
+    """Refuse, in one line naming the first pair and ending with `hint` (what to do), runs that
+    hold the same fault sites (repeated_sites): every analysis pools runs, and the same sites twice
+    would count as twice the sample."""
+    twice = repeated_sites(runs)
+    if twice:
+        a, b, k = twice[0]
+        raise InputError(
+            f"runs {a} and {b} hold {k} part(s) of the same fault sites under the same profile (one spec run "
+            f"twice, or specs differing only in name, batch, thresholds or extra metrics), which pooled would "
+            f"count as twice the sample: {hint}"
+        )
 
 
 def read_manifest(run_dir) -> dict | None:

@@ -48,7 +48,6 @@ from seuwgpu.analysis.records import (
     thresholds_of,
 )
 from seuwgpu.campaign import store
-from seuwgpu.errors import InputError
 from seuwgpu.report.format import html_table, json_default, json_safe, markdown_table
 from seuwgpu.report.sections import (
     SECTIONS,
@@ -93,14 +92,15 @@ FOLDED_BYTES_PER_RECORD = 139
 def check_report_memory(run_dirs, folded: bool = False) -> int:
     """Refuse, before loading anything, runs whose report would not fit in host memory (their
     record count from the Parquet footers; folded: as analysis/folding.py reads them); returns
-    that count. The rates of any number of records are `seuwgpu rates`'s (analysis/cells.py)."""
+    that count. The rates of any number of records are `seuwgpu rates`'s (analysis/cells.py).
+    run_dirs: run directories, or their store.campaign_runs (footers read once, kept there)."""
     from seuwgpu.errors import TooBig
     from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, gb
 
     n = 0
-    for rd in run_dirs:
-        if Path(rd).is_dir():
-            n += sum(store.part_rows(p) or 0 for p in store.record_parts(rd))
+    for run in store.campaign_runs(run_dirs):
+        if run.path.is_dir():
+            n += sum(rows or 0 for rows in run.rows().values())
     need = n * (FOLDED_BYTES_PER_RECORD if folded else REPORT_BYTES_PER_RECORD)
     have = HOST_SHARE * available_host_bytes()
     if need > have:
@@ -145,30 +145,25 @@ def load_runs(
     number of the report unchanged, memory bounded by the distinct rows), keeping a random
     sample of about max_pred_rows records per precision for the prediction. `progress(i, n)` is
     called per part read. workers: processes folding parts side by side (fold_workers; the
-    frame is the same, part for part in the same order, whatever their number)."""
+    frame is the same, part for part in the same order, whatever their number). run_dirs may be
+    store.campaign_runs of the folders (each manifest then read once for a whole report)."""
     if isinstance(run_dirs, (str, Path)):
         run_dirs = [run_dirs]
-    run_dirs = list(run_dirs)
-    twice = store.repeated_sites(run_dirs)
-    if twice:  # every analysis pools runs: the same sites twice would count as twice the sample
-        a, b, k = twice[0]
-        raise InputError(
-            f"runs {a} and {b} hold {k} part(s) of the same spec and profile: "
-            "the same fault sites twice; report one of them"
-        )
-    check_report_memory(run_dirs, folded=fold)
+    info = store.campaign_runs(run_dirs)
+    store.refuse_repeated_sites(info, "report one of them")
+    check_report_memory(info, folded=fold)
     runs, manifests = [], []
-    for rd, name in zip(run_dirs, store.run_names(run_dirs)):
-        p = Path(rd)
+    for run in info:
+        p = run.path
         if not p.is_dir():
             raise FileNotFoundError(f"{p}: not a run directory")
-        manifest = dict(store.read_manifest(p) or {})
-        parts = store.record_parts(p, manifest)  # the spec's parts only: a stray file is never counted
-        manifest["_run"] = name
+        manifest = dict(run.manifest)
+        parts = run.parts  # the spec's parts only: a stray file is never counted
+        manifest["_run"] = run.name
         manifest["_run_dir"] = str(p)
         if not parts:
             raise FileNotFoundError(f"{p}: no records/part-*.parquet")
-        runs.append((name, parts))
+        runs.append((run.name, parts))
         manifests.append(manifest)
     thresholds = thresholds_of(manifests)
     total = sum(len(parts) for _, parts in runs) * (2 if fold else 1)  # folding reads twice
@@ -371,12 +366,12 @@ def build_report(
     (load_runs)."""
     if isinstance(run_dirs, (str, Path)):
         run_dirs = [run_dirs]
-    run_dirs = [Path(r) for r in run_dirs]
+    runs = store.campaign_runs(run_dirs)  # each manifest read, and each footer, once for the report
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if fold is None:
-        fold = needs_folding(run_dirs)
-    df, manifests = load_runs(run_dirs, fold=fold, max_pred_rows=max_pred_rows, progress=progress, workers=workers)
+        fold = needs_folding(runs)
+    df, manifests = load_runs(runs, fold=fold, max_pred_rows=max_pred_rows, progress=progress, workers=workers)
     previous = _previous_files(out)
     written: list[str] = []
     ctx = {"skipped": [], "max_pred_rows": max_pred_rows, "results": {}}
@@ -391,7 +386,7 @@ def build_report(
     sections.sort(key=lambda sec: sec.key != "claims")
 
     # files
-    partial = store.partial_runs_text([m["_run_dir"] for m in manifests])
+    partial = store.partial_runs_text(runs)
     md_parts = [f"# {title}\n", f"\n**{partial}**\n" if partial else "", _runs_markdown(df, manifests)]
     html_sections = []
     toc = []
