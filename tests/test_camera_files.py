@@ -5,7 +5,10 @@ cameras and render the same images as the CAMS.json, bit for bit."""
 from __future__ import annotations
 
 import json
+import os
 import struct
+import threading
+import warnings
 
 import numpy as np
 import pytest
@@ -229,3 +232,99 @@ def test_renders_identical_to_cams_json(tmp_path, reference):
         got = Renderer(model, cams).render()
         order = [got_names.index(n) for n in names]
         np.testing.assert_array_equal(got[order], want, err_msg=fmt)
+
+
+def test_colmap_images_txt_without_points2d_lines_is_refused(tmp_path, reference):
+    """COLMAP gives every image two lines; a file written without the (possibly empty) POINTS2D
+    lines would lose every other image if the line after each image were skipped unread."""
+    folder = colmap_txt(tmp_path / "txt")
+    lines = (folder / "images.txt").read_text().splitlines()
+    (folder / "images.txt").write_text("\n".join(ln for ln in lines if ln.startswith("#") or len(ln.split()) >= 10))
+    with pytest.raises(CameraFileError, match="line 3 should be the POINTS2D line of image 'img_000.png'"):
+        read_cameras(folder)
+
+
+def test_a_named_colmap_file_reads_its_own_encoding(tmp_path):
+    """A folder with both encodings: naming cameras.txt reads the .txt model, not the .bin one."""
+    folder = colmap_bin(tmp_path / "both")
+    colmap_txt(folder)
+    (folder / "images.txt").write_text(
+        "\n".join((folder / "images.txt").read_text().splitlines()[:3]) + "\n"  # the comment and one image
+    )
+    assert len(read_cameras(folder / "cameras.txt")[0]) == 1
+    assert len(read_cameras(folder / "images.txt")[0]) == 1
+    assert len(read_cameras(folder / "images.bin")[0]) == 3
+    assert len(read_cameras(folder)[0]) == 3  # a folder: the binary model, as COLMAP writes both
+    from seuwgpu.model.cameras import camera_files
+
+    assert camera_files(folder / "cameras.txt") == [folder / "cameras.txt", folder / "images.txt"]
+    (folder / "images.txt").unlink()
+    with pytest.raises(CameraFileError, match="needs cameras.txt and images.txt"):
+        read_cameras(folder / "cameras.txt")
+
+
+def test_colmap_zero_quaternion_is_named(tmp_path):
+    folder = colmap_txt(tmp_path / "txt")
+    text = (folder / "images.txt").read_text().splitlines()
+    words = text[1].split()
+    words[1:5] = ["0", "0", "0", "0"]
+    text[1] = " ".join(words)
+    (folder / "images.txt").write_text("\n".join(text) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no numpy division warning on the way
+        with pytest.raises(CameraFileError, match="rotation quaternion .* is zero"):
+            read_cameras(folder)
+
+
+@pytest.mark.parametrize(
+    "K, why",
+    [
+        ([[38.0, 0, 0], [0, 37.5, 0], [20, 15, 1]], "transposed"),
+        ([[38.0, 2.0, 20], [0, 37.5, 15], [0, 0, 1]], "skew"),
+        ([[38.0, 0, 20], [0, 37.5, 15], [0, 0, 2]], "last row"),
+    ],
+)
+def test_camera_K_the_renderer_cannot_honour_is_refused(tmp_path, K, why):
+    """The renderer reads fx, fy, cx and cy alone: a K with anything else would render as another
+    camera without a word (a transposed K puts the principal point at the corner)."""
+    cams = json.loads(cams_json(tmp_path / "CAMS.json").read_text())
+    cams["cameras"][1]["K"] = K
+    (tmp_path / "CAMS.json").write_text(json.dumps(cams))
+    with pytest.raises(CameraFileError, match=r"camera 1: camera K must be \[\[fx, 0, cx\]"):
+        read_cameras(tmp_path / "CAMS.json")
+
+
+def test_camera_viewmat_must_hold_a_rotation(tmp_path):
+    M = np.eye(4)
+    M[:3, :3] = [[1, 0.9, 0], [0, 1, 0], [0, 0, 1]]  # sheared (determinant 1)
+    with pytest.raises(ValueError, match="not a rotation"):
+        Camera(M, [[38.0, 0, 20], [0, 37.5, 15], [0, 0, 1]], W, H)
+    M[:3, :3] = np.diag([2.0, 1.0, 1.0])  # stretched along one axis
+    with pytest.raises(ValueError, match="not a rotation"):
+        Camera(M, [[38.0, 0, 20], [0, 37.5, 15], [0, 0, 1]], W, H)
+    M[:3, :3] = 3.0 * VIEWS[0]["R"]  # a rotation times a uniform scale stays allowed
+    Camera(M, [[38.0, 0, 20], [0, 37.5, 15], [0, 0, 1]], W, H)
+
+
+def test_camera_path_that_is_no_regular_file_is_refused(tmp_path):
+    fifo = tmp_path / "cams.json"
+    os.mkfifo(fifo)  # a reader waits for a writer: one writes "{}" (once), so an old reader would not hang
+
+    def write():
+        try:
+            fifo.write_text("{}")
+        except BrokenPipeError:  # the reader closed first (the reader under test refused the pipe)
+            pass
+
+    writer = threading.Thread(target=write, daemon=True)
+    writer.start()
+    try:
+        with pytest.raises(CameraFileError, match="not a regular file"):
+            read_cameras(fifo)
+        from seuwgpu.model.cameras import camera_files
+
+        with pytest.raises(CameraFileError, match="not a regular file"):
+            camera_files(fifo)
+    finally:
+        os.close(os.open(fifo, os.O_RDONLY | os.O_NONBLOCK))  # lets the writer finish
+        writer.join(5)

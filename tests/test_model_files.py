@@ -5,7 +5,9 @@ captures, the SPZ and PLY writers' round trips, and the errors."""
 from __future__ import annotations
 
 import gzip
+import os
 import struct
+import threading
 import warnings
 
 import numpy as np
@@ -448,3 +450,82 @@ def test_nonfinite_values_warn_with_count_and_fields(tmp_path):
         warnings.simplefilter("error")
         save_ply(Model.from_flat(np.zeros((1, 14), F32), 0), tmp_path / "ok.ply")
         load_model(tmp_path / "ok.ply")
+
+
+def test_compressed_ply_packed_properties_must_be_32_bit_words(tmp_path):
+    """packed_* are bit fields: declared as floats they would decode to garbage (with numpy cast
+    warnings), so such a file is refused naming the properties."""
+    chunk_names = [f"{m}_{a}" for m in ("min", "max") for a in "xyz"]
+    chunk_names += [f"{m}_scale_{a}" for m in ("min", "max") for a in "xyz"]
+    head = ["ply", "format binary_little_endian 1.0", "element chunk 1"]
+    head += [f"property float {k}" for k in chunk_names] + ["element vertex 4"]
+    packed = ("packed_position", "packed_rotation", "packed_scale", "packed_color")
+    head += [f"property float {k}" for k in packed] + ["end_header"]
+    p = tmp_path / "scene.compressed.ply"
+    data = np.zeros(12, "<f4").tobytes() + np.full((4, 4), 3.5e9, "<f4").tobytes()
+    p.write_bytes(("\n".join(head) + "\n").encode() + data)
+    assert detect_format(p) == "compressed-ply"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ModelFileError, match=r"packed properties must be uint32, got packed_position \(float32\)"):
+            load_model(p)
+    # int32 holds the same bits as uint32: accepted
+    p.write_bytes(p.read_bytes().replace(b"property float packed", b"property int packed"))
+    assert load_model(p).n == 4
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        ({"sh0": np.zeros((5, 2, 3))}, "inconsistent shapes"),
+        ({"shN": np.zeros((5, 7))}, "inconsistent shapes"),
+        ({"means": "abc"}, "not numeric"),
+        ("empty", "zero splats"),
+    ],
+)
+def test_gsplat_bad_splats_name_the_file(change, match):
+    n = 5
+    splats = {
+        "means": np.zeros((n, 3)),
+        "scales": np.zeros((n, 3)),
+        "quats": np.tile([1.0, 0, 0, 0], (n, 1)),
+        "opacities": np.zeros(n),
+        "sh0": np.zeros((n, 1, 3)),
+        "shN": np.zeros((n, 3, 3)),
+    }
+    splats = {k: v[:0] for k, v in splats.items()} if change == "empty" else dict(splats, **change)
+    with pytest.raises(ModelFileError, match=f"ckpt.pt: .*{match}"):
+        model_from_splats(splats, "ckpt.pt")
+
+
+def test_model_path_that_is_no_regular_file_is_refused(tmp_path):
+    fifo = tmp_path / "model.ply"
+    os.mkfifo(fifo)  # a reader waits for a writer: one writes "{}" (once), so an old reader would not hang
+
+    def write():
+        try:
+            fifo.write_text("{}")
+        except BrokenPipeError:  # the reader closed first (the reader under test refused the pipe)
+            pass
+
+    writer = threading.Thread(target=write, daemon=True)
+    writer.start()
+    try:
+        with pytest.raises(ModelFileError, match="not a regular file"):
+            read_model(fifo)
+    finally:
+        os.close(os.open(fifo, os.O_RDONLY | os.O_NONBLOCK))  # lets the writer finish
+        writer.join(5)
+
+
+def test_a_zip_that_is_no_torch_checkpoint_is_not_called_one(tmp_path):
+    """Every zip (a .npz of renders, a zipped output folder) starts like torch.save's output;
+    only one holding data.pkl is a checkpoint, the others are named for what they are."""
+    import zipfile
+
+    np.savez(tmp_path / "frames.npz", images=np.zeros(3))
+    with zipfile.ZipFile(tmp_path / "scene.zip", "w") as z:
+        z.writestr("output/point_cloud.ply", "ply\n")
+    for name, holds in (("frames.npz", "images.npy"), ("scene.zip", "output/point_cloud.ply")):
+        with pytest.raises(ModelFileError, match=f"zip archive that is no PyTorch checkpoint \\(it holds {holds}\\)"):
+            read_model(tmp_path / name)

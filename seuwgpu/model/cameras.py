@@ -12,13 +12,18 @@ Camera files (`read_cameras`, recognised by content, views in the file's order):
   (w, x, y, z) and the translation; views sorted by image name. PINHOLE and SIMPLE_PINHOLE are
   exact; SIMPLE_RADIAL, RADIAL, OPENCV and FULL_OPENCV are read with their distortion ignored
   (a warning says so); fisheye and other models are refused. COLMAP's principal point already
-  uses pixel centres at +0.5.
+  uses pixel centres at +0.5. A folder holding both encodings is read from its .bin files; naming
+  one of the files (images.txt) reads that encoding. images.txt gives every image two lines, the
+  second its POINTS2D (maybe empty): a file without them is refused, not read every other image.
 - nerfstudio `transforms.json` (nerfstudio_dataparser.py): frames[i].transform_matrix is
   camera-to-world in OpenGL axes (x right, y up, z back); intrinsics fl_x, fl_y, cx, cy, w, h at
   the top level (as nerfstudio, these win) or per frame; camera_angle_x stands in for fl_x. The
   poses must be in the model's world: nerfstudio trains in a re-oriented, re-scaled frame
   (dataparser_transforms.json), so apply that transform first for a splatfacto export.
 A folder holding cameras.json, transforms.json, a COLMAP model or sparse/0/ is searched for them.
+Every camera must be a pinhole the renderer draws as written: a viewmat whose 3x3 part is a
+rotation (a uniform scale allowed) and K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (the renderer
+reads fx, fy, cx, cy alone, so a skew or a transposed K is refused rather than dropped).
 """
 
 from __future__ import annotations
@@ -83,6 +88,22 @@ class Camera:
             raise InputError(f"camera viewmat is mirrored (rotation determinant {det:.3g} < 0)")
         if not np.array_equal(self.viewmat[3], np.array([0, 0, 0, 1], np.float32)):
             raise InputError(f"camera viewmat's last row must be 0 0 0 1, got {self.viewmat[3].tolist()}")
+        # a rotation (times a uniform scale): its rows orthogonal and of one length. A sheared or
+        # unevenly scaled matrix is no camera pose (a file mixing up rows, or a transform that is
+        # not a pose); the renderer would draw it without a word
+        gram = R @ R.T / abs(det) ** (2 / 3)
+        if not np.allclose(gram, np.eye(3), atol=1e-3):
+            raise InputError(
+                "camera viewmat's 3x3 part is not a rotation (rows not orthogonal or not of one length): "
+                f"{np.round(R, 6).tolist()}"
+            )
+        # the renderer reads fx, fy, cx, cy alone: anything else in K would be dropped silently
+        # (a skew, or a transposed K whose principal point sits in the last row)
+        K = self.K
+        if not (K[0, 1] == 0 and K[1, 0] == 0 and np.array_equal(K[2], np.array([0, 0, 1], np.float32))):
+            raise InputError(
+                f"camera K must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew; not transposed), got {K.tolist()}"
+            )
         fx, fy = float(self.K[0, 0]), float(self.K[1, 1])
         if not (fx > 0 and fy > 0):
             raise InputError(f"camera focal lengths must be positive, got fx={fx:g}, fy={fy:g}")
@@ -182,6 +203,9 @@ def scale_cameras(cams: list[Camera], scale: float) -> list[Camera]:
 # ------------------------------------------------------------------------------- camera files
 
 
+_COLMAP_FILES = ("cameras.bin", "images.bin", "cameras.txt", "images.txt")
+
+
 def read_cameras(path) -> tuple[list[Camera], list[str], str]:
     """(cameras, view names, format) of a CAMS.json, INRIA cameras.json, COLMAP model (folder, or
     one of its files) or nerfstudio transforms.json, recognised by content."""
@@ -190,8 +214,10 @@ def read_cameras(path) -> tuple[list[Camera], list[str], str]:
         raise FileNotFoundError(f"{p}: no such camera file or folder")
     if p.is_dir():
         return _read_camera_folder(p)
-    if p.name in ("cameras.bin", "images.bin", "cameras.txt", "images.txt"):
-        return _read_colmap(p.parent)
+    if not p.is_file():
+        raise CameraFileError(f"{p}: not a regular file or folder (a pipe or device cannot be read as cameras)")
+    if p.name in _COLMAP_FILES:
+        return _read_colmap(p.parent, p.suffix[1:])  # the model of the file named: .bin or .txt
     raw = p.read_bytes()
     try:
         data = json.loads(raw.decode("utf-8"))
@@ -217,9 +243,16 @@ def camera_files(path) -> list[Path]:
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"{p}: no such camera file or folder")
-    if p.is_file() and p.name not in ("cameras.bin", "images.bin", "cameras.txt", "images.txt"):
+    if not (p.is_file() or p.is_dir()):
+        raise CameraFileError(f"{p}: not a regular file or folder (a pipe or device cannot be read as cameras)")
+    if p.is_file() and p.name not in _COLMAP_FILES:
         return [p]
     folder = p.parent if p.is_file() else p
+    if p.is_file():  # a COLMAP file names its model in its own encoding (read_cameras reads that one)
+        found = [folder / f"{stem}{p.suffix}" for stem in ("cameras", "images")]
+        if not all(f.is_file() for f in found):
+            raise CameraFileError(f"{p}: a COLMAP model needs cameras{p.suffix} and images{p.suffix} in one folder")
+        return found
     if p.is_dir():
         for name in ("cameras.json", "transforms.json", "CAMS.json"):
             if (p / name).is_file():
@@ -239,7 +272,7 @@ def camera_files(path) -> list[Path]:
 
 def _read_camera_folder(p: Path):
     files = camera_files(p)
-    return read_cameras(files[0]) if files[0].suffix == ".json" else _read_colmap(files[0].parent)
+    return read_cameras(files[0]) if files[0].suffix == ".json" else _read_colmap(files[0].parent, files[0].suffix[1:])
 
 
 def _num(p: Path, where: str, v, shape=None) -> np.ndarray:
@@ -411,8 +444,16 @@ def _qvec_to_rotmat(q) -> np.ndarray:
     )
 
 
-def _read_colmap(folder: Path):
-    if (folder / "cameras.bin").is_file() and (folder / "images.bin").is_file():
+def _read_colmap(folder: Path, ext: str | None = None):
+    """The COLMAP model in `folder`: its .bin pair (preferred, as COLMAP writes both) or .txt
+    pair, or the pair of `ext` when the user named one of its files."""
+    if ext is not None:
+        if not all((folder / f"{stem}.{ext}").is_file() for stem in ("cameras", "images")):
+            raise CameraFileError(f"{folder}: a COLMAP model needs cameras.{ext} and images.{ext} in one folder")
+        reader = {"bin": (_colmap_cameras_bin, _colmap_images_bin), "txt": (_colmap_cameras_txt, _colmap_images_txt)}
+        cameras = reader[ext][0](folder / f"cameras.{ext}")
+        images = reader[ext][1](folder / f"images.{ext}")
+    elif (folder / "cameras.bin").is_file() and (folder / "images.bin").is_file():
         cameras = _colmap_cameras_bin(folder / "cameras.bin")
         images = _colmap_images_bin(folder / "images.bin")
     elif (folder / "cameras.txt").is_file() and (folder / "images.txt").is_file():
@@ -430,6 +471,9 @@ def _read_colmap(folder: Path):
         K = _colmap_intrinsics(folder, cam_id, model, params)
         if model in _DISTORTED and any(v != 0 for v in params[3 if model in _SINGLE_F else 4 :]):
             distorted.add(model)
+        norm = float(np.linalg.norm(np.asarray(qvec, dtype=np.float64)))
+        if not (np.isfinite(norm) and norm > 1e-12):
+            raise CameraFileError(f"{folder}: image {name!r}: rotation quaternion {list(qvec)} is zero or not finite")
         M = np.eye(4)
         M[:3, :3] = _qvec_to_rotmat(qvec)
         M[:3, 3] = tvec
@@ -493,8 +537,28 @@ def _colmap_images_txt(path: Path) -> list:
         if not name:
             raise CameraFileError(f"{path}: image line {i} has no image name")
         out.append((name, q, t, cam_id))
+        if i < len(lines) and not _points2d_line(lines[i]):
+            # a file written without the (possibly empty) POINTS2D lines: skipping the next line
+            # as COLMAP's reader does would drop every other image without a word
+            raise CameraFileError(
+                f"{path}: line {i + 1} should be the POINTS2D line of image {name!r} (X Y POINT3D_ID "
+                f"triples, or an empty line) but reads {lines[i].strip()!r}; COLMAP's images.txt gives "
+                "every image two lines"
+            )
         i += 1  # the POINTS2D line that follows every image line
     return out
+
+
+def _points2d_line(line: str) -> bool:
+    """An images.txt POINTS2D line: empty, or numeric X Y POINT3D_ID triples."""
+    e = line.split()
+    if len(e) % 3:
+        return False
+    try:
+        [float(v) for v in e]
+    except ValueError:
+        return False
+    return True
 
 
 class _Reader:

@@ -93,6 +93,8 @@ def detect_format(path) -> str:
         raise FileNotFoundError(f"{spath}: no such file")
     if os.path.isdir(spath):
         raise ModelFileError(f"{spath}: is a folder without point_cloud/iteration_*/point_cloud.ply (INRIA output)")
+    if not os.path.isfile(spath):  # reading a pipe would wait for a writer forever
+        raise ModelFileError(f"{spath}: not a regular file (a pipe or device cannot be read as a model)")
     size = os.path.getsize(spath)
     with open(spath, "rb") as f:
         head = f.read(4096)
@@ -101,6 +103,9 @@ def detect_format(path) -> str:
     if spz.is_spz(head):
         return "spz"
     if gsplat.is_torch_file(head):
+        why = gsplat.zip_problem(spath) if head[:4] == b"PK\x03\x04" else None
+        if why:
+            raise ModelFileError(f"{spath}: {why}")
         return "gsplat"
     if spath.lower().endswith(".splat") or splat_format.looks_like_splat(spath, size, head):
         return "splat"

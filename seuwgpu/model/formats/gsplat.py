@@ -28,16 +28,40 @@ def is_torch_file(head: bytes) -> bool:
     return head[:4] == b"PK\x03\x04" or head[:2] in (b"\x80\x02", b"\x80\x04", b"\x80\x05")
 
 
+def zip_problem(path: str) -> str | None:
+    """Why a zip archive is no PyTorch checkpoint (None when it is one): torch.save writes a zip
+    holding `<name>/data.pkl`; a .npz, a zipped output folder or a broken zip is something else."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = z.namelist()
+    except (zipfile.BadZipFile, OSError) as e:
+        return f"a broken zip archive ({e})"
+    if any(n == "data.pkl" or n.endswith("/data.pkl") for n in names):
+        return None
+    shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
+    return (
+        f"a zip archive that is no PyTorch checkpoint (it holds {shown or 'nothing'}): "
+        "unpack it and give the model file inside"
+    )
+
+
 def model_from_splats(splats: dict, path: str = "") -> Model:
     """A Model from gsplat's `splats` dict (numpy arrays or anything np.asarray accepts)."""
     missing = [k for k in KEYS if k not in splats]
     if missing:
         raise GsplatError(f"{path}: the gsplat splats dict lacks {', '.join(missing)} (has {', '.join(splats)})")
-    arr = {k: np.asarray(v, dtype=np.float32) for k, v in splats.items() if k in (*KEYS, "shN")}
-    n = arr["means"].shape[0]
-    sh0 = arr["sh0"].reshape(n, 3)
-    shn = arr.get("shN", np.zeros((n, 0, 3), np.float32)).reshape(n, -1, 3)
     try:
+        arr = {k: np.asarray(v, dtype=np.float32) for k, v in splats.items() if k in (*KEYS, "shN")}
+    except (TypeError, ValueError) as e:
+        raise GsplatError(f"{path}: the gsplat splats are not numeric arrays: {e}") from None
+    n = arr["means"].shape[0] if arr["means"].ndim else 0
+    if n == 0:
+        raise GsplatError(f"{path}: the gsplat checkpoint holds zero splats")
+    try:
+        sh0 = arr["sh0"].reshape(n, 3)
+        shn = arr.get("shN", np.zeros((n, 0, 3), np.float32)).reshape(n, -1, 3)
         return Model(
             means=arr["means"],
             log_scales=arr["scales"],
