@@ -1,4 +1,6 @@
+import contextlib
 import os
+import threading
 
 import numpy as np
 import pytest
@@ -44,3 +46,24 @@ def random_model(n: int, degree: int = 3, seed: int = 0, spread: float = 0.8):
         sh_dc=rng.normal(0, 0.8, (n, 3)),
         sh_rest=rng.normal(0, 0.1, (n, sh_rest_count(degree), 3)),
     )
+
+
+@contextlib.contextmanager
+def fifo_with_writer(path):
+    """A named pipe at `path` that a thread writes "{}" into once: a reader that opens it does not
+    hang (an old reader that read pipes would fail its test, not block it)."""
+    os.mkfifo(path)
+
+    def write():
+        try:
+            path.write_text("{}")
+        except BrokenPipeError:  # the reader closed first (the reader under test refused the pipe)
+            pass
+
+    writer = threading.Thread(target=write, daemon=True)
+    writer.start()
+    try:
+        yield path
+    finally:
+        os.close(os.open(path, os.O_RDONLY | os.O_NONBLOCK))  # lets the writer finish
+        writer.join(5)

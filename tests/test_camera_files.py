@@ -5,13 +5,12 @@ cameras and render the same images as the CAMS.json, bit for bit."""
 from __future__ import annotations
 
 import json
-import os
 import struct
-import threading
 import warnings
 
 import numpy as np
 import pytest
+from conftest import fifo_with_writer
 
 from seuwgpu.model.cameras import Camera, CameraFileError, read_cameras, scale_cameras, select_views
 
@@ -307,24 +306,10 @@ def test_camera_viewmat_must_hold_a_rotation(tmp_path):
 
 
 def test_camera_path_that_is_no_regular_file_is_refused(tmp_path):
-    fifo = tmp_path / "cams.json"
-    os.mkfifo(fifo)  # a reader waits for a writer: one writes "{}" (once), so an old reader would not hang
+    from seuwgpu.model.cameras import camera_files
 
-    def write():
-        try:
-            fifo.write_text("{}")
-        except BrokenPipeError:  # the reader closed first (the reader under test refused the pipe)
-            pass
-
-    writer = threading.Thread(target=write, daemon=True)
-    writer.start()
-    try:
+    with fifo_with_writer(tmp_path / "cams.json") as fifo:
         with pytest.raises(CameraFileError, match="not a regular file"):
             read_cameras(fifo)
-        from seuwgpu.model.cameras import camera_files
-
         with pytest.raises(CameraFileError, match="not a regular file"):
             camera_files(fifo)
-    finally:
-        os.close(os.open(fifo, os.O_RDONLY | os.O_NONBLOCK))  # lets the writer finish
-        writer.join(5)

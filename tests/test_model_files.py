@@ -5,13 +5,12 @@ captures, the SPZ and PLY writers' round trips, and the errors."""
 from __future__ import annotations
 
 import gzip
-import os
 import struct
-import threading
 import warnings
 
 import numpy as np
 import pytest
+from conftest import fifo_with_writer
 
 from seuwgpu.model.fields import FIELDS, Model
 from seuwgpu.model.formats import (
@@ -499,23 +498,9 @@ def test_gsplat_bad_splats_name_the_file(change, match):
 
 
 def test_model_path_that_is_no_regular_file_is_refused(tmp_path):
-    fifo = tmp_path / "model.ply"
-    os.mkfifo(fifo)  # a reader waits for a writer: one writes "{}" (once), so an old reader would not hang
-
-    def write():
-        try:
-            fifo.write_text("{}")
-        except BrokenPipeError:  # the reader closed first (the reader under test refused the pipe)
-            pass
-
-    writer = threading.Thread(target=write, daemon=True)
-    writer.start()
-    try:
+    with fifo_with_writer(tmp_path / "model.ply") as fifo:
         with pytest.raises(ModelFileError, match="not a regular file"):
             read_model(fifo)
-    finally:
-        os.close(os.open(fifo, os.O_RDONLY | os.O_NONBLOCK))  # lets the writer finish
-        writer.join(5)
 
 
 def test_a_zip_that_is_no_torch_checkpoint_is_not_called_one(tmp_path):
