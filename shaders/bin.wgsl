@@ -1,4 +1,5 @@
-// Tile binning (render/bin.py), per view: intersection counts in depth order, emission of
+// Tile binning (render/bin.py), per list of `bin.views` frames (1, or the K views of a batched
+// renderer: render/renderer.py): intersection counts in depth order, emission of
 // (tile, primitive) pairs at the scanned offsets, and per-tile ranges of the tile-sorted list.
 // Between them the host scans the counts (gpu/sort.py PrefixSum) and sorts the pairs by tile
 // (render/sort.py). Rectangles are packed (x0 | y0 << 16, x1 | y1 << 16) in tiles, exclusive max.
@@ -8,6 +9,11 @@
 // crosses), not with the whole rectangle: the tiles it provably cannot reach would only be staged
 // and skipped at every pixel. Both passes compute the same rows, so counts and pairs agree. EXACT_BIN = false
 // pairs the whole rectangle (the images are the same bit for bit; tests compare the two).
+//
+// Batched views: the screen records of view v are records v * n_total .. (v + 1) * n_total - 1
+// (sorted_prims holds those indices, all views mixed in one depth order), and a pair's tile id is
+// v * n_tiles + its tile in view v, so the stable tile sort leaves each tile of each view its own
+// list, front to back with ties by primitive index, as one view's list alone would be.
 override EXACT_BIN: bool = true;
 
 @group(0) @binding(0) var<uniform> bin: Binning;
@@ -17,7 +23,7 @@ override EXACT_BIN: bool = true;
 @group(0) @binding(4) var<storage, read> offsets: array<u32>;
 @group(0) @binding(5) var<storage, read_write> isect_tiles: array<u32>;
 @group(0) @binding(6) var<storage, read_write> isect_prims: array<u32>;
-@group(0) @binding(7) var<storage, read> stats: array<u32>;
+@group(0) @binding(7) var<storage, read_write> stats: array<u32>;
 @group(0) @binding(8) var<storage, read_write> ranges: array<vec2<u32>>;
 @group(0) @binding(9) var<storage, read> proj_xy: array<vec2<f32>>;
 @group(0) @binding(10) var<storage, read> proj_conic: array<vec4<f32>>;  // conic, opacity
@@ -53,7 +59,7 @@ fn row_of(f: Footprint, ty: u32) -> vec2<u32> {
 @compute @workgroup_size(WG)
 fn count_tiles(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
-    if (s >= bin.n_total) {
+    if (s >= bin.views * bin.n_total) {
         return;
     }
     let f = footprint(sorted_prims[s]);
@@ -75,17 +81,18 @@ fn count_tiles(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
 @compute @workgroup_size(WG)
 fn emit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
-    if (s >= bin.n_total) {
+    if (s >= bin.views * bin.n_total) {
         return;
     }
     let g = sorted_prims[s];
     let f = footprint(g);
+    let first_tile = (g / bin.n_total) * bin.n_tiles;  // its view's first tile id (batched views)
     var o = offsets[s];
     for (var ty = f.y0; ty < f.y1; ty = ty + 1u) {
         let cols = row_of(f, ty);
         for (var tx = cols.x; tx < cols.y; tx = tx + 1u) {
             if (o < bin.capacity) {
-                isect_tiles[o] = ty * bin.tiles_x + tx;
+                isect_tiles[o] = first_tile + ty * bin.tiles_x + tx;
                 isect_prims[o] = g;
             }
             o = o + 1u;
@@ -113,9 +120,16 @@ fn lower_bound(t: u32, n: u32) -> u32 {
 @compute @workgroup_size(WG)
 fn tile_ranges(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let t = linear_id(gid, nwg);
-    if (t >= bin.n_tiles) {
+    if (t >= bin.views * bin.n_tiles) {
         return;
     }
     let n = min(stats[bin.stats_index], bin.capacity);
-    ranges[t] = vec2<u32>(lower_bound(t, n), lower_bound(t + 1u, n));
+    let r = vec2<u32>(lower_bound(t, n), lower_bound(t + 1u, n));
+    ranges[t] = r;
+    // batched views: the last tile of each view also writes the view's total (its list is the
+    // pairs from its first tile's start to its last tile's end)
+    if (bin.views > 1u && (t + 1u) % bin.n_tiles == 0u) {
+        let v = t / bin.n_tiles;
+        stats[bin.frame + v] = r.y - lower_bound(v * bin.n_tiles, n);
+    }
 }

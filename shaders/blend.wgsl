@@ -308,3 +308,19 @@ const NEVER: u32 = 0xffffffffu;
 fn tile_first(tx: u32, ty: u32) -> vec2<u32> {
     return vec2<u32>(bin.origin & 0xffffu, bin.origin >> 16u) + vec2<u32>(tx * TILE, ty * TILE);
 }
+
+// The frame of the tile being composited, among the `bin.views` frames of the list (batched views,
+// render/renderer.py; 0 otherwise): tile ids are frame * n_tiles + ty * tiles_x + tx.
+var<private> frame_view: u32;
+
+// Enter tile id `tile`: sets frame_view, returns the tile's (tx, ty) in its frame.
+fn enter_tile(tile: u32) -> vec2<u32> {
+    frame_view = tile / bin.n_tiles;
+    let t = tile % bin.n_tiles;
+    return vec2<u32>(t % bin.tiles_x, t / bin.tiles_x);
+}
+
+// Where pixel (x, y) of the tile's frame (viewport coordinates) lies in `image` and `stop_pos`.
+fn image_index(x: u32, y: u32) -> u32 {
+    return ((bin.frame + frame_view) * bin.height + y) * bin.width + x;
+}

@@ -101,10 +101,12 @@ struct Binning {
     tiles_x: u32,
     n_tiles: u32,
     capacity: u32,      // intersection buffer length: writes past it are dropped and the frame re-run
-    stats_index: u32,   // this view's slot in the stats buffer (intersection total)
+    stats_index: u32,   // the slot of this list's intersection total in the stats buffer
     width: u32,         // viewport size in pixels (the output image)
     height: u32,
     origin: u32,        // viewport origin in pixels (x | y << 16), tile-aligned; 0 for a full frame
+    views: u32,         // frames binned into one list (render/renderer.py batched views), else 1
+    frame: u32,         // the first frame's slot in the image (and its views' totals in stats)
     background: vec4<f32>,
 };
 

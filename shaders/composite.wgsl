@@ -301,7 +301,7 @@ fn write_image(p: ptr<function, Pixels>, tx: u32, ty: u32, col: u32, row0: u32) 
         for (var i = 0u; i < QUAD; i = i + 1u) {
             let y = ty * TILE + row0 + QUAD * j + i;
             if (x < bin.width && y < bin.height) {
-                image[(bin.stats_index * bin.height + y) * bin.width + x] = out_pixel((*p).q[j], i, bg);
+                image[image_index(x, y)] = out_pixel((*p).q[j], i, bg);
             }
         }
     }
@@ -322,7 +322,7 @@ fn write_stops(stops: ptr<function, Stops>, tx: u32, ty: u32, col: u32, row0: u3
         for (var i = 0u; i < QUAD; i = i + 1u) {
             let y = ty * TILE + row0 + QUAD * j + i;
             if (x < bin.width && y < bin.height) {
-                stop_pos[(bin.stats_index * bin.height + y) * bin.width + x] = (*stops)[j][i];
+                stop_pos[image_index(x, y)] = (*stops)[j][i];
             }
         }
     }
@@ -359,8 +359,9 @@ fn merge(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec
     let row0 = lid.y * SPAN;
     for (var e = wg.x; e < count; e = e + nwg.x) {
         let item = merge_list[e];
-        let tx = item.x % bin.tiles_x;
-        let ty = item.x / bin.tiles_x;
+        let txy = enter_tile(item.x);
+        let tx = txy.x;
+        let ty = txy.y;
         var acc = tile_pixels(tx, ty, lid.x, row0);
         let range = ranges[item.x];
         let n_chunks = (range.y - range.x + CHUNK_PAIRS - 1u) / CHUNK_PAIRS;

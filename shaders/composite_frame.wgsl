@@ -14,7 +14,8 @@
 @compute @workgroup_size(TILE, ROWS)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
         @builtin(local_invocation_index) li: u32) {
-    let tile = wg.y * bin.tiles_x + wg.x;
+    frame_view = wg.z;  // one grid layer per frame of a batched list
+    let tile = wg.z * bin.n_tiles + wg.y * bin.tiles_x + wg.x;
     let row0 = lid.y * SPAN;
     var p = tile_pixels(wg.x, wg.y, lid.x, row0);
     let range = ranges[tile];
@@ -57,8 +58,9 @@ fn chunks(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: ve
         if (item.x == VOID) {
             continue;
         }
-        let tx = item.x % bin.tiles_x;
-        let ty = item.x / bin.tiles_x;
+        let txy = enter_tile(item.x);
+        let tx = txy.x;
+        let ty = txy.y;
         var p = tile_pixels(tx, ty, lid.x, row0);
         // pixels that stopped in chunk 0 have ended: the merge ignores their later chunks, so they
         // are not composited (a dense opaque region costs one chunk, not all of them)

@@ -112,7 +112,7 @@ fn write_image(p: ptr<function, Quad>, tx: u32, ty: u32, col: u32, row: u32) {
     let y = ty * TILE + row;
     if (x < bin.width && y < bin.height) {
         let q = *p;
-        image[(bin.stats_index * bin.height + y) * bin.width + x] =
+        image[image_index(x, y)] =
             vec4<f32>(vec3<f32>(q.r, q.g, q.b) + q.T * bin.background.xyz, q.T);
     }
 }
@@ -123,7 +123,7 @@ fn write_stops(stop: ptr<function, u32>, tx: u32, ty: u32, col: u32, row: u32) {
     let x = tx * TILE + col;
     let y = ty * TILE + row;
     if (KEEP_BOXES && x < bin.width && y < bin.height) {
-        stop_pos[(bin.stats_index * bin.height + y) * bin.width + x] = *stop;
+        stop_pos[image_index(x, y)] = *stop;
     }
 }
 

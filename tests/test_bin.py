@@ -180,3 +180,54 @@ def test_tile_ranges_match_twin(gpu):
     cover = (rects[:, 0] <= t % tiles[0]) & (rects[:, 2] > t % tiles[0])
     cover &= (rects[:, 1] <= t // tiles[0]) & (rects[:, 3] > t // tiles[0])
     np.testing.assert_array_equal(ids, [i for i in order if cover[i]])
+
+
+def test_batched_views_bin_as_each_view_alone(gpu):
+    """The batched variant (Binning.set_views(batched=True), bin.wgsl with views = K): K views'
+    records one after the other, in one mixed depth order, give pair tile ids v * n_tiles + tile,
+    and after a stable sort by tile id, each view's tile lists, ranges and total are the twin's for
+    that view alone."""
+    n, size, k = 700, (72, 40), 3
+    model = random_model(n, seed=8)
+    model.log_scales[5] = [60.0, 60.0, 60.0]  # a frame-covering sheet in every view
+    cams = orbit_cameras(k, *size)
+    tx, ty = n_tiles_xy(cams[0])
+    projs = []
+    with np.errstate(all="ignore"):
+        projs = [project(model, cam) for cam in cams]
+    rects = np.concatenate([p["rect"] for p in projs])
+    xy = np.concatenate([p["mean2d"] for p in projs]).astype(np.float32)
+    conic = np.concatenate([np.column_stack([p["conic"], p["opacity"]]) for p in projs]).astype(np.float32)
+    depth = np.concatenate([np.where(p["visible"], p["depth"], np.inf) for p in projs]).astype(np.float32)
+    order = np.argsort(depth, kind="stable")  # all K views mixed, ties by record index
+    stage = Binning(gpu, n)
+    stage.set_views(k, tx * ty, batched=True)
+    stage.set_capacity(1 << 16)
+    stage.set_view(0, tiles_x=tx, size=size, origin=(0, 0), background=(1, 1, 1))
+    stage.params.write()
+    slot = stage.batch_slot
+    enc = gpu.device.create_command_encoder()
+    args = gpu.upload(packed(rects)), gpu.upload(order.astype(np.uint32)), gpu.upload(xy), gpu.upload(conic)
+    stage.encode_emit(enc, slot, *args)
+    gpu.submit(enc)
+    total = int(gpu.read(stage.stats)[slot])
+    tiles = gpu.read(stage.isect_tiles)[:total].astype(np.int64)
+    prims = gpu.read(stage.isect_prims)[:total].astype(np.int64)
+    by_tile = np.argsort(tiles, kind="stable")
+    gpu.write(stage.isect_tiles, tiles[by_tile].astype(np.uint32))
+    enc = gpu.device.create_command_encoder()
+    stage.encode_ranges(enc, slot)
+    gpu.submit(enc)
+    ranges = gpu.read(stage.ranges, np.uint32, 0, 8 * k * tx * ty).reshape(k * tx * ty, 2).astype(np.int64)
+    totals = gpu.read(stage.stats)[:k]
+    wanted = 0
+    for v, p in enumerate(projs):
+        rec = {"xy": p["mean2d"], "conic": np.column_stack([p["conic"], p["opacity"]]).astype(np.float32)}
+        want_ranges, want_prims = tile_lists(p["rect"], depth_order(p), tx, tx * ty, rec)
+        mine = ranges[v * tx * ty : (v + 1) * tx * ty]
+        first = mine[0, 0]
+        np.testing.assert_array_equal(mine - first, want_ranges)
+        np.testing.assert_array_equal(prims[by_tile][mine[0, 0] : mine[-1, 1]] - v * n, want_prims)
+        assert totals[v] == len(want_prims)
+        wanted += len(want_prims)
+    assert total == wanted

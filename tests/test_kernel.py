@@ -97,7 +97,8 @@ def test_shader_structs_match_the_host_layouts_they_replace():
         164,
     ]
     binning = Struct.from_shader("bin", "Binning")
-    assert (binning.size, binning.offset("origin"), binning.offset("background")) == (48, 28, 32)
+    assert (binning.size, binning.offset("origin"), binning.offset("background")) == (64, 28, 48)
+    assert (binning.offset("views"), binning.offset("frame")) == (32, 36)  # vec4 background aligned to 16
     rec = Struct.from_shader("metrics", "MetricsRecord")
     assert rec.size == 24 and rec.fields == ("changed", "peak", "sse", "nonfinite", "deficit", "count")
     assert Struct.from_shader("metrics", "MetricsResults").offset("records") == 16

@@ -143,7 +143,7 @@ def test_views_submitted_one_by_one_equal_one_command_buffer(gpu, monkeypatch):
     one (this adapter posing as a GPU) are those of all K views recorded in one command buffer,
     bit for bit."""
     model = make_scene("blocks", 3000, seed=1)
-    r = Renderer(model, scene_cameras("blocks", 3, 48, 40), gpu=gpu)
+    r = Renderer(model, scene_cameras("blocks", 3, 48, 40), gpu=gpu, batch_views=False)
     if gpu.is_cpu:
         assert [list(g) for g in r.submission_groups()] == [[0, 1, 2]]
         monkeypatch.setattr(type(gpu), "is_cpu", property(lambda self: False))
@@ -157,3 +157,89 @@ def test_views_submitted_one_by_one_equal_one_command_buffer(gpu, monkeypatch):
     assert np.array_equal(split.view(np.uint32), one.view(np.uint32))
     assert np.array_equal(totals, gpu.read(r.binning.stats, np.uint32)[:3])
     assert np.unique(split[..., :3].reshape(3, -1), axis=0).shape[0] == 3  # three different views
+
+
+def _bits(a):
+    return np.ascontiguousarray(a).view(np.uint32)
+
+
+@pytest.mark.parametrize("compositor", ["lanes", "wide"])
+@pytest.mark.parametrize("exact", [True, False])
+def test_batched_views_equal_views_one_at_a_time(gpu, compositor, exact):
+    """K views sharing one depth sort, binning, tile sort and compositing pass (renderer.py
+    batch_views) give the frames and per-view totals of the views rendered one at a time, bit for
+    bit: with long tiles split in chunks (small chunk), grown intersection buffers, a viewport,
+    both compositors and both binnings. The frames of the one-at-a-time path are themselves
+    checked against the numpy twin (test_scenes_match_reference renders K = 2 batched, too)."""
+    model = make_scene("spheres", 6000, seed=2)
+    cams = scene_cameras("spheres", 3, 72, 56)
+    kw = dict(gpu=gpu, compositor=compositor, exact_binning=exact, chunk=256)
+    one = Renderer(model, cams, batch_views=False, **kw)
+    want = one.render()
+    assert not one.batched
+    for extra in ({}, {"capacity": 1000}, {"viewport": (16, 16, 48, 32)}):
+        r = Renderer(model, cams, **kw, **extra)
+        got = r.render()
+        assert r.batched and r.submission_groups() == [range(3)]
+        x0, y0, w, h = extra.get("viewport", (0, 0, 72, 56))
+        assert np.array_equal(_bits(got), _bits(want[:, y0 : y0 + h, x0 : x0 + w]))
+        if "viewport" not in extra:
+            assert np.array_equal(r.last_totals, one.last_totals)
+            assert r.capacity >= one.last_totals.sum()
+    assert (one.last_totals > 256).all()  # long lists exist: the tiles run chunks and merges
+
+
+def test_batching_applies_where_it_can(gpu, monkeypatch):
+    """Views are batched by default; not for one view, for kept views (the incremental
+    re-compositor reads per-view lists), when asked not to, or past BATCH_MAX_RECORDS; a batched
+    frame set whose one list would pass the binding limit falls back to one view at a time (same
+    frames); a batched renderer records fewer dispatches than K views one at a time."""
+    import seuwgpu.render.renderer as renderer_module
+
+    model = random_model(800, seed=5)
+    cams = orbit_cameras(3, 40, 32)
+    assert Renderer(model, cams, gpu=gpu).batched
+    assert not Renderer(model, cams[:1], gpu=gpu).batched
+    assert not Renderer(model, cams, gpu=gpu, keep_views=True).batched
+    assert not Renderer(model, cams, gpu=gpu, batch_views=False).batched
+    monkeypatch.setitem(renderer_module.BATCH_MAX_RECORDS, "cpu" if gpu.is_cpu else "gpu", 3 * 800 - 1)
+    assert not Renderer(model, cams, gpu=gpu).batched
+    monkeypatch.undo()
+
+    want = Renderer(model, cams, gpu=gpu, batch_views=False)
+    want_img = want.render()
+    per_view = int(want.last_totals.max())
+    assert per_view < want.last_totals.sum()
+    monkeypatch.setattr(Renderer, "max_capacity", property(lambda self: per_view))
+    r = Renderer(model, cams, gpu=gpu)
+    assert r.batched
+    got = r.render()
+    assert not r.batched  # the K lists together pass the (patched) limit; one alone fits
+    assert np.array_equal(_bits(got), _bits(want_img))
+    assert np.array_equal(r.last_totals, want.last_totals)
+
+    class Counter:
+        def __init__(self, enc):
+            self.enc, self.n = enc, 0
+
+        def begin_compute_pass(self, **kw):
+            outer, cpass = self, self.enc.begin_compute_pass(**kw)
+
+            class Pass:
+                def __getattr__(self, name):
+                    attr = getattr(cpass, name)
+                    if name.startswith("dispatch_workgroups"):
+                        outer.n += 1
+                    return attr
+
+            return Pass()
+
+        def __getattr__(self, name):
+            return getattr(self.enc, name)
+
+    counts = {}
+    for batch in (True, False):
+        c = Counter(gpu.device.create_command_encoder())
+        Renderer(model, cams, gpu=gpu, batch_views=batch).encode(c)
+        counts[batch] = c.n
+    assert counts[True] < counts[False] / 2

@@ -8,9 +8,10 @@ Runs from any directory with the package installed (or from a checkout); the JSO
 --out says (never into the repository by default).
 
 For each (scene, N, size, K) the embedded scene is rendered from K orbit views by one
-`Renderer.run()` (the Renderer's unit of work; it submits the views one command buffer each, so
-that encoding view v + 1 overlaps the device's work on view v; a "submission" below is one such
-run). What is measured, per configuration:
+`Renderer.run()` (the Renderer's unit of work: the K views batched into one command buffer whose
+dispatches they share, render/renderer.py; or, where they are not batched, one command buffer a
+view on a GPU, so that encoding view v + 1 overlaps the device's work on view v; a "submission"
+below is one such run). What is measured, per configuration:
 
 - wall time of a submission: time.perf_counter() around encode + submit + the Renderer's tiny
   readback of its per-view intersection totals (which waits for the GPU), i.e. `Renderer.run()`.
@@ -23,8 +24,7 @@ run). What is measured, per configuration:
   part of the time (command buffers cannot be replayed in WebGPU); `encode_ms` reports it apart
   (the fastest of 5 recordings),
   with `dispatches_per_view` and `encode_ceiling_mpix_s` = K * W * H / encode time: the most a
-  submission could reach if the device took no time (on a GPU, where view v + 1 is recorded while
-  view v renders, the bound that recording puts on Mpix/s).
+  submission could reach if the device took no time (the bound that recording puts on Mpix/s).
 - Mpix/s = K * W * H / median seconds per submission; ms/view = median / K.
 - per-stage GPU times, from timestamp queries when the device has "timestamp-query": one more,
   separate, instrumented submission (so the timestamps cannot slow the timed ones), each compute

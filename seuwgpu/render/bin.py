@@ -30,10 +30,16 @@ F = np.float32
 
 
 class Binning:
-    """Tile binning of `n` primitives: owns the counts and offsets, the per-view intersection
-    totals (`stats`, u32 [K]), the per-tile `ranges` (u32 [n_tiles, 2]), the intersection lists
-    (`isect_tiles`, `isect_prims`, `isect_box`, `capacity` each) and the `Binning` parameters (`params`, one
-    slot per view)."""
+    """Tile binning of `n` primitives: owns the counts and offsets, the intersection totals
+    (`stats`, u32 [K + 1]: view v's at v, a batched list's at K), the per-tile `ranges` (u32
+    [n_tiles, 2], K times that when batched), the intersection lists (`isect_tiles`,
+    `isect_prims`, `isect_box`, `capacity` each) and the `Binning` parameters (`params`: slot v
+    for view v alone, slot K for the K views in one list).
+
+    Batched (`set_views(..., batched=True)`, render/renderer.py): the K views' screen records lie
+    one after the other (view v's from v * n), sorted by depth all together; their pairs carry tile
+    ids v * n_tiles + tile (bin.wgsl), so one count, scan, emit, tile sort and ranges serve all K,
+    and `tile_ranges` also writes each view's total at stats[v]."""
 
     def __init__(self, gpu: GPU, n: int, exact: bool = True):
         self.gpu, self.n = gpu, int(n)
@@ -41,19 +47,37 @@ class Binning:
         self.k_count = Kernel(gpu, "bin", "count_tiles", constants={"EXACT_BIN": int(self.exact)})
         self.k_emit = Kernel(gpu, "bin", "emit", constants={"EXACT_BIN": int(self.exact)})
         self.k_ranges = Kernel(gpu, "bin", "tile_ranges")
-        self.scan = PrefixSum(gpu, self.n)
-        self.counts = gpu.buffer(4 * self.n, STORAGE, "bin.counts")
-        self.offsets = gpu.buffer(4 * self.n, STORAGE, "bin.offsets")
         self.struct = self.k_count.struct("Binning")
+        self.entries = 0
+        self._set_entries(self.n)
         self.capacity = 0
 
-    def set_views(self, k: int, n_tiles: int):
-        """(Re)allocate the per-view buffers for K views of n_tiles tiles."""
+    def _set_entries(self, entries: int):
+        """Counts, offsets and scan for `entries` depth-ordered records (n, or K n batched)."""
+        if entries == self.entries:
+            return
+        g, self.entries = self.gpu, int(entries)
+        self.scan = PrefixSum(g, self.entries)
+        self.counts = g.buffer(4 * self.entries, STORAGE, "bin.counts")
+        self.offsets = g.buffer(4 * self.entries, STORAGE, "bin.offsets")
+
+    def set_views(self, k: int, n_tiles: int, batched: bool = False):
+        """(Re)allocate the per-view buffers for K views of n_tiles tiles, binned one view at a time
+        or, `batched`, all K in one list."""
         g = self.gpu
-        self.k, self.n_tiles = int(k), int(n_tiles)
-        self.params = Uniforms(g, self.struct, self.k, "bin.params")
-        self.stats = g.buffer(4 * self.k, STORAGE, "bin.stats")
-        self.ranges = g.buffer(8 * self.n_tiles, STORAGE, "bin.ranges")
+        self.k, self.n_tiles, self.batched = int(k), int(n_tiles), bool(batched)
+        self._set_entries(self.n * (self.k if self.batched else 1))
+        self.params = Uniforms(g, self.struct, self.k + 1, "bin.params")
+        self.stats = g.buffer(4 * (self.k + 1), STORAGE, "bin.stats")
+        self.ranges = g.buffer(8 * self.n_tiles * (self.k if self.batched else 1), STORAGE, "bin.ranges")
+
+    @property
+    def batch_slot(self) -> int:
+        """The parameter slot (and stats word) of the K views binned in one list."""
+        return self.k
+
+    def _views_of(self, slot: int) -> int:
+        return self.k if slot == self.batch_slot else 1
 
     def set_capacity(self, capacity: int):
         """(Re)allocate the intersection lists (the caller rewrites `params`' capacity)."""
@@ -65,43 +89,51 @@ class Binning:
         self.isect_box = self.gpu.buffer(4 * self.capacity, STORAGE, "bin.isect_box")
 
     def set_view(self, v: int, *, tiles_x: int, size: tuple[int, int], origin: tuple[int, int], background):
-        """Parameters of view v: its viewport (size in pixels, tile-aligned origin) and background."""
-        self.struct.fill(
-            self.params.rows[v : v + 1],
-            n_total=self.n,
-            tiles_x=tiles_x,
-            n_tiles=self.n_tiles,
-            capacity=self.capacity,
-            stats_index=v,
-            width=size[0],
-            height=size[1],
-            origin=origin[0] | (origin[1] << 16),
-            background=np.append(np.asarray(background, np.float32), 0.0),
-        )
+        """Parameters of view v: its viewport (size in pixels, tile-aligned origin) and background;
+        the batched slot's follow view 0's (every view of a renderer shares them)."""
+        for slot in (v, self.batch_slot) if v == 0 else (v,):
+            views = self._views_of(slot)
+            self.struct.fill(
+                self.params.rows[slot : slot + 1],
+                n_total=self.n,
+                tiles_x=tiles_x,
+                n_tiles=self.n_tiles,
+                capacity=self.capacity,
+                stats_index=slot,
+                width=size[0],
+                height=size[1],
+                origin=origin[0] | (origin[1] << 16),
+                views=views,
+                frame=0 if views > 1 else v,
+                background=np.append(np.asarray(background, np.float32), 0.0),
+            )
 
-    def total(self, v: int) -> tuple:
-        """Where the GPU writes view v's intersection total: (buffer, byte_offset)."""
-        return (self.stats, 4 * v)
+    def total(self, slot: int) -> tuple:
+        """Where the GPU writes the intersection total of slot `slot` (view v alone, or the
+        batched list): (buffer, byte_offset)."""
+        return (self.stats, 4 * slot)
 
-    def encode_emit(self, encoder, v: int, rects, sorted_prims, xy, conic):
-        """Counts, offsets, total and pairs of view v from the packed rectangles, the screen
-        records (`xy`, `conic` with opacity: render/project.py) and the depth order."""
-        u = self.params.binding(v)
+    def encode_emit(self, encoder, slot: int, rects, sorted_prims, xy, conic):
+        """Counts, offsets, total and pairs of slot `slot` (view v, or the K views batched) from
+        the packed rectangles, the screen records (`xy`, `conic` with opacity: render/project.py)
+        and the depth order."""
+        u = self.params.binding(slot)
         records = {9: xy, 10: conic}
-        self.k_count.dispatch(encoder, {0: u, 1: rects, 2: sorted_prims, 3: self.counts, **records}, threads=self.n)
-        self.scan.encode(encoder, self.counts, self.offsets, self.n, total=self.total(v))
+        count = self.n * self._views_of(slot)
+        self.k_count.dispatch(encoder, {0: u, 1: rects, 2: sorted_prims, 3: self.counts, **records}, threads=count)
+        self.scan.encode(encoder, self.counts, self.offsets, count, total=self.total(slot))
         self.k_emit.dispatch(
             encoder,
             {0: u, 1: rects, 2: sorted_prims, 4: self.offsets, 5: self.isect_tiles, 6: self.isect_prims, **records},
-            threads=self.n,
+            threads=count,
         )
 
-    def encode_ranges(self, encoder, v: int):
-        """Per-tile ranges of view v's tile-sorted list."""
+    def encode_ranges(self, encoder, slot: int):
+        """Per-tile ranges of slot `slot`'s tile-sorted list (and, batched, each view's total)."""
         self.k_ranges.dispatch(
             encoder,
-            {0: self.params.binding(v), 5: self.isect_tiles, 7: self.stats, 8: self.ranges},
-            threads=self.n_tiles,
+            {0: self.params.binding(slot), 5: self.isect_tiles, 7: self.stats, 8: self.ranges},
+            threads=self.n_tiles * self._views_of(slot),
         )
 
 

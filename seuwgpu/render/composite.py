@@ -128,6 +128,7 @@ class Compositing:
         tiles: tuple[int, int],
         isect_box,
         stops=None,
+        frames: int = 1,
     ):
         """One view: `frame` its Binning slot (render/bin.py), `ranges` / `isect_prims` its tile
         lists, `xy` / `conic` / `rgb` the screen records (render/project.py), tiles = (TX, TY).
@@ -137,7 +138,8 @@ class Compositing:
         receives each pair's pixel box (FULL_BOX where a chunk stopped early): the variants entry
         reads both. Without `stops` neither is written (same image, less traffic). Three passes:
         main over every tile, then chunks and merge (indirect: no workgroup when no tile is
-        longer than a chunk)."""
+        longer than a chunk). `frames`: the views of a batched list (tile ids v * TX * TY + tile,
+        one layer of main's grid each; `frame` is then the batched Binning slot)."""
         if self.capacity is None:
             raise RuntimeError("Compositing.set_capacity must be called before encode")
         encoder.clear_buffer(self.work, 0, 20)  # counters and the chunks' group count
@@ -148,7 +150,7 @@ class Compositing:
         main.dispatch(
             encoder,
             {**records, 6: self.image, 30: self.work, 35: self.no_stops if stops is None else stops, **lists},
-            workgroups=(int(tiles[0]), int(tiles[1]), 1),
+            workgroups=(int(tiles[0]), int(tiles[1]), int(frames)),
         )
         chunks.dispatch(
             encoder, {**records, 31: self.slabs, 32: self.extra_list, 34: self.work}, indirect=(self.work, 16)

@@ -375,6 +375,15 @@ class Projection:
         self._kernels: dict[tuple, Kernel] = {}
         self.kernel = self.variant(PRECISION_CODE["fp32"], 3, 0, 0)
         self.set_slots(slots)
+        self.capacity = 0
+        self.set_capacity(capacity)
+
+    def set_capacity(self, capacity: int):
+        """(Re)allocate the screen records for `capacity` primitives (a batched renderer's K views
+        hold K n: render/renderer.py)."""
+        if int(capacity) == self.capacity:
+            return
+        gpu, label = self.gpu, self.label
         self.capacity = n = int(capacity)
         self.xy = gpu.buffer(8 * n, STORAGE, f"{label}.xy")
         self.conic = gpu.buffer(16 * n, STORAGE, f"{label}.conic")
@@ -402,11 +411,14 @@ class Projection:
         guard_mask: int = 0,
         tile_origin: tuple[int, int] = (0, 0),
         background=(1.0, 1.0, 1.0),
+        records_at: int | None = None,
     ):
         """Parameters of slot `slot`: camera `cam` (full frame; `tiles` and `tile_origin`, in
         tiles, describe the rendered viewport); `chunk` = (first primitive, count) of the n_total,
         stored `plane_words` words per component plane; the in-pipeline guard mask (bit c clamps
-        flat component c; view 0 counts the clamps)."""
+        flat component c; view 0 counts the clamps). The chunk's records (and depth values) go to
+        records_at + j (default: its first primitive; a batched renderer puts view v's at v n +
+        that)."""
         self.params.struct.fill(
             self.params.rows[slot : slot + 1],
             viewmat=cam.viewmat.T,  # WGSL matrices are column-major
@@ -418,7 +430,7 @@ class Projection:
             tiles_x=tiles[0],
             tiles_y=tiles[1],
             n_total=n_total,
-            chunk_base=chunk[0],
+            chunk_base=chunk[0] if records_at is None else records_at,
             chunk_count=chunk[1],
             plane_words=plane_words,
             sh_degree=degree,

@@ -1,8 +1,18 @@
 """The WGSL 3DGS renderer: GPU-resident model, K views per `run`.
 
-A thin orchestration of the stages; on a GPU each view's command encoder is submitted as soon
-as it is recorded, so the device renders view v while Python records view v + 1, and on a CPU
-adapter all K views go into one (`submission_groups`). Per view:
+A thin orchestration of the stages. Batched (the default where it fits: `batch_views`), the K
+views share every dispatch after projection: their screen records lie one after the other in
+buffers of K n records, one depth sort orders all K n of them, one binning pass emits pairs whose
+tile ids carry the view (v * n_tiles + tile), one tile sort and one ranges pass serve all K, and
+one compositing dispatch covers K layers of tiles (render/bin.py, shaders/bin.wgsl). Each tile of
+each view still gets its own list, front to back with ties by primitive index (the sorts are
+stable and a view's records keep their order among the others'), so the frames are the same bit
+for bit as one view at a time. A frame set costs K projection dispatches per model chunk plus
+the ~45 of one view, instead of K times 45, and Python records it K times faster. Not batched:
+renderers that keep views for the incremental re-compositor (their per-view lists are what it
+reads), one view, or K n records past `BATCH_MAX_RECORDS`; then on a GPU each view's command
+encoder is submitted as soon as it is recorded, so the device renders view v while Python
+records view v + 1, and on a CPU adapter all K views go into one (`submission_groups`). Per view:
 projection of every model chunk (render/project.py) -> depth sort of the primitives
 (render/sort.py) -> binning: tiles touched per primitive in depth order, their scan and the
 emission of (tile, primitive) pairs (render/bin.py) -> tile sort (render/sort.py) -> per-tile
@@ -30,6 +40,11 @@ from seuwgpu.render.bin import Binning
 from seuwgpu.render.composite import DEFAULT_SHAPE, Compositing, check_shape, default_chunk
 from seuwgpu.render.project import Projection, check_profile
 from seuwgpu.render.sort import Sorting
+
+BATCH_MAX_RECORDS = {"gpu": 1 << 24, "cpu": 1 << 22}
+"""Most screen records (K views x n primitives) a batched renderer holds, at about 70 bytes each
+(records, depth keys, sort and binning scratch): on a GPU 16 Mi (about 1.1 GiB), on a CPU adapter
+4 Mi (host memory). Past them the views are rendered one at a time."""
 
 
 def _next_pow2(x: int) -> int:
@@ -63,8 +78,13 @@ class Renderer:
         exact_binning: bool = True,
         chunk: int | None = None,
         compositor: str | None = None,
+        batch_views: bool | None = None,
     ):
         self.gpu = gpu or get_gpu()
+        # batch_views: the K views share the dispatches after projection (module docstring); None:
+        # wherever it applies (not with keep_views, K > 1, within BATCH_MAX_RECORDS); False: one
+        # view at a time (the frames are the same either way)
+        self._batch_views = batch_views
         # renderer profile (docs/renderer.md "Profiles"): what corrupted values draw
         self.profile = check_profile(profile)
         # viewport (x0, y0, w, h): render only this tile-aligned region of every camera's frame (the
@@ -154,7 +174,7 @@ class Renderer:
         if self.tiles_x > 0xFFFF or self.tiles_y > 0xFFFF:
             raise ValueError("image too large")
         self.projection.set_slots(self.k * self.layout.n_chunks)
-        self.binning.set_views(self.k, self.n_tiles)
+        self._set_batched(self._batching())
         self.compositing.set_views(self.k, self.width, self.height)
         if self.keep_views:
             g, n, k = self.gpu, self.n, self.k
@@ -167,6 +187,22 @@ class Renderer:
             self.kv_stop = g.buffer(4 * k * self.width * self.height, STORAGE, "kv_stop")
         want = self._want_capacity or max(65536, 4 * self.n)
         self._set_capacity(min(max(self.capacity, _next_pow2(want)), self.max_capacity), force=True)
+
+    def _batching(self) -> bool:
+        """Whether the current views can be batched (module docstring)."""
+        if self._batch_views is False or self.keep_views or self.k < 2:
+            return False
+        records = self.k * self.n
+        limit = BATCH_MAX_RECORDS["cpu" if self.gpu.is_cpu else "gpu"]
+        return records <= limit and 16 * records <= self.gpu.max_binding
+
+    def _set_batched(self, batched: bool):
+        """Size the projection records, depth sort and binning for K views batched or one by one."""
+        self.batched = bool(batched)
+        records = self.n * (self.k if self.batched else 1)
+        self.projection.set_capacity(records)
+        self.sorting.set_depth_count(records)
+        self.binning.set_views(self.k, self.n_tiles, self.batched)
 
     def _write_params(self):
         L, tile_origin = self.layout, (self.origin[0] // TILE, self.origin[1] // TILE)
@@ -186,6 +222,7 @@ class Renderer:
                     guard_mask=self.guard_mask,
                     tile_origin=tile_origin,
                     background=self.background,
+                    records_at=v * self.n + a if self.batched else a,
                 )
             self.binning.set_view(
                 v, tiles_x=self.tiles_x, size=(self.width, self.height), origin=self.origin, background=self.background
@@ -255,18 +292,8 @@ class Renderer:
         self._state_hook(encoder, v, "sorted")
         b.encode_ranges(encoder, v)
         self._state_hook(encoder, v, "ranged")
-        self.compositing.encode(
-            encoder,
-            b.params.binding(v),
-            b.ranges,
-            b.isect_prims,
-            p.xy,
-            p.conic,
-            p.rgb,
-            (self.tiles_x, self.tiles_y),
-            b.isect_box,
-            stops=self.kv_stop if self.keep_views and self.capture_views else None,  # a kept frame
-        )
+        # a kept frame also records where each pixel stopped
+        self._encode_composite(encoder, v, 1, self.kv_stop if self.keep_views and self.capture_views else None)
         self._state_hook(encoder, v, "composited")
         if self.keep_views and self.capture_views:
             n = self.n
@@ -287,7 +314,46 @@ class Renderer:
         if f is not None and f.view == v and f.point == point:
             f.encode(encoder)
 
+    def encode_batch(self, encoder):
+        """All K views, batched (module docstring): K projections per model chunk, then one
+        depth sort, binning, tile sort, ranges and compositing pass for all of them."""
+        L, p, b = self.layout, self.projection, self.binning
+        for v in range(self.k):
+            for c in range(L.n_chunks):
+                lo, hi = L.chunk_range(c)
+                p.encode(encoder, v * L.n_chunks + c, self.chunks[c], hi - lo, self.box_buf, self.guard_counts)
+        self.sorting.encode_depth(encoder, p.depth_keys, p.depth_vals)
+        slot = b.batch_slot
+        b.encode_emit(encoder, slot, p.rect, p.depth_vals, p.xy, p.conic)
+        self.sorting.encode_tiles(encoder, b.isect_tiles, b.isect_prims, b.total(slot), self.k * self.n_tiles)
+        b.encode_ranges(encoder, slot)
+        self._encode_composite(encoder, slot, self.k)
+
+    def _encode_composite(self, encoder, slot: int, frames: int, stops=None):
+        """Compositing of Binning slot `slot`'s lists: one view's, or the K batched views'."""
+        p, b = self.projection, self.binning
+        self.compositing.encode(
+            encoder,
+            b.params.binding(slot),
+            b.ranges,
+            b.isect_prims,
+            p.xy,
+            p.conic,
+            p.rgb,
+            (self.tiles_x, self.tiles_y),
+            b.isect_box,
+            stops=stops,
+            frames=frames,
+        )
+
     def encode(self, encoder, views=None):
+        if self.batched:
+            if views is not None and list(views) != list(range(self.k)):
+                raise ValueError("a batched renderer records its K views together (batch_views=False for fewer)")
+            if self.state_fault is not None:
+                raise RuntimeError("pipeline-state faults need a renderer that keeps its views (keep_views=True)")
+            self.encode_batch(encoder)
+            return
         for v in range(self.k) if views is None else views:
             self.encode_view(v=v, encoder=encoder)
 
@@ -298,8 +364,9 @@ class Renderer:
         one: recording is 1% of a view there, and one by one was slower on lavapipe (100k, 256x256,
         K = 8, one process, 2026-11-26, three runs each: 90.6-99.2 ms a view against 77.8-82.4; a
         second test, alternating: 71.8-92.4 against 68.2-85.1; the cause, presumably a cost per
-        submission, was not traced). Same passes in the same order either way: same frames."""
-        if self.gpu.is_cpu:
+        submission, was not traced). Same passes in the same order either way: same frames.
+        Batched views: one, of all K."""
+        if self.gpu.is_cpu or self.batched:
             return [range(self.k)]
         return [range(v, v + 1) for v in range(self.k)]
 
@@ -311,10 +378,16 @@ class Renderer:
                 enc = self.gpu.device.create_command_encoder()
                 self.encode(enc, views)
                 self.gpu.submit(enc)
-            totals = self.gpu.read(self.binning.stats, np.uint32)
-            need = int(totals.max())
+            stats = self.gpu.read(self.binning.stats, np.uint32)
+            totals = stats[: self.k]
+            # batched: the K views' pairs share one list (their sum at the batched slot)
+            need = int(stats[self.binning.batch_slot] if self.batched else totals.max())
             if need <= self.capacity:
                 return totals
+            if self.batched and need > self.max_capacity:
+                self._set_batched(False)  # the views one at a time: each list alone may still fit
+                self._write_params()
+                continue
             if need > self.max_capacity:
                 kept = f" per view with {self.k} kept views" if self.keep_views and self.k > 1 else ""
                 raise RuntimeError(

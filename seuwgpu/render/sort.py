@@ -35,6 +35,12 @@ class Sorting:
         self.capacity = int(capacity)
         self.tiles = RadixSort(self.gpu, self.capacity)
 
+    def set_depth_count(self, count: int):
+        """Sort `count` depth keys from now on (n, or K n for a batched renderer's K views)."""
+        if int(count) != self.n:
+            self.n = int(count)
+            self.depth = RadixSort(self.gpu, self.n)
+
     def encode_depth(self, encoder, keys, values):
         """Stable sort of the n (depth key, primitive) pairs, in place."""
         self.depth.encode(encoder, keys, values, self.n, key_bits=32)
