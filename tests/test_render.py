@@ -177,8 +177,10 @@ def test_batched_views_equal_views_one_at_a_time(gpu, compositor, exact):
     one = Renderer(model, cams, batch_views=False, **kw)
     want = one.render()
     assert not one.batched
-    for extra in ({}, {"capacity": 1000}, {"viewport": (16, 16, 48, 32)}):
+    for extra in ({}, {"capacity": 1000}, {"viewport": (16, 16, 48, 32)}, {"view_major": not gpu.is_cpu}):
+        view_major = extra.pop("view_major", gpu.is_cpu)  # both depth orders: grouped by view or mixed
         r = Renderer(model, cams, **kw, **extra)
+        r.view_major = view_major
         got = r.render()
         assert r.batched and r.submission_groups() == [range(3)]
         x0, y0, w, h = extra.get("viewport", (0, 0, 72, 56))

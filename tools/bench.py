@@ -100,6 +100,7 @@ STAGES = ("project", "depth sort", "count+scan", "emit", "tile sort", "ranges", 
 # passes "radix_sort" / "prefix_sum").
 _STAGE_OF = {
     "project:main": "project",
+    "bin:view_keys": "depth sort",  # batched views on CPU adapters: the records grouped by view
     "bin:count_tiles": "count+scan",
     "prefix_sum": "count+scan",
     "bin:emit": "emit",

@@ -47,6 +47,7 @@ class Binning:
         self.k_count = Kernel(gpu, "bin", "count_tiles", constants={"EXACT_BIN": int(self.exact)})
         self.k_emit = Kernel(gpu, "bin", "emit", constants={"EXACT_BIN": int(self.exact)})
         self.k_ranges = Kernel(gpu, "bin", "tile_ranges")
+        self.k_view_keys = Kernel(gpu, "bin", "view_keys")
         self.struct = self.k_count.struct("Binning")
         self.entries = 0
         self._set_entries(self.n)
@@ -126,6 +127,13 @@ class Binning:
             encoder,
             {0: u, 1: rects, 2: sorted_prims, 4: self.offsets, 5: self.isect_tiles, 6: self.isect_prims, **records},
             threads=count,
+        )
+
+    def encode_view_keys(self, encoder, sorted_prims, keys):
+        """Batched views: keys[s] = the view of the s-th depth-ordered record (for a stable sort
+        by view: render/renderer.py)."""
+        self.k_view_keys.dispatch(
+            encoder, {0: self.params.binding(self.batch_slot), 2: sorted_prims, 11: keys}, threads=self.n * self.k
         )
 
     def encode_ranges(self, encoder, slot: int):
