@@ -191,7 +191,9 @@ class Renderer:
             self.kv_ranges = g.buffer(8 * self.n_tiles * k, STORAGE, "kv_ranges")
             # per pixel of each view, the list position of the record it stopped at (composite.wgsl)
             self.kv_stop = g.buffer(4 * k * self.width * self.height, STORAGE, "kv_stop")
-        want = self._want_capacity or max(65536, 4 * self.n)
+        # a batched frame set's one list holds all K views' pairs (a first guess of 4 a primitive
+        # and view; a frame that needs more grows the buffers and runs again)
+        want = self._want_capacity or max(65536, 4 * self.n) * (self.k if self.batched else 1)
         self._set_capacity(min(max(self.capacity, _next_pow2(want)), self.max_capacity), force=True)
 
     def _batching(self) -> bool:
