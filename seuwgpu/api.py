@@ -36,7 +36,7 @@ from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, VALUE_MODELS, mo
 from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.metrics.image import display
 from seuwgpu.model import encoding
-from seuwgpu.model.cameras import Camera
+from seuwgpu.model.cameras import Camera, check_one_size, image_sizes
 from seuwgpu.model.fields import FIELDS, Model
 from seuwgpu.model.scenes import list_scenes
 from seuwgpu.model.sources import Source, load_source, source_views
@@ -85,12 +85,15 @@ def load_model(
 ) -> Scene:
     """An embedded scene by name (`list_scenes()`: procedural ones and two real captures) or any
     supported model file or INRIA output folder, recognised by content (INRIA PLY, compressed PLY,
-    .splat, .spz, gsplat .pt). `n`, `sh_degree` and `seed` shape procedural scenes; `up` overrides
+    .splat, .spz, gsplat .pt). `n`, `sh_degree` and `seed` shape embedded scenes (`n` with a
+    file is refused: a model file keeps all of its primitives); `up` overrides
     the up axis used to frame the model without cameras ("+z", "-y", ...)."""
     path = Path(source)
     if isinstance(source, Path) or path.exists() or path.suffix or "/" in str(source):
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such model file or folder")
+        if n is not None:  # refused, not ignored, as the command line refuses --n with --model
+            raise InputError(f"n sets the primitives of an embedded scene; a model file keeps all of its own ({path})")
         return load_source(path=path, up=up)
     name = str(source)
     if name not in list_scenes():
@@ -124,9 +127,11 @@ def render_views(
     precision: str = "fp32",
     profile: str = "strict",
     compositor: str | None = None,
-) -> np.ndarray:
+) -> np.ndarray | list[np.ndarray]:
     """The views of the model stored at `precision`: float32 [K, H, W, 3], unclamped (values of a
-    corrupted model may be negative, above 1 or non-finite). `profile` is the renderer's rule set
+    corrupted model may be negative, above 1 or non-finite); views of several image sizes (a
+    capture mixing portrait and landscape photos) are rendered size by size and returned as a
+    list of K float32 [H, W, 3] frames in the views' order. `profile` is the renderer's rule set
     for corrupted values (PROFILES: "strict", or "gsplat" as gsplat's CUDA kernels; docs/renderer.md).
     `compositor`: the compositor's shape, "lanes" or "wide" (the same frames bit for bit; "wide"
     is the shape GPUs fill, docs/renderer.md); None: the device's default."""
@@ -136,10 +141,17 @@ def render_views(
     from seuwgpu.render.composite import check_shape
 
     shape = None if compositor is None else check_shape(compositor)
-    # frames larger than one storage binding are rendered in view groups or tile-row bands
-    return render_split(
-        model, _views(views), encoding.check_precision(precision), profile=_profile(profile), compositor=shape
-    )
+    views, precision, profile = _views(views), encoding.check_precision(precision), _profile(profile)
+    sizes = image_sizes(views)
+    if len(sizes) == 1:  # frames larger than one storage binding: in view groups or tile-row bands
+        return render_split(model, views, precision, profile=profile, compositor=shape)
+    frames: list = [None] * len(views)
+    for size in sizes:
+        idx = [i for i, c in enumerate(views) if (c.width, c.height) == size]
+        group = render_split(model, [views[i] for i in idx], precision, profile=profile, compositor=shape)
+        for i, frame in zip(idx, group):
+            frames[i] = frame
+    return frames
 
 
 @dataclass
@@ -216,7 +228,9 @@ def inject(
     bits, op, value = _fault_bits(fault, bit, width, precision, seed)
     model = _model_of(scene)
     name = scene.name if isinstance(scene, Source) else "model"
-    eng = Engine(model, _views(views), encoding.check_precision(precision), scene=name, profile=_profile(profile))
+    views = _views(views)
+    check_one_size(views, "views", "inject")
+    eng = Engine(model, views, encoding.check_precision(precision), scene=name, profile=_profile(profile))
     if primitive is None:
         primitive, _ = eng.worst_primitive(field, component, bits, sample, seed, defenses[0], op, value)
     site = eng.site(field, int(primitive), component, bits, op, value)
@@ -238,16 +252,27 @@ def inject(
     return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames)
 
 
-def save_frames(images: np.ndarray, out: str | Path, stem: str, *, formats: Iterable[str] = ("png",)) -> list[Path]:
+def save_frames(
+    images: np.ndarray | Sequence[np.ndarray], out: str | Path, stem: str, *, formats: Iterable[str] = ("png",)
+) -> list[Path]:
     """Write [K, H, W, C] frames (C = 1 or 3) as `{stem}_{k:03d}.png` (display: clipped to [0, 1],
-    non-finite pixels black), `.tiff` (float32, unclamped, non-finite kept) and/or one `{stem}.npz`."""
+    non-finite pixels black), `.tiff` (float32, unclamped, non-finite kept) and/or one `{stem}.npz`.
+    A list of [H, W, C] frames of several sizes (render_views of mixed views) is written as PNG
+    and TIFF files alike; one npz array cannot hold it."""
     formats = tuple(_names(formats, "formats"))
     unknown = sorted(set(formats) - set(FRAME_FORMATS))
     if unknown:
         raise InputError(f"unknown frame format(s) {', '.join(unknown)}; expected some of {', '.join(FRAME_FORMATS)}")
-    images = np.asarray(images, np.float32)
-    if images.ndim != 4 or images.shape[-1] not in (1, 3):
-        raise InputError(f"frames must be [K, H, W, 1 or 3], got shape {list(images.shape)}")
+    if isinstance(images, (list, tuple)) and len({np.shape(f) for f in images}) > 1:
+        if "npz" in formats:
+            raise InputError("frames of several sizes do not fit one npz array; write png or tiff files")
+        images = [np.asarray(f, np.float32) for f in images]
+        if any(f.ndim != 3 or f.shape[-1] not in (1, 3) for f in images):
+            raise InputError(f"frames must be [H, W, 1 or 3], got shapes {[list(f.shape) for f in images]}")
+    else:
+        images = np.asarray(images, np.float32)
+        if images.ndim != 4 or images.shape[-1] not in (1, 3):
+            raise InputError(f"frames must be [K, H, W, 1 or 3], got shape {list(images.shape)}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = []

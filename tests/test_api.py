@@ -195,3 +195,33 @@ def test_inject_fault_models(scene, views):
         sg.inject(scene, views, field="opacity", bit=3, primitive=5, fault="cosmic")
     with pytest.raises(ValueError, match="needs bit"):
         sg.inject(scene, views, field="opacity", bit=None, primitive=5, fault="stuck1")
+
+
+def test_load_model_refuses_n_for_a_model_file(tmp_path):
+    """n shapes an embedded scene; with a model file it is refused, as the command line refuses
+    --n with --model (it used to be ignored silently)."""
+    from seuwgpu.model.formats import save_model
+
+    save_model(sg.load_model("spheres", n=50).model, tmp_path / "m.ply")
+    assert sg.load_model(tmp_path / "m.ply").model.n == 50
+    with pytest.raises(sg.InputError, match="n sets the primitives of an embedded scene; a model file keeps all"):
+        sg.load_model(str(tmp_path / "m.ply"), n=10)
+
+
+def test_views_of_several_sizes_render_size_by_size(scene, tmp_path):
+    """A capture mixing portrait and landscape views: render_views renders each size apart and
+    returns the frames in the views' order; inject, which needs one frame set, says why not."""
+    land, port = sg.cameras(scene, views=3, size=(40, 32)), sg.cameras(scene, views=3, size=(32, 40))
+    mixed = [land[0], port[1], land[2]]
+    frames = sg.render_views(scene, mixed)
+    assert [f.shape for f in frames] == [(32, 40, 3), (40, 32, 3), (32, 40, 3)]
+    want_land, want_port = sg.render_views(scene, [land[0], land[2]]), sg.render_views(scene, [port[1]])
+    assert np.array_equal(frames[0], want_land[0]) and np.array_equal(frames[2], want_land[1])
+    assert np.array_equal(frames[1], want_port[0])
+    paths = sg.save_frames(frames, tmp_path, "view", formats=["png", "tiff"])
+    assert [p.name for p in paths if p.suffix == ".tiff"] == ["view_000.tiff", "view_001.tiff", "view_002.tiff"]
+    assert np.array_equal(tifffile.imread(tmp_path / "view_001.tiff"), frames[1])
+    with pytest.raises(sg.InputError, match="npz"):
+        sg.save_frames(frames, tmp_path, "view", formats=["npz"])
+    with pytest.raises(sg.InputError, match=r"2 image sizes, 40x32 \(2 views\), 32x40 \(1 view\)"):
+        sg.inject(scene, mixed, field="opacity", bit=30, primitive=0)

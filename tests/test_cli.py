@@ -309,3 +309,70 @@ def test_the_command_line_and_a_spec_share_the_size_and_view_limits(capsys):
         for cmd in ("render", "inject", "demo", "view"):
             assert cli(cmd, "--views", str(k)) == ok, (cmd, k)
         assert spec("views", k) == ok, k
+
+
+def test_render_a_cameras_file_of_several_image_sizes(tmp_path, capsys):
+    """A capture mixing portrait and landscape views (COLMAP, INRIA): `render` renders each size
+    apart and writes view_K as for one size; the commands that render one frame set (inject, a
+    campaign through demo) refuse it with the sizes and their view counts, before any work."""
+    land, port = scene_cameras("spheres", 3, 64, 48), scene_cameras("spheres", 3, 48, 64)
+    mixed = [land[0], port[1], land[2]]
+    cams = tmp_path / "CAMS.json"
+    cams.write_text(json.dumps({"cameras": [c.to_json() for c in mixed]}))
+    common = ["--scene", "spheres", "--n", "300", "--cameras", cams]
+    rc, out, err = run(["render", *common, "--formats", "png,tiff", "--out", tmp_path / "r"], capsys)
+    assert rc == 0, err
+    assert sorted(p.name for p in (tmp_path / "r").glob("view_*.tiff")) == [f"view_{k:03d}.tiff" for k in range(3)]
+    model = make_scene("spheres", n=300)
+    want_land, want_port = Renderer(model, [land[0], land[2]]).render(), Renderer(model, [port[1]]).render()
+    import tifffile
+
+    for k, want in enumerate((want_land[0], want_port[0], want_land[1])):
+        assert np.array_equal(tifffile.imread(tmp_path / "r" / f"view_{k:03d}.tiff"), want)
+    rc, _, err = run(["render", *common, "--out", tmp_path / "r.npz"], capsys)
+    assert rc == 2 and "do not fit one npz array" in err and not (tmp_path / "r.npz").exists()
+    sizes = "2 image sizes, 64x48 (2 views), 48x64 (1 view)"
+    inject = ["inject", *common, "--field", "opacity", "--bit", "30", "--primitive", "0", "--out", tmp_path / "i"]
+    rc, _, err = run(inject, capsys)
+    assert rc == 2 and f"--cameras {cams}: the views have {sizes}" in err and "one size at a time" in err
+    rc, _, err = run(["demo", *common, "--samples", "1", "--quiet", "--out", tmp_path / "d"], capsys)
+    assert rc == 2 and sizes in err and not (tmp_path / "d").exists()
+    # views of one size picked from the file run as before: --views 1 takes the first
+    rc, _, err = run([*inject[:-2], "--views", "1", "--out", tmp_path / "i"], capsys)
+    assert rc == 0, err
+
+
+def test_view_checks_its_arguments_before_the_display(tmp_path, capsys, monkeypatch):
+    """A bad argument is exit status 2 whether or not a display opens (it used to be 3, no
+    display); more --views than the cameras file holds is said, as `render` says it."""
+    from seuwgpu.apps import viewer_window
+
+    for var in ("DISPLAY", "WAYLAND_DISPLAY", "RENDERCANVAS_BACKEND", "RENDERCANVAS_FORCE_OFFSCREEN"):
+        monkeypatch.delenv(var, raising=False)
+    (tmp_path / "m.ply").write_bytes(b"")
+    rc, _, err = run(["view", "--model", tmp_path / "m.ply", "--n", "3"], capsys)
+    assert rc == 2 and "--n sets the primitives" in err
+    cams = tmp_path / "CAMS.json"
+    cams.write_text(json.dumps({"cameras": [c.to_json() for c in scene_cameras("spheres", 2, 64, 64)]}))
+    monkeypatch.setenv("RENDERCANVAS_BACKEND", "offscreen")
+    opened = []
+    monkeypatch.setattr(viewer_window, "run_viewer", lambda *a, **k: opened.append(k["views"]) or 0)
+    rc, _, err = run(["view", "--scene", "spheres", "--n", "300", "--cameras", cams, "--views", "5"], capsys)
+    assert rc == 0 and len(opened[0]) == 2
+    assert f"--views 5: {cams} holds 2, all rendered" in err
+
+
+def test_scene_export_keeps_the_antialiased_flag(tmp_path, capsys):
+    """A real capture flagged antialiased in its SPZ header keeps the flag when exported as SPZ,
+    so reloading it still says so; loading the scene by name says so too."""
+    from seuwgpu.model.formats.spz import read_spz
+
+    rc, _, err = run(["scene", "leica-sofort", "--n", "64", "--out", tmp_path / "x.spz"], capsys)
+    assert rc == 0, err
+    assert read_spz(tmp_path / "x.spz")[1].antialiased
+    assert any(n.startswith("trained antialiased") for n in read_model(tmp_path / "x.spz").notes)
+    rc, _, err = run(["scene", "spheres", "--n", "64", "--out", tmp_path / "s.spz"], capsys)
+    assert rc == 0 and not read_spz(tmp_path / "s.spz")[1].antialiased  # procedural: not flagged
+    rc, _, err = run(["render", "--scene", "leica-sofort", "--n", "64", "--views", "1", "--size", "32x32",
+                      "--out", tmp_path / "r"], capsys)  # fmt: skip
+    assert rc == 0 and "seuwgpu: leica-sofort: trained antialiased (mip-splatting)" in err

@@ -309,6 +309,19 @@ def test_compressed_ply_against_the_spec(tmp_path):
     assert m.sh_rest[0, 0, 0] == -4.0 and m.sh_rest[0, 1, 0] == 4.0
 
 
+def test_small_gzip_file_is_not_spz_before_too_short(tmp_path):
+    """A gzipped file shorter than SPZ's 16-byte header is first of all not SPZ (no NGSP magic):
+    said so, not "SPZ stream too short"; an NGSP stream cut short is still too short."""
+    for name, raw in (("text.spz", b"hello"), ("empty.spz", b""), ("twelve.spz", b"not spz, no!")):
+        (tmp_path / name).write_bytes(gzip.compress(raw))
+        with pytest.raises(ModelFileError, match="gzip file that is not SPZ") as e:
+            load_model(tmp_path / name)
+        assert str(tmp_path / name) in str(e.value) and "too short" not in str(e.value)
+    (tmp_path / "cut.spz").write_bytes(gzip.compress(struct.pack("<II", 0x5053474E, 2)))
+    with pytest.raises(ModelFileError, match="SPZ stream too short for its 16-byte header"):
+        load_model(tmp_path / "cut.spz")
+
+
 # ------------------------------------------------------------------------------------- .splat
 def test_splat_against_the_spec(tmp_path):
     rec = np.zeros(4, [("pos", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
@@ -357,6 +370,21 @@ def test_splat_recognised_by_content_but_not_text(tmp_path):
             read_model(tmp_path / name)
     (tmp_path / "short.splat").write_bytes(rec[:7].tobytes())
     assert read_model(tmp_path / "short.splat").model.n == 7
+
+
+def test_splat_named_file_must_look_like_one(tmp_path):
+    """The .splat extension skips format sniffing, not the content check: a text file (whose size
+    happens to be a multiple of 32) is refused with the reason instead of loading as garbage."""
+    for name, data, why in (
+        ("notes.splat", b"abcdefghijklmnopqrstuvwxyz012345" * 10, "its first bytes are text"),
+        ("short.splat", b"0123456789abcdef" * 4, "its first bytes are text"),  # 2 records of text
+        ("empty.splat", b"", "the file is empty"),
+        ("noise.splat", np.full(9 * 32, 255, np.uint8).tobytes(), "finite positions and positive scales"),
+    ):
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(ModelFileError, match=f"does not look like an antimatter15 .splat file: .*{why}") as e:
+            read_model(tmp_path / name)
+        assert str(e.value).startswith(str(tmp_path / name))
 
 
 # ------------------------------------------------------------------------------------- gsplat
@@ -514,3 +542,17 @@ def test_a_zip_that_is_no_torch_checkpoint_is_not_called_one(tmp_path):
     for name, holds in (("frames.npz", "images.npy"), ("scene.zip", "output/point_cloud.ply")):
         with pytest.raises(ModelFileError, match=f"zip archive that is no PyTorch checkpoint \\(it holds {holds}\\)"):
             read_model(tmp_path / name)
+
+
+def test_inria_output_folder_names_the_iteration_read(tmp_path):
+    """An INRIA output folder is read from its last iteration, and the notes (printed by the
+    commands as one line) say which."""
+    run = tmp_path / "run"
+    m = Model.from_flat(np.zeros((2, 14), F32), 0)
+    for it in (7000, 30000, 900):
+        (run / "point_cloud" / f"iteration_{it}").mkdir(parents=True)
+        save_ply(m, run / "point_cloud" / f"iteration_{it}" / "point_cloud.ply")
+    mf = read_model(run)
+    assert mf.path == run / "point_cloud" / "iteration_30000" / "point_cloud.ply"
+    assert "iteration 30000 (point_cloud/iteration_30000/point_cloud.ply, the last of 3)" in mf.notes
+    assert not any("iteration" in n for n in read_model(mf.path).notes)  # the file itself: no note

@@ -277,7 +277,28 @@ def test_no_normals_comments_obj_info_and_extra_properties(tmp_path, ref):
         "comment vertex 99 end_header lookalike",
     ]
     p = write_raw_ply(tmp_path / "e.ply", cols, header_extra=extra)
-    assert_models_bit_equal(ref, load_ply(p))
+    with pytest.warns(UserWarning, match="filter_3D"):  # the one extra property not ignored silently
+        assert_models_bit_equal(ref, load_ply(p))
+
+
+def test_mip_splatting_filter_3d_warns_once(tmp_path, ref):
+    """mip-splatting's filter_3D property is not applied: one warning names it (the model loads
+    as without it), where it used to be dropped silently."""
+    import warnings
+
+    cols = inria_columns(ref)
+    cols.append(("filter_3D", "<f4", np.full(ref.n, 0.01)))
+    p = write_raw_ply(tmp_path / "mip.ply", cols)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = load_ply(p)
+    assert_models_bit_equal(ref, got)
+    assert len(caught) == 1
+    assert "filter_3D" in str(caught[0].message) and "without mip-splatting's 3D filter" in str(caught[0].message)
+    assert str(p) in str(caught[0].message)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an INRIA file without it: no warning
+        load_ply(write_raw_ply(tmp_path / "plain.ply", inria_columns(ref)))
 
 
 def test_long_header(tmp_path, ref):

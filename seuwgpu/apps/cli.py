@@ -150,7 +150,7 @@ def load_source(args):
 
     src = load(scene=args.scene, path=args.model, n=args.n, sh_degree=args.sh_degree, seed=args.seed, up=args.up)
     if src.notes:
-        print(f"seuwgpu: {args.model}: {'; '.join(src.notes)}", file=sys.stderr)
+        print(f"seuwgpu: {args.model or src.name}: {'; '.join(src.notes)}", file=sys.stderr)
     return src
 
 
@@ -169,13 +169,23 @@ def view_size(args) -> tuple[int, int]:
     return args.size or args.default_size
 
 
-def load_cams(args, src):
+def load_cams(args, src, one_size: bool = True):
+    """The views the arguments name; one_size: refuse a cameras file's views of several image
+    sizes (every command but `render` renders its views as one frame set)."""
+    from seuwgpu.model.cameras import check_one_size
     from seuwgpu.model.sources import source_views
 
     cams = source_views(src, args.cameras, args.views, view_size(args), args.scale, args.default_views)
-    if args.cameras is not None and args.views is not None and args.views > len(cams):
-        print(f"seuwgpu: --views {args.views}: {args.cameras} holds {len(cams)}, all rendered", file=sys.stderr)
+    note_views(args, len(cams))
+    if one_size and args.cameras is not None:
+        check_one_size(cams, f"--cameras {args.cameras}", f"`seuwgpu {args.command}`")
     return cams
+
+
+def note_views(args, held: int):
+    """Say so when --views asks for more views than the cameras file holds (all are used)."""
+    if args.cameras is not None and args.views is not None and args.views > held:
+        print(f"seuwgpu: --views {args.views}: {args.cameras} holds {held}, all rendered", file=sys.stderr)
 
 
 # ---- commands -------------------------------------------------------------------------------------
@@ -201,6 +211,7 @@ def cmd_info(args):
 
 
 def cmd_scene(args):
+    from seuwgpu.model.captures import capture_antialiased
     from seuwgpu.model.formats import save_model
     from seuwgpu.model.scenes import is_capture, list_scenes, make_scene, scene_description
 
@@ -214,7 +225,9 @@ def cmd_scene(args):
     if args.out is None:
         raise CliError("--out FILE.ply (INRIA PLY) or FILE.spz (Niantic SPZ) is required")
     model = make_scene(args.name, n=args.n, sh_degree=args.sh_degree, seed=args.seed)
-    fmt = save_model(model, args.out, up="+y" if is_capture(args.name) else "+z")
+    capture = is_capture(args.name)  # a real capture's antialiased flag goes into an SPZ header (PLY has none)
+    aa = {"antialiased": True} if capture and capture_antialiased(args.name) else {}
+    fmt = save_model(model, args.out, up="+y" if capture else "+z", **aa)
     print(f"wrote {args.out} ({fmt}): {model.n} primitives, SH degree {model.sh_degree}")
     return 0
 
@@ -233,6 +246,7 @@ def parse_formats(text: str) -> tuple[str, ...]:
 
 def cmd_render(args):
     from seuwgpu import api
+    from seuwgpu.model.cameras import image_sizes
 
     out: Path = args.out
     if out.suffix == ".npz" and args.formats not in (None, ("npz",)):
@@ -242,16 +256,21 @@ def cmd_render(args):
     refuse_ignored_options(args)  # before anything is created
     make_out_dir(out.parent if out.suffix == ".npz" else out, what="output folder")
     src = load_source(args)
-    cams = load_cams(args, src)
+    cams = load_cams(args, src, one_size=False)  # views of several sizes: rendered size by size
+    formats = args.formats or ("png",)
+    if len(image_sizes(cams)) > 1 and (out.suffix == ".npz" or "npz" in formats):
+        raise CliError(
+            f"--cameras {args.cameras}: views of {len(image_sizes(cams))} image sizes do not fit one npz array "
+            "[K, H, W, 3]; write png or tiff files to a folder (--formats png,tiff)"
+        )
     images = api.render_views(src, cams, precision=args.precision, profile=args.profile, compositor=args.compositor)
     if out.suffix == ".npz":
         np.savez_compressed(out, images=images.astype(np.float32))
         print(f"wrote {out}: images {list(images.shape)} float32")
     else:
-        formats = args.formats or ("png",)
         paths = api.save_frames(images, out, "view", formats=formats)
         print(f"wrote {len(paths)} files ({', '.join(formats)}) to {out}")
-    bad = int((~np.isfinite(images)).any(axis=-1).sum())
+    bad = sum(int((~np.isfinite(im)).any(axis=-1).sum()) for im in images)
     if bad:
         print(f"warning: {bad} non-finite pixels (black in PNGs, kept in TIFF and npz)", file=sys.stderr)
     return 0
@@ -513,6 +532,10 @@ def cmd_demo(args):
     spec = normalize_spec(raw)
     sc = spec["scenes"][0]
     what = f"{sc['scene']} scene, {sc['n']} primitives" if "scene" in sc else f"model {sc['model']}"
+    if "model" in sc and Path(sc["model"]).is_dir():  # an INRIA output folder: say which iteration
+        from seuwgpu.model.formats import inria_iteration_note
+
+        what += f", {inria_iteration_note(sc['model'])}"
     views = f"{spec['views']} of the views in {sc['cameras']}" if "cameras" in sc else f"{spec['views']} views"
     views += f" at {spec['size'][0]}x{spec['size'][1]}" if "cameras" not in sc else ""
     views += f", scaled by {spec['scale']:g}" if "scale" in spec else ""
@@ -667,7 +690,7 @@ def cmd_defenses(args):
     if args.scene is None and args.model is None:
         args.scene = "leica-sofort"
     src = load_source(args)
-    cam = load_cams(args, src)[0]
+    cam = load_cams(args, src, one_size=False)[0]  # one view: any size
     rows = defense_costs(src.model, cam, args.precision, args.repeats, time_it=not args.no_time)
     if args.json:
         import json
@@ -766,6 +789,7 @@ def cmd_view(args):
     """`seuwgpu view`: the interactive viewer (apps/viewer_window.py)."""
     from seuwgpu.apps.viewer_window import NO_DISPLAY_HELP, canvas_backend, display_problem
 
+    refuse_ignored_options(args)  # a bad argument is exit status 2 with or without a display
     backend = canvas_backend()
     why = display_problem(backend)
     if why:
@@ -780,6 +804,7 @@ def cmd_view(args):
     views, names = None, None
     if args.cameras is not None:
         views, names, _ = read_cameras(args.cameras)
+        note_views(args, len(views))
         keep = select_views(list(range(len(views))), args.views)
         views, names = [views[i] for i in keep], [names[i] for i in keep]
     try:

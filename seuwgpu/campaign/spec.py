@@ -425,6 +425,10 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         if "cameras" in s:
             out["cameras"] = _spec_file(s, "cameras", where, base_dir)
             out["cameras_sha256"] = content_hash("cameras", out["cameras"])
+            from seuwgpu.model.cameras import check_one_size, load_cameras, select_views
+
+            views = select_views(load_cameras(out["cameras"]), spec["views"])
+            check_one_size(views, f"{where}.cameras {out['cameras']}", "a campaign")
         spec["scenes"].append(out)
     _distinct_labels(spec["scenes"])
     # recorded only when given, so older specs keep their hash (the manifest states the thresholds)

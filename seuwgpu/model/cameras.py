@@ -185,6 +185,26 @@ def select_views(cams: list[Camera], k: int | None) -> list[Camera]:
     return [cams[i * n // k] for i in range(k)]
 
 
+def image_sizes(cams: list[Camera]) -> dict[tuple[int, int], int]:
+    """{(width, height): number of views} in the order the sizes first appear."""
+    sizes: dict[tuple[int, int], int] = {}
+    for c in cams:
+        sizes[(c.width, c.height)] = sizes.get((c.width, c.height), 0) + 1
+    return sizes
+
+
+def check_one_size(cams: list[Camera], where, what: str) -> None:
+    """Refuse views of several image sizes where `what` (a command, a campaign) renders its views
+    as one frame set; the message lists each size with its number of views."""
+    sizes = image_sizes(cams)
+    if len(sizes) > 1:
+        listed = ", ".join(f"{w}x{h} ({k} view{'s' if k != 1 else ''})" for (w, h), k in sizes.items())
+        raise InputError(
+            f"{where}: the views have {len(sizes)} image sizes, {listed}, and {what} renders one size at a time: "
+            "use a camera file whose views share one size (`seuwgpu render` renders mixed sizes)"
+        )
+
+
 def scale_cameras(cams: list[Camera], scale: float) -> list[Camera]:
     """The views rendered at `scale` times their resolution, intrinsics scaled to match (pixel
     edges scale with the image, so fx, cx scale by new_width / width and fy, cy by the heights)."""

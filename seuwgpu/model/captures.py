@@ -49,11 +49,22 @@ for _base, _file, _what in (
 
 
 @cache
+def _decoded(file: str) -> tuple[Model, spz.SpzInfo]:
+    data = files("seuwgpu.model.data").joinpath(file).read_bytes()
+    return spz.decode_spz(data, f"seuwgpu/model/data/{file}")
+
+
+@cache
 def _full(name: str) -> Model:
     c = CAPTURES[name]
-    data = files("seuwgpu.model.data").joinpath(c.file).read_bytes()
-    model, _ = spz.decode_spz(data, f"seuwgpu/model/data/{c.file}")
+    model, _ = _decoded(c.file)
     return widen(model, seed=zlib.crc32(c.name.encode())) if c.wide else model
+
+
+def capture_antialiased(name: str) -> bool:
+    """Whether the capture's SPZ header flags it as trained antialiased (mip-splatting): kept by
+    `seuwgpu scene NAME --out X.spz` and noted when the scene is loaded."""
+    return _decoded(CAPTURES[name].file)[1].antialiased
 
 
 def capture_model(name: str, n: int | None = None, sh_degree: int = 3, seed: int = 0) -> Model:

@@ -12,8 +12,9 @@ from pathlib import Path
 from seuwgpu.model import scenes
 from seuwgpu.model.budget import RENDER_BYTES_PER_VALUE, SCENE_BYTES_PER_VALUE, check_scene
 from seuwgpu.model.cameras import Camera, load_cameras, scale_cameras, select_views
+from seuwgpu.model.captures import capture_antialiased
 from seuwgpu.model.fields import Model
-from seuwgpu.model.formats import read_model
+from seuwgpu.model.formats import ANTIALIASED_NOTE, read_model
 from seuwgpu.model.framing import AXES, orbit_views
 
 
@@ -49,7 +50,8 @@ def load_source(
         check_scene(n, sh_degree, "--n", max(SCENE_BYTES_PER_VALUE, RENDER_BYTES_PER_VALUE), "render")
     model = scenes.make_scene(name, n=n, sh_degree=sh_degree, seed=seed)
     registered = "+y" if scenes.is_capture(name) else "+z"
-    return Source(model, name, up or registered, name if up in (None, registered) else None)
+    notes = [ANTIALIASED_NOTE] if scenes.is_capture(name) and capture_antialiased(name) else []
+    return Source(model, name, up or registered, name if up in (None, registered) else None, notes)
 
 
 def source_views(

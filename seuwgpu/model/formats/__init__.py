@@ -51,6 +51,7 @@ FORMATS = {
 }
 UP = {"ply": "-y", "compressed-ply": "-y", "spz": "+y", "splat": "-y", "gsplat": "-y"}
 UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
+ANTIALIASED_NOTE = "trained antialiased (mip-splatting): rendered here without the opacity compensation"
 
 
 @dataclass
@@ -107,7 +108,12 @@ def detect_format(path) -> str:
         if why:
             raise ModelFileError(f"{spath}: {why}")
         return "gsplat"
-    if spath.lower().endswith(".splat") or splat_format.looks_like_splat(spath, size, head):
+    if spath.lower().endswith(".splat"):  # no header: the name says .splat, the content must agree
+        why = splat_format.splat_problem(size, head)
+        if why:
+            raise splat_format.SplatError(f"{spath} does not look like an antimatter15 .splat file: {why}")
+        return "splat"
+    if splat_format.looks_like_splat(spath, size, head):
         return "splat"
     raise ModelFileError(
         f"{spath}: unrecognised model file (not a PLY, SPZ, .splat or PyTorch checkpoint; a .splat file, "
@@ -129,7 +135,7 @@ def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
     naming the file and the problem; warns (NonFiniteWarning) when the model holds NaN or Inf."""
     spath = os.fspath(inria_output_model(path) if os.path.isdir(path) else path)
     fmt = detect_format(spath)
-    notes: list[str] = []
+    notes: list[str] = [inria_iteration_note(path)] if os.path.isdir(path) else []
     up = UP[fmt]
     if fmt in ("ply", "compressed-ply"):
         header = ply.read_header(spath)
@@ -144,7 +150,7 @@ def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
         model, info = spz.read_spz(spath)
         notes.append(f"SPZ version {info.version}")
         if info.antialiased:
-            notes.append("trained antialiased (mip-splatting): rendered here without the opacity compensation")
+            notes.append(ANTIALIASED_NOTE)
     elif fmt == "splat":
         model = splat_format.read_splat(spath)
     else:
@@ -159,15 +165,29 @@ def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
     return ModelFile(model, Path(spath), fmt, up, notes)
 
 
-def inria_output_model(folder) -> Path:
-    """The last iteration's point_cloud.ply of an INRIA 3DGS output folder (or the folder itself,
-    which detect_format then refuses with a clear message)."""
+def _inria_iterations(folder) -> list[tuple[int, Path]]:
+    """(iteration, point_cloud.ply) of each iteration an INRIA 3DGS output folder holds, in order."""
     found = []
     for p in Path(folder).glob("point_cloud/iteration_*/point_cloud.ply"):
         it = p.parent.name.removeprefix("iteration_")
         if it.isdigit():
             found.append((int(it), p))
-    return max(found)[1] if found else Path(folder)
+    return sorted(found)
+
+
+def inria_output_model(folder) -> Path:
+    """The last iteration's point_cloud.ply of an INRIA 3DGS output folder (or the folder itself,
+    which detect_format then refuses with a clear message)."""
+    found = _inria_iterations(folder)
+    return found[-1][1] if found else Path(folder)
+
+
+def inria_iteration_note(folder) -> str:
+    """Which iteration of an INRIA output folder is read (a note for the user)."""
+    found = _inria_iterations(folder)
+    it, p = found[-1]
+    last = f", the last of {len(found)}" if len(found) > 1 else ""
+    return f"iteration {it} ({p.relative_to(folder).as_posix()}{last})"
 
 
 def load_model(path) -> Model:

@@ -19,7 +19,8 @@ NaN payloads and -0.0 included.
 Reading: binary little- or big-endian, or ASCII; UTF-8 `comment` lines are fine. Properties are
 looked up by name, never by position, because exporters differ: some sort the names as strings
 (`f_rest_10` before `f_rest_2`), omit `nx ny nz`, add `comment` / `obj_info` lines, or carry
-extra properties (colours, filter sizes, ...), which are ignored. Required properties stored in
+extra properties (colours, filter sizes, ...), which are ignored (mip-splatting's `filter_3D` with a
+warning: its 3D filter is not applied). Required properties stored in
 another numeric type (some tools write `double`) are converted to float32 (doubles round to
 nearest, beyond the float32 range to +-Inf; integers convert exactly up to 2**24). ASCII values
 are parsed as float64 (correctly rounded) and then rounded to the property's type. The header
@@ -38,6 +39,7 @@ from __future__ import annotations
 
 import os
 import re
+import warnings
 
 import numpy as np
 
@@ -434,6 +436,8 @@ def model_from_header(header: PlyHeader) -> Model:
     rest = _rest_columns(spath, names)
     if vert.count == 0:
         raise PlyError(f"{spath}: PLY holds zero primitives (element vertex 0)")
+    if "filter_3D" in names:  # mip-splatting's output: its 3D smoothing filter is not applied here
+        warnings.warn(f"{spath}: property filter_3D ignored: the model renders without mip-splatting's 3D filter")
     return _model_from_vertices(read_element(header, "vertex"), rest)
 
 

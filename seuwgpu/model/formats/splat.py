@@ -36,20 +36,30 @@ def looks_like_splat(path: str, size: int, head: bytes) -> bool:
     in 32 through (printable bytes read as floats are small and finite); printable rotation bytes
     (32-126) meet the length test only by chance (11% of random printable records), and every
     record tested must: at least 8, so a shorter file needs the .splat extension."""
-    if size == 0 or size % RECORD.itemsize:
-        return False
+    return splat_problem(size, head) is None and min(len(head), size) >= 8 * RECORD.itemsize
+
+
+def splat_problem(size: int, head: bytes) -> str | None:
+    """Why a file (its size, its first bytes) is no .splat, or None: the content check of
+    looks_like_splat, also applied to a file named .splat, and text refused; a file of fewer
+    than 8 records that is not text passes (too few records to test)."""
+    if size == 0:
+        return "the file is empty"
+    if size % RECORD.itemsize:
+        return f"its size, {size} bytes, is not a multiple of the 32-byte record (truncated or not a .splat)"
     k = min(len(head), 64 * RECORD.itemsize) // RECORD.itemsize
+    if all(32 <= b < 127 or b in b"\t\n\r" for b in head[: k * RECORD.itemsize]):
+        return "its first bytes are text"
     if k < 8:
-        return False
+        return None
     rec = np.frombuffer(head[: k * RECORD.itemsize], dtype=RECORD)
     q = np.linalg.norm(rec["rot"].astype(np.float64) - 128.0, axis=1)
     with np.errstate(invalid="ignore"):
-        return bool(
-            np.isfinite(rec["pos"]).all()
-            and (rec["scale"] > 0).all()
-            and np.isfinite(rec["scale"]).all()
-            and (np.abs(q - 128.0) <= 4.0).all()
-        )
+        if not (np.isfinite(rec["pos"]).all() and np.isfinite(rec["scale"]).all() and (rec["scale"] > 0).all()):
+            return f"its first {k} records do not all hold finite positions and positive scales"
+        if not (np.abs(q - 128.0) <= 4.0).all():
+            return f"the rotation bytes of its first {k} records are not all unit quaternions"
+    return None
 
 
 def read_splat(path) -> Model:

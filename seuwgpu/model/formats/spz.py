@@ -123,11 +123,13 @@ def _planes_legacy(path: str, data: bytes) -> tuple[SpzInfo, dict[str, bytes]]:
         raw = gzip.decompress(data)
     except (OSError, EOFError, zlib.error) as e:
         raise SpzError(f"{path}: not a readable SPZ file: the gzip stream is corrupt or truncated ({e})") from None
+    magic = struct.unpack("<I", raw[:4])[0] if len(raw) >= 4 else None  # the magic first: any gzip file gets here
+    if magic != MAGIC:
+        found = f"magic {magic:#010x}" if magic is not None else f"{len(raw)} bytes, no magic"
+        raise SpzError(f"{path}: gzip file that is not SPZ ({found}, expected {MAGIC:#010x} 'NGSP')")
     if len(raw) < 16:
         raise SpzError(f"{path}: SPZ stream too short for its 16-byte header ({len(raw)} bytes)")
-    magic, version, n, degree, fbits, flags, _ = struct.unpack("<IIIBBBB", raw[:16])
-    if magic != MAGIC:
-        raise SpzError(f"{path}: gzip file that is not SPZ (magic {magic:#010x}, expected {MAGIC:#010x} 'NGSP')")
+    _, version, n, degree, fbits, flags, _ = struct.unpack("<IIIBBBB", raw[:16])
     if not 1 <= version <= 3:
         raise SpzError(f"{path}: SPZ version {version} in a gzip stream is not supported (expected 1, 2 or 3)")
     info = _check_info(path, SpzInfo(version, n, degree, fbits, flags))
