@@ -401,8 +401,14 @@ def test_quiet_progress_lines_carry_an_eta(capsys, monkeypatch):
     p.advance(300, 2)  # 300 in 20 s: 15/s, 600 left: 40 s
     p.advance(600, 1)  # done
     lines = capsys.readouterr().err.strip().splitlines()
-    assert lines[0] == "400/1000 injections, 15.0/s, ETA 00:00:40, catastrophic 2"
-    assert re.fullmatch(r"1000/1000 injections, 22\.5/s, ETA 00:00:00, catastrophic 3", lines[1])
+    # resumed from 100 done: the count covers the injections of this session only, and says so
+    assert lines[0] == "400/1000 injections, 15.0/s, ETA 00:00:40, catastrophic 2 (of the 300 run since resuming)"
+    assert re.fullmatch(
+        r"1000/1000 injections, 22\.5/s, ETA 00:00:00, catastrophic 3 \(of the 900 run since resuming\)", lines[1]
+    )
+    clock = iter([0.0, 10.0])  # a fresh run: every injection is this session's
+    R.Progress(total=100, done=0, quiet=True).advance(100, 4)
+    assert capsys.readouterr().err.strip() == "100/100 injections, 10.0/s, ETA 00:00:00, catastrophic 4"
 
 
 def test_parts_carry_their_compute_time(tmp_path):

@@ -88,9 +88,9 @@ def test_rates_command_matches_pandas(runs, tmp_path):
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert "catastrophic" in res.stdout and "fp16" in res.stdout
-    got = pd.read_csv(out).set_index("precision")
+    got = pd.read_csv(out).set_index(["precision", "defense"])  # defenses are never pooled
     single = records[(records.campaign == "single") & (records.k == 1)]
-    for prec, g in single.groupby("precision"):
+    for prec, g in single.groupby(["precision", "defense"]):
         w = g["weight"].to_numpy()
         for o in OUTCOMES:
             want = (w * (g["outcome"] == o)).sum() / w.sum()  # the weighted rate, recomputed plainly
@@ -168,16 +168,19 @@ def test_profiles_are_never_pooled(runs, tmp_path):
         store.write_part(mixed, 400 * j, 400, rec.iloc[400 * j : 400 * (j + 1)])
     cells, _ = C.fold_runs([mixed], ["precision"])
     by = C.groups(cells, ["precision"])
-    assert by == ["precision", "profile"]
+    assert by == ["precision", "defense", "profile"]
     got = C.outcome_rates(cells, by).set_index(by)
     single = rec[(rec.campaign == "single") & (rec.k == 1)]
-    for (prec, prof), g in single.groupby(["precision", "profile"]):
+    for key, g in single.groupby(["precision", "defense", "profile"]):
         ref = E.rate(g.assign(catastrophic=g.outcome == "catastrophic"), "catastrophic")
-        assert got.loc[(prec, prof), "n"] == len(g)
-        assert got.loc[(prec, prof), "catastrophic_rate"] == pytest.approx(ref["rate"].iloc[0], rel=1e-12)
-        assert got.loc[(prec, prof), "catastrophic_ci_hi"] == pytest.approx(ref["ci_hi"].iloc[0], rel=1e-12)
+        assert got.loc[key, "n"] == len(g)
+        assert got.loc[key, "catastrophic_rate"] == pytest.approx(ref["rate"].iloc[0], rel=1e-12)
+        assert got.loc[key, "catastrophic_ci_hi"] == pytest.approx(ref["ci_hi"].iloc[0], rel=1e-12)
     # one profile (or records from before profiles): no extra column
-    assert C.groups(C.fold_runs([dirs[1]], ["precision"])[0], ["precision"]) == ["precision"]
+    assert C.groups(C.fold_runs([dirs[1]], ["precision", "defense"])[0], ["precision", "defense"]) == [
+        "precision",
+        "defense",
+    ]
 
 
 def test_the_report_refuses_the_same_sites_twice(runs, tmp_path):
@@ -343,3 +346,27 @@ def test_a_part_of_the_wrong_row_count_for_its_spec_is_damaged(runs, tmp_path):
         "Unfinished: a holds 300 of 400 injections (1 damaged part, unreadable or of the wrong row count, not "
         "counted: part-0000000100-000100.parquet;"
     )
+
+
+def test_defenses_are_never_pooled(runs):
+    """Each fault site is measured once per defense: `rates --by` without `defense` must not pool a
+    site's rows under different defenses (that counts every site twice and blends defended with
+    undefended frames); like profiles, defenses always get a row each."""
+    dirs, records = runs
+    cells, _ = C.fold_runs([dirs[0]], ["precision"])
+    by = C.groups(cells, ["precision"])
+    assert by == ["precision", "defense"]
+    got = C.outcome_rates(cells, by).set_index(by)
+    rec = records[(records.run == dirs[0].name) & (records.campaign == "single") & (records.k == 1)]
+    for (prec, dfn), g in rec.groupby(["precision", "defense"]):
+        ref = E.rate(g.assign(catastrophic=g.outcome == "catastrophic"), "catastrophic")
+        assert got.loc[(prec, dfn), "n"] == len(g)
+        assert got.loc[(prec, dfn), "catastrophic_rate"] == pytest.approx(ref["rate"].iloc[0], rel=1e-12)
+    # grouping by nothing still splits the defenses; a single defense adds no column
+    assert C.groups(C.fold_runs([dirs[0]], [])[0], []) == ["defense"]
+    one = dirs[0].parent / "one"
+    store.records_dir(one).mkdir(parents=True)
+    store.write_part(
+        one, 0, 400, records[records.run == dirs[0].name].drop(columns="run").iloc[:400].assign(defense="none")
+    )
+    assert C.groups(C.fold_runs([one], ["precision"])[0], ["precision"]) == ["precision"]

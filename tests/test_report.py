@@ -396,3 +396,26 @@ def test_a_report_reads_each_manifest_and_footer_once(synthetic, tmp_path, monke
     build_report([synthetic["full"], synthetic["single"]], tmp_path / "rep", max_pred_rows=5_000)
     assert sorted(reads) == ["run_full", "run_single"]
     assert len(footers) == 4 and len(set(footers)) == 4  # two parts each
+
+
+def test_tables_of_an_unfinished_run_say_so(synthetic, tmp_path):
+    """The criticality table `seuwgpu report` prints, and every table file of the report, say that
+    the run is unfinished (not only the page's header): a table copied out of the report, or read
+    on the terminal, must not pass for the spec's population."""
+    from seuwgpu.campaign import store
+
+    single = synthetic["single_df"]
+    run = tmp_path / "half"
+    store.records_dir(run).mkdir(parents=True)
+    store.write_part(run, 0, len(single), single)
+    (run / "manifest.json").write_text(json.dumps({"total_injections": 3 * len(single)}))
+    df, _ = load_runs([run])
+    txt = criticality_table_text(df[df["k"] == 1])
+    assert f"Unfinished: half holds {len(single):,} of {3 * len(single):,} injections" in txt
+    out = tmp_path / "report"
+    build_report([run], out, max_pred_rows=20_000)
+    for name in ("criticality.md", "field_bit.md", "guard_paired.md"):
+        assert "Unfinished: half holds" in (out / name).read_text(), name
+    # a finished run's tables carry no such line
+    done, _ = load_runs([synthetic["full"]])
+    assert "Unfinished" not in criticality_table_text(done)

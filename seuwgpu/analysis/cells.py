@@ -26,6 +26,7 @@ from seuwgpu.metrics.image import OUTCOMES
 
 COUNTS = (*OUTCOMES, "nonfinite")
 NEEDED = ("campaign", "k", "weight", "outcome", "nonfinite")
+NEVER_POOLED = ("profile", "defense")  # kept in the cells, a row each when several (`groups`)
 FOLD_EVERY = 64  # parts between re-folds of the accumulated cells (bounds memory)
 
 
@@ -50,9 +51,11 @@ def fold_runs(run_dirs, by=("scene", "precision", "defense"), campaign: str = "s
     any record column and `run` (store.run_names: the label the report gives the run).
     `progress(i, n)` is called per part.
 
-    The cells always keep the renderer `profile` (`groups` adds it when several are present: a
-    profile renders other frames, never pooled). Runs holding the same parts of one spec and
-    profile (the same sites twice, store.repeated_sites) are refused unless `by` names `run`.
+    The cells always keep the renderer `profile` and the `defense` (`groups` adds each when several
+    are present: a profile renders other frames, and every site is measured once per defense, so
+    pooling defenses would count each site twice and blend defended with undefended frames). Runs
+    holding the same parts of one spec and profile (the same sites twice, store.repeated_sites) are
+    refused unless `by` names `run`.
     run_dirs: run directories, or their store.campaign_runs (each manifest read once)."""
     by = list(by)
     parts = []
@@ -68,15 +71,17 @@ def fold_runs(run_dirs, by=("scene", "precision", "defense"), campaign: str = "s
         parts += [(run.name, p) for p in run.parts]
     want = [c for c in dict.fromkeys([*by, *estimate.STRATA, *NEEDED]) if c != "run"]
     acc, pending = None, []
-    keep = by if "profile" in by else [*by, "profile"]
+    keep = [*by, *(c for c in NEVER_POOLED if c not in by)]
     for i, (run, path) in enumerate(parts):
-        d = _read(path, want, optional=("profile",))  # records of older versions have no profile
+        d = _read(path, want, optional=NEVER_POOLED)  # records of older versions have no profile
         d = d[(d["campaign"] == campaign) & (d["k"] == 1)]
         if len(d):
             if "run" in by:
                 d = d.assign(run=run)
             if "profile" not in d:
                 d = d.assign(profile="strict")  # the only renderer before profiles existed
+            if "defense" not in d:
+                d = d.assign(defense="none")
             pending.append(fold(d, keep))
         if pending and (len(pending) >= FOLD_EVERY or i == len(parts) - 1):
             acc = fold(pd.concat(([acc] if acc is not None else []) + pending, ignore_index=True), keep)
@@ -101,10 +106,11 @@ def _read(path: Path, columns: list[str], optional=()) -> pd.DataFrame:
 
 
 def groups(cells: pd.DataFrame, by) -> list[str]:
-    """`by`, plus `profile` where the cells hold more than one renderer profile."""
+    """`by`, plus `defense` and `profile` where the cells hold more than one of them (never pooled)."""
     by = list(by)
-    if "profile" in cells and "profile" not in by and cells["profile"].nunique(dropna=False) > 1:
-        by.append("profile")
+    for c in ("defense", "profile"):
+        if c in cells and c not in by and cells[c].nunique(dropna=False) > 1:
+            by.append(c)
     return by
 
 

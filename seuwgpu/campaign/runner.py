@@ -315,7 +315,8 @@ class Progress:
                 TimeElapsedColumn(),
                 TextColumn("ETA"),
                 TimeRemainingColumn(),
-                TextColumn("catastrophic: {task.fields[cat]}"),
+                # resumed: the parts already on disk are not re-read, so the count is this session's
+                TextColumn("catastrophic: {task.fields[cat]}" + (" (since resuming)" if done else "")),
                 transient=False,
             )
             self.p.start()
@@ -334,8 +335,9 @@ class Progress:
             if rate > 0:
                 left = (self.total - self.done) / rate
                 eta = time.strftime("%H:%M:%S", time.gmtime(left)) if left < 86400 else f"{left / 3600:.0f} h"
+            since = f" (of the {self.done - self.start_done} run since resuming)" if self.start_done else ""
             print(
-                f"{self.done}/{self.total} injections, {rate:.1f}/s, ETA {eta}, catastrophic {self.cat}",
+                f"{self.done}/{self.total} injections, {rate:.1f}/s, ETA {eta}, catastrophic {self.cat}{since}",
                 file=sys.stderr,
                 flush=True,
             )

@@ -209,8 +209,12 @@ def load_runs(
         raise ValueError("the runs hold no records")
     df = pd.concat(frames, ignore_index=True, sort=False)
     del frames, pending
+    # an unfinished run: every table made of these records says so (criticality_table_text)
+    partial = store.partial_runs_text(info)
     if not fold:
-        return prepare(df, thresholds), manifests
+        df = prepare(df, thresholds)
+        df.attrs["partial"] = partial
+        return df, manifests
     import pyarrow as pa
 
     pa.default_memory_pool().release_unused()  # the parts' buffers, freed but kept by the pool
@@ -218,7 +222,12 @@ def load_runs(
     df[PREDICTION_SAMPLE] = df[PREDICTION_SAMPLE].astype(bool)
     sums = region_sum_columns(df.columns)
     df[sums] = df[sums].fillna(0.0)  # parts without the columns: nothing measured there
-    df.attrs.update(_seuwgpu_prepared=True, thresholds=dict(thresholds), folded={"records": n_all, "rows": len(df)})
+    df.attrs.update(
+        _seuwgpu_prepared=True,
+        thresholds=dict(thresholds),
+        folded={"records": n_all, "rows": len(df)},
+        partial=partial,
+    )
     return df, manifests
 
 
@@ -415,7 +424,9 @@ def build_report(
             cap = ti.full_caption()
             ti.df.to_csv(out / f"{ti.name}.csv", index=False)
             mdt = markdown_table(ti.df)
-            (out / f"{ti.name}.md").write_text(f"**{ti.title}.** {cap}\n\n{mdt}")
+            (out / f"{ti.name}.md").write_text(
+                f"**{ti.title}.** {cap}\n\n{mdt}" + (f"\n**{partial}**\n" if partial else "")
+            )
             written += [f"{ti.name}.csv", f"{ti.name}.md"]
             links = f"(<a href='{ti.name}.csv'>{ti.name}.csv</a>, <a href='{ti.name}.md'>{ti.name}.md</a>)"
             body = (
@@ -577,7 +588,9 @@ def criticality_table_text(df: pd.DataFrame, precision: str | None = None) -> st
         "bits; weighted footprint quantiles in % of frame; catastrophe rate with its 95% interval.\n"
         f"{provenance_text(crit.attrs.get('provenance', {}))}\n\n"
     )
+    partial = df.attrs.get("partial")  # load_runs: an unfinished run's table says so
+    foot = f"\n{partial}\n" if partial else ""
     lines = ["| " + " | ".join(t.columns) + " |", "|---|" + "|".join("---:" for _ in t.columns[1:]) + "|"]
     for row in t.itertuples(index=False):
         lines.append("| " + " | ".join(str(x) for x in row) + " |")
-    return head + "\n".join(lines) + "\n"
+    return head + "\n".join(lines) + "\n" + foot

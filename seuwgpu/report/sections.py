@@ -493,8 +493,9 @@ def _sec_dose(df, manifests, ctx) -> Section:
             "dose_curves",
             "Dose response",
             curves,
-            "Per model, precision, defense and k: samples, non-finite share (%), PSNR quantiles and PSNR "
-            "of the mean MSE over finite frames (dB), mean SSIM, footprint (%), catastrophic fraction "
+            "Per model, precision, defense and k: samples, non-finite share (%), PSNR quartiles over all "
+            "frames (a frame with a non-finite pixel ranks lowest, shown as -inf) and PSNR of the mean MSE "
+            "over finite frames (dB), mean SSIM, footprint (%), catastrophic fraction "
             "with its 95% Wilson interval.",
             csv_only=True,
         )
