@@ -318,6 +318,38 @@ def test_size_sweep_over_several_scenes():
         normalize_spec(base)
 
 
+def test_size_sweep_over_a_model_file_cuts_seeded_subsets(tmp_path):
+    """A model file in [sizes] (a reviewer's own trained model) is cut to a seeded random subset
+    of each n, framed as the whole model (Model.sample, the paper's subsampling of trained
+    models); an n above its primitive count is refused naming the file."""
+    from seuwgpu.model.formats import save_model
+    from seuwgpu.model.scenes import make_scene
+
+    path = tmp_path / "mine.ply"
+    full = make_scene("plant", 700, seed=4)
+    save_model(full, path)
+    base = {
+        "seed": 5,
+        "views": 1,
+        "size": "32x32",
+        "scenes": [{"model": str(path), "seed": 7}],
+        "sizes": {"n": [150, 300], "fields": ["opacity"], "bits": [31], "samples": 2, "defenses": ["none"]},
+    }
+    spec = normalize_spec(base)
+    runner = Runner(spec, tmp_path / "run", quiet=True)
+    runner.run()
+    size = read_records(tmp_path / "run")
+    assert sorted(size.n_primitives.unique()) == [150, 300] and len(size) == 2 * 2
+    ctx = [c for c in enumerate_contexts(spec) if c.n == 150][0]
+    eng = runner.engine_for(ctx)
+    want = full.sample(150, 7, size.scene.iloc[0])  # seeded by the scene's seed and the model's label
+    assert eng.n == 150 and np.array_equal(eng.layout.decode(eng.renderer.clean_words).means, want.means)
+    assert len({tuple(m) for m in want.means}) == 150 and set(map(tuple, want.means)) <= set(map(tuple, full.means))
+    base["sizes"]["n"] = [150, 701]
+    with pytest.raises(SpecError, match="mine.ply has 700 primitives"):
+        normalize_spec(base)
+
+
 def test_cell_sites_are_drawn_with_replacement():
     """Why the planner uses no finite-population correction: each injection draws its site from
     its own stream (so any block can be re-run alone), i.e. with replacement: as many draws as a

@@ -483,6 +483,7 @@ def bench_config(
         "encode_ms": 1e3 * encode_s,
         "encode_ceiling_mpix_s": k * w * h / encode_s / 1e6,
         "dispatches_per_view": count_dispatches(r) / k,
+        "batched": bool(r.batched),  # the K views share their dispatches (render/renderer.py)
         "model_chunks": r.layout.n_chunks,
         "intersections_per_view": [int(x) for x in totals[:k]],
     }

@@ -182,10 +182,11 @@ class Runner:
         from seuwgpu.model.sources import load_source, source_views
 
         sc = self.spec["scenes"][ctx.scene_index]
+        path = sc.get("model")
         src = load_source(
             scene=sc.get("scene"),
-            path=sc.get("model"),
-            n=ctx.n or sc.get("n"),
+            path=path,
+            n=None if path else ctx.n or sc.get("n"),
             sh_degree=sc["sh_degree"],
             seed=sc["seed"],
             up=sc.get("up"),
@@ -193,8 +194,11 @@ class Runner:
         views = source_views(
             src, sc.get("cameras"), self.spec["views"], tuple(self.spec["size"]), self.spec.get("scale")
         )
+        model = src.model
+        if path and ctx.n is not None:  # a model file in the primitive-count sweep: framed whole, then cut
+            model = model.sample(ctx.n, sc["seed"], src.name)
         return Engine(
-            src.model,
+            model,
             views,
             ctx.precision,
             gpu=self.gpu,

@@ -59,8 +59,8 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     scrub_hours = 24.0       # the model is restored from protected storage this often
     rates = [{environment = "ground", per_bit_hour = 1e-12, source = "where the rate comes from"}]
 
-    [sizes]                  # primitive-count sweep: single upsets at each N
-    n = [5000, 20000, 80000]
+    [sizes]                  # primitive-count sweep: single upsets at each N (a procedural scene
+    n = [5000, 20000, 80000] # is generated at N; a capture or model file cut to a seeded subset)
     scenes = "all"           # optional: [[scenes]] indices swept, or "all" (default: [0], the first)
     precisions = ["fp32"]
     fields = "all"
@@ -501,13 +501,17 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in ns):
             raise SpecError("sizes.n must be a list of positive integers")
         for i in which:
-            if "scene" not in spec["scenes"][i]:
-                raise SpecError(f"sizes: [[scenes]] entry {i} must be an embedded scene (it is generated at each n)")
-            name = spec["scenes"][i]["scene"]
-            if is_capture(name) and max(ns) > make_scene(name).n:
-                raise SpecError(
-                    f"sizes.n: the real capture {name} has {make_scene(name).n} splats; n must not exceed it"
-                )
+            # a procedural scene is generated at each n; a capture or a model file is cut to a
+            # seeded random subset of n (model/fields.py Model.sample), framed as the whole model
+            sc = spec["scenes"][i]
+            if "scene" in sc:
+                name, have = sc["scene"], make_scene(sc["scene"]).n if is_capture(sc["scene"]) else None
+            else:
+                from seuwgpu.model.formats import read_model
+
+                name, have = sc["model"], read_model(sc["model"], warn_nonfinite=False).model.n
+            if have is not None and max(ns) > have:
+                raise SpecError(f"sizes.n: {name} has {have:,} primitives; n must not exceed it (got {max(ns):,})")
         precisions = _names(t, "precisions", "sizes", ["fp32"], encoding.PRECISIONS)
         spec["sizes"] = {
             "n": sorted(set(ns)),

@@ -71,13 +71,9 @@ def capture_model(name: str, n: int | None = None, sh_degree: int = 3, seed: int
     """The capture `name`: all its splats, or a seeded random subset of `n` in file order; SH
     truncated to `sh_degree` (the lower bands are a prefix)."""
     full = _full(name)
-    if n is not None:
-        if not 1 <= n <= full.n:
-            raise ValueError(f"scene {name} has {full.n} splats; n must be 1..{full.n}, got {n}")
-        if n < full.n:
-            rng = np.random.default_rng([int(seed) % (1 << 63), zlib.crc32(name.encode())])
-            full = full.subset(np.sort(rng.choice(full.n, n, replace=False)))
-    model = full.copy()
+    if n is not None and not 1 <= n <= full.n:
+        raise ValueError(f"scene {name} has {full.n} splats; n must be 1..{full.n}, got {n}")
+    model = full.sample(n, seed, name) if n is not None else full.copy()
     if sh_degree < model.sh_degree:
         model.sh_rest = np.ascontiguousarray(model.sh_rest[:, : (sh_degree + 1) ** 2 - 1])
     return model

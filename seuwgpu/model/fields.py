@@ -16,6 +16,7 @@ sh_rest 14 + 3*k + c.
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 from dataclasses import fields as dc_fields
 
@@ -134,6 +135,15 @@ class Model:
 
     def subset(self, index) -> Model:
         return Model(**{f: getattr(self, f)[index] for f in FIELDS})
+
+    def sample(self, n: int, seed: int, name: str) -> Model:
+        """A seeded random subset of `n` primitives, in stored order: how a trained model is cut to
+        a smaller primitive count (the paper subsamples trained models for its primitive-count
+        sweep). The same (n, seed, name) give the same subset; all of them when n >= self.n."""
+        if n >= self.n:
+            return self.copy()
+        rng = np.random.default_rng([int(seed) % (1 << 63), zlib.crc32(name.encode())])
+        return self.subset(np.sort(rng.choice(self.n, int(n), replace=False)))
 
     def quantized(self, precision: str) -> Model:
         """The values a model deployed at `precision` holds."""
