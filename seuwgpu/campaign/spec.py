@@ -511,7 +511,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
 
                 name, have = sc["model"], read_model(sc["model"], warn_nonfinite=False).model.n
             if have is not None and max(ns) > have:
-                raise SpecError(f"sizes.n: {name} has {have:,} primitives; n must not exceed it (got {max(ns):,})")
+                raise SpecError(f"sizes.n: {name} has {have} primitives; n must not exceed it (got {max(ns)})")
         precisions = _names(t, "precisions", "sizes", ["fp32"], encoding.PRECISIONS)
         spec["sizes"] = {
             "n": sorted(set(ns)),
