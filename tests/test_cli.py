@@ -270,13 +270,13 @@ def test_distributed_sort_first(capsys, monkeypatch):
 
 
 def test_the_command_line_and_a_spec_share_the_size_and_view_limits(capsys):
-    """One set of limits (model/budget.py): a --size or --views a command accepts, a campaign spec
+    """One set of limits (model/budget.py): a --size, --views or --scale a command accepts, a campaign spec
     accepts too (`demo` turns them into one), and the other way round."""
     import tomllib
 
     from seuwgpu.apps.cli import build_parser
     from seuwgpu.campaign.spec import SpecError, normalize_spec
-    from seuwgpu.model.budget import MAX_VIEWS, MIN_VIEW_SIZE
+    from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, MIN_VIEW_SIZE
 
     required = {"render": ["--out", "o"], "inject": ["--field", "opacity", "--bit", "3", "--out", "o"]}
 
@@ -309,6 +309,11 @@ def test_the_command_line_and_a_spec_share_the_size_and_view_limits(capsys):
         for cmd in ("render", "inject", "demo", "view"):
             assert cli(cmd, "--views", str(k)) == ok, (cmd, k)
         assert spec("views", k) == ok, k
+    for f in (0.0, 0.25, float(MAX_SCALE), MAX_SCALE + 0.5):
+        ok = 0 < f <= MAX_SCALE
+        for cmd in ("render", "inject"):
+            assert cli(cmd, "--scale", str(f)) == ok, (cmd, f)
+        assert spec("scale", f) == ok, f
 
 
 def test_render_a_cameras_file_of_several_image_sizes(tmp_path, capsys):

@@ -660,7 +660,7 @@ class Battery:
         for name, extra in {
             "64 views of 2048x2048, 2 GB host": ["--views", "64", "--size", "2048x2048"],
             "one view of 20000x20000, 2 GB host": ["--views", "1", "--size", "20000x20000"],
-            "--scale 100, 2 GB host": ["--views", "1", "--size", "256x256", "--scale", "100"],
+            "--scale 16, 2 GB host": ["--views", "1", "--size", "2048x2048", "--scale", "16"],
         }.items():
             out = self.fresh("o").with_suffix(".npz")
             self.add("memory", name, ["render", "--n", "50", *extra, "--out", out], env=small)

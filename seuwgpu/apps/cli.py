@@ -72,6 +72,16 @@ def positive_float(text: str) -> float:
     return v
 
 
+def scale_factor(text: str) -> float:
+    """--scale: in (0, budget.MAX_SCALE] (a campaign spec's `scale` limit too)."""
+    from seuwgpu.model.budget import MAX_SCALE
+
+    v = positive_float(text)
+    if v > MAX_SCALE:
+        raise argparse.ArgumentTypeError(f"at most {MAX_SCALE} (times the views' resolution), got {text!r}")
+    return v
+
+
 def proportion(text: str) -> float:
     v = positive_float(text)
     if v >= 1:
@@ -138,7 +148,7 @@ def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "256
         help=f"orbit views (default {views}), or with --cameras: this many of them, evenly",
     )
     p.add_argument("--size", type=parse_size, help=f"WxH of orbit views (default {size})")
-    p.add_argument("--scale", type=positive_float, help="render at this fraction of the views' resolution (e.g. 0.25)")
+    p.add_argument("--scale", type=scale_factor, help="render at this fraction of the views' resolution (e.g. 0.25)")
     p.set_defaults(default_views=views, default_size=parse_size(size))
 
 
@@ -962,7 +972,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--cameras", type=Path, help="the capture's cameras (any format `render` takes)")
     s.add_argument("--views", type=view_count, help="orbit views, or this many of the capture's (default 4)")
     s.add_argument("--size", type=parse_size, help="WxH of orbit views (default from the spec)")
-    s.add_argument("--scale", type=positive_float, help="render at this fraction of the views' resolution")
+    s.add_argument("--scale", type=scale_factor, help="render at this fraction of the views' resolution")
     s.add_argument("--up", choices=UP_AXES, help="up axis of the orbit views")
     s.add_argument("--n", type=positive_int, help="primitives (default from the spec: 100000)")
     s.add_argument("--samples", type=positive_int, help="samples per (field, bit) cell")

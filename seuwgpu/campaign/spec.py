@@ -81,7 +81,7 @@ import numpy as np
 from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.model import encoding
-from seuwgpu.model.budget import MAX_VIEWS, MIN_VIEW_SIZE, n_values
+from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, MIN_VIEW_SIZE, n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
 from seuwgpu.model.formats import UP_AXES
 
@@ -382,8 +382,8 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
     }
     if "scale" in raw:  # recorded only when given, so older specs keep their hash
         scale = raw["scale"]
-        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 16:
-            raise SpecError(f"scale must be a number in (0, 16], got {scale!r}")
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= MAX_SCALE:
+            raise SpecError(f"scale must be a number in (0, {MAX_SCALE}], got {scale!r}")
         spec["scale"] = float(scale)
     if "profile" in raw:  # renderer profile (docs/renderer.md); recorded only when given (hash)
         from seuwgpu.render.project import check_profile  # the one definition of the profile names

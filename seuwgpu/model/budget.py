@@ -31,6 +31,7 @@ HOST_SHARE = 0.8  # of the available memory a job may plan to use
 # views): one set of limits, so that a value one accepts the other never refuses.
 MIN_VIEW_SIZE = 16  # px, width and height: one 16 px tile; the image metrics' 7x7 windows need >= 7
 MAX_VIEWS = 64  # views rendered for each injection of a campaign, or by one command
+MAX_SCALE = 16  # --scale and a spec's `scale`: at most 16 times the views' own resolution
 
 
 def n_values(degree: int) -> int:
