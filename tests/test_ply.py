@@ -398,6 +398,16 @@ def test_error_not_a_ply(tmp_path):
     expect_error(p, "not a PLY")
 
 
+def test_error_unknown_ply_version(tmp_path, ref):
+    """PLY has one version, 1.0: a header naming another is refused, not read as 1.0."""
+    good = tmp_path / "ok.ply"
+    save_ply(ref, good)
+    data = good.read_bytes()
+    bad = tmp_path / "v2.ply"
+    bad.write_bytes(data.replace(b"binary_little_endian 1.0", b"binary_little_endian 2.0", 1))
+    expect_error(bad, "PLY version '2.0'")
+
+
 def test_error_header_without_end(tmp_path):
     p = tmp_path / "h.ply"
     p.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n")

@@ -242,6 +242,8 @@ def read_header(path) -> PlyHeader:
         if key == "format":
             if len(words) != 3:
                 raise PlyError(f"{spath}: malformed format line {raw!r} (header line {lineno})")
+            if words[2] not in ("1.0", "1"):  # the only PLY version there is; another is no PLY we know
+                raise PlyError(f"{spath}: PLY version {words[2]!r} in {raw!r}; only 1.0 exists (header line {lineno})")
             fmt = words[1]
         elif key == "element":
             if len(words) != 3 or not words[2].isdigit():
