@@ -453,6 +453,17 @@ def test_error_ascii_truncated_or_not_numeric(tmp_path):
     expect_error(p, "truncated", "2 vertex rows")
     p = _ascii_ply(tmp_path / "n.ply", names, [["0"] * (len(names) - 1) + ["zero"]])
     expect_error(p, "not numeric")
+    # a blank line between rows, or a row wrapped over two lines, is named as such (it read as
+    # "more data than declared")
+    p = _ascii_ply(tmp_path / "b.ply", names, [["0"] * len(names)] * 3)
+    head, _, data = p.read_text().partition("end_header\n")
+    rows = data.splitlines()
+    p.write_text(head + "end_header\n" + "\n".join([rows[0], "", *rows[1:]]) + "\n")
+    expect_error(p, re.escape("row 2 (data line 2) is blank"))
+    half = len(names) // 2
+    wrapped = " ".join(rows[1].split()[:half]) + "\n" + " ".join(rows[1].split()[half:])
+    p.write_text(head + "end_header\n" + "\n".join([rows[0], wrapped, rows[2]]) + "\n")
+    expect_error(p, re.escape(f"row 2 (data line 2) holds {half} values, expected {len(names)}"))
 
 
 def test_error_no_vertex_element(tmp_path):

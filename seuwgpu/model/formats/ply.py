@@ -342,6 +342,15 @@ def _read_ascii_element(header: PlyHeader, index: int) -> np.ndarray:
     lines = text.splitlines()
     first = sum(e.count for e in header.elements[:index])
     rows = [ln for ln in lines[first : first + el.count]]
+    names = el.names()
+    for i, ln in enumerate(rows):  # name the first row that is not one whole row (before counting)
+        held = len(ln.split())
+        if held != len(names) and (held or i + 1 < len(rows) or first + el.count < len(lines)):
+            what = "is blank" if not held else f"holds {held} values, expected {len(names)}"
+            raise PlyError(
+                f"{path}: ASCII PLY {el.name} row {i + 1} (data line {first + i + 1}) {what}: each row is "
+                "one line, with no blank lines between rows"
+            )
     beyond = sum(1 for ln in lines[first + el.count :] if ln.strip())
     if index == len(header.elements) - 1 and beyond:
         raise PlyError(
@@ -351,7 +360,6 @@ def _read_ascii_element(header: PlyHeader, index: int) -> np.ndarray:
     if len(rows) < el.count or any(not ln.strip() for ln in rows):
         got = sum(1 for ln in rows if ln.strip())
         raise PlyError(f"{path}: truncated ASCII PLY: the header promises {el.count} {el.name} rows, found {got}")
-    names = el.names()
     tokens = " ".join(rows).split()
     if len(tokens) != el.count * len(names):
         raise PlyError(
