@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from conftest import psnr_finite, random_model
 
+from seuwgpu.gpu.constants import GPU_CHUNK
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import Camera, intrinsics, look_at, orbit_cameras
 from seuwgpu.model.fields import FIELDS, Model
@@ -189,6 +190,25 @@ def test_batched_views_equal_views_one_at_a_time(gpu, compositor, exact):
             assert np.array_equal(r.last_totals, one.last_totals)
             assert r.capacity >= one.last_totals.sum()
     assert (one.last_totals > 256).all()  # long lists exist: the tiles run chunks and merges
+
+
+def test_batched_views_with_a_gpu_adapters_defaults(gpu, monkeypatch):
+    """The configuration a GPU adapter gets (this adapter posing as one): radix sorts of 16
+    elements a thread with the fused scatter, the views in mixed depth order (no view pass),
+    compositing chunks of GPU_CHUNK pairs; batched frames and totals equal the same adapter's
+    views one at a time, bit for bit, with both compositors."""
+    monkeypatch.setattr(type(gpu), "is_cpu", property(lambda self: False))
+    model = make_scene("spheres", 20000, seed=3)
+    cams = scene_cameras("spheres", 3, 80, 64)
+    for compositor in ("lanes", "wide"):
+        one = Renderer(model, cams, gpu=gpu, compositor=compositor, batch_views=False)
+        want = one.render()
+        r = Renderer(model, cams, gpu=gpu, compositor=compositor)
+        assert r.batched and not r.view_major and r.sorting.depth.fused  # 60k keys: 15 blocks
+        assert np.array_equal(_bits(r.render()), _bits(want))
+        assert np.array_equal(r.last_totals, one.last_totals)
+    ranges = gpu.read(one.binning.ranges, np.uint32, 0, 8 * one.n_tiles).reshape(-1, 2).astype(np.int64)
+    assert (ranges[:, 1] - ranges[:, 0]).max() > GPU_CHUNK  # long tiles ran in chunks and merged
 
 
 def test_batching_applies_where_it_can(gpu, monkeypatch):
