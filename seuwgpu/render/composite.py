@@ -64,11 +64,12 @@ def check_shape(shape) -> str:
 
 
 class Compositing:
-    """composite.wgsl main / chunks / merge (or composite_wide.wgsl main / chunks for the "wide"
-    shape, then composite.wgsl merge): one TILE x TILE workgroup per tile runs the first `chunk`
-    pairs of its list; the later chunks of long tiles run in parallel (`chunks`, an indirect
-    dispatch over the work main lists) into slabs that `merge` blends front to back into the
-    image. Owns the frames `image` ([K, H, W] vec4: rgb, final transmittance), the slabs and the
+    """main / chunks (shaders/composite_frame.wgsl, compiled into composite.wgsl for the "lanes"
+    shape and into composite_wide.wgsl for "wide"), then composite.wgsl merge: one TILE x TILE
+    workgroup per tile (per tile and view of a batched list: a grid layer per view) runs the
+    first `chunk` pairs of its list; the later chunks of long tiles run in parallel (`chunks`, an
+    indirect dispatch over the work main lists) into slabs that `merge` blends front to back into
+    the image. Owns the frames `image` ([K, H, W] vec4: rgb, final transmittance), the slabs and the
     work lists (sized by the intersection capacity: `set_capacity`)."""
 
     def __init__(self, gpu: GPU, profile: str = "strict", chunk: int = CHUNK, exact: bool = True, shape: str = "lanes"):
