@@ -381,3 +381,19 @@ def test_scene_export_keeps_the_antialiased_flag(tmp_path, capsys):
     rc, _, err = run(["render", "--scene", "leica-sofort", "--n", "64", "--views", "1", "--size", "32x32",
                       "--out", tmp_path / "r"], capsys)  # fmt: skip
     assert rc == 0 and "seuwgpu: leica-sofort: trained antialiased (mip-splatting)" in err
+
+
+def test_console_entry_ignores_ctrl_c_while_the_interpreter_shuts_down(monkeypatch):
+    """`seuwgpu` (and python -m seuwgpu) return main's status, then ignore SIGINT: an interrupt
+    landing while a finished campaign's process shuts down killed it with SIGINT (exit -2)."""
+    import signal
+
+    from seuwgpu.apps.cli import console_main
+
+    monkeypatch.setattr(sys, "argv", ["seuwgpu", "scene", "--list"])
+    before = signal.getsignal(signal.SIGINT)
+    try:
+        assert console_main() == 0
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, before)

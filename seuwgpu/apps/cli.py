@@ -1124,5 +1124,17 @@ def main(argv=None) -> int:
         return 2
 
 
+def console_main() -> int:
+    """The `seuwgpu` command (and `python -m seuwgpu`): `main`, then Ctrl-C is ignored while the
+    interpreter shuts down (releasing the GPU device, joining writer threads): the work is done
+    and its exit status stands. An interrupt landing there used to kill the process with SIGINT
+    (exit -2 to its parent) after a campaign had finished and written everything."""
+    import signal
+
+    code = main()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return code
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(console_main())
