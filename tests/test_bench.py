@@ -187,3 +187,17 @@ def test_chunking_fields(bench, gpu):
     assert rec["ms_per_view_chunked"] > 0 and rec["ms_per_view_off"] > 0 and rec["speedup"] > 0
     assert rec["max_pairs_per_tile"] > 256 and rec["long_tiles"] > 0 and rec["tiles"] == 4
     assert rec["psnr_view0_chunked_vs_off_db"] > 40
+
+
+def test_bench_times_views_one_at_a_time_against_batched(bench, gpu):
+    """--one-by-one (the default on GPU adapters): the same configuration with the views rendered
+    one at a time, recorded as not batched, draws the same frames (view 0's digest)."""
+    from seuwgpu.model import scenes
+
+    model = scenes.make_scene("blocks", 1500, 3, 0)
+    kw = dict(repeats=1, gpu=gpu, stages=False)
+    batched = bench.bench_config(model, "blocks", 32, 2, **kw)
+    alone = bench.bench_config(model, "blocks", 32, 2, batch_views=False, **kw)
+    assert batched["batched"] and not alone["batched"]
+    assert alone["view0_sha256"] == batched["view0_sha256"]
+    assert alone["dispatches_per_view"] > batched["dispatches_per_view"]

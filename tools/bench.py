@@ -52,6 +52,9 @@ below is one such run). What is measured, per configuration:
   bit-equal (expected: the shapes run the same operations per pixel, but a driver may fuse
   multiply-adds differently in them; a mismatch is logged). On a CPU adapter only the default is
   timed unless asked.
+- batched views against views one at a time (--one-by-one; the default on a GPU adapter, where
+  batching is untimed): each K > 1 configuration is also timed with `batch_views=False`, its
+  record's `batched` false and its row marked "1 by 1"; the log compares the two and their frames.
 - with --dense FACTOR: load balance of long tile lists. The scene shrunk about its centre by
   FACTOR (means and scales; a few tiles list most pairs) is timed with the default CHUNK and with
   chunking off (every tile list on one workgroup), in the same run (render/composite.py).
@@ -434,14 +437,16 @@ def bench_config(
     stages: bool = True,
     floors: dict | None = None,
     compositor: str | None = None,
+    batch_views: bool | None = None,
 ) -> dict:
     """Measure one (scene, N, size, K) with the full-frame `compositor` shape (None: the device's
-    default). `twin` (from measure_twin) adds the ratio when its N and size are this config's;
-    `floors` (from measure_floors) the stages' floors. Returns the JSON record."""
+    default); `batch_views` False renders the views one at a time (render/renderer.py). `twin`
+    (from measure_twin) adds the ratio when its N and size are this config's; `floors` (from
+    measure_floors) the stages' floors. Returns the JSON record."""
     gpu = gpu or get_gpu()
     w = h = int(size)
     cams = scenes.scene_cameras(scene, k, w, h)
-    r = StageTimedRenderer(model, cams, gpu=gpu, compositor=compositor)
+    r = StageTimedRenderer(model, cams, gpu=gpu, compositor=compositor, batch_views=batch_views)
     warm, totals = _warm_up(r)  # discarded (first use of buffers, possible buffer growth, GPU clocks)
     # Repeats: at most `repeats`, and no more than the budget allows (at least one).
     reps = max(1, min(int(repeats), int(budget // max(warm, 1e-9))))
@@ -676,15 +681,20 @@ def run_grid(
     dense=None,
     chunks=None,
     compositors=None,
+    one_by_one=None,
     log=print,
 ) -> dict:
     """The whole benchmark; returns the JSON document. `compositors`: the full-frame compositor
     shapes to time each configuration with (render/composite.py SHAPES); None: both on a GPU
     adapter, where "wide" is the candidate, and the default alone on a CPU adapter (there "wide" is
-    several times slower: docs/renderer.md)."""
+    several times slower: docs/renderer.md). `one_by_one`: also time each K > 1 configuration
+    (first shape) with its views rendered one at a time, the comparison batched views are judged
+    by; None: on a GPU adapter, where batching is not yet timed."""
     gpu = get_gpu()
     if compositors is None:
         compositors = [DEFAULT_SHAPE] if gpu.is_cpu else list(COMPOSITORS)
+    if one_by_one is None:
+        one_by_one = not gpu.is_cpu
     t0 = time.perf_counter()
     floors = measure_floors(gpu)
     log(
@@ -713,7 +723,9 @@ def run_grid(
         "compositor_errors": {},  # shape -> the error that dropped it from the run
     }
     for scene in scene_names:
-        for n in ns:
+        # a real capture holds what it holds: a larger N is its whole model (once)
+        cap = scenes.make_scene(scene).n if scenes.is_capture(scene) else None
+        for n in dict.fromkeys(min(n, cap) if cap else n for n in ns):
             t = time.perf_counter()
             model = scenes.make_scene(scene, n, sh_degree, seed)
             log(f"[{scene} N={n}] scene generated in {time.perf_counter() - t:.1f} s")
@@ -771,6 +783,28 @@ def run_grid(
                             f"{rec['encode_ms'] / k:.2f} ms/view, {rec['dispatches_per_view']:g} dispatches/view "
                             f"(at most {rec['encode_ceiling_mpix_s']:,.0f} Mpix/s if the device took no time)"
                         )
+                        if one_by_one and k > 1 and rec is first and rec["batched"]:
+                            alone = bench_config(
+                                model,
+                                scene,
+                                size,
+                                k,
+                                repeats=repeats,
+                                budget=budget,
+                                gpu=gpu,
+                                twin=tw,
+                                stages=stages,
+                                floors=floors,
+                                compositor=shape,
+                                batch_views=False,
+                            )
+                            alone["view0_same_as_first_compositor"] = alone["view0_sha256"] == first["view0_sha256"]
+                            doc["results"].append(alone)
+                            log(
+                                f"[{scene} N={n} {size}x{size} K={k} {shape}, views one at a time] "
+                                f"{alone['ms_per_view']:.1f} ms/view against {rec['ms_per_view']:.1f} batched; "
+                                f"view 0 bit-equal: {'yes' if alone['view0_same_as_first_compositor'] else 'NO'}"
+                            )
                         if sweep:
                             doc["chunk_sweep"].extend(sweep)
                             log(
@@ -828,7 +862,7 @@ def print_table(doc: dict, console=None) -> None:
             f"{r['n']:,}",
             f"{r['width']}x{r['height']}",
             str(r["k"]),
-            r.get("compositor", "lanes"),
+            r.get("compositor", "lanes") + ("" if r.get("batched", True) or r["k"] == 1 else ", 1 by 1"),
             str(r["repeats"]),
             f"{r['mpix_per_s']:.3f}",
             f"{r['ms_per_view']:.1f}",
@@ -894,7 +928,7 @@ def print_table(doc: dict, console=None) -> None:
                 f"{r['n']:,}",
                 f"{r['width']}x{r['height']}",
                 str(r["k"]),
-                r.get("compositor", "lanes"),
+                r.get("compositor", "lanes") + ("" if r.get("batched", True) or r["k"] == 1 else ", 1 by 1"),
                 *cells,
             )
         console.print(ft)
@@ -978,6 +1012,13 @@ def main(argv=None) -> int:
         help="full-frame compositor shapes to time every configuration with (render/composite.py SHAPES); "
         "default: all of them on a GPU adapter, the default shape on a CPU adapter",
     )
+    ap.add_argument(
+        "--one-by-one",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="also time each K > 1 configuration with its views rendered one at a time, not batched "
+        "(default: on a GPU adapter)",
+    )
     ap.add_argument("--out", type=Path, help="write the JSON document here (default: none)")
     args = ap.parse_args(argv)
 
@@ -1015,6 +1056,7 @@ def main(argv=None) -> int:
         dense=args.dense,
         chunks=args.chunks,
         compositors=args.compositors,
+        one_by_one=args.one_by_one,
         log=lambda m: console.print(m, highlight=False, markup=False),
     )
     print_table(doc, console)
