@@ -5,8 +5,9 @@
 #
 # 1. the stage tests against their numpy twins on this adapter (pytest -n 8 where pytest-xdist is
 #    installed); 2. tools/bench.py at 100k and 1M primitives, 256 and 512 px, K = 1 and 8, each with
-#    both compositor shapes ("lanes" and "wide", and whether their frames are bit-equal), with the
-#    compositing-chunk sweep for each shape and a 20,000-injection campaign; 3. tools/memory.py at 10M and 100M
+#    both compositor shapes ("lanes" and "wide", and whether their frames are bit-equal), K = 8
+#    also with its views one at a time against batched (--one-by-one, on by default on a GPU), with
+#    the compositing-chunk sweep for each shape and a 20,000-injection campaign; 3. tools/memory.py at 10M and 100M
 #    primitives (100M measured on an H200, 2026-11-26: 42,893 MiB of device buffers, 44.2 GiB of host
 #    memory at peak; README "100M primitives, measured"). Each step has its
 #    own time limit (SECONDS_TESTS, SECONDS_BENCH, SECONDS_MEMORY) and writes its log as it goes, so
