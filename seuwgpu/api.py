@@ -278,7 +278,7 @@ def save_frames(
     paths = []
     if "npz" in formats:
         paths.append(out / f"{stem}.npz")
-        np.savez_compressed(paths[-1], images=images)
+        np.savez(paths[-1], images=images)  # uncompressed, as the CLI's (float32 frames barely compress)
     for i, img in enumerate(images):
         if "png" in formats:
             import imageio.v3 as iio

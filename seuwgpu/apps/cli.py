@@ -275,7 +275,9 @@ def cmd_render(args):
         )
     images = api.render_views(src, cams, precision=args.precision, profile=args.profile, compositor=args.compositor)
     if out.suffix == ".npz":
-        np.savez_compressed(out, images=images.astype(np.float32))
+        # uncompressed: float32 frames compress by ~11% at 15x the write time (25 views of 256x256:
+        # 0.70 s against 0.046 s, lavapipe host, 2026-11-26)
+        np.savez(out, images=images.astype(np.float32))
         print(f"wrote {out}: images {list(images.shape)} float32")
     else:
         paths = api.save_frames(images, out, "view", formats=formats)
