@@ -357,6 +357,9 @@ def test_view_checks_its_arguments_before_the_display(tmp_path, capsys, monkeypa
     (tmp_path / "m.ply").write_bytes(b"")
     rc, _, err = run(["view", "--model", tmp_path / "m.ply", "--n", "3"], capsys)
     assert rc == 2 and "--n sets the primitives" in err
+    for option in ("--model", "--cameras"):  # a missing file too (it was 3, no display)
+        rc, _, err = run(["view", option, tmp_path / "missing.json"], capsys)
+        assert rc == 2 and f"{option} {tmp_path / 'missing.json'}: no such file" in err, err
     cams = tmp_path / "CAMS.json"
     cams.write_text(json.dumps({"cameras": [c.to_json() for c in scene_cameras("spheres", 2, 64, 64)]}))
     monkeypatch.setenv("RENDERCANVAS_BACKEND", "offscreen")

@@ -148,7 +148,7 @@ def add_camera_args(p: argparse.ArgumentParser, views: int = 4, size: str = "256
         help=f"orbit views (default {views}), or with --cameras: this many of them, evenly",
     )
     p.add_argument("--size", type=parse_size, help=f"WxH of orbit views (default {size})")
-    p.add_argument("--scale", type=scale_factor, help="render at this fraction of the views' resolution (e.g. 0.25)")
+    p.add_argument("--scale", type=scale_factor, help="render at S times the views' resolution (e.g. 0.25; at most 16)")
     p.set_defaults(default_views=views, default_size=parse_size(size))
 
 
@@ -802,6 +802,10 @@ def cmd_view(args):
     from seuwgpu.apps.viewer_window import NO_DISPLAY_HELP, canvas_backend, display_problem
 
     refuse_ignored_options(args)  # a bad argument is exit status 2 with or without a display
+    for option in ("model", "cameras"):  # so is a missing file (read after the display check)
+        path = getattr(args, option, None)
+        if path is not None and not Path(path).exists():
+            raise CliError(f"--{option} {path}: no such file or folder")
     backend = canvas_backend()
     why = display_problem(backend)
     if why:
@@ -974,7 +978,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--cameras", type=Path, help="the capture's cameras (any format `render` takes)")
     s.add_argument("--views", type=view_count, help="orbit views, or this many of the capture's (default 4)")
     s.add_argument("--size", type=parse_size, help="WxH of orbit views (default from the spec)")
-    s.add_argument("--scale", type=scale_factor, help="render at this fraction of the views' resolution")
+    s.add_argument("--scale", type=scale_factor, help="render at S times the views' resolution (at most 16)")
     s.add_argument("--up", choices=UP_AXES, help="up axis of the orbit views")
     s.add_argument("--n", type=positive_int, help="primitives (default from the spec: 100000)")
     s.add_argument("--samples", type=positive_int, help="samples per (field, bit) cell")
