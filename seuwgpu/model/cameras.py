@@ -467,20 +467,18 @@ def _qvec_to_rotmat(q) -> np.ndarray:
 def _read_colmap(folder: Path, ext: str | None = None):
     """The COLMAP model in `folder`: its .bin pair (preferred, as COLMAP writes both) or .txt
     pair, or the pair of `ext` when the user named one of its files."""
-    if ext is not None:
-        if not all((folder / f"{stem}.{ext}").is_file() for stem in ("cameras", "images")):
-            raise CameraFileError(f"{folder}: a COLMAP model needs cameras.{ext} and images.{ext} in one folder")
-        reader = {"bin": (_colmap_cameras_bin, _colmap_images_bin), "txt": (_colmap_cameras_txt, _colmap_images_txt)}
-        cameras = reader[ext][0](folder / f"cameras.{ext}")
-        images = reader[ext][1](folder / f"images.{ext}")
-    elif (folder / "cameras.bin").is_file() and (folder / "images.bin").is_file():
-        cameras = _colmap_cameras_bin(folder / "cameras.bin")
-        images = _colmap_images_bin(folder / "images.bin")
-    elif (folder / "cameras.txt").is_file() and (folder / "images.txt").is_file():
-        cameras = _colmap_cameras_txt(folder / "cameras.txt")
-        images = _colmap_images_txt(folder / "images.txt")
-    else:
-        raise CameraFileError(f"{folder}: a COLMAP model needs cameras and images (.bin or .txt) in one folder")
+    def pair(e: str) -> bool:
+        return all((folder / f"{stem}.{e}").is_file() for stem in ("cameras", "images"))
+
+    if ext is None:
+        ext = next((e for e in ("bin", "txt") if pair(e)), None)
+        if ext is None:
+            raise CameraFileError(f"{folder}: a COLMAP model needs cameras and images (.bin or .txt) in one folder")
+    elif not pair(ext):
+        raise CameraFileError(f"{folder}: a COLMAP model needs cameras.{ext} and images.{ext} in one folder")
+    read_cameras_of, read_images_of = _COLMAP_READERS[ext]
+    cameras = read_cameras_of(folder / f"cameras.{ext}")
+    images = read_images_of(folder / f"images.{ext}")
     if not images:
         raise CameraFileError(f"{folder}: the COLMAP model has no registered images")
     cams, names, distorted = [], [], set()
@@ -631,3 +629,7 @@ def _colmap_images_bin(path: Path) -> list:
         r.skip(24 * npoints)
         out.append((name, list(v[1:5]), list(v[5:8]), v[8]))
     return out
+
+
+# The readers of each COLMAP encoding (cameras, images), by file extension.
+_COLMAP_READERS = {"bin": (_colmap_cameras_bin, _colmap_images_bin), "txt": (_colmap_cameras_txt, _colmap_images_txt)}
