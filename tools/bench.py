@@ -736,21 +736,22 @@ def run_grid(
                     log(f"[{scene} N={n} {size}x{size}] twin: {tw['seconds_per_view']:.2f} s/view ({tw['what']})")
                 for k in ks:
                     first = None
+                    config = functools.partial(
+                        bench_config,
+                        model,
+                        scene,
+                        size,
+                        k,
+                        repeats=repeats,
+                        budget=budget,
+                        gpu=gpu,
+                        twin=tw,
+                        stages=stages,
+                        floors=floors,
+                    )
                     for shape in [s for s in compositors if s not in doc["compositor_errors"]]:
                         try:
-                            rec = bench_config(
-                                model,
-                                scene,
-                                size,
-                                k,
-                                repeats=repeats,
-                                budget=budget,
-                                gpu=gpu,
-                                twin=tw,
-                                stages=stages,
-                                floors=floors,
-                                compositor=shape,
-                            )
+                            rec = config(compositor=shape)
                             sweep = (
                                 measure_chunk_sweep(
                                     model, scene, size, k, chunks, repeats=repeats, gpu=gpu, compositor=shape
@@ -784,20 +785,7 @@ def run_grid(
                             f"(at most {rec['encode_ceiling_mpix_s']:,.0f} Mpix/s if the device took no time)"
                         )
                         if one_by_one and k > 1 and rec is first and rec["batched"]:
-                            alone = bench_config(
-                                model,
-                                scene,
-                                size,
-                                k,
-                                repeats=repeats,
-                                budget=budget,
-                                gpu=gpu,
-                                twin=tw,
-                                stages=stages,
-                                floors=floors,
-                                compositor=shape,
-                                batch_views=False,
-                            )
+                            alone = config(compositor=shape, batch_views=False)
                             alone["view0_same_as_first_compositor"] = alone["view0_sha256"] == first["view0_sha256"]
                             doc["results"].append(alone)
                             log(
@@ -839,6 +827,11 @@ def _fmt(x, spec=".1f"):
     return "-" if x is None else format(x, spec)
 
 
+def _config_label(r: dict) -> str:
+    """A record's compositor shape, and ", 1 by 1" where its K > 1 views were not batched."""
+    return r.get("compositor", "lanes") + ("" if r.get("batched", True) or r["k"] == 1 else ", 1 by 1")
+
+
 def print_table(doc: dict, console=None) -> None:
     from rich.console import Console
     from rich.table import Table
@@ -862,7 +855,7 @@ def print_table(doc: dict, console=None) -> None:
             f"{r['n']:,}",
             f"{r['width']}x{r['height']}",
             str(r["k"]),
-            r.get("compositor", "lanes") + ("" if r.get("batched", True) or r["k"] == 1 else ", 1 by 1"),
+            _config_label(r),
             str(r["repeats"]),
             f"{r['mpix_per_s']:.3f}",
             f"{r['ms_per_view']:.1f}",
@@ -928,7 +921,7 @@ def print_table(doc: dict, console=None) -> None:
                 f"{r['n']:,}",
                 f"{r['width']}x{r['height']}",
                 str(r["k"]),
-                r.get("compositor", "lanes") + ("" if r.get("batched", True) or r["k"] == 1 else ", 1 by 1"),
+                _config_label(r),
                 *cells,
             )
         console.print(ft)
