@@ -467,6 +467,7 @@ def _qvec_to_rotmat(q) -> np.ndarray:
 def _read_colmap(folder: Path, ext: str | None = None):
     """The COLMAP model in `folder`: its .bin pair (preferred, as COLMAP writes both) or .txt
     pair, or the pair of `ext` when the user named one of its files."""
+
     def pair(e: str) -> bool:
         return all((folder / f"{stem}.{e}").is_file() for stem in ("cameras", "images"))
 
