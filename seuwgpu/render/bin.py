@@ -66,11 +66,12 @@ class Binning:
         """(Re)allocate the per-view buffers for K views of n_tiles tiles, binned one view at a time
         or, `batched`, all K in one list."""
         g = self.gpu
-        self.k, self.n_tiles, self.batched = int(k), int(n_tiles), bool(batched)
-        self._set_entries(self.n * (self.k if self.batched else 1))
+        self.k, self.n_tiles = int(k), int(n_tiles)
+        lists = self.k if batched else 1  # views binned in one list
+        self._set_entries(self.n * lists)
         self.params = Uniforms(g, self.struct, self.k + 1, "bin.params")
         self.stats = g.buffer(4 * (self.k + 1), STORAGE, "bin.stats")
-        self.ranges = g.buffer(8 * self.n_tiles * (self.k if self.batched else 1), STORAGE, "bin.ranges")
+        self.ranges = g.buffer(8 * self.n_tiles * lists, STORAGE, "bin.ranges")
 
     @property
     def batch_slot(self) -> int:
