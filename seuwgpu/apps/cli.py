@@ -192,6 +192,14 @@ def load_cams(args, src, one_size: bool = True):
     return cams
 
 
+def output_folder(args, path: Path) -> Path:
+    """Refuse meaningless options, then make the output folder: both before any work is done."""
+    from seuwgpu.campaign.store import make_out_dir
+
+    refuse_ignored_options(args)
+    return make_out_dir(path, what="output folder")
+
+
 def note_views(args, held: int):
     """Say so when --views asks for more views than the cameras file holds (all are used)."""
     if args.cameras is not None and args.views is not None and args.views > held:
@@ -261,10 +269,7 @@ def cmd_render(args):
     out: Path = args.out
     if out.suffix == ".npz" and args.formats not in (None, ("npz",)):
         raise CliError(f"--out {out} writes one npz of every view; give a folder for {', '.join(args.formats)} files")
-    from seuwgpu.campaign.store import make_out_dir
-
-    refuse_ignored_options(args)  # before anything is created
-    make_out_dir(out.parent if out.suffix == ".npz" else out, what="output folder")
+    output_folder(args, out.parent if out.suffix == ".npz" else out)
     src = load_source(args)
     cams = load_cams(args, src, one_size=False)  # views of several sizes: rendered size by size
     formats = args.formats or ("png",)
@@ -630,10 +635,7 @@ def cmd_inject(args):
 
     if args.bit is not None and args.fault in VALUE_MODELS:
         raise CliError(f"--fault {args.fault} replaces the whole value; --bit does not apply")
-    from seuwgpu.campaign.store import make_out_dir
-
-    refuse_ignored_options(args)  # before anything is created
-    make_out_dir(args.out, what="output folder")
+    output_folder(args, args.out)
     src = load_source(args)
     cams = load_cams(args, src)
     defenses = tuple(dict.fromkeys((args.defense, "guard")))
@@ -751,12 +753,10 @@ def cmd_worstcase(args):
 def cmd_storm(args):
     """k upsets per frame accumulating, scrubbed every S frames: records and a plot per defense."""
     from seuwgpu.analysis.defenses import storm_figure
-    from seuwgpu.campaign.store import make_out_dir
     from seuwgpu.campaign.storm import storm
     from seuwgpu.faults.engine import Engine
 
-    refuse_ignored_options(args)  # before anything is created
-    make_out_dir(args.out, what="output folder")
+    output_folder(args, args.out)
     src = load_source(args)
     eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
     df = storm(eng, args.k, args.frames, args.scrub_every, args.defense, args.seed)
@@ -773,12 +773,10 @@ def cmd_storm(args):
 def cmd_state(args):
     """Transient pipeline-state flips of one frame: records and a criticality table per target."""
     from seuwgpu.analysis.defenses import state_table
-    from seuwgpu.campaign.store import make_out_dir
     from seuwgpu.faults.engine import Engine
     from seuwgpu.faults.state import state_campaign
 
-    refuse_ignored_options(args)  # before anything is created
-    make_out_dir(args.out, what="output folder")
+    output_folder(args, args.out)
     src = load_source(args)
     eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
     df = state_campaign(eng, args.targets, args.samples, args.bit or range(32), args.seed)
