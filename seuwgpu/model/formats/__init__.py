@@ -113,7 +113,7 @@ def detect_format(path) -> str:
         if why:
             raise splat_format.SplatError(f"{spath} does not look like an antimatter15 .splat file: {why}")
         return "splat"
-    if splat_format.looks_like_splat(spath, size, head):
+    if splat_format.looks_like_splat(size, head):
         return "splat"
     raise ModelFileError(
         f"{spath}: unrecognised model file (not a PLY, SPZ, .splat or PyTorch checkpoint; a .splat file, "

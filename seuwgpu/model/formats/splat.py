@@ -28,7 +28,7 @@ class SplatError(ModelFileError):
     """A .splat file that cannot be read."""
 
 
-def looks_like_splat(path: str, size: int, head: bytes) -> bool:
+def looks_like_splat(size: int, head: bytes) -> bool:
     """A headerless file without the .splat extension is taken as .splat when its size is a
     multiple of 32 and its first records (8 to 64) have finite positions, positive finite scales
     and encoded unit quaternions (q / |q| * 128 + 128: the bytes minus 128 have a length within 4
