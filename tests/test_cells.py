@@ -12,6 +12,7 @@ import pytest
 from seuwgpu.analysis import cells as C
 from seuwgpu.analysis import estimate as E
 from seuwgpu.campaign import store
+from seuwgpu.errors import InputError
 from seuwgpu.metrics.image import OUTCOMES
 
 
@@ -150,7 +151,7 @@ def test_the_same_sites_twice_are_refused_unless_grouped_by_run(runs, tmp_path):
     _manifest(dirs[1], "abc", "gsplat")  # the same spec under another profile: other frames
     assert store.repeated_sites([dirs[0], dirs[1], copy]) == [("run0", "again", 5)]
     assert store.repeated_sites([dirs[1], dirs[1]]) == [("run1", "run1#2", 5)]  # one folder twice
-    with pytest.raises(C.InputError, match="run0 and again hold 5 part"):
+    with pytest.raises(InputError, match="run0 and again hold 5 part"):
         C.fold_runs([dirs[0], copy])
     cells, _ = C.fold_runs([dirs[0], copy], ["run"])  # compared side by side: allowed
     assert set(cells["run"]) == {"run0", "again"}
@@ -190,7 +191,7 @@ def test_the_report_refuses_the_same_sites_twice(runs, tmp_path):
     for d in dirs:
         _manifest(d, "abc", "strict")
     store.part_path(dirs[1], 0, 400).unlink()  # run1 keeps parts 1..4 in common with run0
-    with pytest.raises(C.InputError, match="run0 and run1 hold 4 part"):
+    with pytest.raises(InputError, match="run0 and run1 hold 4 part"):
         load_runs(dirs)
 
 
@@ -315,9 +316,9 @@ def test_the_same_sites_under_another_spec_hash_are_caught(runs, tmp_path):
     assert spec_hash(a) != spec_hash(b) and sites_key(a) == sites_key(b)
     assert store.repeated_sites([tmp_path / "a", tmp_path / "b"]) == [("a", "b", 3)]
     assert store.repeated_sites([tmp_path / "b", tmp_path / "a"]) == [("b", "a", 2)]  # parts 0-99, 100-199
-    with pytest.raises(C.InputError, match="runs a and b hold 3 part.* same fault sites.*report one of them"):
+    with pytest.raises(InputError, match="runs a and b hold 3 part.* same fault sites.*report one of them"):
         load_runs([tmp_path / "a", tmp_path / "b"])
-    with pytest.raises(C.InputError, match="pass one of them, or group by run"):
+    with pytest.raises(InputError, match="pass one of them, or group by run"):
         C.fold_runs([tmp_path / "a", tmp_path / "b"])
     # the same sites key, other ids (the two halves of the campaign): no site in common
     _spec_run(tmp_path / "half", records, cosmetic, ids=range(200, 400))

@@ -21,7 +21,6 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate
 from seuwgpu.campaign import store
-from seuwgpu.errors import InputError  # noqa: F401 (what fold_runs raises: callers catch cells.InputError)
 from seuwgpu.metrics.image import OUTCOMES
 
 COUNTS = (*OUTCOMES, "nonfinite")
