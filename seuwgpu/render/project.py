@@ -36,7 +36,7 @@ from seuwgpu.gpu.device import GPU, STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model
-from seuwgpu.model.sh import SH_C0, SH_C1, SH_C2, SH_C3, sh_basis  # noqa: F401 (the twin's names)
+from seuwgpu.model.sh import sh_basis
 
 # ---------------------------------------------------------------------------------------------
 # numpy twin

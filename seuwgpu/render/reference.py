@@ -22,16 +22,13 @@ import numpy as np
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model
+from seuwgpu.model.sh import SH_C0, SH_C1, SH_C2, SH_C3
 from seuwgpu.render.bin import tile_lists
 from seuwgpu.render.composite import ALPHA_MAX, ALPHA_MIN, T_MIN, composite_frame
 from seuwgpu.render.project import (
     EXTENT,
     FAR,
     NEAR,
-    SH_C0,
-    SH_C1,
-    SH_C2,
-    SH_C3,
     F,
     camera_params,
     cov2d,
