@@ -17,6 +17,40 @@
 // Renderer profile (docs/renderer.md, "Profiles"): PROFILE_STRICT (default) or PROFILE_GSPLAT.
 override PROFILE: u32 = PROFILE_STRICT;
 
+// ---- products kept out of multiply-adds ------------------------------------------------------
+// SPIR-V lets a driver fuse a product into the add that consumes it (one rounding instead of two)
+// unless the result is decorated NoContraction, which naga does not emit. NVIDIA's driver does,
+// and not alike in the vec4 code of composite.wgsl and the scalar code of composite_wide.wgsl: on
+// an H100 (2026-11-26) the two shapes' frames differed in their last bits, and the wide frames
+// no longer equalled the variants entry's re-composited pixels. With UNFUSED (render/composite.py
+// turns it on for GPU adapters; lavapipe fuses nothing) each such product passes through an XOR
+// with `opaque_zero`, a zero the driver cannot see (every entry point loads it from its uniform's
+// background.w, which the host sets to 0), so no add can absorb it: both shapes then round every
+// product and every sum, in the same order, as lavapipe and the numpy twin do.
+override UNFUSED: bool = false;
+var<private> opaque_zero: u32;
+
+fn unfused(x: PF) -> PF {
+    if (UNFUSED) {
+        return bitcast<PF>(bitcast<PU>(x) ^ PU(opaque_zero));
+    }
+    return x;
+}
+
+fn unfused_f32(x: f32) -> f32 {
+    if (UNFUSED) {
+        return bitcast<f32>(bitcast<u32>(x) ^ opaque_zero);
+    }
+    return x;
+}
+
+fn unfused_v3(x: vec3<f32>) -> vec3<f32> {
+    if (UNFUSED) {
+        return bitcast<vec3<f32>>(bitcast<vec3<u32>>(x) ^ vec3<u32>(opaque_zero));
+    }
+    return x;
+}
+
 const BATCH: u32 = TILE_PIXELS;             // records staged per batch
 const FULL_BOX: u32 = (TILE - 1u) << 8u | (TILE - 1u) << 24u;
 const EMPTY_BOX: u32 = 1u;                  // x0 = 1 > x1 = 0
@@ -57,7 +91,7 @@ fn reach_of(xy: vec2<f32>, co: vec4<f32>, cut: f32) -> vec2<f32> {
     let A = co.x;
     let B = co.y;
     let C = co.z;
-    let s = 2.02 * max(cut, 1e-3) / (A * C - B * B);
+    let s = 2.02 * max(cut, 1e-3) / (unfused_f32(A * C) - unfused_f32(B * B));
     return 1.01 * sqrt(vec2<f32>(s * C, s * A));
 }
 
@@ -99,7 +133,7 @@ fn stage(i: u32, xy: vec2<f32>, co: vec4<f32>, rgb: vec4<f32>, origin: vec2<f32>
 fn sigma_of(xy: vec2<f32>, co: vec4<f32>, q: Quad) -> PF {
     let dx = xy.x - q.x;
     let dy = PF(xy.y) - q.y;
-    return 0.5 * (PF(co.x * dx * dx) + co.z * dy * dy) + (co.y * dx) * dy;
+    return unfused(0.5 * (PF(unfused_f32(co.x * dx * dx)) + unfused(co.z * dy * dy))) + unfused((co.y * dx) * dy);
 }
 
 // alpha (NaN propagating) of a record at sigma, and whether each lane takes part in the blend.
@@ -140,9 +174,9 @@ fn blend_quad(q0: Quad, st: vec4<f32>, co: vec4<f32>, rgb: vec4<f32>) -> Quad {
     let stop = hit & !nan_lanes(next_t) & (next_t <= PF(1e-4));
     let upd = hit & !stop;
     let w = alpha * T;
-    q.r = select(q.r, q.r + rgb.x * w, upd);
-    q.g = select(q.g, q.g + rgb.y * w, upd);
-    q.b = select(q.b, q.b + rgb.z * w, upd);
+    q.r = select(q.r, q.r + unfused(rgb.x * w), upd);
+    q.g = select(q.g, q.g + unfused(rgb.y * w), upd);
+    q.b = select(q.b, q.b + unfused(rgb.z * w), upd);
     q.T = select(T, next_t, upd);
     q.done = done | stop;
     return q;
@@ -216,9 +250,9 @@ fn merge_quad(acc: Quad, c: Quad, first: bool) -> Quad {
     let live = !acc.done;
     let T = acc.T;
     let t = T * c.T;
-    q.r = select(acc.r, acc.r + T * c.r, live);
-    q.g = select(acc.g, acc.g + T * c.g, live);
-    q.b = select(acc.b, acc.b + T * c.b, live);
+    q.r = select(acc.r, acc.r + unfused(T * c.r), live);
+    q.g = select(acc.g, acc.g + unfused(T * c.g), live);
+    q.b = select(acc.b, acc.b + unfused(T * c.b), live);
     q.T = select(T, t, live);
     q.done = acc.done | (live & (c.done | (!nan_lanes(t) & (t <= PF(1e-4)))));
     return q;

@@ -107,7 +107,7 @@ struct Binning {
     origin: u32,        // viewport origin in pixels (x | y << 16), tile-aligned; 0 for a full frame
     views: u32,         // frames binned into one list (render/renderer.py batched views), else 1
     frame: u32,         // the first frame's slot in the image (and its views' totals in stats)
-    background: vec4<f32>,
+    background: vec4<f32>,  // w: 0, the zero blend.wgsl's `unfused` reads
 };
 
 // Support-guard box of one stored component (faults/guard.py Box): bounds as f32 and as the

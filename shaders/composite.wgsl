@@ -222,7 +222,7 @@ fn blend_batch_masked(p: ptr<function, Pixels>, q: u32, base: u32, stops: ptr<fu
 // Pixel i of a quad as the output (C + T * background, T).
 fn out_pixel(q: Quad, i: u32, bg: vec3<f32>) -> vec4<f32> {
     let T = q.T[i];
-    return vec4<f32>(vec3<f32>(q.r[i], q.g[i], q.b[i]) + T * bg, T);
+    return vec4<f32>(vec3<f32>(q.r[i], q.g[i], q.b[i]) + unfused_v3(T * bg), T);
 }
 
 fn merge_pixels(acc: ptr<function, Pixels>, c: ptr<function, Pixels>, first: bool) {
@@ -355,6 +355,7 @@ fn tile_pixels(tx: u32, ty: u32, col: u32, row0: u32) -> Pixels {
 @compute @workgroup_size(TILE, ROWS)
 fn merge(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
          @builtin(local_invocation_id) lid: vec3<u32>) {
+    opaque_zero = bitcast<u32>(bin.background.w);  // blend.wgsl unfused
     let count = work_counts[2];
     let row0 = lid.y * SPAN;
     for (var e = wg.x; e < count; e = e + nwg.x) {
@@ -386,7 +387,7 @@ struct Recomp {
     n_variants: u32,    // stride of the per-view variant arrays
     capacity: u32,      // stride of the per-view clean tile lists
     n_entries: u32,
-    background: vec4<f32>,
+    background: vec4<f32>,  // w: 0 (blend.wgsl unfused)
     chunk_pass: u32,    // the chunk of every entry's list this dispatch composites
 };
 
@@ -533,6 +534,7 @@ fn read_variant_state(e: u32, li: u32, col: u32, row0: u32, p0: Pixels) -> Pixel
 @compute @workgroup_size(TILE, ROWS)
 fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
             @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    opaque_zero = bitcast<u32>(rc.background.w);  // blend.wgsl unfused
     let e = linear_wg(wg, nwg);
     if (e >= rc.n_entries) {
         return;

@@ -15,6 +15,7 @@
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
         @builtin(local_invocation_index) li: u32) {
     frame_view = wg.z;  // one grid layer per frame of a batched list
+    opaque_zero = bitcast<u32>(bin.background.w);  // blend.wgsl unfused
     let tile = wg.z * bin.n_tiles + wg.y * bin.tiles_x + wg.x;
     let row0 = lid.y * SPAN;
     var p = tile_pixels(wg.x, wg.y, lid.x, row0);
@@ -51,6 +52,7 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(local_invocation_id) lid:
 @compute @workgroup_size(TILE, ROWS)
 fn chunks(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
           @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    opaque_zero = bitcast<u32>(bin.background.w);
     let count = min(work_counts[1], arrayLength(&extra_list));
     let row0 = lid.y * SPAN;
     for (var e = wg.x; e < count; e = e + nwg.x) {

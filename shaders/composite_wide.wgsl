@@ -113,7 +113,7 @@ fn write_image(p: ptr<function, Quad>, tx: u32, ty: u32, col: u32, row: u32) {
     if (x < bin.width && y < bin.height) {
         let q = *p;
         image[image_index(x, y)] =
-            vec4<f32>(vec3<f32>(q.r, q.g, q.b) + q.T * bin.background.xyz, q.T);
+            vec4<f32>(vec3<f32>(q.r, q.g, q.b) + unfused_v3(q.T * bin.background.xyz), q.T);
     }
 }
 

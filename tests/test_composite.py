@@ -2,7 +2,7 @@
 on the same screen records and tile lists.
 
 Which pixels are non-finite is exact; finite values agree to 1e-5 of max(1, |value|): the GPU's
-exp and fused multiply-adds may differ from numpy's float32 by an ulp (measured: <= 2.4e-7)."""
+exp may differ from numpy's float32 by an ulp (measured: <= 2.4e-7)."""
 
 import numpy as np
 import pytest
@@ -416,6 +416,37 @@ def test_wide_compositor_viewports_and_capped_slabs(gpu):
         assert np.array_equal(a, b)
     with pytest.raises(ValueError, match="unknown compositor shape 'wdie'"):
         Compositing(gpu, shape="wdie")
+
+
+def test_unfused_build_changes_no_bit(gpu, monkeypatch):
+    """GPU adapters build the compositors with every product that feeds a sum passed through an
+    XOR with a zero the driver cannot see (blend.wgsl UNFUSED), so that no driver fuses it into a
+    multiply-add, differently in the two shapes (an H100 did). The XOR must change no bit: on a CPU
+    adapter, which fuses nothing, both builds give the same kept frames, stop positions and pair
+    boxes, for both shapes (NaN and Inf pixels, long tiles merged from chunks), and the variants
+    entry in the unfused build still re-composites exactly what a full re-render gives. (On a GPU
+    the fused build may differ: that is why it is not used there; the shape tests above check the
+    unfused one.)"""
+    import seuwgpu.render.composite as composite
+
+    here = composite.unfused_products(gpu)
+    assert here == (not gpu.is_cpu)
+    if here:
+        pytest.skip("compares the two builds where the driver fuses nothing (a CPU adapter)")
+    model = _extreme_model(1500, 5)
+    cams = orbit_cameras(2, 40, 36)
+    want = {s: _kept_frame(gpu, model, cams, compositor=s, chunk=256) for s in ("lanes", "wide")}
+    monkeypatch.setattr(composite, "unfused_products", lambda g: not here)
+    for s in ("lanes", "wide"):
+        r = Renderer(model, cams, gpu=gpu, compositor=s, chunk=256)
+        assert r.compositing.kernel.constants["UNFUSED"] == int(not here)  # the other build
+        got = _kept_frame(gpu, model, cams, compositor=s, chunk=256)
+        for a, b in zip(got, want[s]):
+            assert np.array_equal(a, b), s
+    kw = {"gpu": gpu, "chunk": 256, "compositor": "wide"}
+    prims = np.array([5, 77, 300, 301, 900, 1200, 1499])
+    longest = _incremental_equals_full(gpu, _dense_model(1500, 4), orbit_cameras(2, 32, 32), kw, prims)
+    assert longest > 256
 
 
 def test_default_chunk_follows_the_adapter(gpu, monkeypatch):

@@ -119,8 +119,8 @@ def add_compositor_arg(p: argparse.ArgumentParser):
     p.add_argument(
         "--compositor",
         choices=COMPOSITORS,
-        help="the compositor's shape: lanes (8 pixels an invocation, the default) or wide (one pixel an "
-        "invocation, the shape GPUs fill); the same frames (bit for bit on lavapipe, tested; docs/renderer.md)",
+        help="the compositor's shape: lanes (8 pixels an invocation, the default on CPU Vulkan) or wide (one "
+        "pixel an invocation, the default on GPUs); the same frames bit for bit (docs/renderer.md)",
     )
 
 

@@ -48,13 +48,22 @@ SLAB_BYTES = TILE_PIXELS * 16  # one re-composited tile: TILE x TILE vec4 (rgb, 
 SHAPES = dict(zip(COMPOSITORS, ("composite", "composite_wide")))
 """The shader of each full-frame compositor shape (gpu/constants.py COMPOSITORS): "lanes" for CPU
 Vulkan, "wide" the shape GPUs fill; the same operations per pixel (shaders/blend.wgsl), so the
-same frames, bit for bit."""
+same frames, bit for bit (on a GPU with products kept out of multiply-adds: `unfused_products`)."""
 
 
-DEFAULT_SHAPE = "lanes"
-"""The compositor a Renderer uses unless told, on every adapter. "wide" is the usual GPU shape,
-but it has not yet been timed on a GPU against "lanes" (tools/bench.py times both on GPU
-adapters), so it stays opt-in until a measurement says it wins there."""
+def default_shape(gpu: GPU) -> str:
+    """The compositor a Renderer uses unless told: "lanes" on a CPU adapter, "wide" on a GPU. On
+    an NVIDIA H100 (2026-11-26, tools/bench.py, spheres, K = 8 batched) wide composited in 0.4-0.5x
+    lanes' GPU time and took 2.2 against 2.9 ms a view at 1M primitives, 256x256 (0.6 against 0.8
+    at 100k); lavapipe runs lanes' vec4 code about 5x faster (docs/renderer.md)."""
+    return "lanes" if gpu.is_cpu else "wide"
+
+
+def unfused_products(gpu: GPU) -> bool:
+    """Whether the compositors keep products out of multiply-adds (blend.wgsl UNFUSED): on every
+    GPU adapter, whose driver may fuse them differently in the two shapes; lavapipe fuses none, so
+    there it would only cost time (the frames are the same either way, tests/test_composite.py)."""
+    return not gpu.is_cpu
 
 
 def check_shape(shape) -> str:
@@ -80,7 +89,12 @@ class Compositing:
         # exact (lanes): a record visits only the quadrants its ellipse may reach
         # (ellipse_quadrants), as exact binning pairs it only with such tiles; False: its pixel box
         # decides (same image). The wide shape tests each pixel against the box alone.
-        constants = {"PROFILE": PROFILE_CODE[profile], "CHUNK_PAIRS": self.chunk, "EXACT_BIN": int(exact)}
+        constants = {
+            "PROFILE": PROFILE_CODE[profile],
+            "CHUNK_PAIRS": self.chunk,
+            "EXACT_BIN": int(exact),
+            "UNFUSED": int(unfused_products(gpu)),
+        }
         self.kernel = Kernel(gpu, shader, "main", constants=constants)
         self.k_chunks = Kernel(gpu, shader, "chunks", constants=constants)
         self.k_merge = Kernel(gpu, "composite", "merge", constants=constants)
@@ -179,7 +193,12 @@ class VariantCompositing:
         self.chunk = check_chunk(chunk)
         # exact: the clean frames were binned exactly (render/bin.py), so a variant record is listed
         # where the binning would list it (its footprint reaches the tile), not on its whole rectangle
-        constants = {"PROFILE": PROFILE_CODE[profile], "CHUNK_PAIRS": self.chunk, "EXACT_BIN": int(bool(exact))}
+        constants = {
+            "PROFILE": PROFILE_CODE[profile],
+            "CHUNK_PAIRS": self.chunk,
+            "EXACT_BIN": int(bool(exact)),
+            "UNFUSED": int(unfused_products(gpu)),
+        }
         self.kernel = Kernel(gpu, "composite", "variants", constants=constants)
         self.params = Uniforms(gpu, self.kernel.struct("Recomp"), 1, "recomp")
         self.entry = self.kernel.struct("VariantEntry")

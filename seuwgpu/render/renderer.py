@@ -38,7 +38,7 @@ from seuwgpu.model.budget import check_frames, check_render
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model, StoredLayout
 from seuwgpu.render.bin import Binning
-from seuwgpu.render.composite import DEFAULT_SHAPE, Compositing, check_shape, default_chunk
+from seuwgpu.render.composite import Compositing, check_shape, default_chunk, default_shape
 from seuwgpu.render.project import Projection, check_profile
 from seuwgpu.render.sort import Sorting
 
@@ -124,8 +124,8 @@ class Renderer:
         # the model's storage chunks); None: the device's default; tests force small ones
         chunk = default_chunk(self.gpu) if chunk is None else chunk
         # compositor: the full-frame compositor's shape, "lanes" or "wide" (render/composite.py
-        # SHAPES; the same frames bit for bit); None: DEFAULT_SHAPE
-        shape = DEFAULT_SHAPE if compositor is None else check_shape(compositor)
+        # SHAPES; the same frames bit for bit); None: the device's default (lanes on a CPU, wide on a GPU)
+        shape = default_shape(self.gpu) if compositor is None else check_shape(compositor)
         self.compositing = Compositing(self.gpu, self.profile, chunk, exact=exact_binning, shape=shape)
         # In-pipeline guard state (off by default): box of the clean model and clamp counters.
         self.guard_mask = 0
