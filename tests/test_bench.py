@@ -60,6 +60,28 @@ def test_bench_config_fields(bench, gpu):
         assert rec["stages_ms"] is None and "timestamp-query" in rec["stage_source"]
 
 
+def test_stage_timing_on_a_gpu_adapters_split_submissions(bench, gpu, monkeypatch):
+    """On a GPU a batched frame set is submitted stage group by stage group (Renderer
+    split_submissions); the instrumented submission still goes through `encode`, in one encoder,
+    so every pass is timed (this adapter posing as a GPU)."""
+    if "timestamp-query" not in gpu.features:
+        pytest.skip("no timestamp queries on this adapter")
+    monkeypatch.setattr(type(gpu), "is_cpu", property(lambda self: False))
+    from conftest import random_model
+
+    from seuwgpu.model.cameras import orbit_cameras
+
+    r = bench.StageTimedRenderer(random_model(2000, seed=4), orbit_cameras(2, 32, 32), gpu=gpu)
+    assert r.batched and r.split_submissions
+    r.timed = True
+    assert not r.split_submissions
+    r.run()
+    st = r.stage_times()
+    assert st["project"] > 0 and st["composite"] > 0 and st["untimed_passes"] == 0
+    r.timed = False
+    assert r.split_submissions
+
+
 def test_twin_above_max_n_gives_no_ratio(bench, gpu):
     from seuwgpu.model import scenes
 

@@ -195,9 +195,12 @@ def test_batched_views_equal_views_one_at_a_time(gpu, compositor, exact):
 def test_batched_views_with_a_gpu_adapters_defaults(gpu, monkeypatch):
     """The configuration a GPU adapter gets (this adapter posing as one): radix sorts of 16
     elements a thread with the fused scatter, the views in mixed depth order (no view pass),
-    compositing chunks of GPU_CHUNK pairs; batched frames and totals equal the same adapter's
-    views one at a time, bit for bit, with both compositors."""
+    compositing chunks of GPU_CHUNK pairs, a submission per stage group; batched frames and totals
+    equal the same adapter's views one at a time, bit for bit, with both compositors."""
     monkeypatch.setattr(type(gpu), "is_cpu", property(lambda self: False))
+    submits = []
+    real_submit = gpu.submit
+    monkeypatch.setattr(gpu, "submit", lambda enc: (submits.append(enc), real_submit(enc)))
     model = make_scene("spheres", 20000, seed=3)
     cams = scene_cameras("spheres", 3, 80, 64)
     for compositor in ("lanes", "wide"):
@@ -205,8 +208,12 @@ def test_batched_views_with_a_gpu_adapters_defaults(gpu, monkeypatch):
         want = one.render()
         r = Renderer(model, cams, gpu=gpu, compositor=compositor)
         assert r.batched and not r.view_major and r.sorting.depth.fused  # 60k keys: 15 blocks
+        assert r.split_submissions
         assert np.array_equal(_bits(r.render()), _bits(want))
         assert np.array_equal(r.last_totals, one.last_totals)
+        submits.clear()
+        r.run()
+        assert len(submits) == 4  # projections | depth sort | binning, tile sort | ranges, compositing
     ranges = gpu.read(one.binning.ranges, np.uint32, 0, 8 * one.n_tiles).reshape(-1, 2).astype(np.int64)
     assert (ranges[:, 1] - ranges[:, 0]).max() > GPU_CHUNK  # long tiles ran in chunks and merged
 

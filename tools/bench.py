@@ -213,8 +213,8 @@ class StageTimedRenderer(Renderer):
     Only `encode` is wrapped; what the Renderer records is unchanged."""
 
     def __init__(self, *args, **kw):
-        super().__init__(*args, **kw)
         self.timed = False
+        super().__init__(*args, **kw)
         self._ts = None
 
     def _ensure_queries(self):
@@ -229,6 +229,14 @@ class StageTimedRenderer(Renderer):
 
     def submission_groups(self) -> list[range]:
         return [range(self.k)] if self.timed else super().submission_groups()  # timed: one encoder
+
+    @property
+    def split_submissions(self) -> bool:  # timed: one encoder, through `encode`
+        return self._split and not self.timed
+
+    @split_submissions.setter
+    def split_submissions(self, value: bool):
+        self._split = value
 
     def encode(self, encoder, views=None):
         if not self.timed:
