@@ -350,6 +350,32 @@ def test_size_sweep_over_a_model_file_cuts_seeded_subsets(tmp_path):
         normalize_spec(base)
 
 
+def test_unreadable_model_or_camera_file_stops_before_the_manifest(tmp_path):
+    """A model file that exists but cannot be read stops a new run with the loader's one-line
+    error before its manifest is written, so the folder is not claimed: the same folder then runs
+    with the corrected spec. (A camera file that cannot be read is refused with the spec.)"""
+    from seuwgpu.errors import InputError
+    from seuwgpu.model.formats import save_model
+    from seuwgpu.model.scenes import make_scene
+
+    good = tmp_path / "good.ply"
+    save_model(make_scene("plant", 300, seed=4), good)
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(good.read_bytes()[:-100])  # truncated body
+    cams = tmp_path / "cams.json"
+    cams.write_text("[{")
+    single = {"fields": ["opacity"], "bits": [31], "samples": 2, "defenses": ["none"]}
+    base = {"seed": 5, "views": 1, "size": "32x32", "single": single}
+    spec = normalize_spec({**base, "scenes": [{"model": str(bad)}]})
+    with pytest.raises(InputError, match="bad.ply"):
+        Runner(spec, tmp_path / "run", quiet=True).run()
+    assert store.read_manifest(tmp_path / "run") is None
+    with pytest.raises(InputError, match="cams.json"):  # camera files are read with the spec already
+        normalize_spec({**base, "scenes": [{"scene": "plant", "n": 300, "cameras": str(cams)}]})
+    Runner(normalize_spec({**base, "scenes": [{"model": str(good)}]}), tmp_path / "run", quiet=True).run()
+    assert len(read_records(tmp_path / "run")) == 2
+
+
 def test_cell_sites_are_drawn_with_replacement():
     """Why the planner uses no finite-population correction: each injection draws its site from
     its own stream (so any block can be re-run alone), i.e. with replacement: as many draws as a

@@ -59,6 +59,7 @@ class Runner:
         if old is None or old.get("spec_hash") != self.hash:
             from seuwgpu.gpu.device import get_gpu
 
+            self.check_files()
             gpu = self.gpu or get_gpu()
             manifest = {
                 "spec": self.spec,
@@ -78,6 +79,27 @@ class Runner:
             }
             store.write_manifest(self.out, manifest)
         store.remove_stale_temps(rec)
+
+    def check_files(self):
+        """Read each scene's model and camera files once before a new run's manifest claims the
+        directory: the spec check only sees that they exist, and a file that cannot be read would
+        otherwise stop the run after the manifest was written, leaving a run folder with no records.
+        (An embedded scene is built at a small n here: only its camera file is being read.)"""
+        from seuwgpu.model.sources import load_source, source_views
+
+        for sc in self.spec["scenes"]:
+            path, cameras = sc.get("model"), sc.get("cameras")
+            if not (path or cameras):
+                continue
+            src = load_source(
+                scene=sc.get("scene"),
+                path=path,
+                n=None if path else min(int(sc.get("n") or 1000), 1000),
+                sh_degree=sc["sh_degree"],
+                seed=sc["seed"],
+                up=sc.get("up"),
+            )
+            source_views(src, cameras, self.spec["views"], tuple(self.spec["size"]), self.spec.get("scale"))
 
     def done_ids(self) -> set[tuple[int, int]]:
         """(first id, count) of this shard's parts already written and whole (a part that cannot be
