@@ -217,6 +217,8 @@ def test_guard_reliability_and_claims(run):
     num = summary["numbers"]
     assert num["guard_share_neutralised_pct"] == pytest.approx(100 * p)
     assert num["guard_share_neutralised_ci_pct"] == pytest.approx([100 * lo, 100 * hi])
+    precisions = single["precision"].unique()
+    assert num["guard_share_precision"] == (precisions[0] if len(precisions) == 1 else "all")
     pc = pd.read_csv(out / "reliability_pc.csv").set_index("defense")
     for d in DEFS:
         p, lo, hi = stratified(single[single["defense"] == d], "catastrophic")

@@ -391,6 +391,8 @@ def _sec_guard(df, manifests, ctx) -> Section:
     sec.numbers.update(
         guard_share_neutralised_pct=res["share_pct"],
         guard_share_neutralised_ci_pct=list(res["share_ci"]),
+        # which records the share pools: one precision, or "all" (weighted by stored bits)
+        guard_share_precision=res["share_precision"],
         guard_worst_footprint_pct=res["worst_guarded_footprint_pct"],
         guard_residual_catastrophic=res["residual_catastrophic"],
         guard_n_sites=res["n_guarded"],
