@@ -348,6 +348,11 @@ def test_list_element_before_vertex(tmp_path, ref):
     pre = [(["element poly 2", "property list uchar int idx"], raw)]
     p = write_raw_ply(tmp_path / "l.ply", inria_columns(ref), pre_elements=pre)
     assert_models_bit_equal(ref, load_ply(p))
+    # whole rows past the declared count are refused there too (they would be dropped silently)
+    row = 4 * len(inria_columns(ref))
+    with open(p, "ab") as f:
+        f.write(bytes(2 * row + 3))
+    expect_error(p, f"declares {ref.n} vertices but the data holds {ref.n + 2}")
 
 
 # ----------------------------------------------------------------------------------- errors

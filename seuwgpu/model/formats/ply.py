@@ -303,7 +303,10 @@ def _read_binary_element(header: PlyHeader, index: int) -> np.ndarray:
         if any(e.has_list for e in header.elements[:index]):
             if order != "<":
                 raise PlyError(f"{path}: big-endian PLY with list elements before {el.name!r} is not supported")
-            return _element_via_plyfile(path, el.name)
+            rows, end = _element_via_plyfile(path, el.name)
+            if index == len(header.elements) - 1 and file_size - end >= dtype.itemsize:
+                _too_many_rows(path, el.name, el.count, (file_size - end) // dtype.itemsize + el.count)
+            return rows
         offset = header.data_start + sum(e.count * e.dtype().itemsize for e in header.elements[:index])
         n = el.count
         need = offset + n * dtype.itemsize
@@ -320,12 +323,7 @@ def _read_binary_element(header: PlyHeader, index: int) -> np.ndarray:
             # whole rows beyond the header's count: the count is wrong (a tool that appended
             # splats, an edited header), and reading only `n` would drop the rest silently.
             # (Less than one row of trailing bytes is tolerated, as other readers do.)
-            held = (file_size - offset) // dtype.itemsize
-            noun = "vertices" if el.name == "vertex" else f"{el.name} rows"
-            raise PlyError(
-                f"{path}: the header declares {n} {noun} but the data holds {held} ({dtype.itemsize} bytes each, "
-                f"{file_size - offset} bytes): fix the header's element count"
-            )
+            _too_many_rows(path, el.name, n, (file_size - offset) // dtype.itemsize)
         f.seek(offset)
         raw = np.fromfile(f, dtype=dtype, count=n)
     if raw.shape[0] != n:  # file shrank while reading
@@ -377,12 +375,22 @@ def _read_ascii_element(header: PlyHeader, index: int) -> np.ndarray:
     return out
 
 
-def _element_via_plyfile(path: str, name: str) -> np.ndarray:
+def _too_many_rows(path: str, name: str, declared: int, held: int):
+    noun = "vertices" if name == "vertex" else f"{name} rows"
+    raise PlyError(
+        f"{path}: the header declares {declared} {noun} but the data holds {held}: fix the header's element count"
+    )
+
+
+def _element_via_plyfile(path: str, name: str) -> tuple[np.ndarray, int]:
+    """The element's rows, read by plyfile, and the byte offset where the file's data ended."""
     import plyfile
 
     try:
-        data = plyfile.PlyData.read(path)
-        return np.asarray(data[name].data)
+        with open(path, "rb") as f:
+            data = plyfile.PlyData.read(f)
+            rows = np.asarray(data[name].data)
+            return rows, f.tell()
     except Exception as e:  # plyfile's own parse errors
         raise PlyError(f"{path}: could not read the {name} data: {e}") from e
 
