@@ -37,7 +37,7 @@ def test_bench_config_fields(bench, gpu):
     rec = bench.bench_config(model, "spheres", 32, 2, repeats=2, gpu=gpu, twin=twin, floors=floors)
     json.dumps(rec)  # JSON-serialisable (the twin image is not in the record)
     assert rec["n"] == 2000 and rec["width"] == rec["height"] == 32 and rec["k"] == 2
-    assert rec["compositor"] == "lanes" and len(rec["view0_sha256"]) == 64
+    assert rec["compositor"] == ("lanes" if gpu.is_cpu else "wide") and len(rec["view0_sha256"]) == 64
     assert 1 <= rec["repeats"] <= 2 and len(rec["times_s"]) == rec["repeats"]
     for key in ("mpix_per_s", "ms_per_view", "seconds_per_submission", "warmup_s", "twin_ratio"):
         assert rec[key] > 0, key
@@ -96,6 +96,7 @@ def test_main_writes_json_only_where_told(bench, gpu, tmp_path, capsys, monkeypa
     out = tmp_path / "b.json"
     monkeypatch.chdir(tmp_path)
     args = ["--scenes", "spheres", "--n", "2000", "--sizes", "32", "--views", "1", "--repeats", "1"]
+    args += [] if gpu.is_cpu else ["--compositors", "wide"]  # a GPU times both shapes unless told
     assert bench.main([*args, "--campaign-samples", "8", "--out", str(out)]) == 0
     doc = json.loads(out.read_text())
     assert doc["adapter"]["backend"] and doc["adapter"]["device"]
@@ -122,6 +123,7 @@ def test_bench_times_both_compositors_and_checks_their_frames(bench, gpu, tmp_pa
 
     out = tmp_path / "b.json"
     args = ["--scenes", "spheres", "--n", "2000", "--sizes", "32", "--views", "2", "--repeats", "1", "--no-twin"]
+    args.append("--no-one-by-one")  # (on by default on a GPU: a third record)
     assert bench.main([*args, "--campaign-samples", "0", "--compositors", "lanes", "wide", "--out", str(out)]) == 0
     recs = json.loads(out.read_text())["results"]
     assert [r["compositor"] for r in recs] == ["lanes", "wide"]
@@ -163,7 +165,14 @@ def test_a_failing_candidate_compositor_is_dropped_not_fatal(bench, gpu, monkeyp
 
     real = bench.bench_config
     monkeypatch.setattr(bench, "bench_config", failing_for_wide(real, "pipeline rejected\nby a driver"))
-    kw = {"repeats": 1, "twin": False, "stages": False, "campaign_samples": 0, "log": lambda m: None}
+    kw = {
+        "repeats": 1,
+        "twin": False,
+        "stages": False,
+        "campaign_samples": 0,
+        "one_by_one": False,
+        "log": lambda m: None,
+    }
     doc = bench.run_grid(["spheres"], [2000], [32], [1, 2], compositors=["lanes", "wide"], **kw)
     assert [(r["compositor"], r["k"]) for r in doc["results"]] == [("lanes", 1), ("lanes", 2)]
     assert doc["compositor_errors"] == {"wide": "RuntimeError: pipeline rejected\nby a driver"}
@@ -180,9 +189,12 @@ def test_a_failing_candidate_compositor_is_dropped_not_fatal(bench, gpu, monkeyp
     assert doc["compositor_errors"] == {"wide": "RuntimeError: chunk pipeline rejected"}
 
 
-def test_memory_tool_accounts_every_buffer(tmp_path):
+def test_memory_tool_accounts_every_buffer(tmp_path, gpu):
     """tools/memory.py: the stored model is exactly 4 bytes per fp32 value, the buckets add up to
-    the device total, the tile lists are 3 u32 per pair slot."""
+    the device total, the tile lists are 3 u32 per pair slot, plus the compositing slabs (two
+    4 KiB tile slabs per chunk of pairs)."""
+    from seuwgpu.render.composite import default_chunk
+
     spec = importlib.util.spec_from_file_location("seuwgpu_memory", BENCH.parent / "memory.py")
     mem = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mem)
@@ -193,7 +205,7 @@ def test_memory_tool_accounts_every_buffer(tmp_path):
     assert 236 * 3000 <= model < 236 * 3000 + 16  # 59 fp32 values per primitive, 16-byte padding
     assert sum(rec["by_label"].values()) == rec["device_bytes"]
     lists = sum(v for k, v in rec["by_label"].items() if k.startswith("bin.isect"))
-    assert lists == 12 * rec["capacity"] and 12 < rec["bytes_per_pair_capacity"] < 16  # + chunk slabs
+    assert lists == 12 * rec["capacity"] and 12 < rec["bytes_per_pair_capacity"] < 12.5 + 8192 / default_chunk(gpu)
     assert 0 < rec["pairs"] <= rec["capacity"]
     assert rec["pixel_bytes"] == 16 * 48 * 32 and rec["view_s"] > 0
 

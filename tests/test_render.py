@@ -218,6 +218,33 @@ def test_batched_views_with_a_gpu_adapters_defaults(gpu, monkeypatch):
     assert (ranges[:, 1] - ranges[:, 0]).max() > GPU_CHUNK  # long tiles ran in chunks and merged
 
 
+def test_split_submissions_equal_one_command_buffer(gpu, monkeypatch):
+    """On a GPU `run` submits each stage group as soon as it is recorded, three more command
+    buffers a view where views are not batched (one view; kept views, as campaigns render their
+    clean frames): the frames, totals and kept per-view lists equal those of one command buffer
+    bit for bit."""
+    submits = []
+    real_submit = gpu.submit
+    monkeypatch.setattr(gpu, "submit", lambda enc: (submits.append(enc), real_submit(enc)))
+    model = random_model(3000, seed=8)
+    for cams, kw in ((orbit_cameras(1, 48, 40), {}), (orbit_cameras(2, 48, 40), {"keep_views": True})):
+        out = {}
+        for split in (False, True):
+            r = Renderer(model, cams, gpu=gpu, **kw)
+            assert not r.batched
+            r.split_submissions = split
+            r.capture_views = bool(kw)
+            r.run()  # settles the capacity
+            submits.clear()
+            totals = r.run()
+            groups = len(r.submission_groups())  # one command buffer per group, unsplit
+            assert len(submits) == (3 * len(cams) + groups if split else groups)
+            kept = gpu.read(r.kv_ranges, np.uint32) if kw else np.zeros(1)
+            out[split] = (_bits(r.render()), totals, kept)
+        for a, b in zip(out[False], out[True]):
+            assert np.array_equal(a, b)
+
+
 def test_batching_applies_where_it_can(gpu, monkeypatch):
     """Views are batched by default; not for one view, for kept views (the incremental
     re-compositor reads per-view lists), when asked not to, or past BATCH_MAX_RECORDS; a batched

@@ -92,14 +92,15 @@ class Renderer:
         # alternating, 2026-11-26), where K n mixed records miss the caches. Same lists, same
         # frames. GPUs skip it (five more dependent dispatches, untimed there).
         self.view_major = self.gpu.is_cpu
-        # batched views on GPUs: `run` submits each stage group (projections | depth sort | binning
-        # and tile sort | ranges and compositing) as soon as it is recorded, so the device works on
-        # one while Python records the next (recording was about half of a batched frame set's wall
-        # time at 100k primitives on an H100). There, K = 8, wide, one process, alternating, 15
-        # rounds, 2026-11-26, ms a view one buffer -> stage groups: 100k 256x256 0.535 -> 0.461,
-        # 512x512 0.584 -> 0.512; 1M 256x256 2.074 -> 1.855, 512x512 2.005 -> 1.772 (the same
-        # frames); a submission every 4, 8 or 16 passes instead gained less (0.530, 0.569, 0.579
-        # at 100k, 512x512). CPU adapters record all in one: there the device is the same cores.
+        # on GPUs `run` submits each stage group (projections | depth sort | binning and tile sort |
+        # ranges and compositing; of the batched views, or of each view) as soon as it is recorded,
+        # so the device works on one while Python records the next (recording was about half of a
+        # batched frame set's wall time at 100k primitives on an H100). There, K = 8 batched, wide,
+        # one process, alternating, 15 rounds, 2026-11-26, ms a view one buffer -> stage groups:
+        # 100k 256x256 0.535 -> 0.461, 512x512 0.584 -> 0.512; 1M 256x256 2.074 -> 1.855, 512x512
+        # 2.005 -> 1.772 (the same frames); a submission every 4, 8 or 16 passes instead gained
+        # less (0.530, 0.569, 0.579 at 100k, 512x512). CPU adapters record all in one: there the
+        # device is the same cores.
         self.split_submissions = not self.gpu.is_cpu
         # renderer profile (docs/renderer.md "Profiles"): what corrupted values draw
         self.profile = check_profile(profile)
@@ -297,17 +298,22 @@ class Renderer:
         self.set_cameras(cams)
 
     # ---- encoding --------------------------------------------------------------------------------
-    def encode_view(self, encoder, v: int):
+    def encode_view(self, encoder, v: int, split=None):
+        """View v's passes; `split` as in encode_batch (returns the encoder left to submit)."""
+        split = split or (lambda e: e)
         L, p, b = self.layout, self.projection, self.binning
         for c in range(L.n_chunks):
             lo, hi = L.chunk_range(c)
             p.encode(encoder, v * L.n_chunks + c, self.chunks[c], hi - lo, self.box_buf, self.guard_counts)
         self._state_hook(encoder, v, "projected")
+        encoder = split(encoder)
         self.sorting.encode_depth(encoder, p.depth_keys, p.depth_vals)
+        encoder = split(encoder)
         b.encode_emit(encoder, v, p.rect, p.depth_vals, p.xy, p.conic)
         self._state_hook(encoder, v, "emitted")
         self.sorting.encode_tiles(encoder, b.isect_tiles, b.isect_prims, b.total(v), self.n_tiles)
         self._state_hook(encoder, v, "sorted")
+        encoder = split(encoder)
         b.encode_ranges(encoder, v)
         self._state_hook(encoder, v, "ranged")
         # a kept frame also records where each pixel stopped
@@ -322,6 +328,7 @@ class Renderer:
             encoder.copy_buffer_to_buffer(b.isect_prims, 0, self.kv_isect, 4 * self.capacity * v, 4 * self.capacity)
             encoder.copy_buffer_to_buffer(b.isect_box, 0, self.kv_box, 4 * self.capacity * v, 4 * self.capacity)
             encoder.copy_buffer_to_buffer(b.ranges, 0, self.kv_ranges, 8 * self.n_tiles * v, 8 * self.n_tiles)
+        return encoder
 
     # A transient fault in the pipeline state of one frame (faults/state.py): `state_fault` is
     # None or an object with .view, .point and .encode(encoder), recorded after that stage.
@@ -409,10 +416,13 @@ class Renderer:
         while True:
             for views in self.submission_groups():
                 enc = self.gpu.device.create_command_encoder()
-                if self.batched and self.split_submissions and self.state_fault is None:
+                if not self.split_submissions or (self.batched and self.state_fault is not None):
+                    self.encode(enc, views)  # (which refuses a state fault in batched views)
+                elif self.batched:
                     enc = self.encode_batch(enc, split=self._submit_and_renew)
                 else:
-                    self.encode(enc, views)
+                    for v in views:
+                        enc = self.encode_view(enc, v, split=self._submit_and_renew)
                 self.gpu.submit(enc)
             stats = self.gpu.read(self.binning.stats, np.uint32)
             totals = stats[: self.k]
