@@ -30,7 +30,7 @@ step() {  # step LIMIT_SECONDS COMMAND...: run under `timeout`, or skip when the
 step "${SECONDS_TESTS:-150}" $PY -m pytest -q -p no:cacheprovider $XDIST tests/test_project.py tests/test_bin.py \
     tests/test_sort.py tests/test_composite.py tests/test_render.py tests/test_render_sort.py tests/test_incremental.py \
     tests/test_split.py tests/test_decode.py tests/test_guard_faults.py tests/test_guard_nonfinite.py tests/test_kernel.py \
-    tests/test_reference.py > "$OUT/tests.txt" 2>&1
+    tests/test_reference.py tests/test_state.py tests/test_bench.py > "$OUT/tests.txt" 2>&1
 echo "tests: exit $?" | tee -a "$OUT/tests.txt"
 step "${SECONDS_BENCH:-300}" $PY tools/bench.py --scenes spheres --n 100000 1000000 --sizes 256 512 --views 1 8 \
     --repeats 10 --budget 3 --twin-views 1 --twin-max-n 100000 --campaign-samples 20000 \
