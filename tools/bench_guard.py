@@ -4,8 +4,9 @@
 
 Two modes: the scrub (one pass over the stored model that clamps and rewrites it; run once per
 frame or per scrub period) and the in-pipeline clamp (extra work inside the projection of every
-view). Reported: median seconds of one rendered view (K = 1), of one scrub, of one guarded view,
-and the ratios scrub / view and (guarded view - view) / view.
+view). Reported: median seconds of one rendered view (K = 1), of one scrub, of one guarded view
+(timed in interleaved rounds, after a warm-up on GPU adapters), and the ratios scrub / view and
+(guarded view - view) / view.
 """
 
 from __future__ import annotations
@@ -25,15 +26,40 @@ from seuwgpu.faults.guard import component_mask, scrub, support_box  # noqa: E40
 from seuwgpu.model.scenes import make_scene, scene_cameras  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
 
+WARM_UP_S = 1.0
+"""Seconds of rendering before timing on a GPU adapter: an idle NVIDIA GPU runs at a fraction of
+its clock (tools/bench.py WARM_UP_S says what was measured). On an H100 (2026-11-26) this tool,
+timing one view after a single warm-up, reported 19.1 ms for a 1M-primitive view that
+tools/bench.py timed at 3.3 ms warm."""
 
-def median_time(fn, repeats):
+
+def _seconds(fn) -> float:
+    t = time.perf_counter()
     fn()
-    ts = []
+    return time.perf_counter() - t
+
+
+def measure(r, box, fields, repeats: int) -> tuple[float, float, float]:
+    """Median seconds of a view, a scrub and a guarded view, timed in interleaved rounds (so that
+    clock or load drift reaches all three alike) after a warm-up."""
+    rows, mask = box.rows(), component_mask(fields, r.degree)
+    r.run()
+    if not r.gpu.is_cpu:
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < WARM_UP_S:
+            r.run()
+    scrub(r, box, fields)
+    r.set_guard(rows, mask)
+    r.run()  # the guarded projection's pipeline is built on first use
+    times = {"view": [], "scrub": [], "guarded": []}
     for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return float(np.median(ts))
+        r.set_guard(None, 0)
+        times["view"].append(_seconds(r.run))
+        times["scrub"].append(_seconds(lambda: scrub(r, box, fields)))
+        r.set_guard(rows, mask)
+        times["guarded"].append(_seconds(r.run))
+    r.set_guard(None, 0)
+    return tuple(float(np.median(times[k])) for k in ("view", "scrub", "guarded"))
 
 
 def main(argv=None):
@@ -51,12 +77,7 @@ def main(argv=None):
         model = make_scene(args.scene, n=n)
         r = Renderer(model, scene_cameras(args.scene, 1, w, h), args.precision)
         box = support_box(r.layout.decode(r.clean_words), args.precision)
-        fields = GUARDED_FIELDS["guard"]
-        t_view = median_time(r.run, args.repeats)
-        t_scrub = median_time(lambda: scrub(r, box, fields), args.repeats)  # noqa: B023 (called at once)
-        r.set_guard(box.rows(), component_mask(fields, r.degree))
-        t_guarded = median_time(r.run, args.repeats)
-        r.set_guard(None, 0)
+        t_view, t_scrub, t_guarded = measure(r, box, GUARDED_FIELDS["guard"], args.repeats)
         rows.append(
             {
                 "n": n,
