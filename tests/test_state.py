@@ -99,3 +99,22 @@ def test_state_table_recomputed_with_pandas(tmp_path):
         assert row["cat_rate"] == pytest.approx(g.groupby("bit").catastrophic.mean().mean())
         assert row["due_events"] == g.due.sum()
     assert t.loc[("xy", "exponent"), "cat_n"] == (df[df.target == "xy"].bit == 30).sum()
+
+
+@pytest.mark.parametrize("bit", [32, -1])
+def test_bits_outside_a_word_are_refused(bit, tmp_path, capsys):
+    """A state word has bits 0..31: --bit 32 was an OverflowError traceback, -1 'negative shift
+    count'; refused before any rendering (the library call too)."""
+    from types import SimpleNamespace
+
+    from seuwgpu.apps.cli import main
+
+    with pytest.raises(ValueError, match=f"bit {bit} is out of range for a pipeline-state word"):
+        state_campaign(SimpleNamespace(), targets=["xy"], samples=1, bits=[bit])
+    args = ["state", "--scene", "blocks", "--n", "50", "--size", "16x16", "--bit", str(bit)]
+    with pytest.raises(SystemExit) as exited:
+        main([*args, "--out", str(tmp_path / "st")])
+    assert exited.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "error: argument --bit" in err.strip().splitlines()[-1]
+    assert not (tmp_path / "st").exists()

@@ -50,3 +50,21 @@ def test_worstcase_command(capsys):
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("none: worst flip opacity[") and "of 80 flips rendered" in out[0]
     assert out[1].startswith("checksum: worst flip ") and "footprint 0.0000% (certified bound 0.0000%)" in out[1]
+
+
+@pytest.mark.parametrize("precision, bit", [("fp32", 32), ("fp16", 16), ("fp32", -1)])
+def test_worstcase_refuses_bits_outside_the_value(precision, bit, capsys):
+    """`--bit 32` at fp32 (or 16 at fp16) searched a flip of no bit and printed 'worst flip ...
+    bit 32: footprint 0.0000%' with exit status 0."""
+    from types import SimpleNamespace
+
+    from seuwgpu.apps.cli import main
+
+    with pytest.raises(ValueError, match=f"bit {bit} is out of range for {precision}"):
+        site_space(SimpleNamespace(precision=precision, n=3, degree=0), ["opacity"], [bit])
+    if bit < 0:
+        return
+    args = ["worstcase", "--scene", "blocks", "--n", "20", "--size", "16x16", "--views", "1", "--fields", "opacity"]
+    assert main([*args, "--precision", precision, "--bit", str(bit)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"seuwgpu worstcase: error: bit {bit} is out of range for {precision} (0..{bit - 1})"

@@ -462,6 +462,15 @@ class Battery:
         self.add("arguments", "distributed --ranks 0", ["distributed", "--n", "50", "--ranks", "0"])
         self.add("arguments", "distributed --upset bad", ["distributed", "--n", "50", "--upset", "nope"])
         self.add("arguments", "view --sample 0", ["view", "--n", "50", "--sample", "0"])
+        small = ["--scene", "spheres", "--n", "50", "--views", "1", "--size", "16x16"]
+        self.add("arguments", "state --bit 32", ["state", *small, "--bit", "32", "--out", self.fresh("st")])
+        self.add("arguments", "state --bit -1", ["state", *small, "--bit", "-1", "--out", self.fresh("st")])
+        self.add("arguments", "worstcase --bit 32", ["worstcase", *small, "--bit", "32", "--fields", "opacity"])
+        self.add(
+            "arguments",
+            "worstcase --bit 16 at fp16",
+            ["worstcase", *small, "--precision", "fp16", "--bit", "16", "--fields", "opacity"],
+        )
         self.add("arguments", "no command", [])
         self.add("arguments", "unknown command", ["frobnicate"])
 

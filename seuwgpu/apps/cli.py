@@ -62,6 +62,14 @@ def index_int(text: str) -> int:
     return _whole(text, 0)
 
 
+def word_bit(text: str) -> int:
+    """A bit of a 32-bit pipeline-state word: 0 to 31."""
+    v = _whole(text, 0)
+    if v > 31:
+        raise argparse.ArgumentTypeError(f"a pipeline-state word has bits 0..31, got {v}")
+    return v
+
+
 def positive_float(text: str) -> float:
     try:
         v = float(text)
@@ -1042,7 +1050,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_profile_arg(s)
     s.add_argument("--defense", nargs="+", default=["none"], choices=DEFENSES)
     s.add_argument("--fields", nargs="+", default=["means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest"])
-    s.add_argument("--bit", type=int, nargs="+", help="bits to search (default: all)")
+    s.add_argument("--bit", type=index_int, nargs="+", help="bits to search (0 = LSB; default: all)")
     s.add_argument(
         "--max-evaluations", type=positive_int, help="stop after this many renders (the bound stays certified)"
     )
@@ -1065,7 +1073,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_profile_arg(s)
     s.add_argument("--targets", nargs="+", default=list(STATE_TARGETS), choices=STATE_TARGETS)
     s.add_argument("--samples", type=positive_int, default=10, help="flips per (target, bit) cell")
-    s.add_argument("--bit", type=int, nargs="+", help="bits (default: all 32)")
+    s.add_argument("--bit", type=word_bit, nargs="+", help="bits 0..31 (default: all 32)")
     s.add_argument("--out", type=Path, required=True)
     s.set_defaults(func=cmd_state)
 

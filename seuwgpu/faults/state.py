@@ -145,6 +145,12 @@ class StateFaults:
 
 def state_campaign(engine, targets=tuple(TARGETS), samples: int = 20, bits=range(32), seed: int = 0, progress=None):
     """Records of `samples` flips per (target, bit) cell, record, word and view uniform."""
+    for t in targets:
+        check_target(t)
+    bits = [int(b) for b in bits]
+    for b in bits:
+        if not 0 <= b < 32:  # every pipeline-state word is 32 bits
+            raise ValueError(f"bit {b} is out of range for a pipeline-state word (0..31)")
     sf = StateFaults(engine)
     rng = np.random.default_rng(seed)
     rows = []
