@@ -62,7 +62,7 @@ def dose_curves(df: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
 def fit_dose_model(k, events, n, conf: float = 0.95) -> dict:
     """Maximum-likelihood p of P(k) = 1 - (1-p)^k from binomial counts (events of n at each k);
     profile-likelihood interval; deviance G^2, degrees of freedom and p-value of the fit."""
-    from scipy.optimize import minimize_scalar
+    from scipy.optimize import brentq, minimize_scalar
     from scipy.stats import chi2
 
     k = np.asarray(k, float)
@@ -98,10 +98,16 @@ def fit_dose_model(k, events, n, conf: float = 0.95) -> dict:
 
     grid = np.linspace(lo_b, hi_b, 400)
     ex = np.array([excess(g) for g in grid])
-    inside = grid[ex <= 0]
+    inside = np.nonzero(ex <= 0)[0]
     if inside.size:
-        out["p_lo"] = 0.0 if x.sum() == 0 else float(math.exp(inside.min()))
-        out["p_hi"] = float(math.exp(inside.max()))
+        # the grid brackets each end (a step of 7% in p); the end itself is the root of `excess`
+        # between the last grid point inside and the first outside (the grid points alone gave an
+        # interval up to a step narrower than 95%)
+        i0, i1 = int(inside[0]), int(inside[-1])
+        lo = grid[i0] if i0 == 0 else brentq(excess, grid[i0 - 1], grid[i0], xtol=1e-12)
+        hi = grid[i1] if i1 == grid.size - 1 else brentq(excess, grid[i1], grid[i1 + 1], xtol=1e-12)
+        out["p_lo"] = 0.0 if x.sum() == 0 else float(math.exp(lo))
+        out["p_hi"] = float(math.exp(hi))
     # deviance against the saturated model (each k its own rate)
     with np.errstate(divide="ignore", invalid="ignore"):
         ph = x / n
