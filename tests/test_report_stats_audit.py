@@ -7,11 +7,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 from scipy.optimize import brentq
 from scipy.stats import chi2
 
-from seuwgpu.analysis import dose
+from seuwgpu.analysis import claims, dose
 
 
 def _loglik(p, k, x, n):
@@ -57,3 +58,59 @@ def test_dose_fit_without_events_starts_at_zero():
     # the upper end: where the log-likelihood sum(n k log(1-p)) has fallen by chi2/2
     want = 1 - math.exp(-chi2.ppf(0.95, 1) / 2 / (5 * 111))
     assert f["p_hi"] == pytest.approx(want, rel=1e-6)
+
+
+def _single_records(sign_per_scene: int, scenes=("a",)):
+    rows, iid = [], 0
+    for scene in scenes:
+        for field, bit, cls, fp, m in (
+            ("log_scales", 31, "sign", 0.08, sign_per_scene),
+            ("log_scales", 3, "mantissa", 0.0, 3),
+            ("opacity", 3, "mantissa", 0.001, 3),
+        ):
+            for i in range(m):
+                iid += 1
+                rows.append(
+                    dict(
+                        campaign="single",
+                        scene=scene,
+                        n_primitives=1000,
+                        precision="fp32",
+                        field=field,
+                        bit=bit,
+                        bit_class=cls,
+                        component=0,
+                        defense="none",
+                        footprint=fp * (1 + 0.5 * i),
+                        peak_error=0.5 if fp else 0.0,
+                        psnr=30.0,
+                        ssim=0.9,
+                        nonfinite=False,
+                        k=1,
+                        weight=1000.0 * (3 if field == "log_scales" else 1) / m,
+                        injection_id=iid,
+                    )
+                )
+    return pd.DataFrame(rows)
+
+
+@pytest.mark.parametrize("scenes", [("a",), ("a", "b")])
+def test_sign_claim_of_one_record_per_cell_has_no_interval(scenes):
+    """A log-scale sign cell holding one record per scene: resampling within cells returns the same
+    records every time, so the bootstrap "interval" is the point itself (width 0) and the claim's
+    verdict compared the paper's value with it. One record says nothing of its spread: no interval,
+    no verdict."""
+    t = claims.claims_table(_single_records(1, scenes)).set_index("claim")
+    r = t.loc[claims.PAPER["sign_mean"][0]]
+    assert r["measured"] == pytest.approx(8.0)
+    assert math.isnan(r["ci_lo"]) and math.isnan(r["ci_hi"])
+    assert r["verdict"] == "not measured"
+
+
+def test_sign_claim_bootstrap_interval_with_several_records():
+    """With several records in the cell the bootstrap stands: an interval around the weighted mean
+    (footprints 8, 12, 16, 20 %: mean 14 %), inside the range of the records."""
+    t = claims.claims_table(_single_records(4)).set_index("claim")
+    r = t.loc[claims.PAPER["sign_mean"][0]]
+    assert r["measured"] == pytest.approx(14.0)
+    assert 8.0 <= r["ci_lo"] < 14.0 < r["ci_hi"] <= 20.0

@@ -219,12 +219,16 @@ def quality(d: pd.DataFrame, by=(), conf: float = 0.95) -> pd.DataFrame:
 
 def bootstrap(d: pd.DataFrame, fn, n_boot: int = 200, conf: float = 0.95, seed: int = 0, strata=STRATA):
     """Percentile bootstrap interval of a statistic fn(records) -> float, resampling records
-    with replacement within each stratum (the design). Returns (lo, hi); NaN when undefined."""
+    with replacement within each stratum (the design). Returns (lo, hi); NaN when undefined,
+    which includes a stratum of a single record: resampling it always gives that record back, so
+    its variance would count as 0 (one record alone gave a zero-width "interval")."""
     if (multiplicity(d) != 1).any():
         raise ValueError("bootstrap resamples records: it needs unfolded rows")
     strata = [c for c in strata if c in d]
     rng = np.random.default_rng(seed)
     idx = list(d.groupby(strata, sort=False).indices.values()) if strata else [np.arange(len(d))]
+    if not idx or min(ix.size for ix in idx) < 2:
+        return float("nan"), float("nan")
     vals = []
     for _ in range(n_boot):
         take = np.concatenate([ix[rng.integers(0, ix.size, ix.size)] for ix in idx if ix.size])
