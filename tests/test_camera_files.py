@@ -313,3 +313,28 @@ def test_camera_path_that_is_no_regular_file_is_refused(tmp_path):
             read_cameras(fifo)
         with pytest.raises(CameraFileError, match="not a regular file"):
             camera_files(fifo)
+
+
+def test_a_uniformly_scaled_viewmat_keeps_its_camera_centre():
+    """A viewmat s [R | t] (a rotation times a uniform scale, which Camera accepts) maps the same
+    camera centre to the origin as [R | t]: the centre is -(sR)^-1 (s t) = -R^T t, not
+    -(sR)^T (s t) = -s^2 R^T t. The SH view direction (mean - centre) depends on it: with the
+    wrong centre a scaled camera drew other view-dependent colours than the same pose unscaled."""
+    from seuwgpu.model.scenes import make_scene
+    from seuwgpu.render.renderer import Renderer
+
+    v = VIEWS[0]
+    eye = -v["R"].T @ v["t"]  # the centre, from the unscaled pose in float64
+    K = [[v["fx"], 0, v["cx"]], [0, v["fy"], v["cy"]], [0, 0, 1]]
+    cams = []
+    for s in (1.0, 3.0, 0.5):
+        M = np.eye(4)
+        M[:3, :3], M[:3, 3] = s * v["R"], s * v["t"]
+        cams.append(Camera(M, K, W, H))
+        np.testing.assert_allclose(cams[-1].position, eye, rtol=1e-6, atol=1e-6, err_msg=f"scale {s}")
+    model = make_scene("spheres", n=500)
+    assert model.sh_degree > 0 and np.abs(model.sh_rest).max() > 0.05  # view-dependent colour
+    frames = Renderer(model, cams).render()
+    assert (np.abs(frames[0] - 1.0) > 0.05).mean() > 0.05  # the view sees the scene
+    np.testing.assert_allclose(frames[1], frames[0], atol=1e-4)
+    np.testing.assert_allclose(frames[2], frames[0], atol=1e-4)

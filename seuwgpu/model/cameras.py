@@ -110,10 +110,15 @@ class Camera:
 
     @property
     def position(self) -> np.ndarray:
-        """Camera centre in world coordinates (float64 for accuracy)."""
+        """Camera centre in world coordinates (float64 for accuracy): -R^-1 t. R is a rotation
+        times a uniform scale s (__post_init__), so R^-1 = R^T / s^2 with s^2 = |det R|^(2/3); a
+        float32 rotation's own rounding (|s^2 - 1| ~ 1e-7) is not divided out, so the centre of an
+        unscaled pose is -R^T t bit for bit."""
         R = self.viewmat[:3, :3].astype(np.float64)
         t = self.viewmat[:3, 3].astype(np.float64)
-        return -R.T @ t
+        s2 = abs(float(np.linalg.det(R))) ** (2.0 / 3.0)
+        centre = -R.T @ t
+        return centre if abs(s2 - 1.0) < 1e-5 else centre / s2
 
     def to_json(self) -> dict:
         return {"viewmat": self.viewmat.tolist(), "K": self.K.tolist(), "width": self.width, "height": self.height}
