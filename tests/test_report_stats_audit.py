@@ -114,3 +114,50 @@ def test_sign_claim_bootstrap_interval_with_several_records():
     r = t.loc[claims.PAPER["sign_mean"][0]]
     assert r["measured"] == pytest.approx(14.0)
     assert 8.0 <= r["ci_lo"] < 14.0 < r["ci_hi"] <= 20.0
+
+
+def test_pc_claim_needs_every_stored_bit():
+    """p_c is the claim about a uniform upset over all of a model's stored bits. Records of three
+    (field, bit) cells stand for 7 of the 59 x 32 (component, bit) positions (log-scale bits 31 and
+    3: 3 components each; opacity bit 3: 1): their rate says nothing about the others, so it gets
+    no verdict (it had 'reproduced' from a 0.4% sample)."""
+    t = claims.claims_table(_single_records(4)).set_index("claim")
+    r = t.loc[claims.PAPER["pc_none"][0]]
+    assert r["verdict"] == "not measured"
+    assert f"covers {100 * 7 / (59 * 32):.3g}% of the stored bits" in r["basis"]
+    # the measured value and its interval stay: the weighted rate of the cells sampled (the sign
+    # cell, 3 of their 7 weight units, is catastrophic)
+    assert r["measured"] == pytest.approx(100 * 3 / 7) and r["ci_lo"] < r["measured"] < r["ci_hi"]
+
+
+def test_pc_claim_over_every_field_and_bit_has_a_verdict():
+    rows, iid = [], 0
+    for field, nc in {"means": 3, "log_scales": 3, "quats": 4, "opacity": 1, "sh_dc": 3, "sh_rest": 45}.items():
+        for bit in range(32):
+            for rep in range(2):
+                iid += 1
+                bad = field == "log_scales" and bit == 31 and rep == 0
+                rows.append(
+                    dict(
+                        campaign="single",
+                        scene="a",
+                        n_primitives=100,
+                        precision="fp32",
+                        field=field,
+                        bit=bit,
+                        component=0,
+                        bit_class="sign" if bit == 31 else ("exponent" if bit >= 23 else "mantissa"),
+                        defense="none",
+                        footprint=0.5 if bad else 0.0,
+                        peak_error=0.5 if bad else 0.0,
+                        nonfinite=False,
+                        k=1,
+                        weight=100 * nc / 2,
+                        injection_id=iid,
+                    )
+                )
+    t = claims.claims_table(pd.DataFrame(rows)).set_index("claim")
+    r = t.loc[claims.PAPER["pc_none"][0]]
+    # one event in the log-scale sign cell: 300 / 2 of 100 x 59 x 32 stored bits
+    assert r["measured"] == pytest.approx(100 * 150 / (100 * 59 * 32))
+    assert r["verdict"] in ("reproduced", "differs") and "covers" not in r["basis"]

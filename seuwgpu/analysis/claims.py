@@ -14,6 +14,7 @@ import pandas as pd
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis import stats
 from seuwgpu.analysis.records import single_upsets, tag
+from seuwgpu.analysis.reliability import catastrophe_probability
 
 # key: (claim, unit, paper value)
 PAPER = {
@@ -29,9 +30,10 @@ PAPER = {
 }
 
 
-def _row(key, value=np.nan, lo=np.nan, hi=np.nan, basis=""):
+def _row(key, value=np.nan, lo=np.nan, hi=np.nan, basis="", measures_claim=True):
+    """measures_claim=False: the value is not the claim's quantity (basis says why): no verdict."""
     claim, unit, paper = PAPER[key]
-    if not np.isfinite(value):
+    if not measures_claim or not np.isfinite(value):
         verdict = "not measured"
     elif np.isfinite(lo) and np.isfinite(hi):
         verdict = "reproduced" if lo <= paper <= hi else "differs"
@@ -80,7 +82,12 @@ def claims_table(df: pd.DataFrame, results: dict | None = None, conf: float = 0.
         g = g[g["bit"] >= 0]
         if len(g):
             r = E.one_rate(g, "catastrophic", conf)
-            rows.append(_row(key, 100 * r["rate"], 100 * r["ci_lo"], 100 * r["ci_hi"], f"n = {int(r['n']):,}"))
+            # the claim is over every stored bit: a campaign over some fields or bits estimates the
+            # rate of those only (the p_c table's coverage_pct), which says nothing of the claim
+            cov = float(catastrophe_probability(g, conf)["coverage_pct"].iloc[0])
+            part = cov < 99.999
+            basis = f"n = {int(r['n']):,}" + (f"; covers {cov:.3g}% of the stored bits" if part else "")
+            rows.append(_row(key, 100 * r["rate"], 100 * r["ci_lo"], 100 * r["ci_hi"], basis, not part))
         else:
             rows.append(_row(key))
     gd = results.get("guard")
