@@ -429,6 +429,8 @@ def test_size_scaling_recovers_exponent():
     assert f.loc["median_mse", "alpha"] == pytest.approx(0.5, abs=1e-9)
     assert f.loc["mean_mse", "r2"] == pytest.approx(1.0, abs=1e-9)
     assert f.loc["mean_mse", "n_fitted"] == 4 and f.loc["mean_mse", "n_zero"] == 0
+    d = pd.concat(rows, ignore_index=True)  # what the upsets sampled, for the section's caption
+    assert res["fields"] == sorted(d["field"].unique()) and res["bits"] == sorted(d["bit"].unique())
     # two sizes whose median error is 0 (identical frames): shown, counted, and no exponent made
     # up from the two points left
     zeros = [r.assign(psnr=np.inf) if i < 2 else r for i, r in enumerate(rows)]
@@ -702,3 +704,12 @@ def test_size_scaling_weights_stratified_records():
     want = (9 * 1e-6 + 1 * 1e-2) / 10
     assert np.allclose(t["mean_mse"], want, rtol=1e-6)
     assert np.allclose(t["median_mse"], 1e-6, rtol=1e-6)
+
+
+def test_durations_keep_undefined_apart_from_unbounded():
+    """An MTBF with no measured rate (NaN) reads n/a, an unbounded one inf; finite ones in units."""
+    from seuwgpu.analysis.reliability import format_duration
+
+    assert format_duration(float("nan")) == "n/a" and format_duration(None) == "n/a"
+    assert format_duration(float("inf")) == "inf"
+    assert format_duration(1.0) == "1 h" and format_duration(0.5 / 60) == "30 s" and format_duration(72) == "3 d"

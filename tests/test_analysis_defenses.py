@@ -47,3 +47,6 @@ def test_goal_verdict_is_unknown_without_time_and_false_on_a_failed_criterion():
     assert pd.isna(t.loc["parity", "meets_goal"])
     timed = defense_table(df, {"guard": {"time_fraction": 0.01}, "parity": {"time_fraction": 0.5}})
     assert not timed.set_index("defense").loc["parity", "meets_goal"]  # 0.5 > 2 x guard's 0.01
+    # the guard's own time unknown: the comparison with it is unknown too, not a fail
+    untimed_guard = defense_table(df, {"parity": {"time_fraction": 0.5}}).set_index("defense")
+    assert pd.isna(untimed_guard.loc["parity", "meets_goal"])

@@ -111,7 +111,8 @@ def defense_table(df: pd.DataFrame, timing: dict | None = None) -> pd.DataFrame:
         & (out["rate_hi_pct"] <= 100 * GOAL["overall_rate"])
     )
     verdict = pd.array(known & time_ok, dtype="boolean")
-    verdict[(known & out["time_fraction"].isna()).to_numpy()] = pd.NA
+    time_unknown = out["time_fraction"].isna() | (not np.isfinite(gt))  # the defense's or the guard's
+    verdict[(known & time_unknown).to_numpy()] = pd.NA
     out["meets_goal"] = verdict
     return out
 

@@ -79,8 +79,11 @@ UPSET_RATES = (
 
 
 def format_duration(hours: float) -> str:
-    """Human-readable duration: s, min, h, d or yr."""
-    if hours is None or not np.isfinite(hours):
+    """Human-readable duration: s, min, h, d or yr; "inf" for an unbounded one, "n/a" for an
+    undefined one (NaN: no rate measured)."""
+    if hours is None or np.isnan(hours):
+        return "n/a"
+    if not np.isfinite(hours):
         return "inf"
     s = hours * 3600
     if s < 60:
@@ -208,7 +211,7 @@ def mtbf_table(
                     "mtbf_hours": t,
                     "mtbf_hours_lo": t_lo,
                     "mtbf_hours_hi": t_hi,
-                    "mtbf": format_duration(t) if p > 0 else f"> {format_duration(t_lo)}",
+                    "mtbf": format_duration(t) if not p == 0 else f"> {format_duration(t_lo)}",  # NaN: n/a
                     "mtbf_range": f"{format_duration(t_lo)} .. {format_duration(t_hi)}",
                     "catastrophic_frames_pct": 100 * catastrophic_frame_share(lam, bits, p, scrub_hours),
                     "source": env.get("source", ""),

@@ -26,7 +26,8 @@ MIN_SIZES = 3  # sizes with a positive value needed for a fit (two points fit an
 
 
 def size_scaling(df: pd.DataFrame, conf: float = 0.95) -> dict:
-    """Returns {"table", "fits", "guard_factor", "source_campaign"}."""
+    """Returns {"table", "fits", "guard_factor", "source_campaign", "fields", "bits"}: the last two
+    are what the upsets sampled (the error is over those, not over every stored bit)."""
     d = prepare(df)
     d = d[d["k"] == 1]
     src = "size" if (d["campaign"] == "size").any() else "dose"
@@ -111,7 +112,8 @@ def size_scaling(df: pd.DataFrame, conf: float = 0.95) -> dict:
                 }
             )
     gf = tag(pd.DataFrame(grows), d)
-    return {"table": table, "fits": fits, "guard_factor": gf, "source_campaign": src}
+    sampled = {"fields": sorted(map(str, d["field"].unique())), "bits": sorted(int(b) for b in d["bit"].unique())}
+    return {"table": table, "fits": fits, "guard_factor": gf, "source_campaign": src, **sampled}
 
 
 def plot_size_scaling(res: dict, metric: str = "mean_mse"):

@@ -568,7 +568,9 @@ def _sec_size(df, manifests, ctx) -> Section:
         "Single-upset error against primitive count",
         "Single upsets on models of several sizes; error is the frame MSE over finite frames (from "
         "PSNR, peak 1), weighted. alpha = -exponent of the log-log fit (sigma^2(N) = Theta(N^-alpha)), "
-        "95% t interval; zero values cannot be fitted and are shown, not dropped.",
+        "95% t interval; zero values cannot be fitted and are shown, not dropped. The upsets sampled "
+        f"the fields {', '.join(res['fields'])} and bits {', '.join(map(str, res['bits']))}: the error is "
+        "over those, not over every stored bit.",
     )
     sec.figures.append(
         FigureItem(
