@@ -44,3 +44,31 @@ def test_storm_command_writes_records_and_plot(tmp_path, capsys):
     assert len(df) == 6 and set(df.defense) == {"none", "parity4r"} and (tmp_path / "storm.png").stat().st_size
     assert main([*args, "--scrub-every", "-1", "--out", str(tmp_path)]) == 2
     assert "scrub_every >= 0" in capsys.readouterr().err
+
+
+def test_a_storm_too_long_for_host_memory_is_refused_at_once(monkeypatch):
+    """--frames 1000000000 drew every frame's upsets before the first render: minutes of a silent
+    hang, then a MemoryError; now refused at once saying how many frames fit."""
+    from types import SimpleNamespace
+
+    import pytest
+
+    from seuwgpu.errors import TooBig
+
+    monkeypatch.setenv("SEUWGPU_HOST_MEMORY", str(10**9))
+    eng = SimpleNamespace(n=200, degree=0, precision="fp32")
+    with pytest.raises(TooBig, match=r"1,000,000,000 frames .* at most [\d,]+ frames fit"):
+        storm(eng, 1, 10**9, 10, ("none", "guard"))
+    with pytest.raises(ValueError, match="exceeds the model's"):  # k over the stored bits: that error first
+        storm(eng, 10**9, 10**9, 10, ("none",))
+
+
+def test_storm_command_runs_a_defense_named_twice_once(tmp_path):
+    import pandas as pd
+
+    from seuwgpu.apps.cli import main
+
+    args = ["storm", "--scene", "blocks", "--n", "100", "--size", "16x16", "--k", "2", "--frames", "2"]
+    assert main([*args, "--defense", "none", "none", "--out", str(tmp_path)]) == 0
+    df = pd.read_parquet(tmp_path / "storm.parquet")
+    assert len(df) == 2 and list(df.frame) == [0, 1]

@@ -670,6 +670,9 @@ class Battery:
             ],
             env={"SEUWGPU_HOST_MEMORY": str(10**12)},
         )
+        storm = ["storm", "--scene", "spheres", "--n", "50", "--size", "16x16", "--out", self.fresh("storm")]
+        self.add("memory", "storm --frames 1000000000", [*storm, "--k", "1", "--frames", "1000000000"])
+        self.add("memory", "storm --k 1000000000", [*storm, "--k", "1000000000", "--frames", "2"])
         small = {"SEUWGPU_HOST_MEMORY": str(2 * 10**9)}
         for name, extra in {
             "64 views of 2048x2048, 2 GB host": ["--views", "64", "--size", "2048x2048"],

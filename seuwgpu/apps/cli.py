@@ -758,6 +758,34 @@ def cmd_worstcase(args):
     return 0
 
 
+class work_bar:
+    """A progress bar on stderr for a long loop (none when stderr is no terminal): `with
+    work_bar("frames", total) as step:` then `step()` once a unit of work is done."""
+
+    def __init__(self, what: str, total: int):
+        self.what, self.total = what, total
+
+    def __enter__(self):
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+        self.p = Progress(
+            TextColumn(f"[bold]{self.what}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("ETA"),
+            TimeRemainingColumn(),
+            transient=True,
+            disable=not sys.stderr.isatty(),
+        )
+        self.p.start()
+        task = self.p.add_task(self.what, total=self.total)
+        return lambda: self.p.advance(task)
+
+    def __exit__(self, *exc):
+        self.p.stop()
+        return False
+
+
 def cmd_storm(args):
     """k upsets per frame accumulating, scrubbed every S frames: records and a plot per defense."""
     from seuwgpu.analysis.defenses import storm_figure
@@ -767,7 +795,9 @@ def cmd_storm(args):
     output_folder(args, args.out)
     src = load_source(args)
     eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
-    df = storm(eng, args.k, args.frames, args.scrub_every, args.defense, args.seed)
+    defenses = list(dict.fromkeys(args.defense))  # a defense named twice is one arm
+    with work_bar("frames", args.frames * len(defenses)) as step:
+        df = storm(eng, args.k, args.frames, args.scrub_every, defenses, args.seed, progress=step)
     df.to_parquet(args.out / "storm.parquet", index=False)
     storm_figure(df).savefig(args.out / "storm.png", dpi=120)
     summary = df.groupby("defense", sort=False).agg(
@@ -787,7 +817,9 @@ def cmd_state(args):
     output_folder(args, args.out)
     src = load_source(args)
     eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
-    df = state_campaign(eng, args.targets, args.samples, args.bit or range(32), args.seed)
+    targets, bits = list(dict.fromkeys(args.targets)), list(dict.fromkeys(args.bit or range(32)))
+    with work_bar("flips", len(targets) * len(bits) * args.samples) as step:
+        df = state_campaign(eng, targets, args.samples, bits, args.seed, progress=step)
     df.to_parquet(args.out / "state.parquet", index=False)
     t = state_table(df)
     (args.out / "state_criticality.csv").write_text(t.to_csv(index=False))

@@ -16,9 +16,27 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from seuwgpu.errors import TooBig
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.sites import draw_uniform_sites, mask_of
 from seuwgpu.metrics.image import catastrophic
+from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, gb
+
+SITE_BYTES = 320  # host bytes of one drawn upset (a Site), measured with tracemalloc
+ROW_BYTES = 700  # host bytes of one record (a dict) before the DataFrame is made
+
+
+def check_storm(k: int, frames: int, arms: int):
+    """Refuse a storm whose upsets (all drawn before the first frame) and records would not fit
+    in host memory, saying how many frames fit."""
+    per_frame = k * SITE_BYTES + arms * ROW_BYTES
+    need, have = frames * per_frame, HOST_SHARE * available_host_bytes()
+    if need > have:
+        raise TooBig(
+            f"a storm of {frames:,} frames of k = {k:,} upsets under {arms} defense(s) needs about {gb(need)} "
+            f"of host memory for its upsets and records; {gb(have / HOST_SHARE)} is available: at most "
+            f"{max(1, int(have // per_frame)):,} frames fit"
+        )
 
 
 def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), seed: int = 0, progress=None):
@@ -26,7 +44,12 @@ def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), see
     if k < 1 or frames < 1 or scrub_every < 0:
         raise ValueError(f"storm needs k >= 1, frames >= 1, scrub_every >= 0 (got {k}, {frames}, {scrub_every})")
     rng = np.random.default_rng(seed)
-    upsets = [draw_uniform_sites(engine.n, engine.degree, engine.precision, k, rng) for _ in range(frames)]
+    first = draw_uniform_sites(engine.n, engine.degree, engine.precision, k, rng)  # k over the stored bits: refused
+    check_storm(k, frames, len(defenses))
+    upsets = [
+        first,
+        *(draw_uniform_sites(engine.n, engine.degree, engine.precision, k, rng) for _ in range(frames - 1)),
+    ]
     rows = []
     for d in defenses:
         dfn.check_defense(d)
