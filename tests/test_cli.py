@@ -400,3 +400,26 @@ def test_console_entry_ignores_ctrl_c_while_the_interpreter_shuts_down(monkeypat
         assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
     finally:
         signal.signal(signal.SIGINT, before)
+
+
+@pytest.fixture(scope="module")
+def spec_run(tmp_path_factory):
+    """A finished run of SPEC (8 injections, 2 defenses)."""
+    tmp = tmp_path_factory.mktemp("spec_run")
+    (tmp / "spec.toml").write_text(SPEC)
+    assert main(["campaign", str(tmp / "spec.toml"), "--out", str(tmp / "run"), "--quiet"]) == 0
+    return tmp / "spec.toml", tmp / "run"
+
+
+def test_rates_by_a_column_named_twice(spec_run, tmp_path, capsys):
+    """`--by scene,scene` printed each row's whole Series repeated in a garbled table; a column named
+    twice is one column."""
+    import pandas as pd
+
+    _, run_dir = spec_run
+    assert main(["rates", str(run_dir), "--by", "scene", "--csv", str(tmp_path / "once.csv")]) == 0
+    once = capsys.readouterr().out
+    assert main(["rates", str(run_dir), "--by", "scene,scene", "--csv", str(tmp_path / "twice.csv")]) == 0
+    twice = capsys.readouterr().out
+    assert twice == once and "dtype" not in twice
+    assert pd.read_csv(tmp_path / "twice.csv").equals(pd.read_csv(tmp_path / "once.csv"))

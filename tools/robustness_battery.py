@@ -486,6 +486,13 @@ class Battery:
             "ok",
             self.records_equal(ref, ref),
         )
+        self.add(
+            "run directory",
+            "rates --by a column named twice",
+            ["rates", ref, "--by", "scene,scene"],
+            "ok",
+            lambda out: self.assert_in("│ spheres │", out) or self.assert_not_in("dtype", out),
+        )
         # same spec through another path: resumes with nothing new
         (self.work / "sub").mkdir(exist_ok=True)
         self.add(
@@ -582,6 +589,10 @@ class Battery:
     @staticmethod
     def assert_in(text, out):
         assert text in out, out
+
+    @staticmethod
+    def assert_not_in(text, out):
+        assert text not in out, out
 
     @staticmethod
     def records_equal(run, ref):

@@ -436,7 +436,7 @@ def cmd_rates(args):
     from seuwgpu.analysis.cells import COUNTS, fold_runs, groups, outcome_rates
     from seuwgpu.campaign.store import COLUMNS, campaign_runs, partial_runs_text
 
-    by = [c.strip() for c in args.by.split(",") if c.strip()]
+    by = list(dict.fromkeys(c.strip() for c in args.by.split(",") if c.strip()))  # a column named twice: once
     unknown = [c for c in by if c != "run" and c not in COLUMNS]
     if unknown:
         known = ", ".join(["run", *COLUMNS])
