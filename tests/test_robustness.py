@@ -166,6 +166,24 @@ def test_merge_refuses_other_specs_its_own_inputs_and_foreign_outputs(tiny_run, 
         merge(tmp_path / "m", [tmp_path])
 
 
+def test_merge_takes_a_shard_run_twice_but_not_parts_that_differ(tiny_run, shards, tmp_path):
+    """A shard run again (after a lost node), or a whole run beside its shards, holds the same
+    records timed anew: merging them was refused as 'part ... differs' (byte comparison)."""
+    spec, run, want = tiny_run
+    merge(tmp_path / "m", [run, *shards])
+    pd.testing.assert_frame_equal(records(tmp_path / "m"), want)
+    again = tmp_path / "s0-again"
+    Runner(spec, again, shard=(0, 3), quiet=True).run()
+    merge(tmp_path / "m2", [shards[0], again, *shards[1:]])
+    pd.testing.assert_frame_equal(records(tmp_path / "m2"), want)
+    part = store.part_files(again)[0]
+    df = pd.read_parquet(part)
+    df.loc[0, "footprint"] += 0.5  # a result that differs
+    df.to_parquet(part, index=False)
+    with pytest.raises(SpecError, match=f"part {part.name} differs between"):
+        merge(tmp_path / "m3", [shards[0], again, *shards[1:]])
+
+
 # ---- memory ------------------------------------------------------------------------------------
 def test_too_big_jobs_are_refused_saying_what_fits(monkeypatch):
     monkeypatch.setenv("SEUWGPU_HOST_MEMORY", str(2 * 10**9))

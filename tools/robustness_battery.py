@@ -580,6 +580,14 @@ class Battery:
         )
         full = self.fresh("merged")
         self.add("merge", "all shards", ["merge", *shards, "--out", full], "ok", self.records_equal(full, ref))
+        both = self.fresh("merged")  # the parts of a whole run and of its shards: the same records, timed anew
+        self.add(
+            "merge",
+            "a whole run beside its shards",
+            ["merge", ref, *shards, "--out", both],
+            "ok",
+            self.records_equal(both, ref),
+        )
         self.add("merge", "--out is an input", ["merge", *shards, "--out", shards[0]])
         self.add("merge", "shards of two specs", ["merge", shards[0], self.model_run, "--out", self.fresh("merged")])
         self.add("merge", "into a run of another spec", ["merge", *shards, "--out", self.model_run])

@@ -2,9 +2,10 @@
 
 A merge is refused (SpecError, naming the directory) when a shard holds no run, when the shards
 come from different specs, when `out` is one of the shards, when `out` already holds a run of
-another spec, when two shards disagree on a part, and when parts of the campaign are missing:
-`allow_partial` merges what there is and records the missing parts in the manifest
-(`missing_parts`: [first id, count] pairs; `injections_recorded` < `total_injections`).
+another spec, when two shards disagree on a part (on more than its wall-clock times: a shard run
+twice agrees), and when parts of the campaign are missing: `allow_partial` merges what there is
+and records the missing parts in the manifest (`missing_parts`: [first id, count] pairs;
+`injections_recorded` < `total_injections`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,21 @@ from pathlib import Path
 
 from seuwgpu.campaign import store
 from seuwgpu.campaign.spec import SpecError, spec_hash
+
+
+def same_records(a: Path, b: Path) -> bool:
+    """Two copies of a part hold the same records: the same bytes, or the same values in every
+    column but the wall-clock ones (store.TIMED_COLUMNS): a shard run twice (a re-run after a lost
+    node, or a whole run beside its shards) times its renders anew and reproduces everything else."""
+    if a.read_bytes() == b.read_bytes():
+        return True
+    import pandas as pd
+
+    x, y = pd.read_parquet(a), pd.read_parquet(b)
+    if list(x.columns) != list(y.columns):
+        return False
+    timed = [c for c in store.TIMED_COLUMNS if c in x.columns]
+    return x.drop(columns=timed).equals(y.drop(columns=timed))
 
 
 def merge(out: Path, shard_dirs: list[Path], allow_partial: bool = False) -> int:
@@ -53,7 +69,7 @@ def merge(out: Path, shard_dirs: list[Path], allow_partial: bool = False) -> int
                 if store.part_rows(p) != expected[key]:
                     continue  # an empty or damaged part: as good as missing
                 if key in found:
-                    if found[key].resolve() != p.resolve() and p.read_bytes() != found[key].read_bytes():
+                    if found[key].resolve() != p.resolve() and not same_records(p, found[key]):
                         raise SpecError(f"part {p.name} differs between {found[key].parent.parent} and {d}")
                     continue
                 found[key] = p
