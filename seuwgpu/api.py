@@ -113,6 +113,8 @@ def cameras(
     nerfstudio transforms.json; all of them or `views` evenly), else `views` (default 4) orbit
     views of `size` (width, height) that frame the model; `scale` multiplies the resolution."""
     _check_scene(scene)
+    if views is not None:
+        _whole(views, "views", 1)
     w, h = _size(size)
     if scale is not None and not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
         raise InputError(f"scale must be a positive number, got {scale!r}")
@@ -225,6 +227,10 @@ def inject(
         raise InputError("defenses must name at least one defense")
     if not isinstance(sample, int) or isinstance(sample, bool) or sample < 1:
         raise InputError(f"sample must be a positive integer, got {sample!r}")
+    _whole(component, "component", 0)  # 1.7 was truncated to primitive 1, True taken as 1
+    if primitive is not None:
+        _whole(primitive, "primitive", 0)
+    _whole(seed, "seed", 0 if primitive is None or fault == "random" else None)  # numpy's seeds are >= 0
     bits, op, value = _fault_bits(fault, bit, width, precision, seed)
     model = _model_of(scene)
     name = scene.name if isinstance(scene, Source) else "model"
@@ -380,8 +386,11 @@ def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], st
         return model_bits(fault, -1, precision, int(np.random.default_rng(seed).integers(2**63)))
     if bit is None:
         raise InputError(f"fault {fault!r} needs bit=")
+    if isinstance(bit, (str, bytes)) or not isinstance(bit, (int, np.integer, Iterable)):
+        raise InputError(f"bit must be an integer or a list of integers, got {bit!r}")
     bits = [bit] if isinstance(bit, (int, np.integer)) else list(bit)
     for b in bits:  # the bit asked for, named before an adjacent burst moves below it
+        _whole(b, "bit", None)
         try:
             encoding.check_bit(precision, b)
         except ValueError as e:
@@ -423,6 +432,15 @@ def _views(views) -> list[Camera]:
     if not views or not all(isinstance(c, Camera) for c in views):
         raise InputError("views must be a non-empty list of Camera (from cameras())")
     return views
+
+
+def _whole(value, what: str, lo: int | None) -> int:
+    """An integer argument (not a bool, not a float to be truncated) of at least `lo`."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise InputError(f"{what} must be an integer, got {value!r}")
+    if lo is not None and value < lo:
+        raise InputError(f"{what} must be at least {lo}, got {value}")
+    return int(value)
 
 
 def _size(size) -> tuple[int, int]:

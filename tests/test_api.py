@@ -158,6 +158,36 @@ def test_bad_input_is_a_clear_error(scene, views, call, message):
         call(scene, views)
 
 
+@pytest.mark.parametrize(
+    "call, message",
+    [  # a float index was truncated (primitive 1.7 injected into primitive 1), True taken as 1,
+        # a float bit or view count was a TypeError, a negative seed numpy's unnamed error
+        (
+            lambda s, v: sg.inject(s, v, field="opacity", bit=30, primitive=1.7),
+            "^primitive must be an integer, got 1.7",
+        ),
+        (
+            lambda s, v: sg.inject(s, v, field="opacity", bit=30, primitive=True),
+            "^primitive must be an integer, got True",
+        ),
+        (lambda s, v: sg.inject(s, v, field="means", bit=30, primitive=1, component=1.5), "^component must be an int"),
+        (
+            lambda s, v: sg.inject(s, v, field="means", bit=30, primitive=1, component=-1),
+            "^component must be at least 0",
+        ),
+        (lambda s, v: sg.inject(s, v, field="opacity", bit=3.0, primitive=1), "^bit must be an integer or a list"),
+        (lambda s, v: sg.inject(s, v, field="opacity", bit=[3, 4.0], primitive=1), "^bit must be an integer, got 4.0"),
+        (lambda s, v: sg.inject(s, v, field="opacity", bit=True, primitive=1), "^bit must be an integer, got True"),
+        (lambda s, v: sg.inject(s, v, field="opacity", bit=None, fault="random", seed=-1), "^seed must be at least 0"),
+        (lambda s, v: sg.cameras(s, views=1.5), "^views must be an integer, got 1.5"),
+        (lambda s, v: sg.cameras(s, views=True), "^views must be an integer, got True"),
+    ],
+)
+def test_arguments_of_the_wrong_type_are_refused_not_truncated(scene, views, call, message):
+    with pytest.raises(sg.InputError, match=message):
+        call(scene, views)
+
+
 def test_cli_inject_and_render_write_every_frame(tmp_path, capsys):
     from seuwgpu.apps.cli import main
 
