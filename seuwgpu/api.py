@@ -324,6 +324,13 @@ def run_campaign(
         spec = load_spec(spec)
     else:
         raise InputError(f"spec must be a dict or the path of a TOML file, got {type(spec).__name__}")
+    try:  # (2, 2) or (0.5, 2) ran no injection and returned as done; (0, 0) was a ZeroDivisionError
+        i, n = shard
+        ok = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (i, n)) and 0 <= i < n
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise InputError(f"shard must be (I, N), integers with 0 <= I < N, got {shard!r}")
     runner = Runner(spec, Path(out), shard=shard, quiet=progress is not True, full=full)
     return runner.run() if progress is True else runner.run(_Callback(progress or None, runner))
 
@@ -347,10 +354,12 @@ class _Callback:
 
 
 def read_records(*runs: str | Path) -> pd.DataFrame:
-    """The Parquet records of one or more run directories as one DataFrame (one row per injection
-    and defense; the footprint is a fraction)."""
+    """The Parquet records of one or more run directories (or one list of them) as one DataFrame
+    (one row per injection and defense; the footprint is a fraction)."""
     from seuwgpu.report.build import load_runs
 
+    if len(runs) == 1 and isinstance(runs[0], (list, tuple)):  # a list of runs, as make_report takes
+        runs = tuple(runs[0])
     if not runs:
         raise InputError("read_records needs at least one run directory")
     df, _ = load_runs([Path(_existing(r, "run directory")) for r in runs])

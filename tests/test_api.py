@@ -123,6 +123,12 @@ def test_campaign_records_and_report(tmp_path):
     assert df["footprint"].between(0, 1).all()
     again = sg.run_campaign(spec, tmp_path / "run")  # resume: nothing left to do
     assert again["new"] == 0 and again["injections"] == 8
+    assert sg.read_records([tmp_path / "run"]).equals(df)  # a list of runs, as make_report takes
+    # a shard outside 0 <= I < N ran nothing and returned as done ((0, 0): a ZeroDivisionError)
+    for shard in [(2, 2), (0, 0), (0.5, 2), (-1, 2), "0/2", (True, 2)]:
+        with pytest.raises(sg.InputError, match="^shard must be \\(I, N\\), integers with 0 <= I < N"):
+            sg.run_campaign(spec, tmp_path / "shard", shard=shard)
+    assert not (tmp_path / "shard").exists()
 
     index = sg.make_report(tmp_path / "run", tmp_path / "report")
     assert index.exists() and (tmp_path / "report" / "summary.json").exists()
