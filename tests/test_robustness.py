@@ -219,6 +219,9 @@ SPEC_CASES = {
     'scene = "spheres"\nseed = -1': r"seed = -1 is out of range",
     'scene = "spheres"\nmodel = "x.ply"': "exactly one of",
     'scene = "spheres"\nup = 3': "is no axis",
+    # was ignored: the whole file ran, as if n were not there (the command line refuses --n with --model)
+    'model = "x.ply"\nn = 50': r"scenes\[0\]\.n sets the primitives of an embedded scene; a model file",
+    'ply = "x.ply"\nn = 50': r"a model file \(ply = \.\.\.\) keeps all of its own",
 }
 
 

@@ -159,6 +159,7 @@ class Battery:
             'scene = "spheres"\nsh_degree = -1',
             'scene = "spheres"\nmodel = "good.ply"',
             'model = "good.ply"\nply = "good.ply"',
+            'model = "good.ply"\nn = 50',
             "ply = 5",
             'model = "missing.ply"',
             'model = "dir"',

@@ -416,6 +416,11 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
                 out["n"] = _int(s, "n", where, 100_000, 1)
         else:
             key = "model" if "model" in s else "ply"
+            if "n" in s:  # refused, not ignored, as --n with --model (a [sizes] sweep cuts a file)
+                raise SpecError(
+                    f"{where}.n sets the primitives of an embedded scene; a model file ({key} = ...) keeps all of "
+                    "its own (a [sizes] table cuts it to subsets)"
+                )
             out["model"] = _spec_file(s, key, where, base_dir)
             out["model_sha256"] = content_hash("model", out["model"])
         if "up" in s:
