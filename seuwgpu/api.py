@@ -36,6 +36,7 @@ from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, VALUE_MODELS, mo
 from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.metrics.image import display
 from seuwgpu.model import encoding
+from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, MIN_VIEW_SIZE
 from seuwgpu.model.cameras import Camera, check_one_size, image_sizes
 from seuwgpu.model.fields import FIELDS, Model
 from seuwgpu.model.scenes import list_scenes
@@ -88,6 +89,8 @@ def load_model(
     .splat, .spz, gsplat .pt). `n`, `sh_degree` and `seed` shape embedded scenes (`n` with a
     file is refused: a model file keeps all of its primitives); `up` overrides
     the up axis used to frame the model without cameras ("+z", "-y", ...)."""
+    if not isinstance(source, (str, Path)):
+        raise InputError(f"source must be a scene name or a model path, got {source!r}")
     path = Path(source)
     if isinstance(source, Path) or path.exists() or path.suffix or "/" in str(source):
         if not path.exists():
@@ -111,13 +114,17 @@ def cameras(
 ) -> list[Camera]:
     """The views to render: a camera file's (CAMS.json, INRIA cameras.json, a COLMAP model,
     nerfstudio transforms.json; all of them or `views` evenly), else `views` (default 4) orbit
-    views of `size` (width, height) that frame the model; `scale` multiplies the resolution."""
+    views of `size` (width, height) that frame the model; `scale` multiplies the resolution. The
+    command line's limits hold here too: 1..64 views, sides of at least 16 px, scale in (0, 16]."""
     _check_scene(scene)
-    if views is not None:
-        _whole(views, "views", 1)
+    if views is not None and _whole(views, "views", 1) > MAX_VIEWS:
+        raise InputError(f"views must be at most {MAX_VIEWS}, got {views}")
     w, h = _size(size)
-    if scale is not None and not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
-        raise InputError(f"scale must be a positive number, got {scale!r}")
+    if min(w, h) < MIN_VIEW_SIZE:
+        raise InputError(f"size must be at least {MIN_VIEW_SIZE} px a side (one tile), got {size!r}")
+    number = isinstance(scale, (int, float)) and not isinstance(scale, bool)
+    if scale is not None and not (number and math.isfinite(scale) and 0 < scale <= MAX_SCALE):
+        raise InputError(f"scale must be a number in (0, {MAX_SCALE}], got {scale!r}")
     return source_views(scene, cameras, views, (w, h), scale, default_views=4)
 
 
@@ -331,7 +338,7 @@ def run_campaign(
         ok = False
     if not ok:
         raise InputError(f"shard must be (I, N), integers with 0 <= I < N, got {shard!r}")
-    runner = Runner(spec, Path(out), shard=shard, quiet=progress is not True, full=full)
+    runner = Runner(spec, _folder(out, "run directory"), shard=shard, quiet=progress is not True, full=full)
     return runner.run() if progress is True else runner.run(_Callback(progress or None, runner))
 
 
@@ -373,7 +380,7 @@ def make_report(runs: str | Path | Iterable[str | Path], out: str | Path, fold: 
     from seuwgpu.report.build import build_report
 
     runs = [runs] if isinstance(runs, (str, Path)) else list(runs)
-    return build_report([_existing(r, "run directory") for r in runs], out, fold=fold)
+    return build_report([_existing(r, "run directory") for r in runs], _folder(out, "report folder"), fold=fold)
 
 
 def report_figures(runs: str | Path | Iterable[str | Path]) -> dict:
@@ -473,6 +480,16 @@ def _names(values, what: str) -> list[str]:
     if not all(isinstance(v, str) for v in values):
         raise InputError(f"{what} must be names (strings), got {values!r}")
     return values
+
+
+def _folder(path, what: str) -> Path:
+    """An output folder: a path that is not a file (it is created where missing)."""
+    if not isinstance(path, (str, Path)):
+        raise InputError(f"{what} must be a path, got {path!r}")
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{p}: is a file, not a {what}")
+    return p
 
 
 def _existing(path, what: str) -> Path:

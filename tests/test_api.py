@@ -129,6 +129,11 @@ def test_campaign_records_and_report(tmp_path):
         with pytest.raises(sg.InputError, match="^shard must be \\(I, N\\), integers with 0 <= I < N"):
             sg.run_campaign(spec, tmp_path / "shard", shard=shard)
     assert not (tmp_path / "shard").exists()
+    (tmp_path / "a-file").write_text("x")  # an output path that is a file: one clear error, not an OSError
+    with pytest.raises(sg.InputError, match="a-file: is a file, not a run directory"):
+        sg.run_campaign(spec, tmp_path / "a-file")
+    with pytest.raises(sg.InputError, match="a-file: is a file, not a report folder"):
+        sg.make_report(tmp_path / "run", tmp_path / "a-file")
 
     index = sg.make_report(tmp_path / "run", tmp_path / "report")
     assert index.exists() and (tmp_path / "report" / "summary.json").exists()
@@ -144,7 +149,7 @@ def test_campaign_records_and_report(tmp_path):
         (lambda s, v: sg.load_model("no-such-scene"), "neither a file nor an embedded scene"),
         (lambda s, v: sg.load_model("missing/model.ply"), "no such model file"),
         (lambda s, v: sg.cameras(s, size=(0, 10)), "size must be two positive integers"),
-        (lambda s, v: sg.cameras(s, scale=-1), "scale must be a positive number"),
+        (lambda s, v: sg.cameras(s, scale=-1), r"scale must be a number in \(0, 16\]"),
         (lambda s, v: sg.render_views(s, []), "views must be a non-empty list"),
         (lambda s, v: sg.render_views(s, v, precision="fp8"), "unknown precision"),
         (lambda s, v: sg.render_views(s, v, profile="cuda"), "^unknown renderer profile 'cuda'; expected one of"),
@@ -187,6 +192,12 @@ def test_bad_input_is_a_clear_error(scene, views, call, message):
         (lambda s, v: sg.inject(s, v, field="opacity", bit=None, fault="random", seed=-1), "^seed must be at least 0"),
         (lambda s, v: sg.cameras(s, views=1.5), "^views must be an integer, got 1.5"),
         (lambda s, v: sg.cameras(s, views=True), "^views must be an integer, got True"),
+        # the command line's limits (model/budget.py); size (1, 1) rendered, then inject failed in SSIM
+        (lambda s, v: sg.cameras(s, views=65), "^views must be at most 64, got 65"),
+        (lambda s, v: sg.cameras(s, size=(15, 64)), "^size must be at least 16 px a side"),
+        (lambda s, v: sg.cameras(s, scale=16.5), r"^scale must be a number in \(0, 16\], got 16.5"),
+        (lambda s, v: sg.cameras(s, scale=True), r"^scale must be a number in \(0, 16\], got True"),
+        (lambda s, v: sg.load_model(None), "^source must be a scene name or a model path, got None"),
     ],
 )
 def test_arguments_of_the_wrong_type_are_refused_not_truncated(scene, views, call, message):
