@@ -376,3 +376,18 @@ def test_every_bit_of_a_tiny_model_under_every_defense(precision):
         full = eng.inject(eng.site(rec["field"], 1, int(rec["component"]), int(rec["bit"])), rec["defense"])
         assert full["footprint"] == rec["footprint"] and full["clamps"] == rec["clamps"], (rec, full)
     assert all(np.array_equal(a, r.read_words(c)) for c, a in enumerate(words))
+
+
+def test_spec_size_with_cameras_on_every_scene_is_refused(tmp_path):
+    """size = is ignored where every scene reads its views from a camera file (their image size
+    rules): refused, as --size with --cameras is; where a scene has no camera file it applies."""
+    from seuwgpu.model.cameras import orbit_cameras, save_cameras
+
+    save_cameras(orbit_cameras(2, 48, 32), tmp_path / "cams.json")
+    cams = {"scene": "spheres", "n": 50, "cameras": str(tmp_path / "cams.json")}
+    single = {"fields": ["opacity"], "bits": [30], "samples": 1, "defenses": ["none"]}
+    with pytest.raises(SpecError, match="size: every scene takes its image size from its camera file"):
+        normalize_spec({"size": "64x64", "scenes": [cams], "single": single})
+    assert normalize_spec({"scenes": [cams], "single": single})["scenes"][0]["cameras"]
+    both = normalize_spec({"size": "64x64", "scenes": [cams, {"scene": "blocks", "n": 50}], "single": single})
+    assert both["size"] == [64, 64]

@@ -436,6 +436,11 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             check_one_size(views, f"{where}.cameras {out['cameras']}", "a campaign")
         spec["scenes"].append(out)
     _distinct_labels(spec["scenes"])
+    if "size" in raw and all("cameras" in sc for sc in spec["scenes"]):  # refused, not ignored, as --size
+        raise SpecError(
+            "size: every scene takes its image size from its camera file, so size would be ignored; "
+            "remove it (scale = S resizes the camera files' views)"
+        )
     # recorded only when given, so older specs keep their hash (the manifest states the thresholds)
     if "lpips" in raw:
         if not isinstance(raw["lpips"], bool):
