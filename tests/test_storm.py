@@ -72,3 +72,42 @@ def test_storm_command_runs_a_defense_named_twice_once(tmp_path):
     assert main([*args, "--defense", "none", "none", "--out", str(tmp_path)]) == 0
     df = pd.read_parquet(tmp_path / "storm.parquet")
     assert len(df) == 2 and list(df.frame) == [0, 1]
+
+
+def test_an_interrupted_storm_or_state_run_keeps_what_it_measured(tmp_path, monkeypatch, capsys):
+    """Ctrl-C (here: a KeyboardInterrupt raised by the third measurement) ends the command with
+    exit 130 after writing the records measured so far, equal to the first records of a whole run;
+    a finished run removes the partial file."""
+    import pandas as pd
+
+    from seuwgpu.apps.cli import main
+    from seuwgpu.faults.state import StateFaults
+
+    def interrupt_third(patch, cls, name):
+        real, calls = getattr(cls, name), []
+
+        def wrapped(self, *a, **kw):
+            calls.append(1)
+            if len(calls) == 3:
+                raise KeyboardInterrupt
+            return real(self, *a, **kw)
+
+        patch.setattr(cls, name, wrapped)
+
+    common = ["--scene", "blocks", "--n", "100", "--size", "16x16", "--out", str(tmp_path)]
+    storm_args = ["storm", *common, "--k", "2", "--frames", "4", "--defense", "none", "guard"]
+    state_args = ["state", *common, "--samples", "2", "--targets", "xy", "--bit", "30", "31"]
+    runs = {"storm": (storm_args, Engine, "measure_current"), "state": (state_args, StateFaults, "inject")}
+    for name, (argv, cls, method) in runs.items():
+        whole = tmp_path / f"{name}.parquet"
+        assert main(argv) == 0
+        want = pd.read_parquet(whole)
+        whole.unlink()
+        with monkeypatch.context() as patch:
+            interrupt_third(patch, cls, method)
+            assert main(argv) == 130
+        assert "the 2 records measured so far" in capsys.readouterr().err
+        part = pd.read_parquet(tmp_path / f"{name}.partial.parquet")
+        pd.testing.assert_frame_equal(part, want.iloc[:2].reset_index(drop=True), check_dtype=False)
+        assert not whole.exists()
+        assert main(argv) == 0 and not (tmp_path / f"{name}.partial.parquet").exists()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 
@@ -789,15 +790,17 @@ class work_bar:
 def cmd_storm(args):
     """k upsets per frame accumulating, scrubbed every S frames: records and a plot per defense."""
     from seuwgpu.analysis.defenses import storm_figure
-    from seuwgpu.campaign.storm import storm
+    from seuwgpu.campaign.storm import storm, storm_records
     from seuwgpu.faults.engine import Engine
 
     output_folder(args, args.out)
     src = load_source(args)
     eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
     defenses = list(dict.fromkeys(args.defense))  # a defense named twice is one arm
-    with work_bar("frames", args.frames * len(defenses)) as step:
-        df = storm(eng, args.k, args.frames, args.scrub_every, defenses, args.seed, progress=step)
+    rows = []
+    with keep_on_interrupt(args.out / "storm.partial.parquet", rows, storm_records):
+        with work_bar("frames", args.frames * len(defenses)) as step:
+            df = storm(eng, args.k, args.frames, args.scrub_every, defenses, args.seed, progress=step, rows=rows)
     df.to_parquet(args.out / "storm.parquet", index=False)
     storm_figure(df).savefig(args.out / "storm.png", dpi=120)
     summary = df.groupby("defense", sort=False).agg(
@@ -810,6 +813,8 @@ def cmd_storm(args):
 
 def cmd_state(args):
     """Transient pipeline-state flips of one frame: records and a criticality table per target."""
+    import pandas as pd
+
     from seuwgpu.analysis.defenses import state_table
     from seuwgpu.faults.engine import Engine
     from seuwgpu.faults.state import state_campaign
@@ -818,8 +823,10 @@ def cmd_state(args):
     src = load_source(args)
     eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
     targets, bits = list(dict.fromkeys(args.targets)), list(dict.fromkeys(args.bit or range(32)))
-    with work_bar("flips", len(targets) * len(bits) * args.samples) as step:
-        df = state_campaign(eng, targets, args.samples, bits, args.seed, progress=step)
+    rows = []
+    with keep_on_interrupt(args.out / "state.partial.parquet", rows, pd.DataFrame):
+        with work_bar("flips", len(targets) * len(bits) * args.samples) as step:
+            df = state_campaign(eng, targets, args.samples, bits, args.seed, progress=step, rows=rows)
     df.to_parquet(args.out / "state.parquet", index=False)
     t = state_table(df)
     (args.out / "state_criticality.csv").write_text(t.to_csv(index=False))
@@ -827,6 +834,21 @@ def cmd_state(args):
         print(t.to_string(index=False))
     print(f"records: {args.out / 'state.parquet'}; table: {args.out / 'state_criticality.csv'}")
     return 0
+
+
+@contextlib.contextmanager
+def keep_on_interrupt(path: Path, rows: list, records):
+    """On Ctrl-C, write the records measured so far (`records(rows)`) to `path` before the command
+    ends (exit 130): storm and state are not resumable (a re-run starts over), but what they had
+    measured is not lost. A finished run removes an earlier run's partial file."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        if rows:
+            records(rows).to_parquet(path, index=False)
+            print(f"seuwgpu: interrupted: the {len(rows):,} records measured so far are in {path}", file=sys.stderr)
+        raise
+    path.unlink(missing_ok=True)
 
 
 def pd_display():

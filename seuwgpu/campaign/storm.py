@@ -39,8 +39,10 @@ def check_storm(k: int, frames: int, arms: int):
         )
 
 
-def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), seed: int = 0, progress=None):
-    """Records (one per frame and defense) of a fault storm; scrub_every 0 = never."""
+def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), seed: int = 0, progress=None, rows=None):
+    """Records (one per frame and defense) of a fault storm; scrub_every 0 = never. `rows`: a list
+    the records are appended to as they are measured (what an interrupted storm has done:
+    `storm_records(rows)`)."""
     if k < 1 or frames < 1 or scrub_every < 0:
         raise ValueError(f"storm needs k >= 1, frames >= 1, scrub_every >= 0 (got {k}, {frames}, {scrub_every})")
     rng = np.random.default_rng(seed)
@@ -50,7 +52,7 @@ def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), see
         first,
         *(draw_uniform_sites(engine.n, engine.degree, engine.precision, k, rng) for _ in range(frames - 1)),
     ]
-    rows = []
+    rows = [] if rows is None else rows
     for d in defenses:
         dfn.check_defense(d)
         memory: dict[int, np.ndarray] = {}  # primitive -> its stored bits now (absent: clean)
@@ -94,6 +96,10 @@ def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), see
             )
             if progress:
                 progress()
+    return storm_records(rows)
+
+
+def storm_records(rows: list) -> pd.DataFrame:
     df = pd.DataFrame(rows)
     df["catastrophic"] = catastrophic(df["footprint"].to_numpy(), df["nonfinite"].to_numpy())
     return df

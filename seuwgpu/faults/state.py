@@ -143,8 +143,11 @@ class StateFaults:
         return rec
 
 
-def state_campaign(engine, targets=tuple(TARGETS), samples: int = 20, bits=range(32), seed: int = 0, progress=None):
-    """Records of `samples` flips per (target, bit) cell, record, word and view uniform."""
+def state_campaign(
+    engine, targets=tuple(TARGETS), samples: int = 20, bits=range(32), seed: int = 0, progress=None, rows=None
+):
+    """Records of `samples` flips per (target, bit) cell, record, word and view uniform. `rows`: a
+    list the records are appended to as they are measured (what an interrupted run has done)."""
     for t in targets:
         check_target(t)
     bits = [int(b) for b in bits]
@@ -153,7 +156,7 @@ def state_campaign(engine, targets=tuple(TARGETS), samples: int = 20, bits=range
             raise ValueError(f"bit {b} is out of range for a pipeline-state word (0..31)")
     sf = StateFaults(engine)
     rng = np.random.default_rng(seed)
-    rows = []
+    rows = [] if rows is None else rows
     for t in targets:
         check_target(t)
         for bit in bits:
