@@ -3,8 +3,8 @@
 #
 #     tools/gpu_check.sh OUT [PYTHON]        # OUT: a folder for the JSON and logs; PYTHON: default python3
 #
-# 1. the stage tests against their numpy twins on this adapter (pytest -n 8 where pytest-xdist is
-#    installed); 2. tools/bench.py at 100k and 1M primitives, 256 and 512 px, K = 1 and 8, each with
+# 1. the stage tests against their numpy twins on this adapter, and the pipeline-state fault and
+#    bench tests (pytest -n 8 where pytest-xdist is installed); 2. tools/bench.py at 100k and 1M primitives, 256 and 512 px, K = 1 and 8, each with
 #    both compositor shapes ("lanes" and "wide", and whether their frames are bit-equal), K = 8
 #    also with its views one at a time against batched (--one-by-one, on by default on a GPU), with
 #    the compositing-chunk sweep for each shape and a 20,000-injection campaign; 3. tools/memory.py at 10M and 100M

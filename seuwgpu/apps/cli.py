@@ -749,7 +749,7 @@ def cmd_worstcase(args):
     src = load_source(args)
     eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
     fields = [canonical_field(f) for f in args.fields]
-    for d in args.defense:
+    for d in dict.fromkeys(args.defense):  # a defense named twice is searched once
         wc = worst_case(eng, d, fields, args.bit, max_evaluations=args.max_evaluations)
         where = f"{wc.site.field}[{wc.site.primitive}][{wc.site.component}] bit {wc.site.bit}" if wc.site else "none"
         print(
@@ -1048,7 +1048,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("merge", help="join shard run directories of one spec")
     s.add_argument("shards", type=Path, nargs="+")
-    s.add_argument("--out", type=Path, required=True)
+    s.add_argument("--out", type=Path, required=True, help="run directory of the merged campaign")
     s.add_argument(
         "--allow-partial",
         action="store_true",
@@ -1102,8 +1102,20 @@ def build_parser() -> argparse.ArgumentParser:
     add_model_args(s)
     add_camera_args(s, views=2, size="128x128")
     add_profile_arg(s)
-    s.add_argument("--defense", nargs="+", default=["none"], choices=DEFENSES)
-    s.add_argument("--fields", nargs="+", default=["means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest"])
+    s.add_argument(
+        "--defense",
+        nargs="+",
+        default=["none"],
+        choices=DEFENSES,
+        metavar="DEFENSE",
+        help=f"defenses to search under, each on its own (default none; {', '.join(DEFENSES)})",
+    )
+    s.add_argument(
+        "--fields",
+        nargs="+",
+        default=["means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest"],
+        help="fields to search (default: all six)",
+    )
     s.add_argument("--bit", type=index_int, nargs="+", help="bits to search (0 = LSB; default: all)")
     s.add_argument(
         "--max-evaluations", type=positive_int, help="stop after this many renders (the bound stays certified)"
@@ -1115,20 +1127,43 @@ def build_parser() -> argparse.ArgumentParser:
     add_camera_args(s, views=1, size="128x128")
     add_profile_arg(s)
     s.add_argument("--k", type=positive_int, default=10, help="upsets per frame")
-    s.add_argument("--frames", type=positive_int, default=50)
+    s.add_argument("--frames", type=positive_int, default=50, help="frames rendered, each after its k new upsets")
     s.add_argument("--scrub-every", type=int, default=10, help="reload the model every S frames (0 = never)")
-    s.add_argument("--defense", nargs="+", default=["none", "guard", "parity4r"], choices=DEFENSES)
-    s.add_argument("--out", type=Path, required=True)
+    s.add_argument(
+        "--defense",
+        nargs="+",
+        default=["none", "guard", "parity4r"],
+        choices=DEFENSES,
+        metavar="DEFENSE",
+        help=f"arms, each seeing the same upsets (default none guard parity4r; {', '.join(DEFENSES)})",
+    )
+    s.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="folder for storm.parquet and storm.png (Ctrl-C keeps storm.partial.parquet)",
+    )
     s.set_defaults(func=cmd_storm)
 
     s = sub.add_parser("state", help="transient flips in one frame's pipeline state: criticality per target")
     add_model_args(s)
     add_camera_args(s, views=2, size="128x128")
     add_profile_arg(s)
-    s.add_argument("--targets", nargs="+", default=list(STATE_TARGETS), choices=STATE_TARGETS)
+    s.add_argument(
+        "--targets",
+        nargs="+",
+        default=list(STATE_TARGETS),
+        choices=STATE_TARGETS,
+        help="pipeline-state buffers to flip bits in (default: all)",
+    )
     s.add_argument("--samples", type=positive_int, default=10, help="flips per (target, bit) cell")
     s.add_argument("--bit", type=word_bit, nargs="+", help="bits 0..31 (default: all 32)")
-    s.add_argument("--out", type=Path, required=True)
+    s.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="folder for state.parquet and state_criticality.csv (Ctrl-C keeps state.partial.parquet)",
+    )
     s.set_defaults(func=cmd_state)
 
     s = sub.add_parser(
@@ -1136,7 +1171,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("runs", type=Path, nargs="+")
     s.add_argument("--by", default="scene,precision,defense", help="comma-separated record columns (or run)")
-    s.add_argument("--campaign", default="single", choices=["single", "size"])
+    s.add_argument(
+        "--campaign",
+        default="single",
+        choices=["single", "size"],
+        help="records of the single-upset campaign (default) or of the primitive-count sweep",
+    )
     s.add_argument("--csv", type=Path, help="write the table as CSV (rates as proportions)")
     s.set_defaults(func=cmd_rates)
 

@@ -11,9 +11,11 @@ for bit as one view at a time. A frame set costs K projection dispatches per mod
 about one view's others, instead of K views' (K = 8 at 100k primitives on lavapipe: 63
 dispatches, not 360), and Python records it 3-6x faster a view. Not batched:
 renderers that keep views for the incremental re-compositor (their per-view lists are what it
-reads), one view, or K n records past `BATCH_MAX_RECORDS`; then on a GPU each view's command
-encoder is submitted as soon as it is recorded, so the device renders view v while Python
-records view v + 1, and on a CPU adapter all K views go into one (`submission_groups`). Per view:
+reads), one view, or K n records past `BATCH_MAX_RECORDS`; then on a CPU adapter all K views go
+into one command buffer (`submission_groups`). On a GPU every stage group (projections | depth
+sort | binning and tile sort | ranges and compositing, of the batched views or of each view) is
+submitted as soon as it is recorded, so the device works while Python records the next
+(`split_submissions`). Per view:
 projection of every model chunk (render/project.py) -> depth sort of the primitives
 (render/sort.py) -> binning: tiles touched per primitive in depth order, their scan and the
 emission of (tile, primitive) pairs (render/bin.py) -> tile sort (render/sort.py) -> per-tile
@@ -394,9 +396,10 @@ class Renderer:
             self.encode_view(v=v, encoder=encoder)
 
     def submission_groups(self) -> list[range]:
-        """The views of each command buffer `run` submits. On a GPU one view each, so that the
-        device works on view v while Python encodes view v + 1 (at 100k primitives an H200
-        composites a view in about the time Python takes to encode one). On a CPU adapter all K in
+        """The views of each command encoder `run` records (on a GPU, `split_submissions` also
+        submits it between stage groups). On a GPU one view each, so that the device works on view
+        v while Python encodes view v + 1 (at 100k primitives an H200 composites a view in about
+        the time Python takes to encode one). On a CPU adapter all K in
         one: recording is 1% of a view there, and one by one was slower on lavapipe (100k, 256x256,
         K = 8, one process, 2026-11-26, three runs each: 90.6-99.2 ms a view against 77.8-82.4; a
         second test, alternating: 71.8-92.4 against 68.2-85.1; the cause, presumably a cost per
