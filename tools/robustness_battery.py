@@ -174,8 +174,11 @@ class Battery:
         ]
         for s in bad_scene:
             self.plan_case(s.replace("\n", "; "), spec_text(scene=s + "\n"), "error")
-        for s in ('model = "good.ply"', 'ply = "good.spz"', 'scene = "spheres"\ncameras = "cams.json"'):
+        for s in ('model = "good.ply"', 'ply = "good.spz"'):
             self.plan_case(s.replace("\n", "; "), spec_text(scene=s + "\n"), "ok")
+        cams = 'scene = "spheres"\ncameras = "cams.json"\n'  # the camera file's size rules: no size =
+        self.plan_case("scene with cameras, no size", spec_text(top={"size": None}, scene=cams), "ok")
+        self.plan_case("scene with cameras, and size (ignored: refused)", spec_text(scene=cams), "error")
         self.plan_case("no scenes", "views = 1\n" + table("single", SINGLE), "error")
         self.plan_case("scenes = 5", "scenes = 5\n" + table("single", SINGLE), "error")
         self.plan_case("no campaign table", spec_text(single=""), "error")
