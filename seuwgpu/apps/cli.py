@@ -544,6 +544,7 @@ def cmd_demo(args):
             raw["scenes"][0]["n"] = make_scene(args.scene).n
     if args.cameras is not None:
         raw["scenes"][0]["cameras"] = str(args.cameras)
+        raw.pop("size", None)  # the camera file's size rules (a spec refuses a size it would ignore)
     if args.up is not None:
         raw["scenes"][0]["up"] = args.up
     for key in ("views", "scale"):
