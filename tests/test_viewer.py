@@ -451,3 +451,88 @@ def test_viewer_renders_under_the_chosen_profile(model):
         site = st.engine.site("quats", 0, 0, tuple(range(32)), "set", 0x7FC00000)  # w = NaN
         seen[profile] = st.engine.inject(site)["footprint"]
     assert seen["strict"] > seen["gsplat"]
+
+
+# ---- readout against an independent recomputation from the frames ---------------------------------
+def independent_readout(img, clean):
+    """Footprint, changed and non-finite pixels, PSNR of two float32 RGBA frames, from their
+    definitions (docs/conventions.md), not from seuwgpu.metrics."""
+    f, c = img[..., :3].astype(np.float64), clean[..., :3].astype(np.float64)
+    same = (img[..., :3].view(np.uint32) == clean[..., :3].view(np.uint32)).all(-1)
+    nonfin = ~np.isfinite(f).all(-1)
+    with np.errstate(invalid="ignore"):
+        big = np.abs(img[..., :3] - clean[..., :3]) > np.float32(1 / 255)
+    changed = (nonfin | big.any(-1)) & ~same
+    if (changed & nonfin).any():
+        psnr = float("nan")
+    else:
+        mse = np.mean((np.clip(f, 0, 1) - np.clip(np.nan_to_num(c), 0, 1)) ** 2)
+        psnr = float("inf") if mse == 0 else 10 * np.log10(1 / mse)
+    n_changed = int(changed.sum())
+    return {"changed_pixels": n_changed, "footprint": changed.mean(), "psnr": psnr, "nonfinite": int(nonfin.sum())}
+
+
+def test_nonfinite_frame_has_undefined_psnr(model, gpu):
+    """A colour set to +Inf or NaN reaches pixels: the readout counts them and its PSNR is NaN, as
+    in the records (it read 44 dB and 31 dB), and undoing restores the clean frame bit for bit."""
+    from seuwgpu.apps.viewer import OrbitCamera, ViewerState
+
+    st = ViewerState(model, "fp32", (48, 48), scene="spheres", orbit=OrbitCamera.for_scene("spheres"))
+    st.frame()
+    clean = st.last_image.copy()
+    for value in (0x7F800000, 0x7FC00000):  # +Inf, NaN
+        site = next(
+            s
+            for p in range(0, N, 25)
+            if st.engine.inject(s := st.engine.site("sh_dc", p, 0, tuple(range(32)), "set", value))["nonfinite"]
+        )
+        st._add("set", [site])
+        _, ro = st.frame()
+        want = independent_readout(st.last_image, clean)
+        assert want["nonfinite"] > 0 and ro["nonfinite_pixels"] == want["nonfinite"]
+        assert ro["changed_pixels"] == want["changed_pixels"] and ro["footprint"] == want["footprint"]
+        assert np.isnan(ro["psnr"]), ro["psnr"]
+        st.undo_all()
+        _, ro = st.frame()
+        assert np.array_equal(st.last_image.view(np.uint32), clean.view(np.uint32))
+        assert ro["footprint"] == 0.0 and ro["psnr"] == float("inf") and ro["nonfinite_pixels"] == 0
+
+
+def test_guarded_model_with_its_own_nan_is_measured_against_its_guarded_clean_render(model, gpu):
+    """A user's model holding NaN/Inf (it loads with a warning): the guard changes the clean model
+    itself, which is reported once, not charged to every frame. With the guard on and no fault the
+    viewer read an 84% footprint and a clamp alert; a guarded fault is measured against the guarded
+    clean render, which is the render of the model with those values replaced by the box's bounds."""
+    import copy
+
+    from seuwgpu.apps.viewer import OrbitCamera, ViewerState
+
+    m = copy.deepcopy(model)
+    m.log_scales[3, 0] = np.nan  # NaN -> the box's lower bound
+    m.sh_dc[7, 1] = np.inf  # +Inf -> the upper bound
+    fixed = copy.deepcopy(m)
+    fin = np.delete(np.arange(m.n), [3, 7])
+    fixed.log_scales[3, 0] = m.log_scales[fin, 0].min()
+    fixed.sh_dc[7, 1] = m.sh_dc[fin, 1].max()
+
+    st = ViewerState(m, "fp32", (48, 48), scene="spheres", orbit=OrbitCamera.for_scene("spheres"))
+    st.set_guard("guard")
+    _, ro = st.frame()
+    assert ro["footprint"] == 0.0 and ro["psnr"] == float("inf") and not ro["alert"]
+    assert ro["clamps"] == 2  # the clean model's own two values
+    guarded_clean = direct_render(fixed, st.camera())
+    np.testing.assert_array_equal(st.last_image, guarded_clean)
+
+    st.inject("opacity", 30, primitive=11)  # a fault: guarded frame against the guarded clean one
+    st.orbit_by(30, 0)  # a new view: its clean reference is rendered with the fault undone
+    _, ro = st.frame()
+    want = independent_readout(st.last_image, direct_render(fixed, st.camera()))
+    assert ro["changed_pixels"] == want["changed_pixels"] and ro["footprint"] == want["footprint"]
+    assert ro["alert"] == (ro["clamps"] > 2)
+    st.set_guard("off")  # unguarded: against the unguarded clean render (its NaN pixels identical)
+    _, ro = st.frame()
+    want = independent_readout(st.last_image, direct_render(m, st.camera()))
+    assert ro["changed_pixels"] == want["changed_pixels"] and not ro["alert"]
+    st.undo_all()
+    _, ro = st.frame()
+    np.testing.assert_array_equal(st.last_image.view(np.uint32), direct_render(m, st.camera()).view(np.uint32))

@@ -15,7 +15,10 @@ Choices (see also the README):
   render only when the view changes while faults are active, and no second copy of the model.
   With no active fault the current render *is* the clean render. PSNR/footprint follow
   `metrics.py`: changed = |d| > 1/255 in any channel or non-finite; PSNR over the display-
-  referred images (clipped to [0, 1], NaN -> 0).
+  referred images (clipped to [0, 1]), undefined (NaN) when a changed pixel is non-finite, as in
+  the records. A model that itself holds NaN/Inf values the guard clamps is measured, when
+  guarded, against its guarded clean render (the Engine's reference rule), and the alert fires
+  on clamps beyond the clean model's own (the Engine's GuardMonitor).
 - "Worst of a sample" picks, among `sample` random primitives, the one whose flip harms the
   current view most (Engine.worst_primitive, defense none) on a low-resolution probe of the
   current camera (longest side `probe` px), so it stays interactive on CPU Vulkan.
@@ -218,7 +221,7 @@ class ViewerState:
         if self.storm is not None:
             self.storm["group"] = None
         self.clean_image = self.engine.clean_rgba[0].copy()
-        self._clean_key = self._view_key(self.camera())
+        self._clean_key = (self._view_key(self.camera()), 0)  # the engine's reference: unguarded
         self.dirty = True
 
     @property
@@ -320,7 +323,7 @@ class ViewerState:
             prim, rec = e.worst_primitive(field, component, bits, sample=sample, seed=self.seed)
             e.set_cameras([self.camera()])  # renders the clean view: keep it
             self.clean_image = e.clean_rgba[0].copy()
-            self._clean_key = self._view_key(self.camera())
+            self._clean_key = (self._view_key(self.camera()), 0)
         finally:
             for g in active:
                 g.handles = [e.apply(g.sites, "none")]
@@ -420,13 +423,14 @@ class ViewerState:
     def needs_frame(self) -> bool:
         return self.dirty or self.storm_running or self.last_image is None
 
-    def _render_clean(self) -> np.ndarray:
-        """Clean render of the renderer's current camera: faults XORed off, render, XORed back."""
+    def _render_clean(self, defense: str = "none") -> np.ndarray:
+        """Clean render of the renderer's current camera under `defense`'s in-pipeline guard:
+        faults XORed off, render, XORed back."""
         e = self.engine
         active = list(self.groups)
         e.undo_all()
         try:
-            img = e.renderer.render_rgba()[0].copy()
+            img = e.render_current(defense)[0][0].copy()
         finally:
             for g in active:
                 g.handles = [e.apply(g.sites, "none")]
@@ -439,11 +443,14 @@ class ViewerState:
             self.storm_step()
         t0 = time.perf_counter()
         cam = self.camera()
-        key = self._view_key(cam)
+        # the clean reference: guarded only where the guard changes the clean model (its NaN/Inf)
+        ref_mask = self.engine.reference_mask(self.defense)
+        ref = self.defense if ref_mask else "none"
+        key = (self._view_key(cam), ref_mask)
         self.engine.renderer.set_cameras([cam])  # same size: only the view parameters change
         clean_render = False  # an extra render of the clean model was needed for this frame
         if key != self._clean_key and self.groups:
-            self.clean_image, self._clean_key, clean_render = self._render_clean(), key, True
+            self.clean_image, self._clean_key, clean_render = self._render_clean(ref), key, True
         img, clamps = self.engine.render_current(self.defense)
         img = img[0]
         if key != self._clean_key:  # no active fault: this render is the clean one
@@ -465,22 +472,24 @@ class ViewerState:
         else:
             changed = changed_pixels(f, c)
             mse = float(np.mean((display(f).astype(np.float64) - display(c)) ** 2))
+        if (changed & nonfin).any():  # display-referred PSNR of a non-finite frame is undefined
+            mse = float("nan")
         total = int(sum(clamps.values()))
+        monitor = getattr(self.engine, "monitor", None)
         sites = self.active_sites
         return {
             "frame_ms": frame_ms,
             "size": self.size,
             "footprint": float(changed.mean()),
             "changed_pixels": int(changed.sum()),
-            "psnr": float("inf") if mse == 0 else float(10 * np.log10(1.0 / mse)),
+            "psnr": float("inf") if mse == 0 else float(10 * np.log10(1.0 / mse)),  # NaN stays NaN
             "nonfinite_pixels": int(nonfin.sum()),
             "guard": self.guard,
             "clamps": total,
             "clamps_per_field": dict(clamps),
-            "alert": self.guard != "off" and total > self.clamp_threshold,
-            "alert_message": getattr(getattr(self.engine, "monitor", None), "message", "")
-            if self.guard != "off"
-            else "",
+            # clamps beyond the clean model's own (its NaN/Inf), as the Engine's monitor counts them
+            "alert": self.guard != "off" and (total > self.clamp_threshold if monitor is None else monitor.alert),
+            "alert_message": getattr(monitor, "message", "") if self.guard != "off" else "",
             "active_sites": len(sites),
             "sites": [site_text(s, self.precision) for s in sites[-6:]],
             "precision": self.precision,
