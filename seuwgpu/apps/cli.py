@@ -719,7 +719,9 @@ def cmd_defenses(args):
     if args.json:
         import json
 
-        print(json.dumps(rows, indent=1, allow_nan=True))
+        from seuwgpu.report.format import json_safe
+
+        print(json.dumps(json_safe(rows), indent=1, allow_nan=False))  # NaN (not measured) -> null
         return 0
     from rich.console import Console
     from rich.table import Table
