@@ -181,3 +181,35 @@ def test_node_local_guard_contains_a_scale_sign_upset(sort_first_run):
     assert all(r["guard"]["clamps"] >= 1 for r in res["per_rank"])
     assert res["touched_guard"] <= res["reach_guarded"]
     assert len(res["touched_guard"]) < len(res["touched_none"])
+
+
+@needs_ray
+def test_an_address_where_nothing_listens_is_refused_at_once(tmp_path):
+    """`--address HOST:PORT` with no cluster there: one line and exit 2 within seconds (Ray itself
+    retried it for over ten minutes, printing a warning every few seconds)."""
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    with socket.socket() as s:  # a port nobody listens on once closed
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC)
+    env = {**os.environ, "XDG_RUNTIME_DIR": "/tmp"}
+    for args in (
+        ["campaign", str(spec), "--out", str(tmp_path / "run"), "--executor", "ray", "--quiet"],
+        ["distributed", "--scene", "blocks", "--n", "200", "--size", "32x32", "--ranks", "2"],
+    ):
+        for address in (f"127.0.0.1:{port}", f"ray://127.0.0.1:{port}"):
+            p = subprocess.run(
+                [sys.executable, "-m", "seuwgpu", *args, "--address", address],
+                capture_output=True,
+                text=True,
+                timeout=60,
+                env=env,
+            )
+            assert p.returncode == 2, (args, address, p.stderr[-2000:])
+            err = p.stderr.strip().splitlines()
+            assert len(err) == 1 and address in err[0] and "cannot connect" in err[0], err

@@ -78,10 +78,29 @@ def init_ray(address: str | None = None, num_cpus: int | None = None, quiet: boo
         return False
     kw = {"logging_level": logging.WARNING if quiet else logging.INFO}
     if address:
+        check_reachable(address)
         ray.init(address=address, **kw)
     else:
         ray.init(num_cpus=num_cpus, include_dashboard=False, object_store_memory=256 * 1024**2, **kw)
     return True
+
+
+def check_reachable(address: str, timeout_s: float = 10.0):
+    """Refuse at once a cluster address (HOST:PORT or ray://HOST:PORT) where nothing accepts a
+    connection: Ray itself retries such an address for many minutes, printing a warning every few
+    seconds. Other forms ("auto", ...) are left to Ray, which refuses them quickly."""
+    import re
+    import socket
+
+    m = re.fullmatch(r"(?:ray://)?\[?([^\s\[\]/]+?)\]?:(\d+)", address.strip())
+    if not m:
+        return
+    host, port = m.group(1), int(m.group(2))
+    try:
+        socket.create_connection((host, port), timeout=timeout_s).close()
+    except OSError as e:
+        why = "timed out" if isinstance(e, TimeoutError) else (e.strerror or str(e))
+        raise ConnectionError(f"Ray cluster address {address}: cannot connect ({why})") from None
 
 
 # ---- per-worker device ------------------------------------------------------------------------
