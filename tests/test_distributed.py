@@ -213,3 +213,30 @@ def test_an_address_where_nothing_listens_is_refused_at_once(tmp_path):
             assert p.returncode == 2, (args, address, p.stderr[-2000:])
             err = p.stderr.strip().splitlines()
             assert len(err) == 1 and address in err[0] and "cannot connect" in err[0], err
+
+
+@needs_ray
+def test_zero_workers_is_refused(tmp_path):
+    """run_ray(workers=0) started a local Ray instance with no CPU, where its tasks waited forever;
+    it is a ValueError, as --workers 0 is on the command line. In a fresh process: an instance
+    already running in this one would serve the tasks."""
+    import subprocess
+    import sys
+
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC)
+    code = (
+        "import sys\n"
+        "from seuwgpu.campaign.spec import load_spec\n"
+        "from seuwgpu.campaign.ray import run_ray\n"
+        "for w in (0, -1, 1.5):\n"
+        "    try:\n"
+        f"        run_ray(load_spec({str(spec)!r}), {str(tmp_path / 'run')!r}, workers=w, quiet=True)\n"
+        "    except ValueError as e:\n"
+        "        assert 'workers' in str(e), e\n"
+        "    else:\n"
+        "        sys.exit(f'workers={w} ran')\n"
+    )
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert not (tmp_path / "run").exists()  # refused before anything was written

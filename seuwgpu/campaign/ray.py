@@ -252,6 +252,9 @@ def run_ray(
     from seuwgpu.campaign import store
     from seuwgpu.campaign.budget import check_campaign
 
+    if workers is not None and (isinstance(workers, bool) or int(workers) != workers or workers < 1):
+        # 0 started a Ray instance without CPUs, where the tasks waited forever
+        raise ValueError(f"workers must be a whole number of at least 1, got {workers!r}")
     check_campaign(spec)
     out = Path(out).resolve()
     with store.lock(out, shard):
