@@ -240,3 +240,21 @@ def test_zero_workers_is_refused(tmp_path):
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert p.returncode == 0, p.stderr[-2000:]
     assert not (tmp_path / "run").exists()  # refused before anything was written
+
+
+@needs_ray
+def test_a_bad_upset_is_one_line_before_any_rank_starts(capsys):
+    """`distributed --upset log_scales:32` (or a component the field lacks) without --primitive was
+    refused by the first rank's worst-primitive search: exit 2, but a remote traceback as the
+    message, after Ray and every rank had started."""
+    from seuwgpu.apps.cli import main
+
+    base = ["distributed", "--scene", "blocks", "--n", "200", "--size", "32x32", "--views", "1", "--repeats", "1"]
+    for extra, why in (
+        (["--upset", "log_scales:32"], "bit 32 is out of range for fp32"),
+        (["--upset", "opacity:31", "--component", "3"], "component 3 is out of range for field opacity"),
+        (["--upset", "log_scales:16", "--precision", "bf16", "--primitive", "3"], "bit 16 is out of range for bf16"),
+    ):
+        assert main(base + extra) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and why in err[0], err

@@ -197,6 +197,15 @@ def parse_upset(text: str) -> tuple[str, tuple[int, ...]]:
         raise ValueError(f"--upset must look like log_scales:31 (field:bit), got {text!r} ({e})") from None
 
 
+def check_upset(model, upset, primitive, component: int, precision: str):
+    """Refuse a bad field, component, bit or primitive before Ray starts (it was a rank's remote
+    traceback, after every rank had started)."""
+    if upset is not None:
+        from seuwgpu.faults.sites import make_site
+
+        make_site(model, upset[0], 0 if primitive is None else primitive, component, upset[1], precision)
+
+
 def sort_first(
     model,
     cameras,
@@ -226,6 +235,7 @@ def sort_first(
     # each rank holds a renderer and a decoded copy, the driver the model and Ray's copy of it
     check_model(model.n, model.sh_degree, "a model of", "render sort-first")
     regions, grid = split_regions(ranks, width, height)
+    check_upset(model, upset, primitive, component, precision)
     started = init_ray(address)
     actors = []
     try:
@@ -371,6 +381,7 @@ def sort_first_tables(
 ) -> list[dict]:
     """`seuwgpu distributed`: one Ray instance, one table per rank count. The worst primitive is
     chosen once (on the first rank count) so every table shows the same upset."""
+    check_upset(model, upset, kw.get("primitive"), kw.get("component", 0), precision)
     started = init_ray(address)
     out = []
     try:
