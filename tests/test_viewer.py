@@ -536,3 +536,22 @@ def test_guarded_model_with_its_own_nan_is_measured_against_its_guarded_clean_re
     st.undo_all()
     _, ro = st.frame()
     np.testing.assert_array_equal(st.last_image.view(np.uint32), direct_render(m, st.camera()).view(np.uint32))
+
+
+def test_worst_of_a_sample_is_scored_on_the_capture_view_shown(model, gpu):
+    """With a capture view shown, 'worst of a sample' scores the sample on that view (it scored
+    them on the orbit camera, which may not see the same primitives)."""
+    from seuwgpu.apps.viewer import OrbitCamera, ViewerState, letterbox
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.model.scenes import scene_cameras
+
+    views = scene_cameras("spheres", 4, 48, 48)
+    orbit = OrbitCamera.for_scene("spheres")
+    orbit.zoom(0.25)  # a close-up orbit: it sees other primitives than the capture views
+    st = ViewerState(model, "fp32", (64, 64), scene="spheres", orbit=orbit, views=views, sample=16, probe=32)
+    for step in range(len(views)):
+        st.step_view(1)
+        prim, _ = st.worst_primitive("log_scales", 2, 31)
+        eng = Engine(model, [letterbox(views[step], 32, 32)], "fp32", gpu=gpu)
+        want, _ = eng.worst_primitive("log_scales", 2, 31, sample=16, seed=st.seed)
+        assert prim == want, (step, prim, want)

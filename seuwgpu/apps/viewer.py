@@ -315,7 +315,9 @@ class ViewerState:
         sample = max(1, min(self.sample, self.n))
         w, h = self.size
         s = min(1.0, self.probe / max(w, h))
-        probe = self.orbit.camera(max(MIN_SIZE, round(w * s)), max(MIN_SIZE, round(h * s)))
+        pw, ph = max(MIN_SIZE, round(w * s)), max(MIN_SIZE, round(h * s))
+        # the view shown: the orbit camera, or the capture view letterboxed as frame() draws it
+        probe = self.orbit.camera(pw, ph) if self.view_index is None else letterbox(self.views[self.view_index], pw, ph)
         active = list(self.groups)
         e.undo_all()
         try:
