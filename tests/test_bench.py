@@ -71,15 +71,22 @@ def test_stage_timing_on_a_gpu_adapters_split_submissions(bench, gpu, monkeypatc
 
     from seuwgpu.model.cameras import orbit_cameras
 
+    submits = []
+    real_submit = gpu.submit
+    monkeypatch.setattr(gpu, "submit", lambda enc: (submits.append(enc), real_submit(enc)))
     r = bench.StageTimedRenderer(random_model(2000, seed=4), orbit_cameras(2, 32, 32), gpu=gpu)
     assert r.batched and r.split_submissions
-    r.timed = True
-    assert not r.split_submissions
     r.run()
+    submits.clear()
+    r.timed = True
+    r.run()
+    assert len(submits) == 1  # one encoder
     st = r.stage_times()
     assert st["project"] > 0 and st["composite"] > 0 and st["untimed_passes"] == 0
     r.timed = False
-    assert r.split_submissions
+    submits.clear()
+    r.run()
+    assert len(submits) == 4  # stage groups again
 
 
 def test_twin_above_max_n_gives_no_ratio(bench, gpu):

@@ -213,8 +213,8 @@ class StageTimedRenderer(Renderer):
     Only `encode` is wrapped; what the Renderer records is unchanged."""
 
     def __init__(self, *args, **kw):
-        self.timed = False
         super().__init__(*args, **kw)
+        self.timed = False
         self._ts = None
 
     def _ensure_queries(self):
@@ -230,23 +230,16 @@ class StageTimedRenderer(Renderer):
     def submission_groups(self) -> list[range]:
         return [range(self.k)] if self.timed else super().submission_groups()  # timed: one encoder
 
-    @property
-    def split_submissions(self) -> bool:  # timed: one encoder, through `encode`
-        return self._split and not self.timed
-
-    @split_submissions.setter
-    def split_submissions(self, value: bool):
-        self._split = value
-
-    def encode(self, encoder, views=None):
+    def encode(self, encoder, views=None, split=None):
         if not self.timed:
-            return super().encode(encoder, views)
+            return super().encode(encoder, views, split)
         qs, cap, buf = self._ensure_queries()
         proxy = _TimedEncoder(encoder, qs, cap)
-        super().encode(proxy, views)
+        super().encode(proxy, views)  # timed: one encoder (no split), so every pass is in one query set
         if proxy.records:
             encoder.resolve_query_set(qs, 0, 2 * len(proxy.records), buf, 0)
         self._last = proxy
+        return encoder
 
     def stage_times(self) -> dict:
         """Seconds per stage (summed over views) of the last timed submission, plus 'gaps',

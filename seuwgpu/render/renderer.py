@@ -50,6 +50,11 @@ BATCH_MAX_RECORDS = {"gpu": 1 << 24, "cpu": 1 << 22}
 4 Mi (host memory). Past them the views are rendered one at a time."""
 
 
+def _same_encoder(encoder):
+    """No split: the stages go on in the same command encoder."""
+    return encoder
+
+
 def _next_pow2(x: int) -> int:
     return 1 << max(0, int(x - 1).bit_length())
 
@@ -302,7 +307,7 @@ class Renderer:
     # ---- encoding --------------------------------------------------------------------------------
     def encode_view(self, encoder, v: int, split=None):
         """View v's passes; `split` as in encode_batch (returns the encoder left to submit)."""
-        split = split or (lambda e: e)
+        split = split or _same_encoder
         L, p, b = self.layout, self.projection, self.binning
         for c in range(L.n_chunks):
             lo, hi = L.chunk_range(c)
@@ -347,7 +352,7 @@ class Renderer:
         (run's, on a GPU): called between stages with the encoder so far, it submits it and
         returns a fresh one, so that the device starts on a stage while Python records the next;
         returns the encoder left to submit."""
-        split = split or (lambda e: e)
+        split = split or _same_encoder
         L, p, b = self.layout, self.projection, self.binning
         for v in range(self.k):
             for c in range(L.n_chunks):
@@ -384,16 +389,18 @@ class Renderer:
             frames=frames,
         )
 
-    def encode(self, encoder, views=None):
+    def encode(self, encoder, views=None, split=None):
+        """Record `views` (all K by default); `split` as in encode_batch. Returns the encoder left
+        to submit."""
         if self.batched:
             if views is not None and list(views) != list(range(self.k)):
                 raise ValueError("a batched renderer records its K views together (batch_views=False for fewer)")
             if self.state_fault is not None:
                 raise RuntimeError("pipeline-state faults need a renderer that keeps its views (keep_views=True)")
-            self.encode_batch(encoder)
-            return
+            return self.encode_batch(encoder, split)
         for v in range(self.k) if views is None else views:
-            self.encode_view(v=v, encoder=encoder)
+            encoder = self.encode_view(encoder, v, split)
+        return encoder
 
     def submission_groups(self) -> list[range]:
         """The views of each command encoder `run` records (on a GPU, `split_submissions` also
@@ -419,13 +426,7 @@ class Renderer:
         while True:
             for views in self.submission_groups():
                 enc = self.gpu.device.create_command_encoder()
-                if not self.split_submissions or (self.batched and self.state_fault is not None):
-                    self.encode(enc, views)  # (which refuses a state fault in batched views)
-                elif self.batched:
-                    enc = self.encode_batch(enc, split=self._submit_and_renew)
-                else:
-                    for v in views:
-                        enc = self.encode_view(enc, v, split=self._submit_and_renew)
+                enc = self.encode(enc, views, self._submit_and_renew if self.split_submissions else None)
                 self.gpu.submit(enc)
             stats = self.gpu.read(self.binning.stats, np.uint32)
             totals = stats[: self.k]
