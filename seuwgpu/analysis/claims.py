@@ -81,13 +81,14 @@ def claims_table(df: pd.DataFrame, results: dict | None = None, conf: float = 0.
         g = single_upsets(df, "fp32", dfn)
         g = g[g["bit"] >= 0]
         if len(g):
-            r = E.one_rate(g, "catastrophic", conf)
-            # the claim is over every stored bit: a campaign over some fields or bits estimates the
-            # rate of those only (the p_c table's coverage_pct), which says nothing of the claim
-            cov = float(catastrophe_probability(g, conf)["coverage_pct"].iloc[0])
+            # the p_c table's row: the rate, and coverage_pct: the claim is over every stored bit,
+            # and a campaign over some fields or bits estimates the rate of those only, which says
+            # nothing of the claim
+            r = catastrophe_probability(g, conf).iloc[0]
+            cov = float(r["coverage_pct"])
             part = cov < 99.999
             basis = f"n = {int(r['n']):,}" + (f"; covers {cov:.3g}% of the stored bits" if part else "")
-            rows.append(_row(key, 100 * r["rate"], 100 * r["ci_lo"], 100 * r["ci_hi"], basis, not part))
+            rows.append(_row(key, 100 * r["p_c"], 100 * r["ci_lo"], 100 * r["ci_hi"], basis, not part))
         else:
             rows.append(_row(key))
     gd = results.get("guard")
