@@ -53,9 +53,10 @@ same frames, bit for bit (on a GPU with products kept out of multiply-adds: `unf
 
 def default_shape(gpu: GPU) -> str:
     """The compositor a Renderer uses unless told: "lanes" on a CPU adapter, "wide" on a GPU. On
-    an NVIDIA H100 (2026-11-26, tools/bench.py, spheres, K = 8 batched) wide composited in 0.4-0.5x
-    lanes' GPU time and took 2.2 against 2.9 ms a view at 1M primitives, 256x256 (0.6 against 0.8
-    at 100k); lavapipe runs lanes' vec4 code about 5x faster (docs/renderer.md)."""
+    an NVIDIA H100 (2026-11-26, tools/bench.py, spheres, K = 8 batched; README's H100 table) wide
+    composited in 0.4-0.5x lanes' GPU time and took 1.9 against 2.8 ms a view at 1M primitives,
+    256x256 (0.5 against 0.7 at 100k); lavapipe runs lanes' vec4 code about 5x faster
+    (docs/renderer.md)."""
     return "lanes" if gpu.is_cpu else "wide"
 
 
