@@ -30,6 +30,8 @@ def _loglik(p, k, x, n):
         ([1, 30, 300], [0, 3, 5], [5, 5, 5]),
         ([1, 30, 300], [1, 5, 5], [5, 5, 5]),
         ([1, 10, 100], [2, 15, 60], [100, 100, 100]),
+        # an interval narrower than a step of a 400-point grid of log p (it gave none at all)
+        ([1, 10, 100], [2000, 18000, 80000], [1e6, 1e6, 1e6]),
     ],
 )
 def test_dose_fit_interval_is_the_profile_likelihood_one(k, x, n):

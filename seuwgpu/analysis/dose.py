@@ -96,18 +96,14 @@ def fit_dose_model(k, events, n, conf: float = 0.95) -> dict:
     def excess(logp):
         return nll(logp) - f_hat - cut
 
-    grid = np.linspace(lo_b, hi_b, 400)
-    ex = np.array([excess(g) for g in grid])
-    inside = np.nonzero(ex <= 0)[0]
-    if inside.size:
-        # the grid brackets each end (a step of 7% in p); the end itself is the root of `excess`
-        # between the last grid point inside and the first outside (the grid points alone gave an
-        # interval up to a step narrower than 95%)
-        i0, i1 = int(inside[0]), int(inside[-1])
-        lo = grid[i0] if i0 == 0 else brentq(excess, grid[i0 - 1], grid[i0], xtol=1e-12)
-        hi = grid[i1] if i1 == grid.size - 1 else brentq(excess, grid[i1], grid[i1 + 1], xtol=1e-12)
-        out["p_lo"] = 0.0 if x.sum() == 0 else float(math.exp(lo))
-        out["p_hi"] = float(math.exp(hi))
+    # the log-likelihood is concave in p (log q and log(1-q) are), so the interval is one piece
+    # around the MLE (where excess = -cut < 0): each end is the root of `excess` between the MLE
+    # and that bound, or the bound itself when excess stays <= 0 up to it
+    mid = math.log(p_hat) if p_hat > 0 else lo_b
+    lo = lo_b if excess(lo_b) <= 0 else brentq(excess, lo_b, mid, xtol=1e-12)
+    hi = hi_b if excess(hi_b) <= 0 else brentq(excess, mid, hi_b, xtol=1e-12)
+    out["p_lo"] = 0.0 if x.sum() == 0 else float(math.exp(lo))
+    out["p_hi"] = float(math.exp(hi))
     # deviance against the saturated model (each k its own rate)
     with np.errstate(divide="ignore", invalid="ignore"):
         ph = x / n
