@@ -148,8 +148,7 @@ def state_campaign(
 ):
     """Records of `samples` flips per (target, bit) cell, record, word and view uniform. `rows`: a
     list the records are appended to as they are measured (what an interrupted run has done)."""
-    for t in targets:
-        check_target(t)
+    targets = [check_target(t) for t in targets]  # all refused before any rendering
     bits = [int(b) for b in bits]
     for b in bits:
         if not 0 <= b < 32:  # every pipeline-state word is 32 bits
@@ -158,7 +157,6 @@ def state_campaign(
     rng = np.random.default_rng(seed)
     rows = [] if rows is None else rows
     for t in targets:
-        check_target(t)
         for bit in bits:
             for _ in range(samples):
                 v = int(rng.integers(engine.k))
@@ -166,7 +164,7 @@ def state_campaign(
                 if n == 0:
                     continue
                 i, c = int(rng.integers(n)), int(rng.integers(TARGETS[t][2]))
-                rows.append(sf.inject(t, v, i, c, int(bit)) | {"scene": engine.scene, "weight": float(n)})
+                rows.append(sf.inject(t, v, i, c, bit) | {"scene": engine.scene, "weight": float(n)})
                 if progress:
                     progress()
     df = pd.DataFrame(rows)
