@@ -499,6 +499,10 @@ def test_compressed_ply_packed_properties_must_be_32_bit_words(tmp_path):
     # int32 holds the same bits as uint32: accepted
     p.write_bytes(p.read_bytes().replace(b"property float packed", b"property int packed"))
     assert load_model(p).n == 4
+    # a list property is no 32-bit word either: named, not a numpy TypeError
+    p.write_bytes(p.read_bytes().replace(b"property int packed_color", b"property list uchar uint packed_color"))
+    with pytest.raises(ModelFileError, match=r"packed properties must be uint32, got packed_color \(list\)"):
+        load_model(p)
 
 
 @pytest.mark.parametrize(

@@ -53,10 +53,14 @@ def read_compressed_ply(header: PlyHeader) -> Model:
     missing = [p for p in _BOUNDS if p not in names] + [p for p in _PACKED if p not in vertex_el.names()]
     if missing:
         raise CompressedPlyError(f"{path}: compressed PLY lacks required properties: {', '.join(missing)}")
-    types = dict(vertex_el.props)
-    words = (np.dtype("<u4"), np.dtype("<i4"))  # bit fields of 32-bit words (int32 holds the same bits)
-    wrong = [f"{name} ({np.dtype(types[name]).name})" for name in _PACKED if np.dtype(types[name]) not in words]
-    if wrong:  # read as floats or shorter integers they would decode to garbage
+    types = dict(vertex_el.props)  # numpy type strings, or "list" for a list property
+    words = ("<u4", "<i4")  # bit fields of 32-bit words (int32 holds the same bits)
+    wrong = [
+        f"{name} ({'list' if types[name] == 'list' else np.dtype(types[name]).name})"
+        for name in _PACKED
+        if types[name] not in words
+    ]
+    if wrong:  # read as floats, shorter integers or lists they would decode to garbage
         raise CompressedPlyError(f"{path}: compressed PLY packed properties must be uint32, got {', '.join(wrong)}")
     n = vertex_el.count
     if n == 0:
