@@ -67,4 +67,5 @@ def test_worstcase_refuses_bits_outside_the_value(precision, bit, capsys):
     args = ["worstcase", "--scene", "blocks", "--n", "20", "--size", "16x16", "--views", "1", "--fields", "opacity"]
     assert main([*args, "--precision", precision, "--bit", str(bit)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err[-1] == f"seuwgpu worstcase: error: bit {bit} is out of range for {precision} (0..{bit - 1})"
+    why = f"bit {bit} is out of range for {precision} (valid bits are 0..{bit - 1})"  # encoding.check_bit's
+    assert err[-1] == f"seuwgpu worstcase: error: {why}"

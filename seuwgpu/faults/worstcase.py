@@ -45,9 +45,8 @@ def site_space(engine, fields=FIELDS, bits=None, primitives=None):
     """(primitives, flat components, bits) arrays of every single-bit site of the space."""
     nb = encoding.bits_per_value(engine.precision)
     bits = np.arange(nb) if bits is None else np.asarray(bits, dtype=np.int64).reshape(-1)
-    bad = bits[(bits < 0) | (bits >= nb)]
-    if bad.size:
-        raise ValueError(f"bit {int(bad[0])} is out of range for {engine.precision} (0..{nb - 1})")
+    for b in dict.fromkeys(bits.tolist()):  # the first bit outside the value refused, as everywhere
+        encoding.check_bit(engine.precision, b)
     prims = np.arange(engine.n) if primitives is None else np.asarray(primitives, dtype=np.int64)
     comps = np.array([FIELD_OFFSET[f] + c for f in fields for c in range(field_components(f, engine.degree))])
     p, c, b = np.meshgrid(prims, comps, bits, indexing="ij")
