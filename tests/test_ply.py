@@ -469,6 +469,9 @@ def test_error_ascii_truncated_or_not_numeric(tmp_path):
     wrapped = " ".join(rows[1].split()[:half]) + "\n" + " ".join(rows[1].split()[half:])
     p.write_text(head + "end_header\n" + "\n".join([rows[0], wrapped, rows[2]]) + "\n")
     expect_error(p, re.escape(f"row 2 (data line 2) holds {half} values, expected {len(names)}"))
+    # whole rows past the declared count: refused with the binary reader's message
+    p.write_text(head.replace("element vertex 3", "element vertex 2") + "end_header\n" + data)
+    expect_error(p, "declares 2 vertices but the data holds 3: fix the header's element count")
 
 
 def test_error_no_vertex_element(tmp_path):

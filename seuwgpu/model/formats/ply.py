@@ -312,7 +312,7 @@ def _read_binary_element(header: PlyHeader, index: int) -> np.ndarray:
         need = offset + n * dtype.itemsize
         if file_size < need:
             have = max(0, file_size - offset)
-            noun = "vertices" if el.name == "vertex" else f"{el.name} rows"
+            noun = _rows_noun(el.name)
             raise PlyError(
                 f"{path}: truncated PLY: the header promises {n} {noun} of "
                 f"{dtype.itemsize} bytes ({n * dtype.itemsize} bytes of {el.name} data) but only "
@@ -351,19 +351,12 @@ def _read_ascii_element(header: PlyHeader, index: int) -> np.ndarray:
             )
     beyond = sum(1 for ln in lines[first + el.count :] if ln.strip())
     if index == len(header.elements) - 1 and beyond:
-        raise PlyError(
-            f"{path}: the header declares {el.count} {el.name} rows but the file holds {el.count + beyond} "
-            "(more data than declared): fix the header's element count"
-        )
+        _too_many_rows(path, el.name, el.count, el.count + beyond)
     if len(rows) < el.count or any(not ln.strip() for ln in rows):
         got = sum(1 for ln in rows if ln.strip())
         raise PlyError(f"{path}: truncated ASCII PLY: the header promises {el.count} {el.name} rows, found {got}")
+    # every row now holds one value per property (checked above): the table is whole
     tokens = " ".join(rows).split()
-    if len(tokens) != el.count * len(names):
-        raise PlyError(
-            f"{path}: ASCII PLY {el.name} rows hold {len(tokens)} values, expected "
-            f"{el.count} rows x {len(names)} properties"
-        )
     out = np.empty(el.count, dtype=el.dtype("="))
     try:
         table = np.asarray(tokens).reshape(el.count, len(names))
@@ -375,10 +368,16 @@ def _read_ascii_element(header: PlyHeader, index: int) -> np.ndarray:
     return out
 
 
+def _rows_noun(name: str) -> str:
+    return "vertices" if name == "vertex" else f"{name} rows"
+
+
 def _too_many_rows(path: str, name: str, declared: int, held: int):
-    noun = "vertices" if name == "vertex" else f"{name} rows"
+    """Refuse whole rows beyond the header's count (binary or ASCII): reading only the declared
+    ones would drop the rest silently."""
     raise PlyError(
-        f"{path}: the header declares {declared} {noun} but the data holds {held}: fix the header's element count"
+        f"{path}: the header declares {declared} {_rows_noun(name)} but the data holds {held}: "
+        "fix the header's element count"
     )
 
 
