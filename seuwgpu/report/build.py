@@ -381,6 +381,7 @@ def build_report(
     if fold is None:
         fold = needs_folding(runs)
     df, manifests = load_runs(runs, fold=fold, max_pred_rows=max_pred_rows, progress=progress, workers=workers)
+    partial = df.attrs.get("partial", "")  # store.partial_runs_text of the runs, made by load_runs
     previous = _previous_files(out)
     written: list[str] = []
     ctx = {"skipped": [], "max_pred_rows": max_pred_rows, "results": {}}
@@ -395,7 +396,6 @@ def build_report(
     sections.sort(key=lambda sec: sec.key != "claims")
 
     # files
-    partial = store.partial_runs_text(runs)
     md_parts = [f"# {title}\n", f"\n**{partial}**\n" if partial else "", _runs_markdown(df, manifests)]
     html_sections = []
     toc = []
