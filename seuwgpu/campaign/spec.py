@@ -560,11 +560,20 @@ def spec_hash(spec: dict) -> str:
     """The run's name: a hash of the normalised spec in which the files it names stand for their
     content (their sha256), so the same spec is the same run whatever path reaches the files, and
     a changed model or camera file is another run."""
-    keyed = dict(spec)
+    return _short_hash(_by_content(spec))
+
+
+def _by_content(spec: dict, leave_out=()) -> dict:
+    """The spec without the entries `leave_out`, its scenes' files standing for their content."""
+    keyed = {k: v for k, v in spec.items() if k not in leave_out}
     keyed["scenes"] = [
         {k: v for k, v in sc.items() if not (k in ("model", "cameras") and f"{k}_sha256" in sc)}
         for sc in spec.get("scenes", [])
     ]
+    return keyed
+
+
+def _short_hash(keyed: dict) -> str:
     return hashlib.sha256(json.dumps(keyed, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -582,11 +591,7 @@ def sites_key(spec: dict) -> str:
     profile: the manifest's, kept apart by the caller) draw the same site for each injection id, so
     their records pooled would count the same sites twice; their spec hashes may differ
     (`spec_hash` covers every entry, as it names the run directory's contents)."""
-    keyed = {k: v for k, v in spec.items() if k not in _NOT_SITES}
-    keyed["scenes"] = [
-        {k: v for k, v in sc.items() if not (k in ("model", "cameras") and f"{k}_sha256" in sc)}
-        for sc in spec.get("scenes", [])
-    ]
+    keyed = _by_content(spec, _NOT_SITES)
     if keyed.get("scale") == 1.0:
         del keyed["scale"]  # the views' own resolution, as without scale
     for section in ("single", "dose", "sizes"):
@@ -597,4 +602,4 @@ def sites_key(spec: dict) -> str:
             if section == "sizes":
                 t.setdefault("scenes", [0])
             keyed[section] = t
-    return hashlib.sha256(json.dumps(keyed, sort_keys=True).encode()).hexdigest()[:16]
+    return _short_hash(keyed)
