@@ -81,25 +81,18 @@ class Runner:
         store.remove_stale_temps(rec)
 
     def check_files(self):
-        """Read each scene's model and camera files once before a new run's manifest claims the
-        directory: the spec check only sees that they exist, and a file that cannot be read would
-        otherwise stop the run after the manifest was written, leaving a run folder with no records.
-        (An embedded scene is built at a small n here: only its camera file is being read.)"""
+        """Read each scene's model file once before a new run's manifest claims the directory: the
+        spec check only hashes it, and a file that cannot be read would otherwise stop the run
+        after the manifest was written, leaving a run folder with no records. (Camera files are
+        read by the spec check already, so an embedded scene is not built here.)"""
         from seuwgpu.model.sources import load_source, source_views
 
         for sc in self.spec["scenes"]:
-            path, cameras = sc.get("model"), sc.get("cameras")
-            if not (path or cameras):
+            if sc.get("model") is None:
                 continue
-            src = load_source(
-                scene=sc.get("scene"),
-                path=path,
-                n=None if path else min(int(sc.get("n") or 1000), 1000),
-                sh_degree=sc["sh_degree"],
-                seed=sc["seed"],
-                up=sc.get("up"),
-            )
-            source_views(src, cameras, self.spec["views"], tuple(self.spec["size"]), self.spec.get("scale"))
+            src = load_source(path=sc["model"], up=sc.get("up"))
+            views, size = self.spec["views"], tuple(self.spec["size"])
+            source_views(src, sc.get("cameras"), views, size, self.spec.get("scale"))
 
     def done_ids(self) -> set[tuple[int, int]]:
         """(first id, count) of this shard's parts already written and whole (a part that cannot be
