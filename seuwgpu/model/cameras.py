@@ -237,12 +237,11 @@ def read_cameras(path) -> tuple[list[Camera], list[str], str]:
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"{p}: no such camera file or folder")
-    if p.is_dir():
-        return _read_camera_folder(p)
+    if p.is_dir() or p.name in _COLMAP_FILES:  # the files camera_files finds there
+        files = camera_files(p)
+        return read_cameras(files[0]) if files[0].suffix == ".json" else _read_colmap(*files)
     if not p.is_file():
         raise CameraFileError(f"{p}: not a regular file or folder (a pipe or device cannot be read as cameras)")
-    if p.name in _COLMAP_FILES:
-        return _read_colmap(p.parent, p.suffix[1:])  # the model of the file named: .bin or .txt
     raw = p.read_bytes()
     try:
         data = json.loads(raw.decode("utf-8"))
@@ -270,34 +269,38 @@ def camera_files(path) -> list[Path]:
         raise FileNotFoundError(f"{p}: no such camera file or folder")
     if not (p.is_file() or p.is_dir()):
         raise CameraFileError(f"{p}: not a regular file or folder (a pipe or device cannot be read as cameras)")
-    if p.is_file() and p.name not in _COLMAP_FILES:
-        return [p]
-    folder = p.parent if p.is_file() else p
-    if p.is_file():  # a COLMAP file names its model in its own encoding (read_cameras reads that one)
-        found = [folder / f"{stem}{p.suffix}" for stem in ("cameras", "images")]
-        if not all(f.is_file() for f in found):
+    if p.is_file():
+        if p.name not in _COLMAP_FILES:
+            return [p]
+        # a COLMAP file names its model in its own encoding
+        found = _colmap_pair(p.parent, (p.suffix[1:],))
+        if found is None:
             raise CameraFileError(f"{p}: a COLMAP model needs cameras{p.suffix} and images{p.suffix} in one folder")
         return found
-    if p.is_dir():
-        for name in ("cameras.json", "transforms.json", "CAMS.json"):
-            if (p / name).is_file():
-                return [p / name]
-        for sub in (p, p / "sparse" / "0", p / "sparse"):
-            if any((sub / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
-                folder = sub
-                break
-    ext = "bin" if (folder / "cameras.bin").is_file() and (folder / "images.bin").is_file() else "txt"
-    found = [folder / f"{stem}.{ext}" for stem in ("cameras", "images") if (folder / f"{stem}.{ext}").is_file()]
-    if len(found) != 2:
+    for name in ("cameras.json", "transforms.json", "CAMS.json"):
+        if (p / name).is_file():
+            return [p / name]
+    folder = p
+    for sub in (p, p / "sparse" / "0", p / "sparse"):
+        if any((sub / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
+            folder = sub
+            break
+    found = _colmap_pair(folder)
+    if found is None:
         raise CameraFileError(
             f"{p}: folder without cameras.json, transforms.json or a COLMAP model (cameras and images .bin/.txt)"
         )
     return found
 
 
-def _read_camera_folder(p: Path):
-    files = camera_files(p)
-    return read_cameras(files[0]) if files[0].suffix == ".json" else _read_colmap(files[0].parent, files[0].suffix[1:])
+def _colmap_pair(folder: Path, exts=("bin", "txt")) -> list[Path] | None:
+    """[cameras, images] files of the COLMAP model in `folder`, in the first encoding of `exts`
+    that has both (.bin before .txt, as COLMAP writes both), or None."""
+    for ext in exts:
+        found = [folder / f"cameras.{ext}", folder / f"images.{ext}"]
+        if all(f.is_file() for f in found):
+            return found
+    return None
 
 
 def _num(p: Path, where: str, v, shape=None) -> np.ndarray:
@@ -469,22 +472,12 @@ def _qvec_to_rotmat(q) -> np.ndarray:
     )
 
 
-def _read_colmap(folder: Path, ext: str | None = None):
-    """The COLMAP model in `folder`: its .bin pair (preferred, as COLMAP writes both) or .txt
-    pair, or the pair of `ext` when the user named one of its files."""
-
-    def pair(e: str) -> bool:
-        return all((folder / f"{stem}.{e}").is_file() for stem in ("cameras", "images"))
-
-    if ext is None:
-        ext = next((e for e in ("bin", "txt") if pair(e)), None)
-        if ext is None:
-            raise CameraFileError(f"{folder}: a COLMAP model needs cameras and images (.bin or .txt) in one folder")
-    elif not pair(ext):
-        raise CameraFileError(f"{folder}: a COLMAP model needs cameras.{ext} and images.{ext} in one folder")
-    read_cameras_of, read_images_of = _COLMAP_READERS[ext]
-    cameras = read_cameras_of(folder / f"cameras.{ext}")
-    images = read_images_of(folder / f"images.{ext}")
+def _read_colmap(cameras_file: Path, images_file: Path):
+    """The COLMAP model of one encoding (the pair camera_files found)."""
+    folder = cameras_file.parent
+    read_cameras_of, read_images_of = _COLMAP_READERS[cameras_file.suffix]
+    cameras = read_cameras_of(cameras_file)
+    images = read_images_of(images_file)
     if not images:
         raise CameraFileError(f"{folder}: the COLMAP model has no registered images")
     cams, names, distorted = [], [], set()
@@ -638,4 +631,7 @@ def _colmap_images_bin(path: Path) -> list:
 
 
 # The readers of each COLMAP encoding (cameras, images), by file extension.
-_COLMAP_READERS = {"bin": (_colmap_cameras_bin, _colmap_images_bin), "txt": (_colmap_cameras_txt, _colmap_images_txt)}
+_COLMAP_READERS = {
+    ".bin": (_colmap_cameras_bin, _colmap_images_bin),
+    ".txt": (_colmap_cameras_txt, _colmap_images_txt),
+}
