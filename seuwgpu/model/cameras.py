@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import struct
 import warnings
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -192,10 +193,7 @@ def select_views(cams: list[Camera], k: int | None) -> list[Camera]:
 
 def image_sizes(cams: list[Camera]) -> dict[tuple[int, int], int]:
     """{(width, height): number of views} in the order the sizes first appear."""
-    sizes: dict[tuple[int, int], int] = {}
-    for c in cams:
-        sizes[(c.width, c.height)] = sizes.get((c.width, c.height), 0) + 1
-    return sizes
+    return dict(Counter((c.width, c.height) for c in cams))
 
 
 def check_one_size(cams: list[Camera], where, what: str) -> None:
