@@ -331,13 +331,6 @@ def run_campaign(
         spec = load_spec(spec)
     else:
         raise InputError(f"spec must be a dict or the path of a TOML file, got {type(spec).__name__}")
-    try:  # (2, 2) or (0.5, 2) ran no injection and returned as done; (0, 0) was a ZeroDivisionError
-        i, n = shard
-        ok = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (i, n)) and 0 <= i < n
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise InputError(f"shard must be (I, N), integers with 0 <= I < N, got {shard!r}")
     runner = Runner(spec, _folder(out, "run directory"), shard=shard, quiet=progress is not True, full=full)
     return runner.run() if progress is True else runner.run(_Callback(progress or None, runner))
 

@@ -32,7 +32,7 @@ class Runner:
         self, spec: dict, out: Path, shard: tuple[int, int] = (0, 1), quiet: bool = False, full: bool = False, gpu=None
     ):
         self.spec, self.out = spec, Path(out)
-        self.shard = shard
+        self.shard = store.check_shard(shard)
         self.quiet, self.full = quiet, full
         self.gpu = gpu
         self.hash = spec_hash(spec)

@@ -388,13 +388,29 @@ def make_out_dir(path, option: str = "--out", what: str = "run directory") -> Pa
     return p
 
 
+def check_shard(shard) -> tuple[int, int]:
+    """Shard I of N as (I, N): integers with 0 <= I < N (an I >= N ran no block and returned as
+    done, N = 0 divided by zero)."""
+    import numbers
+
+    try:
+        i, n = shard
+        whole = all(isinstance(v, numbers.Integral) and not isinstance(v, bool) for v in (i, n))
+    except (TypeError, ValueError):
+        whole = False
+    if not (whole and 0 <= i < n):
+        raise InputError(f"shard must be (I, N), integers with 0 <= I < N, got {shard!r}")
+    return int(i), int(n)
+
+
 @contextlib.contextmanager
 def lock(run_dir, shard: tuple[int, int] = (0, 1)):
     """Hold the run directory's lock for shard I/N (an exclusive flock: released when the
-    process ends, however it ends). Raises RunInUse when another process holds it."""
+    process ends, however it ends). Raises RunInUse when another process holds it; a shard
+    outside 0 <= I < N is refused before anything is created."""
     import fcntl
 
-    i, n = shard
+    i, n = check_shard(shard)
     make_out_dir(run_dir)
     path = Path(run_dir) / f".lock-{i}-of-{n}"
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
