@@ -214,8 +214,7 @@ class ViewerState:
         self.engine = Engine(
             self.model, [self.camera()], precision, gpu=self.gpu, scene=self.scene, profile=self.profile
         )
-        if hasattr(self.engine, "monitor"):  # the engine's guard health signal, at our threshold
-            self.engine.monitor.threshold = self.clamp_threshold
+        self.engine.monitor.threshold = self.clamp_threshold  # the engine's guard health signal, at our threshold
         self.precision = precision
         self.groups = []
         if self.storm is not None:
@@ -477,7 +476,7 @@ class ViewerState:
         if (changed & nonfin).any():  # display-referred PSNR of a non-finite frame is undefined
             mse = float("nan")
         total = int(sum(clamps.values()))
-        monitor = getattr(self.engine, "monitor", None)
+        monitor = self.engine.monitor
         sites = self.active_sites
         return {
             "frame_ms": frame_ms,
@@ -490,8 +489,8 @@ class ViewerState:
             "clamps": total,
             "clamps_per_field": dict(clamps),
             # clamps beyond the clean model's own (its NaN/Inf), as the Engine's monitor counts them
-            "alert": self.guard != "off" and (total > self.clamp_threshold if monitor is None else monitor.alert),
-            "alert_message": getattr(monitor, "message", "") if self.guard != "off" else "",
+            "alert": self.guard != "off" and monitor.alert,
+            "alert_message": monitor.message if self.guard != "off" else "",
             "active_sites": len(sites),
             "sites": [site_text(s, self.precision) for s in sites[-6:]],
             "precision": self.precision,
