@@ -25,7 +25,7 @@ from seuwgpu.metrics.image import OUTCOMES
 
 COUNTS = (*OUTCOMES, "nonfinite")
 NEEDED = ("campaign", "k", "weight", "outcome", "nonfinite")
-NEVER_POOLED = ("profile", "defense")  # kept in the cells, a row each when several (`groups`)
+NEVER_POOLED = ("defense", "profile")  # kept in the cells, a row each when several (`groups`)
 FOLD_EVERY = 64  # parts between re-folds of the accumulated cells (bounds memory)
 
 
@@ -72,7 +72,7 @@ def fold_runs(run_dirs, by=("scene", "precision", "defense"), campaign: str = "s
     acc, pending = None, []
     keep = [*by, *(c for c in NEVER_POOLED if c not in by)]
     for i, (run, path) in enumerate(parts):
-        d = _read(path, want, optional=NEVER_POOLED)  # records of older versions have no profile
+        d = _read(path, want, optional=NEVER_POOLED)  # records of older versions lack them
         d = d[(d["campaign"] == campaign) & (d["k"] == 1)]
         if len(d):
             if "run" in by:
@@ -107,7 +107,7 @@ def _read(path: Path, columns: list[str], optional=()) -> pd.DataFrame:
 def groups(cells: pd.DataFrame, by) -> list[str]:
     """`by`, plus `defense` and `profile` where the cells hold more than one of them (never pooled)."""
     by = list(by)
-    for c in ("defense", "profile"):
+    for c in NEVER_POOLED:
         if c in cells and c not in by and cells[c].nunique(dropna=False) > 1:
             by.append(c)
     return by
