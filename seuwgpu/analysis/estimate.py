@@ -231,7 +231,7 @@ def bootstrap(d: pd.DataFrame, fn, n_boot: int = 200, conf: float = 0.95, seed: 
         return float("nan"), float("nan")
     vals = []
     for _ in range(n_boot):
-        take = np.concatenate([ix[rng.integers(0, ix.size, ix.size)] for ix in idx if ix.size])
+        take = np.concatenate([ix[rng.integers(0, ix.size, ix.size)] for ix in idx])
         v = fn(d.iloc[take])
         if np.isfinite(v):
             vals.append(v)
