@@ -211,7 +211,7 @@ def mtbf_table(
                     "mtbf_hours": t,
                     "mtbf_hours_lo": t_lo,
                     "mtbf_hours_hi": t_hi,
-                    "mtbf": format_duration(t) if not p == 0 else f"> {format_duration(t_lo)}",  # NaN: n/a
+                    "mtbf": format_duration(t) if p != 0 else f"> {format_duration(t_lo)}",  # NaN: n/a
                     "mtbf_range": f"{format_duration(t_lo)} .. {format_duration(t_hi)}",
                     "catastrophic_frames_pct": 100 * catastrophic_frame_share(lam, bits, p, scrub_hours),
                     "source": env.get("source", ""),
