@@ -36,7 +36,7 @@ def looks_like_splat(size: int, head: bytes) -> bool:
     in 32 through (printable bytes read as floats are small and finite); printable rotation bytes
     (32-126) meet the length test only by chance (11% of random printable records), and every
     record tested must: at least 8, so a shorter file needs the .splat extension."""
-    return splat_problem(size, head) is None and min(len(head), size) >= 8 * RECORD.itemsize
+    return splat_problem(size, head) is None and len(head) >= 8 * RECORD.itemsize  # head: a prefix of the file
 
 
 def splat_problem(size: int, head: bytes) -> str | None:
