@@ -19,7 +19,7 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis import stats
-from seuwgpu.analysis.records import InsufficientData, figure, prepare, sort_rows, tag
+from seuwgpu.analysis.records import InsufficientData, fields_present, figure, prepare, sort_rows, tag
 
 METRICS = ("mean_mse", "median_mse", "mean_footprint_pct")
 MIN_SIZES = 3  # sizes with a positive value needed for a fit (two points fit any line exactly)
@@ -112,7 +112,7 @@ def size_scaling(df: pd.DataFrame, conf: float = 0.95) -> dict:
                 }
             )
     gf = tag(pd.DataFrame(grows), d)
-    sampled = {"fields": sorted(map(str, d["field"].unique())), "bits": sorted(int(b) for b in d["bit"].unique())}
+    sampled = {"fields": fields_present(d), "bits": sorted(int(b) for b in d["bit"].unique())}
     return {"table": table, "fits": fits, "guard_factor": gf, "source_campaign": src, **sampled}
 
 
