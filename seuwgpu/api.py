@@ -331,7 +331,7 @@ def run_campaign(
         spec = load_spec(spec)
     else:
         raise InputError(f"spec must be a dict or the path of a TOML file, got {type(spec).__name__}")
-    runner = Runner(spec, _folder(out, "run directory"), shard=shard, quiet=progress is not True, full=full)
+    runner = Runner(spec, _out_path(out, "run directory"), shard=shard, quiet=progress is not True, full=full)
     return runner.run() if progress is True else runner.run(_Callback(progress or None, runner))
 
 
@@ -370,10 +370,11 @@ def make_report(runs: str | Path | Iterable[str | Path], out: str | Path, fold: 
     """Write the report of the runs (HTML, figures as PNG, tables as CSV and Markdown,
     summary.json) into `out`; returns the path of index.html. fold: fold the records as they
     are read (the same numbers in less memory; None: only when they would not fit unfolded)."""
+    from seuwgpu.campaign.store import make_out_dir
     from seuwgpu.report.build import build_report
 
-    runs = [runs] if isinstance(runs, (str, Path)) else list(runs)
-    return build_report([_existing(r, "run directory") for r in runs], _folder(out, "report folder"), fold=fold)
+    runs = [_existing(r, "run directory") for r in ([runs] if isinstance(runs, (str, Path)) else runs)]
+    return build_report(runs, make_out_dir(_out_path(out, "report folder"), what="report folder"), fold=fold)
 
 
 def report_figures(runs: str | Path | Iterable[str | Path]) -> dict:
@@ -475,14 +476,12 @@ def _names(values, what: str) -> list[str]:
     return values
 
 
-def _folder(path, what: str) -> Path:
-    """An output folder: a path that is not a file (it is created where missing)."""
+def _out_path(path, what: str) -> Path:
+    """The path of an output folder (store.make_out_dir makes it, or says why it cannot: a run's
+    through store.lock, a report's here)."""
     if not isinstance(path, (str, Path)):
         raise InputError(f"{what} must be a path, got {path!r}")
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise InputError(f"{p}: is a file, not a {what}")
-    return p
+    return Path(path)
 
 
 def _existing(path, what: str) -> Path:
