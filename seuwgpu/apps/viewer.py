@@ -231,10 +231,13 @@ class ViewerState:
     def defense(self) -> str:
         return GUARD_MODES[self.guard]
 
-    def camera(self) -> Camera:
+    def camera(self, size: tuple[int, int] | None = None) -> Camera:
+        """The view shown, at the window's size or `size`: the orbit camera, or the capture view
+        letterboxed into it."""
+        w, h = size or self.size
         if self.view_index is None:
-            return self.orbit.camera(*self.size)
-        return letterbox(self.views[self.view_index], *self.size)
+            return self.orbit.camera(w, h)
+        return letterbox(self.views[self.view_index], w, h)
 
     @staticmethod
     def _view_key(cam: Camera):
@@ -314,9 +317,7 @@ class ViewerState:
         sample = max(1, min(self.sample, self.n))
         w, h = self.size
         s = min(1.0, self.probe / max(w, h))
-        pw, ph = max(MIN_SIZE, round(w * s)), max(MIN_SIZE, round(h * s))
-        # the view shown: the orbit camera, or the capture view letterboxed as frame() draws it
-        probe = self.orbit.camera(pw, ph) if self.view_index is None else letterbox(self.views[self.view_index], pw, ph)
+        probe = self.camera((max(MIN_SIZE, round(w * s)), max(MIN_SIZE, round(h * s))))  # the view shown, smaller
         active = list(self.groups)
         e.undo_all()
         try:
