@@ -332,16 +332,18 @@ def run_campaign(
     else:
         raise InputError(f"spec must be a dict or the path of a TOML file, got {type(spec).__name__}")
     runner = Runner(spec, _out_path(out, "run directory"), shard=shard, quiet=progress is not True, full=full)
-    return runner.run() if progress is True else runner.run(_Callback(progress or None, runner))
+    if progress is True:
+        return runner.run()
+    return runner.run(lambda total, done: _Callback(progress or None, total, done))
 
 
 class _Callback:
     """Adapts a progress function to the runner's progress protocol (advance, close)."""
 
-    def __init__(self, fn, runner):
-        blocks, done = list(runner.blocks()), runner.done_ids()  # the parts on disk, read once
-        self.fn, self.total, self.cat = fn, sum(m for _, _, m in blocks), 0
-        self.done = sum(m for _, a, m in blocks if (a, m) in done)
+    def __init__(self, fn, total: int, done: int):
+        # made by the runner once the run directory is locked and checked: reading (and deleting
+        # damaged) parts before then removed the parts of another spec's run in `out`
+        self.fn, self.total, self.done, self.cat = fn, total, done, 0
 
     def advance(self, n: int, cat: int):
         self.done += n

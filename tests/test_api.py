@@ -125,6 +125,12 @@ def test_campaign_records_and_report(tmp_path):
     again = sg.run_campaign(spec, tmp_path / "run")  # resume: nothing left to do
     assert again["new"] == 0 and again["injections"] == 8
     assert sg.read_records([tmp_path / "run"]).equals(df)  # a list of runs, as make_report takes
+    # another spec into that run (other row counts per part), with a progress function: refused, its
+    # parts untouched (the progress adapter read, and deleted as damaged, them before the check)
+    other = {**spec, "single": {**spec["single"], "defenses": ["none"]}}
+    with pytest.raises(sg.InputError, match="holds a run of a different spec"):
+        sg.run_campaign(other, tmp_path / "run", progress=lambda *a: None)
+    assert sg.read_records(tmp_path / "run").equals(df)
     # a shard outside 0 <= I < N ran nothing and returned as done ((0, 0): a ZeroDivisionError)
     for shard in [(2, 2), (0, 0), (0.5, 2), (-1, 2), "0/2", (True, 2)]:
         with pytest.raises(sg.InputError, match="^shard must be \\(I, N\\), integers with 0 <= I < N"):

@@ -113,6 +113,10 @@ class Runner:
                 j += 1
 
     def run(self, progress=None) -> dict:
+        """Run the shard's blocks not yet recorded; returns {injections, new, catastrophic, seconds}.
+        `progress(total, done)`: makes the progress object (advance(n, catastrophic), close()) once
+        the run directory is locked and checked, with the shard's injections and those already
+        recorded; default: a rich bar (or log lines when quiet)."""
         from seuwgpu.campaign.budget import check_campaign
 
         check_campaign(self.spec)
@@ -126,7 +130,7 @@ class Runner:
         shard_total = sum(m for _, _, m in self.blocks())
         already = shard_total - sum(m for _, _, m in todo)
         stats = {"injections": already, "catastrophic": 0, "seconds": 0.0, "new": 0}
-        bar = progress or Progress(shard_total, already, self.quiet)
+        bar = progress(shard_total, already) if progress else Progress(shard_total, already, self.quiet)
         engines = {}
         t0 = time.perf_counter()
         writer = store.PartWriter(self.out)

@@ -111,7 +111,7 @@ def parts_in(run_dir) -> set[tuple[int, int]]:
     out = set()
     try:
         it = os.scandir(records_dir(run_dir))
-    except (FileNotFoundError, NotADirectoryError):  # none yet (a file in the way: refused by make_out_dir)
+    except FileNotFoundError:
         return out
     with it:
         for e in it:
