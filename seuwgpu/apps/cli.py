@@ -282,9 +282,10 @@ def cmd_render(args):
     src = load_source(args)
     cams = load_cams(args, src, one_size=False)  # views of several sizes: rendered size by size
     formats = args.formats or ("png",)
-    if len(image_sizes(cams)) > 1 and (out.suffix == ".npz" or "npz" in formats):
+    sizes = len(image_sizes(cams))
+    if sizes > 1 and (out.suffix == ".npz" or "npz" in formats):
         raise CliError(
-            f"--cameras {args.cameras}: views of {len(image_sizes(cams))} image sizes do not fit one npz array "
+            f"--cameras {args.cameras}: views of {sizes} image sizes do not fit one npz array "
             "[K, H, W, 3]; write png or tiff files to a folder (--formats png,tiff)"
         )
     images = api.render_views(src, cams, precision=args.precision, profile=args.profile, compositor=args.compositor)
