@@ -220,7 +220,7 @@ def _shard_task(
 ) -> dict:
     _chdir(cwd)
     runner = _shard_runner_class()(spec, Path(out), shard=tuple(shard), quiet=True, full=full, gpu=worker_gpu())
-    stats = runner.run(progress=_WorkerProgress(kill_once))
+    stats = runner.run(progress=lambda total, done: _WorkerProgress(kill_once))  # Runner.run takes a factory
     stats["pid"] = os.getpid()
     return stats
 
