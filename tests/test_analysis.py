@@ -105,6 +105,41 @@ def test_auc_perfect_and_random():
     assert math.isnan(stats.auc(np.ones(5, bool), np.arange(5)))
 
 
+def test_auc_interval_matches_hanley_mcneil_and_keeps_both_classes():
+    """Unweighted, the bootstrap interval's half-width is Hanley and McNeil's (Radiology 1982)
+    standard error times 1.96. Each class is resampled apart, so 5 positives among 400 records
+    still give an interval from every resample."""
+    rng = np.random.default_rng(3)
+    y = np.r_[np.ones(300, bool), np.zeros(900, bool)]
+    score = np.where(y, rng.normal(1.0, 1, y.size), rng.normal(0.0, 1, y.size))
+    a = stats.auc(y, score)
+    q1, q2 = a / (2 - a), 2 * a * a / (1 + a)
+    npos, nneg = 300, 900
+    se = np.sqrt((a * (1 - a) + (npos - 1) * (q1 - a * a) + (nneg - 1) * (q2 - a * a)) / (npos * nneg))
+    lo, hi = stats.auc_interval(y, score, n_boot=400)
+    assert (hi - lo) / 2 == pytest.approx(1.96 * se, rel=0.2)
+    assert lo < a < hi
+    few = np.r_[np.ones(5, bool), np.zeros(395, bool)]
+    lo5, hi5 = stats.auc_interval(few, rng.random(few.size))
+    assert 0 <= lo5 < hi5 <= 1
+
+
+def test_auc_interval_undefined_when_weights_leave_too_few_effective_events():
+    """Eighteen positives, one of them carrying most of the weight and ranked low: the weighted
+    AUC is that record's rank, and a bootstrap of it is no interval (it read [0.52, 1.0] around
+    0.61 before): NaN, and prediction says why."""
+    rng = np.random.default_rng(4)
+    y = np.r_[np.ones(18, bool), np.zeros(443, bool)]
+    score = np.where(y, 1.0 + rng.random(y.size), rng.random(y.size))
+    score[0] = 0.4  # the heavy positive, below 60% of the negatives
+    w = np.ones(y.size)
+    w[1:18] = 0.01
+    assert stats.effective_size(w[y]) == pytest.approx((1 + 17 * 0.01) ** 2 / (1 + 17 * 1e-4))
+    assert stats.auc(y, score, w) < 0.7
+    assert all(math.isnan(v) for v in stats.auc_interval(y, score, w))
+    assert all(np.isfinite(stats.auc_interval(y, score)))  # the same records unweighted: defined
+
+
 def test_stratified_interval_design_effect_and_zero_counts():
     # two strata, weights 0.9 / 0.1, 0 of 100 and 50 of 100: the variance uses the add-half
     # rates (0.5 / 101 and 50.5 / 101), the rate the raw ones
@@ -718,3 +753,26 @@ def test_durations_keep_undefined_apart_from_unbounded():
     assert format_duration(float("nan")) == "n/a" and format_duration(None) == "n/a"
     assert format_duration(float("inf")) == "inf"
     assert format_duration(1.0) == "1 h" and format_duration(0.5 / 60) == "30 s" and format_duration(72) == "3 d"
+
+
+def test_prediction_importance_is_weighted_like_its_aucs():
+    """Opacity sites, where the stored value's sign decides the outcome, carry almost no weight;
+    means sites, where the bit does, carry the rest. Permuting the sign then costs the weighted
+    AUC nothing: its importance is ~0 (unweighted it was the top feature), the bit's is not."""
+    rng = np.random.default_rng(5)
+    parts = []
+    for field, weight in (("opacity", 1e-6), ("means", 1.0)):
+        for bit in range(32):
+            v = rng.choice([-1.0, 1.0], 16) * rng.uniform(0.5, 2, 16)
+            cls = encoding.bit_class("fp32", bit)
+            parts.append(_records(16, field=field, bit=bit, bit_class=cls, clean_value=v, weight=weight))
+    d = pd.concat(parts, ignore_index=True)
+    bad = np.where(d["field"] == "opacity", d["clean_value"] < 0, d["bit"] >= 28)
+    d["catastrophic"] = bad
+    d["footprint"] = np.where(bad, 0.5, 0.0)
+    res = prediction.prediction(d, n_repeats=3)
+    imp = res["importance"].set_index("feature")["importance_mean"]
+    assert abs(imp["sign"]) < 0.01
+    assert imp["bit"] > 0.05
+    s = res["summary"]
+    assert (s["test_positives_effective"] > 5).all() and not any("effective" in n for n in res["notes"])

@@ -83,10 +83,12 @@ def prediction(
     classifier (scikit-learn HistGradientBoosting) on field, bit, bit class, log10|stored value|
     and sign; the (field, bit) lookup (each cell's weighted catastrophe rate in the training
     data, the global rate for unseen cells); a constant (the training base rate: AUC 0.5, Brier
-    score of the base rate). Held-out ROC AUC on a stratified split with a bootstrap interval;
-    leave-one-scene-out AUC per held-out scene with >= 2 scenes; Brier scores; permutation
-    importance of the classifier. When the data cannot support it (too few events, one class in
-    a split) the numbers are NaN and `notes` says why: the report never fails on a small run.
+    score of the base rate). Held-out ROC AUC on a stratified split with a bootstrap interval
+    (stats.auc_interval: none when the weights leave < 5 effective records of a class, a note
+    says so); leave-one-scene-out AUC per held-out scene with >= 2 scenes; Brier scores;
+    permutation importance of the classifier, weighted as the AUCs are. When the data cannot
+    support it (too few events, one class in a split) the numbers are NaN and `notes` says why:
+    the report never fails on a small run.
     Returns {"summary", "importance", "loso", "top_feature", "roc", "precision", "notes",
     "lookup_as_good"}.
     """
@@ -108,6 +110,19 @@ def lookup_scores(train: pd.DataFrame, y_train: np.ndarray, test: pd.DataFrame, 
     rate = (cell["wy"] / cell["w"]).to_dict()
     base = float(t["wy"].sum() / t["w"].sum())
     return np.array([rate.get((f, b), base) for f, b in zip(test["field"], test["bit"])], dtype=float)
+
+
+def _effective_events(y, w, where: str, notes: list) -> float:
+    """Effective number of catastrophic upsets in a test set (Kish, from their weights); a note
+    when it or the benign side's is too small for an AUC interval (stats.auc_interval)."""
+    pos, neg = stats.effective_size(w[y]), stats.effective_size(w[~y])
+    if min(pos, neg) < stats.MIN_EFFECTIVE_EVENTS:
+        notes.append(
+            f"{where}: the weights leave {pos:.1f} effective catastrophic and {neg:.1f} effective "
+            f"benign upsets (of {int(y.sum())} and {int((~y).sum())} records; need >= "
+            f"{stats.MIN_EFFECTIVE_EVENTS} of each): no AUC interval"
+        )
+    return pos
 
 
 def _brier(y, score, w) -> float:
@@ -164,6 +179,7 @@ def _prediction(df, precision, seed, max_rows, test_size, n_repeats, n_boot) -> 
         idx_tr, idx_te = train_test_split(np.arange(len(s)), test_size=test_size, stratify=y, random_state=seed)
         Xtr, Xte = X.iloc[idx_tr], X.iloc[idx_te]
         clf, sc = _scores(Xtr, y[idx_tr], w[idx_tr], Xte, seed)
+        eff = _effective_events(y[idx_te], w[idx_te], "the held-out split", notes)
         for m in names:
             a = stats.auc(y[idx_te], sc[m], w[idx_te])
             lo, hi = stats.auc_interval(y[idx_te], sc[m], w[idx_te], n_boot, seed=seed)
@@ -178,12 +194,20 @@ def _prediction(df, precision, seed, max_rows, test_size, n_repeats, n_boot) -> 
                     "brier": _brier(y[idx_te], sc[m], w[idx_te]),
                     "n_train": len(idx_tr),
                     "n_test": len(idx_te),
-                    "positives": npos,
+                    "positives": npos,  # of train and test together
+                    "test_positives_effective": eff,
                 }
             )
         feats = list(PREDICTION_FEATURES)
+        # weighted as the AUCs above are (a uniform upset's view), not the sample's
         pi = permutation_importance(
-            clf, Xte[feats], y[idx_te], scoring="roc_auc", n_repeats=n_repeats, random_state=seed
+            clf,
+            Xte[feats],
+            y[idx_te],
+            scoring="roc_auc",
+            n_repeats=n_repeats,
+            random_state=seed,
+            sample_weight=w[idx_te],
         )
         imp = (
             pd.DataFrame(
@@ -199,6 +223,7 @@ def _prediction(df, precision, seed, max_rows, test_size, n_repeats, n_boot) -> 
                 notes.append(f"leave-one-scene-out: training without {sc_name} leaves one class")
                 continue
             _, scs = _scores(X[~te], y[~te], w[~te], X[te], seed)
+            eff = _effective_events(y[te], w[te], f"held-out scene {sc_name}", notes)
             for m in names:
                 a = stats.auc(y[te], scs[m], w[te])
                 lo, hi = stats.auc_interval(y[te], scs[m], w[te], n_boot, seed=seed)
@@ -208,6 +233,7 @@ def _prediction(df, precision, seed, max_rows, test_size, n_repeats, n_boot) -> 
                         "held_out_scene": sc_name,
                         "n": int(te.sum()),
                         "positives": int(y[te].sum()),
+                        "positives_effective": eff,
                         "auc": a,
                         "auc_lo": lo,
                         "auc_hi": hi,
@@ -215,7 +241,10 @@ def _prediction(df, precision, seed, max_rows, test_size, n_repeats, n_boot) -> 
                 )
     elif len(scenes) < 2:
         notes.append("one scene only: no leave-one-scene-out evaluation")
-    loso = pd.DataFrame(loso_rows, columns=["model", "held_out_scene", "n", "positives", "auc", "auc_lo", "auc_hi"])
+    loso = pd.DataFrame(
+        loso_rows,
+        columns=["model", "held_out_scene", "n", "positives", "positives_effective", "auc", "auc_lo", "auc_hi"],
+    )
     summary = pd.DataFrame(rows)
     for m in names:
         a = loso.loc[loso["model"] == m, "auc"].dropna()

@@ -35,6 +35,7 @@ __all__ = [
     "linear_fit",
     "auc",
     "auc_interval",
+    "effective_size",
 ]
 
 
@@ -172,20 +173,37 @@ def auc(y, score, weight=None) -> float:
     return float(roc_auc_score(y, score, sample_weight=weight))
 
 
-def auc_interval(y, score, weight=None, n_boot: int = 200, conf: float = 0.95, seed: int = 0):
-    """Percentile bootstrap interval of the (weighted) AUC, resampling records; (lo, hi), NaN
-    when fewer than half the resamples hold both classes."""
+MIN_EFFECTIVE_EVENTS = 5  # as prediction's training rule: >= 5 events of each class
+
+
+def effective_size(weight) -> float:
+    """Kish's effective sample size (sum w)^2 / sum w^2 of weighted records (0 when empty): how
+    many equally weighted records carry the same information."""
+    w = np.asarray(weight, dtype=float)
+    s2 = float(np.sum(w * w))
+    return float(np.sum(w)) ** 2 / s2 if s2 > 0 else 0.0
+
+
+def auc_interval(
+    y, score, weight=None, n_boot: int = 200, conf: float = 0.95, seed: int = 0, min_effective=MIN_EFFECTIVE_EVENTS
+):
+    """Percentile bootstrap interval of the (weighted) AUC; (lo, hi).
+
+    Each class is resampled apart (its record count stays the one observed, as pROC's stratified
+    bootstrap), so no resample loses a class and none is dropped. NaN when either class's
+    effective size (`effective_size` of its weights) is below `min_effective`: a weighted AUC
+    carried by one or two heavy records has no bootstrap distribution worth the name (one heavy
+    positive ranked low gave [0.516, 1.0] around 0.614, half the resamples without it)."""
     y = np.asarray(y).astype(bool)
     score = np.asarray(score, dtype=float)
     w = np.ones(y.size) if weight is None else np.asarray(weight, float)
-    rng = np.random.default_rng(seed)
-    vals = []
-    for _ in range(n_boot):
-        i = rng.integers(0, y.size, y.size)
-        a = auc(y[i], score[i], w[i])
-        if np.isfinite(a):
-            vals.append(a)
-    if len(vals) < n_boot // 2:
+    if min(effective_size(w[y]), effective_size(w[~y])) < min_effective:
         return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    pos, neg = np.flatnonzero(y), np.flatnonzero(~y)
+    vals = np.empty(n_boot)
+    for b in range(n_boot):
+        i = np.concatenate([pos[rng.integers(0, pos.size, pos.size)], neg[rng.integers(0, neg.size, neg.size)]])
+        vals[b] = auc(y[i], score[i], w[i])
     a = (1 - conf) / 2
     return float(np.quantile(vals, a)), float(np.quantile(vals, 1 - a))

@@ -622,6 +622,7 @@ def _sec_size(df, manifests, ctx) -> Section:
 def _sec_reliability(df, manifests, ctx) -> Section:
     res = reliability.reliability(df, manifests, dose_fits=ctx["results"].get("dose_fits"))
     prec = res["precision"]
+    per_model = res["per_model"]
     sec = Section(
         "reliability",
         "Reliability under realistic upset rates",
@@ -629,33 +630,47 @@ def _sec_reliability(df, manifests, ctx) -> Section:
         "weighted single-upset rate), or per model the dose fit's p (which counts upsets harmful only "
         "together). Upsets accumulate until the next scrub, every "
         f"{res['scrub_hours']:g} h: MTBF = T / (1 - exp(-rate x bits x p x T)). Rates and scrub interval: "
-        f"{res['rates_from']}.",
+        f"{res['rates_from']}."
+        + (
+            f" These records hold {len(res['models'])} models (scenes): each has its own p_c, stored bits, "
+            "dose-fit p and MTBF rows; none is pooled over scenes."
+            if per_model
+            else ""
+        ),
     )
-    sec.tables.append(
-        TableItem(
-            "reliability_pc",
-            "p_c",
-            res["pc"],
-            "Per-upset catastrophe probability per precision and defense with its 95% stratified "
-            "interval and the share of stored bits covered by sampled cells. Upsets are drawn over "
-            "the model's stored values only: ECC's check bits and duplication's second copy are "
-            "assumed intact (faults/defenses.py), so for those arms p_c is per upset in the data "
-            "bits, and duplication's 0 follows from that assumption, not from the sample.",
-        )
+    cap = (
+        "Per-upset catastrophe probability per precision and defense with its 95% stratified "
+        "interval and the share of stored bits covered by sampled cells. Upsets are drawn over "
+        "the model's stored values only: ECC's check bits and duplication's second copy are "
+        "assumed intact (faults/defenses.py), so for those arms p_c is per upset in the data "
+        "bits, and duplication's 0 follows from that assumption, not from the sample."
     )
+    if per_model:
+        cap = "Per model (scene, primitive count), its own rows: p" + cap[1:]
+    sec.tables.append(TableItem("reliability_pc", "p_c", res["pc"], cap))
     if res["mtbf_wide"] is not None and len(res["mtbf_wide"]):
+        if per_model:
+            cap = (
+                f"Per model at {prec}, each with its own p (its p_c, its scene's dose fit) and its own "
+                f"stored bits (model_bits), scrubbed every {res['scrub_hours']:g} h "
+                "('> x': no event, bound from the upper limit of p)."
+            )
+        else:
+            cap = (
+                f"For a model of {res['bits']:.3g} stored bits at {prec}, scrubbed every {res['scrub_hours']:g} h "
+                "('> x': no event, bound from the upper limit of p)."
+            )
+        sec.tables.append(
+            TableItem("mtbf", "Mean time between catastrophic frames", res["mtbf_wide"], cap, _prov(res["mtbf"]))
+        )
         sec.tables.append(
             TableItem(
-                "mtbf",
-                "Mean time between catastrophic frames",
-                res["mtbf_wide"],
-                f"For a model of {res['bits']:.3g} stored bits at {prec}, scrubbed every {res['scrub_hours']:g} h "
-                "('> x': no event, bound from the upper limit of p).",
-                _prov(res["mtbf"]),
+                "mtbf_detail",
+                "MTBF inputs and intervals",
+                res["mtbf"],
+                "Per model and environment." if per_model else "Per environment.",
+                csv_only=True,
             )
-        )
-        sec.tables.append(
-            TableItem("mtbf_detail", "MTBF inputs and intervals", res["mtbf"], "Per environment.", csv_only=True)
         )
         sec.figures.append(
             FigureItem(
@@ -663,7 +678,8 @@ def _sec_reliability(df, manifests, ctx) -> Section:
                 "MTBF against the upset rate",
                 reliability.plot_sensitivity(res),
                 "MTBF of catastrophic frames against the per-bit upset rate, per defense and source of p "
-                "(bands: 95% interval of p); dotted: the named environments.",
+                "(bands: 95% interval of p); dotted: the named environments."
+                + (" A panel per model, with its own p and stored bits." if per_model else ""),
                 _prov(res["mtbf"]),
             )
         )
@@ -673,11 +689,15 @@ def _sec_reliability(df, manifests, ctx) -> Section:
             f"({float(env['per_bit_hour']) * 1e15:.3g} FIT/Mbit). {env.get('source', '')}"
         )
     sec.notes.extend(res["notes"])
-    for dfn in ("none", "guard"):
-        r = reliability.pc_lookup(res["pc"], prec, dfn)
-        if r is not None:
-            sec.numbers[f"p_c_{dfn}_pct"] = [100 * float(r["p_c"]), 100 * float(r["ci_lo"]), 100 * float(r["ci_hi"])]
-    sec.numbers["model_bits"] = res["bits"]
+    pc = res["pc"]
+    for m in res["models"]:
+        rows = pc[(pc["scene"] == m["scene"]) & (pc["n_primitives"] == m["n_primitives"])] if per_model else pc
+        for dfn in ("none", "guard"):
+            r = reliability.pc_lookup(rows, prec, dfn)
+            if r is not None:
+                key = f"p_c_{m['key']}_{dfn}_pct" if per_model else f"p_c_{dfn}_pct"
+                sec.numbers[key] = [100 * float(r["p_c"]), 100 * float(r["ci_lo"]), 100 * float(r["ci_hi"])]
+    sec.numbers["model_bits"] = res["bits"]  # a number for one model, {model key: bits} for several
     sec.numbers["scrub_hours"] = res["scrub_hours"]
     return sec
 
@@ -731,7 +751,8 @@ def _sec_prediction(df, manifests, ctx) -> Section:
         "Predicting criticality without injection",
         f"At {res['precision']}: a gradient-boosted classifier of 'catastrophic' from static fault-site "
         "features against the (field, bit) lookup and a constant, record-weighted, on a stratified 30% "
-        "held-out split and leave-one-scene-out; AUC with 95% bootstrap intervals.",
+        "held-out split and leave-one-scene-out; AUC with 95% bootstrap intervals (each class "
+        "resampled apart; none where the weights leave < 5 effective records of a class).",
     )
     if res["roc"]:
         sec.figures.append(
@@ -746,7 +767,9 @@ def _sec_prediction(df, manifests, ctx) -> Section:
     sec.tables.append(TableItem("prediction", "AUC against baselines", res["summary"], "Held-out and LOSO AUC, Brier."))
     if len(res["importance"]):
         sec.tables.append(
-            TableItem("prediction_importance", "Permutation importance", res["importance"], "Drop in held-out AUC.")
+            TableItem(
+                "prediction_importance", "Permutation importance", res["importance"], "Drop in held-out weighted AUC."
+            )
         )
     if len(res["loso"]):
         sec.tables.append(
