@@ -81,6 +81,25 @@ def test_state_campaign_covers_every_target(sf):
     assert df.loc[~df.due, "footprint"].notna().all()
 
 
+def test_a_resumed_state_run_flips_what_an_uninterrupted_one_did(sf, monkeypatch):
+    """A run given the first m records of a run (a resumed one) renders only the others, replaying
+    the draws of those it skips, and its records equal the uninterrupted run's."""
+    import pandas as pd
+
+    args = dict(targets=["xy", "tile_key", "pixel"], samples=2, bits=[30, 3], seed=5)
+    whole = state_campaign(sf.engine, **args)
+    assert len(whole) == 12 and whole[["view", "index", "comp"]].drop_duplicates().shape[0] > 6
+    real, calls = StateFaults.inject, []
+    monkeypatch.setattr(StateFaults, "inject", lambda self, *a: calls.append(a) or real(self, *a))
+    for m in (1, 6, 12):
+        calls.clear()
+        got = state_campaign(sf.engine, **args, rows=whole.iloc[:m].to_dict("records"))
+        assert len(calls) == len(whole) - m
+        pd.testing.assert_frame_equal(got, whole)
+    with pytest.raises(ValueError, match="13 records given for a pipeline-state run of 12"):
+        state_campaign(sf.engine, **args, rows=[*whole.to_dict("records"), {}])
+
+
 def test_state_table_recomputed_with_pandas(tmp_path):
     import pandas as pd
 

@@ -74,40 +74,115 @@ def test_storm_command_runs_a_defense_named_twice_once(tmp_path):
     assert len(df) == 2 and list(df.frame) == [0, 1]
 
 
-def test_an_interrupted_storm_or_state_run_keeps_what_it_measured(tmp_path, monkeypatch, capsys):
+def test_a_resumed_storm_draws_and_replays_what_an_uninterrupted_one_did(monkeypatch):
+    """A storm given the first m records of a run (a resumed one) renders only the others, and
+    its records equal the uninterrupted run's: the same upsets drawn, the measured frames' upsets,
+    repairs (parity4r) and scrubs replayed into the memory state without rendering them."""
+    import pandas as pd
+    import pytest
+
+    model = make_scene("blocks", n=200, seed=4)
+    eng = Engine(model, scene_cameras("blocks", 1, 32, 32), "fp32", scene="blocks")
+    args = (eng, 30, 4, 3, ("none", "parity4r", "guard"), 9)
+    whole = storm(*args)
+    assert whole.footprint.nunique() > 4  # frames that differ: a wrong replay would show
+    real, calls = Engine.measure_current, []
+    monkeypatch.setattr(Engine, "measure_current", lambda self, d: calls.append(d) or real(self, d))
+    for m in (1, 5, 6, 11, 12):  # in the first arm, mid-arm after a scrub, at an arm's end, the last, all
+        calls.clear()
+        got = storm(*args, rows=whole.iloc[:m].to_dict("records"))
+        assert len(calls) == len(whole) - m
+        pd.testing.assert_frame_equal(got, whole)
+    with pytest.raises(ValueError, match="13 records given for a storm of 12"):
+        storm(*args, rows=[{}] * 13)
+
+
+def run_counting(patch, cls, name, stop_at=None, check=None):
+    """Count calls of cls.name; the call numbered stop_at runs `check` then raises KeyboardInterrupt."""
+    real, calls = getattr(cls, name), []
+
+    def wrapped(self, *a, **kw):
+        calls.append(1)
+        if len(calls) == stop_at:
+            if check:
+                check()
+            raise KeyboardInterrupt
+        return real(self, *a, **kw)
+
+    patch.setattr(cls, name, wrapped)
+    return calls
+
+
+def storm_and_state_runs(tmp_path):
+    from seuwgpu.faults.state import StateFaults
+
+    common = ["--scene", "blocks", "--n", "100", "--size", "16x16", "--out", str(tmp_path)]
+    storm_args = ["storm", *common, "--k", "3", "--frames", "3", "--defense", "none", "guard"]
+    state_args = ["state", *common, "--samples", "3", "--targets", "xy", "--bit", "30", "31"]
+    return {"storm": (storm_args, Engine, "measure_current"), "state": (state_args, StateFaults, "inject")}
+
+
+def test_an_interrupted_storm_or_state_run_resumes(tmp_path, monkeypatch, capsys):
     """Ctrl-C (here: a KeyboardInterrupt raised by the third measurement) ends the command with
-    exit 130 after writing the records measured so far, equal to the first records of a whole run;
-    a finished run removes the partial file."""
+    exit 130 after writing the records measured so far, the first records of a whole run; the
+    same command then resumes: interrupted again (mid-arm for storm), then to the end, it measures
+    only what is missing and writes the whole run's records, and removes the partial file. The
+    partial file is also written while the run goes (here after every record), so a
+    killed run keeps it."""
     import pandas as pd
 
     from seuwgpu.apps.cli import main
-    from seuwgpu.faults.state import StateFaults
+    from seuwgpu.campaign import partial
 
-    def interrupt_third(patch, cls, name):
-        real, calls = getattr(cls, name), []
-
-        def wrapped(self, *a, **kw):
-            calls.append(1)
-            if len(calls) == 3:
-                raise KeyboardInterrupt
-            return real(self, *a, **kw)
-
-        patch.setattr(cls, name, wrapped)
-
-    common = ["--scene", "blocks", "--n", "100", "--size", "16x16", "--out", str(tmp_path)]
-    storm_args = ["storm", *common, "--k", "2", "--frames", "4", "--defense", "none", "guard"]
-    state_args = ["state", *common, "--samples", "2", "--targets", "xy", "--bit", "30", "31"]
-    runs = {"storm": (storm_args, Engine, "measure_current"), "state": (state_args, StateFaults, "inject")}
-    for name, (argv, cls, method) in runs.items():
-        whole = tmp_path / f"{name}.parquet"
-        assert main(argv) == 0
+    monkeypatch.setattr(partial, "SAVE_EVERY_S", 0.0)
+    monkeypatch.setattr(partial, "WRITE_SHARE", 0)
+    for name, (argv, cls, method) in storm_and_state_runs(tmp_path).items():
+        whole, part = tmp_path / f"{name}.parquet", tmp_path / f"{name}.partial.parquet"
+        assert main(argv) == 0 and not part.exists()
         want = pd.read_parquet(whole)
+        assert len(want) == 6
         whole.unlink()
+
+        def written_before_the_interrupt(part, done):  # what a kill -9 would leave
+            assert len(pd.read_parquet(part)) == done
+
+        for done in (2, 4):  # measured before each interrupt
+            with monkeypatch.context() as patch:
+                run_counting(patch, cls, method, 3, lambda p=part, d=done: written_before_the_interrupt(p, d))
+                assert main(argv) == 130
+            err = capsys.readouterr().err
+            assert f"the {done} records measured so far are in {part} (re-run the same command to resume)" in err
+            pd.testing.assert_frame_equal(pd.read_parquet(part), want.iloc[:done], check_dtype=False)
+            assert not whole.exists()
         with monkeypatch.context() as patch:
-            interrupt_third(patch, cls, method)
+            calls = run_counting(patch, cls, method)
+            assert main(argv) == 0
+        assert len(calls) == 2 and not part.exists()
+        pd.testing.assert_frame_equal(pd.read_parquet(whole), want)
+
+
+def test_a_partial_run_of_other_arguments_is_refused(tmp_path, monkeypatch, capsys):
+    """A re-run with other record-changing arguments into a folder holding an interrupted run is
+    refused in one line naming what differs (exit 2), before any rendering; the partial file is
+    left as it was. An unreadable partial file (or one without its arguments) is replaced."""
+    from seuwgpu.apps.cli import main
+
+    other = {"storm": ["--k", "4", "--seed", "1"], "state": ["--bit", "30"]}
+    for name, (argv, cls, method) in storm_and_state_runs(tmp_path).items():
+        part = tmp_path / f"{name}.partial.parquet"
+        with monkeypatch.context() as patch:
+            run_counting(patch, cls, method, 3)
             assert main(argv) == 130
-        assert "the 2 records measured so far" in capsys.readouterr().err
-        part = pd.read_parquet(tmp_path / f"{name}.partial.parquet")
-        pd.testing.assert_frame_equal(part, want.iloc[:2].reset_index(drop=True), check_dtype=False)
-        assert not whole.exists()
-        assert main(argv) == 0 and not (tmp_path / f"{name}.partial.parquet").exists()
+        capsys.readouterr()
+        before = part.read_bytes()
+        with monkeypatch.context() as patch:
+            calls = run_counting(patch, cls, method)
+            assert main([*argv, *other[name]]) == 2
+        assert not calls and part.read_bytes() == before and not (tmp_path / f"{name}.parquet").exists()
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"seuwgpu {name}: error: {part} holds an interrupted")
+        differs = {"storm": "(--seed 0 there, 1 now; --k 3 there, 4 now)", "state": "(--bit 30 31 there, 30 now)"}
+        assert differs[name] in err[0] and f"or use another --out, or delete {part} to start over" in err[0]
+        part.write_bytes(b"not parquet")
+        assert main(argv) == 0 and not part.exists()
+        assert "unreadable; starting over" in capsys.readouterr().err

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import sys
 from pathlib import Path
 
@@ -765,10 +764,11 @@ def cmd_worstcase(args):
 
 class work_bar:
     """A progress bar on stderr for a long loop (none when stderr is no terminal): `with
-    work_bar("frames", total) as step:` then `step()` once a unit of work is done."""
+    work_bar("frames", total, done) as step:` then `step()` once a unit of work is done (`done`:
+    the units done before, by the run a resumed one continues)."""
 
-    def __init__(self, what: str, total: int):
-        self.what, self.total = what, total
+    def __init__(self, what: str, total: int, done: int = 0):
+        self.what, self.total, self.done = what, total, done
 
     def __enter__(self):
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -783,12 +783,44 @@ class work_bar:
             disable=not sys.stderr.isatty(),
         )
         self.p.start()
-        task = self.p.add_task(self.what, total=self.total)
+        task = self.p.add_task(self.what, total=self.total, completed=self.done)
         return lambda: self.p.advance(task)
 
     def __exit__(self, *exc):
         self.p.stop()
         return False
+
+
+def partial_records(args, src, cams, name: str, records, **options):
+    """The records of an interrupted run of the same arguments in `--out` (campaign/partial.py;
+    another run's are refused, naming what differs). The run is what decides its records: the
+    model and camera files by their content (sha256: the same files through another path are the
+    same run), the other options as read (defaults spelled out), then the command's `options`.
+    `records(rows)`: the DataFrame of the records, as the finished run writes it."""
+    from seuwgpu.campaign.partial import PartialRecords
+    from seuwgpu.campaign.spec import content_hash
+
+    def content(key):
+        path = getattr(args, key)
+        return None if path is None else "sha256:" + content_hash(key, path)
+
+    run = {
+        "command": args.command,
+        "model": content("model"),
+        "scene": None if args.model else src.name,
+        "n": None if args.model else src.model.n,
+        "sh-degree": None if args.model else args.sh_degree,
+        "seed": args.seed,
+        "up": args.up,
+        "cameras": content("cameras"),
+        "views": len(cams),
+        "size": None if args.cameras else "x".join(map(str, view_size(args))),
+        "scale": args.scale or 1.0,
+        "precision": args.precision,
+        "profile": args.profile,
+        **options,
+    }
+    return PartialRecords(args.out / f"{name}.partial.parquet", run, records)
 
 
 def cmd_storm(args):
@@ -799,14 +831,18 @@ def cmd_storm(args):
 
     output_folder(args, args.out)
     src = load_source(args)
-    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
+    cams = load_cams(args, src)
     defenses = list(dict.fromkeys(args.defense))  # a defense named twice is one arm
-    rows = []
-    with keep_on_interrupt(args.out / "storm.partial.parquet", rows, storm_records):
-        with work_bar("frames", args.frames * len(defenses)) as step:
-            df = storm(eng, args.k, args.frames, args.scrub_every, defenses, args.seed, progress=step, rows=rows)
-    df.to_parquet(args.out / "storm.parquet", index=False)
-    storm_figure(df).savefig(args.out / "storm.png", dpi=120)
+    options = {"k": args.k, "frames": args.frames, "scrub-every": args.scrub_every, "defense": defenses}
+    partial = partial_records(args, src, cams, "storm", storm_records, **options)  # before any rendering
+    eng = Engine(src.model, cams, args.precision, scene=src.name, profile=args.profile)
+    with partial.kept() as rows:
+        with work_bar("frames", args.frames * len(defenses), len(rows)) as step:
+            df = storm(
+                eng, args.k, args.frames, args.scrub_every, defenses, args.seed, partial.progress(step), rows=rows
+            )
+        df.to_parquet(args.out / "storm.parquet", index=False)
+        storm_figure(df).savefig(args.out / "storm.png", dpi=120)
     summary = df.groupby("defense", sort=False).agg(
         catastrophic_frames=("catastrophic", "sum"), mean_footprint=("footprint", "mean")
     )
@@ -825,34 +861,21 @@ def cmd_state(args):
 
     output_folder(args, args.out)
     src = load_source(args)
-    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
+    cams = load_cams(args, src)
     targets, bits = list(dict.fromkeys(args.targets)), list(dict.fromkeys(args.bit or range(32)))
-    rows = []
-    with keep_on_interrupt(args.out / "state.partial.parquet", rows, pd.DataFrame):
-        with work_bar("flips", len(targets) * len(bits) * args.samples) as step:
-            df = state_campaign(eng, targets, args.samples, bits, args.seed, progress=step, rows=rows)
-    df.to_parquet(args.out / "state.parquet", index=False)
-    t = state_table(df)
-    (args.out / "state_criticality.csv").write_text(t.to_csv(index=False))
+    options = {"targets": targets, "samples": args.samples, "bit": bits}
+    partial = partial_records(args, src, cams, "state", pd.DataFrame, **options)  # before any rendering
+    eng = Engine(src.model, cams, args.precision, scene=src.name, profile=args.profile)
+    with partial.kept() as rows:
+        with work_bar("flips", len(targets) * len(bits) * args.samples, len(rows)) as step:
+            df = state_campaign(eng, targets, args.samples, bits, args.seed, partial.progress(step), rows=rows)
+        df.to_parquet(args.out / "state.parquet", index=False)
+        t = state_table(df)
+        (args.out / "state_criticality.csv").write_text(t.to_csv(index=False))
     with pd_display():
         print(t.to_string(index=False))
     print(f"records: {args.out / 'state.parquet'}; table: {args.out / 'state_criticality.csv'}")
     return 0
-
-
-@contextlib.contextmanager
-def keep_on_interrupt(path: Path, rows: list, records):
-    """On Ctrl-C, write the records measured so far (`records(rows)`) to `path` before the command
-    ends (exit 130): storm and state are not resumable (a re-run starts over), but what they had
-    measured is not lost. A finished run removes an earlier run's partial file."""
-    try:
-        yield
-    except KeyboardInterrupt:
-        if rows:
-            records(rows).to_parquet(path, index=False)
-            print(f"seuwgpu: interrupted: the {len(rows):,} records measured so far are in {path}", file=sys.stderr)
-        raise
-    path.unlink(missing_ok=True)
 
 
 def pd_display():
@@ -1145,7 +1168,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--out",
         type=Path,
         required=True,
-        help="folder for storm.parquet and storm.png (Ctrl-C keeps storm.partial.parquet)",
+        help="folder for storm.parquet and storm.png (an interrupted run keeps storm.partial.parquet: re-run "
+        "the same command to resume it)",
     )
     s.set_defaults(func=cmd_storm)
 
@@ -1166,7 +1190,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--out",
         type=Path,
         required=True,
-        help="folder for state.parquet and state_criticality.csv (Ctrl-C keeps state.partial.parquet)",
+        help="folder for state.parquet and state_criticality.csv (an interrupted run keeps "
+        "state.partial.parquet: re-run the same command to resume it)",
     )
     s.set_defaults(func=cmd_state)
 

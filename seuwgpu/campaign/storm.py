@@ -42,7 +42,10 @@ def check_storm(k: int, frames: int, arms: int):
 def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), seed: int = 0, progress=None, rows=None):
     """Records (one per frame and defense) of a fault storm; scrub_every 0 = never. `rows`: a list
     the records are appended to as they are measured (what an interrupted storm has done:
-    `storm_records(rows)`)."""
+    `storm_records(rows)`). Records already in it are those of a resumed storm of the same
+    arguments (its first records, in order: the arms one after the other, frame by frame): the storm
+    goes on after them, drawing the same upsets (all are drawn before the first frame) and replaying
+    the measured frames' upsets, repairs and scrubs into the memory state without rendering them."""
     if k < 1 or frames < 1 or scrub_every < 0:
         raise ValueError(f"storm needs k >= 1, frames >= 1, scrub_every >= 0 (got {k}, {frames}, {scrub_every})")
     rng = np.random.default_rng(seed)
@@ -53,8 +56,13 @@ def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), see
         *(draw_uniform_sites(engine.n, engine.degree, engine.precision, k, rng) for _ in range(frames - 1)),
     ]
     rows = [] if rows is None else rows
-    for d in defenses:
+    done = len(rows)  # records of a resumed storm
+    if done > frames * len(defenses):
+        raise ValueError(f"{done} records given for a storm of {frames * len(defenses)}")
+    for a, d in enumerate(defenses):
         dfn.check_defense(d)
+        if (a + 1) * frames <= done:
+            continue  # every frame of this arm measured before the storm was resumed
         memory: dict[int, np.ndarray] = {}  # primitive -> its stored bits now (absent: clean)
         for f in range(frames):
             if scrub_every and f and f % scrub_every == 0:
@@ -71,6 +79,8 @@ def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), see
             seen = engine.read_through(prims, clean, now, d) if prims.size else clean
             if d in dfn.CHECKED:  # the repair is written back
                 memory = {int(p): r.copy() for p, r in zip(prims, seen)}
+            if a * frames + f < done:
+                continue  # measured before the storm was resumed: its memory state replayed, not rendered
             xors = engine.xor_rows(prims, clean, seen)
             engine.flips.apply(xors)
             try:
@@ -100,6 +110,7 @@ def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), see
 
 
 def storm_records(rows: list) -> pd.DataFrame:
-    df = pd.DataFrame(rows)
+    # the rows of a resumed storm, read back from its partial records, carry `catastrophic` already
+    df = pd.DataFrame(rows).drop(columns="catastrophic", errors="ignore")
     df["catastrophic"] = catastrophic(df["footprint"].to_numpy(), df["nonfinite"].to_numpy())
     return df

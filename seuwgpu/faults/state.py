@@ -147,7 +147,10 @@ def state_campaign(
     engine, targets=tuple(TARGETS), samples: int = 20, bits=range(32), seed: int = 0, progress=None, rows=None
 ):
     """Records of `samples` flips per (target, bit) cell, record, word and view uniform. `rows`: a
-    list the records are appended to as they are measured (what an interrupted run has done)."""
+    list the records are appended to as they are measured (what an interrupted run has done).
+    Records already in it are those of a resumed run of the same arguments (its first records, in
+    order): the run goes on after them, replaying their draws without rendering them, so it flips
+    what an uninterrupted run would."""
     targets = [check_target(t) for t in targets]  # all refused before any rendering
     bits = [int(b) for b in bits]
     for b in bits:
@@ -156,6 +159,7 @@ def state_campaign(
     sf = StateFaults(engine)
     rng = np.random.default_rng(seed)
     rows = [] if rows is None else rows
+    done, drawn = len(rows), 0  # records of a resumed run; flips drawn
     for t in targets:
         for bit in bits:
             for _ in range(samples):
@@ -164,8 +168,12 @@ def state_campaign(
                 if n == 0:
                     continue
                 i, c = int(rng.integers(n)), int(rng.integers(TARGETS[t][2]))
+                drawn += 1
+                if drawn <= done:
+                    continue  # measured before the run was resumed
                 rows.append(sf.inject(t, v, i, c, bit) | {"scene": engine.scene, "weight": float(n)})
                 if progress:
                     progress()
-    df = pd.DataFrame(rows)
-    return df
+    if done > drawn:
+        raise ValueError(f"{done} records given for a pipeline-state run of {drawn}")
+    return pd.DataFrame(rows)
