@@ -186,3 +186,26 @@ def test_a_partial_run_of_other_arguments_is_refused(tmp_path, monkeypatch, caps
         part.write_bytes(b"not parquet")
         assert main(argv) == 0 and not part.exists()
         assert "unreadable; starting over" in capsys.readouterr().err
+
+
+def test_one_storm_or_state_run_per_folder_at_a_time(tmp_path, monkeypatch, capsys):
+    """While a run holds the folder (its flock), another run of the command there is refused in
+    one line before it reads the partial file or renders; the lock is released when a run ends,
+    interrupted or finished, so the next run goes ahead."""
+    from seuwgpu.apps.cli import main
+    from seuwgpu.campaign.store import lock
+
+    for name, (argv, cls, method) in storm_and_state_runs(tmp_path).items():
+        with lock(tmp_path, command=name), monkeypatch.context() as patch:
+            calls = run_counting(patch, cls, method)
+            assert main(argv) == 2
+        assert not calls
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"is in use: a `seuwgpu {name}` run (pid " in err[0]
+        with monkeypatch.context() as patch:
+            run_counting(patch, cls, method, 2)
+            assert main(argv) == 130  # interrupted: the lock is released all the same
+        assert main(argv) == 0 and not (tmp_path / f"{name}.partial.parquet").exists()
+        with lock(tmp_path, command=name):  # and after a finished run
+            pass
+        capsys.readouterr()

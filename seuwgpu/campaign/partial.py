@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from seuwgpu.campaign.store import atomic_write, remove_stale_temps
+from seuwgpu.campaign.store import atomic_write, lock, remove_stale_temps
 from seuwgpu.errors import InputError
 
 RUN_META = b"seuwgpu.run"  # Parquet schema metadata of a partial file: its run, as JSON
@@ -63,6 +63,10 @@ class PartialRecords:
     def __init__(self, path, run: dict, records=pd.DataFrame):
         self.path, self.records = Path(path), records
         self.run = json.loads(json.dumps(run))  # as it reads back: lists, not tuples
+        # one run of the command per directory at a time (RunInUse), from reading the file until
+        # kept() ends (or the process does)
+        self._lock = contextlib.ExitStack()
+        self._lock.enter_context(lock(self.path.parent, command=self.run.get("command", self.path.stem)))
         remove_stale_temps(self.path.parent)  # a write cut off by a kill
         self.rows = self._read()
         self._saved = len(self.rows)
@@ -123,9 +127,11 @@ class PartialRecords:
     @contextlib.contextmanager
     def kept(self):
         """Around the run and the writing of its results: when it ends early, the records measured
-        so far are saved (and said so); when it finishes, the partial file is removed."""
+        so far are saved (and said so); when it finishes, the partial file is removed. The
+        directory's lock is released either way."""
         try:
             yield self.rows
+            self.path.unlink(missing_ok=True)
         except BaseException as e:
             self.save()
             if self.rows:
@@ -136,4 +142,5 @@ class PartialRecords:
                     file=sys.stderr,
                 )
             raise
-        self.path.unlink(missing_ok=True)
+        finally:
+            self._lock.close()

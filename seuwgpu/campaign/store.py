@@ -404,15 +404,18 @@ def check_shard(shard) -> tuple[int, int]:
 
 
 @contextlib.contextmanager
-def lock(run_dir, shard: tuple[int, int] = (0, 1)):
+def lock(run_dir, shard: tuple[int, int] = (0, 1), command: str | None = None):
     """Hold the run directory's lock for shard I/N (an exclusive flock: released when the
     process ends, however it ends). Raises RunInUse when another process holds it; a shard
-    outside 0 <= I < N is refused before anything is created."""
+    outside 0 <= I < N is refused before anything is created. `command`: the lock of a command
+    that is no campaign (`storm`, `state`: one run per directory) instead."""
     import fcntl
 
     i, n = check_shard(shard)
     make_out_dir(run_dir)
-    path = Path(run_dir) / f".lock-{i}-of-{n}"
+    path = Path(run_dir) / (f".lock-{command}" if command else f".lock-{i}-of-{n}")
+    what = f"a `seuwgpu {command}` run" if command else "a campaign"
+    where = "there" if command else f"shard {i}/{n} there"
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
     try:
         try:
@@ -420,7 +423,7 @@ def lock(run_dir, shard: tuple[int, int] = (0, 1)):
         except BlockingIOError:
             holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "another process"
             raise RunInUse(
-                f"{run_dir} is in use: a campaign ({holder}) is running shard {i}/{n} there; "
+                f"{run_dir} is in use: {what} ({holder}) is running {where}; "
                 "wait for it to finish (or stop it), or use another --out"
             ) from None
         os.ftruncate(fd, 0)
