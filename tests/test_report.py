@@ -288,8 +288,9 @@ def test_end_to_end_report(synthetic, tmp_path):
     assert mit.set_index("defense").loc["dup", "catastrophic"] == 0
     assert mit.set_index("defense").loc["dup", "memory_overhead_pct"] == pytest.approx(200)
     assert mit.set_index("defense").loc["ecc", "memory_overhead_pct"] == pytest.approx(100 * 5 / 32)
-    mtbf = pd.read_csv(out / "mtbf.csv")
-    assert len(mtbf) == 3 and {"none (single-upset p_c)", "guard (single-upset p_c)"} <= set(mtbf.columns)
+    mtbf = pd.read_csv(out / "mtbf.csv")  # two scenes: 3 environments each, never one averaged model
+    assert len(mtbf) == 2 * 3 and {"none (single-upset p_c)", "guard (single-upset p_c)"} <= set(mtbf.columns)
+    assert list(mtbf["scene"].unique()) == list(SCENES)
     dc = pd.read_csv(out / "dose_curves.csv")
     assert len(dc) == 2 * 3 * 2 * 5  # models x precisions x defenses x k: models never averaged
     bud = pd.read_csv(out / "redundancy_budget.csv")

@@ -219,19 +219,55 @@ def test_guard_reliability_and_claims(run):
     assert num["guard_share_neutralised_ci_pct"] == pytest.approx([100 * lo, 100 * hi])
     precisions = single["precision"].unique()
     assert num["guard_share_precision"] == (precisions[0] if len(precisions) == 1 else "all")
-    pc = pd.read_csv(out / "reliability_pc.csv").set_index("defense")
-    for d in DEFS:
-        p, lo, hi = stratified(single[single["defense"] == d], "catastrophic")
-        assert pc.loc[d, "p_c"] == pytest.approx(p) and pc.loc[d, "ci_hi"] == pytest.approx(hi)
-    for d in ("none", "guard"):
-        p, lo, hi = stratified(single[single["defense"] == d], "catastrophic")
-        assert num[f"p_c_{d}_pct"] == pytest.approx([100 * p, 100 * lo, 100 * hi], abs=1e-9)
+    # two scenes (two models): p_c per scene, each its own stratified rate and interval
+    pc = pd.read_csv(out / "reliability_pc.csv").set_index(["scene", "defense"])
+    assert len(pc) == len(SCENES) * len(DEFS) and "pooled_over" not in pc
+    for scene, n in SCENES.items():
+        for d in DEFS:
+            p, lo, hi = stratified(single[(single["scene"] == scene) & (single["defense"] == d)], "catastrophic")
+            r = pc.loc[(scene, d)]
+            assert r["n_primitives"] == n
+            assert r["p_c"] == pytest.approx(p) and r["ci_lo"] == pytest.approx(lo, abs=1e-9)
+            assert r["ci_hi"] == pytest.approx(hi)
+            if d in ("none", "guard"):
+                assert num[f"p_c_{scene}_{d}_pct"] == pytest.approx([100 * p, 100 * lo, 100 * hi], abs=1e-9)
+    assert "p_c_none_pct" not in num  # no number stands for both models
+    assert num["model_bits"] == {s: n * 59 * 32 for s, n in SCENES.items()}
+    # the claim compares one number with the paper's: the pool over both scenes, and says so
     claims = pd.read_csv(out / "claims.csv").set_index("claim")
     r = claims.loc["p_c: a uniform upset is catastrophic, fp32, no defense"]
     p, lo, hi = stratified(single[single["defense"] == "none"], "catastrophic")
     assert r["measured"] == pytest.approx(100 * p) and r["paper"] == 0.634
     assert r["verdict"] == ("reproduced" if 100 * lo <= 0.634 <= 100 * hi else "differs")
+    assert "pooled over 2 models" in r["basis"] and "big (N=4,000), small (N=500)" in r["basis"]
     assert summary["sections"][0] == "claims"
+
+
+def test_mtbf_per_scene(run):
+    """Each scene's MTBF rows pair its own p (its p_c; the dose fit only where that scene has a
+    dose run: big) with its own stored bits: T / (1 - exp(-rate x bits x p x T))."""
+    rec, out, summary = run
+    single = rec[rec["campaign"] == "single"]
+    mt = pd.read_csv(out / "mtbf_detail.csv")
+    T = 24.0
+    assert set(mt["scene"]) == set(SCENES)
+    for (scene, d, src), g in mt.groupby(["scene", "defense", "p_source"]):
+        n = SCENES[scene]
+        bits = n * 59 * 32
+        assert (g["n_primitives"] == n).all() and (g["model_bits"] == bits).all()
+        if src == "single-upset p_c":
+            p = stratified(single[(single["scene"] == scene) & (single["defense"] == d)], "catastrophic")[0]
+        else:
+            assert scene == "big"  # small has no dose run: no dose rows, never big's p with small's bits
+            fit = pd.read_csv(out / "dose_fits.csv").set_index(["scene", "defense"]).loc[(scene, d)]
+            p = fit["p_pct"] / 100
+        assert g["p_pct"].to_numpy() == pytest.approx(100 * p)
+        lam = g["upsets_per_bit_hour"].to_numpy()
+        want = T / (1 - np.exp(-lam * bits * p * T)) if p > 0 else np.full(len(g), np.inf)
+        assert g["mtbf_hours"].to_numpy() == pytest.approx(want, rel=1e-6)  # 1 - exp(-x) loses digits
+    assert set(mt.loc[mt["p_source"] == "dose fit p", "scene"]) == {"big"}
+    wide = pd.read_csv(out / "mtbf.csv")
+    assert list(wide.columns[:3]) == ["scene", "model_bits", "environment"] and len(wide) == 2 * 3
 
 
 def test_dose_numbers(run):

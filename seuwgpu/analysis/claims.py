@@ -83,11 +83,15 @@ def claims_table(df: pd.DataFrame, results: dict | None = None, conf: float = 0.
         if len(g):
             # the p_c table's row: the rate, and coverage_pct: the claim is over every stored bit,
             # and a campaign over some fields or bits estimates the rate of those only, which says
-            # nothing of the claim
-            r = catastrophe_probability(g, conf).iloc[0]
+            # nothing of the claim. The paper states one number: records of several models give
+            # their p_c pooled (an upset uniform over all their stored bits), labelled as such; the
+            # reliability section keeps each model's own
+            r = catastrophe_probability(g, conf, pooled=True).iloc[0]
             cov = float(r["coverage_pct"])
             part = cov < 99.999
             basis = f"n = {int(r['n']):,}" + (f"; covers {cov:.3g}% of the stored bits" if part else "")
+            if "pooled_over" in r:
+                basis += f"; pooled over {r['pooled_over']} (per model in reliability_pc)"
             rows.append(_row(key, 100 * r["p_c"], 100 * r["ci_lo"], 100 * r["ci_hi"], basis, not part))
         else:
             rows.append(_row(key))

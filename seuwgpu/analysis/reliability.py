@@ -6,6 +6,14 @@ accumulating between scrubs.
   (`estimate.rate`, stratified interval), and per model the dose fit's p (`dose.dose_fits`: the
   per-upset probability that best explains catastrophes of k accumulated upsets, which includes
   upsets that are harmless alone but not together).
+* Per model: records of several models (several (scene, n_primitives) of the single-upset
+  campaign: several trained models) give each model its own p_c and interval, its own stored bits
+  (its primitive count x components x bits per value), its own dose-fit p (that scene's fit) and
+  its own MTBF rows, with `scene` and `n_primitives` columns. An MTBF of a p_c averaged over models
+  and of their mean size would describe none of them. A p_c pooled over models
+  (`catastrophe_probability(pooled=True)`, weighted by stored bits, labelled `pooled_over`) exists
+  only to set one number beside the paper's (claims table); `mtbf_table` refuses it. Records of
+  one model give the tables they always gave (no model columns).
 * Accumulation: upsets arrive as a Poisson process of rate L = lambda * b (per-bit rate times
   stored bits) and stay until the next scrub (every T hours), when the model is restored. Under
   the dose model the first catastrophic state after a scrub comes at rate L * p, so an interval
@@ -107,45 +115,108 @@ def reliability_parameters(manifests: Iterable[dict] = ()) -> tuple[list[dict], 
     return list(UPSET_RATES), DEFAULT_SCRUB_HOURS, "defaults (sources in the table)"
 
 
-def catastrophe_probability(df: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
-    """p_c per (precision, defense) from the single-upset campaign: weighted rate over the stored
-    bits of every scene, with the stratified interval; coverage_pct is the share of each scene's
-    stored bits whose (field, bit) cells were sampled."""
+MODEL = ["scene", "n_primitives"]
+
+
+def _single_bits(df: pd.DataFrame) -> pd.DataFrame:
+    """Single-upset records of one stored bit each (bit >= 0): what p_c is estimated from."""
     s = single_upsets(prepare(df), None, None)
-    s = s[s["bit"] >= 0]
+    return s[s["bit"] >= 0]
+
+
+def models_of(df: pd.DataFrame) -> pd.DataFrame:
+    """The models (scene, n_primitives) of the single-upset campaign, in order of appearance, with
+    `key` (the scene, or scene_N<n> when a scene holds several counts: summary.json keys) and
+    `label` (the scene, or "scene (N=n)": tables and figures)."""
+    return _models(_single_bits(df))
+
+
+def _models(s: pd.DataFrame) -> pd.DataFrame:
+    m = s[MODEL].drop_duplicates().reset_index(drop=True)
+    twice = m["scene"].duplicated(keep=False)
+    n = m["n_primitives"].astype(np.int64)
+    m["key"] = np.where(twice, m["scene"] + "_N" + n.astype(str), m["scene"])
+    m["label"] = np.where(twice, m["scene"] + " (N=" + n.map("{:,}".format) + ")", m["scene"])
+    return m
+
+
+def _pooled_text(m: pd.DataFrame) -> str:
+    names = ", ".join(f"{r.scene} (N={int(r.n_primitives):,})" for r in m.itertuples())
+    return f"{len(m)} models, weighted by stored bits: {names}"
+
+
+def catastrophe_probability(df: pd.DataFrame, conf: float = 0.95, pooled: bool = False) -> pd.DataFrame:
+    """p_c per (precision, defense) from the single-upset campaign: the weighted rate over the
+    model's stored bits with the stratified interval; coverage_pct is the share of the stored bits
+    whose (field, bit) cells were sampled.
+
+    Records of several models (scene, n_primitives): a row per model (columns scene, n_primitives
+    first), each its own stratified rate and interval. pooled=True gives instead one row per
+    (precision, defense) over every model (an upset uniform over all their stored bits together,
+    so weighted by stored bits), with a `pooled_over` column naming what it pools: a number to set
+    beside the paper's single p_c, never an input of an MTBF (`mtbf_table` refuses it)."""
+    s = _single_bits(df)
     if s.empty:
         raise InsufficientData(
             "no single-upset records to estimate p_c", "run a single-upset campaign over all fields and bits"
         )
-    r = E.rate(s, "catastrophic", ["precision", "defense"], conf)
+    models = _models(s)
+    per_model = len(models) > 1 and not pooled
+    by = (MODEL if per_model else []) + ["precision", "defense"]
+    r = E.rate(s, "catastrophic", by, conf)
     deg = sh_degree_of(s)
     cov = []
-    for (prec, dfn), g in s.groupby(["precision", "defense"], sort=False):
+    for key, g in s.groupby(by, sort=False):
         have = g.groupby(["scene", "n_primitives", "field", "bit"]).size().reset_index()
-        bits = encoding.BITS.get(prec, 32)
+        bits = encoding.BITS.get(key[-2], 32)
         comps = have["field"].map(lambda f: field_components(f, deg)).sum()
-        per_scene = have.groupby(["scene", "n_primitives"]).ngroups
-        cov.append(
-            {"precision": prec, "defense": dfn, "coverage_pct": 100 * comps / (per_scene * n_components(deg) * bits)}
-        )
-    out = r.rename(columns={"rate": "p_c"}).merge(pd.DataFrame(cov), on=["precision", "defense"])
+        n_models = have.groupby(["scene", "n_primitives"]).ngroups
+        cov.append({**dict(zip(by, key)), "coverage_pct": 100 * comps / (n_models * n_components(deg) * bits)})
+    out = r.rename(columns={"rate": "p_c"}).merge(pd.DataFrame(cov), on=by)
     out["sh_degree"] = deg
-    return tag(sort_rows(out), s)
+    out = sort_rows(out)
+    if per_model:  # precision, then model (order of appearance), then defense
+        rank = {tuple(k): i for i, k in enumerate(models[MODEL].itertuples(index=False))}
+        porder = {p: i for i, p in enumerate(encoding.PRECISIONS)}
+        key = out.assign(
+            _p=out["precision"].map(lambda p: porder.get(p, 99)),
+            _m=[rank[(a, b)] for a, b in zip(out["scene"], out["n_primitives"])],
+        )
+        out = out.loc[key.sort_values(["_p", "_m"], kind="stable").index].reset_index(drop=True)
+    elif pooled and len(models) > 1:
+        out.insert(0, "pooled_over", _pooled_text(models))
+    return tag(out, s)
 
 
 def pc_lookup(pc: pd.DataFrame, precision: str, defense: str):
+    """The p_c row of one model at (precision, defense); None when there is none. A table of
+    several models has several such rows: refused (select one model's rows first)."""
     g = pc[(pc["precision"] == precision) & (pc["defense"] == defense)]
+    if len(g) > 1:
+        raise ValueError(f"p_c of {len(g)} models at {precision}/{defense}: look it up in one model's rows")
     return None if g.empty else g.iloc[0]
 
 
-def model_bits(df: pd.DataFrame, precision: str, sh_degree: int = DEFAULT_SH_DEGREE) -> float:
-    """Stored bits of the deployed model(s): the mean over scenes of the largest primitive count
-    of the single-upset campaign (size campaigns subsample) x components x bits per value."""
+def stored_bits(n_primitives: float, precision: str, sh_degree: int = DEFAULT_SH_DEGREE) -> float:
+    """Stored bits of a model: primitives x components x bits per value."""
+    return float(n_primitives) * n_components(sh_degree) * encoding.BITS[precision]
+
+
+def model_bits(df: pd.DataFrame, precision: str, sh_degree: int = DEFAULT_SH_DEGREE, scene: str | None = None) -> float:
+    """Stored bits of one deployed model: the largest primitive count of the single-upset campaign
+    (size campaigns subsample), of `scene` when named, x components x bits per value. Records of
+    several scenes and no scene named: ValueError (a mean over scenes is the size of none)."""
     d = prepare(df)
     single = d[d["campaign"] == "single"]
     d = single if len(single) else d
-    n = d.groupby("scene")["n_primitives"].max().mean()
-    return float(n) * n_components(sh_degree) * encoding.BITS[precision]
+    if scene is not None:
+        d = d[d["scene"] == scene]
+        if d.empty:
+            raise ValueError(f"no records of scene {scene!r}")
+    scenes = list(dict.fromkeys(d["scene"]))
+    if len(scenes) > 1:
+        raise ValueError(f"records of {len(scenes)} scenes ({', '.join(scenes)}): name the scene whose bits you want")
+    return stored_bits(d["n_primitives"].max(), precision, sh_degree)
 
 
 def mtbf(rate_per_bit_hour: float, bits: float, p: float, scrub_hours: float) -> float:
@@ -184,9 +255,15 @@ def mtbf_table(
     defenses: tuple[str, ...] = ("none", "guard"),
     dose_p: dict | None = None,
 ) -> pd.DataFrame:
-    """MTBF per environment and defense from p_c (single-upset, stratified) and, where given,
-    from the dose fit (dose_p[defense] = (p, lo, hi) as proportions); bounds from the p interval
-    (no event: unbounded above)."""
+    """MTBF per environment and defense of one model of `bits` stored bits, from its p_c
+    (single-upset, stratified) and, where given, its dose fit (dose_p[defense] = (p, lo, hi) as
+    proportions); bounds from the p interval (no event: unbounded above). `pc` holds one model's
+    rows: a p_c pooled over models, or the rows of several, is refused (`reliability` calls this
+    once per model)."""
+    if "pooled_over" in pc:
+        raise ValueError(f"p_c pooled over {pc['pooled_over'].iloc[0]}: an MTBF needs one model's p_c and bits")
+    if all(c in pc for c in MODEL) and len(pc[MODEL].drop_duplicates()) > 1:
+        raise ValueError("p_c of several models: an MTBF needs one model's p_c and its own bits (select its rows)")
     rows = []
     sources = []
     for dfn in defenses:
@@ -223,97 +300,199 @@ def mtbf_table(
     return out
 
 
+def _dose_p(dose_fits: pd.DataFrame | None, precision: str, scene: str, n: int) -> tuple[dict, list[str]]:
+    """dose_p[defense] = (p, lo, hi) of one model from the dose fits of its own scene: the fit at
+    its primitive count, else the scene's largest model's fit, which stands for the deployed model
+    (a note says so). Another scene's fit is never used."""
+    dose_p, notes = {}, []
+    if dose_fits is None or not len(dose_fits):
+        return dose_p, notes
+    f = dose_fits[(dose_fits["precision"] == precision) & (dose_fits["scene"].astype(str) == scene)]
+    for dfn, g in f.groupby("defense"):
+        same = g[g["n_primitives"] == n]
+        r = same.iloc[-1] if len(same) else g.sort_values("n_primitives").iloc[-1]
+        if not len(same):
+            notes.append(
+                f"dose fit p of {scene}/{dfn}: its fit at N = {int(r['n_primitives']):,} stands for the model "
+                f"of N = {int(n):,} (no dose run at that size)"
+            )
+        if np.isfinite(r["p_pct"]):
+            dose_p[dfn] = (r["p_pct"] / 100, r["p_lo_pct"] / 100, r["p_hi_pct"] / 100)
+    return dose_p, notes
+
+
+def _wide(mt: pd.DataFrame, index: list[str]) -> pd.DataFrame:
+    """The MTBF column per defense (p source), a row per `index` (environment, or model and
+    environment)."""
+    mt2 = mt.assign(col=mt["defense"] + " (" + mt["p_source"] + ")")
+    wide = mt2.pivot_table(index=index, columns="col", values="mtbf", aggfunc="first", sort=False)
+    wide = wide.reset_index()
+    wide.columns.name = None
+    wide.attrs.update(mt.attrs)
+    return wide
+
+
 def reliability(
     df: pd.DataFrame,
     manifests: Iterable[dict] = (),
-    bits: float | None = None,
+    bits: float | dict | None = None,
     precision: str | None = None,
     conf: float = 0.95,
     dose_fits: pd.DataFrame | None = None,
 ) -> dict:
     """p_c, the MTBF table (rates and scrub interval from the runs' spec or the defaults) and the
     inputs of the sensitivity figure. Returns {"pc", "mtbf", "mtbf_wide", "bits", "precision",
-    "scrub_hours", "rates", "rates_from", "dose_p", "notes"}."""
+    "scrub_hours", "rates", "rates_from", "dose_p", "notes", "models", "per_model"}.
+
+    One model (scene, n_primitives) in the single-upset records: bits is its stored bits (or the
+    `bits` given), dose_p[defense] its dose fit. Several: everything per model (module notes):
+    pc and mtbf have scene and n_primitives columns (mtbf also model_bits), mtbf_wide a row per
+    model and environment, bits and dose_p are dicts by model key (`models_of`; `bits` given as
+    such a dict overrides), and models lists {scene, n_primitives, key, label, bits, dose_p}."""
     manifests = list(manifests or ())
     pc = catastrophe_probability(df, conf)
     notes = []
     precision = precision or reference_precision(pc)
     deg = int(pc["sh_degree"].iloc[0])
-    if bits is None:
-        bits = model_bits(df, precision, deg)
     rates, scrub, rates_from = reliability_parameters(manifests)
-    dose_p = {}
-    if dose_fits is not None and len(dose_fits):
-        f = dose_fits[dose_fits["precision"] == precision]
-        for dfn, g in f.groupby("defense"):
-            # the largest model's fit stands for the deployed model
-            r = g.sort_values("n_primitives").iloc[-1]
-            if np.isfinite(r["p_pct"]):
-                dose_p[dfn] = (r["p_pct"] / 100, r["p_lo_pct"] / 100, r["p_hi_pct"] / 100)
+    models = models_of(df)
+    per_model = len(models) > 1
+    if per_model and bits is not None and not isinstance(bits, dict):
+        raise ValueError(f"records of {len(models)} models: give bits per model key ({', '.join(models['key'])})")
     for _, r in pc[pc["coverage_pct"] < 99.999].iterrows():
+        of = f"{r['scene']} (N = {int(r['n_primitives']):,}) " if per_model else ""
         notes.append(
-            f"p_c at {r['precision']}/{r['defense']} covers only "
+            f"p_c {of}at {r['precision']}/{r['defense']} covers only "
             f"{r['coverage_pct']:.1f}% of the stored bits (unsampled cells excluded)"
         )
-    mt = mtbf_table(pc, bits, precision, rates, scrub, dose_p=dose_p)
+    if per_model:
+        notes.append(
+            f"These records hold {len(models)} models (scene, primitive count): "
+            + ", ".join(f"{m.label} (N = {int(m.n_primitives):,})" for m in models.itertuples())
+            + ". p_c, stored bits, dose-fit p and MTBF are each model's own, never pooled: a p_c averaged "
+            "over models with their mean size would describe none of them (the claims table's p_c pools "
+            "them, weighted by stored bits, only to compare with the paper's single number)."
+        )
+    info, tables = [], []
+    for m in models.itertuples():
+        if per_model:
+            sub = pc[(pc["scene"] == m.scene) & (pc["n_primitives"] == m.n_primitives)].drop(columns=MODEL)
+            b = bits.get(m.key) if isinstance(bits, dict) else None
+        else:
+            sub, b = pc, bits
+        b = stored_bits(m.n_primitives, precision, deg) if b is None else float(b)
+        dp, dnotes = _dose_p(dose_fits, precision, m.scene, m.n_primitives)
+        notes.extend(dnotes)
+        if per_model and not (sub["precision"] == precision).any():
+            notes.append(f"{m.label}: no single-upset records at {precision}, no MTBF")
+            continue
+        mt = mtbf_table(sub, b, precision, rates, scrub, dose_p=dp)
+        if per_model:
+            for i, (c, v) in enumerate((("scene", m.scene), ("n_primitives", m.n_primitives), ("model_bits", b))):
+                mt.insert(i, c, v)
+        model = {"scene": m.scene, "n_primitives": int(m.n_primitives), "key": m.key, "label": m.label}
+        info.append({**model, "bits": b, "dose_p": dp})
+        tables.append(mt)
+    if dose_fits is not None and len(dose_fits):
+        f = dose_fits[dose_fits["precision"] == precision]
+        unused = sorted(set(f["scene"].astype(str)) - {m["scene"] for m in info})
+        if unused:
+            notes.append(
+                f"dose fits of {', '.join(unused)} not used: no single-upset records of that model at {precision} "
+                "(its p is never paired with another model's bits)"
+            )
+    one = None if per_model else info[0]  # one model: the tables it always had
+    mt = pd.concat(tables, ignore_index=True) if tables else pd.DataFrame()
+    mt.attrs.update(pc.attrs)
+    mt.attrs.update(precision=precision, model_bits=one["bits"] if one else {m["key"]: m["bits"] for m in info})
     d = prepare(df)
     used = d[(d["precision"] == precision) & d["defense"].isin(["none", "guard"]) & (d["k"] >= 1)]
     mt.attrs["provenance"] = provenance(used)
     wide = None
-    if len(mt):
-        mt2 = mt.assign(col=mt["defense"] + " (" + mt["p_source"] + ")")
-        wide = mt2.pivot_table(index="environment", columns="col", values="mtbf", aggfunc="first", sort=False)
-        wide = wide.reset_index()
-        wide.columns.name = None
-        wide.attrs.update(mt.attrs)
+    if len(mt) and one:
+        wide = _wide(mt, ["environment"])
+    elif len(mt):
+        label = {(m["scene"], m["n_primitives"]): m["label"] for m in info}
+        named = mt.assign(scene=[label[(a, int(b))] for a, b in zip(mt["scene"], mt["n_primitives"])])
+        wide = _wide(named, ["scene", "model_bits", "environment"])
     return {
         "pc": pc,
         "mtbf": mt,
         "mtbf_wide": wide,
-        "bits": bits,
+        "bits": one["bits"] if one else {m["key"]: m["bits"] for m in info},
         "precision": precision,
         "scrub_hours": scrub,
         "rates": rates,
         "rates_from": rates_from,
-        "dose_p": dose_p,
+        "dose_p": one["dose_p"] if one else {m["key"]: m["dose_p"] for m in info},
         "notes": notes,
+        "models": info,
+        "per_model": per_model,
     }
 
 
-def plot_sensitivity(res: dict):
-    """MTBF against the per-bit upset rate (log-log), per defense and p source, with the band from
-    the p interval; vertical lines mark the named environments."""
-    fig = figure(6.4, 4.2)
-    ax = fig.subplots()
+def _sensitivity_panel(ax, mt, pc, model: dict, precision: str, scrub: float, rates, colors: dict):
+    """One model's MTBF curves against the upset rate, per defense and p source, with the band
+    from the p interval."""
     lam = np.logspace(-16, -6, 120)
-    bits, scrub = res["bits"], res["scrub_hours"]
-    mt = res["mtbf"]
-    i = 0
+    bits, dose_p = model["bits"], model["dose_p"]
     for (dfn, src), g in mt.groupby(["defense", "p_source"], sort=False):
         r = g.iloc[0]
         p = r["p_pct"] / 100
-        c = f"C{i}"
-        i += 1
+        c = colors[(dfn, src)]
         y = np.array([mtbf(x, bits, p, scrub) for x in lam])
         lo_p = hi_p = None
         if src == "single-upset p_c":
-            ref = pc_lookup(res["pc"], res["precision"], dfn)
+            ref = pc_lookup(pc, precision, dfn)
             lo_p, hi_p = float(ref["ci_lo"]), float(ref["ci_hi"])
-        elif dfn in res["dose_p"]:
-            lo_p, hi_p = res["dose_p"][dfn][1], res["dose_p"][dfn][2]
+        elif dfn in dose_p:
+            lo_p, hi_p = dose_p[dfn][1], dose_p[dfn][2]
         ls = "-" if src.startswith("single") else "--"
         ax.plot(lam, np.where(np.isfinite(y), y, np.nan), ls, color=c, label=f"{dfn}, {src}")
         if lo_p is not None:
             a = np.array([mtbf(x, bits, hi_p, scrub) for x in lam])
             b = np.array([mtbf(x, bits, lo_p, scrub) for x in lam])
             ax.fill_between(lam, a, np.where(np.isfinite(b), b, 1e12), color=c, alpha=0.12, lw=0)
-    for env in res["rates"]:
+    for env in rates:
         ax.axvline(float(env["per_bit_hour"]), color="grey", ls=":", lw=0.8)
         ax.text(float(env["per_bit_hour"]), 1e-2, env["environment"], rotation=90, fontsize=6, va="bottom")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_ylim(1e-3, 1e10)
-    ax.set_xlabel("upset rate per stored bit per hour")
-    ax.set_ylabel(f"MTBF of catastrophic frames (h), scrub every {scrub:g} h")
-    ax.legend(fontsize=6)
+
+
+def plot_sensitivity(res: dict):
+    """MTBF against the per-bit upset rate (log-log), per defense and p source, with the band from
+    the p interval; vertical lines mark the named environments. Several models: a panel each (its
+    own p and bits; colours mean the same defense and p source in every panel)."""
+    mt, scrub, prec = res["mtbf"], res["scrub_hours"], res["precision"]
+    keys = list(dict.fromkeys(zip(mt["defense"], mt["p_source"])))
+    colors = {k: f"C{i}" for i, k in enumerate(keys)}
+    ylabel = f"MTBF of catastrophic frames (h), scrub every {scrub:g} h"
+    if not res.get("per_model"):
+        fig = figure(6.4, 4.2)
+        ax = fig.subplots()
+        _sensitivity_panel(ax, mt, res["pc"], res["models"][0], prec, scrub, res["rates"], colors)
+        ax.set_xlabel("upset rate per stored bit per hour")
+        ax.set_ylabel(ylabel)
+        ax.legend(fontsize=6)
+        return fig
+    models = res["models"]
+    ncols = min(len(models), 3)
+    nrows = -(-len(models) // ncols)
+    fig = figure(3.6 * ncols + 0.6, 3.6 * nrows + 0.4)
+    axes = np.atleast_1d(fig.subplots(nrows, ncols, sharex=True, sharey=True, squeeze=False)).ravel()
+    pc = res["pc"]
+    for ax, m in zip(axes, models):
+        g = mt[(mt["scene"] == m["scene"]) & (mt["n_primitives"] == m["n_primitives"])]
+        sub = pc[(pc["scene"] == m["scene"]) & (pc["n_primitives"] == m["n_primitives"])]
+        _sensitivity_panel(ax, g, sub, m, prec, scrub, res["rates"], colors)
+        ax.set_title(f"{m['label']}: {m['bits']:.3g} stored bits", fontsize=8)
+    for ax in axes[len(models) :]:
+        ax.set_visible(False)
+    for ax in axes[(nrows - 1) * ncols : len(models)]:
+        ax.set_xlabel("upset rate per stored bit per hour")
+    for ax in axes[::ncols]:
+        ax.set_ylabel(ylabel if nrows == 1 else "MTBF (h)")
+    axes[0].legend(fontsize=6)
     return fig
