@@ -22,3 +22,8 @@ class RunInUse(SeuwgpuError):
 
 class TooBig(SeuwgpuError):
     """The job would not fit the host's or the device's memory; the message says what would fit."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (`kill`, a batch scheduler's pre-emption or time limit) raised where the process is,
+    so that it stops as Ctrl-C stops it: parts and partial records written, locks released."""

@@ -170,9 +170,11 @@ def test_kill_and_resume_gives_the_uninterrupted_records(reference_run, tmp_path
     assert untimed == 0 and seconds > 0
 
 
-def test_interrupt_writes_the_parts_computed_and_resumes(reference_run, tmp_path):
-    """Ctrl-C (SIGINT) mid-run: exit 130 with a message, the parts already computed are on disk
-    whole (the part writer is closed on the way out), and a re-run completes the same records."""
+@pytest.mark.parametrize("sig, code, said", [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")])
+def test_interrupt_writes_the_parts_computed_and_resumes(reference_run, tmp_path, sig, code, said):
+    """Ctrl-C (SIGINT) or a scheduler's SIGTERM mid-run: exit 130 / 143 with a message, the parts
+    already computed are on disk whole (the part writer is closed on the way out), and a re-run
+    completes the same records."""
     spec, ref = reference_run
     spec_path = write_spec(tmp_path)
     run = tmp_path / "run"
@@ -181,11 +183,11 @@ def test_interrupt_writes_the_parts_computed_and_resumes(reference_run, tmp_path
     deadline = time.time() + 120
     while time.time() < deadline and len(list((run / "records").glob("part-*.parquet"))) < 1:
         time.sleep(0.05)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=120)
     if proc.returncode == 0:
         pytest.skip("the run finished before the interrupt landed")
-    assert proc.returncode == 130 and "interrupted" in err, err
+    assert proc.returncode == code and said in err, err
     parts = list((run / "records").glob("part-*.parquet"))
     assert parts and not list((run / "records").glob("*.tmp"))
     for path in parts:  # whole parts only

@@ -394,12 +394,44 @@ def test_console_entry_ignores_ctrl_c_while_the_interpreter_shuts_down(monkeypat
     from seuwgpu.apps.cli import console_main
 
     monkeypatch.setattr(sys, "argv", ["seuwgpu", "scene", "--list"])
-    before = signal.getsignal(signal.SIGINT)
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     try:
         assert console_main() == 0
         assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN
     finally:
-        signal.signal(signal.SIGINT, before)
+        signal.signal(signal.SIGINT, before[0])
+        signal.signal(signal.SIGTERM, before[1])
+
+
+def test_sigterm_stops_a_command_as_ctrl_c_does(monkeypatch, tmp_path, capsys):
+    """SIGTERM while a command runs raises Terminated (a KeyboardInterrupt) where it is, so the
+    command ends as Ctrl-C ends it (records kept), with exit 143 and one line."""
+    import os
+    import signal
+
+    from seuwgpu.apps import cli
+
+    def job(args):
+        os.kill(os.getpid(), signal.SIGTERM)
+        raise AssertionError("SIGTERM did not stop the command")
+
+    real = cli.build_parser
+
+    def parser():
+        p = real()
+        p._subparsers._group_actions[0].choices["scene"].set_defaults(func=job)
+        return p
+
+    monkeypatch.setattr(cli, "build_parser", parser)
+    monkeypatch.setattr(sys, "argv", ["seuwgpu", "scene", "--list"])
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    try:
+        assert cli.console_main() == 143
+    finally:
+        signal.signal(signal.SIGINT, before[0])
+        signal.signal(signal.SIGTERM, before[1])
+    assert capsys.readouterr().err.strip() == "seuwgpu scene: terminated (SIGTERM)"
 
 
 @pytest.fixture(scope="module")

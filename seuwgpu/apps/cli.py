@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seuwgpu.errors import InputError, SeuwgpuError
+from seuwgpu.errors import InputError, SeuwgpuError, Terminated
 from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.model.encoding import PRECISIONS
 from seuwgpu.model.formats import UP_AXES, model_label
@@ -1236,10 +1236,11 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
         kept = " (completed parts are kept; re-run to resume)" if args.command in ("campaign", "demo") else ""
-        print(f"seuwgpu {args.command}: interrupted{kept}", file=sys.stderr)
-        return 130
+        how, code = ("terminated (SIGTERM)", 143) if isinstance(e, Terminated) else ("interrupted", 130)
+        print(f"seuwgpu {args.command}: {how}{kept}", file=sys.stderr)
+        return code
     except (SeuwgpuError, ValueError) as e:  # the project's errors, and plain ValueErrors naming a bad value
         print(f"seuwgpu {args.command}: error: {e}", file=sys.stderr)
         return 2
@@ -1263,11 +1264,21 @@ def console_main() -> int:
     """The `seuwgpu` command (and `python -m seuwgpu`): `main`, then Ctrl-C is ignored while the
     interpreter shuts down (releasing the GPU device, joining writer threads): the work is done
     and its exit status stands. An interrupt landing there used to kill the process with SIGINT
-    (exit -2 to its parent) after a campaign had finished and written everything."""
+    (exit -2 to its parent) after a campaign had finished and written everything.
+
+    SIGTERM (`kill`, SLURM or Kubernetes stopping a job) stops a command as Ctrl-C does (exit 143,
+    what was measured kept): by default it ended the process at once, without writing the part in
+    hand or a storm's or state's partial records."""
     import signal
 
+    def terminate(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one orderly stop, not one per signal
+        raise Terminated()
+
+    signal.signal(signal.SIGTERM, terminate)
     code = main()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     return code
 
 
