@@ -213,21 +213,21 @@ def _spec_file(table, key, where, base_dir: Path | None) -> str:
 
 def content_files(key: str, path) -> list[Path]:
     """The files whose content a spec's `model` or `cameras` entry stands for: the model file (an
-    INRIA output folder: its last iteration's PLY), or the camera files read_cameras reads."""
+    INRIA output folder: its last iteration's PLY; an unbundled SOG: its meta.json and images), or
+    the camera files read_cameras reads."""
     from seuwgpu.model.cameras import camera_files
-    from seuwgpu.model.formats import inria_output_model
+    from seuwgpu.model.formats import model_files
 
     path = Path(path)
     if key == "cameras":
         return camera_files(path)
-    if path.is_dir():
-        ply = inria_output_model(path)
-        if ply == path:
-            raise SpecError(
-                f"model {path} is a folder, not a model file (and holds no point_cloud/iteration_*/point_cloud.ply)"
-            )
-        return [ply]
-    return [path]
+    files = model_files(path)
+    if files == [path] and path.is_dir():
+        raise SpecError(
+            f"model {path} is a folder, not a model file (and holds no point_cloud/iteration_*/point_cloud.ply "
+            "or SOG meta.json)"
+        )
+    return files
 
 
 def content_hash(key: str, path) -> str:

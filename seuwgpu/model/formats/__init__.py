@@ -7,9 +7,11 @@
 | Niantic SPZ v1-v4 (`.spz`) | gzip header / NGSP magic | spz.py (v4: zstandard) | +y |
 | antimatter15 `.splat` | no header: size % 32 == 0, plausible records | splat.py | -y |
 | gsplat checkpoint (`.pt`) | zip / pickle magic | gsplat.py (torch) | -y |
+| GaussianSplats3D `.ksplat` (v0.1, levels 0-2) | its header, sizes adding up to the file's | ksplat.py | -y |
+| PlayCanvas SOG v2 (`.sog` zip; `meta.json` + WebP) | zip holding meta.json; JSON with "means" | sog.py (Pillow) | -y |
 
 The up axis is the file format's convention, used to frame a model when no cameras are given:
-SPZ stores RUB axes (y up); PLY, .splat and gsplat models live in their capture's COLMAP world,
+SPZ stores RUB axes (y up); PLY, .splat, .ksplat, SOG and gsplat models live in their capture's COLMAP world,
 which follows the first camera (x right, y down), so -y is up; viewers such as SuperSplat make
 the same assumption. A PLY written by seuwgpu records its up axis in a `comment up +z` line (the
 embedded scenes are z up); `--up` overrides all of this.
@@ -25,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from seuwgpu.model.fields import FIELDS, Model
-from seuwgpu.model.formats import compressed_ply, gsplat, ply, spz
+from seuwgpu.model.formats import compressed_ply, gsplat, ksplat, ply, sog, spz
 from seuwgpu.model.formats import splat as splat_format
 from seuwgpu.model.formats.errors import ModelFileError, NonFiniteWarning
 
@@ -37,6 +39,7 @@ __all__ = [
     "NonFiniteWarning",
     "detect_format",
     "load_model",
+    "model_files",
     "nonfinite_counts",
     "read_model",
     "save_model",
@@ -48,8 +51,15 @@ FORMATS = {
     "spz": "Niantic SPZ",
     "splat": "antimatter15 .splat",
     "gsplat": "gsplat checkpoint",
+    "ksplat": "GaussianSplats3D .ksplat",
+    "sog": "PlayCanvas SOG",
 }
-UP = {"ply": "-y", "compressed-ply": "-y", "spz": "+y", "splat": "-y", "gsplat": "-y"}
+UP = {"ply": "-y", "compressed-ply": "-y", "spz": "+y", "splat": "-y", "gsplat": "-y", "ksplat": "-y", "sog": "-y"}
+KSPLAT_LEVELS = {
+    0: "float32, 8-bit colour and opacity",
+    1: "16-bit positions in buckets, float16 scales, rotations and SH, 8-bit colour and opacity",
+    2: "16-bit positions in buckets, float16 scales and rotations, 8-bit colour, opacity and SH",
+}
 UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
 ANTIALIASED_NOTE = "trained antialiased (mip-splatting): rendered here without the opacity compensation"
 
@@ -76,12 +86,12 @@ def model_label(path) -> str:
     the folder's name: every INRIA output holds a point_cloud.ply, and two captures labelled
     "point_cloud" would be pooled as one scene."""
     p = Path(path)
-    if p.is_dir():
-        return p.resolve().name
+    if p.is_dir() or p.name == "meta.json":  # an INRIA output or unbundled SOG folder
+        return p.resolve().parent.name if p.name == "meta.json" else p.resolve().name
     if p.name == "point_cloud.ply" and p.parent.name.startswith("iteration_") and p.parent.parent.name == "point_cloud":
         return p.resolve().parents[2].name
     name = p.name
-    for suffix in (".compressed.ply", ".ply", ".spz", ".splat", ".pt", ".pth", ".ckpt"):
+    for suffix in (".compressed.ply", ".ply", ".spz", ".splat", ".ksplat", ".sog", ".pt", ".pth", ".ckpt"):
         if name.lower().endswith(suffix):
             return name[: -len(suffix)]
     return p.stem
@@ -93,7 +103,11 @@ def detect_format(path) -> str:
     if not os.path.exists(spath):
         raise FileNotFoundError(f"{spath}: no such file")
     if os.path.isdir(spath):
-        raise ModelFileError(f"{spath}: is a folder without point_cloud/iteration_*/point_cloud.ply (INRIA output)")
+        if os.path.isfile(os.path.join(spath, "meta.json")):
+            return "sog"
+        raise ModelFileError(
+            f"{spath}: is a folder without point_cloud/iteration_*/point_cloud.ply (INRIA output) or meta.json (SOG)"
+        )
     if not os.path.isfile(spath):  # reading a pipe would wait for a writer forever
         raise ModelFileError(f"{spath}: not a regular file (a pipe or device cannot be read as a model)")
     size = os.path.getsize(spath)
@@ -103,6 +117,19 @@ def detect_format(path) -> str:
         return "compressed-ply" if compressed_ply.is_compressed_ply(ply.read_header(spath)) else "ply"
     if spz.is_spz(head):
         return "spz"
+    if head[:4] == b"PK\x03\x04" and sog.zip_has_meta(spath):
+        return "sog"
+    if head[:4] == b"PK\x03\x04" and spath.lower().endswith(".sog"):
+        raise sog.SogError(f"{spath}: not a SOG: {sog.zip_problem(spath)}")
+    if sog.is_sog_meta(head):
+        return "sog"
+    if spath.lower().endswith(".ksplat"):
+        why = ksplat.ksplat_problem(spath)
+        if why:
+            raise ksplat.KsplatError(f"{spath}: not a .ksplat this reader takes: {why}")
+        return "ksplat"
+    if ksplat.looks_like_ksplat(spath, head):
+        return "ksplat"
     if gsplat.is_torch_file(head):
         why = gsplat.zip_problem(spath) if head[:4] == b"PK\x03\x04" else None
         if why:
@@ -116,7 +143,7 @@ def detect_format(path) -> str:
     if splat_format.looks_like_splat(size, head):
         return "splat"
     raise ModelFileError(
-        f"{spath}: unrecognised model file (not a PLY, SPZ, .splat or PyTorch checkpoint; a .splat file, "
+        f"{spath}: unrecognised model file (not a PLY, SPZ, .splat, .ksplat, SOG or PyTorch checkpoint; a .splat file, "
         "which has no header, is recognised by its extension); "
         f"supported: {', '.join(FORMATS.values())}"
     )
@@ -133,9 +160,13 @@ def _ply_up(header: ply.PlyHeader) -> str | None:
 def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
     """Load any supported model file (see the module table). Raises ModelFileError (a ValueError)
     naming the file and the problem; warns (NonFiniteWarning) when the model holds NaN or Inf."""
-    spath = os.fspath(inria_output_model(path) if os.path.isdir(path) else path)
+    sog_folder = os.path.isdir(path) and os.path.isfile(os.path.join(path, "meta.json"))
+    if sog_folder:
+        spath = os.path.join(os.fspath(path), "meta.json")
+    else:
+        spath = os.fspath(inria_output_model(path) if os.path.isdir(path) else path)
     fmt = detect_format(spath)
-    notes: list[str] = [inria_iteration_note(path)] if os.path.isdir(path) else []
+    notes: list[str] = [inria_iteration_note(path)] if os.path.isdir(path) and not sog_folder else []
     up = UP[fmt]
     if fmt in ("ply", "compressed-ply"):
         header = ply.read_header(spath)
@@ -153,6 +184,20 @@ def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
             notes.append(ANTIALIASED_NOTE)
     elif fmt == "splat":
         model = splat_format.read_splat(spath)
+    elif fmt == "ksplat":
+        model, kinfo = ksplat.read_ksplat(spath)
+        notes.append(f"ksplat v{kinfo.version}, compression level {kinfo.level} ({KSPLAT_LEVELS[kinfo.level]})")
+    elif fmt == "sog":
+        model, sinfo = sog.read_sog(spath)
+        palette = f", SH palette of {sinfo.palette}" if sinfo.bands else ""
+        quantised = f"16-bit log positions, 8-bit rotations, 256-entry codebooks{palette}"
+        notes.append(f"SOG version {sinfo.version} (quantised: {quantised})")
+        if sinfo.model == "antialiased":
+            notes.append(ANTIALIASED_NOTE)
+        elif sinfo.model != "default":
+            notes.append(
+                sog.MODEL_NOTES.get(sinfo.model, f"unrecognised model {sinfo.model!r} in meta.json, read as default")
+            )
     else:
         model = gsplat.read_gsplat(spath)
     check_renderable(model, spath)
@@ -188,6 +233,20 @@ def inria_iteration_note(folder) -> str:
     it, p = found[-1]
     last = f", the last of {len(found)}" if len(found) > 1 else ""
     return f"iteration {it} ({p.relative_to(folder).as_posix()}{last})"
+
+
+def model_files(path) -> list[Path]:
+    """The files a model path stands for: the file itself, an INRIA output folder's last PLY, or
+    an unbundled SOG's meta.json and its images (what a campaign hashes to know its model). A
+    folder that is neither comes back as itself (read_model refuses it with the reason)."""
+    p = Path(path)
+    if p.is_dir() and (p / "meta.json").is_file():
+        p = p / "meta.json"
+    elif p.is_dir():
+        return [inria_output_model(p)]
+    if p.is_file() and p.suffix.lower() == ".json" and sog.is_sog_meta(p.read_bytes()[:4096]):
+        return sog.unbundled_files(p)
+    return [p]
 
 
 def load_model(path) -> Model:

@@ -1,0 +1,293 @@
+"""PlayCanvas SOG (`.sog`, or an unbundled `meta.json` next to its WebP images): read version 2.
+
+Layout (github playcanvas/splat-transform 3.7.0: src/lib/writers/write-sog.ts writes it,
+src/lib/readers/read-sog.ts reads it): a zip (`.sog`) or a folder holding `meta.json` and
+lossless WebP images of W x H texels, texel i (row-major) holding splat i:
+
+- `meta.json`: {"version": 2, "count": N, "model"?: "antialiased" | "2dgs", "means": {"mins",
+  "maxs", "files": [low, high]}, "scales": {"codebook", "files"}, "quats": {"files"}, "sh0":
+  {"codebook", "files"}, "shN"?: {"count", "bands", "codebook", "files": [centroids, labels]}}.
+- means: 16 bits per axis (low byte in the first image, high in the second) over [min, max] of
+  the log-transformed position, v = min + (max - min) * u / 65535, x = sign(v) (exp|v| - 1).
+- quats: "smallest three" in 8 bits: RGB = the three other components in (w, x, y, z) order,
+  (b / 255 * 2 - 1) / sqrt(2); A = 252 + the index of the largest, which is sqrt(1 - sum of
+  the others' squares) >= 0 (any other A: the identity, as the reference decodes it).
+- scales (log-scales) and sh0 (SH DC): an index into a 256-entry codebook per component; sh0's
+  A is the opacity, sigmoid(opacity) * 255 (truncated by the writer).
+- shN: a 16-bit palette label per splat (R low, G high); the centroids image holds 64 palette
+  entries a row, `coefficients` texels each, whose R, G, B index a 256-entry codebook (one
+  coefficient of the red, green, blue channel).
+
+Decoded as read-sog.ts decodes it, in float64 and rounded once to float32, with the one
+deliberate difference of every quantised reader here: an alpha byte of 0 or 255 gives a logit of
+-+20 (quantized.py), where splat-transform clamps to 1e-6 (-+13.8). Coordinates are those of the
+PLY the file was made from (splat-transform's PLY frame; COLMAP-style, y down). Version 1 (a
+meta.json without "version", written by splat-transform before 0.7, September 2025) is refused
+with a message saying how to convert it.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from seuwgpu.model.fields import Model
+from seuwgpu.model.formats.errors import ModelFileError
+from seuwgpu.model.formats.quantized import finite_logit
+
+SH_COEFFICIENTS = {1: 3, 2: 8, 3: 15}
+PALETTE_ROW = 64  # palette entries per row of the centroids image
+# notes for meta.json's `model` ("antialiased" gets the note every format gives it)
+MODEL_NOTES = {"2dgs": "trained as 2D Gaussians (2DGS): rendered here as 3D Gaussians"}
+
+
+class SogError(ModelFileError):
+    """A SOG file or folder that cannot be read."""
+
+
+@dataclass
+class SogInfo:
+    version: int
+    count: int
+    bands: int
+    palette: int
+    bundled: bool
+    model: str
+
+
+def zip_has_meta(path) -> bool:
+    """A zip archive holding meta.json at its root: a bundled SOG."""
+    return zip_problem(path) is None
+
+
+def zip_problem(path) -> str | None:
+    """Why a zip archive is no bundled SOG (None when it holds meta.json at its root)."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = z.namelist()
+    except (zipfile.BadZipFile, OSError) as e:
+        return f"a broken zip archive ({e}; truncated?)"
+    if "meta.json" in names:
+        return None
+    shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
+    return f"a zip without meta.json (it holds {shown or 'nothing'}); a SOG is a zip of meta.json and WebP images"
+
+
+def is_sog_meta(head: bytes) -> bool:
+    """The start of a SOG meta.json: a JSON object naming "means" or "version"."""
+    text = head.lstrip(b"\xef\xbb\xbf \t\r\n")
+    return text[:1] == b"{" and (b'"means"' in head or b'"version"' in head)
+
+
+def unbundled_files(meta_path) -> list[Path]:
+    """An unbundled SOG's meta.json and the images it lists (those present), in that order."""
+    meta_path = Path(meta_path)
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8-sig"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return [meta_path]
+    names = []
+    for key in ("means", "quats", "scales", "sh0", "shN"):
+        entry = meta.get(key) if isinstance(meta, dict) else None
+        files = entry.get("files") if isinstance(entry, dict) else None
+        names += [n for n in files if isinstance(n, str)] if isinstance(files, list) else []
+    return [meta_path] + [meta_path.parent / n for n in names if (meta_path.parent / n).is_file()]
+
+
+class _Files:
+    """The meta.json and images of a bundled (zip) or unbundled (folder) SOG."""
+
+    def __init__(self, path: str):
+        self.path = path
+        self.zip = None
+        if zipfile.is_zipfile(path):
+            try:
+                self.zip = zipfile.ZipFile(path)
+            except (zipfile.BadZipFile, OSError) as e:
+                raise SogError(f"{path}: a broken zip archive ({e})") from None
+            if "meta.json" not in self.zip.namelist():
+                raise SogError(f"{path}: a .sog zip without meta.json (it holds {', '.join(self.zip.namelist()[:5])})")
+            self.base = None
+        else:
+            self.base = Path(path).parent
+
+    def meta_bytes(self) -> bytes:
+        if self.zip is not None:
+            return self._zip_read("meta.json")
+        return Path(self.path).read_bytes()
+
+    def _zip_read(self, name: str) -> bytes:
+        try:
+            return self.zip.read(name)
+        except KeyError:
+            raise SogError(f"{self.path}: the SOG zip lacks {name}, which meta.json lists") from None
+        except (zipfile.BadZipFile, OSError, EOFError) as e:
+            raise SogError(f"{self.path}: {name} in the SOG zip cannot be read ({e}; truncated?)") from None
+
+    def image(self, name, count: int, what: str) -> tuple[np.ndarray, int, int]:
+        """The RGBA texels [W*H, 4] (uint8) of image `name`, its width and height."""
+        if not isinstance(name, str):
+            raise SogError(f"{self.path}: SOG meta.json names {what}'s image as {name!r}, not a file name")
+        if self.zip is not None:
+            data = self._zip_read(name)
+        else:
+            p = self.base / name
+            if not p.is_file():
+                raise SogError(f"{self.path}: SOG image {name} ({what}) is missing from {self.base}")
+            data = p.read_bytes()
+        from PIL import Image, features
+
+        if not features.check("webp"):
+            raise SogError(f"{self.path}: this Pillow was built without WebP support, which SOG images need")
+        try:
+            with Image.open(io.BytesIO(data), formats=["WEBP"]) as im:
+                w, h = im.size
+                rgba = np.asarray(im.convert("RGBA"), dtype=np.uint8).reshape(-1, 4)
+        except (OSError, ValueError, SyntaxError) as e:
+            raise SogError(f"{self.path}: SOG image {name} ({what}) is no readable WebP image ({e})") from None
+        if w * h < count:
+            raise SogError(
+                f"{self.path}: SOG image {name} ({what}) has {w} x {h} texels, fewer than its {count} splats"
+            )
+        return rgba, w, h
+
+
+def _get(meta: dict, path: str, where: str):
+    v = meta
+    for key in path.split("."):
+        if not isinstance(v, dict) or key not in v:
+            raise SogError(f"{where}: SOG meta.json lacks {path}")
+        v = v[key]
+    return v
+
+
+def _numbers(meta: dict, path: str, where: str, length: int) -> np.ndarray:
+    v = _get(meta, path, where)
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        a = None
+    if a is None or a.shape != (length,):
+        raise SogError(f"{where}: SOG meta.json {path} must be {length} numbers")
+    return a
+
+
+def _files(meta: dict, key: str, where: str, k: int) -> list:
+    v = _get(meta, f"{key}.files", where)
+    if not isinstance(v, list) or len(v) < k:
+        raise SogError(f"{where}: SOG meta.json {key}.files must list {k} image(s)")
+    return v
+
+
+def _quats(q: np.ndarray) -> np.ndarray:
+    n = len(q)
+    tag = q[:, 3].astype(np.int64)
+    valid = (tag >= 252) & (tag <= 255)
+    largest = np.where(valid, tag - 252, 0)
+    abc = (q[:, :3].astype(np.float64) / 255.0 * 2.0 - 1.0) / math.sqrt(2.0)
+    # the three stored components fill the slots other than the largest, in order
+    others = np.array([[j for j in range(4) if j != m] for m in range(4)])[largest]  # [N, 3]
+    quats = np.zeros((n, 4))
+    rows = np.arange(n)[:, None]
+    quats[rows, others] = abc
+    quats[np.arange(n), largest] = np.sqrt(np.maximum(0.0, 1.0 - (abc * abc).sum(axis=1)))
+    quats[~valid] = (1.0, 0.0, 0.0, 0.0)
+    return quats
+
+
+def read_sog(path) -> tuple[Model, SogInfo]:
+    """Read a bundled .sog (zip), an unbundled meta.json or a folder holding one."""
+    spath = os.fspath(path)
+    if os.path.isdir(spath):
+        spath = os.path.join(spath, "meta.json")
+    files = _Files(spath)
+    try:
+        meta = json.loads(files.meta_bytes().decode("utf-8-sig"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise SogError(f"{spath}: SOG meta.json is not valid JSON ({e})") from None
+    if not isinstance(meta, dict):
+        raise SogError(f"{spath}: SOG meta.json must hold a JSON object")
+    version = meta.get("version")
+    if version is None:
+        raise SogError(
+            f'{spath}: SOG version 1 (a meta.json without "version", written by splat-transform before 0.7) '
+            "is not supported; convert it with splat-transform 3.x (`splat-transform meta.json out.sog`)"
+        )
+    if version != 2:
+        raise SogError(
+            f"{spath}: unsupported SOG version {version!r} (this reader takes version 2, what splat-transform writes)"
+        )
+    n = meta.get("count")
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise SogError(f"{spath}: SOG meta.json count must be a positive integer, got {n!r}")
+
+    lo_name, hi_name = _files(meta, "means", spath, 2)[:2]
+    lo = files.image(lo_name, n, "means, low bytes")[0][:n, :3].astype(np.int64)
+    hi = files.image(hi_name, n, "means, high bytes")[0][:n, :3].astype(np.int64)
+    mins = _numbers(meta, "means.mins", spath, 3)
+    maxs = _numbers(meta, "means.maxs", spath, 3)
+    span = np.where(maxs - mins != 0, maxs - mins, 1.0)  # as the reference: a zero range scales by 1
+    v = mins + span * ((lo | (hi << 8)) / 65535.0)
+    means = np.sign(v) * (np.exp(np.abs(v)) - 1.0)  # the reference's exp(|v|) - 1, not expm1
+
+    quats = _quats(files.image(_files(meta, "quats", spath, 1)[0], n, "quats")[0][:n])
+
+    scale_book = _numbers(meta, "scales.codebook", spath, 256).astype(np.float32)
+    log_scales = scale_book[files.image(_files(meta, "scales", spath, 1)[0], n, "scales")[0][:n, :3]]
+
+    dc_book = _numbers(meta, "sh0.codebook", spath, 256).astype(np.float32)
+    sh0 = files.image(_files(meta, "sh0", spath, 1)[0], n, "sh0")[0][:n]
+    alpha = sh0[:, 3].astype(np.float64) / 255.0
+    with np.errstate(divide="ignore"):
+        opacity = finite_logit(np.log(alpha / (1.0 - alpha)))
+
+    bands, palette, sh_rest = 0, 0, np.zeros((n, 0, 3), np.float32)
+    if meta.get("shN") is not None:
+        bands = _get(meta, "shN.bands", spath)
+        if bands not in (0, 1, 2, 3) or isinstance(bands, bool):
+            raise SogError(f"{spath}: SOG meta.json shN.bands is {bands!r} (0-3 expected)")
+    if bands:
+        sh_rest, palette = _sh_rest(meta, files, spath, n, bands)
+
+    model_name = meta.get("model", "default")
+    model = Model(
+        means=means,
+        log_scales=log_scales,
+        quats=quats,
+        opacity=opacity,
+        sh_dc=dc_book[sh0[:, :3]],
+        sh_rest=sh_rest,
+    )
+    return model, SogInfo(2, n, bands, palette, files.zip is not None, str(model_name))
+
+
+def _sh_rest(meta, files: _Files, spath: str, n: int, bands: int) -> tuple[np.ndarray, int]:
+    k = SH_COEFFICIENTS[bands]
+    palette = _get(meta, "shN.count", spath)
+    if not isinstance(palette, int) or isinstance(palette, bool) or palette < 1:
+        raise SogError(f"{spath}: SOG meta.json shN.count must be a positive integer, got {palette!r}")
+    book = _numbers(meta, "shN.codebook", spath, 256).astype(np.float32)
+    cen_name, lab_name = _files(meta, "shN", spath, 2)[:2]
+    cen, cw, ch = files.image(cen_name, 0, "shN centroids")
+    if cw != PALETTE_ROW * k:
+        raise SogError(
+            f"{spath}: SOG shN centroids image is {cw} texels wide; {PALETTE_ROW * k} expected for SH degree {bands}"
+        )
+    lab = files.image(lab_name, n, "shN labels")[0][:n].astype(np.int64)
+    label = lab[:, 0] | (lab[:, 1] << 8)
+    held = min(palette, ch * PALETTE_ROW)  # palette entries the centroids image holds
+    bad = label >= held
+    if bad.any():
+        raise SogError(
+            f"{spath}: SOG shN label {int(label[bad].max())} is beyond the palette ({palette} entries, "
+            f"{ch * PALETTE_ROW} in the centroids image)"
+        )
+    entries = cen.reshape(ch, PALETTE_ROW, k, 4).reshape(ch * PALETTE_ROW, k, 4)
+    return book[entries[label, :, :3]], palette  # [N, k, 3]: coefficient-major, channel innermost
