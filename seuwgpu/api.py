@@ -86,7 +86,7 @@ def load_model(
 ) -> Scene:
     """An embedded scene by name (`list_scenes()`: procedural ones and two real captures) or any
     supported model file or INRIA output folder, recognised by content (INRIA PLY, compressed PLY,
-    .splat, .spz, gsplat .pt). `n`, `sh_degree` and `seed` shape embedded scenes (`n` with a
+    .splat, .spz, .ksplat, SOG, gsplat .pt). `n`, `sh_degree` and `seed` shape embedded scenes (`n` with a
     file is refused: a model file keeps all of its primitives); `up` overrides
     the up axis used to frame the model without cameras ("+z", "-y", ...)."""
     if not isinstance(source, (str, Path)):

@@ -104,8 +104,8 @@ def add_model_args(p: argparse.ArgumentParser):
         "--ply",
         dest="model",
         type=Path,
-        help="a 3DGS model file: INRIA PLY, compressed PLY, .spz, .splat or a gsplat .pt (recognised by "
-        "content; a .splat, which has no header, by its extension)",
+        help="a 3DGS model file: INRIA PLY, compressed PLY, .spz, .splat, .ksplat, SOG (.sog, or meta.json or "
+        "its folder) or a gsplat .pt (recognised by content; a .splat, which has no header, by its extension)",
     )
     src.add_argument("--scene", help="an embedded scene (see `seuwgpu scene --list`)")
     p.add_argument(
@@ -1238,7 +1238,9 @@ def main(argv=None) -> int:
         return int(args.func(args) or 0)
     except KeyboardInterrupt as e:
         kept = " (completed parts are kept; re-run to resume)" if args.command in ("campaign", "demo") else ""
-        how, code = ("terminated (SIGTERM)", 143) if isinstance(e, Terminated) else ("interrupted", 130)
+        # Ray's ray.get turns any KeyboardInterrupt into a plain one: the flag says it was SIGTERM
+        term = isinstance(e, Terminated) or Terminated.received
+        how, code = ("terminated (SIGTERM)", 143) if term else ("interrupted", 130)
         print(f"seuwgpu {args.command}: {how}{kept}", file=sys.stderr)
         return code
     except (SeuwgpuError, ValueError) as e:  # the project's errors, and plain ValueErrors naming a bad value
@@ -1273,6 +1275,7 @@ def console_main() -> int:
 
     def terminate(signum, frame):
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one orderly stop, not one per signal
+        Terminated.received = True
         raise Terminated()
 
     signal.signal(signal.SIGTERM, terminate)
