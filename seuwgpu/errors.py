@@ -27,3 +27,5 @@ class TooBig(SeuwgpuError):
 class Terminated(KeyboardInterrupt):
     """SIGTERM (`kill`, a batch scheduler's pre-emption or time limit) raised where the process is,
     so that it stops as Ctrl-C stops it: parts and partial records written, locks released."""
+
+    received = False  # set by the handler: code that re-raises interrupts as plain ones (Ray) loses the type

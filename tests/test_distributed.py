@@ -258,3 +258,31 @@ def test_a_bad_upset_is_one_line_before_any_rank_starts(capsys):
         assert main(base + extra) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and why in err[0], err
+
+
+def test_init_ray_keeps_the_command_lines_sigterm_handler(monkeypatch):
+    """ray.init sets a SIGTERM handler that calls sys.exit (exit 15, no orderly stop); init_ray
+    puts back the one it found (the command line's: stop as Ctrl-C does, exit 143)."""
+    import signal
+    import types
+
+    from seuwgpu.campaign import ray as ray_exec
+
+    def rays_own(signum, frame):
+        raise SystemExit(signum)
+
+    def fake_init(**kw):
+        signal.signal(signal.SIGTERM, rays_own)
+
+    fake = types.SimpleNamespace(is_initialized=lambda: False, init=fake_init)
+    monkeypatch.setattr(ray_exec, "get_ray", lambda: fake)
+
+    def ours(signum, frame):
+        pass
+
+    before = signal.signal(signal.SIGTERM, ours)
+    try:
+        assert ray_exec.init_ray(num_cpus=1) is True
+        assert signal.getsignal(signal.SIGTERM) is ours
+    finally:
+        signal.signal(signal.SIGTERM, before)

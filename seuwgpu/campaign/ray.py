@@ -44,6 +44,8 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import threading
 import time
 from pathlib import Path
 
@@ -77,11 +79,16 @@ def init_ray(address: str | None = None, num_cpus: int | None = None, quiet: boo
     if ray.is_initialized():
         return False
     kw = {"logging_level": logging.WARNING if quiet else logging.INFO}
+    # ray.init replaces the SIGTERM handler with sys.exit; the command line's (apps/cli.py
+    # console_main: stop as Ctrl-C does, exit 143) is put back
+    on_term = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
     if address:
         check_reachable(address)
         ray.init(address=address, **kw)
     else:
         ray.init(num_cpus=num_cpus, include_dashboard=False, object_store_memory=256 * 1024**2, **kw)
+    if on_term is not None:
+        signal.signal(signal.SIGTERM, on_term)
     return True
 
 
