@@ -1234,6 +1234,7 @@ def main(argv=None) -> int:
     warnings.formatwarning = lambda msg, cat, *a, **k: f"seuwgpu: {cat.__name__}: {msg}\n"
     parser = build_parser()
     args = parser.parse_args(argv)
+    Terminated.received = False  # this command's SIGTERM only (main runs many times in one test process)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt as e:
