@@ -776,3 +776,22 @@ def test_prediction_importance_is_weighted_like_its_aucs():
     assert imp["bit"] > 0.05
     s = res["summary"]
     assert (s["test_positives_effective"] > 5).all() and not any("effective" in n for n in res["notes"])
+
+
+def test_the_bootstraps_auc_of_reweighted_records_is_sklearns():
+    """auc_interval scores a resample as the records reweighted by their draw counts, from tie
+    groups sorted once: that AUC is sklearn's roc_auc_score of the resampled records, ties and
+    weights included."""
+    from sklearn.metrics import roc_auc_score
+
+    rng = np.random.default_rng(6)
+    y = rng.random(3000) < 0.1
+    score = np.round(rng.normal(y * 0.8, 1), 1)  # many ties
+    w = rng.choice([0.2, 1.0, 7.0], y.size)
+    group, n = stats._tie_groups(score)
+    for _ in range(5):
+        i = rng.integers(0, y.size, y.size)
+        pos_w = np.bincount(group[i], w[i] * y[i], n)
+        neg_w = np.bincount(group[i], w[i] * ~y[i], n)
+        got = stats._auc_of_group_weights(pos_w, neg_w)
+        assert got == pytest.approx(roc_auc_score(y[i], score[i], sample_weight=w[i]), rel=1e-12)

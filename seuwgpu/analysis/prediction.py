@@ -73,7 +73,7 @@ def prediction(
     max_rows: int = 200_000,
     test_size: float = 0.3,
     n_repeats: int = 5,
-    n_boot: int = 200,
+    n_boot: int = 2000,
     n_threads: int | None = 1,
 ) -> dict:
     """Predict "catastrophic" from static fault-site features (single-upset campaign, no defense,

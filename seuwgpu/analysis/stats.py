@@ -184,26 +184,54 @@ def effective_size(weight) -> float:
     return float(np.sum(w)) ** 2 / s2 if s2 > 0 else 0.0
 
 
+def _tie_groups(score) -> tuple[np.ndarray, int]:
+    """Group index of each score among the distinct scores in ascending order, and their count."""
+    _, group = np.unique(score, return_inverse=True)
+    return group, int(group.max()) + 1 if group.size else 0
+
+
+def _auc_of_group_weights(pos_w, neg_w) -> float:
+    """Weighted AUC from the positive and negative weight of each tie group (ascending score): a
+    positive beats the negatives below it and half of those tied with it, as sklearn's
+    trapezoidal ROC area counts them."""
+    below = np.cumsum(neg_w) - neg_w
+    return float(np.sum(pos_w * (below + 0.5 * neg_w)) / (pos_w.sum() * neg_w.sum()))
+
+
 def auc_interval(
-    y, score, weight=None, n_boot: int = 200, conf: float = 0.95, seed: int = 0, min_effective=MIN_EFFECTIVE_EVENTS
+    y,
+    score,
+    weight=None,
+    n_boot: int = 2000,
+    conf: float = 0.95,
+    seed: int = 0,
+    min_effective=MIN_EFFECTIVE_EVENTS,
 ):
     """Percentile bootstrap interval of the (weighted) AUC; (lo, hi).
 
     Each class is resampled apart (its record count stays the one observed, as pROC's stratified
-    bootstrap), so no resample loses a class and none is dropped. NaN when either class's
-    effective size (`effective_size` of its weights) is below `min_effective`: a weighted AUC
-    carried by one or two heavy records has no bootstrap distribution worth the name (one heavy
-    positive ranked low gave [0.516, 1.0] around 0.614, half the resamples without it)."""
+    bootstrap), so no resample loses a class and none is dropped. A resample is the records
+    reweighted by how often it drew each, so the scores are sorted once and each resample's AUC
+    is a few sums (`_auc_of_group_weights`, sklearn's value): 2,000 resamples cost what 200 did,
+    and a verdict at the interval's edge does not move with the resampling noise (200 moved a
+    bound by 4e-4). NaN when either class's effective size (`effective_size` of its weights) is
+    below `min_effective`: a weighted AUC carried by one or two heavy records has no bootstrap
+    distribution worth the name (one heavy positive ranked low gave [0.516, 1.0] around 0.614,
+    half the resamples without it)."""
     y = np.asarray(y).astype(bool)
     score = np.asarray(score, dtype=float)
     w = np.ones(y.size) if weight is None else np.asarray(weight, float)
     if min(effective_size(w[y]), effective_size(w[~y])) < min_effective:
         return float("nan"), float("nan")
     rng = np.random.default_rng(seed)
+    group, n_groups = _tie_groups(score)
     pos, neg = np.flatnonzero(y), np.flatnonzero(~y)
     vals = np.empty(n_boot)
     for b in range(n_boot):
-        i = np.concatenate([pos[rng.integers(0, pos.size, pos.size)], neg[rng.integers(0, neg.size, neg.size)]])
-        vals[b] = auc(y[i], score[i], w[i])
+        drawn_pos = pos[rng.integers(0, pos.size, pos.size)]
+        drawn_neg = neg[rng.integers(0, neg.size, neg.size)]
+        pos_w = np.bincount(group[drawn_pos], w[drawn_pos], n_groups)
+        neg_w = np.bincount(group[drawn_neg], w[drawn_neg], n_groups)
+        vals[b] = _auc_of_group_weights(pos_w, neg_w)
     a = (1 - conf) / 2
     return float(np.quantile(vals, a)), float(np.quantile(vals, 1 - a))
