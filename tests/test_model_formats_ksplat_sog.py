@@ -174,6 +174,18 @@ def test_ksplat_damaged_without_its_extension_is_no_model(tmp_path):
         read_model(p)
 
 
+def test_ksplat_nan_sh_range_reads_as_the_librarys_default(tmp_path):
+    """The library reads the header's 8-bit SH range as `value || 1.5`: NaN, like 0, is unset.
+    Read as a range, NaN made every SH value NaN and the render NaN (robustness battery)."""
+    nan = struct.pack("<f", float("nan"))
+    unset = read_model(edited(tmp_path, "level2_sh2.ksplat", 36, bytes(8), out="zero.ksplat")).model
+    for data in (nan + nan, nan + struct.pack("<f", 0.0)):
+        m = read_model(edited(tmp_path, "level2_sh2.ksplat", 36, data, out="nan.ksplat")).model
+        assert np.isfinite(m.sh_rest).all()
+        np.testing.assert_array_equal(m.sh_rest, unset.sh_rest)
+    assert np.abs(unset.sh_rest).max() <= 1.5 and np.abs(unset.sh_rest).max() > 0.1  # the range -1.5..1.5
+
+
 # ------------------------------------------------------------------------------------------ SOG
 
 
@@ -306,6 +318,53 @@ def test_sog_malformed_zips_are_refused_in_one_line(tmp_path):
         with pytest.raises(ModelFileError, match=match) as e:
             read_model(tmp_path / name)
         assert "\n" not in str(e.value)
+
+
+def webp(width, height, claimed=None):
+    """A lossless WebP of zeros; `claimed`: the (width, height) its header says instead (VP8L's
+    14-bit fields), with no data for them."""
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(np.zeros((height, width, 4), np.uint8)).save(buf, "WEBP", lossless=True)
+    b = bytearray(buf.getvalue())
+    if claimed:
+        assert b[12:16] == b"VP8L"
+        bits = struct.unpack_from("<I", b, 21)[0] & ~0xFFFFFFF
+        struct.pack_into("<I", b, 21, bits | (claimed[0] - 1) | (claimed[1] - 1) << 14)
+    return bytes(b)
+
+
+def test_sog_image_too_large_to_read_is_refused_in_one_line(tmp_path):
+    """An image whose header claims more texels than Pillow decodes (16383 x 16383) raised
+    Pillow's DecompressionBombError, which escaped as a traceback (robustness battery)."""
+    d = sog_copy(tmp_path)
+    (d / "sh0.webp").write_bytes(webp(16, 16, claimed=(16383, 16383)))
+    with pytest.raises(ModelFileError, match=r"SOG image sh0.webp \(sh0\) is too large to read") as e:
+        read_model(d)
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize(
+    "name, image, shown",
+    [
+        ("sh0.webp", webp(16, 16, claimed=(12000, 9000)), "12000 x 9000"),
+        ("quats.webp", webp(32, 16), "32 x 16"),
+        ("shN_labels.webp", webp(16, 32), "16 x 32"),
+    ],
+    ids=["sh0 claiming 12000x9000", "quats 32x16", "labels 16x32"],
+)
+def test_sog_images_of_another_size_than_the_means_are_refused(tmp_path, name, image, shown):
+    """Texel i of every per-splat image is splat i, so they share the means images' size: one of
+    another size is a damaged SOG (a 12000 x 9000 image of zeros was decoded, 432 MB in 6 s, and
+    read as transparent splats). Refused before decoding it."""
+    d = sog_copy(tmp_path)
+    (d / name).write_bytes(image)
+    with pytest.raises(ModelFileError, match=f"SOG image {name} .* has {shown} texels, the means images 16 x 16") as e:
+        read_model(d)
+    assert "\n" not in str(e.value)
 
 
 def test_bad_files_through_the_cli_exit_2_with_one_line(tmp_path, capsys):

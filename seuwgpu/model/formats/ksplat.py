@@ -4,7 +4,7 @@ Layout (github mkkellogg/GaussianSplats3D 0.4.7, src/loaders/SplatBuffer.js), li
 
 - a 4096-byte main header: uint8 version major (0), minor (>= 1); uint32 [1] max section count,
   [2] section count, [3] max splat count, [4] splat count; uint16 [10] compression level (0, 1,
-  2); float32 [6..8] scene centre, [9] and [10] the range of 8-bit SH (0 means -1.5 and 1.5);
+  2); float32 [6..8] scene centre, [9] and [10] the range of 8-bit SH (0 or NaN means -1.5 and 1.5);
 - one 1024-byte header per section (max section count of them): uint32 [0] splat count, [1] max
   splat count, [2] bucket size, [3] bucket count, float32 [4] bucket block size, uint16 [10]
   bucket storage bytes, uint32 [6] position quantisation range (0: the level's default,
@@ -32,6 +32,7 @@ the file was made from (COLMAP-style, y down).
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 
@@ -88,6 +89,12 @@ class KsplatInfo:
     level: int
     sections: int
     degree: int
+
+
+def _or_default(value: float, default: float) -> float:
+    """JavaScript's `value || default`, how the library reads the header's SH range: 0 and NaN
+    are unset (a NaN range would make every SH value NaN)."""
+    return value if value and not math.isnan(value) else default
 
 
 def _record(level: int, degree: int) -> np.dtype:
@@ -181,8 +188,8 @@ def read_ksplat(path) -> tuple[Model, KsplatInfo]:
         n = int(h["splats"])
         if n == 0:
             raise KsplatError(f"{spath}: .ksplat holds zero splats")
-        sh_lo = float(h["sh_min"]) or -1.5  # the library's defaults when the header holds 0
-        sh_hi = float(h["sh_max"]) or 1.5
+        sh_lo = _or_default(float(h["sh_min"]), -1.5)  # the library's defaults when the header holds 0 or NaN
+        sh_hi = _or_default(float(h["sh_max"]), 1.5)
         parts = []
         for i, s in enumerate(sec):
             count = int(s["splats"])

@@ -32,6 +32,7 @@ import io
 import json
 import math
 import os
+import warnings
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -131,8 +132,10 @@ class _Files:
         except (zipfile.BadZipFile, OSError, EOFError) as e:
             raise SogError(f"{self.path}: {name} in the SOG zip cannot be read ({e}; truncated?)") from None
 
-    def image(self, name, count: int, what: str) -> tuple[np.ndarray, int, int]:
-        """The RGBA texels [W*H, 4] (uint8) of image `name`, its width and height."""
+    def image(self, name, count: int, what: str, size: tuple[int, int] | None = None) -> tuple[np.ndarray, int, int]:
+        """The RGBA texels [W*H, 4] (uint8) of image `name`, its width and height. `size`: the
+        (W, H) it must have (a SOG's per-splat images share one size: texel i of each is splat
+        i), checked with its holding `count` texels before it is decoded."""
         if not isinstance(name, str):
             raise SogError(f"{self.path}: SOG meta.json names {what}'s image as {name!r}, not a file name")
         if self.zip is not None:
@@ -146,16 +149,30 @@ class _Files:
 
         if not features.check("webp"):
             raise SogError(f"{self.path}: this Pillow was built without WebP support, which SOG images need")
+        unreadable = f"{self.path}: SOG image {name} ({what}) is no readable WebP image"
         try:
-            with Image.open(io.BytesIO(data), formats=["WEBP"]) as im:
-                w, h = im.size
-                rgba = np.asarray(im.convert("RGBA"), dtype=np.uint8).reshape(-1, 4)
+            with warnings.catch_warnings():  # the sizes are checked here, against the splat count
+                warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+                im = Image.open(io.BytesIO(data), formats=["WEBP"])
+        except Image.DecompressionBombError as e:  # over 179 M texels: no SOG this tool could render
+            raise SogError(f"{self.path}: SOG image {name} ({what}) is too large to read ({e})") from None
         except (OSError, ValueError, SyntaxError) as e:
-            raise SogError(f"{self.path}: SOG image {name} ({what}) is no readable WebP image ({e})") from None
-        if w * h < count:
-            raise SogError(
-                f"{self.path}: SOG image {name} ({what}) has {w} x {h} texels, fewer than its {count} splats"
-            )
+            raise SogError(f"{unreadable} ({e})") from None
+        with im:
+            w, h = im.size
+            if size is not None and (w, h) != size:
+                raise SogError(
+                    f"{self.path}: SOG image {name} ({what}) has {w} x {h} texels, the means images "
+                    f"{size[0]} x {size[1]} (a SOG's per-splat images share one size)"
+                )
+            if w * h < count:
+                raise SogError(
+                    f"{self.path}: SOG image {name} ({what}) has {w} x {h} texels, fewer than its {count} splats"
+                )
+            try:
+                rgba = np.asarray(im.convert("RGBA"), dtype=np.uint8).reshape(-1, 4)
+            except (OSError, ValueError, SyntaxError) as e:
+                raise SogError(f"{unreadable} ({e})") from None
         return rgba, w, h
 
 
@@ -229,21 +246,23 @@ def read_sog(path) -> tuple[Model, SogInfo]:
         raise SogError(f"{spath}: SOG meta.json count must be a positive integer, got {n!r}")
 
     lo_name, hi_name = _files(meta, "means", spath, 2)[:2]
-    lo = files.image(lo_name, n, "means, low bytes")[0][:n, :3].astype(np.int64)
-    hi = files.image(hi_name, n, "means, high bytes")[0][:n, :3].astype(np.int64)
+    lo, w, h = files.image(lo_name, n, "means, low bytes")
+    lo = lo[:n, :3].astype(np.int64)
+    size = (w, h)  # every per-splat image's
+    hi = files.image(hi_name, n, "means, high bytes", size)[0][:n, :3].astype(np.int64)
     mins = _numbers(meta, "means.mins", spath, 3)
     maxs = _numbers(meta, "means.maxs", spath, 3)
     span = np.where(maxs - mins != 0, maxs - mins, 1.0)  # as the reference: a zero range scales by 1
     v = mins + span * ((lo | (hi << 8)) / 65535.0)
     means = np.sign(v) * (np.exp(np.abs(v)) - 1.0)  # the reference's exp(|v|) - 1, not expm1
 
-    quats = _quats(files.image(_files(meta, "quats", spath, 1)[0], n, "quats")[0][:n])
+    quats = _quats(files.image(_files(meta, "quats", spath, 1)[0], n, "quats", size)[0][:n])
 
     scale_book = _numbers(meta, "scales.codebook", spath, 256).astype(np.float32)
-    log_scales = scale_book[files.image(_files(meta, "scales", spath, 1)[0], n, "scales")[0][:n, :3]]
+    log_scales = scale_book[files.image(_files(meta, "scales", spath, 1)[0], n, "scales", size)[0][:n, :3]]
 
     dc_book = _numbers(meta, "sh0.codebook", spath, 256).astype(np.float32)
-    sh0 = files.image(_files(meta, "sh0", spath, 1)[0], n, "sh0")[0][:n]
+    sh0 = files.image(_files(meta, "sh0", spath, 1)[0], n, "sh0", size)[0][:n]
     alpha = sh0[:, 3].astype(np.float64) / 255.0
     with np.errstate(divide="ignore"):
         opacity = finite_logit(np.log(alpha / (1.0 - alpha)))
@@ -254,7 +273,7 @@ def read_sog(path) -> tuple[Model, SogInfo]:
         if bands not in (0, 1, 2, 3) or isinstance(bands, bool):
             raise SogError(f"{spath}: SOG meta.json shN.bands is {bands!r} (0-3 expected)")
     if bands:
-        sh_rest, palette = _sh_rest(meta, files, spath, n, bands)
+        sh_rest, palette = _sh_rest(meta, files, spath, n, bands, size)
 
     model_name = meta.get("model", "default")
     model = Model(
@@ -268,7 +287,7 @@ def read_sog(path) -> tuple[Model, SogInfo]:
     return model, SogInfo(2, n, bands, palette, files.zip is not None, str(model_name))
 
 
-def _sh_rest(meta, files: _Files, spath: str, n: int, bands: int) -> tuple[np.ndarray, int]:
+def _sh_rest(meta, files: _Files, spath: str, n: int, bands: int, size) -> tuple[np.ndarray, int]:
     k = SH_COEFFICIENTS[bands]
     palette = _get(meta, "shN.count", spath)
     if not isinstance(palette, int) or isinstance(palette, bool) or palette < 1:
@@ -280,7 +299,7 @@ def _sh_rest(meta, files: _Files, spath: str, n: int, bands: int) -> tuple[np.nd
         raise SogError(
             f"{spath}: SOG shN centroids image is {cw} texels wide; {PALETTE_ROW * k} expected for SH degree {bands}"
         )
-    lab = files.image(lab_name, n, "shN labels")[0][:n].astype(np.int64)
+    lab = files.image(lab_name, n, "shN labels", size)[0][:n].astype(np.int64)
     label = lab[:, 0] | (lab[:, 1] << 8)
     held = min(palette, ch * PALETTE_ROW)  # palette entries the centroids image holds
     bad = label >= held
