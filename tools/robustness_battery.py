@@ -14,7 +14,8 @@ kill or a second process is the point) and its outcome is classified:
     python tools/robustness_battery.py --out battery.json [--only SUBSTRING] [--work DIR]
 
 prints a table per class and category and writes every case (argv, outcome, the stderr's last line)
-as JSON to --out. Kill-and-resume cases need a few seconds each; the whole battery takes minutes.
+as JSON to --out. Kill-and-resume cases need seconds each (those of storm and state about 20 s); the
+whole battery takes about 6 minutes on two cores.
 """
 
 from __future__ import annotations
@@ -26,18 +27,23 @@ import json
 import os
 import shutil
 import signal
+import struct
 import subprocess
 import sys
 import tempfile
 import time
 import traceback
 import warnings
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 ROOT = Path(__file__).resolve().parents[1]
+FIXTURES = ROOT / "tests" / "data" / "formats"  # the .ksplat and SOG fixtures the model cases start from
 sys.path.insert(0, str(ROOT))
 
 from seuwgpu.apps.cli import main  # noqa: E402
@@ -59,6 +65,11 @@ class Case:
     before: object = None  # callable run just before the case (damage a run directory, change a file)
     kill: tuple | None = None  # (signal, seconds, times): interrupt that often, then run to the end
     concurrent: bool = False  # start a first campaign on the same --out, then this one
+    # what a kill waits for before its `seconds`: "part" (a campaign wrote a new part), "lock" (a
+    # storm or state run holds its folder: it is past its arguments and loading), "save" (a storm
+    # or state run rewrote its partial file while running, every 10 s)
+    kill_after: str = "part"
+    stderr_has: str = ""  # text the command's stderr must hold (a note) for a correct outcome
 
 
 @dataclass
@@ -69,6 +80,7 @@ class Outcome:
     traceback: bool = False
     timeout: bool = False
     notes: str = ""
+    wrong: str = ""  # a fault seen between the interrupts (a damaged part, no partial records kept)
 
 
 TOP = {"views": "1", "size": '"16x16"', "batch": "4"}
@@ -93,6 +105,39 @@ def spec_text(top=None, scene=None, single=None, extra=""):
         + (table("single", SINGLE) if single is None else single)
         + extra
     )
+
+
+def strip_run_meta(path: Path):
+    """Rewrite a partial file without the run's arguments in its metadata (as before they were kept)."""
+    import pyarrow.parquet as pq
+
+    from seuwgpu.campaign.partial import RUN_META
+
+    table = pq.read_table(path)
+    meta = {k: v for k, v in (table.schema.metadata or {}).items() if k != RUN_META}
+    pq.write_table(table.replace_schema_metadata(meta), path)
+
+
+def webp_claiming(width: int, height: int) -> bytes:
+    """A lossless WebP of 16 x 16 texels whose header claims width x height (no data for them)."""
+    buf = io.BytesIO()
+    Image.fromarray(np.zeros((16, 16, 4), np.uint8)).save(buf, "WEBP", lossless=True)
+    b = bytearray(buf.getvalue())
+    assert b[12:16] == b"VP8L" and b[20] == 0x2F
+    bits = struct.unpack_from("<I", b, 21)[0] & ~0xFFFFFFF
+    struct.pack_into("<I", b, 21, bits | (width - 1) | (height - 1) << 14)
+    return bytes(b)
+
+
+def crc_broken(zip_bytes: bytes, member: str) -> bytes:
+    """A zip whose `member`'s stored bytes no longer match its CRC (one byte flipped)."""
+    with zipfile.ZipFile(io.BytesIO(zip_bytes)) as z:
+        info = z.getinfo(member)
+    b = bytearray(zip_bytes)
+    start = info.header_offset + 30 + len(info.filename.encode()) + len(info.extra)
+    b[start + info.compress_size // 2] ^= 0xFF
+    assert zlib.crc32(b[start : start + info.compress_size]) != info.CRC
+    return bytes(b)
 
 
 class Battery:
@@ -127,6 +172,43 @@ class Battery:
             images = np.load(path)["images"]
             assert images.shape == shape, images.shape
             assert np.isfinite(images).all()
+
+        return check
+
+    @staticmethod
+    def npz_like(path, ref, shape, tol=0.02):
+        """A render of `shape`, finite, within `tol` of the render in `ref` (at most 1/255 mean)."""
+
+        def check(_out):
+            images = np.load(path)["images"]
+            assert images.shape == shape, images.shape
+            assert np.isfinite(images).all()
+            diff = np.abs(images - np.load(ref)["images"])
+            assert diff.max() <= tol and diff.mean() <= 1 / 255, (float(diff.max()), float(diff.mean()))
+
+        return check
+
+    @staticmethod
+    def bit_flipped(out, bit):
+        """inject's corrupted value is its clean one with `bit` flipped (float32), and the panel is written."""
+
+        def check(stdout):
+            lines = dict(line.split(": ", 1) for line in stdout.splitlines() if ": " in line)
+            clean = np.float32(lines["clean_value"])
+            want = (clean.view(np.uint32) ^ np.uint32(1 << bit)).view(np.float32)
+            assert np.isfinite(clean) and np.isclose(float(lines["corrupted_value"]), want, rtol=1e-6), lines
+            assert (out / "panel.png").is_file()
+
+        return check
+
+    @staticmethod
+    def records_of(run, n, scene):
+        """A campaign's records: n of them, of the scene named `scene`, with finite metrics."""
+
+        def check(_out):
+            r = store.read_records(run)
+            assert len(r) == n and set(r["scene"]) == {scene}, (len(r), set(r["scene"]))
+            assert np.isfinite(r["footprint"]).all()
 
         return check
 
@@ -384,6 +466,336 @@ class Battery:
         )
         for name, p in (("valid PLY", "good.ply"), ("valid SPZ", "good.spz"), ("one NaN primitive", "somenan.ply")):
             self.render_case("model", name, ["--views", "1", "--size", "16x16"], "ok", (1, 16, 16, 3), self.work / p)
+
+    # ---- .ksplat and SOG files, made from the committed fixtures --------------------------------
+    def format_files(self):
+        """The fixtures in the work folder, and what render/inject/campaign cases compare with:
+        each one's render next to that of splat-transform's decode of it (X.ref.ply)."""
+        w = self.work
+        for name in ("level0_sh2.ksplat", "level1_sh1.ksplat", "level2_sh2.ksplat", "sh3.sog", "sog_meta"):
+            src = FIXTURES / name
+            if src.is_dir():
+                shutil.copytree(src, w / name)
+            else:
+                shutil.copy(src, w / name)
+            shutil.copy(FIXTURES / f"{name}.ref.ply", w / f"{name}.ref.ply")
+        self.ksplat = {lvl: (FIXTURES / f"level{lvl}_sh{deg}.ksplat").read_bytes() for lvl, deg in enumerate((2, 1, 2))}
+        with zipfile.ZipFile(FIXTURES / "sh3.sog") as z:
+            self.sog_members = {n: z.read(n) for n in z.namelist()}
+        self.sog_meta = json.loads(self.sog_members["meta.json"])
+
+    def sog_zip(self, change=None, drop=(), replace=None) -> bytes:
+        """sh3.sog with meta.json changed (`change(meta)`), members dropped or replaced."""
+        meta = json.loads(json.dumps(self.sog_meta))
+        if change is not None:
+            change(meta)
+        members = {**self.sog_members, "meta.json": json.dumps(meta).encode(), **(replace or {})}
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w") as z:
+            for name, data in members.items():
+                if name not in drop:
+                    z.writestr(name, data)
+        return buf.getvalue()
+
+    def sog_folder(self, change=None, drop=(), replace=None, meta_bytes=None) -> Path:
+        """A copy of the unbundled fixture sog_meta/ with meta.json changed, images dropped or replaced."""
+        d = self.fresh("sogdir")
+        shutil.copytree(FIXTURES / "sog_meta", d)
+        if change is not None:
+            meta = json.loads((d / "meta.json").read_text())
+            change(meta)
+            (d / "meta.json").write_text(json.dumps(meta))
+        if meta_bytes is not None:
+            (d / "meta.json").write_bytes(meta_bytes)
+        for name in drop:
+            (d / name).unlink()
+        for name, data in (replace or {}).items():
+            (d / name).write_bytes(data)
+        return d
+
+    def format_render(self, name, model, expect="ok", views=None):
+        """A render of `model` with the battery's two 16x16 cameras (or framed by the model:
+        `views`), checked for its size and finite pixels."""
+        extra = ["--views", str(views), "--size", "16x16"] if views else ["--cameras", self.work / "cams.json"]
+        self.render_case("model", name, extra, expect, ((views or 2), 16, 16, 3), model)
+
+    def format_cases(self):
+        w = self.work
+        cams = ["--cameras", w / "cams.json"]
+        # the valid fixtures: each render matches the render of splat-transform's decode of it
+        for name in ("level0_sh2.ksplat", "level1_sh1.ksplat", "level2_sh2.ksplat", "sh3.sog", "sog_meta"):
+            ref = self.fresh("render").with_suffix(".npz")
+            self.add(
+                "model",
+                f"{name}.ref.ply (splat-transform's decode)",
+                ["render", "--model", w / f"{name}.ref.ply", *cams, "--out", ref],
+                "ok",
+                self.npz_shape(ref, (2, 16, 16, 3)),
+            )
+            out = self.fresh("render").with_suffix(".npz")
+            self.add(
+                "model",
+                f"valid {name}, like its decode by splat-transform",
+                ["render", "--model", w / name, *cams, "--out", out],
+                "ok",
+                self.npz_like(out, ref, (2, 16, 16, 3)),
+            )
+        self.format_render("valid sog_meta/meta.json", w / "sog_meta" / "meta.json")
+        self.format_render("valid sog_meta framed by the model", w / "sog_meta", views=1)
+        self.format_render("valid sh3.sog framed by the model", w / "sh3.sog", views=1)
+        self.format_render("valid level1_sh1.ksplat framed by the model", w / "level1_sh1.ksplat", views=1)
+        for name, src in (("ksplat named .bin", "level2_sh2.ksplat"), ("sog named .zip", "sh3.sog")):
+            p = self.fresh("model").with_suffix(".zip" if "zip" in name else ".bin")
+            shutil.copy(FIXTURES / src, p)
+            self.format_render(f"valid {name} (recognised by content)", p)
+        d = self.sog_folder()
+        (d / "meta.json").rename(d / "scene.json")
+        self.format_render("valid unbundled SOG as scene.json", d / "scene.json")
+        self.ksplat_cases()
+        self.sog_cases()
+        # inject and campaigns on the valid fixtures
+        for name in ("sh3.sog", "sog_meta", "level2_sh2.ksplat"):
+            out = self.fresh("inj")
+            argv = ["inject", "--model", w / name, "--views", "1", "--size", "16x16", "--field", "opacity"]
+            self.add(
+                "model",
+                f"inject into {name}",
+                [*argv, "--primitive", "3", "--bit", "30", "--out", out],
+                "ok",
+                self.bit_flipped(out, 30),
+            )
+        for name, label in (
+            ("sh3.sog", "sh3"),
+            ("sog_meta", "sog_meta"),
+            ("sog_meta/meta.json", "sog_meta"),
+            ("level1_sh1.ksplat", "level1_sh1"),
+        ):
+            spec = self.fresh("spec").with_suffix(".toml")
+            spec.write_text(spec_text(scene=f'model = "{name}"\n'))
+            out = self.fresh("run")
+            self.add(
+                "model",
+                f'campaign on model = "{name}"',
+                ["campaign", spec, "--out", out, "--quiet"],
+                "ok",
+                self.records_of(out, 2, label),
+            )
+        for name, data in (
+            ("cut.ksplat", self.ksplat[2][:-100]),
+            ("noimage.sog", self.sog_zip(drop=("quats.webp",))),
+            ("v3.sog", self.sog_zip(lambda m: m.update(version=3))),
+        ):
+            (w / name).write_bytes(data)
+            spec = self.fresh("spec").with_suffix(".toml")
+            spec.write_text(spec_text(scene=f'model = "{name}"\n'))
+            self.add(
+                "model", f'campaign on model = "{name}"', ["campaign", spec, "--out", self.fresh("run"), "--quiet"]
+            )
+
+    def ksplat_cases(self):
+        k0, k1, k2 = self.ksplat[0], self.ksplat[1], self.ksplat[2]
+        sec = 4096  # the first section header
+
+        def put(data, *edits):
+            b = bytearray(data)
+            for offset, fmt, value in edits:
+                struct.pack_into(fmt, b, offset, value)
+            return bytes(b)
+
+        bad = {
+            "empty .ksplat": b"",
+            "cut to 100 bytes": k2[:100],
+            "cut to 4095 bytes": k2[:4095],
+            "cut to its main header": k2[:4096],
+            "cut in its section header": k2[: sec + 512],
+            "cut after its headers": k2[: sec + 1024],
+            "cut in its bucket table": k2[: sec + 1024 + 60],
+            "cut mid-records": k2[: len(k2) // 2 + 7],
+            "one byte short": k2[:-1],
+            "level 0, one byte short": k0[:-1],
+            "a byte past its end": k2 + b"\0",
+            "4096 zeros past its end": k1 + bytes(4096),
+            "version 1.1": put(k2, (0, "B", 1)),
+            "version 0.0": put(k2, (1, "B", 0)),
+            "compression level 3": put(k2, (20, "<H", 3)),
+            "compression level 65535": put(k2, (20, "<H", 65535)),
+            "level 0 marked level 1": put(k0, (20, "<H", 1)),
+            "level 2 marked level 1": put(k2, (20, "<H", 1)),
+            "level 1 marked level 0": put(k1, (20, "<H", 0)),
+            "0 sections": put(k2, (4, "<I", 0)),
+            "2 sections": put(k2, (4, "<I", 2)),
+            "2**32-1 sections": put(k2, (4, "<I", 2**32 - 1)),
+            "header counts 300 splats": put(k2, (16, "<I", 300)),
+            "header counts 0 splats": put(k2, (16, "<I", 0)),
+            "header counts 2**32-1 splats": put(k2, (16, "<I", 2**32 - 1)),
+            "0 splats in header and section": put(k2, (16, "<I", 0), (sec, "<I", 0)),
+            "a section over its capacity": put(k2, (16, "<I", 257), (sec, "<I", 257)),
+            "section capacity 255": put(k2, (sec + 4, "<I", 255)),
+            "section capacity 2**32-1": put(k2, (sec + 4, "<I", 2**32 - 1)),
+            "2**32-1 buckets": put(k2, (sec + 12, "<I", 2**32 - 1)),
+            "24 buckets of 25": put(k2, (sec + 12, "<I", 24)),
+            "8-byte buckets": put(k1, (sec + 20, "<H", 8)),
+            "0-byte buckets": put(k2, (sec + 20, "<H", 0)),
+            "no full buckets": put(k2, (sec + 32, "<I", 0)),
+            "2**32-1 partial buckets": put(k2, (sec + 36, "<I", 2**32 - 1)),
+            "bucket size 0": put(k1, (sec + 8, "<I", 0)),
+            "SH degree 3": put(k2, (sec + 40, "<H", 3)),
+            "SH degree 65535": put(k2, (sec + 40, "<H", 65535)),
+            "SH degree 1 in a degree-2 file": put(k2, (sec + 40, "<H", 1)),
+            "SH degree 2 in a degree-1 file": put(k1, (sec + 40, "<H", 2)),
+            "bucket block NaN": put(k1, (sec + 16, "<f", float("nan"))),
+            "bucket block inf": put(k2, (sec + 16, "<f", float("inf"))),
+        }
+        for name, data in bad.items():
+            p = self.fresh("model").with_suffix(".ksplat")
+            p.write_bytes(data)
+            self.format_render(f"ksplat {name}", p, "error")
+        p = self.fresh("model").with_suffix(".bin")
+        p.write_bytes(k2[:-1])
+        self.format_render("ksplat one byte short, named .bin", p, "error")
+        good = {  # consistent files: read as they say
+            "255 of its 256 splats": put(k2, (16, "<I", 255), (sec, "<I", 255)),
+            "position range 1": put(k1, (sec + 24, "<I", 1)),
+            "bucket block 1e30": put(k1, (sec + 16, "<f", 1e30)),
+            "SH range NaN": put(k2, (36, "<f", float("nan")), (40, "<f", float("nan"))),
+            "SH range +-1e30": put(k2, (36, "<f", -1e30), (40, "<f", 1e30)),
+            "unused section count 9": put(k2, (8, "<I", 9)),
+        }
+        for name, data in good.items():
+            p = self.fresh("model").with_suffix(".ksplat")
+            p.write_bytes(data)
+            self.format_render(f"ksplat {name}", p, "ok", views=1)
+
+    def sog_cases(self):
+        w = self.work
+        whole = (FIXTURES / "sh3.sog").read_bytes()
+        png = io.BytesIO()
+        Image.fromarray(np.zeros((16, 16, 4), np.uint8)).save(png, "PNG")
+        small = io.BytesIO()
+        Image.fromarray(np.zeros((8, 8, 4), np.uint8)).save(small, "WEBP", lossless=True)
+        centroids = self.sog_members["shN_centroids.webp"]
+        bomb = webp_claiming(16383, 16383)  # 268 M pixels: Pillow's decompression-bomb limit
+        large = webp_claiming(12000, 9000)  # 108 M pixels: under it, but no image data behind
+
+        def at(key, **values):
+            return lambda meta: meta[key].update(values)
+
+        def top(**values):
+            return lambda meta: meta.update(values)
+
+        def pop(*path):
+            def change(meta):
+                d = meta
+                for k in path[:-1]:
+                    d = d[k]
+                d.pop(path[-1])
+
+            return change
+
+        nan_entry = lambda meta: meta["scales"]["codebook"].__setitem__(5, float("nan"))  # noqa: E731
+        bad_zip = {
+            "empty .sog": b"",
+            "a .sog that is text": b"not a zip, not a model\n",
+            "a .sog that is JSON": json.dumps(self.sog_meta).encode(),
+            "cut to 100 bytes": whole[:100],
+            "cut in half": whole[: len(whole) // 2],
+            "cut before its directory's end": whole[:-22],
+            "one byte short": whole[:-1],
+            "an empty zip": self.sog_zip(drop=tuple(self.sog_members)),
+            "a zip without meta.json": self.sog_zip(drop=("meta.json",)),
+            "meta.json not JSON": self.sog_zip(replace={"meta.json": b"{not json"}),
+            "meta.json a list": self.sog_zip(replace={"meta.json": b"[1, 2]"}),
+            "meta.json not UTF-8": self.sog_zip(replace={"meta.json": b'{"version": 2, "\xff": 1}'}),
+            "meta.json without version": self.sog_zip(pop("version")),
+            "version 3": self.sog_zip(top(version=3)),
+            'version "2"': self.sog_zip(top(version="2")),
+            "version true": self.sog_zip(top(version=True)),
+            "version null": self.sog_zip(top(version=None)),
+            "count 0": self.sog_zip(top(count=0)),
+            "count -1": self.sog_zip(top(count=-1)),
+            "count 257, above its images": self.sog_zip(top(count=257)),
+            "count 2**40": self.sog_zip(top(count=2**40)),
+            'count "256"': self.sog_zip(top(count="256")),
+            "count 256.5": self.sog_zip(top(count=256.5)),
+            "count missing": self.sog_zip(pop("count")),
+            "means.mins NaN": self.sog_zip(at("means", mins=[float("nan")] * 3)),
+            "means.maxs Infinity": self.sog_zip(at("means", maxs=[float("inf")] * 3)),
+            "means.mins -1e308, maxs 1e308": self.sog_zip(at("means", mins=[-1e308] * 3, maxs=[1e308] * 3)),
+            "means.mins 2 numbers": self.sog_zip(at("means", mins=[0.0, 0.0])),
+            "means.mins text": self.sog_zip(at("means", mins=["a", "b", "c"])),
+            "means.maxs missing": self.sog_zip(pop("means", "maxs")),
+            "means lists one image": self.sog_zip(at("means", files=["means_l.webp"])),
+            "means.files not a list": self.sog_zip(at("means", files="means_l.webp")),
+            "an image named 5": self.sog_zip(at("quats", files=[5])),
+            "quats missing": self.sog_zip(pop("quats")),
+            "scales codebook of 255": self.sog_zip(at("scales", codebook=[0.0] * 255)),
+            "scales codebook all NaN": self.sog_zip(at("scales", codebook=[float("nan")] * 256)),
+            "sh0 codebook of text": self.sog_zip(at("sh0", codebook=["x"] * 256)),
+            "shN.bands 4": self.sog_zip(at("shN", bands=4)),
+            'shN.bands "3"': self.sog_zip(at("shN", bands="3")),
+            "shN.bands true": self.sog_zip(at("shN", bands=True)),
+            "shN.count 0": self.sog_zip(at("shN", count=0)),
+            "shN.count 3, below its labels": self.sog_zip(at("shN", count=3)),
+            "shN.bands 2 for degree-3 centroids": self.sog_zip(at("shN", bands=2)),
+            "shN without files": self.sog_zip(pop("shN", "files")),
+            "an image missing": self.sog_zip(drop=("quats.webp",)),
+            "an image of 0 bytes": self.sog_zip(replace={"sh0.webp": b""}),
+            "an image of garbage": self.sog_zip(replace={"scales.webp": b"RIFF\x10\0\0\0WEBPgarbage!"}),
+            "a PNG where a WebP belongs": self.sog_zip(replace={"quats.webp": png.getvalue()}),
+            "an image of 8 x 8 texels": self.sog_zip(replace={"means_u.webp": small.getvalue()}),
+            "centroids as labels": self.sog_zip(replace={"shN_labels.webp": centroids}),
+            "an image cut in half": self.sog_zip(replace={"shN_centroids.webp": centroids[: len(centroids) // 2]}),
+            "an image claiming 16383 x 16383 texels": self.sog_zip(replace={"sh0.webp": bomb}),
+            "an image claiming 12000 x 9000 texels": self.sog_zip(replace={"sh0.webp": large}),
+            "a member's CRC broken": crc_broken(self.sog_zip(), "quats.webp"),
+        }
+        for name, data in bad_zip.items():
+            p = self.fresh("model").with_suffix(".sog")
+            p.write_bytes(data)
+            self.format_render(f"sog {name}", p, "error")
+        good_zip = {  # read as they say
+            "count 100, below its images": self.sog_zip(top(count=100)),
+            "version 2.0": self.sog_zip(top(version=2.0)),
+            "mins above maxs": self.sog_zip(
+                at("means", mins=self.sog_meta["means"]["maxs"], maxs=self.sog_meta["means"]["mins"])
+            ),
+            "mins equal to maxs": self.sog_zip(at("means", mins=[0.1] * 3, maxs=[0.1] * 3)),
+            "maxs 60 (positions near 1e26)": self.sog_zip(at("means", maxs=[60.0] * 3)),
+            "one NaN scales codebook entry": self.sog_zip(nan_entry),
+            "shN.bands 0": self.sog_zip(at("shN", bands=0)),
+            "no shN": self.sog_zip(pop("shN")),
+            'model "2dgs"': self.sog_zip(top(model="2dgs")),
+            'model "bogus"': self.sog_zip(top(model="bogus")),
+            "meta.json with a BOM": self.sog_zip(
+                replace={"meta.json": b"\xef\xbb\xbf" + self.sog_members["meta.json"]}
+            ),
+            "an extra member": self.sog_zip(replace={"readme.txt": b"hello"}),
+        }
+        for name, data in good_zip.items():
+            p = self.fresh("model").with_suffix(".sog")
+            p.write_bytes(data)
+            self.format_render(f"sog {name}", p, "ok", views=1)
+        images = [n for n in os.listdir(FIXTURES / "sog_meta") if n.endswith(".webp")]
+        folders = {
+            "a folder with meta.json, no images": self.sog_folder(drop=images),
+            "a folder without sh0.webp": self.sog_folder(drop=("sh0.webp",)),
+            "a folder whose meta.json is empty": self.sog_folder(meta_bytes=b""),
+            'a folder whose meta.json is {"a": 1}': self.sog_folder(meta_bytes=b'{"a": 1}'),
+            "a folder, image named ../good.ply": self.sog_folder(at("quats", files=["../good.ply"])),
+            "a folder, image named .": self.sog_folder(at("quats", files=["."])),
+            "a folder, an image of garbage": self.sog_folder(replace={"quats.webp": b"garbage"}),
+            "a folder, labels of 8 x 8 texels": self.sog_folder(replace={"shN_labels.webp": small.getvalue()}),
+            "a folder, count 257": self.sog_folder(top(count=257)),
+            "a folder, means.maxs NaN": self.sog_folder(at("means", maxs=[float("nan")] * 3)),
+        }
+        for name, d in folders.items():
+            self.format_render(f"sog {name}", d, "error")
+        d = self.sog_folder(drop=("sh0.webp",))
+        self.format_render("sog meta.json of a folder without sh0.webp", d / "meta.json", "error")
+        d = self.fresh("sogdir")
+        (d / "meta.json").mkdir(parents=True)
+        self.format_render("sog a folder whose meta.json is a folder", d, "error")
+        self.format_render("sog a folder with nothing", w / "dir", "error")
 
     def argument_cases(self):
         bad = {
@@ -649,16 +1061,22 @@ class Battery:
                 process=True,
                 kill=(signal.SIGKILL, delay, 3),
             )
-        d = self.work / "kill_int"
-        self.add(
-            "interruption",
-            "SIGINT, then resume",
-            ["campaign", spec, "--out", d, "--quiet"],
-            "ok",
-            self.records_equal(d, ref),
-            process=True,
-            kill=(signal.SIGINT, 0.2, 1),
-        )
+        # SIGTERM stops a run as Ctrl-C does: exit 143, the part in hand written whole. Both at
+        # once after a part: 0.2 s after one, this small run had written all 18 and was ending
+        for name, folder, kill in (
+            ("SIGINT, then resume", "kill_int", (signal.SIGINT, 0.0, 1)),
+            ("2 x SIGTERM, then resume", "kill_term", (signal.SIGTERM, 0.0, 2)),
+        ):
+            d = self.work / folder
+            self.add(
+                "interruption",
+                name,
+                ["campaign", spec, "--out", d, "--quiet"],
+                "ok",
+                self.records_equal(d, ref),
+                process=True,
+                kill=kill,
+            )
         d = self.work / "busy"
         self.add(
             "interruption",
@@ -668,6 +1086,147 @@ class Battery:
             process=True,
             concurrent=True,
         )
+
+    # ---- storm and state: partial records, resumed ----------------------------------------------
+    STORM = ["--scene", "spheres", "--n", "50", "--size", "16x16", "--k", "2", "--frames", "600"]
+    STATE = ["--scene", "spheres", "--n", "50", "--views", "1", "--size", "16x16", "--samples", "8"]
+
+    @staticmethod
+    def same_results(run, ref, name):
+        """A storm's or state's records equal the uninterrupted reference run's, and no partial
+        file is left."""
+
+        def check(_out):
+            import pandas as pd
+
+            a, b = (pd.read_parquet(d / f"{name}.parquet") for d in (run, ref))
+            assert len(a) == len(b) and a.equals(b), (len(a), len(b))
+            assert not (run / f"{name}.partial.parquet").exists(), "the partial file was left"
+
+        return check
+
+    def interrupted(self, name: str, argv: list, d: Path):
+        """`before` of a case: d holds an interrupted run of argv (SIGINT after it has measured a
+        while), made once per command and copied."""
+        master = self.work / f"{name}_interrupted"
+
+        def prepare():
+            if not master.exists():
+                interrupt_once(Case("", "", [*argv, "--out", master], kill=(signal.SIGINT, 4.0, 1), kill_after="lock"))
+            partial = master / f"{name}.partial.parquet"
+            assert partial.exists(), f"no interrupted {name} run to start from (SIGINT 4 s after its lock)"
+            shutil.copytree(master, d)
+
+        return prepare
+
+    def partial_run_cases(self):
+        garbage, older = lambda p: p.write_bytes(b"PAR1 not a parquet file"), strip_run_meta
+        empty, halved = lambda p: p.write_bytes(b""), lambda p: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
+        for name, args, other, damages in (  # other arguments, damaged partial files (two each, for time)
+            (
+                "storm",
+                [*self.STORM, "--defense", "none", "guard"],
+                {"--k 3": ["--k", "3"], "--seed 9": ["--seed", "9"]},
+                {"garbage": garbage, "no run arguments (an older seuwgpu's)": older},
+            ),
+            (
+                "state",
+                self.STATE,
+                {"--samples 9": ["--samples", "9"], "--targets xy": ["--targets", "xy"]},
+                {"a 0-byte file": empty, "half of it": halved},
+            ),
+        ):
+            argv = [name, *args]
+            ref = self.work / f"{name}_ref"
+            self.add(
+                "interruption",
+                f"{name}: uninterrupted reference",
+                [*argv, "--out", ref],
+                "ok",
+                self.file_exists(ref / f"{name}.parquet"),
+                process=True,
+            )
+            for sig, delay, times, after in (
+                # the lock is taken before the engine starts (about 2 s here): measuring starts later
+                (signal.SIGINT, 4.0, 1, "lock"),
+                (signal.SIGTERM, 3.5, 2, "lock"),
+                (signal.SIGKILL, 0.3, 1, "save"),
+            ):
+                d = self.fresh(f"{name}_kill")
+                when = "after a periodic save" if after == "save" else "mid-run"
+                self.add(
+                    "interruption",
+                    f"{name}: {times} x {signal.Signals(sig).name} {when}, then resume",
+                    [*argv, "--out", d],
+                    "ok",
+                    self.same_results(d, ref, name),
+                    process=True,
+                    kill=(sig, delay, times),
+                    kill_after=after,
+                )
+            d = self.fresh(f"{name}_busy")
+            self.add(
+                "interruption",
+                f"{name}: a second run while the first runs",
+                [*argv, "--out", d],
+                "error",
+                process=True,
+                concurrent=True,
+            )
+            for what, extra in other.items():
+                d = self.fresh(f"{name}_other")
+                self.add(
+                    "run directory",
+                    f"{name}: resume with {what}",
+                    [*argv, *extra, "--out", d],
+                    before=self.interrupted(name, argv, d),
+                )
+            for what, damage in damages.items():
+                d = self.fresh(f"{name}_damaged")
+
+                def prepare(d=d, damage=damage, name=name, argv=argv):
+                    self.interrupted(name, argv, d)()
+                    damage(d / f"{name}.partial.parquet")
+
+                self.add(
+                    "run directory",
+                    f"{name}: a partial file of {what}",
+                    [*argv, "--out", d],
+                    "ok",
+                    self.same_results(d, ref, name),
+                    process=True,
+                    before=prepare,
+                    stderr_has="starting over (it is replaced)",
+                )
+        d = self.fresh("storm_spelt")
+        self.add(
+            "run directory",
+            "storm: resume with a defense named twice (the same run)",
+            ["storm", *self.STORM, "--defense", "none", "guard", "guard", "--out", d],
+            "ok",
+            self.same_results(d, self.work / "storm_ref", "storm"),
+            process=True,
+            before=self.interrupted("storm", ["storm", *self.STORM, "--defense", "none", "guard"], d),
+        )
+        d = self.fresh("state_swapped")
+
+        def swapped(d=d):
+            self.interrupted("storm", ["storm", *self.STORM, "--defense", "none", "guard"], d)()
+            (d / "storm.partial.parquet").rename(d / "state.partial.parquet")
+
+        self.add(
+            "run directory",
+            "state: a storm's partial file as state's",
+            ["state", *self.STATE, "--out", d],
+            before=swapped,
+        )
+
+    @staticmethod
+    def file_exists(path):
+        def check(_out):
+            assert path.is_file(), f"no {path}"
+
+        return check
 
     def oversize_cases(self):
         self.add(
@@ -759,41 +1318,110 @@ def command(argv):
     return [sys.executable, "-m", "seuwgpu", *[str(a) for a in argv]]
 
 
+GRACEFUL = {signal.SIGINT: (130, b"interrupted"), signal.SIGTERM: (143, b"terminated (SIGTERM)")}
+
+
+def holds_lock(out_dir: Path, command: str, pid: int) -> bool:
+    """Whether process `pid` holds a storm's or state's lock on out_dir (the lock file names the
+    process that took it; the file stays when its run ends)."""
+    try:
+        return (out_dir / f".lock-{command}").read_text().startswith(f"pid {pid} ")
+    except OSError:
+        return False
+
+
+def progress_sign(case: Case, out_dir: Path, proc, started: float, parts_before: int) -> bool:
+    """Whether the run `proc` shows what the case's kill waits for (Case.kill_after)."""
+    command = str(case.argv[0])
+    if case.kill_after == "lock":
+        return holds_lock(out_dir, command, proc.pid)
+    if case.kill_after == "save":
+        partial = out_dir / f"{command}.partial.parquet"
+        return partial.exists() and partial.stat().st_mtime >= started
+    return out_dir.exists() and len(store.part_files(out_dir)) > parts_before
+
+
+def kept_after(case: Case, out_dir: Path) -> tuple[str, str]:
+    """(what an interrupted run left, a fault in it or ""): a campaign's parts must all be
+    whole, a storm's or state's partial file readable (pyarrow)."""
+    command = str(case.argv[0])
+    if command in ("storm", "state"):
+        partial = out_dir / f"{command}.partial.parquet"
+        if not partial.exists():
+            return "no partial records", ""
+        import pyarrow.parquet as pq
+
+        try:
+            return f"{pq.read_metadata(partial).num_rows} partial records", ""
+        except (OSError, ValueError) as e:
+            return "", f"{partial.name} unreadable after the interrupt: {e}"
+    parts = store.part_files(out_dir) if out_dir.exists() else []
+    broken = [p.name for p in parts if not store.part_rows(p)]
+    return f"{len(parts)} parts", (f"damaged parts after the interrupt: {broken}" if broken else "")
+
+
+def interrupt_once(case: Case, env=None) -> tuple[int, bytes, bool]:
+    """Run the case's command and send it the case's signal `delay` s after its sign of progress
+    (Case.kill_after): (exit status, stderr, whether it had ended before the signal)."""
+    sig, delay, _ = case.kill
+    out_dir = Path(case.argv[case.argv.index("--out") + 1])
+    before = len(store.part_files(out_dir)) if out_dir.exists() else 0
+    started = time.time()
+    proc = subprocess.Popen(command(case.argv), cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    while proc.poll() is None and time.time() - started < 120:
+        if progress_sign(case, out_dir, proc, started, before):
+            break
+        time.sleep(0.02)
+    time.sleep(delay)
+    ended = proc.poll() is not None
+    if not ended:
+        proc.send_signal(sig)
+    _, e = proc.communicate(timeout=60)
+    return proc.returncode, e, ended
+
+
 def run_process(case: Case, timeout: float = 300) -> Outcome:
     env = dict(os.environ, **case.env)
-    if case.concurrent:  # hold the directory with a first campaign, start a second one on it
+    if case.concurrent:  # hold the directory with a first run, start a second one on it
         first = subprocess.Popen(command(case.argv), cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         out_dir = Path(case.argv[case.argv.index("--out") + 1])
+        command_name = str(case.argv[0])
         t0 = time.time()
-        while not (out_dir / "manifest.json").exists() and time.time() - t0 < 60 and first.poll() is None:
+        while time.time() - t0 < 60 and first.poll() is None:
+            if command_name in ("storm", "state"):
+                if holds_lock(out_dir, command_name, first.pid):
+                    break
+            elif (out_dir / "manifest.json").exists():
+                break
             time.sleep(0.1)
         p = subprocess.run(command(case.argv), cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+        still = first.poll() is None
         first.kill()
         first.wait()
-        return Outcome(p.returncode, p.stdout, p.stderr, "Traceback" in p.stderr)
+        o = Outcome(p.returncode, p.stdout, p.stderr, "Traceback" in p.stderr)
+        if not still:  # the first run had ended: the second one was never refused for it
+            o.notes = "the first run had ended before the second one did"
+        return o
     notes = []
-    if case.kill:  # interrupt `times` runs, each `delay` s after it wrote a new part, then finish
-        sig, delay, times = case.kill
+    if case.kill:  # interrupt `times` runs, each `delay` s after its sign of progress, then finish
+        sig, _, times = case.kill
         out_dir = Path(case.argv[case.argv.index("--out") + 1])
         for _ in range(times):
-            before = len(store.part_files(out_dir)) if out_dir.exists() else 0
-            proc = subprocess.Popen(
-                command(case.argv), cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE
-            )
-            t0 = time.time()
-            while proc.poll() is None and time.time() - t0 < 120:
-                if out_dir.exists() and len(store.part_files(out_dir)) > before:
-                    break
-                time.sleep(0.02)
-            time.sleep(delay)
-            if proc.poll() is None:
-                proc.send_signal(sig)
-            _, e = proc.communicate(timeout=60)
-            notes.append(f"{signal.Signals(sig).name} at {len(store.part_files(out_dir))} parts")
-            if sig == signal.SIGINT and proc.returncode not in (0, 130):
-                return Outcome(proc.returncode, "", e.decode(), b"Traceback" in e)
-            if sig == signal.SIGINT and proc.returncode == 130 and b"interrupted" not in e:
-                return Outcome(1, "", "SIGINT without the 'interrupted' message: " + e.decode())
+            rc, e, ended = interrupt_once(case, env)
+            kept, fault = kept_after(case, out_dir)
+            how = " (it had ended)" if ended else " (exit 0: it ended as the signal came)" if rc == 0 else ""
+            notes.append(f"{signal.Signals(sig).name} at {kept}{how}")
+            if b"Traceback" in e:
+                return Outcome(rc, "", e.decode(), True)
+            if sig in GRACEFUL:
+                code, said = GRACEFUL[sig]
+                if rc not in (0, code):
+                    return Outcome(rc, "", e.decode())
+                if rc == code and said not in e:
+                    name = signal.Signals(sig).name
+                    return Outcome(1, "", f"{name} without the '{said.decode()}' message: " + e.decode())
+                if rc == code and fault:
+                    return Outcome(0, "", e.decode(), wrong=fault)
     try:
         p = subprocess.run(command(case.argv), cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -806,6 +1434,8 @@ def classify(case: Case, o: Outcome) -> tuple[str, str]:
         return "traceback", o.err.strip().splitlines()[-1] if o.err.strip() else ""
     if o.timeout:
         return "crash", "timed out"
+    if o.wrong:
+        return "silent wrong", o.wrong
     last = o.err.strip().splitlines()[-1] if o.err.strip() else ""
     if o.rc in (2, 3):
         errors = [line for line in o.err.splitlines() if "error:" in line or "seuwgpu view:" in line]
@@ -820,6 +1450,8 @@ def classify(case: Case, o: Outcome) -> tuple[str, str]:
                 case.check(o.out)
             except Exception as e:  # noqa: BLE001
                 return "silent wrong", f"result check failed: {type(e).__name__}: {e}"[:300]
+        if case.stderr_has and case.stderr_has not in o.err:
+            return "silent wrong", f"no '{case.stderr_has}' on stderr: {last}"[:300]
         return "correct", o.notes
     return "crash", f"exit status {o.rc}: {last}"
 
@@ -833,29 +1465,40 @@ def main_battery(argv=None) -> int:
     ap.add_argument("--only", help="run only cases whose category or name contains this")
     ap.add_argument("--work", type=Path, help="scratch folder (default: a temporary one, removed afterwards)")
     args = ap.parse_args(argv)
+    # a battery started with & by a shell without job control inherits SIGINT ignored, and so
+    # would every command it starts (an ignored signal stays ignored across exec): the SIGINT
+    # cases would then test nothing. Caught here, it is the default again in the commands.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     work = args.work or Path(tempfile.mkdtemp(prefix="seuwgpu-battery-"))
     work.mkdir(parents=True, exist_ok=True)
     os.chdir(work)  # relative outputs (e.g. an --out without a folder) land here
     b = Battery(work)
     b.files()
+    b.format_files()
     for group in (
         b.spec_cases,
         b.camera_cases,
         b.model_cases,
+        b.format_cases,
         b.argument_cases,
         b.run_dir_cases,
         b.interruption_cases,
+        b.partial_run_cases,
         b.oversize_cases,
     ):
         group()
     cases = [c for c in b.cases if not args.only or args.only in c.category or args.only in c.name]
     results, t0 = [], time.time()
     for i, case in enumerate(cases, 1):
-        if case.before is not None:
-            case.before()
         t = time.time()
-        o = run_process(case) if case.process or case.kill or case.concurrent else run_in_process(case)
-        cls, detail = classify(case, o)
+        try:
+            if case.before is not None:
+                case.before()
+        except Exception as e:  # noqa: BLE001 - the battery's own set-up: said, the other cases run
+            cls, detail, o = "crash", f"the case's set-up failed: {type(e).__name__}: {e}"[:300], Outcome(None, "", "")
+        else:
+            o = run_process(case) if case.process or case.kill or case.concurrent else run_in_process(case)
+            cls, detail = classify(case, o)
         results.append(
             {
                 "category": case.category,
