@@ -168,6 +168,28 @@ def test_ksplat_malformed_files_are_refused_in_one_line(tmp_path, change, match)
     assert "\n" not in str(e.value) and str(e.value).startswith(str(p))
 
 
+@pytest.mark.parametrize("full, size", [(2**12, 2**12), (2**31, 2**31)], ids=["128 MB", "2^62 splats"])
+def test_ksplat_huge_bucket_counts_are_refused_before_allocating(tmp_path, full, size):
+    """A section header's full-bucket count and bucket size (uint32 each) may describe far more
+    splats than the file holds: the reader listed every splat's bucket before checking them (a
+    17 kB file took 1 GB of memory for 2^13 buckets of 2^13; 2^31 of 2^31 raised numpy's 'array
+    is too big'). Refused now from the counts alone."""
+    import tracemalloc
+
+    p = edited(tmp_path, "level2_sh2.ksplat", 4096 + 8, struct.pack("<I", size))  # section 0's bucket size
+    b = bytearray(p.read_bytes())
+    struct.pack_into("<I", b, 4096 + 32, full)  # its full buckets
+    p.write_bytes(bytes(b))
+    tracemalloc.start()
+    try:
+        with pytest.raises(ModelFileError, match=rf"\({full} full of {size}, 24 partial holding \d+, 25 in all\)") as e:
+            read_model(p)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert "\n" not in str(e.value) and peak < 16 << 20, peak
+
+
 def test_ksplat_damaged_without_its_extension_is_no_model(tmp_path):
     p = edited(tmp_path, "level0_sh2.ksplat", cut=44, out="model.bin")
     with pytest.raises(ModelFileError, match="unrecognised model file"):

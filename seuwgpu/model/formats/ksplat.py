@@ -229,17 +229,24 @@ def _decode_section(spath, i, s, level, degree, sh_lo, sh_hi, f, count) -> dict[
                 f"{spath}: .ksplat section {i} stores {int(s['bucket_bytes'])}-byte buckets (12 expected)"
             )
         size, full = int(s["bucket_size"]), int(s["full"])
-        bucket = np.concatenate(
-            [np.arange(full * size, dtype=np.int64) // max(size, 1), np.repeat(full + np.arange(partial), lengths)]
-        )
-        if full + partial != nbuckets or len(bucket) < count:
+        # the bucket of each of the section's `count` splats, checked before anything is allocated:
+        # the header's counts (up to 2^32 each) may describe far more splats than the file holds
+        in_full = min(count, full * size)
+        ends = np.cumsum(lengths)  # where each partially filled bucket's splats end, after the full ones
+        if full + partial != nbuckets or in_full + (int(ends[-1]) if partial else 0) < count:
             raise KsplatError(
                 f"{spath}: .ksplat section {i}'s buckets ({full} full of {size}, {partial} partial holding "
                 f"{int(lengths.sum())}, {nbuckets} in all) do not hold its {count} splats"
             )
+        bucket = np.concatenate(
+            [
+                np.arange(in_full, dtype=np.int64) // max(size, 1),
+                full + np.searchsorted(ends, np.arange(count - in_full), side="right"),
+            ]
+        )
         rng = int(s["range"]) or DEFAULT_RANGE[level]
         step = float(s["block"]) / 2.0 / rng
-        centre = centres.reshape(nbuckets, 3).astype(np.float64)[bucket[:count]]
+        centre = centres.reshape(nbuckets, 3).astype(np.float64)[bucket]
         means = (rec["centre"].astype(np.float64) - rng) * step + centre
     sh_rest = np.zeros((count, {0: 0, 1: 3, 2: 8}[degree], 3))
     if deg:
