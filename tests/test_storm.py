@@ -188,6 +188,30 @@ def test_a_partial_run_of_other_arguments_is_refused(tmp_path, monkeypatch, caps
         assert "unreadable; starting over" in capsys.readouterr().err
 
 
+def test_up_naming_the_default_axis_resumes_the_same_run(tmp_path, monkeypatch, capsys):
+    """The run's identity holds the up axis that frames the orbit views, not the --up given: a
+    run with `--up +z` (the embedded scene's own axis) is resumed without it, and one with
+    --cameras (which frames nothing) whatever --up says. Spelled as given, the harmless re-run
+    was refused ('--up +z there, unset now')."""
+    from seuwgpu.apps.cli import main
+    from seuwgpu.model.cameras import orbit_cameras, save_cameras
+
+    argv, cls, method = storm_and_state_runs(tmp_path)["storm"]
+    cams = tmp_path / "cams.json"
+    save_cameras(orbit_cameras(1, 16, 16), cams)
+    with_cameras = [*argv[: argv.index("--size")], *argv[argv.index("--size") + 2 :], "--cameras", str(cams)]
+    for first, again in ((["--up=+z"], []), (["--up=+x"], ["--up=-y"])):
+        run = with_cameras if first == ["--up=+x"] else argv
+        with monkeypatch.context() as patch:
+            run_counting(patch, cls, method, 3)
+            assert main([*run, *first]) == 130
+        with monkeypatch.context() as patch:
+            calls = run_counting(patch, cls, method)
+            assert main([*run, *again]) == 0, capsys.readouterr().err
+        assert len(calls) == 4 and not (tmp_path / "storm.partial.parquet").exists()
+        capsys.readouterr()
+
+
 def test_one_storm_or_state_run_per_folder_at_a_time(tmp_path, monkeypatch, capsys):
     """While a run holds the folder (its flock), another run of the command there is refused in
     one line before it reads the partial file or renders; the lock is released when a run ends,

@@ -795,8 +795,9 @@ def partial_records(args, src, cams, name: str, records, **options):
     """The records of an interrupted run of the same arguments in `--out` (campaign/partial.py;
     another run's are refused, naming what differs). The run is what decides its records: the
     model and camera files by their content (sha256: the same files through another path are the
-    same run), the other options as read (defaults spelled out), then the command's `options`.
-    `records(rows)`: the DataFrame of the records, as the finished run writes it."""
+    same run), the other options as read (defaults spelled out; the up axis as resolved, so that
+    `--up` naming the default, or given with --cameras, is the same run), then the command's
+    `options`. `records(rows)`: the DataFrame of the records, as the finished run writes it."""
     from seuwgpu.campaign.partial import PartialRecords
     from seuwgpu.campaign.spec import content_hash
 
@@ -811,7 +812,7 @@ def partial_records(args, src, cams, name: str, records, **options):
         "n": None if args.model else src.model.n,
         "sh-degree": None if args.model else args.sh_degree,
         "seed": args.seed,
-        "up": args.up,
+        "up": None if args.cameras else src.up,  # what frames the orbit: --up or the format's; unused by cameras
         "cameras": content("cameras"),
         "views": len(cams),
         "size": None if args.cameras else "x".join(map(str, view_size(args))),
