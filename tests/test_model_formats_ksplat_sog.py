@@ -168,26 +168,31 @@ def test_ksplat_malformed_files_are_refused_in_one_line(tmp_path, change, match)
     assert "\n" not in str(e.value) and str(e.value).startswith(str(p))
 
 
+def refused_with_peak(path, match):
+    """read_model's ModelFileError for `path` (matching `match`) and the peak memory traced meanwhile."""
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        with pytest.raises(ModelFileError, match=match) as e:
+            read_model(path)
+        return e.value, tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
 @pytest.mark.parametrize("full, size", [(2**12, 2**12), (2**31, 2**31)], ids=["128 MB", "2^62 splats"])
 def test_ksplat_huge_bucket_counts_are_refused_before_allocating(tmp_path, full, size):
     """A section header's full-bucket count and bucket size (uint32 each) may describe far more
     splats than the file holds: the reader listed every splat's bucket before checking them (a
     17 kB file took 1 GB of memory for 2^13 buckets of 2^13; 2^31 of 2^31 raised numpy's 'array
     is too big'). Refused now from the counts alone."""
-    import tracemalloc
-
     p = edited(tmp_path, "level2_sh2.ksplat", 4096 + 8, struct.pack("<I", size))  # section 0's bucket size
     b = bytearray(p.read_bytes())
     struct.pack_into("<I", b, 4096 + 32, full)  # its full buckets
     p.write_bytes(bytes(b))
-    tracemalloc.start()
-    try:
-        with pytest.raises(ModelFileError, match=rf"\({full} full of {size}, 24 partial holding \d+, 25 in all\)") as e:
-            read_model(p)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert "\n" not in str(e.value) and peak < 16 << 20, peak
+    e, peak = refused_with_peak(p, rf"\({full} full of {size}, 24 partial holding \d+, 25 in all\)")
+    assert "\n" not in str(e) and peak < 16 << 20, peak
 
 
 def test_ksplat_damaged_without_its_extension_is_no_model(tmp_path):
@@ -340,6 +345,26 @@ def test_sog_malformed_zips_are_refused_in_one_line(tmp_path):
         with pytest.raises(ModelFileError, match=match) as e:
             read_model(tmp_path / name)
         assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize(
+    "member, padding, limit",
+    [("meta.json", b" " * (17 << 20), 16 << 20), ("sh0.webp", bytes(9 << 20), 8 * (256 + (1 << 20)))],
+    ids=["meta.json of 17 MiB", "sh0.webp of 9 MiB"],
+)
+def test_sog_zip_members_declaring_more_than_a_sog_needs_are_not_inflated(tmp_path, member, padding, limit):
+    """A few kB of deflated zeros can declare gigabytes: a member larger than any SOG of its count
+    needs (meta.json: kilobytes; an image: about 4 bytes a texel) is refused from its declared
+    size before it is inflated. Here the padding is harmless (JSON whitespace, bytes after the
+    WebP), so the file read before, inflating all of it."""
+    bomb = tmp_path / "bomb.sog"
+    with zipfile.ZipFile(DATA / "sh3.sog") as src, zipfile.ZipFile(bomb, "w", zipfile.ZIP_DEFLATED) as z:
+        for n in src.namelist():
+            z.writestr(n, src.read(n) + (padding if n == member else b""))
+    assert bomb.stat().st_size < 100_000
+    e, peak = refused_with_peak(bomb, rf"{member} in the SOG zip declares [\d,]+ bytes uncompressed")
+    assert f"over the {limit:,} its SOG could need" in str(e) and "\n" not in str(e)
+    assert peak < len(padding) / 4, peak
 
 
 def webp(width, height, claimed=None):

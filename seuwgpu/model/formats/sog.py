@@ -45,6 +45,14 @@ from seuwgpu.model.formats.quantized import finite_logit
 
 SH_COEFFICIENTS = {1: 3, 2: 8, 3: 15}
 PALETTE_ROW = 64  # palette entries per row of the centroids image
+# The most a bundled SOG's zip entries may declare uncompressed, checked before one is inflated (a
+# few kB of deflated zeros can declare gigabytes): meta.json holds four 256-entry codebooks and
+# the image names (kilobytes); a lossless WebP about 4 bytes a texel at most (raw RGBA and its
+# headers), and an image holds the splats' texels, or the SH palette's (at most 65536 entries of
+# 15 coefficients: under 2^20), with some rows of padding: twice that is allowed.
+META_BYTES = 16 << 20
+TEXEL_BYTES = 8
+SLACK_TEXELS = 1 << 20
 # notes for meta.json's `model` ("antialiased" gets the note every format gives it)
 MODEL_NOTES = {"2dgs": "trained as 2D Gaussians (2DGS): rendered here as 3D Gaussians"}
 
@@ -121,14 +129,21 @@ class _Files:
 
     def meta_bytes(self) -> bytes:
         if self.zip is not None:
-            return self._zip_read("meta.json")
+            return self._zip_read("meta.json", META_BYTES)
         return Path(self.path).read_bytes()
 
-    def _zip_read(self, name: str) -> bytes:
+    def _zip_read(self, name: str, limit: int) -> bytes:
         try:
-            return self.zip.read(name)
+            declared = self.zip.getinfo(name).file_size
         except KeyError:
             raise SogError(f"{self.path}: the SOG zip lacks {name}, which meta.json lists") from None
+        if declared > limit:
+            raise SogError(
+                f"{self.path}: {name} in the SOG zip declares {declared:,} bytes uncompressed, over the {limit:,} "
+                "its SOG could need: a damaged archive or a zip bomb, not inflated"
+            )
+        try:
+            return self.zip.read(name)
         except (zipfile.BadZipFile, OSError, EOFError) as e:
             raise SogError(f"{self.path}: {name} in the SOG zip cannot be read ({e}; truncated?)") from None
 
@@ -139,7 +154,7 @@ class _Files:
         if not isinstance(name, str):
             raise SogError(f"{self.path}: SOG meta.json names {what}'s image as {name!r}, not a file name")
         if self.zip is not None:
-            data = self._zip_read(name)
+            data = self._zip_read(name, TEXEL_BYTES * (count + SLACK_TEXELS))
         else:
             p = self.base / name
             if not p.is_file():
