@@ -253,3 +253,30 @@ def test_one_scene_output_is_unchanged():
     m = both["mtbf"]
     m = m[m["scene"] == "big"].drop(columns=["scene", "n_primitives", "model_bits"]).reset_index(drop=True)
     pd.testing.assert_frame_equal(m, mt.reset_index(drop=True), check_exact=False, rtol=1e-12)
+
+
+def test_stored_bits_of_each_model_at_its_own_sh_degree():
+    """A degree-1 model (23 components) beside a degree-3 one (59): each model's stored bits and
+    coverage are its own (the degree came from the pooled records: 500 x 59 x 32 bits for the
+    degree-1 model, 2.6x too many, and its MTBF that much too short)."""
+    big = single_records("big", 4000, 1, 0.3)
+    small = single_records("small", 500, 2, 0.05, iid0=10**6)
+    small.loc[small["field"] == "sh_rest", "weight"] = 500 * 9 / SAMPLES  # degree 1: 3 x 3 coefficients
+    df = pd.concat([big, small], ignore_index=True)
+    assert reliability.model_degrees(df) == {("big", 4000): 3, ("small", 500): 1}
+    res = reliability.reliability(df)
+    assert res["bits"] == {"big": 4000 * 59 * 32, "small": 500 * 23 * 32}
+    # the stored bits are the records' weights: every cell sampled, one arm
+    for scene, g in df[df["defense"] == "none"].groupby("scene"):
+        assert res["bits"][scene] == pytest.approx(g["weight"].sum())
+    pc = res["pc"].set_index(["scene", "defense"])
+    assert pc.loc[("small", "none"), "sh_degree"] == 1 and pc.loc[("big", "none"), "sh_degree"] == 3
+    assert np.allclose(res["pc"]["coverage_pct"], 100.0) and not any("covers only" in n for n in res["notes"])
+    mt = res["mtbf"]
+    assert set(mt.loc[mt["scene"] == "small", "model_bits"]) == {500 * 23 * 32}
+    pooled = reliability.catastrophe_probability(df, pooled=True)
+    assert np.allclose(pooled["coverage_pct"], 100.0) and (pooled["sh_degree"] == -1).all()
+    # pooled over stored bits: each model's p_c weighted by its bits
+    p = pc["p_c"].xs("none", level="defense")
+    want = (p["big"] * 4000 * 59 + p["small"] * 500 * 23) / (4000 * 59 + 500 * 23)
+    assert pooled.set_index("defense").loc["none", "p_c"] == pytest.approx(want, rel=1e-12)

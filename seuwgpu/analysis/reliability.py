@@ -40,6 +40,7 @@ from seuwgpu.analysis.records import (
     figure,
     prepare,
     provenance,
+    record_weights,
     reference_precision,
     sh_degree_of,
     single_upsets,
@@ -47,7 +48,7 @@ from seuwgpu.analysis.records import (
     tag,
 )
 from seuwgpu.model import encoding
-from seuwgpu.model.fields import field_components, n_components
+from seuwgpu.model.fields import field_components, n_components, sh_rest_count
 
 DEFAULT_SCRUB_HOURS = 24.0  # assumption: a daily scrub (reload) of the model from protected storage
 
@@ -140,6 +141,27 @@ def _models(s: pd.DataFrame) -> pd.DataFrame:
     return m
 
 
+def model_degrees(df: pd.DataFrame) -> dict:
+    """SH degree of each model (scene, n_primitives) of the single-upset records, each its own
+    (a scene at degree 1 beside one at 3 has 23, not 59, components): from its sh_rest records'
+    weights (the runner's weight is N x components / records of the cell, so a (precision,
+    defense, bit) cell's weights sum to N x 3 x the sh_rest coefficients), else
+    `records.sh_degree_of` of that model's records."""
+    s = _single_bits(df)
+    out = {}
+    for (scene, n), g in s.groupby(MODEL, sort=False):
+        sh = g[g["field"] == "sh_rest"]
+        deg = None
+        if len(sh):
+            cell = (
+                pd.Series(record_weights(sh), index=sh.index).groupby([sh["precision"], sh["defense"], sh["bit"]]).sum()
+            )
+            comps = float(np.median(cell.to_numpy(float))) / float(n)
+            deg = next((d for d in range(4) if abs(3 * sh_rest_count(d) - comps) < 0.5), None)
+        out[(scene, n)] = sh_degree_of(g) if deg is None else deg
+    return out
+
+
 def _pooled_text(m: pd.DataFrame) -> str:
     names = ", ".join(f"{r.scene} (N={int(r.n_primitives):,})" for r in m.itertuples())
     return f"{len(m)} models, weighted by stored bits: {names}"
@@ -164,16 +186,27 @@ def catastrophe_probability(df: pd.DataFrame, conf: float = 0.95, pooled: bool =
     per_model = len(models) > 1 and not pooled
     by = (MODEL if per_model else []) + ["precision", "defense"]
     r = E.rate(s, "catastrophic", by, conf)
-    deg = sh_degree_of(s)
+    degree = model_degrees(s)
     cov = []
     for key, g in s.groupby(by, sort=False):
+        # stored bits of the sampled (field, bit) cells over the stored bits of the models, each
+        # model with its own primitive count and SH degree
         have = g.groupby(["scene", "n_primitives", "field", "bit"]).size().reset_index()
         bits = encoding.BITS.get(key[-2], 32)
-        comps = have["field"].map(lambda f: field_components(f, deg)).sum()
-        n_models = have.groupby(["scene", "n_primitives"]).ngroups
-        cov.append({**dict(zip(by, key)), "coverage_pct": 100 * comps / (n_models * n_components(deg) * bits)})
+        deg = [degree[(a, b)] for a, b in zip(have["scene"], have["n_primitives"])]
+        covered = sum(n * field_components(f, d) for n, f, d in zip(have["n_primitives"], have["field"], deg))
+        ms = have[MODEL].drop_duplicates()
+        total = sum(n * n_components(degree[(a, n)]) * bits for a, n in zip(ms["scene"], ms["n_primitives"]))
+        degs = {degree[(a, n)] for a, n in zip(ms["scene"], ms["n_primitives"])}
+        cov.append(
+            {
+                **dict(zip(by, key)),
+                "coverage_pct": 100 * covered / total,
+                # one model's degree; a pool of models of different degrees has none (-1)
+                "sh_degree": degs.pop() if len(degs) == 1 else -1,
+            }
+        )
     out = r.rename(columns={"rate": "p_c"}).merge(pd.DataFrame(cov), on=by)
-    out["sh_degree"] = deg
     out = sort_rows(out)
     if per_model:  # precision, then model (order of appearance), then defense
         rank = {tuple(k): i for i, k in enumerate(models[MODEL].itertuples(index=False))}
@@ -353,7 +386,7 @@ def reliability(
     pc = catastrophe_probability(df, conf)
     notes = []
     precision = precision or reference_precision(pc)
-    deg = int(pc["sh_degree"].iloc[0])
+    degree = model_degrees(df)
     rates, scrub, rates_from = reliability_parameters(manifests)
     models = models_of(df)
     per_model = len(models) > 1
@@ -380,7 +413,7 @@ def reliability(
             b = bits.get(m.key) if isinstance(bits, dict) else None
         else:
             sub, b = pc, bits
-        b = stored_bits(m.n_primitives, precision, deg) if b is None else float(b)
+        b = stored_bits(m.n_primitives, precision, degree[(m.scene, m.n_primitives)]) if b is None else float(b)
         dp, dnotes = _dose_p(dose_fits, precision, m.scene, m.n_primitives)
         notes.extend(dnotes)
         if per_model and not (sub["precision"] == precision).any():
