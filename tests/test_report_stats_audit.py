@@ -163,3 +163,30 @@ def test_pc_claim_over_every_field_and_bit_has_a_verdict():
     # one event in the log-scale sign cell: 300 / 2 of 100 x 59 x 32 stored bits
     assert r["measured"] == pytest.approx(100 * 150 / (100 * 59 * 32))
     assert r["verdict"] in ("reproduced", "differs") and "covers" not in r["basis"]
+
+
+@pytest.mark.parametrize(
+    "key, lo, hi, verdict",
+    [
+        # the CPU study's lookup AUC: [0.97605, 0.99687] against the paper's 0.997, which stands
+        # for any AUC in [0.9965, 0.9975]: it read "differs" as the exact number 0.997
+        ("auc_fieldbit", 0.976053035333644, 0.9968686293160773, "reproduced"),
+        ("auc_fieldbit", 0.9750, 0.99649, "differs"),
+        ("auc_fieldbit", 0.99751, 0.9990, "differs"),
+        ("auc_fieldbit", 0.9974, 0.9990, "reproduced"),
+        # the CPU study's guarded p_c (%): 0.0612 stands for [0.06115, 0.06125]
+        ("pc_guard", 0.0023291132055587647, 0.057615824266086156, "differs"),
+        ("pc_guard", 0.0023, 0.06116, "reproduced"),
+        ("alpha", 0.2341, 0.6204, "differs"),
+    ],
+)
+def test_verdict_reads_the_paper_value_to_its_printed_digits(key, lo, hi, verdict):
+    """The paper prints rounded values; its 0.997 is any number that rounds to it. The verdict
+    compares the interval with that range, not with 0.997 exactly (paper_half_unit: half a unit
+    of the last printed digit)."""
+    r = claims._row(key, (lo + hi) / 2, lo, hi)
+    assert r["verdict"] == verdict
+    assert claims.paper_half_unit(0.997) == pytest.approx(5e-4)
+    assert claims.paper_half_unit(10.3) == pytest.approx(0.05)
+    assert claims.paper_half_unit(0.0612) == pytest.approx(5e-5)
+    assert claims.paper_half_unit(100.0) == pytest.approx(0.05)

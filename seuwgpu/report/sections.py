@@ -86,7 +86,8 @@ def _sec_claims(df, manifests, ctx) -> Section:
         "claims",
         "Claims of the paper against these records",
         "Each quantitative claim of the paper, the value measured here with its 95% interval, the "
-        "paper's value and the verdict: reproduced (the paper's value lies in the interval), differs, "
+        "paper's value and the verdict: reproduced (the interval meets the paper's value as printed, i.e. "
+        "give or take half a unit of its last digit: 0.997 is any value in [0.9965, 0.9975]), differs, "
         "or not measured. The paper's models are not these: a difference is a finding, not an error.",
     )
     sec.tables.append(TableItem("claims", "Claims", t, "Claims of the paper, measured on these records."))
