@@ -753,7 +753,9 @@ def _sec_prediction(df, manifests, ctx) -> Section:
         f"At {res['precision']}: a gradient-boosted classifier of 'catastrophic' from static fault-site "
         "features against the (field, bit) lookup and a constant, record-weighted, on a stratified 30% "
         "held-out split and leave-one-scene-out; AUC with 95% bootstrap intervals (each class "
-        "resampled apart; none where the weights leave < 5 effective records of a class).",
+        "resampled apart; none where the weights leave < 5 effective records of a class). The intervals "
+        "know only the events held out: where the AUC's shortfall from 1 rests on rare cells a split "
+        "holds none of, they are too narrow (analysis/stats.py auc_interval).",
     )
     if res["roc"]:
         sec.figures.append(
