@@ -452,3 +452,24 @@ def test_a_campaign_hashes_an_unbundled_sogs_images(tmp_path):
     (d / "quats.webp").write_bytes((d / "quats.webp").read_bytes() + b"\0")
     assert content_hash("model", d) != before
     assert content_files("model", DATA / "sh3.sog") == [DATA / "sh3.sog"]
+
+
+def test_a_sog_count_beyond_host_memory_is_refused_before_any_image(tmp_path):
+    """meta.json's count sizes what the images may hold (and WebP packs a constant image into
+    bytes): a count no host holds is refused from meta.json, in one line, before an image is read."""
+    from seuwgpu.errors import TooBig
+    from seuwgpu.model.formats import sog
+
+    d = sog_copy(tmp_path, _set("count", 2**40))
+    read = []
+    real = sog._Files.image
+
+    def image(self, *a, **k):
+        read.append(a[0])
+        return real(self, *a, **k)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sog._Files, "image", image)
+        with pytest.raises(TooBig, match="SOG count 1099511627776 needs about") as e:
+            read_model(d)
+    assert not read and "\n" not in str(e.value)

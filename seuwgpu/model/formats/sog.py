@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seuwgpu.model.budget import check_model
 from seuwgpu.model.fields import Model
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.quantized import finite_logit
@@ -259,6 +260,9 @@ def read_sog(path) -> tuple[Model, SogInfo]:
     n = meta.get("count")
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
         raise SogError(f"{spath}: SOG meta.json count must be a positive integer, got {n!r}")
+    # before any image: the images' size limits follow the count, and WebP compresses a constant
+    # image to almost nothing (degree 0: the least a model of n splats needs)
+    check_model(n, 0, what=f"{spath}: SOG count", use="read and render")
 
     lo_name, hi_name = _files(meta, "means", spath, 2)[:2]
     lo, w, h = files.image(lo_name, n, "means, low bytes")

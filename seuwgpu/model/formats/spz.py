@@ -32,6 +32,7 @@ beyond +-2048 at 12 fractional bits, non-finite values) raise ModelFileError.
 from __future__ import annotations
 
 import gzip
+import io
 import os
 import struct
 import warnings
@@ -39,6 +40,7 @@ import zlib
 
 import numpy as np
 
+from seuwgpu.model.budget import check_model
 from seuwgpu.model.fields import Model
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.quantized import finite_logit, round_half_away, to_u8
@@ -118,36 +120,48 @@ class SpzInfo:
         return bool(self.flags & FLAG_ANTIALIASED)
 
 
+TAIL_COUNTED = 1 << 20  # bytes after the planes a legacy stream is inflated for (to count them)
+
+
 def _planes_legacy(path: str, data: bytes) -> tuple[SpzInfo, dict[str, bytes]]:
+    """The header and planes of a gzip SPZ, inflated as far as they go and no further: the
+    header first, the point count checked against host memory, then the planes it sizes (a small
+    file can inflate to gigabytes; whole-stream decompression did that before any check)."""
+    stream = gzip.GzipFile(fileobj=io.BytesIO(data))
     try:
-        raw = gzip.decompress(data)
+        raw = stream.read(16)
+        magic = struct.unpack("<I", raw[:4])[0] if len(raw) >= 4 else None  # the magic first: any gzip file gets here
+        if magic != MAGIC:
+            found = f"magic {magic:#010x}" if magic is not None else f"{len(raw)} bytes, no magic"
+            raise SpzError(f"{path}: gzip file that is not SPZ ({found}, expected {MAGIC:#010x} 'NGSP')")
+        if len(raw) < 16:
+            raise SpzError(f"{path}: SPZ stream too short for its 16-byte header ({len(raw)} bytes)")
+        _, version, n, degree, fbits, flags, _ = struct.unpack("<IIIBBBB", raw[:16])
+        if not 1 <= version <= 3:
+            raise SpzError(f"{path}: SPZ version {version} in a gzip stream is not supported (expected 1, 2 or 3)")
+        info = _check_info(path, SpzInfo(version, n, degree, fbits, flags))
+        check_model(n, degree, what=f"{path}: SPZ point count", use="read and render")
+        sizes = _plane_sizes(info)
+        need = 16 + sum(sizes.values())
+        body = stream.read(need - 16)
+        if 16 + len(body) < need:
+            raise SpzError(
+                f"{path}: truncated SPZ data: {n} Gaussians at SH degree {degree} need {need} bytes, "
+                f"the stream has {16 + len(body)}"
+            )
+        tail = len(stream.read(TAIL_COUNTED))
+        more = tail == TAIL_COUNTED and len(stream.read(1)) > 0
     except (OSError, EOFError, zlib.error) as e:
         raise SpzError(f"{path}: not a readable SPZ file: the gzip stream is corrupt or truncated ({e})") from None
-    magic = struct.unpack("<I", raw[:4])[0] if len(raw) >= 4 else None  # the magic first: any gzip file gets here
-    if magic != MAGIC:
-        found = f"magic {magic:#010x}" if magic is not None else f"{len(raw)} bytes, no magic"
-        raise SpzError(f"{path}: gzip file that is not SPZ ({found}, expected {MAGIC:#010x} 'NGSP')")
-    if len(raw) < 16:
-        raise SpzError(f"{path}: SPZ stream too short for its 16-byte header ({len(raw)} bytes)")
-    _, version, n, degree, fbits, flags, _ = struct.unpack("<IIIBBBB", raw[:16])
-    if not 1 <= version <= 3:
-        raise SpzError(f"{path}: SPZ version {version} in a gzip stream is not supported (expected 1, 2 or 3)")
-    info = _check_info(path, SpzInfo(version, n, degree, fbits, flags))
-    sizes = _plane_sizes(info)
-    need = 16 + sum(sizes.values())
-    if len(raw) < need:
-        raise SpzError(
-            f"{path}: truncated SPZ data: {n} Gaussians at SH degree {degree} need {need} bytes, "
-            f"the stream has {len(raw)}"
-        )
-    planes, off = {}, 16
+    planes, off = {}, 0
     for name, size in sizes.items():
-        planes[name] = raw[off : off + size]
+        planes[name] = body[off : off + size]
         off += size
     if info.flags & FLAG_EXTENSIONS:
         warnings.warn(f"{path}: SPZ extensions skipped (they may change how the data was packed)")
-    elif len(raw) > need:  # read as Niantic's reader reads it, but not without a word
-        warnings.warn(f"{path}: {len(raw) - need} bytes after the SPZ data ignored (no extensions flagged)")
+    elif tail:  # read as Niantic's reader reads it, but not without a word
+        over = "over " if more else ""
+        warnings.warn(f"{path}: {over}{tail} bytes after the SPZ data ignored (no extensions flagged)")
     return info, planes
 
 
