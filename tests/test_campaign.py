@@ -353,8 +353,9 @@ def test_size_sweep_over_a_model_file_cuts_seeded_subsets(tmp_path):
 
 
 def test_unreadable_model_or_camera_file_stops_before_the_manifest(tmp_path):
-    """A model file that exists but cannot be read stops a new run with the loader's one-line
-    error before its manifest is written, so the folder is not claimed: the same folder then runs
+    """A model file that exists but cannot be read is refused with the loader's one-line error
+    by the spec (which reads the model's SH degree) and, were a resolved spec handed over, by the
+    run before its manifest is written, so the folder is not claimed: the same folder then runs
     with the corrected spec. (A camera file that cannot be read is refused with the spec.)"""
     from seuwgpu.errors import InputError
     from seuwgpu.model.formats import save_model
@@ -368,7 +369,10 @@ def test_unreadable_model_or_camera_file_stops_before_the_manifest(tmp_path):
     cams.write_text("[{")
     single = {"fields": ["opacity"], "bits": [31], "samples": 2, "defenses": ["none"]}
     base = {"seed": 5, "views": 1, "size": "32x32", "single": single}
-    spec = normalize_spec({**base, "scenes": [{"model": str(bad)}]})
+    with pytest.raises(InputError, match="bad.ply"):
+        normalize_spec({**base, "scenes": [{"model": str(bad)}]})
+    spec = normalize_spec({**base, "scenes": [{"model": str(good)}]})
+    spec["scenes"][0]["model"] = str(bad)  # the file broken after the spec was read
     with pytest.raises(InputError, match="bad.ply"):
         Runner(spec, tmp_path / "run", quiet=True).run()
     assert store.read_manifest(tmp_path / "run") is None

@@ -99,10 +99,16 @@ def test_the_same_spec_through_another_path_is_the_same_run(tmp_path):
 
 
 def test_a_run_that_failed_to_load_its_model_does_not_block_the_corrected_spec(tmp_path):
-    (tmp_path / "m.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 1\nend_header\n")
+    broken = b"ply\nformat ascii 1.0\nelement vertex 1\nend_header\n"
+    (tmp_path / "m.ply").write_bytes(broken)
     bad = tiny_spec(tmp_path, 'model = "m.ply"', "bad.toml")
+    with pytest.raises(InputError, match="lacks required 3DGS properties"):  # the spec reads the model
+        load_spec(bad)
+    save_model(make_scene("spheres", n=200), tmp_path / "m.ply")
+    spec = load_spec(bad)
+    (tmp_path / "m.ply").write_bytes(broken)  # broken after the spec was read: the run refuses it
     with pytest.raises(ModelFileError):
-        Runner(load_spec(bad), tmp_path / "run", quiet=True).run()
+        Runner(spec, tmp_path / "run", quiet=True).run()
     good = load_spec(tiny_spec(tmp_path))
     Runner(good, tmp_path / "run", quiet=True).run()
     assert store.read_manifest(tmp_path / "run")["spec_hash"] == spec_hash(good)

@@ -15,6 +15,7 @@ Splatting Rendering"); they are what is compared against, never a target of any 
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from decimal import Decimal
 
 import numpy as np
@@ -70,7 +71,9 @@ def _row(key, value=np.nan, lo=np.nan, hi=np.nan, basis="", measures_claim=True)
     }
 
 
-def claims_table(df: pd.DataFrame, results: dict | None = None, conf: float = 0.95) -> pd.DataFrame:
+def claims_table(
+    df: pd.DataFrame, results: dict | None = None, conf: float = 0.95, manifests: Iterable[dict] = ()
+) -> pd.DataFrame:
     """The claims table from the records and, where given, analysis results already computed
     (keys "theory", "guard", "size", "prediction" as the report's sections return them)."""
     results = results or {}
@@ -104,7 +107,7 @@ def claims_table(df: pd.DataFrame, results: dict | None = None, conf: float = 0.
             # nothing of the claim. The paper states one number: records of several models give
             # their p_c pooled (an upset uniform over all their stored bits), labelled as such; the
             # reliability section keeps each model's own
-            r = catastrophe_probability(g, conf, pooled=True).iloc[0]
+            r = catastrophe_probability(g, conf, pooled=True, manifests=manifests).iloc[0]
             cov = float(r["coverage_pct"])
             part = cov < 99.999
             basis = f"n = {int(r['n']):,}" + (f"; covers {cov:.3g}% of the stored bits" if part else "")

@@ -386,6 +386,23 @@ def measured_under(s: pd.DataFrame, defenses) -> np.ndarray:
     return (s[SITE_DEFENSES].to_numpy(np.int64) & need) == need
 
 
+def scene_degrees(manifests: Iterable[dict] = ()) -> dict[str, int]:
+    """SH degree of each scene, by the label records give it, as the runs' specs state it (a
+    model file's own degree since specs read it; runs of older versions stated 3 for every model
+    file, so inference from the records comes first where there is any: reliability.model_degrees)."""
+    from seuwgpu.model.formats import model_label
+
+    out: dict[str, int] = {}
+    for m in manifests or ():
+        for sc in (m.get("spec") or {}).get("scenes") or []:
+            if not isinstance(sc, dict) or sc.get("sh_degree") is None:
+                continue
+            label = sc.get("scene") or (model_label(sc["model"]) if sc.get("model") else None)
+            if label:
+                out.setdefault(str(label), int(sc["sh_degree"]))
+    return out
+
+
 def sh_degree_of(df: pd.DataFrame | None = None, manifests: Iterable[dict] = ()) -> int:
     """SH degree of the models: from a manifest's spec ("sh_degree") when stated, else inferred
     from the largest sh_rest component index in the records (when at least 50 sh_rest records

@@ -42,6 +42,7 @@ from seuwgpu.analysis.records import (
     provenance,
     record_weights,
     reference_precision,
+    scene_degrees,
     sh_degree_of,
     single_upsets,
     sort_rows,
@@ -141,13 +142,16 @@ def _models(s: pd.DataFrame) -> pd.DataFrame:
     return m
 
 
-def model_degrees(df: pd.DataFrame) -> dict:
+def model_degrees(df: pd.DataFrame, manifests: Iterable[dict] = ()) -> dict:
     """SH degree of each model (scene, n_primitives) of the single-upset records, each its own
     (a scene at degree 1 beside one at 3 has 23, not 59, components): from its sh_rest records'
     weights (the runner's weight is N x components / records of the cell, so a (precision,
-    defense, bit) cell's weights sum to N x 3 x the sh_rest coefficients), else
-    `records.sh_degree_of` of that model's records."""
+    defense, bit) cell's weights sum to N x 3 x the sh_rest coefficients); a model without sh_rest
+    records (degree 0, or sh_rest not sampled) from the runs' specs (`records.scene_degrees`:
+    a degree-0 model read as degree 3 had 59 components counted for its 14, 4.2x its stored
+    bits); else `records.sh_degree_of` of that model's records."""
     s = _single_bits(df)
+    stated = scene_degrees(manifests)
     out = {}
     for (scene, n), g in s.groupby(MODEL, sort=False):
         sh = g[g["field"] == "sh_rest"]
@@ -158,7 +162,9 @@ def model_degrees(df: pd.DataFrame) -> dict:
             )
             comps = float(np.median(cell.to_numpy(float))) / float(n)
             deg = next((d for d in range(4) if abs(3 * sh_rest_count(d) - comps) < 0.5), None)
-        out[(scene, n)] = sh_degree_of(g) if deg is None else deg
+        if deg is None:
+            deg = stated.get(str(scene), sh_degree_of(g))
+        out[(scene, n)] = deg
     return out
 
 
@@ -167,7 +173,9 @@ def _pooled_text(m: pd.DataFrame) -> str:
     return f"{len(m)} models, weighted by stored bits: {names}"
 
 
-def catastrophe_probability(df: pd.DataFrame, conf: float = 0.95, pooled: bool = False) -> pd.DataFrame:
+def catastrophe_probability(
+    df: pd.DataFrame, conf: float = 0.95, pooled: bool = False, manifests: Iterable[dict] = ()
+) -> pd.DataFrame:
     """p_c per (precision, defense) from the single-upset campaign: the weighted rate over the
     model's stored bits with the stratified interval; coverage_pct is the share of the stored bits
     whose (field, bit) cells were sampled.
@@ -186,7 +194,7 @@ def catastrophe_probability(df: pd.DataFrame, conf: float = 0.95, pooled: bool =
     per_model = len(models) > 1 and not pooled
     by = (MODEL if per_model else []) + ["precision", "defense"]
     r = E.rate(s, "catastrophic", by, conf)
-    degree = model_degrees(s)
+    degree = model_degrees(s, manifests)
     cov = []
     for key, g in s.groupby(by, sort=False):
         # stored bits of the sampled (field, bit) cells over the stored bits of the models, each
@@ -383,10 +391,10 @@ def reliability(
     model and environment, bits and dose_p are dicts by model key (`models_of`; `bits` given as
     such a dict overrides), and models lists {scene, n_primitives, key, label, bits, dose_p}."""
     manifests = list(manifests or ())
-    pc = catastrophe_probability(df, conf)
+    pc = catastrophe_probability(df, conf, manifests=manifests)
     notes = []
     precision = precision or reference_precision(pc)
-    degree = model_degrees(df)
+    degree = model_degrees(df, manifests)
     rates, scrub, rates_from = reliability_parameters(manifests)
     models = models_of(df)
     per_model = len(models) > 1

@@ -47,13 +47,19 @@ def _cells(fields, bits, precision, fault="bit"):
     return [(f, b) for f in fields for b in use]
 
 
+def scene_fields(fields, scene: dict) -> list:
+    """The fields of a section that a scene's model holds: sh_rest has no component at SH degree
+    0 (spec.py refuses it named for such a model; "all" stands for the fields each model holds)."""
+    return [f for f in fields if field_components(f, scene.get("sh_degree", 3)) > 0]
+
+
 def enumerate_contexts(spec: dict) -> list[Context]:
     ctxs, nid = [], 0
     if "single" in spec:
         t = spec["single"]
         for si, sc in enumerate(spec["scenes"]):
             for p in t["precisions"]:
-                cells = _cells(t["fields"], t["bits"], p, t.get("fault", "bit"))
+                cells = _cells(scene_fields(t["fields"], sc), t["bits"], p, t.get("fault", "bit"))
                 c = Context(
                     "single",
                     si,
@@ -91,7 +97,7 @@ def enumerate_contexts(spec: dict) -> list[Context]:
         t = spec["sizes"]
         for si, n in [(si, n) for si in t.get("scenes", [0]) for n in t["n"]]:
             for p in t["precisions"]:
-                cells = _cells(t["fields"], t["bits"], p, t.get("fault", "bit"))
+                cells = _cells(scene_fields(t["fields"], spec["scenes"][si]), t["bits"], p, t.get("fault", "bit"))
                 c = Context(
                     "size",
                     si,

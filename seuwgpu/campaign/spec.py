@@ -19,14 +19,14 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     scene = "spheres"        # an embedded scene (`seuwgpu scene --list`: procedural or real) ...
                              # or: model = "point_cloud.ply" (any format; `ply =` is an alias)
     n = 100000               # primitives of an embedded scene (a real capture: all by default)
-    sh_degree = 3
+    sh_degree = 3            # of an embedded scene; a model file's is read from it (recorded)
     cameras = "cameras.json" # optional, the capture's cameras (CAMS.json, INRIA cameras.json,
                              # a COLMAP model folder, nerfstudio transforms.json) instead of orbits
     up = "-y"                # optional: up axis of the orbit views (default: the format's)
 
     [single]                 # single upsets, stratified by (field, bit) cell
     precisions = ["fp32"]
-    fields = "all"           # or a list of field names
+    fields = "all"           # the fields each model holds (no sh_rest at SH degree 0), or a list
     bits = "all"             # or a list of bit indices (those valid for each precision)
     samples = 20             # injections per (field, bit) cell, or a plan:
                              # samples = {margin = 0.02, confidence = 0.95} (Leveugle et al. 2009,
@@ -147,6 +147,37 @@ def _list(table, key, where, default, valid=None):
         if bad:
             raise SpecError(f"{where}.{key}: unknown value(s) {bad}; valid: {list(valid)}")
     return v
+
+
+def _model_degree(scene: dict, path, where: str) -> int:
+    """The SH degree of a scene's model file: its own (the spec's sh_degree shapes embedded scenes;
+    one that differs from the file's is refused, not ignored). The runs record it, so that their
+    cells (no sh_rest at degree 0) and every analysis of stored bits are the model's."""
+    from seuwgpu.model.formats import read_model
+
+    try:
+        degree = read_model(path, warn_nonfinite=False).model.sh_degree
+    except ValueError as e:  # ModelFileError: the file named, the problem said
+        raise SpecError(f"{where}: {e}") from None
+    if "sh_degree" in scene and scene["sh_degree"] != degree:
+        raise SpecError(
+            f"{where}.sh_degree = {scene['sh_degree']!r} shapes an embedded scene; the model file holds SH degree "
+            f"{degree} (remove sh_degree)"
+        )
+    return degree
+
+
+def _no_missing_fields(table, where: str, scenes: list):
+    """A field listed by name that a scene's model does not hold (sh_rest at SH degree 0) is
+    refused; "all" means the fields each model holds (campaign/sampling.py scene_fields)."""
+    if table.get("fields", "all") == "all":
+        return
+    for i, sc in enumerate(scenes):
+        if sc["sh_degree"] == 0 and "sh_rest" in [canonical_field(f) for f in table["fields"]]:
+            raise SpecError(
+                f"{where}.fields lists sh_rest, which scenes[{i}] (SH degree 0) does not hold; "
+                'remove it, or use fields = "all" (each model\'s own fields)'
+            )
 
 
 def _fields(table, where):
@@ -423,6 +454,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
                 )
             out["model"] = _spec_file(s, key, where, base_dir)
             out["model_sha256"] = content_hash("model", out["model"])
+            out["sh_degree"] = _model_degree(s, out["model"], where)
         if "up" in s:
             if not isinstance(s["up"], str) or s["up"] not in UP_AXES:
                 raise SpecError(f"{where}.up: {s['up']!r} is no axis; expected one of {', '.join(UP_AXES)}")
@@ -466,6 +498,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "defenses": _names(t, "defenses", "single", ["none", "guard"], DEFENSES),
             "regions": _regions(t, "single", spec["size"]),
         }
+        _no_missing_fields(t, "single", spec["scenes"])
         _fault(t, spec["single"], "single")
         if spec["single"]["sampling"] not in ("stratified", "uniform"):
             raise SpecError(f'single.sampling must be "stratified" or "uniform", got {t["sampling"]!r}')
@@ -533,6 +566,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             "defenses": _names(t, "defenses", "sizes", ["none"], DEFENSES),
             "regions": _regions(t, "sizes", spec["size"]),
         }
+        _no_missing_fields(t, "sizes", [spec["scenes"][i] for i in which])
         if "scenes" in t:  # recorded only when given (the first scene by default), older hashes stay
             spec["sizes"]["scenes"] = sorted(set(which))
         _fault(t, spec["sizes"], "sizes")

@@ -81,7 +81,7 @@ def _prov(t) -> dict:
 
 
 def _sec_claims(df, manifests, ctx) -> Section:
-    t = claims.claims_table(df, ctx["results"])
+    t = claims.claims_table(df, ctx["results"], manifests=manifests)
     sec = Section(
         "claims",
         "Claims of the paper against these records",
