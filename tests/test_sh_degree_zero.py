@@ -83,3 +83,20 @@ def test_a_degree_0_campaign_runs_and_counts_its_own_stored_bits(tmp_path, degre
     assert pc["sh_degree"] == 0 and pc["coverage_pct"] == pytest.approx(100 * 2 / 32)
     want = float(np.average(df["catastrophic"], weights=df["weight"]))
     assert pc["p_c"] == pytest.approx(want)
+
+
+def test_sh_rest_named_for_a_degree_0_model_is_one_clear_line(tmp_path, capsys):
+    """inject (and every site: distributed, the viewer) said 'component 0 is out of range for
+    field sh_rest (valid 0..-1)' for a model without higher-order SH."""
+    from seuwgpu.apps.cli import main
+    from seuwgpu.faults.sites import make_site
+
+    with pytest.raises(ValueError, match=r"field sh_rest is not stored in this model: .*\(SH degree 0\)"):
+        make_site(N, "sh_rest", 0, 0, 30, "fp32", degree=0)
+    assert make_site(N, "sh_rest", 0, 8, 30, "fp32", degree=1).component == 8
+    with pytest.raises(ValueError, match=r"component 9 is out of range for field sh_rest \(valid 0..8\)"):
+        make_site(N, "sh_rest", 0, 9, 30, "fp32", degree=1)
+    scene = ["--scene", "spheres", "--n", "40", "--sh-degree", "0", "--size", "16x16", "--views", "1"]
+    assert main(["inject", *scene, "--field", "sh_rest", "--bit", "30", "--out", str(tmp_path / "i")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "field sh_rest is not stored in this model" in err[0] and "0..-1" not in err[0]

@@ -61,6 +61,18 @@ class Site:
         return FIELD_OFFSET[self.field] + self.component
 
 
+def check_field_stored(field: str, degree: int) -> int:
+    """The components of `field` in a model of SH degree `degree`; a field the model does not
+    store (sh_rest at degree 0) is refused with a ValueError saying so."""
+    nc = field_components(field, degree)
+    if nc == 0:
+        raise ValueError(
+            f"field {field} is not stored in this model: it has no higher-order SH (SH degree {degree}); "
+            "its fields are means, log_scales, quats, opacity and sh_dc"
+        )
+    return nc
+
+
 def make_site(
     model_or_n,
     field: str,
@@ -87,7 +99,7 @@ def make_site(
         raise ValueError(f"bits {bits} repeat a bit")
     if not 0 <= int(primitive) < n:
         raise ValueError(f"primitive {primitive} is out of range (model has {n} primitives, valid 0..{n - 1})")
-    nc = field_components(field, degree)
+    nc = check_field_stored(field, degree)
     if not 0 <= int(component) < nc:
         raise ValueError(f"component {component} is out of range for field {field} (valid 0..{nc - 1})")
     if op not in OPS:
