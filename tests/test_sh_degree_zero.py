@@ -100,3 +100,20 @@ def test_sh_rest_named_for_a_degree_0_model_is_one_clear_line(tmp_path, capsys):
     assert main(["inject", *scene, "--field", "sh_rest", "--bit", "30", "--out", str(tmp_path / "i")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "field sh_rest is not stored in this model" in err[0] and "0..-1" not in err[0]
+
+
+def test_worstcase_searches_the_fields_a_degree_0_model_stores(capsys):
+    """`worstcase --fields sh_rest` on a degree-0 model searched nothing and printed 'worst flip
+    none: footprint 0.0000% (certified bound -100.0000%), 0 of 0 flips rendered' with exit 0."""
+    from seuwgpu.apps.cli import main
+
+    scene = ["worstcase", "--scene", "blocks", "--n", "20", "--size", "16x16", "--views", "1", "--bit", "30"]
+    assert main([*scene, "--sh-degree", "0", "--fields", "sh_rest"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "field sh_rest is not stored in this model" in err[0]
+    assert main([*scene, "--sh-degree", "0", "--fields", "means", "sh_rest"]) == 2
+    capsys.readouterr()
+    assert main([*scene, "--sh-degree", "0", "--max-evaluations", "1"]) == 0  # default: the 14 components it stores
+    assert "of 280 flips rendered" in capsys.readouterr().out
+    assert main([*scene, "--sh-degree", "1", "--fields", "sh_rest", "--max-evaluations", "1"]) == 0
+    assert "of 180 flips rendered" in capsys.readouterr().out  # 9 components at degree 1

@@ -751,7 +751,7 @@ def cmd_worstcase(args):
 
     src = load_source(args)
     eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
-    fields = [canonical_field(f) for f in args.fields]
+    fields = None if args.fields is None else [canonical_field(f) for f in args.fields]
     for d in dict.fromkeys(args.defense):  # a defense named twice is searched once
         wc = worst_case(eng, d, fields, args.bit, max_evaluations=args.max_evaluations)
         where = f"{wc.site.field}[{wc.site.primitive}][{wc.site.component}] bit {wc.site.bit}" if wc.site else "none"
@@ -1141,8 +1141,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--fields",
         nargs="+",
-        default=["means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest"],
-        help="fields to search (default: all six)",
+        help="fields to search (default: every field the model stores; sh_rest only at SH degree 1-3)",
     )
     s.add_argument("--bit", type=index_int, nargs="+", help="bits to search (0 = LSB; default: all)")
     s.add_argument(

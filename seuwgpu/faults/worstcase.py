@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from seuwgpu.faults.guard import clamp_bits
-from seuwgpu.faults.sites import Site, site_from_flat
+from seuwgpu.faults.sites import Site, check_field_stored, site_from_flat
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, field_components
@@ -41,8 +41,14 @@ class WorstCase:
     record: dict | None
 
 
-def site_space(engine, fields=FIELDS, bits=None, primitives=None):
-    """(primitives, flat components, bits) arrays of every single-bit site of the space."""
+def site_space(engine, fields=None, bits=None, primitives=None):
+    """(primitives, flat components, bits) arrays of every single-bit site of the space. `fields`:
+    None for every field the model stores (no sh_rest at SH degree 0); a named field the model
+    does not store is refused (it would search nothing and report a worst flip of none)."""
+    if fields is None:
+        fields = [f for f in FIELDS if field_components(f, engine.degree) > 0]
+    for f in fields:
+        check_field_stored(f, engine.degree)
     nb = encoding.bits_per_value(engine.precision)
     bits = np.arange(nb) if bits is None else np.asarray(bits, dtype=np.int64).reshape(-1)
     for b in dict.fromkeys(bits.tolist()):  # the first bit outside the value refused, as everywhere
@@ -98,9 +104,10 @@ def footprint_bounds(engine, prims, comps, bits, defense: str = "none", chunk: i
 
 
 def worst_case(
-    engine, defense: str = "none", fields=FIELDS, bits=None, primitives=None, max_evaluations: int | None = None
+    engine, defense: str = "none", fields=None, bits=None, primitives=None, max_evaluations: int | None = None
 ) -> WorstCase:
-    """The single-bit flip of the space with the largest footprint under `defense` (see module)."""
+    """The single-bit flip of the space with the largest footprint under `defense` (see module);
+    `fields` None: every field the model stores."""
     prims, comps, bts = site_space(engine, fields, bits, primitives)
     bound = footprint_bounds(engine, prims, comps, bts, defense)
     order = np.argsort(-bound, kind="stable")
