@@ -26,14 +26,26 @@ def _box_widths(entry: dict, n: int | None, precision: str) -> dict:
         seed=entry.get("seed", 0),
         up=entry.get("up"),
     )
-    box = support_box(src.model, precision)
+    model = src.model
+    if entry.get("model") and n is not None and n < model.n:
+        model = model.sample(n, entry.get("seed", 0), src.name)  # a [sizes] row: the runner's subset
+    box = support_box(model, precision)
     width = np.asarray(box.hi, float) - np.asarray(box.lo, float)
-    deg = src.model.sh_degree
-    out = {"name": src.name, "sh_degree": deg, "n": src.model.n}
+    deg = model.sh_degree
+    out = {"name": src.name, "sh_degree": deg, "n": model.n}
     for f in FIELDS:
         c = field_components(f, deg)
         out[f"box_{f}"] = float(width[FIELD_OFFSET[f] : FIELD_OFFSET[f] + c].max()) if c else np.nan
     return out
+
+
+def _label(entry: dict) -> str | None:
+    """The scene name records give a spec's [[scenes]] entry."""
+    from seuwgpu.model.formats import model_label
+
+    if entry.get("scene"):
+        return str(entry["scene"])
+    return model_label(entry["model"]) if entry.get("model") else None
 
 
 def scene_table(df: pd.DataFrame, manifests: Iterable[dict] = ()) -> tuple[pd.DataFrame, list[str]]:
@@ -53,11 +65,11 @@ def scene_table(df: pd.DataFrame, manifests: Iterable[dict] = ()) -> tuple[pd.Da
         for key, _ in have.groupby(["scene", "n_primitives"]):
             if key in seen:
                 continue
-            entries = [e for e in (spec.get("scenes") or []) if isinstance(e, dict)]
-            entry = next(
-                (e for e in entries if e.get("scene") == key[0] and e.get("n") in (None, key[1])),
-                next((e for e in entries if e.get("scene") == key[0] or e.get("model")), None),
-            )
+            # the spec's entry of this scene, by the label its records carry (an embedded scene's
+            # name, a model file's label): a [sizes] row of an embedded scene listed after a
+            # model file was re-made from that file (its SH degree and boxes)
+            entries = [e for e in (spec.get("scenes") or []) if isinstance(e, dict) and _label(e) == key[0]]
+            entry = next((e for e in entries if e.get("n") in (None, key[1])), entries[0] if entries else None)
             row = {
                 "scene": key[0],
                 "kind": "embedded" if entry and entry.get("scene") else "model file",
