@@ -66,3 +66,17 @@ def test_scene_table_rows_are_their_own_models(run):
     box = support_box(sub, "fp32")
     width = np.asarray(box.hi, float) - np.asarray(box.lo, float)
     assert t.loc[("flat", SUB), "box_means"] == pytest.approx(float(width[:3].max()))  # means: components 0-2
+
+
+def test_defense_overheads_count_each_models_stored_bits(run):
+    """defense_table counted a degree-0 model at degree 3 (59 components): guard 0.0475% of a
+    1,000-primitive model instead of 0.2%."""
+    from seuwgpu.analysis.defenses import defense_table
+
+    df, manifests, _ = run
+    t = defense_table(df, manifests=manifests).set_index(["scene", "defense"])["memory_overhead_pct"]
+    box = 2 * 14 * 32  # the guard's box: two fp32 bounds of the 14 components it guards
+    assert t[("flat", "guard")] == pytest.approx(100 * box / (N0 * 14 * 32))
+    assert t[("spheres", "guard")] == pytest.approx(100 * box / (N2 * 38 * 32))
+    assert t[("flat", "parity")] == pytest.approx(100 / (14 * 32))
+    assert t[("spheres", "parity")] == pytest.approx(100 / (38 * 32))

@@ -12,6 +12,8 @@ exponent bit (a faint splat becomes opaque or a strong one half transparent).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 import pandas as pd
 
@@ -49,17 +51,21 @@ def has_new_defenses(df: pd.DataFrame) -> bool:
     return bool(set(df.get("defense", pd.Series(dtype=str)).unique()) - set(FIRST_DEFENSES))
 
 
-def defense_table(df: pd.DataFrame, timing: dict | None = None) -> pd.DataFrame:
+def defense_table(df: pd.DataFrame, timing: dict | None = None, manifests: Iterable[dict] = ()) -> pd.DataFrame:
     """One row per (scene, defense): residual catastrophic rates (overall and on the dangerous
-    cells) with intervals, the dangerous-cell rate relative to no defense, memory overhead,
-    time fraction (NaN where not measured), Pareto membership and the goal check."""
+    cells) with intervals, the dangerous-cell rate relative to no defense, memory overhead (at
+    the model's own SH degree: reliability.model_degrees, which reads a degree-0 model's from the
+    runs' specs), time fraction (NaN where not measured), Pareto membership and the goal check."""
+    from seuwgpu.analysis.reliability import model_degrees
+
     df = single_upsets(df, None, None)  # the single-upset campaign's records, weighted
     danger = dangerous_mask(df)
     timing = timing or {}
+    degrees = model_degrees(df, manifests)
     rows = []
     for (scene, prec), part in df.groupby(["scene", "precision"], observed=True):
         n_prims = int(part["n_primitives"].iloc[0])
-        degree = _degree(part)
+        degree = degrees.get((scene, n_prims), 3)
         base = None
         for d in [x for x in DEFENSES if x in set(part["defense"])]:
             arm = part[part["defense"] == d]
@@ -115,15 +121,6 @@ def defense_table(df: pd.DataFrame, timing: dict | None = None) -> pd.DataFrame:
     verdict[(known & time_unknown).to_numpy()] = pd.NA
     out["meets_goal"] = verdict
     return out
-
-
-def _degree(part: pd.DataFrame) -> int:
-    """SH degree from the sh_rest component count the records reached (3 unless evidently lower)."""
-    sh = part.loc[part["field"] == "sh_rest", "component"]
-    if sh.empty:
-        return 3
-    comps = int(sh.max()) + 1
-    return next((d for d in (0, 1, 2, 3) if 3 * ((d + 1) ** 2 - 1) >= comps), 3)
 
 
 def pareto_figure(table: pd.DataFrame):

@@ -444,7 +444,7 @@ def _sec_defenses(df, manifests, ctx) -> Section:
             "no defense beyond guard/ECC/duplication in the records",
             f"run the single-upset campaign with defenses from {others} beside none (`seuwgpu defenses` lists them)",
         )
-    t = D.defense_table(df)
+    t = D.defense_table(df, manifests=manifests)
     sec = Section("defenses", "Defenses against cost", "Residual catastrophic rate of every defense (paired arms).")
     cap = (
         "Per scene and defense: catastrophic rate (%) stratified by (field, bit) cell with 95% interval, "
