@@ -70,8 +70,10 @@ def test_scene_table_rows_are_their_own_models(run):
 
 def test_defense_overheads_count_each_models_stored_bits(run):
     """defense_table counted a degree-0 model at degree 3 (59 components): guard 0.0475% of a
-    1,000-primitive model instead of 0.2%."""
+    1,000-primitive model instead of 0.2%; the mitigation table pooled two models at the first
+    one's degree (guard 0.2% where their stored bits give 0.108%)."""
     from seuwgpu.analysis.defenses import defense_table
+    from seuwgpu.analysis.mitigation import mitigation_table
 
     df, manifests, _ = run
     t = defense_table(df, manifests=manifests).set_index(["scene", "defense"])["memory_overhead_pct"]
@@ -80,3 +82,7 @@ def test_defense_overheads_count_each_models_stored_bits(run):
     assert t[("spheres", "guard")] == pytest.approx(100 * box / (N2 * 38 * 32))
     assert t[("flat", "parity")] == pytest.approx(100 / (14 * 32))
     assert t[("spheres", "parity")] == pytest.approx(100 / (38 * 32))
+    m = mitigation_table(df, manifests).set_index("defense")["memory_overhead_pct"]
+    stored = (N0 * 14 + N2 * 38) * 32
+    assert m["guard"] == pytest.approx(100 * 2 * box / stored)
+    assert m["parity"] == pytest.approx(100 * (N0 + N2) / stored)

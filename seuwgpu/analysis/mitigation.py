@@ -74,6 +74,25 @@ def memory_overhead(
     return frac, f"{dfn.DEFENSE_INFO[defense]}{where}"
 
 
+def _pooled_overhead(defense: str, precision: str, models: dict, manifests) -> tuple[float, str]:
+    """Memory overhead of a defense over several models pooled as the records are: the bits it
+    adds to each model over their stored bits, each model at its own N and SH degree (a degree-0
+    model beside a degree-3 one has 14 components to its 59)."""
+    from seuwgpu.model import encoding
+    from seuwgpu.model.fields import FIELDS, field_components
+
+    added = stored = 0.0
+    basis = ""
+    for (_, n), deg in models.items():
+        frac, basis = memory_overhead(defense, precision, int(n), deg, manifests)
+        if defense == "none" or basis in ("from the run manifest", "unknown defense"):
+            return frac, basis
+        bits = float(n) * sum(field_components(f, deg) for f in FIELDS) * encoding.bits_per_value(precision)
+        added, stored = added + frac * bits, stored + bits
+    what = basis.rsplit(", N = ", 1)[0]
+    return added / stored, f"{what}, pooled over {len(models)} models (each its own N and SH degree)"
+
+
 def mitigation_table(
     df: pd.DataFrame, manifests: Iterable[dict] = (), precision: str | None = None, conf: float = 0.95
 ) -> pd.DataFrame:
@@ -104,13 +123,18 @@ def mitigation_table(
     manifests = list(manifests or ())
     deg = sh_degree_of(s, manifests)
     n_prims = float(np.average(s["n_primitives"], weights=multiplicity(s))) if "n_primitives" in s and len(s) else None
+    from seuwgpu.analysis.reliability import model_degrees
+
+    models = model_degrees(s, manifests) if "n_primitives" in s else {}  # (scene, N) -> its SH degree
     rates = E.percent(E.rate(s, "catastrophic", ["defense"], conf)).set_index("defense")
     base = s[s["defense"] == "none"]
     t_none = E.wmean(base["time_ms"], record_weights(base))
     rows = []
     for x in defs:
         g = s[s["defense"] == x]
-        ov, basis = memory_overhead(x, precision, n_prims, deg, manifests)
+        ov, basis = _pooled_overhead(x, precision, models, manifests) if len(models) > 1 else memory_overhead(
+            x, precision, n_prims, deg, manifests
+        )
         tm = E.wmean(g["time_ms"], record_weights(g)) if g["time_ms"].notna().any() else np.nan
         if x in SIMULATED_READ:
             tfrac, tbasis = np.nan, "not measured: the read-side decode is simulated on the stored words"
