@@ -259,6 +259,32 @@ def test_offscreen_window_panel_and_input(model, gpu):
     canvas.close()
 
 
+def test_the_panel_offers_a_degree_0_model_only_the_fields_it_stores(gpu):
+    """A model without sh_rest: the field list holds the five fields it stores; a field index
+    past them (sh_rest's, chosen on another model) falls back to the last, and the component
+    stays >= 0, so an inject from the panel works (it set the component to -1 and failed)."""
+    pytest.importorskip("rendercanvas")
+    pytest.importorskip("imgui_bundle")
+    from rendercanvas.offscreen import RenderCanvas
+
+    from seuwgpu.apps.viewer import OrbitCamera, ViewerState
+    from seuwgpu.apps.viewer_window import PANEL_WIDTH, ViewerApp
+    from seuwgpu.model.scenes import make_scene
+
+    flat = make_scene("spheres", n=N, sh_degree=0)
+    st = ViewerState(flat, "fp32", (64, 64), scene="spheres", orbit=OrbitCamera.for_scene("spheres"))
+    assert st.stored_fields() == ["means", "log_scales", "quats", "opacity", "sh_dc"]
+    canvas = RenderCanvas(size=(PANEL_WIDTH + 64, 240))
+    app = ViewerApp(st, canvas)
+    app.ui.update(field=5, component=0, bit=31, worst=False, primitive=0)  # sh_rest's index in FIELDS
+    canvas.draw()
+    assert app.ui["field"] == 4 and app.ui["component"] >= 0
+    app.inject_from_panel()
+    canvas.draw()
+    assert st.readout["active_sites"] == 1 and not st.status.startswith("error")
+    canvas.close()
+
+
 def test_capture_views_step_and_letterbox(model, gpu):
     from seuwgpu.apps.viewer import OrbitCamera, ViewerState, letterbox
     from seuwgpu.model.scenes import scene_cameras

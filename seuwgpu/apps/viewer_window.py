@@ -377,7 +377,7 @@ class ViewerApp:
 
     def inject_from_panel(self):
         ui, st = self.ui, self.state
-        field = FIELDS[ui["field"]]
+        field = st.stored_fields()[ui["field"]]
         prim = None if ui["worst"] else int(ui["primitive"])
         if prim is None:
             st.status = "searching the worst primitive of a sample..."
@@ -454,9 +454,10 @@ class ViewerApp:
 
         imgui.separator_text("Inject a bit flip")
         imgui.set_next_item_width(180)
-        _, ui["field"] = imgui.combo("field", ui["field"], list(FIELDS))
-        nc = st.field_components(FIELDS[ui["field"]])
-        ui["component"] = min(ui["component"], nc - 1)
+        fields = st.stored_fields()  # a degree-0 model has no sh_rest to offer (nor a component -1)
+        _, ui["field"] = imgui.combo("field", min(ui["field"], len(fields) - 1), fields)
+        nc = st.field_components(fields[ui["field"]])
+        ui["component"] = max(0, min(ui["component"], nc - 1))
         nb = st.bits_per_value()
         ui["bit"] = min(ui["bit"], nb - 1)
         imgui.set_next_item_width(180)
