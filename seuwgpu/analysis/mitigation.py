@@ -132,8 +132,10 @@ def mitigation_table(
     rows = []
     for x in defs:
         g = s[s["defense"] == x]
-        ov, basis = _pooled_overhead(x, precision, models, manifests) if len(models) > 1 else memory_overhead(
-            x, precision, n_prims, deg, manifests
+        ov, basis = (
+            _pooled_overhead(x, precision, models, manifests)
+            if len(models) > 1
+            else memory_overhead(x, precision, n_prims, deg, manifests)
         )
         tm = E.wmean(g["time_ms"], record_weights(g)) if g["time_ms"].notna().any() else np.nan
         if x in SIMULATED_READ:
