@@ -455,3 +455,19 @@ def test_rates_by_a_column_named_twice(spec_run, tmp_path, capsys):
     twice = capsys.readouterr().out
     assert twice == once and "dtype" not in twice
     assert pd.read_csv(tmp_path / "twice.csv").equals(pd.read_csv(tmp_path / "once.csv"))
+
+
+def test_a_signal_while_the_arguments_are_read_is_one_line(monkeypatch, capsys):
+    """SIGTERM (or Ctrl-C) landing while main reads its arguments ends it as one while the command
+    runs: exit 143 (130) and one line, no traceback."""
+    from seuwgpu.apps import cli
+    from seuwgpu.errors import Terminated
+
+    for exc, code, said in ((Terminated, 143, "terminated (SIGTERM)"), (KeyboardInterrupt, 130, "interrupted")):
+
+        def parser(exc=exc):
+            raise exc()
+
+        monkeypatch.setattr(cli, "build_parser", parser)
+        assert cli.main(["info"]) == code
+        assert capsys.readouterr().err.strip() == f"seuwgpu: {said}"

@@ -1232,9 +1232,13 @@ def main(argv=None) -> int:
     import warnings
 
     warnings.formatwarning = lambda msg, cat, *a, **k: f"seuwgpu: {cat.__name__}: {msg}\n"
-    parser = build_parser()
-    args = parser.parse_args(argv)
     Terminated.received = False  # this command's SIGTERM only (main runs many times in one test process)
+    try:  # a signal while the arguments are read ends the command as one while it runs does
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt as e:
+        term = isinstance(e, Terminated) or Terminated.received
+        print(f"seuwgpu: {'terminated (SIGTERM)' if term else 'interrupted'}", file=sys.stderr)
+        return 143 if term else 130
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt as e:
