@@ -1119,6 +1119,13 @@ class Battery:
 
         return prepare
 
+    def add_resumed(self, category: str, name: str, argv: list, d: Path, **kw):
+        """A storm or state case in a process, on --out d: it must end well with the records of
+        the uninterrupted reference run of its command (work/COMMAND_ref)."""
+        command = str(argv[0])
+        ref = self.work / f"{command}_ref"
+        self.add(category, name, [*argv, "--out", d], "ok", self.same_results(d, ref, command), process=True, **kw)
+
     def partial_run_cases(self):
         garbage, older = lambda p: p.write_bytes(b"PAR1 not a parquet file"), strip_run_meta
         empty, halved = lambda p: p.write_bytes(b""), lambda p: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
@@ -1154,13 +1161,11 @@ class Battery:
             ):
                 d = self.fresh(f"{name}_kill")
                 when = "after a periodic save" if after == "save" else "mid-run"
-                self.add(
+                self.add_resumed(
                     "interruption",
                     f"{name}: {times} x {signal.Signals(sig).name} {when}, then resume",
-                    [*argv, "--out", d],
-                    "ok",
-                    self.same_results(d, ref, name),
-                    process=True,
+                    argv,
+                    d,
                     kill=(sig, delay, times),
                     kill_after=after,
                 )
@@ -1188,24 +1193,20 @@ class Battery:
                     self.interrupted(name, argv, d)()
                     damage(d / f"{name}.partial.parquet")
 
-                self.add(
+                self.add_resumed(
                     "run directory",
                     f"{name}: a partial file of {what}",
-                    [*argv, "--out", d],
-                    "ok",
-                    self.same_results(d, ref, name),
-                    process=True,
+                    argv,
+                    d,
                     before=prepare,
                     stderr_has="starting over (it is replaced)",
                 )
         d = self.fresh("storm_spelt")
-        self.add(
+        self.add_resumed(
             "run directory",
             "storm: resume with a defense named twice (the same run)",
-            ["storm", *self.STORM, "--defense", "none", "guard", "guard", "--out", d],
-            "ok",
-            self.same_results(d, self.work / "storm_ref", "storm"),
-            process=True,
+            ["storm", *self.STORM, "--defense", "none", "guard", "guard"],
+            d,
             before=self.interrupted("storm", ["storm", *self.STORM, "--defense", "none", "guard"], d),
         )
         d = self.fresh("state_swapped")
