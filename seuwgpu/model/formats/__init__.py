@@ -117,10 +117,12 @@ def detect_format(path) -> str:
         return "compressed-ply" if compressed_ply.is_compressed_ply(ply.read_header(spath)) else "ply"
     if spz.is_spz(head):
         return "spz"
-    if head[:4] == b"PK\x03\x04" and sog.zip_has_meta(spath):
-        return "sog"
-    if head[:4] == b"PK\x03\x04" and spath.lower().endswith(".sog"):
-        raise sog.SogError(f"{spath}: not a SOG: {sog.zip_problem(spath)}")
+    if head[:4] == b"PK\x03\x04":
+        why = sog.zip_problem(spath)
+        if why is None:
+            return "sog"
+        if spath.lower().endswith(".sog"):
+            raise sog.SogError(f"{spath}: not a SOG: {why}")
     if sog.is_sog_meta(head):
         return "sog"
     if spath.lower().endswith(".ksplat"):

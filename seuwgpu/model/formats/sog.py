@@ -72,11 +72,6 @@ class SogInfo:
     model: str
 
 
-def zip_has_meta(path) -> bool:
-    """A zip archive holding meta.json at its root: a bundled SOG."""
-    return zip_problem(path) is None
-
-
 def zip_problem(path) -> str | None:
     """Why a zip archive is no bundled SOG (None when it holds meta.json at its root)."""
     try:
