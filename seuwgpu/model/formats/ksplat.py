@@ -38,13 +38,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seuwgpu.model.fields import Model
+from seuwgpu.model.fields import Model, sh_rest_count
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.quantized import SH_C0, finite_logit
 
 HEADER_BYTES = 4096
 SECTION_HEADER_BYTES = 1024
-SH_VALUES = {0: 0, 1: 9, 2: 24}
+MAX_DEGREE = 2  # SH degrees 0-2: 0, 9 or 24 values a splat
 # bytes of centre, scale, rotation, colour and one SH value, per compression level
 LEVELS = {0: (12, 12, 16, 4, 4), 1: (6, 6, 8, 4, 2), 2: (6, 6, 8, 4, 1)}
 DEFAULT_RANGE = {0: 1, 1: 32767, 2: 32767}
@@ -100,8 +100,8 @@ def _or_default(value: float, default: float) -> float:
 def _record(level: int, degree: int) -> np.dtype:
     centre, scale, value = ("<f4", "<f4", "<f4") if level == 0 else ("<u2", "<f2", "<f2" if level == 1 else "u1")
     fields = [("centre", centre, 3), ("scale", scale, 3), ("rot", scale, 4), ("rgba", "u1", 4)]
-    if SH_VALUES[degree]:
-        fields.append(("sh", value, SH_VALUES[degree]))
+    if degree:
+        fields.append(("sh", value, 3 * sh_rest_count(degree)))
     return np.dtype(fields)
 
 
@@ -132,7 +132,7 @@ def _sections(spath: str, size: int, h, nsec: int, level: int, f) -> tuple[np.nd
     bases, base = [], HEADER_BYTES + nsec * SECTION_HEADER_BYTES
     for i, s in enumerate(sec):
         deg = int(s["sh_degree"])
-        if deg not in SH_VALUES:
+        if deg > MAX_DEGREE:
             raise KsplatError(f"{spath}: .ksplat section {i} has SH degree {deg} (the format holds degrees 0-2)")
         if s["splats"] > s["max_splats"]:
             raise KsplatError(
@@ -219,7 +219,8 @@ def _decode_section(spath, i, s, level, degree, sh_lo, sh_hi, f, count) -> dict[
     lengths = np.frombuffer(f.read(4 * partial), dtype="<u4").astype(np.int64)
     centres = np.frombuffer(f.read(int(s["bucket_bytes"]) * nbuckets), dtype="<f4")
     deg = int(s["sh_degree"])
-    rec = np.frombuffer(f.read(_record(level, deg).itemsize * int(s["max_splats"])), dtype=_record(level, deg))
+    record = _record(level, deg)
+    rec = np.frombuffer(f.read(record.itemsize * int(s["max_splats"])), dtype=record)
     rec = rec[:count]
     if level == 0:
         means = rec["centre"].astype(np.float64)
@@ -248,7 +249,7 @@ def _decode_section(spath, i, s, level, degree, sh_lo, sh_hi, f, count) -> dict[
         step = float(s["block"]) / 2.0 / rng
         centre = centres.reshape(nbuckets, 3).astype(np.float64)[bucket]
         means = (rec["centre"].astype(np.float64) - rng) * step + centre
-    sh_rest = np.zeros((count, {0: 0, 1: 3, 2: 8}[degree], 3))
+    sh_rest = np.zeros((count, sh_rest_count(degree), 3))
     if deg:
         v = rec["sh"].astype(np.float64)
         if level == 2:

@@ -40,11 +40,10 @@ from pathlib import Path
 import numpy as np
 
 from seuwgpu.model.budget import check_model
-from seuwgpu.model.fields import Model
+from seuwgpu.model.fields import Model, sh_rest_count
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.quantized import finite_logit
 
-SH_COEFFICIENTS = {1: 3, 2: 8, 3: 15}
 PALETTE_ROW = 64  # palette entries per row of the centroids image
 # The most a bundled SOG's zip entries may declare uncompressed, checked before one is inflated (a
 # few kB of deflated zeros can declare gigabytes): meta.json holds four 256-entry codebooks and
@@ -302,7 +301,7 @@ def read_sog(path) -> tuple[Model, SogInfo]:
 
 
 def _sh_rest(meta, files: _Files, spath: str, n: int, bands: int, size) -> tuple[np.ndarray, int]:
-    k = SH_COEFFICIENTS[bands]
+    k = sh_rest_count(bands)
     palette = _get(meta, "shN.count", spath)
     if not isinstance(palette, int) or isinstance(palette, bool) or palette < 1:
         raise SogError(f"{spath}: SOG meta.json shN.count must be a positive integer, got {palette!r}")
