@@ -87,8 +87,6 @@ class KsplatError(ModelFileError):
 class KsplatInfo:
     version: str
     level: int
-    sections: int
-    degree: int
 
 
 def _or_default(value: float, default: float) -> float:
@@ -211,7 +209,7 @@ def read_ksplat(path) -> tuple[Model, KsplatInfo]:
         sh_dc=(rgba[:, :3] - 0.5) / SH_C0,
         sh_rest=cat["sh_rest"],
     )
-    return model, KsplatInfo(f"{int(h['major'])}.{int(h['minor'])}", level, nsec, degree)
+    return model, KsplatInfo(f"{int(h['major'])}.{int(h['minor'])}", level)
 
 
 def _decode_section(spath, i, s, level, degree, sh_lo, sh_hi, f, count) -> dict[str, np.ndarray]:

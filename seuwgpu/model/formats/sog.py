@@ -64,10 +64,8 @@ class SogError(ModelFileError):
 @dataclass
 class SogInfo:
     version: int
-    count: int
     bands: int
     palette: int
-    bundled: bool
     model: str
 
 
@@ -297,7 +295,7 @@ def read_sog(path) -> tuple[Model, SogInfo]:
         sh_dc=dc_book[sh0[:, :3]],
         sh_rest=sh_rest,
     )
-    return model, SogInfo(2, n, bands, palette, files.zip is not None, str(model_name))
+    return model, SogInfo(2, bands, palette, str(model_name))
 
 
 def _sh_rest(meta, files: _Files, spath: str, n: int, bands: int, size) -> tuple[np.ndarray, int]:
