@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from test_report_numbers import stratified
+from test_report_numbers import stratified, textbook_mtbf
 
 from seuwgpu.analysis import claims, dose, reliability
 
@@ -98,13 +98,6 @@ def fits_of(df: pd.DataFrame) -> pd.DataFrame:
     return dose.dose_fits(dose.dose_curves(df))
 
 
-def _mtbf(lam, bits, p, T=24.0):
-    """The textbook formula, apart from the code under test (1 - exp(-x) loses digits for small x,
-    where the code uses expm1: compare to 1e-6)."""
-    lam = np.asarray(lam, float)
-    return T / (1 - np.exp(-lam * bits * p * T)) if p > 0 else np.full(lam.shape, np.inf)
-
-
 def test_pc_per_scene_is_each_scene_own_weighted_rate():
     df = two_scenes()
     pc = reliability.catastrophe_probability(df)
@@ -147,7 +140,7 @@ def test_mtbf_pairs_each_scene_p_with_its_own_bits():
         else:
             p = fit.loc[(scene, d), "p_pct"] / 100
         assert g["p_pct"].to_numpy() == pytest.approx(np.full(len(g), 100 * p), rel=1e-12)
-        assert g["mtbf_hours"].to_numpy() == pytest.approx(_mtbf(g["upsets_per_bit_hour"], bits, p), rel=1e-6)
+        assert g["mtbf_hours"].to_numpy() == pytest.approx(textbook_mtbf(g["upsets_per_bit_hour"], bits, p), rel=1e-6)
     wide = res["mtbf_wide"]
     assert list(wide.columns[:3]) == ["scene", "model_bits", "environment"]
     assert list(wide["scene"]) == ["big"] * 3 + ["small"] * 3
@@ -185,9 +178,7 @@ def test_pooled_pc_is_labelled_and_never_feeds_an_mtbf():
         reliability.mtbf_table(per.reset_index(), 1e6, "fp32")
     with pytest.raises(ValueError, match="models"):
         reliability.pc_lookup(per.reset_index(), "fp32", "none")
-    with pytest.raises(ValueError, match="2 scenes"):
-        reliability.model_bits(df, "fp32")
-    assert reliability.model_bits(df, "fp32", scene="small") == 500 * 59 * 32
+    assert reliability.reliability(df)["bits"]["small"] == 500 * 59 * 32
     t = claims.claims_table(df).set_index("claim").loc[claims.PAPER["pc_none"][0]]
     assert t["measured"] == pytest.approx(100 * pooled.loc["none", "p_c"])
     assert "pooled over 2 models" in t["basis"]

@@ -243,23 +243,6 @@ def stored_bits(n_primitives: float, precision: str, sh_degree: int = DEFAULT_SH
     return float(n_primitives) * n_components(sh_degree) * encoding.BITS[precision]
 
 
-def model_bits(df: pd.DataFrame, precision: str, sh_degree: int = DEFAULT_SH_DEGREE, scene: str | None = None) -> float:
-    """Stored bits of one deployed model: the largest primitive count of the single-upset campaign
-    (size campaigns subsample), of `scene` when named, x components x bits per value. Records of
-    several scenes and no scene named: ValueError (a mean over scenes is the size of none)."""
-    d = prepare(df)
-    single = d[d["campaign"] == "single"]
-    d = single if len(single) else d
-    if scene is not None:
-        d = d[d["scene"] == scene]
-        if d.empty:
-            raise ValueError(f"no records of scene {scene!r}")
-    scenes = list(dict.fromkeys(d["scene"]))
-    if len(scenes) > 1:
-        raise ValueError(f"records of {len(scenes)} scenes ({', '.join(scenes)}): name the scene whose bits you want")
-    return stored_bits(d["n_primitives"].max(), precision, sh_degree)
-
-
 def mtbf(rate_per_bit_hour: float, bits: float, p: float, scrub_hours: float) -> float:
     """Mean time (h) between scrub intervals that hold a catastrophic frame (module notes);
     inf when p = 0; 1 / (L p) without scrubbing (scrub_hours = inf); NaN when p is (unmeasured)."""
