@@ -49,6 +49,15 @@ def stratified(g: pd.DataFrame, y: str):
     return (p, *wilson(p * n_eff, n_eff))
 
 
+def textbook_mtbf(lam, bits, p, T=24.0):
+    """MTBF (hours) of a model of `bits` stored bits at upset rates `lam` per bit-hour and
+    catastrophe probability p, scrubbed every T hours: T / (1 - exp(-lam bits p T)), the textbook
+    formula apart from the code under test (1 - exp(-x) loses digits for small x, where the code
+    uses expm1: compare to 1e-6)."""
+    lam = np.asarray(lam, float)
+    return T / (1 - np.exp(-lam * bits * p * T)) if p > 0 else np.full(lam.shape, np.inf)
+
+
 def wq(v, w, q):
     o = np.argsort(v, kind="stable")
     cw = np.cumsum(np.asarray(w)[o])
@@ -250,7 +259,6 @@ def test_mtbf_per_scene(run):
     rec, out, summary = run
     single = rec[rec["campaign"] == "single"]
     mt = pd.read_csv(out / "mtbf_detail.csv")
-    T = 24.0
     assert set(mt["scene"]) == set(SCENES)
     for (scene, d, src), g in mt.groupby(["scene", "defense", "p_source"]):
         n = SCENES[scene]
@@ -263,9 +271,8 @@ def test_mtbf_per_scene(run):
             fit = pd.read_csv(out / "dose_fits.csv").set_index(["scene", "defense"]).loc[(scene, d)]
             p = fit["p_pct"] / 100
         assert g["p_pct"].to_numpy() == pytest.approx(100 * p)
-        lam = g["upsets_per_bit_hour"].to_numpy()
-        want = T / (1 - np.exp(-lam * bits * p * T)) if p > 0 else np.full(len(g), np.inf)
-        assert g["mtbf_hours"].to_numpy() == pytest.approx(want, rel=1e-6)  # 1 - exp(-x) loses digits
+        want = textbook_mtbf(g["upsets_per_bit_hour"], bits, p)
+        assert g["mtbf_hours"].to_numpy() == pytest.approx(want, rel=1e-6)
     assert set(mt.loc[mt["p_source"] == "dose fit p", "scene"]) == {"big"}
     wide = pd.read_csv(out / "mtbf.csv")
     assert list(wide.columns[:3]) == ["scene", "model_bits", "environment"] and len(wide) == 2 * 3
