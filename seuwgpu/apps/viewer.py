@@ -46,7 +46,7 @@ import numpy as np
 from seuwgpu.faults.sites import Site, uniform_upsets
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import Camera, look_at
-from seuwgpu.model.fields import FIELDS, Model, field_components
+from seuwgpu.model.fields import Model, field_components, stored_fields
 from seuwgpu.model.framing import bounding_region, framing_distance, orbit_basis
 
 GUARD_MODES = {"off": "none", "guard": "guard", "selective": "selective"}
@@ -529,7 +529,7 @@ class ViewerState:
 
     def stored_fields(self) -> list[str]:
         """The fields the model stores (no sh_rest at SH degree 0): what the panel offers."""
-        return [f for f in FIELDS if self.field_components(f) > 0]
+        return stored_fields(self.model.sh_degree)
 
 
 _LUT = None

@@ -14,7 +14,7 @@ import numpy as np
 
 from seuwgpu.faults.sites import VALUE_MODELS, Site, model_bits, site_from_flat
 from seuwgpu.model import encoding
-from seuwgpu.model.fields import field_components
+from seuwgpu.model.fields import field_components, stored_fields
 
 
 @dataclass
@@ -50,7 +50,7 @@ def _cells(fields, bits, precision, fault="bit"):
 def scene_fields(fields, scene: dict) -> list:
     """The fields of a section that a scene's model holds: sh_rest has no component at SH degree
     0 (spec.py refuses it named for such a model; "all" stands for the fields each model holds)."""
-    return [f for f in fields if field_components(f, scene.get("sh_degree", 3)) > 0]
+    return stored_fields(scene.get("sh_degree", 3), fields)
 
 
 def enumerate_contexts(spec: dict) -> list[Context]:

@@ -26,7 +26,7 @@ from seuwgpu.faults.guard import clamp_bits
 from seuwgpu.faults.sites import Site, check_field_stored, site_from_flat
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.model import encoding
-from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, field_components
+from seuwgpu.model.fields import FIELD_OFFSET, field_components, stored_fields
 
 GEOMETRY = 10  # flat components 0..9: means, log_scales, quats decide the tile rectangle
 
@@ -46,7 +46,7 @@ def site_space(engine, fields=None, bits=None, primitives=None):
     None for every field the model stores (no sh_rest at SH degree 0); a named field the model
     does not store is refused (it would search nothing and report a worst flip of none)."""
     if fields is None:
-        fields = [f for f in FIELDS if field_components(f, engine.degree) > 0]
+        fields = stored_fields(engine.degree)
     for f in fields:
         check_field_stored(f, engine.degree)
     nb = encoding.bits_per_value(engine.precision)

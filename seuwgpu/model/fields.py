@@ -69,6 +69,12 @@ def field_components(field: str, degree: int) -> int:
     ]
 
 
+def stored_fields(degree: int, fields=FIELDS) -> list[str]:
+    """The fields of `fields` a model of SH degree `degree` stores: sh_rest has no component at
+    degree 0."""
+    return [f for f in fields if field_components(f, degree) > 0]
+
+
 def n_components(degree: int) -> int:
     return BASE_COMPONENTS + 3 * sh_rest_count(degree)
 
