@@ -67,3 +67,18 @@ def fifo_with_writer(path):
     finally:
         os.close(os.open(path, os.O_RDONLY | os.O_NONBLOCK))  # lets the writer finish
         writer.join(5)
+
+
+@contextlib.contextmanager
+def traced_peak():
+    """Trace Python's allocations in the block; the list it yields holds their peak in bytes after
+    it (a reader that inflates or allocates more than a bad file deserves shows here)."""
+    import tracemalloc
+
+    peak: list[int] = []
+    tracemalloc.start()
+    try:
+        yield peak
+    finally:
+        peak.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()

@@ -10,7 +10,7 @@ import warnings
 
 import numpy as np
 import pytest
-from conftest import fifo_with_writer
+from conftest import fifo_with_writer, traced_peak
 
 from seuwgpu.model.fields import FIELDS, Model
 from seuwgpu.model.formats import (
@@ -217,8 +217,6 @@ def test_a_gzip_spz_is_inflated_no_further_than_its_header_needs(tmp_path):
     its header (host memory, one line), and megabytes of zeros after a small model's planes are
     counted only up to 1 MiB; neither inflates the stream whole (peak traced memory, which was
     the 64 MiB of the stream before)."""
-    import tracemalloc
-
     from seuwgpu.errors import TooBig
 
     n, planes, _ = spz_planes(2, 1)
@@ -228,17 +226,13 @@ def test_a_gzip_spz_is_inflated_no_further_than_its_header_needs(tmp_path):
     huge.write_bytes(gzip.compress(good[:8] + struct.pack("<I", 2**32 - 1) + good[12:16] + zeros, 1))
     tail = tmp_path / "tail.spz"
     tail.write_bytes(gzip.compress(good + zeros, 1))
-    tracemalloc.start()
-    try:
+    with traced_peak() as peak:
         with pytest.raises(TooBig, match="SPZ point count 4294967295 needs about") as e:
             load_model(huge)
         assert str(e.value).startswith(str(huge)) and "\n" not in str(e.value)
         with pytest.warns(UserWarning, match="over 1048576 bytes after the SPZ data ignored"):
             load_model(tail)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert peak < 16 << 20
+    assert peak[0] < 16 << 20
 
 
 def test_spz_errors(tmp_path):

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import traced_peak
 
 from seuwgpu.apps.cli import main
 from seuwgpu.model.formats import ModelFileError, detect_format, read_model
@@ -170,15 +171,9 @@ def test_ksplat_malformed_files_are_refused_in_one_line(tmp_path, change, match)
 
 def refused_with_peak(path, match):
     """read_model's ModelFileError for `path` (matching `match`) and the peak memory traced meanwhile."""
-    import tracemalloc
-
-    tracemalloc.start()
-    try:
-        with pytest.raises(ModelFileError, match=match) as e:
-            read_model(path)
-        return e.value, tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    with traced_peak() as peak, pytest.raises(ModelFileError, match=match) as e:
+        read_model(path)
+    return e.value, peak[0]
 
 
 @pytest.mark.parametrize("full, size", [(2**12, 2**12), (2**31, 2**31)], ids=["128 MB", "2^62 splats"])
