@@ -386,7 +386,18 @@ def test_scene_export_keeps_the_antialiased_flag(tmp_path, capsys):
     assert rc == 0 and "seuwgpu: leica-sofort: trained antialiased (mip-splatting)" in err
 
 
-def test_console_entry_ignores_ctrl_c_while_the_interpreter_shuts_down(monkeypatch):
+@pytest.fixture
+def console_signals():
+    """console_main sets the SIGINT and SIGTERM handlers of the process: put back as they were."""
+    import signal
+
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    yield
+    signal.signal(signal.SIGINT, before[0])
+    signal.signal(signal.SIGTERM, before[1])
+
+
+def test_console_entry_ignores_ctrl_c_while_the_interpreter_shuts_down(monkeypatch, console_signals):
     """`seuwgpu` (and python -m seuwgpu) return main's status, then ignore SIGINT: an interrupt
     landing while a finished campaign's process shuts down killed it with SIGINT (exit -2)."""
     import signal
@@ -394,17 +405,12 @@ def test_console_entry_ignores_ctrl_c_while_the_interpreter_shuts_down(monkeypat
     from seuwgpu.apps.cli import console_main
 
     monkeypatch.setattr(sys, "argv", ["seuwgpu", "scene", "--list"])
-    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-    try:
-        assert console_main() == 0
-        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
-        assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN
-    finally:
-        signal.signal(signal.SIGINT, before[0])
-        signal.signal(signal.SIGTERM, before[1])
+    assert console_main() == 0
+    assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_IGN
 
 
-def test_sigterm_stops_a_command_as_ctrl_c_does(monkeypatch, tmp_path, capsys):
+def test_sigterm_stops_a_command_as_ctrl_c_does(monkeypatch, capsys, console_signals):
     """SIGTERM while a command runs raises Terminated (a KeyboardInterrupt) where it is, so the
     command ends as Ctrl-C ends it (records kept), with exit 143 and one line."""
     import os
@@ -425,12 +431,7 @@ def test_sigterm_stops_a_command_as_ctrl_c_does(monkeypatch, tmp_path, capsys):
 
     monkeypatch.setattr(cli, "build_parser", parser)
     monkeypatch.setattr(sys, "argv", ["seuwgpu", "scene", "--list"])
-    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-    try:
-        assert cli.console_main() == 143
-    finally:
-        signal.signal(signal.SIGINT, before[0])
-        signal.signal(signal.SIGTERM, before[1])
+    assert cli.console_main() == 143
     assert capsys.readouterr().err.strip() == "seuwgpu scene: terminated (SIGTERM)"
 
 
