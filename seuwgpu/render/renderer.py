@@ -305,13 +305,18 @@ class Renderer:
         self.set_cameras(cams)
 
     # ---- encoding --------------------------------------------------------------------------------
-    def encode_view(self, encoder, v: int, split=None):
-        """View v's passes; `split` as in encode_batch (returns the encoder left to submit)."""
-        split = split or _same_encoder
-        L, p, b = self.layout, self.projection, self.binning
+    def _encode_projection(self, encoder, v: int):
+        """View v's projection of every model chunk (its own projection slot per chunk)."""
+        L, p = self.layout, self.projection
         for c in range(L.n_chunks):
             lo, hi = L.chunk_range(c)
             p.encode(encoder, v * L.n_chunks + c, self.chunks[c], hi - lo, self.box_buf, self.guard_counts)
+
+    def encode_view(self, encoder, v: int, split=None):
+        """View v's passes; `split` as in encode_batch (returns the encoder left to submit)."""
+        split = split or _same_encoder
+        p, b = self.projection, self.binning
+        self._encode_projection(encoder, v)
         self._state_hook(encoder, v, "projected")
         encoder = split(encoder)
         self.sorting.encode_depth(encoder, p.depth_keys, p.depth_vals)
@@ -353,11 +358,9 @@ class Renderer:
         returns a fresh one, so that the device starts on a stage while Python records the next;
         returns the encoder left to submit."""
         split = split or _same_encoder
-        L, p, b = self.layout, self.projection, self.binning
+        p, b = self.projection, self.binning
         for v in range(self.k):
-            for c in range(L.n_chunks):
-                lo, hi = L.chunk_range(c)
-                p.encode(encoder, v * L.n_chunks + c, self.chunks[c], hi - lo, self.box_buf, self.guard_counts)
+            self._encode_projection(encoder, v)
         encoder = split(encoder)
         self.sorting.encode_depth(encoder, p.depth_keys, p.depth_vals)
         if self.view_major:
