@@ -40,7 +40,7 @@ import numpy as np
 
 from seuwgpu.model.fields import Model, sh_rest_count
 from seuwgpu.model.formats.errors import ModelFileError
-from seuwgpu.model.formats.quantized import SH_C0, finite_logit
+from seuwgpu.model.formats.quantized import byte_opacity, byte_sh_dc
 
 HEADER_BYTES = 4096
 SECTION_HEADER_BYTES = 1024
@@ -196,17 +196,15 @@ def read_ksplat(path) -> tuple[Model, KsplatInfo]:
             f.seek(bases[i])
             parts.append(_decode_section(spath, i, s, level, degree, sh_lo, sh_hi, f, count))
     cat = parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    rgba = cat["rgba"].astype(np.float64) / 255.0
     scale = cat["scale"]
     with np.errstate(divide="ignore", invalid="ignore"):
         log_scales = np.log(np.where(scale == 0, SMALLEST_SCALE[level], scale))
-        opacity = finite_logit(np.log(rgba[:, 3] / (1.0 - rgba[:, 3])))
     model = Model(
         means=cat["means"],
         log_scales=log_scales,
         quats=cat["quats"],
-        opacity=opacity,
-        sh_dc=(rgba[:, :3] - 0.5) / SH_C0,
+        opacity=byte_opacity(cat["rgba"][:, 3]),
+        sh_dc=byte_sh_dc(cat["rgba"][:, :3]),
         sh_rest=cat["sh_rest"],
     )
     return model, KsplatInfo(f"{int(h['major'])}.{int(h['minor'])}", level)

@@ -1,4 +1,4 @@
-"""Helpers shared by the quantised formats (SPZ, compressed PLY, .splat).
+"""Helpers shared by the quantised formats (SPZ, compressed PLY, .splat, .ksplat, SOG).
 
 Saturated opacity codes: the reference decoders turn an alpha byte of 255 (or 0) into a logit of
 +Inf (or -Inf). Such splats are common (44% of leica-sofort's are fully opaque), and a clean
@@ -21,6 +21,19 @@ def finite_logit(logit: np.ndarray) -> np.ndarray:
     out[out == np.inf] = SATURATED_LOGIT
     out[out == -np.inf] = -SATURATED_LOGIT
     return out
+
+
+def byte_opacity(alpha: np.ndarray) -> np.ndarray:
+    """The opacity (logit) of 8-bit alphas, logit(byte / 255) in float64 rounded once to float32,
+    as .splat, .ksplat and SOG store opacity (bytes 0 and 255: -+SATURATED_LOGIT)."""
+    a = np.asarray(alpha, dtype=np.float64) / 255.0
+    with np.errstate(divide="ignore"):
+        return finite_logit(np.log(a / (1.0 - a)))
+
+
+def byte_sh_dc(rgb: np.ndarray) -> np.ndarray:
+    """The SH DC of 8-bit colours, (byte / 255 - 0.5) / SH_C0 (float64), as .splat and .ksplat store colour."""
+    return (np.asarray(rgb, dtype=np.float64) / 255.0 - 0.5) / SH_C0
 
 
 def round_half_away(x: np.ndarray) -> np.ndarray:

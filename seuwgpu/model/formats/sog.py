@@ -42,7 +42,7 @@ import numpy as np
 from seuwgpu.model.budget import check_model
 from seuwgpu.model.fields import Model, sh_rest_count
 from seuwgpu.model.formats.errors import ModelFileError
-from seuwgpu.model.formats.quantized import finite_logit
+from seuwgpu.model.formats.quantized import byte_opacity
 
 PALETTE_ROW = 64  # palette entries per row of the centroids image
 # The most a bundled SOG's zip entries may declare uncompressed, checked before one is inflated (a
@@ -274,9 +274,7 @@ def read_sog(path) -> tuple[Model, SogInfo]:
 
     dc_book = _numbers(meta, "sh0.codebook", spath, 256).astype(np.float32)
     sh0 = files.image(_files(meta, "sh0", spath, 1)[0], n, "sh0", size)[0][:n]
-    alpha = sh0[:, 3].astype(np.float64) / 255.0
-    with np.errstate(divide="ignore"):
-        opacity = finite_logit(np.log(alpha / (1.0 - alpha)))
+    opacity = byte_opacity(sh0[:, 3])
 
     bands, palette, sh_rest = 0, 0, np.zeros((n, 0, 3), np.float32)
     if meta.get("shN") is not None:

@@ -19,7 +19,7 @@ import numpy as np
 
 from seuwgpu.model.fields import Model
 from seuwgpu.model.formats.errors import ModelFileError
-from seuwgpu.model.formats.quantized import SH_C0, finite_logit
+from seuwgpu.model.formats.quantized import byte_opacity, byte_sh_dc
 
 RECORD = np.dtype([("pos", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
 
@@ -72,10 +72,8 @@ def read_splat(path) -> Model:
             f"{spath}: .splat size {size} bytes is not a multiple of the 32-byte record (truncated or not a .splat)"
         )
     rec = np.fromfile(spath, dtype=RECORD)
-    rgba = rec["rgba"].astype(np.float64) / 255.0
     with np.errstate(divide="ignore", invalid="ignore"):
         log_scales = np.log(rec["scale"].astype(np.float64))
-        opacity = finite_logit(np.log(rgba[:, 3] / (1.0 - rgba[:, 3])))
     quats = rec["rot"].astype(np.float64) / 128.0 - 1.0
     quats[(rec["rot"] == 128).all(axis=1)] = (1.0, 0.0, 0.0, 0.0)
     n = len(rec)
@@ -83,7 +81,7 @@ def read_splat(path) -> Model:
         means=rec["pos"],
         log_scales=log_scales,
         quats=quats,
-        opacity=opacity,
-        sh_dc=(rgba[:, :3] - 0.5) / SH_C0,
+        opacity=byte_opacity(rec["rgba"][:, 3]),
+        sh_dc=byte_sh_dc(rec["rgba"][:, :3]),
         sh_rest=np.zeros((n, 0, 3), np.float32),
     )
