@@ -390,14 +390,14 @@ def scene_degrees(manifests: Iterable[dict] = ()) -> dict[str, int]:
     """SH degree of each scene, by the label records give it, as the runs' specs state it (a
     model file's own degree since specs read it; runs of older versions stated 3 for every model
     file, so inference from the records comes first where there is any: reliability.model_degrees)."""
-    from seuwgpu.model.formats import model_label
+    from seuwgpu.campaign.spec import scene_label
 
     out: dict[str, int] = {}
     for m in manifests or ():
         for sc in (m.get("spec") or {}).get("scenes") or []:
             if not isinstance(sc, dict) or sc.get("sh_degree") is None:
                 continue
-            label = sc.get("scene") or (model_label(sc["model"]) if sc.get("model") else None)
+            label = scene_label(sc)
             if label:
                 out.setdefault(str(label), int(sc["sh_degree"]))
     return out

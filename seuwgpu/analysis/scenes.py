@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis.records import InsufficientData, prepare, tag
+from seuwgpu.campaign.spec import scene_label
 from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, field_components
 
 
@@ -39,15 +40,6 @@ def _box_widths(entry: dict, n: int | None, precision: str) -> dict:
     return out
 
 
-def _label(entry: dict) -> str | None:
-    """The scene name records give a spec's [[scenes]] entry."""
-    from seuwgpu.model.formats import model_label
-
-    if entry.get("scene"):
-        return str(entry["scene"])
-    return model_label(entry["model"]) if entry.get("model") else None
-
-
 def scene_table(df: pd.DataFrame, manifests: Iterable[dict] = ()) -> tuple[pd.DataFrame, list[str]]:
     """(table, notes): one row per (scene, primitive count) in the records: kind (embedded or
     file), primitives, SH degree, views and size of the run, and the widest support-box component
@@ -68,7 +60,7 @@ def scene_table(df: pd.DataFrame, manifests: Iterable[dict] = ()) -> tuple[pd.Da
             # the spec's entry of this scene, by the label its records carry (an embedded scene's
             # name, a model file's label): a [sizes] row of an embedded scene listed after a
             # model file was re-made from that file (its SH degree and boxes)
-            entries = [e for e in (spec.get("scenes") or []) if isinstance(e, dict) and _label(e) == key[0]]
+            entries = [e for e in (spec.get("scenes") or []) if isinstance(e, dict) and scene_label(e) == key[0]]
             entry = next((e for e in entries if e.get("n") in (None, key[1])), entries[0] if entries else None)
             row = {
                 "scene": key[0],

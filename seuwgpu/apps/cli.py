@@ -11,7 +11,7 @@ import numpy as np
 from seuwgpu.errors import InputError, SeuwgpuError, Terminated
 from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.model.encoding import PRECISIONS
-from seuwgpu.model.formats import UP_AXES, model_label
+from seuwgpu.model.formats import UP_AXES
 from seuwgpu.version import __version__
 
 
@@ -478,7 +478,7 @@ def cmd_plan(args):
 
     from seuwgpu.campaign.plan import margin_of_error, sample_size
     from seuwgpu.campaign.sampling import enumerate_contexts
-    from seuwgpu.campaign.spec import load_spec
+    from seuwgpu.campaign.spec import load_spec, scene_label
 
     spec = load_spec(args.spec)
     tab = Table(
@@ -500,7 +500,7 @@ def cmd_plan(args):
     total = rows = 0
     for ctx in enumerate_contexts(spec):
         sc = spec["scenes"][ctx.scene_index]
-        name = sc.get("scene") or model_label(sc["model"])
+        name = scene_label(sc)
         n = ctx.n or sc.get("n")
         margin = "-" if ctx.kind == "dose" else f"+-{100 * margin_of_error(ctx.per_cell, 0.95):.2f} pt"
         tab.add_row(

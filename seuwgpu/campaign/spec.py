@@ -381,15 +381,23 @@ def _reliability(t) -> dict:
     return out
 
 
+def scene_label(entry: dict) -> str | None:
+    """The scene name records give a spec's [[scenes]] entry: an embedded scene's name, a model's
+    file or INRIA output folder name (formats.model_label); None for neither."""
+    from seuwgpu.model.formats import model_label
+
+    if entry.get("scene"):
+        return str(entry["scene"])
+    return model_label(entry["model"]) if entry.get("model") else None
+
+
 def _distinct_labels(scenes: list[dict]):
     """Records name a scene by its label (an embedded scene's name, a model's file or INRIA
     output folder name: formats.model_label); two different models under one label would be
     pooled as one scene in every estimate."""
-    from seuwgpu.model.formats import model_label
-
     seen: dict[str, tuple[int, str]] = {}
     for i, sc in enumerate(scenes):
-        label = sc.get("scene") or model_label(sc["model"])
+        label = scene_label(sc)
         what = sc.get("model_sha256") or f"embedded {sc.get('scene')}"
         j, other = seen.setdefault(label, (i, what))
         if other != what:
