@@ -149,22 +149,23 @@ def _list(table, key, where, default, valid=None):
     return v
 
 
-def _model_degree(scene: dict, path, where: str) -> int:
-    """The SH degree of a scene's model file: its own (the spec's sh_degree shapes embedded scenes;
-    one that differs from the file's is refused, not ignored). The runs record it, so that their
-    cells (no sh_rest at degree 0) and every analysis of stored bits are the model's."""
+def _model_file(scene: dict, path, where: str):
+    """A scene's model file, read once by the spec: its SH degree is the scene's (the spec's
+    sh_degree shapes embedded scenes; one that differs from the file's is refused, not ignored),
+    recorded so that the runs' cells (no sh_rest at degree 0) and every analysis of stored bits
+    are the model's; its primitive count bounds a [sizes] sweep."""
     from seuwgpu.model.formats import read_model
 
     try:
-        degree = read_model(path, warn_nonfinite=False).model.sh_degree
+        model = read_model(path, warn_nonfinite=False).model
     except ValueError as e:  # ModelFileError: the file named, the problem said
         raise SpecError(f"{where}: {e}") from None
-    if "sh_degree" in scene and scene["sh_degree"] != degree:
+    if "sh_degree" in scene and scene["sh_degree"] != model.sh_degree:
         raise SpecError(
             f"{where}.sh_degree = {scene['sh_degree']!r} shapes an embedded scene; the model file holds SH degree "
-            f"{degree} (remove sh_degree)"
+            f"{model.sh_degree} (remove sh_degree)"
         )
-    return degree
+    return model
 
 
 def _no_missing_fields(table, where: str, scenes: list):
@@ -436,6 +437,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
     if not isinstance(scenes, list) or not scenes:
         raise SpecError("the spec needs at least one [[scenes]] table")
     spec["scenes"] = []
+    held = {}  # scene index -> primitives of a capture or a model file (what a [sizes] n may not exceed)
     for i, s in enumerate(scenes):
         where = f"scenes[{i}]"
         _keys(s, _SCENE, where)
@@ -449,8 +451,8 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
                 )
             out["scene"] = s["scene"]
             if is_capture(s["scene"]):
-                size = make_scene(s["scene"]).n
-                out["n"] = _int(s, "n", where, size, 1, size)
+                held[i] = make_scene(s["scene"]).n
+                out["n"] = _int(s, "n", where, held[i], 1, held[i])
             else:
                 out["n"] = _int(s, "n", where, 100_000, 1)
         else:
@@ -462,7 +464,8 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
                 )
             out["model"] = _spec_file(s, key, where, base_dir)
             out["model_sha256"] = content_hash("model", out["model"])
-            out["sh_degree"] = _model_degree(s, out["model"], where)
+            model = _model_file(s, out["model"], where)
+            out["sh_degree"], held[i] = model.sh_degree, model.n
         if "up" in s:
             if not isinstance(s["up"], str) or s["up"] not in UP_AXES:
                 raise SpecError(f"{where}.up: {s['up']!r} is no axis; expected one of {', '.join(UP_AXES)}")
@@ -555,12 +558,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
             # a procedural scene is generated at each n; a capture or a model file is cut to a
             # seeded random subset of n (model/fields.py Model.sample), framed as the whole model
             sc = spec["scenes"][i]
-            if "scene" in sc:
-                name, have = sc["scene"], make_scene(sc["scene"]).n if is_capture(sc["scene"]) else None
-            else:
-                from seuwgpu.model.formats import read_model
-
-                name, have = sc["model"], read_model(sc["model"], warn_nonfinite=False).model.n
+            name, have = sc.get("scene") or sc["model"], held.get(i)
             if have is not None and max(ns) > have:
                 raise SpecError(f"sizes.n: {name} has {have} primitives; n must not exceed it (got {max(ns)})")
         precisions = _names(t, "precisions", "sizes", ["fp32"], encoding.PRECISIONS)
