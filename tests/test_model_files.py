@@ -569,6 +569,10 @@ def test_a_zip_that_is_no_torch_checkpoint_is_not_called_one(tmp_path):
     for name, holds in (("frames.npz", "images.npy"), ("scene.zip", "output/point_cloud.ply")):
         with pytest.raises(ModelFileError, match=f"zip archive that is no PyTorch checkpoint \\(it holds {holds}\\)"):
             read_model(tmp_path / name)
+    # a truncated one is named broken (its central directory is gone), whatever its name says
+    (tmp_path / "cut.pt").write_bytes((tmp_path / "scene.zip").read_bytes()[:40])
+    with pytest.raises(ModelFileError, match="cut.pt: a broken zip archive"):
+        read_model(tmp_path / "cut.pt")
 
 
 def test_inria_output_folder_names_the_iteration_read(tmp_path):

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from seuwgpu.model.fields import FIELDS, Model
-from seuwgpu.model.formats import compressed_ply, gsplat, ksplat, ply, sog, spz
+from seuwgpu.model.formats import compressed_ply, gsplat, ksplat, ply, sog, spz, zips
 from seuwgpu.model.formats import splat as splat_format
 from seuwgpu.model.formats.errors import ModelFileError, NonFiniteWarning
 
@@ -117,8 +117,13 @@ def detect_format(path) -> str:
         return "compressed-ply" if compressed_ply.is_compressed_ply(ply.read_header(spath)) else "ply"
     if spz.is_spz(head):
         return "spz"
+    members, zip_error = [], None  # a zip's names, listed once for the SOG and checkpoint tests
     if head[:4] == b"PK\x03\x04":
-        why = sog.zip_problem(spath)
+        try:
+            members = zips.zip_members(spath)
+        except ValueError as e:
+            zip_error = str(e)
+        why = zip_error or sog.zip_problem(members)
         if why is None:
             return "sog"
         if spath.lower().endswith(".sog"):
@@ -133,7 +138,7 @@ def detect_format(path) -> str:
     if ksplat.looks_like_ksplat(spath, head):
         return "ksplat"
     if gsplat.is_torch_file(head):
-        why = gsplat.zip_problem(spath) if head[:4] == b"PK\x03\x04" else None
+        why = (zip_error or gsplat.zip_problem(members)) if head[:4] == b"PK\x03\x04" else None
         if why:
             raise ModelFileError(f"{spath}: {why}")
         return "gsplat"

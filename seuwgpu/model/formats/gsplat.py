@@ -14,6 +14,7 @@ import numpy as np
 
 from seuwgpu.model.fields import Model
 from seuwgpu.model.formats.errors import ModelFileError
+from seuwgpu.model.formats.zips import shown_members
 
 KEYS = ("means", "scales", "quats", "opacities", "sh0")
 TORCH_HINT = "install torch (pip install 'seuwgpu[torch]') to read gsplat checkpoints"
@@ -28,21 +29,13 @@ def is_torch_file(head: bytes) -> bool:
     return head[:4] == b"PK\x03\x04" or head[:2] in (b"\x80\x02", b"\x80\x04", b"\x80\x05")
 
 
-def zip_problem(path: str) -> str | None:
-    """Why a zip archive is no PyTorch checkpoint (None when it is one): torch.save writes a zip
-    holding `<name>/data.pkl`; a .npz, a zipped output folder or a broken zip is something else."""
-    import zipfile
-
-    try:
-        with zipfile.ZipFile(path) as z:
-            names = z.namelist()
-    except (zipfile.BadZipFile, OSError) as e:
-        return f"a broken zip archive ({e})"
+def zip_problem(names: list[str]) -> str | None:
+    """Why a zip archive with these members is no PyTorch checkpoint (None when it is one):
+    torch.save writes a zip holding `<name>/data.pkl`; a .npz or a zipped output folder is something else."""
     if any(n == "data.pkl" or n.endswith("/data.pkl") for n in names):
         return None
-    shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
     return (
-        f"a zip archive that is no PyTorch checkpoint (it holds {shown or 'nothing'}): "
+        f"a zip archive that is no PyTorch checkpoint (it holds {shown_members(names)}): "
         "unpack it and give the model file inside"
     )
 

@@ -43,6 +43,7 @@ from seuwgpu.model.budget import check_model
 from seuwgpu.model.fields import Model, sh_rest_count
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.quantized import byte_opacity
+from seuwgpu.model.formats.zips import shown_members
 
 PALETTE_ROW = 64  # palette entries per row of the centroids image
 # The most a bundled SOG's zip entries may declare uncompressed, checked before one is inflated (a
@@ -69,17 +70,11 @@ class SogInfo:
     model: str
 
 
-def zip_problem(path) -> str | None:
-    """Why a zip archive is no bundled SOG (None when it holds meta.json at its root)."""
-    try:
-        with zipfile.ZipFile(path) as z:
-            names = z.namelist()
-    except (zipfile.BadZipFile, OSError) as e:
-        return f"a broken zip archive ({e}; truncated?)"
+def zip_problem(names: list[str]) -> str | None:
+    """Why a zip archive with these members is no bundled SOG (None when it holds meta.json at its root)."""
     if "meta.json" in names:
         return None
-    shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
-    return f"a zip without meta.json (it holds {shown or 'nothing'}); a SOG is a zip of meta.json and WebP images"
+    return f"a zip without meta.json (it holds {shown_members(names)}); a SOG is a zip of meta.json and WebP images"
 
 
 def is_sog_meta(head: bytes) -> bool:
