@@ -320,12 +320,17 @@ def test_size_sweep_over_several_scenes():
         normalize_spec(base)
 
 
-def test_size_sweep_over_a_model_file_cuts_seeded_subsets(tmp_path):
+def test_size_sweep_over_a_model_file_cuts_seeded_subsets(tmp_path, monkeypatch):
     """A model file in [sizes] (a reviewer's own trained model) is cut to a seeded random subset
     of each n, framed as the whole model (Model.sample, the paper's subsampling of trained
-    models); an n above its primitive count is refused naming the file."""
+    models); an n above its primitive count is refused naming the file. The run reads the file
+    once: its check before the manifest and both sizes' engines share the read."""
+    import seuwgpu.model.sources as sources
     from seuwgpu.model.formats import save_model
     from seuwgpu.model.scenes import make_scene
+
+    reads, read = [], sources.read_model
+    monkeypatch.setattr(sources, "read_model", lambda p: reads.append(p) or read(p))
 
     path = tmp_path / "mine.ply"
     full = make_scene("plant", 700, seed=4)
@@ -340,6 +345,7 @@ def test_size_sweep_over_a_model_file_cuts_seeded_subsets(tmp_path):
     spec = normalize_spec(base)
     runner = Runner(spec, tmp_path / "run", quiet=True)
     runner.run()
+    assert reads == [str(path)]
     size = read_records(tmp_path / "run")
     assert sorted(size.n_primitives.unique()) == [150, 300] and len(size) == 2 * 2
     ctx = [c for c in enumerate_contexts(spec) if c.n == 150][0]

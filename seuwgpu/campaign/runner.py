@@ -44,6 +44,9 @@ class Runner:
             "footprint_threshold": float(t.get("footprint", FOOTPRINT_THRESHOLD)),
         }
         self._times: dict = {}  # engine key -> {defense: ms per view}
+        # the last model file read (scene index, Source): a run's engines of one file (precisions,
+        # [sizes]) and the new run's file check share one read; one slot, so memory stays bounded
+        self._read: tuple[int, object] | None = None
         if spec.get("lpips"):
             from seuwgpu.metrics.lpips import INSTALL_HINT, available
 
@@ -85,14 +88,24 @@ class Runner:
         spec check only hashes it, and a file that cannot be read would otherwise stop the run
         after the manifest was written, leaving a run folder with no records. (Camera files are
         read by the spec check already, so an embedded scene is not built here.)"""
-        from seuwgpu.model.sources import load_source, source_views
+        from seuwgpu.model.sources import source_views
 
-        for sc in self.spec["scenes"]:
+        for i, sc in enumerate(self.spec["scenes"]):
             if sc.get("model") is None:
                 continue
-            src = load_source(path=sc["model"], up=sc.get("up"))
+            src = self.file_source(i)
             views, size = self.spec["views"], tuple(self.spec["size"])
             source_views(src, sc.get("cameras"), views, size, self.spec.get("scale"))
+
+    def file_source(self, scene_index: int):
+        """Scene `scene_index`'s model file, loaded (or the last one loaded, when it is that)."""
+        from seuwgpu.model.sources import load_source
+
+        if self._read is None or self._read[0] != scene_index:
+            self._read = None  # the previous model released before the next is read
+            sc = self.spec["scenes"][scene_index]
+            self._read = (scene_index, load_source(path=sc["model"], up=sc.get("up")))
+        return self._read[1]
 
     def done_ids(self) -> set[tuple[int, int]]:
         """(first id, count) of this shard's parts already written and whole (a part that cannot be
@@ -202,14 +215,16 @@ class Runner:
 
         sc = self.spec["scenes"][ctx.scene_index]
         path = sc.get("model")
-        src = load_source(
-            scene=sc.get("scene"),
-            path=path,
-            n=None if path else ctx.n or sc.get("n"),
-            sh_degree=sc["sh_degree"],
-            seed=sc["seed"],
-            up=sc.get("up"),
-        )
+        if path:
+            src = self.file_source(ctx.scene_index)
+        else:
+            src = load_source(
+                scene=sc.get("scene"),
+                n=ctx.n or sc.get("n"),
+                sh_degree=sc["sh_degree"],
+                seed=sc["seed"],
+                up=sc.get("up"),
+            )
         views = source_views(
             src, sc.get("cameras"), self.spec["views"], tuple(self.spec["size"]), self.spec.get("scale")
         )
