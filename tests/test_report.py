@@ -420,3 +420,48 @@ def test_tables_of_an_unfinished_run_say_so(synthetic, tmp_path):
     # a finished run's tables carry no such line
     done, _ = load_runs([synthetic["full"]])
     assert "Unfinished" not in criticality_table_text(done)
+
+
+def test_dose_numbers_name_their_model_when_several():
+    """summary.json's dose numbers at the largest k: with several models, one per model (keyed as
+    p_c's). They were one row chosen by sort order (the last scene at the largest N), unnamed: the
+    CPU study's dose_psnr_median_at_kmax_guard_db was yashica-t4's 17.6 dB, beside blocks' 13.5."""
+    from seuwgpu.report.sections import _sec_dose
+
+    rows = []
+    for scene, psnr in (("a", 40.0), ("b", 20.0)):
+        for d in ("none", "guard"):
+            for k in (1, 10):
+                for r in range(10):
+                    bad = scene == "a" and d == "none" and k == 10 and r < 3
+                    rows.append(
+                        {
+                            "scene": scene,
+                            "n_primitives": 1000,
+                            "precision": "fp32",
+                            "field": "mixed",
+                            "bit": -1,
+                            "defense": d,
+                            "k": k,
+                            "repeat": r,
+                            "campaign": "dose",
+                            "footprint": 0.001,
+                            "peak_error": 0.1,
+                            "psnr": math.nan if bad else psnr + (d == "guard") + r * 0.1,
+                            "ssim": 0.9,
+                            "nonfinite": bad,
+                            "weight": 1.0,
+                        }
+                    )
+    df = pd.DataFrame(rows)
+    num = _sec_dose(df, [], {"results": {}, "skipped": []}).numbers
+    assert not any(k.startswith("dose_psnr_median_at_kmax_none") for k in num)  # no unnamed model
+    for scene in ("a", "b"):
+        for d in ("none", "guard"):
+            g = df[(df["scene"] == scene) & (df["defense"] == d) & (df["k"] == 10)]
+            ranked = np.sort(np.where(g["nonfinite"], -np.inf, g["psnr"]))
+            assert num[f"dose_psnr_median_at_kmax_{scene}_{d}_db"] == ranked[(len(g) - 1) // 2]
+            assert num[f"dose_nonfinite_at_kmax_{scene}_{d}_pct"] == pytest.approx(100 * g["nonfinite"].mean())
+        assert num[f"dose_kmax_{scene}"] == 10
+    one = _sec_dose(df[df["scene"] == "a"], [], {"results": {}, "skipped": []}).numbers
+    assert one["dose_kmax"] == 10 and one["dose_nonfinite_at_kmax_none_pct"] == pytest.approx(30)

@@ -504,13 +504,21 @@ def _sec_dose(df, manifests, ctx) -> Section:
         )
     )
     ref = reference_precision(curves)
-    for dfn in ("none", "guard"):
-        g = curves[(curves["precision"] == ref) & (curves["defense"] == dfn)]
-        if len(g):
-            top = g[g["k"] == g["k"].max()].sort_values("n_primitives").iloc[-1]
-            sec.numbers[f"dose_psnr_median_at_kmax_{dfn}_db"] = float(top["psnr_median_db"])
-            sec.numbers[f"dose_nonfinite_at_kmax_{dfn}_pct"] = float(top["nonfinite_pct"])
-            sec.numbers["dose_kmax"] = int(top["k"])
+    # per model (its key as p_c's: the scene, or scene_N<n>) when there are several: one model's
+    # median stood for all of them (the last in row order), unnamed
+    ref_curves = curves[curves["precision"] == ref]
+    models = reliability._models(ref_curves)
+    per_model = len(models) > 1
+    for m in models.itertuples():
+        g = ref_curves[(ref_curves["scene"] == m.scene) & (ref_curves["n_primitives"] == m.n_primitives)]
+        kmax = int(g["k"].max())
+        tail = f"_{m.key}" if per_model else ""
+        sec.numbers[f"dose_kmax{tail}"] = kmax
+        for dfn in ("none", "guard"):
+            top = g[(g["defense"] == dfn) & (g["k"] == kmax)]
+            if len(top):
+                sec.numbers[f"dose_psnr_median_at_kmax{tail}_{dfn}_db"] = float(top["psnr_median_db"].iloc[0])
+                sec.numbers[f"dose_nonfinite_at_kmax{tail}_{dfn}_pct"] = float(top["nonfinite_pct"].iloc[0])
     # did the grid reach the point where the unguarded render is destroyed (most frames catastrophic)?
     top = curves[curves["defense"] == "none"].sort_values("k").groupby(["scene", "n_primitives", "precision"]).tail(1)
     short = top[top["cat_rate_pct"] < 50]
