@@ -50,3 +50,24 @@ def test_goal_verdict_is_unknown_without_time_and_false_on_a_failed_criterion():
     # the guard's own time unknown: the comparison with it is unknown too, not a fail
     untimed_guard = defense_table(df, {"parity": {"time_fraction": 0.5}}).set_index("defense")
     assert pd.isna(untimed_guard.loc["parity", "meets_goal"])
+
+
+def test_state_table_carries_the_due_interval():
+    """The DUE rate of the pipeline-state table is reported with its 95% interval, as the
+    catastrophic rate is (state_table computed it and dropped it: a bare 0 for 0 of 4 DUE)."""
+    from seuwgpu.analysis.defenses import state_table
+    from seuwgpu.analysis.stats import wilson_interval
+
+    rows = [
+        dict(target=t, bit=b, catastrophic=False, due=t == "tile_range" and i < due)
+        for t in ("xy", "tile_range")
+        for b, due in ((3, 1), (30, 2))
+        for i in range(4)
+    ]
+    t = state_table(pd.DataFrame(rows)).set_index(["target", "bit_class"])
+    for tgt, cls, k in (("xy", "exponent", 0), ("tile_range", "high half", 2), ("tile_range", "low half", 1)):
+        lo, hi = wilson_interval(k, 4)  # one bit per class here: the plain Wilson interval
+        r = t.loc[(tgt, cls)]
+        assert r["due_rate"] == pytest.approx(k / 4)
+        assert (r["due_ci_lo"], r["due_ci_hi"]) == pytest.approx((lo, hi))
+    assert t.loc[("xy", "all"), "due_ci_hi"] > 0  # no event: an upper bound, not a zero-width 0

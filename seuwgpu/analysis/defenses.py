@@ -174,7 +174,8 @@ def storm_figure(df: pd.DataFrame):
 def state_table(df: pd.DataFrame) -> pd.DataFrame:
     """Criticality of each pipeline-state target (faults/state.py records): catastrophic and DUE
     rates with intervals, stratified by bit, per target and bit class (the float targets' sign,
-    exponent and mantissa; the integer targets' high half and low half)."""
+    exponent and mantissa; the integer targets' high half and low half). Both rates keep their
+    95% interval (the DUE rate's was computed and dropped)."""
     from seuwgpu.analysis.estimate import rate
 
     d = df.copy()
@@ -201,5 +202,7 @@ def state_table(df: pd.DataFrame) -> pd.DataFrame:
         "cat_ci_hi",
         "due_events",
         "due_rate",
+        "due_ci_lo",
+        "due_ci_hi",
     ]
     return t[keep].reset_index(drop=True)
