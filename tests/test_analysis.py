@@ -795,3 +795,28 @@ def test_the_bootstraps_auc_of_reweighted_records_is_sklearns():
         neg_w = np.bincount(group[i], w[i] * ~y[i], n)
         got = stats._auc_of_group_weights(pos_w, neg_w)
         assert got == pytest.approx(roc_auc_score(y[i], score[i], sample_weight=w[i]), rel=1e-12)
+
+
+def test_budget_figure_points_censored_bounds_the_right_way():
+    """plot_budget drew both kinds of censored budget as '^': a '<=' bound (the first k already
+    at the threshold: the budget is at most that k) read as 'at least'. Now '>=' is '^', '<=' 'v'."""
+    b = pd.DataFrame(
+        {
+            "scene": ["s"] * 3,
+            "n_primitives": [1000, 2000, 4000],
+            "precision": ["fp32"] * 3,
+            "defense": ["none"] * 3,
+            "k_budget": [10.0, 40.0, 1000.0],
+            "censored": ["<=", "", ">="],
+            "k_lo": [0.0, 20.0, 1000.0],
+            "k_hi": [10.0, 80.0, np.inf],
+        }
+    )
+    ax = dose.plot_budget(b).axes[0]
+    drawn = {}
+    for line in ax.get_lines():
+        for x in line.get_xdata():
+            drawn.setdefault(int(x), set()).add(line.get_marker())
+    assert "v" in drawn[1000] and "^" not in drawn[1000]
+    assert "^" in drawn[4000] and "v" not in drawn[4000]
+    assert "o" in drawn[2000]

@@ -242,7 +242,8 @@ def plot_dose(curves: pd.DataFrame, fits: pd.DataFrame | None = None, threshold_
 
 def plot_budget(budget: pd.DataFrame):
     """Redundancy budget against N per scene, precision and defense, with the k-grid bracket as
-    the error bar; open markers are censored bounds."""
+    the error bar; open markers are censored bounds, pointing where the budget lies (^: at least,
+    the sweep never fell to the threshold; v: at most, the first k already had)."""
     fig = figure(5.6, 3.8)
     ax = fig.subplots()
     for i, (key, g) in enumerate(budget.groupby(["scene", "precision", "defense"], sort=False)):
@@ -252,13 +253,14 @@ def plot_budget(budget: pd.DataFrame):
         ax.plot(g["n_primitives"], g["k_budget"], ls, color=c, label=" ".join(map(str, key)))
         lo = np.clip(g["k_budget"] - g["k_lo"].where(g["k_lo"] > 0, g["k_budget"]), 0, None)
         hi = np.clip(g["k_hi"].where(np.isfinite(g["k_hi"]), g["k_budget"]) - g["k_budget"], 0, None)
-        cens = g["censored"] != ""
         ax.errorbar(g["n_primitives"], g["k_budget"], yerr=np.vstack([lo, hi]), fmt="none", ecolor=c, capsize=2)
-        ax.plot(g.loc[~cens, "n_primitives"], g.loc[~cens, "k_budget"], "o", color=c)
-        ax.plot(g.loc[cens, "n_primitives"], g.loc[cens, "k_budget"], "^", mfc="none", color=c)
+        # a bound points where the budget lies: '>=' above the marker, '<=' below it
+        for cens, marker, mfc in (("", "o", c), (">=", "^", "none"), ("<=", "v", "none")):
+            at = g["censored"] == cens
+            ax.plot(g.loc[at, "n_primitives"], g.loc[at, "k_budget"], marker, mfc=mfc, color=c)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("primitive count N")
     ax.set_ylabel(f"redundancy budget k (median PSNR {budget.attrs.get('threshold_db', BUDGET_PSNR_DB):g} dB)")
-    ax.legend(fontsize=6, title="bars: k-grid bracket; open: censored", title_fontsize=6)
+    ax.legend(fontsize=6, title="bars: k-grid bracket; open: censored (^ at least, v at most)", title_fontsize=6)
     return fig

@@ -550,7 +550,8 @@ def _sec_budget(df, manifests, ctx) -> Section:
                 "Redundancy budget against N",
                 dose.plot_budget(b),
                 "Redundancy budget against primitive count, with the k-grid bracket as error bar; open "
-                "markers are censored bounds.",
+                "markers are censored bounds: ^ at least (never reached in the sweep), v at most (reached "
+                "at the first k).",
                 _prov(b),
             )
         )
