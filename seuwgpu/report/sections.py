@@ -731,7 +731,15 @@ def _sec_contamination(df, manifests, ctx) -> Section:
             _prov(cont),
         )
     )
-    sec.tables.append(TableItem("contamination", "Region contamination", cont, "Per subset, precision, defense and P."))
+    cap = (
+        "Per subset, precision, defense and P: pred_fraction_pct, the share of regions the tile rectangle "
+        "of the primitive as the renderer reads it after the upset and the defense reaches (the whole "
+        "primitive, also where the frame does not change: a corrected upset still predicts its clean "
+        "footprint); meas_fraction_pct, the share holding a pixel changed by more than 1/255; both "
+        "weighted by stored bits, without interval. iou_mean: over the n_iou records where either set is "
+        "non-empty (0 where nothing changed). slowest_region_ms and imbalance: plain means over records."
+    )
+    sec.tables.append(TableItem("contamination", "Region contamination", cont, cap))
     sub = cont[(cont["subset"] == "log-scale sign") & cont["defense"].isin(["none", "guard"])]
     if len(sub):
         sub = sub[sub["precision"] == reference_precision(sub)]
