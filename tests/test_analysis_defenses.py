@@ -71,3 +71,18 @@ def test_state_table_carries_the_due_interval():
         assert r["due_rate"] == pytest.approx(k / 4)
         assert (r["due_ci_lo"], r["due_ci_hi"]) == pytest.approx((lo, hi))
     assert t.loc[("xy", "all"), "due_ci_hi"] > 0  # no event: an upper bound, not a zero-width 0
+
+
+def test_goal_verdict_is_unknown_when_none_has_no_dangerous_catastrophe():
+    """danger_vs_none is undefined (NaN) when no dangerous-cell upset was catastrophic without
+    defense; the verdict then read False (NaN <= 0.05 is False), a fail on a missing number, while
+    a missing time gave <NA>. Now <NA> too, and still False where a measured criterion fails."""
+    df = records()
+    df.loc[df["defense"] == "none", ["catastrophic", "footprint"]] = (False, 0.0)
+    df = pd.concat([df] + [df[df["defense"] == "parity"]] * 1500, ignore_index=True)  # a narrow interval
+    t = defense_table(df, {"guard": {"time_fraction": 0.5}, "parity": {"time_fraction": 0.5}}).set_index("defense")
+    assert t.loc["none", "danger_rate_pct"] == 0 and pd.isna(t.loc["parity", "danger_vs_none"])
+    assert t.loc["parity", "rate_hi_pct"] <= 0.05 and t.loc["parity", "memory_overhead_pct"] <= 5
+    assert pd.isna(t.loc["parity", "meets_goal"])
+    assert t.loc["guard", "rate_hi_pct"] > 0.05 and not pd.isna(t.loc["guard", "meets_goal"])
+    assert not t.loc["guard", "meets_goal"]

@@ -107,19 +107,23 @@ def defense_table(df: pd.DataFrame, timing: dict | None = None, manifests: Itera
             out.loc[i, "pareto"] = not (worse_or_eq & better).any()
     guard_t = out.loc[out["defense"] == "guard", "time_fraction"]
     gt = float(guard_t.iloc[0]) if len(guard_t) else float("nan")
-    with np.errstate(invalid="ignore"):
-        time_ok = out["time_fraction"] <= GOAL["time_vs_guard"] * gt
-    # Unknown time (not measured in this run) leaves the verdict unknown (<NA>) unless another
-    # criterion already fails: never a pass on a missing number.
-    known = (
-        (out["memory_overhead_pct"] <= 100 * GOAL["memory_overhead"])
-        & (out["danger_vs_none"] <= GOAL["danger_vs_none"])
-        & (out["rate_hi_pct"] <= 100 * GOAL["overall_rate"])
+
+    def meets(x, limit, unknown=None):
+        """x <= limit, <NA> where x is undefined (or `unknown`)."""
+        x = out[x].to_numpy(float)
+        b = pd.array(x <= limit, dtype="boolean")
+        b[np.isnan(x) if unknown is None else np.isnan(x) | unknown] = pd.NA
+        return b
+
+    # An undefined number (time not measured in this run, or no dangerous-cell catastrophe without
+    # defense to compare with) leaves its criterion unknown, and the verdict <NA> unless another
+    # criterion already fails (Kleene logic): never a pass, nor a fail, on a missing number.
+    out["meets_goal"] = (
+        meets("memory_overhead_pct", 100 * GOAL["memory_overhead"])
+        & meets("danger_vs_none", GOAL["danger_vs_none"])
+        & meets("rate_hi_pct", 100 * GOAL["overall_rate"])
+        & meets("time_fraction", GOAL["time_vs_guard"] * gt, unknown=not np.isfinite(gt))
     )
-    verdict = pd.array(known & time_ok, dtype="boolean")
-    time_unknown = out["time_fraction"].isna() | (not np.isfinite(gt))  # the defense's or the guard's
-    verdict[(known & time_unknown).to_numpy()] = pd.NA
-    out["meets_goal"] = verdict
     return out
 
 
