@@ -472,3 +472,17 @@ def test_a_signal_while_the_arguments_are_read_is_one_line(monkeypatch, capsys):
         monkeypatch.setattr(cli, "build_parser", parser)
         assert cli.main(["info"]) == code
         assert capsys.readouterr().err.strip() == f"seuwgpu: {said}"
+
+
+def test_up_axis_with_a_minus_sign_as_its_own_argument(tmp_path, capsys):
+    """`--up -y`, the README's axis names written as two arguments, failed in argparse ('argument
+    --up: expected one argument': a value starting with '-' reads as an option); it now renders
+    the same frames as `--up=-y`."""
+    args = ["render", "--scene", "spheres", "--n", "200", "--views", "1", "--size", "16x16"]
+    rc, _, err = run([*args, "--up", "-y", "--out", tmp_path / "a.npz"], capsys)
+    assert rc == 0, err
+    rc, _, _ = run([*args, "--up=-y", "--out", tmp_path / "b.npz"], capsys)
+    a, b = (np.load(tmp_path / f"{x}.npz")["images"] for x in "ab")
+    assert rc == 0 and np.array_equal(a, b)
+    rc, _, _ = run([*args, "--out", tmp_path / "c.npz"], capsys)  # the default (+z) frames otherwise
+    assert not np.array_equal(a, np.load(tmp_path / "c.npz")["images"])

@@ -1228,13 +1228,27 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def join_up_axes(argv: list[str]) -> list[str]:
+    """`--up -y` as `--up=-y`: argparse reads a value that starts with '-' as an option, so the
+    README's own axis names (-x, -y, -z) failed with 'argument --up: expected one argument'."""
+    out, i = [], 0
+    while i < len(argv):
+        if argv[i] == "--up" and i + 1 < len(argv) and argv[i + 1] in UP_AXES:
+            out.append(f"--up={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(argv[i])
+        i += 1
+    return out
+
+
 def main(argv=None) -> int:
     import warnings
 
     warnings.formatwarning = lambda msg, cat, *a, **k: f"seuwgpu: {cat.__name__}: {msg}\n"
     Terminated.received = False  # this command's SIGTERM only (main runs many times in one test process)
     try:  # a signal while the arguments are read ends the command as one while it runs does
-        args = build_parser().parse_args(argv)
+        args = build_parser().parse_args(join_up_axes(sys.argv[1:] if argv is None else list(argv)))
     except KeyboardInterrupt as e:
         term = isinstance(e, Terminated) or Terminated.received
         print(f"seuwgpu: {'terminated (SIGTERM)' if term else 'interrupted'}", file=sys.stderr)
