@@ -248,3 +248,27 @@ def test_inria_output_folder_to_report_in_one_command(tmp_path):
     assert len(normalize_spec(spec(run, other, run))["scenes"]) == 3  # the same model twice is one scene
     with pytest.raises(SpecError, match="scenes\\[0\\] and scenes\\[1\\] are different models .* 'run'"):
         normalize_spec(spec(run, twin))
+
+
+@pytest.mark.parametrize("same_point", [False, True], ids=["one primitive", "all at one point"])
+def test_a_model_whose_means_span_no_volume_is_seen(tmp_path, same_point):
+    """A model of one primitive (or of primitives all at one point) was framed from a distance of
+    ~3e-3 of its distance to the origin, nearer than the renderer's near plane (0.01): every view
+    was the empty white background, without a word. Its region now spans the primitives' own
+    3-sigma extent, and the orbit views show the Gaussian."""
+    import seuwgpu as sg
+    from seuwgpu.model.formats import save_model
+
+    m = make_scene("spheres", n=200, seed=1)
+    if same_point:
+        m.means[:] = m.means[7]
+    else:
+        m = m.subset(np.array([7]))
+    save_model(m, tmp_path / "m.ply")
+    scene = sg.load_model(tmp_path / "m.ply")
+    img = sg.render_views(scene, sg.cameras(scene, views=2, size=(32, 32)))
+    covered = (np.abs(img - 1.0) > 1 / 255).any(axis=-1).mean(axis=(1, 2))
+    assert (covered > 0.05).all(), covered
+    region = bounding_region(m.means, m.log_scales)
+    extent = 3 * np.exp(m.log_scales.max(axis=1))
+    assert region.radius == pytest.approx(np.percentile(extent, 98))

@@ -904,7 +904,11 @@ def cmd_view(args):
 
     src = load_source(args)
     model, name = src.model, src.name
-    orbit = OrbitCamera.for_scene(src.scene) if src.scene else OrbitCamera.fit(model.means, up=src.up)
+    orbit = (
+        OrbitCamera.for_scene(src.scene)
+        if src.scene
+        else OrbitCamera.fit(model.means, up=src.up, log_scales=model.log_scales)
+    )
     views, names = None, None
     if args.cameras is not None:
         views, names, _ = read_cameras(args.cameras)

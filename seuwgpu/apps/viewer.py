@@ -87,9 +87,9 @@ class OrbitCamera:
         return cls(np.asarray(s.target, float), s.radius, 30.0, s.elevation_deg, s.fov_x_deg)
 
     @classmethod
-    def fit(cls, means: np.ndarray, up: str = "+z", fov_deg: float = 40.0) -> OrbitCamera:
+    def fit(cls, means: np.ndarray, up: str = "+z", fov_deg: float = 40.0, log_scales=None) -> OrbitCamera:
         """Frame a model of unknown extent the way every command does (model/framing.py)."""
-        region = bounding_region(means)
+        region = bounding_region(means, log_scales)
         return cls(region.center, framing_distance(region.radius, fov_deg), 30.0, 25.0, fov_deg, up)
 
     def reset(self):
@@ -182,7 +182,7 @@ class ViewerState:
         self.scene = scene
         self.profile = profile  # the renderer's rules for corrupted values (docs/renderer.md)
         self.gpu = gpu or get_gpu()
-        self.orbit = orbit or OrbitCamera.fit(model.means)
+        self.orbit = orbit or OrbitCamera.fit(model.means, log_scales=model.log_scales)
         self.views = list(views or [])
         self.view_names = list(view_names or [str(i) for i in range(len(self.views))])
         self.view_index: int | None = None  # a capture view shown, or None: the orbit camera

@@ -68,10 +68,15 @@ class Region:
     core_fraction: float  # share of the finite means inside the core
 
 
-def bounding_region(means: np.ndarray) -> Region:
-    """The robust bounding region of a model's means (see the module docstring)."""
+def bounding_region(means: np.ndarray, log_scales: np.ndarray | None = None) -> Region:
+    """The robust bounding region of a model's means (see the module docstring). When the means
+    span no volume (one primitive, or all of them at one point) and `log_scales` is given, the
+    radius is the primitives' own extent, 3 sigma of their largest axis: the means alone gave a
+    radius of 1e-3 of the distance from the origin, which put the camera nearer than the
+    renderer's near plane (0.01), so such a model rendered as an empty frame."""
     m = np.asarray(means, dtype=np.float64).reshape(-1, 3)
-    m = m[np.isfinite(m).all(axis=1)]
+    finite = np.isfinite(m).all(axis=1)
+    m = m[finite]
     if len(m) == 0:
         return Region(np.zeros(3), 1.0, 0.0)
     c0 = np.median(m, axis=0)
@@ -83,6 +88,12 @@ def bounding_region(means: np.ndarray) -> Region:
     radius = float(np.percentile(np.linalg.norm(core - center, axis=1), 98.0))
     if not radius > 0:
         radius = max(float(np.abs(center).max()) * 1e-3, 1e-3)
+        if log_scales is not None:
+            with np.errstate(over="ignore"):
+                extent = 3.0 * np.exp(np.asarray(log_scales, dtype=np.float64).reshape(-1, 3)[finite].max(axis=1))
+            extent = extent[np.isfinite(extent)]
+            if len(extent):
+                radius = max(radius, float(np.percentile(extent, 98.0)))
     return Region(center, radius, len(core) / len(m))
 
 
@@ -100,12 +111,14 @@ def orbit_views(
     elevation_deg: float = 25.0,
     fov_deg: float = 40.0,
     phase_deg: float = 30.0,
+    log_scales: np.ndarray | None = None,
 ) -> list[Camera]:
     """`k` views evenly spaced in azimuth around the model's robust region, `fov_deg` across the
-    shorter image side, seeing the object whole at any image size."""
+    shorter image side, seeing the object whole at any image size (`log_scales`: see
+    bounding_region)."""
     if k < 1:
         raise ValueError(f"need at least one view, got {k}")
-    region = bounding_region(means)
+    region = bounding_region(means, log_scales)
     dist = framing_distance(region.radius, fov_deg)
     e1, e2, u = orbit_basis(up)
     f = 0.5 * min(width, height) / np.tan(np.radians(fov_deg) / 2)

@@ -73,5 +73,5 @@ def source_views(
         if source.scene is not None:
             cams = scenes.scene_cameras(source.scene, k, w, h)
         else:
-            cams = orbit_views(source.model.means, k, w, h, up=source.up)
+            cams = orbit_views(source.model.means, k, w, h, up=source.up, log_scales=source.model.log_scales)
     return scale_cameras(cams, scale) if scale not in (None, 1, 1.0) else cams
