@@ -109,17 +109,21 @@ def cameras(
     *,
     cameras: str | Path | None = None,
     views: int | None = None,
-    size: tuple[int, int] = (256, 256),
+    size: tuple[int, int] | None = None,
     scale: float | None = None,
 ) -> list[Camera]:
     """The views to render: a camera file's (CAMS.json, INRIA cameras.json, a COLMAP model,
     nerfstudio transforms.json; all of them or `views` evenly), else `views` (default 4) orbit
-    views of `size` (width, height) that frame the model; `scale` multiplies the resolution. The
+    views of `size` (width, height; default 256 x 256) that frame the model; `scale` multiplies
+    the resolution. A camera file gives each view its own size: `size` beside `cameras` is
+    refused (as the command line refuses --size with --cameras), not ignored; use `scale`. The
     command line's limits hold here too: 1..64 views, sides of at least 16 px, scale in (0, 16]."""
     _check_scene(scene)
     if views is not None and _whole(views, "views", 1) > MAX_VIEWS:
         raise InputError(f"views must be at most {MAX_VIEWS}, got {views}")
-    w, h = _size(size)
+    if cameras is not None and size is not None:
+        raise InputError("size sets orbit views; a cameras file gives each view its own size (use scale)")
+    w, h = _size((256, 256) if size is None else size)
     if min(w, h) < MIN_VIEW_SIZE:
         raise InputError(f"size must be at least {MIN_VIEW_SIZE} px a side (one tile), got {size!r}")
     number = isinstance(scale, (int, float)) and not isinstance(scale, bool)

@@ -280,3 +280,17 @@ def test_views_of_several_sizes_render_size_by_size(scene, tmp_path):
         sg.save_frames(frames, tmp_path, "view", formats=["npz"])
     with pytest.raises(sg.InputError, match=r"2 image sizes, 40x32 \(2 views\), 32x40 \(1 view\)"):
         sg.inject(scene, mixed, field="opacity", bit=30, primitive=0)
+
+
+def test_size_beside_a_cameras_file_is_refused_not_ignored(scene, tmp_path):
+    """sg.cameras(scene, cameras=FILE, size=(64, 64)) returned the file's views at their own size
+    (48 x 40 here), the size silently dropped, where the command line refuses --size with
+    --cameras; it is refused the same way, and `scale` still resizes the file's views."""
+    from seuwgpu.model.cameras import save_cameras
+
+    save_cameras(sg.cameras(scene, views=2, size=(48, 40)), tmp_path / "CAMS.json")
+    with pytest.raises(sg.InputError, match="^size sets orbit views; a cameras file gives each view its own size"):
+        sg.cameras(scene, cameras=tmp_path / "CAMS.json", size=(64, 64))
+    views = sg.cameras(scene, cameras=tmp_path / "CAMS.json", scale=0.5)
+    assert [(c.width, c.height) for c in views] == [(24, 20), (24, 20)]
+    assert [(c.width, c.height) for c in sg.cameras(scene, views=1)] == [(256, 256)]  # the orbit default
