@@ -89,13 +89,35 @@ def test_the_same_spec_through_another_path_is_the_same_run(tmp_path):
     save_model(make_scene("spheres", n=150, seed=1), tmp_path / "m.ply")
     p = tiny_spec(tmp_path, 'model = "m.ply"')
     (tmp_path / "sub").mkdir()
-    os.symlink(tmp_path / "m.ply", tmp_path / "sub" / "link.ply")
-    (tmp_path / "sub" / "s.toml").write_text(TINY.format(scene='model = "link.ply"'))
+    os.symlink(tmp_path / "m.ply", tmp_path / "sub" / "m.ply")  # another folder, the same file name
+    (tmp_path / "sub" / "s.toml").write_text(TINY.format(scene='model = "m.ply"'))
     a = load_spec(p)
     b = load_spec(tmp_path / "sub" / ".." / "spec.toml")
     c = load_spec(tmp_path / "sub" / "s.toml")
     assert a == b and spec_hash(a) == spec_hash(b) == spec_hash(c)
     assert os.path.isabs(a["scenes"][0]["model"]) and len(a["scenes"][0]["model_sha256"]) == 64
+
+
+def test_the_same_model_under_another_file_name_is_another_run(tmp_path):
+    """Records name a model file by its file name, but the spec hash left the path out: shards
+    reading one model as `a/scan.ply` and `b/copy.ply` merged into records of two scenes, 'scan'
+    and 'copy', each estimated from half the sites (and a run resumed after a rename did the
+    same). The name is hashed now: the merge and the resume are refused, saying why."""
+    save_model(make_scene("spheres", n=150, seed=1), tmp_path / "scan.ply")
+    shutil.copy(tmp_path / "scan.ply", tmp_path / "copy.ply")
+    a = load_spec(tiny_spec(tmp_path, 'model = "scan.ply"', "a.toml"))
+    b = load_spec(tiny_spec(tmp_path, 'model = "copy.ply"', "b.toml"))
+    assert a["scenes"][0]["model_sha256"] == b["scenes"][0]["model_sha256"]
+    assert spec_hash(a) != spec_hash(b)
+    Runner(a, tmp_path / "s0", shard=(0, 2), quiet=True).run()
+    Runner(b, tmp_path / "s1", shard=(1, 2), quiet=True).run()
+    why = r"scenes\[0\] is the same model named 'scan' \(.*scan\.ply\) and 'copy' \(.*copy\.ply\)"
+    with pytest.raises(SpecError, match="the shards come from different specs: .*" + why):
+        merge(tmp_path / "all", [tmp_path / "s0", tmp_path / "s1"])
+    with pytest.raises(SpecError, match="holds a run whose records name its model otherwise: " + why):
+        Runner(b, tmp_path / "s0", shard=(1, 2), quiet=True).run()
+    Runner(a, tmp_path / "s0", shard=(1, 2), quiet=True).run()  # its own name: the run completes
+    assert set(store.read_records(tmp_path / "s0")["scene"]) == {"scan"}
 
 
 def test_a_run_that_failed_to_load_its_model_does_not_block_the_corrected_spec(tmp_path):

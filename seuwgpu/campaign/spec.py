@@ -2,7 +2,9 @@
 
 Files a spec names (model, cameras) are resolved to absolute paths and recorded with the sha256
 of their content (`model_sha256`, `cameras_sha256`; reading costs about a second per GB); the hash
-covers the content, not the path, so a changed file is another run and a moved one the same.
+covers the content, not the folder, so a changed file is another run and one moved to another
+folder the same; a model renamed is another run (records name it by its file or INRIA output
+folder name).
 Lists of names (precisions, defenses, fields with their aliases) must not repeat an entry; lists of
 numbers (bits, k, sizes.n, regions) are merged. Seeds are integers in [0, 2**63).
 
@@ -598,9 +600,28 @@ def load_spec(path) -> dict:
 
 def spec_hash(spec: dict) -> str:
     """The run's name: a hash of the normalised spec in which the files it names stand for their
-    content (their sha256), so the same spec is the same run whatever path reaches the files, and
-    a changed model or camera file is another run."""
-    return _short_hash(_by_content(spec))
+    content (their sha256), so the same spec is the same run whatever folder reaches the files, and
+    a changed model or camera file is another run. A model file's label (scene_label: its file or
+    INRIA output folder name) is hashed too: records name the scene by it, so the same content
+    under another name writes other records, and resuming or merging with them would split one
+    model into two scenes."""
+    keyed = _by_content(spec)
+    for sc, k in zip(spec.get("scenes", []), keyed["scenes"]):
+        if sc.get("model") and "model_sha256" in sc:
+            k["label"] = scene_label(sc)
+    return _short_hash(keyed)
+
+
+def renamed_models(a: dict, b: dict) -> list[str]:
+    """Scenes that two specs read from the same model content under different labels, said for
+    an error message (why their hashes differ)."""
+    out = []
+    for i, (x, y) in enumerate(zip(a.get("scenes", []), b.get("scenes", []))):
+        if x.get("model") and y.get("model") and x.get("model_sha256") == y.get("model_sha256"):
+            lx, ly = scene_label(x), scene_label(y)
+            if lx != ly:
+                out.append(f"scenes[{i}] is the same model named {lx!r} ({x['model']}) and {ly!r} ({y['model']})")
+    return out
 
 
 def _by_content(spec: dict, leave_out=()) -> dict:

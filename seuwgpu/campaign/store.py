@@ -366,6 +366,15 @@ def check_same_run(run_dir, manifest: dict | None, spec: dict, spec_hash: str):
                     f"{ha[:12]}.. then, {hb[:12]}.. now): the file changed since the run began; restore it, or "
                     "use a new --out directory"
                 )
+    from seuwgpu.campaign.spec import renamed_models
+
+    renamed = renamed_models(old, spec)
+    if renamed:
+        raise SpecError(
+            f"{run_dir} holds a run whose records name its model otherwise: {'; '.join(renamed)}. Records "
+            "name a model by its file (or INRIA output folder) name: give it the run's name again, or use a "
+            "new --out directory"
+        )
     raise SpecError(
         f"{run_dir} holds a run of a different spec (hash {manifest.get('spec_hash')} != {spec_hash}); "
         "use a new --out directory, or the original spec to resume"
