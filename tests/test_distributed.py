@@ -286,3 +286,43 @@ def test_init_ray_keeps_the_command_lines_sigterm_handler(monkeypatch):
         assert signal.getsignal(signal.SIGTERM) is ours
     finally:
         signal.signal(signal.SIGTERM, before)
+
+
+def test_ctrl_c_while_ray_starts_stops_the_started_node(monkeypatch):
+    """Ctrl-C during ray.init (a terminal's SIGINT) takes effect once the node has started, and
+    that node is shut down, so no Ray agent is left orphaned; a second Ctrl-C stops at once."""
+    import os
+    import signal
+    import types
+
+    from seuwgpu.campaign import ray as ray_exec
+
+    events = []
+
+    def fake_init(**kw):
+        os.kill(os.getpid(), signal.SIGINT)  # delivered between bytecodes, inside init
+        for _ in range(1000):
+            pass
+        events.append("init done")
+
+    fake = types.SimpleNamespace(
+        is_initialized=lambda: False, init=fake_init, shutdown=lambda: events.append("shutdown")
+    )
+    monkeypatch.setattr(ray_exec, "get_ray", lambda: fake)
+    with pytest.raises(KeyboardInterrupt):
+        ray_exec.init_ray(num_cpus=1)
+    assert events == ["init done", "shutdown"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+    def init_twice(**kw):
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(1000):
+            pass
+        events.append("init done")
+
+    events.clear()
+    fake.init = init_twice
+    with pytest.raises(KeyboardInterrupt):
+        ray_exec.init_ray(num_cpus=1)
+    assert events == [] and signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -42,6 +42,7 @@ concurrent frame (all ranks at once) is reported beside them.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
@@ -84,12 +85,39 @@ def init_ray(address: str | None = None, num_cpus: int | None = None, quiet: boo
     on_term = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
     if address:
         check_reachable(address)
-        ray.init(address=address, **kw)
-    else:
-        ray.init(num_cpus=num_cpus, include_dashboard=False, object_store_memory=256 * 1024**2, **kw)
+    with _interrupt_after_start(ray):
+        if address:
+            ray.init(address=address, **kw)
+        else:
+            ray.init(num_cpus=num_cpus, include_dashboard=False, object_store_memory=256 * 1024**2, **kw)
     if on_term is not None:
         signal.signal(signal.SIGTERM, on_term)
     return True
+
+
+@contextlib.contextmanager
+def _interrupt_after_start(ray):
+    """Ctrl-C while ray.init starts a node takes effect once it has started, and stops it: cut
+    short, the node's raylet died with this process and left its dashboard and runtime-env agents
+    running, orphaned (2-6 processes, 2026-11-26, Ray 2.60). A second Ctrl-C stops at once."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending = []
+
+    def hold(signum, frame):
+        if pending:
+            raise KeyboardInterrupt
+        pending.append(signum)
+
+    old = signal.signal(signal.SIGINT, hold)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+    if pending:
+        ray.shutdown()
+        raise KeyboardInterrupt
 
 
 def check_reachable(address: str, timeout_s: float = 10.0):
