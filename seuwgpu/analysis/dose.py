@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis import estimate as E
-from seuwgpu.analysis.records import InsufficientData, dose_records, figure, sort_rows, tag
+from seuwgpu.analysis.records import InsufficientData, dose_records, figure, series_color, sort_rows, tag
 from seuwgpu.faults.defenses import defense_label
 
 BUDGET_PSNR_DB = 30.0  # redundancy budget threshold (paper, Section 5.4)
@@ -191,38 +191,88 @@ def redundancy_budget(df: pd.DataFrame, threshold_db: float = BUDGET_PSNR_DB) ->
     return out
 
 
-def _label(key) -> str:
-    scene, n, prec, dfn = key
-    return f"{scene} N={int(n):,} {prec} {defense_label(dfn)}"
+DEFENSE_LINES = ("-", "--", ":", "-.")  # no defense first: solid
+
+
+def series_styles(keys) -> tuple[dict, dict]:
+    """Colours per model (every key but the last, the defense) and line styles per defense (no
+    defense solid), so a figure tells models apart by colour and defenses by line, never by a
+    colour each."""
+    models = list(dict.fromkeys(tuple(k[:-1]) for k in keys))
+    defenses = sorted(dict.fromkeys(k[-1] for k in keys), key=lambda d: d != "none")
+    return (
+        {m: series_color(i) for i, m in enumerate(models)},
+        {d: DEFENSE_LINES[i % len(DEFENSE_LINES)] for i, d in enumerate(defenses)},
+    )
+
+
+def style_legend(fig, colors: dict, lines: dict, name, extra=(), ncols: int = 4):
+    """One legend below the panels: a colour per model (name(model) -> its label), a line per
+    defense, and `extra` handles; outside the axes, so it hides no data."""
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color=c, lw=2, label=name(m)) for m, c in colors.items()]
+    handles += [
+        Line2D(
+            [],
+            [],
+            color="0.3",
+            ls=ls,
+            marker="o" if d == "none" else "s",
+            mfc="0.3" if d == "none" else "white",
+            ms=4,
+            label=defense_label(d),
+        )
+        for d, ls in lines.items()
+    ]
+    handles += list(extra)
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(ncols, len(handles)), fontsize=7)
 
 
 def plot_dose(curves: pd.DataFrame, fits: pd.DataFrame | None = None, threshold_db: float = BUDGET_PSNR_DB):
-    """Two panels against k, one line per model, precision and defense: median PSNR with its
-    interquartile band (a median frame that is non-finite is marked at the panel's foot, never
-    drawn at a made-up value) and the catastrophic fraction with Wilson intervals and the fitted
-    dose model."""
-    fig = figure(10.5, 4.2)
+    """Two panels against k, one line per model, precision and defense (colour: model and
+    precision; line: defense): median PSNR with its interquartile band (a median frame that is
+    non-finite is marked at the panel's foot, one row per series, never drawn at a made-up value;
+    one identical to clean, infinite PSNR, at its top) and the catastrophic fraction with Wilson
+    intervals (markers spread a little along k per series, so equal rates stay apart) and the
+    fitted dose model."""
+    from matplotlib.lines import Line2D
+
+    fig = figure(10.5, 5.0)
     ax, bx = fig.subplots(1, 2)
     keys = MODEL + ["precision", "defense"]
     groups = list(curves.groupby(keys, sort=False))
-    fin = curves["psnr_median_db"].replace([np.inf, -np.inf], np.nan)
-    ymin = float(np.nanmin(fin)) - 3 if fin.notna().any() else 0.0
+    colors, lines = series_styles([k for k, _ in groups])
+    fin = curves[["psnr_median_db", "psnr_q25_db", "psnr_q75_db"]].replace([np.inf, -np.inf], np.nan).stack()
+    ymin = float(fin.min()) - 3 if len(fin) else 0.0
+    ytop = float(fin.max()) + 3 if len(fin) else 100.0
+    step = 0.025 * (ytop - ymin)
+    n = len(groups)
+    foot_rows = top_rows = 0
     for i, (key, g) in enumerate(groups):
         g = g.sort_values("k")
-        c = f"C{i % 10}"
-        ls = "-" if key[3] == "none" else "--"
+        k = g["k"].to_numpy(float)
+        c, ls = colors[tuple(key[:-1])], lines[key[-1]]
+        mfc = c if key[-1] == "none" else "white"
+        marker = "o" if key[-1] == "none" else "s"
         y = g["psnr_median_db"].to_numpy(float)
-        yf = np.where(np.isfinite(y), y, np.nan)
-        ax.plot(g["k"], yf, ls, color=c, marker="o", ms=3, label=_label(key))
+        ax.plot(k, np.where(np.isfinite(y), y, np.nan), ls, color=c, marker=marker, mfc=mfc, ms=3, lw=1.2)
         lo = np.where(np.isfinite(g["psnr_q25_db"]), g["psnr_q25_db"], ymin)
-        hi = np.where(np.isfinite(g["psnr_q75_db"]), g["psnr_q75_db"], np.nan)
-        ax.fill_between(g["k"], lo, hi, color=c, alpha=0.12, lw=0)
+        hi = g["psnr_q75_db"].to_numpy(float)
+        hi = np.where(np.isposinf(hi), ytop, np.where(np.isfinite(hi), hi, np.nan))
+        ax.fill_between(k, lo, hi, color=c, alpha=0.10, lw=0)
         bad = np.isneginf(y)
-        if bad.any():
-            ax.plot(g["k"][bad], np.full(bad.sum(), ymin), "v", color=c, ms=6)
+        if bad.any():  # each series its own row at the foot: no triangle hides another
+            ax.plot(k[bad], np.full(bad.sum(), ymin - step * foot_rows), "v", color=c, mfc=mfc, ms=5)
+            foot_rows += 1
+        same = np.isposinf(y)
+        if same.any():
+            ax.plot(k[same], np.full(same.sum(), ytop + step * top_rows), "^", color=c, mfc=mfc, ms=5)
+            top_rows += 1
         yc = g["cat_rate_pct"].to_numpy(float)
         err = np.vstack([yc - g["cat_ci_lo_pct"], g["cat_ci_hi_pct"] - yc])
-        bx.errorbar(g["k"] * (1 + 0.04 * (i % 5)), yc, yerr=err, fmt="o", ms=3, capsize=2, color=c)
+        spread = 10 ** (0.02 * (i - (n - 1) / 2))
+        bx.errorbar(k * spread, yc, yerr=err, fmt=marker, mfc=mfc, ms=3, capsize=2, color=c, elinewidth=0.8)
         if fits is not None and len(fits):
             f = fits
             for col, v in zip(keys, key):
@@ -234,9 +284,17 @@ def plot_dose(curves: pd.DataFrame, fits: pd.DataFrame | None = None, threshold_
     for a in (ax, bx):
         a.set_xscale("log")
         a.set_xlabel("simultaneous upsets k")
-    ax.set_ylabel("median PSNR (dB), IQR band; v: median frame non-finite")
-    bx.set_ylabel("catastrophic frames (%, 95% Wilson) and 1-(1-p)^k fit")
-    ax.legend(fontsize=6)
+    ax.set_ylim(ymin - step * max(foot_rows, 1), ytop + step * max(top_rows, 1))
+    ax.set_ylabel("median PSNR (dB)")
+    ax.set_title("median PSNR, interquartile band", fontsize=9)
+    bx.set_ylabel("catastrophic frames (%)")
+    bx.set_title("catastrophic fraction, 95% Wilson interval; lines: fitted 1-(1-p)^k", fontsize=9)
+    extra = [Line2D([], [], color="grey", ls=":", lw=1, label=f"{threshold_db:g} dB")]
+    if foot_rows:
+        extra.append(Line2D([], [], color="0.3", ls="", marker="v", ms=5, label="median frame non-finite"))
+    if top_rows:
+        extra.append(Line2D([], [], color="0.3", ls="", marker="^", ms=5, label="median frame identical (inf dB)"))
+    style_legend(fig, colors, lines, lambda m: f"{m[0]} N={int(m[1]):,} {m[2]}", extra)
     return fig
 
 
@@ -244,13 +302,14 @@ def plot_budget(budget: pd.DataFrame):
     """Redundancy budget against N per scene, precision and defense, with the k-grid bracket as
     the error bar; open markers are censored bounds, pointing where the budget lies (^: at least,
     the sweep never fell to the threshold; v: at most, the first k already had)."""
-    fig = figure(5.6, 3.8)
+    groups = list(budget.groupby(["scene", "precision", "defense"], sort=False))
+    colors, lines = series_styles([k for k, _ in groups])
+    fig = figure(5.6, 3.8 + 0.2 * len(groups))
     ax = fig.subplots()
-    for i, (key, g) in enumerate(budget.groupby(["scene", "precision", "defense"], sort=False)):
+    for key, g in groups:
         g = g.sort_values("n_primitives")
-        c = f"C{i % 10}"
-        ls = "-" if key[2] == "none" else "--"
-        ax.plot(g["n_primitives"], g["k_budget"], ls, color=c, label=" ".join(map(str, key)))
+        c, ls = colors[tuple(key[:-1])], lines[key[-1]]
+        ax.plot(g["n_primitives"], g["k_budget"], ls, color=c, label=f"{key[0]} {key[1]} {defense_label(key[2])}")
         lo = np.clip(g["k_budget"] - g["k_lo"].where(g["k_lo"] > 0, g["k_budget"]), 0, None)
         hi = np.clip(g["k_hi"].where(np.isfinite(g["k_hi"]), g["k_budget"]) - g["k_budget"], 0, None)
         ax.errorbar(g["n_primitives"], g["k_budget"], yerr=np.vstack([lo, hi]), fmt="none", ecolor=c, capsize=2)
@@ -262,5 +321,11 @@ def plot_budget(budget: pd.DataFrame):
     ax.set_yscale("log")
     ax.set_xlabel("primitive count N")
     ax.set_ylabel(f"redundancy budget k (median PSNR {budget.attrs.get('threshold_db', BUDGET_PSNR_DB):g} dB)")
-    ax.legend(fontsize=6, title="bars: k-grid bracket; open: censored (^ at least, v at most)", title_fontsize=6)
+    fig.legend(
+        loc="outside lower center",
+        ncols=2,
+        fontsize=7,
+        title="bars: k-grid bracket; open: censored (^ at least, v at most)",
+        title_fontsize=7,
+    )
     return fig

@@ -431,6 +431,17 @@ def sh_degree_of(df: pd.DataFrame | None = None, manifests: Iterable[dict] = ())
     return DEFAULT_SH_DEGREE
 
 
+# Okabe & Ito's colour-blind safe palette (yellow last: faint on white): series told apart by
+# colour stay apart under deuteranopia and protanopia, which matplotlib's default cycle does not
+# (its orange/green/red/brown pairs merge)
+PALETTE = ("#0072B2", "#E69F00", "#009E73", "#D55E00", "#56B4E9", "#CC79A7", "#000000", "#F0E442")
+
+
+def series_color(i: int) -> str:
+    """The i-th colour of PALETTE (cycling)."""
+    return PALETTE[i % len(PALETTE)]
+
+
 def figure(w=6.4, h=4.0):
     """A matplotlib Figure without pyplot (Agg canvas; safe headless and in threads)."""
     from matplotlib.figure import Figure

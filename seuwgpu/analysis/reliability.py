@@ -43,6 +43,7 @@ from seuwgpu.analysis.records import (
     record_weights,
     reference_precision,
     scene_degrees,
+    series_color,
     sh_degree_of,
     single_upsets,
     sort_rows,
@@ -472,7 +473,15 @@ def _sensitivity_panel(ax, mt, pc, model: dict, precision: str, scrub: float, ra
         elif dfn in dose_p:
             lo_p, hi_p = dose_p[dfn][1], dose_p[dfn][2]
         ls = "-" if src.startswith("single") else "--"
-        ax.plot(lam, np.where(np.isfinite(y), y, np.nan), ls, color=c, label=f"{dfn}, {src}")
+        if p > 0 or hi_p is None or not hi_p > 0:
+            ax.plot(lam, np.where(np.isfinite(y), y, np.nan), ls, color=c, label=f"{dfn}, {src}")
+        else:  # no event: the MTBF is unbounded above; draw its lower bound (the p interval's upper end)
+            bound = np.array([mtbf(x, bits, hi_p, scrub) for x in lam])
+            ax.plot(
+                lam, bound, ls, color=c, lw=1, marker="^", markevery=10, ms=4, label=f"{dfn}, {src}: no event, MTBF >"
+            )
+            ax.fill_between(lam, bound, 1e12, color=c, alpha=0.12, lw=0)
+            continue
         if lo_p is not None:
             a = np.array([mtbf(x, bits, hi_p, scrub) for x in lam])
             b = np.array([mtbf(x, bits, lo_p, scrub) for x in lam])
@@ -488,18 +497,23 @@ def _sensitivity_panel(ax, mt, pc, model: dict, precision: str, scrub: float, ra
 def plot_sensitivity(res: dict):
     """MTBF against the per-bit upset rate (log-log), per defense and p source, with the band from
     the p interval; vertical lines mark the named environments. Several models: a panel each (its
-    own p and bits; colours mean the same defense and p source in every panel)."""
+    own p and bits; a colour means the same defense, a line the same p source, in every panel).
+    The legend sits below the panels. A defense without any catastrophic event (p = 0, MTBF
+    unbounded) is drawn as the lower bound from its p interval's upper end, marked with triangles."""
     mt, scrub, prec = res["mtbf"], res["scrub_hours"], res["precision"]
     keys = list(dict.fromkeys(zip(mt["defense"], mt["p_source"])))
-    colors = {k: f"C{i}" for i, k in enumerate(keys)}
+    # a colour per defense, its p sources told apart by line (solid: single-upset p_c, dashed: dose fit)
+    defenses = list(dict.fromkeys(d for d, _ in keys))
+    colors = {(d, src): series_color(defenses.index(d)) for d, src in keys}
     ylabel = f"MTBF of catastrophic frames (h), scrub every {scrub:g} h"
     if not res.get("per_model"):
         fig = figure(6.4, 4.2)
         ax = fig.subplots()
         _sensitivity_panel(ax, mt, res["pc"], res["models"][0], prec, scrub, res["rates"], colors)
         ax.set_xlabel("upset rate per stored bit per hour")
-        ax.set_ylabel(ylabel)
-        ax.legend(fontsize=6)
+        ax.set_ylabel("MTBF of catastrophic frames (h)")  # the whole of ylabel ran off a 4.2 in figure
+        ax.set_title(f"{prec}, {res['models'][0]['bits']:.3g} stored bits, scrub every {scrub:g} h", fontsize=8)
+        fig.legend(loc="outside lower center", ncols=2, fontsize=7)
         return fig
     models = res["models"]
     ncols = min(len(models), 3)
@@ -518,5 +532,12 @@ def plot_sensitivity(res: dict):
         ax.set_xlabel("upset rate per stored bit per hour")
     for ax in axes[::ncols]:
         ax.set_ylabel(ylabel if nrows == 1 else "MTBF (h)")
-    axes[0].legend(fontsize=6)
+    if nrows > 1:
+        fig.suptitle(f"{ylabel} at {prec}", fontsize=9)
+    # one legend for every panel: a line that only some panels draw (a no-event bound) is named too
+    handles = {}
+    for ax in axes[: len(models)]:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(lab, h)
+    fig.legend(handles.values(), handles.keys(), loc="outside lower center", ncols=min(3, len(handles)), fontsize=7)
     return fig

@@ -117,17 +117,29 @@ def size_scaling(df: pd.DataFrame, conf: float = 0.95) -> dict:
 
 
 def plot_size_scaling(res: dict, metric: str = "mean_mse"):
-    """`metric` against N per scene, precision and defense (log-log) with the fitted power law;
-    zero values, which have no logarithm, are drawn as open triangles at the panel's foot."""
+    """`metric` against N per scene, precision and defense (log-log; colour: scene and precision,
+    marker and line: defense) with the fitted power law; zero values, which have no logarithm,
+    are drawn as open triangles at the panel's foot. The legend sits below the axes (it hid the
+    smallest values)."""
+    from matplotlib.lines import Line2D
+
+    from seuwgpu.analysis.dose import series_styles
+    from seuwgpu.faults.defenses import defense_label
+
     t = res["table"]
     fits = res["fits"]
-    fig = figure(6.4, 4.0)
+    groups = list(t.groupby(["scene", "precision", "defense"], sort=False))
+    colors, lines = series_styles([k for k, _ in groups])
+    fig = figure(7.0, 3.6 + 0.22 * (len(groups) + 2))
     ax = fig.subplots()
     pos = t[metric][(t[metric] > 0) & np.isfinite(t[metric])]
     foot = float(pos.min()) / 3 if len(pos) else 1e-12
-    for i, (key, g) in enumerate(t.groupby(["scene", "precision", "defense"], sort=False)):
+    fitted = []
+    any_zero = False
+    for key, g in groups:
         g = g.sort_values("n_primitives")
-        c = f"C{i % 10}"
+        c, ls = colors[tuple(key[:-1])], lines[key[-1]]
+        marker, mfc = ("o", c) if key[-1] == "none" else ("s", "white")
         y = g[metric].to_numpy(float)
         ok = np.isfinite(y) & (y > 0)
         f = fits[
@@ -136,7 +148,7 @@ def plot_size_scaling(res: dict, metric: str = "mean_mse"):
             & (fits["defense"] == key[2])
             & (fits["metric"] == metric)
         ]
-        lab = " ".join(map(str, key))
+        lab = f"{key[0]} {key[1]} {defense_label(key[2])}"
         if len(f) and np.isfinite(f["alpha"].iloc[0]):
             r = f.iloc[0]
             ci = f" [{r['alpha_lo']:.2f}, {r['alpha_hi']:.2f}]" if np.isfinite(r["alpha_lo"]) else " (2 points: exact)"
@@ -144,14 +156,28 @@ def plot_size_scaling(res: dict, metric: str = "mean_mse"):
             xx = g["n_primitives"].to_numpy(float)
             b = r["exponent"]
             a0 = np.mean(np.log10(y[ok]) - b * np.log10(xx[ok]))
-            ax.plot(xx, 10**a0 * xx**b, "-", color=c, lw=1)
-        ax.plot(g["n_primitives"][ok], y[ok], "o", color=c, ms=4, label=lab)
+            ax.plot(xx, 10**a0 * xx**b, ls, color=c, lw=1)
+        else:
+            lab += ": no fit"
+        fitted.append(Line2D([], [], color=c, ls=ls, marker=marker, mfc=mfc, ms=4, label=lab))
+        ax.plot(g["n_primitives"][ok], y[ok], marker, color=c, mfc=mfc, ms=4)
         zero = y == 0
         if zero.any():
+            any_zero = True
             ax.plot(g["n_primitives"][zero], np.full(zero.sum(), foot), "v", mfc="none", color=c, ms=6)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("primitive count N")
-    ax.set_ylabel(f"single-upset {metric.replace('_', ' ')} (v at foot: zero)")
-    ax.legend(fontsize=6)
+    what = {"mean_mse": "mean frame MSE (peak 1)", "median_mse": "median frame MSE (peak 1)"}
+    ax.set_ylabel(f"single-upset {what.get(metric, metric.replace('_', ' '))}")
+    if any_zero:
+        fitted.append(Line2D([], [], color="0.3", ls="", marker="v", mfc="none", ms=6, label="zero (no logarithm)"))
+    fig.legend(
+        handles=fitted,
+        loc="outside lower center",
+        ncols=2,
+        fontsize=7,
+        title="fitted power law N^-alpha, 95% t interval",
+        title_fontsize=7,
+    )
     return fig

@@ -674,7 +674,9 @@ def cmd_inject(args):
         f"({site['bit_class']}) {site['clean_value']:.6g} -> {site['corrupted_value']:.6g}; defense {args.defense}"
     )
     frames = inj.frames
-    panel = save_panel(args.out / "panel.png", frames["clean"], frames[args.defense], frames["guard"], title)
+    panel = save_panel(
+        args.out / "panel.png", frames["clean"], frames[args.defense], frames["guard"], title, defense=args.defense
+    )
     files = inj.save(args.out, formats=args.formats)
     lines = {
         "field": site["field"],

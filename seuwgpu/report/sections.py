@@ -476,7 +476,8 @@ def _sec_dose(df, manifests, ctx) -> Section:
             "Quality and catastrophes against dose",
             dose.plot_dose(curves, fits),
             "Left: median PSNR against k with the interquartile band, per model, precision and defense "
-            "(solid: none, dashed: defended); triangles at the foot: the median frame is non-finite. "
+            "(colour: model; solid: none, dashed: defended); triangles at the foot, a row per series: the "
+            "median frame is non-finite. "
             "Right: catastrophic fraction with 95% Wilson intervals and the fitted 1-(1-p)^k; dotted: 30 dB.",
             _prov(curves),
         )
@@ -688,7 +689,9 @@ def _sec_reliability(df, manifests, ctx) -> Section:
                 "MTBF against the upset rate",
                 reliability.plot_sensitivity(res),
                 "MTBF of catastrophic frames against the per-bit upset rate, per defense and source of p "
-                "(bands: 95% interval of p); dotted: the named environments."
+                "(colour: defense; solid: single-upset p_c, dashed: dose fit; bands: 95% interval of p); "
+                "triangles: no catastrophic event, the line is the lower bound from the upper limit of p; "
+                "dotted: the named environments."
                 + (" A panel per model, with its own p and stored bits." if per_model else ""),
                 _prov(res["mtbf"]),
             )
