@@ -7,7 +7,7 @@
     inj = sg.inject(scene, cams, field="log_scales", bit=31, defenses=("none", "guard"))
     inj.metrics["none"]["footprint"]                   # a fraction of the frame's pixels
     inj.save("out/")                                   # PNG, float32 TIFF, metrics.json
-    stats = sg.run_campaign({"scenes": ["spheres"], ...}, "runs/x", progress=print)
+    stats = sg.run_campaign({"scenes": [{"scene": "spheres"}], ...}, "runs/x", progress=print)
     df = sg.read_records("runs/x")                     # a pandas DataFrame of the records
     sg.make_report(["runs/x"], "runs/x/report")        # HTML, figures, tables, summary.json
 

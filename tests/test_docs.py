@@ -72,3 +72,18 @@ def test_notebook_runs(tmp_path):
     assert sum("image/png" in o.get("data", {}) for o in outputs) >= 3
     text = "".join(o.get("text", "") for o in outputs)
     assert "leica-sofort" in text and "injections" in text
+
+
+def test_api_docstring_campaign_spec_is_a_valid_spec():
+    """The module docstring's `run_campaign({...}, ...)` spec dict, completed with a [single]
+    table, is one the spec checker takes (it showed "scenes": ["spheres"], refused as
+    "scenes[0] must be a table")."""
+    import ast
+
+    from seuwgpu import api
+    from seuwgpu.campaign.spec import normalize_spec
+
+    found = re.search(r"run_campaign\((\{.*?), \.\.\.\}", api.__doc__)
+    assert found, "the docstring no longer shows a run_campaign spec dict"
+    spec = ast.literal_eval(found.group(1) + "}")
+    normalize_spec({**spec, "single": {}})
