@@ -239,3 +239,38 @@ def test_budget_figure_legend_below_and_bounds_open():
     _legends_off_axes(fig)
     marks = [ln for ln in fig.axes[0].get_lines() if ln.get_marker() in ("^", "v") and len(ln.get_xdata())]
     assert marks and all(ln.get_markerfacecolor() == "none" for ln in marks)
+
+
+def test_precision_and_mitigation_rates_on_log_axes_with_no_event_as_bounds():
+    from seuwgpu.analysis import criticality, mitigation
+
+    rates = pd.DataFrame(
+        [
+            {"precision": p, "field": f, "cat_rate_pct": r, "cat_ci_lo_pct": r / 2, "cat_ci_hi_pct": max(2 * r, 0.06)}
+            for p in ("fp32", "fp16")
+            for f, r in (("means", 0.03), ("log_scales", 7.3), ("sh_rest", 0.0))
+        ]
+    )
+    fig = criticality.plot_precision_rates(rates)
+    ax = fig.axes[0]
+    assert ax.get_yscale() == "log"
+    bounds = [ln for ln in ax.get_lines() if ln.get_marker() == "v" and len(ln.get_ydata())]
+    assert len(bounds) == 2 and all(ln.get_ydata()[0] == 0.06 for ln in bounds)  # no event: at the upper end
+    _legends_off_axes(fig)
+    t = pd.DataFrame(
+        {
+            "label": ["none", "guard", "ECC"],
+            "cat_rate_pct": [0.47, 0.012, 0.0],
+            "cat_ci_lo_pct": [0.37, 0.002, 0.0],
+            "cat_ci_hi_pct": [0.59, 0.058, 0.037],
+            "memory_overhead_pct": [0.0, 0.006, 15.6],
+        }
+    )
+    fig = mitigation.plot_mitigation(t)
+    ax = fig.axes[0]
+    assert ax.get_xscale() == "log"
+    (bound,) = [ln for ln in ax.get_lines() if ln.get_marker() == "<" and len(ln.get_xdata())]
+    assert bound.get_xdata()[0] == 0.037
+    top = max(ax.get_yticklabels(), key=lambda tl: tl.get_position()[1])
+    assert top.get_text().startswith("none")  # the table's order, top down
+    _inside_figure(fig)

@@ -241,6 +241,7 @@ def test_end_to_end_report(synthetic, tmp_path):
         "fig_reliability",
         "fig_contamination",
         "fig_roc",
+        "fig_mitigation",
     ):
         assert (out / f"{fig}.png").stat().st_size > 1000, fig
     for tab in (

@@ -168,19 +168,39 @@ def plot_field_bit_heatmap(table: pd.DataFrame, precisions: list[str] | None = N
 
 
 def plot_precision_rates(rates: pd.DataFrame):
-    """Weighted catastrophe rate by field and precision, with the stratified 95% intervals."""
-    fig = figure(7.0, 3.8)
+    """Weighted catastrophe rate by field and precision, with the stratified 95% intervals, on a
+    log axis (the rates span decades: on a linear one the fields below 1% were invisible); a
+    field without any event is an open triangle at its interval's upper end."""
+    from matplotlib.lines import Line2D
+
+    from seuwgpu.analysis.records import rate_points, series_color
+
+    fig = figure(8.0, 3.8)
     ax = fig.subplots()
     precs = precisions_present(rates)
     fields = fields_present(rates)
-    w = 0.8 / max(len(precs), 1)
+    w = 0.6 / max(len(precs), 1)
+    zeros = 0
     for i, p in enumerate(precs):
         g = rates[rates["precision"] == p].set_index("field").reindex(fields)
         x = np.arange(len(fields)) + (i - (len(precs) - 1) / 2) * w
-        y = g["cat_rate_pct"].to_numpy(float)
-        err = np.vstack([y - g["cat_ci_lo_pct"].to_numpy(float), g["cat_ci_hi_pct"].to_numpy(float) - y])
-        ax.bar(x, y, w, label=p, yerr=np.nan_to_num(err), capsize=2)
+        ok = g["cat_rate_pct"].notna().to_numpy()
+        zeros += rate_points(
+            ax,
+            x[ok],
+            g["cat_rate_pct"][ok],
+            g["cat_ci_lo_pct"][ok],
+            g["cat_ci_hi_pct"][ok],
+            series_color(i),
+            label=p,
+            marker="osD^"[i % 4],
+        )
+    ax.set_yscale("log")
     ax.set_xticks(range(len(fields)), [FIELD_LABELS.get(f, f) for f in fields])
-    ax.set_ylabel("catastrophic upsets (%, 95% CI)")
-    ax.legend(title="precision")
+    ax.set_ylabel("catastrophic upsets (%), 95% interval")
+    handles, labels = ax.get_legend_handles_labels()
+    if zeros:
+        handles.append(Line2D([], [], color="0.3", ls="", marker="v", mfc="none", ms=7))
+        labels.append("no event: below the triangle")
+    fig.legend(handles, labels, title="precision", loc="outside right upper", fontsize=8)
     return fig

@@ -166,3 +166,26 @@ def mitigation_table(
             }
         )
     return tag(pd.DataFrame(rows), s, precision=precision, paired=is_paired, sh_degree=deg)
+
+
+def plot_mitigation(table: pd.DataFrame):
+    """The mitigation table drawn: each defense's weighted catastrophe rate (%, log axis) with its
+    95% interval (no event: an open triangle at the upper end), its memory overhead beside it."""
+    from seuwgpu.analysis.records import figure, rate_points, series_color
+
+    t = table.reset_index(drop=True)
+    fig = figure(7.0, 1.2 + 0.45 * len(t))
+    ax = fig.subplots()
+    y = np.arange(len(t))[::-1]
+    zeros = rate_points(
+        ax, y, t["cat_rate_pct"], t["cat_ci_lo_pct"], t["cat_ci_hi_pct"], series_color(0), horizontal=True
+    )
+    names = [
+        f"{lab}\n(memory +{m:.3g}%)" if np.isfinite(m) else str(lab)
+        for lab, m in zip(t["label"], t["memory_overhead_pct"].astype(float))
+    ]
+    ax.set_yticks(y, names, fontsize=7)
+    ax.set_xscale("log")
+    ax.set_xlabel("catastrophic upsets (%), 95% interval" + ("; open triangle: no event, below it" if zeros else ""))
+    ax.set_title(f"at {t.attrs.get('precision', '')}, single upsets, shared fault grid", fontsize=8)
+    return fig

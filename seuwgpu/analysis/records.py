@@ -442,6 +442,23 @@ def series_color(i: int) -> str:
     return PALETTE[i % len(PALETTE)]
 
 
+def rate_points(ax, x, rate, lo, hi, color, label=None, marker="o", horizontal=False):
+    """Rates (%) with their 95% intervals on a log axis: a point and whiskers where events were
+    seen; where none were (rate 0, no logarithm) an open triangle at the interval's upper end,
+    pointing down (or left): the rate lies below it, never drawn as a 0 the axis cannot hold."""
+    x, rate, lo, hi = (np.asarray(v, float) for v in (x, rate, lo, hi))
+    pos = rate > 0
+    err = np.vstack([rate - np.maximum(lo, rate * 1e-3), hi - rate])[:, pos]
+    kw = dict(fmt=marker, color=color, ms=5, capsize=2, elinewidth=1, label=label)
+    if horizontal:
+        ax.errorbar(rate[pos], x[pos], xerr=err, **kw)
+        ax.plot(hi[~pos], x[~pos], "<", mfc="none", color=color, ms=7)
+    else:
+        ax.errorbar(x[pos], rate[pos], yerr=err, **kw)
+        ax.plot(x[~pos], hi[~pos], "v", mfc="none", color=color, ms=7)
+    return int((~pos).sum())
+
+
 def figure(w=6.4, h=4.0):
     """A matplotlib Figure without pyplot (Agg canvas; safe headless and in threads)."""
     from matplotlib.figure import Figure

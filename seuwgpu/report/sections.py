@@ -256,8 +256,9 @@ def _sec_precision(df, manifests, ctx) -> Section:
             "fig_precision",
             "Catastrophe rate by field and precision",
             criticality.plot_precision_rates(rates),
-            "Weighted catastrophic-upset rate (%) by field and numeric format, with 95% stratified "
-            "intervals, pooled over scenes and bits.",
+            "Weighted catastrophic-upset rate (%, log scale) by field and numeric format, with 95% "
+            "stratified intervals, pooled over scenes and bits; open triangles: no event, the rate lies "
+            "below the interval's upper end.",
             _prov(rates),
         )
     )
@@ -416,6 +417,17 @@ def _sec_mitigation(df, manifests, ctx) -> Section:
         "(% of the stored model; memory_basis) and time overhead (% of one view's render time, measured "
         "in the same run; time_basis). Per scene and precision, on the dangerous cells and against the "
         "Pareto front: the defenses table (Defenses against cost), where the records hold its defenses."
+    )
+    sec.figures.append(
+        FigureItem(
+            "fig_mitigation",
+            "Catastrophe rate by defense",
+            mitigation.plot_mitigation(t),
+            "The mitigation table's weighted catastrophe rate (%, log scale) per defense with its 95% "
+            "stratified interval and its memory overhead; open triangles: no catastrophic event, the rate "
+            "lies below the interval's upper end.",
+            _prov(t),
+        )
     )
     sec.tables.append(TableItem("mitigation", "Mitigation table", t, cap))
     sec.numbers["mitigation"] = t[
