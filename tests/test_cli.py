@@ -486,3 +486,15 @@ def test_up_axis_with_a_minus_sign_as_its_own_argument(tmp_path, capsys):
     assert rc == 0 and np.array_equal(a, b)
     rc, _, _ = run([*args, "--out", tmp_path / "c.npz"], capsys)  # the default (+z) frames otherwise
     assert not np.array_equal(a, np.load(tmp_path / "c.npz")["images"])
+
+
+def test_an_unknown_option_is_the_commands_error(capsys):
+    """README: a bad option prints the command's usage before one `seuwgpu CMD: error: ...` line
+    (exit 2). An option no command knows was left to the top-level parser, which printed the list
+    of commands and `seuwgpu: error: unrecognized arguments: ...`."""
+    with pytest.raises(SystemExit) as e:
+        main(["render", "--scene", "spheres", "--bogus", "1", "--out", "x"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2
+    assert err.startswith("usage: seuwgpu render ")
+    assert err.strip().splitlines()[-1] == "seuwgpu render: error: unrecognized arguments: --bogus 1"

@@ -1231,7 +1231,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="processes folding parts side by side (default: one per CPU, at most 8, from 256 parts on)",
     )
     s.set_defaults(func=cmd_report)
+    p.commands = sub.choices  # parse_arguments: an unknown option is the command's error
     return p
+
+
+def parse_arguments(argv: list[str]) -> argparse.Namespace:
+    """The command line's arguments. An option no command knows is refused by that command's
+    parser, with its usage and `seuwgpu CMD: error: ...` (argparse left it to the top-level parser,
+    which printed `seuwgpu: error: unrecognized arguments` under the list of commands)."""
+    parser = build_parser()
+    args, extra = parser.parse_known_args(join_up_axes(argv))
+    if extra:
+        parser.commands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+    return args
 
 
 def join_up_axes(argv: list[str]) -> list[str]:
@@ -1254,7 +1266,7 @@ def main(argv=None) -> int:
     warnings.formatwarning = lambda msg, cat, *a, **k: f"seuwgpu: {cat.__name__}: {msg}\n"
     Terminated.received = False  # this command's SIGTERM only (main runs many times in one test process)
     try:  # a signal while the arguments are read ends the command as one while it runs does
-        args = build_parser().parse_args(join_up_axes(sys.argv[1:] if argv is None else list(argv)))
+        args = parse_arguments(sys.argv[1:] if argv is None else list(argv))
     except KeyboardInterrupt as e:
         term = isinstance(e, Terminated) or Terminated.received
         print(f"seuwgpu: {'terminated (SIGTERM)' if term else 'interrupted'}", file=sys.stderr)
