@@ -87,3 +87,27 @@ def test_api_docstring_campaign_spec_is_a_valid_spec():
     assert found, "the docstring no longer shows a run_campaign spec dict"
     spec = ast.literal_eval(found.group(1) + "}")
     normalize_spec({**spec, "single": {}})
+
+
+def test_spec_docstring_is_a_valid_spec(tmp_path):
+    """README: "See the docstring of seuwgpu/campaign/spec.py for every key". Read as TOML (its
+    camera file written here), it is a spec the checker takes, each key in its table: `lpips =
+    true` stood under [dose], where TOML puts it in that table ("unknown key 'lpips' in dose")."""
+    import json
+    import textwrap
+    import tomllib
+
+    from seuwgpu.campaign import spec as spec_module
+    from seuwgpu.model.scenes import scene_cameras
+
+    raw = tomllib.loads(textwrap.dedent(spec_module.__doc__.split("naming the key):\n", 1)[1]))
+    orbits = {**raw, "scenes": [{k: v for k, v in raw["scenes"][0].items() if k != "cameras"}]}
+    assert spec_module.normalize_spec(orbits)["lpips"] is True
+    del raw["size"]  # the docstring: a camera file's views keep their sizes, not with size =
+    cams = [
+        {"viewmat": c.viewmat.tolist(), "K": c.K.tolist(), "width": c.width, "height": c.height}
+        for c in scene_cameras("spheres", 4, 64, 64)
+    ]
+    (tmp_path / raw["scenes"][0]["cameras"]).write_text(json.dumps({"cameras": cams}))
+    spec = spec_module.normalize_spec(raw, base_dir=tmp_path)
+    assert spec["lpips"] is True and spec["dose"]["repeats"] == raw["dose"]["repeats"]

@@ -16,6 +16,8 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     scale = 0.25             # optional: render at this fraction of the views' resolution
     batch = 256              # injections per GPU batch and per Parquet part
     profile = "strict"       # optional renderer profile: "strict" or "gsplat" (docs/renderer.md)
+    lpips = true             # optional: LPIPS (AlexNet) of every record, re-rendered in full
+                             # (slow: ~1 s per 256 px view on a CPU; pip install 'seuwgpu[lpips]')
 
     [[scenes]]               # one or more
     scene = "spheres"        # an embedded scene (`seuwgpu scene --list`: procedural or real) ...
@@ -23,7 +25,8 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     n = 100000               # primitives of an embedded scene (a real capture: all by default)
     sh_degree = 3            # of an embedded scene; a model file's is read from it (recorded)
     cameras = "cameras.json" # optional, the capture's cameras (CAMS.json, INRIA cameras.json,
-                             # a COLMAP model folder, nerfstudio transforms.json) instead of orbits
+                             # a COLMAP model folder, nerfstudio transforms.json) instead of orbits;
+                             # their views keep their own sizes, so not with `size =` (use scale)
     up = "-y"                # optional: up axis of the orbit views (default: the format's)
 
     [single]                 # single upsets, stratified by (field, bit) cell
@@ -49,9 +52,6 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     k = [1, 10, 100]         # or k_max = 20000 and points = 12 (log-spaced, rounded, distinct)
     repeats = 3
     defenses = ["none", "guard"]
-
-    lpips = true             # optional: LPIPS (AlexNet) of every record, re-rendered in full
-                             # (slow: ~1 s per 256 px view on a CPU; pip install 'seuwgpu[lpips]')
 
     [outcomes]               # optional: outcome-class thresholds (defaults: the paper's)
     pixel_threshold = 0.00392156862745098  # a channel change above it is visible (SDC), 1/255
