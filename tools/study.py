@@ -2,7 +2,7 @@
 
     python tools/study.py --out runs/study               # the full study (long: see docs/study)
     python tools/study.py --out runs/study-small --small # the same pipeline at a tiny scale
-    python tools/study.py --out runs/study-cpu --cpu     # a CPU-sized study (about half an hour on lavapipe)
+    python tools/study.py --out runs/study-cpu --cpu     # a CPU-sized study (minutes on lavapipe)
 
 --small keeps the scenes, precisions, defenses and analyses but shrinks every spec (64 px, 2 views,
 2 samples per cell, 3 dose repeats up to k = 1,000, sizes sampled 2 per cell) so the whole chain
@@ -38,9 +38,10 @@ def shrink(raw: dict) -> dict:
 
 
 def cpu_sized(raw: dict, samples: int = 16) -> dict:
-    """The study at the scale a 2-core CPU (lavapipe) runs in about half an hour: the same scenes, 256 px,
-    4 views, precisions, defenses and analyses, with fewer samples per cell (16 single upsets per
-    (field, bit) cell and scene, 4 per cell and size in the size sweep); the dose sweep unchanged."""
+    """The study at the scale a 2-core CPU (lavapipe) runs in minutes (--samples 48, docs/study/cpu:
+    574 s, 2026-11-26): the same scenes, 256 px, 4 views, precisions, defenses and analyses, with
+    fewer samples per cell (`samples` single upsets per (field, bit) cell and scene, default 16; 4
+    per cell and size in the size sweep); the dose sweep unchanged."""
     raw = dict(raw)
     raw["name"] = raw.get("name", "study") + "-cpu"
     if "single" in raw:
@@ -55,7 +56,11 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, help="folder for the runs, the report and timings.json")
     scale = ap.add_mutually_exclusive_group()
     scale.add_argument("--small", action="store_true", help="a tiny version of every spec (minutes)")
-    scale.add_argument("--cpu", action="store_true", help="fewer samples per cell (about half an hour on lavapipe)")
+    scale.add_argument(
+        "--cpu",
+        action="store_true",
+        help="fewer samples per cell (minutes on lavapipe: --samples 48, docs/study/cpu, took 574 s on 2 cores)",
+    )
     ap.add_argument("--samples", type=int, default=16, help="with --cpu: single upsets per (field, bit) cell and model")
     ap.add_argument("--specs", nargs="*", default=list(SPECS), help="spec files of docs/study to run")
     args = ap.parse_args(argv)
