@@ -231,6 +231,19 @@ def test_too_big_jobs_are_refused_saying_what_fits(monkeypatch):
         check_frames(64, 2048, 2048)
 
 
+def test_a_refusal_of_what_fits_in_the_available_memory_says_why(monkeypatch):
+    """A job needing less than the available memory but more than the share a job plans on
+    (HOST_SHARE) is refused; the message said "needs about 23.6 GB ...; 24.4 GB is available: at
+    most --n 41325085 fits", a refusal with no reason. It names the share and what it comes to."""
+    from seuwgpu.model.budget import check_model
+
+    monkeypatch.setenv("SEUWGPU_HOST_MEMORY", str(10 * 10**9))
+    with pytest.raises(TooBig) as e:
+        check_model(10_000_000, 3)  # 10M x 59 values x 16 B = 9.4 GB: under 10 GB, over 80% of it
+    assert "needs about 9.4 GB" in str(e.value)
+    assert "10.0 GB is available, of which a job plans on 80% (8.0 GB): at most --n 8474576 fits" in str(e.value)
+
+
 def main_or_raise(argv):
     """Run a CLI command's function itself (errors propagate instead of being printed)."""
     from seuwgpu.apps.cli import build_parser

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from seuwgpu.campaign.sampling import enumerate_contexts
 from seuwgpu.errors import TooBig
-from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, check_model, gb
+from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, available_text, check_model, gb
 
 PART_BYTES = 400  # host bytes per part of the block list, the parts found and the expected set
 
@@ -35,5 +35,5 @@ def check_campaign(spec: dict):
             break
     raise TooBig(
         f"the campaign has {total:,} injections in {parts:,} parts of batch = {batch}: listing them alone needs "
-        f"about {gb(need)} of host memory, and {gb(have / HOST_SHARE)} is available{hint} (or raise batch)"
+        f"about {gb(need)} of host memory, and {available_text(have)}{hint} (or raise batch)"
     )

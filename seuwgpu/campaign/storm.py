@@ -20,7 +20,7 @@ from seuwgpu.errors import TooBig
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.sites import draw_uniform_sites, mask_of
 from seuwgpu.metrics.image import catastrophic
-from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, gb
+from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, available_text, gb
 
 SITE_BYTES = 320  # host bytes of one drawn upset (a Site), measured with tracemalloc
 ROW_BYTES = 700  # host bytes of one record (a dict) before the DataFrame is made
@@ -34,7 +34,7 @@ def check_storm(k: int, frames: int, arms: int):
     if need > have:
         raise TooBig(
             f"a storm of {frames:,} frames of k = {k:,} upsets under {arms} defense(s) needs about {gb(need)} "
-            f"of host memory for its upsets and records; {gb(have / HOST_SHARE)} is available: at most "
+            f"of host memory for its upsets and records; {available_text(have)}: at most "
             f"{max(1, int(have // per_frame)):,} frames fit"
         )
 

@@ -60,6 +60,12 @@ def gb(nbytes: float) -> str:
     return f"{nbytes / 1e9:.1f} GB" if nbytes >= 1e9 else f"{nbytes / 1e6:.0f} MB"
 
 
+def available_text(planned: float) -> str:
+    """What a refusal says of the memory it had: the available memory and the HOST_SHARE of it a job
+    plans on (`planned`). "needs 23.6 GB; 24.4 GB is available" read as a refusal of what fits."""
+    return f"{gb(planned / HOST_SHARE)} is available, of which a job plans on {HOST_SHARE:.0%} ({gb(planned)})"
+
+
 def check_scene(n: int, degree: int, what: str = "--n", per_value: int = SCENE_BYTES_PER_VALUE, use: str = "generate"):
     """Refuse to make (`use`) a model of n primitives that would not fit in host memory."""
     per = per_value * n_values(degree)
@@ -68,7 +74,7 @@ def check_scene(n: int, degree: int, what: str = "--n", per_value: int = SCENE_B
         fits = max(1, int(have // per))
         raise TooBig(
             f"{what} {n} needs about {gb(need)} of host memory to {use} the model; "
-            f"{gb(have / HOST_SHARE)} is available: at most {what} {fits} fits"
+            f"{available_text(have)}: at most {what} {fits} fits"
         )
 
 
@@ -84,7 +90,7 @@ def check_frames(k: int, width: int, height: int):
     if need > have:
         raise TooBig(
             f"{k} view(s) of {width}x{height} need {gb(need)} of host memory for the frames alone; "
-            f"{gb(have / HOST_SHARE)} is available: render fewer views, or at a smaller size (--size or --scale)"
+            f"{available_text(have)}: render fewer views, or at a smaller size (--size or --scale)"
         )
 
 
@@ -143,5 +149,5 @@ def check_render(limits: dict, is_cpu: bool, n: int, degree: int, k: int, width:
         per = need / max(1, int(n))
         raise TooBig(
             f"{n:,} primitives with {k} view(s) of {width}x{height} need about {gb(need)} of host memory; "
-            f"{gb(have / HOST_SHARE)} is available: about {int(have // per):,} primitives would fit"
+            f"{available_text(have)}: about {int(have // per):,} primitives would fit"
         )

@@ -95,7 +95,7 @@ def check_report_memory(run_dirs, folded: bool = False) -> int:
     that count. The rates of any number of records are `seuwgpu rates`'s (analysis/cells.py).
     run_dirs: run directories, or their store.campaign_runs (footers read once, kept there)."""
     from seuwgpu.errors import TooBig
-    from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, gb
+    from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, available_text, gb
 
     n = 0
     for run in store.campaign_runs(run_dirs):
@@ -106,8 +106,8 @@ def check_report_memory(run_dirs, folded: bool = False) -> int:
     if need > have:
         how = "even folded as read" if folded else "unfolded (`--fold yes` needs about 14x less)"
         raise TooBig(
-            f"a report of {n:,} records needs about {gb(need)} of host memory {how}, {gb(have / HOST_SHARE)} is "
-            "available: report fewer runs, or read the weighted outcome rates of any number of records "
+            f"a report of {n:,} records needs about {gb(need)} of host memory {how}, {available_text(have)}: "
+            "report fewer runs, or read the weighted outcome rates of any number of records "
             "with `seuwgpu rates RUN...`"
         )
     return n
