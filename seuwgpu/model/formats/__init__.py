@@ -13,8 +13,9 @@
 The up axis is the file format's convention, used to frame a model when no cameras are given:
 SPZ stores RUB axes (y up); PLY, .splat, .ksplat, SOG and gsplat models live in their capture's COLMAP world,
 which follows the first camera (x right, y down), so -y is up; viewers such as SuperSplat make
-the same assumption. A PLY written by seuwgpu records its up axis in a `comment up +z` line (the
-embedded scenes are z up); `--up` overrides all of this.
+the same assumption. A PLY written by seuwgpu with an up axis records it in a `comment up` line
+(`comment up +z` for the procedural scenes, which are z up; `+y` for the real captures);
+`--up` overrides all of this.
 """
 
 from __future__ import annotations
