@@ -420,6 +420,21 @@ def test_view_offscreen_command(tmp_path):
     assert img.shape[:2] == (200, 480) and img.std() > 10
 
 
+@pytest.mark.parametrize("package", ["rendercanvas", "imgui_bundle"])
+def test_view_without_the_viewer_extra_says_how_to_get_it(package, monkeypatch, capsys):
+    """Without the `viewer` extra (an environment of the package alone, as `./dev main` makes),
+    `view` ended in a ModuleNotFoundError traceback once the model had loaded: the packages are
+    imported where they are used. It is one error line naming the extra, exit status 2."""
+    from seuwgpu.apps.cli import main
+
+    monkeypatch.setenv("RENDERCANVAS_BACKEND", "offscreen")
+    monkeypatch.setitem(sys.modules, package, None)  # importing it raises ImportError, as if absent
+    assert main(["view", "--scene", "spheres", "--n", "100", "--frames", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("seuwgpu view: error: ") and "pip install 'seuwgpu[viewer]'" in err
+    assert len(err.strip().splitlines()) == 1
+
+
 # ---- the real window under Xvfb -------------------------------------------------------------------
 def test_real_window_under_xvfb(tmp_path):
     if shutil.which("Xvfb") is None:

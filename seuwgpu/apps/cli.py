@@ -889,7 +889,7 @@ def pd_display():
 
 def cmd_view(args):
     """`seuwgpu view`: the interactive viewer (apps/viewer_window.py)."""
-    from seuwgpu.apps.viewer_window import NO_DISPLAY_HELP, canvas_backend, display_problem
+    from seuwgpu.apps.viewer_window import NO_DISPLAY_HELP, canvas_backend, display_problem, missing_package
 
     refuse_ignored_options(args)  # a bad argument is exit status 2 with or without a display
     for option in ("model", "cameras"):  # so is a missing file (read after the display check)
@@ -901,6 +901,14 @@ def cmd_view(args):
     if why:
         print(NO_DISPLAY_HELP.format(why=why), file=sys.stderr)
         return 3
+    missing = missing_package(backend)
+    if missing:
+        print(
+            f"seuwgpu view: error: {missing}. The viewer needs the `viewer` extra: pip install 'seuwgpu[viewer]' "
+            "(rendercanvas, glfw, imgui-bundle)",
+            file=sys.stderr,
+        )
+        return 2
     from seuwgpu.apps.viewer import OrbitCamera
     from seuwgpu.model.cameras import read_cameras, select_views
 
@@ -917,15 +925,8 @@ def cmd_view(args):
         note_views(args, len(views))
         keep = select_views(list(range(len(views))), args.views)
         views, names = [views[i] for i in keep], [names[i] for i in keep]
-    try:
-        from seuwgpu.apps.viewer_window import run_viewer
-    except ImportError as e:
-        print(
-            f"seuwgpu view: {e}. The viewer needs the `viewer` extra: pip install 'seuwgpu[viewer]' "
-            "(rendercanvas, glfw, imgui-bundle)",
-            file=sys.stderr,
-        )
-        return 2
+    from seuwgpu.apps.viewer_window import run_viewer
+
     return run_viewer(
         model,
         name,

@@ -626,6 +626,20 @@ def canvas_backend() -> str:
     return name if name and name != "auto" else "glfw"
 
 
+def missing_package(backend: str) -> str | None:
+    """Why the viewer's own packages (the `viewer` extra: rendercanvas, imgui-bundle, and glfw for
+    a glfw window) cannot be imported, or None. They are imported where they are used, so without
+    this check a missing one ended `seuwgpu view` in a traceback once the model had loaded."""
+    import importlib
+
+    for name in ("rendercanvas", "imgui_bundle", "wgpu.utils.imgui", *(("glfw",) if backend == "glfw" else ())):
+        try:
+            importlib.import_module(name)
+        except ImportError as e:
+            return str(e)
+    return None
+
+
 def display_problem(backend: str) -> str | None:
     """Why a window cannot open here (None when it can, as far as we can tell without opening
     one: glfw aborts the whole process when there is no display)."""
