@@ -111,3 +111,16 @@ def test_spec_docstring_is_a_valid_spec(tmp_path):
     (tmp_path / raw["scenes"][0]["cameras"]).write_text(json.dumps({"cameras": cams}))
     spec = spec_module.normalize_spec(raw, base_dir=tmp_path)
     assert spec["lpips"] is True and spec["dose"]["repeats"] == raw["dose"]["repeats"]
+
+
+def test_readme_minimal_spec_is_a_valid_spec():
+    """The README's minimal campaign spec ("Campaign specs") is one `seuwgpu plan` takes."""
+    import tomllib
+
+    from seuwgpu.campaign.spec import normalize_spec
+
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"```toml\n(.*?)```", text, re.S)
+    assert block, "the README shows no TOML spec"
+    spec = normalize_spec(tomllib.loads(block.group(1)))
+    assert spec["scenes"][0]["scene"] == "spheres" and "sizes" in spec
