@@ -498,3 +498,26 @@ def test_an_unknown_option_is_the_commands_error(capsys):
     assert e.value.code == 2
     assert err.startswith("usage: seuwgpu render ")
     assert err.strip().splitlines()[-1] == "seuwgpu render: error: unrecognized arguments: --bogus 1"
+
+
+def test_scene_options_beside_a_model_file_are_refused(tmp_path, capsys):
+    """README: an option the others make meaningless is refused, not ignored. --sh-degree and
+    --seed (help: "of an embedded scene") beside --model rendered the file unchanged, silently;
+    --seed stays accepted where the command also draws from it (inject's sample, storm's upsets)."""
+    from seuwgpu.apps.cli import build_parser, refuse_ignored_options
+    from seuwgpu.model.formats import save_model
+
+    ply = tmp_path / "m.ply"
+    save_model(make_scene("spheres", n=200), ply)
+    base = ["render", "--model", ply, "--views", "1", "--size", "16x16", "--out", tmp_path / "x.npz"]
+    for option, why in (("--sh-degree", "--sh-degree sets the SH degree"), ("--seed", "--seed seeds an embedded")):
+        rc, _, err = run([*base, option, "1"], capsys)
+        assert rc == 2 and why in err, err
+    assert not (tmp_path / "x.npz").exists()
+    for cmd in (["inject", "--field", "opacity", "--bit", "30"], ["storm"], ["state"]):
+        argv = [cmd[0], "--model", str(ply), *cmd[1:], "--seed", "5", "--out", "o"]
+        refuse_ignored_options(build_parser().parse_args(argv))  # not refused
+    rc, _, err = run(["render", "--scene", "spheres", "--n", "200", *base[3:], "--sh-degree", "1"], capsys)
+    assert rc == 0, err  # an embedded scene takes both
+    args = build_parser().parse_args(["render", "--scene", "spheres", "--out", "o"])
+    assert args.sh_degree is None and args.seed is None  # an embedded scene's defaults: 3 and 0

@@ -97,7 +97,10 @@ def proportion(text: str) -> float:
     return v
 
 
-def add_model_args(p: argparse.ArgumentParser):
+def add_model_args(p: argparse.ArgumentParser, seed_draws: str | None = None):
+    """--model/--scene and the options that shape an embedded scene. seed_draws: what else the
+    command draws from --seed (inject's sampled primitives, a storm's upsets); without it --seed
+    only seeds an embedded scene, and is refused beside --model as --n and --sh-degree are."""
     src = p.add_mutually_exclusive_group()
     src.add_argument(
         "--model",
@@ -111,8 +114,12 @@ def add_model_args(p: argparse.ArgumentParser):
     p.add_argument(
         "--n", type=positive_int, help="primitives of an embedded scene (default 100000; a real capture: all)"
     )
-    p.add_argument("--sh-degree", type=int, default=3, choices=range(4), help="SH degree of an embedded scene")
-    p.add_argument("--seed", type=int, default=0, help="seed of an embedded scene")
+    p.add_argument("--sh-degree", type=int, choices=range(4), help="SH degree of an embedded scene (default 3)")
+    if seed_draws:
+        p.add_argument("--seed", type=int, default=0, help=f"seed of an embedded scene and of {seed_draws} (default 0)")
+    else:
+        p.add_argument("--seed", type=int, help="seed of an embedded scene (default 0)")
+    p.set_defaults(seed_draws=bool(seed_draws))
     p.add_argument("--precision", choices=PRECISIONS, default="fp32", help="stored precision")
     p.add_argument(
         "--up",
@@ -166,7 +173,9 @@ def load_source(args):
 
     refuse_ignored_options(args)
 
-    src = load(scene=args.scene, path=args.model, n=args.n, sh_degree=args.sh_degree, seed=args.seed, up=args.up)
+    src = load(
+        scene=args.scene, path=args.model, n=args.n, sh_degree=scene_sh_degree(args), seed=args.seed or 0, up=args.up
+    )
     if src.notes:
         print(f"seuwgpu: {args.model or src.name}: {'; '.join(src.notes)}", file=sys.stderr)
     return src
@@ -176,10 +185,23 @@ def refuse_ignored_options(args):
     """Options the other arguments make meaningless are refused, not silently ignored."""
     if getattr(args, "model", None) is not None and getattr(args, "n", None) is not None:
         raise CliError("--n sets the primitives of an embedded scene; a model file keeps all of its own")
+    if getattr(args, "model", None) is not None and getattr(args, "sh_degree", None) is not None:
+        raise CliError("--sh-degree sets the SH degree of an embedded scene; a model file has its own")
+    seed_only_shapes_a_scene = getattr(args, "seed", None) is not None and not getattr(args, "seed_draws", True)
+    if getattr(args, "model", None) is not None and seed_only_shapes_a_scene:
+        raise CliError(
+            f"--seed seeds an embedded scene, and `seuwgpu {args.command}` draws nothing else from it: "
+            "with a model file it would be ignored"
+        )
     # --size of the commands that take camera options (add_camera_args; `view`'s is its window)
     orbit_size = getattr(args, "size", None) if hasattr(args, "default_size") else None
     if getattr(args, "cameras", None) is not None and orbit_size is not None:
         raise CliError("--size sets orbit views; a cameras file gives each view its own size (use --scale)")
+
+
+def scene_sh_degree(args) -> int:
+    """--sh-degree, or an embedded scene's default (3)."""
+    return 3 if args.sh_degree is None else args.sh_degree
 
 
 def view_size(args) -> tuple[int, int]:
@@ -812,7 +834,7 @@ def partial_records(args, src, cams, name: str, records, **options):
         "model": content("model"),
         "scene": None if args.model else src.name,
         "n": None if args.model else src.model.n,
-        "sh-degree": None if args.model else args.sh_degree,
+        "sh-degree": None if args.model else scene_sh_degree(args),
         "seed": args.seed,
         "up": None if args.cameras else src.up,  # what frames the orbit: --up or the format's; unused by cameras
         "cameras": content("cameras"),
@@ -980,7 +1002,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_render)
 
     s = sub.add_parser("inject", help="flip one stored bit (or several of one value), measure, write the panel")
-    add_model_args(s)
+    add_model_args(s, seed_draws="the --sample of primitives and a --fault random value")
     add_camera_args(s, views=2, size="256x256")
     s.add_argument(
         "--field",
@@ -1034,7 +1056,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser(
         "distributed", help="sort-first rendering over Ray ranks: per-rank times, ranks an upset contaminates"
     )
-    add_model_args(s)
+    add_model_args(s, seed_draws="the --sample of primitives")
     add_camera_args(s, views=2, size="256x256")
     s.add_argument(
         "--ranks",
@@ -1157,7 +1179,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_worstcase)
 
     s = sub.add_parser("storm", help="k upsets per frame accumulating, scrubbed every S frames, per defense")
-    add_model_args(s)
+    add_model_args(s, seed_draws="the upsets")
     add_camera_args(s, views=1, size="128x128")
     add_profile_arg(s)
     s.add_argument("--k", type=positive_int, default=10, help="upsets per frame")
@@ -1181,7 +1203,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_storm)
 
     s = sub.add_parser("state", help="transient flips in one frame's pipeline state: criticality per target")
-    add_model_args(s)
+    add_model_args(s, seed_draws="the flips")
     add_camera_args(s, views=2, size="128x128")
     add_profile_arg(s)
     s.add_argument(
