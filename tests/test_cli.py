@@ -521,3 +521,13 @@ def test_scene_options_beside_a_model_file_are_refused(tmp_path, capsys):
     assert rc == 0, err  # an embedded scene takes both
     args = build_parser().parse_args(["render", "--scene", "spheres", "--out", "o"])
     assert args.sh_degree is None and args.seed is None  # an embedded scene's defaults: 3 and 0
+
+
+def test_view_refuses_views_without_a_camera_file(capsys):
+    """`view --views K` picks K views of a --cameras file (its help); without one it was ignored."""
+    from seuwgpu.apps.cli import build_parser, refuse_ignored_options
+
+    with pytest.raises(Exception, match="--views picks views of a --cameras file"):
+        refuse_ignored_options(build_parser().parse_args(["view", "--scene", "spheres", "--views", "3"]))
+    refuse_ignored_options(build_parser().parse_args(["view", "--scene", "spheres"]))
+    refuse_ignored_options(build_parser().parse_args(["render", "--scene", "spheres", "--views", "3", "--out", "o"]))

@@ -193,6 +193,8 @@ def refuse_ignored_options(args):
             f"--seed seeds an embedded scene, and `seuwgpu {args.command}` draws nothing else from it: "
             "with a model file it would be ignored"
         )
+    if getattr(args, "command", None) == "view" and args.views is not None and args.cameras is None:
+        raise CliError("--views picks views of a --cameras file; the viewer's orbit is one view you steer")
     # --size of the commands that take camera options (add_camera_args; `view`'s is its window)
     orbit_size = getattr(args, "size", None) if hasattr(args, "default_size") else None
     if getattr(args, "cameras", None) is not None and orbit_size is not None:
