@@ -70,6 +70,7 @@ class Case:
     # or state run rewrote its partial file while running, every 10 s)
     kill_after: str = "part"
     stderr_has: str = ""  # text the command's stderr must hold (a note) for a correct outcome
+    needs: str = ""  # the name of a case whose result this one reads (run with it under --only)
 
 
 @dataclass
@@ -1124,7 +1125,9 @@ class Battery:
         the uninterrupted reference run of its command (work/COMMAND_ref)."""
         command = str(argv[0])
         ref = self.work / f"{command}_ref"
-        self.add(category, name, [*argv, "--out", d], "ok", self.same_results(d, ref, command), process=True, **kw)
+        check = self.same_results(d, ref, command)
+        needs = f"{command}: uninterrupted reference"
+        self.add(category, name, [*argv, "--out", d], "ok", check, process=True, needs=needs, **kw)
 
     def partial_run_cases(self):
         garbage, older = lambda p: p.write_bytes(b"PAR1 not a parquet file"), strip_run_meta
@@ -1460,6 +1463,16 @@ def classify(case: Case, o: Outcome) -> tuple[str, str]:
 CLASSES = ("clear error", "correct", "refused", "traceback", "crash", "silent wrong")
 
 
+def select(cases: list, only: str | None) -> list:
+    """The cases whose category or name contains `only` (all without it), with the cases they read
+    the results of (a resumed storm's uninterrupted reference), in the battery's order. Without
+    those, `--only arguments` ran "storm: a partial file of no run arguments" alone and classed it
+    silent wrong for want of the reference run's records."""
+    chosen = {id(c) for c in cases if not only or only in c.category or only in c.name}
+    needed = {c.needs for c in cases if id(c) in chosen and c.needs}
+    return [c for c in cases if id(c) in chosen or c.name in needed]
+
+
 def main_battery(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, required=True, help="JSON file for every case's outcome")
@@ -1488,7 +1501,7 @@ def main_battery(argv=None) -> int:
         b.oversize_cases,
     ):
         group()
-    cases = [c for c in b.cases if not args.only or args.only in c.category or args.only in c.name]
+    cases = select(b.cases, args.only)
     results, t0 = [], time.time()
     for i, case in enumerate(cases, 1):
         t = time.time()
