@@ -3,6 +3,7 @@ flag, at every precision and for every checked defense, on a model with many kin
 
 import numpy as np
 import pytest
+from conftest import random_model
 
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.check import Checker
@@ -10,7 +11,6 @@ from seuwgpu.faults.guard import support_box
 from seuwgpu.model import encoding
 from seuwgpu.model.scenes import scene_cameras
 from seuwgpu.render.renderer import Renderer
-from tests.conftest import random_model
 
 
 @pytest.mark.parametrize("precision", encoding.PRECISIONS)

@@ -4,6 +4,7 @@ for bit, a pixel flip is exactly that XOR, and runaway ranges are DUE."""
 
 import numpy as np
 import pytest
+from conftest import psnr_finite
 
 from seuwgpu.faults.engine import Engine
 from seuwgpu.faults.state import TARGETS, StateFaults, state_campaign
@@ -11,7 +12,6 @@ from seuwgpu.model.scenes import make_scene, scene_cameras
 from seuwgpu.render.bin import tile_lists
 from seuwgpu.render.composite import composite_frame
 from seuwgpu.render.project import unpack_rects
-from tests.conftest import psnr_finite
 
 
 @pytest.fixture(scope="module")

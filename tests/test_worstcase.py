@@ -3,11 +3,11 @@ model, every bound above the flip's measured footprint, and fewer flips rendered
 
 import numpy as np
 import pytest
+from conftest import random_model
 
 from seuwgpu.faults.engine import Engine
 from seuwgpu.faults.worstcase import _effective, footprint_bounds, site_space, worst_case
 from seuwgpu.model.scenes import scene_cameras
-from tests.conftest import random_model
 
 
 @pytest.mark.parametrize("defense", ["none", "parity4"])
