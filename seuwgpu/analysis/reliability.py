@@ -131,10 +131,12 @@ def models_of(df: pd.DataFrame) -> pd.DataFrame:
     """The models (scene, n_primitives) of the single-upset campaign, in order of appearance, with
     `key` (the scene, or scene_N<n> when a scene holds several counts: summary.json keys) and
     `label` (the scene, or "scene (N=n)": tables and figures)."""
-    return _models(_single_bits(df))
+    return models_in(_single_bits(df))
 
 
-def _models(s: pd.DataFrame) -> pd.DataFrame:
+def models_in(s: pd.DataFrame) -> pd.DataFrame:
+    """The models (scene, n_primitives) of any records or per-model rows (`s`, e.g. the dose
+    curves), in order of appearance, with `key` and `label` as models_of gives them."""
     m = s[MODEL].drop_duplicates().reset_index(drop=True)
     twice = m["scene"].duplicated(keep=False)
     n = m["n_primitives"].astype(np.int64)
@@ -191,7 +193,7 @@ def catastrophe_probability(
         raise InsufficientData(
             "no single-upset records to estimate p_c", "run a single-upset campaign over all fields and bits"
         )
-    models = _models(s)
+    models = models_in(s)
     per_model = len(models) > 1 and not pooled
     by = (MODEL if per_model else []) + ["precision", "defense"]
     r = E.rate(s, "catastrophic", by, conf)

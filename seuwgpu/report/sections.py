@@ -520,7 +520,7 @@ def _sec_dose(df, manifests, ctx) -> Section:
     # per model (its key as p_c's: the scene, or scene_N<n>) when there are several: one model's
     # median stood for all of them (the last in row order), unnamed
     ref_curves = curves[curves["precision"] == ref]
-    models = reliability._models(ref_curves)
+    models = reliability.models_in(ref_curves)
     per_model = len(models) > 1
     for m in models.itertuples():
         g = ref_curves[(ref_curves["scene"] == m.scene) & (ref_curves["n_primitives"] == m.n_primitives)]
