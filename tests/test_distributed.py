@@ -326,3 +326,37 @@ def test_ctrl_c_while_ray_starts_stops_the_started_node(monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         ray_exec.init_ray(num_cpus=1)
     assert events == [] and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_ctrl_c_while_ray_starts_keeps_the_command_lines_sigterm_handler(monkeypatch):
+    """ray.init replaces the SIGTERM handler; init_ray puts the caller's back, also when a Ctrl-C
+    during ray.init stops the start (the restore came after the interrupt, so Ray's sys.exit
+    handler stayed installed for the rest of the process)."""
+    import os
+    import signal
+    import types
+
+    from seuwgpu.campaign import ray as ray_exec
+
+    def rays_own(signum, frame):
+        raise SystemExit(signum)
+
+    def fake_init(**kw):
+        signal.signal(signal.SIGTERM, rays_own)
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(1000):
+            pass
+
+    fake = types.SimpleNamespace(is_initialized=lambda: False, init=fake_init, shutdown=lambda: None)
+    monkeypatch.setattr(ray_exec, "get_ray", lambda: fake)
+
+    def ours(signum, frame):
+        pass
+
+    before = signal.signal(signal.SIGTERM, ours)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            ray_exec.init_ray(num_cpus=1)
+        assert signal.getsignal(signal.SIGTERM) is ours
+    finally:
+        signal.signal(signal.SIGTERM, before)

@@ -85,13 +85,15 @@ def init_ray(address: str | None = None, num_cpus: int | None = None, quiet: boo
     on_term = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
     if address:
         check_reachable(address)
-    with _interrupt_after_start(ray):
-        if address:
-            ray.init(address=address, **kw)
-        else:
-            ray.init(num_cpus=num_cpus, include_dashboard=False, object_store_memory=256 * 1024**2, **kw)
-    if on_term is not None:
-        signal.signal(signal.SIGTERM, on_term)
+    try:
+        with _interrupt_after_start(ray):
+            if address:
+                ray.init(address=address, **kw)
+            else:
+                ray.init(num_cpus=num_cpus, include_dashboard=False, object_store_memory=256 * 1024**2, **kw)
+    finally:  # also when a Ctrl-C stopped the start: Ray's handler would outlive its node
+        if on_term is not None:
+            signal.signal(signal.SIGTERM, on_term)
     return True
 
 
