@@ -106,6 +106,8 @@ def test_options_the_others_make_meaningless_are_refused(tmp_path, capsys):
     cases = [
         (["render", "--model", str(tmp_path / "m.ply"), "--n", "10", *base], "--n sets the primitives"),
         (["render", "--scene", "spheres", "--cameras", str(cams), "--size", "64x64", *base], "--size sets orbit"),
+        # demo builds a spec; its refusal named the spec's key ("remove it (scale = S ...)"), not --size
+        (["demo", "--scene", "spheres", "--cameras", str(cams), "--size", "64x64", *base], "--size sets orbit"),
         (["demo", "--model", str(tmp_path / "m.ply"), "--n", "10", *base], "--n sets the primitives"),
         (
             ["render", "--scene", "spheres", "--n", "500", "--out", str(tmp_path / "x.npz"), "--formats", "png"],

@@ -195,8 +195,9 @@ def refuse_ignored_options(args):
         )
     if getattr(args, "command", None) == "view" and args.views is not None and args.cameras is None:
         raise CliError("--views picks views of a --cameras file; the viewer's orbit is one view you steer")
-    # --size of the commands that take camera options (add_camera_args; `view`'s is its window)
-    orbit_size = getattr(args, "size", None) if hasattr(args, "default_size") else None
+    # --size of the commands that take camera options (add_camera_args, and demo's; `view`'s is its window)
+    takes_orbit_size = hasattr(args, "default_size") or getattr(args, "command", None) == "demo"
+    orbit_size = getattr(args, "size", None) if takes_orbit_size else None
     if getattr(args, "cameras", None) is not None and orbit_size is not None:
         raise CliError("--size sets orbit views; a cameras file gives each view its own size (use --scale)")
 
