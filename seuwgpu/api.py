@@ -32,7 +32,7 @@ import pandas as pd
 
 from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.faults.defenses import DEFENSES, check_defense
-from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, VALUE_MODELS, model_bits
+from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, INJECT_SAMPLE, VALUE_MODELS, model_bits
 from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.metrics.image import display
 from seuwgpu.model import encoding
@@ -217,7 +217,7 @@ def inject(
     primitive: int | None = None,
     precision: str = "fp32",
     defenses: Sequence[str] = ("none", "guard"),
-    sample: int = 32,
+    sample: int = INJECT_SAMPLE,
     seed: int = 0,
     profile: str = "strict",
     fault: str = "bit",
@@ -229,7 +229,8 @@ def inject(
     ending at `bit` (a multi-cell upset), "stuck0"/"stuck1" force the bits, "zero"/"random" replace
     the whole value (random: drawn from `seed`; `bit` is ignored) (footprint, peak
     error, PSNR, SSIM, non-finite pixels, and LPIPS when `seuwgpu[lpips]` is installed). Without
-    `primitive`, the most harmful of `sample` randomly drawn primitives (seeded) is taken. The
+    `primitive`, the most harmful of `sample` (default 64, as `seuwgpu inject --sample`) randomly
+    drawn primitives (seeded) is taken. The
     stored model is restored exactly afterwards."""
     from seuwgpu.faults.engine import Engine
 

@@ -294,3 +294,23 @@ def test_size_beside_a_cameras_file_is_refused_not_ignored(scene, tmp_path):
     views = sg.cameras(scene, cameras=tmp_path / "CAMS.json", scale=0.5)
     assert [(c.width, c.height) for c in views] == [(24, 20), (24, 20)]
     assert [(c.width, c.height) for c in sg.cameras(scene, views=1)] == [(256, 256)]  # the orbit default
+
+
+def test_inject_samples_as_many_primitives_as_the_command_line(scene, views, capsys):
+    """Without a primitive, `seuwgpu inject` took the worst of 64 sampled primitives and
+    sg.inject the worst of 32, neither documented: one default, said in both places, and the
+    same primitive picked for the same seed."""
+    import inspect
+
+    from seuwgpu.apps.cli import build_parser
+
+    argv = ["inject", "--scene", "spheres", "--field", "opacity", "--bit", "30", "--out", "o"]
+    default = inspect.signature(sg.inject).parameters["sample"].default
+    assert build_parser().parse_args(argv).sample == default == 64
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["inject", "--help"])
+    assert f"given (default {default}," in " ".join(capsys.readouterr().out.split())
+    assert f"(default {default}," in sg.inject.__doc__
+    a = sg.inject(scene, views, field="log_scales", bit=30, defenses=("none",))
+    b = sg.inject(scene, views, field="log_scales", bit=30, defenses=("none",), sample=64)
+    assert a.site["primitive"] == b.site["primitive"]

@@ -970,7 +970,7 @@ def cmd_view(args):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from seuwgpu.faults.sites import FAULT_MODELS
+    from seuwgpu.faults.sites import FAULT_MODELS, INJECT_SAMPLE
     from seuwgpu.faults.state import TARGETS as STATE_TARGETS
 
     p = argparse.ArgumentParser(
@@ -1024,7 +1024,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--width", type=int, choices=(2, 3, 4), help="adjacent burst width (default 2)")
     s.add_argument("--defense", default="none", choices=DEFENSES)
-    s.add_argument("--sample", type=positive_int, default=64, help="primitives tried when --primitive is not given")
+    s.add_argument(
+        "--sample",
+        type=positive_int,
+        default=INJECT_SAMPLE,
+        help=f"primitives tried when --primitive is not given (default {INJECT_SAMPLE}, as seuwgpu.inject's sample)",
+    )
     s.add_argument("--out", type=Path, required=True)
     s.add_argument(
         "--formats",

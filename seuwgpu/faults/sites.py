@@ -27,6 +27,9 @@ FAULT_MODELS = ("bit", "adjacent", "stuck0", "stuck1", "random", "zero")
 VALUE_MODELS = ("random", "zero")  # replace the whole value: cells are per field, bit = -1
 OPS = ("flip", "stuck0", "stuck1", "set")
 ADJACENT_WIDTHS = (2, 3, 4)
+# primitives `inject` (command line and seuwgpu.inject) tries when no primitive is named: the
+# most harmful of this many, drawn with the seed
+INJECT_SAMPLE = 64
 
 
 def check_fault_model(name: str) -> str:
