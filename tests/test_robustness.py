@@ -120,6 +120,37 @@ def test_the_same_model_under_another_file_name_is_another_run(tmp_path):
     assert set(store.read_records(tmp_path / "s0")["scene"]) == {"scan"}
 
 
+def test_shards_made_before_the_model_name_was_hashed_still_merge(tmp_path):
+    """Shards of a model-file campaign made by an earlier seuwgpu carry the hash of their spec
+    without the model's name (spec.unlabelled_spec_hash). Hashing the name made merge refuse them
+    all as "its manifest's spec does not match its spec hash (edited by hand?)": finished shards
+    could not be joined. They merge, and shards of such a campaign that name the model otherwise
+    (scan.ply, copy.ply: one hash then) are still refused."""
+    from seuwgpu.campaign.spec import unlabelled_spec_hash
+
+    save_model(make_scene("spheres", n=150, seed=1), tmp_path / "scan.ply")
+    shutil.copy(tmp_path / "scan.ply", tmp_path / "copy.ply")
+    specs = [load_spec(tiny_spec(tmp_path, f'model = "{f}.ply"', f"{f}.toml")) for f in ("scan", "copy")]
+    for i, shard in enumerate(("s0", "s1")):
+        Runner(specs[0], tmp_path / shard, shard=(i, 2), quiet=True).run()
+    Runner(specs[1], tmp_path / "c1", shard=(1, 2), quiet=True).run()
+    for shard in ("s0", "s1", "c1"):  # as an earlier seuwgpu wrote them
+        path = store.manifest_path(tmp_path / shard)
+        m = json.loads(path.read_text())
+        m["spec_hash"] = unlabelled_spec_hash(m["spec"])
+        path.write_text(json.dumps(m))
+    assert merge(tmp_path / "all", [tmp_path / "s0", tmp_path / "s1"]) == 2
+    assert set(store.read_records(tmp_path / "all")["scene"]) == {"scan"}
+    why = r"scenes\[0\] is the same model named 'scan' \(.*scan\.ply\) and 'copy' \(.*copy\.ply\)"
+    with pytest.raises(SpecError, match="the shards come from different specs .*" + why):
+        merge(tmp_path / "mixed", [tmp_path / "s0", tmp_path / "c1"])
+    m = json.loads(store.manifest_path(tmp_path / "s0").read_text())
+    m["spec"]["seed"] += 1  # a spec edited by hand matches neither hash
+    store.manifest_path(tmp_path / "s0").write_text(json.dumps(m))
+    with pytest.raises(SpecError, match="edited by hand"):
+        merge(tmp_path / "edited", [tmp_path / "s0", tmp_path / "s1"])
+
+
 def test_a_run_that_failed_to_load_its_model_does_not_block_the_corrected_spec(tmp_path):
     broken = b"ply\nformat ascii 1.0\nelement vertex 1\nend_header\n"
     (tmp_path / "m.ply").write_bytes(broken)

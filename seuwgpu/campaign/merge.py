@@ -13,7 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from seuwgpu.campaign import store
-from seuwgpu.campaign.spec import SpecError, renamed_models, spec_hash
+from seuwgpu.campaign.spec import SpecError, renamed_models, spec_hash, unlabelled_spec_hash
 
 
 def same_records(a: Path, b: Path) -> bool:
@@ -47,14 +47,17 @@ def merge(out: Path, shard_dirs: list[Path], allow_partial: bool = False) -> int
         if out.resolve() == Path(d).resolve():
             raise SpecError(f"--out {out} is one of the shards being merged; merge into a new directory")
     hashes = {m["spec_hash"] for m in manifests}
+    renamed = [r for m in manifests[1:] for r in renamed_models(manifests[0]["spec"], m["spec"])]
+    why = f" ({'; '.join(dict.fromkeys(renamed))}: records name a model by its file name)" if renamed else ""
     if len(hashes) != 1:
         by = ", ".join(f"{d} ({m['spec_hash']})" for d, m in zip(shard_dirs, manifests))
-        renamed = [r for m in manifests[1:] for r in renamed_models(manifests[0]["spec"], m["spec"])]
-        why = f" ({'; '.join(dict.fromkeys(renamed))}: records name a model by its file name)" if renamed else ""
         raise SpecError(f"the shards come from different specs: {by}{why}")
     spec = manifests[0]["spec"]
     if spec_hash(spec) != manifests[0]["spec_hash"]:
-        raise SpecError(f"{shard_dirs[0]}: its manifest's spec does not match its spec hash (edited by hand?)")
+        if unlabelled_spec_hash(spec) != manifests[0]["spec_hash"]:
+            raise SpecError(f"{shard_dirs[0]}: its manifest's spec does not match its spec hash (edited by hand?)")
+        if renamed:  # shards of an earlier seuwgpu, whose hash left the model's file name out
+            raise SpecError(f"the shards come from different specs{why}")
     expected = store.expected_parts(spec)
     with store.lock(out):
         existing = store.read_manifest(out)

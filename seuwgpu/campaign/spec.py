@@ -612,6 +612,13 @@ def spec_hash(spec: dict) -> str:
     return _short_hash(keyed)
 
 
+def unlabelled_spec_hash(spec: dict) -> str:
+    """The spec hash as seuwgpu computed it before a model file's label was hashed (spec_hash):
+    the name of runs made by those versions, whose shards `merge` still joins (checking them for a
+    renamed model, which that hash did not tell apart)."""
+    return _short_hash(_by_content(spec))
+
+
 def renamed_models(a: dict, b: dict) -> list[str]:
     """Scenes that two specs read from the same model content under different labels, said for
     an error message (why their hashes differ)."""
