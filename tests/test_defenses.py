@@ -112,6 +112,34 @@ def test_ecc_crit_corrects_singles_culls_doubles_and_ignores_other_fields(real):
     np.testing.assert_array_equal(dfn.read("ecc_crit", rows, bad, p, deg), bad)
 
 
+def test_ecc_crit_culls_only_what_its_decoder_flags(real):
+    """ecc_crit culled every value left wrong after correction, knowing the clean bits; a SEC-DED
+    decoder knows only its syndrome and parity. fp32 sign+exponent bits 23..31 sit at Hamming
+    positions 3, 5, 6, 7, 9, 10, 11, 12, 13 (check bits at 1, 2, 4, 8); by hand:"""
+    p, deg = "fp32", real.sh_degree
+    rows = stored_rows(real, p)[:5]
+    nan3 = np.full(3, 0x7FC00000, np.uint32)
+    cases = [  # (bits flipped in log_scales[.][0], culled, bits still wrong after decoding)
+        ([30], False, []),  # a single: corrected
+        ([29, 30], True, None),  # a double: syndrome 11 ^ 12 = 7, even parity: flagged, culled
+        ([23, 24, 25], False, [23, 24, 25]),  # 3 ^ 5 ^ 6 = 0: read as the overall parity bit's error
+        ([23, 24, 26], False, [23, 24, 26]),  # 3 ^ 5 ^ 7 = 1: read as check bit 1's error
+        ([29, 30, 31], False, [28, 29, 30, 31]),  # 11 ^ 12 ^ 13 = 10: bit 28 "corrected" too
+        ([24, 25, 31], True, None),  # 5 ^ 6 ^ 13 = 14: no such position, flagged
+        ([24, 25, 27, 28], False, [24, 25, 27, 28]),  # 5 ^ 6 ^ 9 ^ 10 = 0: four errors unseen
+        ([24, 25, 26, 27], True, None),  # a 4-bit burst: 5 ^ 6 ^ 7 ^ 9 = 13, even parity: flagged
+    ]
+    for bits, culled, wrong in cases:
+        bad = rows.copy()
+        bad[:, 3] ^= np.uint32(sum(1 << b for b in bits))
+        got = dfn.read("ecc_crit", rows, bad, p, deg)
+        assert (got[:, :3] == nan3).all() == culled and (got[:, :3] == nan3).any() == culled, bits
+        if not culled:
+            want = rows[:, 3] ^ np.uint32(sum(1 << b for b in wrong))
+            np.testing.assert_array_equal(got[:, 3], want, err_msg=str(bits))
+            np.testing.assert_array_equal(dfn.read("ecc", rows, bad, p, deg)[:, 3], want, err_msg=str(bits))
+
+
 def test_scalebound_clamps_a_grown_log_scale_to_its_class(real):
     p, deg = "fp32", real.sh_degree
     rows = stored_rows(real, p)

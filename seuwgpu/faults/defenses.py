@@ -135,8 +135,17 @@ def ecc_read(clean_bits: np.ndarray, stored_bits: np.ndarray, precision: str) ->
     since have been corrupted (the check bits are assumed intact: they are a small fraction of the
     memory, and modelling their upsets would only add corrected cases). A single error among the
     protected bits is corrected; two are detected but cannot be corrected (the value passes);
-    mantissa errors are not covered and pass.
+    mantissa errors are not covered and pass. Three or more are what the decoder makes of them:
+    an odd count looks like a single error and is "corrected" at the syndrome's position (a
+    fourth wrong bit, or none changed where that is a check bit's).
     """
+    return _ecc_decode(clean_bits, stored_bits, precision)[0]
+
+
+def _ecc_decode(clean_bits: np.ndarray, stored_bits: np.ndarray, precision: str) -> tuple[np.ndarray, np.ndarray]:
+    """SEC-DED decoding (ecc_read) and, per value, whether the decoder flags an uncorrectable
+    error: an even number of errors with a non-zero syndrome, or an odd number whose syndrome
+    names no position of the codeword."""
     prot = _protected_bits(precision)
     pos, r = _hamming_positions(len(prot))
     clean = np.asarray(clean_bits).astype(np.uint64)
@@ -159,7 +168,9 @@ def ecc_read(clean_bits: np.ndarray, stored_bits: np.ndarray, precision: str) ->
     for p, b in zip(pos, prot):
         hit = single & (syn == np.uint64(p))
         out[hit] ^= np.uint64(1) << np.uint64(b)
-    return out.astype(np.asarray(stored_bits).dtype)
+    n = len(prot) + r  # codeword positions 1..n: data at `pos`, check bits at the powers of two
+    uncorrectable = (syn != 0) & (((p_clean ^ p_cur) == 0) | (syn > np.uint64(n)))
+    return out.astype(np.asarray(stored_bits).dtype), uncorrectable
 
 
 def majority(a, b, c):
@@ -264,11 +275,10 @@ def scale_class_bounds(clean: np.ndarray, lo: float, hi: float, precision: str) 
 def ecc_crit_read(clean: np.ndarray, corrupt: np.ndarray, precision: str, degree: int) -> np.ndarray:
     cols = _covered_components(CRITICAL_FIELDS, degree)
     out = corrupt.copy()
-    out[:, cols] = ecc_read(clean[:, cols], corrupt[:, cols], precision)
-    # SEC-DED detects what it cannot correct (two errors in the protected bits): cull
-    prot = np.uint64(sum(1 << b for b in _protected_bits(precision)))
-    left = (out[:, cols].astype(np.uint64) ^ clean[:, cols].astype(np.uint64)) & prot
-    return _cull(out, (left != 0).any(axis=1), precision)
+    out[:, cols], flagged = _ecc_decode(clean[:, cols], corrupt[:, cols], precision)
+    # SEC-DED flags what it cannot correct (two errors in the protected bits): cull. What it does
+    # not flag (three errors read as one and "corrected", four with a zero syndrome) passes.
+    return _cull(out, flagged.any(axis=1), precision)
 
 
 # defenses whose check runs on the GPU (shaders/check.wgsl, faults/check.py): per-primitive side
