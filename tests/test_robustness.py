@@ -95,6 +95,10 @@ def test_the_same_spec_through_another_path_is_the_same_run(tmp_path):
     b = load_spec(tmp_path / "sub" / ".." / "spec.toml")
     c = load_spec(tmp_path / "sub" / "s.toml")
     assert a == b and spec_hash(a) == spec_hash(b) == spec_hash(c)
+    # a symlink of another name too: the spec resolves it to the file, whose name records use
+    os.symlink(tmp_path / "m.ply", tmp_path / "sub" / "link.ply")
+    (tmp_path / "sub" / "l.toml").write_text(TINY.format(scene='model = "link.ply"'))
+    assert spec_hash(load_spec(tmp_path / "sub" / "l.toml")) == spec_hash(a)
     assert os.path.isabs(a["scenes"][0]["model"]) and len(a["scenes"][0]["model_sha256"]) == 64
 
 
