@@ -159,7 +159,7 @@ def test_size_figure_legend_outside_and_defenses_by_marker():
 
 
 def _two_scenes_res():
-    from tests.test_reliability_models import fits_of, two_scenes
+    from test_reliability_models import fits_of, two_scenes
 
     df = two_scenes()
     # 'small' under the guard: no catastrophic event at all (p_c = 0, its MTBF only bounded below)
@@ -205,7 +205,7 @@ def test_panel_columns_name_the_defense_they_show():
 
 
 def test_reliability_figure_of_one_model_has_its_legend_below_too():
-    from tests.test_reliability_models import fits_of, two_scenes
+    from test_reliability_models import fits_of, two_scenes
 
     df = two_scenes()
     small = df[df["scene"] == "small"]
@@ -274,3 +274,16 @@ def test_precision_and_mitigation_rates_on_log_axes_with_no_event_as_bounds():
     top = max(ax.get_yticklabels(), key=lambda tl: tl.get_position()[1])
     assert top.get_text().startswith("none")  # the table's order, top down
     _inside_figure(fig)
+
+
+def test_rate_points_draw_an_undefined_rate_as_nothing_not_as_no_event():
+    """A rate of 0 (no event) is an open triangle at its interval's upper end; a NaN rate (no
+    records) is undefined: no mark, and not counted as a no-event bound."""
+    from seuwgpu.analysis.records import figure, rate_points
+
+    ax = figure().subplots()
+    nan = float("nan")
+    n = rate_points(ax, [0, 1, 2], [0.5, 0.0, nan], [0.3, 0.0, nan], [0.8, 0.1, nan], "k")
+    assert n == 1
+    bounds = [ln for ln in ax.lines if ln.get_marker() == "v"]
+    assert len(bounds) == 1 and list(bounds[0].get_xdata()) == [1.0] and list(bounds[0].get_ydata()) == [0.1]

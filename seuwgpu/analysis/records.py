@@ -445,18 +445,20 @@ def series_color(i: int) -> str:
 def rate_points(ax, x, rate, lo, hi, color, label=None, marker="o", horizontal=False):
     """Rates (%) with their 95% intervals on a log axis: a point and whiskers where events were
     seen; where none were (rate 0, no logarithm) an open triangle at the interval's upper end,
-    pointing down (or left): the rate lies below it, never drawn as a 0 the axis cannot hold."""
+    pointing down (or left): the rate lies below it, never drawn as a 0 the axis cannot hold. An
+    undefined rate (NaN: no records) is not drawn. Returns the number of no-event triangles."""
     x, rate, lo, hi = (np.asarray(v, float) for v in (x, rate, lo, hi))
     pos = rate > 0
+    none = rate == 0
     err = np.vstack([rate - np.maximum(lo, rate * 1e-3), hi - rate])[:, pos]
     kw = dict(fmt=marker, color=color, ms=5, capsize=2, elinewidth=1, label=label)
     if horizontal:
         ax.errorbar(rate[pos], x[pos], xerr=err, **kw)
-        ax.plot(hi[~pos], x[~pos], "<", mfc="none", color=color, ms=7)
+        ax.plot(hi[none], x[none], "<", mfc="none", color=color, ms=7)
     else:
         ax.errorbar(x[pos], rate[pos], yerr=err, **kw)
-        ax.plot(x[~pos], hi[~pos], "v", mfc="none", color=color, ms=7)
-    return int((~pos).sum())
+        ax.plot(x[none], hi[none], "v", mfc="none", color=color, ms=7)
+    return int(none.sum())
 
 
 def figure(w=6.4, h=4.0):
