@@ -200,3 +200,17 @@ def test_the_layer_checks_catch_violations(tmp_path, monkeypatch, case):
     }[case]
     with pytest.raises(AssertionError):
         check()
+
+
+def test_tests_import_their_helpers_by_module_name():
+    """`from tests.conftest import ...` works under `python -m pytest` only (the repository root on
+    sys.path); the `pytest` script puts just the tests folder there, so such a file stops the run
+    at collection. Test helpers are imported as `conftest`, `test_x`."""
+    tests = Path(__file__).resolve().parent
+    bad = []
+    for path in sorted(tests.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            names += [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            bad += [f"{path.name}: {n}" for n in names if n == "tests" or n.startswith("tests.")]
+    assert not bad, bad
