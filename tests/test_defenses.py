@@ -262,3 +262,25 @@ def test_checksum_and_parity4r_undo_every_single_and_adjacent_flip(real, precisi
     covered = np.array(covered)
     np.testing.assert_array_equal(got[covered], clean[covered])
     np.testing.assert_array_equal(got[~covered], bad[~covered])
+
+
+def test_the_memory_column_says_what_the_gpu_check_stores(real):
+    """memory_overhead charges the packed encodings (1 or 4 parity bits, a 4-bit class per
+    primitive), while the GPU check (faults/check.py) uploads one u32 per primitive for each
+    checked defense; docs/defenses.md says both, with the unpacked layout's share."""
+    from pathlib import Path
+
+    p, deg = "fp32", real.sh_degree
+    rows = stored_rows(real, p)[:50]
+    box = support_box(real, p)
+    for d in dfn.CHECKED:
+        side = dfn.side_data(d, rows, p, deg, box)
+        assert side.dtype == np.uint32 and side.shape == (50,), d
+    packed = {"parity": 1, "parity4": 4, "parity4r": 4, "scalebound": 4, "checksum": 32}
+    bits = 59 * 32
+    for d, b in packed.items():
+        box_bits = 2 * 14 * 32 if d == "scalebound" else 0
+        assert dfn.memory_overhead(d, p, 3, 1000) == pytest.approx((b * 1000 + box_bits) / (1000 * bits))
+    text = " ".join((Path(__file__).resolve().parents[1] / "docs" / "defenses.md").read_text().split())
+    assert "keeps each primitive's side data in a u32 of its own" in text
+    assert f"({100 * 32 / bits:.2f}% of an fp32 degree-3 model" in text
