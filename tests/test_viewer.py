@@ -420,6 +420,42 @@ def test_view_offscreen_command(tmp_path):
     assert img.shape[:2] == (200, 480) and img.std() > 10
 
 
+@pytest.mark.parametrize("frames", [1, 2, 3])
+def test_view_frames_in_a_window_draws_them_and_saves_one_screenshot(frames, model, gpu, tmp_path, monkeypatch):
+    """`view --frames N` in a window (glfw, its own event loop): N draws, then one screenshot of the
+    last. With --frames 1 the window closed after its first draw without a screenshot (the
+    request came after that draw), and the command still exited 0."""
+    pytest.importorskip("rendercanvas")
+    pytest.importorskip("imgui_bundle")
+    from rendercanvas.offscreen import RenderCanvas
+
+    from seuwgpu.apps import viewer_window
+
+    class Loop:  # the window's event loop: draws while the window asks, until it closes
+        def __init__(self, canvas):
+            self.canvas, self.draws = canvas, 0
+
+        def run(self):
+            while not self.canvas.get_closed() and self.draws < 10:
+                self.canvas.draw()
+                self.draws += 1
+
+    made = {}
+
+    def make_canvas(backend, size, title=""):
+        canvas = RenderCanvas(size=size)
+        made["loop"] = Loop(canvas)
+        return canvas, made["loop"]
+
+    monkeypatch.setattr(viewer_window, "make_canvas", make_canvas)
+    size = (viewer_window.PANEL_WIDTH + 48, 200)
+    rc = viewer_window.run_viewer(
+        model, "spheres", "fp32", size, backend="glfw", screenshot_dir=tmp_path, frames=frames
+    )
+    assert rc == 0 and made["loop"].draws == frames
+    assert len(list(tmp_path.glob("*.png"))) == 1
+
+
 @pytest.mark.parametrize("package", ["rendercanvas", "imgui_bundle"])
 def test_view_without_the_viewer_extra_says_how_to_get_it(package, monkeypatch, capsys):
     """Without the `viewer` extra (an environment of the package alone, as `./dev main` makes),

@@ -598,6 +598,8 @@ def run_viewer(
             print(f"wrote {p}")
         return 0 if app.saved else 1
     if frames > 0:
+        if frames == 1:  # after_draw runs after the first draw: too late to ask for its screenshot
+            app.screenshot(window=True)
 
         def stop_after(a):
             if a.frames == frames - 1:
