@@ -575,6 +575,52 @@ def test_nonfinite_frame_has_undefined_psnr(model, gpu):
         assert ro["footprint"] == 0.0 and ro["psnr"] == float("inf") and ro["nonfinite_pixels"] == 0
 
 
+def test_the_panel_prints_the_readout_with_nan_and_inf_as_such(model, gpu, monkeypatch):
+    """The panel's numbers are the readout's: frame time and fps, footprint in percent and pixels,
+    PSNR (inf for an unchanged frame, NaN where it is undefined, as in the records and the README;
+    it printed "n/a") and the non-finite pixels."""
+    pytest.importorskip("rendercanvas")
+    pytest.importorskip("imgui_bundle")
+    from imgui_bundle import imgui
+    from rendercanvas.offscreen import RenderCanvas
+
+    from seuwgpu.apps.viewer import OrbitCamera, ViewerState
+    from seuwgpu.apps.viewer_window import PANEL_WIDTH, ViewerApp
+
+    rows = []
+    text, colored = imgui.text, imgui.text_colored
+    monkeypatch.setattr(imgui, "text", lambda s: (rows.append(s), text(s))[1])
+    monkeypatch.setattr(imgui, "text_colored", lambda c, s: (rows.append(s), colored(c, s))[1])
+    st = ViewerState(model, "fp32", (48, 400), scene="spheres", orbit=OrbitCamera.for_scene("spheres"))
+    canvas = RenderCanvas(size=(PANEL_WIDTH + 48, 400))
+    ViewerApp(st, canvas)
+
+    def panel():
+        rows.clear()
+        canvas.draw()
+        ro = st.readout
+        ms = ro["frame_ms"]
+        assert f"frame {ms:6.0f} ms {1000 / ms:6.1f} fps" in rows[1]
+        foot = next(r for r in rows if r.startswith("footprint"))
+        assert foot.split() == ["footprint", f"{100 * ro['footprint']:.2f}", "%", str(ro["changed_pixels"]), "px"]
+        return next(r for r in rows if r.startswith("PSNR")).split()
+
+    assert panel() == ["PSNR", "inf", "dB", "non-finite", "0", "px"]
+    st.inject("log_scales", 31, primitive=17, component=2)
+    assert panel() == ["PSNR", f"{st.readout['psnr']:.2f}", "dB", "non-finite", "0", "px"]
+    st.undo_all()
+    site = next(
+        s
+        for p in range(0, N, 25)
+        if st.engine.inject(s := st.engine.site("sh_dc", p, 0, tuple(range(32)), "set", 0x7FC00000))["nonfinite"]
+    )
+    st._add("set", [site])
+    got = panel()
+    assert np.isnan(st.readout["psnr"]) and st.readout["nonfinite_pixels"] > 0
+    assert got == ["PSNR", "NaN", "dB", "non-finite", str(st.readout["nonfinite_pixels"]), "px"]
+    canvas.close()
+
+
 def test_guarded_model_with_its_own_nan_is_measured_against_its_guarded_clean_render(model, gpu):
     """A user's model holding NaN/Inf (it loads with a warning): the guard changes the clean model
     itself, which is reported once, not charged to every frame. With the guard on and no fault the

@@ -416,7 +416,7 @@ class ViewerApp:
         col = _rgb(1.0, 0.35, 0.3) if foot > 0.01 else _rgb(0.85, 0.85, 0.85)
         imgui.text_colored(col, f"footprint {100 * foot:7.2f} %  {ro.get('changed_pixels', 0):>8} px")
         psnr = ro.get("psnr", float("inf"))
-        psnr_text = f"{psnr:7.2f}" if np.isfinite(psnr) else f"{'inf' if psnr > 0 else 'n/a':>7}"
+        psnr_text = f"{psnr:7.2f}" if np.isfinite(psnr) else f"{'inf' if psnr > 0 else 'NaN':>7}"  # NaN: undefined
         imgui.text(f"PSNR {psnr_text} dB  non-finite {ro.get('nonfinite_pixels', 0):>8} px")
         # two reserved rows for the guard line and its alert details
         if st.guard == "off":
