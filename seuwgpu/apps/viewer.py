@@ -1,6 +1,6 @@
 """The interactive viewer's state machine: an Engine, an orbit camera and live faults, no window.
 
-`ViewerState` is pure logic: every action of the viewer window (`viewer_gui.ViewerApp`) is a
+`ViewerState` is pure logic: every action of the viewer window (`viewer_window.ViewerApp`) is a
 method here, so tests drive it headless and check the frames it produces. `frame()` renders the
 current view at the window size with the same WGSL pipeline as the campaigns and returns the
 RGBA8 image to show plus a readout (frame time, footprint and PSNR against the clean render of
