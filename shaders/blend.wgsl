@@ -146,7 +146,7 @@ fn alpha_of(sigma: PF, o: f32) -> Alpha {
     let s_nan = nan_lanes(sigma);
     let x = -sigma;
     var e = exp(x);
-    e = select(e, PF(0.0), x < PF(-103.97208));
+    e = select(e, PF(0.0), x < PF(-87.33));  // common.wgsl exp_ieee's rule
     e = select(e, PF(inf_f32()), x > PF(88.72283));
     e = select(e, x, s_nan);
     let a = o * e;

@@ -194,6 +194,28 @@ def test_shortcuts_match_twin(gpu):
     assert_close(got, want)
 
 
+def test_exp_flushes_results_below_the_smallest_normal(gpu):
+    """An opacity whose exponent bit 30 flipped (0.5 -> 2^127, a pipeline-state fault in conic.w)
+    meets exp's subnormal range: o * exp(-90) = 0.14 if exp(-90) stays subnormal (8e-40), 0 where
+    the device flushes it (lavapipe does). docs/renderer.md rule 4: exp(x) is 0 below -87.33, on
+    every device and in the twin. A record at a pixel corner with conic (1, 0, 1) has sigma =
+    (x^2 + y^2) / 2 at pixel (x, y): 0.99 alpha up to x^2 + y^2 = 174 (sigma 87), nothing beyond."""
+    rec = {
+        "mean2d": np.array([[0.5, 0.5]], np.float32),
+        "conic": np.array([[1.0, 0.0, 1.0]], np.float32),
+        "opacity": np.array([np.float32(0.5).view(np.uint32) ^ np.uint32(1 << 30)]).view(np.float32),
+        "rgb": np.zeros((1, 3), np.float32),
+    }
+    ranges, prims = np.array([[0, 1]]), np.arange(1)
+    y, x = np.mgrid[:16, :16]
+    want_T = np.where(x * x + y * y <= 174, np.float32(1) - np.float32(0.99), np.float32(1))
+    twin = composite_frame(ranges, prims, rec, 16, 16, background=(1.0, 1.0, 1.0))
+    np.testing.assert_array_equal(twin[..., 3], want_T)
+    for shape in ("lanes", "wide"):
+        got = gpu_frame(gpu, ranges, prims, rec, 16, 16, (1.0, 1.0, 1.0), shape=shape)
+        np.testing.assert_array_equal(got, twin)
+
+
 # ---- long tile lists: chunks merged front to back -------------------------------------------------
 def _flat_records(opacity, rgb, w=16, h=16) -> dict:
     """Records with conic 0 (sigma = 0 at every pixel: alpha = min(0.99, o) everywhere)."""

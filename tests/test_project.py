@@ -157,3 +157,21 @@ def test_guarded_projection_variants_match_twin(gpu, precision, degree, fields):
     assert want_counts.sum() > 0
     np.testing.assert_array_equal(counts, want_counts)
     assert_records_match(got, want, cam)
+
+
+def test_exp_flushes_results_below_the_smallest_normal(gpu):
+    """Opacity logits and log-scales in exp's subnormal range (-104 < x < -87.33): docs/renderer.md
+    rule 4 flushes exp to 0 there on every device (GPUs may flush subnormal results; lavapipe
+    does), so the opacity is exactly 0 on the GPU and in the twin, not 1e-40 in one of them."""
+    model = random_model(12, seed=4)
+    x = np.array([-103.9, -100.0, -95.0, -90.0, -87.5, -87.3366, -87.335, -87.33, -20.0, -104.0, -1.0, 2.0])
+    model.opacity[:] = x
+    model.log_scales[:, 0] = x
+    cam = orbit_cameras(3, 72, 40)[0]
+    got, _, _ = gpu_project(gpu, model, cam, "fp32", chunk_prims=1024)
+    with np.errstate(all="ignore"):
+        want = project(model, cam)
+    assert want["visible"].all()
+    np.testing.assert_array_equal(want["opacity"][:8] == 0, [True] * 7 + [False])
+    np.testing.assert_array_equal(got["opacity"] == 0, want["opacity"] == 0)
+    assert_records_match(got, want, cam)

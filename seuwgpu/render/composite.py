@@ -36,6 +36,7 @@ from seuwgpu.gpu.constants import CHUNK, COMPOSITORS, GPU_CHUNK, PROFILE_CODE, T
 from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE, Readback
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 from seuwgpu.render.bin import REACH_ALL, REACH_ELLIPSE, band_extent, reach
+from seuwgpu.render.project import exp_f32
 
 F = np.float32
 ALPHA_MAX = F(0.99)
@@ -331,7 +332,7 @@ def blend_chunk(ids, pxs, pys, mx, my, conic, opac, rgb, block0=32, block_max=51
             dy = my[blk, None] - apy[None, :]
             cxx, cxy, czz = conic[blk, 0, None], conic[blk, 1, None], conic[blk, 2, None]
             sigma = F(0.5) * ((cxx * dx) * dx + (czz * dy) * dy) + (cxy * dx) * dy
-            a = opac[blk, None] * np.exp(-sigma)
+            a = opac[blk, None] * exp_f32(-sigma)
             alpha = np.where(np.isnan(a), nan_alpha, np.minimum(ALPHA_MAX, a)).astype(F)
             skip = (sigma < 0) | (alpha < ALPHA_MIN)
             f = F(1) - np.where(skip, F(0), alpha)

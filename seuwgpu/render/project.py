@@ -48,6 +48,18 @@ FAR = F(1e10)
 LOWPASS = F(0.3)
 EXTENT = F(3.33)
 CLIP = F(0.3)
+# exp(x) is 0 below EXP_MIN (docs/renderer.md rule 4): there its value would be below about
+# 1.18e-38, the smallest normal float32, and GPUs may flush such subnormal results (lavapipe does,
+# from x = -87.3366); -87.33 leaves a margin for a device exp's error. Above 88.72283 it is +Inf.
+EXP_MIN = F(-87.33)
+
+
+def exp_f32(x):
+    """exp in float32 as the shaders evaluate it (rule 4): 0 below EXP_MIN, +Inf above 88.72283,
+    NaN -> NaN."""
+    x = np.asarray(x, dtype=F)
+    with np.errstate(all="ignore"):
+        return np.where(x < EXP_MIN, F(0), np.exp(x)).astype(F)[()]
 
 
 def n_tiles_xy(cam: Camera) -> tuple[int, int]:
@@ -108,8 +120,8 @@ def sigmoid(x):
     with e = exp(x); NaN stays NaN, sigmoid(+Inf) = 1, sigmoid(-Inf) = 0."""
     x = np.asarray(x, dtype=F)
     with np.errstate(all="ignore"):
-        pos = F(1) / (F(1) + np.exp(-x))
-        e = np.exp(x)
+        pos = F(1) / (F(1) + exp_f32(-x))
+        e = exp_f32(x)
         neg = e / (F(1) + e)
         return np.where(x >= 0, pos, np.where(np.isnan(x), x, neg)).astype(F)
 
@@ -214,7 +226,7 @@ def project(model: Model, cam: Camera, profile: str = "strict") -> dict:
         my = (fy * py) * rz + cy
         ok &= np.isfinite(mx) & np.isfinite(my)
         # 4. scales and rotation
-        s = np.exp(model.log_scales)
+        s = exp_f32(model.log_scales)
         Rq = quat_to_rotmat(model.quats)
         Wm = np.broadcast_to(R, (n, 3, 3))
         # 5. EWA with gsplat's clamp
@@ -305,7 +317,7 @@ def project_gsplat(model: Model, cam: Camera) -> dict:
         rz = F(1) / pz
         mx = (fx * px) * rz + cx
         my = (fy * py) * rz + cy
-        s = np.exp(model.log_scales)
+        s = exp_f32(model.log_scales)
         M = quat_to_rotmat(model.quats) * s[:, None, :]  # R S: column k scaled by s[k]
         sigma = batched_matmul(M, M.transpose(0, 2, 1))
         Wm = np.broadcast_to(R, (n, 3, 3))

@@ -32,6 +32,7 @@ from seuwgpu.render.project import (
     F,
     camera_params,
     cov2d,
+    exp_f32,
     jacobian_limits,
     n_tiles_xy,
     project,
@@ -81,7 +82,7 @@ def _naive_project_one(model: Model, i: int, cam: Camera, TX: int, TY: int):
     my = (fy * y) * rz + cy
     if not (_finite(mx) and _finite(my)):
         return None
-    s = [np.exp(model.log_scales[i, k]) for k in range(3)]
+    s = [exp_f32(model.log_scales[i, k]) for k in range(3)]
     qw, qx, qy, qz = model.quats[i]
     inq = F(1) / np.sqrt(((qw * qw + qx * qx) + qy * qy) + qz * qz)
     qw, qx, qy, qz = qw * inq, qx * inq, qy * inq, qz * inq
@@ -134,9 +135,9 @@ def _naive_project_one(model: Model, i: int, cam: Camera, TX: int, TY: int):
     if np.isnan(lg):
         o = lg
     elif lg >= 0:
-        o = one / (one + np.exp(-lg))
+        o = one / (one + exp_f32(-lg))
     else:
-        e = np.exp(lg)
+        e = exp_f32(lg)
         o = e / (one + e)
     # colour: scalar SH
     d = [m[k] - campos[k] for k in range(3)]
@@ -220,7 +221,7 @@ def render_view_naive(model: Model, cam: Camera, background=(1.0, 1.0, 1.0)) -> 
                     sigma = F(0.5) * ((conic[0] * dx) * dx + (conic[2] * dy) * dy) + (conic[1] * dx) * dy
                     if sigma < 0:
                         continue
-                    a = o * np.exp(-sigma)
+                    a = o * exp_f32(-sigma)
                     alpha = a if np.isnan(a) else min(ALPHA_MAX, a)
                     if alpha < ALPHA_MIN:
                         continue
