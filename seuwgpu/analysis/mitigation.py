@@ -78,8 +78,7 @@ def _pooled_overhead(defense: str, precision: str, models: dict, manifests) -> t
     """Memory overhead of a defense over several models pooled as the records are: the bits it
     adds to each model over their stored bits, each model at its own N and SH degree (a degree-0
     model beside a degree-3 one has 14 components to its 59)."""
-    from seuwgpu.model import encoding
-    from seuwgpu.model.fields import FIELDS, field_components
+    from seuwgpu.analysis.reliability import stored_bits
 
     added = stored = 0.0
     basis = ""
@@ -87,7 +86,7 @@ def _pooled_overhead(defense: str, precision: str, models: dict, manifests) -> t
         frac, basis = memory_overhead(defense, precision, int(n), deg, manifests)
         if defense == "none" or basis in ("from the run manifest", "unknown defense"):
             return frac, basis
-        bits = float(n) * sum(field_components(f, deg) for f in FIELDS) * encoding.bits_per_value(precision)
+        bits = stored_bits(n, precision, deg)
         added, stored = added + frac * bits, stored + bits
     what = basis.rsplit(", N = ", 1)[0]
     return added / stored, f"{what}, pooled over {len(models)} models (each its own N and SH degree)"
