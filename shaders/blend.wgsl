@@ -146,8 +146,8 @@ fn alpha_of(sigma: PF, o: f32) -> Alpha {
     let s_nan = nan_lanes(sigma);
     let x = -sigma;
     var e = exp(x);
-    e = select(e, PF(0.0), x < PF(-87.33));  // common.wgsl exp_ieee's rule
-    e = select(e, PF(inf_f32()), x > PF(88.72283));
+    e = select(e, PF(0.0), x < PF(EXP_MIN));  // common.wgsl exp_ieee's rule
+    e = select(e, PF(inf_f32()), x > PF(EXP_MAX));
     e = select(e, x, s_nan);
     let a = o * e;
     // a NaN alpha propagates (strict); gsplat: CUDA's min (fminf) drops the NaN

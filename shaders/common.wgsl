@@ -51,10 +51,10 @@ fn exp_ieee(x: f32) -> f32 {
     if (is_nan_f32(x)) {
         return x;
     }
-    if (x > 88.72283) {
+    if (x > EXP_MAX) {
         return bitcast<f32>(0x7f800000u);
     }
-    if (x < -87.33) {
+    if (x < EXP_MIN) {
         return 0.0;  // results below the smallest normal: flushed on every device
     }
     return exp(x);

@@ -57,11 +57,22 @@ UNIFORM_STRIDE = 256
 """Bytes between uniform slots bound by offset: the largest min-uniform-buffer-offset-alignment
 in the wild (host only)."""
 
+EXP_MIN = -87.33
+"""exp(x) is 0 below this (docs/renderer.md rule 4), in every shader and in the numpy twin: there
+its value would be below about 1.18e-38, the smallest normal float32, which GPUs may flush
+(lavapipe does, from x = -87.3366); -87.33 leaves a margin for a device exp's error."""
+
+EXP_MAX = 88.72283
+"""exp(x) is +Inf above this (rule 4): past float32's largest finite exp, pinned, as WGSL leaves
+overflow to the driver."""
+
 SHARED = {
     "TILE": TILE,
     "CHUNK": CHUNK,
     "WG": WG,
     "MAX_GROUPS_X": MAX_GROUPS_X,
+    "EXP_MIN": EXP_MIN,
+    "EXP_MAX": EXP_MAX,
     **{f"FMT_{p.upper()}": code for p, code in PRECISION_CODE.items()},
     **{f"PROFILE_{p.upper()}": code for p, code in PROFILE_CODE.items()},
 }

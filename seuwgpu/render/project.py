@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from seuwgpu.gpu.constants import PRECISION_CODE, PROFILE_CODE, TILE
+from seuwgpu.gpu.constants import EXP_MAX, EXP_MIN, PRECISION_CODE, PROFILE_CODE, TILE
 from seuwgpu.gpu.device import GPU, STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 from seuwgpu.model.cameras import Camera
@@ -48,18 +48,15 @@ FAR = F(1e10)
 LOWPASS = F(0.3)
 EXTENT = F(3.33)
 CLIP = F(0.3)
-# exp(x) is 0 below EXP_MIN (docs/renderer.md rule 4): there its value would be below about
-# 1.18e-38, the smallest normal float32, and GPUs may flush such subnormal results (lavapipe does,
-# from x = -87.3366); -87.33 leaves a margin for a device exp's error. Above 88.72283 it is +Inf.
-EXP_MIN = F(-87.33)
 
 
 def exp_f32(x):
-    """exp in float32 as the shaders evaluate it (rule 4): 0 below EXP_MIN, +Inf above 88.72283,
-    NaN -> NaN."""
+    """exp in float32 as the shaders evaluate it (docs/renderer.md rule 4, gpu/constants.py):
+    0 below EXP_MIN, +Inf above EXP_MAX, NaN -> NaN."""
     x = np.asarray(x, dtype=F)
     with np.errstate(all="ignore"):
-        return np.where(x < EXP_MIN, F(0), np.exp(x)).astype(F)[()]
+        e = np.where(x < F(EXP_MIN), F(0), np.exp(x))
+        return np.where(x > F(EXP_MAX), F(np.inf), e).astype(F)[()]
 
 
 def n_tiles_xy(cam: Camera) -> tuple[int, int]:
