@@ -196,8 +196,7 @@ def refuse_ignored_options(args):
     if getattr(args, "command", None) == "view" and args.views is not None and args.cameras is None:
         raise CliError("--views picks views of a --cameras file; the viewer's orbit is one view you steer")
     # --size of the commands that take camera options (add_camera_args, and demo's; `view`'s is its window)
-    takes_orbit_size = hasattr(args, "default_size") or getattr(args, "command", None) == "demo"
-    orbit_size = getattr(args, "size", None) if takes_orbit_size else None
+    orbit_size = getattr(args, "size", None) if hasattr(args, "default_size") else None
     if getattr(args, "cameras", None) is not None and orbit_size is not None:
         raise CliError("--size sets orbit views; a cameras file gives each view its own size (use --scale)")
 
@@ -1109,7 +1108,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--samples", type=positive_int, help="samples per (field, bit) cell")
     s.add_argument("--quiet", action="store_true")
     s.add_argument("--no-report", action="store_true")
-    s.set_defaults(func=cmd_demo)
+    s.set_defaults(func=cmd_demo, default_size=None)  # its --size sizes orbit views; the default is the spec's
 
     s = sub.add_parser("merge", help="join shard run directories of one spec")
     s.add_argument("shards", type=Path, nargs="+")
