@@ -252,8 +252,11 @@ def model_files(path) -> list[Path]:
         p = p / "meta.json"
     elif p.is_dir():
         return [inria_output_model(p)]
-    if p.is_file() and p.suffix.lower() == ".json" and sog.is_sog_meta(p.read_bytes()[:4096]):
-        return sog.unbundled_files(p)
+    if p.is_file() and p.suffix.lower() == ".json":
+        with open(p, "rb") as f:
+            head = f.read(4096)
+        if sog.is_sog_meta(head):
+            return sog.unbundled_files(p)
     return [p]
 
 
