@@ -377,12 +377,13 @@ def reliability(
     model and environment, bits and dose_p are dicts by model key (`models_of`; `bits` given as
     such a dict overrides), and models lists {scene, n_primitives, key, label, bits, dose_p}."""
     manifests = list(manifests or ())
-    pc = catastrophe_probability(df, conf, manifests=manifests)
+    s = _single_bits(df)  # selected once: p_c, the degrees and the models read these
+    pc = catastrophe_probability(s, conf, manifests=manifests)
     notes = []
     precision = precision or reference_precision(pc)
-    degree = model_degrees(df, manifests)
+    degree = model_degrees(s, manifests)
     rates, scrub, rates_from = reliability_parameters(manifests)
-    models = models_of(df)
+    models = models_in(s)
     per_model = len(models) > 1
     if per_model and bits is not None and not isinstance(bits, dict):
         raise ValueError(f"records of {len(models)} models: give bits per model key ({', '.join(models['key'])})")
