@@ -1290,6 +1290,14 @@ def join_up_axes(argv: list[str]) -> list[str]:
     return out
 
 
+def stopped_by(e: KeyboardInterrupt) -> tuple[str, int]:
+    """(what stopped the command, its exit status): SIGTERM 143, Ctrl-C 130. Ray's ray.get turns
+    any KeyboardInterrupt into a plain one: Terminated.received says it was SIGTERM."""
+    if isinstance(e, Terminated) or Terminated.received:
+        return "terminated (SIGTERM)", 143
+    return "interrupted", 130
+
+
 def main(argv=None) -> int:
     import warnings
 
@@ -1298,16 +1306,14 @@ def main(argv=None) -> int:
     try:  # a signal while the arguments are read ends the command as one while it runs does
         args = parse_arguments(sys.argv[1:] if argv is None else list(argv))
     except KeyboardInterrupt as e:
-        term = isinstance(e, Terminated) or Terminated.received
-        print(f"seuwgpu: {'terminated (SIGTERM)' if term else 'interrupted'}", file=sys.stderr)
-        return 143 if term else 130
+        how, code = stopped_by(e)
+        print(f"seuwgpu: {how}", file=sys.stderr)
+        return code
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt as e:
         kept = " (completed parts are kept; re-run to resume)" if args.command in ("campaign", "demo") else ""
-        # Ray's ray.get turns any KeyboardInterrupt into a plain one: the flag says it was SIGTERM
-        term = isinstance(e, Terminated) or Terminated.received
-        how, code = ("terminated (SIGTERM)", 143) if term else ("interrupted", 130)
+        how, code = stopped_by(e)
         print(f"seuwgpu {args.command}: {how}{kept}", file=sys.stderr)
         return code
     except (SeuwgpuError, ValueError) as e:  # the project's errors, and plain ValueErrors naming a bad value
