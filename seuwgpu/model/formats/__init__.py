@@ -168,13 +168,9 @@ def _ply_up(header: ply.PlyHeader) -> str | None:
 def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
     """Load any supported model file (see the module table). Raises ModelFileError (a ValueError)
     naming the file and the problem; warns (NonFiniteWarning) when the model holds NaN or Inf."""
-    sog_folder = os.path.isdir(path) and os.path.isfile(os.path.join(path, "meta.json"))
-    if sog_folder:
-        spath = os.path.join(os.fspath(path), "meta.json")
-    else:
-        spath = os.fspath(inria_output_model(path) if os.path.isdir(path) else path)
+    spath = os.fspath(model_file(path))
     fmt = detect_format(spath)
-    notes: list[str] = [inria_iteration_note(path)] if os.path.isdir(path) and not sog_folder else []
+    notes: list[str] = [inria_iteration_note(path)] if os.path.isdir(path) and fmt != "sog" else []
     up = UP[fmt]
     if fmt in ("ply", "compressed-ply"):
         header = ply.read_header(spath)
@@ -243,15 +239,21 @@ def inria_iteration_note(folder) -> str:
     return f"iteration {it} ({p.relative_to(folder).as_posix()}{last})"
 
 
-def model_files(path) -> list[Path]:
-    """The files a model path stands for: the file itself, an INRIA output folder's last PLY, or
-    an unbundled SOG's meta.json and its images (what a campaign hashes to know its model). A
-    folder that is neither comes back as itself (read_model refuses it with the reason)."""
+def model_file(path):
+    """The file a model path names: the path itself (as given) unless it is a folder, an
+    unbundled SOG folder's meta.json, or an INRIA output folder's last PLY (a folder that is
+    neither: itself, refused by detect_format)."""
+    if not os.path.isdir(path):
+        return path
     p = Path(path)
-    if p.is_dir() and (p / "meta.json").is_file():
-        p = p / "meta.json"
-    elif p.is_dir():
-        return [inria_output_model(p)]
+    return p / "meta.json" if (p / "meta.json").is_file() else inria_output_model(p)
+
+
+def model_files(path) -> list[Path]:
+    """The files a model path stands for: model_file's, and an unbundled SOG's images after its
+    meta.json (what a campaign hashes to know its model). A folder that is neither an INRIA
+    output nor a SOG comes back as itself (read_model refuses it with the reason)."""
+    p = Path(model_file(path))
     if p.is_file() and p.suffix.lower() == ".json":
         with open(p, "rb") as f:
             head = f.read(4096)
