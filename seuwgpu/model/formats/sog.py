@@ -109,8 +109,9 @@ class _Files:
                 self.zip = zipfile.ZipFile(path)
             except (zipfile.BadZipFile, OSError) as e:
                 raise SogError(f"{path}: a broken zip archive ({e})") from None
-            if "meta.json" not in self.zip.namelist():
-                raise SogError(f"{path}: a .sog zip without meta.json (it holds {', '.join(self.zip.namelist()[:5])})")
+            why = zip_problem(self.zip.namelist())
+            if why:
+                raise SogError(f"{path}: not a SOG: {why}")
             self.base = None
         else:
             self.base = Path(path).parent
