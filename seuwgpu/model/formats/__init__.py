@@ -87,8 +87,10 @@ def model_label(path) -> str:
     the folder's name: every INRIA output holds a point_cloud.ply, and two captures labelled
     "point_cloud" would be pooled as one scene."""
     p = Path(path)
-    if p.is_dir() or p.name == "meta.json":  # an INRIA output or unbundled SOG folder
-        return p.resolve().parent.name if p.name == "meta.json" else p.resolve().name
+    if p.name == "meta.json":  # an unbundled SOG's: its folder's name
+        return p.resolve().parent.name
+    if p.is_dir():  # an INRIA output or unbundled SOG folder
+        return p.resolve().name
     if p.name == "point_cloud.ply" and p.parent.name.startswith("iteration_") and p.parent.parent.name == "point_cloud":
         return p.resolve().parents[2].name
     name = p.name
