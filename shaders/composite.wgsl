@@ -389,10 +389,11 @@ struct Recomp {
     n_entries: u32,
     background: vec4<f32>,  // w: 0 (blend.wgsl unfused)
     chunk_pass: u32,    // the chunk of every entry's list this dispatch composites
+    ckpt_every: u32,    // list positions between checkpoints (a multiple of the round; divides CHUNK_PAIRS)
 };
 
 @group(0) @binding(10) var<uniform> rc: Recomp;
-// One tile of one variant to re-composite.
+// One tile of one variant to re-composite (the checkpoint pass: one tile of a clean view).
 struct VariantEntry {
     variant: u32,       // index of the variant's records (per view, n_variants apart)
     view: u32,
@@ -413,10 +414,24 @@ struct VariantEntry {
 @group(0) @binding(21) var<storage, read_write> slabs: array<vec4<f32>>;
 @group(0) @binding(24) var<storage, read_write> variant_ended: array<u32>;  // between chunk dispatches
 @group(0) @binding(25) var<storage, read_write> slab_changed: array<u32>;  // box of the pixels that differ from clean
-@group(0) @binding(26) var<storage, read> kv_stop: array<u32>;  // clean frame: list position each pixel stopped at
+// Clean frame: per pixel, the last list position its value depends on (its end: where it stopped,
+// the last position of the chunk whose merge ended it, or NEVER). main writes the stops of lists
+// of one chunk; the checkpoint pass writes every listed tile's (render/incremental.py).
+@group(0) @binding(26) var<storage, read_write> kv_stop: array<u32>;
+// Clean frame's checkpoints: the pixels' state (rgb, T) at list positions j * ckpt_every,
+// 0 < j * ckpt_every < n: at a chunk's first position the merged state of the chunks before it,
+// elsewhere the state of the chunk's own walk. Tile t of view v keeps them at slots
+// ckpt_base[v * n_tiles + t] + j - 1 (TILE_PIXELS vec4 each).
+@group(0) @binding(27) var<storage, read> ckpt_base: array<u32>;
+@group(0) @binding(28) var<storage, read_write> ckpt_states: array<vec4<f32>>;
+@group(0) @binding(29) var<storage, read_write> entry_done: array<u32>;  // 1 once an entry wrote its pixels
 var<workgroup> s_changed: array<atomic<u32>, 4>;  // min col, max col, min row, max row
 @group(0) @binding(22) var<storage, read> clean_image: array<vec4<f32>>;  // [K, H, W]
 @group(0) @binding(23) var<storage, read> kv_box: array<u32>;              // pixel box per kept pair
+
+const NONE: u32 = 0xffffffffu;
+// The checkpoint pass's pipeline (a constant there: CPU Vulkan would run both sides of a branch).
+override RECORD: bool = false;
 
 // Tile-local bounds of the pixels still to blend (x0 | x1 << 8 | y0 << 16 | y1 << 24 once
 // gathered; empty when x0 > x1).
@@ -448,8 +463,8 @@ fn compact(li: u32, kept: u32) -> vec2<u32> {
 // Position in the clean tile list of entry i of the variant's list.
 fn clean_pos(i: u32, insert: u32, removed: u32) -> u32 {
     var j = i;
-    if (insert != 0xffffffffu && i > insert) { j = j - 1u; }
-    if (removed != 0xffffffffu && j >= removed) { j = j + 1u; }
+    if (insert != NONE && i > insert) { j = j - 1u; }
+    if (removed != NONE && j >= removed) { j = j + 1u; }
     return j;
 }
 
@@ -462,10 +477,16 @@ fn boxes_meet(a: u32, b: u32) -> bool {
     return x0 <= x1 && y0 <= y1;
 }
 
-// (n virtual, insert position or 0xffffffff, removed position or 0xffffffff, 1 if the clean or
-// the virtual list has more than one chunk)
+// (n virtual, insert position or NONE, removed position or NONE, 1 if the clean or the virtual
+// list has more than one chunk)
 var<workgroup> s_list: vec4<u32>;
 var<workgroup> s_insert_at: u32;  // the corrupted record's place in the clean list (before that entry)
+// (first position where the lists differ or NONE, the checkpoint the walk resumes from, 0, 0)
+var<workgroup> s_walk: vec4<u32>;
+var<workgroup> s_status: u32;  // 1: the entry wrote its pixels in an earlier pass
+// Clean positions of the records that the change moves across a chunk boundary: first, end
+// (exclusive), every CHUNK_PAIRS (none when first >= end).
+var<workgroup> s_cross: vec2<u32>;
 
 // Lanes of the quad that a record takes part in (the same arithmetic and skip rules as
 // blend_batch). A pixel that neither the clean nor the corrupted record reaches composites
@@ -531,143 +552,106 @@ fn read_variant_state(e: u32, li: u32, col: u32, row0: u32, p0: Pixels) -> Pixel
     return p;
 }
 
-@compute @workgroup_size(TILE, ROWS)
-fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
-            @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    opaque_zero = bitcast<u32>(rc.background.w);  // blend.wgsl unfused
-    let e = linear_wg(wg, nwg);
-    if (e >= rc.n_entries) {
-        return;
-    }
-    let entry = entries[e];
-    let b = entry.variant;
-    let v = entry.view;
-    let tile = entry.tile;
-    let prim = entry.prim;
-    let tx = tile % rc.tiles_x;
-    let ty = tile / rc.tiles_x;
-    let row0 = lid.y * SPAN;
-    let tile0 = vec2<u32>(tx * TILE, ty * TILE);
-    var p = make_pixels(tile0.x + lid.x, tile0.y + row0, vec2<u32>(0u), vec2<u32>(rc.width, rc.height));
-    let range = kv_ranges[v * rc.n_tiles + tile];
-    let vi = v * rc.n_variants + b;
-    if (li == 0u) {
-        atomicStore(&s_done, 0u);
-        atomicStore(&s_changed[0], 0xffu);
-        atomicStore(&s_changed[1], 0u);
-        atomicStore(&s_changed[2], 0xffu);
-        atomicStore(&s_changed[3], 0u);
-        atomicStore(&s_active[0], 0xffu);
-        atomicStore(&s_active[1], 0u);
-        atomicStore(&s_active[2], 0xffu);
-        atomicStore(&s_active[3], 0u);
-        let n = range.y - range.x;
-        // the clean entry of the corrupted primitive, if this tile lists it
-        let ck = clean_key(v, prim);
-        let qpos = count_before(v, range.x, range.y, ck, prim);
-        var removed = 0xffffffffu;
-        if (qpos < n && kv_isect[v * rc.capacity + range.x + qpos] == prim) {
-            removed = qpos;
-        }
-        // the re-projected variant, if its rectangle covers this tile
-        // the re-projected variant, if the binning pairs it with this tile (its rectangle covers the
-        // tile and, under exact binning, its footprint reaches it: bin.wgsl's rule; an extra pair
-        // that draws nothing would still move the chunk boundaries of a long list)
-        let r = var_rect[vi];
-        var insert = 0xffffffffu;
-        var paired = (r.x & 0xffffu) <= tx && tx < (r.y & 0xffffu) && (r.x >> 16u) <= ty && ty < (r.y >> 16u);
-        if (paired && EXACT_BIN) {
-            let cols = row_tiles(reach(var_xy[vi], var_conic[vi]), f32(ty * TILE), 0.0, r.x & 0xffffu, r.y & 0xffffu);
-            paired = cols.x <= tx && tx < cols.y;
-        }
-        s_insert_at = 0xffffffffu;
-        if (paired) {
-            var ip = count_before(v, range.x, range.y, bitcast<u32>(var_rgb[vi].w), prim);
-            s_insert_at = ip;  // the clean list's position it goes before
-            if (removed != 0xffffffffu && removed < ip) {
-                ip = ip - 1u;
-            }
-            insert = ip;
-        }
-        var nv = n;
-        if (removed != 0xffffffffu) { nv = nv - 1u; }
-        if (insert != 0xffffffffu) { nv = nv + 1u; }
-        s_list = vec4<u32>(nv, insert, removed, u32(n > CHUNK_PAIRS || nv > CHUNK_PAIRS));
-    }
-    let list = workgroupUniformLoad(&s_list);
-    let nv = list.x;
-    let insert = list.y;
-    let removed = list.z;
-    let multi = list.w != 0u;
-    let insert_at = workgroupUniformLoad(&s_insert_at);
-    // Pixels the change cannot reach, copied from the clean frame (only when both lists are one
-    // chunk: a removal or an insertion shifts the chunk boundaries): a pixel's value depends only
-    // on the records that do not skip it, in list order, up to the one it stopped at in the clean
-    // frame (kv_stop, a position in the clean list; NEVER where it did not stop). So neither
-    // record reaching it, or each that does lying behind its stop, leaves it as it was: on opaque
-    // surfaces most upsets of hidden primitives then re-blend nothing.
-    let o = v * rc.n_prims + prim;
-    var copy_clean: array<vec4<bool>, QPI>;
-    let x_stop = min(tile0.x + lid.x, rc.width - 1u);
+// The pixels' (rgb, T) into checkpoint slot `slot`, and back (the pixels keep their done flags:
+// only pixels alive at a checkpoint read it).
+fn write_checkpoint(slot: u32, p: ptr<function, Pixels>, col: u32, row0: u32) {
     for (var j = 0u; j < QPI; j = j + 1u) {
-        var stop: vec4<u32>;
+        let q = (*p).q[j];
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            let y = min(tile0.y + row0 + QUAD * j + i, rc.height - 1u);
-            stop[i] = kv_stop[(v * rc.height + y) * rc.width + x_stop];
+            ckpt_states[slot * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + col] = vec4<f32>(q.r[i], q.g[i], q.b[i], q.T[i]);
         }
-        let old_hits = contributes(kv_xy[o], kv_conic[o], p.q[j]) & vec4<bool>(removed != 0xffffffffu);
-        let new_hits = contributes(var_xy[vi], var_conic[vi], p.q[j]) & vec4<bool>(insert != 0xffffffffu);
-        let old_reaches = old_hits & (vec4<u32>(removed) <= stop);
-        let new_reaches = new_hits & (vec4<u32>(insert_at) <= stop);
-        copy_clean[j] = !p.q[j].done & !old_reaches & !new_reaches & vec4<bool>(!multi);
-        p.q[j].done = p.q[j].done | copy_clean[j];
     }
-    count_if_done(&p);
-    // the box of the pixels to re-blend: a clean record whose box misses it is not read
+}
+
+fn read_checkpoint(slot: u32, col: u32, row0: u32, p0: Pixels) -> Pixels {
+    var p = p0;
     for (var j = 0u; j < QPI; j = j + 1u) {
-        let rows = select(vec4<u32>(0xffu), vec4<u32>(row0 + QUAD * j) + vec4<u32>(0u, 1u, 2u, 3u), !p.q[j].done);
-        if (any(!p.q[j].done)) {
-            atomicMin(&s_active[0], lid.x);
-            atomicMax(&s_active[1], lid.x);
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            let v = ckpt_states[slot * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + col];
+            p.q[j].r[i] = v.x;
+            p.q[j].g[i] = v.y;
+            p.q[j].b[i] = v.z;
+            p.q[j].T[i] = v.w;
+        }
+    }
+    return p;
+}
+
+// The box of the pixels still to blend (a record whose box misses it is not read); s_active must
+// have been reset before the last barrier.
+fn live_box(p: ptr<function, Pixels>, col: u32, row0: u32) -> u32 {
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        let left = !(*p).q[j].done;
+        let rows = select(vec4<u32>(0xffu), vec4<u32>(row0 + QUAD * j) + vec4<u32>(0u, 1u, 2u, 3u), left);
+        if (any(left)) {
+            atomicMin(&s_active[0], col);
+            atomicMax(&s_active[1], col);
             atomicMin(&s_active[2], min(min(rows.x, rows.y), min(rows.z, rows.w)));
-            let top = select(vec4<u32>(0u), rows, !p.q[j].done);
+            let top = select(vec4<u32>(0u), rows, left);
             atomicMax(&s_active[3], max(max(top.x, top.y), max(top.z, top.w)));
         }
     }
     workgroupBarrier();
-    let live = atomicLoad(&s_active[0]) | (atomicLoad(&s_active[1]) << 8u) | (atomicLoad(&s_active[2]) << 16u)
+    return atomicLoad(&s_active[0]) | (atomicLoad(&s_active[1]) << 8u) | (atomicLoad(&s_active[2]) << 16u)
         | (atomicLoad(&s_active[3]) << 24u);
-    let origin = vec2<f32>(tile0);
-    // One chunk of the list per dispatch (rc.chunk_pass; the host dispatches as many as the
-    // longest clean list has, plus one for an inserted pair): on CPU Vulkan a workgroup walking a
-    // whole long list would run past llvmpipe's loop limit (docs/renderer.md). Between dispatches
-    // the slab holds the chunks merged so far and variant_ended the pixels that ended
-    // (write_variant_state); the entry's last chunk writes the output pixels.
-    let c = rc.chunk_pass;
-    let n_chunks = max(1u, (nv + CHUNK_PAIRS - 1u) / CHUNK_PAIRS);
-    if (c >= n_chunks) {
-        return;  // uniform: this entry's list has fewer chunks
+}
+
+// The invocation's pixels of the entry's tile (first pixel tile0): column col, rows row0 ..
+fn entry_pixels(tile0: vec2<u32>, col: u32, row0: u32) -> Pixels {
+    return make_pixels(tile0.x + col, tile0.y + row0, vec2<u32>(0u), vec2<u32>(rc.width, rc.height));
+}
+
+fn reset_active() {
+    atomicStore(&s_active[0], 0xffu);
+    atomicStore(&s_active[1], 0u);
+    atomicStore(&s_active[2], 0xffu);
+    atomicStore(&s_active[3], 0u);
+}
+
+// blend_batch over the m staged records of a round, noting in `stops` the list position (the
+// round's listed entry sb + k) of the record each pixel stopped at.
+fn blend_batch_stops(p: ptr<function, Pixels>, col: u32, row0: u32, m: u32, sb: u32, stops: ptr<function, Stops>) {
+    if (all_pixels_done(p)) {
+        return;
     }
-    var acc = p;
-    if (c > 0u) {
-        // the chunks so far; ended pixels take no part in this one
-        acc = read_variant_state(e, li, lid.x, row0, p);
-        for (var j = 0u; j < QPI; j = j + 1u) {
-            p.q[j].done = acc.q[j].done;
+    for (var k = 0u; k < m; k = k + 1u) {
+        let done0 = (*p).q[0].done;
+        let done1 = (*p).q[1].done;
+        let finished = blend_record(p, col, row0, k);
+        let at = vec4<u32>(s_kept_entry[sb + k]);
+        (*stops)[0] = select((*stops)[0], at, (*p).q[0].done & !done0);  // QPI = 2
+        (*stops)[1] = select((*stops)[1], at, (*p).q[1].done & !done1);
+        if (finished) {
+            break;
         }
-        if (li == 0u) {
-            atomicStore(&s_done, 0u);
-        }
-        workgroupBarrier();
-        count_if_done(&p);
     }
-    // The chunk is walked in rounds of `round` entries (up to ROUND_MAX, dividing CHUNK_PAIRS):
-    // each invocation tests round / LANES consecutive entries' pixel boxes against the live
-    // pixels; those that meet them are listed in list order (an exclusive scan of the
-    // per-invocation counts), then staged and blended BATCH at a time, so the blend loop never
-    // visits the others. Listing before reading the records, and rounds of many entries, matter
-    // on CPU Vulkan, where a branch never skips code and a barrier costs microseconds: reading
-    // every entry's record, and batches of 256 entries, cost most of a campaign.
+}
+
+// The list a walk reads: view v's clean tile list (starting at `first` in kv_isect) with clean
+// position `removed` dropped and a record (xy, co, rgb, pixel box bx) inserted at position
+// `insert` of the resulting list (NONE: neither).
+struct Walk {
+    v: u32,
+    first: u32,
+    insert: u32,
+    removed: u32,
+    xy: vec2<f32>,
+    co: vec4<f32>,
+    rgb: vec4<f32>,
+    bx: u32,
+};
+
+// Blend positions [from, hi) of the walk's list into p (from, hi uniform). The list is walked in
+// rounds of `round` entries (up to ROUND_MAX, dividing CHUNK_PAIRS): each invocation tests round /
+// LANES consecutive entries' pixel boxes against `live`; those that meet it are listed in list
+// order (an exclusive scan of the per-invocation counts), then staged and blended BATCH at a time,
+// so the blend loop never visits the others. Listing before reading the records, and rounds of
+// many entries, matter on CPU Vulkan, where a branch never skips code and a barrier costs
+// microseconds. RECORD (the checkpoint pass): `stops` receives where each pixel stopped, and
+// each round that ends on a checkpoint position inside [from, hi) keeps the pixels' state at
+// slot ckpt0 + position / ckpt_every - 1.
+fn walk_list(p: ptr<function, Pixels>, li: u32, col: u32, row0: u32, start: u32, hi: u32, live: u32, w: Walk,
+             stops: ptr<function, Stops>, ckpt0: u32) {
     var round = BATCH;
     if (CHUNK_PAIRS % ROUND_MAX == 0u) {
         round = ROUND_MAX;
@@ -675,22 +659,19 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         round = 2u * BATCH;
     }
     let per_lane = round / LANES;
-    let lo = c * CHUNK_PAIRS;
-    let hi = min(nv, lo + CHUNK_PAIRS);
-    var rounds = (hi - lo + round - 1u) / round;
+    var rounds = (hi - min(start, hi) + round - 1u) / round;
     if (workgroupUniformLoad(&s_done) == LANES) {
         rounds = 0u;  // no pixel left to blend: copied from the clean frame, or ended before
     }
-    let insert_box = box_of(var_xy[vi], var_conic[vi], cut_of(var_conic[vi].w), origin);
     var ended = false;
     for (var rd = 0u; rd < rounds && !ended; rd = rd + 1u) {
-        let first = lo + rd * round;
+        let first = start + rd * round;
         var kept_bits = 0u;
         for (var s = 0u; s < per_lane; s = s + 1u) {
             let i = first + li * per_lane + s;
-            var bx = insert_box;
-            if (i != insert) {
-                bx = kv_box[v * rc.capacity + range.x + clean_pos(min(i, hi - 1u), insert, removed)];
+            var bx = w.bx;
+            if (i != w.insert) {
+                bx = kv_box[w.v * rc.capacity + w.first + clean_pos(min(i, hi - 1u), w.insert, w.removed)];
             }
             kept_bits = kept_bits | (u32(i < hi && boxes_meet(bx, live)) << s);
         }
@@ -708,26 +689,241 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
             let mb = min(m - sb, BATCH);
             for (var slot = li; slot < mb; slot = slot + LANES) {
                 let i = s_kept_entry[sb + slot];
-                if (i == insert) {
-                    stage_boxed(slot, var_xy[vi], var_conic[vi], var_rgb[vi], insert_box);
+                if (i == w.insert) {
+                    stage_boxed(slot, w.xy, w.co, w.rgb, w.bx);
                 } else {
-                    let at = v * rc.capacity + range.x + clean_pos(i, insert, removed);
-                    let og = v * rc.n_prims + kv_isect[at];  // its box: the clean frame's, for this very pair
+                    let at = w.v * rc.capacity + w.first + clean_pos(i, w.insert, w.removed);
+                    let og = w.v * rc.n_prims + kv_isect[at];  // its box: the clean frame's, for this very pair
                     stage_boxed(slot, kv_xy[og], kv_conic[og], kv_rgb[og], kv_box[at]);
                 }
             }
             workgroupBarrier();
-            blend_batch(&p, lid.x, row0, mb);
+            if (RECORD) {
+                blend_batch_stops(p, col, row0, mb, sb, stops);
+            } else {
+                blend_batch(p, col, row0, mb);
+            }
             if (all_done(li)) {
                 ended = true;
                 break;
             }
         }
+        let end = first + round;
+        if (RECORD && !ended && end < hi && end % rc.ckpt_every == 0u) {
+            write_checkpoint(ckpt0 + end / rc.ckpt_every - 1u, p, col, row0);
+        }
     }
+}
+
+// Recount s_done over the invocations' pixels (after a merge): true, uniformly, when all are done.
+fn all_pixels_finished(p: ptr<function, Pixels>, li: u32) -> bool {
+    workgroupBarrier();
+    if (li == 0u) {
+        atomicStore(&s_done, 0u);
+    }
+    workgroupBarrier();
+    count_if_done(p);
+    return all_done(li);
+}
+
+// A tile of a single-upset variant, re-composited from the clean frame's kept state (equal to a
+// full re-render of the variant, bit for bit; docs/renderer.md "Incremental re-compositing"):
+// - the lists agree before position a = min(removed, insert), so the walk resumes from the clean
+//   frame's last checkpoint at or before a (render/incremental.py CleanViews keeps them), in the
+//   chunk that holds it, and runs to where every re-blended pixel ends;
+// - a pixel is copied from the clean frame unless its value can change: the clean or corrupted
+//   record reaches it at or before its end (kv_stop), or, on a list of several chunks, a record
+//   that reaches it before its end moves across a chunk boundary (the removal or insertion shifts
+//   the positions between them by one; records that skip a pixel change nothing in it, and a
+//   chunk of them merges as the identity), or its clean value is not finite (conservative);
+// - one chunk of the variant's list per dispatch (pass k: the k-th chunk from the one it resumes
+//   in); between dispatches the slab holds the chunks merged so far and variant_ended the pixels
+//   that ended; an entry writes its pixels once every one has ended or at its list's last chunk
+//   (entry_done then skips it).
+@compute @workgroup_size(TILE, ROWS)
+fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+            @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    opaque_zero = bitcast<u32>(rc.background.w);  // blend.wgsl unfused
+    let e = linear_wg(wg, nwg);
+    if (e >= rc.n_entries) {
+        return;
+    }
+    let entry = entries[e];
+    let b = entry.variant;
+    let v = entry.view;
+    let tile = entry.tile;
+    let prim = entry.prim;
+    let tx = tile % rc.tiles_x;
+    let ty = tile / rc.tiles_x;
+    let row0 = lid.y * SPAN;
+    let tile0 = vec2<u32>(tx * TILE, ty * TILE);
+    var p = entry_pixels(tile0, lid.x, row0);
+    let range = kv_ranges[v * rc.n_tiles + tile];
+    let vi = v * rc.n_variants + b;
+    // pass k walks chunk cs + k of the entry's list (cs: the chunk it resumes in); an entry whose
+    // pixels have all ended (written) leaves at once
+    let k = rc.chunk_pass;
+    if (li == 0u) {
+        var status = 0u;
+        if (k > 0u) {
+            status = entry_done[e];
+        } else {
+            entry_done[e] = 0u;
+        }
+        s_status = status;
+    }
+    if (workgroupUniformLoad(&s_status) != 0u) {
+        return;  // uniform: written in an earlier pass
+    }
+    if (li == 0u) {
+        atomicStore(&s_done, 0u);
+        atomicStore(&s_changed[0], 0xffu);
+        atomicStore(&s_changed[1], 0u);
+        atomicStore(&s_changed[2], 0xffu);
+        atomicStore(&s_changed[3], 0u);
+        reset_active();
+        let n = range.y - range.x;
+        // the clean entry of the corrupted primitive, if this tile lists it
+        let ck = clean_key(v, prim);
+        let qpos = count_before(v, range.x, range.y, ck, prim);
+        var removed = NONE;
+        if (qpos < n && kv_isect[v * rc.capacity + range.x + qpos] == prim) {
+            removed = qpos;
+        }
+        // the re-projected variant, if the binning pairs it with this tile (its rectangle covers the
+        // tile and, under exact binning, its footprint reaches it: bin.wgsl's rule; an extra pair
+        // that draws nothing would still move the chunk boundaries of a long list)
+        let r = var_rect[vi];
+        var insert = NONE;
+        var paired = (r.x & 0xffffu) <= tx && tx < (r.y & 0xffffu) && (r.x >> 16u) <= ty && ty < (r.y >> 16u);
+        if (paired && EXACT_BIN) {
+            let cols = row_tiles(reach(var_xy[vi], var_conic[vi]), f32(ty * TILE), 0.0, r.x & 0xffffu, r.y & 0xffffu);
+            paired = cols.x <= tx && tx < cols.y;
+        }
+        var insert_at = NONE;
+        if (paired) {
+            insert_at = count_before(v, range.x, range.y, bitcast<u32>(var_rgb[vi].w), prim);
+            insert = insert_at;
+            if (removed != NONE && removed < insert) {
+                insert = insert - 1u;
+            }
+        }
+        s_insert_at = insert_at;
+        var nv = n;
+        if (removed != NONE) { nv = nv - 1u; }
+        if (insert != NONE) { nv = nv + 1u; }
+        s_list = vec4<u32>(nv, insert, removed, u32(n > CHUNK_PAIRS || nv > CHUNK_PAIRS));
+        // the clean positions the change shifts by one (down after a removal, up after an insertion)
+        var lo = 0u;
+        var end = 0u;
+        var down = true;
+        if (removed != NONE && (insert == NONE || insert_at > removed)) {
+            lo = removed + 1u;
+            end = select(insert_at, n, insert == NONE);
+        } else if (insert != NONE) {
+            lo = insert_at;
+            end = select(removed, n, removed == NONE);
+            down = false;
+        }
+        // those among them that cross a chunk boundary: jC (down) or jC - 1 (up)
+        var cross = NONE;
+        if (lo < end) {
+            if (down) {
+                cross = (lo + CHUNK_PAIRS - 1u) / CHUNK_PAIRS * CHUNK_PAIRS;
+            } else {
+                cross = (lo + CHUNK_PAIRS) / CHUNK_PAIRS * CHUNK_PAIRS - 1u;
+            }
+        }
+        s_cross = vec2<u32>(cross, end);
+        let a = min(removed, insert);
+        var s = 0u;  // the walk resumes at the clean frame's last checkpoint at or before a
+        if (a != NONE && n > 0u) {
+            s = min(a / rc.ckpt_every, (n - 1u) / rc.ckpt_every) * rc.ckpt_every;
+        }
+        s_walk = vec4<u32>(a, s, 0u, 0u);
+    }
+    let list = workgroupUniformLoad(&s_list);
+    let walk = workgroupUniformLoad(&s_walk);
+    let nv = list.x;
+    let insert = list.y;
+    let removed = list.z;
+    let multi = list.w != 0u;
+    let a = walk.x;
+    let s = walk.y;
+    let cs = s / CHUNK_PAIRS;
+    let c = cs + k;
+    let n_chunks = max(1u, (nv + CHUNK_PAIRS - 1u) / CHUNK_PAIRS);
+    if (c >= n_chunks) {
+        return;  // uniform: past its list (an entry writes its pixels by its last chunk)
+    }
+    let insert_at = workgroupUniformLoad(&s_insert_at);
+    let cross = workgroupUniformLoad(&s_cross);
+    // Pixels the change cannot reach, copied from the clean frame (see above): a pixel's value
+    // depends only on the records that do not skip it, in list order, grouped by chunk, up to its
+    // end (kv_stop, a position in the clean list). On opaque surfaces most upsets of hidden
+    // primitives then re-blend nothing.
+    let o = v * rc.n_prims + prim;
+    var copy_clean: array<vec4<bool>, QPI>;
+    let x_stop = min(tile0.x + lid.x, rc.width - 1u);
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        var stop: vec4<u32>;
+        var odd = vec4<bool>(false);
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            let y = min(tile0.y + row0 + QUAD * j + i, rc.height - 1u);
+            let at = (v * rc.height + y) * rc.width + x_stop;
+            stop[i] = kv_stop[at];
+            if (cross.x < cross.y) {
+                let px = bitcast<vec4<u32>>(clean_image[at]);
+                odd[i] = any((px & vec4<u32>(0x7f800000u)) == vec4<u32>(0x7f800000u));
+            }
+        }
+        let alive = vec4<bool>(a != NONE) & (vec4<u32>(a) <= stop);
+        let old_hits = contributes(kv_xy[o], kv_conic[o], p.q[j]) & vec4<bool>(removed != NONE);
+        let new_hits = contributes(var_xy[vi], var_conic[vi], p.q[j]) & vec4<bool>(insert != NONE);
+        var reached = (old_hits & (vec4<u32>(removed) <= stop)) | (new_hits & (vec4<u32>(insert_at) <= stop));
+        var moved = odd & vec4<bool>(cross.x < cross.y);
+        for (var i = cross.x; i < cross.y; i = i + CHUNK_PAIRS) {
+            let og = v * rc.n_prims + kv_isect[v * rc.capacity + range.x + i];
+            moved = moved | (contributes(kv_xy[og], kv_conic[og], p.q[j]) & (vec4<u32>(i - 1u) <= stop));
+        }
+        copy_clean[j] = !p.q[j].done & !(reached | (alive & moved));
+        p.q[j].done = p.q[j].done | copy_clean[j];
+    }
+    count_if_done(&p);
+    let live = live_box(&p, lid.x, row0);
+    let origin = vec2<f32>(tile0);
+    var acc = p;
+    var start = c * CHUNK_PAIRS;
+    if (k == 0u) {
+        // the clean frame's state at s: the merged chunks before chunk cs, and chunk cs's own walk
+        let slot0 = ckpt_base[v * rc.n_tiles + tile];
+        if (cs > 0u) {
+            acc = read_checkpoint(slot0 + cs * CHUNK_PAIRS / rc.ckpt_every - 1u, lid.x, row0, p);
+        }
+        if (s > cs * CHUNK_PAIRS) {
+            p = read_checkpoint(slot0 + s / rc.ckpt_every - 1u, lid.x, row0, p);
+        }
+        start = s;
+    } else {
+        // the chunks so far; ended pixels take no part in this one
+        acc = read_variant_state(e, li, lid.x, row0, p);
+        for (var j = 0u; j < QPI; j = j + 1u) {
+            p.q[j].done = acc.q[j].done;
+        }
+        if (li == 0u) {
+            atomicStore(&s_done, 0u);
+        }
+        workgroupBarrier();
+        count_if_done(&p);
+    }
+    let insert_box = box_of(var_xy[vi], var_conic[vi], cut_of(var_conic[vi].w), origin);
+    let w = Walk(v, range.x, insert, removed, var_xy[vi], var_conic[vi], var_rgb[vi], insert_box);
+    var no_record = no_stops();
+    walk_list(&p, li, lid.x, row0, start, min(nv, (c + 1u) * CHUNK_PAIRS), live, w, &no_record, 0u);
     if (multi) {
         merge_pixels(&acc, &p, c == 0u);
         p = acc;
-        if (c + 1u < n_chunks) {
+        if (c + 1u < n_chunks && !all_pixels_finished(&p, li)) {
             write_variant_state(e, li, &p, lid.x, row0);
             return;
         }
@@ -760,5 +956,75 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     if (li == 0u) {
         slab_changed[e] = atomicLoad(&s_changed[0]) | (atomicLoad(&s_changed[1]) << 8u)
             | (atomicLoad(&s_changed[2]) << 16u) | (atomicLoad(&s_changed[3]) << 24u);
+        entry_done[e] = 1u;
+    }
+}
+
+// The checkpoint pass over a clean frame's listed tiles (entries: view and tile; render/
+// incremental.py CleanViews), one chunk per dispatch like `variants`, with the same arithmetic: it
+// keeps the pixels' state at every checkpoint position of the list and writes each pixel's end
+// (where it stopped; the last position of the chunk whose merge ended it; NEVER) into kv_stop.
+@compute @workgroup_size(TILE, ROWS)
+fn checkpoints(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+               @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    opaque_zero = bitcast<u32>(rc.background.w);  // blend.wgsl unfused
+    let e = linear_wg(wg, nwg);
+    if (e >= rc.n_entries) {
+        return;
+    }
+    let v = entries[e].view;
+    let tile = entries[e].tile;
+    let row0 = lid.y * SPAN;
+    let tile0 = vec2<u32>(tile % rc.tiles_x, tile / rc.tiles_x) * TILE;
+    var p = entry_pixels(tile0, lid.x, row0);
+    let range = kv_ranges[v * rc.n_tiles + tile];
+    if (li == 0u) {
+        atomicStore(&s_done, 0u);
+        reset_active();
+        s_list = vec4<u32>(range.y - range.x, 0u, 0u, 0u);
+    }
+    let n = workgroupUniformLoad(&s_list).x;
+    let c = rc.chunk_pass;
+    let n_chunks = max(1u, (n + CHUNK_PAIRS - 1u) / CHUNK_PAIRS);
+    if (c >= n_chunks) {
+        return;  // uniform
+    }
+    var acc = p;
+    if (c > 0u) {
+        acc = read_variant_state(e, li, lid.x, row0, p);
+        for (var j = 0u; j < QPI; j = j + 1u) {
+            p.q[j].done = acc.q[j].done;
+        }
+    }
+    var ended_before: array<vec4<bool>, QPI>;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        ended_before[j] = acc.q[j].done;
+    }
+    count_if_done(&p);
+    let live = live_box(&p, lid.x, row0);
+    let start = c * CHUNK_PAIRS;
+    let hi = min(n, start + CHUNK_PAIRS);
+    let slot0 = ckpt_base[v * rc.n_tiles + tile];
+    var stops = no_stops();
+    let w = Walk(v, range.x, NONE, NONE, vec2<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), EMPTY_BOX);
+    walk_list(&p, li, lid.x, row0, start, hi, live, w, &stops, slot0);
+    merge_pixels(&acc, &p, c == 0u);
+    let x = tile0.x + lid.x;
+    for (var j = 0u; j < QPI; j = j + 1u) {
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            let y = tile0.y + row0 + QUAD * j + i;
+            let now = acc.q[j].done[i] && !ended_before[j][i];
+            if (x < rc.width && y < rc.height && (now || (c + 1u == n_chunks && !acc.q[j].done[i]))) {
+                var end = NEVER;
+                if (now) {
+                    end = select(hi - 1u, stops[j][i], p.q[j].done[i] && stops[j][i] != NEVER);
+                }
+                kv_stop[(v * rc.height + y) * rc.width + x] = end;
+            }
+        }
+    }
+    if (c + 1u < n_chunks) {
+        write_checkpoint(slot0 + (start + CHUNK_PAIRS) / rc.ckpt_every - 1u, &acc, lid.x, row0);
+        write_variant_state(e, li, &acc, lid.x, row0);
     }
 }

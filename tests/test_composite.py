@@ -14,7 +14,7 @@ from seuwgpu.model.cameras import orbit_cameras
 from seuwgpu.model.fields import Model
 from seuwgpu.render.bin import Binning, tile_lists
 from seuwgpu.render.composite import Compositing, composite_frame, composite_tile, tile_pixels, variant_list
-from seuwgpu.render.incremental import IncrementalCompositor
+from seuwgpu.render.incremental import CleanViews, IncrementalCompositor, tile_checkpoints
 from seuwgpu.render.project import n_tiles_xy, project
 from seuwgpu.render.renderer import Renderer
 from seuwgpu.render.sort import depth_order
@@ -493,15 +493,17 @@ def test_default_chunk_follows_the_adapter(gpu, monkeypatch):
     assert Engine(model, cams, gpu=gpu).renderer.compositing.chunk == CHUNK
 
 
-def _incremental_equals_full(gpu, model, cams, kw, prims, min_entries=20) -> int:
+def _incremental_equals_full(gpu, model, cams, kw, prims, min_entries=20, every=None) -> int:
     """Upsets of `prims` that move a primitive inside the tile lists (depth), make it a sheet,
     opaque or NaN, or remove it, re-composited by the variants entry: every dirty tile equals a
-    full re-render of the variant bit for bit. Returns the longest clean tile list."""
+    full re-render of the variant bit for bit. Returns the longest clean tile list. `every`: the
+    clean views' checkpoint interval (render/incremental.py CleanViews; default its own)."""
     r = Renderer(model, cams, keep_views=True, **kw)
     r.capture_views = True
     clean = r.render_rgba()
     r.capture_views = False
-    comp = IncrementalCompositor(r, gpu.upload(clean), max_variants=8, max_entries=512)
+    views = CleanViews(r, every)
+    comp = IncrementalCompositor(r, gpu.upload(clean), max_variants=8, max_entries=512, clean=views)
     flat = r.layout.decode(r.clean_words).flat()
     bits = encoding.to_bits(flat[prims], "fp32")
     bits[0, 2] ^= np.uint32(1 << 29)  # mean z: moves in depth
@@ -565,6 +567,63 @@ def test_chunked_incremental_equals_full_rerender(gpu, profile, exact, chunk, sh
         gpu, model, orbit_cameras(2, 32, 32), kw, np.array([5, 77, 300, 301, 900, 1200, 1499])
     )
     assert longest > chunk  # two chunks and more: later dispatches carry the running state
+
+
+@pytest.mark.parametrize("every", [1024, 2048])
+def test_incremental_resumes_from_checkpoints(gpu, every):
+    """Chunks of 2048 with checkpoints every 1024 (inside a chunk, and at chunk starts) or 2048
+    (chunk starts only): every variant's walk resumes at the clean frame's last checkpoint before
+    its change, its other pixels are copied unless a record that reaches them crossed a chunk
+    boundary, and every dirty tile still equals a full re-render bit for bit."""
+    model = _dense_model(5000, 5)
+    kw = {"gpu": gpu, "chunk": 2048}
+    prims = np.array([5, 77, 1300, 2501, 3900, 4200, 4999])
+    longest = _incremental_equals_full(gpu, model, orbit_cameras(2, 32, 32), kw, prims, every=every)
+    assert longest > 2048  # two chunks: a checkpoint at the second one's start (and at 1024)
+
+
+def test_checkpoint_pass_matches_twin(gpu):
+    """The checkpoint pass (composite.wgsl:checkpoints) against its numpy twin on the renderer's
+    own screen records and tile lists: each pixel's end (the last list position its value depends
+    on, across chunk merges) and its state at every checkpoint it is alive at; on lists of one
+    chunk the ends are the stops main wrote, bit for bit."""
+    model = _dense_model(5000, 6)
+    r = Renderer(model, orbit_cameras(1, 32, 32), keep_views=True, gpu=gpu, chunk=2048)
+    r.capture_views = True
+    r.render_rgba()
+    r.capture_views = False
+    stops_main = gpu.read(r.kv_stop).copy()
+    views = CleanViews(r, 1024)
+    ends = gpu.read(r.kv_stop).reshape(r.height, r.width).astype(np.int64)
+    ends[ends == 0xFFFFFFFF] = -1
+    states = gpu.read(views.ckpt_states, np.float32).reshape(-1, 16, 16, 4)
+    base = gpu.read(views.ckpt_base)
+    ranges = gpu.read(r.kv_ranges).reshape(-1, 2).astype(np.int64)
+    isect = gpu.read(r.kv_isect)
+    xy = gpu.read(r.kv_xy, np.float32).reshape(-1, 2)
+    co = gpu.read(r.kv_conic, np.float32).reshape(-1, 4)
+    rgb = gpu.read(r.kv_rgb, np.float32).reshape(-1, 4)
+    long_tiles = checked = 0
+    for t in range(r.n_tiles):
+        a, b = ranges[t]
+        ty, tx = divmod(t, r.tiles_x)
+        (ys, xs), pxs, pys = tile_pixels(tx, ty, r.width, r.height)
+        if b - a <= 2048:
+            assert np.array_equal(ends[ys, xs], stops_main.reshape(r.height, r.width)[ys, xs].astype(np.int64))
+            continue
+        long_tiles += 1
+        want_states, want_ends = tile_checkpoints(
+            isect[a:b], pxs, pys, xy[:, 0], xy[:, 1], co[:, :3], co[:, 3], rgb[:, :3], 2048, 1024
+        )
+        got_ends = ends[ys, xs].reshape(-1)
+        assert (got_ends == want_ends).mean() > 0.99  # a stop may move by float32 rounding of exp
+        for pos, (C, T) in sorted(want_states.items()):
+            alive = ((got_ends >= pos) | (got_ends == -1)) & (got_ends == want_ends)
+            got = states[base[t] + pos // 1024 - 1].reshape(-1, 4)
+            assert_close(got[alive, :3], C[alive])
+            assert_close(got[alive, 3], T[alive])
+            checked += int(alive.sum())
+    assert long_tiles and checked
 
 
 def test_incremental_lists_past_the_cpu_loop_limit(gpu):

@@ -1,9 +1,14 @@
 """Injections per second of single-upset campaigns: incremental (dirty-tile) path vs full re-render,
-measured in one run on the same engine set-up and the same sites.
+measured in one run on the same engine set-up and the same sites, at one or several model sizes.
 
-    python tools/bench_campaign.py [--scene spheres] [--n 100000] [--views 4] [--size 128x128]
-                                   [--samples 512] [--full-samples 64] [--defenses none]
-                                   [--json out.json]
+    python tools/bench_campaign.py [--scene spheres] [--n 100000 [1000000 ...]] [--views 4]
+                                   [--size 128x128] [--samples 512] [--full-samples 48]
+                                   [--defenses none] [--json out.json]
+
+With several --n the sizes run back to back in one process (one device), and the table ends with
+each size's rate as a fraction of the first's and the growth exponent of an injection's cost
+against N (least squares of log(1 / rate) on log N): 1 means an upset costs as much more as the
+model is larger, 0 that it costs the same.
 
 Sites are drawn stratified over every (field, bit) cell at fp32, as the default campaign does; each
 injection is evaluated under every arm of --defenses (paired, as a campaign does: the study's
@@ -14,6 +19,7 @@ path re-renders all K views for each injection and arm (what the paper's engine 
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import sys
 import time
@@ -40,27 +46,15 @@ def draw_sites(eng: Engine, count: int, seed: int):
     return out
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", default="spheres")
-    ap.add_argument("--n", type=int, default=100_000)
-    ap.add_argument("--views", type=int, default=4)
-    ap.add_argument("--size", default="128x128")
-    ap.add_argument("--precision", default="fp32")
-    ap.add_argument("--samples", type=int, default=512, help="injections timed on the incremental path")
-    ap.add_argument("--full-samples", type=int, default=48, help="injections timed with full re-rendering")
-    ap.add_argument("--defenses", default="none", help="comma-separated arms per injection, e.g. none,guard,ecc")
-    ap.add_argument("--json", type=Path)
-    args = ap.parse_args(argv)
-    try:
-        w, h = (int(v) for v in args.size.lower().split("x"))
-        arms = tuple(check_defense(d.strip()) for d in args.defenses.split(",") if d.strip()) or ("none",)
-    except ValueError as e:
-        ap.error(f"--size WxH (e.g. 128x128) and --defenses a comma-separated list: {e}")
-    model = make_scene(args.scene, n=args.n)
+def measure(args, n: int, arms) -> dict:
+    """One size: the incremental and the full path on the same sites."""
+    w, h = (int(v) for v in args.size.lower().split("x"))
+    model = make_scene(args.scene, n=n)
+    t = time.perf_counter()
     eng = Engine(model, scene_cameras(args.scene, args.views, w, h), args.precision, scene=args.scene)
     sites = draw_sites(eng, args.samples, 0)
-    eng.evaluate(sites[:32], arms)  # warm-up: pipelines, buffers
+    eng.evaluate(sites[:32], arms)  # warm-up: pipelines, buffers, the clean views' checkpoints
+    t_setup = time.perf_counter() - t
     t = time.perf_counter()
     inc = eng.evaluate(sites, arms)  # rows arm-major: arm a's records at a * len(sites) ..
     t_inc = time.perf_counter() - t
@@ -75,11 +69,12 @@ def main(argv=None):
         "adapter": eng.gpu.info.get("device"),
         "backend": eng.gpu.info.get("backend_type"),
         "scene": args.scene,
-        "n": args.n,
+        "n": n,
         "views": args.views,
         "size": args.size,
         "precision": args.precision,
         "defenses": list(arms),
+        "setup_seconds": t_setup,
         "incremental_injections": len(sites),
         "incremental_seconds": t_inc,
         "incremental_per_s": len(sites) / t_inc,
@@ -89,22 +84,75 @@ def main(argv=None):
         "speedup": (len(sites) / t_inc) / (len(full_sites) / t_full),
         "records_identical_on_common_sites": same,
     }
+    del eng
+    gc.collect()
+    return res
+
+
+def growth_exponent(ns, rates) -> float:
+    """Slope of log(cost per injection) against log N (NaN for fewer than two sizes)."""
+    if len(ns) < 2:
+        return float("nan")
+    return float(np.polyfit(np.log(np.asarray(ns, float)), -np.log(np.asarray(rates, float)), 1)[0])
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", default="spheres")
+    ap.add_argument("--n", type=int, nargs="+", default=[100_000], help="primitive counts, run back to back")
+    ap.add_argument("--views", type=int, default=4)
+    ap.add_argument("--size", default="128x128")
+    ap.add_argument("--precision", default="fp32")
+    ap.add_argument("--samples", type=int, default=512, help="injections timed on the incremental path")
+    ap.add_argument("--full-samples", type=int, default=48, help="injections timed with full re-rendering")
+    ap.add_argument("--defenses", default="none", help="comma-separated arms per injection, e.g. none,guard,ecc")
+    ap.add_argument("--json", type=Path)
+    args = ap.parse_args(argv)
+    try:
+        w, h = (int(v) for v in args.size.lower().split("x"))
+        arms = tuple(check_defense(d.strip()) for d in args.defenses.split(",") if d.strip()) or ("none",)
+    except ValueError as e:
+        ap.error(f"--size WxH (e.g. 128x128) and --defenses a comma-separated list: {e}")
+    if any(n <= 0 for n in args.n):
+        ap.error("--n takes positive primitive counts")
     from rich.console import Console
     from rich.table import Table
 
+    results = []
+    for n in args.n:
+        results.append(measure(args, n, arms))
+        r = results[-1]
+        print(f"N={n}: incremental {r['incremental_per_s']:.1f}/s, full {r['full_per_s']:.2f}/s", flush=True)
+    first = results[0]
     tab = Table(
-        title=f"campaign throughput: {args.scene} {args.n} primitives, K={args.views}, {args.size}, "
-        f"{args.precision}, arms {','.join(arms)} on {res['adapter']} ({res['backend']})"
+        title=f"campaign throughput: {args.scene}, K={args.views}, {args.size}, {args.precision}, "
+        f"arms {','.join(arms)} on {first['adapter']} ({first['backend']}), {time.strftime('%Y-%m-%d')}"
     )
-    for c in ("path", "injections", "seconds", "injections/s"):
+    for c in ("primitives", "set-up s", "incremental inj/s", "of the first", "full re-render inj/s", "ratio"):
         tab.add_column(c, justify="right")
-    tab.add_row("incremental", str(len(sites)), f"{t_inc:.2f}", f"{res['incremental_per_s']:.1f}")
-    tab.add_row("full re-render", str(len(full_sites)), f"{t_full:.2f}", f"{res['full_per_s']:.1f}")
-    tab.add_row("ratio", "", "", f"{res['speedup']:.1f}x")
+    for r in results:
+        tab.add_row(
+            f"{r['n']:,}",
+            f"{r['setup_seconds']:.1f}",
+            f"{r['incremental_per_s']:.1f}",
+            f"{r['incremental_per_s'] / first['incremental_per_s']:.2f}",
+            f"{r['full_per_s']:.2f}",
+            f"{r['speedup']:.1f}x",
+        )
     Console().print(tab)
-    print(f"records identical on the {len(full_sites)} common sites: {same}")
+    ns = [r["n"] for r in results]
+    exp_inc = growth_exponent(ns, [r["incremental_per_s"] for r in results])
+    exp_full = growth_exponent(ns, [r["full_per_s"] for r in results])
+    if len(ns) > 1:
+        print(f"growth exponent of an injection's cost against N: incremental {exp_inc:.2f}, full {exp_full:.2f}")
+    for r in results:
+        print(
+            f"records identical on the {r['full_injections']} common sites at N={r['n']}: "
+            f"{r['records_identical_on_common_sites']}"
+        )
     if args.json:
-        args.json.write_text(json.dumps(res, indent=1))
+        out = {"sizes": results, "growth_exponent": {"incremental": exp_inc, "full": exp_full}}
+        args.json.write_text(json.dumps(out, indent=1))
     return 0
 
 

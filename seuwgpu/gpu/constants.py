@@ -13,14 +13,11 @@ TILE = 16
 CHUNK = 32768
 """Pairs of a tile list composited by one workgroup (a multiple of the compositor's batch,
 TILE * TILE): a longer list is cut by list position into chunks composited in parallel and merged
-front to back (docs/renderer.md, "Long tile lists"). Why 32768: a variant that touches a tile of
-more than one chunk re-blends the whole tile (list positions shift), which cost campaigns 7x at
-4096 (spheres 100k, 4 views of 128x128: 63 vs 436 injections/s on lavapipe, 2026-11-25); below
-one chunk nothing changes; and no workgroup walks more than one chunk (full frames: one per
-workgroup; variants: one per dispatch), which keeps every walk under llvmpipe's silent limit of
-65,535 loop iterations per invocation (gallivm LP_MAX_TGSI_LOOP_ITERATIONS; about 1.2 iterations
-a pair, so lists past ~54k pairs came out wrong): do not raise it past that. A 65,856-pair tile
-(1M primitives at 256x256) still splits three ways.
+front to back (docs/renderer.md, "Long tile lists"). Why 32768: no workgroup walks more than one
+chunk (full frames: one per workgroup; variants: one per dispatch), which keeps every walk under
+llvmpipe's silent limit of 65,535 loop iterations per invocation (about 1.2 iterations a pair,
+so lists past ~54k pairs came out wrong: docs/renderer.md): do not raise it past that; and fewer
+chunks mean fewer chunk dispatches of the incremental re-compositor (docs/benchmarks.md).
 composite.wgsl's `CHUNK_PAIRS` override (default this) lets tests use small chunks."""
 
 GPU_CHUNK = 2048
@@ -29,8 +26,9 @@ tile's workgroup at once, so a frame lasts as long as its longest walk: 1M primi
 (K = 8) took 13.8 ms a view at 32768, 8.8 at 8192, 4.9 at 2048, 4.5 at 512 and 256; at 512x512
 5.8 / 6.3 / 4.2 / 4.2 / 4.4; 100k primitives moved under 15% (NVIDIA H200, tools/bench.py
 --chunks, 2026-11-26). 2048 is within 10% of the best there at a quarter of 512's slab memory.
-Campaigns keep CHUNK (faults/engine.py): a variant touching a tile of several chunks re-blends
-the whole tile, and 100k primitives ran 30,926 injections/s at 32768 against 8,950 at 2048."""
+Campaigns keep CHUNK (faults/engine.py): the incremental re-compositor runs one dispatch per chunk
+of the longest list (100k primitives ran 30,926 injections/s at 32768 against 8,950 at 2048, when
+a variant on a list of several chunks still re-blended the whole tile)."""
 
 PRECISION_CODE = {"fp32": 0, "fp16": 1, "bf16": 2}
 """Code of each stored precision in the shaders' uniforms (`FMT_FP32`, `FMT_FP16`, `FMT_BF16`)."""

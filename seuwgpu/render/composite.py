@@ -213,20 +213,11 @@ class VariantCompositing:
         # per entry, the tile-local box of the pixels whose rgb bits differ from the clean frame's
         self.changed = gpu.buffer(4 * self.max_entries, STORAGE, "variants.changed")
         self.changed_readback = Readback(gpu, 4 * self.max_entries, "variants.changed.readback")
+        self.entry_done = gpu.buffer(4 * self.max_entries, STORAGE, "variants.entry_done")
+        self.k_checkpoints = Kernel(gpu, "composite", "checkpoints", constants={**constants, "RECORD": 1})
 
-    def encode(self, encoder, entries: dict, kept: dict, variant: dict, clean_image, longest: int, **params):
-        """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}); `longest`:
-        the longest clean tile list (a variant's list holds at most one pair more).
-        kept: the clean frame's per-view `ranges`, `isect` and `box` (tile lists and the pairs'
-        pixel boxes, `capacity` apart), `stop` (per pixel, where each stopped in its list), `xy`,
-        `conic`, `rgb` (w = depth) of n_prims records per view; variant: the variants' `xy`,
-        `conic`, `rgb`, `rect` (n_variants per view); params: width, height, tiles_x, n_tiles,
-        n_prims, n_variants, capacity, background. Queue writes: one encode per submission."""
-        n_e = len(entries["tile"])
-        if n_e > self.max_entries:
-            raise ValueError(f"{n_e} entries > max_entries={self.max_entries}")
-        if n_e:
-            self.gpu.write(self.entries, self.entry.fill(self.entry.zeros(n_e), **entries))
+    def _write_params(self, n_e: int, longest: int, params: dict) -> int:
+        """The `Recomp` slots of the chunk dispatches (queue writes: one encode per submission)."""
         params["background"] = np.append(np.asarray(params["background"], np.float32), 0.0)
         passes = max(1, -(-(int(longest) + 1) // self.chunk))
         if passes > self.params.slots:
@@ -234,31 +225,78 @@ class VariantCompositing:
         self.params.struct.fill(self.params.rows[:passes], n_entries=n_e, **params)
         self.params.rows["chunk_pass"][:passes] = np.arange(passes)
         self.params.write()
+        return passes
+
+    def _write_entries(self, entries: dict) -> int:
+        n_e = len(entries["tile"])
+        if n_e > self.max_entries:
+            raise ValueError(f"{n_e} entries > max_entries={self.max_entries}")
+        if n_e:
+            self.gpu.write(self.entries, self.entry.fill(self.entry.zeros(n_e), **entries))
+        return n_e
+
+    def _kept_bindings(self, c: int, kept: dict) -> dict:
+        """What both entry points bind: dispatch c's parameters, the entries and their running
+        state, and the clean frame's kept buffers."""
+        return {
+            10: self.params.binding(c),
+            11: self.entries,
+            12: kept["ranges"],
+            13: kept["isect"],
+            14: kept["xy"],
+            15: kept["conic"],
+            16: kept["rgb"],
+            21: self.slabs,
+            23: kept["box"],
+            24: self.ended,
+            26: kept["stop"],
+            27: kept["ckpt_base"],
+            28: kept["ckpt_states"],
+        }
+
+    def encode(self, encoder, entries: dict, kept: dict, variant: dict, clean_image, longest: int, **params):
+        """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}); `longest`:
+        the longest clean tile list (a variant's list holds at most one pair more).
+        kept: the clean frame's per-view `ranges`, `isect` and `box` (tile lists and the pairs'
+        pixel boxes, `capacity` apart), `stop` (per pixel, its end in its list), `xy`, `conic`,
+        `rgb` (w = depth) of n_prims records per view, and its checkpoints (`ckpt_base`,
+        `ckpt_states`: encode_checkpoints); variant: the variants' `xy`, `conic`, `rgb`, `rect`
+        (n_variants per view); params: width, height, tiles_x, n_tiles, n_prims, n_variants,
+        capacity, background, ckpt_every. Queue writes: one encode per submission."""
+        n_e = self._write_entries(entries)
+        passes = self._write_params(n_e, longest, params)
         for c in range(passes if n_e else 0):
             self.kernel.dispatch(
                 encoder,
                 {
-                    10: self.params.binding(c),
-                    11: self.entries,
-                    12: kept["ranges"],
-                    13: kept["isect"],
-                    23: kept["box"],
-                    14: kept["xy"],
-                    15: kept["conic"],
-                    16: kept["rgb"],
+                    **self._kept_bindings(c, kept),
                     17: variant["xy"],
                     18: variant["conic"],
                     19: variant["rgb"],
                     20: variant["rect"],
-                    21: self.slabs,
                     22: clean_image,
-                    24: self.ended,
                     25: self.changed,
-                    26: kept["stop"],
+                    29: self.entry_done,
                 },
                 workgroups=n_e,
             )
         self.changed_readback.encode(encoder, self.changed, 0, 4 * n_e)
+
+    def encode_checkpoints(self, encoder, entries: dict, kept: dict, longest: int, **params):
+        """Record the checkpoint pass (composite.wgsl:checkpoints) over `entries` ({view, tile}):
+        the pixels' state at every `ckpt_every` positions of those tiles' clean lists into
+        kept["ckpt_states"] (slots from kept["ckpt_base"]) and each pixel's end into kept["stop"].
+        Same kept buffers and params as `encode`. Queue writes: one encode per submission."""
+        n = len(entries["tile"])
+        entries = {"variant": np.zeros(n, np.int64), "prim": np.zeros(n, np.int64), **entries}
+        n_e = self._write_entries(entries)
+        passes = self._write_params(n_e, max(int(longest) - 1, 0), params)
+        for c in range(passes if n_e else 0):
+            self.k_checkpoints.dispatch(
+                encoder,
+                self._kept_bindings(c, kept),
+                workgroups=n_e,
+            )
 
     def read_changed(self, n: int) -> np.ndarray:
         """[n, 4] int (x0, x1, y0, y1, inclusive, tile-local) of the last submitted encode: the box
@@ -303,6 +341,29 @@ def default_chunk(gpu: GPU) -> int:
     return CHUNK if gpu.is_cpu else GPU_CHUNK
 
 
+def walk_round(chunk: int) -> int:
+    """List positions per round of composite.wgsl's walk_list: 1024 (ROUND_MAX) where it divides
+    the chunk, else 512, else one batch (TILE * TILE)."""
+    chunk = check_chunk(chunk)
+    return next(r for r in (4 * TILE_PIXELS, 2 * TILE_PIXELS, TILE_PIXELS) if chunk % r == 0)
+
+
+CHECKPOINT_EVERY = 4096
+"""List positions between the checkpoints of a kept clean frame (render/incremental.py): a
+variant's walk starts at most this far before its change. Less is faster and takes more memory
+(a TILE x TILE vec4 state, 4 KiB, per checkpoint)."""
+
+
+def checkpoint_every(chunk: int, want: int = CHECKPOINT_EVERY) -> int:
+    """The checkpoint interval nearest `want` that the walk allows: a multiple of its round that
+    divides the chunk."""
+    chunk, r = check_chunk(chunk), walk_round(chunk)
+    every = min(chunk, max(r, int(want) // r * r))
+    while chunk % every:
+        every -= r
+    return every
+
+
 def check_chunk(chunk) -> int:
     """Pairs per compositing chunk: a positive multiple of the batch (TILE * TILE records)."""
     c = int(chunk)
@@ -311,15 +372,16 @@ def check_chunk(chunk) -> int:
     return c
 
 
-def blend_chunk(ids, pxs, pys, mx, my, conic, opac, rgb, block0=32, block_max=512, profile="strict"):
+def blend_chunk(ids, pxs, pys, mx, my, conic, opac, rgb, block0=32, block_max=512, profile="strict", where=False):
     """The per-pixel rule over the list `ids` from C = 0, T = 1 at pixel centres (pxs, pys) [P]:
     (C [P, 3], T [P], stopped [P]: the pixel stopped early), vectorised over pixels and blocks of
-    primitives."""
+    primitives. `where`: also the position in `ids` of the record each pixel stopped at (-1)."""
     nan_alpha = F(np.nan) if profile == "strict" else ALPHA_MAX
     P = pxs.shape[0]
     T = np.ones(P, dtype=F)
     C = np.zeros((P, 3), dtype=F)
     stopped = np.zeros(P, dtype=bool)
+    stop_at = np.full(P, -1, np.int64)
     active = np.arange(P)  # pixels not yet stopped
     pos, L, B = 0, len(ids), block0
     with np.errstate(all="ignore"):
@@ -350,9 +412,10 @@ def blend_chunk(ids, pxs, pys, mx, my, conic, opac, rgb, block0=32, block_max=51
             C[active] = Cc[first, cols]
             T[active] = Tc[first, cols]
             stopped[active[any_stop]] = True
+            stop_at[active[any_stop]] = pos - nb + first[any_stop]
             active = active[~any_stop]
             B = min(2 * B, block_max)
-    return C, T, stopped
+    return (C, T, stopped, stop_at) if where else (C, T, stopped)
 
 
 def merge_chunk(C, T, ended, c, t, stopped):

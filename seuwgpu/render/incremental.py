@@ -18,23 +18,39 @@ from __future__ import annotations
 import numpy as np
 
 from seuwgpu.gpu.constants import TILE
-from seuwgpu.gpu.device import Readback
+from seuwgpu.gpu.device import STORAGE, Readback
 from seuwgpu.model.fields import StoredLayout
-from seuwgpu.render.composite import VariantCompositing
+from seuwgpu.render.composite import (
+    CHECKPOINT_EVERY,
+    SLAB_BYTES,
+    VariantCompositing,
+    blend_chunk,
+    check_chunk,
+    checkpoint_every,
+    merge_chunk,
+)
 from seuwgpu.render.project import Projection, unpack_rects
 from seuwgpu.render.regions import region_edges
 
 
 class CleanViews:
-    """A keep_views renderer's clean per-view tile rectangles (host, [K, N, 4] x0, y0, x1, y1) and
-    its longest clean tile list, read back once per set of kept buffers (the renderer's `version`)
-    and shared by every compositor re-compositing against them (faults/incremental.py: one per
-    batch in flight; at 1M primitives and K = 4 the rectangles take 128 MB of host memory)."""
+    """A keep_views renderer's clean per-view state that every compositor re-compositing against
+    it shares (faults/incremental.py: one per batch in flight), renewed once per set of kept
+    buffers (the renderer's `version`): the tile rectangles (host, [K, N, 4] x0, y0, x1, y1; at 1M
+    primitives and K = 4 they take 128 MB of host memory), the longest clean tile list, and the
+    checkpoints. The checkpoint pass (composite.wgsl:checkpoints, one frame's worth of
+    compositing) keeps each pixel's state every `every` positions of every longer tile list and
+    each pixel's end (the last position its value depends on) in the renderer's kv_stop, so a
+    variant's walk starts at most `every` positions before its change and stops where its pixels
+    end: an upset costs its footprint, not the length of the lists (docs/renderer.md)."""
 
-    def __init__(self, renderer):
+    def __init__(self, renderer, every: int | None = None):
         if not renderer.keep_views:
             raise ValueError("the renderer must keep its per-view state (keep_views=True)")
         self.r, self.version = renderer, None
+        self.want_every = CHECKPOINT_EVERY if every is None else int(every)
+        self.ckpt_states = None
+        self.pass_ = None
         self.ensure_current()
 
     def ensure_current(self):
@@ -44,8 +60,77 @@ class CleanViews:
         rects = g.read(r.kv_rect, np.uint32, 0, 8 * r.n * r.k).reshape(r.k, r.n, 2)
         self.rects = unpack_rects(rects)
         ranges = g.read(r.kv_ranges, np.uint32, 0, 8 * r.n_tiles * r.k).reshape(-1, 2).astype(np.int64)
-        self.longest_list = int((ranges[:, 1] - ranges[:, 0]).max(initial=0))  # chunk dispatches
+        lengths = ranges[:, 1] - ranges[:, 0]
+        self.longest_list = int(lengths.max(initial=0))  # chunk dispatches
+        self._checkpoint(lengths)
         self.version = r.version
+
+    def _checkpoint(self, lengths: np.ndarray):
+        """Lay out the checkpoints of the clean lists (`lengths` per view and tile) and run the pass."""
+        r, g = self.r, self.r.gpu
+        chunk = r.compositing.chunk
+        every = checkpoint_every(chunk, self.want_every)
+        while True:  # the states in one binding: sparser checkpoints on huge frames
+            counts = np.where(lengths > 0, (lengths - 1) // every, 0)
+            if int(counts.sum()) * SLAB_BYTES <= g.max_binding or every == chunk:
+                break
+            every = checkpoint_every(chunk, 2 * every)
+        self.every = every
+        base = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.uint32)
+        self.slots = int(counts.sum())
+        self.ckpt_base = g.upload(base, STORAGE, "ckpt_base")
+        need = max(1, self.slots) * SLAB_BYTES
+        if self.ckpt_states is None or self.ckpt_states.size < need:
+            self.ckpt_states = None  # release the old states first
+            self.ckpt_states = g.buffer(need, STORAGE, "ckpt_states")
+        listed = np.flatnonzero(lengths > every)  # tiles with a checkpoint (every list of several chunks)
+        if not listed.size:
+            return
+        if self.pass_ is None:
+            self.pass_ = VariantCompositing(g, 2048, r.profile, chunk, r.binning.exact)
+        view, tile = np.divmod(listed, r.n_tiles)
+        for a in range(0, listed.size, self.pass_.max_entries):
+            sl = slice(a, a + self.pass_.max_entries)
+            enc = g.device.create_command_encoder()
+            self.pass_.encode_checkpoints(
+                enc,
+                {"view": view[sl], "tile": tile[sl]},
+                self.kept,
+                int(lengths[listed[sl]].max()),
+                **self.params(n_variants=1),
+            )
+            g.submit(enc)
+
+    @property
+    def kept(self) -> dict:
+        """The kept buffers as composite.py's VariantCompositing binds them."""
+        r = self.r
+        return {
+            "ranges": r.kv_ranges,
+            "isect": r.kv_isect,
+            "box": r.kv_box,
+            "stop": r.kv_stop,
+            "xy": r.kv_xy,
+            "conic": r.kv_conic,
+            "rgb": r.kv_rgb,
+            "ckpt_base": self.ckpt_base,
+            "ckpt_states": self.ckpt_states,
+        }
+
+    def params(self, n_variants: int) -> dict:
+        """The `Recomp` parameters of a re-compositing against these views."""
+        r = self.r
+        return {
+            "width": r.width,
+            "height": r.height,
+            "tiles_x": r.tiles_x,
+            "n_tiles": r.n_tiles,
+            "n_prims": r.n,
+            "n_variants": n_variants,
+            "capacity": r.capacity,
+            "background": r.background,
+            "ckpt_every": self.every,
+        }
 
 
 class IncrementalCompositor:
@@ -162,7 +247,7 @@ class IncrementalCompositor:
         """Record the re-compositing of the dirty tiles of variants `first .. first + m - 1` (their
         projected records sit at those indices) into the slabs; writes the tile map
         ([m, K, T] int32, slab index or -1). Returns (tile_map, variant, view, tile) per slab."""
-        r, p = self.r, self.projection
+        p = self.projection
         b_idx, v_idx, t_idx = np.nonzero(dirty)
         tile_map = np.full(dirty.shape, -1, dtype=np.int32)
         tile_map[b_idx, v_idx, t_idx] = np.arange(b_idx.size, dtype=np.int32)
@@ -170,26 +255,11 @@ class IncrementalCompositor:
         self.compositing.encode(
             encoder,
             {"variant": b_idx + first, "view": v_idx, "tile": t_idx, "prim": prims[b_idx]},
-            kept={
-                "ranges": r.kv_ranges,
-                "isect": r.kv_isect,
-                "box": r.kv_box,
-                "stop": r.kv_stop,
-                "xy": r.kv_xy,
-                "conic": r.kv_conic,
-                "rgb": r.kv_rgb,
-            },
+            kept=self.clean.kept,
             variant={"xy": p.xy, "conic": p.conic, "rgb": p.rgb, "rect": p.rect},
             clean_image=self.clean_buf,
             longest=self.longest_list,
-            width=r.width,
-            height=r.height,
-            tiles_x=r.tiles_x,
-            n_tiles=r.n_tiles,
-            n_prims=r.n,
-            n_variants=self.B,
-            capacity=r.capacity,
-            background=r.background,
+            **self.clean.params(n_variants=self.B),
         )
         return tile_map, b_idx, v_idx, t_idx
 
@@ -217,3 +287,31 @@ class IncrementalCompositor:
         hit = (hit_y[..., :, None] & hit_x[..., None, :] & nonempty[..., None, None]).any(axis=0)  # [M, rows, cols]
         weights = np.left_shift(np.uint64(1), np.arange(rows * cols, dtype=np.uint64))
         return (hit.reshape(hit.shape[0], -1).astype(np.uint64) * weights).sum(axis=1).view(np.int64)
+
+
+# ---- numpy twin ---------------------------------------------------------------------------------
+def tile_checkpoints(ids, pxs, pys, mx, my, conic, opac, rgb, chunk: int, every: int, profile: str = "strict"):
+    """Twin of composite.wgsl:checkpoints for one tile list `ids` at pixel centres (pxs, pys) [P]
+    (records as composite.py's composite_tile takes them): ({position: (C [P, 3], T [P])} at every
+    checkpoint position (at a chunk's first position the chunks before it merged, elsewhere the
+    chunk's own walk so far), ends [P] (the last position each pixel's value depends on, -1 for
+    never)). Only a pixel alive at a position (its end at or past it) reads that checkpoint."""
+    chunk = check_chunk(chunk)
+    n, P = len(ids), len(pxs)
+    kw = {"profile": profile}
+    states, ends = {}, np.full(P, -1, np.int64)
+    C, T, ended = np.zeros((P, 3), np.float32), np.ones(P, np.float32), np.zeros(P, bool)
+    for c0 in range(0, n, chunk):
+        if c0:
+            states[c0] = (C.copy(), T.copy())
+        for s in range(c0 + every, min(n, c0 + chunk), every):
+            states[s] = blend_chunk(ids[c0:s], pxs, pys, mx, my, conic, opac, rgb, **kw)[:2]
+        c, t, stopped, at = blend_chunk(ids[c0 : c0 + chunk], pxs, pys, mx, my, conic, opac, rgb, where=True, **kw)
+        before = ended.copy()
+        if c0 == 0:
+            C, T, ended = c, t, stopped.copy()
+        else:
+            merge_chunk(C, T, ended, c, t, stopped)
+        now = ended & ~before
+        ends[now] = np.where(stopped[now], c0 + at[now], min(n, c0 + chunk) - 1)
+    return states, ends
