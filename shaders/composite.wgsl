@@ -415,8 +415,10 @@ struct VariantEntry {
 @group(0) @binding(24) var<storage, read_write> variant_ended: array<u32>;  // between chunk dispatches
 @group(0) @binding(25) var<storage, read_write> slab_changed: array<u32>;  // box of the pixels that differ from clean
 // Clean frame: per pixel, the last list position its value depends on (its end: where it stopped,
-// the last position of the chunk whose merge ended it, or NEVER). main writes the stops of lists
-// of one chunk; the checkpoint pass writes every listed tile's (render/incremental.py).
+// or the last position of the chunk whose merge ended it), or for a pixel that never ends OPEN |
+// (1 + the last position of a record that reaches it; 0: none does). main writes the stops of
+// lists of one chunk (NEVER where none: read as open, reached anywhere); the checkpoint pass
+// writes every listed tile's (render/incremental.py).
 @group(0) @binding(26) var<storage, read_write> kv_stop: array<u32>;
 // Clean frame's checkpoints: the pixels' state (rgb, T) at list positions j * ckpt_every,
 // 0 < j * ckpt_every < n: at a chunk's first position the merged state of the chunks before it,
@@ -430,6 +432,13 @@ var<workgroup> s_changed: array<atomic<u32>, 4>;  // min col, max col, min row, 
 @group(0) @binding(23) var<storage, read> kv_box: array<u32>;              // pixel box per kept pair
 
 const NONE: u32 = 0xffffffffu;
+const OPEN: u32 = 0x80000000u;
+
+// Whether clean list position x is at or before the pixels' ends (kv_stop, above): for a pixel
+// that never ends, whether a record at x can still reach it.
+fn within(x: vec4<u32>, stop: vec4<u32>) -> vec4<bool> {
+    return select(x <= stop, x < (stop & vec4<u32>(~OPEN)), (stop & vec4<u32>(OPEN)) != vec4<u32>(0u));
+}
 // The checkpoint pass's pipeline (a constant there: CPU Vulkan would run both sides of a branch).
 override RECORD: bool = false;
 
@@ -609,16 +618,26 @@ fn reset_active() {
 }
 
 // blend_batch over the m staged records of a round, noting in `stops` the list position (the
-// round's listed entry sb + k) of the record each pixel stopped at.
-fn blend_batch_stops(p: ptr<function, Pixels>, col: u32, row0: u32, m: u32, sb: u32, stops: ptr<function, Stops>) {
+// round's listed entry sb + k) of the record each pixel stopped at, and in `last` 1 + that of
+// the last record that reached it.
+fn blend_batch_stops(p: ptr<function, Pixels>, col: u32, row0: u32, m: u32, sb: u32, stops: ptr<function, Stops>,
+                     last: ptr<function, Stops>) {
     if (all_pixels_done(p)) {
         return;
     }
     for (var k = 0u; k < m; k = k + 1u) {
         let done0 = (*p).q[0].done;
         let done1 = (*p).q[1].done;
-        let finished = blend_record(p, col, row0, k);
         let at = vec4<u32>(s_kept_entry[sb + k]);
+        let bx = s_box[k];
+        if (col >= (bx & 0xffu) && col <= ((bx >> 8u) & 0xffu) && row0 + SPAN - 1u >= ((bx >> 16u) & 0xffu)
+            && row0 <= bx >> 24u) {
+            let st = s_pos[k];
+            let co = s_conic[k];
+            (*last)[0] = select((*last)[0], at + 1u, contributes(st.xy, co, (*p).q[0]) & !done0);  // QPI = 2
+            (*last)[1] = select((*last)[1], at + 1u, contributes(st.xy, co, (*p).q[1]) & !done1);
+        }
+        let finished = blend_record(p, col, row0, k);
         (*stops)[0] = select((*stops)[0], at, (*p).q[0].done & !done0);  // QPI = 2
         (*stops)[1] = select((*stops)[1], at, (*p).q[1].done & !done1);
         if (finished) {
@@ -647,11 +666,13 @@ struct Walk {
 // order (an exclusive scan of the per-invocation counts), then staged and blended BATCH at a time,
 // so the blend loop never visits the others. Listing before reading the records, and rounds of
 // many entries, matter on CPU Vulkan, where a branch never skips code and a barrier costs
-// microseconds. RECORD (the checkpoint pass): `stops` receives where each pixel stopped, and
-// each round that ends on a checkpoint position inside [from, hi) keeps the pixels' state at
-// slot ckpt0 + position / ckpt_every - 1.
-fn walk_list(p: ptr<function, Pixels>, li: u32, col: u32, row0: u32, start: u32, hi: u32, live: u32, w: Walk,
-             stops: ptr<function, Stops>, ckpt0: u32) {
+// microseconds. A pixel ends at the first round that starts at or past its `limit` (past the
+// last record that can reach it; NONE: no limit). RECORD (the checkpoint pass): `stops` receives
+// where each pixel stopped, `last` 1 + where a record last reached it, and each round that ends
+// on a checkpoint position inside [start, hi) keeps the pixels' state at slot
+// ckpt0 + position / ckpt_every - 1.
+fn walk_list(p: ptr<function, Pixels>, li: u32, col: u32, row0: u32, start: u32, hi: u32, live0: u32, w: Walk,
+             limit: Stops, stops: ptr<function, Stops>, last: ptr<function, Stops>, ckpt0: u32) {
     var round = BATCH;
     if (CHUNK_PAIRS % ROUND_MAX == 0u) {
         round = ROUND_MAX;
@@ -659,6 +680,7 @@ fn walk_list(p: ptr<function, Pixels>, li: u32, col: u32, row0: u32, start: u32,
         round = 2u * BATCH;
     }
     let per_lane = round / LANES;
+    var live = live0;
     var rounds = (hi - min(start, hi) + round - 1u) / round;
     if (workgroupUniformLoad(&s_done) == LANES) {
         rounds = 0u;  // no pixel left to blend: copied from the clean frame, or ended before
@@ -666,6 +688,25 @@ fn walk_list(p: ptr<function, Pixels>, li: u32, col: u32, row0: u32, start: u32,
     var ended = false;
     for (var rd = 0u; rd < rounds && !ended; rd = rd + 1u) {
         let first = start + rd * round;
+        if (!RECORD && rd > 0u) {
+            // pixels past every record that can reach them: ended
+            let was = all_pixels_done(p);
+            for (var j = 0u; j < QPI; j = j + 1u) {
+                (*p).q[j].done = (*p).q[j].done | (limit[j] <= vec4<u32>(first));
+            }
+            if (!was && all_pixels_done(p)) {
+                atomicAdd(&s_done, 1u);
+            }
+            if (all_done(li)) {
+                break;
+            }
+            // the box of the pixels still to blend shrinks as they end
+            if (li == 0u) {
+                reset_active();
+            }
+            workgroupBarrier();
+            live = live_box(p, col, row0);
+        }
         var kept_bits = 0u;
         for (var s = 0u; s < per_lane; s = s + 1u) {
             let i = first + li * per_lane + s;
@@ -699,7 +740,7 @@ fn walk_list(p: ptr<function, Pixels>, li: u32, col: u32, row0: u32, start: u32,
             }
             workgroupBarrier();
             if (RECORD) {
-                blend_batch_stops(p, col, row0, mb, sb, stops);
+                blend_batch_stops(p, col, row0, mb, sb, stops, last);
             } else {
                 blend_batch(p, col, row0, mb);
             }
@@ -864,6 +905,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     // primitives then re-blend nothing.
     let o = v * rc.n_prims + prim;
     var copy_clean: array<vec4<bool>, QPI>;
+    var limit: Stops;
     let x_stop = min(tile0.x + lid.x, rc.width - 1u);
     for (var j = 0u; j < QPI; j = j + 1u) {
         var stop: vec4<u32>;
@@ -877,16 +919,23 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
                 odd[i] = any((px & vec4<u32>(0x7f800000u)) == vec4<u32>(0x7f800000u));
             }
         }
-        let alive = vec4<bool>(a != NONE) & (vec4<u32>(a) <= stop);
+        let open = (stop & vec4<u32>(OPEN)) != vec4<u32>(0u);
+        let alive = vec4<bool>(a != NONE) & within(vec4<u32>(a), stop);
         let old_hits = contributes(kv_xy[o], kv_conic[o], p.q[j]) & vec4<bool>(removed != NONE);
         let new_hits = contributes(var_xy[vi], var_conic[vi], p.q[j]) & vec4<bool>(insert != NONE);
-        var reached = (old_hits & (vec4<u32>(removed) <= stop)) | (new_hits & (vec4<u32>(insert_at) <= stop));
+        let new_reaches = new_hits & (within(vec4<u32>(insert_at), stop) | open);
+        let reached = (old_hits & within(vec4<u32>(removed), stop)) | new_reaches;
         var moved = odd & vec4<bool>(cross.x < cross.y);
         for (var i = cross.x; i < cross.y; i = i + CHUNK_PAIRS) {
             let og = v * rc.n_prims + kv_isect[v * rc.capacity + range.x + i];
-            moved = moved | (contributes(kv_xy[og], kv_conic[og], p.q[j]) & (vec4<u32>(i - 1u) <= stop));
+            moved = moved | (contributes(kv_xy[og], kv_conic[og], p.q[j]) & within(vec4<u32>(i - 1u), stop));
         }
         copy_clean[j] = !p.q[j].done & !(reached | (alive & moved));
+        // a pixel that never ends is done past the last record that can reach it: the clean
+        // list's last (its position in the variant's list at most one further), or the new one
+        let last_clean = (stop & vec4<u32>(~OPEN)) + 1u;
+        let last_new = select(vec4<u32>(0u), vec4<u32>(insert + 1u), new_hits);
+        limit[j] = select(vec4<u32>(NONE), max(last_clean, last_new), open);
         p.q[j].done = p.q[j].done | copy_clean[j];
     }
     count_if_done(&p);
@@ -919,7 +968,8 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let insert_box = box_of(var_xy[vi], var_conic[vi], cut_of(var_conic[vi].w), origin);
     let w = Walk(v, range.x, insert, removed, var_xy[vi], var_conic[vi], var_rgb[vi], insert_box);
     var no_record = no_stops();
-    walk_list(&p, li, lid.x, row0, start, min(nv, (c + 1u) * CHUNK_PAIRS), live, w, &no_record, 0u);
+    var no_last = no_stops();
+    walk_list(&p, li, lid.x, row0, start, min(nv, (c + 1u) * CHUNK_PAIRS), live, w, limit, &no_record, &no_last, 0u);
     if (multi) {
         merge_pixels(&acc, &p, c == 0u);
         p = acc;
@@ -1006,16 +1056,18 @@ fn checkpoints(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nw
     let hi = min(n, start + CHUNK_PAIRS);
     let slot0 = ckpt_base[v * rc.n_tiles + tile];
     var stops = no_stops();
+    var last = Stops(vec4<u32>(0u), vec4<u32>(0u));
     let w = Walk(v, range.x, NONE, NONE, vec2<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0), EMPTY_BOX);
-    walk_list(&p, li, lid.x, row0, start, hi, live, w, &stops, slot0);
+    walk_list(&p, li, lid.x, row0, start, hi, live, w, no_stops(), &stops, &last, slot0);
     merge_pixels(&acc, &p, c == 0u);
     let x = tile0.x + lid.x;
     for (var j = 0u; j < QPI; j = j + 1u) {
         for (var i = 0u; i < QUAD; i = i + 1u) {
             let y = tile0.y + row0 + QUAD * j + i;
             let now = acc.q[j].done[i] && !ended_before[j][i];
-            if (x < rc.width && y < rc.height && (now || (c + 1u == n_chunks && !acc.q[j].done[i]))) {
-                var end = NEVER;
+            let open = !acc.q[j].done[i] && (c == 0u || last[j][i] != 0u);  // (1 + the last reaching record)
+            if (x < rc.width && y < rc.height && (now || open)) {
+                var end = OPEN | last[j][i];
                 if (now) {
                     end = select(hi - 1u, stops[j][i], p.q[j].done[i] && stops[j][i] != NEVER);
                 }

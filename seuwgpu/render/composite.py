@@ -348,7 +348,7 @@ def walk_round(chunk: int) -> int:
     return next(r for r in (4 * TILE_PIXELS, 2 * TILE_PIXELS, TILE_PIXELS) if chunk % r == 0)
 
 
-CHECKPOINT_EVERY = 4096
+CHECKPOINT_EVERY = 1024
 """List positions between the checkpoints of a kept clean frame (render/incremental.py): a
 variant's walk starts at most this far before its change. Less is faster and takes more memory
 (a TILE x TILE vec4 state, 4 KiB, per checkpoint)."""
@@ -375,13 +375,15 @@ def check_chunk(chunk) -> int:
 def blend_chunk(ids, pxs, pys, mx, my, conic, opac, rgb, block0=32, block_max=512, profile="strict", where=False):
     """The per-pixel rule over the list `ids` from C = 0, T = 1 at pixel centres (pxs, pys) [P]:
     (C [P, 3], T [P], stopped [P]: the pixel stopped early), vectorised over pixels and blocks of
-    primitives. `where`: also the position in `ids` of the record each pixel stopped at (-1)."""
+    primitives. `where`: also the position in `ids` of the record each pixel stopped at, and of
+    the last record blended into it (-1 for none)."""
     nan_alpha = F(np.nan) if profile == "strict" else ALPHA_MAX
     P = pxs.shape[0]
     T = np.ones(P, dtype=F)
     C = np.zeros((P, 3), dtype=F)
     stopped = np.zeros(P, dtype=bool)
     stop_at = np.full(P, -1, np.int64)
+    last_at = np.full(P, -1, np.int64)
     active = np.arange(P)  # pixels not yet stopped
     pos, L, B = 0, len(ids), block0
     with np.errstate(all="ignore"):
@@ -413,9 +415,11 @@ def blend_chunk(ids, pxs, pys, mx, my, conic, opac, rgb, block0=32, block_max=51
             T[active] = Tc[first, cols]
             stopped[active[any_stop]] = True
             stop_at[active[any_stop]] = pos - nb + first[any_stop]
+            took = include.any(axis=0)
+            last_at[active[took]] = pos - 1 - np.argmax(include[::-1], axis=0)[took]
             active = active[~any_stop]
             B = min(2 * B, block_max)
-    return (C, T, stopped, stop_at) if where else (C, T, stopped)
+    return (C, T, stopped, stop_at, last_at) if where else (C, T, stopped)
 
 
 def merge_chunk(C, T, ended, c, t, stopped):

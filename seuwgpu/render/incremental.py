@@ -32,6 +32,9 @@ from seuwgpu.render.composite import (
 from seuwgpu.render.project import Projection, unpack_rects
 from seuwgpu.render.regions import region_edges
 
+OPEN = 0x80000000
+"""kv_stop's flag of a pixel that never ends (composite.wgsl `within`)."""
+
 
 class CleanViews:
     """A keep_views renderer's clean per-view state that every compositor re-compositing against
@@ -83,7 +86,7 @@ class CleanViews:
         if self.ckpt_states is None or self.ckpt_states.size < need:
             self.ckpt_states = None  # release the old states first
             self.ckpt_states = g.buffer(need, STORAGE, "ckpt_states")
-        listed = np.flatnonzero(lengths > every)  # tiles with a checkpoint (every list of several chunks)
+        listed = np.flatnonzero(lengths > 0)  # every listed tile: its pixels' ends
         if not listed.size:
             return
         if self.pass_ is None:
@@ -294,19 +297,23 @@ def tile_checkpoints(ids, pxs, pys, mx, my, conic, opac, rgb, chunk: int, every:
     """Twin of composite.wgsl:checkpoints for one tile list `ids` at pixel centres (pxs, pys) [P]
     (records as composite.py's composite_tile takes them): ({position: (C [P, 3], T [P])} at every
     checkpoint position (at a chunk's first position the chunks before it merged, elsewhere the
-    chunk's own walk so far), ends [P] (the last position each pixel's value depends on, -1 for
-    never)). Only a pixel alive at a position (its end at or past it) reads that checkpoint."""
+    chunk's own walk so far), ends [P] as kv_stop holds them (the last position each pixel's value
+    depends on; for a pixel that never ends OPEN | (1 + the last position of a record blended into
+    it, 0 for none))). Only a pixel alive at a position reads that checkpoint."""
     chunk = check_chunk(chunk)
     n, P = len(ids), len(pxs)
     kw = {"profile": profile}
-    states, ends = {}, np.full(P, -1, np.int64)
+    states, ends, last = {}, np.full(P, -1, np.int64), np.full(P, -1, np.int64)
     C, T, ended = np.zeros((P, 3), np.float32), np.ones(P, np.float32), np.zeros(P, bool)
     for c0 in range(0, n, chunk):
         if c0:
             states[c0] = (C.copy(), T.copy())
         for s in range(c0 + every, min(n, c0 + chunk), every):
             states[s] = blend_chunk(ids[c0:s], pxs, pys, mx, my, conic, opac, rgb, **kw)[:2]
-        c, t, stopped, at = blend_chunk(ids[c0 : c0 + chunk], pxs, pys, mx, my, conic, opac, rgb, where=True, **kw)
+        c, t, stopped, at, took = blend_chunk(
+            ids[c0 : c0 + chunk], pxs, pys, mx, my, conic, opac, rgb, where=True, **kw
+        )
+        last = np.where(~ended & (took >= 0), c0 + took, last)
         before = ended.copy()
         if c0 == 0:
             C, T, ended = c, t, stopped.copy()
@@ -314,4 +321,5 @@ def tile_checkpoints(ids, pxs, pys, mx, my, conic, opac, rgb, chunk: int, every:
             merge_chunk(C, T, ended, c, t, stopped)
         now = ended & ~before
         ends[now] = np.where(stopped[now], c0 + at[now], min(n, c0 + chunk) - 1)
+    ends[~ended] = OPEN | (last[~ended] + 1)
     return states, ends
