@@ -426,7 +426,15 @@ struct VariantEntry {
 // ckpt_base[v * n_tiles + t] + j - 1 (TILE_PIXELS vec4 each).
 @group(0) @binding(27) var<storage, read> ckpt_base: array<u32>;
 @group(0) @binding(28) var<storage, read_write> ckpt_states: array<vec4<f32>>;
-@group(0) @binding(29) var<storage, read_write> entry_done: array<u32>;  // 1 once an entry wrote its pixels
+// Per entry, the chunk of its list its next pass walks (FINISHED once it wrote its pixels).
+@group(0) @binding(29) var<storage, read_write> entry_next: array<u32>;
+const FINISHED: u32 = 0xffffffffu;
+// Clean frame: each later chunk's own result (c.rgb, t; t negated where the chunk stopped early)
+// per pixel, for the chunks 1 .. of every list of several chunks, chunk j of tile t of view v at
+// slot chunk_base[v * n_tiles + t] + j - 1: a variant merges them where its change leaves a
+// chunk's records the same for a pixel, instead of walking it again.
+@group(0) @binding(36) var<storage, read> chunk_base: array<u32>;
+@group(0) @binding(37) var<storage, read_write> chunk_states: array<vec4<f32>>;
 var<workgroup> s_changed: array<atomic<u32>, 4>;  // min col, max col, min row, max row
 @group(0) @binding(22) var<storage, read> clean_image: array<vec4<f32>>;  // [K, H, W]
 @group(0) @binding(23) var<storage, read> kv_box: array<u32>;              // pixel box per kept pair
@@ -492,7 +500,8 @@ var<workgroup> s_list: vec4<u32>;
 var<workgroup> s_insert_at: u32;  // the corrupted record's place in the clean list (before that entry)
 // (first position where the lists differ or NONE, the checkpoint the walk resumes from, 0, 0)
 var<workgroup> s_walk: vec4<u32>;
-var<workgroup> s_status: u32;  // 1: the entry wrote its pixels in an earlier pass
+var<workgroup> s_status: u32;  // the chunk this pass walks, or FINISHED
+var<workgroup> s_need: atomic<u32>;  // some pixel must walk the chunk being decided
 // Clean positions of the records that the change moves across a chunk boundary: first, end
 // (exclusive), every CHUNK_PAIRS (none when first >= end).
 var<workgroup> s_cross: vec2<u32>;
@@ -756,6 +765,50 @@ fn walk_list(p: ptr<function, Pixels>, li: u32, col: u32, row0: u32, start: u32,
     }
 }
 
+fn chunk_bit(j: u32) -> u32 {
+    return 1u << min(j, 31u);
+}
+
+// Whether a pixel must walk chunk j again: its records there change (walks: chunk_bit), or the
+// clean frame has no result of that chunk for it (it had ended before; a closed end below jC).
+fn must_walk(walks: vec4<u32>, stop: vec4<u32>, j: u32) -> vec4<bool> {
+    let bit = vec4<u32>(chunk_bit(j));
+    let from31 = vec4<bool>(j >= 31u) & (walks >= vec4<u32>(0x80000000u));
+    let ended = ((stop & vec4<u32>(OPEN)) == vec4<u32>(0u)) & (stop < vec4<u32>(j * CHUNK_PAIRS));
+    return ((walks & bit) != vec4<u32>(0u)) | from31 | ended;
+}
+
+// p with the `take` lanes replaced by chunk j's clean result (c, t, stopped; a chunk past the
+// clean list's last holds none of the lanes' records: c = 0, t = 1).
+fn take_clean_chunk(p0: Pixels, take: array<vec4<bool>, QPI>, slot0: u32, j: u32, clean_chunks: u32, col: u32,
+                    row0: u32) -> Pixels {
+    var p = p0;
+    if (j == 0u || j >= clean_chunks) {
+        for (var q = 0u; q < QPI; q = q + 1u) {
+            p.q[q].r = select(p.q[q].r, vec4<f32>(0.0), take[q]);
+            p.q[q].g = select(p.q[q].g, vec4<f32>(0.0), take[q]);
+            p.q[q].b = select(p.q[q].b, vec4<f32>(0.0), take[q]);
+            p.q[q].T = select(p.q[q].T, vec4<f32>(1.0), take[q]);
+            p.q[q].done = select(p.q[q].done, vec4<bool>(false), take[q]);
+        }
+        return p;
+    }
+    let slot = slot0 + j - 1u;
+    for (var q = 0u; q < QPI; q = q + 1u) {
+        for (var i = 0u; i < QUAD; i = i + 1u) {
+            if (take[q][i]) {
+                let st = chunk_states[slot * TILE_PIXELS + (row0 + QUAD * q + i) * TILE + col];
+                p.q[q].r[i] = st.x;
+                p.q[q].g[i] = st.y;
+                p.q[q].b[i] = st.z;
+                p.q[q].T[i] = abs(st.w);
+                p.q[q].done[i] = st.w < 0.0;
+            }
+        }
+    }
+    return p;
+}
+
 // Recount s_done over the invocations' pixels (after a merge): true, uniformly, when all are done.
 fn all_pixels_finished(p: ptr<function, Pixels>, li: u32) -> bool {
     workgroupBarrier();
@@ -801,19 +854,18 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     var p = entry_pixels(tile0, lid.x, row0);
     let range = kv_ranges[v * rc.n_tiles + tile];
     let vi = v * rc.n_variants + b;
-    // pass k walks chunk cs + k of the entry's list (cs: the chunk it resumes in); an entry whose
-    // pixels have all ended (written) leaves at once
+    // pass 0 walks the chunk the entry resumes in; each later pass the next chunk that one of its
+    // pixels must walk again (entry_next); an entry that wrote its pixels leaves at once
     let k = rc.chunk_pass;
     if (li == 0u) {
         var status = 0u;
         if (k > 0u) {
-            status = entry_done[e];
-        } else {
-            entry_done[e] = 0u;
+            status = entry_next[e];
         }
         s_status = status;
     }
-    if (workgroupUniformLoad(&s_status) != 0u) {
+    let next = workgroupUniformLoad(&s_status);
+    if (next == FINISHED) {
         return;  // uniform: written in an earlier pass
     }
     if (li == 0u) {
@@ -892,11 +944,9 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let a = walk.x;
     let s = walk.y;
     let cs = s / CHUNK_PAIRS;
-    let c = cs + k;
+    let c = select(next, cs, k == 0u);
     let n_chunks = max(1u, (nv + CHUNK_PAIRS - 1u) / CHUNK_PAIRS);
-    if (c >= n_chunks) {
-        return;  // uniform: past its list (an entry writes its pixels by its last chunk)
-    }
+    let clean_chunks = max(1u, (range.y - range.x + CHUNK_PAIRS - 1u) / CHUNK_PAIRS);
     let insert_at = workgroupUniformLoad(&s_insert_at);
     let cross = workgroupUniformLoad(&s_cross);
     // Pixels the change cannot reach, copied from the clean frame (see above): a pixel's value
@@ -906,6 +956,8 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let o = v * rc.n_prims + prim;
     var copy_clean: array<vec4<bool>, QPI>;
     var limit: Stops;
+    var walks: Stops;  // per pixel, bit min(j, 31) for each later chunk j whose records change for it
+    var stops: Stops;
     let x_stop = min(tile0.x + lid.x, rc.width - 1u);
     for (var j = 0u; j < QPI; j = j + 1u) {
         var stop: vec4<u32>;
@@ -924,12 +976,24 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         let old_hits = contributes(kv_xy[o], kv_conic[o], p.q[j]) & vec4<bool>(removed != NONE);
         let new_hits = contributes(var_xy[vi], var_conic[vi], p.q[j]) & vec4<bool>(insert != NONE);
         let new_reaches = new_hits & (within(vec4<u32>(insert_at), stop) | open);
-        let reached = (old_hits & within(vec4<u32>(removed), stop)) | new_reaches;
+        let old_reaches = old_hits & within(vec4<u32>(removed), stop);
+        let reached = old_reaches | new_reaches;
         var moved = odd & vec4<bool>(cross.x < cross.y);
+        var walk_bits = select(vec4<u32>(0u), vec4<u32>(chunk_bit(removed / CHUNK_PAIRS)), old_reaches)
+            | select(vec4<u32>(0u), vec4<u32>(chunk_bit(insert / CHUNK_PAIRS)), new_reaches);
+        if (cross.x < cross.y) {
+            walk_bits = walk_bits | select(vec4<u32>(0u), vec4<u32>(0xffffffffu), odd);
+        }
         for (var i = cross.x; i < cross.y; i = i + CHUNK_PAIRS) {
             let og = v * rc.n_prims + kv_isect[v * rc.capacity + range.x + i];
-            moved = moved | (contributes(kv_xy[og], kv_conic[og], p.q[j]) & within(vec4<u32>(i - 1u), stop));
+            let hit = contributes(kv_xy[og], kv_conic[og], p.q[j]) & within(vec4<u32>(i - 1u), stop);
+            moved = moved | hit;
+            // the record leaves one chunk for its neighbour: both change
+            let after = (i + 1u) / CHUNK_PAIRS;
+            walk_bits = walk_bits | select(vec4<u32>(0u), vec4<u32>(chunk_bit(after) | chunk_bit(after - 1u)), hit);
         }
+        walks[j] = walk_bits;
+        stops[j] = stop;
         copy_clean[j] = !p.q[j].done & !(reached | (alive & moved));
         // a pixel that never ends is done past the last record that can reach it: the clean
         // list's last (its position in the variant's list at most one further), or the new one
@@ -938,10 +1002,18 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         limit[j] = select(vec4<u32>(NONE), max(last_clean, last_new), open);
         p.q[j].done = p.q[j].done | copy_clean[j];
     }
+    var acc = p;
+    var take: array<vec4<bool>, QPI>;  // pixels that take this chunk's result from the clean frame
+    if (k > 0u) {
+        acc = read_variant_state(e, li, lid.x, row0, p);
+        for (var j = 0u; j < QPI; j = j + 1u) {
+            take[j] = !acc.q[j].done & !must_walk(walks[j], stops[j], c);
+            p.q[j].done = acc.q[j].done | take[j];
+        }
+    }
     count_if_done(&p);
     let live = live_box(&p, lid.x, row0);
     let origin = vec2<f32>(tile0);
-    var acc = p;
     var start = c * CHUNK_PAIRS;
     if (k == 0u) {
         // the clean frame's state at s: the merged chunks before chunk cs, and chunk cs's own walk
@@ -953,17 +1025,6 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
             p = read_checkpoint(slot0 + s / rc.ckpt_every - 1u, lid.x, row0, p);
         }
         start = s;
-    } else {
-        // the chunks so far; ended pixels take no part in this one
-        acc = read_variant_state(e, li, lid.x, row0, p);
-        for (var j = 0u; j < QPI; j = j + 1u) {
-            p.q[j].done = acc.q[j].done;
-        }
-        if (li == 0u) {
-            atomicStore(&s_done, 0u);
-        }
-        workgroupBarrier();
-        count_if_done(&p);
     }
     let insert_box = box_of(var_xy[vi], var_conic[vi], cut_of(var_conic[vi].w), origin);
     let w = Walk(v, range.x, insert, removed, var_xy[vi], var_conic[vi], var_rgb[vi], insert_box);
@@ -971,10 +1032,47 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     var no_last = no_stops();
     walk_list(&p, li, lid.x, row0, start, min(nv, (c + 1u) * CHUNK_PAIRS), live, w, limit, &no_record, &no_last, 0u);
     if (multi) {
+        let slot0 = chunk_base[v * rc.n_tiles + tile];
+        if (k > 0u) {
+            p = take_clean_chunk(p, take, slot0, c, clean_chunks, lid.x, row0);
+        }
         merge_pixels(&acc, &p, c == 0u);
+        // the later chunks no pixel must walk again: their clean results, merged here
+        var j = c + 1u;
+        loop {
+            if (j >= n_chunks || all_pixels_finished(&acc, li)) {
+                break;
+            }
+            if (li == 0u) {
+                atomicStore(&s_need, 0u);
+            }
+            workgroupBarrier();
+            var all_take: array<vec4<bool>, QPI>;
+            var need = false;
+            for (var q = 0u; q < QPI; q = q + 1u) {
+                all_take[q] = !acc.q[q].done;
+                need = need || any(!acc.q[q].done & must_walk(walks[q], stops[q], j));
+            }
+            if (need) {
+                atomicStore(&s_need, 1u);
+            }
+            workgroupBarrier();
+            if (li == 0u) {
+                s_status = atomicLoad(&s_need);
+            }
+            if (workgroupUniformLoad(&s_status) != 0u) {
+                break;
+            }
+            var ch = take_clean_chunk(restart(&acc), all_take, slot0, j, clean_chunks, lid.x, row0);
+            merge_pixels(&acc, &ch, false);
+            j = j + 1u;
+        }
         p = acc;
-        if (c + 1u < n_chunks && !all_pixels_finished(&p, li)) {
+        if (j < n_chunks && !all_pixels_finished(&p, li)) {
             write_variant_state(e, li, &p, lid.x, row0);
+            if (li == 0u) {
+                entry_next[e] = j;
+            }
             return;
         }
     }
@@ -1006,7 +1104,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     if (li == 0u) {
         slab_changed[e] = atomicLoad(&s_changed[0]) | (atomicLoad(&s_changed[1]) << 8u)
             | (atomicLoad(&s_changed[2]) << 16u) | (atomicLoad(&s_changed[3]) << 24u);
-        entry_done[e] = 1u;
+        entry_next[e] = FINISHED;
     }
 }
 
@@ -1072,6 +1170,18 @@ fn checkpoints(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nw
                     end = select(hi - 1u, stops[j][i], p.q[j].done[i] && stops[j][i] != NEVER);
                 }
                 kv_stop[(v * rc.height + y) * rc.width + x] = end;
+            }
+        }
+    }
+    if (c > 0u) {
+        // the chunk's own result (t negated where it stopped), for variants that leave it as it was
+        let slot = chunk_base[v * rc.n_tiles + tile] + c - 1u;
+        for (var j = 0u; j < QPI; j = j + 1u) {
+            let stopped = p.q[j].done & !ended_before[j];
+            let t = select(p.q[j].T, -p.q[j].T, stopped);
+            for (var i = 0u; i < QUAD; i = i + 1u) {
+                let at = slot * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + lid.x;
+                chunk_states[at] = vec4<f32>(p.q[j].r[i], p.q[j].g[i], p.q[j].b[i], t[i]);
             }
         }
     }

@@ -213,7 +213,7 @@ class VariantCompositing:
         # per entry, the tile-local box of the pixels whose rgb bits differ from the clean frame's
         self.changed = gpu.buffer(4 * self.max_entries, STORAGE, "variants.changed")
         self.changed_readback = Readback(gpu, 4 * self.max_entries, "variants.changed.readback")
-        self.entry_done = gpu.buffer(4 * self.max_entries, STORAGE, "variants.entry_done")
+        self.entry_next = gpu.buffer(4 * self.max_entries, STORAGE, "variants.entry_next")
         self.k_checkpoints = Kernel(gpu, "composite", "checkpoints", constants={**constants, "RECORD": 1})
 
     def _write_params(self, n_e: int, longest: int, params: dict) -> int:
@@ -252,6 +252,8 @@ class VariantCompositing:
             26: kept["stop"],
             27: kept["ckpt_base"],
             28: kept["ckpt_states"],
+            36: kept["chunk_base"],
+            37: kept["chunk_states"],
         }
 
     def encode(self, encoder, entries: dict, kept: dict, variant: dict, clean_image, longest: int, **params):
@@ -260,7 +262,7 @@ class VariantCompositing:
         kept: the clean frame's per-view `ranges`, `isect` and `box` (tile lists and the pairs'
         pixel boxes, `capacity` apart), `stop` (per pixel, its end in its list), `xy`, `conic`,
         `rgb` (w = depth) of n_prims records per view, and its checkpoints (`ckpt_base`,
-        `ckpt_states`: encode_checkpoints); variant: the variants' `xy`, `conic`, `rgb`, `rect`
+        `ckpt_states`) and later chunks' results (`chunk_base`, `chunk_states`: encode_checkpoints); variant: the variants' `xy`, `conic`, `rgb`, `rect`
         (n_variants per view); params: width, height, tiles_x, n_tiles, n_prims, n_variants,
         capacity, background, ckpt_every. Queue writes: one encode per submission."""
         n_e = self._write_entries(entries)
@@ -276,7 +278,7 @@ class VariantCompositing:
                     20: variant["rect"],
                     22: clean_image,
                     25: self.changed,
-                    29: self.entry_done,
+                    29: self.entry_next,
                 },
                 workgroups=n_e,
             )
@@ -285,7 +287,8 @@ class VariantCompositing:
     def encode_checkpoints(self, encoder, entries: dict, kept: dict, longest: int, **params):
         """Record the checkpoint pass (composite.wgsl:checkpoints) over `entries` ({view, tile}):
         the pixels' state at every `ckpt_every` positions of those tiles' clean lists into
-        kept["ckpt_states"] (slots from kept["ckpt_base"]) and each pixel's end into kept["stop"].
+        kept["ckpt_states"] (slots from kept["ckpt_base"]), each later chunk's own result into
+        kept["chunk_states"] (slots from kept["chunk_base"]) and each pixel's end into kept["stop"].
         Same kept buffers and params as `encode`. Queue writes: one encode per submission."""
         n = len(entries["tile"])
         entries = {"variant": np.zeros(n, np.int64), "prim": np.zeros(n, np.int64), **entries}

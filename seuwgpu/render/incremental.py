@@ -52,7 +52,7 @@ class CleanViews:
             raise ValueError("the renderer must keep its per-view state (keep_views=True)")
         self.r, self.version = renderer, None
         self.want_every = CHECKPOINT_EVERY if every is None else int(every)
-        self.ckpt_states = None
+        self.ckpt_states = self.chunk_states = None
         self.pass_ = None
         self.ensure_current()
 
@@ -79,13 +79,12 @@ class CleanViews:
                 break
             every = checkpoint_every(chunk, 2 * every)
         self.every = every
-        base = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.uint32)
         self.slots = int(counts.sum())
-        self.ckpt_base = g.upload(base, STORAGE, "ckpt_base")
-        need = max(1, self.slots) * SLAB_BYTES
-        if self.ckpt_states is None or self.ckpt_states.size < need:
-            self.ckpt_states = None  # release the old states first
-            self.ckpt_states = g.buffer(need, STORAGE, "ckpt_states")
+        self.ckpt_base, self.ckpt_states = self._slots(counts, "ckpt", self.ckpt_states)
+        # each later chunk's own result, for the lists of several chunks
+        self.chunk_base, self.chunk_states = self._slots(
+            np.maximum(-(-lengths // chunk) - 1, 0), "chunk", self.chunk_states
+        )
         listed = np.flatnonzero(lengths > 0)  # every listed tile: its pixels' ends
         if not listed.size:
             return
@@ -104,6 +103,19 @@ class CleanViews:
             )
             g.submit(enc)
 
+    def _slots(self, counts: np.ndarray, name: str, states):
+        """(first slot of each view and tile, a buffer of at least their total of TILE x TILE
+        vec4 states: `states` when it is large enough)."""
+        g = self.r.gpu
+        base = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.uint32)
+        need = max(1, int(counts.sum())) * SLAB_BYTES
+        if need > g.max_binding:
+            raise MemoryError(f"{name} states need {need:,} bytes, above one storage binding ({g.max_binding:,})")
+        if states is None or states.size < need:
+            states = None  # release the old states first
+            states = g.buffer(need, STORAGE, f"{name}_states")
+        return g.upload(base, STORAGE, f"{name}_base"), states
+
     @property
     def kept(self) -> dict:
         """The kept buffers as composite.py's VariantCompositing binds them."""
@@ -118,6 +130,8 @@ class CleanViews:
             "rgb": r.kv_rgb,
             "ckpt_base": self.ckpt_base,
             "ckpt_states": self.ckpt_states,
+            "chunk_base": self.chunk_base,
+            "chunk_states": self.chunk_states,
         }
 
     def params(self, n_variants: int) -> dict:
