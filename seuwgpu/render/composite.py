@@ -262,9 +262,10 @@ class VariantCompositing:
         kept: the clean frame's per-view `ranges`, `isect` and `box` (tile lists and the pairs'
         pixel boxes, `capacity` apart), `stop` (per pixel, its end in its list), `xy`, `conic`,
         `rgb` (w = depth) of n_prims records per view, and its checkpoints (`ckpt_base`,
-        `ckpt_states`) and later chunks' results (`chunk_base`, `chunk_states`: encode_checkpoints); variant: the variants' `xy`, `conic`, `rgb`, `rect`
-        (n_variants per view); params: width, height, tiles_x, n_tiles, n_prims, n_variants,
-        capacity, background, ckpt_every. Queue writes: one encode per submission."""
+        `ckpt_states`) and later chunks' results (`chunk_base`, `chunk_states`; both from
+        encode_checkpoints); variant: the variants' `xy`, `conic`, `rgb`, `rect` (n_variants per
+        view); params: width, height, tiles_x, n_tiles, n_prims, n_variants, capacity,
+        background, ckpt_every. Queue writes: one encode per submission."""
         n_e = self._write_entries(entries)
         passes = self._write_params(n_e, longest, params)
         for c in range(passes if n_e else 0):
