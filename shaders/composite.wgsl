@@ -383,14 +383,25 @@ struct Recomp {
     height: u32,
     tiles_x: u32,
     n_tiles: u32,
-    n_prims: u32,       // primitives of the model (stride of the per-view clean arrays)
+    n_prims: u32,       // stride of the per-view clean records (the model's primitives, padded)
     n_variants: u32,    // stride of the per-view variant arrays
     capacity: u32,      // stride of the per-view clean tile lists
     n_entries: u32,
     background: vec4<f32>,  // w: 0 (blend.wgsl unfused)
     chunk_pass: u32,    // the chunk of every entry's list this dispatch composites
     ckpt_every: u32,    // list positions between checkpoints (a multiple of the round; divides CHUNK_PAIRS)
+    first_view: u32,    // the kept view group bound (kv_isect, kv_box, kv_xy, kv_conic, kv_rgb start there)
+    first_entry: u32,   // this dispatch's entries: first_entry .. n_entries - 1 (all of view group's)
 };
+
+// Offsets of view v's clean records and tile list in the bound view group.
+fn prim_base(v: u32) -> u32 {
+    return (v - rc.first_view) * rc.n_prims;
+}
+
+fn list_base(v: u32) -> u32 {
+    return (v - rc.first_view) * rc.capacity;
+}
 
 @group(0) @binding(10) var<uniform> rc: Recomp;
 // One tile of one variant to re-composite (the checkpoint pass: one tile of a clean view).
@@ -519,14 +530,14 @@ fn before(ka: u32, ia: u32, kb: u32, ib: u32) -> bool {
 }
 
 fn clean_key(v: u32, g: u32) -> u32 {
-    return bitcast<u32>(kv_rgb[v * rc.n_prims + g].w);
+    return bitcast<u32>(kv_rgb[prim_base(v) + g].w);
 }
 
 // number of list entries ordered before (key, idx)
 fn count_before(v: u32, start: u32, end: u32, key: u32, idx: u32) -> u32 {
     var lo = start;
     var hi = end;
-    let base = v * rc.capacity;
+    let base = list_base(v);
     while (lo < hi) {
         let mid = (lo + hi) >> 1u;
         let g = kv_isect[base + mid];
@@ -721,7 +732,7 @@ fn walk_list(p: ptr<function, Pixels>, li: u32, col: u32, row0: u32, start: u32,
             let i = first + li * per_lane + s;
             var bx = w.bx;
             if (i != w.insert) {
-                bx = kv_box[w.v * rc.capacity + w.first + clean_pos(min(i, hi - 1u), w.insert, w.removed)];
+                bx = kv_box[list_base(w.v) + w.first + clean_pos(min(i, hi - 1u), w.insert, w.removed)];
             }
             kept_bits = kept_bits | (u32(i < hi && boxes_meet(bx, live)) << s);
         }
@@ -742,8 +753,8 @@ fn walk_list(p: ptr<function, Pixels>, li: u32, col: u32, row0: u32, start: u32,
                 if (i == w.insert) {
                     stage_boxed(slot, w.xy, w.co, w.rgb, w.bx);
                 } else {
-                    let at = w.v * rc.capacity + w.first + clean_pos(i, w.insert, w.removed);
-                    let og = w.v * rc.n_prims + kv_isect[at];  // its box: the clean frame's, for this very pair
+                    let at = list_base(w.v) + w.first + clean_pos(i, w.insert, w.removed);
+                    let og = prim_base(w.v) + kv_isect[at];  // its box: the clean frame's, for this very pair
                     stage_boxed(slot, kv_xy[og], kv_conic[og], kv_rgb[og], kv_box[at]);
                 }
             }
@@ -838,7 +849,7 @@ fn all_pixels_finished(p: ptr<function, Pixels>, li: u32) -> bool {
 fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
             @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     opaque_zero = bitcast<u32>(rc.background.w);  // blend.wgsl unfused
-    let e = linear_wg(wg, nwg);
+    let e = rc.first_entry + linear_wg(wg, nwg);
     if (e >= rc.n_entries) {
         return;
     }
@@ -880,7 +891,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         let ck = clean_key(v, prim);
         let qpos = count_before(v, range.x, range.y, ck, prim);
         var removed = NONE;
-        if (qpos < n && kv_isect[v * rc.capacity + range.x + qpos] == prim) {
+        if (qpos < n && kv_isect[list_base(v) + range.x + qpos] == prim) {
             removed = qpos;
         }
         // the re-projected variant, if the binning pairs it with this tile (its rectangle covers the
@@ -953,7 +964,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     // depends only on the records that do not skip it, in list order, grouped by chunk, up to its
     // end (kv_stop, a position in the clean list). On opaque surfaces most upsets of hidden
     // primitives then re-blend nothing.
-    let o = v * rc.n_prims + prim;
+    let o = prim_base(v) + prim;
     var copy_clean: array<vec4<bool>, QPI>;
     var limit: Stops;
     var walks: Stops;  // per pixel, bit min(j, 31) for each later chunk j whose records change for it
@@ -985,7 +996,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
             walk_bits = walk_bits | select(vec4<u32>(0u), vec4<u32>(0xffffffffu), odd);
         }
         for (var i = cross.x; i < cross.y; i = i + CHUNK_PAIRS) {
-            let og = v * rc.n_prims + kv_isect[v * rc.capacity + range.x + i];
+            let og = prim_base(v) + kv_isect[list_base(v) + range.x + i];
             let hit = contributes(kv_xy[og], kv_conic[og], p.q[j]) & within(vec4<u32>(i - 1u), stop);
             moved = moved | hit;
             // the record leaves one chunk for its neighbour: both change
@@ -1116,7 +1127,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
 fn checkpoints(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     opaque_zero = bitcast<u32>(rc.background.w);  // blend.wgsl unfused
-    let e = linear_wg(wg, nwg);
+    let e = rc.first_entry + linear_wg(wg, nwg);
     if (e >= rc.n_entries) {
         return;
     }

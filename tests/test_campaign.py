@@ -138,6 +138,11 @@ def test_blocks_evaluated_one_by_one_equal_grouped_ones(reference_run, tmp_path,
     assert all(b[0] is todo[0][0] for b in group)
     dose_at = next(i for i, b in enumerate(todo) if b[0].kind == "dose")
     assert runner.next_group(todo, dose_at, eng) == ([todo[dose_at]], dose_at + 1)
+    # at a slow measured rate a group holds what it evaluates in GROUP_SECONDS (at least a batch),
+    # so its parts are written, and the bar moves, that often
+    slow = 2 * spec["batch"] / Runner.GROUP_SECONDS
+    assert runner.next_group(todo, 0, eng, rate=slow) == (todo[:2], 2)
+    assert runner.next_group(todo, 0, eng, rate=1e-6) == (todo[:1], 1)
 
 
 def test_replay_one_injection_by_id(reference_run):

@@ -108,11 +108,11 @@ def test_variants_match_twin(gpu):
     gpu.submit(enc)
     slabs = comp.read_slabs(len(b_idx))
     assert len(b_idx) > 20
-    k, n, B, cap = r.k, r.n, comp.B, r.capacity
+    k, n, B, cap, stride = r.k, r.n, comp.B, r.capacity, r.kv_stride  # view v's records at v * stride
     kv = {
-        "xy": gpu.read(r.kv_xy, np.float32).reshape(k, n, 2),
-        "conic": gpu.read(r.kv_conic, np.float32).reshape(k, n, 4),
-        "rgb": gpu.read(r.kv_rgb, np.float32).reshape(k, n, 4),
+        "xy": gpu.read(r.kv_xy, np.float32).reshape(k, stride, 2)[:, :n],
+        "conic": gpu.read(r.kv_conic, np.float32).reshape(k, stride, 4)[:, :n],
+        "rgb": gpu.read(r.kv_rgb, np.float32).reshape(k, stride, 4)[:, :n],
         "ranges": gpu.read(r.kv_ranges).reshape(k, r.n_tiles, 2),
         "isect": gpu.read(r.kv_isect).reshape(k, cap),
     }

@@ -167,12 +167,13 @@ def test_arms_that_draw_the_same_frames_recomposite_nothing(monkeypatch):
 
 
 @pytest.mark.parametrize("as_gpu", [False, True])
-def test_kept_views_tile_lists_fit_one_binding(gpu, monkeypatch, as_gpu):
-    """A kept view set holds K tile lists in one buffer bound whole (kv_isect, kv_box), so the
-    most pairs a view may have is a binding over 4 K bytes: with a 512 KiB binding and 4 kept
-    views, 32,768 (the default capacity, 65,536, would make 1 MiB buffers that fail to bind).
-    The evaluator's batches shrink to fit too (as_gpu: the batch size a GPU adapter asks for,
-    2048 variants, whose metrics would need 2 MiB; it failed so on an H200, 2026-11-26)."""
+def test_kept_views_are_bound_a_view_group_at_a_time(gpu, monkeypatch, as_gpu):
+    """A kept view set holds K tile lists (kv_isect, kv_box) and K views' records in one buffer
+    each, bound one view group at a time (Renderer.kept_view_groups): with a 512 KiB binding, 4
+    kept views of 65,536-pair lists (1 MiB buffers) are bound two views at a time, and a sheet's
+    records (every tile of every view) equal a full re-render's. The evaluator's batches shrink to
+    fit the binding too (as_gpu: the batch size a GPU adapter asks for, 2048 variants, whose
+    metrics would need 2 MiB; it failed so on an H200, 2026-11-26)."""
     monkeypatch.setitem(gpu.limits, "max-storage-buffer-binding-size", 1 << 19)
     if as_gpu:
         monkeypatch.setattr(type(gpu), "is_cpu", property(lambda self: False))
@@ -180,10 +181,15 @@ def test_kept_views_tile_lists_fit_one_binding(gpu, monkeypatch, as_gpu):
     cams = scene_cameras("spheres", 4, 32, 32)
     eng = Engine(model, cams, "fp32", gpu=gpu)
     r = eng.renderer
-    assert r.max_capacity == (1 << 19) // 16 and r.capacity == r.max_capacity
-    assert r.kv_isect.size <= 1 << 19 and r.kv_box.size <= 1 << 19
-    recs = eng.evaluate_frame([eng.site("log_scales", 0, 0, 31)])  # a sheet: binds the kept lists
+    assert r.max_capacity == (1 << 19) // 4 and r.capacity == 65536
+    assert r.kv_isect.size == 4 * 4 * 65536 > 1 << 19
+    assert r.kept_view_groups() == [(0, 2), (2, 4)]
+    site = eng.site("log_scales", 0, 0, 31)  # a sheet: every tile of every view
+    recs = eng.evaluate_frame([site])
     assert len(recs) == 1 and recs["footprint"].iloc[0] > 0
+    full = eng.inject(site)
+    for key in ("footprint", "peak_error", "psnr", "ssim"):
+        assert recs[key].iloc[0] == full[key], key
     from seuwgpu.metrics.image import entry_bytes
 
     B, cap = eng.evaluator.B, (256 if gpu.is_cpu else 2048)

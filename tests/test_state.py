@@ -22,11 +22,11 @@ def sf():
 
 def kept(sf, v):
     r, g = sf.r, sf.engine.gpu
-    n = r.n
+    n, s = r.n, r.kv_stride  # view v's records at v * kv_stride
     return {
-        "xy": g.read(r.kv_xy, np.uint32, 8 * n * v, 8 * n).reshape(n, 2),
-        "conic": g.read(r.kv_conic, np.uint32, 16 * n * v, 16 * n).reshape(n, 4),
-        "rgb": g.read(r.kv_rgb, np.uint32, 16 * n * v, 16 * n).reshape(n, 4),
+        "xy": g.read(r.kv_xy, np.uint32, 8 * s * v, 8 * n).reshape(n, 2),
+        "conic": g.read(r.kv_conic, np.uint32, 16 * s * v, 16 * n).reshape(n, 4),
+        "rgb": g.read(r.kv_rgb, np.uint32, 16 * s * v, 16 * n).reshape(n, 4),
         "isect_prim": g.read(r.kv_isect, np.uint32, 4 * r.capacity * v, 4 * int(sf.totals[v])).reshape(-1, 1),
         "tile_range": sf.ranges[v].copy(),
     }
@@ -53,7 +53,7 @@ def test_compositor_input_flips_equal_the_twin(sf, target, index, comp, bit):
     ranges = state["tile_range"]
     if target in ("xy", "conic"):  # flipped before binning, which reads them (exact binning): re-bin
         g = sf.engine.gpu
-        rects = unpack_rects(g.read(sf.r.kv_rect, np.uint32, 8 * n * v, 8 * n).reshape(n, 2))
+        rects = unpack_rects(g.read(sf.r.kv_rect, np.uint32, 8 * sf.r.kv_stride * v, 8 * n).reshape(n, 2))
         order = np.lexsort((np.arange(n), state["rgb"][:, 3]))  # depth bits, ties by index
         bin_records = {"xy": f["xy"], "conic": f["conic"]}
         ranges, ids = tile_lists(rects, order, sf.r.tiles_x, sf.r.n_tiles, bin_records)

@@ -144,7 +144,7 @@ class Runner:
         already = shard_total - sum(m for _, _, m in todo)
         stats = {"injections": already, "catastrophic": 0, "seconds": 0.0, "new": 0}
         bar = progress(shard_total, already) if progress else Progress(shard_total, already, self.quiet)
-        engines = {}
+        engines, rates = {}, {}  # rates: sites a second of each engine's last group
         t0 = time.perf_counter()
         writer = store.PartWriter(self.out)
         finished = False
@@ -159,10 +159,12 @@ class Runner:
                     engines[key] = self.engine_for(ctx)
                     self.note_clean_model(engines[key], ctx)
                 eng = engines[key]
-                group, i = self.next_group(todo, i, eng)
+                group, i = self.next_group(todo, i, eng, rates.get(key))
+                t_blocks = time.perf_counter()
                 frames = self.run_blocks(eng, ctx, [(first, count) for _, first, count in group])
                 seconds = time.perf_counter() - t_group
                 total = sum(count for _, _, count in group)
+                rates[key] = total / max(time.perf_counter() - t_blocks, 1e-9)
                 for (_, first, count), df in zip(group, frames):
                     # a block's share of its group's time (recorded per part, summed by the reports)
                     writer.put(first, count, df, seconds=seconds * count / total)
@@ -183,17 +185,23 @@ class Runner:
     # batches of the incremental evaluator evaluated per call: with two in flight (faults/incremental.py
     # lanes), the first and the last of a call run alone
     GROUP_BATCHES = 8
+    # seconds a group may take at the rate measured so far: its parts are written when it ends, so
+    # an interrupt loses at most this much work (and the progress bar moves at least this often)
+    GROUP_SECONDS = 10.0
 
-    def next_group(self, todo: list, i: int, eng) -> tuple[list, int]:
+    def next_group(self, todo: list, i: int, eng, rate: float | None = None) -> tuple[list, int]:
         """(blocks todo[i:j] evaluated in one call, j): consecutive blocks of one single-upset context
         on the incremental path, up to GROUP_BATCHES evaluator batches of sites, so that a spec's
-        small `batch` (the unit written and resumed) still fills a GPU's batches and pipeline.
-        An interrupted run loses at most the group in progress."""
+        small `batch` (the unit written and resumed) still fills a GPU's batches and pipeline, and
+        no more sites than `rate` (sites a second so far) evaluates in GROUP_SECONDS. An
+        interrupted run loses at most the group in progress."""
         ctx, group, sites = todo[i][0], [todo[i]], todo[i][2]
         i += 1
         if ctx.kind not in ("single", "size") or self.full or self.spec.get("lpips"):
             return group, i
         target = self.GROUP_BATCHES * eng.evaluator.B
+        if rate:
+            target = min(target, max(eng.evaluator.B, int(rate * self.GROUP_SECONDS)))
         while i < len(todo) and todo[i][0] is ctx and sites + todo[i][2] <= target:
             group.append(todo[i])
             sites += todo[i][2]

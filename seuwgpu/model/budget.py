@@ -126,12 +126,18 @@ def check_render(limits: dict, is_cpu: bool, n: int, degree: int, k: int, width:
     """Refuse a render (n primitives, k views of width x height) that does not fit the device's
     binding limit or the host's memory, saying what would."""
     binding = binding_limit(limits)
-    per_prim = PROJECTED_BYTES * (k if keep_views else 1)
+    per_prim = PROJECTED_BYTES  # one view's records in one binding (kept views: a view group at a time)
     if int(n) * per_prim > binding:
         raise TooBig(
-            f"{n:,} primitives x {k if keep_views else 1} view(s) need a {gb(int(n) * per_prim)} projection buffer, "
-            f"above the device's storage binding limit ({gb(binding)}): at most {binding // per_prim:,} primitives "
-            + ("fit at this view count (or use fewer views)" if keep_views and k > 1 else "fit")
+            f"{n:,} primitives need a {gb(int(n) * per_prim)} projection buffer, above the device's storage "
+            f"binding limit ({gb(binding)}): at most {binding // per_prim:,} primitives fit"
+        )
+    buffer = int(limits["max-buffer-size"]) // BUFFER_ALIGN * BUFFER_ALIGN
+    if keep_views and int(n) * per_prim * int(k) > buffer:
+        raise TooBig(
+            f"{n:,} primitives x {k} kept view(s) need a {gb(int(n) * per_prim * int(k))} buffer of their projections, "
+            f"above the device's buffer size limit ({gb(buffer)}): at most {buffer // (per_prim * int(k)):,} "
+            "primitives fit at this view count (or use fewer views)"
         )
     frame = int(k) * int(width) * int(height) * PIXEL_BYTES
     if frame > binding:

@@ -216,38 +216,57 @@ class VariantCompositing:
         self.entry_next = gpu.buffer(4 * self.max_entries, STORAGE, "variants.entry_next")
         self.k_checkpoints = Kernel(gpu, "composite", "checkpoints", constants={**constants, "RECORD": 1})
 
-    def _write_params(self, n_e: int, longest: int, params: dict) -> int:
-        """The `Recomp` slots of the chunk dispatches (queue writes: one encode per submission)."""
-        params["background"] = np.append(np.asarray(params["background"], np.float32), 0.0)
-        passes = max(1, -(-(int(longest) + 1) // self.chunk))
-        if passes > self.params.slots:
-            self.params = Uniforms(self.gpu, self.params.struct, passes, "recomp")
-        self.params.struct.fill(self.params.rows[:passes], n_entries=n_e, **params)
-        self.params.rows["chunk_pass"][:passes] = np.arange(passes)
-        self.params.write()
-        return passes
-
-    def _write_entries(self, entries: dict) -> int:
-        n_e = len(entries["tile"])
+    def _dispatches(self, entries: dict, longest: int, params: dict, groups) -> list[tuple]:
+        """Write the entries (sorted by view) and the `Recomp` slot of every dispatch: one per chunk
+        pass and kept view group [v0, v1) (Renderer.kept_view_groups; default all views);
+        returns (slot, v0, v1, first entry, end) per dispatch in recording order (queue writes:
+        one encode per submission)."""
+        views = np.asarray(entries["view"], np.int64)
+        n_e = len(views)
         if n_e > self.max_entries:
             raise ValueError(f"{n_e} entries > max_entries={self.max_entries}")
+        if np.any(np.diff(views) < 0):
+            raise ValueError("entries must be sorted by view")
         if n_e:
             self.gpu.write(self.entries, self.entry.fill(self.entry.zeros(n_e), **entries))
-        return n_e
+        groups = list(groups or [(0, int(views.max(initial=0)) + 1)])
+        spans = [(v0, v1, *np.searchsorted(views, [v0, v1])) for v0, v1 in groups]
+        spans = [sp for sp in spans if sp[3] > sp[2]]
+        passes = max(1, -(-(int(longest) + 1) // self.chunk))
+        slots = passes * max(1, len(spans))
+        if slots > self.params.slots:
+            self.params = Uniforms(self.gpu, self.params.struct, slots, "recomp")
+        params = {**params, "background": np.append(np.asarray(params["background"], np.float32), 0.0)}
+        rows = self.params.rows[:slots]
+        self.params.struct.fill(rows, **params)
+        out = []
+        for c in range(passes if spans else 0):
+            for i, (v0, v1, e0, e1) in enumerate(spans):
+                slot = c * len(spans) + i
+                rows[slot]["chunk_pass"], rows[slot]["first_view"] = c, v0
+                rows[slot]["first_entry"], rows[slot]["n_entries"] = e0, e1
+                out.append((slot, int(v0), int(v1), int(e0), int(e1)))
+        self.params.write()
+        return out
 
-    def _kept_bindings(self, c: int, kept: dict) -> dict:
-        """What both entry points bind: dispatch c's parameters, the entries and their running
-        state, and the clean frame's kept buffers."""
+    def _kept_bindings(self, slot: int, kept: dict, v0: int, v1: int, stride: int, capacity: int) -> dict:
+        """What both entry points bind: a dispatch's parameters, the entries and their running
+        state, and the clean frame's kept buffers, views [v0, v1) of the per-view records
+        (`stride` records a view) and tile lists (`capacity` pairs a view)."""
+
+        def views(buf, per_view: int):
+            return (buf, per_view * v0, per_view * (v1 - v0))
+
         return {
-            10: self.params.binding(c),
+            10: self.params.binding(slot),
             11: self.entries,
             12: kept["ranges"],
-            13: kept["isect"],
-            14: kept["xy"],
-            15: kept["conic"],
-            16: kept["rgb"],
+            13: views(kept["isect"], 4 * capacity),
+            14: views(kept["xy"], 8 * stride),
+            15: views(kept["conic"], 16 * stride),
+            16: views(kept["rgb"], 16 * stride),
             21: self.slabs,
-            23: kept["box"],
+            23: views(kept["box"], 4 * capacity),
             24: self.ended,
             26: kept["stop"],
             27: kept["ckpt_base"],
@@ -256,23 +275,25 @@ class VariantCompositing:
             37: kept["chunk_states"],
         }
 
-    def encode(self, encoder, entries: dict, kept: dict, variant: dict, clean_image, longest: int, **params):
-        """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}); `longest`:
-        the longest clean tile list (a variant's list holds at most one pair more).
+    def encode(
+        self, encoder, entries: dict, kept: dict, variant: dict, clean_image, longest: int, groups=None, **params
+    ):
+        """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}, sorted by
+        view); `longest`: the longest clean tile list (a variant's list holds at most one pair
+        more); `groups`: the kept view groups bound one at a time (Renderer.kept_view_groups).
         kept: the clean frame's per-view `ranges`, `isect` and `box` (tile lists and the pairs'
         pixel boxes, `capacity` apart), `stop` (per pixel, its end in its list), `xy`, `conic`,
         `rgb` (w = depth) of n_prims records per view, and its checkpoints (`ckpt_base`,
         `ckpt_states`) and later chunks' results (`chunk_base`, `chunk_states`; both from
         encode_checkpoints); variant: the variants' `xy`, `conic`, `rgb`, `rect` (n_variants per
         view); params: width, height, tiles_x, n_tiles, n_prims, n_variants, capacity,
-        background, ckpt_every. Queue writes: one encode per submission."""
-        n_e = self._write_entries(entries)
-        passes = self._write_params(n_e, longest, params)
-        for c in range(passes if n_e else 0):
+        background, ckpt_every."""
+        dispatches = self._dispatches(entries, longest, params, groups)
+        for slot, v0, v1, e0, e1 in dispatches:
             self.kernel.dispatch(
                 encoder,
                 {
-                    **self._kept_bindings(c, kept),
+                    **self._kept_bindings(slot, kept, v0, v1, params["n_prims"], params["capacity"]),
                     17: variant["xy"],
                     18: variant["conic"],
                     19: variant["rgb"],
@@ -281,25 +302,25 @@ class VariantCompositing:
                     25: self.changed,
                     29: self.entry_next,
                 },
-                workgroups=n_e,
+                workgroups=e1 - e0,
             )
+        n_e = len(entries["tile"])
         self.changed_readback.encode(encoder, self.changed, 0, 4 * n_e)
 
-    def encode_checkpoints(self, encoder, entries: dict, kept: dict, longest: int, **params):
-        """Record the checkpoint pass (composite.wgsl:checkpoints) over `entries` ({view, tile}):
-        the pixels' state at every `ckpt_every` positions of those tiles' clean lists into
-        kept["ckpt_states"] (slots from kept["ckpt_base"]), each later chunk's own result into
-        kept["chunk_states"] (slots from kept["chunk_base"]) and each pixel's end into kept["stop"].
-        Same kept buffers and params as `encode`. Queue writes: one encode per submission."""
+    def encode_checkpoints(self, encoder, entries: dict, kept: dict, longest: int, groups=None, **params):
+        """Record the checkpoint pass (composite.wgsl:checkpoints) over `entries` ({view, tile},
+        sorted by view): the pixels' state at every `ckpt_every` positions of those tiles' clean
+        lists into kept["ckpt_states"] (slots from kept["ckpt_base"]), each later chunk's own
+        result into kept["chunk_states"] (slots from kept["chunk_base"]) and each pixel's end into
+        kept["stop"]. Same kept buffers, groups and params as `encode`."""
         n = len(entries["tile"])
         entries = {"variant": np.zeros(n, np.int64), "prim": np.zeros(n, np.int64), **entries}
-        n_e = self._write_entries(entries)
-        passes = self._write_params(n_e, max(int(longest) - 1, 0), params)
-        for c in range(passes if n_e else 0):
+        dispatches = self._dispatches(entries, max(int(longest) - 1, 0), params, groups)
+        for slot, v0, v1, e0, e1 in dispatches:
             self.k_checkpoints.dispatch(
                 encoder,
-                self._kept_bindings(c, kept),
-                workgroups=n_e,
+                self._kept_bindings(slot, kept, v0, v1, params["n_prims"], params["capacity"]),
+                workgroups=e1 - e0,
             )
 
     def read_changed(self, n: int) -> np.ndarray:

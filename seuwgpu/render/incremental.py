@@ -60,8 +60,8 @@ class CleanViews:
         r, g = self.r, self.r.gpu
         if self.version == r.version:
             return
-        rects = g.read(r.kv_rect, np.uint32, 0, 8 * r.n * r.k).reshape(r.k, r.n, 2)
-        self.rects = unpack_rects(rects)
+        rects = g.read(r.kv_rect, np.uint32, 0, 8 * r.kv_stride * r.k).reshape(r.k, r.kv_stride, 2)
+        self.rects = unpack_rects(rects[:, : r.n])
         ranges = g.read(r.kv_ranges, np.uint32, 0, 8 * r.n_tiles * r.k).reshape(-1, 2).astype(np.int64)
         lengths = ranges[:, 1] - ranges[:, 0]
         self.longest_list = int(lengths.max(initial=0))  # chunk dispatches
@@ -99,6 +99,7 @@ class CleanViews:
                 {"view": view[sl], "tile": tile[sl]},
                 self.kept,
                 int(lengths[listed[sl]].max()),
+                groups=r.kept_view_groups(),
                 **self.params(n_variants=1),
             )
             g.submit(enc)
@@ -142,7 +143,7 @@ class CleanViews:
             "height": r.height,
             "tiles_x": r.tiles_x,
             "n_tiles": r.n_tiles,
-            "n_prims": r.n,
+            "n_prims": r.kv_stride,
             "n_variants": n_variants,
             "capacity": r.capacity,
             "background": r.background,
@@ -265,7 +266,7 @@ class IncrementalCompositor:
         projected records sit at those indices) into the slabs; writes the tile map
         ([m, K, T] int32, slab index or -1). Returns (tile_map, variant, view, tile) per slab."""
         p = self.projection
-        b_idx, v_idx, t_idx = np.nonzero(dirty)
+        v_idx, b_idx, t_idx = np.nonzero(dirty.transpose(1, 0, 2))  # by view: kept view groups
         tile_map = np.full(dirty.shape, -1, dtype=np.int32)
         tile_map[b_idx, v_idx, t_idx] = np.arange(b_idx.size, dtype=np.int32)
         self.gpu.write(self.tile_map, tile_map)
@@ -276,6 +277,7 @@ class IncrementalCompositor:
             variant={"xy": p.xy, "conic": p.conic, "rgb": p.rgb, "rect": p.rect},
             clean_image=self.clean_buf,
             longest=self.longest_list,
+            groups=self.r.kept_view_groups(),
             **self.clean.params(n_variants=self.B),
         )
         return tile_map, b_idx, v_idx, t_idx

@@ -158,8 +158,23 @@ class Renderer:
     @property
     def max_capacity(self) -> int:
         """Most pairs a view's tile list may hold: one binding of u32, and with kept views, the K
-        lists of kv_isect and kv_box (one buffer each, bound whole) in one binding."""
-        return self.gpu.max_binding // (4 * (self.k if self.keep_views else 1))
+        lists of kv_isect and kv_box in one buffer each (bound a view group at a time:
+        kept_view_groups)."""
+        cap = self.gpu.max_binding // 4
+        if self.keep_views:
+            cap = min(cap, int(self.gpu.limits["max-buffer-size"]) // (4 * self.k))
+        return cap
+
+    def kept_view_groups(self) -> list[tuple[int, int]]:
+        """Views [v0, v1) whose kept records (kv_xy, kv_conic, kv_rgb at `kv_stride` a view) and
+        tile lists (kv_isect, kv_box at `capacity` a view) each fit one storage binding: the
+        incremental re-compositor binds one group per dispatch, so kept views are limited by the
+        buffer size, not by one binding (4M primitives x 4 views: 256 MB of kv_rgb)."""
+        per_view = max(16 * self.kv_stride, 4 * self.capacity)
+        size = max(1, self.gpu.max_binding // per_view)
+        if size < self.k and (4 * self.capacity) % 256:
+            raise ValueError(f"capacity {self.capacity} splits the kept views at unaligned offsets (use a power of 2)")
+        return [(v, min(v + size, self.k)) for v in range(0, self.k, size)]
 
     @property
     def image(self):
@@ -201,7 +216,9 @@ class Renderer:
         self._set_batched(self._batching())
         self.compositing.set_views(self.k, self.width, self.height)
         if self.keep_views:
-            g, n, k = self.gpu, self.n, self.k
+            # view v's records at v * kv_stride: a multiple of 64, so a view group binds aligned
+            g, k = self.gpu, self.k
+            n = self.kv_stride = -(-self.n // 64) * 64
             self.kv_xy = g.buffer(8 * n * k, STORAGE, "kv_xy")
             self.kv_conic = g.buffer(16 * n * k, STORAGE, "kv_conic")
             self.kv_rgb = g.buffer(16 * n * k, STORAGE, "kv_rgb")
@@ -333,10 +350,11 @@ class Renderer:
         self._state_hook(encoder, v, "composited")
         if self.keep_views and self.capture_views:
             n = self.n
-            encoder.copy_buffer_to_buffer(p.xy, 0, self.kv_xy, 8 * n * v, 8 * n)
-            encoder.copy_buffer_to_buffer(p.conic, 0, self.kv_conic, 16 * n * v, 16 * n)
-            encoder.copy_buffer_to_buffer(p.rgb, 0, self.kv_rgb, 16 * n * v, 16 * n)
-            encoder.copy_buffer_to_buffer(p.rect, 0, self.kv_rect, 8 * n * v, 8 * n)
+            s = self.kv_stride
+            encoder.copy_buffer_to_buffer(p.xy, 0, self.kv_xy, 8 * s * v, 8 * n)
+            encoder.copy_buffer_to_buffer(p.conic, 0, self.kv_conic, 16 * s * v, 16 * n)
+            encoder.copy_buffer_to_buffer(p.rgb, 0, self.kv_rgb, 16 * s * v, 16 * n)
+            encoder.copy_buffer_to_buffer(p.rect, 0, self.kv_rect, 8 * s * v, 8 * n)
             encoder.copy_buffer_to_buffer(b.isect_prims, 0, self.kv_isect, 4 * self.capacity * v, 4 * self.capacity)
             encoder.copy_buffer_to_buffer(b.isect_box, 0, self.kv_box, 4 * self.capacity * v, 4 * self.capacity)
             encoder.copy_buffer_to_buffer(b.ranges, 0, self.kv_ranges, 8 * self.n_tiles * v, 8 * self.n_tiles)
