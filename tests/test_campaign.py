@@ -511,3 +511,42 @@ def test_part_writer_writes_every_queued_part_and_reports_errors(tmp_path):
     broken.put(0, 4, df)
     with pytest.raises(OSError):
         broken.close()
+
+
+def test_view_times_render_view_0_within_their_budget(gpu, monkeypatch):
+    """time_ms: each defense's view 0 rendered alone, timed interleaved after a warm-up round, 9
+    rounds or, once the rounds took VIEW_TIME_BUDGET_S, no fewer than 3 (a 1M-primitive
+    campaign spent 62 of its 98 s timing all K views 10 times per defense)."""
+    from seuwgpu.faults.costs import interleaved_medians
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.model.scenes import make_scene, scene_cameras
+    from seuwgpu.render.renderer import Renderer
+
+    calls = {"a": 0, "b": 0}
+
+    def timed(name):
+        def f():
+            calls[name] += 1
+            time.sleep(0.002)
+
+        return f
+
+    med = interleaved_medians({"a": timed("a"), "b": timed("b")}, 9, budget_s=0.0)
+    assert calls == {"a": 4, "b": 4} and min(med.values()) >= 0.002  # warm-up + the 3 rounds at least
+    calls.update(a=0, b=0)
+    interleaved_medians({"a": timed("a"), "b": timed("b")}, 9, budget_s=60.0)
+    assert calls == {"a": 10, "b": 10}
+    eng = Engine(make_scene("spheres", 3000), scene_cameras("spheres", 3, 32, 32), gpu=gpu)
+    seen = []
+    real = Renderer.encode
+    monkeypatch.setattr(
+        Renderer,
+        "encode",
+        lambda self, enc, views=None, split=None: seen.append(views) or real(self, enc, views, split),
+    )
+    times = eng.view_times_ms(("none", "guard"))
+    assert set(times) == {"none", "guard"} and min(times.values()) > 0
+    assert len(seen) == 2 * 10 and all(list(v) == [0] for v in seen)
+    monkeypatch.undo()
+    site = eng.site("log_scales", 7, 0, 30)
+    assert eng.evaluate([site])[0]["footprint"] == eng.inject(site)["footprint"]  # the kept views unharmed

@@ -52,14 +52,19 @@ def defense_costs(model, camera, precision: str = "fp32", repeats: int = 7, gpu=
     return rows
 
 
-def interleaved_medians(configs: dict, repeats: int) -> dict:
+def interleaved_medians(configs: dict, repeats: int, budget_s: float | None = None, least: int = 3) -> dict:
     """{name: median seconds} of calling each of `configs` (name -> callable that returns when the
     GPU is done), after one warm-up round (pipelines, bind groups). Timed interleaved, round by
-    round, so a drift of the machine's load hits every configuration alike."""
+    round, so a drift of the machine's load hits every configuration alike. `budget_s`: no round
+    starts once the timed rounds took that long and at least `least` ran (a large model's
+    measurement would otherwise outlast the campaign it is made for)."""
     for f in configs.values():
         f()
     samples = {k: [] for k in configs}
-    for _ in range(max(int(repeats), 1)):
+    t_start = time.perf_counter()
+    for r in range(max(int(repeats), 1)):
+        if budget_s is not None and r >= least and time.perf_counter() - t_start > budget_s:
+            break
         for k, f in configs.items():
             t0 = time.perf_counter()
             f()
