@@ -841,10 +841,11 @@ fn all_pixels_finished(p: ptr<function, Pixels>, li: u32) -> bool {
 //   that reaches it before its end moves across a chunk boundary (the removal or insertion shifts
 //   the positions between them by one; records that skip a pixel change nothing in it, and a
 //   chunk of them merges as the identity), or its clean value is not finite (conservative);
-// - one chunk of the variant's list per dispatch (pass k: the k-th chunk from the one it resumes
-//   in); between dispatches the slab holds the chunks merged so far and variant_ended the pixels
-//   that ended; an entry writes its pixels once every one has ended or at its list's last chunk
-//   (entry_done then skips it).
+// - one chunk of the variant's list per dispatch: pass 0 the chunk it resumes in, each later pass
+//   the next chunk a pixel must walk again (entry_next; the chunks between come from the clean
+//   frame's per-chunk results); between dispatches the slab holds the chunks merged so far and
+//   variant_ended the pixels that ended; an entry writes its pixels once every one has ended or
+//   at its list's last chunk (entry_next = FINISHED then skips it).
 @compute @workgroup_size(TILE, ROWS)
 fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
             @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {

@@ -8,9 +8,10 @@ of B variants (each: one primitive replaced by new stored bits) the compositor
 2. lists the dirty tiles (clean rect union new rect) per (variant, view) on the host;
 3. re-composites those tiles with `composite.wgsl:variants` (render/composite.py
    VariantCompositing: the clean tile list with the primitive removed and its new record merged
-   in at its depth) into TILE x TILE slabs.
+   in at its depth) into TILE x TILE slabs, from the clean frame's checkpoints (CleanViews) to
+   where the changed pixels end, so an upset costs its footprint rather than the lists' length.
 The caller reduces metrics over the slabs (faults/incremental.py). Slabs equal the tiles of a full
-re-render of the variant bit for bit (tests/test_incremental.py checks it).
+re-render of the variant bit for bit (tests/test_incremental.py, tests/test_composite.py check it).
 """
 
 from __future__ import annotations
