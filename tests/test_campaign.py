@@ -550,3 +550,14 @@ def test_view_times_render_view_0_within_their_budget(gpu, monkeypatch):
     monkeypatch.undo()
     site = eng.site("log_scales", 7, 0, 30)
     assert eng.evaluate([site])[0]["footprint"] == eng.inject(site)["footprint"]  # the kept views unharmed
+    # a full re-rendering engine (campaign --full) batches its views: they are timed together
+    full = Engine(make_scene("spheres", 3000), scene_cameras("spheres", 3, 32, 32), gpu=gpu, incremental=False)
+    assert full.renderer.batched
+    seen.clear()
+    monkeypatch.setattr(
+        Renderer,
+        "encode",
+        lambda self, enc, views=None, split=None: seen.append(views) or real(self, enc, views, split),
+    )
+    times = full.view_times_ms(("none", "guard"))
+    assert min(times.values()) > 0 and len(seen) == 2 * 10 and all(v is None for v in seen)
