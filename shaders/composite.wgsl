@@ -262,6 +262,13 @@ fn composite_range(p: ptr<function, Pixels>, a: u32, b: u32, origin: vec2<f32>, 
     }
 }
 
+// Where pixel (Quad j, lane i) of the invocation at column `col`, rows row0 .., lies in slot
+// `slot` of an array of TILE x TILE pixel states (a chunk's slab, a variant's slab, a
+// checkpoint, a chunk's clean result).
+fn slot_pixel(slot: u32, col: u32, row0: u32, j: u32, i: u32) -> u32 {
+    return slot * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + col;
+}
+
 // A chunk's pixels into slab `slot` (t negated where stopped: done lanes outside the viewport are
 // never merged).
 fn write_slab(p: ptr<function, Pixels>, slot: u32, col: u32, row0: u32) {
@@ -269,8 +276,7 @@ fn write_slab(p: ptr<function, Pixels>, slot: u32, col: u32, row0: u32) {
         let q = (*p).q[j];
         let t = select(q.T, -q.T, q.done);
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            let ly = row0 + QUAD * j + i;
-            chunk_slabs[slot * TILE_PIXELS + ly * TILE + col] = vec4<f32>(q.r[i], q.g[i], q.b[i], t[i]);
+            chunk_slabs[slot_pixel(slot, col, row0, j, i)] = vec4<f32>(q.r[i], q.g[i], q.b[i], t[i]);
         }
     }
 }
@@ -280,7 +286,7 @@ fn read_slab(slot: u32, col: u32, row0: u32, p0: Pixels) -> Pixels {
     for (var j = 0u; j < QPI; j = j + 1u) {
         var t: vec4<f32>;
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            let v = chunk_slabs[slot * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + col];
+            let v = chunk_slabs[slot_pixel(slot, col, row0, j, i)];
             p.q[j].r[i] = v.x;
             p.q[j].g[i] = v.y;
             p.q[j].b[i] = v.z;
@@ -509,10 +515,11 @@ fn boxes_meet(a: u32, b: u32) -> bool {
 // list has more than one chunk)
 var<workgroup> s_list: vec4<u32>;
 var<workgroup> s_insert_at: u32;  // the corrupted record's place in the clean list (before that entry)
-// (first position where the lists differ or NONE, the checkpoint the walk resumes from, 0, 0)
-var<workgroup> s_walk: vec4<u32>;
+// (first position where the lists differ or NONE, the checkpoint the walk resumes from)
+var<workgroup> s_walk: vec2<u32>;
 var<workgroup> s_status: u32;  // the chunk this pass walks, or FINISHED
 var<workgroup> s_need: atomic<u32>;  // some pixel must walk the chunk being decided
+var<workgroup> s_needed: u32;  // s_need, read once every invocation has voted
 // Clean positions of the records that the change moves across a chunk boundary: first, end
 // (exclusive), every CHUNK_PAIRS (none when first >= end).
 var<workgroup> s_cross: vec2<u32>;
@@ -558,7 +565,7 @@ fn write_variant_state(e: u32, li: u32, p: ptr<function, Pixels>, col: u32, row0
     for (var j = 0u; j < QPI; j = j + 1u) {
         let q = (*p).q[j];
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            slabs[e * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + col] = vec4<f32>(q.r[i], q.g[i], q.b[i], q.T[i]);
+            slabs[slot_pixel(e, col, row0, j, i)] = vec4<f32>(q.r[i], q.g[i], q.b[i], q.T[i]);
             ended = ended | (u32(q.done[i]) << (QUAD * j + i));
         }
     }
@@ -570,7 +577,7 @@ fn read_variant_state(e: u32, li: u32, col: u32, row0: u32, p0: Pixels) -> Pixel
     let ended = variant_ended[e * LANES + li];
     for (var j = 0u; j < QPI; j = j + 1u) {
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            let v = slabs[e * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + col];
+            let v = slabs[slot_pixel(e, col, row0, j, i)];
             p.q[j].r[i] = v.x;
             p.q[j].g[i] = v.y;
             p.q[j].b[i] = v.z;
@@ -587,7 +594,7 @@ fn write_checkpoint(slot: u32, p: ptr<function, Pixels>, col: u32, row0: u32) {
     for (var j = 0u; j < QPI; j = j + 1u) {
         let q = (*p).q[j];
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            ckpt_states[slot * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + col] = vec4<f32>(q.r[i], q.g[i], q.b[i], q.T[i]);
+            ckpt_states[slot_pixel(slot, col, row0, j, i)] = vec4<f32>(q.r[i], q.g[i], q.b[i], q.T[i]);
         }
     }
 }
@@ -596,7 +603,7 @@ fn read_checkpoint(slot: u32, col: u32, row0: u32, p0: Pixels) -> Pixels {
     var p = p0;
     for (var j = 0u; j < QPI; j = j + 1u) {
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            let v = ckpt_states[slot * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + col];
+            let v = ckpt_states[slot_pixel(slot, col, row0, j, i)];
             p.q[j].r[i] = v.x;
             p.q[j].g[i] = v.y;
             p.q[j].b[i] = v.z;
@@ -680,7 +687,7 @@ struct Walk {
     bx: u32,
 };
 
-// Blend positions [from, hi) of the walk's list into p (from, hi uniform). The list is walked in
+// Blend positions [start, hi) of the walk's list into p (start, hi uniform). The list is walked in
 // rounds of `round` entries (up to ROUND_MAX, dividing CHUNK_PAIRS): each invocation tests round /
 // LANES consecutive entries' pixel boxes against `live`; those that meet it are listed in list
 // order (an exclusive scan of the per-invocation counts), then staged and blended BATCH at a time,
@@ -789,12 +796,13 @@ fn must_walk(walks: vec4<u32>, stop: vec4<u32>, j: u32) -> vec4<bool> {
     return ((walks & bit) != vec4<u32>(0u)) | from31 | ended;
 }
 
-// p with the `take` lanes replaced by chunk j's clean result (c, t, stopped; a chunk past the
-// clean list's last holds none of the lanes' records: c = 0, t = 1).
+// p with the `take` lanes replaced by chunk j >= 1's clean result (c, t, stopped, with t
+// negated where it stopped as write_slab stores it; a chunk past the clean list's last holds none
+// of the lanes' records: c = 0, t = 1).
 fn take_clean_chunk(p0: Pixels, take: array<vec4<bool>, QPI>, slot0: u32, j: u32, clean_chunks: u32, col: u32,
                     row0: u32) -> Pixels {
     var p = p0;
-    if (j == 0u || j >= clean_chunks) {
+    if (j >= clean_chunks) {
         for (var q = 0u; q < QPI; q = q + 1u) {
             p.q[q].r = select(p.q[q].r, vec4<f32>(0.0), take[q]);
             p.q[q].g = select(p.q[q].g, vec4<f32>(0.0), take[q]);
@@ -808,12 +816,13 @@ fn take_clean_chunk(p0: Pixels, take: array<vec4<bool>, QPI>, slot0: u32, j: u32
     for (var q = 0u; q < QPI; q = q + 1u) {
         for (var i = 0u; i < QUAD; i = i + 1u) {
             if (take[q][i]) {
-                let st = chunk_states[slot * TILE_PIXELS + (row0 + QUAD * q + i) * TILE + col];
+                let st = chunk_states[slot_pixel(slot, col, row0, q, i)];
+                let stopped = st.w < 0.0;  // read_slab's rule: a NaN t (never stopped) as it is
                 p.q[q].r[i] = st.x;
                 p.q[q].g[i] = st.y;
                 p.q[q].b[i] = st.z;
-                p.q[q].T[i] = abs(st.w);
-                p.q[q].done[i] = st.w < 0.0;
+                p.q[q].T[i] = select(st.w, -st.w, stopped);
+                p.q[q].done[i] = stopped;
             }
         }
     }
@@ -945,7 +954,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         if (a != NONE && n > 0u) {
             s = min(a / rc.ckpt_every, (n - 1u) / rc.ckpt_every) * rc.ckpt_every;
         }
-        s_walk = vec4<u32>(a, s, 0u, 0u);
+        s_walk = vec2<u32>(a, s);
     }
     let list = workgroupUniformLoad(&s_list);
     let walk = workgroupUniformLoad(&s_walk);
@@ -1070,9 +1079,9 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
             }
             workgroupBarrier();
             if (li == 0u) {
-                s_status = atomicLoad(&s_need);
+                s_needed = atomicLoad(&s_need);
             }
-            if (workgroupUniformLoad(&s_status) != 0u) {
+            if (workgroupUniformLoad(&s_needed) != 0u) {
                 break;
             }
             var ch = take_clean_chunk(restart(&acc), all_take, slot0, j, clean_chunks, lid.x, row0);
@@ -1192,8 +1201,7 @@ fn checkpoints(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nw
             let stopped = p.q[j].done & !ended_before[j];
             let t = select(p.q[j].T, -p.q[j].T, stopped);
             for (var i = 0u; i < QUAD; i = i + 1u) {
-                let at = slot * TILE_PIXELS + (row0 + QUAD * j + i) * TILE + lid.x;
-                chunk_states[at] = vec4<f32>(p.q[j].r[i], p.q[j].g[i], p.q[j].b[i], t[i]);
+                chunk_states[slot_pixel(slot, lid.x, row0, j, i)] = vec4<f32>(p.q[j].r[i], p.q[j].g[i], p.q[j].b[i], t[i]);
             }
         }
     }
