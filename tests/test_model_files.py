@@ -128,7 +128,8 @@ def test_spz_read_against_the_spec(tmp_path, version, degree):
 
 
 def test_spz_version4_zstd_streams(tmp_path):
-    zstd = pytest.importorskip("zstandard")
+    import zstandard as zstd  # a base dependency: a plain install opens SPZ v4
+
     n, planes, expect = spz_planes(3, 1)
     order = ("positions", "alphas", "colors", "scales", "rotations", "sh")
     streams = [zstd.ZstdCompressor().compress(np.asarray(planes[k], np.uint8).tobytes()) for k in order]
@@ -140,6 +141,39 @@ def test_spz_version4_zstd_streams(tmp_path):
     m = load_model(p)
     for f, want in expect.items():
         np.testing.assert_array_equal(bits(getattr(m, f)), bits(want), err_msg=f)
+
+
+def test_a_zstd_spz_allocates_no_more_than_its_header_sizes(tmp_path):
+    """SPZ v4: a header claiming 2^32 - 1 points is refused before any frame is inflated, and a
+    frame declaring more bytes than its plane holds is refused before zstandard allocates them
+    (it allocates a frame's declared size whatever max_output_size says: a MemoryError before)."""
+    import zstandard as zstd
+
+    from seuwgpu.errors import TooBig
+
+    n, planes, _ = spz_planes(3, 0)
+    order = ("positions", "alphas", "colors", "scales", "rotations")
+    plain = [np.asarray(planes[k], np.uint8).tobytes() for k in order]
+    frames = [zstd.ZstdCompressor().compress(p) for p in plain]
+
+    def v4(count, frames):
+        header = struct.pack("<IIIBBBBI12x", 0x5053474E, 4, count, 0, 12, 0, len(frames), 32)
+        toc = b"".join(struct.pack("<QQ", len(c), len(p)) for c, p in zip(frames, plain))
+        return header + toc + b"".join(frames)
+
+    huge, lying = tmp_path / "huge.spz", tmp_path / "lying.spz"
+    huge.write_bytes(v4(2**32 - 1, frames))
+    small = frames[1]  # the alphas' frame: single segment, its size (3) in a 1-byte field
+    assert small[4] & 0xE0 == 0x20 and small[5] == len(plain[1])
+    big = small[:4] + bytes([small[4] | 0xC0]) + struct.pack("<Q", 1 << 61) + small[6:]  # an 8-byte field: 2^61
+    lying.write_bytes(v4(n, frames[:1] + [big] + frames[2:]))
+    with traced_peak() as peak:
+        with pytest.raises(TooBig, match="SPZ point count 4294967295 needs about"):
+            load_model(huge)
+        declares = rf"stream 1 \(alphas\): its frame declares {1 << 61} bytes, expected 3"
+        with pytest.raises(ModelFileError, match=declares):
+            load_model(lying)
+    assert peak[0] < 16 << 20
 
 
 @pytest.mark.parametrize("name", ["leica-sofort", "yashica-t4"])

@@ -1,14 +1,18 @@
 """3DGS model files: one loader that recognises a file by its content, and writers.
 
-| format | recognised by | read with | up axis |
-|---|---|---|---|
-| INRIA PLY (`.ply`; binary LE/BE, ASCII) | `ply` magic, `vertex` element | ply.py (own header + numpy) | -y |
-| SuperSplat/PlayCanvas compressed PLY | `ply` magic, `chunk` element, packed_* | compressed_ply.py | -y |
-| Niantic SPZ v1-v4 (`.spz`) | gzip header / NGSP magic | spz.py (v4: zstandard) | +y |
-| antimatter15 `.splat` | no header: size % 32 == 0, plausible records | splat.py | -y |
-| gsplat checkpoint (`.pt`) | zip / pickle magic | gsplat.py (torch) | -y |
-| GaussianSplats3D `.ksplat` (v0.1, levels 0-2) | its header, sizes adding up to the file's | ksplat.py | -y |
-| PlayCanvas SOG v2 (`.sog` zip; `meta.json` + WebP) | zip holding meta.json; JSON with "means" | sog.py (Pillow) | -y |
+| format | recognised by | module | up axis | written |
+|---|---|---|---|---|
+| INRIA PLY (`.ply`; binary LE/BE, ASCII) | `ply` magic, `vertex` element | ply.py (own header + numpy) | -y | yes |
+| SuperSplat/PlayCanvas compressed PLY | `ply` magic, `chunk` element, packed_* | compressed_ply.py | -y | no |
+| Niantic SPZ v1-v4 (`.spz`) | gzip header / NGSP magic | spz.py (v4: zstandard) | +y | v2, v3 |
+| PlayCanvas SOG v2 (`.sog` zip; `meta.json` + WebP) | zip with meta.json; JSON: "means" | sog.py (Pillow) | -y | no |
+| GaussianSplats3D `.ksplat` (v0.1, levels 0-2) | its header, sizes adding up to the file's | ksplat.py | -y | no |
+| gsplat checkpoint (`.pt`) | zip / pickle magic | gsplat.py (torch) | -y | no |
+| antimatter15 `.splat` | no header: size % 32 == 0, plausible records | splat.py | -y | no |
+
+Each module exports one `FORMAT` (base.ModelFormat: name, suffixes, up axis, sniff, read ->
+(Model, notes), write or None); REGISTRY below lists them in sniffing order, and everything here
+loops over it. Adding a format: CONTRIBUTING.md, "Add a model format".
 
 The up axis is the file format's convention, used to frame a model when no cameras are given:
 SPZ stores RUB axes (y up); PLY, .splat, .ksplat, SOG and gsplat models live in their capture's COLMAP world,
@@ -28,17 +32,23 @@ from pathlib import Path
 import numpy as np
 
 from seuwgpu.model.fields import FIELDS, Model
-from seuwgpu.model.formats import compressed_ply, gsplat, ksplat, ply, sog, spz, zips
+from seuwgpu.model.formats import compressed_ply, gsplat, ksplat, ply, sog, spz
 from seuwgpu.model.formats import splat as splat_format
+from seuwgpu.model.formats.base import ANTIALIASED_NOTE, UP_AXES, ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError, NonFiniteWarning
 
 __all__ = [
+    "ANTIALIASED_NOTE",
     "FORMATS",
+    "REGISTRY",
+    "UP_AXES",
     "ModelFile",
+    "ModelFormat",
     "check_renderable",
     "ModelFileError",
     "NonFiniteWarning",
     "detect_format",
+    "format_named",
     "load_model",
     "model_files",
     "nonfinite_counts",
@@ -46,23 +56,26 @@ __all__ = [
     "save_model",
 ]
 
-FORMATS = {
-    "ply": "INRIA 3DGS PLY",
-    "compressed-ply": "SuperSplat/PlayCanvas compressed PLY",
-    "spz": "Niantic SPZ",
-    "splat": "antimatter15 .splat",
-    "gsplat": "gsplat checkpoint",
-    "ksplat": "GaussianSplats3D .ksplat",
-    "sog": "PlayCanvas SOG",
-}
-UP = {"ply": "-y", "compressed-ply": "-y", "spz": "+y", "splat": "-y", "gsplat": "-y", "ksplat": "-y", "sog": "-y"}
-KSPLAT_LEVELS = {
-    0: "float32, 8-bit colour and opacity",
-    1: "16-bit positions in buckets, float16 scales, rotations and SH, 8-bit colour and opacity",
-    2: "16-bit positions in buckets, float16 scales and rotations, 8-bit colour, opacity and SH",
-}
-UP_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
-ANTIALIASED_NOTE = "trained antialiased (mip-splatting): rendered here without the opacity compensation"
+# Every format, in sniffing order: the first whose sniff says yes reads the file. The compressed
+# PLY comes before the PLY (which takes any PLY), the headerless .splat last.
+REGISTRY: tuple[ModelFormat, ...] = (
+    compressed_ply.FORMAT,
+    ply.FORMAT,
+    spz.FORMAT,
+    sog.FORMAT,
+    ksplat.FORMAT,
+    gsplat.FORMAT,
+    splat_format.FORMAT,
+)
+FORMATS = {f.name: f.title for f in REGISTRY}  # name -> title (kept for callers; the code below asks REGISTRY)
+
+
+def format_named(name: str) -> ModelFormat:
+    """The registered format of this name (ModelFileError naming the known ones otherwise)."""
+    for f in REGISTRY:
+        if f.name == name:
+            return f
+    raise ModelFileError(f"unknown model format {name!r}; known: {', '.join(f.name for f in REGISTRY)}")
 
 
 @dataclass
@@ -94,118 +107,53 @@ def model_label(path) -> str:
     if p.name == "point_cloud.ply" and p.parent.name.startswith("iteration_") and p.parent.parent.name == "point_cloud":
         return p.resolve().parents[2].name
     name = p.name
-    for suffix in (".compressed.ply", ".ply", ".spz", ".splat", ".ksplat", ".sog", ".pt", ".pth", ".ckpt"):
+    # longest first: "x.compressed.ply" loses ".compressed.ply", not ".ply"
+    for suffix in sorted({s for f in REGISTRY for s in f.suffixes}, key=len, reverse=True):
         if name.lower().endswith(suffix):
             return name[: -len(suffix)]
     return p.stem
 
 
-def detect_format(path) -> str:
-    """The format of a file from its content (magic bytes, gzip header, PLY header)."""
+def _unrecognised(spath: str) -> ModelFileError:
+    titles = ", ".join(f.title for f in REGISTRY)
+    hints = "".join(f"; {f.hint}" for f in REGISTRY if f.hint)
+    return ModelFileError(f"{spath}: unrecognised model file (supported: {titles}{hints})")
+
+
+def sniff_format(path) -> ModelFormat:
+    """The registered format of a file, from its content (REGISTRY's sniffers, in order)."""
     spath = os.fspath(path)
     if not os.path.exists(spath):
         raise FileNotFoundError(f"{spath}: no such file")
     if os.path.isdir(spath):
         if os.path.isfile(os.path.join(spath, "meta.json")):
-            return "sog"
+            return sog.FORMAT
         raise ModelFileError(
             f"{spath}: is a folder without point_cloud/iteration_*/point_cloud.ply (INRIA output) or meta.json (SOG)"
         )
     if not os.path.isfile(spath):  # reading a pipe would wait for a writer forever
         raise ModelFileError(f"{spath}: not a regular file (a pipe or device cannot be read as a model)")
-    size = os.path.getsize(spath)
-    with open(spath, "rb") as f:
-        head = f.read(4096)
-    if head.startswith(b"ply\n") or head.startswith(b"ply\r\n"):
-        return "compressed-ply" if compressed_ply.is_compressed_ply(ply.read_header(spath)) else "ply"
-    if spz.is_spz(head):
-        return "spz"
-    members, zip_error = [], None  # a zip's names, listed once for the SOG and checkpoint tests
-    if head[:4] == b"PK\x03\x04":
-        try:
-            members = zips.zip_members(spath)
-        except ValueError as e:
-            zip_error = str(e)
-        why = zip_error or sog.zip_problem(members)
-        if why is None:
-            return "sog"
-        if spath.lower().endswith(".sog"):
-            raise sog.SogError(f"{spath}: not a SOG: {why}")
-    if sog.is_sog_meta(head):
-        return "sog"
-    if spath.lower().endswith(".ksplat"):
-        why = ksplat.ksplat_problem(spath)
-        if why:
-            raise ksplat.KsplatError(f"{spath}: not a .ksplat this reader takes: {why}")
-        return "ksplat"
-    if ksplat.looks_like_ksplat(spath, head):
-        return "ksplat"
-    if gsplat.is_torch_file(head):
-        why = (zip_error or gsplat.zip_problem(members)) if head[:4] == b"PK\x03\x04" else None
-        if why:
-            raise ModelFileError(f"{spath}: {why}")
-        return "gsplat"
-    if spath.lower().endswith(".splat"):  # no header: the name says .splat, the content must agree
-        why = splat_format.splat_problem(size, head)
-        if why:
-            raise splat_format.SplatError(f"{spath} does not look like an antimatter15 .splat file: {why}")
-        return "splat"
-    if splat_format.looks_like_splat(size, head):
-        return "splat"
-    raise ModelFileError(
-        f"{spath}: unrecognised model file (not a PLY, SPZ, .splat, .ksplat, SOG or PyTorch checkpoint; a .splat file, "
-        "which has no header, is recognised by its extension); "
-        f"supported: {', '.join(FORMATS.values())}"
-    )
+    probe = Probe.of(spath)
+    for f in REGISTRY:
+        if f.sniff(probe):
+            return f
+    raise _unrecognised(spath)
 
 
-def _ply_up(header: ply.PlyHeader) -> str | None:
-    for c in header.comments:
-        words = c.split()
-        if len(words) == 2 and words[0] == "up" and words[1] in UP_AXES:
-            return words[1]
-    return None
+def detect_format(path) -> str:
+    """The format of a file from its content (magic bytes, gzip header, PLY header): its name."""
+    return sniff_format(path).name
 
 
 def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
     """Load any supported model file (see the module table). Raises ModelFileError (a ValueError)
     naming the file and the problem; warns (NonFiniteWarning) when the model holds NaN or Inf."""
     spath = os.fspath(model_file(path))
-    fmt = detect_format(spath)
-    notes: list[str] = [inria_iteration_note(path)] if os.path.isdir(path) and fmt != "sog" else []
-    up = UP[fmt]
-    if fmt in ("ply", "compressed-ply"):
-        header = ply.read_header(spath)
-        up = _ply_up(header) or up
-        if fmt == "ply":
-            model = ply.model_from_header(header)
-            if header.format != "binary_little_endian":
-                notes.append(header.format.replace("_", " "))
-        else:
-            model = compressed_ply.read_compressed_ply(header)
-    elif fmt == "spz":
-        model, info = spz.read_spz(spath)
-        notes.append(f"SPZ version {info.version}")
-        if info.antialiased:
-            notes.append(ANTIALIASED_NOTE)
-    elif fmt == "splat":
-        model = splat_format.read_splat(spath)
-    elif fmt == "ksplat":
-        model, kinfo = ksplat.read_ksplat(spath)
-        notes.append(f"ksplat v{kinfo.version}, compression level {kinfo.level} ({KSPLAT_LEVELS[kinfo.level]})")
-    elif fmt == "sog":
-        model, sinfo = sog.read_sog(spath)
-        palette = f", SH palette of {sinfo.palette}" if sinfo.bands else ""
-        quantised = f"16-bit log positions, 8-bit rotations, 256-entry codebooks{palette}"
-        notes.append(f"SOG version {sinfo.version} (quantised: {quantised})")
-        if sinfo.model == "antialiased":
-            notes.append(ANTIALIASED_NOTE)
-        elif sinfo.model != "default":
-            notes.append(
-                sog.MODEL_NOTES.get(sinfo.model, f"unrecognised model {sinfo.model!r} in meta.json, read as default")
-            )
-    else:
-        model = gsplat.read_gsplat(spath)
+    fmt = sniff_format(spath)
+    notes: list[str] = [inria_iteration_note(path)] if os.path.isdir(path) and fmt is not sog.FORMAT else []
+    model, format_notes = fmt.read(spath)
+    notes += format_notes
+    up = (fmt.recorded_up(spath) if fmt.recorded_up else None) or fmt.up
     check_renderable(model, spath)
     if warn_nonfinite:
         counts = nonfinite_counts(model)
@@ -213,7 +161,7 @@ def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
             total = sum(counts.values())
             per = ", ".join(f"{f} {c}" for f, c in counts.items())
             warnings.warn(f"{spath}: the model holds {total} non-finite values ({per})", NonFiniteWarning)
-    return ModelFile(model, Path(spath), fmt, up, notes)
+    return ModelFile(model, Path(spath), fmt.name, up, notes)
 
 
 def _inria_iterations(folder) -> list[tuple[int, Path]]:
@@ -294,7 +242,7 @@ def nonfinite_counts(model: Model) -> dict[str, int]:
 
 
 def save_model(model: Model, path, format: str | None = None, up: str | None = None, **options) -> str:
-    """Write `model` as an INRIA PLY (`.ply`) or an SPZ (`.spz`; options: version=3,
+    """Write `model` in a writable format (INRIA PLY `.ply`, or SPZ `.spz`; options: version=3,
     antialiased=False), chosen by `format` or the file extension. Returns the format written.
 
     `up`: the model's up axis. A PLY records it (`comment up +z`, which read_model honours). SPZ
@@ -302,15 +250,13 @@ def save_model(model: Model, path, format: str | None = None, up: str | None = N
     to +y first (model.sh.rotate_model: positions, orientations and SH together), and the file
     stands upright in every SPZ viewer, this one included."""
     spath = os.fspath(path)
-    fmt = format or {".ply": "ply", ".spz": "spz"}.get(Path(spath).suffix.lower())
-    if fmt == "ply":
-        ply.save_ply(model, spath, comments=[f"up {up}"] if up else ())
-    elif fmt == "spz":
-        if up not in (None, "+y"):
-            from seuwgpu.model.sh import rotate_model, rotation_to_y
-
-            model = rotate_model(model, rotation_to_y(up))
-        spz.save_spz(model, spath, **options)
+    writable = [f for f in REGISTRY if f.write is not None]
+    if format is not None:
+        fmt = next((f for f in writable if f.name == format), None)
     else:
-        raise ModelFileError(f"{spath}: cannot write this format; write .ply (INRIA PLY) or .spz (Niantic SPZ)")
-    return fmt
+        fmt = next((f for f in writable if spath.lower().endswith(f.suffixes)), None)
+    if fmt is None:
+        choices = " or ".join(f"{f.suffixes[0]} ({f.title})" for f in writable)
+        raise ModelFileError(f"{spath}: cannot write this format; write {choices}")
+    fmt.write(model, spath, up=up, **options)
+    return fmt.name

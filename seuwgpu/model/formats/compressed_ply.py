@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from seuwgpu.model.fields import Model
+from seuwgpu.model.formats import ply
+from seuwgpu.model.formats.base import ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.ply import PlyHeader, read_element
 from seuwgpu.model.formats.quantized import SH_C0, finite_logit
@@ -138,3 +140,19 @@ def read_compressed_ply(header: PlyHeader) -> Model:
         sh_dc=(c[:, :3] - 0.5) / SH_C0,
         sh_rest=sh_rest,
     )
+
+
+def _sniff(probe: Probe) -> bool:
+    """A PLY whose vertices are packed (sniffed before the plain PLY, which takes any PLY)."""
+    return ply.is_ply(probe) and is_compressed_ply(ply.read_header(probe.path))
+
+
+FORMAT = ModelFormat(
+    name="compressed-ply",
+    title="SuperSplat/PlayCanvas compressed PLY",
+    suffixes=(".compressed.ply",),
+    up="-y",
+    sniff=_sniff,
+    read=lambda path: (read_compressed_ply(ply.read_header(path)), []),
+    recorded_up=ply.recorded_up,
+)

@@ -13,6 +13,7 @@ import os
 import numpy as np
 
 from seuwgpu.model.fields import Model
+from seuwgpu.model.formats.base import ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.zips import shown_members
 
@@ -83,3 +84,25 @@ def read_gsplat(path) -> Model:
     if not isinstance(splats, dict):
         raise GsplatError(f"{spath}: a PyTorch file without a gsplat 'splats' dict")
     return model_from_splats({k: v.detach().cpu().numpy() for k, v in splats.items()}, spath)
+
+
+def _sniff(probe: Probe) -> bool:
+    """A torch.save file; a zip that holds no data.pkl is refused with what it holds instead."""
+    if not is_torch_file(probe.head):
+        return False
+    if probe.is_zip:
+        members, zip_error = probe.zip_members()
+        why = zip_error or zip_problem(members)
+        if why:
+            raise GsplatError(f"{probe.path}: {why}")
+    return True
+
+
+FORMAT = ModelFormat(
+    name="gsplat",
+    title="gsplat checkpoint",
+    suffixes=(".pt", ".pth", ".ckpt"),
+    up="-y",
+    sniff=_sniff,
+    read=lambda path: (read_gsplat(path), []),
+)

@@ -39,9 +39,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from seuwgpu.model.fields import Model, sh_rest_count
+from seuwgpu.model.formats.base import ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.quantized import byte_opacity, byte_sh_dc
 
+SUFFIXES = (".ksplat",)
 HEADER_BYTES = 4096
 SECTION_HEADER_BYTES = 1024
 MAX_DEGREE = 2  # SH degrees 0-2: 0, 9 or 24 values a splat
@@ -51,6 +53,11 @@ DEFAULT_RANGE = {0: 1, 1: 32767, 2: 32767}
 # the smallest positive scale each level's stored type holds: float32 and float16 subnormals
 SMALLEST_SCALE = {0: 2.0**-149, 1: 2.0**-24, 2: 2.0**-24}
 BUCKET_BYTES = 12
+LEVEL_NOTES = {
+    0: "float32, 8-bit colour and opacity",
+    1: "16-bit positions in buckets, float16 scales, rotations and SH, 8-bit colour and opacity",
+    2: "16-bit positions in buckets, float16 scales and rotations, 8-bit colour, opacity and SH",
+}
 
 _MAIN = np.dtype(
     [
@@ -260,3 +267,29 @@ def _decode_section(spath, i, s, level, degree, sh_lo, sh_hi, f, count) -> dict[
         "rgba": rec["rgba"],
         "sh_rest": sh_rest,
     }
+
+
+def _sniff(probe: Probe) -> bool:
+    """No magic number: a file named .ksplat must be one (or hear why not); any other file is one
+    when its header's sizes add up to the file's exactly."""
+    if probe.named(SUFFIXES):
+        why = ksplat_problem(probe.path)
+        if why:
+            raise KsplatError(f"{probe.path}: not a .ksplat this reader takes: {why}")
+        return True
+    return looks_like_ksplat(probe.path, probe.head)
+
+
+def _read(path: str) -> tuple[Model, list[str]]:
+    model, info = read_ksplat(path)
+    return model, [f"ksplat v{info.version}, compression level {info.level} ({LEVEL_NOTES[info.level]})"]
+
+
+FORMAT = ModelFormat(
+    name="ksplat",
+    title="GaussianSplats3D .ksplat",
+    suffixes=SUFFIXES,
+    up="-y",
+    sniff=_sniff,
+    read=_read,
+)

@@ -44,9 +44,11 @@ import warnings
 import numpy as np
 
 from seuwgpu.model.fields import Model, sh_rest_count
+from seuwgpu.model.formats.base import UP_AXES, ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError
 
 __all__ = [
+    "FORMAT",
     "PlyError",
     "PlyHeader",
     "load_ply",
@@ -493,3 +495,42 @@ def _model_from_vertices(raw: np.ndarray, rest: list[str]) -> Model:
         sh_dc=parts["sh_dc"],
         sh_rest=parts["sh_rest"].reshape(n, r, 3),
     )
+
+
+# ---------------------------------------------------------------------------------- the format
+
+
+def is_ply(probe: Probe) -> bool:
+    return probe.head.startswith((b"ply\n", b"ply\r\n"))
+
+
+def recorded_up(path) -> str | None:
+    """The up axis a PLY records in a `comment up AXIS` line (save_model writes one), or None."""
+    for c in read_header(path).comments:
+        words = c.split()
+        if len(words) == 2 and words[0] == "up" and words[1] in UP_AXES:
+            return words[1]
+    return None
+
+
+def _read(path: str) -> tuple[Model, list[str]]:
+    header = read_header(path)
+    notes = [] if header.format == "binary_little_endian" else [header.format.replace("_", " ")]
+    return model_from_header(header), notes
+
+
+def _write(model: Model, path: str, up: str | None = None, **_spz_options) -> None:
+    """SPZ's options (version, antialiased) have no place in a PLY: ignored, so one call can write either."""
+    save_ply(model, path, comments=[f"up {up}"] if up else ())
+
+
+FORMAT = ModelFormat(
+    name="ply",
+    title="INRIA 3DGS PLY",
+    suffixes=(".ply",),
+    up="-y",
+    sniff=is_ply,
+    read=_read,
+    write=_write,
+    recorded_up=recorded_up,
+)

@@ -41,10 +41,12 @@ import numpy as np
 
 from seuwgpu.model.budget import check_model
 from seuwgpu.model.fields import Model, sh_rest_count
+from seuwgpu.model.formats.base import ANTIALIASED_NOTE, ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.quantized import byte_opacity
 from seuwgpu.model.formats.zips import shown_members
 
+SUFFIXES = (".sog",)
 PALETTE_ROW = 64  # palette entries per row of the centroids image
 # The most a bundled SOG's zip entries may declare uncompressed, checked before one is inflated (a
 # few kB of deflated zeros can declare gigabytes): meta.json holds four 256-entry codebooks and
@@ -315,3 +317,37 @@ def _sh_rest(meta, files: _Files, spath: str, n: int, bands: int, size) -> tuple
         )
     entries = cen.reshape(ch, PALETTE_ROW, k, 4).reshape(ch * PALETTE_ROW, k, 4)
     return book[entries[label, :, :3]], palette  # [N, k, 3]: coefficient-major, channel innermost
+
+
+def _sniff(probe: Probe) -> bool:
+    """A zip holding meta.json (a file named .sog that is not one hears why), or a meta.json itself."""
+    if probe.is_zip:
+        members, zip_error = probe.zip_members()
+        why = zip_error or zip_problem(members)
+        if why is None:
+            return True
+        if probe.named(SUFFIXES):
+            raise SogError(f"{probe.path}: not a SOG: {why}")
+    return is_sog_meta(probe.head)
+
+
+def _read(path: str) -> tuple[Model, list[str]]:
+    model, info = read_sog(path)
+    palette = f", SH palette of {info.palette}" if info.bands else ""
+    quantised = f"16-bit log positions, 8-bit rotations, 256-entry codebooks{palette}"
+    notes = [f"SOG version {info.version} (quantised: {quantised})"]
+    if info.model == "antialiased":
+        notes.append(ANTIALIASED_NOTE)
+    elif info.model != "default":
+        notes.append(MODEL_NOTES.get(info.model, f"unrecognised model {info.model!r} in meta.json, read as default"))
+    return model, notes
+
+
+FORMAT = ModelFormat(
+    name="sog",
+    title="PlayCanvas SOG",
+    suffixes=SUFFIXES,
+    up="-y",
+    sniff=_sniff,
+    read=_read,
+)

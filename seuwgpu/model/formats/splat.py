@@ -18,9 +18,11 @@ import os
 import numpy as np
 
 from seuwgpu.model.fields import Model
+from seuwgpu.model.formats.base import ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.quantized import byte_opacity, byte_sh_dc
 
+SUFFIXES = (".splat",)
 RECORD = np.dtype([("pos", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
 
 
@@ -85,3 +87,24 @@ def read_splat(path) -> Model:
         sh_dc=byte_sh_dc(rec["rgba"][:, :3]),
         sh_rest=np.zeros((n, 0, 3), np.float32),
     )
+
+
+def _sniff(probe: Probe) -> bool:
+    """No header: a file named .splat must pass the content check, any other file the stricter one."""
+    if probe.named(SUFFIXES):
+        why = splat_problem(probe.size, probe.head)
+        if why:
+            raise SplatError(f"{probe.path} does not look like an antimatter15 .splat file: {why}")
+        return True
+    return looks_like_splat(probe.size, probe.head)
+
+
+FORMAT = ModelFormat(
+    name="splat",
+    title="antimatter15 .splat",
+    suffixes=SUFFIXES,
+    up="-y",
+    sniff=_sniff,
+    read=lambda path: (read_splat(path), []),
+    hint="a .splat file, which has no header, is recognised by its extension",
+)

@@ -7,8 +7,7 @@ so a file decodes to the same float32 values as `spz::loadSpz` with default opti
 - Versions 1-3: one gzip stream holding a 16-byte header (magic 0x5053474e "NGSP", version,
   point count, SH degree, fractional bits, flags, reserved) and then planes: positions,
   alphas, colours, scales, rotations, SH. Version 4: a plain 32-byte header (numStreams and the
-  byte offset of a table of contents), then per plane one zstd frame (needs the `zstandard`
-  package: pip install 'seuwgpu[formats]').
+  byte offset of a table of contents), then per plane one zstd frame (read with zstandard).
 - positions: 24-bit two's complement fixed point, `fractional bits` below the point (version
   1: float16). scales: log-scale = byte / 16 - 10. alphas: logit(byte / 255). colours: SH DC =
   (byte / 255 - 0.5) / 0.15. SH rest: (byte - 128) / 128, coefficient-major with the channel
@@ -39,11 +38,14 @@ import warnings
 import zlib
 
 import numpy as np
+import zstandard
 
 from seuwgpu.model.budget import check_model
 from seuwgpu.model.fields import Model
+from seuwgpu.model.formats.base import ANTIALIASED_NOTE, ModelFormat
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.quantized import finite_logit, round_half_away, to_u8
+from seuwgpu.model.sh import rotate_model, rotation_to_y
 
 MAGIC = 0x5053474E  # "NGSP" little-endian
 COLOR_SCALE = np.float32(0.15)
@@ -174,13 +176,7 @@ def _planes_v4(path: str, data: bytes) -> tuple[SpzInfo, dict[str, bytes]]:
     if version > 4:
         raise SpzError(f"{path}: SPZ version {version} is newer than this reader (1-4)")
     info = _check_info(path, SpzInfo(version, n, degree, fbits, flags))
-    try:
-        import zstandard
-    except ImportError:
-        raise SpzError(
-            f"{path}: SPZ version 4 is zstd-compressed; install the zstandard package "
-            "(pip install 'seuwgpu[formats]') to read it"
-        ) from None
+    check_model(n, degree, what=f"{path}: SPZ point count", use="read and render")
     sizes = {k: v for k, v in _plane_sizes(info).items() if v}
     if nstreams != len(sizes) or toc < 32 or toc + 16 * nstreams > len(data):
         raise SpzError(f"{path}: corrupt SPZ v4 table of contents ({nstreams} streams at byte {toc})")
@@ -190,8 +186,15 @@ def _planes_v4(path: str, data: bytes) -> tuple[SpzInfo, dict[str, bytes]]:
         csize, usize = struct.unpack("<QQ", data[toc + 16 * i : toc + 16 * i + 16])
         if usize != size or off + csize > len(data):
             raise SpzError(f"{path}: corrupt SPZ v4 stream {i} ({name}): sizes do not match the header")
+        frame = data[off : off + csize]
         try:
-            planes[name] = dctx.decompress(data[off : off + csize], max_output_size=size)
+            # zstandard allocates what a frame declares, whatever max_output_size says
+            declared = zstandard.get_frame_parameters(frame).content_size
+            if declared not in (size, zstandard.CONTENTSIZE_UNKNOWN):
+                raise SpzError(
+                    f"{path}: corrupt SPZ v4 stream {i} ({name}): its frame declares {declared} bytes, expected {size}"
+                )
+            planes[name] = dctx.decompress(frame, max_output_size=size)
         except zstandard.ZstdError as e:
             raise SpzError(f"{path}: corrupt SPZ v4 stream {i} ({name}): {e}") from None
         if len(planes[name]) != size:
@@ -353,3 +356,30 @@ def save_spz(model: Model, path, version: int = 3, antialiased: bool = False) ->
     raw = pack_spz(model, version=version, antialiased=antialiased, path=spath)
     with open(spath, "wb") as f:
         f.write(gzip.compress(raw, compresslevel=6, mtime=0))
+
+
+# ---------------------------------------------------------------------------------- the format
+
+
+def _read(path: str) -> tuple[Model, list[str]]:
+    model, info = read_spz(path)
+    return model, [f"SPZ version {info.version}"] + ([ANTIALIASED_NOTE] if info.antialiased else [])
+
+
+def _write(model: Model, path: str, up: str | None = None, version: int = 3, antialiased: bool = False) -> None:
+    """SPZ has no up field and its frame is y-up (RUB): a model whose up is another axis is turned
+    to +y first (positions, orientations and SH together), so that it stands upright in every viewer."""
+    if up not in (None, "+y"):
+        model = rotate_model(model, rotation_to_y(up))
+    save_spz(model, path, version=version, antialiased=antialiased)
+
+
+FORMAT = ModelFormat(
+    name="spz",
+    title="Niantic SPZ",
+    suffixes=(".spz",),
+    up="+y",
+    sniff=lambda probe: is_spz(probe.head),
+    read=_read,
+    write=_write,
+)
