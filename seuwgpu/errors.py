@@ -7,6 +7,8 @@ ValueErrors so that callers that catch ValueError (and older tests) keep working
 
 from __future__ import annotations
 
+import importlib
+
 
 class SeuwgpuError(Exception):
     """Base of every error seuwgpu raises on purpose; the message names the input and the problem."""
@@ -22,6 +24,29 @@ class RunInUse(SeuwgpuError):
 
 class TooBig(SeuwgpuError):
     """The job would not fit the host's or the device's memory; the message says what would fit."""
+
+
+class MissingExtra(SeuwgpuError, ImportError):
+    """An optional analysis needs a library the plain install leaves out; `remedy` is the pip
+    line of the extra that brings it (the report lists the analysis as skipped with it)."""
+
+    def __init__(self, reason: str, remedy: str):
+        super().__init__(f"{reason}: {remedy}")
+        self.reason, self.remedy = reason, remedy
+
+
+# import name -> distribution name, for the messages
+_DISTRIBUTIONS = {"scipy": "scipy", "sklearn": "scikit-learn", "skimage": "scikit-image"}
+
+
+def require(module: str, extra: str, what: str):
+    """`module`, imported; MissingExtra naming `what` needs it and the extra to install otherwise."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        top = module.split(".")[0]
+        reason = f"{what} needs {_DISTRIBUTIONS.get(top, top)}, which the plain install leaves out"
+        raise MissingExtra(reason, f"pip install 'seuwgpu[{extra}]'") from None
 
 
 class Terminated(KeyboardInterrupt):

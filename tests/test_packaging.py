@@ -3,7 +3,9 @@ checkout; pyproject lists every package; ruff is clean; `python -m seuwgpu --ver
 
 from __future__ import annotations
 
+import ast
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -25,6 +27,75 @@ def test_pyproject_lists_every_package():
     on_disk = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "seuwgpu").rglob("__init__.py")}
     on_disk.add("seuwgpu.shaders")  # shaders/ is mapped into the package (package-dir)
     assert listed == on_disk, f"missing from pyproject: {on_disk - listed}; listed but absent: {listed - on_disk}"
+
+
+def _distribution(requirement: str) -> str:
+    """A requirement's distribution name, normalised (PEP 503): "scikit-learn>=1.3" -> "scikit-learn"."""
+    return re.sub(r"[-_.]+", "-", re.match(r"[A-Za-z0-9_.-]+", requirement).group()).lower()
+
+
+def _third_party_imports(folder: Path) -> dict[str, Path]:
+    """Top-level modules of other packages imported anywhere under `folder` (inside functions
+    too), including those imported through seuwgpu.errors.require("module", ...)."""
+    found = {}
+    for path in folder.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            elif isinstance(node, ast.Call) and getattr(node.func, "id", None) == "require" and node.args:
+                names = [node.args[0].value]
+            else:
+                continue
+            for name in names:
+                top = name.split(".")[0]
+                ours = top == "seuwgpu" or top.startswith(("test_", "conftest"))
+                if top not in sys.stdlib_module_names and not ours:
+                    found.setdefault(top, path)
+    return found
+
+
+def _declared_distribution(module: str) -> str:
+    """The distribution that provides an import name, as installed here; the import name itself
+    for one not installed (torch, an extra the tests skip without)."""
+    from importlib.metadata import packages_distributions
+
+    dists = packages_distributions().get(module, [module])
+    return _distribution(dists[0])
+
+
+def test_every_imported_library_is_declared():
+    """Every library seuwgpu imports is a base dependency or in an extra, and every library the
+    tests import is in what `./dev test` installs (base, test and ray extras; torch is skipped
+    without): a library that only came as another's dependency (tifffile came with scikit-image)
+    would vanish when that one became optional."""
+    project = _pyproject()["project"]
+    base = {_distribution(r) for r in project["dependencies"]}
+    extras = {k: {_distribution(r) for r in v} for k, v in project["optional-dependencies"].items()}
+    anywhere = base.union(*extras.values())
+    for module, path in _third_party_imports(ROOT / "seuwgpu").items():
+        assert _declared_distribution(module) in anywhere, f"{path.relative_to(ROOT)} imports {module}, undeclared"
+    tested = base | extras["test"] | extras["ray"] | {"torch"}
+    for module, path in _third_party_imports(ROOT / "tests").items():
+        assert _declared_distribution(module) in tested, f"{path.relative_to(ROOT)} imports {module}, not in [test]"
+
+
+def test_the_main_install_leaves_the_study_libraries_to_extras():
+    """The main job's install (docs/install.md): scipy and scikit-learn serve only the study's
+    analyses (the `analysis` extra), scikit-image only the tests' reference SSIM; zstandard is in
+    the base so that a plain install opens SPZ v4."""
+    project = _pyproject()["project"]
+    base = {_distribution(r) for r in project["dependencies"]}
+    extras = {k: {_distribution(r) for r in v} for k, v in project["optional-dependencies"].items()}
+    assert not base & {"scipy", "scikit-learn", "scikit-image"}
+    assert {"zstandard", "tifffile"} <= base
+    assert {"scipy", "scikit-learn"} <= extras["analysis"] <= extras["test"]
+    assert "scikit-image" in extras["test"]
+    assert extras["formats"] == set()  # kept for old install lines
+    pinned = {_distribution(line) for line in (ROOT / "constraints.txt").read_text().splitlines() if "==" in line}
+    locked = base | extras["analysis"] | extras["test"]  # what ./dev installs (torch's extra is not locked)
+    assert locked <= pinned, f"constraints.txt lacks pins for {locked - pinned} (./dev lock)"
 
 
 def test_version_from_the_command_line():

@@ -24,6 +24,7 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis.records import InsufficientData, dose_records, figure, series_color, sort_rows, tag
+from seuwgpu.errors import require
 from seuwgpu.faults.defenses import defense_label
 
 BUDGET_PSNR_DB = 30.0  # redundancy budget threshold (paper, Section 5.4)
@@ -62,6 +63,7 @@ def dose_curves(df: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
 def fit_dose_model(k, events, n, conf: float = 0.95) -> dict:
     """Maximum-likelihood p of P(k) = 1 - (1-p)^k from binomial counts (events of n at each k);
     profile-likelihood interval; deviance G^2, degrees of freedom and p-value of the fit."""
+    require("scipy", "analysis", "the dose-model fit")
     from scipy.optimize import brentq, minimize_scalar
     from scipy.stats import chi2
 

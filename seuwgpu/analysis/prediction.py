@@ -18,6 +18,7 @@ from seuwgpu.analysis.records import (
     tag,
     unique_sorted,
 )
+from seuwgpu.errors import require
 
 PREDICTION_FEATURES = ("field", "bit", "bit_class", "log_abs_value", "sign")
 FIELD_BIT_FEATURES = ("field", "bit")
@@ -92,7 +93,8 @@ def prediction(
     Returns {"summary", "importance", "loso", "top_feature", "roc", "precision", "notes",
     "lookup_as_good"}.
     """
-    import sklearn.ensemble  # noqa: F401  (load its OpenMP runtime before limiting it)
+    # imported first: it loads its OpenMP runtime before threadpoolctl limits it
+    require("sklearn.ensemble", "analysis", "the criticality prediction")
     from threadpoolctl import threadpool_limits
 
     # One OpenMP thread by default: on small or shared machines gradient boosting with several

@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.campaign.plan import z_value
+from seuwgpu.errors import require
 
 __all__ = [
     "wilson_interval",
@@ -108,8 +109,7 @@ def linear_fit(x, y, conf: float = 0.95) -> LinearFit:
     r2 = 1.0 - ss_res / ss_tot if ss_tot > 0 else (1.0 if ss_res == 0 else 0.0)
     lo = hi = float("nan")
     if x.size > 2:
-        from scipy.stats import t as student_t
-
+        student_t = require("scipy.stats", "analysis", "the slope's Student-t interval").t
         se = np.sqrt(ss_res / (x.size - 2) / np.sum((x - x.mean()) ** 2))
         q = float(student_t.ppf(0.5 + conf / 2, x.size - 2))
         lo, hi = float(slope - q * se), float(slope + q * se)
@@ -154,8 +154,7 @@ def common_loglog_fit(groups, x, y, conf: float = 0.95) -> PowerFit:
     dof = len(d) - d["g"].nunique() - 1
     lo = hi = float("nan")
     if dof > 0:
-        from scipy.stats import t as student_t
-
+        student_t = require("scipy.stats", "analysis", "the exponent's Student-t interval").t
         se = np.sqrt(ss_res / dof / float(xc @ xc))
         q = float(student_t.ppf(0.5 + conf / 2, dof))
         lo, hi = slope - q * se, slope + q * se
@@ -164,8 +163,7 @@ def common_loglog_fit(groups, x, y, conf: float = 0.95) -> PowerFit:
 
 def auc(y, score, weight=None) -> float:
     """ROC AUC of a score for binary labels y, optionally weighted (NaN with a single class)."""
-    from sklearn.metrics import roc_auc_score
-
+    roc_auc_score = require("sklearn.metrics", "analysis", "the ROC AUC").roc_auc_score
     y = np.asarray(y).astype(bool)
     score = np.asarray(score, dtype=float)
     if y.size == 0 or y.all() or not y.any():

@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from seuwgpu.errors import require
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import INDIRECT, STORAGE, Readback
 from seuwgpu.gpu.kernel import Kernel, Struct, Uniforms
@@ -452,8 +453,9 @@ def changed_pixels(faulted: np.ndarray, clean: np.ndarray, threshold=THRESHOLD) 
 
 def numpy_metrics(clean: np.ndarray, faulted: np.ndarray) -> dict:
     """Independent CPU twin of ImageMetrics.read() (full frames evaluated): clean [K, H, W, 3|4],
-    faulted [B, K, H, W, 3|4] -> dict of [B, K] arrays. SSIM from skimage (float64)."""
-    from skimage.metrics import structural_similarity
+    faulted [B, K, H, W, 3|4] -> dict of [B, K] arrays. SSIM from skimage (float64), which only
+    the test extra installs: the GPU computes the metrics, this twin checks them."""
+    skimage_metrics = require("skimage.metrics", "test", "the numpy twin of the image metrics")
 
     c = np.asarray(clean, np.float32)[..., :3]
     f = np.asarray(faulted, np.float32)[..., :3]
@@ -475,7 +477,7 @@ def numpy_metrics(clean: np.ndarray, faulted: np.ndarray) -> dict:
     ssim = np.empty((B, K))
     for b in range(B):
         for k in range(K):
-            ssim[b, k] = structural_similarity(dc[k], df[b, k], channel_axis=-1, data_range=1.0)
+            ssim[b, k] = skimage_metrics.structural_similarity(dc[k], df[b, k], channel_axis=-1, data_range=1.0)
     deficit = (1.0 - ssim) * n_int
     return {
         "changed": changed_px.sum(axis=(2, 3)).astype(np.int64),

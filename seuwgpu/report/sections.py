@@ -35,6 +35,7 @@ from seuwgpu.analysis.records import (
     reference_precision,
     single_upsets,
 )
+from seuwgpu.errors import MissingExtra
 from seuwgpu.faults.defenses import DEFENSES, FIRST_DEFENSES
 
 
@@ -850,7 +851,7 @@ def run_sections(df: pd.DataFrame, manifests: list[dict], ctx: dict) -> list[Sec
     for _key, label, builder in SECTIONS:
         try:
             sections.append(builder(df, manifests, ctx))
-        except InsufficientData as e:
+        except (InsufficientData, MissingExtra) as e:  # too few records, or a library the install left out
             ctx["skipped"].append((label, e.reason, e.remedy))
     return sections
 
