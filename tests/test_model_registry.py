@@ -1,18 +1,20 @@
 """The model-format registry: every format module registered once, every writable format round
 trips through save_model and read_model, sniffing by content, the messages listing the registry,
-and a new format (the worked example of CONTRIBUTING.md) being one entry."""
+and a new format (the worked example of CONTRIBUTING.md, run from there) being one entry."""
 
 from __future__ import annotations
 
 import importlib
 import pkgutil
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 from test_model_files import assert_bit_equal
 
 import seuwgpu.model.formats as formats
-from seuwgpu.model.fields import FIELDS, Model
+from seuwgpu.model.fields import FIELDS
 from seuwgpu.model.formats import (
     REGISTRY,
     ModelFileError,
@@ -35,7 +37,7 @@ def test_every_format_module_is_registered_once():
         module = importlib.import_module(f"seuwgpu.model.formats.{info.name}")
         if isinstance(getattr(module, "FORMAT", None), ModelFormat):
             exported[info.name] = module.FORMAT
-    assert len(exported) == 7 and set(exported.values()) == set(REGISTRY)
+    assert set(exported.values()) == set(REGISTRY) and len(REGISTRY) == len(set(REGISTRY))
     names = [f.name for f in REGISTRY]
     suffixes = [s for f in REGISTRY for s in f.suffixes]
     assert len(set(names)) == len(names) and len(set(suffixes)) == len(suffixes)
@@ -113,35 +115,20 @@ def test_model_label_strips_every_registered_suffix(tmp_path, fmt):
 
 
 # --------------------------------------------------------- the worked example of CONTRIBUTING.md
-def _npz_sniff(probe: Probe) -> bool:
-    return probe.is_zip and "means.npy" in probe.zip_members()[0]
-
-
-def _npz_read(path: str) -> tuple[Model, list[str]]:
-    with np.load(path, allow_pickle=False) as z:
-        return Model(**{f: z[f] for f in FIELDS}), [f"npz of {len(z.files)} arrays"]
-
-
-def _npz_write(model: Model, path: str, up: str | None = None) -> None:
-    with open(path, "wb") as f:  # np.savez would append .npz to another name
-        np.savez(f, **{name: getattr(model, name) for name in FIELDS})
-
-
-NPZ = ModelFormat(
-    name="npz",
-    title="NumPy .npz of the model's fields",
-    suffixes=(".npz",),
-    up="+z",
-    sniff=_npz_sniff,
-    read=_npz_read,
-    write=_npz_write,
-)
+def contributing_example() -> ModelFormat:
+    """The `.npz` format of CONTRIBUTING.md's "How to add a model file format", run as written there."""
+    text = (Path(__file__).resolve().parents[1] / "CONTRIBUTING.md").read_text(encoding="utf-8")
+    section = text.split("## How to add a model file format", 1)[1].split("\n## ", 1)[0]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    namespace: dict = {}
+    exec(compile(code, "CONTRIBUTING.md", "exec"), namespace)
+    return namespace["FORMAT"]
 
 
 def test_a_new_format_is_one_registry_entry(tmp_path, monkeypatch):
     # a zip: it goes before the gsplat checkpoint, whose sniffer refuses a zip without data.pkl
     at = [f.name for f in REGISTRY].index("gsplat")
-    monkeypatch.setattr(formats, "REGISTRY", REGISTRY[:at] + (NPZ,) + REGISTRY[at:])
+    monkeypatch.setattr(formats, "REGISTRY", REGISTRY[:at] + (contributing_example(),) + REGISTRY[at:])
     m = make_scene("spheres", n=40, sh_degree=3, seed=4)
     assert save_model(m, tmp_path / "scene.npz") == "npz"
     assert detect_format(tmp_path / "scene.npz") == "npz"

@@ -54,6 +54,7 @@ __all__ = [
     "nonfinite_counts",
     "read_model",
     "save_model",
+    "sniff_format",
 ]
 
 # Every format, in sniffing order: the first whose sniff says yes reads the file. The compressed
