@@ -307,7 +307,11 @@ def measure_floors(gpu: GPU, repeats: int = 3, groups: int = 1024, iters: int = 
         compute={"module": module, "entry_point": "main", "constants": {"ITERS": iters}},
     )
     out = gpu.buffer(16 * 64 * groups)
-    bg = gpu.bind(pipe, {0: out})
+    # a raw wgpu pipeline of the benchmark's own WGSL (not a stage's): bound as wgpu binds
+    bg = dev.create_bind_group(
+        layout=pipe.get_bind_group_layout(0),
+        entries=[{"binding": 0, "resource": {"buffer": out, "offset": 0, "size": out.size}}],
+    )
 
     def exp_loop():
         enc = dev.create_command_encoder()

@@ -195,7 +195,12 @@ class Scrub:
         threads = (end - first) * -(-L.plane_words // self.wpt) if mask else 0
         for k in range(L.n_chunks if threads else 0):
             self.kernel.dispatch(
-                enc, {0: self.params.binding(k), 1: self.box, 2: self.chunks[k], 3: self.counts}, threads=threads
+                enc,
+                params=self.params.binding(k),
+                box=self.box,
+                words=self.chunks[k],
+                counts=self.counts,
+                threads=threads,
             )
         g.submit(enc)
         raw = g.read(self.counts, np.uint8, 0, self.per_prim_at + (4 * L.n if per_primitive else 0))

@@ -115,8 +115,9 @@ class GPU:
         return self._pipelines[key]
 
     def bind(self, pipeline, entries: dict, group: int = 0):
-        """A new bind group; entries: {binding: buffer | (buffer, offset, size)}. Stages use
-        Kernel.bind, which caches."""
+        """A new bind group; entries: {binding number: buffer | (buffer, offset, size)}, as wgpu
+        numbers them. Stages bind by name through gpu/kernel.py Kernel, which resolves the names
+        to these numbers and caches the groups."""
         out = []
         for binding, res in sorted(entries.items()):
             if isinstance(res, tuple):

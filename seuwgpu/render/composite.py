@@ -161,22 +161,28 @@ class Compositing:
             raise RuntimeError("Compositing.set_capacity must be called before encode")
         encoder.clear_buffer(self.work, 0, 20)  # counters and the chunks' group count
         encoder.clear_buffer(self.work, 32, 4)  # the merge's group count
-        records = {0: frame, 1: ranges, 2: isect_prims, 3: xy, 4: conic, 5: rgb, 7: isect_box}
-        lists = {31: self.slabs, 32: self.extra_list, 33: self.merge_list}
+        # blend.wgsl's buffers; each entry point binds those it uses (`work` is read by the
+        # later passes as their `work_counts`)
+        buffers = {
+            "bin": frame,
+            "ranges": ranges,
+            "isect_prims": isect_prims,
+            "proj_xy": xy,
+            "proj_conic": conic,
+            "proj_rgb": rgb,
+            "image": self.image,
+            "isect_box": isect_box,
+            "work": self.work,
+            "chunk_slabs": self.slabs,
+            "extra_list": self.extra_list,
+            "merge_list": self.merge_list,
+            "work_counts": self.work,
+            "stop_pos": self.no_stops if stops is None else stops,
+        }
         main, chunks = self._lean if stops is None else (self.kernel, self.k_chunks)
-        main.dispatch(
-            encoder,
-            {**records, 6: self.image, 30: self.work, 35: self.no_stops if stops is None else stops, **lists},
-            workgroups=(int(tiles[0]), int(tiles[1]), int(frames)),
-        )
-        chunks.dispatch(
-            encoder, {**records, 31: self.slabs, 32: self.extra_list, 34: self.work}, indirect=(self.work, 16)
-        )
-        self.k_merge.dispatch(
-            encoder,
-            {0: frame, 1: ranges, 6: self.image, 31: self.slabs, 33: self.merge_list, 34: self.work},
-            indirect=(self.work, 32),
-        )
+        main.dispatch(encoder, buffers, workgroups=(int(tiles[0]), int(tiles[1]), int(frames)))
+        chunks.dispatch(encoder, buffers, indirect=(self.work, 16))
+        self.k_merge.dispatch(encoder, buffers, indirect=(self.work, 32))
 
 
 class VariantCompositing:
@@ -187,7 +193,7 @@ class VariantCompositing:
     dispatch c, merged into the entry's slab (running state between dispatches), so no workgroup
     walks more than one chunk (llvmpipe's loop limit: docs/renderer.md). When both lists are one
     chunk, a pixel that neither record reaches, or whose reaching records lie behind the record
-    it stopped at in the clean frame (`kept["stop"]`), is copied from the clean image. Owns the
+    it stopped at in the clean frame (`kv_stop`), is copied from the clean image. Owns the
     entries, the slabs and the `Recomp` parameters (one slot per chunk dispatch)."""
 
     def __init__(self, gpu: GPU, max_entries: int, profile: str = "strict", chunk: int = CHUNK, exact: bool = True):
@@ -251,29 +257,12 @@ class VariantCompositing:
 
     def _kept_bindings(self, slot: int, kept: dict, v0: int, v1: int, stride: int, capacity: int) -> dict:
         """What both entry points bind: a dispatch's parameters, the entries and their running
-        state, and the clean frame's kept buffers, views [v0, v1) of the per-view records
-        (`stride` records a view) and tile lists (`capacity` pairs a view)."""
-
-        def views(buf, per_view: int):
-            return (buf, per_view * v0, per_view * (v1 - v0))
-
-        return {
-            10: self.params.binding(slot),
-            11: self.entries,
-            12: kept["ranges"],
-            13: views(kept["isect"], 4 * capacity),
-            14: views(kept["xy"], 8 * stride),
-            15: views(kept["conic"], 16 * stride),
-            16: views(kept["rgb"], 16 * stride),
-            21: self.slabs,
-            23: views(kept["box"], 4 * capacity),
-            24: self.ended,
-            26: kept["stop"],
-            27: kept["ckpt_base"],
-            28: kept["ckpt_states"],
-            36: kept["chunk_base"],
-            37: kept["chunk_states"],
-        }
+        state, and the clean frame's kept buffers (by their shader names), views [v0, v1) of the
+        per-view records (`stride` records a view) and tile lists (`capacity` pairs a view)."""
+        per_view = {"kv_isect": 4 * capacity, "kv_box": 4 * capacity}
+        per_view.update(kv_xy=8 * stride, kv_conic=16 * stride, kv_rgb=16 * stride)
+        views = {name: (kept[name], size * v0, size * (v1 - v0)) for name, size in per_view.items()}
+        return {**kept, **views, "rc": self.params.binding(slot), "entries": self.entries}
 
     def encode(
         self, encoder, entries: dict, kept: dict, variant: dict, clean_image, longest: int, groups=None, **params
@@ -281,27 +270,24 @@ class VariantCompositing:
         """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}, sorted by
         view); `longest`: the longest clean tile list (a variant's list holds at most one pair
         more); `groups`: the kept view groups bound one at a time (Renderer.kept_view_groups).
-        kept: the clean frame's per-view `ranges`, `isect` and `box` (tile lists and the pairs'
-        pixel boxes, `capacity` apart), `stop` (per pixel, its end in its list), `xy`, `conic`,
-        `rgb` (w = depth) of n_prims records per view, and its checkpoints (`ckpt_base`,
-        `ckpt_states`) and later chunks' results (`chunk_base`, `chunk_states`; both from
-        encode_checkpoints); variant: the variants' `xy`, `conic`, `rgb`, `rect` (n_variants per
+        kept, by the shader's names: the clean frame's per-view `kv_ranges`, `kv_isect` and `kv_box`
+        (tile lists and the pairs' pixel boxes, `capacity` apart), `kv_stop` (per pixel, its end
+        in its list), `kv_xy`, `kv_conic`, `kv_rgb` (w = depth) of n_prims records per view, and
+        its checkpoints (`ckpt_base`, `ckpt_states`) and later chunks' results (`chunk_base`,
+        `chunk_states`; both from encode_checkpoints); variant: the variants' `var_xy`,
+        `var_conic`, `var_rgb`, `var_rect` (n_variants per
         view); params: width, height, tiles_x, n_tiles, n_prims, n_variants, capacity,
         background, ckpt_every."""
         dispatches = self._dispatches(entries, longest, params, groups)
         for slot, v0, v1, e0, e1 in dispatches:
             self.kernel.dispatch(
                 encoder,
-                {
-                    **self._kept_bindings(slot, kept, v0, v1, params["n_prims"], params["capacity"]),
-                    17: variant["xy"],
-                    18: variant["conic"],
-                    19: variant["rgb"],
-                    20: variant["rect"],
-                    22: clean_image,
-                    25: self.changed,
-                    29: self.entry_next,
-                },
+                {**self._kept_bindings(slot, kept, v0, v1, params["n_prims"], params["capacity"]), **variant},
+                clean_image=clean_image,
+                slabs=self.slabs,
+                variant_ended=self.ended,
+                slab_changed=self.changed,
+                entry_next=self.entry_next,
                 workgroups=e1 - e0,
             )
         n_e = len(entries["tile"])
@@ -310,9 +296,9 @@ class VariantCompositing:
     def encode_checkpoints(self, encoder, entries: dict, kept: dict, longest: int, groups=None, **params):
         """Record the checkpoint pass (composite.wgsl:checkpoints) over `entries` ({view, tile},
         sorted by view): the pixels' state at every `ckpt_every` positions of those tiles' clean
-        lists into kept["ckpt_states"] (slots from kept["ckpt_base"]), each later chunk's own
-        result into kept["chunk_states"] (slots from kept["chunk_base"]) and each pixel's end into
-        kept["stop"]. Same kept buffers, groups and params as `encode`."""
+        lists into `ckpt_states` (slots from `ckpt_base`), each later chunk's own result into
+        `chunk_states` (slots from `chunk_base`) and each pixel's end into `kv_stop`. Same kept
+        buffers, groups and params as `encode`."""
         n = len(entries["tile"])
         entries = {"variant": np.zeros(n, np.int64), "prim": np.zeros(n, np.int64), **entries}
         dispatches = self._dispatches(entries, max(int(longest) - 1, 0), params, groups)
@@ -320,6 +306,8 @@ class VariantCompositing:
             self.k_checkpoints.dispatch(
                 encoder,
                 self._kept_bindings(slot, kept, v0, v1, params["n_prims"], params["capacity"]),
+                slabs=self.slabs,
+                variant_ended=self.ended,
                 workgroups=e1 - e0,
             )
 

@@ -37,6 +37,10 @@ OPEN = 0x80000000
 """kv_stop's flag of a pixel that never ends (composite.wgsl `within`)."""
 
 
+KEPT_BY_RENDERER = ("kv_ranges", "kv_isect", "kv_box", "kv_stop", "kv_xy", "kv_conic", "kv_rgb")
+"""The keep_views renderer's buffers the variants entry binds, under the same names."""
+
+
 class CleanViews:
     """A keep_views renderer's clean per-view state that every compositor re-compositing against
     it shares (faults/incremental.py: one per batch in flight), renewed once per set of kept
@@ -120,16 +124,10 @@ class CleanViews:
 
     @property
     def kept(self) -> dict:
-        """The kept buffers as composite.py's VariantCompositing binds them."""
+        """The kept buffers by the names composite.wgsl's variants entry binds them under."""
         r = self.r
         return {
-            "ranges": r.kv_ranges,
-            "isect": r.kv_isect,
-            "box": r.kv_box,
-            "stop": r.kv_stop,
-            "xy": r.kv_xy,
-            "conic": r.kv_conic,
-            "rgb": r.kv_rgb,
+            **{name: getattr(r, name) for name in KEPT_BY_RENDERER},
             "ckpt_base": self.ckpt_base,
             "ckpt_states": self.ckpt_states,
             "chunk_base": self.chunk_base,
@@ -275,7 +273,7 @@ class IncrementalCompositor:
             encoder,
             {"variant": b_idx + first, "view": v_idx, "tile": t_idx, "prim": prims[b_idx]},
             kept=self.clean.kept,
-            variant={"xy": p.xy, "conic": p.conic, "rgb": p.rgb, "rect": p.rect},
+            variant={"var_xy": p.xy, "var_conic": p.conic, "var_rgb": p.rgb, "var_rect": p.rect},
             clean_image=self.clean_buf,
             longest=self.longest_list,
             groups=self.r.kept_view_groups(),
