@@ -1,4 +1,6 @@
-// Shared by the two full-frame compositors (gpu/device.py prepends it to both, after common.wgsl):
+// #import common
+
+// Shared by the two full-frame compositors (both import it):
 // composite.wgsl, 8 pixels per invocation in vec4 lanes and 32 invocations a tile (the shape for
 // CPU Vulkan, docs/renderer.md), and composite_wide.wgsl, one pixel per invocation and 256 a tile
 // (the shape GPUs fill). It holds the per-pixel rule, the staging of records through workgroup

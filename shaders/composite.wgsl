@@ -1,3 +1,6 @@
+// #import blend
+// #import composite_frame
+
 // Front-to-back compositing (render/composite.py): one workgroup per chunk of a TILE x TILE
 // tile's list (CHUNK_PAIRS pairs: most tiles are one chunk; docs/renderer.md "Long tile lists").
 // Each invocation composites a column of QPI x QUAD (2 x 4) pixels, held as vec4 lanes (one Quad

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from seuwgpu.gpu.constants import MAX_GROUPS_X, PRECISION_CODE, TILE, UNIFORM_STRIDE, WG, wgsl_header
-from seuwgpu.gpu.device import UNIFORM, shader_source
+from seuwgpu.gpu.device import UNIFORM, shader_files, shader_imports, shader_source
 from seuwgpu.gpu.kernel import (
     Kernel,
     Struct,
@@ -200,6 +200,48 @@ def test_binding_by_an_unknown_or_a_missing_name_is_a_clear_error(gpu):
     assert "proj_rgb" in merge.declared and "proj_rgb" not in merge.expects
     with pytest.raises(KeyError, match=r"composite:merge is missing binding\(s\) ranges, image"):
         merge.resolve(bin=a, proj_rgb=a, chunk_slabs=a, merge_list=a, work_counts=a)
+
+
+def _reader(files: dict):
+    def read(name):
+        if name not in files:
+            raise FileNotFoundError(name)
+        return files[name]
+
+    return read
+
+
+def test_imports_resolve_depth_first_each_file_once_in_order():
+    files = {
+        "base": "// base\nconst A: u32 = 1u;\n",
+        "left": "// #import base\n\n// left: needs base\nconst L: u32 = A;\n",
+        "right": "// #import base\n// #import left\nconst R: u32 = L;\n",
+        "stage": "// #import left\n// #import right\n// #import base\n\nconst S: u32 = R;\n",
+    }
+    order = shader_files("stage", read=_reader(files))
+    assert [n for n, _ in order] == ["base", "left", "right", "stage"]  # base once, before its users
+    assert [t for _, t in order] == [files[n] for n in ("base", "left", "right", "stage")]
+
+
+def test_a_missing_import_or_a_cycle_is_a_clear_error():
+    files = {"stage": "// #import mid\n", "mid": "// #import gone\n"}
+    with pytest.raises(
+        FileNotFoundError, match=r"shaders/gone.wgsl does not exist \(imported by stage.wgsl -> mid.wgsl\)"
+    ):
+        shader_files("stage", read=_reader(files))
+    cycle = {"stage": "// #import a\n", "a": "// #import b\n", "b": "// #import a\n"}
+    with pytest.raises(ValueError, match=r"cycle: a.wgsl -> b.wgsl -> a.wgsl"):
+        shader_files("stage", read=_reader(cycle))
+    with pytest.raises(ValueError, match="line 3: #import below the first declaration"):
+        shader_imports("// #import a\nconst X: u32 = 1u;\n// #import b\n", "late")
+
+
+def test_stages_compile_from_their_declared_imports():
+    """The compositors name what they share; every stage imports common.wgsl."""
+    assert [n for n, _ in shader_files("composite_wide")] == ["common", "blend", "composite_frame", "composite_wide"]
+    assert [n for n, _ in shader_files("flip")] == ["common", "flip"]
+    src = shader_source("composite")
+    assert src.count("fn blend_quad(") == 1 and src.count("fn chunks(") == 1  # blend, composite_frame once
 
 
 def test_kernel_grid_splits_long_1d_dispatches(gpu):

@@ -309,7 +309,7 @@ class Struct:
 
     @classmethod
     def from_shader(cls, shader: str, name: str, defines: dict | None = None) -> Struct:
-        """`struct NAME` as shaders/SHADER.wgsl is compiled (header, common.wgsl, the file)."""
+        """`struct NAME` as shaders/SHADER.wgsl is compiled (header, its imports, the file)."""
         return _shader_struct(shader, name, tuple(sorted((defines or {}).items())))
 
     @property
