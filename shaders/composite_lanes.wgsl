@@ -83,7 +83,7 @@ fn count_if_done(p: ptr<function, Pixels>) {
 }
 
 // Staged record k blended into the invocation's quads that its rows y0..y1 reach (QPI = 2 written
-// out: a loop over the private array is not unrolled on CPU Vulkan, ~8% of compositing).
+// out: CPU Vulkan does not unroll a loop over the private array; docs/renderer.md "Measurements").
 fn blend_quads(p: ptr<function, Pixels>, st: vec4<f32>, co: vec4<f32>, k: u32, row0: u32, y0: u32, y1: u32) {
     let rgb = s_rgb[k];
     if (row0 + QUAD - 1u >= y0 && row0 <= y1) {
@@ -141,7 +141,7 @@ fn quadrants(bx: u32) -> u32 {
 // Bit q (as `quadrants`) set when the record's footprint, exact binning's margined ellipse
 // (common.wgsl reach, band_extent), may reach a pixel centre of quadrant q of the tile whose first
 // pixel is `origin` (full frame); all four for a record without a bound. The ellipse is tighter
-// than the pixel box (spheres 100k, 256x256: 31% fewer record visits per quadrant).
+// than the pixel box (fewer record visits per quadrant: docs/renderer.md "Measurements").
 fn ellipse_quadrants(xy: vec2<f32>, co: vec4<f32>, origin: vec2<f32>) -> u32 {
     let r = reach(xy, co);
     if (r.kind == REACH_ALL) {
@@ -176,7 +176,7 @@ fn write_qmask(li: u32, qs: array<u32, PER_LANE>) {
 // blend_batch over the staged records that may reach the invocation's quadrant q only (in slot
 // order, which is list order): the others skip all its pixels for certain. The quadrant's records
 // are blended into both Quads without the box test of blend_record: on CPU Vulkan a branch never
-// skips code (docs/renderer.md), so the test only costs (8% of compositing, spheres 100k), and a
+// skips code (docs/renderer.md), so the test only costs (docs/renderer.md "Measurements"), and a
 // pixel past the cut still skips the record without exp.
 // KEEP_BOXES: `stops` receives the list position (slot k at base + k) of the record each pixel
 // stopped at (the incremental re-compositor copies pixels that a change behind it cannot reach).

@@ -170,8 +170,8 @@ class Scrub:
     def __init__(self, renderer, words_per_thread: int | None = None):
         gpu, L = renderer.gpu, renderer.layout
         self.gpu, self.layout, self.chunks = gpu, L, renderer.chunks
-        # CPU Vulkan pays per invocation and workgroup: long runs per thread (measured on lavapipe,
-        # 100k primitives: 128 words per thread ~3x faster than 8); GPUs want many threads.
+        # CPU Vulkan pays per invocation and workgroup: long runs per thread (docs/renderer.md
+        # "Measurements"); GPUs want many threads.
         self.wpt = int(words_per_thread or (128 if gpu.is_cpu else 4))
         self.kernel = Kernel(gpu, "guard", constants={"FMT": PRECISION_CODE[L.precision], "WPT": self.wpt})
         self.box = gpu.buffer(self.kernel.struct("Bound").size * L.ncomp, STORAGE, "scrub.box")

@@ -50,9 +50,8 @@ _CACHE_SIZE = 512
 # histogram: no PrefixSum between upsweep and scatter, so 2 dependent dispatches a pass instead of
 # 3, and 17 instead of 26 for a 32-bit sort (a GPU waits on each; Python spends ~8 us recording
 # each). Each scatter thread then reads at most 16 histogram words (the reads grow as blocks
-# squared: 256 keeps them at 4 MiB a pass; untimed on a GPU). CPU adapters keep the scanned path:
-# the fused scatter's two barriers made lavapipe's sort 8-19% slower at 4 to 1,024 blocks
-# (2026-11-26, review of 2d0f0f8), more than the recording it saves.
+# squared: 256 keeps them at 4 MiB a pass). CPU adapters keep the scanned path: there the fused
+# scatter's two barriers cost more than the recording it saves (docs/renderer.md "Measurements").
 FUSED_MAX_BLOCKS = 256
 
 

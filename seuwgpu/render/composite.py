@@ -54,11 +54,8 @@ same frames, bit for bit (on a GPU with products kept out of multiply-adds: `unf
 
 
 def default_shape(gpu: GPU) -> str:
-    """The compositor a Renderer uses unless told: "lanes" on a CPU adapter, "wide" on a GPU. On
-    an NVIDIA H100 (2026-11-26, tools/bench.py, spheres, K = 8 batched; README's H100 table) wide
-    composited in 0.4-0.5x lanes' GPU time and took 1.9 against 2.8 ms a view at 1M primitives,
-    256x256 (0.5 against 0.7 at 100k); lavapipe runs lanes' vec4 code about 5x faster
-    (docs/renderer.md)."""
+    """The compositor a Renderer uses unless told: "lanes" on a CPU adapter, "wide" on a GPU,
+    each the faster on its kind of device (docs/renderer.md "Measurements")."""
     return "lanes" if gpu.is_cpu else "wide"
 
 
