@@ -446,7 +446,10 @@ class Kernel:
         if clash:
             raise ValueError(f"kernel {self.label}: binding names {sorted(clash)} clash with dispatch's arguments")
         self._bind_groups: dict[tuple, tuple] = {}  # key -> (bind group, ids of its buffers)
-        self._keys_of: dict[int, set] = {}  # id(buffer) -> keys that bind it
+        # what a call gave, by name (buffer identities, ranges) -> ((group, bind group), ...), ids:
+        # a repeated call skips resolving names (recording is on the frame's critical path)
+        self._named: dict[tuple, tuple] = {}
+        self._keys_of: dict[int, set] = {}  # id(buffer) -> keys (of either cache) that hold it
 
     def struct(self, name: str) -> Struct:
         """A struct of this kernel's shader source."""
@@ -477,7 +480,32 @@ class Kernel:
 
     def bind(self, bindings=None, **buffers) -> tuple:
         """The bind groups (group 0 first) of buffers given by name (`resolve`), each made once."""
-        return tuple(self._bind_group(res, group) for group, res in sorted(self.resolve(bindings, **buffers).items()))
+        return tuple(bg for _, bg in self._bound(bindings, buffers))
+
+    def _bound(self, bindings, buffers) -> tuple:
+        """((group, bind group), ...) of a call's buffers by name, looked up by what it gave."""
+        given = ({**bindings, **buffers} if buffers else bindings) if bindings else buffers
+        key = tuple([(n, id(r[0]), r[1], r[2]) if r.__class__ is tuple else (n, id(r)) for n, r in given.items()])
+        hit = self._named.get(key)
+        if hit is not None:
+            return hit[0]
+        groups = self.resolve(given)
+        bound = tuple((group, self._bind_group(res, group)) for group, res in sorted(groups.items()))
+        self._remember(self._named, key, bound, given.values())
+        return bound
+
+    def _remember(self, cache: dict, key: tuple, value, resources):
+        """cache[key] = value until one of the buffers of `resources` is collected."""
+        ids = set()
+        for r in resources:
+            buf = r[0] if type(r) is tuple else r
+            bid = id(buf)
+            ids.add(bid)
+            if bid not in self._keys_of:
+                self._keys_of[bid] = set()
+                weakref.finalize(buf, _forget, weakref.ref(self), bid).atexit = False
+            self._keys_of[bid].add(key)
+        cache[key] = (value, ids)
 
     def _bind_group(self, resources: dict, group: int):
         """The bind group of `resources` ({binding number: buffer | (buffer, offset, size)})."""
@@ -489,22 +517,13 @@ class Kernel:
         if hit is not None:
             return hit[0]
         bg = self.gpu.bind(self.pipeline, resources, group)
-        ids = set()
-        for r in resources.values():
-            buf = r[0] if type(r) is tuple else r
-            bid = id(buf)
-            ids.add(bid)
-            if bid not in self._keys_of:
-                self._keys_of[bid] = set()
-                weakref.finalize(buf, _forget, weakref.ref(self), bid).atexit = False
-            self._keys_of[bid].add(key)
-        self._bind_groups[key] = (bg, ids)
+        self._remember(self._bind_groups, key, bg, resources.values())
         return bg
 
     def forget(self, buffer_id: int):
         """Drop the bind groups that bind a buffer (called when the buffer is collected)."""
         for key in self._keys_of.pop(buffer_id, ()):
-            hit = self._bind_groups.pop(key, None)
+            hit = self._bind_groups.pop(key, None) or self._named.pop(key, None)
             if hit is not None:
                 for other in hit[1]:
                     if other != buffer_id and other in self._keys_of:
@@ -530,10 +549,10 @@ class Kernel:
                 grid = dispatch_dims(workgroups)
             else:
                 raise ValueError(f"{self.label}: give threads, workgroups or indirect")
-        groups = self.resolve(bindings, **buffers)
+        bound = self._bound(bindings, buffers)
         cpass.set_pipeline(self.pipeline)
-        for group, resources in sorted(groups.items()):
-            cpass.set_bind_group(group, self._bind_group(resources, group))
+        for group, bg in bound:
+            cpass.set_bind_group(group, bg)
         if indirect is None:
             cpass.dispatch_workgroups(*grid)
         else:
