@@ -234,6 +234,8 @@ def test_a_missing_import_or_a_cycle_is_a_clear_error():
         shader_files("stage", read=_reader(cycle))
     with pytest.raises(ValueError, match="line 3: #import below the first declaration"):
         shader_imports("// #import a\nconst X: u32 = 1u;\n// #import b\n", "late")
+    with pytest.raises(ValueError, match=r"line 1: #import takes one shader name, not 'blend  \(and common\)'"):
+        shader_imports("// #import blend  (and common)\n", "noted")
 
 
 def test_stages_compile_from_their_declared_imports():

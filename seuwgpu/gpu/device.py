@@ -39,24 +39,26 @@ def shader_text(name: str) -> str:
         return (Path(__file__).resolve().parents[2] / "shaders" / f"{name}.wgsl").read_text()
 
 
-_IMPORT = re.compile(r"\s*//\s*#import\s+(\S+)\s*")
+_IMPORT = re.compile(r"\s*//\s*#import\b(.*)")
 
 
 def shader_imports(text: str, name: str = "shader") -> list[str]:
     """The names of the `// #import NAME` lines at the top of a shader file (before its first
-    line that is neither blank nor a comment); one further down is an error."""
-    lines = text.splitlines()
+    line that is neither blank nor a comment); one further down, or one that is not a single
+    name, is an error (never a comment silently skipped)."""
     names, top = [], True
-    for number, line in enumerate(lines, 1):
+    for number, line in enumerate(text.splitlines(), 1):
         m = _IMPORT.fullmatch(line)
         if m and not top:
             raise ValueError(
                 f"shaders/{name}.wgsl line {number}: #import below the first declaration; put it at the top"
             )
         if m:
-            if not re.fullmatch(r"\w+", m.group(1)):
-                raise ValueError(f"shaders/{name}.wgsl line {number}: #import takes a shader name, not {m.group(1)!r}")
-            names.append(m.group(1))
+            if not re.fullmatch(r"\s*\w+\s*", m.group(1)):
+                raise ValueError(
+                    f"shaders/{name}.wgsl line {number}: #import takes one shader name, not {m.group(1).strip()!r}"
+                )
+            names.append(m.group(1).strip())
         elif line.strip() and not line.lstrip().startswith("//"):
             top = False
     return names
