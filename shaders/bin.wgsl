@@ -1,3 +1,5 @@
+// #import common
+
 // Tile binning (render/bin.py), per list of `bin.views` frames (1, or the K views of a batched
 // renderer: render/renderer.py): intersection counts in depth order, emission of
 // (tile, primitive) pairs at the scanned offsets, and per-tile ranges of the tile-sorted list.

@@ -1,4 +1,6 @@
-// Shared by the two full-frame compositors (gpu/device.py prepends it to both, after common.wgsl):
+// #import common
+
+// Shared by the two full-frame compositors (both import it):
 // composite.wgsl, 8 pixels per invocation in vec4 lanes and 32 invocations a tile (the shape for
 // CPU Vulkan, docs/renderer.md), and composite_wide.wgsl, one pixel per invocation and 256 a tile
 // (the shape GPUs fill). It holds the per-pixel rule, the staging of records through workgroup
@@ -20,9 +22,8 @@ override PROFILE: u32 = PROFILE_STRICT;
 // ---- products kept out of multiply-adds ------------------------------------------------------
 // SPIR-V lets a driver fuse a product into the add that consumes it (one rounding instead of two)
 // unless the result is decorated NoContraction, which naga does not emit. NVIDIA's driver does,
-// and not alike in the vec4 code of composite.wgsl and the scalar code of composite_wide.wgsl: on
-// an H100 (2026-11-26) the two shapes' frames differed in their last bits, and the wide frames
-// no longer equalled the variants entry's re-composited pixels. With UNFUSED (render/composite.py
+// and not alike in the vec4 code of the lanes shape and the scalar code of composite_wide.wgsl:
+// the two shapes' frames then differ in their last bits (docs/renderer.md "Measurements"). With UNFUSED (render/composite.py
 // turns it on for GPU adapters; lavapipe fuses nothing) each such product passes through an XOR
 // with `opaque_zero`, a zero the driver cannot see (every entry point loads it from its uniform's
 // background.w, which the host sets to 0), so no add can absorb it: both shapes then round every

@@ -1,3 +1,5 @@
+// #import common
+
 // Per-primitive checks of the stored model (faults/check.py; twin: faults/defenses.py detect):
 // recompute what each primitive stored beside the clean model (4 interleaved or 1 parity bit(s),
 // a 32-bit checksum, or its scale class) from its words as they are now, flag mismatches

@@ -1,5 +1,6 @@
-// Shared helpers, compiled into every stage after the generated constants header (TILE, WG,
-// MAX_GROUPS_X, FMT_*: seuwgpu/gpu/constants.py) by seuwgpu/gpu/device.py.
+// Shared helpers, imported by every stage (`// #import common`), after the generated constants
+// header (TILE, WG, MAX_GROUPS_X, FMT_*: seuwgpu/gpu/constants.py) that seuwgpu/gpu/device.py
+// prepends.
 // Non-finite values are detected on the raw bits: compilers may assume finite math.
 
 const TILE_PIXELS: u32 = TILE * TILE;

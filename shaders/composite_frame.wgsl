@@ -1,12 +1,22 @@
-// The full-frame entry points `main` and `chunks`, written once for both compositors
-// (gpu/device.py STAGE_HELPERS compiles this file into composite.wgsl and composite_wide.wgsl,
-// after blend.wgsl). Each compositor supplies its invocation's pixels and what it does with them:
-// - the pixels of one invocation (composite.wgsl: Pixels, a column of SPAN = 8 pixels in vec4
-//   lanes; composite_wide.wgsl: one Quad of scalar lanes, SPAN = 1), `Stops`, their stop
-//   positions, and ROWS = TILE / SPAN invocation rows a tile;
-// - tile_pixels, restart (a chunk's start: the pixels' positions and ended lanes, C = 0, T = 1),
-//   keep_ended, composite_range, merge_pixels, write_image, no_stops, write_stops (KEEP_BOXES
-//   frames only), write_slab and read_slab.
+// #import blend
+
+// The full-frame entry points `main` and `chunks`, written once for both compositors: the two
+// compositor shapes (composite.wgsl, "lanes", and composite_wide.wgsl, "wide") import this file,
+// and a compositor that imports it MUST supply (with blend.wgsl's lane types PF / PB / PU):
+//   types      P, one invocation's pixels, whatever tile_pixels returns (the lanes shape's
+//              Pixels: a column of SPAN = 8 in vec4 lanes; the wide one's blend.wgsl Quad of
+//              scalar lanes, SPAN = 1), and Stops, their stop positions
+//   consts     SPAN (pixel rows an invocation holds), ROWS = TILE / SPAN (invocation rows a tile)
+//   functions  tile_pixels(tx, ty, col, row0) -> P
+//              restart(acc) -> P        a chunk's start: positions and ended lanes, C = 0, T = 1
+//              keep_ended(p, first)
+//              composite_range(p, a, b, origin, col, row0, li, pos0, stops)
+//              merge_pixels(acc, c, first)
+//              write_image(p, tx, ty, col, row0)
+//              no_stops() -> Stops
+//              write_stops(stops, tx, ty, col, row0)   (KEEP_BOXES frames only)
+//              write_slab(p, slot, col, row0)
+//              read_slab(slot, col, row0, p0) -> P
 // composite.wgsl's `merge` then blends the slabs of long tiles for either shape.
 
 // Chunk 0 of every tile; a tile of one chunk writes its pixels, a longer one its slab, and lists

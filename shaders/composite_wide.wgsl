@@ -1,3 +1,6 @@
+// #import blend
+// #import composite_frame
+
 // Full-frame compositing in the shape GPUs fill (render/composite.py, Compositing(shape="wide")):
 // one pixel per invocation and one TILE x TILE workgroup (256 invocations) a tile, as GPU
 // rasterizers do (gsplat, the INRIA rasterizer). composite.wgsl's main and chunks give each of 32

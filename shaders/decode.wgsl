@@ -1,3 +1,5 @@
+// #import common
+
 // Decode every stored value of one model chunk to f32, plane by plane (component-major), so the
 // host (and tests) can see exactly what the shaders read (render/decode.py; twin:
 // model/encoding.py from_bits).

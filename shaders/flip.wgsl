@@ -1,3 +1,5 @@
+// #import common
+
 // Batched bit flips (faults/flips.py; twin: xor_words): XOR a mask into listed words of one model
 // chunk. The same call undoes itself, so restores are exact. The host merges masks per word, so
 // no two threads touch one word.

@@ -1,3 +1,5 @@
+// #import common
+
 // Support guard, scrub mode (faults/guard.py scrub; twin: clamp_bits): clamp every guarded stored value of one model chunk into the clean
 // model's box, rewriting the stored bits (the bounds' own stored bits, so the result is exactly a
 // value of the clean model's range), and count clamps per field and per primitive.

@@ -1,3 +1,5 @@
+// #import common
+
 // Per-injection image-difference reductions (seuwgpu/metrics/image.py drives these kernels).
 //
 // Images are float32 RGBA, 4 floats per pixel (rgb + final transmittance; the 4th channel is

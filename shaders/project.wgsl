@@ -1,3 +1,5 @@
+// #import common
+
 // Projection (render/project.py): decode the stored primitive, EWA-project it into one view,
 // evaluate SH colour, and compute its tile rectangle. One thread per primitive of one model chunk.
 // Rules (culling, unbounded footprints, saturating rectangles) are in docs/renderer.md.

@@ -1,3 +1,5 @@
+// #import common
+
 // Stable LSD radix sort of (u32 key, u32 value) pairs, 4 bits per pass (seuwgpu/gpu/sort.py).
 //
 // A block is WG (256) threads x RS_PER elements; each thread owns RS_PER contiguous elements. Per pass:

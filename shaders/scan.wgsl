@@ -1,3 +1,5 @@
+// #import common
+
 // Exclusive prefix sum of u32 (seuwgpu/gpu/sort.py: PrefixSum), reduce-then-scan.
 //
 // A block is WG (256) threads x PS_PER elements; each thread owns PS_PER contiguous elements. Levels: the

@@ -7,8 +7,16 @@ import numpy as np
 import pytest
 
 from seuwgpu.gpu.constants import MAX_GROUPS_X, PRECISION_CODE, TILE, UNIFORM_STRIDE, WG, wgsl_header
-from seuwgpu.gpu.device import UNIFORM, shader_source
-from seuwgpu.gpu.kernel import Kernel, Struct, Uniforms, wgsl_constants, workgroup_size
+from seuwgpu.gpu.device import UNIFORM, shader_files, shader_imports, shader_source
+from seuwgpu.gpu.kernel import (
+    Kernel,
+    Struct,
+    Uniforms,
+    entry_bindings,
+    wgsl_bindings,
+    wgsl_constants,
+    workgroup_size,
+)
 
 LAYOUT_SRC = """
 const N: u32 = 3u;
@@ -134,17 +142,108 @@ def test_kernel_caches_bind_groups_by_what_they_bind(gpu):
     assert k.workgroup_size == (WG, 1, 1) and k.label == "flip:main"
     params = gpu.upload(k.struct("FlipParams").pack(count=0), UNIFORM)
     a, b, words = gpu.buffer(64), gpu.buffer(64), gpu.buffer(64)
-    bg = k.bind({0: params, 1: a, 2: words})
-    assert k.bind({0: params, 1: a, 2: words}) is bg
-    assert k.bind({0: (params, 0, 16), 1: a, 2: words}) is not bg  # a range is another binding
-    other = k.bind({0: params, 1: b, 2: words})
+    (bg,) = k.bind(params=params, flips=a, words=words)
+    assert k.bind({"params": params, "flips": a, "words": words})[0] is bg  # a mapping, in any order
+    assert k.bind({"words": words}, params=params, flips=a)[0] is bg
+    assert k.bind(params=(params, 0, 16), flips=a, words=words)[0] is not bg  # a range is another binding
+    (other,) = k.bind(params=params, flips=b, words=words)
     assert other is not bg and k.cached_bind_groups == 3
     del a  # a collected buffer takes its bind groups with it: no stale entry, nothing pinned
     gc.collect()
-    assert k.cached_bind_groups == 1 and k.bind({0: params, 1: b, 2: words}) is other
+    assert k.cached_bind_groups == 1 and k.bind(params=params, flips=b, words=words)[0] is other
     del params, b, words, bg, other
     gc.collect()
     assert k.cached_bind_groups == 0
+
+
+BINDINGS_SRC = """
+@group(0) @binding(0) var<uniform> params: P;
+@binding(2) @group(1) var<storage, read_write> out: array<u32>;   // attributes in either order
+@group(0) @binding(1) var<storage, read> table: array<f32>;
+@group(0) @binding(3) var<storage, read> unused_here: array<f32>;
+// @group(0) @binding(9) var<storage, read> commented_out: array<u32>;
+fn helper(i: u32) -> f32 { return table[i]; }
+fn other() -> f32 { return unused_here[0]; }
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+    out[id.x] = u32(helper(id.x) * f32(params.table));   // `.table` is a member, not a use
+}
+@compute @workgroup_size(64)
+fn second() { out[0] = u32(other()); }
+"""
+
+
+def test_bindings_are_read_from_the_shader_with_their_static_use():
+    assert wgsl_bindings(BINDINGS_SRC) == {"params": (0, 0), "out": (1, 2), "table": (0, 1), "unused_here": (0, 3)}
+    assert list(entry_bindings(BINDINGS_SRC, "main")) == ["params", "table", "out"]  # via helper()
+    assert list(entry_bindings(BINDINGS_SRC, "second")) == ["unused_here", "out"]  # by (group, binding)
+    with pytest.raises(ValueError, match="no entry point 'third'"):
+        entry_bindings(BINDINGS_SRC, "third")
+    # every stage's entry points bind what their shader declares, e.g. the merge pass
+    merge = entry_bindings(shader_source("composite"), "merge")
+    assert list(merge) == ["bin", "ranges", "image", "chunk_slabs", "merge_list", "work_counts"]
+
+
+def test_binding_by_an_unknown_or_a_missing_name_is_a_clear_error(gpu):
+    k = Kernel(gpu, "flip")
+    assert list(k.expects) == ["params", "flips", "words"]
+    a = gpu.buffer(64)
+    enc = gpu.device.create_command_encoder()
+    with pytest.raises(KeyError, match=r"kernel flip:main has no binding 'pairs' \(it expects: params, flips, words\)"):
+        k.dispatch(enc, params=a, pairs=a, words=a, threads=1)
+    with pytest.raises(KeyError, match=r"kernel flip:main is missing binding\(s\) flips, words \(it expects"):
+        k.dispatch(enc, params=a, threads=1)
+    with pytest.raises(KeyError, match="has no binding 0"):  # the numbered form is gone
+        k.bind({0: a, 1: a, 2: a})
+    # a name the shader declares but this entry point does not use is passed over
+    merge = Kernel(gpu, "composite", "merge")
+    assert "proj_rgb" in merge.declared and "proj_rgb" not in merge.expects
+    with pytest.raises(KeyError, match=r"composite:merge is missing binding\(s\) ranges, image"):
+        merge.resolve(bin=a, proj_rgb=a, chunk_slabs=a, merge_list=a, work_counts=a)
+
+
+def _reader(files: dict):
+    def read(name):
+        if name not in files:
+            raise FileNotFoundError(name)
+        return files[name]
+
+    return read
+
+
+def test_imports_resolve_depth_first_each_file_once_in_order():
+    files = {
+        "base": "// base\nconst A: u32 = 1u;\n",
+        "left": "// #import base\n\n// left: needs base\nconst L: u32 = A;\n",
+        "right": "// #import base\n// #import left\nconst R: u32 = L;\n",
+        "stage": "// #import left\n// #import right\n// #import base\n\nconst S: u32 = R;\n",
+    }
+    order = shader_files("stage", read=_reader(files))
+    assert [n for n, _ in order] == ["base", "left", "right", "stage"]  # base once, before its users
+    assert [t for _, t in order] == [files[n] for n in ("base", "left", "right", "stage")]
+
+
+def test_a_missing_import_or_a_cycle_is_a_clear_error():
+    files = {"stage": "// #import mid\n", "mid": "// #import gone\n"}
+    with pytest.raises(
+        FileNotFoundError, match=r"shaders/gone.wgsl does not exist \(imported by stage.wgsl -> mid.wgsl\)"
+    ):
+        shader_files("stage", read=_reader(files))
+    cycle = {"stage": "// #import a\n", "a": "// #import b\n", "b": "// #import a\n"}
+    with pytest.raises(ValueError, match=r"cycle: a.wgsl -> b.wgsl -> a.wgsl"):
+        shader_files("stage", read=_reader(cycle))
+    with pytest.raises(ValueError, match="line 3: #import below the first declaration"):
+        shader_imports("// #import a\nconst X: u32 = 1u;\n// #import b\n", "late")
+    with pytest.raises(ValueError, match=r"line 1: #import takes one shader name, not 'blend  \(and common\)'"):
+        shader_imports("// #import blend  (and common)\n", "noted")
+
+
+def test_stages_compile_from_their_declared_imports():
+    """The compositors name what they share; every stage imports common.wgsl."""
+    assert [n for n, _ in shader_files("composite_wide")] == ["common", "blend", "composite_frame", "composite_wide"]
+    assert [n for n, _ in shader_files("flip")] == ["common", "flip"]
+    src = shader_source("composite")
+    assert src.count("fn blend_quad(") == 1 and src.count("fn chunks(") == 1  # blend, composite_frame once
 
 
 def test_kernel_grid_splits_long_1d_dispatches(gpu):

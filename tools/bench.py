@@ -16,9 +16,8 @@ below is one such run). What is measured, per configuration:
 - wall time of a submission: time.perf_counter() around encode + submit + the Renderer's tiny
   readback of its per-view intersection totals (which waits for the GPU), i.e. `Renderer.run()`.
   The image itself is not read back. The first submission is a warm-up and is discarded (on a
-  GPU adapter, submissions go on for WARM_UP_S seconds: an idle NVIDIA H200 reports 345 MHz of
-  its 1,980, and K = 1 frames of 1M primitives timed after one warm-up took 22.3 ms a view
-  against 5.6 ms in 3 s of back-to-back submissions at 1,980 MHz, 2026-11-26); the reported time
+  GPU adapter, submissions go on for WARM_UP_S seconds: an idle NVIDIA GPU runs at a fraction of
+  its clock, docs/renderer.md "Measurements"); the reported time
   is the median of R timed submissions (fewer than --repeats when one submission
   is slower than the --budget allows; the JSON and the table give R). Python-side encoding is
   part of the time (command buffers cannot be replayed in WebGPU); `encode_ms` reports it apart
@@ -307,7 +306,11 @@ def measure_floors(gpu: GPU, repeats: int = 3, groups: int = 1024, iters: int = 
         compute={"module": module, "entry_point": "main", "constants": {"ITERS": iters}},
     )
     out = gpu.buffer(16 * 64 * groups)
-    bg = gpu.bind(pipe, {0: out})
+    # a raw wgpu pipeline of the benchmark's own WGSL (not a stage's): bound as wgpu binds
+    bg = dev.create_bind_group(
+        layout=pipe.get_bind_group_layout(0),
+        entries=[{"binding": 0, "resource": {"buffer": out, "offset": 0, "size": out.size}}],
+    )
 
     def exp_loop():
         enc = dev.create_command_encoder()
@@ -690,7 +693,7 @@ def run_grid(
     adapter, and the default alone on a CPU adapter (there "wide" is several times slower:
     docs/renderer.md). `one_by_one`: also time each K > 1 configuration (first shape) with its
     views rendered one at a time, the comparison batched views are judged by; None: on a GPU
-    adapter (an H100 gave 0.6 against 2.3 ms a view batched, 100k, 256x256, K = 8, 2026-11-26)."""
+    adapter, where the two differ most (docs/renderer.md "Measurements")."""
     gpu = get_gpu()
     if compositors is None:
         compositors = [default_shape(gpu)] if gpu.is_cpu else list(COMPOSITORS)

@@ -28,9 +28,8 @@ from seuwgpu.render.renderer import Renderer  # noqa: E402
 
 WARM_UP_S = 1.0
 """Seconds of rendering before timing on a GPU adapter: an idle NVIDIA GPU runs at a fraction of
-its clock (tools/bench.py WARM_UP_S says what was measured). On an H100 (2026-11-26) this tool,
-timing one view after a single warm-up, reported 19.1 ms for a 1M-primitive view that
-tools/bench.py timed at 3.3 ms warm."""
+its clock, so a view timed after a single warm-up is several times too slow (docs/renderer.md
+"Measurements")."""
 
 
 def _seconds(fn) -> float:

@@ -38,8 +38,8 @@ def shrink(raw: dict) -> dict:
 
 
 def cpu_sized(raw: dict, samples: int = 16) -> dict:
-    """The study at the scale a 2-core CPU (lavapipe) runs in minutes (--samples 48, docs/study/cpu:
-    574 s, 2026-11-26): the same scenes, 256 px, 4 views, precisions, defenses and analyses, with
+    """The study at the scale a 2-core CPU (lavapipe) runs in minutes (docs/study/cpu; its time in
+    docs/renderer.md "Measurements"): the same scenes, 256 px, 4 views, precisions, defenses and analyses, with
     fewer samples per cell (`samples` single upsets per (field, bit) cell and scene, default 16; 4
     per cell and size in the size sweep); the dose sweep unchanged."""
     raw = dict(raw)

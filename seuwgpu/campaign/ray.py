@@ -101,7 +101,7 @@ def init_ray(address: str | None = None, num_cpus: int | None = None, quiet: boo
 def _interrupt_after_start(ray):
     """Ctrl-C while ray.init starts a node takes effect once it has started, and stops it: cut
     short, the node's raylet died with this process and left its dashboard and runtime-env agents
-    running, orphaned (2-6 processes, 2026-11-26, Ray 2.60). A second Ctrl-C stops at once."""
+    running, orphaned (docs/renderer.md "Measurements"). A second Ctrl-C stops at once."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return

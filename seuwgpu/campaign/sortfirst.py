@@ -71,23 +71,21 @@ class RankRenderer:
 
     def _flip(self, site):
         from seuwgpu.faults.sites import mask_of
-        from seuwgpu.gpu.device import UNIFORM, dispatch_dims
+        from seuwgpu.gpu.device import UNIFORM
+        from seuwgpu.gpu.kernel import Kernel
 
         L = self.r.layout
         ch, word, shift = L.locate([site.primitive], [site.flat_component()])
         pairs = np.array([[int(word[0]), (mask_of(site.bits) << int(shift[0])) & 0xFFFFFFFF]], np.uint32)
         g = self.gpu
-        pipe = g.pipeline("flip")
-        bg = g.bind(
-            pipe,
-            {0: g.upload(np.array([1, 0, 0, 0], np.uint32), UNIFORM), 1: g.upload(pairs), 2: self.r.chunks[int(ch[0])]},
-        )
         enc = g.device.create_command_encoder()
-        p = enc.begin_compute_pass()
-        p.set_pipeline(pipe)
-        p.set_bind_group(0, bg)
-        p.dispatch_workgroups(*dispatch_dims(1))
-        p.end()
+        Kernel(g, "flip").dispatch(
+            enc,
+            params=g.upload(np.array([1, 0, 0, 0], np.uint32), UNIFORM),
+            flips=g.upload(pairs),
+            words=self.r.chunks[int(ch[0])],
+            workgroups=1,
+        )
         g.submit(enc)
 
     def _restore(self):

@@ -493,9 +493,8 @@ def write_part(run_dir, first: int, count: int, df: pd.DataFrame, seconds: float
 
 class PartWriter:
     """Writes parts in a thread of its own, so that their Parquet encoding and fsync overlap the
-    evaluation of the next blocks (6.7 ms a part of 256 single-arm records on lavapipe's host,
-    2026-11-26, measured; a GPU evaluating 50,000 a second takes 5.1 ms for 256, computed: written
-    inline, the parts would more than halve its rate). `close` writes every part queued, even after
+    evaluation of the next blocks (written inline, they would more than halve a GPU's rate:
+    docs/renderer.md "Measurements"). `close` writes every part queued, even after
     an interrupt, and raises the first error a write met unless told not to."""
 
     def __init__(self, run_dir, depth: int = 64):

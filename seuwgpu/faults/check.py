@@ -52,7 +52,11 @@ class Checker:
         for k in range(self.layout.n_chunks):
             self.kernel.dispatch(
                 enc,
-                {0: self.params.binding(k), 1: self.side, 2: self.chunks[k], 3: self.table, 4: self.out},
+                params=self.params.binding(k),
+                side=self.side,
+                words=self.chunks[k],
+                table=self.table,
+                out=self.out,
                 threads=self.layout.chunk_range(k)[1] - self.layout.chunk_range(k)[0],
             )
 

@@ -429,7 +429,7 @@ class Engine:
             # a CPU adapter gains nothing from huge batches; a GPU needs them to stay busy (the
             # evaluator shrinks a batch to what one binding holds for its metrics). Two batches
             # in flight (faults/incremental.py): the host prepares one while the device runs the
-            # other (lavapipe too: 8-33% more injections/s at 20k-100k primitives, 2026-11-26).
+            # other (on lavapipe too: docs/renderer.md "Measurements").
             if self.gpu.is_cpu:
                 self._evaluator = IncrementalEvaluator(self, 256, max_entries=8192, lanes=2)
             else:

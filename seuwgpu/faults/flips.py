@@ -49,7 +49,7 @@ class Flips:
         self.params.write()
         for ch, pairs in xors.items():
             self.kernel.dispatch(
-                enc, {0: self.params.binding(ch), 1: self.pairs[ch], 2: self.chunks[ch]}, threads=len(pairs)
+                enc, params=self.params.binding(ch), flips=self.pairs[ch], words=self.chunks[ch], threads=len(pairs)
             )
 
 

@@ -170,8 +170,8 @@ class Scrub:
     def __init__(self, renderer, words_per_thread: int | None = None):
         gpu, L = renderer.gpu, renderer.layout
         self.gpu, self.layout, self.chunks = gpu, L, renderer.chunks
-        # CPU Vulkan pays per invocation and workgroup: long runs per thread (measured on lavapipe,
-        # 100k primitives: 128 words per thread ~3x faster than 8); GPUs want many threads.
+        # CPU Vulkan pays per invocation and workgroup: long runs per thread (docs/renderer.md
+        # "Measurements"); GPUs want many threads.
         self.wpt = int(words_per_thread or (128 if gpu.is_cpu else 4))
         self.kernel = Kernel(gpu, "guard", constants={"FMT": PRECISION_CODE[L.precision], "WPT": self.wpt})
         self.box = gpu.buffer(self.kernel.struct("Bound").size * L.ncomp, STORAGE, "scrub.box")
@@ -195,7 +195,12 @@ class Scrub:
         threads = (end - first) * -(-L.plane_words // self.wpt) if mask else 0
         for k in range(L.n_chunks if threads else 0):
             self.kernel.dispatch(
-                enc, {0: self.params.binding(k), 1: self.box, 2: self.chunks[k], 3: self.counts}, threads=threads
+                enc,
+                params=self.params.binding(k),
+                box=self.box,
+                words=self.chunks[k],
+                counts=self.counts,
+                threads=threads,
             )
         g.submit(enc)
         raw = g.read(self.counts, np.uint8, 0, self.per_prim_at + (4 * L.n if per_primitive else 0))

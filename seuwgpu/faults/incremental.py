@@ -12,8 +12,8 @@ stratified sites: a quarter of the dirty tiles differ, mostly in their interior)
 
 A batch thus takes three submissions (projection, re-compositing, metrics), each followed by host
 work on its results. Two batches are in flight, each on a `Lane` of its own buffers: the host
-works on one batch's results while the device runs the other's next submission (on an H200,
-2026-11-26: 37.7-39.8k -> 44.2-47.0k injections a second with two arms, same records). Sort-first
+works on one batch's results while the device runs the other's next submission (more injections
+a second, same records: docs/renderer.md "Measurements"). Sort-first
 regions' changed-pixel masks come back the same way, with their batch's results.
 """
 

@@ -22,13 +22,10 @@ composite.wgsl's `CHUNK_PAIRS` override (default this) lets tests use small chun
 
 GPU_CHUNK = 2048
 """CHUNK for full frames on a GPU adapter (render/composite.py default_chunk). A GPU holds every
-tile's workgroup at once, so a frame lasts as long as its longest walk: 1M primitives at 256x256
-(K = 8) took 13.8 ms a view at 32768, 8.8 at 8192, 4.9 at 2048, 4.5 at 512 and 256; at 512x512
-5.8 / 6.3 / 4.2 / 4.2 / 4.4; 100k primitives moved under 15% (NVIDIA H200, tools/bench.py
---chunks, 2026-11-26). 2048 is within 10% of the best there at a quarter of 512's slab memory.
-Campaigns keep CHUNK (faults/engine.py): the incremental re-compositor runs one dispatch per chunk
-of the longest list (100k primitives ran 30,926 injections/s at 32768 against 8,950 at 2048, when
-a variant on a list of several chunks still re-blended the whole tile)."""
+tile's workgroup at once, so a frame lasts as long as its longest walk: 2048 was near the fastest
+at a quarter of the slab memory of smaller chunks. Campaigns keep CHUNK (faults/engine.py): the
+incremental re-compositor runs one dispatch per chunk of the longest list (docs/renderer.md
+"Measurements")."""
 
 PRECISION_CODE = {"fp32": 0, "fp16": 1, "bf16": 2}
 """Code of each stored precision in the shaders' uniforms (`FMT_FP32`, `FMT_FP16`, `FMT_BF16`)."""

@@ -3,14 +3,22 @@
 Device creation (~0.6 s on lavapipe) and pipelines (~60 ms each) are paid once. Shaders live in
 the repository's top-level `shaders/` folder, which the wheel ships as the resource package
 `seuwgpu.shaders` (an editable install maps it to the folder). Every stage is compiled as the
-generated constants header (gpu/constants.py), then `common.wgsl` (the decode and activation
-helpers, once), then the helpers it shares with other stages (`STAGE_HELPERS`), then its own
-file. Stages record their work through gpu/kernel.py's Kernel.
+generated constants header (gpu/constants.py), then the files its `shaders/NAME.wgsl` imports,
+then the file itself. Stages record their work through gpu/kernel.py's Kernel.
+
+Imports
+-------
+A shader file names the files it needs in `// #import NAME` lines at its top (before its first
+declaration; a comment to WGSL tools, so every file stays valid WGSL). `shader_files` resolves
+them depth first: each import's own imports before it, every file once (the first time it is
+reached), the stage's file last. A missing file or an import cycle is an error that names the
+chain of files.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import time
 from importlib import resources
 from pathlib import Path
@@ -31,18 +39,62 @@ def shader_text(name: str) -> str:
         return (Path(__file__).resolve().parents[2] / "shaders" / f"{name}.wgsl").read_text()
 
 
-STAGE_HELPERS = {"composite": ("blend", "composite_frame"), "composite_wide": ("blend", "composite_frame")}
-"""Helper files a stage shares with others, compiled between common.wgsl and the stage's own
-file: the two full-frame compositors share blend.wgsl (the per-pixel rule, written once over the
-lane types each of them declares) and composite_frame.wgsl (their entry points main and chunks,
-written once over the pixel functions each of them supplies)."""
+_IMPORT = re.compile(r"\s*//\s*#import\b(.*)")
+
+
+def shader_imports(text: str, name: str = "shader") -> list[str]:
+    """The names of the `// #import NAME` lines at the top of a shader file (before its first
+    line that is neither blank nor a comment); one further down, or one that is not a single
+    name, is an error (never a comment silently skipped)."""
+    names, top = [], True
+    for number, line in enumerate(text.splitlines(), 1):
+        m = _IMPORT.fullmatch(line)
+        if m and not top:
+            raise ValueError(
+                f"shaders/{name}.wgsl line {number}: #import below the first declaration; put it at the top"
+            )
+        if m:
+            if not re.fullmatch(r"\s*\w+\s*", m.group(1)):
+                raise ValueError(
+                    f"shaders/{name}.wgsl line {number}: #import takes one shader name, not {m.group(1).strip()!r}"
+                )
+            names.append(m.group(1).strip())
+        elif line.strip() and not line.lstrip().startswith("//"):
+            top = False
+    return names
+
+
+def shader_files(name: str, read=shader_text) -> list[tuple[str, str]]:
+    """(name, source) of the files stage NAME is compiled from, in order: its imports resolved
+    depth first, each file once, then NAME itself. `read(name)` returns a file's text (raising
+    FileNotFoundError for none)."""
+    order: list[tuple[str, str]] = []
+    done: set[str] = set()
+
+    def visit(n: str, chain: tuple):
+        if n in chain:
+            cycle = " -> ".join(f"{c}.wgsl" for c in (*chain[chain.index(n) :], n))
+            raise ValueError(f"shader imports form a cycle: {cycle}")
+        if n in done:
+            return
+        try:
+            text = read(n)
+        except FileNotFoundError:
+            via = f" (imported by {' -> '.join(f'{c}.wgsl' for c in chain)})" if chain else ""
+            raise FileNotFoundError(f"shaders/{n}.wgsl does not exist{via}") from None
+        for dep in shader_imports(text, n):
+            visit(dep, (*chain, n))
+        done.add(n)
+        order.append((n, text))
+
+    visit(name, ())
+    return order
 
 
 def shader_source(name: str, defines: dict | None = None) -> str:
     """What a stage is compiled from: the constants header (shared values, then the module's own
-    `defines`), common.wgsl, its STAGE_HELPERS, then shaders/NAME.wgsl."""
-    parts = ["common", *STAGE_HELPERS.get(name, ()), name]
-    return wgsl_header(defines) + "\n".join(shader_text(p) for p in parts)
+    `defines`), then shaders/NAME.wgsl with its imports (`shader_files`)."""
+    return wgsl_header(defines) + "\n".join(text for _, text in shader_files(name))
 
 
 STORAGE = wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC | wgpu.BufferUsage.COPY_DST
@@ -115,8 +167,9 @@ class GPU:
         return self._pipelines[key]
 
     def bind(self, pipeline, entries: dict, group: int = 0):
-        """A new bind group; entries: {binding: buffer | (buffer, offset, size)}. Stages use
-        Kernel.bind, which caches."""
+        """A new bind group; entries: {binding number: buffer | (buffer, offset, size)}, as wgpu
+        numbers them. Stages bind by name through gpu/kernel.py Kernel, which resolves the names
+        to these numbers and caches the groups."""
         out = []
         for binding, res in sorted(entries.items()):
             if isinstance(res, tuple):

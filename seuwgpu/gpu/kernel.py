@@ -27,6 +27,17 @@ roundUp(align(T), size(T)); nested structs; @align/@size), so host and shader ca
 are numpy structured arrays: fields by name, never word offsets. `Uniforms` holds slots of one
 Struct UNIFORM_STRIDE bytes apart in one uniform buffer (one slot per view, chunk, ...).
 
+Bindings by name
+----------------
+A kernel binds its buffers by the names the shader declares them under:
+`@group(0) @binding(3) var<storage, read> rects: array<vec2<u32>>;` is bound as `rects=buf` (or
+`rects=(buf, offset, size)` for a range), in keywords or a {name: buffer} mapping. The kernel
+reads every declaration of its compiled source (`wgsl_bindings`) and which of them its entry
+point uses (`entry_bindings`: the globals its body and the functions it calls name), so a name
+the shader does not declare, or one the entry point uses and the call leaves out, is an error
+naming the kernel and the names it expects. A declared name the entry point does not use is
+passed over (stages share one set of buffers across their entry points).
+
 Bind groups
 -----------
 `Kernel.bind` caches bind groups by what they bind: (binding, buffer identity, offset, size).
@@ -118,6 +129,54 @@ def workgroup_size(src: str, entry: str, overrides: dict | None = None) -> tuple
     if None in dims:
         raise ValueError(f"cannot evaluate @workgroup_size({m.group(1)}) of {entry!r}")
     return tuple(dims + [1] * (3 - len(dims)))
+
+
+def wgsl_bindings(src: str) -> dict[str, tuple[int, int]]:
+    """{name: (group, binding)} of every `@group(g) @binding(b) var<...> NAME` of a WGSL source."""
+    decl = r"((?:@\w+\s*\(\s*\d+\s*\)\s*)+)var\b(?:\s*<[^>]*>)?\s+(\w+)"
+    out = {}
+    for attrs, name in re.findall(decl, _strip_comments(src)):
+        at = dict(re.findall(r"@(\w+)\s*\(\s*(\d+)\s*\)", attrs))
+        if "group" in at and "binding" in at:
+            out[name] = (int(at["group"]), int(at["binding"]))
+    return out
+
+
+def _functions(code: str) -> dict[str, str]:
+    """{name: parameters and body} of every `fn` of a comment-free WGSL source."""
+    out = {}
+    for m in re.finditer(r"\bfn\s+(\w+)\s*\(", code):
+        start = code.find("{", m.end())
+        depth, i = 0, start
+        while i < len(code):
+            depth += {"{": 1, "}": -1}.get(code[i], 0)
+            if depth == 0:
+                break
+            i += 1
+        out[m.group(1)] = code[m.end() : i + 1]
+    return out
+
+
+def entry_bindings(src: str, entry: str) -> dict[str, tuple[int, int]]:
+    """The bindings (as wgsl_bindings gives them) that entry point `entry` uses: the globals named
+    in its body or in the bodies of the functions it calls, transitively (WGSL's static use, which
+    decides what an automatic layout holds). A member access `x.name` is not a use of `name`."""
+    code = _strip_comments(src)
+    declared, functions = wgsl_bindings(code), _functions(code)
+    if entry not in functions:
+        raise ValueError(f"no entry point {entry!r} in the shader source")
+    used, todo, seen = set(), [entry], set()
+    while todo:
+        fn = todo.pop()
+        if fn in seen:
+            continue
+        seen.add(fn)
+        for word in set(re.findall(r"(?<![\w.])[A-Za-z_]\w*", functions[fn])):
+            if word in declared:
+                used.add(word)
+            elif word in functions:
+                todo.append(word)
+    return {name: declared[name] for name in sorted(used, key=declared.get)}
 
 
 _SCALARS = {"u32": "<u4", "i32": "<i4", "f32": "<f4"}
@@ -250,7 +309,7 @@ class Struct:
 
     @classmethod
     def from_shader(cls, shader: str, name: str, defines: dict | None = None) -> Struct:
-        """`struct NAME` as shaders/SHADER.wgsl is compiled (header, common.wgsl, the file)."""
+        """`struct NAME` as shaders/SHADER.wgsl is compiled (header, its imports, the file)."""
         return _shader_struct(shader, name, tuple(sorted((defines or {}).items())))
 
     @property
@@ -306,6 +365,12 @@ def _shader_struct(shader: str, name: str, defines: tuple) -> Struct:
 
 
 @functools.cache
+def _entry_bindings(shader: str, entry: str, defines: tuple) -> tuple[dict, dict]:
+    src = shader_source(shader, dict(defines))
+    return wgsl_bindings(src), entry_bindings(src, entry)
+
+
+@functools.cache
 def _entry_workgroup_size(shader: str, entry: str, defines: tuple, constants: tuple) -> tuple[int, int, int]:
     return workgroup_size(shader_source(shader, dict(defines)), entry, dict(constants))
 
@@ -347,10 +412,11 @@ class Kernel:
     """One compute entry point of shaders/SHADER.wgsl: its pipeline (from the GPU's cache), its
     bind groups (cached by what they bind) and its dispatches.
 
-    `record(cpass, *bindings, threads= | workgroups= | indirect=)` records one dispatch into a
-    caller's compute pass; `dispatch(encoder, ...)` wraps it in a pass of its own (tools/bench.py
-    attributes GPU time by the pipeline's label, SHADER:ENTRY). `bindings` are dicts
-    {binding: buffer | (buffer, offset, size)}, one per bind group (group 0 first). `threads`
+    `record(cpass, bindings, threads= | workgroups= | indirect=, **buffers)` records one dispatch
+    into a caller's compute pass; `dispatch(encoder, ...)` wraps it in a pass of its own
+    (tools/bench.py attributes GPU time by the pipeline's label, SHADER:ENTRY). Buffers are given
+    by the names the shader declares (module docstring), as keywords, a {name: buffer} mapping
+    `bindings`, or both: buffer | (buffer, offset, size). `threads`
     gives ceil(threads / workgroup x) workgroups, split into rows of MAX_GROUPS_X as
     gpu.device.dispatch_dims does (shaders read the id back with `linear_wg`); `workgroups` is
     a count (split likewise) or an (x, y, z) grid; `indirect` is (buffer, byte_offset).
@@ -374,26 +440,64 @@ class Kernel:
         self.workgroup_size = _entry_workgroup_size(
             shader, entry, tuple(sorted(self.defines.items())), tuple(sorted(self.constants.items()))
         )
+        # {name: (group, binding)}: every binding the shader declares, and those the entry uses
+        self.declared, self.expects = _entry_bindings(shader, entry, tuple(sorted(self.defines.items())))
+        clash = {"threads", "workgroups", "indirect"} & set(self.declared)
+        if clash:
+            raise ValueError(f"kernel {self.label}: binding names {sorted(clash)} clash with dispatch's arguments")
         self._bind_groups: dict[tuple, tuple] = {}  # key -> (bind group, ids of its buffers)
-        self._keys_of: dict[int, set] = {}  # id(buffer) -> keys that bind it
+        # what a call gave, by name (buffer identities, ranges) -> ((group, bind group), ...), ids:
+        # a repeated call skips resolving names (recording is on the frame's critical path)
+        self._named: dict[tuple, tuple] = {}
+        self._keys_of: dict[int, set] = {}  # id(buffer) -> keys (of either cache) that hold it
 
     def struct(self, name: str) -> Struct:
         """A struct of this kernel's shader source."""
         return Struct.from_shader(self.shader, name, self.defines)
 
     # ---- bind groups ---------------------------------------------------------------------------
-    def bind(self, resources: dict, group: int = 0):
-        """The bind group of `resources` ({binding: buffer | (buffer, offset, size)}), made once."""
-        key = (
-            group,
-            *[(b, id(r[0]), r[1], r[2]) if r.__class__ is tuple else (b, id(r)) for b, r in resources.items()],
-        )
-        hit = self._bind_groups.get(key)
+    def resolve(self, bindings=None, **buffers) -> dict[int, dict]:
+        """{group: {binding: resource}} of buffers given by name (a mapping, keywords or both):
+        an undeclared or non-string name, or a name the entry point uses and the call leaves out,
+        is an error naming this kernel and the names it expects; declared names the entry point
+        does not use are passed over."""
+        given = {**bindings, **buffers} if bindings else buffers
+        groups: dict[int, dict] = {}
+        for name, res in given.items():
+            at = self.expects.get(name)
+            if at is None:
+                if name in self.declared:
+                    continue
+                raise KeyError(f"kernel {self.label} has no binding {name!r} (it expects: {', '.join(self.expects)})")
+            groups.setdefault(at[0], {})[at[1]] = res
+        if sum(len(g) for g in groups.values()) != len(self.expects):
+            missing = [n for n in self.expects if n not in given]
+            raise KeyError(
+                f"kernel {self.label} is missing binding(s) {', '.join(missing)} "
+                f"(it expects: {', '.join(self.expects)})"
+            )
+        return groups
+
+    def bind(self, bindings=None, **buffers) -> tuple:
+        """The bind groups (group 0 first) of buffers given by name (`resolve`), each made once."""
+        return tuple(bg for _, bg in self._bound(bindings, buffers))
+
+    def _bound(self, bindings, buffers) -> tuple:
+        """((group, bind group), ...) of a call's buffers by name, looked up by what it gave."""
+        given = ({**bindings, **buffers} if buffers else bindings) if bindings else buffers
+        key = tuple([(n, id(r[0]), r[1], r[2]) if r.__class__ is tuple else (n, id(r)) for n, r in given.items()])
+        hit = self._named.get(key)
         if hit is not None:
             return hit[0]
-        bg = self.gpu.bind(self.pipeline, resources, group)
+        groups = self.resolve(given)
+        bound = tuple((group, self._bind_group(res, group)) for group, res in sorted(groups.items()))
+        self._remember(self._named, key, bound, given.values())
+        return bound
+
+    def _remember(self, cache: dict, key: tuple, value, resources):
+        """cache[key] = value until one of the buffers of `resources` is collected."""
         ids = set()
-        for r in resources.values():
+        for r in resources:
             buf = r[0] if type(r) is tuple else r
             bid = id(buf)
             ids.add(bid)
@@ -401,13 +505,25 @@ class Kernel:
                 self._keys_of[bid] = set()
                 weakref.finalize(buf, _forget, weakref.ref(self), bid).atexit = False
             self._keys_of[bid].add(key)
-        self._bind_groups[key] = (bg, ids)
+        cache[key] = (value, ids)
+
+    def _bind_group(self, resources: dict, group: int):
+        """The bind group of `resources` ({binding number: buffer | (buffer, offset, size)})."""
+        key = (
+            group,
+            *[(b, id(r[0]), r[1], r[2]) if r.__class__ is tuple else (b, id(r)) for b, r in sorted(resources.items())],
+        )
+        hit = self._bind_groups.get(key)
+        if hit is not None:
+            return hit[0]
+        bg = self.gpu.bind(self.pipeline, resources, group)
+        self._remember(self._bind_groups, key, bg, resources.values())
         return bg
 
     def forget(self, buffer_id: int):
         """Drop the bind groups that bind a buffer (called when the buffer is collected)."""
         for key in self._keys_of.pop(buffer_id, ()):
-            hit = self._bind_groups.pop(key, None)
+            hit = self._bind_groups.pop(key, None) or self._named.pop(key, None)
             if hit is not None:
                 for other in hit[1]:
                     if other != buffer_id and other in self._keys_of:
@@ -422,7 +538,7 @@ class Kernel:
         """Workgroups for `threads` invocations along x (at least one workgroup)."""
         return dispatch_dims(-(-int(threads) // self.workgroup_size[0]))
 
-    def record(self, cpass, *bindings: dict, threads=None, workgroups=None, indirect=None):
+    def record(self, cpass, bindings=None, /, *, threads=None, workgroups=None, indirect=None, **buffers):
         """Record one dispatch into the compute pass `cpass` (see the class docstring)."""
         if indirect is None:
             if threads is not None:
@@ -433,21 +549,20 @@ class Kernel:
                 grid = dispatch_dims(workgroups)
             else:
                 raise ValueError(f"{self.label}: give threads, workgroups or indirect")
+        bound = self._bound(bindings, buffers)
         cpass.set_pipeline(self.pipeline)
-        group = 0
-        for resources in bindings:
-            cpass.set_bind_group(group, self.bind(resources, group))
-            group += 1
+        for group, bg in bound:
+            cpass.set_bind_group(group, bg)
         if indirect is None:
             cpass.dispatch_workgroups(*grid)
         else:
             cpass.dispatch_workgroups_indirect(indirect[0], int(indirect[1]))
 
-    def dispatch(self, encoder, *bindings: dict, threads=None, workgroups=None, indirect=None):
+    def dispatch(self, encoder, bindings=None, /, *, threads=None, workgroups=None, indirect=None, **buffers):
         """Record one dispatch in a compute pass of its own (unlabelled: a label costs ~3 us of
         encoding per pass; the pipeline's label names the pass)."""
         cpass = encoder.begin_compute_pass()
-        self.record(cpass, *bindings, threads=threads, workgroups=workgroups, indirect=indirect)
+        self.record(cpass, bindings, threads=threads, workgroups=workgroups, indirect=indirect, **buffers)
         cpass.end()
 
     def __repr__(self) -> str:

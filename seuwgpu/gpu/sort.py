@@ -50,9 +50,8 @@ _CACHE_SIZE = 512
 # histogram: no PrefixSum between upsweep and scatter, so 2 dependent dispatches a pass instead of
 # 3, and 17 instead of 26 for a 32-bit sort (a GPU waits on each; Python spends ~8 us recording
 # each). Each scatter thread then reads at most 16 histogram words (the reads grow as blocks
-# squared: 256 keeps them at 4 MiB a pass; untimed on a GPU). CPU adapters keep the scanned path:
-# the fused scatter's two barriers made lavapipe's sort 8-19% slower at 4 to 1,024 blocks
-# (2026-11-26, review of 2d0f0f8), more than the recording it saves.
+# squared: 256 keeps them at 4 MiB a pass). CPU adapters keep the scanned path: there the fused
+# scatter's two barriers cost more than the recording it saves (docs/renderer.md "Measurements").
 FUSED_MAX_BLOCKS = 256
 
 
@@ -242,7 +241,7 @@ class PrefixSum:
         indirect arguments for the next `encode_scan` calls."""
         rng, word = self._counts.binding(count)
         pargs = self._plan_args.get(word=word, limit=int(limit), capacity=self.capacity, chunk=self.chunk)
-        self._k["ps_plan_main"].record(cpass, {5: self.plan, 6: rng, 7: pargs}, workgroups=(1, 1, 1))
+        self._k["ps_plan_main"].record(cpass, ps_plan_w=self.plan, ps_count=rng, ps_pargs=pargs, workgroups=(1, 1, 1))
 
     def encode_scan(self, cpass, src, dst, limit: int):
         """Dispatch the scan itself (after `encode_plan`, inside the caller's compute pass)."""
@@ -256,7 +255,7 @@ class PrefixSum:
                 yield k, c
 
         def dispatch(entry, k, entries):
-            entries[8] = self._pass.binding(k)
+            entries["ps_pass"] = self._pass.binding(k)
             if k == self._top_slot:
                 self._k[entry].record(cpass, entries, workgroups=(1, 1, 1))
             else:
@@ -265,23 +264,40 @@ class PrefixSum:
         for lev in range(self.levels):
             a, _ = arrays[lev]
             for k, c in chunks(lev):
-                dispatch("ps_reduce", k, {0: _range(a, c * S4, S4), 3: self._sums[lev + 1], 4: self.plan})
+                dispatch(
+                    "ps_reduce",
+                    k,
+                    {"ps_src": _range(a, c * S4, S4), "ps_sums": self._sums[lev + 1], "ps_plan": self.plan},
+                )
         a, b = arrays[self.levels]
         if a is b:
-            dispatch("ps_top_inplace", self._top_slot, {1: _range(b, 0, S4), 5: self.plan})
+            dispatch("ps_top_inplace", self._top_slot, {"ps_dst": _range(b, 0, S4), "ps_plan_w": self.plan})
         else:
-            dispatch("ps_top", self._top_slot, {0: _range(a, 0, S4), 1: _range(b, 0, S4), 5: self.plan})
+            dispatch(
+                "ps_top",
+                self._top_slot,
+                {"ps_src": _range(a, 0, S4), "ps_dst": _range(b, 0, S4), "ps_plan_w": self.plan},
+            )
         for lev in reversed(range(self.levels)):
             a, b = arrays[lev]
             offs = self._sums[lev + 1]
             for k, c in chunks(lev):
                 if a is b:
-                    dispatch("ps_downsweep_inplace", k, {1: _range(b, c * S4, S4), 2: offs, 4: self.plan})
+                    dispatch(
+                        "ps_downsweep_inplace",
+                        k,
+                        {"ps_dst": _range(b, c * S4, S4), "ps_offs": offs, "ps_plan": self.plan},
+                    )
                 else:
                     dispatch(
                         "ps_downsweep",
                         k,
-                        {0: _range(a, c * S4, S4), 1: _range(b, c * S4, S4), 2: offs, 4: self.plan},
+                        {
+                            "ps_src": _range(a, c * S4, S4),
+                            "ps_dst": _range(b, c * S4, S4),
+                            "ps_offs": offs,
+                            "ps_plan": self.plan,
+                        },
                     )
 
 
@@ -407,8 +423,8 @@ class RadixSort:
         user, tmp = (keys, values), (self.keys_tmp, self.vals_tmp)
         if passes % 2:
             for c in chunks:
-                bindings = {0: io[keys][0][c], 1: io[values][0][c], 8: self.plan}
-                bindings[12], bindings[13] = io[tmp[0]][0][c], io[tmp[1]][0][c]
+                bindings = {"rs_keys_in": io[keys][0][c], "rs_vals_in": io[values][0][c], "rs_plan": self.plan}
+                bindings["rs_keys_out4"], bindings["rs_vals_out4"] = io[tmp[0]][0][c], io[tmp[1]][0][c]
                 self._dispatch(cpass, "rs_copy", 0, 3, c, bindings)
             cur, oth = tmp, user
         else:
@@ -417,28 +433,51 @@ class RadixSort:
             m = min(4, key_bits - 4 * p) - 1
             for c in chunks:
                 self._dispatch(
-                    cpass, "rs_upsweep", p, m, c, {0: io[cur[0]][0][c], 7: self.hist, 8: self.plan, 15: self.offs}
+                    cpass,
+                    "rs_upsweep",
+                    p,
+                    m,
+                    c,
+                    {
+                        "rs_keys_in": io[cur[0]][0][c],
+                        "rs_hist_w": self.hist,
+                        "rs_plan": self.plan,
+                        "rs_offs_w": self.offs,
+                    },
                 )
             if self.scan is not None:
                 self.scan.encode_scan(cpass, self.hist, self.hist, self.scan.capacity)
             (klo, khi), (vlo, vhi) = io[oth[0]][1], io[oth[1]][1]
             for c in chunks:
-                bindings = {0: io[cur[0]][0][c], 1: io[cur[1]][0][c], 2: klo, 3: khi, 4: vlo, 5: vhi, 6: self.hist}
-                bindings[14] = self.offs
+                bindings = {
+                    "rs_keys_in": io[cur[0]][0][c],
+                    "rs_vals_in": io[cur[1]][0][c],
+                    "rs_keys_lo": klo,
+                    "rs_keys_hi": khi,
+                    "rs_vals_lo": vlo,
+                    "rs_vals_hi": vhi,
+                    "rs_hist": self.hist,
+                    "rs_offs": self.offs,
+                }
                 self._dispatch(cpass, "rs_scatter", p, m, c, bindings)
             cur, oth = oth, cur
         cpass.end()
 
     # ---- internals -----------------------------------------------------------------------------
     def _dispatch(self, cpass, entry, p, m, c, bindings):
-        bindings[16] = self._pass.binding((p * 4 + m) * self.nch + c)
+        bindings["rs_pass"] = self._pass.binding((p * 4 + m) * self.nch + c)
         self._k[entry].record(cpass, bindings, indirect=(self.plan, 4 * (RADIX_PLAN["RS_ARGS"] + 3 * c)))
 
     def _encode_plan(self, cpass, count, limit):
         rng, word = self._counts.binding(count)
         pargs = self._plan_args.get(word=word, limit=int(limit), chunk=self.chunk, nch=self.nch)
         self._k["rs_plan_main"].record(
-            cpass, {9: self.plan, 10: rng, 11: pargs, 15: (self.offs, 0, _OFFS_HEADER)}, workgroups=(1, 1, 1)
+            cpass,
+            rs_plan_w=self.plan,
+            rs_count=rng,
+            rs_pargs=pargs,
+            rs_offs_w=(self.offs, 0, _OFFS_HEADER),
+            workgroups=(1, 1, 1),
         )
 
     def _in(self, buf, c):

@@ -155,26 +155,26 @@ class ImageMetrics:
             raise ValueError(f"{what} buffer holds {buf.size} bytes, needs {nbytes}")
 
     def _record(self, encoder, clean_buf, fimg_buf, tile_map_buf, worklist_buf, offsets_buf, n_bk, n_entries, masks):
-        common = {
-            0: self.params.binding(0),
-            1: clean_buf,
-            2: fimg_buf,
-            3: tile_map_buf,
-            4: worklist_buf,
-            5: offsets_buf,
-            6: self.partials,
-            7: self.results,
-            8: self.indirect,
-            9: self.masks,
+        # metrics.wgsl's buffers; each entry point binds those it uses
+        buffers = {
+            "mp": self.params.binding(0),
+            "m_clean": clean_buf,
+            "m_fimg": fimg_buf,
+            "m_tile_map": tile_map_buf,
+            "m_worklist": worklist_buf,
+            "m_offsets": offsets_buf,
+            "m_partials": self.partials,
+            "m_results": self.results,
+            "m_indirect": self.indirect,
+            "m_masks": self.masks,
         }
-        tile = {i: common[i] for i in (*range(7), 9)}
         cp = encoder.begin_compute_pass()
         if n_entries is None:  # sparse: size from offsets[B*K] on the GPU
-            self.k_dispatch.record(cp, {i: common[i] for i in (0, 5, 8)}, workgroups=(1, 1, 1))
-            self.k_tile.record(cp, tile, indirect=(self.indirect, 0))
+            self.k_dispatch.record(cp, buffers, workgroups=(1, 1, 1))
+            self.k_tile.record(cp, buffers, indirect=(self.indirect, 0))
         elif n_entries > 0:
-            self.k_tile.record(cp, tile, workgroups=n_entries)
-        self.k_reduce.record(cp, {i: common[i] for i in (0, 5, 6, 7)}, threads=n_bk)
+            self.k_tile.record(cp, buffers, workgroups=n_entries)
+        self.k_reduce.record(cp, buffers, threads=n_bk)
         cp.end()
         self.results_readback.encode(encoder, self.results, 0, self.layout.offset("records") + n_bk * self.record.size)
         self.masks_readback.encode(encoder, self.masks, 0, MASK_BYTES * min(int(masks), self.capacity))

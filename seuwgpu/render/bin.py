@@ -120,13 +120,16 @@ class Binning:
         the packed rectangles, the screen records (`xy`, `conic` with opacity: render/project.py)
         and the depth order."""
         u = self.params.binding(slot)
-        records = {9: xy, 10: conic}
+        shared = {"bin": u, "rects": rects, "sorted_prims": sorted_prims, "proj_xy": xy, "proj_conic": conic}
         count = self.n * self._views_of(slot)
-        self.k_count.dispatch(encoder, {0: u, 1: rects, 2: sorted_prims, 3: self.counts, **records}, threads=count)
+        self.k_count.dispatch(encoder, shared, counts=self.counts, threads=count)
         self.scan.encode(encoder, self.counts, self.offsets, count, total=self.total(slot))
         self.k_emit.dispatch(
             encoder,
-            {0: u, 1: rects, 2: sorted_prims, 4: self.offsets, 5: self.isect_tiles, 6: self.isect_prims, **records},
+            shared,
+            offsets=self.offsets,
+            isect_tiles=self.isect_tiles,
+            isect_prims=self.isect_prims,
             threads=count,
         )
 
@@ -134,14 +137,21 @@ class Binning:
         """Batched views: keys[s] = the view of the s-th depth-ordered record (for a stable sort
         by view: render/renderer.py)."""
         self.k_view_keys.dispatch(
-            encoder, {0: self.params.binding(self.batch_slot), 2: sorted_prims, 11: keys}, threads=self.n * self.k
+            encoder,
+            bin=self.params.binding(self.batch_slot),
+            sorted_prims=sorted_prims,
+            view_of=keys,
+            threads=self.n * self.k,
         )
 
     def encode_ranges(self, encoder, slot: int):
         """Per-tile ranges of slot `slot`'s tile-sorted list (and, batched, each view's total)."""
         self.k_ranges.dispatch(
             encoder,
-            {0: self.params.binding(slot), 5: self.isect_tiles, 7: self.stats, 8: self.ranges},
+            bin=self.params.binding(slot),
+            isect_tiles=self.isect_tiles,
+            stats=self.stats,
+            ranges=self.ranges,
             threads=self.n_tiles * self._views_of(slot),
         )
 

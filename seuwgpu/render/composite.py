@@ -1,4 +1,5 @@
-"""Compositing stage: shaders/composite.wgsl and its numpy twin.
+"""Compositing stage: shaders/composite.wgsl (the "lanes" shape and the merge of long tiles),
+composite_wide.wgsl (the "wide" shape) and their numpy twin.
 
 Front to back over each tile's depth-ordered list, per pixel (docs/renderer.md): skip when
 sigma < 0 or alpha < 1/255, alpha = min(0.99, o * exp(-sigma)) with NaN propagating, stop before
@@ -13,9 +14,9 @@ before chunks existed, bit for bit; longer ones run their chunks on separate wor
 
 The GPU entry points share the blending and merging code (shaders/blend.wgsl), so their
 arithmetic is identical bit for bit: `Compositing` (main, chunks, merge: the tiles of full frames,
-in either compositor shape, `SHAPES`) and `VariantCompositing` (variants: tiles of single-upset
-variants re-composited from a clean frame's kept lists, one chunk per dispatch,
-render/incremental.py).
+in either compositor shape, `SHAPES`) and render/variants.py's `VariantCompositing`
+(shaders/variants.wgsl: tiles of single-upset variants re-composited from a clean frame's kept
+lists, one chunk per dispatch, render/incremental.py).
 
 Twin: `composite_tile` blends one tile exactly as the sequential per-pixel rule does, vectorised
 over pixels and blocks of primitives: the transmittance and colour recurrences use
@@ -33,8 +34,8 @@ import numpy as np
 
 from seuwgpu.errors import InputError
 from seuwgpu.gpu.constants import CHUNK, COMPOSITORS, GPU_CHUNK, PROFILE_CODE, TILE
-from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE, Readback
-from seuwgpu.gpu.kernel import Kernel, Uniforms
+from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE
+from seuwgpu.gpu.kernel import Kernel
 from seuwgpu.render.bin import REACH_ALL, REACH_ELLIPSE, band_extent, reach
 from seuwgpu.render.project import exp_f32
 
@@ -53,11 +54,8 @@ same frames, bit for bit (on a GPU with products kept out of multiply-adds: `unf
 
 
 def default_shape(gpu: GPU) -> str:
-    """The compositor a Renderer uses unless told: "lanes" on a CPU adapter, "wide" on a GPU. On
-    an NVIDIA H100 (2026-11-26, tools/bench.py, spheres, K = 8 batched; README's H100 table) wide
-    composited in 0.4-0.5x lanes' GPU time and took 1.9 against 2.8 ms a view at 1M primitives,
-    256x256 (0.5 against 0.7 at 100k); lavapipe runs lanes' vec4 code about 5x faster
-    (docs/renderer.md)."""
+    """The compositor a Renderer uses unless told: "lanes" on a CPU adapter, "wide" on a GPU,
+    each the faster on its kind of device (docs/renderer.md "Measurements")."""
     return "lanes" if gpu.is_cpu else "wide"
 
 
@@ -161,186 +159,33 @@ class Compositing:
             raise RuntimeError("Compositing.set_capacity must be called before encode")
         encoder.clear_buffer(self.work, 0, 20)  # counters and the chunks' group count
         encoder.clear_buffer(self.work, 32, 4)  # the merge's group count
-        records = {0: frame, 1: ranges, 2: isect_prims, 3: xy, 4: conic, 5: rgb, 7: isect_box}
-        lists = {31: self.slabs, 32: self.extra_list, 33: self.merge_list}
+        # blend.wgsl's buffers; each entry point binds those it uses (`work` is read by the
+        # later passes as their `work_counts`)
+        buffers = {
+            "bin": frame,
+            "ranges": ranges,
+            "isect_prims": isect_prims,
+            "proj_xy": xy,
+            "proj_conic": conic,
+            "proj_rgb": rgb,
+            "image": self.image,
+            "isect_box": isect_box,
+            "work": self.work,
+            "chunk_slabs": self.slabs,
+            "extra_list": self.extra_list,
+            "merge_list": self.merge_list,
+            "work_counts": self.work,
+            "stop_pos": self.no_stops if stops is None else stops,
+        }
         main, chunks = self._lean if stops is None else (self.kernel, self.k_chunks)
-        main.dispatch(
-            encoder,
-            {**records, 6: self.image, 30: self.work, 35: self.no_stops if stops is None else stops, **lists},
-            workgroups=(int(tiles[0]), int(tiles[1]), int(frames)),
-        )
-        chunks.dispatch(
-            encoder, {**records, 31: self.slabs, 32: self.extra_list, 34: self.work}, indirect=(self.work, 16)
-        )
-        self.k_merge.dispatch(
-            encoder,
-            {0: frame, 1: ranges, 6: self.image, 31: self.slabs, 33: self.merge_list, 34: self.work},
-            indirect=(self.work, 32),
-        )
-
-
-class VariantCompositing:
-    """composite.wgsl:variants: re-composite listed (variant, view, tile, primitive) entries into
-    slabs (one TILE x TILE vec4 tile each), from a clean frame's kept per-view state with the
-    primitive's clean entry removed and its variant record merged in at its depth (ordered by
-    (depth bits, index) as the depth sort orders them). Chunk c of every entry's list runs in
-    dispatch c, merged into the entry's slab (running state between dispatches), so no workgroup
-    walks more than one chunk (llvmpipe's loop limit: docs/renderer.md). When both lists are one
-    chunk, a pixel that neither record reaches, or whose reaching records lie behind the record
-    it stopped at in the clean frame (`kept["stop"]`), is copied from the clean image. Owns the
-    entries, the slabs and the `Recomp` parameters (one slot per chunk dispatch)."""
-
-    def __init__(self, gpu: GPU, max_entries: int, profile: str = "strict", chunk: int = CHUNK, exact: bool = True):
-        self.gpu = gpu
-        self.chunk = check_chunk(chunk)
-        # exact: the clean frames were binned exactly (render/bin.py), so a variant record is listed
-        # where the binning would list it (its footprint reaches the tile), not on its whole rectangle
-        constants = {
-            "PROFILE": PROFILE_CODE[profile],
-            "CHUNK_PAIRS": self.chunk,
-            "EXACT_BIN": int(bool(exact)),
-            "UNFUSED": int(unfused_products(gpu)),
-        }
-        self.kernel = Kernel(gpu, "composite", "variants", constants=constants)
-        self.params = Uniforms(gpu, self.kernel.struct("Recomp"), 1, "recomp")
-        self.entry = self.kernel.struct("VariantEntry")
-        self.max_entries = int(max_entries)
-        self.entries = gpu.buffer(self.entry.size * self.max_entries, STORAGE, "variants.entries")
-        self.slabs = gpu.buffer(SLAB_BYTES * self.max_entries, STORAGE, "variants.slabs")
-        # which pixels ended, between chunk dispatches: one u32 per invocation of an entry
-        lanes = int(np.prod(self.kernel.workgroup_size))
-        self.ended = gpu.buffer(4 * lanes * self.max_entries, STORAGE, "variants.ended")
-        # per entry, the tile-local box of the pixels whose rgb bits differ from the clean frame's
-        self.changed = gpu.buffer(4 * self.max_entries, STORAGE, "variants.changed")
-        self.changed_readback = Readback(gpu, 4 * self.max_entries, "variants.changed.readback")
-        self.entry_next = gpu.buffer(4 * self.max_entries, STORAGE, "variants.entry_next")
-        self.k_checkpoints = Kernel(gpu, "composite", "checkpoints", constants={**constants, "RECORD": 1})
-
-    def _dispatches(self, entries: dict, longest: int, params: dict, groups) -> list[tuple]:
-        """Write the entries (sorted by view) and the `Recomp` slot of every dispatch: one per chunk
-        pass and kept view group [v0, v1) (Renderer.kept_view_groups; default all views);
-        returns (slot, v0, v1, first entry, end) per dispatch in recording order (queue writes:
-        one encode per submission)."""
-        views = np.asarray(entries["view"], np.int64)
-        n_e = len(views)
-        if n_e > self.max_entries:
-            raise ValueError(f"{n_e} entries > max_entries={self.max_entries}")
-        if np.any(np.diff(views) < 0):
-            raise ValueError("entries must be sorted by view")
-        if n_e:
-            self.gpu.write(self.entries, self.entry.fill(self.entry.zeros(n_e), **entries))
-        groups = list(groups or [(0, int(views.max(initial=0)) + 1)])
-        spans = [(v0, v1, *np.searchsorted(views, [v0, v1])) for v0, v1 in groups]
-        spans = [sp for sp in spans if sp[3] > sp[2]]
-        passes = max(1, -(-(int(longest) + 1) // self.chunk))
-        slots = passes * max(1, len(spans))
-        if slots > self.params.slots:
-            self.params = Uniforms(self.gpu, self.params.struct, slots, "recomp")
-        params = {**params, "background": np.append(np.asarray(params["background"], np.float32), 0.0)}
-        rows = self.params.rows[:slots]
-        self.params.struct.fill(rows, **params)
-        out = []
-        for c in range(passes if spans else 0):
-            for i, (v0, v1, e0, e1) in enumerate(spans):
-                slot = c * len(spans) + i
-                rows[slot]["chunk_pass"], rows[slot]["first_view"] = c, v0
-                rows[slot]["first_entry"], rows[slot]["n_entries"] = e0, e1
-                out.append((slot, int(v0), int(v1), int(e0), int(e1)))
-        self.params.write()
-        return out
-
-    def _kept_bindings(self, slot: int, kept: dict, v0: int, v1: int, stride: int, capacity: int) -> dict:
-        """What both entry points bind: a dispatch's parameters, the entries and their running
-        state, and the clean frame's kept buffers, views [v0, v1) of the per-view records
-        (`stride` records a view) and tile lists (`capacity` pairs a view)."""
-
-        def views(buf, per_view: int):
-            return (buf, per_view * v0, per_view * (v1 - v0))
-
-        return {
-            10: self.params.binding(slot),
-            11: self.entries,
-            12: kept["ranges"],
-            13: views(kept["isect"], 4 * capacity),
-            14: views(kept["xy"], 8 * stride),
-            15: views(kept["conic"], 16 * stride),
-            16: views(kept["rgb"], 16 * stride),
-            21: self.slabs,
-            23: views(kept["box"], 4 * capacity),
-            24: self.ended,
-            26: kept["stop"],
-            27: kept["ckpt_base"],
-            28: kept["ckpt_states"],
-            36: kept["chunk_base"],
-            37: kept["chunk_states"],
-        }
-
-    def encode(
-        self, encoder, entries: dict, kept: dict, variant: dict, clean_image, longest: int, groups=None, **params
-    ):
-        """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}, sorted by
-        view); `longest`: the longest clean tile list (a variant's list holds at most one pair
-        more); `groups`: the kept view groups bound one at a time (Renderer.kept_view_groups).
-        kept: the clean frame's per-view `ranges`, `isect` and `box` (tile lists and the pairs'
-        pixel boxes, `capacity` apart), `stop` (per pixel, its end in its list), `xy`, `conic`,
-        `rgb` (w = depth) of n_prims records per view, and its checkpoints (`ckpt_base`,
-        `ckpt_states`) and later chunks' results (`chunk_base`, `chunk_states`; both from
-        encode_checkpoints); variant: the variants' `xy`, `conic`, `rgb`, `rect` (n_variants per
-        view); params: width, height, tiles_x, n_tiles, n_prims, n_variants, capacity,
-        background, ckpt_every."""
-        dispatches = self._dispatches(entries, longest, params, groups)
-        for slot, v0, v1, e0, e1 in dispatches:
-            self.kernel.dispatch(
-                encoder,
-                {
-                    **self._kept_bindings(slot, kept, v0, v1, params["n_prims"], params["capacity"]),
-                    17: variant["xy"],
-                    18: variant["conic"],
-                    19: variant["rgb"],
-                    20: variant["rect"],
-                    22: clean_image,
-                    25: self.changed,
-                    29: self.entry_next,
-                },
-                workgroups=e1 - e0,
-            )
-        n_e = len(entries["tile"])
-        self.changed_readback.encode(encoder, self.changed, 0, 4 * n_e)
-
-    def encode_checkpoints(self, encoder, entries: dict, kept: dict, longest: int, groups=None, **params):
-        """Record the checkpoint pass (composite.wgsl:checkpoints) over `entries` ({view, tile},
-        sorted by view): the pixels' state at every `ckpt_every` positions of those tiles' clean
-        lists into kept["ckpt_states"] (slots from kept["ckpt_base"]), each later chunk's own
-        result into kept["chunk_states"] (slots from kept["chunk_base"]) and each pixel's end into
-        kept["stop"]. Same kept buffers, groups and params as `encode`."""
-        n = len(entries["tile"])
-        entries = {"variant": np.zeros(n, np.int64), "prim": np.zeros(n, np.int64), **entries}
-        dispatches = self._dispatches(entries, max(int(longest) - 1, 0), params, groups)
-        for slot, v0, v1, e0, e1 in dispatches:
-            self.k_checkpoints.dispatch(
-                encoder,
-                self._kept_bindings(slot, kept, v0, v1, params["n_prims"], params["capacity"]),
-                workgroups=e1 - e0,
-            )
-
-    def read_changed(self, n: int) -> np.ndarray:
-        """[n, 4] int (x0, x1, y0, y1, inclusive, tile-local) of the last submitted encode: the box
-        of each entry's pixels inside the frame whose rgb bits differ from the clean frame's;
-        x0 > x1 where none does. Waits for that submission only (gpu/device.py Readback)."""
-        b = self.changed_readback.read(np.uint32).astype(np.int64)
-        if b.size < n:
-            raise ValueError(f"the last encode listed {b.size} entries, not {n}")
-        b = b[:n]
-        return np.stack([b & 0xFF, (b >> 8) & 0xFF, (b >> 16) & 0xFF, b >> 24], axis=1)
-
-    def read_slabs(self, n: int) -> np.ndarray:
-        """[n, TILE, TILE, 4] float32 of the last submitted encode."""
-        return self.gpu.read(self.slabs, np.float32, 0, SLAB_BYTES * n).reshape(n, TILE, TILE, 4)
+        main.dispatch(encoder, buffers, workgroups=(int(tiles[0]), int(tiles[1]), int(frames)))
+        chunks.dispatch(encoder, buffers, indirect=(self.work, 16))
+        self.k_merge.dispatch(encoder, buffers, indirect=(self.work, 32))
 
 
 # ---- numpy twin ---------------------------------------------------------------------------------
 def ellipse_quadrants(xy: np.ndarray, co: np.ndarray, origin: np.ndarray) -> np.ndarray:
-    """Twin of composite.wgsl ellipse_quadrants, per row (xy [M, 2], co [M, 4]: conic and
+    """Twin of composite_lanes.wgsl ellipse_quadrants, per row (xy [M, 2], co [M, 4]: conic and
     opacity, origin [M, 2]: the first pixel of the record's tile, full frame): bit 2 j + i set
     when the record's margined ellipse (render/bin.py reach) may reach a pixel centre of the
     quadrant in column half i, row half j; all four bits for a record without a bound. The
@@ -364,29 +209,6 @@ def default_chunk(gpu: GPU) -> int:
     """Pairs a compositing workgroup walks on this device: CHUNK on a CPU adapter (lavapipe, where
     the cores, not the walk, bound a frame), GPU_CHUNK on a GPU (gpu/constants.py says why)."""
     return CHUNK if gpu.is_cpu else GPU_CHUNK
-
-
-def walk_round(chunk: int) -> int:
-    """List positions per round of composite.wgsl's walk_list: 1024 (ROUND_MAX) where it divides
-    the chunk, else 512, else one batch (TILE * TILE)."""
-    chunk = check_chunk(chunk)
-    return next(r for r in (4 * TILE_PIXELS, 2 * TILE_PIXELS, TILE_PIXELS) if chunk % r == 0)
-
-
-CHECKPOINT_EVERY = 1024
-"""List positions between the checkpoints of a kept clean frame (render/incremental.py): a
-variant's walk starts at most this far before its change. Less is faster and takes more memory
-(a TILE x TILE vec4 state, 4 KiB, per checkpoint)."""
-
-
-def checkpoint_every(chunk: int, want: int = CHECKPOINT_EVERY) -> int:
-    """The checkpoint interval nearest `want` that the walk allows: a multiple of its round that
-    divides the chunk."""
-    chunk, r = check_chunk(chunk), walk_round(chunk)
-    every = min(chunk, max(r, int(want) // r * r))
-    while chunk % every:
-        every -= r
-    return every
 
 
 def check_chunk(chunk) -> int:
@@ -450,7 +272,7 @@ def blend_chunk(ids, pxs, pys, mx, my, conic, opac, rgb, block0=32, block_max=51
 def merge_chunk(C, T, ended, c, t, stopped):
     """Merge a later chunk's (c, t, stopped) into the pixels' (C, T, ended) front to back, in
     place: C = C + T * c, T = T * t where not ended; a pixel ends once its chunk stopped early or
-    T <= 1e-4 after the merge (composite.wgsl `merge_quad`)."""
+    T <= 1e-4 after the merge (blend.wgsl `merge_quad`)."""
     live = ~ended
     with np.errstate(all="ignore"):
         C[live] = C[live] + T[live, None] * c[live]
@@ -531,14 +353,3 @@ def composite_frame(
             img[ys, xs, :3] = rgb.reshape(img[ys, xs].shape[:2] + (3,))
             img[ys, xs, 3] = T.reshape(img[ys, xs].shape[:2])
     return img
-
-
-def variant_list(clean_ids, keys, prim: int, new_key: int, covers: bool) -> np.ndarray:
-    """Twin of the variants entry's list: the clean tile list `clean_ids` (ordered by (key,
-    index), `keys` the depth-key bits of every primitive) without `prim`, and with `prim` merged
-    back at (new_key, prim) if its variant rectangle `covers` the tile."""
-    ids = [int(i) for i in clean_ids if int(i) != prim]
-    if covers:
-        pos = sum(1 for i in ids if (int(keys[i]), i) < (int(new_key), prim))
-        ids.insert(pos, prim)
-    return np.array(ids, dtype=np.int64)

@@ -22,6 +22,6 @@ def gpu_decode(words: np.ndarray, precision: str, gpu: GPU | None = None) -> np.
     src = gpu.upload(words)
     dst = gpu.buffer(4 * count)
     enc = gpu.device.create_command_encoder()
-    kernel.dispatch(enc, {0: params, 1: src, 2: dst}, threads=count)
+    kernel.dispatch(enc, params=params, words=src, values=dst, threads=count)
     gpu.submit(enc)
     return gpu.read(dst, np.float32, 0, 4 * count)

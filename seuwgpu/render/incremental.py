@@ -6,12 +6,12 @@ of B variants (each: one primitive replaced by new stored bits) the compositor
 1. projects each variant's new primitive for all K views with the renderer's own project shader
    (a tiny "model" of B primitives);
 2. lists the dirty tiles (clean rect union new rect) per (variant, view) on the host;
-3. re-composites those tiles with `composite.wgsl:variants` (render/composite.py
+3. re-composites those tiles with `variants.wgsl:variants` (render/variants.py
    VariantCompositing: the clean tile list with the primitive removed and its new record merged
    in at its depth) into TILE x TILE slabs, from the clean frame's checkpoints (CleanViews) to
    where the changed pixels end, so an upset costs its footprint rather than the lists' length.
 The caller reduces metrics over the slabs (faults/incremental.py). Slabs equal the tiles of a full
-re-render of the variant bit for bit (tests/test_incremental.py, tests/test_composite.py check it).
+re-render of the variant bit for bit (tests/test_incremental.py, tests/test_variants.py check it).
 """
 
 from __future__ import annotations
@@ -21,20 +21,13 @@ import numpy as np
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import STORAGE, Readback
 from seuwgpu.model.fields import StoredLayout
-from seuwgpu.render.composite import (
-    CHECKPOINT_EVERY,
-    SLAB_BYTES,
-    VariantCompositing,
-    blend_chunk,
-    check_chunk,
-    checkpoint_every,
-    merge_chunk,
-)
+from seuwgpu.render.composite import SLAB_BYTES
 from seuwgpu.render.project import Projection, unpack_rects
 from seuwgpu.render.regions import region_edges
+from seuwgpu.render.variants import CHECKPOINT_EVERY, VariantCompositing, checkpoint_every
 
-OPEN = 0x80000000
-"""kv_stop's flag of a pixel that never ends (composite.wgsl `within`)."""
+KEPT_BY_RENDERER = ("kv_ranges", "kv_isect", "kv_box", "kv_stop", "kv_xy", "kv_conic", "kv_rgb")
+"""The keep_views renderer's buffers the variants entry binds, under the same names."""
 
 
 class CleanViews:
@@ -42,7 +35,7 @@ class CleanViews:
     it shares (faults/incremental.py: one per batch in flight), renewed once per set of kept
     buffers (the renderer's `version`): the tile rectangles (host, [K, N, 4] x0, y0, x1, y1; at 1M
     primitives and K = 4 they take 128 MB of host memory), the longest clean tile list, and the
-    checkpoints. The checkpoint pass (composite.wgsl:checkpoints, one frame's worth of
+    checkpoints. The checkpoint pass (variants.wgsl:checkpoints, one frame's worth of
     compositing) keeps each pixel's state every `every` positions of every longer tile list and
     each pixel's end (the last position its value depends on) in the renderer's kv_stop, so a
     variant's walk starts at most `every` positions before its change and stops where its pixels
@@ -120,16 +113,10 @@ class CleanViews:
 
     @property
     def kept(self) -> dict:
-        """The kept buffers as composite.py's VariantCompositing binds them."""
+        """The kept buffers by the names variants.wgsl's variants entry binds them under."""
         r = self.r
         return {
-            "ranges": r.kv_ranges,
-            "isect": r.kv_isect,
-            "box": r.kv_box,
-            "stop": r.kv_stop,
-            "xy": r.kv_xy,
-            "conic": r.kv_conic,
-            "rgb": r.kv_rgb,
+            **{name: getattr(r, name) for name in KEPT_BY_RENDERER},
             "ckpt_base": self.ckpt_base,
             "ckpt_states": self.ckpt_states,
             "chunk_base": self.chunk_base,
@@ -275,7 +262,7 @@ class IncrementalCompositor:
             encoder,
             {"variant": b_idx + first, "view": v_idx, "tile": t_idx, "prim": prims[b_idx]},
             kept=self.clean.kept,
-            variant={"xy": p.xy, "conic": p.conic, "rgb": p.rgb, "rect": p.rect},
+            variant={"var_xy": p.xy, "var_conic": p.conic, "var_rgb": p.rgb, "var_rect": p.rect},
             clean_image=self.clean_buf,
             longest=self.longest_list,
             groups=self.r.kept_view_groups(),
@@ -307,36 +294,3 @@ class IncrementalCompositor:
         hit = (hit_y[..., :, None] & hit_x[..., None, :] & nonempty[..., None, None]).any(axis=0)  # [M, rows, cols]
         weights = np.left_shift(np.uint64(1), np.arange(rows * cols, dtype=np.uint64))
         return (hit.reshape(hit.shape[0], -1).astype(np.uint64) * weights).sum(axis=1).view(np.int64)
-
-
-# ---- numpy twin ---------------------------------------------------------------------------------
-def tile_checkpoints(ids, pxs, pys, mx, my, conic, opac, rgb, chunk: int, every: int, profile: str = "strict"):
-    """Twin of composite.wgsl:checkpoints for one tile list `ids` at pixel centres (pxs, pys) [P]
-    (records as composite.py's composite_tile takes them): ({position: (C [P, 3], T [P])} at every
-    checkpoint position (at a chunk's first position the chunks before it merged, elsewhere the
-    chunk's own walk so far), ends [P] as kv_stop holds them (the last position each pixel's value
-    depends on; for a pixel that never ends OPEN | (1 + the last position of a record blended into
-    it, 0 for none))). Only a pixel alive at a position reads that checkpoint."""
-    chunk = check_chunk(chunk)
-    n, P = len(ids), len(pxs)
-    kw = {"profile": profile}
-    states, ends, last = {}, np.full(P, -1, np.int64), np.full(P, -1, np.int64)
-    C, T, ended = np.zeros((P, 3), np.float32), np.ones(P, np.float32), np.zeros(P, bool)
-    for c0 in range(0, n, chunk):
-        if c0:
-            states[c0] = (C.copy(), T.copy())
-        for s in range(c0 + every, min(n, c0 + chunk), every):
-            states[s] = blend_chunk(ids[c0:s], pxs, pys, mx, my, conic, opac, rgb, **kw)[:2]
-        c, t, stopped, at, took = blend_chunk(
-            ids[c0 : c0 + chunk], pxs, pys, mx, my, conic, opac, rgb, where=True, **kw
-        )
-        last = np.where(~ended & (took >= 0), c0 + took, last)
-        before = ended.copy()
-        if c0 == 0:
-            C, T, ended = c, t, stopped.copy()
-        else:
-            merge_chunk(C, T, ended, c, t, stopped)
-        now = ended & ~before
-        ends[now] = np.where(stopped[now], c0 + at[now], min(n, c0 + chunk) - 1)
-    ends[~ended] = OPEN | (last[~ended] + 1)
-    return states, ends

@@ -468,18 +468,16 @@ class Projection:
         kernel = self.variant(row["fmt"], row["sh_degree"], row["guard_lo"], row["guard_hi"])
         kernel.dispatch(
             encoder,
-            {
-                0: self.params.binding(slot),
-                1: words,
-                2: self.xy,
-                3: self.conic,
-                4: self.rgb,
-                5: self.rect,
-                6: self.depth_keys,
-                7: self.depth_vals,
-                8: box,
-                9: guard_counts,
-            },
+            view=self.params.binding(slot),
+            model=words,
+            out_xy=self.xy,
+            out_conic=self.conic,
+            out_rgb=self.rgb,
+            out_rect=self.rect,
+            depth_keys=self.depth_keys,
+            depth_vals=self.depth_vals,
+            box=box,
+            guard_counts=guard_counts,
             threads=count,
         )
 

@@ -95,19 +95,14 @@ class Renderer:
         self._batch_views = batch_views
         # batched views on CPU adapters: after the depth sort, one more stable radix pass groups the
         # records view by view (each still front to back), so binning reads one view's records at
-        # a time: 2-4.5% faster a view on lavapipe (100k, 256x256 and 512x512, K = 8, one process,
-        # alternating, 2026-11-26), where K n mixed records miss the caches. Same lists, same
-        # frames. GPUs skip it (five more dependent dispatches, untimed there).
+        # a time: faster on lavapipe, where K n mixed records miss the caches (docs/renderer.md
+        # "Measurements"). Same lists, same frames. GPUs skip it (five more dependent dispatches).
         self.view_major = self.gpu.is_cpu
         # on GPUs `run` submits each stage group (projections | depth sort | binning and tile sort |
         # ranges and compositing; of the batched views, or of each view) as soon as it is recorded,
-        # so the device works on one while Python records the next (recording was about half of a
-        # batched frame set's wall time at 100k primitives on an H100). There, K = 8 batched, wide,
-        # one process, alternating, 15 rounds, 2026-11-26, ms a view one buffer -> stage groups:
-        # 100k 256x256 0.535 -> 0.461, 512x512 0.584 -> 0.512; 1M 256x256 2.074 -> 1.855, 512x512
-        # 2.005 -> 1.772 (the same frames); a submission every 4, 8 or 16 passes instead gained
-        # less (0.530, 0.569, 0.579 at 100k, 512x512). CPU adapters record all in one: there the
-        # device is the same cores.
+        # so the device works on one while Python records the next (recording is a large share of
+        # a GPU frame's wall time: docs/renderer.md "Measurements"). CPU adapters record all in
+        # one: there the device is the same cores.
         self.split_submissions = not self.gpu.is_cpu
         # renderer profile (docs/renderer.md "Profiles"): what corrupted values draw
         self.profile = check_profile(profile)
@@ -426,13 +421,9 @@ class Renderer:
     def submission_groups(self) -> list[range]:
         """The views of each command encoder `run` records (on a GPU, `split_submissions` also
         submits it between stage groups). On a GPU one view each, so that the device works on view
-        v while Python encodes view v + 1 (at 100k primitives an H200 composites a view in about
-        the time Python takes to encode one). On a CPU adapter all K in
-        one: recording is 1% of a view there, and one by one was slower on lavapipe (100k, 256x256,
-        K = 8, one process, 2026-11-26, three runs each: 90.6-99.2 ms a view against 77.8-82.4; a
-        second test, alternating: 71.8-92.4 against 68.2-85.1; the cause, presumably a cost per
-        submission, was not traced). Same passes in the same order either way: same frames.
-        Batched views: one, of all K."""
+        v while Python encodes view v + 1. On a CPU adapter all K in one: recording is a small
+        share of a view there, and one by one was slower (docs/renderer.md "Measurements"). Same
+        passes in the same order either way: same frames. Batched views: one, of all K."""
         if self.gpu.is_cpu or self.batched:
             return [range(self.k)]
         return [range(v, v + 1) for v in range(self.k)]
