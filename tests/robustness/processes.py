@@ -124,9 +124,8 @@ def interrupted_then_resumed(argv, sig, delay: float, times: int, after: str = "
     return run(argv)
 
 
-def beside_a_running_one(argv, timeout: float = 300) -> tuple[Outcome, bool]:
-    """Start argv, and once it holds its folder, argv again: (the second one's outcome, whether
-    the first was still running when the second ended)."""
+def beside_a_running_one(argv, timeout: float = 300) -> Outcome:
+    """Start argv, and once it holds its folder, argv again: the second one's outcome."""
     first = start(argv)
     folder, name = out_dir(argv), str(argv[0])
     t0 = time.time()
@@ -138,7 +137,6 @@ def beside_a_running_one(argv, timeout: float = 300) -> tuple[Outcome, bool]:
             break
         time.sleep(0.1)
     second = run(argv, timeout)
-    still = first.poll() is None
     first.kill()
     first.communicate()
-    return second, still
+    return second
