@@ -161,6 +161,15 @@ PAGE_STATE = """(() => {
 
 
 @pytest.fixture(scope="module")
+def browser() -> str:
+    """Chromium's executable; the test skips (before making its report) where there is none."""
+    found = find_chromium()
+    if found is None:
+        pytest.skip(f"no Chromium on PATH ({', '.join(BROWSERS)}; or SEUWGPU_CHROMIUM)")
+    return found
+
+
+@pytest.fixture(scope="module")
 def report(tmp_path_factory) -> Path:
     """The report of a tiny campaign on the spheres scene: two fields, three bits, two defenses."""
     from seuwgpu.campaign.runner import Runner
@@ -186,10 +195,7 @@ def report(tmp_path_factory) -> Path:
 
 
 @pytest.mark.slow  # the campaign and report it opens: about 10 s on 2 cores
-def test_the_report_in_headless_chromium(report):
-    browser = find_chromium()
-    if browser is None:
-        pytest.skip(f"no Chromium on PATH ({', '.join(BROWSERS)}; or SEUWGPU_CHROMIUM)")
+def test_the_report_in_headless_chromium(browser, report):
     out = report.parent
     source = report.read_text()
     summary = json.loads((out / "summary.json").read_text())
