@@ -194,7 +194,7 @@ def report(tmp_path_factory) -> Path:
     return build_report([tmp / "run"], tmp / "report")
 
 
-@pytest.mark.slow  # the campaign and report it opens: about 10 s on 2 cores
+@pytest.mark.slow  # it runs a campaign and builds its report first
 def test_the_report_in_headless_chromium(browser, report):
     out = report.parent
     source = report.read_text()
