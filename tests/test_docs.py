@@ -124,3 +124,29 @@ def test_readme_minimal_spec_is_a_valid_spec():
     assert block, "the README shows no TOML spec"
     spec = normalize_spec(tomllib.loads(block.group(1)))
     assert spec["scenes"][0]["scene"] == "spheres" and "sizes" in spec
+
+
+def github_anchor(heading: str) -> str:
+    """The anchor GitHub gives a Markdown heading: lower case, punctuation dropped, spaces to -."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+@pytest.mark.parametrize(
+    "page",
+    ["README.md", "CONTRIBUTING.md", *sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "docs").glob("*.md"))],
+)
+def test_every_relative_link_resolves(page):
+    """The README sends readers to docs/ pages for what it no longer holds: every relative link
+    of the README, CONTRIBUTING and the docs/ pages names a file that exists and, with #anchor, a
+    heading of that file."""
+    source = ROOT / page
+    text = re.sub(r"```.*?```", "", source.read_text(), flags=re.S)  # links only outside code
+    for target in re.findall(r"\]\(([^)\s]+)\)", text):
+        if re.match(r"[a-z]+:", target):
+            continue  # http(s), mailto
+        path, _, anchor = target.partition("#")
+        linked = (source.parent / path).resolve() if path else source
+        assert linked.exists(), f"{page}: link to {target}: no {linked.relative_to(ROOT)}"
+        if anchor and linked.suffix == ".md":
+            headings = re.findall(r"^#+ (.+)$", re.sub(r"```.*?```", "", linked.read_text(), flags=re.S), re.M)
+            assert anchor in {github_anchor(h) for h in headings}, f"{page}: link to {target}: no such heading"

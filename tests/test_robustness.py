@@ -467,27 +467,3 @@ def test_spec_size_with_cameras_on_every_scene_is_refused(tmp_path):
     assert normalize_spec({"scenes": [cams], "single": single})["scenes"][0]["cameras"]
     both = normalize_spec({"size": "64x64", "scenes": [cams, {"scene": "blocks", "n": 50}], "single": single})
     assert both["size"] == [64, 64]
-
-
-def test_the_battery_runs_a_selected_case_with_the_reference_it_reads(tmp_path, monkeypatch):
-    """tools/robustness_battery.py --only arguments selected "storm: a partial file of no run
-    arguments" without the storm's uninterrupted reference run, whose records it compares with,
-    and classed it silent wrong. A selected case brings the cases it reads, in the battery's order."""
-    import importlib.util
-    import sys
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "tools" / "robustness_battery.py"
-    spec = importlib.util.spec_from_file_location("robustness_battery", path)
-    battery = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, spec.name, battery)  # its dataclasses look their module up
-    spec.loader.exec_module(battery)
-    b = battery.Battery(tmp_path)
-    b.partial_run_cases()
-    names = [c.name for c in battery.select(b.cases, "arguments")]
-    assert "storm: a partial file of no run arguments (an older seuwgpu's)" in names
-    assert names.index("storm: uninterrupted reference") < names.index(
-        "storm: a partial file of no run arguments (an older seuwgpu's)"
-    )
-    assert not any(n.startswith("state") for n in names)
-    assert len(battery.select(b.cases, None)) == len(b.cases)
