@@ -11,6 +11,8 @@ from seuwgpu.model import encoding
 from seuwgpu.model.fields import Model
 from seuwgpu.model.scenes import make_scene, scene_cameras
 
+CHECKED = [d.name for d in dfn.REGISTRY.values() if d.checked]
+
 
 @pytest.fixture(scope="module")
 def real():
@@ -190,7 +192,7 @@ def test_memory_overheads_by_hand():
 
 def test_defense_names_outside_the_list_are_defined_only_in_it():
     """Labels and the first study's set name real defenses (a rename cannot leave them stale)."""
-    assert set(dfn.DEFENSE_LABELS) <= set(dfn.DEFENSES)
+    assert set(dfn.REGISTRY) == set(dfn.DEFENSES)
     assert set(dfn.FIRST_DEFENSES) <= set(dfn.DEFENSES)
     assert dfn.defense_label("guard") == "support guard" and dfn.defense_label("parity4") == "parity4"
 
@@ -231,7 +233,7 @@ def test_defenses_command_lists_every_defense_as_json(capsys):
     for r in rows:
         assert set(r) == {"name", "memory_overhead", "time_fraction", "time_basis", "description"}
         assert r["memory_overhead"] == pytest.approx(dfn.memory_overhead(r["name"], "fp32", 3, 300))
-        gpu_side = r["name"] in dfn.CHECKED or r["name"] in dfn.PIPELINE_GUARD or r["name"] == "none"
+        gpu_side = dfn.get(r["name"]).checked or bool(dfn.get(r["name"]).guard_fields) or r["name"] == "none"
         assert (r["time_fraction"] is not None and math.isfinite(r["time_fraction"])) == gpu_side, r
         assert r["time_basis"].startswith("measured") == gpu_side
     assert main(["defenses", "--scene", "blocks", "--n", "300", "--no-time", "--json"]) == 0
@@ -273,7 +275,7 @@ def test_the_memory_column_says_what_the_gpu_check_stores(real):
     p, deg = "fp32", real.sh_degree
     rows = stored_rows(real, p)[:50]
     box = support_box(real, p)
-    for d in dfn.CHECKED:
+    for d in CHECKED:
         side = dfn.side_data(d, rows, p, deg, box)
         assert side.dtype == np.uint32 and side.shape == (50,), d
     packed = {"parity": 1, "parity4": 4, "parity4r": 4, "scalebound": 4, "checksum": 32}

@@ -4,7 +4,7 @@ under each defense.
 
 Per frame: k new single-bit upsets, uniform over the stored bits (the dose campaign's draw),
 XOR into the memory state; then the defense acts. Defenses that check and repair memory
-(defenses.CHECKED: parity culls, checksum and parity4r reload, scalebound clamps) write their
+(a checked defense, `Defense.writes_back`: parity culls, checksum and parity4r reload, scalebound clamps) write their
 repair back, so a repaired primitive stays repaired; read-time defenses (guard, ECC, duplication)
 leave the memory corrupted and correct what the renderer reads, so upsets pile up in one value
 until the scrub (two in an ECC word are no longer correctable). The frame is rendered and measured
@@ -60,7 +60,7 @@ def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), see
     if done > frames * len(defenses):
         raise ValueError(f"{done} records given for a storm of {frames * len(defenses)}")
     for a, d in enumerate(defenses):
-        dfn.check_defense(d)
+        arm = dfn.get(d)
         if (a + 1) * frames <= done:
             continue  # every frame of this arm measured before the storm was resumed
         memory: dict[int, np.ndarray] = {}  # primitive -> its stored bits now (absent: clean)
@@ -77,7 +77,7 @@ def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), see
             clean = engine.primitive_bits(prims)
             now = np.stack([memory[p] for p in prims]) if prims.size else clean
             seen = engine.read_through(prims, clean, now, d) if prims.size else clean
-            if d in dfn.CHECKED:  # the repair is written back
+            if arm.writes_back:  # the repair is written back
                 memory = {int(p): r.copy() for p, r in zip(prims, seen)}
             if a * frames + f < done:
                 continue  # measured before the storm was resumed: its memory state replayed, not rendered

@@ -15,35 +15,26 @@ from seuwgpu.faults.guard import fill_chunk_params
 from seuwgpu.gpu.device import STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 
-# shaders/check.wgsl's MODE_PARITY, MODE_CHECKSUM, MODE_SCALE, per kind of check; the defenses are
-# defenses.CHECKED (a checked defense of a new kind fails here, at import, until it has a mode)
-_KIND_MODE = {"parity": 0, "checksum": 1, "scalebound": 2}
-MODES = {d: _KIND_MODE["parity" if d.startswith("parity") else d] for d in dfn.CHECKED}
-
 
 class Checker:
     """One defense's check over a renderer's stored chunks (`run` -> flagged count, `flags`)."""
 
     def __init__(self, renderer, defense: str, clean_rows: np.ndarray, box=None):
-        if defense not in MODES:
-            raise ValueError(f"defense {defense!r} has no GPU check; checked ones: {', '.join(MODES)}")
+        d = dfn.checked(defense)  # its check_mode is shaders/check.wgsl's MODE_*
         r, L = renderer, renderer.layout
         g = self.gpu = r.gpu
         self.layout, self.chunks, self.defense = L, r.chunks, defense
         self.kernel = Kernel(g, "check")
-        side = dfn.side_data(defense, clean_rows, L.precision, L.degree, box)
+        side = d.side_data(np.asarray(clean_rows), L.precision, L.degree, box)
         self.side = g.upload(side.astype(np.uint32))
-        table = dfn.scale_table(box, L.precision) if defense == "scalebound" else np.zeros(4, np.float32)
-        self.table = g.upload(np.asarray(table, np.float32))
+        self.table = g.upload(np.asarray(d.check_table(box, L.precision), np.float32))
         self.out = g.buffer(16 + 4 * L.n, STORAGE, "check.out")
         self.params = Uniforms(g, self.kernel.struct("CheckParams"), L.n_chunks, "check.params")
         fill_chunk_params(
             self.params,
             L,
-            mode=MODES[defense],
-            ways=1 if defense == "parity" else 4,
-            cover=dfn.parity_cover_mask(L.precision),
-            comp_count=dfn.parity_components(defense, L.degree),
+            mode=d.check_mode,
+            **d.check_parameters(L.precision, L.degree),
         )
         self.params.write()
         self.zero = np.zeros(4, np.uint32)

@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from seuwgpu.faults import defenses as dfn
-from seuwgpu.faults.check import MODES, Checker
+from seuwgpu.faults.check import Checker
 from seuwgpu.faults.guard import component_mask, support_box
 from seuwgpu.model import encoding
 from seuwgpu.model.budget import check_model
@@ -46,7 +46,7 @@ def defense_costs(model, camera, precision: str = "fp32", repeats: int = 7, gpu=
                 "memory_overhead": dfn.memory_overhead(d, precision, model.sh_degree, model.n),
                 "time_fraction": frac,
                 "time_basis": basis,
-                "description": dfn.DEFENSE_INFO[d],
+                "description": dfn.get(d).info,
             }
         )
     return rows
@@ -79,8 +79,8 @@ def _times(model, camera, precision, repeats, gpu) -> dict:
     box = support_box(r.layout.decode(r.clean_words), precision)
     clean = encoding.to_bits(model.flat(), precision)  # what the chunks hold (layout.encode)
     r.set_guard(box.rows(), 0)
-    checkers = {d: Checker(r, d, clean, box) for d in MODES}
-    masks = {d: component_mask(dfn.GUARDED_FIELDS[v], r.degree) for d, v in dfn.PIPELINE_GUARD.items()}
+    checkers = {d.name: Checker(r, d.name, clean, box) for d in dfn.REGISTRY.values() if d.checked}
+    masks = {d: component_mask(f, r.degree) for d, f in dfn.pipeline_guards().items()}
 
     def view(mask):
         r.set_guard(None, mask)
