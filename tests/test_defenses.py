@@ -306,3 +306,30 @@ def test_the_measured_table_states_the_spec_and_seed_that_produced_it():
     spec = normalize_spec(raw)
     assert [s["scene"] for s in spec["scenes"]] == ["leica-sofort", "yashica-t4"]
     assert "| leica-sofort | guard | 0.006% | ~0 | 0.43 (0.005) |" in text
+
+
+def test_guard_all_clamps_sh_rest_where_the_guard_does_not():
+    """The paper's Algorithm 1 (guard_all) clamps every field: an sh_rest exponent flip renders
+    as the model with that value clamped into its box (the guard's twin, clamp_bits); the guard,
+    which skips sh_rest, draws the flip as it is."""
+    from seuwgpu.faults.guard import clamp_bits, component_mask
+    from seuwgpu.model.fields import FIELDS
+
+    model = make_scene("blocks", n=300, seed=4)
+    cams = scene_cameras("blocks", 2, 40, 40)
+    eng = Engine(model, cams, "fp32", scene="blocks")
+    victim = int(np.argmax(model.opacity))
+    site = eng.site("sh_rest", victim, 0, 30)
+    guarded, paper = eng.inject(site, "guard"), eng.inject(site, "guard_all")
+    assert guarded["clamps"] == 0 and paper["clamps"] == 1
+    assert guarded["footprint"] > 0
+    rows = stored_rows(model, "fp32")
+    bad = rows.copy()
+    bad[victim, 14] ^= np.uint32(1 << 30)  # sh_rest component 0 is flat component 14
+    fixed, _ = clamp_bits(bad, eng.box, component_mask(FIELDS, 3))
+    want = Engine(Model.from_flat(encoding.from_bits(fixed, "fp32"), 3), cams, "fp32", gpu=eng.gpu).clean_rgba
+    h = eng.apply([site], "guard_all")
+    got, _ = eng.render_current("guard_all")
+    eng.undo(h)
+    np.testing.assert_array_equal(got, want)
+    assert dfn.get("guard_all").guard_fields == FIELDS and "sh_rest" not in dfn.get("guard").guard_fields

@@ -568,6 +568,15 @@ register(
     )
 )
 
+register(
+    SupportGuard(
+        "guard_all",
+        "the paper's Algorithm 1: clamp every value, sh_rest included, into the clean model's box",
+        FIELDS,
+        label="support guard, every field (paper)",
+    )
+)
+
 DEFENSES = tuple(REGISTRY)
 FIRST_DEFENSES = tuple(d.name for d in REGISTRY.values() if d.first_study)
 

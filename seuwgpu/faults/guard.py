@@ -97,13 +97,10 @@ def support_box(stored: Model, precision: str) -> Box:
 
 
 def guard_fields(variant: str = "guard") -> tuple[str, ...]:
-    """The fields a guard variant clamps: a registered defense's `guard_fields`, or "guard_all"
-    (every field: the paper's Algorithm 1)."""
-    if variant == "guard_all":
-        return FIELDS
+    """The fields a guard variant (a registered defense with `guard_fields`) clamps."""
     variants = dfn.pipeline_guards()
     if variant not in variants:
-        raise ValueError(f"unknown guard variant {variant!r}; expected one of {', '.join(variants)}, guard_all")
+        raise ValueError(f"unknown guard variant {variant!r}; expected one of {', '.join(variants)}")
     return variants[variant]
 
 
