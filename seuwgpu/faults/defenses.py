@@ -27,6 +27,7 @@ catch every burst of up to 4 adjacent bits.
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import numpy as np
 
@@ -37,6 +38,7 @@ GUARD_FIELDS = ("means", "log_scales", "quats", "opacity", "sh_dc")  # every fie
 CRITICAL_FIELDS = ("log_scales", "opacity")
 PARITY_MANTISSA = 4  # top mantissa bits covered by the parity defenses, besides sign+exponent
 SCALE_CLASS_BITS = 4
+SCALE_CLASSES = 1 << SCALE_CLASS_BITS
 
 
 def _covered_components(fields, degree: int) -> np.ndarray:
@@ -387,8 +389,8 @@ class CheckedDefense(Defense):
         return {"ways": 4, "cover": 0, "comp_count": 0}
 
     def check_table(self, box, precision: str) -> np.ndarray:
-        """The f32 table its check reads (scalebound's class bounds; a placeholder otherwise)."""
-        return np.zeros(4, np.float32)
+        """The f32 table its check reads (scalebound's class bounds; one placeholder word otherwise)."""
+        return np.zeros(1, np.float32)
 
     def side_data(self, clean, precision: str, degree: int, box=None) -> np.ndarray:
         """[M] u32: what it stores with each clean primitive."""
@@ -480,6 +482,108 @@ class ScaleBound(CheckedDefense):
         ls[over] = np.broadcast_to(encoding.to_bits(bound, precision)[:, None], ls.shape)[over]
         out[:, 3:6] = ls
         return out
+
+
+# ---- side data as the device holds it ------------------------------------------------------------
+def pack_side(codes: np.ndarray, bits: int) -> np.ndarray:
+    """[ceil(M * bits / 32)] u32 words holding M codes of `bits` bits (1, 2, 4, 8, 16 or 32), code
+    i in word i // (32 / bits) at bit (i % (32 / bits)) * bits: what the GPU check reads."""
+    if bits not in (1, 2, 4, 8, 16, 32):
+        raise ValueError(f"side data packs 1, 2, 4, 8, 16 or 32 bits a code (got {bits})")
+    codes = np.asarray(codes, dtype=np.uint64)
+    if codes.size and int(codes.max()) >> bits:
+        raise ValueError(f"a side code does not fit in {bits} bits")
+    per = 32 // bits
+    padded = np.zeros(-(-codes.size // per) * per, np.uint64)
+    padded[: codes.size] = codes
+    shifts = (np.arange(per, dtype=np.uint64) * np.uint64(bits))[None, :]
+    return (padded.reshape(-1, per) << shifts).sum(axis=1).astype(np.uint32)
+
+
+def unpack_side(words: np.ndarray, bits: int, m: int) -> np.ndarray:
+    """[m] u32 codes of pack_side's words (the check shader's `side_code`, on the host)."""
+    per = 32 // bits
+    i = np.arange(m)
+    w = np.asarray(words, dtype=np.uint64)[i // per]
+    mask = np.uint64((1 << bits) - 1)
+    return ((w >> ((i % per).astype(np.uint64) * np.uint64(bits))) & mask).astype(np.uint32)
+
+
+CHECK_HEADER_BYTES = 16  # shaders/check.wgsl CheckOut's count and padding
+BOUND_BYTES = 16  # faults/guard.py Box.rows(): lo, hi and their stored bits per component
+GUARD_COUNT_BYTES = 32  # the renderer's clamp counts (8 u32)
+
+
+def device_bytes(defense: str, precision: str, degree: int, n: int, chunks: int = 1) -> int:
+    """Bytes the defense holds on the device beside the model, as this package uploads them.
+
+    A support guard: the box the pipeline reads (one Bound record per stored component) and the
+    clamp counts. A GPU check: its side data packed `side_bits` a primitive, its output (a count and
+    one flag bit per primitive), its table (scalebound's class bounds) and one uniform slot per
+    model chunk; scalebound adds the guard's. The read-time codes without a GPU decoder (ECC,
+    ecc_crit, TMR, cellbox): their encoding's bits, packed, rounded up to whole u32 words."""
+    from seuwgpu.gpu.constants import UNIFORM_STRIDE
+    from seuwgpu.model.budget import BUFFER_ALIGN
+
+    def buffer(nbytes: int) -> int:  # gpu/device.py GPU.buffer's rounding
+        return max(BUFFER_ALIGN, -(-int(nbytes) // BUFFER_ALIGN) * BUFFER_ALIGN)
+
+    d = get(defense)
+    total = 0
+    if d.guard_fields:
+        total += buffer(BOUND_BYTES * n_components(degree)) + buffer(GUARD_COUNT_BYTES)
+    if d.checked:
+        total += buffer(4 * -(-n * d.side_bits // 32))  # packed side data
+        total += buffer(CHECK_HEADER_BYTES + 4 * -(-n // 32))  # count + flag bits
+        total += buffer(4 * (SCALE_CLASSES if isinstance(d, ScaleBound) else 1))  # the check's table
+        total += buffer(UNIFORM_STRIDE * chunks)
+    elif not d.guard_fields:
+        total += 4 * -(-(d.bits_per_primitive(precision, degree) * n + d.bits_per_model(precision, degree)) // 32)
+    return int(total)
+
+
+def device_overhead(defense: str, precision: str, degree: int, n: int, chunks: int = 1) -> float:
+    """device_bytes over the model's stored bytes."""
+    model_bytes = n * n_components(degree) * encoding.bits_per_value(precision) / 8
+    return device_bytes(defense, precision, degree, n, chunks) / model_bytes
+
+
+# ---- the check schedule -------------------------------------------------------------------------
+class Exposure(NamedTuple):
+    per_upset: np.ndarray  # frames rendered from the corrupted model, per upset of the schedule
+    expected: float  # over an upset landing in a uniformly drawn frame gap
+    worst: float
+
+
+def exposure(check_every: int, upset_frames=None) -> Exposure:
+    """Frames rendered from a corrupted model between an upset and the check that repairs it,
+    for a check before every `check_every`-th frame (before frames 0, S, 2S, ...; 0 = never).
+
+    An upset "at frame f" lands after frame f - 1 was drawn and before frame f's check: frames
+    f .. c - 1 are drawn corrupted, c the first check frame >= f, so (-f) mod S of them: none
+    when f is a check frame, S - 1 when it lands just after one. `expected` and `worst` are over
+    every phase (f = 0 .. S - 1, each equally likely); `per_upset` is for `upset_frames` (a
+    hand-made schedule; every phase when None). Never checked: infinite exposure."""
+    s = int(check_every)
+    if s < 0:
+        raise ValueError(f"a check schedule is every S >= 1 frames, or 0 for never (got {s})")
+    frames = np.arange(max(s, 1)) if upset_frames is None else np.asarray(upset_frames, dtype=np.int64)
+    if s == 0:
+        per = np.full(frames.shape, np.inf)
+        return Exposure(per, float("inf"), float("inf"))
+    per = (-frames) % s
+    phases = (-np.arange(s)) % s
+    return Exposure(per.astype(np.float64), float(phases.mean()), float(phases.max()))
+
+
+def amortised_time(defense: str, guard_fraction: float, check_fraction: float, check_every: int = 1) -> float:
+    """Extra time per frame (fraction of a view): the in-pipeline clamp every frame, the check
+    once every `check_every` frames (0: never). NaN stays NaN."""
+    d = get(defense)
+    total = guard_fraction if d.guard_fields else 0.0
+    if d.checked and check_every:
+        total += check_fraction / check_every
+    return total
 
 
 # ---- the registry ------------------------------------------------------------------------------
