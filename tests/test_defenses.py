@@ -435,3 +435,20 @@ def test_the_model_derived_tables_come_from_the_model_itself():
     prims = np.arange(made.n)
     for d in dfn.DEFENSES:
         np.testing.assert_array_equal(dfn.read(d, rows, rows, p, 3, box, prims, cells), rows, err_msg=d)
+
+
+def test_reads_stored_bits_says_which_defenses_change_what_is_read(real):
+    """`reads_stored_bits` (the viewer and the engine skip the twin for those) is true exactly for
+    the defenses whose read leaves a log-scale sign flip as stored: none and the guards (they
+    clamp later, in the pipeline); every other defense corrects, culls, reloads or clamps it."""
+    p = "fp32"
+    rows = stored_rows(real, p)[:40]
+    box = support_box(real, p)
+    cells = dfn.get("cellbox").model_state(stored_rows(real, p), p, 3)
+    prims = np.arange(40)
+    bad = rows.copy()
+    bad[:, 3] ^= np.uint32(1 << 31)
+    for d in dfn.DEFENSES:
+        got = dfn.read(d, rows, bad, p, 3, box, prims, cells)
+        assert np.array_equal(got, bad) == dfn.get(d).reads_stored_bits, d
+        assert bool(dfn.get(d).guard_fields) <= dfn.get(d).reads_stored_bits or d == "scalebound", d

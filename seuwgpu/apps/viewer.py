@@ -438,7 +438,7 @@ class ViewerState:
         else:
             repaired = True
         self.frame_count += 1
-        if not self.groups or not repaired or type(d).read is dfn.Defense.read:
+        if not self.groups or not repaired or d.reads_stored_bits:
             return e.render_current(self.defense)
         active = list(self.groups)
         e.undo_all()

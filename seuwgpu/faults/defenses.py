@@ -289,6 +289,8 @@ class Defense:
     cellbox's boxes), and for a GPU check the members of `CheckedDefense`."""
 
     guard_fields: tuple[str, ...] = ()  # fields the pipeline's support guard clamps (faults/guard.py)
+    reads_stored_bits = True  # `read` returns the stored bits as they are (none, the guards)
+    has_model_state = False  # `model_state` builds something from the clean model
     check_mode: int | None = None  # shaders/check.wgsl's MODE_* of its per-primitive check; None: no check
     writes_back = False  # its repair rewrites the stored model (a storm keeps the repair)
 
@@ -334,6 +336,8 @@ class SupportGuard(Defense):
 
 
 class Ecc(Defense):
+    reads_stored_bits = False
+
     def bits_per_primitive(self, precision, degree):
         return ecc_check_bits(precision) * n_components(degree)
 
@@ -342,6 +346,8 @@ class Ecc(Defense):
 
 
 class Duplication(Defense):
+    reads_stored_bits = False
+
     def bits_per_primitive(self, precision, degree):
         return 2 * n_components(degree) * encoding.bits_per_value(precision)
 
@@ -350,6 +356,8 @@ class Duplication(Defense):
 
 
 class EccCritical(Defense):
+    reads_stored_bits = False
+
     def bits_per_primitive(self, precision, degree):
         return ecc_check_bits(precision) * _covered_components(CRITICAL_FIELDS, degree).size
 
@@ -358,6 +366,9 @@ class EccCritical(Defense):
 
 
 class CellBox(Defense):
+    reads_stored_bits = False
+    has_model_state = True
+
     def bits_per_primitive(self, precision, degree):
         return 9
 
@@ -376,6 +387,8 @@ class CellBox(Defense):
 class CheckedDefense(Defense):
     """A per-primitive check that runs on the GPU (shaders/check.wgsl, faults/check.py): side
     data computed from the clean model once, a check that flags primitives, and a repair."""
+
+    reads_stored_bits = False
 
     side_bits = 32  # bits of side data per primitive
     reloads = False  # a flagged primitive is reloaded from the golden copy (off the device)

@@ -211,9 +211,8 @@ class Engine:
         `clean` to `corrupt` (the support guard is applied later, in the pipeline or by clamp_bits)."""
         d = dfn.get(defense)
         if defense not in self._model_states:  # stored beside the model: built once, from the clean model
-            needs = type(d).model_state is not dfn.Defense.model_state
-            rows = self.primitive_bits(np.arange(self.n)) if needs else None
-            self._model_states[defense] = d.model_state(rows, self.precision, self.degree) if needs else None
+            rows = self.primitive_bits(np.arange(self.n)) if d.has_model_state else None
+            self._model_states[defense] = d.model_state(rows, self.precision, self.degree) if rows is not None else None
         state = self._model_states[defense]
         return d.read(np.asarray(clean), np.asarray(corrupt), self.precision, self.degree, self.box, prims, state)
 
