@@ -22,6 +22,10 @@ model file, not charged to device memory) or clamps it. The checksum's step, h =
 value) (MurmurHash3's finaliser), is a bijection of the running hash, so any change confined to
 one stored value is detected with certainty; four interleaved parities (bit position mod 4)
 catch every burst of up to 4 adjacent bits.
+
+Also here, so that every part computes them alike: the side data as the device holds it
+(`pack_side`, `device_bytes`) and a check defense's schedule, a check every S frames
+(`exposure`: the frames drawn from a corrupted model before the check; `amortised_time`).
 """
 
 from __future__ import annotations
@@ -666,9 +670,7 @@ register(
 )
 register(EccCritical("ecc_crit", "SEC-DED over sign+exponent of log-scales and opacity only; uncorrectable culls"))
 register(ScaleBound("scalebound", "support guard plus a 4-bit scale class per primitive bounding its log-scales"))
-register(
-    Checksum("checksum", "32-bit checksum per primitive checked per frame; mismatch reloads it from the golden copy")
-)
+register(Checksum("checksum", "32-bit checksum per primitive; a mismatch reloads it from the golden copy"))
 register(
     Parity(
         "parity4r",
