@@ -44,6 +44,12 @@ def test_storm_command_writes_records_and_plot(tmp_path, capsys):
     assert len(df) == 6 and set(df.defense) == {"none", "parity4r"} and (tmp_path / "storm.png").stat().st_size
     assert main([*args, "--scrub-every", "-1", "--out", str(tmp_path)]) == 2
     assert "scrub_every >= 0" in capsys.readouterr().err
+    out = tmp_path / "every2"
+    assert main([*args, "--check-every", "2", "--defense", "none", "parity4r", "--out", str(out)]) == 0
+    df = pd.read_parquet(out / "storm.parquet")
+    assert set(df.loc[df.defense == "parity4r", "check_every"]) == {2} and set(
+        df.loc[df.defense == "none", "check_every"]
+    ) == {0}
 
 
 def test_a_storm_too_long_for_host_memory_is_refused_at_once(monkeypatch):
