@@ -4,7 +4,8 @@
 // recompute what each primitive stored beside the clean model (4 interleaved or 1 parity bit(s),
 // a 32-bit checksum, or its scale class) from its words as they are now, flag mismatches
 // and count them, so the host learns in one small read whether to repair. One thread per
-// primitive of one chunk; the words are only read.
+// primitive of one chunk; the words are only read. The side data is packed as the memory
+// column charges it (side_bits per primitive: defenses.pack_side), the flags one bit each.
 
 struct CheckParams {
     plane_words: u32,
@@ -16,7 +17,7 @@ struct CheckParams {
     ways: u32,            // parity ways (1 or 4)
     cover: u32,           // bits of each value the parity covers
     comp_count: u32,      // parity covers components 0 .. comp_count - 1
-    _p0: u32,
+    side_bits: u32,       // bits of side data per primitive (1, 4 or 32; defenses.pack_side)
     _p1: u32,
     _p2: u32,
 };
@@ -30,7 +31,7 @@ struct CheckOut {
     _p0: u32,
     _p1: u32,
     _p2: u32,
-    flags: array<u32>,   // per primitive (global index): 1 = flagged
+    flags: array<atomic<u32>>,   // bit g % 32 of word g / 32: primitive g (global index) flagged
 };
 
 @group(0) @binding(0) var<uniform> params: CheckParams;
@@ -45,6 +46,15 @@ fn stored(j: u32, c: u32) -> u32 {
         return words[c * params.plane_words + j];
     }
     return (words[c * params.plane_words + (j >> 1u)] >> (16u * (j & 1u))) & 0xffffu;
+}
+
+// side code of primitive g (global index): defenses.unpack_side
+fn side_code(g: u32) -> u32 {
+    if (params.side_bits == 32u) {
+        return side[g];
+    }
+    let per = 32u / params.side_bits;
+    return (side[g / per] >> ((g % per) * params.side_bits)) & ((1u << params.side_bits) - 1u);
 }
 
 // MurmurHash3's finaliser: a bijection of u32 that avalanches (twin: defenses.fmix32)
@@ -64,23 +74,25 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     }
     var flagged = false;
     if (params.mode == MODE_PARITY) {
-        var par = 0u;
+        // parity is linear: the XOR of the covered bits of every value, then one count per way
+        var x = 0u;
         for (var c = 0u; c < params.comp_count; c = c + 1u) {
-            let v = stored(j, c) & params.cover;
-            for (var w = 0u; w < params.ways; w = w + 1u) {
-                let way = select(0x11111111u << w, 0xffffffffu, params.ways == 1u);
-                par = par ^ ((countOneBits(v & way) & 1u) << w);
-            }
+            x = x ^ (stored(j, c) & params.cover);
         }
-        flagged = par != side[params.prim_base + j];
+        var par = 0u;
+        for (var w = 0u; w < params.ways; w = w + 1u) {
+            let way = select(0x11111111u << w, 0xffffffffu, params.ways == 1u);
+            par = par ^ ((countOneBits(x & way) & 1u) << w);
+        }
+        flagged = par != side_code(params.prim_base + j);
     } else if (params.mode == MODE_CHECKSUM) {
         var h = 0x811C9DC5u;
         for (var c = 0u; c < params.ncomp; c = c + 1u) {
             h = fmix32(h ^ stored(j, c));
         }
-        flagged = h != side[params.prim_base + j];
+        flagged = h != side_code(params.prim_base + j);
     } else {
-        let bound = table[side[params.prim_base + j]];
+        let bound = table[side_code(params.prim_base + j)];
         for (var c = 3u; c < 6u; c = c + 1u) {
             let w = words[c * params.plane_words + select(j >> 1u, j, params.fmt == FMT_FP32)];
             let v = decode_value(w, params.fmt != FMT_FP32 && (j & 1u) == 1u, params.fmt);
@@ -89,8 +101,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             }
         }
     }
-    out.flags[params.prim_base + j] = select(0u, 1u, flagged);
     if (flagged) {
+        let g = params.prim_base + j;
+        atomicOr(&out.flags[g >> 5u], 1u << (g & 31u));
         atomicAdd(&out.detected, 1u);
     }
 }

@@ -32,6 +32,9 @@ def test_defense_table_by_hand():
     assert t.loc["guard", "danger_vs_none"] == pytest.approx(1 / 3)
     assert t.loc["parity", "danger_vs_none"] == 0 and t.loc["parity", "rate_hi_pct"] > 0
     assert t.loc["parity", "memory_overhead_pct"] == pytest.approx(100 * memory_overhead("parity", "fp32", 3, 100))
+    # on the device: 100 packed parity bits and 100 flag bits (16-byte buffers), the check's count
+    # and table, one 256-byte uniform slot, over 100 x 59 fp32 values
+    assert t.loc["parity", "device_memory_pct"] == pytest.approx(100 * (16 + 32 + 16 + 256) / (100 * 59 * 4))
     assert bool(t.loc["parity", "pareto"]) and bool(t.loc["none", "pareto"]) and not bool(t.loc["guard", "pareto"])
     assert t["time_fraction"].isna().all()
 

@@ -12,6 +12,8 @@ from seuwgpu.model import encoding
 from seuwgpu.model.scenes import scene_cameras
 from seuwgpu.render.renderer import Renderer
 
+CHECKED = [d.name for d in dfn.REGISTRY.values() if d.checked]
+
 
 @pytest.mark.parametrize("precision", encoding.PRECISIONS)
 def test_gpu_checks_equal_the_twin(precision):
@@ -32,7 +34,7 @@ def test_gpu_checks_equal_the_twin(precision):
     bad[hit[1], 4] = encoding.to_bits(np.float32([np.nan]), precision)[0]  # NaN log-scale: not scalebound's
     for c, words in enumerate(r.layout.encode_bits(bad)):
         r.gpu.write(r.chunks[c], words)
-    for d in dfn.CHECKED:
+    for d in CHECKED:
         chk = Checker(r, d, clean, box)
         want = dfn.detect(d, dfn.side_data(d, clean, precision, 3, box), bad, precision, 3, box)
         count = chk.run()
@@ -41,4 +43,49 @@ def test_gpu_checks_equal_the_twin(precision):
     # clean model: nothing flagged
     for c, words in enumerate(r.layout.encode_bits(clean)):
         r.gpu.write(r.chunks[c], words)
-    assert all(Checker(r, d, clean, box).run() == 0 for d in dfn.CHECKED)
+    assert all(Checker(r, d, clean, box).run() == 0 for d in CHECKED)
+
+
+@pytest.mark.parametrize("precision", ["fp32", "bf16"])
+def test_gpu_detection_equals_a_brute_force_sweep_of_every_flip_and_burst(precision):
+    """Every single flip and every burst of 2-4 adjacent bits of every value of two primitives of
+    a tiny made model, one corrupted copy per row (as worstcase sweeps every flip): the GPU check
+    flags exactly the rows its twin flags, the checksum every one, parity4r every one touching a
+    covered bit, and scalebound exactly the rows whose log-scales rose above their class bound."""
+    base = random_model(2, seed=8)
+    clean2 = encoding.to_bits(base.flat(), precision)
+    nb = encoding.bits_per_value(precision)
+    src, bad = [], []
+    for p in range(2):
+        for c in range(clean2.shape[1]):
+            for w in (1, 2, 3, 4):
+                for lo in range(nb - w + 1):
+                    row = clean2[p].copy()
+                    row[c] ^= row.dtype.type(((1 << w) - 1) << lo)
+                    src.append(p)
+                    bad.append(row)
+    src, bad = np.array(src), np.stack(bad)
+    clean = clean2[src]
+    model = type(base).from_flat(encoding.from_bits(clean, precision), 3)
+    r = Renderer(model, scene_cameras("spheres", 1, 16, 16), precision)
+    box = support_box(r.layout.decode(r.clean_words), precision)
+    for c, words in enumerate(r.layout.encode_bits(bad)):
+        r.gpu.write(r.chunks[c], words)
+    cover = dfn.parity_cover_mask(precision)
+    touches = ((bad ^ clean).astype(np.uint64) & np.uint64(cover)).any(axis=1)
+    for d in CHECKED:
+        chk = Checker(r, d, clean, box)
+        count = chk.run()
+        got = chk.flags()
+        want = dfn.detect(d, dfn.side_data(d, clean, precision, 3, box), bad, precision, 3, box)
+        np.testing.assert_array_equal(got, want, err_msg=d)
+        assert count == got.sum(), d
+        if d == "checksum":
+            assert got.all()
+        if d == "parity4r":
+            np.testing.assert_array_equal(got, touches)
+        if d == "scalebound":
+            bound = dfn.scale_table(box, precision)[dfn.side_data(d, clean, precision, 3, box)]
+            ls = encoding.from_bits(bad[:, 3:6], precision)
+            with np.errstate(invalid="ignore"):
+                np.testing.assert_array_equal(got, (ls > bound[:, None]).any(axis=1))

@@ -11,6 +11,8 @@ from seuwgpu.model import encoding
 from seuwgpu.model.fields import Model
 from seuwgpu.model.scenes import make_scene, scene_cameras
 
+CHECKED = [d.name for d in dfn.REGISTRY.values() if d.checked]
+
 
 @pytest.fixture(scope="module")
 def real():
@@ -190,7 +192,7 @@ def test_memory_overheads_by_hand():
 
 def test_defense_names_outside_the_list_are_defined_only_in_it():
     """Labels and the first study's set name real defenses (a rename cannot leave them stale)."""
-    assert set(dfn.DEFENSE_LABELS) <= set(dfn.DEFENSES)
+    assert set(dfn.REGISTRY) == set(dfn.DEFENSES)
     assert set(dfn.FIRST_DEFENSES) <= set(dfn.DEFENSES)
     assert dfn.defense_label("guard") == "support guard" and dfn.defense_label("parity4") == "parity4"
 
@@ -225,13 +227,22 @@ def test_defenses_command_lists_every_defense_as_json(capsys):
 
         return json.loads(text, parse_constant=refuse)
 
-    assert main(["defenses", "--scene", "blocks", "--n", "300", "--size", "32x32", "--repeats", "1", "--json"]) == 0
+    cmd = ["defenses", "--scene", "blocks", "--n", "300", "--size", "32x32", "--repeats", "1", "--json"]
+    assert main([*cmd, "--check-every", "4"]) == 0
     rows = strict(capsys.readouterr().out)
     assert [r["name"] for r in rows] == list(dfn.DEFENSES)
+    keys = {"name", "device_bytes", "memory_overhead", "check_every", "time_fraction", "check_fraction"}
+    keys |= {"exposure_frames", "exposure_frames_worst", "time_basis", "description"}
     for r in rows:
-        assert set(r) == {"name", "memory_overhead", "time_fraction", "time_basis", "description"}
-        assert r["memory_overhead"] == pytest.approx(dfn.memory_overhead(r["name"], "fp32", 3, 300))
-        gpu_side = r["name"] in dfn.CHECKED or r["name"] in dfn.PIPELINE_GUARD or r["name"] == "none"
+        assert set(r) == keys
+        # the memory column: what the device holds (issue 39), of a model of 300 x 59 fp32 values
+        assert r["device_bytes"] == dfn.device_bytes(r["name"], "fp32", 3, 300)
+        assert r["memory_overhead"] == pytest.approx(r["device_bytes"] / (300 * 59 * 4))
+        checked = dfn.get(r["name"]).checked
+        assert r["check_every"] == (4 if checked else None)
+        want = (1.5, 3.0) if checked else ("inf", "inf") if r["name"] == "none" else (0.0, 0.0)
+        assert (r["exposure_frames"], r["exposure_frames_worst"]) == want, r["name"]
+        gpu_side = dfn.get(r["name"]).checked or bool(dfn.get(r["name"]).guard_fields) or r["name"] == "none"
         assert (r["time_fraction"] is not None and math.isfinite(r["time_fraction"])) == gpu_side, r
         assert r["time_basis"].startswith("measured") == gpu_side
     assert main(["defenses", "--scene", "blocks", "--n", "300", "--no-time", "--json"]) == 0
@@ -265,15 +276,19 @@ def test_checksum_and_parity4r_undo_every_single_and_adjacent_flip(real, precisi
 
 
 def test_the_memory_column_says_what_the_gpu_check_stores(real):
-    """memory_overhead charges the packed encodings (1 or 4 parity bits, a 4-bit class per
-    primitive), while the GPU check (faults/check.py) uploads one u32 per primitive for each
-    checked defense; docs/defenses.md says both, with the unpacked layout's share."""
+    """memory_overhead charges the packed encodings (1 or 4 parity bits, a 4-bit class, a 32-bit
+    checksum per primitive), and the GPU check (faults/check.py) now uploads exactly that, packed
+    (issue 39): its buffers are device_bytes, which the memory column of `seuwgpu defenses`
+    reports; docs/defenses.md says so."""
     from pathlib import Path
+
+    from seuwgpu.faults.check import Checker
+    from seuwgpu.render.renderer import Renderer
 
     p, deg = "fp32", real.sh_degree
     rows = stored_rows(real, p)[:50]
     box = support_box(real, p)
-    for d in dfn.CHECKED:
+    for d in CHECKED:
         side = dfn.side_data(d, rows, p, deg, box)
         assert side.dtype == np.uint32 and side.shape == (50,), d
     packed = {"parity": 1, "parity4": 4, "parity4r": 4, "scalebound": 4, "checksum": 32}
@@ -281,9 +296,70 @@ def test_the_memory_column_says_what_the_gpu_check_stores(real):
     for d, b in packed.items():
         box_bits = 2 * 14 * 32 if d == "scalebound" else 0
         assert dfn.memory_overhead(d, p, 3, 1000) == pytest.approx((b * 1000 + box_bits) / (1000 * bits))
+        assert dfn.get(d).side_bits == b
+    model = make_scene("blocks", n=333, seed=2)
+    r = Renderer(model, scene_cameras("blocks", 1, 32, 32), p, chunk_prims=128)
+    clean = stored_rows(model, p)
+    mbox = support_box(model, p)
+    guard_bytes = dfn.device_bytes("guard", p, 3, model.n)
+    assert guard_bytes == r.box_buf.size + r.guard_counts.size  # what the pipeline's guard reads
+    for d in CHECKED:
+        chk = Checker(r, d, clean, mbox)
+        extra = guard_bytes if dfn.get(d).guard_fields else 0
+        assert chk.device_bytes() + extra == dfn.device_bytes(d, p, 3, model.n, r.layout.n_chunks), d
+        # the side data: 333 codes of side_bits each, in whole 16-byte-aligned u32 words
+        assert chk.side.size == max(16, -(-(-(-333 * dfn.get(d).side_bits // 32) * 4) // 16) * 16), d
     text = " ".join((Path(__file__).resolve().parents[1] / "docs" / "defenses.md").read_text().split())
-    assert "keeps each primitive's side data in a u32 of its own" in text
-    assert f"({100 * 32 / bits:.2f}% of an fp32 degree-3 model" in text
+    assert "uploads the side data packed as the memory column charges it" in text
+
+
+@pytest.mark.parametrize("bits", [1, 2, 4, 8, 16, 32])
+def test_each_side_data_packing_round_trips(bits):
+    rng = np.random.default_rng(bits)
+    for m in (0, 1, 31, 32, 33, 1000):
+        codes = rng.integers(0, 1 << bits, m, dtype=np.uint64).astype(np.uint32)
+        words = dfn.pack_side(codes, bits)
+        assert words.dtype == np.uint32 and words.size == -(-m * bits // 32)
+        np.testing.assert_array_equal(dfn.unpack_side(words, bits, m), codes)
+    # by hand: four 4-bit codes in one word, the first in the low nibble
+    assert dfn.pack_side(np.array([1, 2, 3, 15], np.uint32), 4)[0] == 0xF321
+    with pytest.raises(ValueError, match="does not fit in 4 bits"):
+        dfn.pack_side(np.array([16], np.uint32), 4)
+
+
+def test_the_packed_side_data_of_every_checked_defense_round_trips(real):
+    p = "fp16"
+    rows = stored_rows(real, p)[:77]
+    box = support_box(real, p)
+    for d in CHECKED:
+        side = dfn.side_data(d, rows, p, 3, box)
+        bits = dfn.get(d).side_bits
+        assert int(side.max()) < (1 << bits) if bits < 32 else True
+        np.testing.assert_array_equal(dfn.unpack_side(dfn.pack_side(side, bits), bits, len(side)), side, err_msg=d)
+
+
+def test_exposure_on_hand_made_upset_schedules():
+    """Checks before frames 0, S, 2S, ...: an upset landing before frame f is drawn for
+    (-f) mod S frames (counted by hand below)."""
+    e = dfn.exposure(4, [0, 1, 2, 3, 4, 5, 9, 12])
+    np.testing.assert_array_equal(e.per_upset, [0, 3, 2, 1, 0, 3, 3, 0])
+    assert (e.expected, e.worst) == (1.5, 3.0)  # phases 0, 3, 2, 1 equally likely
+    e1 = dfn.exposure(1, [0, 5, 7])
+    np.testing.assert_array_equal(e1.per_upset, [0, 0, 0])
+    assert (e1.expected, e1.worst) == (0.0, 0.0)
+    e10 = dfn.exposure(10)
+    assert (e10.expected, e10.worst) == (4.5, 9.0) and len(e10.per_upset) == 10
+    never = dfn.exposure(0, [3])
+    assert never.per_upset[0] == np.inf and never.expected == np.inf
+    with pytest.raises(ValueError, match="every S >= 1 frames"):
+        dfn.exposure(-1)
+
+
+def test_amortised_time_charges_the_check_once_per_schedule():
+    assert dfn.amortised_time("parity4r", 0.05, 0.2, 10) == pytest.approx(0.02)
+    assert dfn.amortised_time("scalebound", 0.05, 0.2, 4) == pytest.approx(0.05 + 0.05)
+    assert dfn.amortised_time("guard", 0.05, 0.2, 4) == pytest.approx(0.05)  # no check to amortise
+    assert dfn.amortised_time("checksum", 0.0, 0.2, 0) == 0.0  # never checked
 
 
 def test_the_measured_table_states_the_spec_and_seed_that_produced_it():
@@ -304,3 +380,75 @@ def test_the_measured_table_states_the_spec_and_seed_that_produced_it():
     spec = normalize_spec(raw)
     assert [s["scene"] for s in spec["scenes"]] == ["leica-sofort", "yashica-t4"]
     assert "| leica-sofort | guard | 0.006% | ~0 | 0.43 (0.005) |" in text
+
+
+def test_guard_all_clamps_sh_rest_where_the_guard_does_not():
+    """The paper's Algorithm 1 (guard_all) clamps every field: an sh_rest exponent flip renders
+    as the model with that value clamped into its box (the guard's twin, clamp_bits); the guard,
+    which skips sh_rest, draws the flip as it is."""
+    from seuwgpu.faults.guard import clamp_bits, component_mask
+    from seuwgpu.model.fields import FIELDS
+
+    model = make_scene("blocks", n=300, seed=4)
+    cams = scene_cameras("blocks", 2, 40, 40)
+    eng = Engine(model, cams, "fp32", scene="blocks")
+    victim = int(np.argmax(model.opacity))
+    site = eng.site("sh_rest", victim, 0, 30)
+    guarded, paper = eng.inject(site, "guard"), eng.inject(site, "guard_all")
+    assert guarded["clamps"] == 0 and paper["clamps"] == 1
+    assert guarded["footprint"] > 0
+    rows = stored_rows(model, "fp32")
+    bad = rows.copy()
+    bad[victim, 14] ^= np.uint32(1 << 30)  # sh_rest component 0 is flat component 14
+    fixed, _ = clamp_bits(bad, eng.box, component_mask(FIELDS, 3))
+    want = Engine(Model.from_flat(encoding.from_bits(fixed, "fp32"), 3), cams, "fp32", gpu=eng.gpu).clean_rgba
+    h = eng.apply([site], "guard_all")
+    got, _ = eng.render_current("guard_all")
+    eng.undo(h)
+    np.testing.assert_array_equal(got, want)
+    assert dfn.get("guard_all").guard_fields == FIELDS and "sh_rest" not in dfn.get("guard").guard_fields
+
+
+def test_the_model_derived_tables_come_from_the_model_itself():
+    """scalebound's class table and cellbox's boxes are computed from the model they protect,
+    not from the embedded captures: on a model made here (log-scales shifted by +2 from a
+    random one) the table spans that model's own log-scale range, every class bound holds its
+    primitives and the class below would not, each primitive lies in its cell's box, and every
+    defense is the identity on it."""
+    from conftest import random_model
+
+    made = random_model(500, seed=12)
+    made = Model.from_flat(made.flat() + np.r_[np.zeros(3), 2 * np.ones(3), np.zeros(53)].astype(np.float32), 3)
+    p = "fp32"
+    rows = stored_rows(made, p)
+    box = support_box(made, p)
+    table = dfn.scale_table(box, p)
+    assert table[-1] == made.log_scales.max() and table[0] > made.log_scales.min()
+    assert table.size == dfn.SCALE_CLASSES and np.all(np.diff(table) >= 0)
+    cls = dfn.get("scalebound").side_data(rows, p, 3, box).astype(np.int64)
+    top = made.log_scales.max(axis=1)
+    assert np.all(table[cls] >= top)
+    assert np.all((cls == 0) | (table[np.maximum(cls - 1, 0)] < top))
+    cells = dfn.get("cellbox").model_state(rows, p, 3)
+    vals = made.flat()[:, cells.cols]
+    assert np.all(vals >= cells.box_lo[cells.cell]) and np.all(vals <= cells.box_hi[cells.cell])
+    prims = np.arange(made.n)
+    for d in dfn.DEFENSES:
+        np.testing.assert_array_equal(dfn.read(d, rows, rows, p, 3, box, prims, cells), rows, err_msg=d)
+
+
+def test_reads_stored_bits_says_which_defenses_change_what_is_read(real):
+    """`reads_stored_bits` (the viewer and the engine skip the twin for those) is true exactly for
+    the defenses whose read leaves a log-scale sign flip as stored: none and the guards (they
+    clamp later, in the pipeline); every other defense corrects, culls, reloads or clamps it."""
+    p = "fp32"
+    rows = stored_rows(real, p)[:40]
+    box = support_box(real, p)
+    cells = dfn.get("cellbox").model_state(stored_rows(real, p), p, 3)
+    prims = np.arange(40)
+    bad = rows.copy()
+    bad[:, 3] ^= np.uint32(1 << 31)
+    for d in dfn.DEFENSES:
+        got = dfn.read(d, rows, bad, p, 3, box, prims, cells)
+        assert np.array_equal(got, bad) == dfn.get(d).reads_stored_bits, d
+        assert bool(dfn.get(d).guard_fields) <= dfn.get(d).reads_stored_bits or d == "scalebound", d

@@ -44,6 +44,12 @@ def test_storm_command_writes_records_and_plot(tmp_path, capsys):
     assert len(df) == 6 and set(df.defense) == {"none", "parity4r"} and (tmp_path / "storm.png").stat().st_size
     assert main([*args, "--scrub-every", "-1", "--out", str(tmp_path)]) == 2
     assert "scrub_every >= 0" in capsys.readouterr().err
+    out = tmp_path / "every2"
+    assert main([*args, "--check-every", "2", "--defense", "none", "parity4r", "--out", str(out)]) == 0
+    df = pd.read_parquet(out / "storm.parquet")
+    assert set(df.loc[df.defense == "parity4r", "check_every"]) == {2} and set(
+        df.loc[df.defense == "none", "check_every"]
+    ) == {0}
 
 
 def test_a_storm_too_long_for_host_memory_is_refused_at_once(monkeypatch):
@@ -233,3 +239,26 @@ def test_one_storm_or_state_run_per_folder_at_a_time(tmp_path, monkeypatch, caps
         with lock(tmp_path, command=name):  # and after a finished run
             pass
         capsys.readouterr()
+
+
+def test_a_check_schedule_shows_each_upset_for_its_exposure():
+    """A hand-made schedule: two catastrophic upsets (frames 1 and 5) under a check every 4
+    frames (before frames 0, 4): parity4r draws each corrupted until the next check, so its
+    catastrophic frames are exactly defenses.exposure's (3 + 3) and at the frames it names; with
+    no defense and no scrub they stay (frames 1..7)."""
+    from seuwgpu.faults import defenses as dfn
+
+    model = make_scene("blocks", n=200, seed=4)
+    eng = Engine(model, scene_cameras("blocks", 1, 32, 32), "fp32", scene="blocks")
+    big = np.argsort(model.opacity)[::-1]
+    a, b = eng.site("log_scales", int(big[0]), 0, 30), eng.site("log_scales", int(big[1]), 1, 30)
+    assert eng.inject(a)["catastrophic"] and eng.inject(b)["catastrophic"]
+    plan = [[], [a], [], [], [], [b], [], []]
+    df = storm(eng, 1, 8, scrub_every=0, defenses=("none", "parity4r"), check_every=4, upsets=plan)
+    cat = {d: set(g.loc[g.catastrophic, "frame"]) for d, g in df.groupby("defense")}
+    assert cat["none"] == set(range(1, 8))
+    assert cat["parity4r"] == {1, 2, 3, 5, 6, 7}
+    assert len(cat["parity4r"]) == dfn.exposure(4, [1, 5]).per_upset.sum()
+    assert (df[df.defense == "parity4r"].check_every == 4).all() and (df[df.defense == "none"].check_every == 0).all()
+    every = storm(eng, 1, 8, scrub_every=0, defenses=("parity4r",), check_every=1, upsets=plan)
+    assert not every.catastrophic.any()  # checked before every frame: exposure 0

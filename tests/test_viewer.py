@@ -67,6 +67,31 @@ def test_clean_frame_is_the_pipeline_render(state, model):
     np.testing.assert_array_equal(rgba[..., :3], (display(state.last_image[..., :3]) * 255 + 0.5).astype(np.uint8))
 
 
+def test_every_defense_and_its_check_schedule(state):
+    """The viewer offers every registered defense. Read-time codes draw what they read (ECC
+    corrects a sign flip); a check defense checked every 3 frames shows the fault until its
+    check (frames before frame_count 3), then its repair stands; the memory keeps the raw flip."""
+    from seuwgpu.apps.viewer import GUARD_MODES
+    from seuwgpu.faults import defenses as dfn
+
+    assert set(GUARD_MODES.values()) == set(dfn.DEFENSES)
+    state.frame()  # frame 0, clean
+    state.inject("log_scales", 31, None, component=2)
+    _, ro = state.frame()
+    assert ro["footprint"] > 0.01
+    state.set_guard("ecc")
+    _, ro = state.frame()
+    assert ro["footprint"] == 0 and flipped_bits(state) == 1
+    state.set_guard("parity4r")
+    state.set_check_every(3)
+    state.frame_count = 1  # the check runs before frames 3, 6, ...
+    feet = [state.frame()[1]["footprint"] for _ in range(4)]  # frames 1, 2 exposed; 3, 4 repaired
+    assert feet[0] > 0.01 and feet[1] > 0.01 and feet[2] == 0 and feet[3] == 0, feet
+    assert state.readout["check_every"] == 3 and flipped_bits(state) == 1
+    with pytest.raises(ValueError, match="every S >= 1 frames"):
+        state.set_check_every(0)
+
+
 def test_scale_sign_flip_guard_and_undo(state):
     _, ro0 = state.frame()
     clean_img, clean_rgba = state.last_image.copy(), state.compose(state.last_image, state.last_image)

@@ -62,16 +62,17 @@ def memory_overhead(
                     return float(v), "from the run manifest"
     from seuwgpu.faults import defenses as dfn  # the stored bits each defense adds, defined there
 
-    if defense not in dfn.DEFENSE_INFO:
+    d = dfn.REGISTRY.get(defense)
+    if d is None:
         return float("nan"), "unknown defense"
     if defense == "none":
         return 0.0, "no redundancy"
-    if not n_primitives and defense in dfn.PIPELINE_GUARD and defense != "scalebound":
+    if not n_primitives and d.bits_per_model(precision, sh_degree) and not d.bits_per_primitive(precision, sh_degree):
         return 0.0, "fp32 box bounds per model (~0 per primitive)"
     n = int(n_primitives or 1)  # without N only per-primitive overheads are stated (exact for them)
     frac = dfn.memory_overhead(defense, precision, sh_degree, n)
     where = f", N = {n:,}" if n_primitives else ""
-    return frac, f"{dfn.DEFENSE_INFO[defense]}{where}"
+    return frac, f"{d.info}{where}"
 
 
 def _pooled_overhead(defense: str, precision: str, models: dict, manifests) -> tuple[float, str]:

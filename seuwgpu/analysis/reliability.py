@@ -273,6 +273,30 @@ def catastrophic_frame_share(rate_per_bit_hour: float, bits: float, p: float, sc
     return 1.0 - (-math.expm1(-x)) / x
 
 
+def check_exposure(check_every: int, frames_per_hour: float) -> tuple[float, float]:
+    """(share of upsets a check every S frames lets be drawn at all, hours they are drawn on
+    average): defenses.exposure over every phase, in hours at `frames_per_hour`."""
+    from seuwgpu.faults.defenses import exposure
+
+    ex = exposure(check_every)
+    return float((ex.per_upset >= 1).mean()), ex.expected / float(frames_per_hour)
+
+
+def with_exposure(
+    mtbf_hours: float, share: float, rate_per_bit_hour: float, bits: float, p_repaired: float, exposure: tuple
+) -> tuple[float, float]:
+    """(MTBF h, catastrophic frame share) with the upsets a check repairs counted for what they
+    are: a catastrophe (probability p_repaired per upset) drawn until the next check, `exposure`
+    = (share drawn at all, mean hours drawn) from check_exposure, on top of the residual ones
+    (mtbf_hours, share: those the check misses, which stay until the scrub)."""
+    shown, hours = exposure
+    r = float(rate_per_bit_hour) * float(bits) * max(float(p_repaired), 0.0)
+    if math.isnan(r) or not r > 0:
+        return mtbf_hours, share
+    rate = (1.0 / mtbf_hours if mtbf_hours > 0 else float("inf")) + r * shown
+    return (1.0 / rate if rate > 0 else float("inf")), min(1.0, share - math.expm1(-r * hours))
+
+
 def mtbf_table(
     pc: pd.DataFrame,
     bits: float,
@@ -281,12 +305,14 @@ def mtbf_table(
     scrub_hours: float = DEFAULT_SCRUB_HOURS,
     defenses: tuple[str, ...] = ("none", "guard"),
     dose_p: dict | None = None,
+    exposure: dict | None = None,
 ) -> pd.DataFrame:
     """MTBF per environment and defense of one model of `bits` stored bits, from its p_c
     (single-upset, stratified) and, where given, its dose fit (dose_p[defense] = (p, lo, hi) as
     proportions); bounds from the p interval (no event: unbounded above). `pc` holds one model's
     rows: a p_c pooled over models, or the rows of several, is refused (`reliability` calls this
-    once per model)."""
+    once per model). `exposure` {defense: check_exposure(...)}: a check defense's repaired upsets
+    (p_c of none minus its own) are drawn for their exposure (with_exposure)."""
     if "pooled_over" in pc:
         raise ValueError(f"p_c pooled over {pc['pooled_over'].iloc[0]}: an MTBF needs one model's p_c and bits")
     if all(c in pc for c in MODEL) and len(pc[MODEL].drop_duplicates()) > 1:
@@ -303,24 +329,32 @@ def mtbf_table(
         lam = float(env["per_bit_hour"])
         for dfn, src, p, lo, hi in sources:
             t, t_lo, t_hi = (mtbf(lam, bits, x, scrub_hours) for x in (p, hi, lo))
-            rows.append(
-                {
-                    "environment": env["environment"],
-                    "upsets_per_bit_hour": lam,
-                    "fit_per_mbit": lam * 1e15,
-                    "defense": dfn,
-                    "p_source": src,
-                    "p_pct": 100 * p,
-                    "scrub_hours": scrub_hours,
-                    "mtbf_hours": t,
-                    "mtbf_hours_lo": t_lo,
-                    "mtbf_hours_hi": t_hi,
-                    "mtbf": format_duration(t) if p != 0 else f"> {format_duration(t_lo)}",  # NaN: n/a
-                    "mtbf_range": f"{format_duration(t_lo)} .. {format_duration(t_hi)}",
-                    "catastrophic_frames_pct": 100 * catastrophic_frame_share(lam, bits, p, scrub_hours),
-                    "source": env.get("source", ""),
-                }
-            )
+            share = catastrophic_frame_share(lam, bits, p, scrub_hours)
+            none = pc_lookup(pc, precision, "none") if exposure and dfn in exposure else None
+            if none is not None:
+                p0 = float(none["p_c"])
+                t, share = with_exposure(t, share, lam, bits, p0 - p, exposure[dfn])
+                t_lo = with_exposure(t_lo, 0.0, lam, bits, float(none["ci_hi"]) - lo, exposure[dfn])[0]
+                t_hi = with_exposure(t_hi, 0.0, lam, bits, float(none["ci_lo"]) - hi, exposure[dfn])[0]
+            row = {
+                "environment": env["environment"],
+                "upsets_per_bit_hour": lam,
+                "fit_per_mbit": lam * 1e15,
+                "defense": dfn,
+                "p_source": src,
+                "p_pct": 100 * p,
+                "scrub_hours": scrub_hours,
+                "mtbf_hours": t,
+                "mtbf_hours_lo": t_lo,
+                "mtbf_hours_hi": t_hi,
+                "mtbf": format_duration(t) if p != 0 or none is not None else f"> {format_duration(t_lo)}",  # NaN: n/a
+                "mtbf_range": f"{format_duration(t_lo)} .. {format_duration(t_hi)}",
+                "catastrophic_frames_pct": 100 * share,
+                "source": env.get("source", ""),
+            }
+            if exposure:  # the column only where a check's exposure was given
+                row["exposure_hours"] = exposure[dfn][1] if none is not None else float("nan")
+            rows.append(row)
     out = pd.DataFrame(rows)
     out.attrs.update(pc.attrs)
     out.attrs.update(precision=precision, model_bits=bits)
@@ -366,6 +400,7 @@ def reliability(
     precision: str | None = None,
     conf: float = 0.95,
     dose_fits: pd.DataFrame | None = None,
+    exposure: dict | None = None,
 ) -> dict:
     """p_c, the MTBF table (rates and scrub interval from the runs' spec or the defaults) and the
     inputs of the sensitivity figure. Returns {"pc", "mtbf", "mtbf_wide", "bits", "precision",
@@ -414,7 +449,7 @@ def reliability(
         if per_model and not (sub["precision"] == precision).any():
             notes.append(f"{m.label}: no single-upset records at {precision}, no MTBF")
             continue
-        mt = mtbf_table(sub, b, precision, rates, scrub, dose_p=dp)
+        mt = mtbf_table(sub, b, precision, rates, scrub, dose_p=dp, exposure=exposure)
         if per_model:
             for i, (c, v) in enumerate((("scene", m.scene), ("n_primitives", m.n_primitives), ("model_bits", b))):
                 mt.insert(i, c, v)

@@ -741,7 +741,9 @@ def cmd_defenses(args):
         args.scene = "leica-sofort"
     src = load_source(args)
     cam = load_cams(args, src, one_size=False)[0]  # one view: any size
-    rows = defense_costs(src.model, cam, args.precision, args.repeats, time_it=not args.no_time)
+    rows = defense_costs(
+        src.model, cam, args.precision, args.repeats, time_it=not args.no_time, check_every=args.check_every
+    )
     if args.json:
         import json
 
@@ -755,14 +757,17 @@ def cmd_defenses(args):
     t = Table(
         title=f"defenses on {src.name} ({src.model.n:,} primitives, {args.precision}); time: {rows[0]['time_basis']}"
     )
-    for c in ("defense", "memory", "time / view", "what it does"):
-        t.add_column(c, justify="right" if c in ("memory", "time / view") else "left")
+    for c in ("defense", "device bytes", "memory", "check every", "time / frame", "exposure (frames)", "what it does"):
+        t.add_column(c, justify="left" if c in ("defense", "what it does") else "right")
     for r in rows:
-        tf = r["time_fraction"]
+        tf, ex, worst = r["time_fraction"], r["exposure_frames"], r["exposure_frames_worst"]
         t.add_row(
             r["name"],
+            f"{r['device_bytes']:,}",
             f"{100 * r['memory_overhead']:.3f}%",
+            "" if r["check_every"] is None else str(r["check_every"]),
             "n/a" if tf != tf else f"{100 * tf:+.1f}%",
+            "until reloaded" if ex == float("inf") else f"{ex:g} (worst {worst:g})",
             r["description"],
         )
     Console().print(t)
@@ -861,12 +866,21 @@ def cmd_storm(args):
     cams = load_cams(args, src)
     defenses = list(dict.fromkeys(args.defense))  # a defense named twice is one arm
     options = {"k": args.k, "frames": args.frames, "scrub-every": args.scrub_every, "defense": defenses}
+    options["check-every"] = args.check_every
     partial = partial_records(args, src, cams, "storm", storm_records, **options)  # before any rendering
     eng = Engine(src.model, cams, args.precision, scene=src.name, profile=args.profile)
     with partial.kept() as rows:
         with work_bar("frames", args.frames * len(defenses), len(rows)) as step:
             df = storm(
-                eng, args.k, args.frames, args.scrub_every, defenses, args.seed, partial.progress(step), rows=rows
+                eng,
+                args.k,
+                args.frames,
+                args.scrub_every,
+                defenses,
+                args.seed,
+                partial.progress(step),
+                rows=rows,
+                check_every=args.check_every,
             )
         df.to_parquet(args.out / "storm.parquet", index=False)
         storm_figure(df).savefig(args.out / "storm.png", dpi=120)
@@ -1160,6 +1174,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--repeats", type=positive_int, default=7, help="timing rounds (medians)")
     s.add_argument("--no-time", action="store_true", help="skip the timing (time_fraction NaN)")
     s.add_argument("--json", action="store_true", help="print [{name, memory_overhead, time_fraction, ...}]")
+    s.add_argument(
+        "--check-every",
+        type=positive_int,
+        default=1,
+        help="check schedule S of the check defenses: check every S frames (time amortised over S; default 1)",
+    )
     s.set_defaults(func=cmd_defenses)
 
     s = sub.add_parser("worstcase", help="the single flip with the largest footprint under a defense (bounded search)")
@@ -1192,6 +1212,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--k", type=positive_int, default=10, help="upsets per frame")
     s.add_argument("--frames", type=positive_int, default=50, help="frames rendered, each after its k new upsets")
     s.add_argument("--scrub-every", type=int, default=10, help="reload the model every S frames (0 = never)")
+    s.add_argument(
+        "--check-every",
+        type=positive_int,
+        default=1,
+        help="check schedule of the check defenses: check (and repair) every S frames (default 1)",
+    )
     s.add_argument(
         "--defense",
         nargs="+",

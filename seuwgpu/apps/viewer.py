@@ -24,6 +24,11 @@ Choices (see also the README):
   current camera (longest side `probe` px), so it stays interactive on CPU Vulkan.
 - Storm: k uniform upsets (faults.uniform_upsets, the whole stored bit budget) per frame;
   accumulating (they stay) or transient (each frame's upsets replace the previous frame's).
+- Defense: every registered defense. The guards clamp in the pipeline; the others are drawn as
+  they read the faulted words (`Engine.apply(sites, defense)` on a copy of the faults, the raw
+  faults XORed back after the frame). A check defense checks before every `check_every`-th frame:
+  from the first check after the faults last changed its repair stands (it is written back), and
+  until then the frame shows the faults as stored (its exposure window).
 - Guard alert: the guard counts clamped components per frame; a clean model never clamps (its
   box is its own min/max), so the alert fires when clamps > `clamp_threshold` (default 0; the
   Engine's GuardMonitor gets the same threshold and also logs a GuardAlert warning). With the
@@ -43,13 +48,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.sites import Site, uniform_upsets
 from seuwgpu.model import encoding
 from seuwgpu.model.cameras import Camera, look_at
 from seuwgpu.model.fields import Model, field_components, stored_fields
 from seuwgpu.model.framing import bounding_region, framing_distance, orbit_basis
 
-GUARD_MODES = {"off": "none", "guard": "guard", "selective": "selective"}
+# every registered defense ("off": none); the check defenses check every `check_every` frames
+GUARD_MODES = {"off": "none", **{d: d for d in dfn.DEFENSES if d != "none"}}
 MIN_SIZE = 16  # smallest render (the GPU metrics used by worst-of-sample need >= 7 px)
 
 
@@ -190,6 +197,9 @@ class ViewerState:
         self.sample, self.probe, self.seed = int(sample), int(probe), int(seed)
         self.clamp_threshold = int(clamp_threshold)
         self.guard = "off"
+        self.check_every = 1
+        self.frame_count = 0  # frames drawn: a check defense checks when frame_count % check_every == 0
+        self._checked_faults = None  # the faults (their key) a check has repaired
         self.heatmap = False
         self.groups: list[FaultGroup] = []
         self.storm: dict | None = None  # {"k", "accumulate", "steps", "group"}
@@ -406,6 +416,40 @@ class ViewerState:
         self.guard = mode
         self.dirty = True
 
+    def set_check_every(self, frames: int):
+        """The check schedule of the check defenses: check every `frames` frames (>= 1)."""
+        if int(frames) < 1:
+            raise ValueError(f"a check schedule is every S >= 1 frames (got {frames})")
+        self.check_every = int(frames)
+        self.dirty = True
+
+    def _faults_key(self):
+        return tuple((id(g), len(g.sites)) for g in self.groups)
+
+    def _render_defended(self):
+        """The current faults drawn under the defense: the pipeline's clamp for the guards; for
+        the others what they read (a check defense: once checked since the faults changed)."""
+        e, d = self.engine, dfn.get(self.defense)
+        if d.checked:
+            key = self._faults_key()
+            if self.frame_count % self.check_every == 0:
+                self._checked_faults = key  # the check runs before this frame; its repair stays
+            repaired = self._checked_faults == key
+        else:
+            repaired = True
+        self.frame_count += 1
+        if not self.groups or not repaired or d.reads_stored_bits:
+            return e.render_current(self.defense)
+        active = list(self.groups)
+        e.undo_all()
+        handle = e.apply([s for g in active for s in g.sites], self.defense)
+        try:
+            return e.render_current(self.defense)
+        finally:
+            e.undo(handle)
+            for g in active:
+                g.handles = [e.apply(g.sites, "none")]
+
     def set_heatmap(self, on: bool):
         self.heatmap = bool(on)
         self.dirty = True
@@ -453,7 +497,7 @@ class ViewerState:
         clean_render = False  # an extra render of the clean model was needed for this frame
         if key != self._clean_key and self.groups:
             self.clean_image, self._clean_key, clean_render = self._render_clean(ref), key, True
-        img, clamps = self.engine.render_current(self.defense)
+        img, clamps = self._render_defended()
         img = img[0]
         if key != self._clean_key:  # no active fault: this render is the clean one
             self.clean_image, self._clean_key = img, key
@@ -479,6 +523,7 @@ class ViewerState:
         total = int(sum(clamps.values()))
         monitor = self.engine.monitor
         sites = self.active_sites
+        guarded = bool(dfn.get(self.defense).guard_fields)  # only a guard clamps and alerts
         return {
             "frame_ms": frame_ms,
             "size": self.size,
@@ -490,8 +535,9 @@ class ViewerState:
             "clamps": total,
             "clamps_per_field": dict(clamps),
             # clamps beyond the clean model's own (its NaN/Inf), as the Engine's monitor counts them
-            "alert": self.guard != "off" and monitor.alert,
-            "alert_message": monitor.message if self.guard != "off" else "",
+            "alert": guarded and monitor.alert,
+            "alert_message": monitor.message if guarded else "",
+            "check_every": self.check_every if dfn.get(self.defense).checked else None,
             "active_sites": len(sites),
             "sites": [site_text(s, self.precision) for s in sites[-6:]],
             "precision": self.precision,

@@ -10,7 +10,7 @@ unchanged (3DGS colours are display-referred), and ImGui draws over it in the sa
 
 Input: left drag orbits, right or middle drag (or shift + left drag) pans, the wheel zooms.
 Keys: R reset view, S screenshot of the window (panel included), P screenshot of the render
-only, H hide/show the panel, M heat map, G cycle the guard (off, guard, selective), U undo all
+only, H hide/show the panel, M heat map, G cycle the defense (off and every registered one), U undo all
 faults, Space start/stop the storm, ] / [ (or the arrow keys) next / previous capture view (with
 --cameras), O back to the orbit camera, Q or Escape close. Events the panel uses (clicks, typing
 in a field) do not reach the view.
@@ -497,11 +497,15 @@ class ViewerApp:
         imgui.text(f"step {st.storm['steps']:>7}" if st.storm_running else "")
 
         imgui.separator_text("Defense")
-        for mode in GUARD_MODES:
+        for i, mode in enumerate(GUARD_MODES):
             if imgui.radio_button(mode + "##guard", st.guard == mode):
                 self._act(st.set_guard, mode)
-            imgui.same_line()
+            if i % 5 != 4:  # five to a row: every registered defense fits the panel
+                imgui.same_line()
         imgui.new_line()
+        changed, every = imgui.input_int("check every (frames)", st.check_every)
+        if changed and every >= 1:
+            self._act(st.set_check_every, every)
 
         imgui.separator_text("View")
         ch, v = imgui.checkbox("heat map |render - clean|", st.heatmap)

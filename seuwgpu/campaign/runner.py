@@ -18,7 +18,7 @@ import pandas as pd
 from seuwgpu.campaign import store
 from seuwgpu.campaign.sampling import Context, draw_sites, enumerate_contexts, injection_seeds
 from seuwgpu.campaign.spec import SpecError, spec_hash
-from seuwgpu.faults.defenses import PIPELINE_GUARD
+from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.sites import draw_uniform_sites
 from seuwgpu.metrics.image import FOOTPRINT_THRESHOLD, PIXEL_THRESHOLD, outcome_class
 from seuwgpu.render.regions import REGION_GRID_VERSION
@@ -214,7 +214,7 @@ class Runner:
         once beside the manifest instead of being charged to every upset."""
         if not eng.nonfinite_counts:
             return
-        note = {d: eng.guard_on_clean(d) for d in PIPELINE_GUARD if d in ctx.defenses}
+        note = {d: eng.guard_on_clean(d) for d in dfn.pipeline_guards() if d in ctx.defenses}
         note["nonfinite_values"] = dict(eng.nonfinite_counts)
         store.write_guard_note(self.out, eng.scene, ctx.precision, eng.profile, note)
 

@@ -31,8 +31,7 @@ class RankRenderer:
     model, its region of every view, and the node-local guard."""
 
     def __init__(self, model, cameras, precision: str, viewport, rank: int = 0, guard_variant: str = "guard"):
-        from seuwgpu.faults.defenses import GUARDED_FIELDS
-        from seuwgpu.faults.guard import component_mask, support_box
+        from seuwgpu.faults.guard import component_mask, guard_fields, support_box
         from seuwgpu.render.renderer import Renderer
 
         t0 = time.perf_counter()
@@ -40,7 +39,7 @@ class RankRenderer:
         self.gpu = worker_gpu()
         self.r = Renderer(model, cameras, precision, gpu=self.gpu, viewport=viewport)
         self.box = support_box(self.r.layout.decode(self.r.clean_words), precision)
-        self.guard_fields = GUARDED_FIELDS[guard_variant]
+        self.guard_fields = guard_fields(guard_variant)
         self.mask = component_mask(self.guard_fields, model.sh_degree)
         self.r.set_guard(self.box.rows(), 0)
         self.clean = self.r.render()  # also the warm-up
@@ -222,8 +221,7 @@ def sort_first(
     """Render `cameras` with `ranks` Ray actors (sort-first), time the ranks, and (with `upset` =
     (field, bits)) find the ranks a single upset contaminates without and with the node-local guard."""
     ray = get_ray()
-    from seuwgpu.faults.defenses import GUARDED_FIELDS
-    from seuwgpu.faults.guard import clamp_values, component_mask, support_box
+    from seuwgpu.faults.guard import clamp_values, component_mask, guard_fields, support_box
     from seuwgpu.faults.sites import make_site
     from seuwgpu.model import encoding
     from seuwgpu.model.budget import check_model
@@ -286,7 +284,7 @@ def sort_first(
             bad[c] = encoding.from_bits(
                 encoding.flip_bits(encoding.to_bits(row[c : c + 1], precision), list(site.bits), precision), precision
             )[0]
-            clamped, _ = clamp_values(bad[None], box, component_mask(GUARDED_FIELDS["guard"], model.sh_degree))
+            clamped, _ = clamp_values(bad[None], box, component_mask(guard_fields("guard"), model.sh_degree))
             out.update(
                 {
                     "site": site,

@@ -4,11 +4,15 @@ under each defense.
 
 Per frame: k new single-bit upsets, uniform over the stored bits (the dose campaign's draw),
 XOR into the memory state; then the defense acts. Defenses that check and repair memory
-(defenses.CHECKED: parity culls, checksum and parity4r reload, scalebound clamps) write their
+(a checked defense, `Defense.writes_back`: parity culls, checksum and parity4r reload, scalebound clamps) write their
 repair back, so a repaired primitive stays repaired; read-time defenses (guard, ECC, duplication)
 leave the memory corrupted and correct what the renderer reads, so upsets pile up in one value
-until the scrub (two in an ECC word are no longer correctable). The frame is rendered and measured
-against the clean render (all K views). Every arm sees the same upset sequence (paired).
+until the scrub (two in an ECC word are no longer correctable). A check defense checks before
+every `check_every`-th frame (frames 0, S, 2S, ...: its check schedule); between checks the
+frames are drawn from the memory as it is (its pipeline clamp, scalebound's, still acts), so an
+upset is seen for its exposure (defenses.exposure). The frame is rendered and measured against
+the clean render (all K views). Every arm sees the same upset sequence (paired); `upsets` gives
+a hand-made one (a list of frames, each a list of sites).
 """
 
 from __future__ import annotations
@@ -39,28 +43,47 @@ def check_storm(k: int, frames: int, arms: int):
         )
 
 
-def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), seed: int = 0, progress=None, rows=None):
+def storm(
+    engine,
+    k: int,
+    frames: int,
+    scrub_every: int,
+    defenses=("none",),
+    seed: int = 0,
+    progress=None,
+    rows=None,
+    check_every: int = 1,
+    upsets=None,
+):
     """Records (one per frame and defense) of a fault storm; scrub_every 0 = never. `rows`: a list
     the records are appended to as they are measured (what an interrupted storm has done:
     `storm_records(rows)`). Records already in it are those of a resumed storm of the same
     arguments (its first records, in order: the arms one after the other, frame by frame): the storm
     goes on after them, drawing the same upsets (all are drawn before the first frame) and replaying
     the measured frames' upsets, repairs and scrubs into the memory state without rendering them."""
-    if k < 1 or frames < 1 or scrub_every < 0:
-        raise ValueError(f"storm needs k >= 1, frames >= 1, scrub_every >= 0 (got {k}, {frames}, {scrub_every})")
-    rng = np.random.default_rng(seed)
-    first = draw_uniform_sites(engine.n, engine.degree, engine.precision, k, rng)  # k over the stored bits: refused
-    check_storm(k, frames, len(defenses))
-    upsets = [
-        first,
-        *(draw_uniform_sites(engine.n, engine.degree, engine.precision, k, rng) for _ in range(frames - 1)),
-    ]
+    if k < 1 or frames < 1 or scrub_every < 0 or check_every < 1:
+        raise ValueError(
+            "storm needs k >= 1, frames >= 1, scrub_every >= 0, check_every >= 1 "
+            f"(got {k}, {frames}, {scrub_every}, {check_every})"
+        )
+    if upsets is not None:
+        upsets = [list(u) for u in upsets]
+        if len(upsets) != frames:
+            raise ValueError(f"a hand-made storm of {frames} frames needs {frames} lists of upsets (got {len(upsets)})")
+    else:
+        rng = np.random.default_rng(seed)
+        first = draw_uniform_sites(engine.n, engine.degree, engine.precision, k, rng)  # k over the stored bits: refused
+        check_storm(k, frames, len(defenses))
+        upsets = [
+            first,
+            *(draw_uniform_sites(engine.n, engine.degree, engine.precision, k, rng) for _ in range(frames - 1)),
+        ]
     rows = [] if rows is None else rows
     done = len(rows)  # records of a resumed storm
     if done > frames * len(defenses):
         raise ValueError(f"{done} records given for a storm of {frames * len(defenses)}")
     for a, d in enumerate(defenses):
-        dfn.check_defense(d)
+        arm = dfn.get(d)
         if (a + 1) * frames <= done:
             continue  # every frame of this arm measured before the storm was resumed
         memory: dict[int, np.ndarray] = {}  # primitive -> its stored bits now (absent: clean)
@@ -76,8 +99,9 @@ def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), see
             prims = np.fromiter(memory, dtype=np.int64, count=len(memory))
             clean = engine.primitive_bits(prims)
             now = np.stack([memory[p] for p in prims]) if prims.size else clean
-            seen = engine.read_through(prims, clean, now, d) if prims.size else clean
-            if d in dfn.CHECKED:  # the repair is written back
+            checking = not arm.checked or f % check_every == 0  # a check defense acts on its schedule
+            seen = engine.read_through(prims, clean, now, d) if prims.size and checking else now
+            if arm.writes_back and checking:  # the repair is written back
                 memory = {int(p): r.copy() for p, r in zip(prims, seen)}
             if a * frames + f < done:
                 continue  # measured before the storm was resumed: its memory state replayed, not rendered
@@ -96,6 +120,7 @@ def storm(engine, k: int, frames: int, scrub_every: int, defenses=("none",), see
                     "frame": f,
                     "k": k,
                     "scrub_every": scrub_every,
+                    "check_every": check_every if arm.checked else 0,
                     "corrupted_primitives": corrupted,
                     "footprint": m["footprint"],
                     "psnr": m["psnr"],

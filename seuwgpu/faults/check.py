@@ -1,9 +1,11 @@
 """Check stage: shaders/check.wgsl, the per-primitive checks of the parity, checksum and
 scale-class defenses over a renderer's stored chunks; twin: faults/defenses.py `detect`.
 
-The side data (one u32 per primitive) is computed from the clean model once, like the guard's
-box. A check is one dispatch per chunk and one 4-byte read of the detection count; only when it is
-non-zero does the host read the flags and repair (cull, reload or clamp: defenses.repair).
+The side data is computed from the clean model once, like the guard's box, and uploaded packed
+(`side_bits` per primitive, defenses.pack_side), so the device holds what the memory column
+charges (defenses.device_bytes). A check is one dispatch per chunk and one 4-byte read of the
+detection count; only when it is non-zero does the host read the flag bits and repair (cull,
+reload or clamp: defenses.repair), and clear them for the next check.
 """
 
 from __future__ import annotations
@@ -15,35 +17,29 @@ from seuwgpu.faults.guard import fill_chunk_params
 from seuwgpu.gpu.device import STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 
-# shaders/check.wgsl's MODE_PARITY, MODE_CHECKSUM, MODE_SCALE, per kind of check; the defenses are
-# defenses.CHECKED (a checked defense of a new kind fails here, at import, until it has a mode)
-_KIND_MODE = {"parity": 0, "checksum": 1, "scalebound": 2}
-MODES = {d: _KIND_MODE["parity" if d.startswith("parity") else d] for d in dfn.CHECKED}
-
 
 class Checker:
     """One defense's check over a renderer's stored chunks (`run` -> flagged count, `flags`)."""
 
     def __init__(self, renderer, defense: str, clean_rows: np.ndarray, box=None):
-        if defense not in MODES:
-            raise ValueError(f"defense {defense!r} has no GPU check; checked ones: {', '.join(MODES)}")
+        d = dfn.checked(defense)  # its check_mode is shaders/check.wgsl's MODE_*
         r, L = renderer, renderer.layout
         g = self.gpu = r.gpu
         self.layout, self.chunks, self.defense = L, r.chunks, defense
         self.kernel = Kernel(g, "check")
-        side = dfn.side_data(defense, clean_rows, L.precision, L.degree, box)
-        self.side = g.upload(side.astype(np.uint32))
-        table = dfn.scale_table(box, L.precision) if defense == "scalebound" else np.zeros(4, np.float32)
-        self.table = g.upload(np.asarray(table, np.float32))
-        self.out = g.buffer(16 + 4 * L.n, STORAGE, "check.out")
+        side = d.side_data(np.asarray(clean_rows), L.precision, L.degree, box)
+        self.side = g.upload(dfn.pack_side(side, d.side_bits))
+        self.table = g.upload(np.asarray(d.check_table(box, L.precision), np.float32))
+        self.flag_words = -(-L.n // 32)
+        self.out = g.buffer(dfn.CHECK_HEADER_BYTES + 4 * self.flag_words, STORAGE, "check.out")
+        self._flagged = False  # flag bits set by the last run (cleared before the next)
         self.params = Uniforms(g, self.kernel.struct("CheckParams"), L.n_chunks, "check.params")
         fill_chunk_params(
             self.params,
             L,
-            mode=MODES[defense],
-            ways=1 if defense == "parity" else 4,
-            cover=dfn.parity_cover_mask(L.precision),
-            comp_count=dfn.parity_components(defense, L.degree),
+            mode=d.check_mode,
+            side_bits=d.side_bits,
+            **d.check_parameters(L.precision, L.degree),
         )
         self.params.write()
         self.zero = np.zeros(4, np.uint32)
@@ -62,11 +58,22 @@ class Checker:
 
     def run(self) -> int:
         """Check every primitive; returns how many are flagged (one small read)."""
-        self.gpu.write(self.out, self.zero)
+        if self._flagged:
+            self.gpu.write(self.out, np.zeros(4 + self.flag_words, np.uint32))
+        else:
+            self.gpu.write(self.out, self.zero)
         enc = self.gpu.device.create_command_encoder()
         self.encode(enc)
         self.gpu.submit(enc)
-        return int(self.gpu.read(self.out, np.uint32, 0, 4)[0])
+        count = int(self.gpu.read(self.out, np.uint32, 0, 4)[0])
+        self._flagged = count > 0
+        return count
 
     def flags(self) -> np.ndarray:
-        return self.gpu.read(self.out, np.uint32, 16, 4 * self.layout.n).astype(bool)
+        """[n] bool: the primitives the last run flagged."""
+        words = self.gpu.read(self.out, np.uint32, dfn.CHECK_HEADER_BYTES, 4 * self.flag_words)
+        return np.unpackbits(words.view(np.uint8), bitorder="little")[: self.layout.n].astype(bool)
+
+    def device_bytes(self) -> int:
+        """Bytes of this check's buffers on the device (defenses.device_bytes counts the same)."""
+        return int(self.side.size + self.table.size + self.out.size + self.params.buffer.size)

@@ -1,6 +1,12 @@
-"""What each defense costs on this device: memory overhead (fraction of the model's stored bytes,
-defenses.memory_overhead) and time (extra time per rendered view as a fraction of an unprotected
-view, measured here).
+"""What each defense costs on this device: memory (the bytes it holds on the device beside the
+model, defenses.device_bytes, and their fraction of the model's stored bytes), time (extra time
+per rendered frame as a fraction of an unprotected view, measured here, amortised over its check
+schedule) and its exposure (frames drawn from a corrupted model before its check repairs it).
+
+A check defense checks every `check_every` frames (S): its check's time counts once per S frames,
+and an upset is drawn for up to S - 1 frames, (S - 1) / 2 on average (defenses.exposure). The
+in-pipeline guard clamps on every frame; read-time codes act on every read (exposure 0); with no
+defense an upset stays until the model is reloaded (exposure unbounded: "inf" in JSON).
 
 Time is measured for what runs on the GPU: the in-pipeline guard clamp (guard, selective,
 scalebound) and the per-primitive checks of shaders/check.wgsl (parity, parity4, parity4r,
@@ -18,35 +24,49 @@ import time
 import numpy as np
 
 from seuwgpu.faults import defenses as dfn
-from seuwgpu.faults.check import MODES, Checker
+from seuwgpu.faults.check import Checker
 from seuwgpu.faults.guard import component_mask, support_box
 from seuwgpu.model import encoding
 from seuwgpu.model.budget import check_model
 from seuwgpu.render.renderer import Renderer
 
 
-def defense_costs(model, camera, precision: str = "fp32", repeats: int = 7, gpu=None, time_it: bool = True) -> list:
-    """[{name, memory_overhead, time_fraction, time_basis, description}] for every defense, the time
-    measured on one view of `camera`."""
+def defense_costs(
+    model, camera, precision: str = "fp32", repeats: int = 7, gpu=None, time_it: bool = True, check_every: int = 1
+) -> list:
+    """[{name, device_bytes, memory_overhead, check_every, time_fraction, check_fraction,
+    exposure_frames, exposure_frames_worst, time_basis, description}] for every defense, the time
+    measured on one view of `camera`, a check defense's check amortised over `check_every` frames."""
     rows = []
-    t = _times(model, camera, precision, repeats, gpu) if time_it else {}
+    parts = _times(model, camera, precision, repeats, gpu) if time_it else {}
+    chunks, device = parts.pop("_chunks", 1), parts.pop("_device", "?")
+    t = {d: dfn.amortised_time(d, g, c, check_every) for d, (g, c) in parts.items()}
     for d in dfn.DEFENSES:
         frac = t.get(d, float("nan"))
+        obj = dfn.get(d)
+        if obj.checked:
+            ex = dfn.exposure(check_every)
+            exp_mean, exp_worst = ex.expected, ex.worst
+        else:  # read-time: acts on every read; none: the upset stays until a reload
+            exp_mean = exp_worst = float("inf") if d == "none" else 0.0
         if not time_it:
             basis = "not measured"
         elif d in t:
-            basis = (
-                f"measured: {t['_device']}, {model.n} primitives, {camera.width}x{camera.height}, median of {repeats}"
-            )
+            basis = f"measured: {device}, {model.n} primitives, {camera.width}x{camera.height}, median of {repeats}"
         else:
             basis = "no GPU implementation (modelled by what it reads)"
         rows.append(
             {
                 "name": d,
-                "memory_overhead": dfn.memory_overhead(d, precision, model.sh_degree, model.n),
+                "device_bytes": dfn.device_bytes(d, precision, model.sh_degree, model.n, chunks),
+                "memory_overhead": dfn.device_overhead(d, precision, model.sh_degree, model.n, chunks),
+                "check_every": check_every if obj.checked else None,
                 "time_fraction": frac,
+                "check_fraction": parts[d][1] if obj.checked and d in parts else float("nan"),
+                "exposure_frames": exp_mean,
+                "exposure_frames_worst": exp_worst,
                 "time_basis": basis,
-                "description": dfn.DEFENSE_INFO[d],
+                "description": dfn.get(d).info,
             }
         )
     return rows
@@ -79,8 +99,8 @@ def _times(model, camera, precision, repeats, gpu) -> dict:
     box = support_box(r.layout.decode(r.clean_words), precision)
     clean = encoding.to_bits(model.flat(), precision)  # what the chunks hold (layout.encode)
     r.set_guard(box.rows(), 0)
-    checkers = {d: Checker(r, d, clean, box) for d in MODES}
-    masks = {d: component_mask(dfn.GUARDED_FIELDS[v], r.degree) for d, v in dfn.PIPELINE_GUARD.items()}
+    checkers = {d.name: Checker(r, d.name, clean, box) for d in dfn.REGISTRY.values() if d.checked}
+    masks = {d: component_mask(f, r.degree) for d, f in dfn.pipeline_guards().items()}
 
     def view(mask):
         r.set_guard(None, mask)
@@ -94,16 +114,10 @@ def _times(model, camera, precision, repeats, gpu) -> dict:
     med = interleaved_medians(configs, repeats)
     r.set_guard(None, 0)
     base = med["none"]
-    out = {"none": 0.0, "_device": r.gpu.info.get("device", "?")}
-    for d in dfn.DEFENSES:
-        extra = 0.0
-        known = False
-        if d in masks:
-            extra += med[d] - base
-            known = True
-        if d in checkers:
-            extra += med[f"check:{d}"]
-            known = True
-        if known:
-            out[d] = extra / base
+    out = {"none": (0.0, 0.0), "_device": r.gpu.info.get("device", "?"), "_chunks": r.layout.n_chunks}
+    for d in dfn.DEFENSES:  # (guard clamp per frame, one check), fractions of a view
+        if d in masks or d in checkers:
+            guard = (med[d] - base) / base if d in masks else 0.0
+            check = med[f"check:{d}"] / base if d in checkers else 0.0
+            out[d] = (guard, check)
     return out

@@ -78,7 +78,7 @@ class Engine:
         self.box: Box = support_box(stored, precision)
         self.renderer.set_guard(self.box.rows(), 0)
         # in-pipeline clamp mask of each guard defense (other defenses: 0)
-        self.masks = {d: component_mask(dfn.GUARDED_FIELDS[v], self.degree) for d, v in dfn.PIPELINE_GUARD.items()}
+        self.masks = {d: component_mask(f, self.degree) for d, f in dfn.pipeline_guards().items()}
         # Components where the clean model itself holds NaN or Inf (rare): the guard changes them
         # like corrupted values, so a guarded upset is measured against the guarded clean render
         # (its "reference"), and the guard's effect on the clean model is reported once
@@ -96,7 +96,7 @@ class Engine:
         self.reference_clamps = 0
         self.flips = Flips(self.gpu, self.renderer.chunks)
         self._active: list[dict] = []  # applied XOR lists, for undo
-        self._cells = None  # cellbox's per-cell boxes (faults/defenses.CellBoxes), built on first use
+        self._model_states = {}  # per defense: what it builds from the clean model (cellbox's boxes), on first use
         self.monitor = GuardMonitor(threshold=0)  # health signal of interactive/guarded renders
         self._set_up_views()
 
@@ -209,12 +209,12 @@ class Engine:
     def read_through(self, prims, clean: np.ndarray, corrupt: np.ndarray, defense: str) -> np.ndarray:
         """What `defense` reads from primitives `prims` (stored bits [M, ncomp]) that went from
         `clean` to `corrupt` (the support guard is applied later, in the pipeline or by clamp_bits)."""
-        cells = None
-        if defense == "cellbox":
-            if self._cells is None:  # stored beside the model: built once, from the clean model
-                self._cells = dfn.CellBoxes(self.primitive_bits(np.arange(self.n)), self.precision, self.degree)
-            cells = self._cells
-        return dfn.read(defense, clean, corrupt, self.precision, self.degree, self.box, prims, cells)
+        d = dfn.get(defense)
+        if defense not in self._model_states:  # stored beside the model: built once, from the clean model
+            rows = self.primitive_bits(np.arange(self.n)) if d.has_model_state else None
+            self._model_states[defense] = d.model_state(rows, self.precision, self.degree) if rows is not None else None
+        state = self._model_states[defense]
+        return d.read(np.asarray(clean), np.asarray(corrupt), self.precision, self.degree, self.box, prims, state)
 
     def _faulted(self, sites: list[Site]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(primitives [P] hit, their clean bits [P, ncomp], their bits after every site in order:

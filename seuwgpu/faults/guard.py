@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seuwgpu.faults.defenses import GUARDED_FIELDS
+from seuwgpu.faults import defenses as dfn
 from seuwgpu.gpu.constants import PRECISION_CODE
 from seuwgpu.gpu.device import STORAGE
 from seuwgpu.gpu.kernel import Kernel, Struct, Uniforms
@@ -97,9 +97,11 @@ def support_box(stored: Model, precision: str) -> Box:
 
 
 def guard_fields(variant: str = "guard") -> tuple[str, ...]:
-    if variant not in GUARDED_FIELDS:
-        raise ValueError(f"unknown guard variant {variant!r}; expected one of {', '.join(GUARDED_FIELDS)}")
-    return GUARDED_FIELDS[variant]
+    """The fields a guard variant (a registered defense with `guard_fields`) clamps."""
+    variants = dfn.pipeline_guards()
+    if variant not in variants:
+        raise ValueError(f"unknown guard variant {variant!r}; expected one of {', '.join(variants)}")
+    return variants[variant]
 
 
 def component_mask(fields, degree: int) -> int:
