@@ -136,7 +136,11 @@ def _row(key, value=np.nan, lo=np.nan, hi=np.nan, basis="", measures_claim=True,
 
 
 def _over_models(key, per_model: pd.DataFrame, column: str, basis: str, conf: float, pooled=None, scale=100.0):
+    """The claim's row over models; records of one model (or of none with a defined estimate)
+    have no between-model spread: the row is then the records' own (`pooled`), as it always was."""
     om = population.interval_over_models(per_model[column].to_numpy(float), conf)
+    if om.n_models < 2 and pooled is not None:
+        return _row(key, *pooled, basis)
     per = "; ".join(f"{r['scene']} {scale * r[column]:.4g}" for _, r in per_model.iterrows())
     return _row(
         key,
@@ -179,7 +183,8 @@ def model_estimates(df: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
     for c in out.columns:
         if c.startswith(("fields_pc", "bits_pc", "guard_share")):
             out[c] = 100 * out[c]
-    return tag(out, none)
+    out.attrs.update(none.attrs)  # the provenance of the records the rates rest on
+    return out
 
 
 def theory_windows(res: dict) -> pd.DataFrame:
@@ -225,13 +230,14 @@ def claims_table(
             if key == "sign_p99" and len(sign) < 100:
                 # a resample's 99th percentile is at most the sample's largest value: with fewer
                 # than 100 records the bootstrap's upper bound is that value, not a bound
-                pooled = (fn(sign), np.nan, np.nan)
-                basis = f"n = {len(sign):,} < 100: no bootstrap interval over records"
-            else:
-                lo, hi = E.bootstrap(sign, fn, conf=conf)
-                pooled = (fn(sign), lo, hi)
-                basis = f"n = {len(sign):,}; pooled: bootstrap within cells"
-            rows.append(_over_models(key, per, "v", basis, conf, pooled, scale=1.0))
+                rows.append(_row(key, fn(sign), basis=f"n = {len(sign):,} < 100: no bootstrap interval"))
+                continue
+            lo, hi = E.bootstrap(sign, fn, conf=conf)
+            if not (np.isfinite(lo) and np.isfinite(hi)):  # one record a cell: no spread, no interval
+                rows.append(_row(key, fn(sign), basis=f"n = {len(sign):,}: one record a cell, no interval"))
+                continue
+            basis = f"n = {len(sign):,}; pooled: bootstrap within cells"
+            rows.append(_over_models(key, per, "v", basis, conf, (fn(sign), lo, hi), scale=1.0))
     else:
         rows += [_row("sign_mean"), _row("sign_p99")]
     est = {dfn: population.model_rates(df, "fp32", dfn, conf) for dfn in ("none", "guard")}
@@ -392,11 +398,13 @@ def _dose_rows(curves: pd.DataFrame | None, conf: float) -> list[dict]:
             rows.append(_row(key))
             continue
         at = at_dose_per_primitive(c, kn, "psnr_mean_mse_db")
+        bad = at_dose_per_primitive(c, kn, "nonfinite_pct")["nonfinite_pct"]
         basis = (
             f"k/N = {kn:.3g} (the paper's {PAPER_DOSE_K_MAX:,} on its scenes: "
             f"{PAPER_DOSE_K_MAX / max(PAPER_PRIMITIVES):.3g}..{PAPER_DOSE_K_MAX / min(PAPER_PRIMITIVES):.3g}), "
             f"k = {', '.join(f'{k:,.0f}' for k in at['k'])}"
-            " on these models, interpolated in log k; finite frames"
+            " on these models, interpolated in log k; PSNR over the finite frames, NaN where a grid "
+            f"neighbour has none; non-finite frames there: {bad.min():.3g}..{bad.max():.3g}% over models"
         )
         rows.append(_over_models(key, at.rename(columns={"psnr_mean_mse_db": "v"}), "v", basis, conf, scale=1.0))
     return rows

@@ -155,4 +155,6 @@ def slope_windows(res: dict) -> pd.DataFrame:
                 "r2": f.r2,
             }
         )
-    return tag(pd.DataFrame(rows), t)
+    out = pd.DataFrame(rows)
+    out.attrs.update(t.attrs)  # the provenance of the records the table rests on
+    return out
