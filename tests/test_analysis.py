@@ -355,7 +355,7 @@ def test_claims_guard_share_is_fp32_not_pooled():
     res = guard.guard_analysis(df)
     assert res["share_precision"] == "all" and res["share_pct"] == pytest.approx(50.0)
     t = claims.claims_table(df, {"guard": res}).set_index("claim")
-    r = t.loc["share of catastrophic upsets the guard neutralises, fp32"]
+    r = t.loc[claims.PAPER["guard_share_paired"][0]]  # the paired share: this project's estimate
     assert r["measured"] == pytest.approx(80.0)
     assert r["ci_lo"] == pytest.approx(100 * stats.wilson_interval(8, 10)[0])
     # 20 sign flips: a bootstrap cannot bound a 99th percentile above their maximum, so none

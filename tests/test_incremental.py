@@ -70,8 +70,9 @@ def test_defense_arms_are_paired_and_correct():
     assert by["guard"]["clamps"] == 1 and by["none"]["clamps"] == 0
 
 
-def predicted(eng, site, defense, P):
-    """Regions reached by the corrupted primitive's tile rectangle, from the numpy twin."""
+def predicted(eng, site, defense, P, per_frame=False):
+    """Regions reached by the corrupted primitive's tile rectangle, from the numpy twin (per_frame:
+    the share of the P regions each view reaches, averaged over the views)."""
     from seuwgpu.analysis.contamination import region_set, regions_to_bitmask
     from seuwgpu.faults.guard import clamp_values
     from seuwgpu.model.fields import Model
@@ -83,10 +84,13 @@ def predicted(eng, site, defense, P):
         vals, _ = clamp_values(vals, eng.box, int(gm[0]))
     one = Model.from_flat(vals, eng.degree)
     hit = np.zeros(P, bool)
+    shares = []
     for cam in eng.cameras:
         x0, y0, x1, y1 = project(one, cam)["rect"][0] * TILE
-        hit |= region_set((x0, y0, min(x1, eng.width), min(y1, eng.height)), eng.height, eng.width, P)
-    return regions_to_bitmask(hit)
+        view = region_set((x0, y0, min(x1, eng.width), min(y1, eng.height)), eng.height, eng.width, P)
+        hit |= view
+        shares.append(view.sum() / P)
+    return float(np.mean(shares)) if per_frame else regions_to_bitmask(hit)
 
 
 @pytest.mark.parametrize("size", [(64, 48), (50, 38)])  # grids that divide the frame, and that do not
@@ -112,6 +116,11 @@ def test_region_contamination_matches_full_frames(size):
             assert rec[f"regions_meas_{P}"] == np.int64(np.uint64(want)), (rec, P)
             pred = int(np.uint64(np.int64(rec[f"regions_pred_{P}"])))
             assert pred == predicted(eng, site, rec["defense"], P), (rec, P)
+            # per frame: each view's own regions, averaged over the views (never above the union)
+            per_view = [region_set(changed[v], eng.height, eng.width, P).sum() / P for v in range(len(changed))]
+            assert rec[f"regions_meas_frame_{P}"] == pytest.approx(np.mean(per_view)), (rec, P)
+            assert rec[f"regions_pred_frame_{P}"] == pytest.approx(predicted(eng, site, rec["defense"], P, True))
+            assert rec[f"regions_meas_frame_{P}"] <= bin(int(np.uint64(want))).count("1") / P + 1e-12
         seen_multi |= bin(int(np.uint64(np.int64(rec["regions_meas_12"])))).count("1") > 2
     assert seen_multi, "some flip in the sample should reach several of 12 regions"
 

@@ -38,6 +38,7 @@ def _third_party_imports(folder: Path) -> dict[str, Path]:
     """Top-level modules of other packages imported anywhere under `folder` (inside functions
     too), including those imported through seuwgpu.errors.require("module", ...)."""
     found = {}
+    local = {p.stem for p in folder.glob("*.py")} | {p.name for p in folder.iterdir() if (p / "__init__.py").exists()}
     for path in folder.rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.Import):
@@ -50,7 +51,7 @@ def _third_party_imports(folder: Path) -> dict[str, Path]:
                 continue
             for name in names:
                 top = name.split(".")[0]
-                ours = top == "seuwgpu" or top.startswith(("test_", "conftest"))
+                ours = top == "seuwgpu" or top in local  # the folder's own modules (tests/robustness)
                 if top not in sys.stdlib_module_names and not ours:
                     found.setdefault(top, path)
     return found

@@ -179,8 +179,9 @@ def test_pooled_pc_is_labelled_and_never_feeds_an_mtbf():
     with pytest.raises(ValueError, match="models"):
         reliability.pc_lookup(per.reset_index(), "fp32", "none")
     assert reliability.reliability(df)["bits"]["small"] == 500 * 59 * 32
-    t = claims.claims_table(df).set_index("claim").loc[claims.PAPER["pc_none"][0]]
-    assert t["measured"] == pytest.approx(100 * pooled.loc["none", "p_c"])
+    # the pool over stored bits is the claims table's own estimate (its "pooled" column)
+    t = claims.claims_table(df).set_index("claim").loc[claims.PAPER["pc_none_bits"][0]]
+    assert t["pooled"] == pytest.approx(100 * pooled.loc["none", "p_c"])
     assert "pooled over 2 models" in t["basis"]
 
 
@@ -225,7 +226,8 @@ def test_one_scene_output_is_unchanged():
         "coverage_pct", "sh_degree",
     ]  # fmt: skip
     assert list(mt.columns) == [
-        "environment", "upsets_per_bit_hour", "fit_per_mbit", "defense", "p_source", "p_pct", "scrub_hours",
+        "environment", "upsets_per_bit_hour", "fit_per_mbit", "live_upsets_per_scrub", "regime", "defense",
+        "p_source", "p_pct", "scrub_hours",
         "mtbf_hours", "mtbf_hours_lo", "mtbf_hours_hi", "mtbf", "mtbf_range", "catastrophic_frames_pct", "source",
     ]  # fmt: skip
     assert list(wide.columns) == [

@@ -124,7 +124,7 @@ def test_pc_claim_needs_every_stored_bit():
     3: 3 components each; opacity bit 3: 1): their rate says nothing about the others, so it gets
     no verdict (it had 'reproduced' from a 0.4% sample)."""
     t = claims.claims_table(_single_records(4)).set_index("claim")
-    r = t.loc[claims.PAPER["pc_none"][0]]
+    r = t.loc[claims.PAPER["pc_none_bits"][0]]  # the stored-bit-weighted p_c
     assert r["verdict"] == "not measured"
     assert f"covers {100 * 7 / (59 * 32):.3g}% of the stored bits" in r["basis"]
     # the measured value and its interval stay: the weighted rate of the cells sampled (the sign
@@ -159,7 +159,7 @@ def test_pc_claim_over_every_field_and_bit_has_a_verdict():
                     )
                 )
     t = claims.claims_table(pd.DataFrame(rows)).set_index("claim")
-    r = t.loc[claims.PAPER["pc_none"][0]]
+    r = t.loc[claims.PAPER["pc_none_bits"][0]]  # the stored-bit-weighted p_c
     # one event in the log-scale sign cell: 300 / 2 of 100 x 59 x 32 stored bits
     assert r["measured"] == pytest.approx(100 * 150 / (100 * 59 * 32))
     assert r["verdict"] in ("reproduced", "differs") and "covers" not in r["basis"]
@@ -177,7 +177,7 @@ def test_pc_claim_over_every_field_and_bit_has_a_verdict():
         # the CPU study's guarded p_c (%): 0.0612 stands for [0.06115, 0.06125]
         ("pc_guard", 0.0023291132055587647, 0.057615824266086156, "differs"),
         ("pc_guard", 0.0023, 0.06116, "reproduced"),
-        ("alpha", 0.2341, 0.6204, "differs"),
+        ("alpha_median_procedural", 0.2341, 0.6204, "differs"),  # the paper's 2.78
     ],
 )
 def test_verdict_reads_the_paper_value_to_its_printed_digits(key, lo, hi, verdict):

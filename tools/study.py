@@ -20,7 +20,7 @@ import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SPECS = ("study.toml", "study_gsplat.toml", "study_dose.toml", "study_size.toml")
+SPECS = ("study.toml", "study_gsplat.toml", "study_dose.toml", "study_size.toml", "study_size_large.toml")
 
 
 def shrink(raw: dict) -> dict:

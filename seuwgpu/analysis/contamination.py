@@ -174,8 +174,8 @@ REGION_COLUMN = re.compile(r"^regions_pred_(\d+)$")
 
 
 REGION_SUM = re.compile(r"^region_fp_(\d+)_sum$")
-REGION_STATS = ("fp", "fm", "iou")
-REGION_SUM_COLUMN = re.compile(r"^region_(fp|fm|iou)_\d+_(sum|n)$")
+REGION_STATS = ("fp", "fm", "iou", "fpf", "fmf")  # fpf, fmf: per frame (mean over the views)
+REGION_SUM_COLUMN = re.compile(r"^region_(fp|fm|iou|fpf|fmf)_\d+_(sum|n)$")
 
 
 def region_sum_columns(columns) -> list:
@@ -203,12 +203,22 @@ def region_sums(d: pd.DataFrame, P: int) -> dict[str, np.ndarray]:
     {"fp_sum", "fp_n", ...}. Folded rows (analysis.folding) carry them as region_{stat}_{P}_sum
     and _n columns; a record's sum is its value (0 where undefined) and its count 1 or 0."""
     if f"region_fp_{P}_sum" in d:
-        return {f"{k}_{x}": d[f"region_{k}_{P}_{x}"].to_numpy(float).copy() for k in REGION_STATS for x in ("sum", "n")}
+        zero = np.zeros(len(d))  # folded by older code: no per-frame sums (undefined, count 0)
+        return {
+            f"{k}_{x}": d[f"region_{k}_{P}_{x}"].to_numpy(float).copy() if f"region_{k}_{P}_{x}" in d else zero.copy()
+            for k in REGION_STATS
+            for x in ("sum", "n")
+        }
     if f"regions_pred_{P}" not in d or f"regions_meas_{P}" not in d:
         return {f"{k}_{x}": np.zeros(len(d)) for k in REGION_STATS for x in ("sum", "n")}
     npred, nmeas, iou = region_stats(d[f"regions_pred_{P}"], d[f"regions_meas_{P}"], P)
+    nan = np.full(len(d), np.nan)
+    frames = [
+        pd.to_numeric(d[c], errors="coerce").to_numpy(float) if c in d else nan
+        for c in (f"regions_pred_frame_{P}", f"regions_meas_frame_{P}")
+    ]
     out = {}
-    for k, v in (("fp", npred / P), ("fm", nmeas / P), ("iou", iou)):
+    for k, v in (("fp", npred / P), ("fm", nmeas / P), ("iou", iou), ("fpf", frames[0]), ("fmf", frames[1])):
         ok = np.isfinite(v)
         out[f"{k}_sum"], out[f"{k}_n"] = np.where(ok, v, 0.0), ok.astype(float)
     return out
@@ -217,7 +227,10 @@ def region_sums(d: pd.DataFrame, P: int) -> dict[str, np.ndarray]:
 def contamination(df: pd.DataFrame) -> pd.DataFrame:
     """Fraction of P sort-first regions a single upset contaminates, predicted (projected
     footprint) and measured (changed pixels), their IoU, per (precision, defense, P), for all
-    single upsets and for log-scale sign flips. Needs columns regions_pred_{P}/regions_meas_{P}
+    single upsets and for log-scale sign flips. Per frame as the paper counts (pred_frame_pct,
+    meas_frame_pct: the regions one rendered frame reaches, averaged over the views; NaN for
+    records that predate them), and over the union of the views (pred_fraction_pct,
+    meas_fraction_pct, and the IoU, which is of the union masks). Needs columns regions_pred_{P}/regions_meas_{P}
     (see `decode_regions`); optional region_ms_max_{P}/region_ms_mean_{P} give the slowest-region
     render time and the load imbalance (max / mean). IoU is averaged over records where either
     set is non-empty."""
@@ -258,6 +271,8 @@ def contamination(df: pd.DataFrame) -> pd.DataFrame:
                         "defense": dfn,
                         "P": P,
                         "n": int(g["m"].sum()),
+                        "pred_frame_pct": 100 * _wmean_of_sums(g["fpf_sum"], g["fpf_n"], w),
+                        "meas_frame_pct": 100 * _wmean_of_sums(g["fmf_sum"], g["fmf_n"], w),
                         "pred_fraction_pct": 100 * _wmean_of_sums(g["fp_sum"], g["fp_n"], w),
                         "meas_fraction_pct": 100 * _wmean_of_sums(g["fm_sum"], g["fm_n"], w),
                         "iou_mean": _wmean_of_sums(g["iou_sum"], g["iou_n"], w),

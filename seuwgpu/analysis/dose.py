@@ -56,8 +56,31 @@ def dose_curves(df: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
     q = q.drop(columns=list(qs)).merge(med.reset_index(), on=keys)
     r = E.percent(E.rate(d, "catastrophic", keys, conf, strata=())).rename(columns={"events": "catastrophic"})
     out = q.merge(r[keys + ["catastrophic", "cat_rate_pct", "cat_ci_lo_pct", "cat_ci_hi_pct"]], on=keys)
+    # the dose per primitive: k alone does not compare models of different sizes
+    out.insert(out.columns.get_loc("k") + 1, "k_per_n", out["k"] / out["n_primitives"].astype(float))
     out = sort_rows(out.sort_values(MODEL + ["k"], kind="stable"))
     return tag(out, d)
+
+
+def at_dose_per_primitive(curves: pd.DataFrame, k_per_n: float, column: str = "psnr_mean_mse_db") -> pd.DataFrame:
+    """Per (model, precision, defense): `column` at the dose k = k_per_n x N, interpolated linearly
+    in log k between the two grid points around it (NaN outside the grid or where either neighbour
+    is not finite: no extrapolation)."""
+    rows = []
+    for key, g in curves.groupby(MODEL + ["precision", "defense"], sort=False):
+        g = g.sort_values("k")
+        k = float(k_per_n) * float(key[1])
+        ks, v = g["k"].to_numpy(float), g[column].to_numpy(float)
+        value = np.nan
+        if ks.size and ks[0] <= k <= ks[-1]:
+            i = int(np.searchsorted(ks, k))
+            if ks[i] == k:
+                value = float(v[i])
+            elif np.isfinite(v[i - 1]) and np.isfinite(v[i]):
+                t = (math.log(k) - math.log(ks[i - 1])) / (math.log(ks[i]) - math.log(ks[i - 1]))
+                value = float(v[i - 1] + t * (v[i] - v[i - 1]))
+        rows.append({**dict(zip(MODEL + ["precision", "defense"], key)), "k_per_n": k_per_n, "k": k, column: value})
+    return pd.DataFrame(rows)
 
 
 def fit_dose_model(k, events, n, conf: float = 0.95) -> dict:
@@ -180,6 +203,7 @@ def redundancy_budget(df: pd.DataFrame, threshold_db: float = BUDGET_PSNR_DB) ->
                 k_min=int(g["k"].min()),
                 k_max=int(g["k"].max()),
                 k_budget=kb,
+                k_budget_per_n=kb / float(key[1]),
                 censored=cens,
                 k_lo=klo,
                 k_hi=khi,

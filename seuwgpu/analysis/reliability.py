@@ -3,9 +3,13 @@ stored bits is catastrophic, and the mean time between catastrophic frames (MTBF
 accumulating between scrubs.
 
 * p_c per (precision, defense): the weighted rate of the single-upset campaign
-  (`estimate.rate`, stratified interval), and per model the dose fit's p (`dose.dose_fits`: the
-  per-upset probability that best explains catastrophes of k accumulated upsets, which includes
-  upsets that are harmless alone but not together).
+  (`estimate.rate`, stratified interval). The MTBF uses it alone, with each row's regime: the
+  expected upsets alive per scrub interval (rate x stored bits x interval, column
+  live_upsets_per_scrub). The dose
+  fit's p (`dose.dose_fits`) describes k in the tens to thousands alive together, where an
+  upset's footprint past 1% of the frame adds to others': a regime these rates never reach, so the
+  report's MTBF uses p_c alone; `reliability(dose_fits=...)` still adds the fit's rows on request,
+  each model's own.
 * Per model: records of several models (several (scene, n_primitives) of the single-upset
   campaign: several trained models) give each model its own p_c and interval, its own stored bits
   (its primitive count x components x bits per value), its own dose-fit p (that scene's fit) and
@@ -297,6 +301,23 @@ def with_exposure(
     return (1.0 / rate if rate > 0 else float("inf")), min(1.0, share - math.expm1(-r * hours))
 
 
+def live_upsets(rate_per_bit_hour: float, bits: float, scrub_hours: float) -> float:
+    """Expected upsets alive in the model just before a scrub: rate x stored bits x interval."""
+    return float(rate_per_bit_hour) * float(bits) * float(scrub_hours)
+
+
+def regime(live: float) -> str:
+    """Which p an MTBF may use at `live` expected upsets per scrub interval: below one, upsets
+    come one at a time and the single-upset p_c is the probability that one is catastrophic; the
+    dose fits' p describes tens to thousands of upsets alive together, a regime no listed
+    environment reaches under a daily scrub."""
+    if not np.isfinite(live):
+        return "undefined"
+    if live < 1:
+        return "single upsets (< 1 live per scrub): single-upset p_c"
+    return "several upsets live per scrub: p_c holds while they do not interact (see the dose fits)"
+
+
 def mtbf_table(
     pc: pd.DataFrame,
     bits: float,
@@ -327,6 +348,7 @@ def mtbf_table(
             sources.append((dfn, "dose fit p", *map(float, dose_p[dfn])))
     for env in rates:
         lam = float(env["per_bit_hour"])
+        live = live_upsets(lam, bits, scrub_hours)
         for dfn, src, p, lo, hi in sources:
             t, t_lo, t_hi = (mtbf(lam, bits, x, scrub_hours) for x in (p, hi, lo))
             share = catastrophic_frame_share(lam, bits, p, scrub_hours)
@@ -340,6 +362,8 @@ def mtbf_table(
                 "environment": env["environment"],
                 "upsets_per_bit_hour": lam,
                 "fit_per_mbit": lam * 1e15,
+                "live_upsets_per_scrub": live,
+                "regime": regime(live),
                 "defense": dfn,
                 "p_source": src,
                 "p_pct": 100 * p,

@@ -10,6 +10,15 @@ in the table and figure (in_fit = False), not silently dropped, and the fit says
 Fits are least squares in log-log space with a Student-t interval on the exponent; alpha =
 -exponent. At least three sizes with a positive value are needed (two points fit any line
 exactly); with fewer the exponent is NaN.
+
+The median is fitted only where it rises above the 8-bit floor, one 8-bit level on one channel of
+one pixel, (1/255)^2 / (3 W H) of frame MSE (7.8e-11 at 256x256): below it a median is float32
+rounding of an unchanged frame, not an error a display shows (`median_floor`; the sizes below it
+are counted in n_below_floor and flagged in the table).
+
+Two experiments, fitted apart (`group_fits`): procedural scenes are regenerated at each N (smaller
+splats as N grows), captures are random subsets of one model. Each group gets one exponent with an
+intercept per scene, and an F test (extra sum of squares) asks whether the two slopes are equal.
 """
 
 from __future__ import annotations
@@ -20,12 +29,36 @@ import pandas as pd
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis import stats
 from seuwgpu.analysis.records import InsufficientData, fields_present, figure, prepare, sort_rows, tag
+from seuwgpu.model.scenes import SCENES
 
 METRICS = ("mean_mse", "median_mse", "mean_footprint_pct")
 MIN_SIZES = 3  # sizes with a positive value needed for a fit (two points fit any line exactly)
+PROCEDURAL, CAPTURE = "procedural (regenerated per N)", "capture (random subsets)"
 
 
-def size_scaling(df: pd.DataFrame, conf: float = 0.95) -> dict:
+def median_floor(width: int, height: int) -> float:
+    """Frame MSE (peak 1) of one 8-bit level on one channel of one pixel of a W x H RGB frame."""
+    return (1.0 / 255.0) ** 2 / (3.0 * width * height)
+
+
+def frame_size_of(manifests=()) -> tuple[int, int] | None:
+    """(W, H) of the runs' frames from their specs; None when they do not say or disagree."""
+    sizes = set()
+    for m in manifests or ():
+        spec = m.get("spec") if isinstance(m, dict) and isinstance(m.get("spec"), dict) else {}
+        size = spec.get("size")
+        if isinstance(size, (list, tuple)) and len(size) == 2:
+            sizes.add((int(size[0]), int(size[1])))
+    return sizes.pop() if len(sizes) == 1 else None
+
+
+def scene_group(scene: str) -> str:
+    """Procedural scenes are regenerated at each N; anything else (a capture, a model file) is cut
+    to random subsets."""
+    return PROCEDURAL if scene in SCENES else CAPTURE
+
+
+def size_scaling(df: pd.DataFrame, conf: float = 0.95, frame_size: tuple[int, int] | None = None) -> dict:
     """Returns {"table", "fits", "guard_factor", "source_campaign", "fields", "bits"}: the last two
     are what the upsets sampled (the error is over those, not over every stored bit)."""
     d = prepare(df)
@@ -66,12 +99,17 @@ def size_scaling(df: pd.DataFrame, conf: float = 0.95) -> dict:
             }
         )
     table = sort_rows(pd.DataFrame(rows).sort_values(["scene", "n_primitives"]))
+    floor = median_floor(*frame_size) if frame_size else np.nan
+    table["group"] = [scene_group(x) for x in table["scene"]]
+    table["median_above_floor"] = table["median_mse"] > floor if np.isfinite(floor) else table["median_mse"] > 0
     tag(table, d, source_campaign=src)
     frows = []
     for key, g in table.groupby(["scene", "precision", "defense"], sort=False):
         for metric in METRICS:
             y = g[metric].to_numpy(float)
             usable = np.isfinite(y) & (y > 0)
+            if metric == "median_mse":
+                usable &= g["median_above_floor"].to_numpy(bool)
             if usable.sum() >= MIN_SIZES:
                 f = stats.loglog_fit(g["n_primitives"], y, conf)
             else:  # a line through two points fits whatever they are: no exponent, not a made-up one
@@ -85,6 +123,7 @@ def size_scaling(df: pd.DataFrame, conf: float = 0.95) -> dict:
                     "n_sizes": len(g),
                     "n_fitted": int(usable.sum()),
                     "n_zero": int((y == 0).sum()),
+                    "n_below_floor": int((~g["median_above_floor"]).sum()) if metric == "median_mse" else 0,
                     "exponent": f.exponent,
                     "exponent_lo": f.exponent_lo,
                     "exponent_hi": f.exponent_hi,
@@ -113,7 +152,93 @@ def size_scaling(df: pd.DataFrame, conf: float = 0.95) -> dict:
             )
     gf = tag(pd.DataFrame(grows), d)
     sampled = {"fields": fields_present(d), "bits": sorted(int(b) for b in d["bit"].unique())}
-    return {"table": table, "fits": fits, "guard_factor": gf, "source_campaign": src, **sampled}
+    groups = group_fits(table, conf)
+    return {
+        "table": table,
+        "fits": fits,
+        "groups": groups,
+        "median_floor": floor,
+        "guard_factor": gf,
+        "source_campaign": src,
+        **sampled,
+    }
+
+
+def _usable(t: pd.DataFrame, metric: str) -> pd.DataFrame:
+    y = t[metric].to_numpy(float)
+    ok = np.isfinite(y) & (y > 0)
+    if metric == "median_mse":
+        ok &= t["median_above_floor"].to_numpy(bool)
+    t = t[ok]
+    return t[t.groupby("scene")["n_primitives"].transform("nunique") >= MIN_SIZES]
+
+
+def slopes_equal_test(groups, sets, x, y) -> tuple[float, float, int]:
+    """F test (extra sum of squares) of one log-log slope for every set against one slope per set,
+    both with an intercept per group: (F, p, residual degrees of freedom of the larger model)."""
+    d = pd.DataFrame({"g": np.asarray(groups), "s": np.asarray(sets), "x": np.log10(x), "y": np.log10(y)})
+    d["xc"] = d["x"] - d.groupby("g")["x"].transform("mean")
+    d["yc"] = d["y"] - d.groupby("g")["y"].transform("mean")
+    ss_sep = 0.0
+    for _, h in d.groupby("s"):
+        b = float(h["xc"] @ h["yc"] / (h["xc"] @ h["xc"]))
+        ss_sep += float(np.sum((h["yc"] - b * h["xc"]) ** 2))
+    b = float(d["xc"] @ d["yc"] / (d["xc"] @ d["xc"]))
+    ss_one = float(np.sum((d["yc"] - b * d["xc"]) ** 2))
+    dof = len(d) - d["g"].nunique() - d["s"].nunique()
+    if dof <= 0 or d["s"].nunique() < 2:
+        return np.nan, np.nan, max(dof, 0)
+    from scipy.stats import f as f_dist
+
+    extra = d["s"].nunique() - 1
+    F = ((ss_one - ss_sep) / extra) / (ss_sep / dof) if ss_sep > 0 else np.inf
+    return float(F), float(f_dist.sf(F, extra, dof)) if np.isfinite(F) else 0.0, int(dof)
+
+
+def group_fits(table: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
+    """Per (group, precision, defense, metric of mean/median MSE): one exponent over the group's
+    scenes (an intercept each), the per-scene alphas' mean with its t interval over scenes (the
+    models as the population, `analysis.population`), and the F test of equal slopes between the
+    groups (same p on both groups' rows)."""
+    from seuwgpu.analysis.population import interval_over_models
+
+    rows = []
+    for (prec, dfn), t in table.groupby(["precision", "defense"], sort=False):
+        for metric in ("median_mse", "mean_mse"):
+            u = _usable(t, metric)
+            F, p, dof = (np.nan, np.nan, 0)
+            if u["group"].nunique() == 2:
+                F, p, dof = slopes_equal_test(u["scene"], u["group"], u["n_primitives"], u[metric])
+            for grp in (PROCEDURAL, CAPTURE):
+                g = u[u["group"] == grp]
+                scenes = sorted(t.loc[t["group"] == grp, "scene"].unique())
+                if not scenes:
+                    continue
+                row = {"group": grp, "precision": prec, "defense": dfn, "metric": metric, "scenes": ", ".join(scenes)}
+                row["n_scenes_fitted"] = g["scene"].nunique()
+                row["n_points"] = len(g)
+                sizes = t.loc[t["group"] == grp, "n_primitives"]
+                row["n_min"], row["n_max"] = int(sizes.min()), int(sizes.max())
+                if g["scene"].nunique():
+                    c = stats.common_loglog_fit(g["scene"], g["n_primitives"], g[metric], conf)
+                    per = [-stats.loglog_fit(h["n_primitives"], h[metric]).exponent for _, h in g.groupby("scene")]
+                else:
+                    c, per = stats.PowerFit(np.nan, np.nan, np.nan), []
+                om = interval_over_models(per, conf)
+                row.update(
+                    alpha_common=-c.exponent,
+                    alpha_common_lo=-c.exponent_hi,
+                    alpha_common_hi=-c.exponent_lo,
+                    r2_common=c.r2,
+                    alpha_scene_mean=om.mean,
+                    alpha_models_lo=om.lo,
+                    alpha_models_hi=om.hi,
+                    equal_slopes_F=F,
+                    equal_slopes_p=p,
+                    equal_slopes_dof=dof,
+                )
+                rows.append(row)
+    return pd.DataFrame(rows)
 
 
 def plot_size_scaling(res: dict, metric: str = "mean_mse"):

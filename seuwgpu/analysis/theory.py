@@ -123,3 +123,38 @@ def plot_theory(res: dict):
     ax.set_ylabel(r"mean peak error $|\Delta I|_\infty$")
     ax.legend(fontsize=8)
     return fig
+
+
+def slope_windows(res: dict) -> pd.DataFrame:
+    """The mantissa slope over other fit windows of `theory_check`'s table: the default window
+    with its top bit in and out, and that window shortened from below and from above, so a reader
+    sees how much the slope (and the verdict set on it) rests on the window's edges (bit 22, the
+    top mantissa bit of fp32, sits above the trend where one primitive starts to saturate)."""
+    t = res["table"]
+    ok = t[np.isfinite(t["log2_mean_peak_error"])]
+    lo, hi = res["fit_bits"]
+    windows = [("default (error in the fit range)", lo, hi)]
+    for a, b in ((lo, hi - 1), (lo, hi - 2), (lo + 2, hi), (lo + 2, hi - 1), (lo - 1, hi), (lo - 1, hi - 1)):
+        if b - a >= 2:
+            windows.append((f"bits {a}..{b}", a, b))
+    rows = []
+    for name, a, b in windows:
+        w = ok[(ok["bit"] >= a) & (ok["bit"] <= b)]
+        if w["bit"].nunique() < 3:
+            continue
+        f = stats.linear_fit(w["bit"], w["log2_mean_peak_error"])
+        rows.append(
+            {
+                "window": name,
+                "fit_bits": f"{a}..{b}",
+                "n_fit_bits": len(w),
+                "top_bit_in": bool(b >= hi),
+                "slope": f.slope,
+                "slope_lo": f.slope_lo,
+                "slope_hi": f.slope_hi,
+                "r2": f.r2,
+            }
+        )
+    out = pd.DataFrame(rows)
+    out.attrs.update(t.attrs)  # the provenance of the records the table rests on
+    return out

@@ -45,7 +45,9 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
                              # cell's bit stuck), "random"/"zero" (the whole value replaced by
                              # random bits / 0: one cell per field, bits ignored)
     regions = [4, 16, 64]    # optional: sort-first contamination columns regions_pred_P and
-                             # regions_meas_P (int64 bitmasks of the P regions reached/changed)
+                             # regions_meas_P (int64 bitmasks of the P regions reached/changed in
+                             # any view), regions_pred_frame_P and regions_meas_frame_P (the share
+                             # one view's frame reaches, averaged over the views)
 
     [dose]                   # k simultaneous upsets drawn uniformly over the whole bit budget
     precisions = ["fp32"]

@@ -72,8 +72,11 @@ REPRODUCIBLE_COLUMNS = [c for c in COLUMNS if c not in TIMED_COLUMNS]
 
 
 def columns_of(ctx) -> list[str]:
-    """The columns of a context's records: COLUMNS plus its sort-first contamination columns."""
-    return COLUMNS + [f"regions_{kind}_{P}" for P in ctx.regions for kind in ("pred", "meas")]
+    """The columns of a context's records: COLUMNS plus its sort-first contamination columns (the
+    union over the views as bitmasks, and the share one frame reaches, averaged over the views)."""
+    return COLUMNS + [
+        f"regions_{kind}{frame}_{P}" for P in ctx.regions for frame in ("", "_frame") for kind in ("pred", "meas")
+    ]
 
 
 def manifest_path(run_dir) -> Path:

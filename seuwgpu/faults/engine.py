@@ -471,6 +471,7 @@ class Engine:
             empty["nonfinite"] = np.zeros(0, bool)
             for P in regions:
                 empty[f"regions_pred_{P}"] = empty[f"regions_meas_{P}"] = np.zeros(0, np.int64)
+                empty[f"regions_pred_frame_{P}"] = empty[f"regions_meas_frame_{P}"] = np.zeros(0)
             return empty
         todo = np.ones(len(rows), dtype=bool)
         source = np.full(len(rows), -1, dtype=np.int64)
@@ -547,5 +548,7 @@ class Engine:
             for P in regions:
                 cols[f"regions_pred_{P}"] = np.asarray(m[f"regions_pred_{P}"], np.int64)
                 cols[f"regions_meas_{P}"] = np.asarray(m[f"regions_meas_{P}"], np.int64)
+                for what in ("pred", "meas"):  # the share one view's frame reaches, mean over views
+                    cols[f"regions_{what}_frame_{P}"] = np.asarray(m[f"regions_{what}_frame_{P}"], np.float64)
             frames.append(pd.DataFrame(cols))
         return pd.concat(frames, ignore_index=True)

@@ -76,7 +76,9 @@ class IncrementalEvaluator:
         `guard_masks` [M] component masks to clamp, 0 for none). Returns dict of [M] arrays
         (summarize's fields plus clamps). `regions`: sort-first partition sizes P for which to add
         regions_pred_P (regions the corrupted footprint's tile rectangle reaches in any view) and
-        regions_meas_P (regions with a changed pixel in any view) as int64 bitmasks. `clean_bits`
+        regions_meas_P (regions with a changed pixel in any view) as int64 bitmasks, and the same
+        per frame, regions_pred_frame_P and regions_meas_frame_P (the share of the P regions one
+        view's frame reaches, averaged over the views: what one rendered frame contaminates). `clean_bits`
         [M, ncomp]: the primitives' clean stored bits; clamps then count beyond the clean
         primitive's own (the reference's), as the full path does."""
         rows, clamps = self.drawn_rows(bits, guard_masks, clean_bits)
@@ -141,6 +143,7 @@ class IncrementalEvaluator:
         out = {k2: np.concatenate(v2) for k2, v2 in results.items()}
         for P in regions:
             out[f"regions_pred_{P}"] = comp.predicted_regions(new, P)
+            out[f"regions_pred_frame_{P}"] = comp.predicted_regions(new, P, per_view=True).mean(axis=0)
         return out
 
     def _recomposite(self, lane: Lane, prims, dirty, first: int, regions=()):
@@ -186,18 +189,26 @@ class IncrementalEvaluator:
         pixel is on it)."""
         r, K = self.r, self.r.k
         out = {f"regions_meas_{P}": np.zeros(m, dtype=np.int64) for P in regions}
+        out.update({f"regions_meas_frame_{P}": np.zeros(m) for P in regions})
         n_e = int(offsets[-1])
         e, py, px = np.nonzero(lane.metrics.read_changed_pixels(n_e))  # the changed pixels
         if e.size == 0:
             return out
-        variant = np.repeat(np.arange(m * K), np.diff(offsets.astype(np.int64)))[e] // K
+        frame = np.repeat(np.arange(m * K), np.diff(offsets.astype(np.int64)))[e]  # variant * K + view
+        variant = frame // K
         tile = worklist[e].astype(np.int64)
         ys, xs = (tile // r.tiles_x) * TILE + py, (tile % r.tiles_x) * TILE + px
         for P in regions:
             rid = region_id_map(P, r.height, r.width)[ys, xs]
+            bit = np.left_shift(np.uint64(1), rid.astype(np.uint64))
             acc = np.zeros(m, dtype=np.uint64)
-            np.bitwise_or.at(acc, variant, np.left_shift(np.uint64(1), rid.astype(np.uint64)))
+            np.bitwise_or.at(acc, variant, bit)
             out[f"regions_meas_{P}"] = acc.view(np.int64)
+            per_frame = np.zeros(m * K, dtype=np.uint64)
+            np.bitwise_or.at(per_frame, frame, bit)
+            cells = int(region_id_map(P, r.height, r.width).max()) + 1
+            reached = np.unpackbits(per_frame.view(np.uint8).reshape(-1, 8), axis=1).sum(axis=1)
+            out[f"regions_meas_frame_{P}"] = reached.reshape(m, K).mean(axis=1) / cells
         return out
 
 

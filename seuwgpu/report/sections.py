@@ -8,6 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 
+import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis import (
@@ -91,7 +92,42 @@ def _sec_claims(df, manifests, ctx) -> Section:
         "give or take half a unit of its last digit: 0.997 is any value in [0.9965, 0.9975]), differs, "
         "or not measured. The paper's models are not these: a difference is a finding, not an error.",
     )
-    sec.tables.append(TableItem("claims", "Claims", t, "Claims of the paper, measured on these records."))
+    sec.tables.append(
+        TableItem(
+            "claims",
+            "Claims",
+            t,
+            "Claims of the paper, measured on these records. interval_over says what the interval (and "
+            "so the verdict) is over: the models (a t interval of the per-model estimates, n_models - 1 "
+            "degrees of freedom: reproduced when it holds the paper's value, differs when not, "
+            "inconclusive with under 3 models or when it also holds 0), or the records of these models; "
+            "pooled: the estimate over all records with its within-model interval. A NaN paper value: "
+            "this project's own estimate.",
+        )
+    )
+    me = claims.model_estimates(df)
+    if len(me):
+        sec.tables.append(
+            TableItem(
+                "claims_models",
+                "p_c per model",
+                me,
+                "Per model, fp32 (%, stratified 95% intervals): p_c as the plain mean of the per-field rates "
+                "(fields_*, the paper's definition) and weighted by stored bits (bits_*), without and with the "
+                "guard, and the guard's share 1 - p_c(guard) / p_c(none) of the per-field means.",
+            )
+        )
+    th = ctx["results"].get("theory")
+    if th is not None and th.get("precision") == "fp32":
+        sec.tables.append(
+            TableItem(
+                "claims_theory_windows",
+                "Mantissa slope against the fit window",
+                claims.theory_windows(th),
+                "The log2 slope of the mean peak error per mantissa bit over other fit windows (bits in, "
+                "95% t interval over bits) and the verdict each would give against the paper's value.",
+            )
+        )
     sec.numbers["claims"] = t.to_dict("records")
     return sec
 
@@ -476,6 +512,7 @@ def _sec_dose(df, manifests, ctx) -> Section:
     curves = dose.dose_curves(df)
     fits = dose.dose_fits(curves)
     ctx["results"]["dose_fits"] = fits
+    ctx["results"]["dose_curves"] = curves
     sec = Section(
         "dose",
         "Behavior under accumulated dose",
@@ -585,7 +622,7 @@ def _sec_budget(df, manifests, ctx) -> Section:
 
 
 def _sec_size(df, manifests, ctx) -> Section:
-    res = scaling.size_scaling(df)
+    res = scaling.size_scaling(df, frame_size=scaling.frame_size_of(manifests))
     ctx["results"]["size"] = res
     sec = Section(
         "size",
@@ -624,6 +661,31 @@ def _sec_size(df, manifests, ctx) -> Section:
             csv_only=True,
         )
     )
+    floor = res["median_floor"]
+    sec.tables.append(
+        TableItem(
+            "size_groups",
+            "Two experiments: procedural scenes and captures",
+            res["groups"],
+            "Procedural scenes (regenerated at each N, smaller splats) and captures (random subsets of one "
+            "model) fitted apart: one exponent per group with an intercept per scene (alpha_common, 95% t "
+            "interval), the mean of the per-scene alphas with its t interval over scenes, and the F test "
+            "(extra sum of squares) of equal slopes in the two groups. The median is fitted only at sizes "
+            + (
+                f"where it exceeds one 8-bit level on one channel of one pixel, {floor:.3g} of frame MSE "
+                "(size_scaling's median_above_floor says where)."
+                if np.isfinite(floor)
+                else "with a positive median (the runs do not give one frame size: no 8-bit floor)."
+            ),
+        )
+    )
+    below = res["table"][~res["table"]["median_above_floor"]]
+    if len(below):
+        sec.notes.append(
+            f"The median single-upset MSE lies below the 8-bit floor ({floor:.3g}) at {len(below)} of "
+            f"{len(res['table'])} (scene, defense, N) points: there it is float32 rounding of a frame no display "
+            "changes, and it is not fitted."
+        )
     f = res["fits"]
     for _, r in f[f["metric"] == "mean_mse"].iterrows():
         sec.numbers[f"size_alpha_{r['scene']}_{r['precision']}_{r['defense']}"] = [
@@ -644,20 +706,23 @@ def _sec_size(df, manifests, ctx) -> Section:
 
 
 def _sec_reliability(df, manifests, ctx) -> Section:
-    res = reliability.reliability(df, manifests, dose_fits=ctx["results"].get("dose_fits"))
+    # the single-upset p_c alone (analysis.reliability notes): no dose fit's p as a per-upset probability
+    res = reliability.reliability(df, manifests)
     prec = res["precision"]
     per_model = res["per_model"]
     sec = Section(
         "reliability",
         "Reliability under realistic upset rates",
         "p_c is the probability that one upset, uniform over the stored bits, is catastrophic (the "
-        "weighted single-upset rate), or per model the dose fit's p (which counts upsets harmful only "
-        "together). Upsets accumulate until the next scrub, every "
+        "weighted single-upset rate), each model's own. The MTBF uses it alone: at these rates the "
+        "expected upsets alive per scrub interval (live_upsets_per_scrub in mtbf_detail, with its regime) "
+        "stay far below the tens to thousands where the dose fits' p was measured. Upsets accumulate "
+        "until the next scrub, every "
         f"{res['scrub_hours']:g} h: MTBF = T / (1 - exp(-rate x bits x p x T)). Rates and scrub interval: "
         f"{res['rates_from']}."
         + (
             f" These records hold {len(res['models'])} models (scenes): each has its own p_c, stored bits, "
-            "dose-fit p and MTBF rows; none is pooled over scenes."
+            "MTBF rows; none is pooled over scenes."
             if per_model
             else ""
         ),
@@ -675,7 +740,7 @@ def _sec_reliability(df, manifests, ctx) -> Section:
     if res["mtbf_wide"] is not None and len(res["mtbf_wide"]):
         if per_model:
             cap = (
-                f"Per model at {prec}, each with its own p (its p_c, its scene's dose fit) and its own "
+                f"Per model at {prec}, each with its own single-upset p_c and its own "
                 f"stored bits (model_bits), scrubbed every {res['scrub_hours']:g} h "
                 "('> x': no event, bound from the upper limit of p)."
             )
@@ -702,7 +767,7 @@ def _sec_reliability(df, manifests, ctx) -> Section:
                 "MTBF against the upset rate",
                 reliability.plot_sensitivity(res),
                 "MTBF of catastrophic frames against the per-bit upset rate, per defense and source of p "
-                "(colour: defense; solid: single-upset p_c, dashed: dose fit; bands: 95% interval of p); "
+                "(colour: defense; single-upset p_c; bands: 95% interval of p); "
                 "triangles: no catastrophic event, the line is the lower bound from the upper limit of p; "
                 "dotted: the named environments."
                 + (" A panel per model, with its own p and stored bits." if per_model else ""),
@@ -748,10 +813,13 @@ def _sec_contamination(df, manifests, ctx) -> Section:
         )
     )
     cap = (
-        "Per subset, precision, defense and P: pred_fraction_pct, the share of regions the tile rectangle "
-        "of the primitive as the renderer reads it after the upset and the defense reaches (the whole "
-        "primitive, also where the frame does not change: a corrected upset still predicts its clean "
-        "footprint); meas_fraction_pct, the share holding a pixel changed by more than 1/255; both "
+        "Per subset, precision, defense and P. Per frame, as the paper counts: pred_frame_pct, the share "
+        "of the regions of one rendered frame that the tile rectangle of the primitive as the renderer "
+        "reads it after the upset and the defense reaches (the whole primitive, also where the frame does "
+        "not change: a corrected upset still predicts its clean footprint), and meas_frame_pct, the share "
+        "of one frame's regions holding a pixel changed by more than 1/255, each averaged over the views "
+        "(NaN for records that predate them). Over the union of the views: pred_fraction_pct and "
+        "meas_fraction_pct, the same shares of the regions reached in any view. All "
         "weighted by stored bits, without interval. iou_mean: over the n_iou records where either set is "
         "non-empty (0 where nothing changed). slowest_region_ms and imbalance: plain means over records."
     )
@@ -764,6 +832,8 @@ def _sec_contamination(df, manifests, ctx) -> Section:
             key = f"{r['precision']}_{r['defense']}_P{pmax}"
             sec.numbers[f"contam_sign_pred_pct_{key}"] = float(r["pred_fraction_pct"])
             sec.numbers[f"contam_sign_meas_pct_{key}"] = float(r["meas_fraction_pct"])
+            sec.numbers[f"contam_sign_pred_frame_pct_{key}"] = float(r["pred_frame_pct"])
+            sec.numbers[f"contam_sign_meas_frame_pct_{key}"] = float(r["meas_frame_pct"])
             sec.numbers[f"contam_sign_iou_{key}"] = float(r["iou_mean"])
     if cont["slowest_region_ms"].isna().all():
         ctx["skipped"].append(

@@ -1,0 +1,214 @@
+"""Like with like, over models: the equal-field p_c against the bit-weighted one, the t interval over
+models and its verdicts, the 8-bit floor of the median fit, the two size experiments, the dose at
+matched k/N and the mantissa-slope windows, each recomputed here with plain pandas and scipy from
+records made for the test."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats as sps
+from test_reliability_models import COMPS, single_records
+from test_report_numbers import stratified
+
+from seuwgpu.analysis import claims, dose, population, scaling, theory
+
+
+def models(*hot):
+    """Single-upset records of len(hot) models of 1,000 primitives each."""
+    return pd.concat(
+        [single_records(f"m{i}", 1000, 10 + i, h, iid0=100_000 * i) for i, h in enumerate(hot)], ignore_index=True
+    )
+
+
+def test_equal_field_mean_is_the_plain_mean_of_field_rates_not_the_weighted_rate():
+    df = models(0.6, 0.3, 0.45)
+    est = population.model_rates(df, "fp32", "none").set_index("scene")
+    none = df[df["defense"] == "none"].assign(catastrophic=lambda d: d["footprint"] > 0.01)
+    for scene, g in none.groupby("scene"):
+        fields = [stratified(h, "catastrophic")[0] for _, h in g.groupby("field")]
+        assert est.loc[scene, "fields_p_c"] == pytest.approx(np.mean(fields), rel=1e-12)
+        weighted = sum(stratified(h, "catastrophic")[0] * COMPS[f] for f, h in g.groupby("field")) / 59
+        assert est.loc[scene, "bits_p_c"] == pytest.approx(weighted, rel=1e-12)
+        # sh_rest (45 of 59 components) is inert here: the plain mean is far above the weighted rate
+        assert est.loc[scene, "fields_p_c"] > 3 * est.loc[scene, "bits_p_c"]
+        assert est.loc[scene, "fields_ci_lo"] <= est.loc[scene, "fields_p_c"] <= est.loc[scene, "fields_ci_hi"]
+
+
+def test_t_interval_over_models():
+    v = np.array([0.2, 0.5, 0.35, 0.9])
+    om = population.interval_over_models(v)
+    half = sps.t.ppf(0.975, 3) * v.std(ddof=1) / 2
+    assert (om.mean, om.lo, om.hi, om.n_models) == pytest.approx((v.mean(), v.mean() - half, v.mean() + half, 4))
+    one = population.interval_over_models([0.3, np.nan])
+    assert one.n_models == 1 and np.isnan(one.lo) and np.isnan(one.hi)  # undefined stays NaN
+
+
+@pytest.mark.parametrize(
+    "lo, hi, n, want",
+    [
+        (0.5, 0.8, 4, "reproduced"),  # the paper's 0.634 inside
+        (0.7, 0.9, 4, "differs"),  # outside
+        (0.5, 0.8, 2, "inconclusive"),  # too few models
+        (-0.2, 1.5, 4, "inconclusive"),  # inside, but it also holds 0: the models cannot tell
+        (0.6345, 0.9, 4, "reproduced"),  # 0.634 as printed reaches 0.6345
+        (0.63451, 0.9, 4, "differs"),
+    ],
+)
+def test_verdict_rule(lo, hi, n, want):
+    assert population.verdict(lo, hi, 0.634, claims.paper_half_unit(0.634), n) == want
+
+
+def test_claims_compare_the_paper_with_the_equal_field_mean_over_models():
+    df = models(0.6, 0.3, 0.45, 0.2)
+    t = claims.claims_table(df).set_index("claim")
+    est = population.model_rates(df, "fp32", "none")
+    guard = population.model_rates(df, "fp32", "guard")
+    r = t.loc[claims.PAPER["pc_none"][0]]
+    v = 100 * est["fields_p_c"].to_numpy()
+    half = sps.t.ppf(0.975, len(v) - 1) * v.std(ddof=1) / np.sqrt(len(v))
+    assert (r["measured"], r["ci_lo"], r["ci_hi"]) == pytest.approx((v.mean(), v.mean() - half, v.mean() + half))
+    assert r["paper"] == 0.634 and r["n_models"] == 4 and r["interval_over"] == claims.OVER_MODELS
+    inside = r["ci_lo"] <= 0.6345 and 0.6335 <= r["ci_hi"]
+    assert r["verdict"] == ("inconclusive" if r["ci_lo"] <= 0 else "reproduced" if inside else "differs")
+    b = t.loc[claims.PAPER["pc_none_bits"][0]]
+    assert b["measured"] == pytest.approx(100 * est["bits_p_c"].mean())
+    assert b["paper"] == pytest.approx(0.1934, abs=5e-5)  # Table 2 weighted by 3, 3, 4, 1, 3, 45 components
+    share = 1 - guard["fields_p_c"].to_numpy() / est["fields_p_c"].to_numpy()
+    s = t.loc[claims.PAPER["guard_share"][0]]
+    assert s["measured"] == pytest.approx(100 * share.mean()) and s["paper"] == 90.4
+    own = t.loc[claims.PAPER["pc_guard_bits"][0]]
+    assert np.isnan(own["paper"]) and own["verdict"] == "no paper value"
+
+
+def size_table(median, mean, scenes, ns=(1000, 4000, 16000, 64000)):
+    rows = []
+    for scene, (a_med, a_mean) in scenes.items():
+        for i, n in enumerate(ns):
+            rows.append(
+                {
+                    "scene": scene,
+                    "precision": "fp32",
+                    "defense": "none",
+                    "n_primitives": n,
+                    "median_mse": median(scene, n, a_med, i),
+                    "mean_mse": 1e-4 * n**-a_mean * (1 + 0.05 * (-1) ** i),
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def test_median_is_fitted_only_above_the_8_bit_floor_and_experiments_apart():
+    floor = scaling.median_floor(256, 256)
+    assert floor == pytest.approx((1 / 255) ** 2 / (3 * 256 * 256)) and floor == pytest.approx(7.8e-11, rel=0.01)
+
+    def median(scene, n, a, i):  # spheres: above the floor; blocks: its two largest sizes are rounding
+        v = 1e-4 * n**-a * (1 + 0.03 * i)
+        return v if scene != "blocks" or i < 2 else 1e-18
+
+    scenes = {"spheres": (1.0, 0.1), "blocks": (0.8, 0.2), "leica-sofort": (0.5, 0.0), "yashica-t4": (0.6, 0.05)}
+    t = size_table(median, None, scenes)
+    t["group"] = [scaling.scene_group(s) for s in t["scene"]]
+    t["median_above_floor"] = t["median_mse"] > floor
+    g = scaling.group_fits(t).set_index(["group", "metric"])
+    proc = g.loc[(scaling.PROCEDURAL, "median_mse")]
+    # blocks keeps two sizes above the floor: no fit; spheres alone
+    assert proc["n_scenes_fitted"] == 1 and proc["n_points"] == 4
+    sp = t[t["scene"] == "spheres"]
+    slope = np.polyfit(np.log10(sp["n_primitives"]), np.log10(sp["median_mse"]), 1)[0]
+    assert proc["alpha_common"] == pytest.approx(-slope)
+    # the captures' common slope and the F test of equal slopes, recomputed
+    cap = t[t["group"] == scaling.CAPTURE]
+    x = np.log10(cap["n_primitives"].to_numpy(float))
+    y = np.log10(cap["median_mse"].to_numpy(float))
+    xc = x - cap.groupby("scene")["n_primitives"].transform(lambda v: np.log10(v).mean()).to_numpy()
+    yc = y - pd.Series(y, index=cap.index).groupby(cap["scene"]).transform("mean").to_numpy()
+    assert g.loc[(scaling.CAPTURE, "median_mse"), "alpha_common"] == pytest.approx(-(xc @ yc) / (xc @ xc))
+    use = t[(t["scene"] != "blocks")]
+    lx = np.log10(use["n_primitives"].to_numpy(float))
+    ly = np.log10(use["median_mse"].to_numpy(float))
+    X_one = np.column_stack([pd.get_dummies(use["scene"]).to_numpy(float), lx])
+    X_two = np.column_stack(
+        [
+            pd.get_dummies(use["scene"]).to_numpy(float),
+            lx * (use["group"] == scaling.PROCEDURAL),
+            lx * (use["group"] == scaling.CAPTURE),
+        ]
+    )
+    rss = [np.sum((ly - X @ np.linalg.lstsq(X, ly, rcond=None)[0]) ** 2) for X in (X_one, X_two)]
+    dof = len(ly) - X_two.shape[1]
+    F = (rss[0] - rss[1]) / (rss[1] / dof)
+    assert proc["equal_slopes_F"] == pytest.approx(F, rel=1e-6)
+    assert proc["equal_slopes_p"] == pytest.approx(sps.f.sf(F, 1, dof), rel=1e-6)
+    # the mean, with the mean: both procedural scenes fitted, t interval over their two alphas
+    mean = g.loc[(scaling.PROCEDURAL, "mean_mse")]
+    alphas = [
+        -np.polyfit(np.log10(h["n_primitives"]), np.log10(h["mean_mse"]), 1)[0]
+        for _, h in t[t["group"] == scaling.PROCEDURAL].groupby("scene")
+    ]
+    om = population.interval_over_models(alphas)
+    assert (mean["alpha_scene_mean"], mean["alpha_models_lo"]) == pytest.approx((om.mean, om.lo))
+
+
+def test_dose_at_matched_dose_per_primitive():
+    curves = pd.DataFrame(
+        {
+            "scene": "a",
+            "n_primitives": 2000,
+            "precision": "fp32",
+            "defense": "none",
+            "k": [10, 100, 1000],
+            "psnr_mean_mse_db": [40.0, 30.0, np.nan],
+        }
+    )
+    at = dose.at_dose_per_primitive(curves, 0.025, "psnr_mean_mse_db").iloc[0]  # k = 50
+    t = (np.log(50) - np.log(10)) / (np.log(100) - np.log(10))
+    assert at["k"] == 50 and at["psnr_mean_mse_db"] == pytest.approx(40 - 10 * t)
+    assert np.isnan(dose.at_dose_per_primitive(curves, 0.25, "psnr_mean_mse_db").iloc[0]["psnr_mean_mse_db"])
+    assert np.isnan(dose.at_dose_per_primitive(curves, 1.0, "psnr_mean_mse_db").iloc[0]["psnr_mean_mse_db"])
+    paper = np.mean([20_000 / n for n in claims.PAPER_PRIMITIVES])
+    assert claims.paper_heaviest_k_per_n() == pytest.approx(paper)
+
+
+def test_mantissa_slope_windows():
+    bits = np.arange(23)
+    log2 = np.where(bits < 22, -24 + bits.astype(float), -24 + 21 + 2.5)  # unit slope, bit 22 off trend
+    t = pd.DataFrame({"bit": bits, "log2_mean_peak_error": log2, "mean_peak_error": 2.0**log2})
+    w = theory.slope_windows({"table": t, "fit_bits": (9, 22)}).set_index("fit_bits")
+    for window, (a, b) in {"9..22": (9, 22), "9..21": (9, 21), "11..22": (11, 22)}.items():
+        sel = t[(t["bit"] >= a) & (t["bit"] <= b)]
+        assert w.loc[window, "slope"] == pytest.approx(np.polyfit(sel["bit"], sel["log2_mean_peak_error"], 1)[0])
+    assert w.loc["9..21", "slope"] == pytest.approx(1.0) and w.loc["9..22", "slope"] > 1.0
+    assert bool(w.loc["9..22", "top_bit_in"]) and not bool(w.loc["9..21", "top_bit_in"])
+
+
+def test_contamination_per_frame_beside_the_union_over_views():
+    from test_analysis import _records
+
+    from seuwgpu.analysis import contamination, folding, records
+
+    # an upset that reaches all 4 regions over the views, but one region in each of its frames,
+    # and one of the same site whose frames reach 2 and 4 regions (mean 3 of 4)
+    a = _records(6, field="log_scales", bit=31, bit_class="sign", footprint=0.5, regions_pred_4=0b1111,
+                 regions_meas_4=0b0111, regions_pred_frame_4=0.25, regions_meas_frame_4=0.25)  # fmt: skip
+    b = _records(2, field="log_scales", bit=30, bit_class="exponent", footprint=0.5, regions_pred_4=0b1111,
+                 regions_meas_4=0b1111, regions_pred_frame_4=0.75, regions_meas_frame_4=0.5)  # fmt: skip
+    b["injection_id"] += 100
+    d = pd.concat([a, b], ignore_index=True)
+    t = contamination.contamination(d)
+    r = t[(t["subset"] == "all single upsets") & (t["defense"] == "none")].iloc[0]
+    w = records.single_upsets(d, None, None)["weight"].to_numpy()
+    frame = np.r_[np.full(6, 0.25), np.full(2, 0.75)]
+    assert r["pred_frame_pct"] == pytest.approx(100 * np.average(frame, weights=w))
+    assert r["meas_frame_pct"] == pytest.approx(100 * np.average(np.r_[np.full(6, 0.25), np.full(2, 0.5)], weights=w))
+    assert r["pred_fraction_pct"] == 100  # the union over views reaches every region
+    union = np.r_[np.full(6, 3 / 4), np.full(2, 1.0)]
+    assert r["meas_fraction_pct"] == pytest.approx(100 * np.average(union, weights=w))
+    # records that predate the per-frame columns: undefined, not 0
+    old = d.drop(columns=["regions_pred_frame_4", "regions_meas_frame_4"])
+    r = contamination.contamination(old).iloc[0]
+    assert np.isnan(r["pred_frame_pct"]) and np.isnan(r["meas_frame_pct"]) and r["pred_fraction_pct"] == 100
+    # folded rows carry the per-frame sums too
+    f = folding.pair_columns_of_single(d)
+    assert {"region_fpf_4_sum", "region_fmf_4_n"} <= set(f.columns)

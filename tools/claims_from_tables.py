@@ -1,0 +1,119 @@
+"""Re-derive the claims rows of issue 36 from a report's stored tables, for a report whose records
+are not at hand (docs/study/full: about 2 GB of Parquet, not in the repository).
+
+    python tools/claims_from_tables.py docs/study/full     # writes claims_rederived.csv and .md there
+
+Every row comes from the library's functions over the stored CSVs (and summary.json's per-model
+rates), never from new arithmetic here:
+* p_c as the equal-field mean: the plain mean of precision_rates.csv's per-field rates (pooled over
+  the models), its interval stratified over field_bit.csv's cells with each field weighing 1/6.
+  The tables keep no per-model field rates and no guarded field rates: no interval over models,
+  and no guarded equal-field p_c or guard share (rows say so);
+* p_c weighted by stored bits, without and with the guard: summary.json's per-model rates, the
+  t interval over the models;
+* alpha, median with median and mean with mean, each experiment apart: size_scaling.csv through
+  `scaling.group_fits` (the median above the 8-bit floor of the runs' frame size);
+* PSNR at the paper's heaviest dose per primitive: dose_curves.csv per model, over models;
+* the mantissa slope over other windows: theory.csv.
+Rows the tables cannot give are listed with verdict "not derivable" and the reason in basis.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from seuwgpu.analysis import claims, scaling  # noqa: E402
+from seuwgpu.analysis import estimate as E  # noqa: E402
+from seuwgpu.report.format import markdown_table  # noqa: E402
+
+
+def equal_field_row(d: Path) -> dict:
+    rates = pd.read_csv(d / "precision_rates.csv")
+    rates = rates[rates["precision"] == "fp32"]
+    cells = pd.read_csv(d / "field_bit.csv")
+    cells = cells[cells["precision"] == "fp32"]
+    share = cells["weight_share_pct"] / cells.groupby("field")["weight_share_pct"].transform("sum")
+    W = share / cells["field"].nunique()
+    p, lo, hi, _ = E.stratified_interval(cells["cat_rate_pct"] / 100, cells["n"], W)
+    value = float(rates["cat_rate_pct"].mean())
+    assert abs(100 * p - value) < 1e-6 * max(value, 1e-12), (100 * p, value)  # the two tables agree
+    return claims._row(
+        "pc_none",
+        value,
+        100 * lo,
+        100 * hi,
+        f"plain mean of the {len(rates)} per-field rates of precision_rates.csv (pooled over the models); "
+        "interval stratified over field_bit.csv's cells; per-model field rates are not stored: no interval "
+        "over models, so the verdict is on the records' interval",
+    )
+
+
+def bit_weighted_rows(d: Path) -> list[dict]:
+    cat = pd.DataFrame(json.loads((d / "summary.json").read_text())["catastrophic"])
+    rows = []
+    for dfn in ("none", "guard"):
+        per = cat[(cat["precision"] == "fp32") & (cat["defense"] == dfn)].rename(columns={"rate": "p"})
+        rows.append(
+            claims._over_models(
+                f"pc_{dfn}_bits", per, "p", "summary.json's per-model weighted rates (catastrophic)", 0.95
+            )
+        )
+    return rows
+
+
+def not_derivable(key: str, why: str) -> dict:
+    return claims._row(key, basis=why) | {"verdict": "not derivable"}
+
+
+def alpha_and_dose_rows(d: Path, frame_size) -> list[dict]:
+    t = pd.read_csv(d / "size_scaling.csv")
+    floor = scaling.median_floor(*frame_size)
+    t["group"] = [scaling.scene_group(s) for s in t["scene"]]
+    t["median_above_floor"] = t["median_mse"] > floor
+    rows = claims._alpha_rows({"groups": scaling.group_fits(t), "median_floor": floor})
+    rows += claims._dose_rows(pd.read_csv(d / "dose_curves.csv"), 0.95)
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("report", help="a report folder (docs/study/full)")
+    ap.add_argument("--size", default="256x256", help="the runs' frame size W x H (the median's 8-bit floor)")
+    args = ap.parse_args(argv)
+    d = Path(args.report)
+    frame = tuple(int(v) for v in args.size.lower().split("x"))
+    rows = [equal_field_row(d)]
+    rows += bit_weighted_rows(d)
+    why = "the stored tables keep no guarded per-field rates"
+    rows += [not_derivable("pc_guard", why), not_derivable("guard_share", why)]
+    rows += alpha_and_dose_rows(d, frame)
+    out = pd.DataFrame(rows)
+    th = pd.read_csv(d / "theory.csv")
+    fit = th[th["in_fit"]]
+    windows = claims.theory_windows({"table": th, "fit_bits": (int(fit["bit"].min()), int(fit["bit"].max()))})
+    out.to_csv(d / "claims_rederived.csv", index=False)
+    windows.to_csv(d / "claims_theory_windows.csv", index=False)
+    (d / "claims_rederived.md").write_text(
+        "**Claims re-derived from the stored tables** (tools/claims_from_tables.py; the records are not "
+        "in the repository).\n\n"
+        + markdown_table(out)
+        + "\n\n**Mantissa slope against the fit window** (from theory.csv).\n\n"
+        + markdown_table(windows)
+        + "\n"
+    )
+    with pd.option_context("display.width", 200, "display.max_columns", 20):
+        print(out[["claim", "measured", "ci_lo", "ci_hi", "paper", "verdict", "n_models"]].to_string())
+        print(windows.to_string())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
