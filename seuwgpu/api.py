@@ -12,7 +12,7 @@
     sg.make_report(["runs/x"], "runs/x/report")        # HTML, figures, tables, summary.json
 
 `render_views` is not called `render` because `seuwgpu.render` is the renderer's sub-package.
-The command line (apps/cli.py) is a thin layer over these functions. Units: the footprint is a
+The command line (apps/cli/) is a thin layer over these functions. Units: the footprint is a
 fraction (0-1) in every record, dict and JSON file; only text for people prints it as a percent.
 Undefined values (PSNR of a frame with non-finite pixels, say) are NaN in data and null in JSON.
 Bad input raises seuwgpu.InputError (a ValueError) or FileNotFoundError whose message names the

@@ -78,12 +78,12 @@ def test_output_paths_checked_before_the_work(tmp_path, capsys, monkeypatch):
     for seconds and then print "File exists"); `scene --out` without a NAME says which is missing."""
     afile = tmp_path / "afile"
     afile.write_text("x")
-    from seuwgpu.apps import cli
+    from seuwgpu.model import sources
 
     def no_work(*a, **k):
         raise AssertionError("loaded the model before checking --out")
 
-    monkeypatch.setattr(cli, "load_source", no_work)
+    monkeypatch.setattr(sources, "load_source", no_work)
     for out in (afile, afile / "sub"):
         args = ["inject", "--scene", "spheres", "--n", "500", "--field", "log_scale", "--bit", "31", "--out", str(out)]
         assert main(args) == 2

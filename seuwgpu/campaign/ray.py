@@ -80,7 +80,7 @@ def init_ray(address: str | None = None, num_cpus: int | None = None, quiet: boo
     if ray.is_initialized():
         return False
     kw = {"logging_level": logging.WARNING if quiet else logging.INFO}
-    # ray.init replaces the SIGTERM handler with sys.exit; the command line's (apps/cli.py
+    # ray.init replaces the SIGTERM handler with sys.exit; the command line's (apps/cli/
     # console_main: stop as Ctrl-C does, exit 143) is put back
     on_term = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
     if address:

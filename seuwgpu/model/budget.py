@@ -27,7 +27,7 @@ PROJECTED_BYTES = 16  # the largest per-primitive projection record (conic, rgb:
 PIXEL_BYTES = 16  # one rgba f32 pixel of one view
 BUFFER_ALIGN = 16  # every GPU buffer's size is a multiple of this (gpu/device.py GPU.buffer)
 HOST_SHARE = 0.8  # of the available memory a job may plan to use
-# The views a command renders (apps/cli.py --size, --views) and a campaign spec names (size,
+# The views a command renders (apps/cli/ --size, --views) and a campaign spec names (size,
 # views): one set of limits, so that a value one accepts the other never refuses.
 MIN_VIEW_SIZE = 16  # px, width and height: one 16 px tile; the image metrics' 7x7 windows need >= 7
 MAX_VIEWS = 64  # views rendered for each injection of a campaign, or by one command
