@@ -28,6 +28,9 @@ _API = (
     "report_figures",
     "run_campaign",
     "save_frames",
+    "state_flips",
+    "storm",
+    "worst_case",
 )
 
 __all__ = ["InputError", "RunInUse", "SeuwgpuError", "TooBig", "__version__", *_API]

@@ -10,6 +10,9 @@
     stats = sg.run_campaign({"scenes": [{"scene": "spheres"}], ...}, "runs/x", progress=print)
     df = sg.read_records("runs/x")                     # a pandas DataFrame of the records
     sg.make_report(["runs/x"], "runs/x/report")        # HTML, figures, tables, summary.json
+    sg.storm(scene, cams, k=10, frames=50)             # upsets accumulating, one record a frame
+    sg.state_flips(scene, cams, samples=10)            # transient flips in the pipeline state
+    sg.worst_case(scene, cams, defenses=("guard",))    # the largest footprint, certified
 
 `render_views` is not called `render` because `seuwgpu.render` is the renderer's sub-package.
 The command line (apps/cli/) is a thin layer over these functions. Units: the footprint is a
@@ -68,6 +71,9 @@ __all__ = [
     "report_figures",
     "run_campaign",
     "save_frames",
+    "state_flips",
+    "storm",
+    "worst_case",
 ]
 
 PRECISIONS = tuple(encoding.PRECISIONS)
@@ -232,11 +238,7 @@ def inject(
     `primitive`, the most harmful of `sample` (default 64, as `seuwgpu inject --sample`) randomly
     drawn primitives (seeded) is taken. The
     stored model is restored exactly afterwards."""
-    from seuwgpu.faults.engine import Engine
-
-    defenses = tuple(dict.fromkeys(check_defense(d) for d in _names(defenses, "defenses")))
-    if not defenses:
-        raise InputError("defenses must name at least one defense")
+    defenses = _defense_names(defenses)
     if not isinstance(sample, int) or isinstance(sample, bool) or sample < 1:
         raise InputError(f"sample must be a positive integer, got {sample!r}")
     _whole(component, "component", 0)  # 1.7 was truncated to primitive 1, True taken as 1
@@ -244,11 +246,7 @@ def inject(
         _whole(primitive, "primitive", 0)
     _whole(seed, "seed", 0 if primitive is None or fault == "random" else None)  # numpy's seeds are >= 0
     bits, op, value = _fault_bits(fault, bit, width, precision, seed)
-    model = _model_of(scene)
-    name = scene.name if isinstance(scene, Source) else "model"
-    views = _views(views)
-    check_one_size(views, "views", "inject")
-    eng = Engine(model, views, encoding.check_precision(precision), scene=name, profile=_profile(profile))
+    eng = _engine(scene, views, precision, profile, "inject")
     if primitive is None:
         primitive, _ = eng.worst_primitive(field, component, bits, sample, seed, defenses[0], op, value)
     site = eng.site(field, int(primitive), component, bits, op, value)
@@ -268,6 +266,92 @@ def inject(
         }
         metrics[d] = {k: v for k, v in rec.items() if k not in site_info and k not in ("bit", "k")}
     return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames)
+
+
+def storm(
+    scene: Scene | Model,
+    views: Sequence[Camera],
+    *,
+    k: int = 10,
+    frames: int = 50,
+    scrub_every: int = 10,
+    defenses: Sequence[str] = ("none", "guard", "parity4r"),
+    seed: int = 0,
+    precision: str = "fp32",
+    profile: str = "strict",
+    progress: Callable[[], None] | None = None,
+    rows: list | None = None,
+) -> pd.DataFrame:
+    """A fault storm (campaign/storm.py): `k` upsets per frame accumulating in the stored model for
+    `frames` frames, reloaded every `scrub_every` frames (0: never), each defense an arm that sees
+    the same upsets. One record per frame and defense. `progress()` is called after each frame;
+    `rows`: a list the records are appended to as they are measured (a resumed storm's records
+    first: it goes on after them)."""
+    from seuwgpu.campaign.storm import storm as run_storm
+
+    defenses = _defense_names(defenses)
+    for value, what in ((k, "k"), (frames, "frames"), (scrub_every, "scrub_every"), (seed, "seed")):
+        _whole(value, what, None)  # the ranges: campaign/storm.py's own check, which names all three
+    eng = _engine(scene, views, precision, profile, "storm")
+    return run_storm(eng, k, frames, scrub_every, defenses, seed, progress, rows=rows)
+
+
+def state_flips(
+    scene: Scene | Model,
+    views: Sequence[Camera],
+    *,
+    targets: Sequence[str] | None = None,
+    samples: int = 10,
+    bits: Sequence[int] | None = None,
+    seed: int = 0,
+    precision: str = "fp32",
+    profile: str = "strict",
+    progress: Callable[[], None] | None = None,
+    rows: list | None = None,
+) -> pd.DataFrame:
+    """Transient bit flips in one frame's pipeline state (faults/state.py): `samples` flips per
+    (target, bit) cell, `targets` the pipeline-state buffers (default: all), `bits` 0..31 (default:
+    all). One record per flip; `progress` and `rows` as `storm`'s."""
+    from seuwgpu.faults.state import TARGETS, state_campaign
+
+    targets = list(TARGETS) if targets is None else list(dict.fromkeys(_names(targets, "targets")))
+    bits = list(range(32)) if bits is None else list(dict.fromkeys(_whole(b, "bit", None) for b in bits))
+    _whole(samples, "samples", 1)
+    _whole(seed, "seed", None)
+    eng = _engine(scene, views, precision, profile, "state_flips")
+    return state_campaign(eng, targets, samples, bits, seed, progress, rows=rows)
+
+
+def worst_case(
+    scene: Scene | Model,
+    views: Sequence[Camera],
+    *,
+    defenses: Sequence[str] = ("none",),
+    fields: Sequence[str] | None = None,
+    bits: Sequence[int] | None = None,
+    max_evaluations: int | None = None,
+    precision: str = "fp32",
+    profile: str = "strict",
+) -> dict:
+    """The single-bit flip with the largest footprint under each defense, by bounded search
+    (faults/worstcase.py): {defense: WorstCase(site, footprint, certified bound, evaluated,
+    sites)}. `fields`: default every field the model stores; `bits`: default all;
+    `max_evaluations`: stop after this many renders (the bound stays certified)."""
+    from seuwgpu.faults.worstcase import worst_case as search
+    from seuwgpu.model.fields import canonical_field
+
+    defenses = _defense_names(defenses)
+    if fields is not None:
+        try:
+            fields = [canonical_field(f) for f in _names(fields, "fields")]
+        except ValueError as e:
+            raise InputError(str(e)) from None
+    if bits is not None:
+        bits = [_whole(b, "bit", 0) for b in bits]
+    if max_evaluations is not None:
+        _whole(max_evaluations, "max_evaluations", 1)
+    eng = _engine(scene, views, precision, profile, "worst_case")
+    return {d: search(eng, d, fields, bits, max_evaluations=max_evaluations) for d in defenses}
 
 
 def save_frames(
@@ -417,6 +501,25 @@ def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], st
             raise InputError(f"width must be one of {', '.join(map(str, ADJACENT_WIDTHS))}, got {width!r}")
         return model_bits("adjacent", int(bits[0]), precision, ADJACENT_WIDTHS.index(width))
     return tuple(int(b) for b in bits), ("flip" if fault in ("bit", "adjacent") else fault), 0
+
+
+def _engine(scene, views, precision: str, profile: str, what: str):
+    """The fault-injection engine (faults/engine.py) of a model and its views, one image size."""
+    from seuwgpu.faults.engine import Engine
+
+    model = _model_of(scene)
+    name = scene.name if isinstance(scene, Source) else "model"
+    views = _views(views)
+    check_one_size(views, "views", what)
+    return Engine(model, views, encoding.check_precision(precision), scene=name, profile=_profile(profile))
+
+
+def _defense_names(defenses) -> tuple[str, ...]:
+    """Defense names checked, each once (an arm named twice is one arm)."""
+    names = tuple(dict.fromkeys(check_defense(d) for d in _names(defenses, "defenses")))
+    if not names:
+        raise InputError("defenses must name at least one defense")
+    return names
 
 
 def _profile(profile) -> str:

@@ -314,3 +314,43 @@ def test_inject_samples_as_many_primitives_as_the_command_line(scene, views, cap
     a = sg.inject(scene, views, field="log_scales", bit=30, defenses=("none",))
     b = sg.inject(scene, views, field="log_scales", bit=30, defenses=("none",), sample=64)
     assert a.site["primitive"] == b.site["primitive"]
+
+
+def test_worst_case_finds_the_flip_inject_measures():
+    """sg.worst_case's flip, injected through sg.inject (a full render), has the footprint the
+    search reported; a defense named twice is searched once."""
+    scene = sg.load_model("spheres", n=40, sh_degree=0)
+    cams = sg.cameras(scene, views=1, size=(32, 32))
+    found = sg.worst_case(scene, cams, defenses=("none", "none"), fields=["opacity"], bits=[30, 31])
+    assert list(found) == ["none"]
+    wc = found["none"]
+    assert wc.sites == 40 * 2 and wc.certified == wc.footprint > 0
+    s = wc.site
+    inj = sg.inject(scene, cams, field=s.field, primitive=s.primitive, component=s.component, bit=s.bit)
+    assert inj.metrics["none"]["footprint"] == wc.footprint
+    with pytest.raises(ValueError, match="unknown defense 'nope'"):
+        sg.worst_case(scene, cams, defenses=["nope"])
+
+
+def test_storm_and_state_flips_are_the_engine_runs_they_name():
+    """sg.storm and sg.state_flips return what campaign/storm.py and faults/state.py record on an
+    engine of the same model, views and arguments (arms named twice once)."""
+    import pandas.testing as pd_testing
+
+    from seuwgpu.campaign.storm import storm
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.faults.state import state_campaign
+
+    scene = sg.load_model("spheres", n=60, sh_degree=0)
+    cams = sg.cameras(scene, views=1, size=(32, 32))
+    steps = []
+    df = sg.storm(scene, cams, k=3, frames=2, scrub_every=1, defenses=("none", "guard", "none"), seed=4,
+                  progress=lambda: steps.append(1))  # fmt: skip
+    assert len(df) == 4 == len(steps) and list(df["defense"].unique()) == ["none", "guard"]
+    eng = Engine(scene.model, cams, "fp32", scene=scene.name)
+    pd_testing.assert_frame_equal(df, storm(eng, 3, 2, 1, ("none", "guard"), 4))
+    flips = sg.state_flips(scene, cams, targets=["xy", "conic"], samples=1, bits=[31, 0, 31], seed=2)
+    assert len(flips) == 2 * 2 and set(flips["target"]) == {"xy", "conic"}
+    pd_testing.assert_frame_equal(flips, state_campaign(eng, ["xy", "conic"], 1, [31, 0], 2))
+    with pytest.raises(sg.InputError, match="k must be an integer"):
+        sg.storm(scene, cams, k=1.5)

@@ -140,15 +140,20 @@ def worstcase_arguments(s: argparse.ArgumentParser):
 
 def cmd_worstcase(args):
     """The single-bit flip with the largest footprint under a defense, by bounded search."""
-    from seuwgpu.faults.engine import Engine
-    from seuwgpu.faults.worstcase import worst_case
-    from seuwgpu.model.fields import canonical_field
+    from seuwgpu import api
 
     src = load_source(args)
-    eng = Engine(src.model, load_cams(args, src), args.precision, scene=src.name, profile=args.profile)
-    fields = None if args.fields is None else [canonical_field(f) for f in args.fields]
-    for d in dict.fromkeys(args.defense):  # a defense named twice is searched once
-        wc = worst_case(eng, d, fields, args.bit, max_evaluations=args.max_evaluations)
+    found = api.worst_case(
+        src,
+        load_cams(args, src),
+        defenses=args.defense,  # a defense named twice is searched once
+        fields=args.fields,
+        bits=args.bit,
+        max_evaluations=args.max_evaluations,
+        precision=args.precision,
+        profile=args.profile,
+    )
+    for d, wc in found.items():
         where = f"{wc.site.field}[{wc.site.primitive}][{wc.site.component}] bit {wc.site.bit}" if wc.site else "none"
         print(
             f"{d}: worst flip {where}: footprint {100 * wc.footprint:.4f}% (certified bound "
@@ -192,9 +197,9 @@ def storm_arguments(s: argparse.ArgumentParser):
 
 def cmd_storm(args):
     """k upsets per frame accumulating, scrubbed every S frames: records and a plot per defense."""
+    from seuwgpu import api
     from seuwgpu.analysis.defenses import storm_figure
-    from seuwgpu.campaign.storm import storm, storm_records
-    from seuwgpu.faults.engine import Engine
+    from seuwgpu.campaign.storm import storm_records
 
     output_folder(args, args.out)
     src = load_source(args)
@@ -202,11 +207,20 @@ def cmd_storm(args):
     defenses = list(dict.fromkeys(args.defense))  # a defense named twice is one arm
     options = {"k": args.k, "frames": args.frames, "scrub-every": args.scrub_every, "defense": defenses}
     partial = partial_records(args, src, cams, "storm", storm_records, **options)  # before any rendering
-    eng = Engine(src.model, cams, args.precision, scene=src.name, profile=args.profile)
     with partial.kept() as rows:
         with work_bar("frames", args.frames * len(defenses), len(rows)) as step:
-            df = storm(
-                eng, args.k, args.frames, args.scrub_every, defenses, args.seed, partial.progress(step), rows=rows
+            df = api.storm(
+                src,
+                cams,
+                k=args.k,
+                frames=args.frames,
+                scrub_every=args.scrub_every,
+                defenses=defenses,
+                seed=args.seed,
+                precision=args.precision,
+                profile=args.profile,
+                progress=partial.progress(step),
+                rows=rows,
             )
         df.to_parquet(args.out / "storm.parquet", index=False)
         storm_figure(df).savefig(args.out / "storm.png", dpi=120)
@@ -250,9 +264,8 @@ def cmd_state(args):
     """Transient pipeline-state flips of one frame: records and a criticality table per target."""
     import pandas as pd
 
+    from seuwgpu import api
     from seuwgpu.analysis.defenses import state_table
-    from seuwgpu.faults.engine import Engine
-    from seuwgpu.faults.state import state_campaign
 
     output_folder(args, args.out)
     src = load_source(args)
@@ -260,10 +273,20 @@ def cmd_state(args):
     targets, bits = list(dict.fromkeys(args.targets)), list(dict.fromkeys(args.bit or range(32)))
     options = {"targets": targets, "samples": args.samples, "bit": bits}
     partial = partial_records(args, src, cams, "state", pd.DataFrame, **options)  # before any rendering
-    eng = Engine(src.model, cams, args.precision, scene=src.name, profile=args.profile)
     with partial.kept() as rows:
         with work_bar("flips", len(targets) * len(bits) * args.samples, len(rows)) as step:
-            df = state_campaign(eng, targets, args.samples, bits, args.seed, partial.progress(step), rows=rows)
+            df = api.state_flips(
+                src,
+                cams,
+                targets=targets,
+                samples=args.samples,
+                bits=bits,
+                seed=args.seed,
+                precision=args.precision,
+                profile=args.profile,
+                progress=partial.progress(step),
+                rows=rows,
+            )
         df.to_parquet(args.out / "state.parquet", index=False)
         t = state_table(df)
         (args.out / "state_criticality.csv").write_text(t.to_csv(index=False))
