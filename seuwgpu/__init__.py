@@ -19,6 +19,7 @@ _API = (
     "Model",
     "Scene",
     "cameras",
+    "default_spec",
     "inject",
     "list_scenes",
     "load_model",

@@ -8,6 +8,7 @@
     inj.metrics["none"]["footprint"]                   # a fraction of the frame's pixels
     inj.save("out/")                                   # PNG, float32 TIFF, metrics.json
     stats = sg.run_campaign({"scenes": [{"scene": "spheres"}], ...}, "runs/x", progress=print)
+    sg.run_campaign(sg.default_spec(), "runs/demo")     # the packaged default spec (seuwgpu demo)
     df = sg.read_records("runs/x")                     # a pandas DataFrame of the records
     sg.make_report(["runs/x"], "runs/x/report")        # HTML, figures, tables, summary.json
     sg.storm(scene, cams, k=10, frames=50)             # upsets accumulating, one record a frame
@@ -62,6 +63,7 @@ __all__ = [
     "SeuwgpuError",
     "TooBig",
     "cameras",
+    "default_spec",
     "inject",
     "list_scenes",
     "load_model",
@@ -399,6 +401,16 @@ def save_frames(
 
 
 # ---- campaigns and reports ------------------------------------------------------------------------
+def default_spec() -> Path:
+    """The path of the packaged default spec (the main job that `seuwgpu demo` runs: every field
+    and bit of the `spheres` scene at fp32, with and without the guard), wherever the package is
+    installed and whatever the working directory: `run_campaign(default_spec(), "runs/x")`, or a
+    starting point to copy (`default_spec().read_text()`)."""
+    from seuwgpu.campaign.spec import default_spec_path
+
+    return default_spec_path()
+
+
 def run_campaign(
     spec: dict | str | Path,
     out: str | Path,

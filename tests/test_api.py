@@ -354,3 +354,43 @@ def test_storm_and_state_flips_are_the_engine_runs_they_name():
     pd_testing.assert_frame_equal(flips, state_campaign(eng, ["xy", "conic"], 1, [31, 0], 2))
     with pytest.raises(sg.InputError, match="k must be an integer"):
         sg.storm(scene, cams, k=1.5)
+
+
+def test_the_readme_example_runs_from_another_directory(tmp_path, monkeypatch):
+    """The README's Python example, from a folder that is not the checkout: the default spec is
+    the packaged one (a path relative to the checkout stopped it with a SpecError), and the
+    campaign it names starts (a thin shard of it: the test stays seconds) and writes where asked."""
+    import tomllib
+
+    from seuwgpu.campaign.store import read_manifest
+
+    monkeypatch.chdir(tmp_path)
+    spec = sg.default_spec()
+    assert spec.is_absolute() and spec.is_file() and tmp_path not in spec.parents
+    assert tomllib.loads(spec.read_text())["name"] == "default"
+    scene = sg.load_model("spheres", n=300)  # the example's calls, on a small scene
+    views = sg.cameras(scene, views=1, size=(32, 32))
+    inj = sg.inject(scene, views, field="log_scales", bit=31, defenses=["none", "guard"])
+    inj.save("out/inject", formats=["png"])
+    assert (tmp_path / "out" / "inject" / "metrics.json").is_file()
+    stats = sg.run_campaign(sg.default_spec(), "runs/x", shard=(999, 1000))  # a slice without blocks
+    assert stats["new"] == 0
+    assert read_manifest(tmp_path / "runs" / "x")["spec"]["name"] == "default"
+
+
+def test_demo_runs_the_spec_the_api_names(tmp_path, monkeypatch, capsys):
+    """`seuwgpu demo` reads the spec `seuwgpu.api.default_spec()` names (a smaller one here)."""
+    from seuwgpu import api
+    from seuwgpu.apps.cli import main
+    from seuwgpu.campaign.store import read_manifest
+
+    small = tmp_path / "small.toml"
+    small.write_text(
+        'name = "small"\nviews = 1\nsize = "16x16"\n[[scenes]]\nscene = "spheres"\nn = 50\n'
+        '[single]\nfields = ["opacity"]\nbits = [31]\nsamples = 2\ndefenses = ["none"]\n'
+    )
+    monkeypatch.setattr(api, "default_spec", lambda: small)
+    assert main(["demo", "--quiet", "--no-report", "--out", str(tmp_path / "d")]) == 0
+    assert "1 views at 16x16" in capsys.readouterr().out
+    m = read_manifest(tmp_path / "d")
+    assert m["spec"]["name"] == "small" and m["total_injections"] == 2

@@ -581,6 +581,14 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
     return spec
 
 
+def default_spec_path() -> Path:
+    """The packaged default spec (specs/default.toml: the main job, `seuwgpu demo`), wherever the
+    package is installed."""
+    from importlib.resources import files
+
+    return Path(str(files("seuwgpu.campaign.specs").joinpath("default.toml")))
+
+
 def load_spec(path) -> dict:
     path = Path(path)
     if path.is_dir():

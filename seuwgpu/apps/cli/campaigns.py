@@ -218,13 +218,13 @@ def demo_arguments(s: argparse.ArgumentParser):
 
 def cmd_demo(args):
     import tomllib
-    from importlib.resources import files
 
+    from seuwgpu import api
     from seuwgpu.campaign.spec import normalize_spec
     from seuwgpu.model.scenes import is_capture, make_scene
 
     refuse_ignored_options(args)
-    raw = tomllib.loads(files("seuwgpu.campaign.specs").joinpath("default.toml").read_text())
+    raw = tomllib.loads(api.default_spec().read_text(encoding="utf-8"))  # the spec the API names
     if args.model is not None or args.scene is not None:  # the default campaign on another model
         raw["scenes"] = [{"model": str(args.model)} if args.model is not None else {"scene": args.scene}]
         if args.scene is not None and args.n is None and is_capture(args.scene):
