@@ -12,6 +12,7 @@ _API = (
     "FAULT_MODELS",
     "FIELDS",
     "FRAME_FORMATS",
+    "MODEL_FORMATS",
     "PRECISIONS",
     "PROFILES",
     "Camera",

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,6 +53,7 @@ __all__ = [
     "FAULT_MODELS",
     "FIELDS",
     "FRAME_FORMATS",
+    "MODEL_FORMATS",
     "PRECISIONS",
     "PROFILES",
     "Camera",
@@ -80,6 +82,8 @@ __all__ = [
 
 PRECISIONS = tuple(encoding.PRECISIONS)
 FRAME_FORMATS = ("png", "tiff", "npz")
+MODEL_FORMATS = ("ply", "spz")
+"""Files Injection.save_models writes: INRIA PLY (float32) and Niantic SPZ."""
 """png: 8-bit display frames (clipped to [0, 1], non-finite pixels black); tiff: float32,
 unclamped, non-finite values kept; npz: all frames of a call in one float32 array."""
 
@@ -183,6 +187,10 @@ class Injection:
     site: dict
     metrics: dict[str, dict]
     frames: dict[str, np.ndarray] = field(repr=False)
+    models: dict[str, Model] | None = field(default=None, repr=False)
+    """With inject(models=True): the model as stored after the fault (`models["faulted"]`) and as
+    each other defense leaves it (`models[defense]`), at the stored precision."""
+    up: str | None = field(default=None, repr=False)
 
     def error_map(self, defense: str = "none") -> np.ndarray:
         """Per-pixel maximum absolute channel error against the clean frames, [K, H, W] (NaN where
@@ -214,6 +222,37 @@ class Injection:
         path.write_text(json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n")
         return [*files, path]
 
+    def save_models(self, out: str | Path, *, formats: Iterable[str] = ("ply", "spz")) -> list[Path]:
+        """The faulted model and each defense's repaired one (`models`) as model files a splat viewer
+        opens: `faulted.ply`, `guard.ply`, ... (INRIA PLY: float32, so at fp32 the flipped bit is
+        there bit for bit) and `.spz` (Niantic SPZ, quantized; a model with a non-finite value has
+        none, with a warning). Returns the files written."""
+        from seuwgpu.model.formats import save_model
+
+        if self.models is None:
+            raise InputError("this injection kept no models: call inject(..., models=True)")
+        formats = tuple(dict.fromkeys(_names(formats, "formats")))
+        unknown = sorted(set(formats) - set(MODEL_FORMATS))
+        if unknown:
+            raise InputError(
+                f"unknown model format(s) {', '.join(unknown)}; expected some of {', '.join(MODEL_FORMATS)}"
+            )
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        paths = []
+        for name, model in self.models.items():
+            for fmt in formats:
+                path = out / f"{name}.{fmt}"
+                try:
+                    save_model(model, path, up=self.up)
+                except ValueError as e:  # SPZ holds no non-finite value: that file is left out, said
+                    if fmt == "ply":
+                        raise
+                    warnings.warn(f"{path.name} not written: {e}", stacklevel=2)
+                    continue
+                paths.append(path)
+        return paths
+
 
 def inject(
     scene: Scene | Model,
@@ -230,6 +269,7 @@ def inject(
     profile: str = "strict",
     fault: str = "bit",
     width: int = 2,
+    models: bool = False,
 ) -> Injection:
     """Corrupt `field[primitive][component]` in the stored model with one fault and evaluate the
     render under each defense against the clean render. `fault` is a FAULT_MODELS name: "bit"
@@ -239,7 +279,8 @@ def inject(
     error, PSNR, SSIM, non-finite pixels, and LPIPS when `seuwgpu[lpips]` is installed). Without
     `primitive`, the most harmful of `sample` (default 64, as `seuwgpu inject --sample`) randomly
     drawn primitives (seeded) is taken. The
-    stored model is restored exactly afterwards."""
+    stored model is restored exactly afterwards. `models`: also keep the faulted model and each
+    defense's repaired one (`Injection.models`, written by `Injection.save_models`)."""
     defenses = _defense_names(defenses)
     if not isinstance(sample, int) or isinstance(sample, bool) or sample < 1:
         raise InputError(f"sample must be a positive integer, got {sample!r}")
@@ -249,6 +290,7 @@ def inject(
     _whole(seed, "seed", 0 if primitive is None or fault == "random" else None)  # numpy's seeds are >= 0
     bits, op, value = _fault_bits(fault, bit, width, precision, seed)
     eng = _engine(scene, views, precision, profile, "inject")
+    model_of = _model_of(scene)
     if primitive is None:
         primitive, _ = eng.worst_primitive(field, component, bits, sample, seed, defenses[0], op, value)
     site = eng.site(field, int(primitive), component, bits, op, value)
@@ -267,7 +309,9 @@ def inject(
             "corrupted_value": rec["corrupted_value"],
         }
         metrics[d] = {k: v for k, v in rec.items() if k not in site_info and k not in ("bit", "k")}
-    return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames)
+    kept = _injected_models(eng, model_of, site, defenses) if models else None
+    up = scene.up if isinstance(scene, Source) else None
+    return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames, kept, up)
 
 
 def storm(
@@ -524,6 +568,32 @@ def _engine(scene, views, precision: str, profile: str, what: str):
     views = _views(views)
     check_one_size(views, "views", what)
     return Engine(model, views, encoding.check_precision(precision), scene=name, profile=_profile(profile))
+
+
+def _injected_models(eng, model: Model, site, defenses) -> dict[str, Model]:
+    """The stored model (at the engine's precision) with the site's fault, as stored
+    ("faulted"), and as each defense leaves what the renderer reads: its repair of memory (a
+    reload, a correction, a culled primitive) and, for a support-guard defense, the clamp the
+    pipeline applies to the hit primitive's values."""
+    from seuwgpu.faults.guard import clamp_bits
+
+    stored = model.quantized(eng.precision).flat()
+
+    def with_rows(prims, rows) -> Model:
+        flat = stored.copy()
+        flat[prims] = encoding.from_bits(rows, eng.precision)
+        return Model.from_flat(flat, model.sh_degree)
+
+    prims, rows, _ = eng.variant_bits([site], "none")
+    out = {"faulted": with_rows(prims, rows)}
+    for d in defenses:
+        if d == "none":
+            continue
+        prims, rows, masks = eng.variant_bits([site], d)
+        if masks[0]:
+            rows = clamp_bits(rows, eng.box, int(masks[0]))[0]
+        out[d] = with_rows(prims, rows)
+    return out
 
 
 def _defense_names(defenses) -> tuple[str, ...]:

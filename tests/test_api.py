@@ -394,3 +394,21 @@ def test_demo_runs_the_spec_the_api_names(tmp_path, monkeypatch, capsys):
     assert "1 views at 16x16" in capsys.readouterr().out
     m = read_manifest(tmp_path / "d")
     assert m["spec"]["name"] == "small" and m["total_injections"] == 2
+
+
+def test_save_models_leaves_out_an_spz_that_cannot_hold_the_damage(tmp_path):
+    """An exponent stuck at ones (a non-finite value): faulted.ply holds it, an SPZ cannot, so
+    faulted.spz is left out with a warning; without models=True there is nothing to save."""
+    scene = sg.load_model("spheres", n=200, sh_degree=0)
+    cams = sg.cameras(scene, views=1, size=(32, 32))
+    args = dict(field="opacity", primitive=3, bit=list(range(23, 31)), fault="stuck1", defenses=("none",))
+    with pytest.raises(sg.InputError, match="models=True"):
+        sg.inject(scene, cams, **args).save_models(tmp_path)
+    inj = sg.inject(scene, cams, **args, models=True)
+    assert list(inj.models) == ["faulted"]
+    with pytest.warns(UserWarning, match="faulted.spz not written: .*non-finite"):
+        written = inj.save_models(tmp_path)
+    assert [p.name for p in written] == ["faulted.ply"]
+    with pytest.warns(Warning, match="1 non-finite values"):
+        back = sg.load_model(tmp_path / "faulted.ply").model
+    assert not np.isfinite(back.opacity[3]) and np.array_equal(back.opacity[:3], scene.model.opacity[:3])

@@ -64,6 +64,13 @@ def inject_arguments(s: argparse.ArgumentParser):
         default=("png", "tiff"),
         help="frame files besides panel.png and metrics.json: png, tiff (float32, unclamped), npz (default png,tiff)",
     )
+    s.add_argument(
+        "--save-model",
+        type=Path,
+        metavar="DIR",
+        help="also write the faulted model and each defense's repaired one (faulted.ply, guard.ply, ...) as "
+        "INRIA PLY (float32) and SPZ, to open in a splat viewer",
+    )
     add_profile_arg(s)
 
 
@@ -78,6 +85,10 @@ def cmd_inject(args):
     if args.bit is not None and args.fault in VALUE_MODELS:
         raise CliError(f"--fault {args.fault} replaces the whole value; --bit does not apply")
     output_folder(args, args.out)
+    if args.save_model is not None:
+        from seuwgpu.campaign.store import make_out_dir
+
+        make_out_dir(args.save_model, "--save-model", "output folder")
     src = load_source(args)
     cams = load_cams(args, src)
     defenses = tuple(dict.fromkeys((args.defense, "guard")))
@@ -95,6 +106,7 @@ def cmd_inject(args):
         profile=args.profile,
         fault=args.fault,
         width=args.width or 2,
+        models=args.save_model is not None,
     )
     site, rec, g = inj.site, inj.metrics[args.defense], inj.metrics["guard"]
     if args.primitive is None:
@@ -135,6 +147,9 @@ def cmd_inject(args):
         "panel": panel,
         "frames": f"{len(files) - 1} files ({', '.join(args.formats)}) and metrics.json in {args.out}",
     }
+    if args.save_model is not None:
+        written = inj.save_models(args.save_model)
+        lines["models"] = f"{', '.join(p.name for p in written)} in {args.save_model}"
     for k, v in lines.items():
         print(f"{k}: {v}")
     return 0
