@@ -468,11 +468,11 @@ def test_outcome_and_reliability_tables_of_the_spec():
 def test_quiet_progress_lines_carry_an_eta(capsys, monkeypatch):
     import re
 
-    from seuwgpu.campaign import runner as R
+    from seuwgpu.campaign import progress as P
 
     clock = iter([0.0, 20.0, 40.0])  # t0, then one call per advance
-    monkeypatch.setattr(R.time, "perf_counter", lambda: next(clock))
-    p = R.Progress(total=1000, done=100, quiet=True)
+    monkeypatch.setattr(P.time, "perf_counter", lambda: next(clock))
+    p = P.injection_bar(total=1000, done=100, quiet=True)
     p.advance(300, 2)  # 300 in 20 s: 15/s, 600 left: 40 s
     p.advance(600, 1)  # done
     lines = capsys.readouterr().err.strip().splitlines()
@@ -482,7 +482,7 @@ def test_quiet_progress_lines_carry_an_eta(capsys, monkeypatch):
         r"1000/1000 injections, 22\.5/s, ETA 00:00:00, catastrophic 3 \(of the 900 run since resuming\)", lines[1]
     )
     clock = iter([0.0, 10.0])  # a fresh run: every injection is this session's
-    R.Progress(total=100, done=0, quiet=True).advance(100, 4)
+    P.injection_bar(total=100, done=0, quiet=True).advance(100, 4)
     assert capsys.readouterr().err.strip() == "100/100 injections, 10.0/s, ETA 00:00:00, catastrophic 4"
 
 

@@ -301,7 +301,8 @@ def run_ray(
 def _run_ray(ray, spec, out, workers, address, quiet, full, shard, shards, max_retries, poll_s, _kill_once) -> dict:
     """run_ray with the run directory's lock held."""
     from seuwgpu.campaign import store
-    from seuwgpu.campaign.runner import Progress, Runner
+    from seuwgpu.campaign.progress import injection_bar
+    from seuwgpu.campaign.runner import Runner
 
     base = Runner(spec, out, shard=shard)
     blocks = list(base.blocks())
@@ -345,7 +346,7 @@ def _run_ray(ray, spec, out, workers, address, quiet, full, shard, shards, max_r
             except ray.exceptions.RayTaskError as e:
                 raise RuntimeError(f"preparing {out} failed: {getattr(e, 'cause', None) or e}") from None
         task = ray.remote(_shard_task).options(max_retries=max_retries, retry_exceptions=False, **opts)
-        bar = Progress(total, already, quiet)
+        bar = injection_bar(total, already, quiet)
 
         def poll():
             for key in sorted(store.parts_in(out) - seen):

@@ -8,7 +8,6 @@ block, skipping the parts already there; `replay` re-runs one injection alone fr
 from __future__ import annotations
 
 import platform
-import sys
 import time
 from pathlib import Path
 
@@ -16,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.campaign import store
+from seuwgpu.campaign.progress import injection_bar
 from seuwgpu.campaign.sampling import Context, draw_sites, enumerate_contexts, injection_seeds
 from seuwgpu.campaign.spec import SpecError, spec_hash
 from seuwgpu.faults.defenses import PIPELINE_GUARD
@@ -144,7 +144,7 @@ class Runner:
         shard_total = sum(m for _, _, m in self.blocks())
         already = shard_total - sum(m for _, _, m in todo)
         stats = {"injections": already, "catastrophic": 0, "seconds": 0.0, "new": 0}
-        bar = progress(shard_total, already) if progress else Progress(shard_total, already, self.quiet)
+        bar = progress(shard_total, already) if progress else injection_bar(shard_total, already, self.quiet)
         engines, rates = {}, {}  # rates: sites a second of each engine's last group
         t0 = time.perf_counter()
         writer = store.PartWriter(self.out)
@@ -333,65 +333,6 @@ class Runner:
                     rec["lpips"] = self.lpips_of(eng, sites, d)
                 rows.append(rec)
         return self.finish(pd.DataFrame(rows), eng, ctx)
-
-
-class Progress:
-    """rich progress with injections/s, ETA and the running catastrophe count; quiet mode logs lines."""
-
-    def __init__(self, total: int, done: int, quiet: bool):
-        self.total, self.done, self.quiet = total, done, quiet
-        self.cat = 0
-        self.t0 = time.perf_counter()
-        self.last = self.t0
-        self.start_done = done
-        if not quiet:
-            from rich.progress import (
-                BarColumn,
-                MofNCompleteColumn,
-                Progress,
-                TextColumn,
-                TimeElapsedColumn,
-                TimeRemainingColumn,
-            )
-
-            self.p = Progress(
-                TextColumn("[bold]injections"),
-                BarColumn(),
-                MofNCompleteColumn(),
-                TextColumn("{task.fields[rate]:>8.1f}/s"),
-                TimeElapsedColumn(),
-                TextColumn("ETA"),
-                TimeRemainingColumn(),
-                # resumed: the parts already on disk are not re-read, so the count is this session's
-                TextColumn("catastrophic: {task.fields[cat]}" + (" (since resuming)" if done else "")),
-                transient=False,
-            )
-            self.p.start()
-            self.task = self.p.add_task("run", total=total, completed=done, rate=0.0, cat=0)
-
-    def advance(self, n: int, cat: int):
-        self.done += n
-        self.cat += cat
-        now = time.perf_counter()
-        rate = (self.done - self.start_done) / max(now - self.t0, 1e-9)
-        if not self.quiet:
-            self.p.update(self.task, completed=self.done, rate=rate, cat=self.cat)
-        elif now - self.last > 10 or self.done == self.total:
-            self.last = now
-            eta = "-"  # no rate yet
-            if rate > 0:
-                left = (self.total - self.done) / rate
-                eta = time.strftime("%H:%M:%S", time.gmtime(left)) if left < 86400 else f"{left / 3600:.0f} h"
-            since = f" (of the {self.done - self.start_done} run since resuming)" if self.start_done else ""
-            print(
-                f"{self.done}/{self.total} injections, {rate:.1f}/s, ETA {eta}, catastrophic {self.cat}{since}",
-                file=sys.stderr,
-                flush=True,
-            )
-
-    def close(self):
-        if not self.quiet:
-            self.p.stop()
 
 
 def replay(spec: dict, injection_id: int, full: bool = False, gpu=None) -> pd.DataFrame:

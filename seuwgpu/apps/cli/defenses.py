@@ -18,8 +18,8 @@ from seuwgpu.apps.cli.options import (
     scene_sh_degree,
     view_size,
     word_bit,
-    work_bar,
 )
+from seuwgpu.campaign.progress import ProgressBar
 from seuwgpu.faults.defenses import DEFENSES as DEFENSE_NAMES
 from seuwgpu.faults.state import TARGETS as STATE_TARGETS
 
@@ -208,7 +208,7 @@ def cmd_storm(args):
     options = {"k": args.k, "frames": args.frames, "scrub-every": args.scrub_every, "defense": defenses}
     partial = partial_records(args, src, cams, "storm", storm_records, **options)  # before any rendering
     with partial.kept() as rows:
-        with work_bar("frames", args.frames * len(defenses), len(rows)) as step:
+        with ProgressBar("frames", args.frames * len(defenses), len(rows)) as bar:
             df = api.storm(
                 src,
                 cams,
@@ -219,7 +219,7 @@ def cmd_storm(args):
                 seed=args.seed,
                 precision=args.precision,
                 profile=args.profile,
-                progress=partial.progress(step),
+                progress=partial.progress(bar.advance),
                 rows=rows,
             )
         df.to_parquet(args.out / "storm.parquet", index=False)
@@ -274,7 +274,7 @@ def cmd_state(args):
     options = {"targets": targets, "samples": args.samples, "bit": bits}
     partial = partial_records(args, src, cams, "state", pd.DataFrame, **options)  # before any rendering
     with partial.kept() as rows:
-        with work_bar("flips", len(targets) * len(bits) * args.samples, len(rows)) as step:
+        with ProgressBar("flips", len(targets) * len(bits) * args.samples, len(rows)) as bar:
             df = api.state_flips(
                 src,
                 cams,
@@ -284,7 +284,7 @@ def cmd_state(args):
                 seed=args.seed,
                 precision=args.precision,
                 profile=args.profile,
-                progress=partial.progress(step),
+                progress=partial.progress(bar.advance),
                 rows=rows,
             )
         df.to_parquet(args.out / "state.parquet", index=False)

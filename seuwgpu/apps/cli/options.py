@@ -234,35 +234,6 @@ def note_views(args, held: int):
         print(f"seuwgpu: --views {args.views}: {args.cameras} holds {held}, all rendered", file=sys.stderr)
 
 
-class work_bar:
-    """A progress bar on stderr for a long loop (none when stderr is no terminal): `with
-    work_bar("frames", total, done) as step:` then `step()` once a unit of work is done (`done`:
-    the units done before, by the run a resumed one continues)."""
-
-    def __init__(self, what: str, total: int, done: int = 0):
-        self.what, self.total, self.done = what, total, done
-
-    def __enter__(self):
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-        self.p = Progress(
-            TextColumn(f"[bold]{self.what}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("ETA"),
-            TimeRemainingColumn(),
-            transient=True,
-            disable=not sys.stderr.isatty(),
-        )
-        self.p.start()
-        task = self.p.add_task(self.what, total=self.total, completed=self.done)
-        return lambda: self.p.advance(task)
-
-    def __exit__(self, *exc):
-        self.p.stop()
-        return False
-
-
 def parse_formats(text: str) -> tuple[str, ...]:
     from seuwgpu.api import FRAME_FORMATS
 

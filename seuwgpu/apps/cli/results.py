@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from seuwgpu.apps.cli.command import Command
 from seuwgpu.apps.cli.options import positive_int
+from seuwgpu.campaign.progress import ProgressBar
 from seuwgpu.errors import InputError
 
 
@@ -47,7 +47,6 @@ def cmd_rates(args):
     """Weighted outcome rates of runs (finished or still running), folded part by part."""
 
     from rich.console import Console
-    from rich.progress import Progress
     from rich.table import Table
 
     from seuwgpu.analysis.cells import COUNTS, fold_runs, groups, outcome_rates
@@ -58,11 +57,9 @@ def cmd_rates(args):
     if unknown:
         known = ", ".join(["run", *COLUMNS])
         raise InputError(f"--by {', '.join(unknown)}: not a record column (one of {known})")
-    quiet = not sys.stderr.isatty()
     runs = campaign_runs(args.runs)  # each manifest read once
-    with Progress(transient=True, disable=quiet) as bar:
-        task = bar.add_task("reading parts", total=None)
-        cells, n_parts = fold_runs(runs, by, args.campaign, lambda i, n: bar.update(task, completed=i, total=n))
+    with ProgressBar("reading parts") as bar:
+        cells, n_parts = fold_runs(runs, by, args.campaign, bar.update)
     by = groups(cells, by)  # several renderer profiles: a row each, never pooled
     t = outcome_rates(cells, by)
     partial = partial_runs_text(runs)
@@ -115,22 +112,13 @@ def report_arguments(s: argparse.ArgumentParser):
 
 def cmd_report(args):
 
-    from rich.progress import Progress
-
     from seuwgpu.campaign.store import campaign_runs
     from seuwgpu.report.build import build_report, needs_folding
 
     runs = campaign_runs(args.runs)  # each manifest (and part footer) read once
     fold = {"auto": needs_folding(runs), "yes": True, "no": False}[args.fold]
-    with Progress(transient=True, disable=not sys.stderr.isatty()) as bar:
-        task = bar.add_task("reading parts" + (" (folding)" if fold else ""), total=None)
-        index = build_report(
-            runs,
-            args.out,
-            fold=fold,
-            progress=lambda i, n: bar.update(task, completed=i, total=n),
-            workers=args.workers,
-        )
+    with ProgressBar("reading parts" + (" (folding)" if fold else "")) as bar:
+        index = build_report(runs, args.out, fold=fold, progress=bar.update, workers=args.workers)
     print(f"wrote {index}")
     if fold:  # reading the records a second time would double a long load: the report's own table
         table = index.parent / "criticality.md"
