@@ -82,8 +82,8 @@ import numpy as np
 
 from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
-from seuwgpu.model import encoding
-from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, MIN_VIEW_SIZE, n_values
+from seuwgpu.model import budget, encoding
+from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
 from seuwgpu.model.formats import UP_AXES
 
@@ -320,19 +320,12 @@ def _fault(table, out, where):
         out["fault"] = v
 
 
-def parse_size(v, where="size"):
-    if isinstance(v, str):
-        try:
-            w, h = (int(x) for x in v.lower().split("x"))
-        except ValueError:
-            raise SpecError(f'{where} must look like "128x128", got {v!r}') from None
-    elif isinstance(v, list) and len(v) == 2:
-        w, h = v
-    else:
-        raise SpecError(f'{where} must look like "128x128", got {v!r}')
-    if not (isinstance(w, int) and isinstance(h, int)) or w < MIN_VIEW_SIZE or h < MIN_VIEW_SIZE:
-        raise SpecError(f"{where}: width and height must be integers >= {MIN_VIEW_SIZE}, got {v!r}")
-    return int(w), int(h)
+def parse_size(v, where="size") -> tuple[int, int]:
+    """budget.parse_size raising SpecError."""
+    try:
+        return budget.parse_size(v, where)
+    except InputError as e:
+        raise SpecError(str(e)) from None
 
 
 def _name(raw) -> str:

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from seuwgpu.errors import SeuwgpuError
+from seuwgpu.errors import InputError, SeuwgpuError
 from seuwgpu.model.encoding import PRECISIONS
 from seuwgpu.model.formats import UP_AXES
 
@@ -16,16 +16,13 @@ class CliError(SeuwgpuError):
 
 
 def parse_size(text: str) -> tuple[int, int]:
-    """WxH of views, each at least budget.MIN_VIEW_SIZE (a campaign spec's `size` limit too)."""
-    from seuwgpu.model.budget import MIN_VIEW_SIZE
+    """WxH of views (model/budget.py parse_size: a campaign spec's `size` takes the same)."""
+    from seuwgpu.model.budget import parse_size as parse
 
     try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"size must look like 128x96, got {text!r}") from None
-    if w < MIN_VIEW_SIZE or h < MIN_VIEW_SIZE:
-        raise argparse.ArgumentTypeError(f"width and height must be at least {MIN_VIEW_SIZE} px, got {text!r}")
-    return w, h
+        return parse(text)
+    except InputError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def _whole(text: str, lo: int) -> int:
