@@ -495,6 +495,36 @@ def test_parts_carry_their_compute_time(tmp_path):
     pd.testing.assert_frame_equal(pd.read_parquet(store.part_path(tmp_path, 0, 3)), df)
 
 
+def test_parts_are_written_with_the_records_schema_and_checked_when_read(tmp_path):
+    """store.RECORD_SCHEMA: a part's columns are written with its types (an integer column given as
+    whole floats is stored int64, a bitmask computed as uint64 keeps its 64 bits as int64), a
+    column no record has is refused, and a part whose column holds another kind of value is
+    refused when read, naming the part and the column."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    store.records_dir(tmp_path).mkdir(parents=True)
+    mask = np.array([1 << 63, 5], dtype=np.uint64)
+    df = pd.DataFrame({"scene": ["a", "b"], "primitive": [3.0, 4.0], "footprint": [0, 1], "regions_meas_64": mask})
+    store.write_part(tmp_path, 0, 2, df)
+    path = store.part_path(tmp_path, 0, 2)
+    schema = pq.read_schema(path)
+    assert [(f.name, f.type) for f in schema] == [
+        ("scene", pa.large_string()), ("primitive", pa.int64()), ("footprint", pa.float64()),
+        ("regions_meas_64", pa.int64()),
+    ]  # fmt: skip
+    back = store.read_part(path)
+    assert back["primitive"].tolist() == [3, 4] and back["regions_meas_64"].to_numpy().view(np.uint64).tolist() == [
+        1 << 63, 5
+    ]  # fmt: skip
+    with pytest.raises(store.InputError, match="'run' is not a record column"):
+        store.write_part(tmp_path, 2, 2, df.assign(run="x"))
+    pd.DataFrame({"scene": [1, 2]}).to_parquet(store.part_path(tmp_path, 4, 2))  # another tool's file
+    with pytest.raises(store.InputError, match=r"part-0000000004-000002.parquet: column scene holds int64, records"):
+        store.read_part(store.part_path(tmp_path, 4, 2))
+    assert store.COLUMNS == store.RECORD_SCHEMA.names
+
+
 def test_part_writer_writes_every_queued_part_and_reports_errors(tmp_path):
     """campaign/store.py PartWriter: every part queued before close is on disk, with its time;
     a write that fails (here: no records folder) is raised by close, not lost in the thread."""
