@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from seuwgpu.campaign.spec import Spec
 from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.faults.defenses import DEFENSES, check_defense
 from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, INJECT_SAMPLE, VALUE_MODELS, model_bits
@@ -456,17 +457,18 @@ def default_spec() -> Path:
 
 
 def run_campaign(
-    spec: dict | str | Path,
+    spec: dict | str | Path | Spec,
     out: str | Path,
     *,
     progress: Callable[[int, int, int], None] | bool | None = None,
     full: bool = False,
     shard: tuple[int, int] = (0, 1),
 ) -> dict:
-    """Run (or resume) the campaign of a spec (a dict with the keys of a spec file, or a TOML path)
-    into the run directory `out`. `progress(done, total, catastrophic)` is called after each block
-    of injections; `progress=True` shows a rich progress bar (also in a notebook), None or False
-    shows nothing. Returns {injections, new, catastrophic, seconds}."""
+    """Run (or resume) the campaign of a spec (a dict with the keys of a spec file, a TOML path such
+    as `default_spec()`, or a validated `campaign.spec.Spec`) into the run directory `out`.
+    `progress(done, total, catastrophic)` is called after each block of injections;
+    `progress=True` shows a rich progress bar (also in a notebook), None or False shows nothing.
+    Returns {injections, new, catastrophic, seconds}."""
     from seuwgpu.campaign.runner import Runner
     from seuwgpu.campaign.spec import load_spec, normalize_spec
 
@@ -474,8 +476,8 @@ def run_campaign(
         spec = normalize_spec(spec, base_dir=Path.cwd())
     elif isinstance(spec, (str, Path)):
         spec = load_spec(spec)
-    else:
-        raise InputError(f"spec must be a dict or the path of a TOML file, got {type(spec).__name__}")
+    elif not isinstance(spec, Spec):
+        raise InputError(f"spec must be a dict, a Spec or the path of a TOML file, got {type(spec).__name__}")
     runner = Runner(spec, _out_path(out, "run directory"), shard=shard, quiet=progress is not True, full=full)
     if progress is True:
         return runner.run()

@@ -1,5 +1,6 @@
 """Campaigns: spec errors, kill-and-resume, shards, replay by id, stratified sampling."""
 
+import dataclasses
 import signal
 import subprocess
 import sys
@@ -131,7 +132,7 @@ def test_blocks_evaluated_one_by_one_equal_grouped_ones(reference_run, tmp_path,
     monkeypatch.undo()
     runner = Runner(spec, tmp_path / "other", quiet=True)
     todo = list(runner.blocks())
-    eng = SimpleNamespace(evaluator=SimpleNamespace(B=spec["batch"]))  # groups of 8 blocks
+    eng = SimpleNamespace(evaluator=SimpleNamespace(B=spec.batch))  # groups of 8 blocks
     group, j = runner.next_group(todo, 0, eng)
     single = [b for b in todo if b[0] is todo[0][0]]  # the first context's blocks
     assert len(group) == min(8, len(single)) > 1 and j == len(group)
@@ -140,7 +141,7 @@ def test_blocks_evaluated_one_by_one_equal_grouped_ones(reference_run, tmp_path,
     assert runner.next_group(todo, dose_at, eng) == ([todo[dose_at]], dose_at + 1)
     # at a slow measured rate a group holds what it evaluates in GROUP_SECONDS (at least a batch),
     # so its parts are written, and the bar moves, that often
-    slow = 2 * spec["batch"] / Runner.GROUP_SECONDS
+    slow = 2 * spec.batch / Runner.GROUP_SECONDS
     assert runner.next_group(todo, 0, eng, rate=slow) == (todo[:2], 2)
     assert runner.next_group(todo, 0, eng, rate=1e-6) == (todo[:1], 1)
 
@@ -250,7 +251,7 @@ def test_changed_spec_is_refused(reference_run, tmp_path):
         }
     )
     Runner(small, run, quiet=True).run()
-    other = dict(small, seed=2)
+    other = dataclasses.replace(small, seed=2)
     with pytest.raises(SpecError, match="different spec"):
         Runner(other, run, quiet=True).run()
 
@@ -316,7 +317,9 @@ def test_size_sweep_over_several_scenes():
         "sizes": {"n": [100, 200], "fields": ["opacity"], "bits": [31], "samples": 2, "defenses": ["none"]},
     }
     one = enumerate_contexts(normalize_spec(base))
-    assert {c.scene_index for c in one} == {0} and "scenes" not in normalize_spec(base)["sizes"]
+    first = normalize_spec(base)
+    assert {c.scene_index for c in one} == {0} and first.sizes.scenes is None
+    assert "scenes" not in first.to_dict()["sizes"]  # the default is not recorded (older hashes stay)
     base["sizes"]["scenes"] = "all"
     both = enumerate_contexts(normalize_spec(base))
     assert sorted((c.scene_index, c.n) for c in both) == [(0, 100), (0, 200), (1, 100), (1, 200)]
@@ -383,7 +386,7 @@ def test_unreadable_model_or_camera_file_stops_before_the_manifest(tmp_path):
     with pytest.raises(InputError, match="bad.ply"):
         normalize_spec({**base, "scenes": [{"model": str(bad)}]})
     spec = normalize_spec({**base, "scenes": [{"model": str(good)}]})
-    spec["scenes"][0]["model"] = str(bad)  # the file broken after the spec was read
+    spec = dataclasses.replace(spec, scenes=(dataclasses.replace(spec.scenes[0], model=str(bad)),))  # broken after read
     with pytest.raises(InputError, match="bad.ply"):
         Runner(spec, tmp_path / "run", quiet=True).run()
     assert store.read_manifest(tmp_path / "run") is None
@@ -409,11 +412,11 @@ def test_cell_sites_are_drawn_with_replacement():
     )
     ctx = enumerate_contexts(spec)[0]
     ids = np.arange(64)
-    sites, weights = draw_sites(ctx, ids, injection_seeds(spec["seed"], ids), 64, 3)
+    sites, weights = draw_sites(ctx, ids, injection_seeds(spec.seed, ids), 64, 3)
     prims = [s.primitive for s in sites]
     assert len(set(prims)) < 64  # 64 draws over the cell's 64 sites: repeats
     assert np.allclose(weights, 64 / 64)
-    alone, _ = draw_sites(ctx, ids[40:41], injection_seeds(spec["seed"], ids[40:41]), 64, 3)
+    alone, _ = draw_sites(ctx, ids[40:41], injection_seeds(spec.seed, ids[40:41]), 64, 3)
     assert alone[0] == sites[40]  # one injection's site does not depend on the others drawn
 
 
@@ -430,7 +433,7 @@ def test_samples_planned_from_a_margin(tmp_path):
     )
     # sites are drawn with replacement, so the plan takes no finite-population correction (a
     # correction for 2,000 primitives would plan 239 instead of 271)
-    assert spec["single"]["samples"] == sample_size(0.05, 0.9) == 271
+    assert spec.single.samples == sample_size(0.05, 0.9) == 271
     with pytest.raises(SpecError, match="single.samples.margin"):
         normalize_spec({"scenes": [{"scene": "blocks"}], "single": {"samples": {"margin": 5}}})
     with pytest.raises(SpecError, match="unknown key 'margn' in single.samples"):
@@ -444,7 +447,7 @@ def test_samples_planned_from_a_margin(tmp_path):
 def test_outcome_and_reliability_tables_of_the_spec():
     base = {"scenes": [{"scene": "spheres", "n": 100}], "single": {"samples": 1}}
     plain = normalize_spec(base)
-    assert "outcomes" not in plain and "reliability" not in plain  # older specs keep their hash
+    assert "outcomes" not in plain.to_dict() and "reliability" not in plain.to_dict()  # older specs keep their hash
     s = normalize_spec(
         base
         | {
@@ -452,8 +455,8 @@ def test_outcome_and_reliability_tables_of_the_spec():
             "reliability": {"scrub_hours": 6, "rates": [{"environment": "lab", "per_bit_hour": 1e-9, "source": "x"}]},
         }
     )
-    assert s["outcomes"] == {"pixel_threshold": 1 / 255, "footprint": 0.05}
-    assert s["reliability"]["scrub_hours"] == 6.0 and s["reliability"]["rates"][0]["per_bit_hour"] == 1e-9
+    assert s.outcomes.to_dict() == {"pixel_threshold": 1 / 255, "footprint": 0.05}
+    assert s.reliability.scrub_hours == 6.0 and s.reliability.rates[0].per_bit_hour == 1e-9
     for bad, what in (
         ({"outcomes": {"footprint": 2}}, "outcomes.footprint"),
         ({"outcomes": {"pixel": 0.1}}, "unknown key 'pixel'"),
@@ -591,3 +594,35 @@ def test_view_times_render_view_0_within_their_budget(gpu, monkeypatch):
     )
     times = full.view_times_ms(("none", "guard"))
     assert min(times.values()) > 0 and len(seen) == 2 * 10 and all(v is None for v in seen)
+
+
+def test_the_spec_is_typed_and_its_stored_form_round_trips():
+    """normalize_spec returns a Spec (typed sections, frozen); its stored form (the manifest's
+    `spec`, what the hash covers) reads back as the same Spec, and a typo is still one line."""
+    import json
+
+    from seuwgpu.campaign.spec import DoseSpec, SizesSpec, Spec, UpsetSpec, spec_hash
+
+    raw = {
+        "seed": 3,
+        "size": "64x48",
+        "scenes": [{"scene": "spheres", "n": 300}, {"scene": "blocks", "n": 200, "sh_degree": 0}],
+        "single": {"fields": ["log_scale", "opacity"], "bits": [31, 30], "samples": 2, "regions": [4]},
+        "dose": {"k": [4, 1, 4], "repeats": 2},
+        "sizes": {"n": [100, 50], "scenes": "all", "samples": 1},
+        "outcomes": {"footprint": 0.02},
+        "reliability": {"rates": [{"environment": "ground", "per_bit_hour": 1e-12, "source": "x"}]},
+    }
+    spec = normalize_spec(raw)
+    assert isinstance(spec.single, UpsetSpec) and isinstance(spec.dose, DoseSpec) and isinstance(spec.sizes, SizesSpec)
+    assert spec.single.fields == ("log_scales", "opacity") and spec.single.bits == (30, 31)
+    assert spec.dose.k == (1, 4) and spec.sizes.n == (50, 100) and spec.sizes.scenes == (0, 1)
+    assert spec.size == (64, 48) and spec.scenes[1].sh_degree == 0 and spec.outcomes.footprint == 0.02
+    assert spec.reliability.rates[0].per_bit_hour == 1e-12 and spec.reliability.scrub_hours is None
+    stored = json.loads(json.dumps(spec.to_dict()))
+    assert stored["size"] == [64, 48] and "fault" not in stored["single"] and "lpips" not in stored
+    assert Spec.from_dict(stored) == spec and spec_hash(stored) == spec_hash(spec)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        spec.seed = 4
+    with pytest.raises(SpecError, match=r"^unknown key 'sampels' in single \(allowed: "):
+        normalize_spec({"scenes": [{"scene": "spheres"}], "single": {"sampels": 2}})

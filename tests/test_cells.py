@@ -284,7 +284,7 @@ def _spec_run(run_dir, records, raw: dict, ids=range(0, 400)) -> dict:
 
     spec = normalize_spec(raw)
     store.records_dir(run_dir).mkdir(parents=True)
-    manifest = {"spec": spec, "spec_hash": spec_hash(spec), "profile": spec.get("profile", "strict")}
+    manifest = {"spec": spec.to_dict(), "spec_hash": spec_hash(spec), "profile": spec.renderer_profile}
     store.manifest_path(run_dir).write_text(json.dumps({**manifest, "total_injections": 400}))
     rec = records.drop(columns="run")
     for (first, count), rows in store.expected_parts(spec).items():

@@ -243,7 +243,7 @@ def _chdir(cwd):
         os.chdir(cwd)  # relative PLY / camera paths of the spec resolve as on the driver
 
 
-def _prepare_task(spec: dict, out: str, cwd: str | None):
+def _prepare_task(spec, out: str, cwd: str | None):
     from seuwgpu.campaign.runner import Runner
 
     _chdir(cwd)
@@ -253,7 +253,7 @@ def _prepare_task(spec: dict, out: str, cwd: str | None):
 
 
 def _shard_task(
-    spec: dict, out: str, shard: tuple[int, int], full: bool, cwd: str | None, kill_once: str | None = None
+    spec, out: str, shard: tuple[int, int], full: bool, cwd: str | None, kill_once: str | None = None
 ) -> dict:
     _chdir(cwd)
     runner = _shard_runner_class()(spec, Path(out), shard=tuple(shard), quiet=True, full=full, gpu=worker_gpu())
@@ -270,7 +270,7 @@ def _is_system_failure(ray, exc) -> bool:
 
 
 def run_ray(
-    spec: dict,
+    spec,
     out,
     workers: int | None = None,
     address: str | None = None,
@@ -284,11 +284,14 @@ def run_ray(
 ) -> dict:
     """Run (shard `shard` of) a campaign on Ray; returns stats like `Runner.run` plus `workers`,
     `shards`, `resources` and `resubmitted`. Uses the Ray instance already initialised in this
-    process, else connects to `address` or starts a local one with `workers` CPUs."""
+    process, else connects to `address` or starts a local one with `workers` CPUs. `spec`: a
+    Spec, or its stored form."""
     ray = get_ray()
     from seuwgpu.campaign import store
     from seuwgpu.campaign.budget import check_campaign
+    from seuwgpu.campaign.spec import as_spec
 
+    spec = as_spec(spec)
     if workers is not None and (isinstance(workers, bool) or int(workers) != workers or workers < 1):
         # 0 started a Ray instance without CPUs, where the tasks waited forever
         raise ValueError(f"workers must be a whole number of at least 1, got {workers!r}")

@@ -186,12 +186,15 @@ def part_rows(path: Path) -> int | None:
         return None
 
 
-def expected_parts(spec: dict) -> dict[tuple[int, int], int]:
+def expected_parts(spec) -> dict[tuple[int, int], int]:
     """{(first id, count): rows} of every part a spec's campaign writes (blocks of `batch`
-    injections per context, one row per injection and defense)."""
+    injections per context, one row per injection and defense). `spec`: a Spec or its stored
+    form (a manifest's)."""
     from seuwgpu.campaign.sampling import enumerate_contexts
+    from seuwgpu.campaign.spec import as_spec
 
-    out, bs = {}, spec["batch"]
+    spec = as_spec(spec)
+    out, bs = {}, spec.batch
     for ctx in enumerate_contexts(spec):
         for a in range(0, ctx.count, bs):
             m = min(bs, ctx.count - a)
@@ -401,11 +404,13 @@ def read_manifest(run_dir) -> dict | None:
     return m
 
 
-def check_same_run(run_dir, manifest: dict | None, spec: dict, spec_hash: str):
-    """Refuse to add records of `spec` to a run of another spec, naming what differs (a model or
-    camera file whose content changed since the run began, else the spec hashes). A run without
-    any part may be replaced (the caller writes the new manifest)."""
-    from seuwgpu.campaign.spec import SpecError
+def check_same_run(run_dir, manifest: dict | None, spec, spec_hash: str):
+    """Refuse to add records of `spec` (a Spec, or its stored form) to a run of another spec,
+    naming what differs (a model or camera file whose content changed since the run began, else
+    the spec hashes). A run without any part may be replaced (the caller writes the new manifest)."""
+    from seuwgpu.campaign.spec import SpecError, spec_dict
+
+    spec = spec_dict(spec)
 
     if manifest is None or manifest.get("spec_hash") == spec_hash:
         return

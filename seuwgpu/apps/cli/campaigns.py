@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -105,7 +106,7 @@ def cmd_campaign(args):
 
     spec = load_spec(args.spec)
     if args.profile:
-        spec["profile"] = args.profile
+        spec = dataclasses.replace(spec, profile=args.profile)
     run_campaign(
         spec,
         args.out,
@@ -165,9 +166,9 @@ def cmd_plan(args):
         tab.add_column(c, justify="right")
     total = rows = 0
     for ctx in enumerate_contexts(spec):
-        sc = spec["scenes"][ctx.scene_index]
+        sc = spec.scenes[ctx.scene_index]
         name = scene_label(sc)
-        n = ctx.n or sc.get("n")
+        n = ctx.n or sc.n
         margin = "-" if ctx.kind == "dose" else f"+-{100 * margin_of_error(ctx.per_cell, 0.95):.2f} pt"
         tab.add_row(
             ctx.kind,
@@ -244,18 +245,18 @@ def cmd_demo(args):
     if args.samples is not None:
         raw["single"]["samples"] = args.samples
     spec = normalize_spec(raw)
-    sc = spec["scenes"][0]
-    what = f"{sc['scene']} scene, {sc['n']} primitives" if "scene" in sc else f"model {sc['model']}"
-    if "model" in sc and Path(sc["model"]).is_dir():  # an INRIA output folder: say which iteration
+    sc = spec.scenes[0]
+    what = f"{sc.scene} scene, {sc.n} primitives" if sc.scene else f"model {sc.model}"
+    if sc.model and Path(sc.model).is_dir():  # an INRIA output folder: say which iteration
         from seuwgpu.model.formats import inria_iteration_note
 
-        what += f", {inria_iteration_note(sc['model'])}"
-    views = f"{spec['views']} of the views in {sc['cameras']}" if "cameras" in sc else f"{spec['views']} views"
-    views += f" at {spec['size'][0]}x{spec['size'][1]}" if "cameras" not in sc else ""
-    views += f", scaled by {spec['scale']:g}" if "scale" in spec else ""
+        what += f", {inria_iteration_note(sc.model)}"
+    views = f"{spec.views} of the views in {sc.cameras}" if sc.cameras else f"{spec.views} views"
+    views += f" at {spec.size[0]}x{spec.size[1]}" if not sc.cameras else ""
+    views += f", scaled by {spec.scale:g}" if spec.scale is not None else ""
     print(
         f"seuwgpu demo: {what}, {views}, every field and bit at fp32, "
-        f"{spec['single']['samples']} samples per (field, bit) cell, defenses {spec['single']['defenses']}"
+        f"{spec.single.samples} samples per (field, bit) cell, defenses {list(spec.single.defenses)}"
     )
     run_campaign(spec, args.out, quiet=args.quiet)
     from seuwgpu.campaign.store import campaign_runs
