@@ -460,15 +460,21 @@ def run_campaign(
     spec: dict | str | Path | Spec,
     out: str | Path,
     *,
-    progress: Callable[[int, int, int], None] | bool | None = None,
+    progress: Callable[[int, int, int], None] | bool | str | None = None,
     full: bool = False,
     shard: tuple[int, int] = (0, 1),
+    executor: str = "local",
+    workers: int | None = None,
+    address: str | None = None,
 ) -> dict:
     """Run (or resume) the campaign of a spec (a dict with the keys of a spec file, a TOML path such
     as `default_spec()`, or a validated `campaign.spec.Spec`) into the run directory `out`.
     `progress(done, total, catastrophic)` is called after each block of injections;
-    `progress=True` shows a rich progress bar (also in a notebook), None or False shows nothing.
-    Returns {injections, new, catastrophic, seconds}."""
+    `progress=True` shows a rich progress bar (also in a notebook), "log" a line on stderr every
+    10 s (a batch job's log), None or False nothing. `executor="ray"` runs the shard's blocks on
+    Ray workers (`workers` in flight, the cluster at `address`; needs `seuwgpu[ray]`), with the
+    bar or the log lines. Returns {injections, new, catastrophic, seconds, campaign_total} (Ray:
+    and workers, shards, resubmitted)."""
     from seuwgpu.campaign.runner import Runner
     from seuwgpu.campaign.spec import load_spec, normalize_spec
 
@@ -478,10 +484,22 @@ def run_campaign(
         spec = load_spec(spec)
     elif not isinstance(spec, Spec):
         raise InputError(f"spec must be a dict, a Spec or the path of a TOML file, got {type(spec).__name__}")
-    runner = Runner(spec, _out_path(out, "run directory"), shard=shard, quiet=progress is not True, full=full)
-    if progress is True:
-        return runner.run()
-    return runner.run(lambda total, done: _Callback(progress or None, total, done))
+    if executor not in ("local", "ray"):
+        raise InputError(f'executor must be "local" or "ray", got {executor!r}')
+    if isinstance(progress, str) and progress != "log":
+        raise InputError(f'progress must be a function, True, "log" or None, got {progress!r}')
+    out = _out_path(out, "run directory")
+    if executor == "ray":
+        from seuwgpu.campaign.ray import run_ray
+
+        quiet = progress is not True
+        return run_ray(spec, out, workers=workers, address=address, quiet=quiet, full=full, shard=shard)
+    runner = Runner(spec, out, shard=shard, quiet=progress is not True, full=full)
+    if progress is True or progress == "log":
+        stats = runner.run()
+    else:
+        stats = runner.run(lambda total, done: _Callback(progress or None, total, done))
+    return {**stats, "campaign_total": runner.total}
 
 
 class _Callback:

@@ -123,7 +123,7 @@ def test_campaign_records_and_report(tmp_path):
     assert calls[-1][2] == int(df.loc[df.defense == "none", "catastrophic"].sum())
     assert df["footprint"].between(0, 1).all()
     again = sg.run_campaign(spec, tmp_path / "run")  # resume: nothing left to do
-    assert again["new"] == 0 and again["injections"] == 8
+    assert again["new"] == 0 and again["injections"] == 8 and again["campaign_total"] == 8
     assert sg.read_records([tmp_path / "run"]).equals(df)  # a list of runs, as make_report takes
     # another spec into that run (other row counts per part), with a progress function: refused, its
     # parts untouched (the progress adapter read, and deleted as damaged, them before the check)
@@ -354,6 +354,20 @@ def test_storm_and_state_flips_are_the_engine_runs_they_name():
     pd_testing.assert_frame_equal(flips, state_campaign(eng, ["xy", "conic"], 1, [31, 0], 2))
     with pytest.raises(sg.InputError, match="k must be an integer"):
         sg.storm(scene, cams, k=1.5)
+
+
+def test_run_campaign_logs_lines_when_asked(tmp_path, capsys):
+    """progress="log" (the command line's --quiet): a line on stderr with the count and the rate;
+    another word is refused."""
+    spec = {"views": 1, "size": "16x16", "scenes": [{"scene": "spheres", "n": 50}],
+            "single": {"fields": ["opacity"], "bits": [31], "samples": 2, "defenses": ["none"]}}  # fmt: skip
+    stats = sg.run_campaign(spec, tmp_path / "run", progress="log")
+    assert stats["new"] == stats["campaign_total"] == 2
+    assert re.search(r"^2/2 injections, [\d.]+/s, ETA ", capsys.readouterr().err, re.M)
+    with pytest.raises(sg.InputError, match='progress must be a function, True, "log" or None'):
+        sg.run_campaign(spec, tmp_path / "run", progress="bar")
+    with pytest.raises(sg.InputError, match='executor must be "local" or "ray"'):
+        sg.run_campaign(spec, tmp_path / "run", executor="dask")
 
 
 def test_the_readme_example_runs_from_another_directory(tmp_path, monkeypatch):

@@ -33,7 +33,7 @@ def parse_shard(text: str) -> tuple[int, int]:
 
 
 def run_campaign(
-    spec: dict,
+    spec,
     out: Path,
     shard=(0, 1),
     quiet=False,
@@ -42,16 +42,28 @@ def run_campaign(
     workers: int | None = None,
     address: str | None = None,
 ) -> dict:
-    """Run a campaign on the local or the Ray executor (local, with a message saying how to install
-    Ray, when Ray is missing) and print its one-line summary."""
+    """Run a campaign (api.run_campaign) on the local or the Ray executor (local, with a message
+    saying how to install Ray, when Ray is missing) and print its one-line summary."""
+    from seuwgpu import api
+
+    progress = "log" if quiet else True
     if executor == "ray":
-        from seuwgpu.campaign.ray import INSTALL_HINT, ray_available, run_ray
+        from seuwgpu.campaign.ray import INSTALL_HINT, ray_available
 
         if not ray_available():
             print(f"seuwgpu campaign: {INSTALL_HINT}; running on the local executor instead", file=sys.stderr)
         else:
             try:
-                stats = run_ray(spec, out, workers=workers, address=address, quiet=quiet, full=full, shard=shard)
+                stats = api.run_campaign(
+                    spec,
+                    out,
+                    progress=progress,
+                    full=full,
+                    shard=shard,
+                    executor="ray",
+                    workers=workers,
+                    address=address,
+                )
             except RuntimeError as e:
                 raise CliError(str(e)) from None
             rate = stats["new"] / stats["seconds"] if stats["seconds"] > 0 and stats["new"] else float("nan")
@@ -63,16 +75,13 @@ def run_campaign(
                 f"{stats['shards']} shards{resub}{', full re-render' if full else ''})"
             )
             return stats
-    from seuwgpu.campaign.runner import Runner
-
-    runner = Runner(spec, out, shard=shard, quiet=quiet, full=full)
-    stats = runner.run()
+    stats = api.run_campaign(spec, out, progress=progress, full=full, shard=shard)
     if not stats["new"]:
-        print(f"{out}: {stats['injections']} of {runner.total} injections recorded (nothing new to run)")
+        print(f"{out}: {stats['injections']} of {stats['campaign_total']} injections recorded (nothing new to run)")
         return stats
     rate = stats["new"] / stats["seconds"] if stats["seconds"] > 0 else float("nan")
     print(
-        f"{out}: {stats['injections']} of {runner.total} injections recorded"
+        f"{out}: {stats['injections']} of {stats['campaign_total']} injections recorded"
         f" ({stats['new']} new in {stats['seconds']:.1f} s, {rate:.1f} injections/s"
         f"{', full re-render' if full else ''})"
     )
