@@ -25,6 +25,7 @@ _API = (
     "list_scenes",
     "load_model",
     "make_report",
+    "merge_runs",
     "read_records",
     "render_views",
     "report_figures",

@@ -71,6 +71,7 @@ __all__ = [
     "list_scenes",
     "load_model",
     "make_report",
+    "merge_runs",
     "read_records",
     "render_views",
     "report_figures",
@@ -502,6 +503,19 @@ def run_campaign(
     return {**stats, "campaign_total": runner.total}
 
 
+def merge_runs(shards: Iterable[str | Path], out: str | Path, *, allow_partial: bool = False) -> dict:
+    """Join the run directories of `--shard` slices of one spec into the run directory `out` (a
+    slice run twice, or a whole run beside its slices, merges). `allow_partial`: merge even when
+    parts are missing. Returns {parts, missing_parts} (missing: [first id, count] each)."""
+    from seuwgpu.campaign import store
+    from seuwgpu.campaign.merge import merge
+
+    shards = [_out_path(d, "shard directory") for d in _paths(shards)]
+    n = merge(_out_path(out, "run directory"), shards, allow_partial=allow_partial)
+    missing = (store.read_manifest(out) or {}).get("missing_parts", [])
+    return {"parts": n, "missing_parts": missing}
+
+
 class _Callback:
     """Adapts a progress function to the runner's progress protocol (advance, close)."""
 
@@ -674,6 +688,11 @@ def _size(size) -> tuple[int, int]:
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
             raise InputError(f"size must be two positive integers (width, height), got {size!r}")
     return int(w), int(h)
+
+
+def _paths(values) -> list:
+    """One path, or an iterable of them, as a list."""
+    return [values] if isinstance(values, (str, Path)) else list(values)
 
 
 def _names(values, what: str) -> list[str]:

@@ -426,3 +426,27 @@ def test_save_models_leaves_out_an_spz_that_cannot_hold_the_damage(tmp_path):
     with pytest.warns(Warning, match="1 non-finite values"):
         back = sg.load_model(tmp_path / "faulted.ply").model
     assert not np.isfinite(back.opacity[3]) and np.array_equal(back.opacity[:3], scene.model.opacity[:3])
+
+
+def test_merge_runs_joins_the_shards_of_a_spec(tmp_path):
+    """sg.merge_runs: the records of two --shard slices joined are theirs, together; one slice
+    alone is refused unless allow_partial, which lists the parts it lacks."""
+    import pandas as pd
+
+    spec = {"views": 1, "size": "16x16", "batch": 2, "scenes": [{"scene": "spheres", "n": 60}],
+            "single": {"fields": ["opacity"], "bits": [31, 30], "samples": 2, "defenses": ["none"]}}  # fmt: skip
+    shards = [tmp_path / f"s{i}" for i in range(2)]
+    for i, d in enumerate(shards):
+        sg.run_campaign(spec, d, shard=(i, 2))
+    merged = sg.merge_runs(shards, tmp_path / "all")
+    assert merged == {"parts": 2, "missing_parts": []}
+    key = ["injection_id", "defense"]
+
+    def records(*runs):  # without the `run` label read_records adds
+        df = pd.concat([sg.read_records(d) for d in runs]).drop(columns="run")
+        return df.sort_values(key).reset_index(drop=True)
+
+    pd.testing.assert_frame_equal(records(tmp_path / "all"), records(*shards))
+    with pytest.raises(sg.InputError, match="missing"):
+        sg.merge_runs(shards[0], tmp_path / "part")
+    assert sg.merge_runs(shards[0], tmp_path / "part2", allow_partial=True)["missing_parts"] == [[2, 2]]

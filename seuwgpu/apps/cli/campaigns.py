@@ -301,11 +301,10 @@ def merge_arguments(s: argparse.ArgumentParser):
 
 
 def cmd_merge(args):
-    from seuwgpu.campaign import store
-    from seuwgpu.campaign.merge import merge
+    from seuwgpu import api
 
-    n = merge(args.out, args.shards, allow_partial=args.allow_partial)
-    missing = (store.read_manifest(args.out) or {}).get("missing_parts", [])
+    merged = api.merge_runs(args.shards, args.out, allow_partial=args.allow_partial)
+    n, missing = merged["parts"], merged["missing_parts"]
     gap = f"; {len(missing)} parts missing (listed in the manifest)" if missing else ""
     print(f"merged {n} parts from {len(args.shards)} shard directories into {args.out}{gap}")
     return 0
