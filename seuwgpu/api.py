@@ -547,15 +547,26 @@ def read_records(*runs: str | Path) -> pd.DataFrame:
     return df
 
 
-def make_report(runs: str | Path | Iterable[str | Path], out: str | Path, fold: bool | None = None) -> Path:
+def make_report(
+    runs: str | Path | Iterable[str | Path],
+    out: str | Path,
+    fold: bool | None = None,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+    workers: int | None = None,
+) -> Path:
     """Write the report of the runs (HTML, figures as PNG, tables as CSV and Markdown,
     summary.json) into `out`; returns the path of index.html. fold: fold the records as they
-    are read (the same numbers in less memory; None: only when they would not fit unfolded)."""
-    from seuwgpu.campaign.store import make_out_dir
+    are read (the same numbers in less memory; None: only when they would not fit unfolded).
+    `progress(parts read, parts)` as the parts are read; `workers`: processes folding parts side
+    by side (default: one per CPU, at most 8, from 256 parts on). `runs` may also be the
+    campaign_runs of campaign/store.py (their manifests read once by the caller)."""
+    from seuwgpu.campaign.store import CampaignRun, make_out_dir
     from seuwgpu.report.build import build_report
 
-    runs = [_existing(r, "run directory") for r in ([runs] if isinstance(runs, (str, Path)) else runs)]
-    return build_report(runs, make_out_dir(_out_path(out, "report folder"), what="report folder"), fold=fold)
+    runs = [r if isinstance(r, CampaignRun) else _existing(r, "run directory") for r in _paths(runs)]
+    out = make_out_dir(_out_path(out, "report folder"), what="report folder")
+    return build_report(runs, out, fold=fold, progress=progress, workers=workers)
 
 
 def report_figures(runs: str | Path | Iterable[str | Path]) -> dict:

@@ -143,8 +143,11 @@ def test_campaign_records_and_report(tmp_path):
     with pytest.raises(sg.InputError, match=in_the_way):
         sg.make_report(tmp_path / "run", tmp_path / "a-file")
 
-    index = sg.make_report(tmp_path / "run", tmp_path / "report")
+    read = []
+    index = sg.make_report(tmp_path / "run", tmp_path / "report", progress=lambda i, n: read.append((i, n)))
     assert index.exists() and (tmp_path / "report" / "summary.json").exists()
+    parts = len(list((tmp_path / "run" / "records").glob("part-*.parquet")))
+    assert read and read[-1] == (parts, parts)  # every part read, counted as it was
     figs = sg.report_figures([tmp_path / "run"])
     import matplotlib.figure
 

@@ -78,6 +78,7 @@ def test_output_paths_checked_before_the_work(tmp_path, capsys, monkeypatch):
     for seconds and then print "File exists"); `scene --out` without a NAME says which is missing."""
     afile = tmp_path / "afile"
     afile.write_text("x")
+    import seuwgpu.api  # noqa: F401  (imported first: it binds the real loader, kept for the tests after this one)
     from seuwgpu.model import sources
 
     def no_work(*a, **k):

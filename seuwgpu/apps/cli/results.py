@@ -112,13 +112,14 @@ def report_arguments(s: argparse.ArgumentParser):
 
 def cmd_report(args):
 
+    from seuwgpu import api
     from seuwgpu.campaign.store import campaign_runs
-    from seuwgpu.report.build import build_report, needs_folding
+    from seuwgpu.report.build import needs_folding
 
     runs = campaign_runs(args.runs)  # each manifest (and part footer) read once
     fold = {"auto": needs_folding(runs), "yes": True, "no": False}[args.fold]
     with ProgressBar("reading parts" + (" (folding)" if fold else "")) as bar:
-        index = build_report(runs, args.out, fold=fold, progress=bar.update, workers=args.workers)
+        index = api.make_report(runs, args.out, fold=fold, progress=bar.update, workers=args.workers)
     print(f"wrote {index}")
     if fold:  # reading the records a second time would double a long load: the report's own table
         table = index.parent / "criticality.md"
