@@ -26,6 +26,7 @@ _API = (
     "load_model",
     "make_report",
     "merge_runs",
+    "outcome_rates",
     "read_records",
     "render_views",
     "report_figures",

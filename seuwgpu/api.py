@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.campaign.spec import Spec
+from seuwgpu.campaign.store import CampaignRun
 from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.faults.defenses import DEFENSES, check_defense
 from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, INJECT_SAMPLE, VALUE_MODELS, model_bits
@@ -72,6 +73,7 @@ __all__ = [
     "load_model",
     "make_report",
     "merge_runs",
+    "outcome_rates",
     "read_records",
     "render_views",
     "report_figures",
@@ -561,12 +563,43 @@ def make_report(
     `progress(parts read, parts)` as the parts are read; `workers`: processes folding parts side
     by side (default: one per CPU, at most 8, from 256 parts on). `runs` may also be the
     campaign_runs of campaign/store.py (their manifests read once by the caller)."""
-    from seuwgpu.campaign.store import CampaignRun, make_out_dir
+    from seuwgpu.campaign.store import make_out_dir
     from seuwgpu.report.build import build_report
 
     runs = [r if isinstance(r, CampaignRun) else _existing(r, "run directory") for r in _paths(runs)]
     out = make_out_dir(_out_path(out, "report folder"), what="report folder")
     return build_report(runs, out, fold=fold, progress=progress, workers=workers)
+
+
+def outcome_rates(
+    runs: str | Path | Iterable[str | Path],
+    *,
+    by: Sequence[str] = ("scene", "precision", "defense"),
+    campaign: str = "single",
+    progress: Callable[[int, int], None] | None = None,
+) -> pd.DataFrame:
+    """The weighted rate of each outcome class and of non-finite frames, with its 95% interval
+    (Wilson per cell, stratified Wilson when pooled), per group of the record columns `by`
+    (`run` too), folded part by part: any number of records, and runs still going. Defenses and
+    renderer profiles always get rows of their own. `campaign`: "single" or "size" (the
+    primitive-count sweep). Columns: the groups, n, then {outcome}_rate, _ci_lo, _ci_hi as
+    proportions; `.attrs`: records, parts, groups (the columns grouped by) and partial (a
+    sentence naming unfinished runs, "" if none)."""
+    from seuwgpu.analysis.cells import fold_runs, groups
+    from seuwgpu.analysis.cells import outcome_rates as rates
+    from seuwgpu.campaign.store import campaign_runs, check_record_columns, partial_runs_text
+
+    by = list(dict.fromkeys(_names(by, "by")))  # a column named twice: once
+    check_record_columns(by, "by")
+    if campaign not in ("single", "size"):
+        raise InputError(f'campaign must be "single" or "size", got {campaign!r}')
+    found = campaign_runs(_paths(runs))  # a folder that is no run: fold_runs says so
+    cells, n_parts = fold_runs(found, by, campaign, progress)
+    by = groups(cells, by)  # several renderer profiles: a row each, never pooled
+    table = rates(cells, by)
+    table.attrs.update(records=int(cells["n_records"].sum()), parts=n_parts, groups=by)
+    table.attrs["partial"] = partial_runs_text(found)
+    return table
 
 
 def report_figures(runs: str | Path | Iterable[str | Path]) -> dict:

@@ -85,6 +85,14 @@ def columns_of(ctx) -> list[str]:
     return COLUMNS + [f"regions_{kind}_{P}" for P in ctx.regions for kind in ("pred", "meas")]
 
 
+def check_record_columns(names, what: str):
+    """Refuse names that are no record column (nor `run`, the label of a run), naming `what`."""
+    unknown = [c for c in names if c != "run" and c not in COLUMNS]
+    if unknown:
+        known = ", ".join(["run", *COLUMNS])
+        raise InputError(f"{what} {', '.join(unknown)}: not a record column (one of {known})")
+
+
 def column_type(name: str) -> pa.DataType | None:
     """The type of a record column, None for a name no record has."""
     if name in COLUMNS:

@@ -8,7 +8,6 @@ from pathlib import Path
 from seuwgpu.apps.cli.command import Command
 from seuwgpu.apps.cli.options import positive_int
 from seuwgpu.campaign.progress import ProgressBar
-from seuwgpu.errors import InputError
 
 
 def print_criticality(run_dirs):
@@ -45,31 +44,25 @@ def rates_arguments(s: argparse.ArgumentParser):
 
 def cmd_rates(args):
     """Weighted outcome rates of runs (finished or still running), folded part by part."""
-
     from rich.console import Console
     from rich.table import Table
 
-    from seuwgpu.analysis.cells import COUNTS, fold_runs, groups, outcome_rates
-    from seuwgpu.campaign.store import COLUMNS, campaign_runs, partial_runs_text
+    from seuwgpu import api
+    from seuwgpu.analysis.cells import COUNTS
+    from seuwgpu.campaign.store import check_record_columns
 
     by = list(dict.fromkeys(c.strip() for c in args.by.split(",") if c.strip()))  # a column named twice: once
-    unknown = [c for c in by if c != "run" and c not in COLUMNS]
-    if unknown:
-        known = ", ".join(["run", *COLUMNS])
-        raise InputError(f"--by {', '.join(unknown)}: not a record column (one of {known})")
-    runs = campaign_runs(args.runs)  # each manifest read once
+    check_record_columns(by, "--by")
     with ProgressBar("reading parts") as bar:
-        cells, n_parts = fold_runs(runs, by, args.campaign, bar.update)
-    by = groups(cells, by)  # several renderer profiles: a row each, never pooled
-    t = outcome_rates(cells, by)
-    partial = partial_runs_text(runs)
+        t = api.outcome_rates(args.runs, by=by, campaign=args.campaign, progress=bar.update)
+    by, partial = t.attrs["groups"], t.attrs["partial"]
     if args.csv:
         from seuwgpu.campaign.store import make_out_dir
 
         make_out_dir(args.csv.parent, "--csv", "folder")
         t.to_csv(args.csv, index=False)
     tab = Table(
-        title=f"{args.campaign} upsets, {int(cells['n_records'].sum()):,} records in {n_parts:,} parts: weighted "
+        title=f"{args.campaign} upsets, {t.attrs['records']:,} records in {t.attrs['parts']:,} parts: weighted "
         "rate per outcome, % [95% interval: Wilson per cell, stratified Wilson when pooled]"
     )
     for c in [*by, "n", *COUNTS]:
