@@ -68,6 +68,9 @@ __all__ = [
     "TooBig",
     "cameras",
     "default_spec",
+    "defense_costs",
+    "device_info",
+    "export_scene",
     "inject",
     "list_scenes",
     "load_model",
@@ -146,6 +149,43 @@ def cameras(
     if scale is not None and not (number and math.isfinite(scale) and 0 < scale <= MAX_SCALE):
         raise InputError(f"scale must be a number in (0, {MAX_SCALE}], got {scale!r}")
     return source_views(scene, cameras, views, (w, h), scale, default_views=4)
+
+
+def export_scene(
+    name: str, out: str | Path, *, n: int | None = None, sh_degree: int = 3, seed: int = 0
+) -> tuple[Model, str]:
+    """Write an embedded scene (`list_scenes()`) as an INRIA PLY (`.ply`) or a Niantic SPZ
+    (`.spz`), chosen by the extension: a procedural scene +z up, a real capture +y up with its
+    antialiased flag in the SPZ header. Returns (the model written, the format)."""
+    from seuwgpu.model.captures import capture_antialiased
+    from seuwgpu.model.formats import save_model
+    from seuwgpu.model.scenes import is_capture, make_scene
+
+    if name not in list_scenes():
+        raise InputError(f"{name!r} is not an embedded scene; scenes: {', '.join(list_scenes())}")
+    model = make_scene(name, n=n, sh_degree=sh_degree, seed=seed)
+    capture = is_capture(name)  # a real capture's antialiased flag goes into an SPZ header (PLY has none)
+    aa = {"antialiased": True} if capture and capture_antialiased(name) else {}
+    fmt = save_model(model, _out_path(out, "model file"), up="+y" if capture else "+z", **aa)
+    return model, fmt
+
+
+def device_info() -> dict:
+    """The adapter in use: device, vendor, backend, adapter type, driver, its features and its
+    limits (WebGPU names)."""
+    from seuwgpu.gpu.device import get_gpu
+
+    gpu = get_gpu()
+    info = gpu.info
+    return {
+        "device": info.get("device"),
+        "vendor": info.get("vendor"),
+        "backend": info.get("backend_type"),
+        "adapter_type": info.get("adapter_type"),
+        "driver": info.get("description"),
+        "features": sorted(gpu.adapter.features),
+        "limits": dict(gpu.limits),
+    }
 
 
 # ---- rendering ------------------------------------------------------------------------------------
@@ -402,6 +442,20 @@ def worst_case(
         _whole(max_evaluations, "max_evaluations", 1)
     eng = _engine(scene, views, precision, profile, "worst_case")
     return {d: search(eng, d, fields, bits, max_evaluations=max_evaluations) for d in defenses}
+
+
+def defense_costs(
+    scene: Scene | Model, view: Camera, *, precision: str = "fp32", repeats: int = 7, time_it: bool = True
+) -> list[dict]:
+    """Every defense with its memory overhead (a fraction of the model's bytes) and its time per
+    view (a fraction of the undefended view's, the median of `repeats` rounds on this device; NaN
+    with time_it=False): [{name, memory_overhead, time_fraction, time_basis, description}]."""
+    from seuwgpu.faults.costs import defense_costs as costs
+
+    _whole(repeats, "repeats", 1)
+    if not isinstance(view, Camera):
+        raise InputError(f"view must be a Camera (from cameras()), got {type(view).__name__}")
+    return costs(_model_of(scene), view, encoding.check_precision(precision), repeats, time_it=time_it)
 
 
 def save_frames(

@@ -453,3 +453,26 @@ def test_merge_runs_joins_the_shards_of_a_spec(tmp_path):
     with pytest.raises(sg.InputError, match="missing"):
         sg.merge_runs(shards[0], tmp_path / "part")
     assert sg.merge_runs(shards[0], tmp_path / "part2", allow_partial=True)["missing_parts"] == [[2, 2]]
+
+
+def test_device_info_export_scene_and_defense_costs(tmp_path):
+    """The functions behind `info`, `scene` and `defenses`: the adapter's limits as wgpu reports
+    them, an embedded scene written and read back unchanged, and every defense's cost row."""
+    from seuwgpu.gpu.device import get_gpu
+    from seuwgpu.model.formats import read_model
+    from seuwgpu.model.scenes import make_scene
+
+    info = sg.device_info()
+    gpu = get_gpu()
+    assert info["limits"]["max-buffer-size"] == gpu.limits["max-buffer-size"]
+    assert info["features"] == sorted(gpu.adapter.features) and info["device"] == gpu.info.get("device")
+    model, fmt = sg.export_scene("spheres", tmp_path / "s.ply", n=40, sh_degree=1)
+    assert fmt == "ply" and np.array_equal(read_model(tmp_path / "s.ply").model.flat(), model.flat())
+    assert np.array_equal(model.flat(), make_scene("spheres", n=40, sh_degree=1).flat())
+    with pytest.raises(sg.InputError, match="not an embedded scene"):
+        sg.export_scene("nope", tmp_path / "n.ply")
+    scene = sg.load_model("spheres", n=40)
+    rows = sg.defense_costs(scene, sg.cameras(scene, views=1, size=(32, 32))[0], time_it=False)
+    assert [r["name"] for r in rows] == list(sg.DEFENSES)
+    assert all(np.isnan(r["time_fraction"]) and r["memory_overhead"] >= 0 for r in rows)
+    assert rows[0]["name"] == "none" and rows[0]["memory_overhead"] == 0

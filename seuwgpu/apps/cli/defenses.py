@@ -75,13 +75,13 @@ def defenses_arguments(s: argparse.ArgumentParser):
 def cmd_defenses(args):
     """Every defense with its memory overhead and its time cost, measured on this device for the
     named model (or not measured with --no-time: time_fraction NaN)."""
-    from seuwgpu.faults.costs import defense_costs
+    from seuwgpu import api
 
     if args.scene is None and args.model is None:
         args.scene = "leica-sofort"
     src = load_source(args)
     cam = load_cams(args, src, one_size=False)[0]  # one view: any size
-    rows = defense_costs(src.model, cam, args.precision, args.repeats, time_it=not args.no_time)
+    rows = api.defense_costs(src, cam, precision=args.precision, repeats=args.repeats, time_it=not args.no_time)
     if args.json:
         import json
 

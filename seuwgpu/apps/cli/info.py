@@ -13,13 +13,12 @@ def info_arguments(s: argparse.ArgumentParser):
 
 
 def cmd_info(args):
-    from seuwgpu.gpu.device import get_gpu
+    from seuwgpu import api
 
-    gpu = get_gpu()
-    info = gpu.info
-    print(f"adapter: {info.get('device')} ({info.get('vendor')})")
-    print(f"backend: {info.get('backend_type')}  type: {info.get('adapter_type')}  driver: {info.get('description')}")
-    feats = sorted(gpu.adapter.features)
+    info = api.device_info()
+    print(f"adapter: {info['device']} ({info['vendor']})")
+    print(f"backend: {info['backend']}  type: {info['adapter_type']}  driver: {info['driver']}")
+    feats = info["features"]
     print("features that matter: " + ", ".join(f for f in ("shader-f16", "timestamp-query", "subgroup") if f in feats))
     for k in (
         "max-storage-buffer-binding-size",
@@ -29,7 +28,7 @@ def cmd_info(args):
         "max-compute-workgroups-per-dimension",
         "max-storage-buffers-per-shader-stage",
     ):
-        print(f"{k}: {gpu.limits.get(k)}")
+        print(f"{k}: {info['limits'].get(k)}")
     return 0
 
 

@@ -34,9 +34,8 @@ def scene_arguments(s: argparse.ArgumentParser):
 
 
 def cmd_scene(args):
-    from seuwgpu.model.captures import capture_antialiased
-    from seuwgpu.model.formats import save_model
-    from seuwgpu.model.scenes import is_capture, list_scenes, make_scene, scene_description
+    from seuwgpu import api
+    from seuwgpu.model.scenes import list_scenes, scene_description
 
     if not args.list and not args.name and args.out is not None:
         raise CliError("which scene? give its NAME before --out (`seuwgpu scene --list` names them)")
@@ -47,10 +46,7 @@ def cmd_scene(args):
         return 0
     if args.out is None:
         raise CliError("--out FILE.ply (INRIA PLY) or FILE.spz (Niantic SPZ) is required")
-    model = make_scene(args.name, n=args.n, sh_degree=args.sh_degree, seed=args.seed)
-    capture = is_capture(args.name)  # a real capture's antialiased flag goes into an SPZ header (PLY has none)
-    aa = {"antialiased": True} if capture and capture_antialiased(args.name) else {}
-    fmt = save_model(model, args.out, up="+y" if capture else "+z", **aa)
+    model, fmt = api.export_scene(args.name, args.out, n=args.n, sh_degree=args.sh_degree, seed=args.seed)
     print(f"wrote {args.out} ({fmt}): {model.n} primitives, SH degree {model.sh_degree}")
     return 0
 
