@@ -30,6 +30,7 @@ _API = (
     "make_report",
     "merge_runs",
     "outcome_rates",
+    "plan_campaign",
     "read_records",
     "render_views",
     "report_figures",

@@ -77,6 +77,7 @@ __all__ = [
     "make_report",
     "merge_runs",
     "outcome_rates",
+    "plan_campaign",
     "read_records",
     "render_views",
     "report_figures",
@@ -533,14 +534,8 @@ def run_campaign(
     bar or the log lines. Returns {injections, new, catastrophic, seconds, campaign_total} (Ray:
     and workers, shards, resubmitted)."""
     from seuwgpu.campaign.runner import Runner
-    from seuwgpu.campaign.spec import load_spec, normalize_spec
 
-    if isinstance(spec, dict):
-        spec = normalize_spec(spec, base_dir=Path.cwd())
-    elif isinstance(spec, (str, Path)):
-        spec = load_spec(spec)
-    elif not isinstance(spec, Spec):
-        raise InputError(f"spec must be a dict, a Spec or the path of a TOML file, got {type(spec).__name__}")
+    spec = _spec(spec)
     if executor not in ("local", "ray"):
         raise InputError(f'executor must be "local" or "ray", got {executor!r}')
     if isinstance(progress, str) and progress != "log":
@@ -557,6 +552,39 @@ def run_campaign(
     else:
         stats = runner.run(lambda total, done: _Callback(progress or None, total, done))
     return {**stats, "campaign_total": runner.total}
+
+
+def plan_campaign(spec: dict | str | Path | Spec) -> pd.DataFrame:
+    """What a spec will run, one row per context (campaign section, scene, primitive count,
+    precision): cells, samples per cell, injections, arms (defenses), records, and the margin of
+    error of a cell's rate (95% confidence, worst case p = 0.5, sites drawn with replacement; NaN
+    for dose contexts); `n` is <NA> for a model file's own primitives. `spec` as run_campaign
+    takes it."""
+    from seuwgpu.campaign.plan import margin_of_error
+    from seuwgpu.campaign.sampling import enumerate_contexts
+    from seuwgpu.campaign.spec import scene_label
+
+    spec = _spec(spec)
+    rows = []
+    for ctx in enumerate_contexts(spec):
+        sc = spec.scenes[ctx.scene_index]
+        rows.append(
+            {
+                "campaign": ctx.kind,
+                "scene": scene_label(sc),
+                "n": ctx.n or sc.n,
+                "precision": ctx.precision,
+                "cells": len(ctx.cells),
+                "per_cell": ctx.per_cell,
+                "injections": ctx.count,
+                "arms": len(ctx.defenses),
+                "records": ctx.count * len(ctx.defenses),
+                "margin": float("nan") if ctx.kind == "dose" else margin_of_error(ctx.per_cell, 0.95),
+            }
+        )
+    plan = pd.DataFrame(rows)
+    plan["n"] = pd.array(plan["n"].tolist(), dtype="Int64")  # exact counts; <NA>: a model file's own
+    return plan
 
 
 def merge_runs(shards: Iterable[str | Path], out: str | Path, *, allow_partial: bool = False) -> dict:
@@ -689,6 +717,19 @@ def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], st
             raise InputError(f"width must be one of {', '.join(map(str, ADJACENT_WIDTHS))}, got {width!r}")
         return model_bits("adjacent", int(bits[0]), precision, ADJACENT_WIDTHS.index(width))
     return tuple(int(b) for b in bits), ("flip" if fault in ("bit", "adjacent") else fault), 0
+
+
+def _spec(spec) -> Spec:
+    """A validated spec from a dict (files relative to the working folder), a TOML path or a Spec."""
+    from seuwgpu.campaign.spec import load_spec, normalize_spec
+
+    if isinstance(spec, dict):
+        return normalize_spec(spec, base_dir=Path.cwd())
+    if isinstance(spec, (str, Path)):
+        return load_spec(spec)
+    if not isinstance(spec, Spec):
+        raise InputError(f"spec must be a dict, a Spec or the path of a TOML file, got {type(spec).__name__}")
+    return spec
 
 
 def _engine(scene, views, precision: str, profile: str, what: str):

@@ -476,3 +476,24 @@ def test_device_info_export_scene_and_defense_costs(tmp_path):
     assert [r["name"] for r in rows] == list(sg.DEFENSES)
     assert all(np.isnan(r["time_fraction"]) and r["memory_overhead"] >= 0 for r in rows)
     assert rows[0]["name"] == "none" and rows[0]["memory_overhead"] == 0
+
+
+def test_plan_campaign_counts_what_a_spec_runs(tmp_path):
+    """sg.plan_campaign (what `seuwgpu plan` prints): cells x samples injections per context, a
+    record per defense, the worst-case margin z * 0.5 / sqrt(samples) of a cell's rate, and <NA>
+    for a model file's primitive count."""
+    import math
+
+    sg.export_scene("spheres", tmp_path / "m.ply", n=50)
+    spec = {"scenes": [{"scene": "spheres", "n": 1000}, {"model": str(tmp_path / "m.ply")}],
+            "single": {"fields": ["opacity", "means"], "bits": [31, 30, 29], "samples": 3},
+            "dose": {"k": [1, 2], "repeats": 2, "defenses": ["none"]}}  # fmt: skip
+    plan = sg.plan_campaign(spec)
+    assert plan["campaign"].tolist() == ["single", "single", "dose", "dose"]
+    assert plan["scene"].tolist() == ["spheres", "m", "spheres", "m"]
+    assert plan["n"].iloc[0] == 1000 and plan["n"].isna().tolist() == [False, True, False, True]
+    single = plan.iloc[0]
+    assert (single.cells, single.per_cell, single.injections, single.arms, single.records) == (6, 3, 18, 2, 36)
+    assert single.margin == pytest.approx(1.959964 * 0.5 / math.sqrt(3), rel=1e-5)
+    dose = plan.iloc[2]
+    assert (dose.cells, dose.per_cell, dose.injections, dose.records) == (2, 2, 4, 4) and math.isnan(dose.margin)

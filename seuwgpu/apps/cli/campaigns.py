@@ -149,14 +149,15 @@ def plan_arguments(s: argparse.ArgumentParser):
 
 def cmd_plan(args):
     """What a spec will run: injections per context, and the margin each cell's sample gives."""
+    import pandas as pd
     from rich.console import Console
     from rich.table import Table
 
-    from seuwgpu.campaign.plan import margin_of_error, sample_size
-    from seuwgpu.campaign.sampling import enumerate_contexts
-    from seuwgpu.campaign.spec import load_spec, scene_label
+    from seuwgpu import api
+    from seuwgpu.campaign.plan import sample_size
+    from seuwgpu.campaign.spec import load_spec
 
-    spec = load_spec(args.spec)
+    plan = api.plan_campaign(load_spec(args.spec))
     tab = Table(
         title=f"{args.spec}: campaign plan (margins: 95% confidence, worst case p = 0.5, sites drawn with replacement)"
     )
@@ -173,26 +174,20 @@ def cmd_plan(args):
         "margin per cell",
     ):
         tab.add_column(c, justify="right")
-    total = rows = 0
-    for ctx in enumerate_contexts(spec):
-        sc = spec.scenes[ctx.scene_index]
-        name = scene_label(sc)
-        n = ctx.n or sc.n
-        margin = "-" if ctx.kind == "dose" else f"+-{100 * margin_of_error(ctx.per_cell, 0.95):.2f} pt"
+    for r in plan.itertuples():
         tab.add_row(
-            ctx.kind,
-            name,
-            f"{n:,}" if n else "file",
-            ctx.precision,
-            str(len(ctx.cells)),
-            str(ctx.per_cell),
-            f"{ctx.count:,}",
-            str(len(ctx.defenses)),
-            f"{ctx.count * len(ctx.defenses):,}",
-            margin,
+            r.campaign,
+            r.scene,
+            "file" if pd.isna(r.n) else f"{r.n:,}",
+            r.precision,
+            str(r.cells),
+            str(r.per_cell),
+            f"{r.injections:,}",
+            str(r.arms),
+            f"{r.records:,}",
+            "-" if r.campaign == "dose" else f"+-{100 * r.margin:.2f} pt",
         )
-        total += ctx.count
-        rows += ctx.count * len(ctx.defenses)
+    total, rows = int(plan["injections"].sum()), int(plan["records"].sum())
     Console(width=140).print(tab)
     print(f"total: {total:,} injections, {rows:,} records")
     if args.margin:
