@@ -36,6 +36,7 @@ _API = (
     "report_figures",
     "run_campaign",
     "save_frames",
+    "sort_first",
     "state_flips",
     "storm",
     "worst_case",

@@ -83,6 +83,7 @@ __all__ = [
     "report_figures",
     "run_campaign",
     "save_frames",
+    "sort_first",
     "state_flips",
     "storm",
     "worst_case",
@@ -457,6 +458,41 @@ def defense_costs(
     if not isinstance(view, Camera):
         raise InputError(f"view must be a Camera (from cameras()), got {type(view).__name__}")
     return costs(_model_of(scene), view, encoding.check_precision(precision), repeats, time_it=time_it)
+
+
+def sort_first(
+    scene: Scene | Model,
+    views: Sequence[Camera],
+    *,
+    ranks: Sequence[int] = (4,),
+    upset: str | None = None,
+    component: int = 0,
+    primitive: int | None = None,
+    sample: int = 32,
+    seed: int = 0,
+    guard: str = "scrub",
+    repeats: int = 3,
+    precision: str = "fp32",
+    address: str | None = None,
+) -> list[dict]:
+    """Sort-first rendering over Ray ranks (campaign/sortfirst.py; needs `seuwgpu[ray]`): for each
+    rank count P, the per-rank render times and, with `upset` ("field:bit", e.g. "log_scales:31",
+    applied to every rank's copy), the ranks it contaminates with and without the node-local
+    `guard` ("scrub" the stored copy, or "clamp" in the pipeline). Without `primitive`, the most
+    harmful of `sample` primitives. Prints a table per rank count; returns the results."""
+    from seuwgpu.campaign.ray import INSTALL_HINT, ray_available
+    from seuwgpu.campaign.sortfirst import parse_upset, sort_first_tables
+
+    if not ray_available():
+        raise InputError(f"sort-first rendering needs Ray. {INSTALL_HINT}")
+    for p in ranks:
+        _whole(p, "ranks", 1)
+    parsed = None if upset is None else parse_upset(upset)
+    kw = {"component": component, "primitive": primitive, "sample": sample, "seed": seed, "guard": guard}
+    return sort_first_tables(
+        _model_of(scene), _views(views), encoding.check_precision(precision), list(ranks), parsed,
+        address=address, repeats=repeats, **kw,
+    )  # fmt: skip
 
 
 def save_frames(

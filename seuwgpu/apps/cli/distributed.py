@@ -43,26 +43,25 @@ def distributed_arguments(s: argparse.ArgumentParser):
 
 def cmd_distributed(args):
     """Sort-first rendering across Ray actors: per-rank times and the ranks an upset contaminates."""
+    from seuwgpu import api
     from seuwgpu.campaign.ray import INSTALL_HINT, ray_available
-    from seuwgpu.campaign.sortfirst import parse_upset, sort_first_tables
 
     if not ray_available():
         raise CliError(f"needs Ray. {INSTALL_HINT}")
     src = load_source(args)
     cams = load_cams(args, src)
-    upset = parse_upset(args.upset) if args.upset else None
-    sort_first_tables(
-        src.model,
+    api.sort_first(
+        src,
         cams,
-        args.precision,
-        args.ranks,
-        upset,
+        ranks=args.ranks,
+        upset=args.upset,
         component=args.component,
         primitive=args.primitive,
         sample=args.sample,
         seed=args.seed,
         guard=args.guard,
         repeats=args.repeats,
+        precision=args.precision,
         address=args.address,
     )
     return 0
