@@ -8,11 +8,15 @@
     inj.metrics["none"]["footprint"]                   # a fraction of the frame's pixels
     inj.save("out/")                                   # PNG, float32 TIFF, metrics.json
     stats = sg.run_campaign({"scenes": [{"scene": "spheres"}], ...}, "runs/x", progress=print)
+    sg.run_campaign(sg.default_spec(), "runs/demo")     # the packaged default spec (seuwgpu demo)
     df = sg.read_records("runs/x")                     # a pandas DataFrame of the records
     sg.make_report(["runs/x"], "runs/x/report")        # HTML, figures, tables, summary.json
+    sg.storm(scene, cams, k=10, frames=50)             # upsets accumulating, one record a frame
+    sg.state_flips(scene, cams, samples=10)            # transient flips in the pipeline state
+    sg.worst_case(scene, cams, defenses=("guard",))    # the largest footprint, certified
 
 `render_views` is not called `render` because `seuwgpu.render` is the renderer's sub-package.
-The command line (apps/cli.py) is a thin layer over these functions. Units: the footprint is a
+The command line (apps/cli/) is a thin layer over these functions. Units: the footprint is a
 fraction (0-1) in every record, dict and JSON file; only text for people prints it as a percent.
 Undefined values (PSNR of a frame with non-finite pixels, say) are NaN in data and null in JSON.
 Bad input raises seuwgpu.InputError (a ValueError) or FileNotFoundError whose message names the
@@ -23,6 +27,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +35,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from seuwgpu.campaign.spec import Spec
+from seuwgpu.campaign.store import CampaignRun
 from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.faults.defenses import DEFENSES, check_defense
 from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, INJECT_SAMPLE, VALUE_MODELS, model_bits
@@ -48,6 +55,7 @@ __all__ = [
     "FAULT_MODELS",
     "FIELDS",
     "FRAME_FORMATS",
+    "MODEL_FORMATS",
     "PRECISIONS",
     "PROFILES",
     "Camera",
@@ -59,19 +67,32 @@ __all__ = [
     "SeuwgpuError",
     "TooBig",
     "cameras",
+    "default_spec",
+    "defense_costs",
+    "device_info",
+    "export_scene",
     "inject",
     "list_scenes",
     "load_model",
     "make_report",
+    "merge_runs",
+    "outcome_rates",
+    "plan_campaign",
     "read_records",
     "render_views",
     "report_figures",
     "run_campaign",
     "save_frames",
+    "sort_first",
+    "state_flips",
+    "storm",
+    "worst_case",
 ]
 
 PRECISIONS = tuple(encoding.PRECISIONS)
 FRAME_FORMATS = ("png", "tiff", "npz")
+MODEL_FORMATS = ("ply", "spz")
+"""Files Injection.save_models writes: INRIA PLY (float32) and Niantic SPZ."""
 """png: 8-bit display frames (clipped to [0, 1], non-finite pixels black); tiff: float32,
 unclamped, non-finite values kept; npz: all frames of a call in one float32 array."""
 
@@ -132,6 +153,43 @@ def cameras(
     return source_views(scene, cameras, views, (w, h), scale, default_views=4)
 
 
+def export_scene(
+    name: str, out: str | Path, *, n: int | None = None, sh_degree: int = 3, seed: int = 0
+) -> tuple[Model, str]:
+    """Write an embedded scene (`list_scenes()`) as an INRIA PLY (`.ply`) or a Niantic SPZ
+    (`.spz`), chosen by the extension: a procedural scene +z up, a real capture +y up with its
+    antialiased flag in the SPZ header. Returns (the model written, the format)."""
+    from seuwgpu.model.captures import capture_antialiased
+    from seuwgpu.model.formats import save_model
+    from seuwgpu.model.scenes import is_capture, make_scene
+
+    if name not in list_scenes():
+        raise InputError(f"{name!r} is not an embedded scene; scenes: {', '.join(list_scenes())}")
+    model = make_scene(name, n=n, sh_degree=sh_degree, seed=seed)
+    capture = is_capture(name)  # a real capture's antialiased flag goes into an SPZ header (PLY has none)
+    aa = {"antialiased": True} if capture and capture_antialiased(name) else {}
+    fmt = save_model(model, _out_path(out, "model file"), up="+y" if capture else "+z", **aa)
+    return model, fmt
+
+
+def device_info() -> dict:
+    """The adapter in use: device, vendor, backend, adapter type, driver, its features and its
+    limits (WebGPU names)."""
+    from seuwgpu.gpu.device import get_gpu
+
+    gpu = get_gpu()
+    info = gpu.info
+    return {
+        "device": info.get("device"),
+        "vendor": info.get("vendor"),
+        "backend": info.get("backend_type"),
+        "adapter_type": info.get("adapter_type"),
+        "driver": info.get("description"),
+        "features": sorted(gpu.adapter.features),
+        "limits": dict(gpu.limits),
+    }
+
+
 # ---- rendering ------------------------------------------------------------------------------------
 def render_views(
     scene: Scene | Model,
@@ -175,6 +233,10 @@ class Injection:
     site: dict
     metrics: dict[str, dict]
     frames: dict[str, np.ndarray] = field(repr=False)
+    models: dict[str, Model] | None = field(default=None, repr=False)
+    """With inject(models=True): the model as stored after the fault (`models["faulted"]`) and as
+    each other defense leaves it (`models[defense]`), at the stored precision."""
+    up: str | None = field(default=None, repr=False)
 
     def error_map(self, defense: str = "none") -> np.ndarray:
         """Per-pixel maximum absolute channel error against the clean frames, [K, H, W] (NaN where
@@ -206,6 +268,37 @@ class Injection:
         path.write_text(json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n")
         return [*files, path]
 
+    def save_models(self, out: str | Path, *, formats: Iterable[str] = ("ply", "spz")) -> list[Path]:
+        """The faulted model and each defense's repaired one (`models`) as model files a splat viewer
+        opens: `faulted.ply`, `guard.ply`, ... (INRIA PLY: float32, so at fp32 the flipped bit is
+        there bit for bit) and `.spz` (Niantic SPZ, quantized; a model with a non-finite value has
+        none, with a warning). Returns the files written."""
+        from seuwgpu.model.formats import save_model
+
+        if self.models is None:
+            raise InputError("this injection kept no models: call inject(..., models=True)")
+        formats = tuple(dict.fromkeys(_names(formats, "formats")))
+        unknown = sorted(set(formats) - set(MODEL_FORMATS))
+        if unknown:
+            raise InputError(
+                f"unknown model format(s) {', '.join(unknown)}; expected some of {', '.join(MODEL_FORMATS)}"
+            )
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        paths = []
+        for name, model in self.models.items():
+            for fmt in formats:
+                path = out / f"{name}.{fmt}"
+                try:
+                    save_model(model, path, up=self.up)
+                except ValueError as e:  # SPZ holds no non-finite value: that file is left out, said
+                    if fmt == "ply":
+                        raise
+                    warnings.warn(f"{path.name} not written: {e}", stacklevel=2)
+                    continue
+                paths.append(path)
+        return paths
+
 
 def inject(
     scene: Scene | Model,
@@ -222,6 +315,7 @@ def inject(
     profile: str = "strict",
     fault: str = "bit",
     width: int = 2,
+    models: bool = False,
 ) -> Injection:
     """Corrupt `field[primitive][component]` in the stored model with one fault and evaluate the
     render under each defense against the clean render. `fault` is a FAULT_MODELS name: "bit"
@@ -231,12 +325,9 @@ def inject(
     error, PSNR, SSIM, non-finite pixels, and LPIPS when `seuwgpu[lpips]` is installed). Without
     `primitive`, the most harmful of `sample` (default 64, as `seuwgpu inject --sample`) randomly
     drawn primitives (seeded) is taken. The
-    stored model is restored exactly afterwards."""
-    from seuwgpu.faults.engine import Engine
-
-    defenses = tuple(dict.fromkeys(check_defense(d) for d in _names(defenses, "defenses")))
-    if not defenses:
-        raise InputError("defenses must name at least one defense")
+    stored model is restored exactly afterwards. `models`: also keep the faulted model and each
+    defense's repaired one (`Injection.models`, written by `Injection.save_models`)."""
+    defenses = _defense_names(defenses)
     if not isinstance(sample, int) or isinstance(sample, bool) or sample < 1:
         raise InputError(f"sample must be a positive integer, got {sample!r}")
     _whole(component, "component", 0)  # 1.7 was truncated to primitive 1, True taken as 1
@@ -244,11 +335,8 @@ def inject(
         _whole(primitive, "primitive", 0)
     _whole(seed, "seed", 0 if primitive is None or fault == "random" else None)  # numpy's seeds are >= 0
     bits, op, value = _fault_bits(fault, bit, width, precision, seed)
-    model = _model_of(scene)
-    name = scene.name if isinstance(scene, Source) else "model"
-    views = _views(views)
-    check_one_size(views, "views", "inject")
-    eng = Engine(model, views, encoding.check_precision(precision), scene=name, profile=_profile(profile))
+    eng = _engine(scene, views, precision, profile, "inject")
+    model_of = _model_of(scene)
     if primitive is None:
         primitive, _ = eng.worst_primitive(field, component, bits, sample, seed, defenses[0], op, value)
     site = eng.site(field, int(primitive), component, bits, op, value)
@@ -267,7 +355,157 @@ def inject(
             "corrupted_value": rec["corrupted_value"],
         }
         metrics[d] = {k: v for k, v in rec.items() if k not in site_info and k not in ("bit", "k")}
-    return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames)
+    kept = _injected_models(eng, model_of, site, defenses) if models else None
+    up = scene.up if isinstance(scene, Source) else None
+    return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames, kept, up)
+
+
+def storm(
+    scene: Scene | Model,
+    views: Sequence[Camera],
+    *,
+    k: int = 10,
+    frames: int = 50,
+    scrub_every: int = 10,
+    defenses: Sequence[str] = ("none", "guard", "parity4r"),
+    seed: int = 0,
+    precision: str = "fp32",
+    profile: str = "strict",
+    progress: Callable[[], None] | None = None,
+    rows: list | None = None,
+    check_every: int = 1,
+) -> pd.DataFrame:
+    """A fault storm (campaign/storm.py): `k` upsets per frame accumulating in the stored model for
+    `frames` frames, reloaded every `scrub_every` frames (0: never), each defense an arm that sees
+    the same upsets; a check defense checks (and repairs) every `check_every` frames. One record
+    per frame and defense. `progress()` is called after each frame;
+    `rows`: a list the records are appended to as they are measured (a resumed storm's records
+    first: it goes on after them)."""
+    from seuwgpu.campaign.storm import storm as run_storm
+
+    defenses = _defense_names(defenses)
+    for value, what in ((k, "k"), (frames, "frames"), (scrub_every, "scrub_every"), (seed, "seed")):
+        _whole(value, what, None)  # the ranges: campaign/storm.py's own check, which names all three
+    _whole(check_every, "check_every", 1)
+    eng = _engine(scene, views, precision, profile, "storm")
+    return run_storm(eng, k, frames, scrub_every, defenses, seed, progress, rows=rows, check_every=check_every)
+
+
+def state_flips(
+    scene: Scene | Model,
+    views: Sequence[Camera],
+    *,
+    targets: Sequence[str] | None = None,
+    samples: int = 10,
+    bits: Sequence[int] | None = None,
+    seed: int = 0,
+    precision: str = "fp32",
+    profile: str = "strict",
+    progress: Callable[[], None] | None = None,
+    rows: list | None = None,
+) -> pd.DataFrame:
+    """Transient bit flips in one frame's pipeline state (faults/state.py): `samples` flips per
+    (target, bit) cell, `targets` the pipeline-state buffers (default: all), `bits` 0..31 (default:
+    all). One record per flip; `progress` and `rows` as `storm`'s."""
+    from seuwgpu.faults.state import TARGETS, state_campaign
+
+    targets = list(TARGETS) if targets is None else list(dict.fromkeys(_names(targets, "targets")))
+    bits = list(range(32)) if bits is None else list(dict.fromkeys(_whole(b, "bit", None) for b in bits))
+    _whole(samples, "samples", 1)
+    _whole(seed, "seed", None)
+    eng = _engine(scene, views, precision, profile, "state_flips")
+    return state_campaign(eng, targets, samples, bits, seed, progress, rows=rows)
+
+
+def worst_case(
+    scene: Scene | Model,
+    views: Sequence[Camera],
+    *,
+    defenses: Sequence[str] = ("none",),
+    fields: Sequence[str] | None = None,
+    bits: Sequence[int] | None = None,
+    max_evaluations: int | None = None,
+    precision: str = "fp32",
+    profile: str = "strict",
+) -> dict:
+    """The single-bit flip with the largest footprint under each defense, by bounded search
+    (faults/worstcase.py): {defense: WorstCase(site, footprint, certified bound, evaluated,
+    sites)}. `fields`: default every field the model stores; `bits`: default all;
+    `max_evaluations`: stop after this many renders (the bound stays certified)."""
+    from seuwgpu.faults.worstcase import worst_case as search
+    from seuwgpu.model.fields import canonical_field
+
+    defenses = _defense_names(defenses)
+    if fields is not None:
+        try:
+            fields = [canonical_field(f) for f in _names(fields, "fields")]
+        except ValueError as e:
+            raise InputError(str(e)) from None
+    if bits is not None:
+        bits = [_whole(b, "bit", 0) for b in bits]
+    if max_evaluations is not None:
+        _whole(max_evaluations, "max_evaluations", 1)
+    eng = _engine(scene, views, precision, profile, "worst_case")
+    return {d: search(eng, d, fields, bits, max_evaluations=max_evaluations) for d in defenses}
+
+
+def defense_costs(
+    scene: Scene | Model,
+    view: Camera,
+    *,
+    precision: str = "fp32",
+    repeats: int = 7,
+    time_it: bool = True,
+    check_every: int = 1,
+) -> list[dict]:
+    """Every defense with the bytes it holds on the device (and as a fraction of the model's), its
+    time per frame (a fraction of the undefended view's, the median of `repeats` rounds on this
+    device, a check's amortised over a check every `check_every` frames; NaN with time_it=False)
+    and its exposure: [{name, device_bytes, memory_overhead, check_every, time_fraction,
+    exposure_frames, exposure_frames_worst, time_basis, description}]."""
+    from seuwgpu.faults.costs import defense_costs as costs
+
+    _whole(repeats, "repeats", 1)
+    _whole(check_every, "check_every", 1)
+    if not isinstance(view, Camera):
+        raise InputError(f"view must be a Camera (from cameras()), got {type(view).__name__}")
+    model = _model_of(scene)
+    return costs(model, view, encoding.check_precision(precision), repeats, time_it=time_it, check_every=check_every)
+
+
+def sort_first(
+    scene: Scene | Model,
+    views: Sequence[Camera],
+    *,
+    ranks: Sequence[int] = (4,),
+    upset: str | None = None,
+    component: int = 0,
+    primitive: int | None = None,
+    sample: int = 32,
+    seed: int = 0,
+    guard: str = "scrub",
+    repeats: int = 3,
+    precision: str = "fp32",
+    address: str | None = None,
+) -> list[dict]:
+    """Sort-first rendering over Ray ranks (campaign/sortfirst.py; needs `seuwgpu[ray]`): for each
+    rank count P, the per-rank render times and, with `upset` ("field:bit", e.g. "log_scales:31",
+    applied to every rank's copy), the ranks it contaminates with and without the node-local
+    `guard` ("scrub" the stored copy, or "clamp" in the pipeline). Without `primitive`, the most
+    harmful of `sample` primitives. Prints a table per rank count; returns the results."""
+    from seuwgpu.campaign.ray import INSTALL_HINT, ray_available
+    from seuwgpu.campaign.sortfirst import parse_upset, sort_first_tables
+
+    if not ray_available():
+        raise InputError(f"sort-first rendering needs Ray. {INSTALL_HINT}")
+    for p in ranks:
+        _whole(p, "ranks", 1)
+    parsed = None if upset is None else parse_upset(upset)
+    kw = {"component": component, "primitive": primitive, "sample": sample, "seed": seed, "guard": guard}
+    return sort_first_tables(
+        _model_of(scene), _views(views), encoding.check_precision(precision), list(ranks), parsed,
+        address=address, repeats=repeats, **kw,
+    )  # fmt: skip
 
 
 def save_frames(
@@ -315,31 +553,100 @@ def save_frames(
 
 
 # ---- campaigns and reports ------------------------------------------------------------------------
+def default_spec() -> Path:
+    """The path of the packaged default spec (the main job that `seuwgpu demo` runs: every field
+    and bit of the `spheres` scene at fp32, with and without the guard), wherever the package is
+    installed and whatever the working directory: `run_campaign(default_spec(), "runs/x")`, or a
+    starting point to copy (`default_spec().read_text()`)."""
+    from seuwgpu.campaign.spec import default_spec_path
+
+    return default_spec_path()
+
+
 def run_campaign(
-    spec: dict | str | Path,
+    spec: dict | str | Path | Spec,
     out: str | Path,
     *,
-    progress: Callable[[int, int, int], None] | bool | None = None,
+    progress: Callable[[int, int, int], None] | bool | str | None = None,
     full: bool = False,
     shard: tuple[int, int] = (0, 1),
+    executor: str = "local",
+    workers: int | None = None,
+    address: str | None = None,
 ) -> dict:
-    """Run (or resume) the campaign of a spec (a dict with the keys of a spec file, or a TOML path)
-    into the run directory `out`. `progress(done, total, catastrophic)` is called after each block
-    of injections; `progress=True` shows a rich progress bar (also in a notebook), None or False
-    shows nothing. Returns {injections, new, catastrophic, seconds}."""
+    """Run (or resume) the campaign of a spec (a dict with the keys of a spec file, a TOML path such
+    as `default_spec()`, or a validated `campaign.spec.Spec`) into the run directory `out`.
+    `progress(done, total, catastrophic)` is called after each block of injections;
+    `progress=True` shows a rich progress bar (also in a notebook), "log" a line on stderr every
+    10 s (a batch job's log), None or False nothing. `executor="ray"` runs the shard's blocks on
+    Ray workers (`workers` in flight, the cluster at `address`; needs `seuwgpu[ray]`), with the
+    bar or the log lines. Returns {injections, new, catastrophic, seconds, campaign_total} (Ray:
+    and workers, shards, resubmitted)."""
     from seuwgpu.campaign.runner import Runner
-    from seuwgpu.campaign.spec import load_spec, normalize_spec
 
-    if isinstance(spec, dict):
-        spec = normalize_spec(spec, base_dir=Path.cwd())
-    elif isinstance(spec, (str, Path)):
-        spec = load_spec(spec)
+    spec = _spec(spec)
+    if executor not in ("local", "ray"):
+        raise InputError(f'executor must be "local" or "ray", got {executor!r}')
+    if isinstance(progress, str) and progress != "log":
+        raise InputError(f'progress must be a function, True, "log" or None, got {progress!r}')
+    out = _out_path(out, "run directory")
+    if executor == "ray":
+        from seuwgpu.campaign.ray import run_ray
+
+        quiet = progress is not True
+        return run_ray(spec, out, workers=workers, address=address, quiet=quiet, full=full, shard=shard)
+    runner = Runner(spec, out, shard=shard, quiet=progress is not True, full=full)
+    if progress is True or progress == "log":
+        stats = runner.run()
     else:
-        raise InputError(f"spec must be a dict or the path of a TOML file, got {type(spec).__name__}")
-    runner = Runner(spec, _out_path(out, "run directory"), shard=shard, quiet=progress is not True, full=full)
-    if progress is True:
-        return runner.run()
-    return runner.run(lambda total, done: _Callback(progress or None, total, done))
+        stats = runner.run(lambda total, done: _Callback(progress or None, total, done))
+    return {**stats, "campaign_total": runner.total}
+
+
+def plan_campaign(spec: dict | str | Path | Spec) -> pd.DataFrame:
+    """What a spec will run, one row per context (campaign section, scene, primitive count,
+    precision): cells, samples per cell, injections, arms (defenses), records, and the margin of
+    error of a cell's rate (95% confidence, worst case p = 0.5, sites drawn with replacement; NaN
+    for dose contexts); `n` is <NA> for a model file's own primitives. `spec` as run_campaign
+    takes it."""
+    from seuwgpu.campaign.plan import margin_of_error
+    from seuwgpu.campaign.sampling import enumerate_contexts
+    from seuwgpu.campaign.spec import scene_label
+
+    spec = _spec(spec)
+    rows = []
+    for ctx in enumerate_contexts(spec):
+        sc = spec.scenes[ctx.scene_index]
+        rows.append(
+            {
+                "campaign": ctx.kind,
+                "scene": scene_label(sc),
+                "n": ctx.n or sc.n,
+                "precision": ctx.precision,
+                "cells": len(ctx.cells),
+                "per_cell": ctx.per_cell,
+                "injections": ctx.count,
+                "arms": len(ctx.defenses),
+                "records": ctx.count * len(ctx.defenses),
+                "margin": float("nan") if ctx.kind == "dose" else margin_of_error(ctx.per_cell, 0.95),
+            }
+        )
+    plan = pd.DataFrame(rows)
+    plan["n"] = pd.array(plan["n"].tolist(), dtype="Int64")  # exact counts; <NA>: a model file's own
+    return plan
+
+
+def merge_runs(shards: Iterable[str | Path], out: str | Path, *, allow_partial: bool = False) -> dict:
+    """Join the run directories of `--shard` slices of one spec into the run directory `out` (a
+    slice run twice, or a whole run beside its slices, merges). `allow_partial`: merge even when
+    parts are missing. Returns {parts, missing_parts} (missing: [first id, count] each)."""
+    from seuwgpu.campaign import store
+    from seuwgpu.campaign.merge import merge
+
+    shards = [_out_path(d, "shard directory") for d in _paths(shards)]
+    n = merge(_out_path(out, "run directory"), shards, allow_partial=allow_partial)
+    missing = (store.read_manifest(out) or {}).get("missing_parts", [])
+    return {"parts": n, "missing_parts": missing}
 
 
 class _Callback:
@@ -373,15 +680,57 @@ def read_records(*runs: str | Path) -> pd.DataFrame:
     return df
 
 
-def make_report(runs: str | Path | Iterable[str | Path], out: str | Path, fold: bool | None = None) -> Path:
+def make_report(
+    runs: str | Path | Iterable[str | Path],
+    out: str | Path,
+    fold: bool | None = None,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+    workers: int | None = None,
+) -> Path:
     """Write the report of the runs (HTML, figures as PNG, tables as CSV and Markdown,
     summary.json) into `out`; returns the path of index.html. fold: fold the records as they
-    are read (the same numbers in less memory; None: only when they would not fit unfolded)."""
+    are read (the same numbers in less memory; None: only when they would not fit unfolded).
+    `progress(parts read, parts)` as the parts are read; `workers`: processes folding parts side
+    by side (default: one per CPU, at most 8, from 256 parts on). `runs` may also be the
+    campaign_runs of campaign/store.py (their manifests read once by the caller)."""
     from seuwgpu.campaign.store import make_out_dir
     from seuwgpu.report.build import build_report
 
-    runs = [_existing(r, "run directory") for r in ([runs] if isinstance(runs, (str, Path)) else runs)]
-    return build_report(runs, make_out_dir(_out_path(out, "report folder"), what="report folder"), fold=fold)
+    runs = [r if isinstance(r, CampaignRun) else _existing(r, "run directory") for r in _paths(runs)]
+    out = make_out_dir(_out_path(out, "report folder"), what="report folder")
+    return build_report(runs, out, fold=fold, progress=progress, workers=workers)
+
+
+def outcome_rates(
+    runs: str | Path | Iterable[str | Path],
+    *,
+    by: Sequence[str] = ("scene", "precision", "defense"),
+    campaign: str = "single",
+    progress: Callable[[int, int], None] | None = None,
+) -> pd.DataFrame:
+    """The weighted rate of each outcome class and of non-finite frames, with its 95% interval
+    (Wilson per cell, stratified Wilson when pooled), per group of the record columns `by`
+    (`run` too), folded part by part: any number of records, and runs still going. Defenses and
+    renderer profiles always get rows of their own. `campaign`: "single" or "size" (the
+    primitive-count sweep). Columns: the groups, n, then {outcome}_rate, _ci_lo, _ci_hi as
+    proportions; `.attrs`: records, parts, groups (the columns grouped by) and partial (a
+    sentence naming unfinished runs, "" if none)."""
+    from seuwgpu.analysis.cells import fold_runs, groups
+    from seuwgpu.analysis.cells import outcome_rates as rates
+    from seuwgpu.campaign.store import campaign_runs, check_record_columns, partial_runs_text
+
+    by = list(dict.fromkeys(_names(by, "by")))  # a column named twice: once
+    check_record_columns(by, "by")
+    if campaign not in ("single", "size"):
+        raise InputError(f'campaign must be "single" or "size", got {campaign!r}')
+    found = campaign_runs(_paths(runs))  # a folder that is no run: fold_runs says so
+    cells, n_parts = fold_runs(found, by, campaign, progress)
+    by = groups(cells, by)  # several renderer profiles: a row each, never pooled
+    table = rates(cells, by)
+    table.attrs.update(records=int(cells["n_records"].sum()), parts=n_parts, groups=by)
+    table.attrs["partial"] = partial_runs_text(found)
+    return table
 
 
 def report_figures(runs: str | Path | Iterable[str | Path]) -> dict:
@@ -417,6 +766,64 @@ def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], st
             raise InputError(f"width must be one of {', '.join(map(str, ADJACENT_WIDTHS))}, got {width!r}")
         return model_bits("adjacent", int(bits[0]), precision, ADJACENT_WIDTHS.index(width))
     return tuple(int(b) for b in bits), ("flip" if fault in ("bit", "adjacent") else fault), 0
+
+
+def _spec(spec) -> Spec:
+    """A validated spec from a dict (files relative to the working folder), a TOML path or a Spec."""
+    from seuwgpu.campaign.spec import load_spec, normalize_spec
+
+    if isinstance(spec, dict):
+        return normalize_spec(spec, base_dir=Path.cwd())
+    if isinstance(spec, (str, Path)):
+        return load_spec(spec)
+    if not isinstance(spec, Spec):
+        raise InputError(f"spec must be a dict, a Spec or the path of a TOML file, got {type(spec).__name__}")
+    return spec
+
+
+def _engine(scene, views, precision: str, profile: str, what: str):
+    """The fault-injection engine (faults/engine.py) of a model and its views, one image size."""
+    from seuwgpu.faults.engine import Engine
+
+    model = _model_of(scene)
+    name = scene.name if isinstance(scene, Source) else "model"
+    views = _views(views)
+    check_one_size(views, "views", what)
+    return Engine(model, views, encoding.check_precision(precision), scene=name, profile=_profile(profile))
+
+
+def _injected_models(eng, model: Model, site, defenses) -> dict[str, Model]:
+    """The stored model (at the engine's precision) with the site's fault, as stored
+    ("faulted"), and as each defense leaves what the renderer reads: its repair of memory (a
+    reload, a correction, a culled primitive) and, for a support-guard defense, the clamp the
+    pipeline applies to the hit primitive's values."""
+    from seuwgpu.faults.guard import clamp_bits
+
+    stored = model.quantized(eng.precision).flat()
+
+    def with_rows(prims, rows) -> Model:
+        flat = stored.copy()
+        flat[prims] = encoding.from_bits(rows, eng.precision)
+        return Model.from_flat(flat, model.sh_degree)
+
+    prims, rows, _ = eng.variant_bits([site], "none")
+    out = {"faulted": with_rows(prims, rows)}
+    for d in defenses:
+        if d == "none":
+            continue
+        prims, rows, masks = eng.variant_bits([site], d)
+        if masks[0]:
+            rows = clamp_bits(rows, eng.box, int(masks[0]))[0]
+        out[d] = with_rows(prims, rows)
+    return out
+
+
+def _defense_names(defenses) -> tuple[str, ...]:
+    """Defense names checked, each once (an arm named twice is one arm)."""
+    names = tuple(dict.fromkeys(check_defense(d) for d in _names(defenses, "defenses")))
+    if not names:
+        raise InputError("defenses must name at least one defense")
+    return names
 
 
 def _profile(profile) -> str:
@@ -469,6 +876,11 @@ def _size(size) -> tuple[int, int]:
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
             raise InputError(f"size must be two positive integers (width, height), got {size!r}")
     return int(w), int(h)
+
+
+def _paths(values) -> list:
+    """One path, or an iterable of them, as a list."""
+    return [values] if isinstance(values, (str, Path)) else list(values)
 
 
 def _names(values, what: str) -> list[str]:

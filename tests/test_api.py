@@ -123,7 +123,7 @@ def test_campaign_records_and_report(tmp_path):
     assert calls[-1][2] == int(df.loc[df.defense == "none", "catastrophic"].sum())
     assert df["footprint"].between(0, 1).all()
     again = sg.run_campaign(spec, tmp_path / "run")  # resume: nothing left to do
-    assert again["new"] == 0 and again["injections"] == 8
+    assert again["new"] == 0 and again["injections"] == 8 and again["campaign_total"] == 8
     assert sg.read_records([tmp_path / "run"]).equals(df)  # a list of runs, as make_report takes
     # another spec into that run (other row counts per part), with a progress function: refused, its
     # parts untouched (the progress adapter read, and deleted as damaged, them before the check)
@@ -143,8 +143,11 @@ def test_campaign_records_and_report(tmp_path):
     with pytest.raises(sg.InputError, match=in_the_way):
         sg.make_report(tmp_path / "run", tmp_path / "a-file")
 
-    index = sg.make_report(tmp_path / "run", tmp_path / "report")
+    read = []
+    index = sg.make_report(tmp_path / "run", tmp_path / "report", progress=lambda i, n: read.append((i, n)))
     assert index.exists() and (tmp_path / "report" / "summary.json").exists()
+    parts = len(list((tmp_path / "run" / "records").glob("part-*.parquet")))
+    assert read and read[-1] == (parts, parts)  # every part read, counted as it was
     figs = sg.report_figures([tmp_path / "run"])
     import matplotlib.figure
 
@@ -314,3 +317,183 @@ def test_inject_samples_as_many_primitives_as_the_command_line(scene, views, cap
     a = sg.inject(scene, views, field="log_scales", bit=30, defenses=("none",))
     b = sg.inject(scene, views, field="log_scales", bit=30, defenses=("none",), sample=64)
     assert a.site["primitive"] == b.site["primitive"]
+
+
+def test_worst_case_finds_the_flip_inject_measures():
+    """sg.worst_case's flip, injected through sg.inject (a full render), has the footprint the
+    search reported; a defense named twice is searched once."""
+    scene = sg.load_model("spheres", n=40, sh_degree=0)
+    cams = sg.cameras(scene, views=1, size=(32, 32))
+    found = sg.worst_case(scene, cams, defenses=("none", "none"), fields=["opacity"], bits=[30, 31])
+    assert list(found) == ["none"]
+    wc = found["none"]
+    assert wc.sites == 40 * 2 and wc.certified == wc.footprint > 0
+    s = wc.site
+    inj = sg.inject(scene, cams, field=s.field, primitive=s.primitive, component=s.component, bit=s.bit)
+    assert inj.metrics["none"]["footprint"] == wc.footprint
+    with pytest.raises(ValueError, match="unknown defense 'nope'"):
+        sg.worst_case(scene, cams, defenses=["nope"])
+
+
+def test_storm_and_state_flips_are_the_engine_runs_they_name():
+    """sg.storm and sg.state_flips return what campaign/storm.py and faults/state.py record on an
+    engine of the same model, views and arguments (arms named twice once)."""
+    import pandas.testing as pd_testing
+
+    from seuwgpu.campaign.storm import storm
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.faults.state import state_campaign
+
+    scene = sg.load_model("spheres", n=60, sh_degree=0)
+    cams = sg.cameras(scene, views=1, size=(32, 32))
+    steps = []
+    df = sg.storm(scene, cams, k=3, frames=2, scrub_every=1, defenses=("none", "guard", "none"), seed=4,
+                  progress=lambda: steps.append(1))  # fmt: skip
+    assert len(df) == 4 == len(steps) and list(df["defense"].unique()) == ["none", "guard"]
+    eng = Engine(scene.model, cams, "fp32", scene=scene.name)
+    pd_testing.assert_frame_equal(df, storm(eng, 3, 2, 1, ("none", "guard"), 4))
+    flips = sg.state_flips(scene, cams, targets=["xy", "conic"], samples=1, bits=[31, 0, 31], seed=2)
+    assert len(flips) == 2 * 2 and set(flips["target"]) == {"xy", "conic"}
+    pd_testing.assert_frame_equal(flips, state_campaign(eng, ["xy", "conic"], 1, [31, 0], 2))
+    with pytest.raises(sg.InputError, match="k must be an integer"):
+        sg.storm(scene, cams, k=1.5)
+
+
+def test_run_campaign_logs_lines_when_asked(tmp_path, capsys):
+    """progress="log" (the command line's --quiet): a line on stderr with the count and the rate;
+    another word is refused."""
+    spec = {"views": 1, "size": "16x16", "scenes": [{"scene": "spheres", "n": 50}],
+            "single": {"fields": ["opacity"], "bits": [31], "samples": 2, "defenses": ["none"]}}  # fmt: skip
+    stats = sg.run_campaign(spec, tmp_path / "run", progress="log")
+    assert stats["new"] == stats["campaign_total"] == 2
+    assert re.search(r"^2/2 injections, [\d.]+/s, ETA ", capsys.readouterr().err, re.M)
+    with pytest.raises(sg.InputError, match='progress must be a function, True, "log" or None'):
+        sg.run_campaign(spec, tmp_path / "run", progress="bar")
+    with pytest.raises(sg.InputError, match='executor must be "local" or "ray"'):
+        sg.run_campaign(spec, tmp_path / "run", executor="dask")
+
+
+def test_the_readme_example_runs_from_another_directory(tmp_path, monkeypatch):
+    """The README's Python example, from a folder that is not the checkout: the default spec is
+    the packaged one (a path relative to the checkout stopped it with a SpecError), and the
+    campaign it names starts (a thin shard of it: the test stays seconds) and writes where asked."""
+    import tomllib
+
+    from seuwgpu.campaign.store import read_manifest
+
+    monkeypatch.chdir(tmp_path)
+    spec = sg.default_spec()
+    assert spec.is_absolute() and spec.is_file() and tmp_path not in spec.parents
+    assert tomllib.loads(spec.read_text())["name"] == "default"
+    scene = sg.load_model("spheres", n=300)  # the example's calls, on a small scene
+    views = sg.cameras(scene, views=1, size=(32, 32))
+    inj = sg.inject(scene, views, field="log_scales", bit=31, defenses=["none", "guard"])
+    inj.save("out/inject", formats=["png"])
+    assert (tmp_path / "out" / "inject" / "metrics.json").is_file()
+    stats = sg.run_campaign(sg.default_spec(), "runs/x", shard=(999, 1000))  # a slice without blocks
+    assert stats["new"] == 0
+    assert read_manifest(tmp_path / "runs" / "x")["spec"]["name"] == "default"
+
+
+def test_demo_runs_the_spec_the_api_names(tmp_path, monkeypatch, capsys):
+    """`seuwgpu demo` reads the spec `seuwgpu.api.default_spec()` names (a smaller one here)."""
+    from seuwgpu import api
+    from seuwgpu.apps.cli import main
+    from seuwgpu.campaign.store import read_manifest
+
+    small = tmp_path / "small.toml"
+    small.write_text(
+        'name = "small"\nviews = 1\nsize = "16x16"\n[[scenes]]\nscene = "spheres"\nn = 50\n'
+        '[single]\nfields = ["opacity"]\nbits = [31]\nsamples = 2\ndefenses = ["none"]\n'
+    )
+    monkeypatch.setattr(api, "default_spec", lambda: small)
+    assert main(["demo", "--quiet", "--no-report", "--out", str(tmp_path / "d")]) == 0
+    assert "1 views at 16x16" in capsys.readouterr().out
+    m = read_manifest(tmp_path / "d")
+    assert m["spec"]["name"] == "small" and m["total_injections"] == 2
+
+
+def test_save_models_leaves_out_an_spz_that_cannot_hold_the_damage(tmp_path):
+    """An exponent stuck at ones (a non-finite value): faulted.ply holds it, an SPZ cannot, so
+    faulted.spz is left out with a warning; without models=True there is nothing to save."""
+    scene = sg.load_model("spheres", n=200, sh_degree=0)
+    cams = sg.cameras(scene, views=1, size=(32, 32))
+    args = dict(field="opacity", primitive=3, bit=list(range(23, 31)), fault="stuck1", defenses=("none",))
+    with pytest.raises(sg.InputError, match="models=True"):
+        sg.inject(scene, cams, **args).save_models(tmp_path)
+    inj = sg.inject(scene, cams, **args, models=True)
+    assert list(inj.models) == ["faulted"]
+    with pytest.warns(UserWarning, match="faulted.spz not written: .*non-finite"):
+        written = inj.save_models(tmp_path)
+    assert [p.name for p in written] == ["faulted.ply"]
+    with pytest.warns(Warning, match="1 non-finite values"):
+        back = sg.load_model(tmp_path / "faulted.ply").model
+    assert not np.isfinite(back.opacity[3]) and np.array_equal(back.opacity[:3], scene.model.opacity[:3])
+
+
+def test_merge_runs_joins_the_shards_of_a_spec(tmp_path):
+    """sg.merge_runs: the records of two --shard slices joined are theirs, together; one slice
+    alone is refused unless allow_partial, which lists the parts it lacks."""
+    import pandas as pd
+
+    spec = {"views": 1, "size": "16x16", "batch": 2, "scenes": [{"scene": "spheres", "n": 60}],
+            "single": {"fields": ["opacity"], "bits": [31, 30], "samples": 2, "defenses": ["none"]}}  # fmt: skip
+    shards = [tmp_path / f"s{i}" for i in range(2)]
+    for i, d in enumerate(shards):
+        sg.run_campaign(spec, d, shard=(i, 2))
+    merged = sg.merge_runs(shards, tmp_path / "all")
+    assert merged == {"parts": 2, "missing_parts": []}
+    key = ["injection_id", "defense"]
+
+    def records(*runs):  # without the `run` label read_records adds
+        df = pd.concat([sg.read_records(d) for d in runs]).drop(columns="run")
+        return df.sort_values(key).reset_index(drop=True)
+
+    pd.testing.assert_frame_equal(records(tmp_path / "all"), records(*shards))
+    with pytest.raises(sg.InputError, match="missing"):
+        sg.merge_runs(shards[0], tmp_path / "part")
+    assert sg.merge_runs(shards[0], tmp_path / "part2", allow_partial=True)["missing_parts"] == [[2, 2]]
+
+
+def test_device_info_export_scene_and_defense_costs(tmp_path):
+    """The functions behind `info`, `scene` and `defenses`: the adapter's limits as wgpu reports
+    them, an embedded scene written and read back unchanged, and every defense's cost row."""
+    from seuwgpu.gpu.device import get_gpu
+    from seuwgpu.model.formats import read_model
+    from seuwgpu.model.scenes import make_scene
+
+    info = sg.device_info()
+    gpu = get_gpu()
+    assert info["limits"]["max-buffer-size"] == gpu.limits["max-buffer-size"]
+    assert info["features"] == sorted(gpu.adapter.features) and info["device"] == gpu.info.get("device")
+    model, fmt = sg.export_scene("spheres", tmp_path / "s.ply", n=40, sh_degree=1)
+    assert fmt == "ply" and np.array_equal(read_model(tmp_path / "s.ply").model.flat(), model.flat())
+    assert np.array_equal(model.flat(), make_scene("spheres", n=40, sh_degree=1).flat())
+    with pytest.raises(sg.InputError, match="not an embedded scene"):
+        sg.export_scene("nope", tmp_path / "n.ply")
+    scene = sg.load_model("spheres", n=40)
+    rows = sg.defense_costs(scene, sg.cameras(scene, views=1, size=(32, 32))[0], time_it=False)
+    assert [r["name"] for r in rows] == list(sg.DEFENSES)
+    assert all(np.isnan(r["time_fraction"]) and r["memory_overhead"] >= 0 for r in rows)
+    assert rows[0]["name"] == "none" and rows[0]["memory_overhead"] == 0
+
+
+def test_plan_campaign_counts_what_a_spec_runs(tmp_path):
+    """sg.plan_campaign (what `seuwgpu plan` prints): cells x samples injections per context, a
+    record per defense, the worst-case margin z * 0.5 / sqrt(samples) of a cell's rate, and <NA>
+    for a model file's primitive count."""
+    import math
+
+    sg.export_scene("spheres", tmp_path / "m.ply", n=50)
+    spec = {"scenes": [{"scene": "spheres", "n": 1000}, {"model": str(tmp_path / "m.ply")}],
+            "single": {"fields": ["opacity", "means"], "bits": [31, 30, 29], "samples": 3},
+            "dose": {"k": [1, 2], "repeats": 2, "defenses": ["none"]}}  # fmt: skip
+    plan = sg.plan_campaign(spec)
+    assert plan["campaign"].tolist() == ["single", "single", "dose", "dose"]
+    assert plan["scene"].tolist() == ["spheres", "m", "spheres", "m"]
+    assert plan["n"].iloc[0] == 1000 and plan["n"].isna().tolist() == [False, True, False, True]
+    single = plan.iloc[0]
+    assert (single.cells, single.per_cell, single.injections, single.arms, single.records) == (6, 3, 18, 2, 36)
+    assert single.margin == pytest.approx(1.959964 * 0.5 / math.sqrt(3), rel=1e-5)
+    dose = plan.iloc[2]
+    assert (dose.cells, dose.per_cell, dose.injections, dose.records) == (2, 2, 4, 4) and math.isnan(dose.margin)

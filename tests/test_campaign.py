@@ -1,5 +1,6 @@
 """Campaigns: spec errors, kill-and-resume, shards, replay by id, stratified sampling."""
 
+import dataclasses
 import signal
 import subprocess
 import sys
@@ -131,7 +132,7 @@ def test_blocks_evaluated_one_by_one_equal_grouped_ones(reference_run, tmp_path,
     monkeypatch.undo()
     runner = Runner(spec, tmp_path / "other", quiet=True)
     todo = list(runner.blocks())
-    eng = SimpleNamespace(evaluator=SimpleNamespace(B=spec["batch"]))  # groups of 8 blocks
+    eng = SimpleNamespace(evaluator=SimpleNamespace(B=spec.batch))  # groups of 8 blocks
     group, j = runner.next_group(todo, 0, eng)
     single = [b for b in todo if b[0] is todo[0][0]]  # the first context's blocks
     assert len(group) == min(8, len(single)) > 1 and j == len(group)
@@ -140,7 +141,7 @@ def test_blocks_evaluated_one_by_one_equal_grouped_ones(reference_run, tmp_path,
     assert runner.next_group(todo, dose_at, eng) == ([todo[dose_at]], dose_at + 1)
     # at a slow measured rate a group holds what it evaluates in GROUP_SECONDS (at least a batch),
     # so its parts are written, and the bar moves, that often
-    slow = 2 * spec["batch"] / Runner.GROUP_SECONDS
+    slow = 2 * spec.batch / Runner.GROUP_SECONDS
     assert runner.next_group(todo, 0, eng, rate=slow) == (todo[:2], 2)
     assert runner.next_group(todo, 0, eng, rate=1e-6) == (todo[:1], 1)
 
@@ -250,7 +251,7 @@ def test_changed_spec_is_refused(reference_run, tmp_path):
         }
     )
     Runner(small, run, quiet=True).run()
-    other = dict(small, seed=2)
+    other = dataclasses.replace(small, seed=2)
     with pytest.raises(SpecError, match="different spec"):
         Runner(other, run, quiet=True).run()
 
@@ -316,7 +317,9 @@ def test_size_sweep_over_several_scenes():
         "sizes": {"n": [100, 200], "fields": ["opacity"], "bits": [31], "samples": 2, "defenses": ["none"]},
     }
     one = enumerate_contexts(normalize_spec(base))
-    assert {c.scene_index for c in one} == {0} and "scenes" not in normalize_spec(base)["sizes"]
+    first = normalize_spec(base)
+    assert {c.scene_index for c in one} == {0} and first.sizes.scenes is None
+    assert "scenes" not in first.to_dict()["sizes"]  # the default is not recorded (older hashes stay)
     base["sizes"]["scenes"] = "all"
     both = enumerate_contexts(normalize_spec(base))
     assert sorted((c.scene_index, c.n) for c in both) == [(0, 100), (0, 200), (1, 100), (1, 200)]
@@ -383,7 +386,7 @@ def test_unreadable_model_or_camera_file_stops_before_the_manifest(tmp_path):
     with pytest.raises(InputError, match="bad.ply"):
         normalize_spec({**base, "scenes": [{"model": str(bad)}]})
     spec = normalize_spec({**base, "scenes": [{"model": str(good)}]})
-    spec["scenes"][0]["model"] = str(bad)  # the file broken after the spec was read
+    spec = dataclasses.replace(spec, scenes=(dataclasses.replace(spec.scenes[0], model=str(bad)),))  # broken after read
     with pytest.raises(InputError, match="bad.ply"):
         Runner(spec, tmp_path / "run", quiet=True).run()
     assert store.read_manifest(tmp_path / "run") is None
@@ -409,11 +412,11 @@ def test_cell_sites_are_drawn_with_replacement():
     )
     ctx = enumerate_contexts(spec)[0]
     ids = np.arange(64)
-    sites, weights = draw_sites(ctx, ids, injection_seeds(spec["seed"], ids), 64, 3)
+    sites, weights = draw_sites(ctx, ids, injection_seeds(spec.seed, ids), 64, 3)
     prims = [s.primitive for s in sites]
     assert len(set(prims)) < 64  # 64 draws over the cell's 64 sites: repeats
     assert np.allclose(weights, 64 / 64)
-    alone, _ = draw_sites(ctx, ids[40:41], injection_seeds(spec["seed"], ids[40:41]), 64, 3)
+    alone, _ = draw_sites(ctx, ids[40:41], injection_seeds(spec.seed, ids[40:41]), 64, 3)
     assert alone[0] == sites[40]  # one injection's site does not depend on the others drawn
 
 
@@ -430,7 +433,7 @@ def test_samples_planned_from_a_margin(tmp_path):
     )
     # sites are drawn with replacement, so the plan takes no finite-population correction (a
     # correction for 2,000 primitives would plan 239 instead of 271)
-    assert spec["single"]["samples"] == sample_size(0.05, 0.9) == 271
+    assert spec.single.samples == sample_size(0.05, 0.9) == 271
     with pytest.raises(SpecError, match="single.samples.margin"):
         normalize_spec({"scenes": [{"scene": "blocks"}], "single": {"samples": {"margin": 5}}})
     with pytest.raises(SpecError, match="unknown key 'margn' in single.samples"):
@@ -444,7 +447,7 @@ def test_samples_planned_from_a_margin(tmp_path):
 def test_outcome_and_reliability_tables_of_the_spec():
     base = {"scenes": [{"scene": "spheres", "n": 100}], "single": {"samples": 1}}
     plain = normalize_spec(base)
-    assert "outcomes" not in plain and "reliability" not in plain  # older specs keep their hash
+    assert "outcomes" not in plain.to_dict() and "reliability" not in plain.to_dict()  # older specs keep their hash
     s = normalize_spec(
         base
         | {
@@ -452,8 +455,8 @@ def test_outcome_and_reliability_tables_of_the_spec():
             "reliability": {"scrub_hours": 6, "rates": [{"environment": "lab", "per_bit_hour": 1e-9, "source": "x"}]},
         }
     )
-    assert s["outcomes"] == {"pixel_threshold": 1 / 255, "footprint": 0.05}
-    assert s["reliability"]["scrub_hours"] == 6.0 and s["reliability"]["rates"][0]["per_bit_hour"] == 1e-9
+    assert s.outcomes.to_dict() == {"pixel_threshold": 1 / 255, "footprint": 0.05}
+    assert s.reliability.scrub_hours == 6.0 and s.reliability.rates[0].per_bit_hour == 1e-9
     for bad, what in (
         ({"outcomes": {"footprint": 2}}, "outcomes.footprint"),
         ({"outcomes": {"pixel": 0.1}}, "unknown key 'pixel'"),
@@ -468,11 +471,11 @@ def test_outcome_and_reliability_tables_of_the_spec():
 def test_quiet_progress_lines_carry_an_eta(capsys, monkeypatch):
     import re
 
-    from seuwgpu.campaign import runner as R
+    from seuwgpu.campaign import progress as P
 
     clock = iter([0.0, 20.0, 40.0])  # t0, then one call per advance
-    monkeypatch.setattr(R.time, "perf_counter", lambda: next(clock))
-    p = R.Progress(total=1000, done=100, quiet=True)
+    monkeypatch.setattr(P.time, "perf_counter", lambda: next(clock))
+    p = P.injection_bar(total=1000, done=100, quiet=True)
     p.advance(300, 2)  # 300 in 20 s: 15/s, 600 left: 40 s
     p.advance(600, 1)  # done
     lines = capsys.readouterr().err.strip().splitlines()
@@ -482,7 +485,7 @@ def test_quiet_progress_lines_carry_an_eta(capsys, monkeypatch):
         r"1000/1000 injections, 22\.5/s, ETA 00:00:00, catastrophic 3 \(of the 900 run since resuming\)", lines[1]
     )
     clock = iter([0.0, 10.0])  # a fresh run: every injection is this session's
-    R.Progress(total=100, done=0, quiet=True).advance(100, 4)
+    P.injection_bar(total=100, done=0, quiet=True).advance(100, 4)
     assert capsys.readouterr().err.strip() == "100/100 injections, 10.0/s, ETA 00:00:00, catastrophic 4"
 
 
@@ -493,6 +496,36 @@ def test_parts_carry_their_compute_time(tmp_path):
     store.write_part(tmp_path, 3, 3, df)  # a part written without its time
     assert store.run_seconds(tmp_path) == (1.5, 1)
     pd.testing.assert_frame_equal(pd.read_parquet(store.part_path(tmp_path, 0, 3)), df)
+
+
+def test_parts_are_written_with_the_records_schema_and_checked_when_read(tmp_path):
+    """store.RECORD_SCHEMA: a part's columns are written with its types (an integer column given as
+    whole floats is stored int64, a bitmask computed as uint64 keeps its 64 bits as int64), a
+    column no record has is refused, and a part whose column holds another kind of value is
+    refused when read, naming the part and the column."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    store.records_dir(tmp_path).mkdir(parents=True)
+    mask = np.array([1 << 63, 5], dtype=np.uint64)
+    df = pd.DataFrame({"scene": ["a", "b"], "primitive": [3.0, 4.0], "footprint": [0, 1], "regions_meas_64": mask})
+    store.write_part(tmp_path, 0, 2, df)
+    path = store.part_path(tmp_path, 0, 2)
+    schema = pq.read_schema(path)
+    assert [(f.name, f.type) for f in schema] == [
+        ("scene", pa.large_string()), ("primitive", pa.int64()), ("footprint", pa.float64()),
+        ("regions_meas_64", pa.int64()),
+    ]  # fmt: skip
+    back = store.read_part(path)
+    assert back["primitive"].tolist() == [3, 4] and back["regions_meas_64"].to_numpy().view(np.uint64).tolist() == [
+        1 << 63, 5
+    ]  # fmt: skip
+    with pytest.raises(store.InputError, match="'run' is not a record column"):
+        store.write_part(tmp_path, 2, 2, df.assign(run="x"))
+    pd.DataFrame({"scene": [1, 2]}).to_parquet(store.part_path(tmp_path, 4, 2))  # another tool's file
+    with pytest.raises(store.InputError, match=r"part-0000000004-000002.parquet: column scene holds int64, records"):
+        store.read_part(store.part_path(tmp_path, 4, 2))
+    assert store.COLUMNS == store.RECORD_SCHEMA.names
 
 
 def test_part_writer_writes_every_queued_part_and_reports_errors(tmp_path):
@@ -561,3 +594,35 @@ def test_view_times_render_view_0_within_their_budget(gpu, monkeypatch):
     )
     times = full.view_times_ms(("none", "guard"))
     assert min(times.values()) > 0 and len(seen) == 2 * 10 and all(v is None for v in seen)
+
+
+def test_the_spec_is_typed_and_its_stored_form_round_trips():
+    """normalize_spec returns a Spec (typed sections, frozen); its stored form (the manifest's
+    `spec`, what the hash covers) reads back as the same Spec, and a typo is still one line."""
+    import json
+
+    from seuwgpu.campaign.spec import DoseSpec, SizesSpec, Spec, UpsetSpec, spec_hash
+
+    raw = {
+        "seed": 3,
+        "size": "64x48",
+        "scenes": [{"scene": "spheres", "n": 300}, {"scene": "blocks", "n": 200, "sh_degree": 0}],
+        "single": {"fields": ["log_scale", "opacity"], "bits": [31, 30], "samples": 2, "regions": [4]},
+        "dose": {"k": [4, 1, 4], "repeats": 2},
+        "sizes": {"n": [100, 50], "scenes": "all", "samples": 1},
+        "outcomes": {"footprint": 0.02},
+        "reliability": {"rates": [{"environment": "ground", "per_bit_hour": 1e-12, "source": "x"}]},
+    }
+    spec = normalize_spec(raw)
+    assert isinstance(spec.single, UpsetSpec) and isinstance(spec.dose, DoseSpec) and isinstance(spec.sizes, SizesSpec)
+    assert spec.single.fields == ("log_scales", "opacity") and spec.single.bits == (30, 31)
+    assert spec.dose.k == (1, 4) and spec.sizes.n == (50, 100) and spec.sizes.scenes == (0, 1)
+    assert spec.size == (64, 48) and spec.scenes[1].sh_degree == 0 and spec.outcomes.footprint == 0.02
+    assert spec.reliability.rates[0].per_bit_hour == 1e-12 and spec.reliability.scrub_hours is None
+    stored = json.loads(json.dumps(spec.to_dict()))
+    assert stored["size"] == [64, 48] and "fault" not in stored["single"] and "lpips" not in stored
+    assert Spec.from_dict(stored) == spec and spec_hash(stored) == spec_hash(spec)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        spec.seed = 4
+    with pytest.raises(SpecError, match=r"^unknown key 'sampels' in single \(allowed: "):
+        normalize_spec({"scenes": [{"scene": "spheres"}], "single": {"sampels": 2}})

@@ -284,7 +284,7 @@ def _spec_run(run_dir, records, raw: dict, ids=range(0, 400)) -> dict:
 
     spec = normalize_spec(raw)
     store.records_dir(run_dir).mkdir(parents=True)
-    manifest = {"spec": spec, "spec_hash": spec_hash(spec), "profile": spec.get("profile", "strict")}
+    manifest = {"spec": spec.to_dict(), "spec_hash": spec_hash(spec), "profile": spec.renderer_profile}
     store.manifest_path(run_dir).write_text(json.dumps({**manifest, "total_injections": 400}))
     rec = records.drop(columns="run")
     for (first, count), rows in store.expected_parts(spec).items():
@@ -372,3 +372,25 @@ def test_defenses_are_never_pooled(runs):
         one, 0, 400, records[records.run == dirs[0].name].drop(columns="run").iloc[:400].assign(defense="none")
     )
     assert C.groups(C.fold_runs([one], ["precision"])[0], ["precision"]) == ["precision"]
+
+
+def test_the_api_rates_are_the_records_weighted_rates(runs):
+    """seuwgpu.outcome_rates (what `seuwgpu rates` prints): per group, each outcome's weighted rate
+    recomputed plainly from the records, inside its interval; its counts in .attrs."""
+    import seuwgpu as sg
+
+    dirs, records = runs
+    read = []
+    t = sg.outcome_rates(dirs, by=["scene", "scene"], progress=lambda i, n: read.append((i, n)))
+    single = records[(records.campaign == "single") & (records.k == 1)]
+    assert t.attrs["groups"] == ["scene", "defense"] and t.attrs["parts"] == 10 and read[-1] == (10, 10)
+    assert t.attrs["records"] == len(single) and t.attrs["partial"] == ""
+    got = t.set_index(["scene", "defense"])
+    for key, g in single.groupby(["scene", "defense"]):
+        w = g["weight"].to_numpy()
+        for o in OUTCOMES:
+            want = (w * (g["outcome"] == o)).sum() / w.sum()
+            assert got.loc[key, f"{o}_rate"] == pytest.approx(want, rel=1e-12)
+            assert got.loc[key, f"{o}_ci_lo"] <= want <= got.loc[key, f"{o}_ci_hi"]
+    with pytest.raises(sg.InputError, match="^by precison: not a record column"):
+        sg.outcome_rates(dirs, by=["precison"])

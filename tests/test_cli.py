@@ -78,12 +78,13 @@ def test_output_paths_checked_before_the_work(tmp_path, capsys, monkeypatch):
     for seconds and then print "File exists"); `scene --out` without a NAME says which is missing."""
     afile = tmp_path / "afile"
     afile.write_text("x")
-    from seuwgpu.apps import cli
+    import seuwgpu.api  # noqa: F401  (imported first: it binds the real loader, kept for the tests after this one)
+    from seuwgpu.model import sources
 
     def no_work(*a, **k):
         raise AssertionError("loaded the model before checking --out")
 
-    monkeypatch.setattr(cli, "load_source", no_work)
+    monkeypatch.setattr(sources, "load_source", no_work)
     for out in (afile, afile / "sub"):
         args = ["inject", "--scene", "spheres", "--n", "500", "--field", "log_scale", "--bit", "31", "--out", str(out)]
         assert main(args) == 2
@@ -533,3 +534,33 @@ def test_view_refuses_views_without_a_camera_file(capsys):
         refuse_ignored_options(build_parser().parse_args(["view", "--scene", "spheres", "--views", "3"]))
     refuse_ignored_options(build_parser().parse_args(["view", "--scene", "spheres"]))
     refuse_ignored_options(build_parser().parse_args(["render", "--scene", "spheres", "--views", "3", "--out", "o"]))
+
+
+@pytest.mark.parametrize("defense", ["parity4r", "ecc"])
+def test_inject_save_model_writes_the_damage_and_each_repair(tmp_path, capsys, defense):
+    """`inject --save-model DIR`: faulted.ply read back differs from the clean model in exactly the
+    flipped bit; DEFENSE.ply holds what the defense restored (parity4r reloads the primitive, ECC
+    corrects the single flip: the clean model bit for bit), guard.ply the faulted value clamped into
+    the clean model's [min, max] of that component (the support box) and nothing else changed."""
+    from seuwgpu.model.formats import save_model
+
+    clean_path = tmp_path / "clean.ply"
+    save_model(make_scene("spheres", n=300, sh_degree=1), clean_path)
+    clean = read_model(clean_path).model.flat()
+    prim, comp, bit = 7, 3 + 1, 30  # log_scales[7][1]: its exponent's top bit
+    argv = ["inject", "--model", clean_path, "--views", "1", "--size", "32x32", "--field", "log_scales",
+            "--primitive", str(prim), "--component", "1", "--bit", str(bit), "--defense", defense,
+            "--formats", "png", "--out", tmp_path / "o", "--save-model", tmp_path / "m"]  # fmt: skip
+    rc, out, err = run(argv, capsys)
+    assert rc == 0, err
+    assert f"models: faulted.ply, faulted.spz, {defense}.ply, {defense}.spz, guard.ply, guard.spz in" in out
+    faulted = read_model(tmp_path / "m" / "faulted.ply").model.flat()
+    assert np.isfinite(faulted).all()  # -2.0 turned into a denormal: an SPZ holds it (a NaN it cannot)
+    diff = clean.view(np.uint32) ^ faulted.view(np.uint32)
+    assert list(zip(*np.nonzero(diff))) == [(prim, comp)] and diff[prim, comp] == 1 << bit
+    repaired = read_model(tmp_path / "m" / f"{defense}.ply").model.flat()
+    assert np.array_equal(repaired.view(np.uint32), clean.view(np.uint32))
+    guarded = read_model(tmp_path / "m" / "guard.ply").model.flat()
+    want = clean.copy()
+    want[prim, comp] = np.clip(faulted[prim, comp], clean[:, comp].min(), clean[:, comp].max())
+    assert want[prim, comp] != faulted[prim, comp] and np.array_equal(guarded, want)

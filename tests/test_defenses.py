@@ -378,7 +378,7 @@ def test_the_measured_table_states_the_spec_and_seed_that_produced_it():
     raw = tomllib.loads(blocks[0])
     assert raw["seed"] == 0 and raw["single"]["samples"] == 300
     spec = normalize_spec(raw)
-    assert [s["scene"] for s in spec["scenes"]] == ["leica-sofort", "yashica-t4"]
+    assert [s.scene for s in spec.scenes] == ["leica-sofort", "yashica-t4"]
     assert "| leica-sofort | guard | 0.006% | ~0 | 0.43 (0.005) |" in text
 
 

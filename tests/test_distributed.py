@@ -3,6 +3,7 @@ equal the local executor's, a killed worker's shard is redone without loss or du
 sort-first composite equals the single-device render bit for bit, and a node-local guard contains
 a scale sign-bit upset that otherwise contaminates every rank its footprint reaches."""
 
+import dataclasses
 import textwrap
 
 import numpy as np
@@ -103,8 +104,7 @@ def test_without_ray_the_local_executor_runs_and_says_how_to_get_ray(
     spec, local_records, tmp_path, monkeypatch, capsys
 ):
     monkeypatch.setattr(distributed, "ray_available", lambda: False)
-    small = dict(spec)
-    del small["dose"]
+    small = dataclasses.replace(spec, dose=None)
     run_campaign(small, tmp_path / "run", executor="ray", quiet=True)
     err = capsys.readouterr().err
     assert "pip install 'seuwgpu[ray]'" in err and "local executor" in err

@@ -102,7 +102,7 @@ def test_spec_docstring_is_a_valid_spec(tmp_path):
 
     raw = tomllib.loads(textwrap.dedent(spec_module.__doc__.split("naming the key):\n", 1)[1]))
     orbits = {**raw, "scenes": [{k: v for k, v in raw["scenes"][0].items() if k != "cameras"}]}
-    assert spec_module.normalize_spec(orbits)["lpips"] is True
+    assert spec_module.normalize_spec(orbits).lpips is True
     del raw["size"]  # the docstring: a camera file's views keep their sizes, not with size =
     cams = [
         {"viewmat": c.viewmat.tolist(), "K": c.K.tolist(), "width": c.width, "height": c.height}
@@ -110,7 +110,7 @@ def test_spec_docstring_is_a_valid_spec(tmp_path):
     ]
     (tmp_path / raw["scenes"][0]["cameras"]).write_text(json.dumps({"cameras": cams}))
     spec = spec_module.normalize_spec(raw, base_dir=tmp_path)
-    assert spec["lpips"] is True and spec["dose"]["repeats"] == raw["dose"]["repeats"]
+    assert spec.lpips is True and spec.dose.repeats == raw["dose"]["repeats"]
 
 
 def test_readme_minimal_spec_is_a_valid_spec():
@@ -123,7 +123,7 @@ def test_readme_minimal_spec_is_a_valid_spec():
     block = re.search(r"```toml\n(.*?)```", text, re.S)
     assert block, "the README shows no TOML spec"
     spec = normalize_spec(tomllib.loads(block.group(1)))
-    assert spec["scenes"][0]["scene"] == "spheres" and "sizes" in spec
+    assert spec.scenes[0].scene == "spheres" and spec.sizes is not None
 
 
 def github_anchor(heading: str) -> str:

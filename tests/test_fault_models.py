@@ -103,7 +103,7 @@ def test_campaigns_draw_the_spec_fault_model():
         normalize_spec({**base, "single": {**base["single"], "fault": "bit"}})
     )
     spec = normalize_spec({**base, "single": {**base["single"], "fault": "adjacent"}})
-    assert spec["single"]["fault"] == "adjacent"
+    assert spec.single.fault == "adjacent"
     with pytest.raises(SpecError, match="single.fault: unknown fault model 'burst'"):
         normalize_spec({**base, "single": {**base["single"], "fault": "burst"}})
     ctx = Context("single", 0, 500, "fp32", ["none"], 0, 8, [("opacity", 30), ("opacity", 31)], 4, fault="adjacent")

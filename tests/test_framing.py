@@ -165,10 +165,10 @@ def test_spec_model_cameras_scale_and_capture_defaults(tmp_path):
     save_model(make_scene("spheres", n=200), tmp_path / "m.spz")
     base = {"single": {"samples": 1}}
     spec = normalize_spec({**base, "scenes": [{"ply": "m.spz"}], "scale": 0.5}, tmp_path)
-    assert spec["scenes"][0]["model"] == str(tmp_path / "m.spz") and spec["scale"] == 0.5
-    assert spec["size"] == [256, 256] and spec["views"] >= 4  # campaign defaults
+    assert spec.scenes[0].model == str(tmp_path / "m.spz") and spec.scale == 0.5
+    assert spec.size == (256, 256) and spec.views >= 4  # campaign defaults
     spec = normalize_spec({**base, "scenes": [{"scene": "yashica-t4", "up": "+y"}]})
-    assert spec["scenes"][0]["n"] == 8192 and spec["scenes"][0]["up"] == "+y"
+    assert spec.scenes[0].n == 8192 and spec.scenes[0].up == "+y"
     for bad, frag in (
         ({"scenes": [{"scene": "leica-sofort", "n": 9000}]}, "out of range"),
         ({"scenes": [{"scene": "spheres", "model": "m.spz"}]}, "exactly one"),
@@ -245,7 +245,7 @@ def test_inria_output_folder_to_report_in_one_command(tmp_path):
     def spec(*models):
         return {"scenes": [{"model": str(m)} for m in models], "single": {"samples": 1}}
 
-    assert len(normalize_spec(spec(run, other, run))["scenes"]) == 3  # the same model twice is one scene
+    assert len(normalize_spec(spec(run, other, run)).scenes) == 3  # the same model twice is one scene
     with pytest.raises(SpecError, match="scenes\\[0\\] and scenes\\[1\\] are different models .* 'run'"):
         normalize_spec(spec(run, twin))
 

@@ -244,8 +244,9 @@ TABLE = st.dictionaries(
 def test_specs_of_any_shape(seeds, top, scenes, tables):
     spec = loads_or_own_error(normalize_spec, dict(top, scenes=scenes, **tables), seeds["tmp"])
     if spec is not None:
-        json.dumps(spec)  # what the manifest stores
-        assert spec["scenes"] and any(k in spec for k in ("single", "dose", "sizes"))
+        stored = spec.to_dict()
+        json.dumps(stored)  # what the manifest stores
+        assert stored["scenes"] and any(k in stored for k in ("single", "dose", "sizes"))
 
 
 def test_the_fuzz_seeds_are_valid(seeds):

@@ -86,4 +86,4 @@ def test_campaign_records_lpips_when_asked(tmp_path):
     assert shown.any() and (df.loc[shown, "lpips"] > 0).all()
     assert (df.loc[df["footprint"] == 0, "lpips"] < 1e-6).all()
     without = normalize_spec({"scenes": [{"scene": "spheres", "n": 300}], "single": {"samples": 1}, "lpips": False})
-    assert "lpips" not in without  # off by default, and an explicit false keeps the hash
+    assert "lpips" not in without.to_dict()  # off by default, and an explicit false keeps the hash

@@ -112,8 +112,8 @@ def test_spec_profile_key():
     from seuwgpu.campaign.spec import SpecError, normalize_spec
 
     raw = {"scenes": [{"scene": "spheres", "n": 100}], "single": {"samples": 1}}
-    assert "profile" not in normalize_spec(raw)  # default strict, old specs keep their hash
-    assert normalize_spec({**raw, "profile": "gsplat"})["profile"] == "gsplat"
+    assert "profile" not in normalize_spec(raw).to_dict()  # default strict, old specs keep their hash
+    assert normalize_spec({**raw, "profile": "gsplat"}).profile == "gsplat"
     with pytest.raises(SpecError, match="^profile: unknown renderer profile 'cuda'; expected one of strict, gsplat$"):
         normalize_spec({**raw, "profile": "cuda"})
     with pytest.raises(SpecError, match=r"^profile: unknown renderer profile \"\['gsplat'\]\""):

@@ -1,6 +1,7 @@
 """Bad inputs, interrupted and concurrent runs, merges and oversized jobs: each ends in the project's
 own one-line error naming the input, or in a correct result (issue 14)."""
 
+import dataclasses
 import json
 import os
 import shutil
@@ -99,7 +100,7 @@ def test_the_same_spec_through_another_path_is_the_same_run(tmp_path):
     os.symlink(tmp_path / "m.ply", tmp_path / "sub" / "link.ply")
     (tmp_path / "sub" / "l.toml").write_text(TINY.format(scene='model = "link.ply"'))
     assert spec_hash(load_spec(tmp_path / "sub" / "l.toml")) == spec_hash(a)
-    assert os.path.isabs(a["scenes"][0]["model"]) and len(a["scenes"][0]["model_sha256"]) == 64
+    assert os.path.isabs(a.scenes[0].model) and len(a.scenes[0].model_sha256) == 64
 
 
 def test_the_same_model_under_another_file_name_is_another_run(tmp_path):
@@ -111,7 +112,7 @@ def test_the_same_model_under_another_file_name_is_another_run(tmp_path):
     shutil.copy(tmp_path / "scan.ply", tmp_path / "copy.ply")
     a = load_spec(tiny_spec(tmp_path, 'model = "scan.ply"', "a.toml"))
     b = load_spec(tiny_spec(tmp_path, 'model = "copy.ply"', "b.toml"))
-    assert a["scenes"][0]["model_sha256"] == b["scenes"][0]["model_sha256"]
+    assert a.scenes[0].model_sha256 == b.scenes[0].model_sha256
     assert spec_hash(a) != spec_hash(b)
     Runner(a, tmp_path / "s0", shard=(0, 2), quiet=True).run()
     Runner(b, tmp_path / "s1", shard=(1, 2), quiet=True).run()
@@ -217,7 +218,7 @@ def test_merge_refuses_an_incomplete_shard_set_unless_allowed(tiny_run, shards, 
 
 def test_merge_refuses_other_specs_its_own_inputs_and_foreign_outputs(tiny_run, shards, tmp_path):
     spec, run, _ = tiny_run
-    other = dict(spec, seed=99)
+    other = dataclasses.replace(spec, seed=99)
     Runner(other, tmp_path / "other", quiet=True).run()
     with pytest.raises(SpecError, match="different specs"):
         merge(tmp_path / "m", [shards[0], tmp_path / "other"])
@@ -464,6 +465,6 @@ def test_spec_size_with_cameras_on_every_scene_is_refused(tmp_path):
     single = {"fields": ["opacity"], "bits": [30], "samples": 1, "defenses": ["none"]}
     with pytest.raises(SpecError, match="size: every scene takes its image size from its camera file"):
         normalize_spec({"size": "64x64", "scenes": [cams], "single": single})
-    assert normalize_spec({"scenes": [cams], "single": single})["scenes"][0]["cameras"]
+    assert normalize_spec({"scenes": [cams], "single": single}).scenes[0].cameras
     both = normalize_spec({"size": "64x64", "scenes": [cams, {"scene": "blocks", "n": 50}], "single": single})
-    assert both["size"] == [64, 64]
+    assert both.size == (64, 64)

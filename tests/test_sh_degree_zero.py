@@ -54,7 +54,7 @@ def write(tmp_path, text):
 
 def test_a_spec_records_a_model_files_own_sh_degree(tmp_path, degree0_model):
     spec = load_spec(write(tmp_path, spec_text(f'model = "{degree0_model}"')))
-    assert spec["scenes"][0]["sh_degree"] == 0
+    assert spec.scenes[0].sh_degree == 0
     fields = {f for c in enumerate_contexts(spec) for f, _ in c.cells}
     assert fields == {"means", "log_scales", "quats", "opacity", "sh_dc"}
     # a spec's sh_degree that is the file's is accepted; another is refused, not ignored

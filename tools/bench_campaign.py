@@ -32,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from seuwgpu.faults.defenses import check_defense  # noqa: E402
 from seuwgpu.faults.engine import Engine  # noqa: E402
 from seuwgpu.model import encoding  # noqa: E402
+from seuwgpu.model.budget import parse_size  # noqa: E402
 from seuwgpu.model.fields import FIELDS, field_components  # noqa: E402
 from seuwgpu.model.scenes import make_scene, scene_cameras  # noqa: E402
 
@@ -48,7 +49,7 @@ def draw_sites(eng: Engine, count: int, seed: int):
 
 def measure(args, n: int, arms) -> dict:
     """One size: the incremental and the full path on the same sites."""
-    w, h = (int(v) for v in args.size.lower().split("x"))
+    w, h = parse_size(args.size)
     model = make_scene(args.scene, n=n)
     t = time.perf_counter()
     eng = Engine(model, scene_cameras(args.scene, args.views, w, h), args.precision, scene=args.scene)
@@ -109,7 +110,7 @@ def main(argv=None):
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     try:
-        w, h = (int(v) for v in args.size.lower().split("x"))
+        w, h = parse_size(args.size)
         arms = tuple(check_defense(d.strip()) for d in args.defenses.split(",") if d.strip()) or ("none",)
     except ValueError as e:
         ap.error(f"--size WxH (e.g. 128x128) and --defenses a comma-separated list: {e}")

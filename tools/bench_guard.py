@@ -22,6 +22,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from seuwgpu.faults.guard import component_mask, guard_fields, scrub, support_box  # noqa: E402
+from seuwgpu.model.budget import parse_size  # noqa: E402
 from seuwgpu.model.scenes import make_scene, scene_cameras  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
 
@@ -69,7 +70,7 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
-    w, h = (int(v) for v in args.size.split("x"))
+    w, h = parse_size(args.size)
     rows = []
     for n in args.n:
         model = make_scene(args.scene, n=n)

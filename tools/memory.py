@@ -26,6 +26,7 @@ import wgpu
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from seuwgpu.model.budget import parse_size  # noqa: E402
 from seuwgpu.model.scenes import make_scene, scene_cameras  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
 
@@ -129,7 +130,7 @@ def main(argv=None) -> int:
     ap.add_argument("--precision", default="fp32")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args(argv)
-    w, h = (int(v) for v in a.size.lower().split("x"))
+    w, h = parse_size(a.size)
     out = []
     for n in a.n:
         rec = measure(a.scene, n, w, h, a.precision)

@@ -7,21 +7,22 @@ after minutes."""
 from __future__ import annotations
 
 from seuwgpu.campaign.sampling import enumerate_contexts
+from seuwgpu.campaign.spec import Spec
 from seuwgpu.errors import TooBig
 from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, available_text, check_model, gb
 
 PART_BYTES = 400  # host bytes per part of the block list, the parts found and the expected set
 
 
-def check_campaign(spec: dict):
+def check_campaign(spec: Spec):
     """Raise TooBig when the spec's scenes or its part bookkeeping would not fit in host memory."""
-    for i, sc in enumerate(spec["scenes"]):
-        if "scene" in sc and sc.get("n"):
-            check_model(sc["n"], sc["sh_degree"], f"scenes[{i}].n =")
-    if "sizes" in spec:
-        check_model(max(spec["sizes"]["n"]), spec["scenes"][0]["sh_degree"], "sizes.n =")
+    for i, sc in enumerate(spec.scenes):
+        if sc.scene and sc.n:
+            check_model(sc.n, sc.sh_degree, f"scenes[{i}].n =")
+    if spec.sizes is not None:
+        check_model(max(spec.sizes.n), spec.scenes[0].sh_degree, "sizes.n =")
     ctxs = enumerate_contexts(spec)
-    batch = spec["batch"]
+    batch = spec.batch
     parts = sum(-(-c.count // batch) for c in ctxs)
     need, have = parts * PART_BYTES, HOST_SHARE * available_host_bytes()
     if need <= have:
@@ -29,9 +30,9 @@ def check_campaign(spec: dict):
     total = sum(c.count for c in ctxs)
     hint = ""
     for key in ("single", "sizes"):
-        if key in spec and isinstance(spec[key].get("samples"), int):
-            s = spec[key]["samples"]
-            hint = f"; at most about samples = {max(1, int(s * have / need)):,} in [{key}] fits"
+        section = getattr(spec, key)
+        if section is not None:
+            hint = f"; at most about samples = {max(1, int(section.samples * have / need)):,} in [{key}] fits"
             break
     raise TooBig(
         f"the campaign has {total:,} injections in {parts:,} parts of batch = {batch}: listing them alone needs "

@@ -80,7 +80,7 @@ def init_ray(address: str | None = None, num_cpus: int | None = None, quiet: boo
     if ray.is_initialized():
         return False
     kw = {"logging_level": logging.WARNING if quiet else logging.INFO}
-    # ray.init replaces the SIGTERM handler with sys.exit; the command line's (apps/cli.py
+    # ray.init replaces the SIGTERM handler with sys.exit; the command line's (apps/cli/
     # console_main: stop as Ctrl-C does, exit 143) is put back
     on_term = signal.getsignal(signal.SIGTERM) if threading.current_thread() is threading.main_thread() else None
     if address:
@@ -243,7 +243,7 @@ def _chdir(cwd):
         os.chdir(cwd)  # relative PLY / camera paths of the spec resolve as on the driver
 
 
-def _prepare_task(spec: dict, out: str, cwd: str | None):
+def _prepare_task(spec, out: str, cwd: str | None):
     from seuwgpu.campaign.runner import Runner
 
     _chdir(cwd)
@@ -253,7 +253,7 @@ def _prepare_task(spec: dict, out: str, cwd: str | None):
 
 
 def _shard_task(
-    spec: dict, out: str, shard: tuple[int, int], full: bool, cwd: str | None, kill_once: str | None = None
+    spec, out: str, shard: tuple[int, int], full: bool, cwd: str | None, kill_once: str | None = None
 ) -> dict:
     _chdir(cwd)
     runner = _shard_runner_class()(spec, Path(out), shard=tuple(shard), quiet=True, full=full, gpu=worker_gpu())
@@ -270,7 +270,7 @@ def _is_system_failure(ray, exc) -> bool:
 
 
 def run_ray(
-    spec: dict,
+    spec,
     out,
     workers: int | None = None,
     address: str | None = None,
@@ -284,11 +284,14 @@ def run_ray(
 ) -> dict:
     """Run (shard `shard` of) a campaign on Ray; returns stats like `Runner.run` plus `workers`,
     `shards`, `resources` and `resubmitted`. Uses the Ray instance already initialised in this
-    process, else connects to `address` or starts a local one with `workers` CPUs."""
+    process, else connects to `address` or starts a local one with `workers` CPUs. `spec`: a
+    Spec, or its stored form."""
     ray = get_ray()
     from seuwgpu.campaign import store
     from seuwgpu.campaign.budget import check_campaign
+    from seuwgpu.campaign.spec import as_spec
 
+    spec = as_spec(spec)
     if workers is not None and (isinstance(workers, bool) or int(workers) != workers or workers < 1):
         # 0 started a Ray instance without CPUs, where the tasks waited forever
         raise ValueError(f"workers must be a whole number of at least 1, got {workers!r}")
@@ -301,7 +304,8 @@ def run_ray(
 def _run_ray(ray, spec, out, workers, address, quiet, full, shard, shards, max_retries, poll_s, _kill_once) -> dict:
     """run_ray with the run directory's lock held."""
     from seuwgpu.campaign import store
-    from seuwgpu.campaign.runner import Progress, Runner
+    from seuwgpu.campaign.progress import injection_bar
+    from seuwgpu.campaign.runner import Runner
 
     base = Runner(spec, out, shard=shard)
     blocks = list(base.blocks())
@@ -345,7 +349,7 @@ def _run_ray(ray, spec, out, workers, address, quiet, full, shard, shards, max_r
             except ray.exceptions.RayTaskError as e:
                 raise RuntimeError(f"preparing {out} failed: {getattr(e, 'cause', None) or e}") from None
         task = ray.remote(_shard_task).options(max_retries=max_retries, retry_exceptions=False, **opts)
-        bar = Progress(total, already, quiet)
+        bar = injection_bar(total, already, quiet)
 
         def poll():
             for key in sorted(store.parts_in(out) - seen):

@@ -8,7 +8,6 @@ block, skipping the parts already there; `replay` re-runs one injection alone fr
 from __future__ import annotations
 
 import platform
-import sys
 import time
 from pathlib import Path
 
@@ -16,8 +15,9 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.campaign import store
+from seuwgpu.campaign.progress import injection_bar
 from seuwgpu.campaign.sampling import Context, draw_sites, enumerate_contexts, injection_seeds
-from seuwgpu.campaign.spec import SpecError, spec_hash
+from seuwgpu.campaign.spec import Spec, SpecError, as_spec, spec_hash
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.sites import draw_uniform_sites
 from seuwgpu.metrics.image import FOOTPRINT_THRESHOLD, PIXEL_THRESHOLD, outcome_class
@@ -29,8 +29,15 @@ class Runner:
     """Runs (a shard of) a campaign into a run directory."""
 
     def __init__(
-        self, spec: dict, out: Path, shard: tuple[int, int] = (0, 1), quiet: bool = False, full: bool = False, gpu=None
+        self,
+        spec: Spec | dict,
+        out: Path,
+        shard: tuple[int, int] = (0, 1),
+        quiet: bool = False,
+        full: bool = False,
+        gpu=None,
     ):
+        spec = as_spec(spec)  # a Spec, or its stored form (a manifest's)
         self.spec, self.out = spec, Path(out)
         self.shard = store.check_shard(shard)
         self.quiet, self.full = quiet, full
@@ -38,16 +45,16 @@ class Runner:
         self.hash = spec_hash(spec)
         self.contexts = enumerate_contexts(spec)
         self.total = sum(c.count for c in self.contexts)
-        t = spec.get("outcomes") or {}
+        t = spec.outcomes
         self.thresholds = {
-            "pixel_threshold": float(t.get("pixel_threshold", PIXEL_THRESHOLD)),
-            "footprint_threshold": float(t.get("footprint", FOOTPRINT_THRESHOLD)),
+            "pixel_threshold": float(PIXEL_THRESHOLD if t is None else t.pixel_threshold),
+            "footprint_threshold": float(FOOTPRINT_THRESHOLD if t is None else t.footprint),
         }
         self._times: dict = {}  # engine key -> {defense: ms per view}
         # the last model file read (scene index, Source): a run's engines of one file (precisions,
         # [sizes]) and the new run's file check share one read; one slot, so memory stays bounded
         self._read: tuple[int, object] | None = None
-        if spec.get("lpips"):
+        if spec.lpips:
             from seuwgpu.metrics.lpips import INSTALL_HINT, available
 
             if not available():
@@ -65,7 +72,7 @@ class Runner:
             self.check_files()
             gpu = self.gpu or get_gpu()
             manifest = {
-                "spec": self.spec,
+                "spec": self.spec.to_dict(),
                 "spec_hash": self.hash,
                 "version": __version__,
                 "git_commit": store.git_commit(),
@@ -73,7 +80,7 @@ class Runner:
                 "python": platform.python_version(),
                 "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
                 "total_injections": self.total,
-                "profile": self.spec.get("profile", "strict"),
+                "profile": self.spec.renderer_profile,
                 "columns": store.COLUMNS,
                 "outcomes": self.thresholds,
                 "region_grid": REGION_GRID_VERSION,
@@ -91,12 +98,11 @@ class Runner:
         read by the spec check already, so an embedded scene is not built here.)"""
         from seuwgpu.model.sources import source_views
 
-        for i, sc in enumerate(self.spec["scenes"]):
-            if sc.get("model") is None:
+        for i, sc in enumerate(self.spec.scenes):
+            if sc.model is None:
                 continue
             src = self.file_source(i)
-            views, size = self.spec["views"], tuple(self.spec["size"])
-            source_views(src, sc.get("cameras"), views, size, self.spec.get("scale"))
+            source_views(src, sc.cameras, self.spec.views, self.spec.size, self.spec.scale)
 
     def file_source(self, scene_index: int):
         """Scene `scene_index`'s model file, loaded (or the last one loaded, when it is that)."""
@@ -104,8 +110,8 @@ class Runner:
 
         if self._read is None or self._read[0] != scene_index:
             self._read = None  # the previous model released before the next is read
-            sc = self.spec["scenes"][scene_index]
-            self._read = (scene_index, load_source(path=sc["model"], up=sc.get("up")))
+            sc = self.spec.scenes[scene_index]
+            self._read = (scene_index, load_source(path=sc.model, up=sc.up))
         return self._read[1]
 
     def done_ids(self) -> set[tuple[int, int]]:
@@ -118,7 +124,7 @@ class Runner:
     def blocks(self):
         """Deterministic (context, first id, count) blocks of this shard."""
         i, n = self.shard
-        bs = self.spec["batch"]
+        bs = self.spec.batch
         j = 0
         for ctx in self.contexts:
             for a in range(0, ctx.count, bs):
@@ -144,7 +150,7 @@ class Runner:
         shard_total = sum(m for _, _, m in self.blocks())
         already = shard_total - sum(m for _, _, m in todo)
         stats = {"injections": already, "catastrophic": 0, "seconds": 0.0, "new": 0}
-        bar = progress(shard_total, already) if progress else Progress(shard_total, already, self.quiet)
+        bar = progress(shard_total, already) if progress else injection_bar(shard_total, already, self.quiet)
         engines, rates = {}, {}  # rates: sites a second of each engine's last group
         t0 = time.perf_counter()
         writer = store.PartWriter(self.out)
@@ -198,7 +204,7 @@ class Runner:
         interrupted run loses at most the group in progress."""
         ctx, group, sites = todo[i][0], [todo[i]], todo[i][2]
         i += 1
-        if ctx.kind not in ("single", "size") or self.full or self.spec.get("lpips"):
+        if ctx.kind not in ("single", "size") or self.full or self.spec.lpips:
             return group, i
         target = self.GROUP_BATCHES * eng.evaluator.B
         if rate:
@@ -222,24 +228,16 @@ class Runner:
         from seuwgpu.faults.engine import Engine
         from seuwgpu.model.sources import load_source, source_views
 
-        sc = self.spec["scenes"][ctx.scene_index]
-        path = sc.get("model")
+        sc = self.spec.scenes[ctx.scene_index]
+        path = sc.model
         if path:
             src = self.file_source(ctx.scene_index)
         else:
-            src = load_source(
-                scene=sc.get("scene"),
-                n=ctx.n or sc.get("n"),
-                sh_degree=sc["sh_degree"],
-                seed=sc["seed"],
-                up=sc.get("up"),
-            )
-        views = source_views(
-            src, sc.get("cameras"), self.spec["views"], tuple(self.spec["size"]), self.spec.get("scale")
-        )
+            src = load_source(scene=sc.scene, n=ctx.n or sc.n, sh_degree=sc.sh_degree, seed=sc.seed, up=sc.up)
+        views = source_views(src, sc.cameras, self.spec.views, self.spec.size, self.spec.scale)
         model = src.model
         if path and ctx.n is not None:  # a model file in the primitive-count sweep: framed whole, then cut
-            model = model.sample(ctx.n, sc["seed"], src.name)
+            model = model.sample(ctx.n, sc.seed, src.name)
         return Engine(
             model,
             views,
@@ -247,7 +245,7 @@ class Runner:
             gpu=self.gpu,
             scene=src.name,
             incremental=not self.full,
-            profile=self.spec.get("profile", "strict"),
+            profile=self.spec.renderer_profile,
         )
 
     def view_times(self, eng, ctx: Context) -> dict:
@@ -292,7 +290,7 @@ class Runner:
         if ctx.kind not in ("single", "size"):
             return [self._dose_block(eng, ctx, first, count) for first, count in blocks]
         ids = np.concatenate([np.arange(first, first + count, dtype=np.int64) for first, count in blocks])
-        seeds = injection_seeds(self.spec["seed"], ids)
+        seeds = injection_seeds(self.spec.seed, ids)
         every, weights = draw_sites(ctx, ids - ctx.first_id, seeds, eng.n, eng.degree)  # per injection
         if self.full:
             if ctx.regions:
@@ -301,7 +299,7 @@ class Runner:
         else:
             whole = eng.evaluate_frame(every, ctx.defenses, ctx.regions)
         arms = len(ctx.defenses)  # rows are defense-major: arm d holds rows d*total .. d*total+total-1
-        if self.spec.get("lpips"):
+        if self.spec.lpips:
             whole["lpips"] = [self.lpips_of(eng, [s], d) for d in ctx.defenses for s in every]
         whole["campaign"] = ctx.kind
         whole["repeat"] = 0
@@ -318,7 +316,7 @@ class Runner:
 
     def _dose_block(self, eng, ctx: Context, first: int, count: int) -> pd.DataFrame:
         ids = np.arange(first, first + count, dtype=np.int64)
-        seeds = injection_seeds(self.spec["seed"], ids)
+        seeds = injection_seeds(self.spec.seed, ids)
         rows = []
         for i, s in zip(ids, seeds):
             k, rep = ctx.cell_of(int(i) - ctx.first_id)
@@ -329,72 +327,13 @@ class Runner:
             for d in ctx.defenses:
                 rec = eng.inject(sites, d)
                 rec.update(campaign="dose", repeat=rep, weight=1.0, seed=int(s), injection_id=int(i))
-                if self.spec.get("lpips"):
+                if self.spec.lpips:
                     rec["lpips"] = self.lpips_of(eng, sites, d)
                 rows.append(rec)
         return self.finish(pd.DataFrame(rows), eng, ctx)
 
 
-class Progress:
-    """rich progress with injections/s, ETA and the running catastrophe count; quiet mode logs lines."""
-
-    def __init__(self, total: int, done: int, quiet: bool):
-        self.total, self.done, self.quiet = total, done, quiet
-        self.cat = 0
-        self.t0 = time.perf_counter()
-        self.last = self.t0
-        self.start_done = done
-        if not quiet:
-            from rich.progress import (
-                BarColumn,
-                MofNCompleteColumn,
-                Progress,
-                TextColumn,
-                TimeElapsedColumn,
-                TimeRemainingColumn,
-            )
-
-            self.p = Progress(
-                TextColumn("[bold]injections"),
-                BarColumn(),
-                MofNCompleteColumn(),
-                TextColumn("{task.fields[rate]:>8.1f}/s"),
-                TimeElapsedColumn(),
-                TextColumn("ETA"),
-                TimeRemainingColumn(),
-                # resumed: the parts already on disk are not re-read, so the count is this session's
-                TextColumn("catastrophic: {task.fields[cat]}" + (" (since resuming)" if done else "")),
-                transient=False,
-            )
-            self.p.start()
-            self.task = self.p.add_task("run", total=total, completed=done, rate=0.0, cat=0)
-
-    def advance(self, n: int, cat: int):
-        self.done += n
-        self.cat += cat
-        now = time.perf_counter()
-        rate = (self.done - self.start_done) / max(now - self.t0, 1e-9)
-        if not self.quiet:
-            self.p.update(self.task, completed=self.done, rate=rate, cat=self.cat)
-        elif now - self.last > 10 or self.done == self.total:
-            self.last = now
-            eta = "-"  # no rate yet
-            if rate > 0:
-                left = (self.total - self.done) / rate
-                eta = time.strftime("%H:%M:%S", time.gmtime(left)) if left < 86400 else f"{left / 3600:.0f} h"
-            since = f" (of the {self.done - self.start_done} run since resuming)" if self.start_done else ""
-            print(
-                f"{self.done}/{self.total} injections, {rate:.1f}/s, ETA {eta}, catastrophic {self.cat}{since}",
-                file=sys.stderr,
-                flush=True,
-            )
-
-    def close(self):
-        if not self.quiet:
-            self.p.stop()
-
-
-def replay(spec: dict, injection_id: int, full: bool = False, gpu=None) -> pd.DataFrame:
+def replay(spec: Spec | dict, injection_id: int, full: bool = False, gpu=None) -> pd.DataFrame:
     """Re-run one injection alone from its id: its rows (one per defense), as the campaign wrote them."""
     runner = Runner(spec, Path("."), full=full, gpu=gpu)
     for ctx in runner.contexts:

@@ -12,6 +12,7 @@ from dataclasses import field as dc_field
 
 import numpy as np
 
+from seuwgpu.campaign.spec import SceneSpec, Spec, as_spec
 from seuwgpu.faults.sites import VALUE_MODELS, Site, model_bits, site_from_flat
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import field_components, stored_fields
@@ -47,70 +48,73 @@ def _cells(fields, bits, precision, fault="bit"):
     return [(f, b) for f in fields for b in use]
 
 
-def scene_fields(fields, scene: dict) -> list:
+def scene_fields(fields, scene: SceneSpec) -> list:
     """The fields of a section that a scene's model holds: sh_rest has no component at SH degree
     0 (spec.py refuses it named for such a model; "all" stands for the fields each model holds)."""
-    return stored_fields(scene.get("sh_degree", 3), fields)
+    return stored_fields(scene.sh_degree, fields)
 
 
-def enumerate_contexts(spec: dict) -> list[Context]:
+def enumerate_contexts(spec: Spec | dict) -> list[Context]:
+    """The campaign's contexts in id order: [single] per scene and precision, then [dose], then
+    [sizes] per swept scene, primitive count and precision. `spec`: a Spec or its stored form."""
+    spec = as_spec(spec)
     ctxs, nid = [], 0
-    if "single" in spec:
-        t = spec["single"]
-        for si, sc in enumerate(spec["scenes"]):
-            for p in t["precisions"]:
-                cells = _cells(scene_fields(t["fields"], sc), t["bits"], p, t.get("fault", "bit"))
+    if spec.single is not None:
+        t = spec.single
+        for si, sc in enumerate(spec.scenes):
+            for p in t.precisions:
+                cells = _cells(scene_fields(t.fields, sc), t.bits, p, t.fault)
                 c = Context(
                     "single",
                     si,
-                    sc.get("n"),
+                    sc.n,
                     p,
-                    t["defenses"],
+                    list(t.defenses),
                     nid,
-                    len(cells) * t["samples"],
+                    len(cells) * t.samples,
                     cells,
-                    t["samples"],
-                    t["sampling"],
-                    tuple(t.get("regions", ())),
-                    t.get("fault", "bit"),
+                    t.samples,
+                    t.sampling,
+                    tuple(t.regions),
+                    t.fault,
                 )
                 ctxs.append(c)
                 nid += c.count
-    if "dose" in spec:
-        t = spec["dose"]
-        for si, sc in enumerate(spec["scenes"]):
-            for p in t["precisions"]:
+    if spec.dose is not None:
+        t = spec.dose
+        for si, sc in enumerate(spec.scenes):
+            for p in t.precisions:
                 c = Context(
                     "dose",
                     si,
-                    sc.get("n"),
+                    sc.n,
                     p,
-                    t["defenses"],
+                    list(t.defenses),
                     nid,
-                    len(t["k"]) * t["repeats"],
-                    list(t["k"]),
-                    t["repeats"],
+                    len(t.k) * t.repeats,
+                    list(t.k),
+                    t.repeats,
                 )
                 ctxs.append(c)
                 nid += c.count
-    if "sizes" in spec:
-        t = spec["sizes"]
-        for si, n in [(si, n) for si in t.get("scenes", [0]) for n in t["n"]]:
-            for p in t["precisions"]:
-                cells = _cells(scene_fields(t["fields"], spec["scenes"][si]), t["bits"], p, t.get("fault", "bit"))
+    if spec.sizes is not None:
+        t = spec.sizes
+        for si, n in [(si, n) for si in t.scene_indices for n in t.n]:
+            for p in t.precisions:
+                cells = _cells(scene_fields(t.fields, spec.scenes[si]), t.bits, p, t.fault)
                 c = Context(
                     "size",
                     si,
                     n,
                     p,
-                    t["defenses"],
+                    list(t.defenses),
                     nid,
-                    len(cells) * t["samples"],
+                    len(cells) * t.samples,
                     cells,
-                    t["samples"],
-                    t["sampling"],
-                    tuple(t.get("regions", ())),
-                    t.get("fault", "bit"),
+                    t.samples,
+                    t.sampling,
+                    tuple(t.regions),
+                    t.fault,
                 )
                 ctxs.append(c)
                 nid += c.count

@@ -78,14 +78,15 @@ from __future__ import annotations
 import hashlib
 import json
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
-from seuwgpu.model import encoding
-from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, MIN_VIEW_SIZE, n_values
+from seuwgpu.model import budget, encoding
+from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
 from seuwgpu.model.formats import UP_AXES
 
@@ -109,6 +110,207 @@ _SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
 _SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions", "fault"}
 _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
 _SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions", "fault", "scenes"}
+
+
+# ---- the spec, typed -----------------------------------------------------------------------------
+# normalize_spec validates a TOML spec and returns a Spec. Its `to_dict()` is the spec as the run's
+# manifest stores it and as its hash covers it (entries given only optionally are left out when not
+# given, so older specs keep their hash); `Spec.from_dict` reads that form back (a manifest's).
+
+
+def _plain(value):
+    """Tuples as JSON lists, dataclasses as their dicts (what a manifest holds)."""
+    if isinstance(value, tuple):
+        return [_plain(v) for v in value]
+    if hasattr(value, "to_dict"):
+        return value.to_dict()
+    return value
+
+
+@dataclass(frozen=True, kw_only=True)
+class SceneSpec:
+    """One [[scenes]] entry: an embedded scene (`scene`, `n`) or a model file (`model`, resolved,
+    with the sha256 of its content), and optionally a camera file and an up axis."""
+
+    sh_degree: int
+    seed: int
+    scene: str | None = None
+    n: int | None = None
+    model: str | None = None
+    model_sha256: str | None = None
+    up: str | None = None
+    cameras: str | None = None
+    cameras_sha256: str | None = None
+
+    def to_dict(self) -> dict:
+        return {k: _plain(v) for k, v in vars(self).items() if v is not None}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SceneSpec:
+        return cls(**d)
+
+
+@dataclass(frozen=True, kw_only=True)
+class UpsetSpec:
+    """[single]: single upsets stratified by (field, bit) cell. `bits` is "all" or the bit list."""
+
+    precisions: tuple[str, ...]
+    fields: tuple[str, ...]
+    bits: str | tuple[int, ...]
+    samples: int
+    sampling: str
+    defenses: tuple[str, ...]
+    regions: tuple[int, ...] = ()
+    fault: str = "bit"
+
+    def to_dict(self) -> dict:
+        d = {k: _plain(v) for k, v in vars(self).items()}
+        if d["fault"] == "bit":  # recorded only when not the default (older specs keep their hash)
+            del d["fault"]
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+@dataclass(frozen=True, kw_only=True)
+class SizesSpec(UpsetSpec):
+    """[sizes]: single upsets at each primitive count `n`, of the [[scenes]] `scenes` (None:
+    the first, and not recorded)."""
+
+    n: tuple[int, ...]
+    scenes: tuple[int, ...] | None = None
+
+    def to_dict(self) -> dict:
+        d = super().to_dict()
+        if self.scenes is None:
+            del d["scenes"]
+        return d
+
+    @property
+    def scene_indices(self) -> tuple[int, ...]:
+        return (0,) if self.scenes is None else self.scenes
+
+
+@dataclass(frozen=True, kw_only=True)
+class DoseSpec:
+    """[dose]: k simultaneous upsets drawn uniformly over the stored bits, `repeats` times each."""
+
+    precisions: tuple[str, ...]
+    k: tuple[int, ...]
+    repeats: int
+    defenses: tuple[str, ...]
+
+    def to_dict(self) -> dict:
+        return {k: _plain(v) for k, v in vars(self).items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> DoseSpec:
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+@dataclass(frozen=True, kw_only=True)
+class OutcomesSpec:
+    """[outcomes]: the outcome-class thresholds."""
+
+    pixel_threshold: float
+    footprint: float
+
+    def to_dict(self) -> dict:
+        return dict(vars(self))
+
+    @classmethod
+    def from_dict(cls, d: dict) -> OutcomesSpec:
+        return cls(**d)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RateSpec:
+    environment: str
+    per_bit_hour: float
+    source: str
+
+    def to_dict(self) -> dict:
+        return dict(vars(self))
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReliabilitySpec:
+    """[reliability]: inputs of the MTBF analysis (they change no injection)."""
+
+    scrub_hours: float | None = None
+    rates: tuple[RateSpec, ...] | None = None
+
+    def to_dict(self) -> dict:
+        return {k: _plain(v) for k, v in vars(self).items() if v is not None}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ReliabilitySpec:
+        rates = d.get("rates")
+        return cls(
+            scrub_hours=d.get("scrub_hours"),
+            rates=None if rates is None else tuple(RateSpec(**r) for r in rates),
+        )
+
+
+@dataclass(frozen=True, kw_only=True)
+class Spec:
+    """A validated campaign spec with its defaults filled in (module docstring: the TOML keys).
+    `profile` None: the default renderer profile ("strict"), not recorded."""
+
+    name: str
+    seed: int
+    views: int
+    size: tuple[int, int]
+    batch: int
+    scenes: tuple[SceneSpec, ...]
+    scale: float | None = None
+    profile: str | None = None
+    lpips: bool = False
+    outcomes: OutcomesSpec | None = None
+    reliability: ReliabilitySpec | None = None
+    single: UpsetSpec | None = None
+    dose: DoseSpec | None = None
+    sizes: SizesSpec | None = None
+
+    @property
+    def renderer_profile(self) -> str:
+        return self.profile or "strict"
+
+    def to_dict(self) -> dict:
+        """The spec as the manifest stores it and its hash covers it."""
+        d = {k: _plain(v) for k, v in vars(self).items() if v is not None}
+        if not self.lpips:
+            del d["lpips"]
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Spec:
+        """A Spec from its stored form (a manifest's `spec`), not validated again: the files it
+        names may be on another machine."""
+        sections = {"single": UpsetSpec, "dose": DoseSpec, "sizes": SizesSpec}
+        kw = {k: v for k, v in d.items() if k not in ("scenes", "size", *sections, "outcomes", "reliability")}
+        kw["size"] = tuple(d["size"])
+        kw["scenes"] = tuple(SceneSpec.from_dict(sc) for sc in d["scenes"])
+        for key, kind in sections.items():
+            if key in d:
+                kw[key] = kind.from_dict(d[key])
+        if "outcomes" in d:
+            kw["outcomes"] = OutcomesSpec.from_dict(d["outcomes"])
+        if "reliability" in d:
+            kw["reliability"] = ReliabilitySpec.from_dict(d["reliability"])
+        return cls(**kw)
+
+
+def spec_dict(spec: Spec | dict) -> dict:
+    """The stored form of a spec (a manifest's is one already)."""
+    return spec.to_dict() if isinstance(spec, Spec) else spec
+
+
+def as_spec(spec: Spec | dict) -> Spec:
+    """A Spec, from a Spec or its stored form."""
+    return spec if isinstance(spec, Spec) else Spec.from_dict(spec)
 
 
 SEED_MAX = 2**63 - 1  # seeds are TOML integers (signed 64-bit), used as unsigned 64-bit hash keys
@@ -322,19 +524,12 @@ def _fault(table, out, where):
         out["fault"] = v
 
 
-def parse_size(v, where="size"):
-    if isinstance(v, str):
-        try:
-            w, h = (int(x) for x in v.lower().split("x"))
-        except ValueError:
-            raise SpecError(f'{where} must look like "128x128", got {v!r}') from None
-    elif isinstance(v, list) and len(v) == 2:
-        w, h = v
-    else:
-        raise SpecError(f'{where} must look like "128x128", got {v!r}')
-    if not (isinstance(w, int) and isinstance(h, int)) or w < MIN_VIEW_SIZE or h < MIN_VIEW_SIZE:
-        raise SpecError(f"{where}: width and height must be integers >= {MIN_VIEW_SIZE}, got {v!r}")
-    return int(w), int(h)
+def parse_size(v, where="size") -> tuple[int, int]:
+    """budget.parse_size raising SpecError."""
+    try:
+        return budget.parse_size(v, where)
+    except InputError as e:
+        raise SpecError(str(e)) from None
 
 
 def _name(raw) -> str:
@@ -386,11 +581,13 @@ def _reliability(t) -> dict:
     return out
 
 
-def scene_label(entry: dict) -> str | None:
+def scene_label(entry: SceneSpec | dict) -> str | None:
     """The scene name records give a spec's [[scenes]] entry: an embedded scene's name, a model's
     file or INRIA output folder name (formats.model_label); None for neither."""
     from seuwgpu.model.formats import model_label
 
+    if isinstance(entry, SceneSpec):
+        entry = entry.to_dict()
     if entry.get("scene"):
         return str(entry["scene"])
     return model_label(entry["model"]) if entry.get("model") else None
@@ -412,8 +609,9 @@ def _distinct_labels(scenes: list[dict]):
             )
 
 
-def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
-    """Validated spec with defaults filled in (what is hashed and stored in the manifest)."""
+def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
+    """The validated spec with its defaults filled in (`to_dict()`: what is hashed and stored in
+    the manifest)."""
     from seuwgpu.model.scenes import is_capture, list_scenes, make_scene
 
     _keys(raw, _TOP, "the spec")
@@ -580,10 +778,18 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> dict:
         if "scenes" in t:  # recorded only when given (the first scene by default), older hashes stay
             spec["sizes"]["scenes"] = sorted(set(which))
         _fault(t, spec["sizes"], "sizes")
-    return spec
+    return Spec.from_dict(spec)
 
 
-def load_spec(path) -> dict:
+def default_spec_path() -> Path:
+    """The packaged default spec (specs/default.toml: the main job, `seuwgpu demo`), wherever the
+    package is installed."""
+    from importlib.resources import files
+
+    return Path(str(files("seuwgpu.campaign.specs").joinpath("default.toml")))
+
+
+def load_spec(path) -> Spec:
     path = Path(path)
     if path.is_dir():
         raise SpecError(f"{path}: is a folder; give the campaign spec file (TOML)")
@@ -600,13 +806,14 @@ def load_spec(path) -> dict:
     return normalize_spec(raw, path.resolve().parent)
 
 
-def spec_hash(spec: dict) -> str:
+def spec_hash(spec: Spec | dict) -> str:
     """The run's name: a hash of the normalised spec in which the files it names stand for their
     content (their sha256), so the same spec is the same run whatever folder reaches the files, and
     a changed model or camera file is another run. A model file's label (scene_label: its file or
     INRIA output folder name) is hashed too: records name the scene by it, so the same content
     under another name writes other records, and resuming or merging with them would split one
     model into two scenes."""
+    spec = spec_dict(spec)
     keyed = _by_content(spec)
     for sc, k in zip(spec.get("scenes", []), keyed["scenes"]):
         if sc.get("model") and "model_sha256" in sc:
@@ -614,16 +821,17 @@ def spec_hash(spec: dict) -> str:
     return _short_hash(keyed)
 
 
-def unlabelled_spec_hash(spec: dict) -> str:
+def unlabelled_spec_hash(spec: Spec | dict) -> str:
     """The spec hash as seuwgpu computed it before a model file's label was hashed (spec_hash):
     the name of runs made by those versions, whose shards `merge` still joins (checking them for a
     renamed model, which that hash did not tell apart)."""
-    return _short_hash(_by_content(spec))
+    return _short_hash(_by_content(spec_dict(spec)))
 
 
-def renamed_models(a: dict, b: dict) -> list[str]:
+def renamed_models(a: Spec | dict, b: Spec | dict) -> list[str]:
     """Scenes that two specs read from the same model content under different labels, said for
     an error message (why their hashes differ)."""
+    a, b = spec_dict(a), spec_dict(b)
     out = []
     for i, (x, y) in enumerate(zip(a.get("scenes", []), b.get("scenes", []))):
         if x.get("model") and y.get("model") and x.get("model_sha256") == y.get("model_sha256"):
@@ -654,14 +862,14 @@ _NOT_SITES = ("name", "batch", "outcomes", "reliability", "lpips", "profile")
 _NOT_SITES_IN = ("regions",)
 
 
-def sites_key(spec: dict) -> str:
+def sites_key(spec: Spec | dict) -> str:
     """A hash of what decides a campaign's fault sites and how each is measured (seed, scenes and
     their content, views, size, scale, sections with their precisions, cells, samples, sampling,
     fault model and defenses), defaults spelled out. Two specs of one sites key (and one renderer
     profile: the manifest's, kept apart by the caller) draw the same site for each injection id, so
     their records pooled would count the same sites twice; their spec hashes may differ
     (`spec_hash` covers every entry, as it names the run directory's contents)."""
-    keyed = _by_content(spec, _NOT_SITES)
+    keyed = _by_content(spec_dict(spec), _NOT_SITES)
     if keyed.get("scale") == 1.0:
         del keyed["scale"]  # the views' own resolution, as without scale
     for section in ("single", "dose", "sizes"):

@@ -28,44 +28,56 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 
 from seuwgpu.errors import InputError, RunInUse
 
 MANIFEST = "manifest.json"
 RECORDS = "records"
 
-COLUMNS = [
-    "campaign",
-    "scene",
-    "n_primitives",
-    "precision",
-    "profile",
-    "field",
-    "primitive",
-    "component",
-    "bit",
-    "bit_class",
-    "fault",
-    "clean_value",
-    "corrupted_value",
-    "defense",
-    "footprint",
-    "footprint_max",
-    "peak_error",
-    "psnr",
-    "ssim",
-    "lpips",
-    "nonfinite",
-    "catastrophic",
-    "outcome",
-    "clamps",
-    "k",
-    "repeat",
-    "weight",
-    "seed",
-    "injection_id",
-    "time_ms",
-]
+RECORD_SCHEMA = pa.schema(
+    [
+        ("campaign", pa.large_string()),  # single, dose or size
+        ("scene", pa.large_string()),
+        ("n_primitives", pa.int64()),
+        ("precision", pa.large_string()),
+        ("profile", pa.large_string()),
+        ("field", pa.large_string()),
+        ("primitive", pa.int64()),  # -1: several sites (a dose record)
+        ("component", pa.int64()),
+        ("bit", pa.int64()),
+        ("bit_class", pa.large_string()),
+        ("fault", pa.large_string()),
+        ("clean_value", pa.float64()),
+        ("corrupted_value", pa.float64()),
+        ("defense", pa.large_string()),
+        ("footprint", pa.float64()),  # a fraction of the pixels
+        ("footprint_max", pa.float64()),
+        ("peak_error", pa.float64()),
+        ("psnr", pa.float64()),
+        ("ssim", pa.float64()),
+        ("lpips", pa.float64()),  # NaN: not measured
+        ("nonfinite", pa.bool_()),
+        ("catastrophic", pa.bool_()),
+        ("outcome", pa.large_string()),
+        ("clamps", pa.int64()),
+        ("k", pa.int64()),
+        ("repeat", pa.int64()),
+        ("weight", pa.float64()),
+        ("seed", pa.int64()),
+        ("injection_id", pa.int64()),
+        ("time_ms", pa.float64()),
+    ]
+)
+"""The records' columns and their types: every part is written with them (`parquet_bytes`) and
+checked against them when read (`check_part_schema`). A spec's `regions` add REGION_TYPE columns
+regions_pred_P and regions_meas_P (bitmasks of the P sort-first regions reached in any view) and
+REGION_SHARE_TYPE columns regions_pred_frame_P and regions_meas_frame_P (the share of regions one
+frame reaches, averaged over the views)."""
+REGION_TYPE = pa.int64()
+REGION_SHARE_TYPE = pa.float64()
+COLUMNS = RECORD_SCHEMA.names
 # wall-clock measurements: the only columns a replay, a shard or a Ray worker may not reproduce
 TIMED_COLUMNS = ("time_ms",)
 REPRODUCIBLE_COLUMNS = [c for c in COLUMNS if c not in TIMED_COLUMNS]
@@ -77,6 +89,68 @@ def columns_of(ctx) -> list[str]:
     return COLUMNS + [
         f"regions_{kind}{frame}_{P}" for P in ctx.regions for frame in ("", "_frame") for kind in ("pred", "meas")
     ]
+
+
+def check_record_columns(names, what: str):
+    """Refuse names that are no record column (nor `run`, the label of a run), naming `what`."""
+    unknown = [c for c in names if c != "run" and c not in COLUMNS]
+    if unknown:
+        known = ", ".join(["run", *COLUMNS])
+        raise InputError(f"{what} {', '.join(unknown)}: not a record column (one of {known})")
+
+
+def column_type(name: str) -> pa.DataType | None:
+    """The type of a record column, None for a name no record has."""
+    if name in COLUMNS:
+        return RECORD_SCHEMA.field(name).type
+    kind, _, p = name.removeprefix("regions_").partition("_")
+    if name.startswith("regions_") and kind in ("pred", "meas"):
+        if p.isdigit():
+            return REGION_TYPE  # the union over the views: a bitmask of regions
+        if p.startswith("frame_") and p.removeprefix("frame_").isdigit():
+            return REGION_SHARE_TYPE  # the share of regions one frame reaches, averaged over views
+    return None
+
+
+def records_schema(columns) -> pa.Schema:
+    """The schema of records holding `columns` (in that order); a name no record has is refused."""
+    fields = []
+    for c in columns:
+        t = column_type(str(c))
+        if t is None:
+            raise InputError(
+                f"{c!r} is not a record column (store.RECORD_SCHEMA, regions_pred_P/regions_meas_P, "
+                "regions_pred_frame_P/regions_meas_frame_P)"
+            )
+        fields.append(pa.field(str(c), t))
+    return pa.schema(fields)
+
+
+def _kind(t: pa.DataType) -> str:
+    if pa.types.is_string(t) or pa.types.is_large_string(t):
+        return "text"
+    if pa.types.is_boolean(t):
+        return "flag"
+    if pa.types.is_integer(t) or pa.types.is_floating(t):
+        return "number"
+    return str(t)
+
+
+def check_part_schema(path: Path, schema: pa.Schema | None = None) -> None:
+    """Refuse a part whose record columns hold another kind of value (text, flag, number) than
+    RECORD_SCHEMA says (a file some other tool wrote into records/), naming the part and the
+    column. The kind, not the exact type: parts written by other tools with pandas (an integer
+    column padded with NaN is float64, strings are string or large_string) stay readable."""
+    if schema is None:
+        try:
+            schema = pq.read_schema(path)
+        except (OSError, ValueError) as e:  # pyarrow's ArrowInvalid is a ValueError
+            raise InputError(f"{path}: not a readable record part ({e})") from None
+    for f in schema:
+        want = column_type(f.name)
+        if want is not None and _kind(f.type) != _kind(want):
+            why = f"records hold {want} ({_kind(want)}): not a seuwgpu record part"
+            raise InputError(f"{path}: column {f.name} holds {f.type}, {why}")
 
 
 def manifest_path(run_dir) -> Path:
@@ -126,20 +200,21 @@ def parts_in(run_dir) -> set[tuple[int, int]]:
 
 def part_rows(path: Path) -> int | None:
     """Rows of a part from its Parquet footer, or None when the file is empty or unreadable."""
-    import pyarrow.parquet as pq
-
     try:
         return int(pq.read_metadata(path).num_rows)
     except (OSError, ValueError):  # pyarrow's ArrowInvalid is a ValueError
         return None
 
 
-def expected_parts(spec: dict) -> dict[tuple[int, int], int]:
+def expected_parts(spec) -> dict[tuple[int, int], int]:
     """{(first id, count): rows} of every part a spec's campaign writes (blocks of `batch`
-    injections per context, one row per injection and defense)."""
+    injections per context, one row per injection and defense). `spec`: a Spec or its stored
+    form (a manifest's)."""
     from seuwgpu.campaign.sampling import enumerate_contexts
+    from seuwgpu.campaign.spec import as_spec
 
-    out, bs = {}, spec["batch"]
+    spec = as_spec(spec)
+    out, bs = {}, spec.batch
     for ctx in enumerate_contexts(spec):
         for a in range(0, ctx.count, bs):
             m = min(bs, ctx.count - a)
@@ -349,11 +424,13 @@ def read_manifest(run_dir) -> dict | None:
     return m
 
 
-def check_same_run(run_dir, manifest: dict | None, spec: dict, spec_hash: str):
-    """Refuse to add records of `spec` to a run of another spec, naming what differs (a model or
-    camera file whose content changed since the run began, else the spec hashes). A run without
-    any part may be replaced (the caller writes the new manifest)."""
-    from seuwgpu.campaign.spec import SpecError
+def check_same_run(run_dir, manifest: dict | None, spec, spec_hash: str):
+    """Refuse to add records of `spec` (a Spec, or its stored form) to a run of another spec,
+    naming what differs (a model or camera file whose content changed since the run began, else
+    the spec hashes). A run without any part may be replaced (the caller writes the new manifest)."""
+    from seuwgpu.campaign.spec import SpecError, spec_dict
+
+    spec = spec_dict(spec)
 
     if manifest is None or manifest.get("spec_hash") == spec_hash:
         return
@@ -477,10 +554,11 @@ def parquet_bytes(df: pd.DataFrame, seconds: float | None = None) -> bytes:
     """The records as Parquet; `seconds` (the compute time of the block, engine set-up included
     when the block paid it) is kept in the file's schema metadata, so a run's compute time is
     the sum over its parts, however often it was interrupted and resumed (`run_seconds`)."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    table = pa.Table.from_pandas(df, preserve_index=False)
+    df = df.copy(deep=False)
+    for c in df.columns:  # bitmasks computed as uint64: stored as int64, the same 64 bits
+        if column_type(str(c)) == REGION_TYPE and df[c].dtype == "uint64":
+            df[c] = df[c].to_numpy().view("int64")
+    table = pa.Table.from_pandas(df, schema=records_schema(df.columns), preserve_index=False)
     if seconds is not None:
         meta = dict(table.schema.metadata or {})
         meta[PART_META.encode()] = repr(float(seconds)).encode()
@@ -546,8 +624,6 @@ def run_names(run_dirs) -> list[str]:
 def run_seconds(run_dir, manifest: dict | None = None) -> tuple[float, int]:
     """(compute seconds summed over the run's parts that record them, parts that do not: written
     before parts carried their time, or by other tools)."""
-    import pyarrow.parquet as pq
-
     total, untimed = 0.0, 0
     for path in record_parts(run_dir, manifest):
         meta = pq.read_schema(path).metadata or {}
@@ -588,8 +664,14 @@ def atomic_write(path: Path, data: bytes):
     os.replace(tmp, path)
 
 
+def read_part(path: Path, columns=None) -> pd.DataFrame:
+    """One part's records (`columns` of them), its column types checked (check_part_schema)."""
+    check_part_schema(path)
+    return pd.read_parquet(path, columns=columns)
+
+
 def read_records(run_dir) -> pd.DataFrame:
     parts = record_parts(run_dir)
     if not parts:
         return pd.DataFrame(columns=COLUMNS)
-    return pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
+    return pd.concat([read_part(p) for p in parts], ignore_index=True)

@@ -232,10 +232,13 @@ def load_runs(
 
 
 def _parquet(part: Path, columns=None) -> pd.DataFrame:
+    from seuwgpu.campaign.store import read_part
     from seuwgpu.errors import InputError
 
     try:
-        return pd.read_parquet(part, columns=columns)
+        return read_part(part, columns)  # its column types checked against the records' schema
+    except InputError:
+        raise
     except (OSError, ValueError) as e:  # pyarrow's ArrowInvalid is a ValueError
         raise InputError(f"{part}: not a readable record part ({e})") from None
 

@@ -1,0 +1,328 @@
+"""Defense and fault-model commands: `defenses`, `worstcase`, `storm`, `state`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from seuwgpu.apps.cli.command import Command
+from seuwgpu.apps.cli.options import (
+    add_camera_args,
+    add_model_args,
+    add_profile_arg,
+    index_int,
+    load_cams,
+    load_source,
+    output_folder,
+    positive_int,
+    scene_sh_degree,
+    view_size,
+    word_bit,
+)
+from seuwgpu.campaign.progress import ProgressBar
+from seuwgpu.faults.defenses import DEFENSES as DEFENSE_NAMES
+from seuwgpu.faults.state import TARGETS as STATE_TARGETS
+
+
+def partial_records(args, src, cams, name: str, records, **options):
+    """The records of an interrupted run of the same arguments in `--out` (campaign/partial.py;
+    another run's are refused, naming what differs). The run is what decides its records: the
+    model and camera files by their content (sha256: the same files through another path are the
+    same run), the other options as read (defaults spelled out; the up axis as resolved, so that
+    `--up` naming the default, or given with --cameras, is the same run), then the command's
+    `options`. `records(rows)`: the DataFrame of the records, as the finished run writes it."""
+    from seuwgpu.campaign.partial import PartialRecords
+    from seuwgpu.campaign.spec import content_hash
+
+    def content(key):
+        path = getattr(args, key)
+        return None if path is None else "sha256:" + content_hash(key, path)
+
+    run = {
+        "command": args.command,
+        "model": content("model"),
+        "scene": None if args.model else src.name,
+        "n": None if args.model else src.model.n,
+        "sh-degree": None if args.model else scene_sh_degree(args),
+        "seed": args.seed,
+        "up": None if args.cameras else src.up,  # what frames the orbit: --up or the format's; unused by cameras
+        "cameras": content("cameras"),
+        "views": len(cams),
+        "size": None if args.cameras else "x".join(map(str, view_size(args))),
+        "scale": args.scale or 1.0,
+        "precision": args.precision,
+        "profile": args.profile,
+        **options,
+    }
+    return PartialRecords(args.out / f"{name}.partial.parquet", run, records)
+
+
+def pd_display():
+    import pandas as pd
+
+    return pd.option_context("display.width", 200, "display.max_columns", 20, "display.precision", 4)
+
+
+# ---- defenses ---------------------------------------------------------------------------------------
+def defenses_arguments(s: argparse.ArgumentParser):
+    add_model_args(s)
+    add_camera_args(s, views=1, size="256x256")
+    s.add_argument("--repeats", type=positive_int, default=7, help="timing rounds (medians)")
+    s.add_argument("--no-time", action="store_true", help="skip the timing (time_fraction NaN)")
+    s.add_argument("--json", action="store_true", help="print [{name, memory_overhead, time_fraction, ...}]")
+    s.add_argument(
+        "--check-every",
+        type=positive_int,
+        default=1,
+        help="check schedule S of the check defenses: check every S frames (time amortised over S; default 1)",
+    )
+
+
+def cmd_defenses(args):
+    """Every defense with its memory overhead and its time cost, measured on this device for the
+    named model (or not measured with --no-time: time_fraction NaN)."""
+    from seuwgpu import api
+
+    if args.scene is None and args.model is None:
+        args.scene = "leica-sofort"
+    src = load_source(args)
+    cam = load_cams(args, src, one_size=False)[0]  # one view: any size
+    rows = api.defense_costs(
+        src,
+        cam,
+        precision=args.precision,
+        repeats=args.repeats,
+        time_it=not args.no_time,
+        check_every=args.check_every,
+    )
+    if args.json:
+        import json
+
+        from seuwgpu.report.format import json_safe
+
+        print(json.dumps(json_safe(rows), indent=1, allow_nan=False))  # NaN (not measured) -> null
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(
+        title=f"defenses on {src.name} ({src.model.n:,} primitives, {args.precision}); time: {rows[0]['time_basis']}"
+    )
+    for c in ("defense", "device bytes", "memory", "check every", "time / frame", "exposure (frames)", "what it does"):
+        t.add_column(c, justify="left" if c in ("defense", "what it does") else "right")
+    for r in rows:
+        tf, ex, worst = r["time_fraction"], r["exposure_frames"], r["exposure_frames_worst"]
+        t.add_row(
+            r["name"],
+            f"{r['device_bytes']:,}",
+            f"{100 * r['memory_overhead']:.3f}%",
+            "" if r["check_every"] is None else str(r["check_every"]),
+            "n/a" if tf != tf else f"{100 * tf:+.1f}%",
+            "until reloaded" if ex == float("inf") else f"{ex:g} (worst {worst:g})",
+            r["description"],
+        )
+    Console().print(t)
+    return 0
+
+
+DEFENSES = Command(
+    "defenses",
+    "every defense with its device memory, time per frame and exposure on this device",
+    defenses_arguments,
+    cmd_defenses,
+)
+
+
+# ---- worstcase --------------------------------------------------------------------------------------
+def worstcase_arguments(s: argparse.ArgumentParser):
+    add_model_args(s)
+    add_camera_args(s, views=2, size="128x128")
+    add_profile_arg(s)
+    s.add_argument(
+        "--defense",
+        nargs="+",
+        default=["none"],
+        choices=DEFENSE_NAMES,
+        metavar="DEFENSE",
+        help=f"defenses to search under, each on its own (default none; {', '.join(DEFENSE_NAMES)})",
+    )
+    s.add_argument(
+        "--fields",
+        nargs="+",
+        help="fields to search (default: every field the model stores; sh_rest only at SH degree 1-3)",
+    )
+    s.add_argument("--bit", type=index_int, nargs="+", help="bits to search (0 = LSB; default: all)")
+    s.add_argument(
+        "--max-evaluations", type=positive_int, help="stop after this many renders (the bound stays certified)"
+    )
+
+
+def cmd_worstcase(args):
+    """The single-bit flip with the largest footprint under a defense, by bounded search."""
+    from seuwgpu import api
+
+    src = load_source(args)
+    found = api.worst_case(
+        src,
+        load_cams(args, src),
+        defenses=args.defense,  # a defense named twice is searched once
+        fields=args.fields,
+        bits=args.bit,
+        max_evaluations=args.max_evaluations,
+        precision=args.precision,
+        profile=args.profile,
+    )
+    for d, wc in found.items():
+        where = f"{wc.site.field}[{wc.site.primitive}][{wc.site.component}] bit {wc.site.bit}" if wc.site else "none"
+        print(
+            f"{d}: worst flip {where}: footprint {100 * wc.footprint:.4f}% (certified bound "
+            f"{100 * wc.certified:.4f}%), {wc.evaluated:,} of {wc.sites:,} flips rendered"
+        )
+    return 0
+
+
+WORSTCASE = Command(
+    "worstcase",
+    "the single flip with the largest footprint under a defense (bounded search)",
+    worstcase_arguments,
+    cmd_worstcase,
+)
+
+
+# ---- storm ------------------------------------------------------------------------------------------
+def storm_arguments(s: argparse.ArgumentParser):
+    add_model_args(s, seed_draws="the upsets")
+    add_camera_args(s, views=1, size="128x128")
+    add_profile_arg(s)
+    s.add_argument("--k", type=positive_int, default=10, help="upsets per frame")
+    s.add_argument("--frames", type=positive_int, default=50, help="frames rendered, each after its k new upsets")
+    s.add_argument("--scrub-every", type=int, default=10, help="reload the model every S frames (0 = never)")
+    s.add_argument(
+        "--check-every",
+        type=positive_int,
+        default=1,
+        help="check schedule of the check defenses: check (and repair) every S frames (default 1)",
+    )
+    s.add_argument(
+        "--defense",
+        nargs="+",
+        default=["none", "guard", "parity4r"],
+        choices=DEFENSE_NAMES,
+        metavar="DEFENSE",
+        help=f"arms, each seeing the same upsets (default none guard parity4r; {', '.join(DEFENSE_NAMES)})",
+    )
+    s.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="folder for storm.parquet and storm.png (an interrupted run keeps storm.partial.parquet: re-run "
+        "the same command to resume it)",
+    )
+
+
+def cmd_storm(args):
+    """k upsets per frame accumulating, scrubbed every S frames: records and a plot per defense."""
+    from seuwgpu import api
+    from seuwgpu.analysis.defenses import storm_figure
+    from seuwgpu.campaign.storm import storm_records
+
+    output_folder(args, args.out)
+    src = load_source(args)
+    cams = load_cams(args, src)
+    defenses = list(dict.fromkeys(args.defense))  # a defense named twice is one arm
+    options = {"k": args.k, "frames": args.frames, "scrub-every": args.scrub_every, "defense": defenses}
+    options["check-every"] = args.check_every
+    partial = partial_records(args, src, cams, "storm", storm_records, **options)  # before any rendering
+    with partial.kept() as rows:
+        with ProgressBar("frames", args.frames * len(defenses), len(rows)) as bar:
+            df = api.storm(
+                src,
+                cams,
+                k=args.k,
+                frames=args.frames,
+                scrub_every=args.scrub_every,
+                defenses=defenses,
+                seed=args.seed,
+                precision=args.precision,
+                profile=args.profile,
+                progress=partial.progress(bar.advance),
+                rows=rows,
+                check_every=args.check_every,
+            )
+        df.to_parquet(args.out / "storm.parquet", index=False)
+        storm_figure(df).savefig(args.out / "storm.png", dpi=120)
+    summary = df.groupby("defense", sort=False).agg(
+        catastrophic_frames=("catastrophic", "sum"), mean_footprint=("footprint", "mean")
+    )
+    print(summary.to_string())
+    print(f"records: {args.out / 'storm.parquet'}; plot: {args.out / 'storm.png'}")
+    return 0
+
+
+STORM = Command(
+    "storm", "k upsets per frame accumulating, scrubbed every S frames, per defense", storm_arguments, cmd_storm
+)
+
+
+# ---- state ------------------------------------------------------------------------------------------
+def state_arguments(s: argparse.ArgumentParser):
+    add_model_args(s, seed_draws="the flips")
+    add_camera_args(s, views=2, size="128x128")
+    add_profile_arg(s)
+    s.add_argument(
+        "--targets",
+        nargs="+",
+        default=list(STATE_TARGETS),
+        choices=STATE_TARGETS,
+        help="pipeline-state buffers to flip bits in (default: all)",
+    )
+    s.add_argument("--samples", type=positive_int, default=10, help="flips per (target, bit) cell")
+    s.add_argument("--bit", type=word_bit, nargs="+", help="bits 0..31 (default: all 32)")
+    s.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="folder for state.parquet and state_criticality.csv (an interrupted run keeps "
+        "state.partial.parquet: re-run the same command to resume it)",
+    )
+
+
+def cmd_state(args):
+    """Transient pipeline-state flips of one frame: records and a criticality table per target."""
+    import pandas as pd
+
+    from seuwgpu import api
+    from seuwgpu.analysis.defenses import state_table
+
+    output_folder(args, args.out)
+    src = load_source(args)
+    cams = load_cams(args, src)
+    targets, bits = list(dict.fromkeys(args.targets)), list(dict.fromkeys(args.bit or range(32)))
+    options = {"targets": targets, "samples": args.samples, "bit": bits}
+    partial = partial_records(args, src, cams, "state", pd.DataFrame, **options)  # before any rendering
+    with partial.kept() as rows:
+        with ProgressBar("flips", len(targets) * len(bits) * args.samples, len(rows)) as bar:
+            df = api.state_flips(
+                src,
+                cams,
+                targets=targets,
+                samples=args.samples,
+                bits=bits,
+                seed=args.seed,
+                precision=args.precision,
+                profile=args.profile,
+                progress=partial.progress(bar.advance),
+                rows=rows,
+            )
+        df.to_parquet(args.out / "state.parquet", index=False)
+        t = state_table(df)
+        (args.out / "state_criticality.csv").write_text(t.to_csv(index=False))
+    with pd_display():
+        print(t.to_string(index=False))
+    print(f"records: {args.out / 'state.parquet'}; table: {args.out / 'state_criticality.csv'}")
+    return 0
+
+
+STATE = Command(
+    "state", "transient flips in one frame's pipeline state: criticality per target", state_arguments, cmd_state
+)
