@@ -95,7 +95,9 @@ def fold_runs(run_dirs, by=("scene", "precision", "defense"), campaign: str = "s
 def _read(path: Path, columns: list[str], optional=()) -> pd.DataFrame:
     import pyarrow.parquet as pq
 
-    have = set(pq.read_schema(path).names)
+    schema = pq.read_schema(path)
+    store.check_part_schema(path, schema)  # a column of the wrong kind: refused, naming the part
+    have = set(schema.names)
     missing = [c for c in columns if c not in have]
     if missing:
         raise ValueError(
