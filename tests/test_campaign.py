@@ -457,7 +457,13 @@ def test_outcome_and_reliability_tables_of_the_spec():
     )
     assert s.outcomes.to_dict() == {"pixel_threshold": 1 / 255, "footprint": 0.05}
     assert s.reliability.scrub_hours == 6.0 and s.reliability.rates[0].per_bit_hour == 1e-9
+    sched = normalize_spec(base | {"reliability": {"check_every": 10, "frames_per_second": 60}})
+    assert (sched.reliability.check_every, sched.reliability.frames_per_second) == (10, 60.0)
+    assert sched.to_dict()["reliability"] == {"check_every": 10, "frames_per_second": 60.0}
     for bad, what in (
+        ({"reliability": {"check_every": 0}}, "reliability.check_every"),
+        ({"reliability": {"check_every": 2.5}}, "reliability.check_every"),
+        ({"reliability": {"frames_per_second": -30}}, "reliability.frames_per_second"),
         ({"outcomes": {"footprint": 2}}, "outcomes.footprint"),
         ({"outcomes": {"pixel": 0.1}}, "unknown key 'pixel'"),
         ({"reliability": {"scrub_hours": 0}}, "reliability.scrub_hours"),

@@ -53,3 +53,32 @@ def test_mtbf_table_counts_a_checked_catastrophe_for_its_exposure():
     assert "exposure_hours" not in plain
     none = mt.set_index("defense").loc["none"]
     assert none["mtbf_hours"] == plain.set_index("defense").loc["none", "mtbf_hours"]  # no check: unchanged
+
+
+def test_reliability_reads_the_check_schedule_from_the_spec():
+    """`reliability` (what the report runs) gives a check defense's arm its MTBF rows with the
+    exposure of the spec's [reliability] check_every and frames_per_second, recomputed here from
+    the records with plain pandas: parity4r repairs every catastrophe none shows, so its MTBF is
+    that of the repaired ones drawn for the share of phases a check lets through."""
+    from test_reliability_models import single_records
+
+    base = single_records("m", 1000, seed=3, hot=0.5)
+    none = base[base["defense"] == "none"]
+    checked = none.assign(defense="parity4r", footprint=0.0, peak_error=0.0)  # every flip repaired
+    df = pd.concat([none, checked], ignore_index=True)
+    rates = [{"environment": "test", "per_bit_hour": 1e-12, "source": "t"}]
+    spec = {"reliability": {"rates": rates, "scrub_hours": 24.0, "check_every": 8, "frames_per_second": 60.0}}
+    res = R.reliability(df, [{"spec": spec}])
+    assert (res["check_every"], res["frames_per_second"]) == (8, 60.0)
+    mt = res["mtbf"].set_index("defense")
+    # p_c of none from the records: the weighted share of catastrophic sites (stratified by cell)
+    cat = none.assign(c=none["footprint"] > 0.01)
+    pc = (cat["c"] * cat["weight"]).sum() / cat["weight"].sum()
+    bits = res["bits"]
+    r = 1e-12 * bits * pc
+    assert mt.loc["parity4r", "mtbf_hours"] == pytest.approx(1 / (r * 7 / 8), rel=1e-9)
+    assert mt.loc["parity4r", "exposure_hours"] == pytest.approx(3.5 / (60 * 3600.0))
+    assert math.isnan(mt.loc["none", "exposure_hours"])
+    # checked before every frame (the default): what it repairs is never drawn
+    plain = R.reliability(df, [{"spec": {"reliability": {"rates": rates, "scrub_hours": 24.0}}}])
+    assert math.isinf(plain["mtbf"].set_index("defense").loc["parity4r", "mtbf_hours"])

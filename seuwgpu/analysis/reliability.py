@@ -24,6 +24,11 @@ accumulating between scrubs.
   sees a catastrophic frame with probability q = 1 - exp(-L p T), the mean time between such
   intervals is MTBF = T / q (-> 1 / (L p) for frequent scrubs, -> T when every interval is hit),
   and the share of frames that are catastrophic is 1 - (1 - exp(-x)) / x with x = L p T.
+* A check defense (parity, checksum, ...: `faults/defenses.py`) repairs what it detects only at
+  its next check, every S frames: the catastrophes it repairs (its p_c below none's) are drawn
+  until then, (S - 1) / 2 frames on average (`defenses.exposure`), and its MTBF rows count them
+  (`with_exposure`, column exposure_hours). S and the frame rate are spec parameters
+  ([reliability] check_every, frames_per_second; defaults 1 and 30).
 * Upset rates and the scrub interval are spec parameters ([reliability] rates = [...],
   scrub_hours = ...); the defaults below name their sources. They are orders of magnitude, so the
   sensitivity figure shows the MTBF over the whole range of rates.
@@ -53,6 +58,7 @@ from seuwgpu.analysis.records import (
     sort_rows,
     tag,
 )
+from seuwgpu.faults.defenses import REGISTRY as dfn_registry
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import field_components, n_components, sh_rest_count
 
@@ -120,6 +126,22 @@ def reliability_parameters(manifests: Iterable[dict] = ()) -> tuple[list[dict], 
             rates = t.get("rates") or list(UPSET_RATES)
             return list(rates), float(t.get("scrub_hours", DEFAULT_SCRUB_HOURS)), "run spec [reliability]"
     return list(UPSET_RATES), DEFAULT_SCRUB_HOURS, "defaults (sources in the table)"
+
+
+DEFAULT_CHECK_EVERY = 1  # a check defense checks before every frame unless the spec says otherwise
+DEFAULT_FRAMES_PER_SECOND = 30.0
+
+
+def check_schedule(manifests: Iterable[dict] = ()) -> tuple[int, float]:
+    """(check every S frames, frames per second) of the runs' [reliability] table, else defaults:
+    how long what a check defense repairs is drawn before it is (check_exposure)."""
+    for m in manifests or ():
+        t = (m.get("spec") or {}).get("reliability")
+        if isinstance(t, dict):
+            return int(t.get("check_every", DEFAULT_CHECK_EVERY)), float(
+                t.get("frames_per_second", DEFAULT_FRAMES_PER_SECOND)
+            )
+    return DEFAULT_CHECK_EVERY, DEFAULT_FRAMES_PER_SECOND
 
 
 MODEL = ["scene", "n_primitives"]
@@ -442,6 +464,11 @@ def reliability(
     precision = precision or reference_precision(pc)
     degree = model_degrees(s, manifests)
     rates, scrub, rates_from = reliability_parameters(manifests)
+    check_every, fps = check_schedule(manifests)
+    checked = [d for d in pd.unique(pc["defense"]) if d in dfn_registry and dfn_registry[d].checked]
+    if exposure is None and checked:  # what a check repairs is drawn until the check: counted
+        exposure = {d: check_exposure(check_every, fps * 3600.0) for d in checked}
+    defenses = ("none", "guard", *checked)
     models = models_in(s)
     per_model = len(models) > 1
     if per_model and bits is not None and not isinstance(bits, dict):
@@ -473,7 +500,7 @@ def reliability(
         if per_model and not (sub["precision"] == precision).any():
             notes.append(f"{m.label}: no single-upset records at {precision}, no MTBF")
             continue
-        mt = mtbf_table(sub, b, precision, rates, scrub, dose_p=dp, exposure=exposure)
+        mt = mtbf_table(sub, b, precision, rates, scrub, defenses=defenses, dose_p=dp, exposure=exposure)
         if per_model:
             for i, (c, v) in enumerate((("scene", m.scene), ("n_primitives", m.n_primitives), ("model_bits", b))):
                 mt.insert(i, c, v)
@@ -493,7 +520,7 @@ def reliability(
     mt.attrs.update(pc.attrs)
     mt.attrs.update(precision=precision, model_bits=one["bits"] if one else {m["key"]: m["bits"] for m in info})
     d = prepare(df)
-    used = d[(d["precision"] == precision) & d["defense"].isin(["none", "guard"]) & (d["k"] >= 1)]
+    used = d[(d["precision"] == precision) & d["defense"].isin(list(defenses)) & (d["k"] >= 1)]
     mt.attrs["provenance"] = provenance(used)
     wide = None
     if len(mt) and one:
@@ -509,6 +536,8 @@ def reliability(
         "bits": one["bits"] if one else {m["key"]: m["bits"] for m in info},
         "precision": precision,
         "scrub_hours": scrub,
+        "check_every": check_every,
+        "frames_per_second": fps,
         "rates": rates,
         "rates_from": rates_from,
         "dose_p": one["dose_p"] if one else {m["key"]: m["dose_p"] for m in info},

@@ -62,6 +62,8 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     [reliability]            # optional: inputs of the MTBF analysis (they change no injection)
     scrub_hours = 24.0       # the model is restored from protected storage this often
     rates = [{environment = "ground", per_bit_hour = 1e-12, source = "where the rate comes from"}]
+    check_every = 1          # a check defense checks every S frames: what it repairs is drawn until then
+    frames_per_second = 30.0 # the frame rate the check's exposure (frames) turns into hours
 
     [sizes]                  # primitive-count sweep: single upsets at each N (a procedural scene
     n = [5000, 20000, 80000] # is generated at N; a capture or model file cut to a seeded subset)
@@ -241,6 +243,8 @@ class ReliabilitySpec:
 
     scrub_hours: float | None = None
     rates: tuple[RateSpec, ...] | None = None
+    check_every: int | None = None
+    frames_per_second: float | None = None
 
     def to_dict(self) -> dict:
         return {k: _plain(v) for k, v in vars(self).items() if v is not None}
@@ -251,6 +255,8 @@ class ReliabilitySpec:
         return cls(
             scrub_hours=d.get("scrub_hours"),
             rates=None if rates is None else tuple(RateSpec(**r) for r in rates),
+            check_every=d.get("check_every"),
+            frames_per_second=d.get("frames_per_second"),
         )
 
 
@@ -558,8 +564,18 @@ def _outcomes(t) -> dict:
 
 
 def _reliability(t) -> dict:
-    _keys(t, {"scrub_hours", "rates"}, "reliability")
+    _keys(t, {"scrub_hours", "rates", "check_every", "frames_per_second"}, "reliability")
     out = {}
+    if "check_every" in t:
+        v = t["check_every"]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise SpecError(f"reliability.check_every must be a whole number of frames >= 1, got {v!r}")
+        out["check_every"] = v
+    if "frames_per_second" in t:
+        v = t["frames_per_second"]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+            raise SpecError(f"reliability.frames_per_second must be a positive number, got {v!r}")
+        out["frames_per_second"] = float(v)
     if "scrub_hours" in t:
         v = t["scrub_hours"]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:

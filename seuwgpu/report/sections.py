@@ -719,7 +719,9 @@ def _sec_reliability(df, manifests, ctx) -> Section:
         "stay far below the tens to thousands where the dose fits' p was measured. Upsets accumulate "
         "until the next scrub, every "
         f"{res['scrub_hours']:g} h: MTBF = T / (1 - exp(-rate x bits x p x T)). Rates and scrub interval: "
-        f"{res['rates_from']}."
+        f"{res['rates_from']}. A check defense repairs what it detects at its next check, every "
+        f"{res['check_every']} frame(s) at {res['frames_per_second']:g} frames/s: what it repairs counts for "
+        "the frames it is drawn until then (exposure_hours)."
         + (
             f" These records hold {len(res['models'])} models (scenes): each has its own p_c, stored bits, "
             "MTBF rows; none is pooled over scenes."
@@ -790,6 +792,8 @@ def _sec_reliability(df, manifests, ctx) -> Section:
                 sec.numbers[key] = [100 * float(r["p_c"]), 100 * float(r["ci_lo"]), 100 * float(r["ci_hi"])]
     sec.numbers["model_bits"] = res["bits"]  # a number for one model, {model key: bits} for several
     sec.numbers["scrub_hours"] = res["scrub_hours"]
+    sec.numbers["check_every"] = res["check_every"]
+    sec.numbers["frames_per_second"] = res["frames_per_second"]
     return sec
 
 
