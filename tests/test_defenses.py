@@ -215,7 +215,7 @@ def test_a_culled_primitive_renders_as_if_removed():
     assert rec["footprint"] == float(np.mean(np.any(np.abs(want[..., :3] - eng.clean) > 1 / 255, axis=-1)))
 
 
-def test_defenses_command_lists_every_defense_as_json(capsys):
+def test_defenses_command_lists_every_defense_as_json_and_as_a_table(capsys):
     import json
     import math
 
@@ -248,6 +248,15 @@ def test_defenses_command_lists_every_defense_as_json(capsys):
     assert main(["defenses", "--scene", "blocks", "--n", "300", "--no-time", "--json"]) == 0
     rows = strict(capsys.readouterr().out)  # undefined (not measured): null, not a NaN literal
     assert all(r["time_fraction"] is None and r["time_basis"] == "not measured" for r in rows)
+    # the table: one line per defense with the JSON's device bytes and exposure, whole at 80 columns
+    assert main(["defenses", "--scene", "blocks", "--n", "300", "--no-time", "--check-every", "5"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    for r in rows:
+        line = next(x for x in lines if x.startswith(f"│ {r['name']} "))
+        cells = [c.strip() for c in line.strip("│").split("│")]
+        assert cells[1] == f"{r['device_bytes']:,}", line
+        assert cells[3] == ("5" if dfn.get(r["name"]).checked else ""), line
+        assert cells[5] == ("until reloaded" if r["name"] == "none" else "2 (4)" if cells[3] else "0 (0)"), line
 
 
 @pytest.mark.parametrize("precision", encoding.PRECISIONS)

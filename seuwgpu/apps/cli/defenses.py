@@ -108,8 +108,13 @@ def cmd_defenses(args):
     t = Table(
         title=f"defenses on {src.name} ({src.model.n:,} primitives, {args.precision}); time: {rows[0]['time_basis']}"
     )
-    for c in ("defense", "device bytes", "memory", "check every", "time / frame", "exposure (frames)", "what it does"):
-        t.add_column(c, justify="left" if c in ("defense", "what it does") else "right")
+    # numbers stay on one line at any width; what each defense does follows the table
+    t.caption = (
+        "bytes: held on the device; memory: of the model's bytes; S: checked every S frames; time: a frame's, "
+        "the check's amortised over S; exposure: frames drawn from a corrupted model before the check, mean (worst)"
+    )
+    for c in ("defense", "bytes", "memory", "S", "time", "exposure"):
+        t.add_column(c, justify="left" if c == "defense" else "right", no_wrap=True)
     for r in rows:
         tf, ex, worst = r["time_fraction"], r["exposure_frames"], r["exposure_frames_worst"]
         t.add_row(
@@ -118,10 +123,12 @@ def cmd_defenses(args):
             f"{100 * r['memory_overhead']:.3f}%",
             "" if r["check_every"] is None else str(r["check_every"]),
             "n/a" if tf != tf else f"{100 * tf:+.1f}%",
-            "until reloaded" if ex == float("inf") else f"{ex:g} (worst {worst:g})",
-            r["description"],
+            "until reloaded" if ex == float("inf") else f"{ex:g} ({worst:g})",
         )
-    Console().print(t)
+    console = Console()
+    console.print(t)
+    for r in rows:
+        console.print(f"[bold]{r['name']}[/bold]: {r['description']}", highlight=False)
     return 0
 
 
