@@ -14,7 +14,14 @@ rates), never from new arithmetic here:
 * alpha, median with median and mean with mean, each experiment apart: size_scaling.csv through
   `scaling.group_fits` (the median above the 8-bit floor of the runs' frame size);
 * PSNR at the paper's heaviest dose per primitive: dose_curves.csv per model, over models;
-* the mantissa slope over other windows: theory.csv.
+* the mantissa slope over other windows: theory.csv;
+* Table 2 per field (fp32): criticality.csv, pooled over the models (rates with their stratified
+  interval; footprint statistics without one);
+* the budget on the mean PSNR: dose_curves.csv per model, over models;
+* sign-flip PSNR without and with the guard: guard_sign_psnr.csv (pooled, no interval);
+* the worst guarded footprint and the residual share: guard_paired.csv's row of every precision;
+* the IoU of the union masks at P = 64: contamination.csv (the records held no per-frame shares);
+* the guard factor and the leave-one-scene-out AUC: size_guard_factor.csv, prediction_loso.csv.
 Rows the tables cannot give are listed with verdict "not derivable" and the reason in basis.
 """
 
@@ -83,6 +90,61 @@ def alpha_and_dose_rows(d: Path, frame_size) -> list[dict]:
     return rows
 
 
+def paper_rows(d: Path) -> list[dict]:
+    """The rows of issue 36's item 10 that the stored tables can give (module notes)."""
+    from scipy.stats import binomtest
+
+    rows = []
+    crit = pd.read_csv(d / "criticality.csv").set_index("field")
+    for f in claims.PAPER_FIELD_RATES:
+        r = crit.loc[f]
+        basis = f"n = {int(r['n']):,}; criticality.csv, fp32, pooled over the models (no per-model table)"
+        rows.append(claims._row(f"field_rate_{f}", r["cat_rate_pct"], r["cat_ci_lo_pct"], r["cat_ci_hi_pct"], basis))
+        for q in claims.PAPER_FIELD_FOOTPRINT[f]:
+            rows.append(claims._row(f"field_{q}_{f}", r[f"{q}_pct"], basis=basis))
+    rows.append(claims._budget_row(pd.read_csv(d / "dose_curves.csv"), 0.95))
+    sign = pd.read_csv(d / "guard_sign_psnr.csv")
+    for dfn in ("none", "guard"):
+        r = sign[(sign["precision"] == "fp32") & (sign["defense"] == dfn)].iloc[0]
+        basis = f"n = {int(r['n']):,}; guard_sign_psnr.csv, pooled over the models"
+        rows.append(claims._row(f"sign_psnr_{dfn}", r["psnr_mean_mse_db"], basis=basis))
+    paired = pd.read_csv(d / "guard_paired.csv").set_index("precision").loc["all"]
+    n, k = int(paired["pairs"]), int(paired["residual_catastrophic"])
+    both = int(paired["catastrophic_none"]) - int(paired["neutralised"])
+    ci = binomtest(k, n).proportion_ci(0.95, method="wilson")
+    basis = f"guard_paired.csv, every precision: {n:,} guarded sites; no per-model table"
+    rows.append(claims._row("guard_worst_footprint", paired["worst_guarded_footprint_pct"], basis=basis))
+    rows.append(
+        claims._row(
+            "guard_residual_share",
+            100 * k / n,
+            100 * ci.low,
+            100 * ci.high,
+            f"{k:,} residual of {n:,}; {basis}; Wilson; of the residual, {both:,} catastrophic without the guard "
+            f"too (catastrophic_none - neutralised) and {k - both:,} turned catastrophic by it",
+        )
+    )
+    cont = pd.read_csv(d / "contamination.csv")
+    why = "contamination.csv of these records holds the union over the views only, no per-frame share"
+    rows += [not_derivable("contam_none", why), not_derivable("contam_guard", why)]
+    c = cont[
+        (cont["subset"] == "log-scale sign")
+        & (cont["precision"] == "fp32")
+        & (cont["defense"] == "none")
+        & (cont["P"] == claims.PAPER_CONTAMINATION_P)
+    ]
+    rows.append(claims._row("contam_iou", c["iou_mean"].iloc[0], basis="IoU of the union masks over the views"))
+    results = {
+        "size": {"guard_factor": pd.read_csv(d / "size_guard_factor.csv")},
+        "prediction": {
+            "loso": pd.read_csv(d / "prediction_loso.csv"),
+            "summary": pd.read_csv(d / "prediction.csv"),
+            "precision": "fp32",
+        },
+    }
+    return rows + claims._size_and_loso_rows(results, 0.95)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("report", help="a report folder (docs/study/full)")
@@ -95,6 +157,7 @@ def main(argv=None) -> int:
     why = "the stored tables keep no guarded per-field rates"
     rows += [not_derivable("pc_guard", why), not_derivable("guard_share", why)]
     rows += alpha_and_dose_rows(d, frame)
+    rows += paper_rows(d)
     out = pd.DataFrame(rows)
     th = pd.read_csv(d / "theory.csv")
     fit = th[th["in_fit"]]

@@ -44,7 +44,9 @@ GUARD_COLUMNS = (
 def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -> dict:
     """Returns {"summary": per (precision, defense) weighted footprint stats and catastrophe rate,
     "paired": per precision (+ "all"): pairs, catastrophic without guard, weighted share of them
-    neutralised with its interval, residual catastrophic, worst guarded footprint,
+    neutralised with its interval, residual catastrophic, of which catastrophic under both arms
+    (catastrophic_both) and turned catastrophic by the guard (turned_catastrophic: not catastrophic
+    without it; `turned_catastrophic`), worst guarded footprint,
     "sign_psnr": log-scale sign flips: PSNR without and with the guard over finite frames and the
     non-finite share, "worst_guarded_footprint_pct", "residual_catastrophic", "n_guarded",
     "share_pct", "share_ci"}."""
@@ -100,6 +102,7 @@ def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -
                 "share_ci_lo_pct": 100 * sh["ci_lo"],
                 "share_ci_hi_pct": 100 * sh["ci_hi"],
                 "residual_catastrophic": n_records(g[g["catastrophic"].astype(bool)]),
+                **turned_catastrophic(g),
                 "worst_guarded_footprint_pct": 100 * float(g["footprint"].max()),
             }
         )
@@ -133,12 +136,30 @@ def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -
         "worst_guarded_footprint_pct": 100 * float(allg["footprint"].max()),
         "residual_catastrophic": n_records(allg[allg["catastrophic"].astype(bool)]),
         "n_guarded": n_records(allg),
+        "turned_catastrophic": int(tot["turned_catastrophic"].iloc[0]) if len(tot) else 0,
+        "catastrophic_both": int(tot["catastrophic_both"].iloc[0]) if len(tot) else 0,
         # the pooled row ("all": every precision, weighted by stored bits) or the one precision
         "share_precision": str(tot["precision"].iloc[0]) if len(tot) else "",
         "share_pct": float(tot["share_neutralised_pct"].iloc[0]) if len(tot) else np.nan,
         "share_ci": (float(tot["share_ci_lo_pct"].iloc[0]), float(tot["share_ci_hi_pct"].iloc[0]))
         if len(tot)
         else (np.nan, np.nan),
+    }
+
+
+def turned_catastrophic(paired: pd.DataFrame) -> dict:
+    """Of guarded records paired with the same site without the guard (NONE_CATASTROPHIC set): how
+    many are catastrophic under both arms, how many the guard turned catastrophic (not without it),
+    and the weighted share of the paired sites so turned (%). A guard that clamps a value into the
+    box can itself make a catastrophe: the residual is not only what it failed to neutralise."""
+    cat = paired["catastrophic"].astype(bool).to_numpy()
+    was = (paired[NONE_CATASTROPHIC] == 1).to_numpy()
+    w = record_weights(paired)
+    total = float(w.sum())
+    return {
+        "catastrophic_both": n_records(paired[cat & was]),
+        "turned_catastrophic": n_records(paired[cat & ~was]),
+        "turned_share_pct": 100 * float(w[cat & ~was].sum()) / total if total > 0 else np.nan,
     }
 
 

@@ -93,6 +93,32 @@ def _pooled_overhead(defense: str, precision: str, models: dict, manifests) -> t
     return added / stored, f"{what}, pooled over {len(models)} models (each its own N and SH degree)"
 
 
+def time_overhead(s: pd.DataFrame, defense: str, conf: float = 0.95) -> dict:
+    """The defense's time overhead over no defense, with a t interval over models.
+
+    The runner times every defense's render of the clean model once per engine, interleaved, and
+    writes it on each record (time_ms): each distinct value of a (run, campaign, scene, N,
+    precision) group and defense is one measurement. Per group (a model at a precision) the
+    overhead is mean t(defense) / mean t(none) - 1 over its measurements (both arms timed by the
+    same engines, so the host's load moves them alike), and the interval is the Student-t interval
+    of the groups' mean (distinct values survive folding, so a folded report gives the same).
+    resolved: False where the interval holds 0 (the sign of the cost is not known); NaN under
+    two groups."""
+    from seuwgpu.analysis.population import interval_over_models
+
+    keys = [c for c in ("run", "campaign", "scene", "n_primitives", "precision") if c in s]
+    t = s[s["defense"].isin(["none", defense]) & s["time_ms"].notna()]
+    per = t.drop_duplicates(keys + ["defense", "time_ms"]).groupby(keys + ["defense"])["time_ms"].mean()
+    per = per.unstack("defense") if len(per) else pd.DataFrame()
+    if defense == "none" or defense not in per or "none" not in per:
+        return {"mean_pct": np.nan, "lo_pct": np.nan, "hi_pct": np.nan, "n_groups": 0, "resolved": np.nan}
+    per = per.dropna(subset=["none", defense])
+    per = per[per["none"] > 0]
+    om = interval_over_models(100 * (per[defense] / per["none"] - 1.0), conf)
+    resolved = bool(not (om.lo <= 0 <= om.hi)) if np.isfinite(om.lo) and np.isfinite(om.hi) else np.nan
+    return {"mean_pct": om.mean, "lo_pct": om.lo, "hi_pct": om.hi, "n_groups": om.n_models, "resolved": resolved}
+
+
 def mitigation_table(
     df: pd.DataFrame, manifests: Iterable[dict] = (), precision: str | None = None, conf: float = 0.95
 ) -> pd.DataFrame:
@@ -102,7 +128,11 @@ def mitigation_table(
     if no site was measured under all of them, each defense uses all its sites (attrs["paired"]
     is False). Columns: defense, label, n, catastrophic, cat_rate_pct (+ interval),
     mean_footprint_pct, max_footprint_pct, memory_overhead_pct, memory_basis, time_ms (per view),
-    time_overhead_pct (time over that of 'none', minus 1; NaN where not measured), time_basis.
+    time_overhead_pct (time over that of 'none', minus 1; NaN where not measured), time_basis,
+    and the overhead as the mean over models with its t interval (`time_overhead`):
+    time_overhead_mean_pct, time_overhead_lo_pct, time_overhead_hi_pct, time_groups (models at
+    this precision) and time_resolved ("resolved", "not resolved" where the interval holds 0, ""
+    where there is none).
     """
     s = single_upsets(df, None, None)
     if s.empty:
@@ -147,6 +177,7 @@ def mitigation_table(
         else:
             tfrac, tbasis = np.nan, "no time_ms recorded"
         r = rates.loc[x]
+        ti = time_overhead(s, x if np.isfinite(tfrac) else "none", conf)
         rows.append(
             {
                 "defense": x,
@@ -163,6 +194,13 @@ def mitigation_table(
                 "time_ms": tm,
                 "time_overhead_pct": 100 * tfrac,
                 "time_basis": tbasis,
+                "time_overhead_mean_pct": ti["mean_pct"],
+                "time_overhead_lo_pct": ti["lo_pct"],
+                "time_overhead_hi_pct": ti["hi_pct"],
+                "time_groups": ti["n_groups"],
+                "time_resolved": ""
+                if not isinstance(ti["resolved"], bool)
+                else ("resolved" if ti["resolved"] else "not resolved"),
             }
         )
     return tag(pd.DataFrame(rows), s, precision=precision, paired=is_paired, sh_degree=deg)

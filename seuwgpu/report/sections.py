@@ -128,6 +128,7 @@ def _sec_claims(df, manifests, ctx) -> Section:
                 "95% t interval over bits) and the verdict each would give against the paper's value.",
             )
         )
+    sec.notes += [f"The paper's own inconsistency: {n}" for n in claims.PAPER_INCONSISTENCIES]
     sec.numbers["claims"] = t.to_dict("records")
     return sec
 
@@ -401,7 +402,10 @@ def _sec_guard(df, manifests, ctx) -> Section:
             "Catastrophic upsets neutralised",
             res["paired"],
             "On paired fault sites: catastrophic upsets without defense, the weighted share the guard "
-            "neutralises (95% stratified interval), residual catastrophic events, worst guarded footprint (%).",
+            "neutralises (95% stratified interval), residual catastrophic events, of which catastrophic "
+            "without the guard too (catastrophic_both) and turned catastrophic by it (turned_catastrophic, "
+            "not catastrophic without it; turned_share_pct: their weighted share of the paired sites), worst "
+            "guarded footprint (%).",
         )
     )
     if len(res["sign_psnr"]):
@@ -418,7 +422,9 @@ def _sec_guard(df, manifests, ctx) -> Section:
     sec.notes.append(
         f"{res['n_guarded']:,} guarded single-bit upsets: worst footprint "
         f"{res['worst_guarded_footprint_pct']:.4g}% of the frame, "
-        f"{res['residual_catastrophic']} residual catastrophic events; "
+        f"{res['residual_catastrophic']} residual catastrophic events "
+        f"({res['catastrophic_both']} catastrophic without the guard too, {res['turned_catastrophic']} "
+        "turned catastrophic by it: not catastrophic without it); "
         f"weighted share of catastrophic upsets neutralised {res['share_pct']:.4g}% "
         f"[{res['share_ci'][0]:.4g}, {res['share_ci'][1]:.4g}] "
         + (
@@ -434,6 +440,9 @@ def _sec_guard(df, manifests, ctx) -> Section:
         guard_share_precision=res["share_precision"],
         guard_worst_footprint_pct=res["worst_guarded_footprint_pct"],
         guard_residual_catastrophic=res["residual_catastrophic"],
+        # of the residual on paired sites: catastrophic under both arms, and made catastrophic by the guard
+        guard_catastrophic_both=res["catastrophic_both"],
+        guard_turned_catastrophic=res["turned_catastrophic"],
         guard_n_sites=res["n_guarded"],
     )
     return sec
@@ -452,7 +461,9 @@ def _sec_mitigation(df, manifests, ctx) -> Section:
         + (" on a shared (paired) fault grid" if t.attrs.get("paired") else " (unpaired: no shared site)")
         + ": weighted catastrophe rate (%) with 95% stratified interval, footprint (%), memory overhead "
         "(% of the stored model; memory_basis) and time overhead (% of one view's render time, measured "
-        "in the same run; time_basis). Per scene and precision, on the dangerous cells and against the "
+        "in the same run; time_basis; time_overhead_mean_pct with its 95% t interval over the models, each "
+        "model's mean time with the defense over its mean time without, and time_resolved: 'not resolved' "
+        "where the interval holds 0). Per scene and precision, on the dangerous cells and against the "
         "Pareto front: the defenses table (Defenses against cost), where the records hold its defenses."
     )
     sec.figures.append(
@@ -477,8 +488,18 @@ def _sec_mitigation(df, manifests, ctx) -> Section:
             "memory_overhead_pct",
             "time_ms",
             "time_overhead_pct",
+            "time_overhead_mean_pct",
+            "time_overhead_lo_pct",
+            "time_overhead_hi_pct",
+            "time_resolved",
         ]
     ].to_dict("records")
+    for _, r in t[t["time_resolved"] == "not resolved"].iterrows():
+        sec.notes.append(
+            f"{r['label']}: time overhead {r['time_overhead_mean_pct']:.3g}% "
+            f"[{r['time_overhead_lo_pct']:.3g}, {r['time_overhead_hi_pct']:.3g}] over {int(r['time_groups'])} "
+            "models: not resolved (the interval holds 0)"
+        )
     if t["time_ms"].isna().all():
         sec.notes.append("no time_ms recorded (records of an older run): time cost not reported")
     return sec
