@@ -25,6 +25,7 @@ from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis import population
 from seuwgpu.analysis.records import InsufficientData, n_records, record_weights, single_upsets, tag
 from seuwgpu.analysis.reliability import catastrophe_probability
+from seuwgpu.analysis.stats import wilson_interval
 
 # the paper's Table 2: catastrophe rate per field (%), fp32, pooled over its scenes and bits
 PAPER_FIELD_RATES = {
@@ -603,10 +604,8 @@ def _guard_rows(df: pd.DataFrame, results: dict, conf: float) -> list[dict]:
             1.0,
         )
     )
-    from scipy.stats import binomtest
-
     k = n_records(allg[allg["catastrophic"].astype(bool)])
-    ci = binomtest(k, n).proportion_ci(conf, method="wilson") if n else None
+    lo, hi = wilson_interval(k, n, conf) if n else (np.nan, np.nan)
     gd = results.get("guard")
     split = ""
     if gd is not None and "catastrophic_both" in gd:
@@ -622,7 +621,7 @@ def _guard_rows(df: pd.DataFrame, results: dict, conf: float) -> list[dict]:
             f"{k:,} residual of {n:,} guarded upsets, every precision, counted over the sites (unweighted, as "
             f"the paper's count){split}; pooled: Wilson",
             conf,
-            (100 * k / n, 100 * ci.low, 100 * ci.high) if n else None,
+            (100 * k / n, 100 * lo, 100 * hi) if n else None,
         )
     )
     return rows

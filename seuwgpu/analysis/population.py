@@ -27,6 +27,7 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis.records import multiplicity, single_upsets, tag
+from seuwgpu.errors import require
 
 MIN_MODELS = 3  # fewer models than this give no verdict (a t interval on 1 degree of freedom is +-12.7 sd)
 MODEL = ["scene", "n_primitives"]
@@ -52,7 +53,7 @@ def interval_over_models(values, conf: float = 0.95) -> OverModels:
     mean = float(v.mean())
     if n < 2:
         return OverModels(mean, np.nan, np.nan, n, np.nan)
-    from scipy.stats import t as student_t
+    student_t = require("scipy.stats", "analysis", "the t interval over models").t
 
     sd = float(v.std(ddof=1))
     half = float(student_t.ppf(0.5 + conf / 2, n - 1)) * sd / np.sqrt(n)

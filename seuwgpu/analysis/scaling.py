@@ -29,6 +29,7 @@ import pandas as pd
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis import stats
 from seuwgpu.analysis.records import InsufficientData, fields_present, figure, prepare, sort_rows, tag
+from seuwgpu.errors import require
 from seuwgpu.model.scenes import SCENES
 
 METRICS = ("mean_mse", "median_mse", "mean_footprint_pct")
@@ -188,7 +189,7 @@ def slopes_equal_test(groups, sets, x, y) -> tuple[float, float, int]:
     dof = len(d) - d["g"].nunique() - d["s"].nunique()
     if dof <= 0 or d["s"].nunique() < 2:
         return np.nan, np.nan, max(dof, 0)
-    from scipy.stats import f as f_dist
+    f_dist = require("scipy.stats", "analysis", "the equal-slopes F test").f
 
     extra = d["s"].nunique() - 1
     F = ((ss_one - ss_sep) / extra) / (ss_sep / dof) if ss_sep > 0 else np.inf
