@@ -449,7 +449,9 @@ def build_report(
     toc.append("<li><a href='#skipped'>Skipped analyses</a></li>")
     if len(skip_rows):
         skip_html = (
-            "<div class='skip'><p>These analyses were skipped for lack of data:</p>" + html_table(skip_rows) + "</div>"
+            "<div class='skip'><p>These analyses were skipped, for lack of data or of an optional library:</p>"
+            + html_table(skip_rows)
+            + "</div>"
         )
     else:
         skip_html = "<p>None: every analysis had the data it needs.</p>"
