@@ -273,19 +273,30 @@ fn write_slab(p: ptr<function, Pixels>, slot: u32, col: u32, row0: u32) {
 fn read_slab(slot: u32, col: u32, row0: u32, p0: Pixels) -> Pixels {
     var p = p0;
     for (var j = 0u; j < QPI; j = j + 1u) {
-        var t: vec4<f32>;
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            let v = chunk_slabs[slot_pixel(slot, col, row0, j, i)];
-            p.q[j].r[i] = v.x;
-            p.q[j].g[i] = v.y;
-            p.q[j].b[i] = v.z;
-            t[i] = v.w;
+            p.q[j] = with_lane_state(p.q[j], i, chunk_slabs[slot_pixel(slot, col, row0, j, i)]);
         }
+        let t = p.q[j].T;
         let stopped = t < vec4<f32>(0.0);
         p.q[j].T = select(t, -t, stopped);
         p.q[j].done = stopped;
     }
     return p;
+}
+
+// One lane's running (rgb, T) as a state array holds it, and back (every array of TILE x TILE
+// states: chunk results, checkpoints, a variant's slab).
+fn lane_state(q: Quad, i: u32) -> vec4<f32> {
+    return vec4<f32>(q.r[i], q.g[i], q.b[i], q.T[i]);
+}
+
+fn with_lane_state(q0: Quad, i: u32, v: vec4<f32>) -> Quad {
+    var q = q0;
+    q.r[i] = v.x;
+    q.g[i] = v.y;
+    q.b[i] = v.z;
+    q.T[i] = v.w;
+    return q;
 }
 
 // The viewport's pixels of a tile (tile-local column `col`, rows row0 ..) into the image.

@@ -194,7 +194,7 @@ fn write_variant_state(e: u32, li: u32, p: ptr<function, Pixels>, col: u32, row0
     for (var j = 0u; j < QPI; j = j + 1u) {
         let q = (*p).q[j];
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            slabs[slot_pixel(e, col, row0, j, i)] = vec4<f32>(q.r[i], q.g[i], q.b[i], q.T[i]);
+            slabs[slot_pixel(e, col, row0, j, i)] = lane_state(q, i);
             ended = ended | (u32(q.done[i]) << (QUAD * j + i));
         }
     }
@@ -206,11 +206,7 @@ fn read_variant_state(e: u32, li: u32, col: u32, row0: u32, p0: Pixels) -> Pixel
     let ended = variant_ended[e * LANES + li];
     for (var j = 0u; j < QPI; j = j + 1u) {
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            let v = slabs[slot_pixel(e, col, row0, j, i)];
-            p.q[j].r[i] = v.x;
-            p.q[j].g[i] = v.y;
-            p.q[j].b[i] = v.z;
-            p.q[j].T[i] = v.w;
+            p.q[j] = with_lane_state(p.q[j], i, slabs[slot_pixel(e, col, row0, j, i)]);
         }
         p.q[j].done = (vec4<u32>(ended >> (QUAD * j)) & vec4<u32>(1u, 2u, 4u, 8u)) != vec4<u32>(0u);
     }
@@ -223,7 +219,7 @@ fn write_checkpoint(slot: u32, p: ptr<function, Pixels>, col: u32, row0: u32) {
     for (var j = 0u; j < QPI; j = j + 1u) {
         let q = (*p).q[j];
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            ckpt_states[slot_pixel(slot, col, row0, j, i)] = vec4<f32>(q.r[i], q.g[i], q.b[i], q.T[i]);
+            ckpt_states[slot_pixel(slot, col, row0, j, i)] = lane_state(q, i);
         }
     }
 }
@@ -232,11 +228,7 @@ fn read_checkpoint(slot: u32, col: u32, row0: u32, p0: Pixels) -> Pixels {
     var p = p0;
     for (var j = 0u; j < QPI; j = j + 1u) {
         for (var i = 0u; i < QUAD; i = i + 1u) {
-            let v = ckpt_states[slot_pixel(slot, col, row0, j, i)];
-            p.q[j].r[i] = v.x;
-            p.q[j].g[i] = v.y;
-            p.q[j].b[i] = v.z;
-            p.q[j].T[i] = v.w;
+            p.q[j] = with_lane_state(p.q[j], i, ckpt_states[slot_pixel(slot, col, row0, j, i)]);
         }
     }
     return p;
