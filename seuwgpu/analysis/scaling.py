@@ -178,14 +178,8 @@ def slopes_equal_test(groups, sets, x, y) -> tuple[float, float, int]:
     """F test (extra sum of squares) of one log-log slope for every set against one slope per set,
     both with an intercept per group: (F, p, residual degrees of freedom of the larger model)."""
     d = pd.DataFrame({"g": np.asarray(groups), "s": np.asarray(sets), "x": np.log10(x), "y": np.log10(y)})
-    d["xc"] = d["x"] - d.groupby("g")["x"].transform("mean")
-    d["yc"] = d["y"] - d.groupby("g")["y"].transform("mean")
-    ss_sep = 0.0
-    for _, h in d.groupby("s"):
-        b = float(h["xc"] @ h["yc"] / (h["xc"] @ h["xc"]))
-        ss_sep += float(np.sum((h["yc"] - b * h["xc"]) ** 2))
-    b = float(d["xc"] @ d["yc"] / (d["xc"] @ d["xc"]))
-    ss_one = float(np.sum((d["yc"] - b * d["xc"]) ** 2))
+    ss_sep = sum(stats.within_group_slope(h["g"], h["x"], h["y"])[1] for _, h in d.groupby("s"))
+    ss_one = stats.within_group_slope(d["g"], d["x"], d["y"])[1]
     dof = len(d) - d["g"].nunique() - d["s"].nunique()
     if dof <= 0 or d["s"].nunique() < 2:
         return np.nan, np.nan, max(dof, 0)

@@ -132,6 +132,16 @@ def loglog_fit(x, y, conf: float = 0.95) -> PowerFit:
     return PowerFit(f.slope, f.intercept, f.r2, f.slope_lo, f.slope_hi, f.n)
 
 
+def within_group_slope(groups, x, y) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """Least-squares slope of y on x with an intercept per group (both centred within each group):
+    (slope, residual sum of squares, centred x, centred y)."""
+    d = pd.DataFrame({"g": np.asarray(groups), "x": np.asarray(x, dtype=float), "y": np.asarray(y, dtype=float)})
+    xc = (d["x"] - d.groupby("g")["x"].transform("mean")).to_numpy()
+    yc = (d["y"] - d.groupby("g")["y"].transform("mean")).to_numpy()
+    slope = float(xc @ yc / (xc @ xc))
+    return slope, float(np.sum((yc - slope * xc) ** 2)), xc, yc
+
+
 def common_loglog_fit(groups, x, y, conf: float = 0.95) -> PowerFit:
     """One exponent for several series (e.g. scenes), each with its own intercept: least squares
     of log10 y on log10 x with a dummy per group (x and y centred within each group), the
@@ -145,10 +155,7 @@ def common_loglog_fit(groups, x, y, conf: float = 0.95) -> PowerFit:
     d = d[d.groupby("g")["x"].transform("nunique") >= 2]
     if d.empty:
         raise ValueError("a common log-log fit needs a group with two distinct positive x values")
-    xc = (d["x"] - d.groupby("g")["x"].transform("mean")).to_numpy()
-    yc = (d["y"] - d.groupby("g")["y"].transform("mean")).to_numpy()
-    slope = float(xc @ yc / (xc @ xc))
-    ss_res = float(np.sum((yc - slope * xc) ** 2))
+    slope, ss_res, xc, yc = within_group_slope(d["g"], d["x"], d["y"])
     ss_tot = float(yc @ yc)
     r2 = 1.0 - ss_res / ss_tot if ss_tot > 0 else (1.0 if ss_res == 0 else 0.0)
     dof = len(d) - d["g"].nunique() - 1
