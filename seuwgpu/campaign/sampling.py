@@ -136,10 +136,6 @@ def injection_seeds(master: int, ids) -> np.ndarray:
     return (_splitmix64(np.asarray(ids, dtype=np.uint64) ^ key) >> np.uint64(1)).astype(np.int64)
 
 
-def injection_seed(master: int, injection_id: int) -> int:
-    return int(injection_seeds(master, [injection_id])[0])
-
-
 def _stream(seeds: np.ndarray, k: int) -> np.ndarray:
     """The k-th 64-bit random number of each injection's stream."""
     return _splitmix64(seeds.astype(np.uint64) * np.uint64(0x100000001B3) + np.uint64(k))

@@ -70,10 +70,6 @@ def ecc_check_bits(precision: str) -> int:
     return r + 1
 
 
-def ecc_overhead(precision: str) -> float:
-    return ecc_check_bits(precision) / encoding.bits_per_value(precision)
-
-
 def ecc_read(clean_bits: np.ndarray, stored_bits: np.ndarray, precision: str) -> np.ndarray:
     """What an SEC-DED Hamming code over the sign+exponent bits returns on read.
 
