@@ -60,6 +60,29 @@ def test_verdict_rule(lo, hi, n, want):
     assert population.verdict(lo, hi, 0.634, claims.paper_half_unit(0.634), n) == want
 
 
+def test_an_interval_over_models_stays_inside_the_quantity_s_range():
+    """A t interval over four models of a rate (0, 0, 0.011, 0.13 %: the guarded p_c) runs below 0
+    and one of a share above 100%: the row is cut to the range, says so, and the verdict is the
+    one the uncut interval gives (it held 0 either way)."""
+    per = pd.DataFrame({"scene": ["a", "b", "c", "d"], "v": [0.0, 0.0, 0.011e-2, 0.13e-2]})
+    v = per["v"].to_numpy() * 100
+    half = sps.t.ppf(0.975, 3) * v.std(ddof=1) / 2
+    assert v.mean() - half < 0  # the uncut interval leaves the range
+    row = claims._over_models("pc_guard", per, "v", "test", 0.95)
+    assert row["ci_lo"] == 0.0 and row["ci_hi"] == pytest.approx(v.mean() + half)
+    assert "lower" in row["basis"] and "cut to 0" in row["basis"]
+    assert row["verdict"] == population.verdict(v.mean() - half, v.mean() + half, 0.0612, 0.00005, 4)
+    share = pd.DataFrame({"scene": ["a", "b", "c", "d"], "s": [1.0, 1.0, 0.9935, 0.9314]})
+    s = share["s"].to_numpy() * 100
+    top = s.mean() + sps.t.ppf(0.975, 3) * s.std(ddof=1) / 2
+    assert top > 100
+    row = claims._over_models("guard_share", share, "s", "test", 0.95)
+    assert row["ci_hi"] == 100.0 and row["ci_lo"] == pytest.approx(2 * s.mean() - top)
+    assert row["verdict"] == "differs"  # 90.4 lies below the interval, cut or not
+    inside = claims._over_models("pc_none", per.assign(v=[0.01, 0.012, 0.015, 0.02]), "v", "test", 0.95)
+    assert "cut" not in inside["basis"]
+
+
 def test_claims_compare_the_paper_with_the_equal_field_mean_over_models():
     df = models(0.6, 0.3, 0.45, 0.2)
     t = claims.claims_table(df).set_index("claim")

@@ -205,19 +205,39 @@ def _row(key, value=np.nan, lo=np.nan, hi=np.nan, basis="", measures_claim=True,
     }
 
 
+def claim_range(key: str) -> tuple[float, float]:
+    """The values a claim's quantity can take: a t interval over a few models can run past them
+    (a rate below 0, a share above 100%), and is cut there."""
+    unit = PAPER[key][1]
+    if key == "guard_share":
+        return -np.inf, 100.0  # the guard may make things worse, never better than all
+    if unit in ("%", "% of frame"):
+        return 0.0, 100.0
+    if key.startswith("auc"):
+        return 0.0, 1.0
+    if key == "guard_factor":
+        return 0.0, np.inf
+    return -np.inf, np.inf
+
+
 def _over_models(key, per_model: pd.DataFrame, column: str, basis: str, conf: float, pooled=None, scale=100.0):
     """The claim's row over models; records of one model (or of none with a defined estimate)
-    have no between-model spread: the row is then the records' own (`pooled`), as it always was."""
+    have no between-model spread: the row is then the records' own (`pooled`), as it always was.
+    The interval is cut to the values the quantity can take (claim_range); the basis says so."""
     om = population.interval_over_models(per_model[column].to_numpy(float), conf)
     if om.n_models < 2 and pooled is not None:
         return _row(key, *pooled, basis)
     per = "; ".join(f"{r['scene']} {scale * r[column]:.4g}" for _, r in per_model.iterrows())
+    low, high = claim_range(key)
+    lo, hi = scale * om.lo, scale * om.hi
+    cut = [f"{name} {v:.4g} cut to {bound:g}" for name, v, bound in (("lower", lo, low), ("upper", hi, high))]
+    cut = [c for c, over in zip(cut, (lo < low, hi > high)) if over]
     return _row(
         key,
         scale * om.mean,
-        scale * om.lo,
-        scale * om.hi,
-        f"{basis}; per model: {per}",
+        min(max(lo, low), high) if np.isfinite(lo) else lo,
+        max(min(hi, high), low) if np.isfinite(hi) else hi,
+        f"{basis}; per model: {per}" + (f"; t interval {', '.join(cut)} (the quantity's range)" if cut else ""),
         n_models=om.n_models,
         pooled=pooled,
     )
