@@ -34,6 +34,40 @@ def test_box_over_finite_values_and_guard_identity(eng):
     assert counts.sum() == 3
 
 
+def test_component_ranges_over_tiles_of_rows(monkeypatch):
+    """component_ranges reduces tiles of rows: with tiles of 7 rows (the last one short), of the
+    model or of the words a GPU is given (split in chunks), it gives numpy's min/max over the
+    finite values and the count of the others, per component; a component with no finite value
+    has an empty range and a box of [0, 0]."""
+    from seuwgpu.faults import guard
+    from seuwgpu.model.fields import StoredLayout
+
+    model = nan_model()
+    model.sh_dc[:, 1] = np.nan
+    monkeypatch.setattr(guard, "RANGE_ROWS", 7)
+    lo, hi, bad = guard.component_ranges(guard.model_tiles(model))
+    layout = StoredLayout(model.n, model.sh_degree, "fp32", 500)
+    from_words = guard.component_ranges(layout.value_tiles(layout.encode(model), 7))
+    for got, want in zip(from_words, (lo, hi, bad)):
+        np.testing.assert_array_equal(got, want)
+    half = StoredLayout(model.n, model.sh_degree, "bf16", 500)  # 16-bit words: two values a word
+    from_halves = guard.component_ranges(half.value_tiles(half.encode(model), 7))
+    for got, want in zip(from_halves, guard.component_ranges(guard.model_tiles(model.quantized("bf16")))):
+        np.testing.assert_array_equal(got, want)
+    flat = model.flat()
+    fin = np.where(np.isfinite(flat), flat, np.nan)
+    with np.errstate(invalid="ignore"), pytest.warns(RuntimeWarning):  # the all-NaN column
+        want_lo, want_hi = np.nanmin(fin, axis=0), np.nanmax(fin, axis=0)
+    c = 12  # sh_dc[1]
+    np.testing.assert_array_equal(np.delete(lo, c), np.delete(want_lo, c))
+    np.testing.assert_array_equal(np.delete(hi, c), np.delete(want_hi, c))
+    assert lo[c] == np.inf and hi[c] == -np.inf
+    np.testing.assert_array_equal(bad, (~np.isfinite(flat)).sum(axis=0))
+    assert bad[c] == model.n and bad.sum() == model.n + 3
+    box = guard.support_box(model, "fp32")
+    assert box.lo[c] == box.hi[c] == 0.0
+
+
 def test_guard_effect_on_the_clean_model_is_reported_once(eng):
     rep = eng.guard_on_clean("guard")
     assert rep["nonfinite_values"] == {"log_scales": 1, "quats": 1, "opacity": 1}

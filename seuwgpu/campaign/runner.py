@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import platform
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +43,7 @@ class Runner:
         self.shard = store.check_shard(shard)
         self.quiet, self.full = quiet, full
         self.gpu = gpu
+        self.out_is_run = True  # replay's Runner has no run directory: its view times stay in memory
         self.hash = spec_hash(spec)
         self.contexts = enumerate_contexts(spec)
         self.total = sum(c.count for c in self.contexts)
@@ -85,8 +87,9 @@ class Runner:
                 "outcomes": self.thresholds,
                 "region_grid": REGION_GRID_VERSION,
                 "time_ms": "median render time of one view (view 0, rendered alone) of the clean model under "
-                "the defense's in-pipeline guard: the defenses timed interleaved, 9 rounds or as many (at "
-                "least 3) as fit 5 s, once per engine",
+                "the defense's in-pipeline guard: the defenses timed interleaved just after the clean render "
+                "(no warm-up round), 9 rounds or as many (at least 2) as fit 3 s, once per engine and run (the rounds "
+                "are in view_times/)",
             }
             store.write_manifest(self.out, manifest)
         store.remove_stale_temps(rec)
@@ -225,34 +228,70 @@ class Runner:
         store.write_guard_note(self.out, eng.scene, ctx.precision, eng.profile, note)
 
     def engine_for(self, ctx: Context):
+        """The engine of `ctx`'s model, views and precision. While the model is read or made, a
+        thread compiles the pipelines of an engine of its shape (Engine.warm_up)."""
         from seuwgpu.faults.engine import Engine
+        from seuwgpu.gpu.device import get_gpu
         from seuwgpu.model.sources import load_source, source_views
 
+        gpu = self.gpu or get_gpu()
         sc = self.spec.scenes[ctx.scene_index]
-        path = sc.model
-        if path:
-            src = self.file_source(ctx.scene_index)
-        else:
-            src = load_source(scene=sc.scene, n=ctx.n or sc.n, sh_degree=sc.sh_degree, seed=sc.seed, up=sc.up)
-        views = source_views(src, sc.cameras, self.spec.views, self.spec.size, self.spec.scale)
-        model = src.model
-        if path and ctx.n is not None:  # a model file in the primitive-count sweep: framed whole, then cut
-            model = model.sample(ctx.n, sc.seed, src.name)
+        stand_in = self.stand_in_views(sc)
+        with ThreadPoolExecutor(1) as pool:
+            warm = None
+            if stand_in:
+                profile = self.spec.renderer_profile
+                warm = pool.submit(Engine.warm_up, stand_in, ctx.precision, profile, not self.full, gpu)
+            if sc.model:
+                src = self.file_source(ctx.scene_index)
+            else:
+                src = load_source(scene=sc.scene, n=ctx.n or sc.n, sh_degree=sc.sh_degree, seed=sc.seed, up=sc.up)
+            views = source_views(src, sc.cameras, self.spec.views, self.spec.size, self.spec.scale)
+            model = src.model
+            if sc.model and ctx.n is not None:  # a model file in the primitive-count sweep: framed whole, then cut
+                model = model.sample(ctx.n, sc.seed, src.name)
+            if warm is not None:
+                warm.result()
         return Engine(
             model,
             views,
             ctx.precision,
-            gpu=self.gpu,
+            gpu=gpu,
             scene=src.name,
             incremental=not self.full,
             profile=self.spec.renderer_profile,
         )
 
+    def stand_in_views(self, sc) -> list | None:
+        """Orbit views of a stand-in scene with the number and size of `sc`'s views (for
+        Engine.warm_up); None where a camera file gives them (it is read with the model)."""
+        from seuwgpu.model.sources import Source, source_views
+
+        if sc.cameras is not None or self.spec.size is None:
+            return None
+        stand_in = Source(None, "warm-up", "+z", "spheres")
+        return source_views(stand_in, None, self.spec.views, self.spec.size, self.spec.scale)
+
     def view_times(self, eng, ctx: Context) -> dict:
-        """ms per view of each defense's render of the clean model (measured once per engine)."""
+        """ms per view of each defense's render of the clean model: measured once per engine and
+        run (kept in the run directory, store.claim_view_times), so a resumed run does not pay the
+        measurement again and every part of the run records the same time_ms."""
         key = (id(eng), ctx.kind, ctx.scene_index, ctx.n, ctx.precision, tuple(ctx.defenses))
         if key not in self._times:
-            self._times[key] = eng.view_times_ms(ctx.defenses)
+            name = f"{ctx.kind}-scene{ctx.scene_index}-n{ctx.n or eng.n}-{ctx.precision}"
+            stored = store.read_view_times(self.out, name) if self.out_is_run else None
+            if stored is None or not set(ctx.defenses) <= set(stored.get("time_ms", {})):
+                samples = eng.view_time_samples(ctx.defenses)
+                stored = {
+                    "time_ms": {d: float(np.median(v)) for d, v in samples.items()},
+                    "samples_ms": samples,
+                    "views": "view 0 alone" if not eng.renderer.batched else f"all {eng.k} views, over {eng.k}",
+                    "adapter": str(eng.gpu.info.get("device", "?")),
+                    "measured": time.strftime("%Y-%m-%dT%H:%M:%S"),
+                }
+                if self.out_is_run:
+                    stored = store.claim_view_times(self.out, name, stored)
+            self._times[key] = {d: float(stored["time_ms"][d]) for d in ctx.defenses}
         return self._times[key]
 
     def lpips_of(self, eng, sites, defense: str) -> float:
@@ -336,6 +375,7 @@ class Runner:
 def replay(spec: Spec | dict, injection_id: int, full: bool = False, gpu=None) -> pd.DataFrame:
     """Re-run one injection alone from its id: its rows (one per defense), as the campaign wrote them."""
     runner = Runner(spec, Path("."), full=full, gpu=gpu)
+    runner.out_is_run = False
     for ctx in runner.contexts:
         if ctx.first_id <= injection_id < ctx.first_id + ctx.count:
             eng = runner.engine_for(ctx)

@@ -535,6 +535,38 @@ def write_guard_note(run_dir, scene: str, precision: str, profile: str, note: di
     atomic_write(guard_note_path(run_dir, scene, precision, profile), json.dumps(note, indent=1).encode())
 
 
+def view_times_path(run_dir, key: str) -> Path:
+    """Where a run keeps one engine's view times (Runner.view_times): measured once per run, so a
+    resumed run or another shard records the same time_ms and pays no second measurement."""
+    return Path(run_dir) / "view_times" / f"{key}.json"
+
+
+def read_view_times(run_dir, key: str) -> dict | None:
+    path = view_times_path(run_dir, key)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as e:
+        raise InputError(f"{path}: cannot read the run's view times ({e}); delete it to measure them again") from None
+
+
+def claim_view_times(run_dir, key: str, times: dict) -> dict:
+    """Store `times` unless another shard stored its own first; returns the stored ones (the first
+    writer's), so every part of a run carries the same time_ms."""
+    path = view_times_path(run_dir, key)
+    path.parent.mkdir(exist_ok=True)
+    tmp = path.with_name(path.name + f".{host()}.{os.getpid()}.tmp")
+    tmp.write_bytes(json.dumps(times, indent=1).encode())
+    try:
+        os.link(tmp, path)  # fails when the name exists: the first writer wins
+    except FileExistsError:
+        return read_view_times(run_dir, key)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return times
+
+
 def git_commit() -> str:
     try:
         return (

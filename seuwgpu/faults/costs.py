@@ -72,13 +72,15 @@ def defense_costs(
     return rows
 
 
-def interleaved_medians(configs: dict, repeats: int, budget_s: float | None = None, least: int = 3) -> dict:
-    """{name: median seconds} of calling each of `configs` (name -> callable that returns when the
-    GPU is done), after one warm-up round (pipelines, bind groups). Timed interleaved, round by
-    round, so a drift of the machine's load hits every configuration alike. `budget_s`: no round
-    starts once the timed rounds took that long and at least `least` ran (a large model's
+def interleaved_samples(
+    configs: dict, repeats: int, budget_s: float | None = None, least: int = 3, warm_up: bool = True
+) -> dict:
+    """{name: [seconds of each round]} of calling each of `configs` (name -> callable that returns
+    when the GPU is done). Timed interleaved, round by round, so a drift of the machine's load hits
+    every configuration alike. `warm_up`: one untimed round first (pipelines, bind groups). `budget_s`:
+    no round starts once the timed rounds took that long and at least `least` ran (a large model's
     measurement would otherwise outlast the campaign it is made for)."""
-    for f in configs.values():
+    for f in configs.values() if warm_up else ():
         f()
     samples = {k: [] for k in configs}
     t_start = time.perf_counter()
@@ -89,6 +91,12 @@ def interleaved_medians(configs: dict, repeats: int, budget_s: float | None = No
             t0 = time.perf_counter()
             f()
             samples[k].append(time.perf_counter() - t0)
+    return samples
+
+
+def interleaved_medians(configs: dict, repeats: int, budget_s: float | None = None, least: int = 3) -> dict:
+    """{name: median seconds} of interleaved_samples, after a warm-up round of every configuration."""
+    samples = interleaved_samples(configs, repeats, budget_s, least)
     return {k: float(np.median(v)) for k, v in samples.items()}
 
 

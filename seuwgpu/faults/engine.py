@@ -14,13 +14,23 @@ the engine XORs the difference between the clean and the read pattern, so undo i
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 import pandas as pd
 
 from seuwgpu.faults import defenses as dfn
-from seuwgpu.faults.costs import interleaved_medians
+from seuwgpu.faults.costs import interleaved_samples
 from seuwgpu.faults.flips import Flips
-from seuwgpu.faults.guard import Box, GuardMonitor, clamp_bits, component_mask, support_box
+from seuwgpu.faults.guard import (
+    RANGE_ROWS,
+    Box,
+    GuardMonitor,
+    clamp_bits,
+    component_mask,
+    component_ranges,
+    support_box,
+)
 from seuwgpu.faults.sites import Site, apply_sites, fault_name, make_site, site_bit_class
 from seuwgpu.gpu.constants import CHUNK
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
@@ -74,8 +84,9 @@ class Engine:
         self.incremental = incremental
         self.layout = self.renderer.layout
         self.n, self.degree = model.n, model.sh_degree
-        stored = self.layout.decode(self.renderer.clean_words)
-        self.box: Box = support_box(stored, precision)
+        # the stored values' ranges, read from the words the GPU was given (no decoded copy)
+        ranges = component_ranges(self.layout.value_tiles(self.renderer.clean_words, RANGE_ROWS))
+        self.box: Box = support_box(None, precision, ranges)
         self.renderer.set_guard(self.box.rows(), 0)
         # in-pipeline clamp mask of each guard defense (other defenses: 0)
         self.masks = {d: component_mask(f, self.degree) for d, f in dfn.pipeline_guards().items()}
@@ -83,13 +94,11 @@ class Engine:
         # like corrupted values, so a guarded upset is measured against the guarded clean render
         # (its "reference"), and the guard's effect on the clean model is reported once
         # (`guard_on_clean`), never charged to every upset.
-        bad = ~np.isfinite(stored.flat()).all(axis=0)
-        self.nonfinite_mask = int(sum(1 << int(c) for c in np.flatnonzero(bad)))
+        nonfinite = ranges[2]
+        self.nonfinite_mask = int(sum(1 << int(c) for c in np.flatnonzero(nonfinite)))
         self.nonfinite_counts = {
             f: int(v)
-            for f, v in zip(
-                FIELDS, np.bincount(field_of_components(self.degree), (~np.isfinite(stored.flat())).sum(0), len(FIELDS))
-            )
+            for f, v in zip(FIELDS, np.bincount(field_of_components(self.degree), nonfinite, len(FIELDS)))
             if v
         }
         self._ref_mask = 0  # guard mask of the render held as the clean reference
@@ -99,6 +108,29 @@ class Engine:
         self._model_states = {}  # per defense: what it builds from the clean model (cellbox's boxes), on first use
         self.monitor = GuardMonitor(threshold=0)  # health signal of interactive/guarded renders
         self._set_up_views()
+
+    WARM_UP_PRIMITIVES = 64
+    _warmed: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # GPU -> engine shapes warmed
+
+    @classmethod
+    def warm_up(cls, cameras: list[Camera], precision: str, profile: str, incremental: bool, gpu: GPU | None = None):
+        """Compile the pipelines an engine of these views uses (the GPU caches them, gpu/device.py)
+        by building one, and its evaluator, on a stand-in scene of WARM_UP_PRIMITIVES primitives.
+        The campaign runner runs it on a thread while the model is read or made: on lavapipe the
+        compiles take seconds, and they depend only on the number and size of the views, the
+        precision and the profile (each shape is warmed once per GPU)."""
+        from seuwgpu.model.scenes import make_scene
+
+        gpu = gpu or get_gpu()
+        shape = (len(cameras), cameras[0].width, cameras[0].height, precision, profile, incremental)
+        done = cls._warmed.setdefault(gpu, set())
+        if shape in done:
+            return
+        model = make_scene("spheres", cls.WARM_UP_PRIMITIVES)
+        eng = cls(model, cameras, precision, gpu=gpu, scene="warm-up", incremental=incremental, profile=profile)
+        if incremental:
+            eng.evaluator  # noqa: B018 (built for its pipelines)
+        done.add(shape)
 
     # ---- views and clean renders ------------------------------------------------------------------
     def _set_up_views(self):
@@ -309,22 +341,36 @@ class Engine:
         r = self.renderer
         return r.gpu.read(r.image, np.float32, 0, 16 * r.k * r.width * r.height).reshape(r.k, r.height, r.width, 4)
 
-    VIEW_TIME_BUDGET_S = 5.0
-    """Seconds the defenses' view times may take once 3 rounds ran (view_times_ms)."""
+    VIEW_TIME_BUDGET_S = 3.0
+    """Seconds the defenses' view times may take once VIEW_TIME_LEAST_ROUNDS rounds ran."""
+    VIEW_TIME_LEAST_ROUNDS = 2
 
-    def view_times_ms(self, defenses=("none",), repeats: int = 9) -> dict:
-        """Median wall time (ms) of rendering one view of the model as it is now under each
-        defense's in-pipeline guard: view 0 rendered alone and waited for where the renderer draws
-        its views one at a time (an incremental engine keeps them, so it does; timing all K cost a
-        1M-primitive campaign K times as much), else its K batched views over K. The defenses are
-        timed interleaved, round by round after one warm-up round, so a drift of the machine's
-        load hits them alike: `repeats` rounds, or as many (at least 3) as fit
-        VIEW_TIME_BUDGET_S. The mitigation table's time cost comes from it, in the same run."""
+    def view_time_samples(self, defenses=("none",), repeats: int = 9) -> dict:
+        """{defense: [ms of each round]}: wall time of rendering one view of the model as it is now
+        under each defense's in-pipeline guard: view 0 rendered alone and waited for where the
+        renderer draws its views one at a time (an incremental engine keeps them, so it does;
+        timing all K cost a 1M-primitive campaign K times as much), else its K batched views over K.
+        The defenses are timed interleaved, round by round, so a drift of the machine's load hits
+        them alike: `repeats` rounds, or as many (at least VIEW_TIME_LEAST_ROUNDS) as fit
+        VIEW_TIME_BUDGET_S. No warm-up round: the clean capture (_set_up_views) ran these
+        pipelines on these views just before, and the guard is a uniform, not a pipeline (a
+        warm-up round cost a 1M-primitive campaign a view per defense)."""
         views = [0] if not self.renderer.batched else None
         configs = {d: (lambda d=d: self._render_guarded(d, views)) for d in dict.fromkeys(defenses)}
-        medians = interleaved_medians(configs, repeats, budget_s=self.VIEW_TIME_BUDGET_S)
+        samples = interleaved_samples(
+            configs,
+            repeats,
+            budget_s=self.VIEW_TIME_BUDGET_S,
+            least=self.VIEW_TIME_LEAST_ROUNDS,
+            warm_up=False,
+        )
         per = 1 if views else self.k
-        return {d: 1e3 * s / per for d, s in medians.items()}
+        return {d: [1e3 * s / per for s in v] for d, v in samples.items()}
+
+    def view_times_ms(self, defenses=("none",), repeats: int = 9) -> dict:
+        """{defense: median ms of view_time_samples}: the records' time_ms; the mitigation table's
+        time cost comes from it, in the same run."""
+        return {d: float(np.median(v)) for d, v in self.view_time_samples(defenses, repeats).items()}
 
     def _render_guarded(self, defense: str, views=None):
         """`views` (all K by default) of the model as it is now, under the defense's in-pipeline

@@ -84,12 +84,45 @@ class GuardMonitor:
         return self.alert
 
 
-def support_box(stored: Model, precision: str) -> Box:
-    """Per-component [min, max] over the finite stored values of the clean model."""
-    flat = stored.flat()
-    fin = np.isfinite(flat)
-    lo = np.where(fin, flat, np.inf).min(axis=0)
-    hi = np.where(fin, flat, -np.inf).max(axis=0)
+# rows reduced at a time by component_ranges (a cache-sized tile)
+RANGE_ROWS = 65536
+
+
+def model_tiles(model: Model, rows: int | None = None):
+    """The model's flat values as [rows, components] tiles (each a small copy of its rows;
+    RANGE_ROWS rows by default)."""
+    rows = rows or RANGE_ROWS
+    for s in range(0, model.n, rows):
+        yield np.concatenate([model.field(f)[s : s + rows] for f in FIELDS], axis=1)
+
+
+def component_ranges(tiles) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(min and max over the finite values, number of non-finite values) of each flat component
+    over `tiles` ([rows, components] arrays: model_tiles, or StoredLayout.value_tiles of the words
+    a GPU holds); min +inf and max -inf where a component has no finite value. Tile by tile: the
+    decoded flat copy and its whole-model masks were seconds of a 1M-primitive engine's set-up."""
+    lo = hi = bad = None
+    for tile in tiles:
+        fin = np.isfinite(tile)
+        t_lo = np.where(fin, tile, np.inf).min(axis=0)
+        t_hi = np.where(fin, tile, -np.inf).max(axis=0)
+        t_bad = tile.shape[0] - fin.sum(axis=0)
+        if lo is None:
+            lo, hi, bad = t_lo.astype(np.float32), t_hi.astype(np.float32), t_bad.astype(np.int64)
+        else:
+            np.minimum(lo, t_lo, out=lo)
+            np.maximum(hi, t_hi, out=hi)
+            bad += t_bad
+    if lo is None:
+        raise ValueError("component_ranges of no values (a model needs at least one primitive)")
+    return lo, hi, bad
+
+
+def support_box(stored: Model | None, precision: str, ranges=None) -> Box:
+    """Per-component [min, max] over the finite stored values of the clean model (`ranges`: its
+    component_ranges, when the caller has them; then `stored` may be None)."""
+    lo, hi, _ = component_ranges(model_tiles(stored)) if ranges is None else ranges
+    lo, hi = lo.astype(np.float32), hi.astype(np.float32)  # copies: the caller's ranges stay as they were
     empty = ~np.isfinite(lo)  # a component with no finite value: box collapses to 0
     lo[empty], hi[empty] = 0.0, 0.0
     # exact stored values already; quantize anyway so bounds are representable at `precision`

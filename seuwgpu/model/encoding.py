@@ -76,9 +76,9 @@ def from_bits(bits, precision: str) -> np.ndarray:
     check_precision(precision)
     b = np.asarray(bits)
     if precision == "fp32":
-        return np.ascontiguousarray(b.astype(np.uint32)).view(np.float32).copy()
+        return np.array(b, dtype=np.uint32, order="C").view(np.float32)  # one copy, never the input
     if precision == "fp16":
-        return np.ascontiguousarray(b.astype(np.uint16)).view(np.float16).astype(np.float32)
+        return np.array(b, dtype=np.uint16, order="C").view(np.float16).astype(np.float32)
     return (b.astype(np.uint32) << 16).view(np.float32).copy()
 
 

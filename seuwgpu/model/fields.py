@@ -209,24 +209,31 @@ class StoredLayout:
         c = -(-int(n) // n_chunks)
         return c + (c & 1)
 
+    # rows transposed at a time by encode: a cache-sized tile (a whole-field transpose was most of
+    # the encode of a 1M-primitive model)
+    ENCODE_ROWS = 16384
+
     def encode(self, model: Model) -> list[np.ndarray]:
-        """Model -> list of u32 word arrays, one per chunk. Converted one component plane at a
-        time, so the host holds the model, the words and one plane's temporaries (bf16's
-        conversion peaks at 33 bytes a value, measured: a whole-model pass would need 8x the model)."""
+        """Model -> list of u32 word arrays, one per chunk. Converted ENCODE_ROWS primitives of a
+        field at a time, so the host holds the model, the words and one tile's temporaries (bf16's
+        conversion peaks at 33 bytes a value: a whole-model pass would need 8x the model)."""
         if model.n != self.n or model.sh_degree != self.degree:
             raise ValueError("model does not match this layout")
-        columns = [(f, j) for f in FIELDS for j in range(model.field(f).shape[1])]  # flat order
         out = []
-        plane = np.zeros(self.chunk_prims, dtype=np.float32)
         for k in range(self.n_chunks):
             a, b = self.chunk_range(k)
-            words = np.empty(self.chunk_words, dtype=np.uint32)
-            for c, (f, j) in enumerate(columns):
-                plane[: b - a] = model.field(f)[a:b, j]
-                plane[b - a :] = 0
-                lo = c * self.plane_words
-                words[lo : lo + self.plane_words] = self._words(encoding.to_bits(plane, self.precision)[None, :])
-            out.append(words)
+            # bit planes [components, chunk_prims]; a little-endian word's low half is the even
+            # primitive's value (as _words packs it)
+            planes = np.zeros((self.ncomp, self.chunk_prims), dtype="<u2" if self.halves else "<u4")
+            c = 0
+            for f in FIELDS:
+                values = model.field(f)
+                width = values.shape[1]
+                for s in range(a, b, self.ENCODE_ROWS):
+                    e = min(b, s + self.ENCODE_ROWS)
+                    planes[c : c + width, s - a : e - a] = encoding.to_bits(values[s:e], self.precision).T
+                c += width
+            out.append(np.ascontiguousarray(planes.view("<u4").reshape(-1), dtype=np.uint32))
         return out
 
     def encode_bits(self, bits: np.ndarray) -> list[np.ndarray]:
@@ -250,16 +257,27 @@ class StoredLayout:
             words = planes.astype(np.uint32, copy=False)
         return np.ascontiguousarray(words.reshape(-1))
 
-    def decode(self, chunks: list[np.ndarray]) -> Model:
-        """Inverse of encode: u32 chunk words -> Model of the stored values (as float32)."""
-        rows = []
+    def chunk_values(self, k: int, words: np.ndarray) -> np.ndarray:
+        """Chunk k's stored values as float32 planes [components, the chunk's primitives] (at fp32
+        a view of `words`)."""
+        a, b = self.chunk_range(k)
+        w = np.asarray(words, dtype="<u4").reshape(self.ncomp, self.plane_words)
+        if not self.halves:
+            return w[:, : b - a].view(np.float32)
+        # a little-endian word's low half is the even primitive's value (see _words)
+        return encoding.from_bits(w.view("<u2")[:, : b - a], self.precision)
+
+    def value_tiles(self, chunks: list[np.ndarray], rows: int):
+        """The stored values as [rows, components] tiles in primitive order (transposed views of
+        chunk_values): a pass over the model without its decoded copy (guard.component_ranges)."""
         for k, words in enumerate(chunks):
-            a, b = self.chunk_range(k)
-            w = np.asarray(words, dtype=np.uint32).reshape(self.ncomp, self.plane_words)
-            if self.halves:
-                planes = np.stack([w & 0xFFFF, w >> 16], axis=2).reshape(self.ncomp, -1).astype(np.uint16)
-            else:
-                planes = w
-            rows.append(planes[:, : b - a].T)
-        flat = encoding.from_bits(np.concatenate(rows, axis=0), self.precision)
-        return Model.from_flat(flat, self.degree)
+            values = self.chunk_values(k, words)
+            for s in range(0, values.shape[1], rows):
+                yield values[:, s : s + rows].T
+
+    def decode(self, chunks: list[np.ndarray]) -> Model:
+        """Inverse of encode: u32 chunk words -> Model of the stored values (as float32). Works on
+        the planes ([components, N], contiguous) and transposes once: decoding a 1M-primitive
+        model row-major was a large share of a campaign's set-up."""
+        values = np.concatenate([self.chunk_values(k, w) for k, w in enumerate(chunks)], axis=1)
+        return Model.from_flat(values.T, self.degree)
