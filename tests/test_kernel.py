@@ -148,12 +148,14 @@ def test_kernel_caches_bind_groups_by_what_they_bind(gpu):
     assert k.bind(params=(params, 0, 16), flips=a, words=words)[0] is not bg  # a range is another binding
     (other,) = k.bind(params=params, flips=b, words=words)
     assert other is not bg and k.cached_bind_groups == 3
+    assert len(k._named) == 4  # the calls by name, one per order of names: two resolve to `bg`
     del a  # a collected buffer takes its bind groups with it: no stale entry, nothing pinned
     gc.collect()
     assert k.cached_bind_groups == 1 and k.bind(params=params, flips=b, words=words)[0] is other
+    assert len(k._named) == 1  # the by-name entries of `a` went too (they hold its bind groups)
     del params, b, words, bg, other
     gc.collect()
-    assert k.cached_bind_groups == 0
+    assert k.cached_bind_groups == 0 and not k._named and not k._keys_of
 
 
 BINDINGS_SRC = """
