@@ -158,6 +158,7 @@ class IncrementalCompositor:
         self.projection = Projection(g, k * self.B, k, "var", r.profile)
         self.rects_readback = Readback(g, 8 * k * self.B, "var_rects.readback")
         self.compositing = VariantCompositing(g, self.max_entries, r.profile, r.compositing.chunk, r.binning.exact)
+        # the metrics pass's tile map of a batch (encode returns it; faults/incremental.py uploads it)
         self.tile_map = g.buffer(4 * self.B * k * r.n_tiles, label="tile_map")
         self.bound_version = None
         self.refresh()
@@ -251,13 +252,13 @@ class IncrementalCompositor:
 
     def encode(self, encoder, prims: np.ndarray, dirty: np.ndarray, first: int):
         """Record the re-compositing of the dirty tiles of variants `first .. first + m - 1` (their
-        projected records sit at those indices) into the slabs; writes the tile map
-        ([m, K, T] int32, slab index or -1). Returns (tile_map, variant, view, tile) per slab."""
+        projected records sit at those indices) into the slabs. Returns (tile_map, variant, view,
+        tile) per slab: tile_map [m, K, T] int32, slab index or -1, which the caller uploads to
+        `tile_map` once it has marked the slabs equal to the clean tiles (faults/incremental.py)."""
         p = self.projection
         v_idx, b_idx, t_idx = np.nonzero(dirty.transpose(1, 0, 2))  # by view: kept view groups
         tile_map = np.full(dirty.shape, -1, dtype=np.int32)
         tile_map[b_idx, v_idx, t_idx] = np.arange(b_idx.size, dtype=np.int32)
-        self.gpu.write(self.tile_map, tile_map)
         self.compositing.encode(
             encoder,
             {"variant": b_idx + first, "view": v_idx, "tile": t_idx, "prim": prims[b_idx]},
