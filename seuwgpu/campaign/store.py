@@ -22,6 +22,7 @@ import json
 import os
 import platform
 import queue
+import shutil
 import subprocess
 import threading
 from dataclasses import dataclass, field
@@ -539,6 +540,12 @@ def view_times_path(run_dir, key: str) -> Path:
     """Where a run keeps one engine's view times (Runner.view_times): measured once per run, so a
     resumed run or another shard records the same time_ms and pays no second measurement."""
     return Path(run_dir) / "view_times" / f"{key}.json"
+
+
+def forget_view_times(run_dir):
+    """Remove a run's view times: the run directory is taken by another spec (check_same_run lets
+    one without parts be), and they were measured for the old one."""
+    shutil.rmtree(view_times_path(run_dir, "").parent, ignore_errors=True)
 
 
 def read_view_times(run_dir, key: str) -> dict | None:
