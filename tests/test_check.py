@@ -89,3 +89,27 @@ def test_gpu_detection_equals_a_brute_force_sweep_of_every_flip_and_burst(precis
             ls = encoding.from_bits(bad[:, 3:6], precision)
             with np.errstate(invalid="ignore"):
                 np.testing.assert_array_equal(got, (ls > bound[:, None]).any(axis=1))
+
+
+def test_defense_costs_times_what_runs_on_the_gpu():
+    """The measured cost rows (faults/costs.py): a time for every defense with a pipeline clamp or
+    a GPU check (a check's time amortised over check_every), NaN for the read-time codes, and the
+    device and model size named in the basis of each measured row."""
+    from seuwgpu.faults.costs import defense_costs
+
+    model = random_model(300, seed=3)
+    camera = scene_cameras("spheres", 1, 32, 32)[0]
+    rows = {r["name"]: r for r in defense_costs(model, camera, repeats=1, check_every=4)}
+    assert list(rows) == list(dfn.DEFENSES) and rows["none"]["time_fraction"] == 0
+    for name, row in rows.items():
+        d = dfn.get(name)
+        measured = bool(d.guard_fields) or d.checked or name == "none"
+        assert np.isfinite(row["time_fraction"]) == measured, name
+        assert row["time_basis"].startswith("measured: ") == measured, name
+        if d.checked:
+            assert row["check_fraction"] > 0 and row["check_every"] == 4, name
+            if not d.guard_fields:
+                assert row["time_fraction"] == row["check_fraction"] / 4, name
+        else:
+            assert np.isnan(row["check_fraction"]) and row["check_every"] is None, name
+    assert f"{model.n} primitives" in rows["checksum"]["time_basis"]

@@ -27,23 +27,23 @@ from seuwgpu.version import __version__
 
 
 class Runner:
-    """Runs (a shard of) a campaign into a run directory."""
+    """Runs (a shard of) a campaign into a run directory (`out`; None: replay's, which writes
+    nothing and keeps its view times in memory)."""
 
     def __init__(
         self,
         spec: Spec | dict,
-        out: Path,
+        out: Path | None,
         shard: tuple[int, int] = (0, 1),
         quiet: bool = False,
         full: bool = False,
         gpu=None,
     ):
         spec = as_spec(spec)  # a Spec, or its stored form (a manifest's)
-        self.spec, self.out = spec, Path(out)
+        self.spec, self.out = spec, None if out is None else Path(out)
         self.shard = store.check_shard(shard)
         self.quiet, self.full = quiet, full
         self.gpu = gpu
-        self.out_is_run = True  # replay's Runner has no run directory: its view times stay in memory
         self.hash = spec_hash(spec)
         self.contexts = enumerate_contexts(spec)
         self.total = sum(c.count for c in self.contexts)
@@ -91,6 +91,8 @@ class Runner:
                 "(no warm-up round), 9 rounds or as many (at least 2) as fit 3 s, once per engine and run (the rounds "
                 "are in view_times/)",
             }
+            if old is not None:
+                store.forget_view_times(self.out)  # measured for the spec this one replaces
             store.write_manifest(self.out, manifest)
         store.remove_stale_temps(rec)
 
@@ -279,7 +281,7 @@ class Runner:
         key = (id(eng), ctx.kind, ctx.scene_index, ctx.n, ctx.precision, tuple(ctx.defenses))
         if key not in self._times:
             name = f"{ctx.kind}-scene{ctx.scene_index}-n{ctx.n or eng.n}-{ctx.precision}"
-            stored = store.read_view_times(self.out, name) if self.out_is_run else None
+            stored = store.read_view_times(self.out, name) if self.out is not None else None
             if stored is None or not set(ctx.defenses) <= set(stored.get("time_ms", {})):
                 samples = eng.view_time_samples(ctx.defenses)
                 stored = {
@@ -289,7 +291,7 @@ class Runner:
                     "adapter": str(eng.gpu.info.get("device", "?")),
                     "measured": time.strftime("%Y-%m-%dT%H:%M:%S"),
                 }
-                if self.out_is_run:
+                if self.out is not None:
                     stored = store.claim_view_times(self.out, name, stored)
             self._times[key] = {d: float(stored["time_ms"][d]) for d in ctx.defenses}
         return self._times[key]
@@ -374,8 +376,7 @@ class Runner:
 
 def replay(spec: Spec | dict, injection_id: int, full: bool = False, gpu=None) -> pd.DataFrame:
     """Re-run one injection alone from its id: its rows (one per defense), as the campaign wrote them."""
-    runner = Runner(spec, Path("."), full=full, gpu=gpu)
-    runner.out_is_run = False
+    runner = Runner(spec, None, full=full, gpu=gpu)
     for ctx in runner.contexts:
         if ctx.first_id <= injection_id < ctx.first_id + ctx.count:
             eng = runner.engine_for(ctx)

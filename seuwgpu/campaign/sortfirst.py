@@ -69,23 +69,12 @@ class RankRenderer:
         return [self.render()[1] for _ in range(max(1, repeats))]
 
     def _flip(self, site):
+        from seuwgpu.faults.flips import Flips
         from seuwgpu.faults.sites import mask_of
-        from seuwgpu.gpu.device import UNIFORM
-        from seuwgpu.gpu.kernel import Kernel
 
-        L = self.r.layout
-        ch, word, shift = L.locate([site.primitive], [site.flat_component()])
+        ch, word, shift = self.r.layout.locate([site.primitive], [site.flat_component()])
         pairs = np.array([[int(word[0]), (mask_of(site.bits) << int(shift[0])) & 0xFFFFFFFF]], np.uint32)
-        g = self.gpu
-        enc = g.device.create_command_encoder()
-        Kernel(g, "flip").dispatch(
-            enc,
-            params=g.upload(np.array([1, 0, 0, 0], np.uint32), UNIFORM),
-            flips=g.upload(pairs),
-            words=self.r.chunks[int(ch[0])],
-            workgroups=1,
-        )
-        g.submit(enc)
+        Flips(self.gpu, self.r.chunks).apply({int(ch[0]): pairs})
 
     def _restore(self):
         for c, words in enumerate(self.r.clean_words):

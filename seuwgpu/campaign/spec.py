@@ -129,8 +129,19 @@ def _plain(value):
     return value
 
 
+class _Stored:
+    """A spec table's stored form: its entries that are not None, tuples as JSON lists, and back."""
+
+    def to_dict(self) -> dict:
+        return {k: _plain(v) for k, v in vars(self).items() if v is not None}
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
 @dataclass(frozen=True, kw_only=True)
-class SceneSpec:
+class SceneSpec(_Stored):
     """One [[scenes]] entry: an embedded scene (`scene`, `n`) or a model file (`model`, resolved,
     with the sha256 of its content), and optionally a camera file and an up axis."""
 
@@ -144,16 +155,9 @@ class SceneSpec:
     cameras: str | None = None
     cameras_sha256: str | None = None
 
-    def to_dict(self) -> dict:
-        return {k: _plain(v) for k, v in vars(self).items() if v is not None}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> SceneSpec:
-        return cls(**d)
-
 
 @dataclass(frozen=True, kw_only=True)
-class UpsetSpec:
+class UpsetSpec(_Stored):
     """[single]: single upsets stratified by (field, bit) cell. `bits` is "all" or the bit list."""
 
     precisions: tuple[str, ...]
@@ -166,14 +170,10 @@ class UpsetSpec:
     fault: str = "bit"
 
     def to_dict(self) -> dict:
-        d = {k: _plain(v) for k, v in vars(self).items()}
+        d = super().to_dict()
         if d["fault"] == "bit":  # recorded only when not the default (older specs keep their hash)
             del d["fault"]
         return d
-
-    @classmethod
-    def from_dict(cls, d: dict):
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -184,19 +184,13 @@ class SizesSpec(UpsetSpec):
     n: tuple[int, ...]
     scenes: tuple[int, ...] | None = None
 
-    def to_dict(self) -> dict:
-        d = super().to_dict()
-        if self.scenes is None:
-            del d["scenes"]
-        return d
-
     @property
     def scene_indices(self) -> tuple[int, ...]:
         return (0,) if self.scenes is None else self.scenes
 
 
 @dataclass(frozen=True, kw_only=True)
-class DoseSpec:
+class DoseSpec(_Stored):
     """[dose]: k simultaneous upsets drawn uniformly over the stored bits, `repeats` times each."""
 
     precisions: tuple[str, ...]
@@ -204,50 +198,30 @@ class DoseSpec:
     repeats: int
     defenses: tuple[str, ...]
 
-    def to_dict(self) -> dict:
-        return {k: _plain(v) for k, v in vars(self).items()}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> DoseSpec:
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
-
 
 @dataclass(frozen=True, kw_only=True)
-class OutcomesSpec:
+class OutcomesSpec(_Stored):
     """[outcomes]: the outcome-class thresholds."""
 
     pixel_threshold: float
     footprint: float
 
-    def to_dict(self) -> dict:
-        return dict(vars(self))
-
-    @classmethod
-    def from_dict(cls, d: dict) -> OutcomesSpec:
-        return cls(**d)
-
 
 @dataclass(frozen=True, kw_only=True)
-class RateSpec:
+class RateSpec(_Stored):
     environment: str
     per_bit_hour: float
     source: str
 
-    def to_dict(self) -> dict:
-        return dict(vars(self))
-
 
 @dataclass(frozen=True, kw_only=True)
-class ReliabilitySpec:
+class ReliabilitySpec(_Stored):
     """[reliability]: inputs of the MTBF analysis (they change no injection)."""
 
     scrub_hours: float | None = None
     rates: tuple[RateSpec, ...] | None = None
     check_every: int | None = None
     frames_per_second: float | None = None
-
-    def to_dict(self) -> dict:
-        return {k: _plain(v) for k, v in vars(self).items() if v is not None}
 
     @classmethod
     def from_dict(cls, d: dict) -> ReliabilitySpec:
@@ -261,7 +235,7 @@ class ReliabilitySpec:
 
 
 @dataclass(frozen=True, kw_only=True)
-class Spec:
+class Spec(_Stored):
     """A validated campaign spec with its defaults filled in (module docstring: the TOML keys).
     `profile` None: the default renderer profile ("strict"), not recorded."""
 
@@ -286,7 +260,7 @@ class Spec:
 
     def to_dict(self) -> dict:
         """The spec as the manifest stores it and its hash covers it."""
-        d = {k: _plain(v) for k, v in vars(self).items() if v is not None}
+        d = super().to_dict()
         if not self.lpips:
             del d["lpips"]
         return d

@@ -22,6 +22,7 @@ import json
 import os
 import platform
 import queue
+import shutil
 import subprocess
 import threading
 from dataclasses import dataclass, field
@@ -541,6 +542,12 @@ def view_times_path(run_dir, key: str) -> Path:
     return Path(run_dir) / "view_times" / f"{key}.json"
 
 
+def forget_view_times(run_dir):
+    """Remove a run's view times: the run directory is taken by another spec (check_same_run lets
+    one without parts be), and they were measured for the old one."""
+    shutil.rmtree(view_times_path(run_dir, "").parent, ignore_errors=True)
+
+
 def read_view_times(run_dir, key: str) -> dict | None:
     path = view_times_path(run_dir, key)
     try:
@@ -556,14 +563,8 @@ def claim_view_times(run_dir, key: str, times: dict) -> dict:
     writer's), so every part of a run carries the same time_ms."""
     path = view_times_path(run_dir, key)
     path.parent.mkdir(exist_ok=True)
-    tmp = path.with_name(path.name + f".{host()}.{os.getpid()}.tmp")
-    tmp.write_bytes(json.dumps(times, indent=1).encode())
-    try:
-        os.link(tmp, path)  # fails when the name exists: the first writer wins
-    except FileExistsError:
+    if not atomic_write(path, json.dumps(times, indent=1).encode(), exclusive=True):
         return read_view_times(run_dir, key)
-    finally:
-        tmp.unlink(missing_ok=True)
     return times
 
 
@@ -687,13 +688,25 @@ def remove_stale_temps(folder: Path):
             pass
 
 
-def atomic_write(path: Path, data: bytes):
+def atomic_write(path: Path, data: bytes, exclusive: bool = False) -> bool:
+    """Write `path` whole or not at all (a temp file named as remove_stale_temps expects, then
+    put in place). `exclusive`: leave a file already there as it is (the first writer wins); returns whether
+    `data` was written."""
     tmp = path.with_name(path.name + f".{host()}.{os.getpid()}.tmp")
     with open(tmp, "wb") as f:
         f.write(data)
         f.flush()
         os.fsync(f.fileno())
-    os.replace(tmp, path)
+    if not exclusive:
+        os.replace(tmp, path)
+        return True
+    try:
+        os.link(tmp, path)  # fails when the name exists
+    except FileExistsError:
+        return False
+    finally:
+        tmp.unlink(missing_ok=True)
+    return True
 
 
 def read_part(path: Path, columns=None) -> pd.DataFrame:

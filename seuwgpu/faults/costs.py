@@ -38,8 +38,7 @@ def defense_costs(
     exposure_frames, exposure_frames_worst, time_basis, description}] for every defense, the time
     measured on one view of `camera`, a check defense's check amortised over `check_every` frames."""
     rows = []
-    parts = _times(model, camera, precision, repeats, gpu) if time_it else {}
-    chunks, device = parts.pop("_chunks", 1), parts.pop("_device", "?")
+    parts, device, chunks = _times(model, camera, precision, repeats, gpu) if time_it else ({}, "?", 1)
     t = {d: dfn.amortised_time(d, g, c, check_every) for d, (g, c) in parts.items()}
     for d in dfn.DEFENSES:
         frac = t.get(d, float("nan"))
@@ -100,7 +99,9 @@ def interleaved_medians(configs: dict, repeats: int, budget_s: float | None = No
     return {k: float(np.median(v)) for k, v in samples.items()}
 
 
-def _times(model, camera, precision, repeats, gpu) -> dict:
+def _times(model, camera, precision, repeats, gpu) -> tuple[dict, str, int]:
+    """({defense: (guard clamp per frame, one check) as fractions of a view}, the device, the
+    model's chunks)."""
     # a renderer plus the decoded model, its flat copy and bits: an engine's share, not a renderer's
     check_model(model.n, model.sh_degree, "a model of", "time the defenses of")
     r = Renderer(model, [camera], precision, gpu=gpu)
@@ -122,10 +123,10 @@ def _times(model, camera, precision, repeats, gpu) -> dict:
     med = interleaved_medians(configs, repeats)
     r.set_guard(None, 0)
     base = med["none"]
-    out = {"none": (0.0, 0.0), "_device": r.gpu.info.get("device", "?"), "_chunks": r.layout.n_chunks}
-    for d in dfn.DEFENSES:  # (guard clamp per frame, one check), fractions of a view
+    out = {"none": (0.0, 0.0)}
+    for d in dfn.DEFENSES:
         if d in masks or d in checkers:
             guard = (med[d] - base) / base if d in masks else 0.0
             check = med[f"check:{d}"] / base if d in checkers else 0.0
             out[d] = (guard, check)
-    return out
+    return out, r.gpu.info.get("device", "?"), r.layout.n_chunks

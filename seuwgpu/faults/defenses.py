@@ -310,8 +310,9 @@ class Defense:
         return 0
 
     def bits_per_model(self, precision: str, degree: int) -> int:
-        """Stored bits it adds once per model (boxes, tables)."""
-        return 0
+        """Stored bits it adds once per model (boxes, tables): a support guard's box, 2 fp32 bounds
+        per guarded component."""
+        return 2 * 32 * _covered_components(self.guard_fields, degree).size
 
     def model_state(self, clean_rows: np.ndarray, precision: str, degree: int):
         """What it builds once from the clean model beyond the box (None: nothing)."""
@@ -330,9 +331,6 @@ class SupportGuard(Defense):
     def __init__(self, name, info, fields, label="", first_study=False):
         super().__init__(name, info, label, first_study)
         self.guard_fields = tuple(fields)
-
-    def bits_per_model(self, precision, degree):
-        return 2 * 32 * _covered_components(self.guard_fields, degree).size
 
 
 class Ecc(Defense):
@@ -391,6 +389,7 @@ class CheckedDefense(Defense):
     reads_stored_bits = False
 
     side_bits = 32  # bits of side data per primitive
+    table_words = 1  # f32 words of its check's table (`check_table`)
     reloads = False  # a flagged primitive is reloaded from the golden copy (off the device)
     writes_back = True
 
@@ -403,7 +402,7 @@ class CheckedDefense(Defense):
 
     def check_table(self, box, precision: str) -> np.ndarray:
         """The f32 table its check reads (scalebound's class bounds; one placeholder word otherwise)."""
-        return np.zeros(1, np.float32)
+        return np.zeros(self.table_words, np.float32)
 
     def side_data(self, clean, precision: str, degree: int, box=None) -> np.ndarray:
         """[M] u32: what it stores with each clean primitive."""
@@ -466,9 +465,7 @@ class ScaleBound(CheckedDefense):
     check_mode = 2  # MODE_SCALE
     side_bits = SCALE_CLASS_BITS
     guard_fields = GUARD_FIELDS
-
-    def bits_per_model(self, precision, degree):
-        return 2 * 32 * _covered_components(self.guard_fields, degree).size
+    table_words = SCALE_CLASSES
 
     def check_table(self, box, precision):
         return scale_table(box, precision)
@@ -548,7 +545,7 @@ def device_bytes(defense: str, precision: str, degree: int, n: int, chunks: int 
     if d.checked:
         total += buffer(4 * -(-n * d.side_bits // 32))  # packed side data
         total += buffer(CHECK_HEADER_BYTES + 4 * -(-n // 32))  # count + flag bits
-        total += buffer(4 * (SCALE_CLASSES if isinstance(d, ScaleBound) else 1))  # the check's table
+        total += buffer(4 * d.table_words)  # the check's table
         total += buffer(UNIFORM_STRIDE * chunks)
     elif not d.guard_fields:
         total += 4 * -(-(d.bits_per_primitive(precision, degree) * n + d.bits_per_model(precision, degree)) // 32)

@@ -242,10 +242,12 @@ class Engine:
         """What `defense` reads from primitives `prims` (stored bits [M, ncomp]) that went from
         `clean` to `corrupt` (the support guard is applied later, in the pipeline or by clamp_bits)."""
         d = dfn.get(defense)
-        if defense not in self._model_states:  # stored beside the model: built once, from the clean model
-            rows = self.primitive_bits(np.arange(self.n)) if d.has_model_state else None
-            self._model_states[defense] = d.model_state(rows, self.precision, self.degree) if rows is not None else None
-        state = self._model_states[defense]
+        state = None
+        if d.has_model_state:  # stored beside the model: built once, from the clean model
+            if defense not in self._model_states:
+                rows = self.primitive_bits(np.arange(self.n))
+                self._model_states[defense] = d.model_state(rows, self.precision, self.degree)
+            state = self._model_states[defense]
         return d.read(np.asarray(clean), np.asarray(corrupt), self.precision, self.degree, self.box, prims, state)
 
     def _faulted(self, sites: list[Site]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -195,20 +195,16 @@ class IncrementalEvaluator:
         if e.size == 0:
             return out
         frame = np.repeat(np.arange(m * K), np.diff(offsets.astype(np.int64)))[e]  # variant * K + view
-        variant = frame // K
         tile = worklist[e].astype(np.int64)
         ys, xs = (tile // r.tiles_x) * TILE + py, (tile % r.tiles_x) * TILE + px
         for P in regions:
-            rid = region_id_map(P, r.height, r.width)[ys, xs]
-            bit = np.left_shift(np.uint64(1), rid.astype(np.uint64))
-            acc = np.zeros(m, dtype=np.uint64)
-            np.bitwise_or.at(acc, variant, bit)
-            out[f"regions_meas_{P}"] = acc.view(np.int64)
+            ids = region_id_map(P, r.height, r.width)
+            bit = np.left_shift(np.uint64(1), ids[ys, xs].astype(np.uint64))
             per_frame = np.zeros(m * K, dtype=np.uint64)
             np.bitwise_or.at(per_frame, frame, bit)
-            cells = int(region_id_map(P, r.height, r.width).max()) + 1
+            out[f"regions_meas_{P}"] = np.bitwise_or.reduce(per_frame.reshape(m, K), axis=1).view(np.int64)
             reached = np.unpackbits(per_frame.view(np.uint8).reshape(-1, 8), axis=1).sum(axis=1)
-            out[f"regions_meas_frame_{P}"] = reached.reshape(m, K).mean(axis=1) / cells
+            out[f"regions_meas_frame_{P}"] = reached.reshape(m, K).mean(axis=1) / (int(ids.max()) + 1)
         return out
 
 
