@@ -37,7 +37,7 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from seuwgpu.analysis import claims, scaling  # noqa: E402
+from seuwgpu.analysis import claims, scaling, stats  # noqa: E402
 from seuwgpu.analysis import estimate as E  # noqa: E402
 from seuwgpu.report.format import markdown_table  # noqa: E402
 
@@ -92,8 +92,6 @@ def alpha_and_dose_rows(d: Path, frame_size) -> list[dict]:
 
 def paper_rows(d: Path) -> list[dict]:
     """The rows of issue 36's item 10 that the stored tables can give (module notes)."""
-    from scipy.stats import binomtest
-
     rows = []
     crit = pd.read_csv(d / "criticality.csv").set_index("field")
     for f in claims.PAPER_FIELD_RATES:
@@ -111,15 +109,15 @@ def paper_rows(d: Path) -> list[dict]:
     paired = pd.read_csv(d / "guard_paired.csv").set_index("precision").loc["all"]
     n, k = int(paired["pairs"]), int(paired["residual_catastrophic"])
     both = int(paired["catastrophic_none"]) - int(paired["neutralised"])
-    ci = binomtest(k, n).proportion_ci(0.95, method="wilson")
+    lo, hi = stats.wilson_interval(k, n, 0.95)
     basis = f"guard_paired.csv, every precision: {n:,} guarded sites; no per-model table"
     rows.append(claims._row("guard_worst_footprint", paired["worst_guarded_footprint_pct"], basis=basis))
     rows.append(
         claims._row(
             "guard_residual_share",
             100 * k / n,
-            100 * ci.low,
-            100 * ci.high,
+            100 * lo,
+            100 * hi,
             f"{k:,} residual of {n:,}; {basis}; Wilson; of the residual, {both:,} catastrophic without the guard "
             f"too (catastrophic_none - neutralised) and {k - both:,} turned catastrophic by it",
         )
