@@ -81,10 +81,8 @@ def not_derivable(key: str, why: str) -> dict:
 
 
 def alpha_and_dose_rows(d: Path, frame_size) -> list[dict]:
-    t = pd.read_csv(d / "size_scaling.csv")
     floor = scaling.median_floor(*frame_size)
-    t["group"] = [scaling.scene_group(s) for s in t["scene"]]
-    t["median_above_floor"] = t["median_mse"] > floor
+    t = scaling.mark_groups(pd.read_csv(d / "size_scaling.csv"), floor)
     rows = claims._alpha_rows({"groups": scaling.group_fits(t), "median_floor": floor})
     rows += claims._dose_rows(pd.read_csv(d / "dose_curves.csv"), 0.95)
     return rows
