@@ -232,6 +232,8 @@ def test_contamination_per_frame_beside_the_union_over_views():
     old = d.drop(columns=["regions_pred_frame_4", "regions_meas_frame_4"])
     r = contamination.contamination(old).iloc[0]
     assert np.isnan(r["pred_frame_pct"]) and np.isnan(r["meas_frame_pct"]) and r["pred_fraction_pct"] == 100
-    # folded rows carry the per-frame sums too
-    f = folding.pair_columns_of_single(d)
+    # folded rows carry the per-frame sums too, and give the same shares
+    f = folding.fold_part(records.prepare(d), {})
     assert {"region_fpf_4_sum", "region_fmf_4_n"} <= set(f.columns)
+    cols = ["subset", "defense", "P", "pred_frame_pct", "meas_frame_pct", "pred_fraction_pct", "meas_fraction_pct"]
+    pd.testing.assert_frame_equal(contamination.contamination(f)[cols], t[cols])

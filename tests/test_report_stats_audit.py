@@ -130,6 +130,8 @@ def test_pc_claim_needs_every_stored_bit():
     # the measured value and its interval stay: the weighted rate of the cells sampled (the sign
     # cell, 3 of their 7 weight units, is catastrophic)
     assert r["measured"] == pytest.approx(100 * 3 / 7) and r["ci_lo"] < r["measured"] < r["ci_hi"]
+    # the plain mean over fields needs every field: two of six give no verdict either
+    assert t.loc[claims.PAPER["pc_none"][0], "verdict"] == "not measured"
 
 
 def test_pc_claim_over_every_field_and_bit_has_a_verdict():
@@ -163,6 +165,11 @@ def test_pc_claim_over_every_field_and_bit_has_a_verdict():
     # one event in the log-scale sign cell: 300 / 2 of 100 x 59 x 32 stored bits
     assert r["measured"] == pytest.approx(100 * 150 / (100 * 59 * 32))
     assert r["verdict"] in ("reproduced", "differs") and "covers" not in r["basis"]
+    # the plain mean of the six field rates: log-scales 1 event of 64 records (its 32 bits weigh
+    # alike), the others 0
+    r = t.loc[claims.PAPER["pc_none"][0]]
+    assert r["measured"] == pytest.approx(100 * (0.5 / 32) / 6)
+    assert r["verdict"] in ("reproduced", "differs") and r["ci_lo"] < r["measured"] < r["ci_hi"]
 
 
 @pytest.mark.parametrize(

@@ -37,7 +37,7 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from seuwgpu.analysis import claims, scaling  # noqa: E402
+from seuwgpu.analysis import claims, scaling, stats  # noqa: E402
 from seuwgpu.analysis import estimate as E  # noqa: E402
 from seuwgpu.report.format import markdown_table  # noqa: E402
 
@@ -81,10 +81,8 @@ def not_derivable(key: str, why: str) -> dict:
 
 
 def alpha_and_dose_rows(d: Path, frame_size) -> list[dict]:
-    t = pd.read_csv(d / "size_scaling.csv")
     floor = scaling.median_floor(*frame_size)
-    t["group"] = [scaling.scene_group(s) for s in t["scene"]]
-    t["median_above_floor"] = t["median_mse"] > floor
+    t = scaling.mark_groups(pd.read_csv(d / "size_scaling.csv"), floor)
     rows = claims._alpha_rows({"groups": scaling.group_fits(t), "median_floor": floor})
     rows += claims._dose_rows(pd.read_csv(d / "dose_curves.csv"), 0.95)
     return rows
@@ -92,8 +90,6 @@ def alpha_and_dose_rows(d: Path, frame_size) -> list[dict]:
 
 def paper_rows(d: Path) -> list[dict]:
     """The rows of issue 36's item 10 that the stored tables can give (module notes)."""
-    from scipy.stats import binomtest
-
     rows = []
     crit = pd.read_csv(d / "criticality.csv").set_index("field")
     for f in claims.PAPER_FIELD_RATES:
@@ -111,15 +107,15 @@ def paper_rows(d: Path) -> list[dict]:
     paired = pd.read_csv(d / "guard_paired.csv").set_index("precision").loc["all"]
     n, k = int(paired["pairs"]), int(paired["residual_catastrophic"])
     both = int(paired["catastrophic_none"]) - int(paired["neutralised"])
-    ci = binomtest(k, n).proportion_ci(0.95, method="wilson")
+    lo, hi = stats.wilson_interval(k, n, 0.95)
     basis = f"guard_paired.csv, every precision: {n:,} guarded sites; no per-model table"
     rows.append(claims._row("guard_worst_footprint", paired["worst_guarded_footprint_pct"], basis=basis))
     rows.append(
         claims._row(
             "guard_residual_share",
             100 * k / n,
-            100 * ci.low,
-            100 * ci.high,
+            100 * lo,
+            100 * hi,
             f"{k:,} residual of {n:,}; {basis}; Wilson; of the residual, {both:,} catastrophic without the guard "
             f"too (catastrophic_none - neutralised) and {k - both:,} turned catastrophic by it",
         )

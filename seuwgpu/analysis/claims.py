@@ -311,12 +311,6 @@ def claims_table(
             return 100 * E.wquantile(x["footprint"], x["weight"], 0.99)
 
         for key, fn in (("sign_mean", mean_fp), ("sign_p99", p99)):
-            per = pd.DataFrame(
-                [
-                    {"scene": k[0], "n_primitives": k[1], "v": fn(g)}
-                    for k, g in sign.groupby(population.MODEL, sort=False)
-                ]
-            )
             if key == "sign_p99" and len(sign) < 100:
                 # a resample's 99th percentile is at most the sample's largest value: with fewer
                 # than 100 records the bootstrap's upper bound is that value, not a bound
@@ -327,7 +321,7 @@ def claims_table(
                 rows.append(_row(key, fn(sign), basis=f"n = {len(sign):,}: one record a cell, no interval"))
                 continue
             basis = f"n = {len(sign):,}; pooled: bootstrap within cells"
-            rows.append(_over_models(key, per, "v", basis, conf, (fn(sign), lo, hi), scale=1.0))
+            rows.append(_over_models(key, _per_model(sign, fn), "v", basis, conf, (fn(sign), lo, hi), scale=1.0))
     else:
         rows += [_row("sign_mean"), _row("sign_p99")]
     est = {dfn: population.model_rates(df, "fp32", dfn, conf) for dfn in ("none", "guard")}

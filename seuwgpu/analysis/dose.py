@@ -86,9 +86,8 @@ def at_dose_per_primitive(curves: pd.DataFrame, k_per_n: float, column: str = "p
 def fit_dose_model(k, events, n, conf: float = 0.95) -> dict:
     """Maximum-likelihood p of P(k) = 1 - (1-p)^k from binomial counts (events of n at each k);
     profile-likelihood interval; deviance G^2, degrees of freedom and p-value of the fit."""
-    require("scipy", "analysis", "the dose-model fit")
-    from scipy.optimize import brentq, minimize_scalar
-    from scipy.stats import chi2
+    optimize = require("scipy.optimize", "analysis", "the dose-model fit")
+    chi2 = require("scipy.stats", "analysis", "the dose-model fit's interval").chi2
 
     k = np.asarray(k, float)
     x = np.asarray(events, float)
@@ -114,7 +113,7 @@ def fit_dose_model(k, events, n, conf: float = 0.95) -> dict:
     if x.sum() == 0:
         p_hat, f_hat = 0.0, 0.0
     else:
-        res = minimize_scalar(nll, bounds=(lo_b, hi_b), method="bounded", options={"xatol": 1e-10})
+        res = optimize.minimize_scalar(nll, bounds=(lo_b, hi_b), method="bounded", options={"xatol": 1e-10})
         p_hat, f_hat = math.exp(res.x), float(res.fun)
     cut = float(chi2.ppf(conf, 1)) / 2
 
@@ -125,8 +124,8 @@ def fit_dose_model(k, events, n, conf: float = 0.95) -> dict:
     # around the MLE (where excess = -cut < 0): each end is the root of `excess` between the MLE
     # and that bound, or the bound itself when excess stays <= 0 up to it
     mid = math.log(p_hat) if p_hat > 0 else lo_b
-    lo = lo_b if excess(lo_b) <= 0 else brentq(excess, lo_b, mid, xtol=1e-12)
-    hi = hi_b if excess(hi_b) <= 0 else brentq(excess, mid, hi_b, xtol=1e-12)
+    lo = lo_b if excess(lo_b) <= 0 else optimize.brentq(excess, lo_b, mid, xtol=1e-12)
+    hi = hi_b if excess(hi_b) <= 0 else optimize.brentq(excess, mid, hi_b, xtol=1e-12)
     out["p_lo"] = 0.0 if x.sum() == 0 else float(math.exp(lo))
     out["p_hi"] = float(math.exp(hi))
     # deviance against the saturated model (each k its own rate)

@@ -59,6 +59,14 @@ def scene_group(scene: str) -> str:
     return PROCEDURAL if scene in SCENES else CAPTURE
 
 
+def mark_groups(table: pd.DataFrame, floor: float) -> pd.DataFrame:
+    """Adds each row's experiment (group) and whether its median rises above `floor` (a NaN floor:
+    above 0), the columns `group_fits` reads; the table, changed in place."""
+    table["group"] = [scene_group(x) for x in table["scene"]]
+    table["median_above_floor"] = table["median_mse"] > floor if np.isfinite(floor) else table["median_mse"] > 0
+    return table
+
+
 def size_scaling(df: pd.DataFrame, conf: float = 0.95, frame_size: tuple[int, int] | None = None) -> dict:
     """Returns {"table", "fits", "guard_factor", "source_campaign", "fields", "bits"}: the last two
     are what the upsets sampled (the error is over those, not over every stored bit)."""
@@ -101,8 +109,7 @@ def size_scaling(df: pd.DataFrame, conf: float = 0.95, frame_size: tuple[int, in
         )
     table = sort_rows(pd.DataFrame(rows).sort_values(["scene", "n_primitives"]))
     floor = median_floor(*frame_size) if frame_size else np.nan
-    table["group"] = [scene_group(x) for x in table["scene"]]
-    table["median_above_floor"] = table["median_mse"] > floor if np.isfinite(floor) else table["median_mse"] > 0
+    mark_groups(table, floor)
     tag(table, d, source_campaign=src)
     frows = []
     for key, g in table.groupby(["scene", "precision", "defense"], sort=False):
