@@ -91,10 +91,10 @@ __all__ = [
 
 PRECISIONS = tuple(encoding.PRECISIONS)
 FRAME_FORMATS = ("png", "tiff", "npz")
-MODEL_FORMATS = ("ply", "spz")
-"""Files Injection.save_models writes: INRIA PLY (float32) and Niantic SPZ."""
 """png: 8-bit display frames (clipped to [0, 1], non-finite pixels black); tiff: float32,
 unclamped, non-finite values kept; npz: all frames of a call in one float32 array."""
+MODEL_FORMATS = ("ply", "spz")
+"""Files Injection.save_models writes: INRIA PLY (float32) and Niantic SPZ."""
 
 Scene = Source
 """A loaded model (`.model`), its display name (`.name`), the up axis that frames it (`.up`) and
@@ -268,7 +268,7 @@ class Injection:
         path.write_text(json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n")
         return [*files, path]
 
-    def save_models(self, out: str | Path, *, formats: Iterable[str] = ("ply", "spz")) -> list[Path]:
+    def save_models(self, out: str | Path, *, formats: Iterable[str] = MODEL_FORMATS) -> list[Path]:
         """The faulted model and each defense's repaired one (`models`) as model files a splat viewer
         opens: `faulted.ply`, `guard.ply`, ... (INRIA PLY: float32, so at fp32 the flipped bit is
         there bit for bit) and `.spz` (Niantic SPZ, quantized; a model with a non-finite value has

@@ -216,6 +216,8 @@ def test_layout_against_independent_reference(precision):
     lay = StoredLayout(n, degree, precision, chunk)
     words = lay.encode(m)
     bits = encoding.to_bits(m.flat(), precision)
+    # encode_bits packs given bit patterns into the same words (one packing, StoredLayout._words)
+    assert all(np.array_equal(a, b) for a, b in zip(words, lay.encode_bits(bits), strict=True))
     half = encoding.bits_per_value(precision) == 16
     plane_words = chunk // 2 if half else chunk
     assert lay.plane_words == plane_words

@@ -222,8 +222,7 @@ class StoredLayout:
         out = []
         for k in range(self.n_chunks):
             a, b = self.chunk_range(k)
-            # bit planes [components, chunk_prims]; a little-endian word's low half is the even
-            # primitive's value (as _words packs it)
+            # bit planes [components, chunk_prims], packed into words by _words
             planes = np.zeros((self.ncomp, self.chunk_prims), dtype="<u2" if self.halves else "<u4")
             c = 0
             for f in FIELDS:
@@ -233,7 +232,7 @@ class StoredLayout:
                     e = min(b, s + self.ENCODE_ROWS)
                     planes[c : c + width, s - a : e - a] = encoding.to_bits(values[s:e], self.precision).T
                 c += width
-            out.append(np.ascontiguousarray(planes.view("<u4").reshape(-1), dtype=np.uint32))
+            out.append(self._words(planes))
         return out
 
     def encode_bits(self, bits: np.ndarray) -> list[np.ndarray]:
@@ -249,13 +248,11 @@ class StoredLayout:
 
     def _words(self, planes: np.ndarray) -> np.ndarray:
         """Bit planes [P, chunk_prims] (uint32 or uint16) -> their flat u32 words (P planes:
-        the chunk's ncomp, or one)."""
+        the chunk's ncomp, or one). 16-bit values two to a word, the even primitive's in the low
+        half: the little-endian u16 pairs read as u32 (no shifts, no copy of u16 planes)."""
         if self.halves:
-            p = planes.astype(np.uint32).reshape(planes.shape[0], self.plane_words, 2)
-            words = p[:, :, 0] | (p[:, :, 1] << 16)
-        else:
-            words = planes.astype(np.uint32, copy=False)
-        return np.ascontiguousarray(words.reshape(-1))
+            planes = np.ascontiguousarray(planes, dtype="<u2").view("<u4")
+        return np.ascontiguousarray(planes.reshape(-1), dtype=np.uint32)
 
     def chunk_values(self, k: int, words: np.ndarray) -> np.ndarray:
         """Chunk k's stored values as float32 planes [components, the chunk's primitives] (at fp32

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 from pathlib import Path
 
 from seuwgpu.apps.cli.command import Command
@@ -55,6 +56,26 @@ def partial_records(args, src, cams, name: str, records, **options):
         **options,
     }
     return PartialRecords(args.out / f"{name}.partial.parquet", run, records)
+
+
+def add_resumable_out(s: argparse.ArgumentParser, name: str, results: str):
+    s.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help=f"folder for {results} (an interrupted run keeps {name}.partial.parquet: re-run the same "
+        "command to resume it)",
+    )
+
+
+@contextlib.contextmanager
+def resumable(args, src, cams, name: str, records, unit: str, total: int, **options):
+    """The frame of a resumable command (`storm`, `state`) around its measuring and the writing of
+    its results: the partial records (`partial_records`, read before any rendering) and a bar of
+    `total` `unit`s. Yields (rows, progress) for the API call."""
+    partial = partial_records(args, src, cams, name, records, **options)
+    with partial.kept() as rows, ProgressBar(unit, total, len(rows)) as bar:
+        yield rows, partial.progress(bar.advance)
 
 
 def pd_display():
@@ -218,13 +239,7 @@ def storm_arguments(s: argparse.ArgumentParser):
         metavar="DEFENSE",
         help=f"arms, each seeing the same upsets (default none guard parity4r; {', '.join(DEFENSE_NAMES)})",
     )
-    s.add_argument(
-        "--out",
-        type=Path,
-        required=True,
-        help="folder for storm.parquet and storm.png (an interrupted run keeps storm.partial.parquet: re-run "
-        "the same command to resume it)",
-    )
+    add_resumable_out(s, "storm", "storm.parquet and storm.png")
 
 
 def cmd_storm(args):
@@ -239,23 +254,22 @@ def cmd_storm(args):
     defenses = list(dict.fromkeys(args.defense))  # a defense named twice is one arm
     options = {"k": args.k, "frames": args.frames, "scrub-every": args.scrub_every, "defense": defenses}
     options["check-every"] = args.check_every
-    partial = partial_records(args, src, cams, "storm", storm_records, **options)  # before any rendering
-    with partial.kept() as rows:
-        with ProgressBar("frames", args.frames * len(defenses), len(rows)) as bar:
-            df = api.storm(
-                src,
-                cams,
-                k=args.k,
-                frames=args.frames,
-                scrub_every=args.scrub_every,
-                defenses=defenses,
-                seed=args.seed,
-                precision=args.precision,
-                profile=args.profile,
-                progress=partial.progress(bar.advance),
-                rows=rows,
-                check_every=args.check_every,
-            )
+    frames = args.frames * len(defenses)
+    with resumable(args, src, cams, "storm", storm_records, "frames", frames, **options) as (rows, progress):
+        df = api.storm(
+            src,
+            cams,
+            k=args.k,
+            frames=args.frames,
+            scrub_every=args.scrub_every,
+            defenses=defenses,
+            seed=args.seed,
+            precision=args.precision,
+            profile=args.profile,
+            progress=progress,
+            rows=rows,
+            check_every=args.check_every,
+        )
         df.to_parquet(args.out / "storm.parquet", index=False)
         storm_figure(df).savefig(args.out / "storm.png", dpi=120)
     summary = df.groupby("defense", sort=False).agg(
@@ -285,13 +299,7 @@ def state_arguments(s: argparse.ArgumentParser):
     )
     s.add_argument("--samples", type=positive_int, default=10, help="flips per (target, bit) cell")
     s.add_argument("--bit", type=word_bit, nargs="+", help="bits 0..31 (default: all 32)")
-    s.add_argument(
-        "--out",
-        type=Path,
-        required=True,
-        help="folder for state.parquet and state_criticality.csv (an interrupted run keeps "
-        "state.partial.parquet: re-run the same command to resume it)",
-    )
+    add_resumable_out(s, "state", "state.parquet and state_criticality.csv")
 
 
 def cmd_state(args):
@@ -306,21 +314,20 @@ def cmd_state(args):
     cams = load_cams(args, src)
     targets, bits = list(dict.fromkeys(args.targets)), list(dict.fromkeys(args.bit or range(32)))
     options = {"targets": targets, "samples": args.samples, "bit": bits}
-    partial = partial_records(args, src, cams, "state", pd.DataFrame, **options)  # before any rendering
-    with partial.kept() as rows:
-        with ProgressBar("flips", len(targets) * len(bits) * args.samples, len(rows)) as bar:
-            df = api.state_flips(
-                src,
-                cams,
-                targets=targets,
-                samples=args.samples,
-                bits=bits,
-                seed=args.seed,
-                precision=args.precision,
-                profile=args.profile,
-                progress=partial.progress(bar.advance),
-                rows=rows,
-            )
+    flips = len(targets) * len(bits) * args.samples
+    with resumable(args, src, cams, "state", pd.DataFrame, "flips", flips, **options) as (rows, progress):
+        df = api.state_flips(
+            src,
+            cams,
+            targets=targets,
+            samples=args.samples,
+            bits=bits,
+            seed=args.seed,
+            precision=args.precision,
+            profile=args.profile,
+            progress=progress,
+            rows=rows,
+        )
         df.to_parquet(args.out / "state.parquet", index=False)
         t = state_table(df)
         (args.out / "state_criticality.csv").write_text(t.to_csv(index=False))

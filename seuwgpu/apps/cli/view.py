@@ -100,7 +100,7 @@ def cmd_view(args):
         model,
         name,
         args.precision,
-        tuple(args.size or args.default_size),
+        args.size,  # the window: --size, default 960x600
         orbit=orbit,
         backend=backend,
         sample=args.sample,
