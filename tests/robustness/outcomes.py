@@ -66,8 +66,8 @@ def run_cli(argv, env=None) -> Outcome:
             warnings.simplefilter("default")
             try:
                 rc = main([str(a) for a in argv])
-            except SystemExit as e:  # argparse
-                rc = e.code if isinstance(e.code, int) else 2
+            except SystemExit as e:  # argparse; any other code as the interpreter reads it
+                rc = e.code if isinstance(e.code, int) else 0 if e.code is None else 1
             except Exception:  # a traceback is what these tests look for: kept to be shown
                 tb = True
                 err.write(traceback.format_exc())
