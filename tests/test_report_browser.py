@@ -194,6 +194,27 @@ def report(tmp_path_factory) -> Path:
     return build_report([tmp / "run"], tmp / "report")
 
 
+def test_the_browser_check_sees_a_broken_image_and_console_errors(browser, tmp_path):
+    """The report test passes only if this harness reports what breaks a page: without this, a
+    Chromium that stopped sending those events would let any report through."""
+    page = tmp_path / "broken.html"
+    page.write_text(
+        "<html><body><img alt='gone' src='missing.png'>"
+        "<script>console.error('boom')</script><script>throw new Error('uncaught')</script></body></html>"
+    )
+    tools = DevTools(browser)
+    try:
+        tools.open_page(page.as_uri())
+        state = tools.evaluate(PAGE_STATE)
+        errors = tools.errors()
+    finally:
+        tools.close()
+    assert state["images"] == [{"alt": "gone", "complete": True, "width": 0}]
+    assert any(e.startswith("log (network):") and "missing.png" in e for e in errors), errors
+    assert "console: boom" in errors, errors
+    assert any(e.startswith("exception:") for e in errors), errors
+
+
 @pytest.mark.slow  # it runs a campaign and builds its report first
 def test_the_report_in_headless_chromium(browser, report):
     out = report.parent

@@ -66,8 +66,8 @@ def run_cli(argv, env=None) -> Outcome:
             warnings.simplefilter("default")
             try:
                 rc = main([str(a) for a in argv])
-            except SystemExit as e:  # argparse
-                rc = e.code if isinstance(e.code, int) else 2
+            except SystemExit as e:  # argparse; any other code as the interpreter reads it
+                rc = e.code if isinstance(e.code, int) else 0 if e.code is None else 1
             except Exception:  # a traceback is what these tests look for: kept to be shown
                 tb = True
                 err.write(traceback.format_exc())
@@ -80,8 +80,8 @@ def run_cli(argv, env=None) -> Outcome:
     return Outcome(rc, out.getvalue(), err.getvalue(), tb)
 
 
-def assert_clear_error(o: Outcome, argv=()):
-    """Exit status 2 (3 for `view`) with one line saying `error:` and no traceback."""
+def assert_clear_error(o: Outcome, argv=(), says: str = ""):
+    """Exit status 2 (3 for `view`) with one line saying `error:` (and `says`) and no traceback."""
     assert not o.traceback, f"traceback:\n{o.err}"
     assert not o.timeout, "timed out"
     assert o.rc != 0, f"silent wrong: exit 0 where an error was due; stdout: {o.out[-300:]}"
@@ -89,6 +89,7 @@ def assert_clear_error(o: Outcome, argv=()):
     errors = [line for line in o.err.splitlines() if "error:" in line or "seuwgpu view:" in line]
     is_view = o.rc == 3 and "view" in [str(a) for a in argv][:1]
     assert len(errors) == 1 or is_view, f"exit {o.rc} without a one-line error: {o.err[-500:]}"
+    assert not says or any(says in line for line in errors), f"the error does not say '{says}': {o.last}"
 
 
 def assert_correct(o: Outcome, check=None, stderr_has: str = ""):
@@ -103,10 +104,12 @@ def assert_correct(o: Outcome, check=None, stderr_has: str = ""):
 
 
 def expect_outcome(argv, expect: str, check=None, env=None, stderr_has: str = ""):
-    """Run argv in this process and assert the outcome `expect` ("error" or "ok")."""
+    """Run argv in this process and assert the outcome `expect` ("error" or "ok"); `stderr_has`:
+    what stderr must hold, for an error its error line (where another error could stand in for
+    the one due)."""
     o = run_cli(argv, env)
     if expect == "error":
-        assert_clear_error(o, argv)
+        assert_clear_error(o, argv, stderr_has)
     else:
         assert_correct(o, check, stderr_has)
     return o

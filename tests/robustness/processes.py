@@ -93,15 +93,8 @@ def kept_after(argv) -> str:
     name, folder = str(argv[0]), out_dir(argv)
     if name in ("storm", "state"):
         partial = folder / f"{name}.partial.parquet"
-        if not partial.exists():
-            return ""
-        import pyarrow.parquet as pq
-
-        try:
-            pq.read_metadata(partial)
-        except (OSError, ValueError) as e:
-            return f"{partial.name} unreadable after the interrupt: {e}"
-        return ""
+        unreadable = partial.exists() and store.part_rows(partial) is None  # its Parquet footer
+        return f"{partial.name} unreadable after the interrupt" if unreadable else ""
     parts = store.part_files(folder) if folder.exists() else []
     broken = [p.name for p in parts if not store.part_rows(p)]
     return f"damaged parts after the interrupt: {broken}" if broken else ""
