@@ -100,13 +100,29 @@ def kept_after(argv) -> str:
     return f"damaged parts after the interrupt: {broken}" if broken else ""
 
 
+def left_work(argv) -> bool:
+    """Whether the run in argv's folder has something left to do: a campaign's parts not all
+    written, a storm's or state's records not yet final."""
+    name, folder = str(argv[0]), out_dir(argv)
+    if name in ("storm", "state"):
+        return not (folder / f"{name}.parquet").exists()
+    manifest = store.read_manifest(folder)
+    if manifest is None:
+        return True
+    want = store.expected_parts(manifest["spec"])
+    return len(store.completed_parts(folder, want)) < len(want)
+
+
 def interrupted_then_resumed(argv, sig, delay: float, times: int, after: str = "part") -> Outcome:
     """Interrupt `times` runs of argv, each `delay` s after its sign of progress, checking what
     each left; then run it to the end. A graceful signal (SIGINT, SIGTERM) must end a run with its
-    exit status and message, or let it end well."""
+    exit status and message, or let it end well. At least one interrupt must leave work to resume:
+    a case whose signals all come after the run's end would test nothing."""
+    cut_short = 0
     for _ in range(times):
         rc, e, _ = interrupt_once(argv, sig, delay, after)
         assert b"Traceback" not in e, e.decode()
+        cut_short += left_work(argv)
         if sig in GRACEFUL:
             code, said = GRACEFUL[sig]
             assert rc in (0, code), f"exit {rc} after {signal.Signals(sig).name}: {e.decode()[-500:]}"
@@ -114,6 +130,7 @@ def interrupted_then_resumed(argv, sig, delay: float, times: int, after: str = "
                 assert said in e, f"{signal.Signals(sig).name} without the '{said.decode()}' message: {e.decode()}"
                 fault = kept_after(argv)
                 assert not fault, fault
+    assert cut_short, f"every {signal.Signals(sig).name} came after the run had done its work: nothing was resumed"
     return run(argv)
 
 
