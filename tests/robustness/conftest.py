@@ -54,14 +54,3 @@ def fresh(work):
         return work / f"{stem}{next(_counter)}{suffix}"
 
     return make
-
-
-def pytest_collection_modifyitems(config, items):
-    """`heavy` tests run only when the marker expression names them (`-m heavy`): they take
-    minutes, more than CI's budget for the whole suite allows."""
-    if "heavy" in (config.getoption("markexpr") or ""):
-        return
-    skip = pytest.mark.skip(reason="minutes of processes or memory: run with -m heavy")
-    for item in items:
-        if item.get_closest_marker("heavy"):
-            item.add_marker(skip)
