@@ -248,6 +248,8 @@ def test_view_times_are_measured_once_per_run_and_kept_for_a_resume(reference_ru
     spec, _ = reference_run
     run = tmp_path / "run"
     Runner(spec, run, quiet=True).run()
+    said = store.read_manifest(run)["time_ms"]  # the manifest states the rule the engine applies
+    assert f"{Engine.VIEW_TIME_ROUNDS} rounds" in said and f"as fit {Engine.VIEW_TIME_BUDGET_S:g} s" in said
     files = sorted((run / "view_times").glob("*.json"))
     assert [f.name for f in files] == ["dose-scene0-n1500-fp32.json", "single-scene0-n1500-fp32.json"]
     stored = {f.name.split("-")[0]: store.read_view_times(run, f.stem) for f in files}

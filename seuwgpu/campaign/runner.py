@@ -69,6 +69,7 @@ class Runner:
         old = store.read_manifest(self.out)
         store.check_same_run(self.out, old, self.spec, self.hash)
         if old is None or old.get("spec_hash") != self.hash:
+            from seuwgpu.faults.engine import Engine
             from seuwgpu.gpu.device import get_gpu
 
             self.check_files()
@@ -88,8 +89,9 @@ class Runner:
                 "region_grid": REGION_GRID_VERSION,
                 "time_ms": "median render time of one view (view 0, rendered alone) of the clean model under "
                 "the defense's in-pipeline guard: the defenses timed interleaved just after the clean render "
-                "(no warm-up round), 9 rounds or as many (at least 2) as fit 3 s, once per engine and run (the rounds "
-                "are in view_times/)",
+                f"(no warm-up round), {Engine.VIEW_TIME_ROUNDS} rounds or as many (at least "
+                f"{Engine.VIEW_TIME_LEAST_ROUNDS}) as fit {Engine.VIEW_TIME_BUDGET_S:g} s, once per engine and run "
+                "(the rounds are in view_times/)",
             }
             if old is not None:
                 store.forget_view_times(self.out)  # measured for the spec this one replaces

@@ -346,14 +346,15 @@ class Engine:
     VIEW_TIME_BUDGET_S = 3.0
     """Seconds the defenses' view times may take once VIEW_TIME_LEAST_ROUNDS rounds ran."""
     VIEW_TIME_LEAST_ROUNDS = 2
+    VIEW_TIME_ROUNDS = 9
 
-    def view_time_samples(self, defenses=("none",), repeats: int = 9) -> dict:
+    def view_time_samples(self, defenses=("none",), repeats: int = VIEW_TIME_ROUNDS) -> dict:
         """{defense: [ms of each round]}: wall time of rendering one view of the model as it is now
         under each defense's in-pipeline guard: view 0 rendered alone and waited for where the
         renderer draws its views one at a time (an incremental engine keeps them, so it does;
         timing all K cost a 1M-primitive campaign K times as much), else its K batched views over K.
         The defenses are timed interleaved, round by round, so a drift of the machine's load hits
-        them alike: `repeats` rounds, or as many (at least VIEW_TIME_LEAST_ROUNDS) as fit
+        them alike: `repeats` (VIEW_TIME_ROUNDS) rounds, or as many (at least VIEW_TIME_LEAST_ROUNDS) as fit
         VIEW_TIME_BUDGET_S. No warm-up round: the clean capture (_set_up_views) ran these
         pipelines on these views just before, and the guard is a uniform, not a pipeline (a
         warm-up round cost a 1M-primitive campaign a view per defense)."""
@@ -369,7 +370,7 @@ class Engine:
         per = 1 if views else self.k
         return {d: [1e3 * s / per for s in v] for d, v in samples.items()}
 
-    def view_times_ms(self, defenses=("none",), repeats: int = 9) -> dict:
+    def view_times_ms(self, defenses=("none",), repeats: int = VIEW_TIME_ROUNDS) -> dict:
         """{defense: median ms of view_time_samples}: the records' time_ms; the mitigation table's
         time cost comes from it, in the same run."""
         return {d: float(np.median(v)) for d, v in self.view_time_samples(defenses, repeats).items()}
