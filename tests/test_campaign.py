@@ -308,18 +308,20 @@ def test_warm_up_compiles_every_pipeline_an_engine_of_that_shape_uses(monkeypatc
 
 def test_a_replaced_run_forgets_the_view_times_of_its_old_spec(tmp_path):
     """A run directory without parts may be taken by another spec (check_same_run): the view times
-    measured for the old one (another size, other defenses) are not the new run's."""
+    and guard notes measured for the old one (another size, other defenses) are not the new run's."""
     raw = {"views": 1, "size": "32x32", "scenes": [{"scene": "blocks", "n": 500}], "single": {"samples": 1}}
     old, new = normalize_spec(raw), normalize_spec({**raw, "size": "48x32"})
     run = tmp_path / "run"
     Runner(old, run).prepare_dir()
     store.claim_view_times(run, "single-scene0-n500-fp32", {"time_ms": {"none": 1.0, "guard": 1.0}})
-    Runner(old, run).prepare_dir()  # the same spec resumed: its view times stay
-    assert store.read_view_times(run, "single-scene0-n500-fp32") is not None
+    note = store.guard_note_path(run, "blocks", "fp32", "strict")
+    store.write_guard_note(run, "blocks", "fp32", "strict", {"nonfinite_values": {"opacity": 1}})
+    Runner(old, run).prepare_dir()  # the same spec resumed: what it measured stays
+    assert store.read_view_times(run, "single-scene0-n500-fp32") is not None and note.exists()
     replacing = Runner(new, run)
     replacing.prepare_dir()
     assert store.read_manifest(run)["spec_hash"] == replacing.hash != Runner(old, run).hash
-    assert store.read_view_times(run, "single-scene0-n500-fp32") is None
+    assert store.read_view_times(run, "single-scene0-n500-fp32") is None and not note.exists()
 
 
 def test_changed_spec_is_refused(reference_run, tmp_path):

@@ -94,7 +94,7 @@ class Runner:
                 "(the rounds are in view_times/)",
             }
             if old is not None:
-                store.forget_view_times(self.out)  # measured for the spec this one replaces
+                store.forget_measurements(self.out)  # measured for the spec this one replaces
             store.write_manifest(self.out, manifest)
         store.remove_stale_temps(rec)
 

@@ -542,10 +542,13 @@ def view_times_path(run_dir, key: str) -> Path:
     return Path(run_dir) / "view_times" / f"{key}.json"
 
 
-def forget_view_times(run_dir):
-    """Remove a run's view times: the run directory is taken by another spec (check_same_run lets
-    one without parts be), and they were measured for the old one."""
+def forget_measurements(run_dir):
+    """Remove what a run measured beside its records (view times, guard notes): the run directory
+    is taken by another spec (check_same_run lets one without parts be), and they were measured
+    for the old one."""
     shutil.rmtree(view_times_path(run_dir, "").parent, ignore_errors=True)
+    for note in Path(run_dir).glob(guard_note_path(run_dir, "*", "*", "*").name):
+        note.unlink(missing_ok=True)
 
 
 def read_view_times(run_dir, key: str) -> dict | None:
