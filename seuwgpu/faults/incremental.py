@@ -142,8 +142,9 @@ class IncrementalEvaluator:
                 results.setdefault(k2, []).append(v2)
         out = {k2: np.concatenate(v2) for k2, v2 in results.items()}
         for P in regions:
-            out[f"regions_pred_{P}"] = comp.predicted_regions(new, P)
-            out[f"regions_pred_frame_{P}"] = comp.predicted_regions(new, P, per_view=True).mean(axis=0)
+            masks, shares = comp.predicted_regions(new, P)
+            out[f"regions_pred_{P}"] = masks
+            out[f"regions_pred_frame_{P}"] = shares.mean(axis=0)
         return out
 
     def _recomposite(self, lane: Lane, prims, dirty, first: int, regions=()):

@@ -279,10 +279,10 @@ class IncrementalCompositor:
     def read_changed(self, n: int) -> np.ndarray:
         return self.compositing.read_changed(n)
 
-    def predicted_regions(self, new_rects: np.ndarray, P: int, per_view: bool = False) -> np.ndarray:
+    def predicted_regions(self, new_rects: np.ndarray, P: int) -> tuple[np.ndarray, np.ndarray]:
         """Regions of the P-way sort-first grid that each variant primitive's tile rectangle (its
-        projected 3.33-sigma footprint, as binned) reaches in any view, as int64 bitmasks [M];
-        per_view: instead the share of the regions it reaches in each view's frame, [K, M].
+        projected 3.33-sigma footprint, as binned) reaches: (in any view, as int64 bitmasks [M];
+        the share of the P regions it reaches in each view's frame, [K, M]).
         new_rects [K, M, 4] in tiles."""
         r = self.r
         ey, ex = region_edges(P, r.height, r.width)
@@ -294,8 +294,7 @@ class IncrementalCompositor:
         hit_y = (ey[None, None, :-1] < y1[..., None]) & (ey[None, None, 1:] > y0[..., None])  # [K, M, rows]
         hit_x = (ex[None, None, :-1] < x1[..., None]) & (ex[None, None, 1:] > x0[..., None])  # [K, M, cols]
         hit = hit_y[..., :, None] & hit_x[..., None, :] & nonempty[..., None, None]  # [K, M, rows, cols]
-        if per_view:  # the share of the P regions each view's frame reaches, [K, M]
-            return hit.reshape(hit.shape[0], hit.shape[1], -1).sum(axis=2) / float(rows * cols)
+        shares = hit.reshape(hit.shape[0], hit.shape[1], -1).sum(axis=2) / float(rows * cols)
         hit = hit.any(axis=0)  # [M, rows, cols]
         weights = np.left_shift(np.uint64(1), np.arange(rows * cols, dtype=np.uint64))
-        return (hit.reshape(hit.shape[0], -1).astype(np.uint64) * weights).sum(axis=1).view(np.int64)
+        return (hit.reshape(hit.shape[0], -1).astype(np.uint64) * weights).sum(axis=1).view(np.int64), shares
