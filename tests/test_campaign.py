@@ -295,15 +295,21 @@ def test_warm_up_compiles_every_pipeline_an_engine_of_that_shape_uses(monkeypatc
     eng = Engine(scenes.make_scene("blocks", 1500), views, gpu=gpu)
     eng.evaluate_frame([eng.site("opacity", 3, 0, 30), eng.site("means", 9, 1, 29)], ("none", "guard"), ())
     assert gpu._pipelines == compiled
+    Engine.warm_up(views, "fp32", "strict", True, gpu, sh_degree=0)  # the projection depends on the degree
+    compiled = dict(gpu._pipelines)
+    eng = Engine(scenes.make_scene("blocks", 1500, sh_degree=0), views, gpu=gpu)
+    eng.evaluate_frame([eng.site("opacity", 3, 0, 30)], ("none", "guard"), ())
+    assert gpu._pipelines == compiled
     monkeypatch.setattr(scenes, "make_scene", lambda *a, **k: pytest.fail("warmed twice"))
     Engine.warm_up(views, "fp32", "strict", True, gpu)
     monkeypatch.undo()
     single = {"fields": ["opacity"], "bits": [31], "samples": 1}
-    spec = normalize_spec({"views": 3, "size": "40x16", "scenes": [{"scene": "blocks", "n": 500}], "single": single})
+    scene = {"scene": "blocks", "n": 500, "sh_degree": 1}
+    spec = normalize_spec({"views": 3, "size": "40x16", "scenes": [scene], "single": single})
     runner = Runner(spec, Path("unused"), gpu=gpu)
     shapes = set(Engine._warmed[gpu])
     runner.engine_for(runner.contexts[0])
-    assert Engine._warmed[gpu] - shapes == {(3, 40, 16, "fp32", "strict", True)}
+    assert Engine._warmed[gpu] - shapes == {(3, 40, 16, "fp32", "strict", True, 1)}
 
 
 def test_a_replaced_run_forgets_the_view_times_of_its_old_spec(tmp_path):

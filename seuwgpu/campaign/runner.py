@@ -244,8 +244,11 @@ class Runner:
         with ThreadPoolExecutor(1) as pool:
             warm = None
             if stand_in:
+                # a model file's degree is known once read (a new run's file check reads it first)
+                read = self._read and self._read[0] == ctx.scene_index and self._read[1].model
+                degree = read.sh_degree if sc.model and read else sc.sh_degree
                 profile = self.spec.renderer_profile
-                warm = pool.submit(Engine.warm_up, stand_in, ctx.precision, profile, not self.full, gpu)
+                warm = pool.submit(Engine.warm_up, stand_in, ctx.precision, profile, not self.full, gpu, degree)
             if sc.model:
                 src = self.file_source(ctx.scene_index)
             else:

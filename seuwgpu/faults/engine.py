@@ -113,20 +113,28 @@ class Engine:
     _warmed: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # GPU -> engine shapes warmed
 
     @classmethod
-    def warm_up(cls, cameras: list[Camera], precision: str, profile: str, incremental: bool, gpu: GPU | None = None):
+    def warm_up(
+        cls,
+        cameras: list[Camera],
+        precision: str,
+        profile: str,
+        incremental: bool,
+        gpu: GPU | None = None,
+        sh_degree: int = 3,
+    ):
         """Compile the pipelines an engine of these views uses (the GPU caches them, gpu/device.py)
         by building one, and its evaluator, on a stand-in scene of WARM_UP_PRIMITIVES primitives.
         The campaign runner runs it on a thread while the model is read or made: on lavapipe the
         compiles take seconds, and they depend only on the number and size of the views, the
-        precision and the profile (each shape is warmed once per GPU)."""
+        precision, the profile and the SH degree (each shape is warmed once per GPU)."""
         from seuwgpu.model.scenes import make_scene
 
         gpu = gpu or get_gpu()
-        shape = (len(cameras), cameras[0].width, cameras[0].height, precision, profile, incremental)
+        shape = (len(cameras), cameras[0].width, cameras[0].height, precision, profile, incremental, sh_degree)
         done = cls._warmed.setdefault(gpu, set())
         if shape in done:
             return
-        model = make_scene("spheres", cls.WARM_UP_PRIMITIVES)
+        model = make_scene("spheres", cls.WARM_UP_PRIMITIVES, sh_degree=sh_degree)
         eng = cls(model, cameras, precision, gpu=gpu, scene="warm-up", incremental=incremental, profile=profile)
         if incremental:
             eng.evaluator  # noqa: B018 (built for its pipelines)
