@@ -237,3 +237,20 @@ def test_contamination_per_frame_beside_the_union_over_views():
     assert {"region_fpf_4_sum", "region_fmf_4_n"} <= set(f.columns)
     cols = ["subset", "defense", "P", "pred_frame_pct", "meas_frame_pct", "pred_fraction_pct", "meas_fraction_pct"]
     pd.testing.assert_frame_equal(contamination.contamination(f)[cols], t[cols])
+
+
+def test_the_equal_slopes_test_on_exact_fits():
+    """Two sets of exact power laws: with different slopes the test is certain (F = inf, p = 0);
+    with the same slope it has nothing to weigh (NaN, never a made-up F or p)."""
+    n = np.array([1e3, 1e4, 1e5, 1e6] * 2)
+    groups = np.repeat(["a", "b"], 4)
+    sets = np.repeat(["procedural", "capture"], 4)
+    differ = np.where(sets == "procedural", n**0.5, 3.0 * n**0.2)
+    F, p, dof = scaling.slopes_equal_test(groups, sets, n, differ)
+    assert (F, p, dof) == (np.inf, 0.0, 4)
+    same = np.where(sets == "procedural", n**0.5, 3.0 * n**0.5)
+    F, p, dof = scaling.slopes_equal_test(groups, sets, n, same)
+    assert np.isnan(F) and np.isnan(p) and dof == 4
+    noisy = same * np.array([1.0, 1.1, 0.95, 1.02, 1.0, 0.9, 1.05, 1.0])
+    F, p, dof = scaling.slopes_equal_test(groups, sets, n, noisy)
+    assert np.isfinite(F) and 0.0 <= p <= 1.0

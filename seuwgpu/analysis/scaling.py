@@ -193,8 +193,13 @@ def slopes_equal_test(groups, sets, x, y) -> tuple[float, float, int]:
     f_dist = require("scipy.stats", "analysis", "the equal-slopes F test").f
 
     extra = d["s"].nunique() - 1
-    F = ((ss_one - ss_sep) / extra) / (ss_sep / dof) if ss_sep > 0 else np.inf
-    return float(F), float(f_dist.sf(F, extra, dof)) if np.isfinite(F) else 0.0, int(dof)
+    exact = 1e-12 * float(((d["y"] - d["y"].mean()) ** 2).sum())  # residuals below it are rounding
+    if ss_sep > exact:
+        F = ((ss_one - ss_sep) / extra) / (ss_sep / dof)
+        return float(F), float(f_dist.sf(F, extra, dof)), int(dof)
+    if ss_one - ss_sep > exact:  # one slope per set fits exactly, one for all does not: they differ
+        return np.inf, 0.0, int(dof)
+    return np.nan, np.nan, int(dof)  # both fit exactly: the test has nothing to weigh
 
 
 def group_fits(table: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
