@@ -91,7 +91,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             h = fmix32(h ^ stored(j, c));
         }
         flagged = h != side_code(params.prim_base + j);
-    } else {
+    } else if (params.mode == MODE_SCALE) {
         let bound = table[side_code(params.prim_base + j)];
         for (var c = 3u; c < 6u; c = c + 1u) {
             let w = words[c * params.plane_words + select(j >> 1u, j, params.fmt == FMT_FP32)];

@@ -113,3 +113,16 @@ def test_defense_costs_times_what_runs_on_the_gpu():
         else:
             assert np.isnan(row["check_fraction"]) and row["check_every"] is None, name
     assert f"{model.n} primitives" in rows["checksum"]["time_basis"]
+
+
+def test_each_check_binds_its_own_shader_mode_by_name():
+    from seuwgpu.gpu.device import get_gpu, shader_source
+    from seuwgpu.gpu.kernel import Kernel, wgsl_constants
+
+    kernel = Kernel(get_gpu(), "check")
+    modes = {dfn.REGISTRY[d].check_mode for d in CHECKED}
+    declared = {k for k in wgsl_constants(shader_source("check")) if k.startswith("MODE_")}
+    assert modes == declared  # every mode used, no stray one
+    assert len({kernel.const(m) for m in modes}) == len(modes)
+    with pytest.raises(KeyError, match="no integer const 'MODE_PARTIY'"):
+        kernel.const("MODE_PARTIY")

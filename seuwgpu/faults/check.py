@@ -22,7 +22,7 @@ class Checker:
     """One defense's check over a renderer's stored chunks (`run` -> flagged count, `flags`)."""
 
     def __init__(self, renderer, defense: str, clean_rows: np.ndarray, box=None):
-        d = dfn.checked(defense)  # its check_mode is shaders/check.wgsl's MODE_*
+        d = dfn.checked(defense)
         r, L = renderer, renderer.layout
         g = self.gpu = r.gpu
         self.layout, self.chunks, self.defense = L, r.chunks, defense
@@ -37,7 +37,7 @@ class Checker:
         fill_chunk_params(
             self.params,
             L,
-            mode=d.check_mode,
+            mode=self.kernel.const(d.check_mode),
             side_bits=d.side_bits,
             **d.check_parameters(L.precision, L.degree),
         )

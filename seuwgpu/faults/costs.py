@@ -43,11 +43,7 @@ def defense_costs(
     for d in dfn.DEFENSES:
         frac = t.get(d, float("nan"))
         obj = dfn.get(d)
-        if obj.checked:
-            ex = dfn.exposure(check_every)
-            exp_mean, exp_worst = ex.expected, ex.worst
-        else:  # read-time: acts on every read; none: the upset stays until a reload
-            exp_mean = exp_worst = float("inf") if d == "none" else 0.0
+        ex = obj.upset_exposure(check_every)
         if not time_it:
             basis = "not measured"
         elif d in t:
@@ -62,8 +58,8 @@ def defense_costs(
                 "check_every": check_every if obj.checked else None,
                 "time_fraction": frac,
                 "check_fraction": parts[d][1] if obj.checked and d in parts else float("nan"),
-                "exposure_frames": exp_mean,
-                "exposure_frames_worst": exp_worst,
+                "exposure_frames": ex.expected,
+                "exposure_frames_worst": ex.worst,
                 "time_basis": basis,
                 "description": dfn.get(d).info,
             }

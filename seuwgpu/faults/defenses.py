@@ -291,7 +291,7 @@ class Defense:
     guard_fields: tuple[str, ...] = ()  # fields the pipeline's support guard clamps (faults/guard.py)
     reads_stored_bits = True  # `read` returns the stored bits as they are (none, the guards)
     has_model_state = False  # `model_state` builds something from the clean model
-    check_mode: int | None = None  # shaders/check.wgsl's MODE_* of its per-primitive check; None: no check
+    check_mode: str | None = None  # its check's MODE_* const in shaders/check.wgsl, by name; None: no check
     writes_back = False  # its repair rewrites the stored model (a storm keeps the repair)
 
     def __init__(self, name: str, info: str, label: str = "", first_study: bool = False):
@@ -304,6 +304,14 @@ class Defense:
     @property
     def checked(self) -> bool:
         return self.check_mode is not None
+
+    def upset_exposure(self, check_every: int) -> Exposure:
+        """Frames drawn from a corrupted model before it acts: a check's schedule (`exposure`);
+        none for one that changes what every read returns (a guard, a correction, a vote); for
+        one that reads the stored bits as they are and guards nothing, until a reload."""
+        if self.checked:
+            return exposure(check_every)
+        return exposure(0 if self.reads_stored_bits and not self.guard_fields else 1)
 
     def bits_per_primitive(self, precision: str, degree: int) -> int:
         """Stored bits it adds per primitive."""
@@ -429,7 +437,7 @@ class Parity(CheckedDefense):
     """`ways` interleaved parity bits over the sign, exponent and top PARITY_MANTISSA mantissa
     bits of the values of `fields` (they lead the layout); a mismatch culls or reloads."""
 
-    check_mode = 0  # MODE_PARITY
+    check_mode = "MODE_PARITY"
 
     def __init__(self, name, info, ways: int, fields, reloads: bool, label="", first_study=False):
         super().__init__(name, info, label, first_study)
@@ -451,7 +459,7 @@ class Parity(CheckedDefense):
 
 
 class Checksum(CheckedDefense):
-    check_mode = 1  # MODE_CHECKSUM
+    check_mode = "MODE_CHECKSUM"
     reloads = True
 
     def side_data(self, clean, precision, degree, box=None):
@@ -462,7 +470,7 @@ class ScaleBound(CheckedDefense):
     """The support guard plus a SCALE_CLASS_BITS-bit class per primitive bounding its log-scales
     from above; a flagged primitive's log-scales are clamped to the class bound."""
 
-    check_mode = 2  # MODE_SCALE
+    check_mode = "MODE_SCALE"
     side_bits = SCALE_CLASS_BITS
     guard_fields = GUARD_FIELDS
     table_words = SCALE_CLASSES

@@ -365,6 +365,11 @@ def _shader_struct(shader: str, name: str, defines: tuple) -> Struct:
 
 
 @functools.cache
+def _shader_constants(shader: str, defines: tuple) -> dict:
+    return wgsl_constants(shader_source(shader, dict(defines)))
+
+
+@functools.cache
 def _entry_bindings(shader: str, entry: str, defines: tuple) -> tuple[dict, dict]:
     src = shader_source(shader, dict(defines))
     return wgsl_bindings(src), entry_bindings(src, entry)
@@ -454,6 +459,14 @@ class Kernel:
     def struct(self, name: str) -> Struct:
         """A struct of this kernel's shader source."""
         return Struct.from_shader(self.shader, name, self.defines)
+
+    def const(self, name: str) -> int:
+        """An integer `const` of this kernel's shader source, by name (a host value that must
+        equal the shader's: a mode, a flag), so the number lives in the shader alone."""
+        values = _shader_constants(self.shader, tuple(sorted(self.defines.items())))
+        if name not in values:
+            raise KeyError(f"kernel {self.label}'s shader declares no integer const {name!r}")
+        return values[name]
 
     # ---- bind groups ---------------------------------------------------------------------------
     def resolve(self, bindings=None, **buffers) -> dict[int, dict]:
