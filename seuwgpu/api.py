@@ -797,8 +797,6 @@ def _injected_models(eng, model: Model, site, defenses) -> dict[str, Model]:
     ("faulted"), and as each defense leaves what the renderer reads: its repair of memory (a
     reload, a correction, a culled primitive) and, for a support-guard defense, the clamp the
     pipeline applies to the hit primitive's values."""
-    from seuwgpu.faults.guard import clamp_bits
-
     stored = model.quantized(eng.precision).flat()
 
     def with_rows(prims, rows) -> Model:
@@ -812,9 +810,7 @@ def _injected_models(eng, model: Model, site, defenses) -> dict[str, Model]:
         if d == "none":
             continue
         prims, rows, masks = eng.variant_bits([site], d)
-        if masks[0]:
-            rows = clamp_bits(rows, eng.box, int(masks[0]))[0]
-        out[d] = with_rows(prims, rows)
+        out[d] = with_rows(prims, eng.drawn_rows(rows, masks[0]))
     return out
 
 

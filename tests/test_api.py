@@ -10,6 +10,7 @@ import pytest
 import tifffile
 
 import seuwgpu as sg
+from seuwgpu.model.fields import FIELD_OFFSET
 
 SIZE = (40, 32)
 
@@ -497,3 +498,23 @@ def test_plan_campaign_counts_what_a_spec_runs(tmp_path):
     assert single.margin == pytest.approx(1.959964 * 0.5 / math.sqrt(3), rel=1e-5)
     dose = plan.iloc[2]
     assert (dose.cells, dose.per_cell, dose.injections, dose.records) == (2, 2, 4, 4) and math.isnan(dose.margin)
+
+
+def test_the_guards_kept_model_is_what_its_frame_draws(tmp_path):
+    """models=True under the guard: the kept model is the faulted one with the hit value clamped
+    into the clean box (here the log-scale's clean maximum), every other value clean, and a plain
+    render of it is the guard's frame bit for bit."""
+    scene = sg.load_model("spheres", n=300, sh_degree=0)
+    cams = sg.cameras(scene, views=1, size=(32, 32))
+    inj = sg.inject(scene, cams, field="log_scales", primitive=7, component=1, bit=30, defenses=("none", "guard"),
+                    models=True)  # fmt: skip
+    clean = scene.model.flat()
+    col = FIELD_OFFSET["log_scales"] + 1
+    faulted, guarded = inj.models["faulted"].flat(), inj.models["guard"].flat()
+    assert faulted[7, col] > clean[:, col].max()  # bit 30 of a small log-scale: a huge value
+    assert guarded[7, col] == clean[:, col].max()
+    others = np.ones(clean.shape, bool)
+    others[7, col] = False
+    assert np.array_equal(guarded[others], clean[others]) and np.array_equal(faulted[others], clean[others])
+    assert np.array_equal(sg.render_views(inj.models["guard"], cams), inj.frames["guard"])
+    assert not np.array_equal(inj.frames["none"], inj.frames["guard"])

@@ -188,10 +188,12 @@ class Engine:
     def reference_rows(self, prims) -> np.ndarray:
         """[M, ncomp] stored bits the clean reference draws for primitives `prims`: the clean ones,
         clamped by the reference's guard mask where it has one."""
-        rows = self.primitive_bits(prims)
-        if self._ref_mask:
-            rows = clamp_bits(rows, self.box, self._ref_mask)[0]
-        return rows
+        return self.drawn_rows(self.primitive_bits(prims), self._ref_mask)
+
+    def drawn_rows(self, rows: np.ndarray, mask: int) -> np.ndarray:
+        """[M, ncomp] bits the pipeline draws from stored bits `rows` read under guard `mask`:
+        the support guard's clamp into the clean box (its numpy twin), or `rows` when unguarded."""
+        return clamp_bits(rows, self.box, int(mask))[0] if mask else rows
 
     def use_reference(self, defense: str):
         """Make the clean reference of `defense` current (a re-render only when it changes)."""

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seuwgpu.faults.guard import clamp_bits
 from seuwgpu.faults.sites import Site, check_field_stored, site_from_flat
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.model import encoding
@@ -67,8 +66,8 @@ def _effective(engine, prims, comps, bits, defense, clamped: bool):
     rows = np.arange(prims.size)
     flipped = clean[rows, comps] ^ (np.uint64(1) << bits.astype(np.uint64)).astype(clean.dtype)
     eff, gm = engine.variant_rows(prims, clean, comps, flipped, defense)
-    if clamped and gm.size and gm[0]:
-        eff, _ = clamp_bits(eff, engine.box, int(gm[0]))
+    if clamped and gm.size:
+        eff = engine.drawn_rows(eff, gm[0])
     return clean, eff, gm
 
 
