@@ -258,11 +258,18 @@ def _arm_columns(rates: pd.DataFrame, arm: str) -> pd.DataFrame:
     return rates[population.MODEL + list(names)].rename(columns=names)
 
 
-def model_estimates(df: pd.DataFrame, conf: float = 0.95) -> pd.DataFrame:
+def arm_model_rates(df: pd.DataFrame, conf: float = 0.95) -> dict:
+    """{arm: population.model_rates} of fp32 without and with the guard: what the p_c rows of
+    claims_table and model_estimates rest on (the report computes it once for both)."""
+    return {arm: population.model_rates(df, "fp32", arm, conf) for arm in ("none", "guard")}
+
+
+def model_estimates(df: pd.DataFrame, conf: float = 0.95, rates: dict | None = None) -> pd.DataFrame:
     """Per model, fp32: p_c as the equal-field mean and weighted by stored bits, without and with
-    the guard, and the guard's share of the equal-field p_c (%, stratified 95% intervals)."""
-    none = population.model_rates(df, "fp32", "none", conf)
-    guard = population.model_rates(df, "fp32", "guard", conf)
+    the guard, and the guard's share of the equal-field p_c (%, stratified 95% intervals).
+    `rates`: arm_model_rates(df, conf) when already computed."""
+    rates = rates if rates is not None else arm_model_rates(df, conf)
+    none, guard = rates["none"], rates["guard"]
     if none.empty:
         return pd.DataFrame()
     out = none[population.MODEL + ["n", "fields"]].merge(_arm_columns(none, "none"), on=population.MODEL)
@@ -297,7 +304,8 @@ def claims_table(
 ) -> pd.DataFrame:
     """The claims table from the records and, where given, analysis results already computed
     (keys "theory", "guard", "size", "dose_curves", "prediction" as the report's sections return
-    them). Where the records hold several models the verdict rests on the interval over models."""
+    them, "model_rates" as arm_model_rates). Where the records hold several models the verdict
+    rests on the interval over models."""
     results = results or {}
     rows = []
     s = single_upsets(df, "fp32", "none")
@@ -324,7 +332,7 @@ def claims_table(
             rows.append(_over_models(key, _per_model(sign, fn), "v", basis, conf, (fn(sign), lo, hi), scale=1.0))
     else:
         rows += [_row("sign_mean"), _row("sign_p99")]
-    est = {dfn: population.model_rates(df, "fp32", dfn, conf) for dfn in ("none", "guard")}
+    est = results.get("model_rates") or arm_model_rates(df, conf)
     for dfn in ("none", "guard"):
         g = single_upsets(df, "fp32", dfn)
         g = g[g["bit"] >= 0]

@@ -83,6 +83,7 @@ def _prov(t) -> dict:
 
 
 def _sec_claims(df, manifests, ctx) -> Section:
+    rates = ctx["results"]["model_rates"] = claims.arm_model_rates(df)  # p_c rows and per-model table
     t = claims.claims_table(df, ctx["results"], manifests=manifests)
     sec = Section(
         "claims",
@@ -105,7 +106,7 @@ def _sec_claims(df, manifests, ctx) -> Section:
             "this project's own estimate.",
         )
     )
-    me = claims.model_estimates(df)
+    me = claims.model_estimates(df, rates=rates)
     if len(me):
         sec.tables.append(
             TableItem(
