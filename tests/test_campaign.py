@@ -671,6 +671,23 @@ def test_view_times_render_view_0_within_their_budget(gpu, monkeypatch):
     calls.update(a=0, b=0)
     got = interleaved_samples({"a": timed("a"), "b": timed("b")}, 9, budget_s=0.0, least=2, warm_up=False)
     assert calls == {"a": 2, "b": 2} and [len(v) for v in got.values()] == [2, 2]
+    # on a clock where each call takes 0.5 s (a round 1 s), a 2.2 s budget holds 2 rounds: a third
+    # would end at 3 s (it used to start, since 2 s had not passed the budget)
+    import types
+
+    from seuwgpu.faults import costs
+
+    clock = [0.0]
+
+    def slow():
+        clock[0] += 0.5
+
+    monkeypatch.setattr(costs, "time", types.SimpleNamespace(perf_counter=lambda: clock[0]))
+    got = interleaved_samples({"a": slow, "b": slow}, 9, budget_s=2.2, least=1, warm_up=False)
+    assert got == {"a": [0.5, 0.5], "b": [0.5, 0.5]} and clock[0] == 2.0
+    clock[0] = 0.0
+    assert len(interleaved_samples({"a": slow}, 9, budget_s=2.2, least=1, warm_up=False)["a"]) == 4  # ends at 2.0
+    monkeypatch.undo()
     eng = Engine(make_scene("spheres", 3000), scene_cameras("spheres", 3, 32, 32), gpu=gpu)
     seen = []
     real = Renderer.encode
