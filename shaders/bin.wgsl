@@ -1,10 +1,14 @@
 // #import common
 
 // Tile binning (render/bin.py), per list of `bin.views` frames (1, or the K views of a batched
-// renderer: render/renderer.py): intersection counts in depth order, emission of
-// (tile, primitive) pairs at the scanned offsets, and per-tile ranges of the tile-sorted list.
-// Between them the host scans the counts (gpu/sort.py PrefixSum) and sorts the pairs by tile
-// (render/sort.py). Rectangles are packed (x0 | y0 << 16, x1 | y1 << 16) in tiles, exclusive max.
+// renderer: render/renderer.py): each record's intersection count, the counts gathered into depth
+// order, scanned there (gpu/sort.py PrefixSum) and the offsets scattered back to the records, the
+// emission of (tile, primitive) pairs at those offsets, and per-tile ranges of the list once the
+// host sorted it by tile (render/sort.py). Counting and emission walk the records in their own
+// order and read their screen data sequentially; walked in depth order they gathered 32 bytes a
+// record from three arrays at random (docs/benchmarks.md: at 1M primitives 4x slower). Only
+// the 4-byte counts and offsets move between the two orders. Rectangles are packed
+// (x0 | y0 << 16, x1 | y1 << 16) in tiles, exclusive max.
 //
 // Exact binning (docs/renderer.md): a primitive is paired with the tiles of its rectangle that its
 // footprint may reach (common.wgsl reach / row_tiles: per tile row, the columns the ellipse
@@ -21,8 +25,8 @@ override EXACT_BIN: bool = true;
 @group(0) @binding(0) var<uniform> bin: Binning;
 @group(0) @binding(1) var<storage, read> rects: array<vec2<u32>>;
 @group(0) @binding(2) var<storage, read> sorted_prims: array<u32>;
-@group(0) @binding(3) var<storage, read_write> counts: array<u32>;
-@group(0) @binding(4) var<storage, read> offsets: array<u32>;
+@group(0) @binding(3) var<storage, read_write> counts: array<u32>;     // depth order: counts, scanned in place
+@group(0) @binding(4) var<storage, read_write> by_record: array<u32>;  // per record: its count, then its offset
 @group(0) @binding(5) var<storage, read_write> isect_tiles: array<u32>;
 @group(0) @binding(6) var<storage, read_write> isect_prims: array<u32>;
 @group(0) @binding(7) var<storage, read_write> stats: array<u32>;
@@ -58,14 +62,14 @@ fn row_of(f: Footprint, ty: u32) -> vec2<u32> {
     return row_tiles(f.r, first.y + f32(ty * TILE), first.x, f.x0, f.x1);
 }
 
-// counts[s] = tiles paired with the s-th primitive in depth order (culled ones have empty rects).
+// by_record[g] = tiles paired with record g (culled ones have empty rects).
 @compute @workgroup_size(WG)
 fn count_tiles(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let s = linear_id(gid, nwg);
-    if (s >= bin.views * bin.n_total) {
+    let g = linear_id(gid, nwg);
+    if (g >= bin.views * bin.n_total) {
         return;
     }
-    let f = footprint(sorted_prims[s]);
+    let f = footprint(g);
     var c = 0u;
     if (f.r.kind == REACH_ALL) {
         c = (f.x1 - f.x0) * (f.y1 - f.y0);
@@ -75,22 +79,42 @@ fn count_tiles(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
             c = c + (cols.y - cols.x);
         }
     }
-    counts[s] = c;
+    by_record[g] = c;
 }
 
-// One (tile id, primitive) pair per paired tile, in depth order, row-major, at the scanned
-// offsets; pairs past the capacity are dropped (the host sees the total, grows the buffers and
-// re-runs).
+// counts[s] = the count of the s-th record in depth order (sorted_prims is a permutation of the
+// records), for the scan.
 @compute @workgroup_size(WG)
-fn emit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+fn gather_counts(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
     if (s >= bin.views * bin.n_total) {
         return;
     }
-    let g = sorted_prims[s];
+    counts[s] = by_record[sorted_prims[s]];
+}
+
+// by_record[g] = record g's offset, from the scanned depth-ordered counts.
+@compute @workgroup_size(WG)
+fn scatter_offsets(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let s = linear_id(gid, nwg);
+    if (s >= bin.views * bin.n_total) {
+        return;
+    }
+    by_record[sorted_prims[s]] = counts[s];
+}
+
+// One (tile id, primitive) pair per paired tile of record g, row-major, at its scanned offset:
+// the list is in depth order whatever order the records are walked in. Pairs past the capacity
+// are dropped (the host sees the total, grows the buffers and re-runs).
+@compute @workgroup_size(WG)
+fn emit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let g = linear_id(gid, nwg);
+    if (g >= bin.views * bin.n_total) {
+        return;
+    }
     let f = footprint(g);
     let first_tile = (g / bin.n_total) * bin.n_tiles;  // its view's first tile id (batched views)
-    var o = offsets[s];
+    var o = by_record[g];
     for (var ty = f.y0; ty < f.y1; ty = ty + 1u) {
         let cols = row_of(f, ty);
         for (var tx = cols.x; tx < cols.y; tx = tx + 1u) {

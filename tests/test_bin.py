@@ -51,10 +51,14 @@ def run_stage(gpu, rects, order, tiles, size, capacity, records, exact=True):
     return stage
 
 
-def check_emit(gpu, stage, want, n):
-    total = len(want["isect_tiles"])
-    np.testing.assert_array_equal(gpu.read(stage.counts)[:n], want["counts"])
-    np.testing.assert_array_equal(gpu.read(stage.offsets)[:n], want["offsets"])
+def check_emit(gpu, stage, want, order):
+    """The depth-ordered counts scanned in place into the offsets, each record's own offset (by
+    record: the scatter back), the total and the pairs."""
+    n, total = len(order), len(want["isect_tiles"])
+    offsets = gpu.read(stage.counts)[:n]
+    np.testing.assert_array_equal(offsets, want["offsets"])
+    np.testing.assert_array_equal(np.diff(offsets.astype(np.int64), append=total), want["counts"])
+    np.testing.assert_array_equal(gpu.read(stage.by_record)[:n][order], want["offsets"])
     assert gpu.read(stage.stats)[0] == total
     np.testing.assert_array_equal(gpu.read(stage.isect_tiles)[:total], want["isect_tiles"])
     np.testing.assert_array_equal(gpu.read(stage.isect_prims)[:total], want["isect_prims"])
@@ -67,7 +71,7 @@ def test_emit_matches_twin(gpu):
         total = len(want["isect_tiles"])
         assert total > tiles[0] * tiles[1]  # the sheet covers every tile
         stage = run_stage(gpu, rects, order, tiles, size, total + 64, records, exact)
-        check_emit(gpu, stage, want, len(order))
+        check_emit(gpu, stage, want, order)
 
 
 def test_exact_binning_drops_only_unreachable_pairs():

@@ -104,6 +104,8 @@ _STAGE_OF = {
     "project:main": "project",
     "bin:view_keys": "depth sort",  # batched views on CPU adapters: the records grouped by view
     "bin:count_tiles": "count+scan",
+    "bin:gather_counts": "count+scan",  # the counts into depth order for the scan
+    "bin:scatter_offsets": "count+scan",  # and the offsets back to the records
     "prefix_sum": "count+scan",
     "bin:emit": "emit",
     "bin:tile_ranges": "ranges",

@@ -1,11 +1,16 @@
 """Binning stage: shaders/bin.wgsl (and a PrefixSum) and its numpy twin.
 
-Per view, on the GPU: `count_tiles` writes the number of tiles each primitive is paired with, in
-depth order; PrefixSum turns the counts into offsets and the intersection total (into the `stats`
-slot of the view); `emit` writes one (tile id, primitive) pair per paired tile, row-major within
-each rectangle, at those offsets; after the tile sort (render/sort.py), `tile_ranges`
-finds each tile's [start, end) in the sorted list. Pairs past the intersection capacity are
-dropped; the renderer reads the totals back, grows the buffers and re-runs the frame.
+Per view, on the GPU: `count_tiles` writes the number of tiles each screen record is paired
+with, in the records' order; `gather_counts` puts the counts in depth order, PrefixSum turns
+them into offsets there and the intersection total (into the `stats` slot of the view), and
+`scatter_offsets` gives each record its offset back; `emit` writes one (tile id, primitive) pair
+per paired tile, row-major within each rectangle, at those offsets, so the list is in depth
+order; after the tile sort (render/sort.py), `tile_ranges` finds each tile's [start, end) in the
+sorted list. Counting and emission walk the records in their own order because their screen
+data is then read sequentially: walked in depth order they read 32 bytes a record at random,
+and took 167 of a 1M-primitive view's 736 GPU ms on lavapipe, 68 now (docs/benchmarks.md).
+Pairs past the intersection capacity are dropped; the renderer reads the totals back, grows the
+buffers and re-runs the frame.
 
 Exact binning (docs/renderer.md): a primitive is paired with the tiles of its rectangle that its
 footprint may reach (`reach`, `row_tiles`: per tile row, the columns crossed by the ellipse where
@@ -45,6 +50,8 @@ class Binning:
         self.gpu, self.n = gpu, int(n)
         self.exact = bool(exact)
         self.k_count = Kernel(gpu, "bin", "count_tiles", constants={"EXACT_BIN": int(self.exact)})
+        self.k_gather = Kernel(gpu, "bin", "gather_counts")
+        self.k_scatter = Kernel(gpu, "bin", "scatter_offsets")
         self.k_emit = Kernel(gpu, "bin", "emit", constants={"EXACT_BIN": int(self.exact)})
         self.k_ranges = Kernel(gpu, "bin", "tile_ranges")
         self.k_view_keys = Kernel(gpu, "bin", "view_keys")
@@ -54,13 +61,15 @@ class Binning:
         self.capacity = 0
 
     def _set_entries(self, entries: int):
-        """Counts, offsets and scan for `entries` depth-ordered records (n, or K n batched)."""
+        """Counts and offsets of `entries` records (n, or K n batched): `counts` in depth order
+        (scanned in place into offsets), `by_record` in the records' order (a record's count, then
+        its offset); and the scan."""
         if entries == self.entries:
             return
         g, self.entries = self.gpu, int(entries)
         self.scan = PrefixSum(g, self.entries)
         self.counts = g.buffer(4 * self.entries, STORAGE, "bin.counts")
-        self.offsets = g.buffer(4 * self.entries, STORAGE, "bin.offsets")
+        self.by_record = g.buffer(4 * self.entries, STORAGE, "bin.by_record")
 
     def set_views(self, k: int, n_tiles: int, batched: bool = False):
         """(Re)allocate the per-view buffers for K views of n_tiles tiles, binned one view at a time
@@ -121,17 +130,13 @@ class Binning:
         and the depth order."""
         u = self.params.binding(slot)
         shared = {"bin": u, "rects": rects, "sorted_prims": sorted_prims, "proj_xy": xy, "proj_conic": conic}
+        shared.update(counts=self.counts, by_record=self.by_record)
         count = self.n * self._views_of(slot)
-        self.k_count.dispatch(encoder, shared, counts=self.counts, threads=count)
-        self.scan.encode(encoder, self.counts, self.offsets, count, total=self.total(slot))
-        self.k_emit.dispatch(
-            encoder,
-            shared,
-            offsets=self.offsets,
-            isect_tiles=self.isect_tiles,
-            isect_prims=self.isect_prims,
-            threads=count,
-        )
+        self.k_count.dispatch(encoder, shared, threads=count)
+        self.k_gather.dispatch(encoder, shared, threads=count)
+        self.scan.encode(encoder, self.counts, self.counts, count, total=self.total(slot))
+        self.k_scatter.dispatch(encoder, shared, threads=count)
+        self.k_emit.dispatch(encoder, shared, isect_tiles=self.isect_tiles, isect_prims=self.isect_prims, threads=count)
 
     def encode_view_keys(self, encoder, sorted_prims, keys):
         """Batched views: keys[s] = the view of the s-th depth-ordered record (for a stable sort
@@ -228,12 +233,13 @@ def row_tiles(r: dict, y: np.ndarray, fx: float, x0: np.ndarray, x1: np.ndarray)
 
 
 def emit(rects: np.ndarray, order: np.ndarray, tiles_x: int, records: dict | None = None, origin=(0, 0)) -> dict:
-    """Twin of count_tiles + scan + emit: rects [N, 4] (x0, y0, x1, y1 in tiles, exclusive max;
-    empty when culled) visited in `order` (primitive indices front to back) -> counts and offsets
-    per position in `order`, and the (tile, primitive) pairs `isect_tiles`, `isect_prims` in
-    emission order (row-major within each rectangle). `records` ({"xy" [N, 2], "conic" [N, 4]:
-    conic and opacity}) turns on exact binning (`reach`, `row_tiles`); without it every tile of the
-    rectangle is paired. `origin`: the viewport's first pixel."""
+    """Twin of count_tiles, gather_counts, the scan, scatter_offsets and emit: rects [N, 4] (x0,
+    y0, x1, y1 in tiles, exclusive max; empty when culled) visited in `order` (primitive indices
+    front to back) -> counts and offsets per position in `order`, and the (tile, primitive) pairs
+    `isect_tiles`, `isect_prims` in emission order (row-major within each rectangle). `records`
+    ({"xy" [N, 2], "conic" [N, 4]: conic and opacity}) turns on exact binning (`reach`,
+    `row_tiles`); without it every tile of the rectangle is paired. `origin`: the viewport's
+    first pixel."""
     order = np.asarray(order, np.int64)
     r = np.asarray(rects, np.int64)[order]
     w, h = r[:, 2] - r[:, 0], r[:, 3] - r[:, 1]
