@@ -91,7 +91,7 @@ def footprint_bounds(engine, prims, comps, bits, defense: str = "none", chunk: i
         p = prims[sl]
         clean, eff, _ = _effective(engine, p, comps[sl], bits[sl], defense, clamped=True)
         moved = (eff[:, :GEOMETRY] != clean[:, :GEOMETRY]).any(axis=1)
-        rects = comp.clean_rects[:, p].copy()  # [K, m, 4]
+        rects = comp.clean_rects_of(p)  # [K, m, 4], a new array
         idx = np.flatnonzero(moved)
         for b in range(0, idx.size, ev.B):
             j = idx[b : b + ev.B]

@@ -33,8 +33,9 @@ KEPT_BY_RENDERER = ("kv_ranges", "kv_isect", "kv_box", "kv_stop", "kv_xy", "kv_c
 class CleanViews:
     """A keep_views renderer's clean per-view state that every compositor re-compositing against
     it shares (faults/incremental.py: one per batch in flight), renewed once per set of kept
-    buffers (the renderer's `version`): the tile rectangles (host, [K, N, 4] x0, y0, x1, y1; at 1M
-    primitives and K = 4 they take 128 MB of host memory), the longest clean tile list, and the
+    buffers (the renderer's `version`): the tile rectangles (host, packed as the GPU holds them,
+    [K, N, 2] u32: 32 MB at 1M primitives and K = 4, where unpacked to [K, N, 4] int64 they took
+    128 MB; `rects_of` unpacks the few a batch needs), the longest clean tile list, and the
     checkpoints. The checkpoint pass (variants.wgsl:checkpoints, one frame's worth of
     compositing) keeps each pixel's state every `every` positions of every longer tile list and
     each pixel's end (the last position its value depends on) in the renderer's kv_stop, so a
@@ -50,12 +51,16 @@ class CleanViews:
         self.pass_ = None
         self.ensure_current()
 
+    def rects_of(self, prims) -> np.ndarray:
+        """[K, m, 4] clean tile rectangles (x0, y0, x1, y1) of primitives `prims`."""
+        return unpack_rects(self.rect_words[:, prims])
+
     def ensure_current(self):
         r, g = self.r, self.r.gpu
         if self.version == r.version:
             return
         rects = g.read(r.kv_rect, np.uint32, 0, 8 * r.kv_stride * r.k).reshape(r.k, r.kv_stride, 2)
-        self.rects = unpack_rects(rects[:, : r.n])
+        self.rect_words = rects[:, : r.n]
         ranges = g.read(r.kv_ranges, np.uint32, 0, 8 * r.n_tiles * r.k).reshape(-1, 2).astype(np.int64)
         lengths = ranges[:, 1] - ranges[:, 0]
         self.longest_list = int(lengths.max(initial=0))  # chunk dispatches
@@ -168,9 +173,8 @@ class IncrementalCompositor:
         return self.compositing.slabs
 
     # ---- clean state -----------------------------------------------------------------------------
-    @property
-    def clean_rects(self) -> np.ndarray:
-        return self.clean.rects
+    def clean_rects_of(self, prims) -> np.ndarray:
+        return self.clean.rects_of(prims)
 
     @property
     def longest_list(self) -> int:
@@ -232,7 +236,7 @@ class IncrementalCompositor:
         def inside(rc):
             return (tx >= rc[..., 0:1]) & (tx < rc[..., 2:3]) & (ty >= rc[..., 1:2]) & (ty < rc[..., 3:4])
 
-        old = self.clean_rects[:, prims]  # [K, m, 4]
+        old = self.clean_rects_of(prims)  # [K, m, 4]
         return (inside(old) | inside(new_rects)).transpose(1, 0, 2)
 
     def groups(self, dirty: np.ndarray):
