@@ -103,6 +103,14 @@ def test_claims_compare_the_paper_with_the_equal_field_mean_over_models():
     assert s["measured"] == pytest.approx(100 * share.mean()) and s["paper"] == 90.4
     own = t.loc[claims.PAPER["pc_guard_bits"][0]]
     assert np.isnan(own["paper"]) and own["verdict"] == "no paper value"
+    # rates the report computes once serve both tables, at their own conf only
+    shared = claims.arm_model_rates(df)
+    pd.testing.assert_frame_equal(claims.claims_table(df, {"model_rates": shared}).set_index("claim"), t)
+    at95 = claims.model_estimates(df, rates=shared)
+    pd.testing.assert_frame_equal(at95, claims.model_estimates(df))
+    at90 = claims.model_estimates(df, conf=0.9, rates=shared)  # recomputed at 0.9
+    pd.testing.assert_frame_equal(at90, claims.model_estimates(df, conf=0.9))
+    assert (at90["fields_pc_none_hi"] < at95["fields_pc_none_hi"]).all()
 
 
 def size_table(median, mean, scenes, ns=(1000, 4000, 16000, 64000)):

@@ -316,3 +316,19 @@ def test_readback_returns_the_copy_of_its_own_submission(gpu):
     gpu.submit(enc)
     np.testing.assert_array_equal(a.read(np.uint32), [7, 7])
     assert b.read(np.uint32).size == 0
+
+
+def test_const_reads_the_value_the_pipeline_was_compiled_with(gpu):
+    """Kernel.const: a const by name; an override as this kernel's pipeline constants set it (and
+    what derives from it), not the shader's default; an unknown name is a clear error."""
+    from seuwgpu.gpu.sort import SCAN_PLAN
+
+    src = shader_source("scan", SCAN_PLAN)
+    default = wgsl_constants(src)
+    per = 4 if default["PS_PER"] != 4 else 8
+    k = Kernel(gpu, "scan", "ps_reduce", constants={"PS_PER": per}, defines=SCAN_PLAN)
+    assert k.const("PS_PER") == per != default["PS_PER"]
+    assert k.const("PS_BLOCK") == k.const("WG") * per  # PS_BLOCK = WG * PS_PER in scan.wgsl
+    assert Kernel(gpu, "scan", "ps_reduce", defines=SCAN_PLAN).const("PS_PER") == default["PS_PER"]
+    with pytest.raises(KeyError, match="no integer const 'PS_NOPE'"):
+        k.const("PS_NOPE")

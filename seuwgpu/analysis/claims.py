@@ -259,16 +259,22 @@ def _arm_columns(rates: pd.DataFrame, arm: str) -> pd.DataFrame:
 
 
 def arm_model_rates(df: pd.DataFrame, conf: float = 0.95) -> dict:
-    """{arm: population.model_rates} of fp32 without and with the guard: what the p_c rows of
-    claims_table and model_estimates rest on (the report computes it once for both)."""
-    return {arm: population.model_rates(df, "fp32", arm, conf) for arm in ("none", "guard")}
+    """{arm: population.model_rates} of fp32 without and with the guard, and "conf": what the p_c
+    rows of claims_table and model_estimates rest on (the report computes it once for both)."""
+    rates = {arm: population.model_rates(df, "fp32", arm, conf) for arm in ("none", "guard")}
+    return {**rates, "conf": conf}
+
+
+def _rates_at(df: pd.DataFrame, conf: float, rates: dict | None) -> dict:
+    """`rates` (arm_model_rates) if computed at `conf`, else computed here."""
+    return rates if rates is not None and rates.get("conf") == conf else arm_model_rates(df, conf)
 
 
 def model_estimates(df: pd.DataFrame, conf: float = 0.95, rates: dict | None = None) -> pd.DataFrame:
     """Per model, fp32: p_c as the equal-field mean and weighted by stored bits, without and with
     the guard, and the guard's share of the equal-field p_c (%, stratified 95% intervals).
-    `rates`: arm_model_rates(df, conf) when already computed."""
-    rates = rates if rates is not None else arm_model_rates(df, conf)
+    `rates`: arm_model_rates(df, conf) when already computed (used only at the same conf)."""
+    rates = _rates_at(df, conf, rates)
     none, guard = rates["none"], rates["guard"]
     if none.empty:
         return pd.DataFrame()
@@ -332,7 +338,7 @@ def claims_table(
             rows.append(_over_models(key, _per_model(sign, fn), "v", basis, conf, (fn(sign), lo, hi), scale=1.0))
     else:
         rows += [_row("sign_mean"), _row("sign_p99")]
-    est = results.get("model_rates") or arm_model_rates(df, conf)
+    est = _rates_at(df, conf, results.get("model_rates"))
     for dfn in ("none", "guard"):
         g = single_upsets(df, "fp32", dfn)
         g = g[g["bit"] >= 0]

@@ -365,8 +365,8 @@ def _shader_struct(shader: str, name: str, defines: tuple) -> Struct:
 
 
 @functools.cache
-def _shader_constants(shader: str, defines: tuple) -> dict:
-    return wgsl_constants(shader_source(shader, dict(defines)))
+def _shader_constants(shader: str, defines: tuple, constants: tuple) -> dict:
+    return wgsl_constants(shader_source(shader, dict(defines)), dict(constants))
 
 
 @functools.cache
@@ -461,9 +461,12 @@ class Kernel:
         return Struct.from_shader(self.shader, name, self.defines)
 
     def const(self, name: str) -> int:
-        """An integer `const` of this kernel's shader source, by name (a host value that must
-        equal the shader's: a mode, a flag), so the number lives in the shader alone."""
-        values = _shader_constants(self.shader, tuple(sorted(self.defines.items())))
+        """An integer `const` or `override` of this kernel's shader as its pipeline was compiled
+        (the kernel's pipeline constants replace the overrides' defaults), by name: a host value
+        that must equal the shader's (a mode, a flag), so the number lives in the shader alone."""
+        values = _shader_constants(
+            self.shader, tuple(sorted(self.defines.items())), tuple(sorted(self.constants.items()))
+        )
         if name not in values:
             raise KeyError(f"kernel {self.label}'s shader declares no integer const {name!r}")
         return values[name]
