@@ -34,7 +34,6 @@ override EXACT_BIN: bool = true;
 @group(0) @binding(8) var<storage, read_write> ranges: array<vec2<u32>>;
 @group(0) @binding(9) var<storage, read> proj_xy: array<vec2<f32>>;
 @group(0) @binding(10) var<storage, read> proj_conic: array<vec4<f32>>;  // conic, opacity
-@group(0) @binding(11) var<storage, read_write> view_of: array<u32>;
 
 // A primitive's rectangle (tiles, exclusive max) and its reach (REACH_ALL without exact binning).
 struct Footprint {
@@ -126,18 +125,6 @@ fn emit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             o = o + 1u;
         }
     }
-}
-
-// Batched views: each depth-ordered record's view, the key of a stable sort that groups the records
-// view by view (each view's still front to back), so that counting and emission read one view's
-// records at a time (render/renderer.py).
-@compute @workgroup_size(WG)
-fn view_keys(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let s = linear_id(gid, nwg);
-    if (s >= bin.views * bin.n_total) {
-        return;
-    }
-    view_of[s] = sorted_prims[s] / bin.n_total;
 }
 
 // first index i in [0, n) with isect_tiles[i] >= t

@@ -178,10 +178,8 @@ def test_batched_views_equal_views_one_at_a_time(gpu, compositor, exact):
     one = Renderer(model, cams, batch_views=False, **kw)
     want = one.render()
     assert not one.batched
-    for extra in ({}, {"capacity": 1000}, {"viewport": (16, 16, 48, 32)}, {"view_major": not gpu.is_cpu}):
-        view_major = extra.pop("view_major", gpu.is_cpu)  # both depth orders: grouped by view or mixed
+    for extra in ({}, {"capacity": 1000}, {"viewport": (16, 16, 48, 32)}):
         r = Renderer(model, cams, **kw, **extra)
-        r.view_major = view_major
         got = r.render()
         assert r.batched and r.submission_groups() == [range(3)]
         x0, y0, w, h = extra.get("viewport", (0, 0, 72, 56))
@@ -194,9 +192,9 @@ def test_batched_views_equal_views_one_at_a_time(gpu, compositor, exact):
 
 def test_batched_views_with_a_gpu_adapters_defaults(gpu, monkeypatch):
     """The configuration a GPU adapter gets (this adapter posing as one): radix sorts of 16
-    elements a thread with the fused scatter, the views in mixed depth order (no view pass),
-    compositing chunks of GPU_CHUNK pairs, a submission per stage group; batched frames and totals
-    equal the same adapter's views one at a time, bit for bit, with both compositors."""
+    elements a thread with the fused scatter, compositing chunks of GPU_CHUNK pairs, a submission
+    per stage group; batched frames and totals equal the same adapter's views one at a time, bit
+    for bit, with both compositors."""
     monkeypatch.setattr(type(gpu), "is_cpu", property(lambda self: False))
     submits = []
     real_submit = gpu.submit
@@ -207,7 +205,7 @@ def test_batched_views_with_a_gpu_adapters_defaults(gpu, monkeypatch):
         one = Renderer(model, cams, gpu=gpu, compositor=compositor, batch_views=False)
         want = one.render()
         r = Renderer(model, cams, gpu=gpu, compositor=compositor)
-        assert r.batched and not r.view_major and r.sorting.depth.fused  # 60k keys: 15 blocks
+        assert r.batched and r.sorting.depth.fused  # 60k keys: 15 blocks
         assert r.split_submissions
         assert np.array_equal(_bits(r.render()), _bits(want))
         assert np.array_equal(r.last_totals, one.last_totals)

@@ -102,7 +102,6 @@ STAGES = ("project", "depth sort", "count+scan", "emit", "tile sort", "ranges", 
 # passes "radix_sort" / "prefix_sum").
 _STAGE_OF = {
     "project:main": "project",
-    "bin:view_keys": "depth sort",  # batched views on CPU adapters: the records grouped by view
     "bin:count_tiles": "count+scan",
     "bin:gather_counts": "count+scan",  # the counts into depth order for the scan
     "bin:scatter_offsets": "count+scan",  # and the offsets back to the records

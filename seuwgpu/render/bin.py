@@ -54,7 +54,6 @@ class Binning:
         self.k_scatter = Kernel(gpu, "bin", "scatter_offsets")
         self.k_emit = Kernel(gpu, "bin", "emit", constants={"EXACT_BIN": int(self.exact)})
         self.k_ranges = Kernel(gpu, "bin", "tile_ranges")
-        self.k_view_keys = Kernel(gpu, "bin", "view_keys")
         self.struct = self.k_count.struct("Binning")
         self.entries = 0
         self._set_entries(self.n)
@@ -137,17 +136,6 @@ class Binning:
         self.scan.encode(encoder, self.counts, self.counts, count, total=self.total(slot))
         self.k_scatter.dispatch(encoder, shared, threads=count)
         self.k_emit.dispatch(encoder, shared, isect_tiles=self.isect_tiles, isect_prims=self.isect_prims, threads=count)
-
-    def encode_view_keys(self, encoder, sorted_prims, keys):
-        """Batched views: keys[s] = the view of the s-th depth-ordered record (for a stable sort
-        by view: render/renderer.py)."""
-        self.k_view_keys.dispatch(
-            encoder,
-            bin=self.params.binding(self.batch_slot),
-            sorted_prims=sorted_prims,
-            view_of=keys,
-            threads=self.n * self.k,
-        )
 
     def encode_ranges(self, encoder, slot: int):
         """Per-tile ranges of slot `slot`'s tile-sorted list (and, batched, each view's total)."""

@@ -93,11 +93,6 @@ class Renderer:
         # wherever it applies (not with keep_views, K > 1, within BATCH_MAX_RECORDS); False: one
         # view at a time (the frames are the same either way)
         self._batch_views = batch_views
-        # batched views on CPU adapters: after the depth sort, one more stable radix pass groups the
-        # records view by view (each still front to back), so binning reads one view's records at
-        # a time: faster on lavapipe, where K n mixed records miss the caches (docs/renderer.md
-        # "Measurements"). Same lists, same frames. GPUs skip it (five more dependent dispatches).
-        self.view_major = self.gpu.is_cpu
         # on GPUs `run` submits each stage group (projections | depth sort | binning and tile sort |
         # ranges and compositing; of the batched views, or of each view) as soon as it is recorded,
         # so the device works on one while Python records the next (recording is a large share of
@@ -376,9 +371,6 @@ class Renderer:
             self._encode_projection(encoder, v)
         encoder = split(encoder)
         self.sorting.encode_depth(encoder, p.depth_keys, p.depth_vals)
-        if self.view_major:
-            b.encode_view_keys(encoder, p.depth_vals, p.depth_keys)
-            self.sorting.encode_views(encoder, p.depth_keys, p.depth_vals, self.k)
         encoder = split(encoder)
         slot = b.batch_slot
         b.encode_emit(encoder, slot, p.rect, p.depth_vals, p.xy, p.conic)

@@ -45,10 +45,6 @@ class Sorting:
         """Stable sort of the n (depth key, primitive) pairs, in place."""
         self.depth.encode(encoder, keys, values, self.n, key_bits=32)
 
-    def encode_views(self, encoder, keys, values, k: int):
-        """Stable sort of the depth-ordered pairs by their view (keys 0 .. k - 1), in place."""
-        self.depth.encode(encoder, keys, values, self.n, key_bits=max(1, int(k - 1).bit_length()))
-
     def encode_tiles(self, encoder, tiles, prims, count, n_tiles: int):
         """Stable sort of the (tile, primitive) pairs by tile, in place; `count` is the
         intersection total (a python int or (buffer, byte_offset) written on the GPU)."""
