@@ -66,6 +66,11 @@ def test_component_ranges_over_tiles_of_rows(monkeypatch):
     assert bad[c] == model.n and bad.sum() == model.n + 3
     box = guard.support_box(model, "fp32")
     assert box.lo[c] == box.hi[c] == 0.0
+    for lay, p in ((layout, "fp32"), (half, "bf16")):  # the box of the words a GPU holds
+        words = lay.encode(model)
+        got, want = guard.stored_box(lay, words, p), guard.support_box(lay.decode(words), p)
+        np.testing.assert_array_equal(got.lo, want.lo)
+        np.testing.assert_array_equal(got.hi, want.hi)
 
 
 def test_guard_effect_on_the_clean_model_is_reported_once(eng):

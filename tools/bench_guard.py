@@ -21,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from seuwgpu.faults.guard import component_mask, guard_fields, scrub, support_box  # noqa: E402
+from seuwgpu.faults.guard import component_mask, guard_fields, scrub, stored_box  # noqa: E402
 from seuwgpu.model.budget import parse_size  # noqa: E402
 from seuwgpu.model.scenes import make_scene, scene_cameras  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
@@ -75,7 +75,7 @@ def main(argv=None):
     for n in args.n:
         model = make_scene(args.scene, n=n)
         r = Renderer(model, scene_cameras(args.scene, 1, w, h), args.precision)
-        box = support_box(r.layout.decode(r.clean_words), args.precision)
+        box = stored_box(r.layout, r.clean_words, args.precision)
         t_view, t_scrub, t_guarded = measure(r, box, guard_fields("guard"), args.repeats)
         rows.append(
             {

@@ -31,14 +31,14 @@ class RankRenderer:
     model, its region of every view, and the node-local guard."""
 
     def __init__(self, model, cameras, precision: str, viewport, rank: int = 0, guard_variant: str = "guard"):
-        from seuwgpu.faults.guard import component_mask, guard_fields, support_box
+        from seuwgpu.faults.guard import component_mask, guard_fields, stored_box
         from seuwgpu.render.renderer import Renderer
 
         t0 = time.perf_counter()
         self.rank, self.model, self.cameras, self.precision = rank, model, cameras, precision
         self.gpu = worker_gpu()
         self.r = Renderer(model, cameras, precision, gpu=self.gpu, viewport=viewport)
-        self.box = support_box(self.r.layout.decode(self.r.clean_words), precision)
+        self.box = stored_box(self.r.layout, self.r.clean_words, precision)
         self.guard_fields = guard_fields(guard_variant)
         self.mask = component_mask(self.guard_fields, model.sh_degree)
         self.r.set_guard(self.box.rows(), 0)

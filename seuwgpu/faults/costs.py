@@ -25,7 +25,7 @@ import numpy as np
 
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.check import Checker
-from seuwgpu.faults.guard import component_mask, support_box
+from seuwgpu.faults.guard import component_mask, stored_box
 from seuwgpu.model import encoding
 from seuwgpu.model.budget import check_model
 from seuwgpu.render.renderer import Renderer
@@ -101,10 +101,10 @@ def interleaved_medians(configs: dict, repeats: int, budget_s: float | None = No
 def _times(model, camera, precision, repeats, gpu) -> tuple[dict, str, int]:
     """({defense: (guard clamp per frame, one check) as fractions of a view}, the device, the
     model's chunks)."""
-    # a renderer plus the decoded model, its flat copy and bits: an engine's share, not a renderer's
+    # a renderer plus the model's flat copy and bits: an engine's share, not a renderer's
     check_model(model.n, model.sh_degree, "a model of", "time the defenses of")
     r = Renderer(model, [camera], precision, gpu=gpu)
-    box = support_box(r.layout.decode(r.clean_words), precision)
+    box = stored_box(r.layout, r.clean_words, precision)
     clean = encoding.to_bits(model.flat(), precision)  # what the chunks hold (layout.encode)
     r.set_guard(box.rows(), 0)
     checkers = {d.name: Checker(r, d.name, clean, box) for d in dfn.REGISTRY.values() if d.checked}

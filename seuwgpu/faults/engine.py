@@ -22,15 +22,7 @@ import pandas as pd
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.costs import interleaved_samples
 from seuwgpu.faults.flips import Flips
-from seuwgpu.faults.guard import (
-    RANGE_ROWS,
-    Box,
-    GuardMonitor,
-    clamp_bits,
-    component_mask,
-    component_ranges,
-    support_box,
-)
+from seuwgpu.faults.guard import Box, GuardMonitor, clamp_bits, component_mask, stored_ranges, support_box
 from seuwgpu.faults.sites import Site, apply_sites, fault_name, make_site, site_bit_class
 from seuwgpu.gpu.constants import CHUNK
 from seuwgpu.gpu.device import GPU, STORAGE, get_gpu
@@ -85,7 +77,7 @@ class Engine:
         self.layout = self.renderer.layout
         self.n, self.degree = model.n, model.sh_degree
         # the stored values' ranges, read from the words the GPU was given (no decoded copy)
-        ranges = component_ranges(self.layout.value_tiles(self.renderer.clean_words, RANGE_ROWS))
+        ranges = stored_ranges(self.layout, self.renderer.clean_words)
         self.box: Box = support_box(None, precision, ranges)
         self.renderer.set_guard(self.box.rows(), 0)
         # in-pipeline clamp mask of each guard defense (other defenses: 0)

@@ -118,6 +118,17 @@ def component_ranges(tiles) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return lo, hi, bad
 
 
+def stored_ranges(layout, words) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """component_ranges of the values a GPU holds (`words`: a StoredLayout's chunk words), read
+    tile by tile from the words (StoredLayout.value_tiles), with no decoded copy of the model."""
+    return component_ranges(layout.value_tiles(words, RANGE_ROWS))
+
+
+def stored_box(layout, words, precision: str) -> Box:
+    """support_box of the values a GPU holds (stored_ranges), e.g. a renderer's clean_words."""
+    return support_box(None, precision, stored_ranges(layout, words))
+
+
 def support_box(stored: Model | None, precision: str, ranges=None) -> Box:
     """Per-component [min, max] over the finite stored values of the clean model (`ranges`: its
     component_ranges, when the caller has them; then `stored` may be None)."""
