@@ -372,11 +372,6 @@ class Engine:
         per = 1 if views else self.k
         return {d: [1e3 * s / per for s in v] for d, v in samples.items()}
 
-    def view_times_ms(self, defenses=("none",), repeats: int = VIEW_TIME_ROUNDS) -> dict:
-        """{defense: median ms of view_time_samples}: the records' time_ms; the mitigation table's
-        time cost comes from it, in the same run."""
-        return {d: float(np.median(v)) for d, v in self.view_time_samples(defenses, repeats).items()}
-
     def _render_guarded(self, defense: str, views=None):
         """`views` (all K by default) of the model as it is now, under the defense's in-pipeline
         clamp, waited for (the clean model's intersection buffers already hold its lists)."""
