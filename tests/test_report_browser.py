@@ -194,6 +194,16 @@ def report(tmp_path_factory) -> Path:
     return build_report([tmp / "run"], tmp / "report")
 
 
+def page_state(browser: str, uri: str) -> tuple[dict, list[str]]:
+    """(PAGE_STATE of the page at `uri`, what the browser reported against it) in a fresh tab."""
+    tools = DevTools(browser)
+    try:
+        tools.open_page(uri)
+        return tools.evaluate(PAGE_STATE), tools.errors()
+    finally:
+        tools.close()
+
+
 def test_the_browser_check_sees_a_broken_image_and_console_errors(browser, tmp_path):
     """The report test passes only if this harness reports what breaks a page: without this, a
     Chromium that stopped sending those events would let any report through."""
@@ -202,13 +212,7 @@ def test_the_browser_check_sees_a_broken_image_and_console_errors(browser, tmp_p
         "<html><body><img alt='gone' src='missing.png'>"
         "<script>console.error('boom')</script><script>throw new Error('uncaught')</script></body></html>"
     )
-    tools = DevTools(browser)
-    try:
-        tools.open_page(page.as_uri())
-        state = tools.evaluate(PAGE_STATE)
-        errors = tools.errors()
-    finally:
-        tools.close()
+    state, errors = page_state(browser, page.as_uri())
     assert state["images"] == [{"alt": "gone", "complete": True, "width": 0}]
     assert any(e.startswith("log (network):") and "missing.png" in e for e in errors), errors
     assert "console: boom" in errors, errors
@@ -220,13 +224,7 @@ def test_the_report_in_headless_chromium(browser, report):
     out = report.parent
     source = report.read_text()
     summary = json.loads((out / "summary.json").read_text())
-    tools = DevTools(browser)
-    try:
-        tools.open_page(report.as_uri())
-        state = tools.evaluate(PAGE_STATE)
-        errors = tools.errors()
-    finally:
-        tools.close()
+    state, errors = page_state(browser, report.as_uri())
 
     assert not errors, errors
     # every figure of the report is an image on the page, and each one decoded
