@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from seuwgpu.model import scenes
+from seuwgpu.model import scene_layouts, scenes
 from seuwgpu.model.fields import FIELDS, Model, n_components
 
 C0 = 0.28209479177387814
@@ -96,11 +96,13 @@ def test_flat_axis_follows_the_surface_normal(models):
     m = models["spheres"]
     normal_axis = _rotmat(m.quats)[:, :, 2]  # local z in world coordinates
     # primitives on the platform top: normal = z
-    top = (np.abs(m.means[:, 2] - scenes.SPHERES_BASE_TOP) < 0.004) & (np.hypot(m.means[:, 0], m.means[:, 1]) < 0.9)
+    top = (np.abs(m.means[:, 2] - scene_layouts.SPHERES_BASE_TOP) < 0.004) & (
+        np.hypot(m.means[:, 0], m.means[:, 1]) < 0.9
+    )
     assert top.sum() > 200
     assert np.median(np.abs(normal_axis[top, 2])) > 0.99
     # primitives on the big red sphere: normal = radial
-    c, r = np.array([0.35, -0.25, scenes.SPHERES_BASE_TOP + 0.40]), 0.40
+    c, r = np.array([0.35, -0.25, scene_layouts.SPHERES_BASE_TOP + 0.40]), 0.40
     d = m.means - c
     on = np.abs(np.linalg.norm(d, axis=1) - r) < 0.004
     assert on.sum() > 200

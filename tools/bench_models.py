@@ -35,8 +35,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 def measure(path: str, views: int, size: str, repeats: int, samples: int, arms: tuple[str, ...], lod) -> dict:
     """One model, in this process."""
-    import seuwgpu.api as sg
     from bench_campaign import draw_sites
+
+    import seuwgpu.api as sg
     from seuwgpu.faults.engine import Engine
     from seuwgpu.model.budget import parse_size
     from seuwgpu.render.renderer import Renderer
