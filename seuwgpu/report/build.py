@@ -79,13 +79,10 @@ OPTIONAL_COLUMNS = ("campaign", "repeat", "time_ms")
 # ------------------------------------------------------------------------------------ loading
 
 
-# Peak host memory per record while a report is built: 907,264 and 914,988 KiB (maxrss, two
-# runs) for the 474,048 records of docs/study/cpu (pandas 3.1, 2026-11-25/26), i.e. 1.96-1.98 KB
-# a record with the interpreter's own.
-REPORT_BYTES_PER_RECORD = 2000
-# The same with the records folded as read (analysis/folding.py): 3,942,828 KiB for 29,098,240
-# records of the planner-sized study (spheres and blocks, 7.8 records a row; 2026-11-26). Scenes
+# Peak host memory per record while a report is built, unfolded and folded as read
+# (analysis/folding.py), from the measurements in docs/benchmarks.md ("Report memory"); scenes
 # whose records fold less need more.
+REPORT_BYTES_PER_RECORD = 2000
 FOLDED_BYTES_PER_RECORD = 139
 
 
