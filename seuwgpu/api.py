@@ -187,8 +187,8 @@ def assemble_corpus(
     models: Iterable[str] | None = None,
     *,
     manifest: str | Path | None = None,
-    progress=None,
-    log=None,
+    progress: Callable[[int, int], None] | None = None,
+    log: Callable[[str], None] | None = None,
 ) -> dict[str, Path]:
     """Assemble the corpus (or the named `models`) into the folder `out`: every file read from the
     folder `source` (same layout, or found by its name) or, without it, downloaded from its pinned
