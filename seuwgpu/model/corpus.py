@@ -266,5 +266,11 @@ def write_index(out: Path, chosen: list[CorpusModel]) -> dict[str, Path]:
             f"| {e['name']} | `{e['model']}` | {e['primitives']:,} | {e['sh_degree']} | {e['format']} | "
             f"{e['licence']} | {e['credit']} |"
         )
+    if any(e["format"] == "sog-lod" for e in rows):
+        lines += [
+            "",
+            "A `sog-lod` model is a LOD set: `lod-meta.json` names tile folders, each a plain SOG folder "
+            "(`<model>/0_0` loads alone); its primitives are those of its finest level.",
+        ]
     (out / INDEX_MD).write_text("\n".join(lines) + "\n")
     return {e["name"]: out / e["model"] for e in rows}

@@ -85,7 +85,7 @@ class _Bar:
 
     def log(self, line: str):
         if self.p is not None:
-            self.p.console.print(line)
+            self.p.console.print(line, markup=False, highlight=False)
         else:
             print(line)
 
