@@ -42,9 +42,10 @@ from seuwgpu.faults.defenses import DEFENSES, check_defense
 from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, INJECT_SAMPLE, VALUE_MODELS, model_bits
 from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.metrics.image import display
-from seuwgpu.model import encoding
+from seuwgpu.model import corpus, encoding
 from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, MIN_VIEW_SIZE
 from seuwgpu.model.cameras import Camera, check_one_size, image_sizes
+from seuwgpu.model.corpus import CorpusModel
 from seuwgpu.model.fields import FIELDS, Model
 from seuwgpu.model.scenes import list_scenes
 from seuwgpu.model.sources import Source, load_source, source_views
@@ -66,7 +67,9 @@ __all__ = [
     "Scene",
     "SeuwgpuError",
     "TooBig",
+    "assemble_corpus",
     "cameras",
+    "corpus_models",
     "default_spec",
     "defense_costs",
     "device_info",
@@ -170,6 +173,29 @@ def export_scene(
     aa = {"antialiased": True} if capture and capture_antialiased(name) else {}
     fmt = save_model(model, _out_path(out, "model file"), up="+y" if capture else "+z", **aa)
     return model, fmt
+
+
+def corpus_models(manifest: str | Path | None = None) -> list[CorpusModel]:
+    """The models of the corpus of real trained models (the packaged manifest, or `manifest`): each
+    with its subject, primitives, SH degree, format, source, licence, credit and files (docs/corpus.md)."""
+    return list(corpus.load_manifest(manifest).values())
+
+
+def assemble_corpus(
+    out: str | Path,
+    source: str | Path | None = None,
+    models: Iterable[str] | None = None,
+    *,
+    manifest: str | Path | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, Path]:
+    """Assemble the corpus (or the named `models`) into the folder `out`: every file read from the
+    folder `source` (same layout, or found by its name) or, without it, downloaded from its pinned
+    URL; its size and sha256 checked (a differing file is refused, naming it, and not kept); files
+    already there with the right hash kept. Writes `out/corpus.json` and `out/INDEX.md`; returns
+    {model: the path to pass as --model}. `progress(done_bytes, total_bytes)`, `log(line)`."""
+    return corpus.assemble(out, source=source, models=models, manifest=manifest, progress=progress, log=log)
 
 
 def device_info() -> dict:
