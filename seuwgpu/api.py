@@ -113,9 +113,9 @@ def load_model(
 ) -> Scene:
     """An embedded scene by name (`list_scenes()`: procedural ones and two real captures) or any
     supported model file or INRIA output folder, recognised by content (INRIA PLY, compressed PLY,
-    .splat, .spz, .ksplat, SOG, gsplat .pt). `n`, `sh_degree` and `seed` shape embedded scenes (`n` with a
-    file is refused: a model file keeps all of its primitives); `up` overrides
-    the up axis used to frame the model without cameras ("+z", "-y", ...); `lod` picks the level of
+    .splat, .spz, .ksplat, SOG, a PlayCanvas LOD set, gsplat .pt). `n`, `sh_degree` and `seed`
+    shape embedded scenes (`n` with a file is refused: a model file keeps all of its primitives);
+    `up` overrides the up axis used to frame the model without cameras ("+z", "-y", ...); `lod` picks the level of
     a PlayCanvas LOD set (lod-meta.json or its folder; default 0, the finest), refused otherwise."""
     if lod is not None and (isinstance(lod, bool) or not isinstance(lod, int) or lod < 0):
         raise InputError(f"lod must be a level 0, 1, 2, ..., got {lod!r}")

@@ -22,6 +22,8 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     [[scenes]]               # one or more
     scene = "spheres"        # an embedded scene (`seuwgpu scene --list`: procedural or real) ...
                              # or: model = "point_cloud.ply" (any format; `ply =` is an alias)
+                             # lod = 2: with a PlayCanvas LOD set (lod-meta.json or its folder),
+                             # the level read (default 0, the finest; named NAME-lod2 in records)
     n = 100000               # primitives of an embedded scene (a real capture: all by default)
     sh_degree = 3            # of an embedded scene; a model file's is read from it (recorded)
     cameras = "cameras.json" # optional, the capture's cameras (CAMS.json, INRIA cameras.json,

@@ -101,7 +101,8 @@ def add_model_args(p: argparse.ArgumentParser, seed_draws: str | None = None):
         dest="model",
         type=Path,
         help="a 3DGS model file: INRIA PLY, compressed PLY, .spz, .splat, .ksplat, SOG (.sog, or meta.json or "
-        "its folder) or a gsplat .pt (recognised by content; a .splat, which has no header, by its extension)",
+        "its folder), a PlayCanvas LOD set (lod-meta.json or its folder) or a gsplat .pt (recognised by content; "
+        "a .splat, which has no header, by its extension)",
     )
     src.add_argument("--scene", help="an embedded scene (see `seuwgpu scene --list`)")
     add_lod_arg(p)
