@@ -194,3 +194,24 @@ def test_every_command_taking_a_model_takes_its_level(lod_set, tmp_path, capsys)
     assert "--lod picks a level of a PlayCanvas LOD set given with --model" in capsys.readouterr().err
     assert main(["render", "--model", str(lod_set), "--lod", "4", "--out", str(tmp_path / "r.npz")]) != 0
     assert "has no level 4; it has levels 0-1" in capsys.readouterr().err
+
+
+def test_api_load_model_takes_the_level(lod_set):
+    from seuwgpu import api
+    from seuwgpu.errors import InputError
+
+    scene = api.load_model(lod_set / "lod-meta.json", lod=1)
+    assert scene.name == "garden-lod1" and scene.model.n == 12
+    with pytest.raises(InputError, match="lod picks a level of a PlayCanvas LOD set .*not of the scene 'spheres'"):
+        api.load_model("spheres", lod=1)
+
+
+def test_recognised_by_content_and_overlapping_ranges_refused(lod_set, tmp_path):
+    root = copy_set(lod_set, tmp_path)
+    meta = json.loads((root / "lod-meta.json").read_text())
+    (root / "set.json").write_text(json.dumps(meta))  # another name: its content says what it is
+    assert detect_format(root / "set.json") == "lod" and read_model(root / "set.json").model.n == 70
+    meta["tree"]["children"][0]["lods"]["0"]["count"] = 11  # 0_1's splats 0..10, and 10.. again
+    (root / "lod-meta.json").write_text(json.dumps(meta))
+    with pytest.raises(ModelFileError, match=r"level 0 takes splats 10\.\. of tile 0_1/meta.json twice"):
+        read_model(root)
