@@ -106,13 +106,22 @@ notes for the user (`.notes`, e.g. "trained antialiased")."""
 
 # ---- models and cameras ---------------------------------------------------------------------------
 def load_model(
-    source: str | Path, *, n: int | None = None, sh_degree: int = 3, seed: int = 0, up: str | None = None
+    source: str | Path,
+    *,
+    n: int | None = None,
+    sh_degree: int = 3,
+    seed: int = 0,
+    up: str | None = None,
+    lod: int | None = None,
 ) -> Scene:
     """An embedded scene by name (`list_scenes()`: procedural ones and two real captures) or any
     supported model file or INRIA output folder, recognised by content (INRIA PLY, compressed PLY,
-    .splat, .spz, .ksplat, SOG, gsplat .pt). `n`, `sh_degree` and `seed` shape embedded scenes (`n` with a
-    file is refused: a model file keeps all of its primitives); `up` overrides
-    the up axis used to frame the model without cameras ("+z", "-y", ...)."""
+    .splat, .spz, .ksplat, SOG, a PlayCanvas LOD set, gsplat .pt). `n`, `sh_degree` and `seed`
+    shape embedded scenes (`n` with a file is refused: a model file keeps all of its primitives);
+    `up` overrides the up axis used to frame the model without cameras ("+z", "-y", ...); `lod` picks the level of
+    a PlayCanvas LOD set (lod-meta.json or its folder; default 0, the finest), refused otherwise."""
+    if lod is not None and (isinstance(lod, bool) or not isinstance(lod, int) or lod < 0):
+        raise InputError(f"lod must be a level 0, 1, 2, ..., got {lod!r}")
     if not isinstance(source, (str, Path)):
         raise InputError(f"source must be a scene name or a model path, got {source!r}")
     path = Path(source)
@@ -121,8 +130,10 @@ def load_model(
             raise FileNotFoundError(f"{path}: no such model file or folder")
         if n is not None:  # refused, not ignored, as the command line refuses --n with --model
             raise InputError(f"n sets the primitives of an embedded scene; a model file keeps all of its own ({path})")
-        return load_source(path=path, up=up)
+        return load_source(path=path, up=up, lod=lod)
     name = str(source)
+    if lod is not None:
+        raise InputError(f"lod picks a level of a PlayCanvas LOD set (a model path), not of the scene {source!r}")
     if name not in list_scenes():
         raise InputError(f"{name!r} is neither a file nor an embedded scene; scenes: {', '.join(list_scenes())}")
     return load_source(scene=name, n=n, sh_degree=sh_degree, seed=seed, up=up)

@@ -72,7 +72,7 @@ class Runner:
             from seuwgpu.faults.engine import Engine
             from seuwgpu.gpu.device import get_gpu
 
-            self.check_files()
+            model_notes = self.check_files()
             gpu = self.gpu or get_gpu()
             manifest = {
                 "spec": self.spec.to_dict(),
@@ -93,23 +93,32 @@ class Runner:
                 f"{Engine.VIEW_TIME_LEAST_ROUNDS}) as fit {Engine.VIEW_TIME_BUDGET_S:g} s, once per engine and run "
                 "(the rounds are in view_times/)",
             }
+            if model_notes:  # what the model loader said of each model file, for the report
+                manifest["model_notes"] = model_notes
             if old is not None:
                 store.forget_measurements(self.out)  # measured for the spec this one replaces
             store.write_manifest(self.out, manifest)
         store.remove_stale_temps(rec)
 
-    def check_files(self):
+    def check_files(self) -> dict[str, list[str]]:
         """Read each scene's model file once before a new run's manifest claims the directory: the
         spec check only hashes it, and a file that cannot be read would otherwise stop the run
         after the manifest was written, leaving a run folder with no records. (Camera files are
-        read by the spec check already, so an embedded scene is not built here.)"""
+        read by the spec check already, so an embedded scene is not built here.) Returns the
+        loader's notes of each model file that has some, by scene label (the manifest's
+        `model_notes`: which LOD level was read, saturated opacities, an antialiased flag, ...)."""
+        from seuwgpu.campaign.spec import scene_label
         from seuwgpu.model.sources import source_views
 
+        notes = {}
         for i, sc in enumerate(self.spec.scenes):
             if sc.model is None:
                 continue
             src = self.file_source(i)
             source_views(src, sc.cameras, self.spec.views, self.spec.size, self.spec.scale)
+            if src.notes:
+                notes[scene_label(sc)] = list(src.notes)
+        return notes
 
     def file_source(self, scene_index: int):
         """Scene `scene_index`'s model file, loaded (or the last one loaded, when it is that)."""
@@ -118,7 +127,7 @@ class Runner:
         if self._read is None or self._read[0] != scene_index:
             self._read = None  # the previous model released before the next is read
             sc = self.spec.scenes[scene_index]
-            self._read = (scene_index, load_source(path=sc.model, up=sc.up))
+            self._read = (scene_index, load_source(path=sc.model, up=sc.up, lod=sc.lod))
         return self._read[1]
 
     def done_ids(self) -> set[tuple[int, int]]:

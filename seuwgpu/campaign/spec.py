@@ -22,6 +22,8 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     [[scenes]]               # one or more
     scene = "spheres"        # an embedded scene (`seuwgpu scene --list`: procedural or real) ...
                              # or: model = "point_cloud.ply" (any format; `ply =` is an alias)
+                             # lod = 2: with a PlayCanvas LOD set (lod-meta.json or its folder),
+                             # the level read (default 0, the finest; named NAME-lod2 in records)
     n = 100000               # primitives of an embedded scene (a real capture: all by default)
     sh_degree = 3            # of an embedded scene; a model file's is read from it (recorded)
     cameras = "cameras.json" # optional, the capture's cameras (CAMS.json, INRIA cameras.json,
@@ -108,7 +110,7 @@ _TOP = {
     "lpips",
     "profile",
 }
-_SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
+_SCENE = {"scene", "model", "ply", "lod", "n", "sh_degree", "cameras", "seed", "up"}
 _SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions", "fault"}
 _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
 _SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions", "fault", "scenes"}
@@ -151,6 +153,7 @@ class SceneSpec(_Stored):
     n: int | None = None
     model: str | None = None
     model_sha256: str | None = None
+    lod: int | None = None  # the level of a PlayCanvas LOD set (recorded when given and not 0)
     up: str | None = None
     cameras: str | None = None
     cameras_sha256: str | None = None
@@ -335,7 +338,7 @@ def _list(table, key, where, default, valid=None):
     return v
 
 
-def _model_file(scene: dict, path, where: str):
+def _model_file(scene: dict, path, where: str, lod: int | None = None):
     """A scene's model file, read once by the spec: its SH degree is the scene's (the spec's
     sh_degree shapes embedded scenes; one that differs from the file's is refused, not ignored),
     recorded so that the runs' cells (no sh_rest at degree 0) and every analysis of stored bits
@@ -343,7 +346,7 @@ def _model_file(scene: dict, path, where: str):
     from seuwgpu.model.formats import read_model
 
     try:
-        model = read_model(path, warn_nonfinite=False).model
+        model = read_model(path, warn_nonfinite=False, lod=lod).model
     except ValueError as e:  # ModelFileError: the file named, the problem said
         raise SpecError(f"{where}: {e}") from None
     if "sh_degree" in scene and scene["sh_degree"] != model.sh_degree:
@@ -580,7 +583,7 @@ def scene_label(entry: SceneSpec | dict) -> str | None:
         entry = entry.to_dict()
     if entry.get("scene"):
         return str(entry["scene"])
-    return model_label(entry["model"]) if entry.get("model") else None
+    return model_label(entry["model"], entry.get("lod")) if entry.get("model") else None
 
 
 def _distinct_labels(scenes: list[dict]):
@@ -636,6 +639,8 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
         if sum(k in s for k in ("scene", "model", "ply")) != 1:
             raise SpecError(f"{where} needs exactly one of scene = NAME or model = FILE (ply = FILE is an alias)")
         out = {"sh_degree": _int(s, "sh_degree", where, 3, 0, 3), "seed": _int(s, "seed", where, 0, 0, SEED_MAX)}
+        if "lod" in s and "scene" in s:
+            raise SpecError(f"{where}.lod picks a level of a PlayCanvas LOD set given as model = ...; remove it")
         if "scene" in s:
             if not isinstance(s["scene"], str) or s["scene"] not in list_scenes():
                 raise SpecError(
@@ -656,7 +661,10 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
                 )
             out["model"] = _spec_file(s, key, where, base_dir)
             out["model_sha256"] = content_hash("model", out["model"])
-            model = _model_file(s, out["model"], where)
+            lod = _int(s, "lod", where, None, 0) if "lod" in s else None
+            model = _model_file(s, out["model"], where, lod)
+            if lod:  # level 0 is the default: the same run as without the key
+                out["lod"] = lod
             out["sh_degree"], held[i] = model.sh_degree, model.n
         if "up" in s:
             if not isinstance(s["up"], str) or s["up"] not in UP_AXES:

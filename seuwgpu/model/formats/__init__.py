@@ -6,6 +6,7 @@
 | SuperSplat/PlayCanvas compressed PLY | `ply` magic, `chunk` element, packed_* | compressed_ply.py | -y | no |
 | Niantic SPZ v1-v4 (`.spz`) | gzip header / NGSP magic | spz.py (v4: zstandard) | +y | v2, v3 |
 | PlayCanvas SOG v2 (`.sog` zip; `meta.json` + WebP) | zip with meta.json; JSON: "means" | sog.py (Pillow) | -y | no |
+| PlayCanvas LOD set (`lod-meta.json`, SOG tiles; one level) | JSON: "lodLevels" | lod.py | -y | no |
 | GaussianSplats3D `.ksplat` (v0.1, levels 0-2) | its header, sizes adding up to the file's | ksplat.py | -y | no |
 | gsplat checkpoint (`.pt`) | zip / pickle magic | gsplat.py (torch) | -y | no |
 | antimatter15 `.splat` | no header: size % 32 == 0, plausible records | splat.py | -y | no |
@@ -33,6 +34,7 @@ import numpy as np
 
 from seuwgpu.model.fields import FIELDS, Model
 from seuwgpu.model.formats import compressed_ply, gsplat, ksplat, ply, sog, spz
+from seuwgpu.model.formats import lod as lod_set
 from seuwgpu.model.formats import splat as splat_format
 from seuwgpu.model.formats.base import ANTIALIASED_NOTE, UP_AXES, ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError, NonFiniteWarning
@@ -63,6 +65,7 @@ REGISTRY: tuple[ModelFormat, ...] = (
     compressed_ply.FORMAT,
     ply.FORMAT,
     spz.FORMAT,
+    lod_set.FORMAT,
     sog.FORMAT,
     ksplat.FORMAT,
     gsplat.FORMAT,
@@ -89,19 +92,23 @@ class ModelFile:
     format: str
     up: str
     notes: list[str] = field(default_factory=list)
+    lod: int | None = None  # the level read of a LOD set, when one was asked for
 
     @property
     def name(self) -> str:
-        return model_label(self.path)
+        return model_label(self.path, self.lod)
 
 
-def model_label(path) -> str:
+def model_label(path, lod: int | None = None) -> str:
     """The name records, reports and `plan` give a model: the file's name without its format's
     extension, or for an INRIA output folder (or the point_cloud.ply of one of its iterations)
     the folder's name: every INRIA output holds a point_cloud.ply, and two captures labelled
-    "point_cloud" would be pooled as one scene."""
+    "point_cloud" would be pooled as one scene. A LOD set's level other than the finest (`lod`
+    1, 2, ...) is another model: "-lod2" is added (level 0 is the set's own name)."""
+    if lod:
+        return f"{model_label(path)}-lod{lod}"
     p = Path(path)
-    if p.name == "meta.json":  # an unbundled SOG's: its folder's name
+    if p.name in ("meta.json", lod_set.NAME):  # an unbundled SOG's or a LOD set's: its folder's name
         return p.resolve().parent.name
     if p.is_dir():  # an INRIA output or unbundled SOG folder
         return p.resolve().name
@@ -127,10 +134,13 @@ def sniff_format(path) -> ModelFormat:
     if not os.path.exists(spath):
         raise FileNotFoundError(f"{spath}: no such file")
     if os.path.isdir(spath):
+        if os.path.isfile(os.path.join(spath, lod_set.NAME)):
+            return lod_set.FORMAT
         if os.path.isfile(os.path.join(spath, "meta.json")):
             return sog.FORMAT
         raise ModelFileError(
-            f"{spath}: is a folder without point_cloud/iteration_*/point_cloud.ply (INRIA output) or meta.json (SOG)"
+            f"{spath}: is a folder without point_cloud/iteration_*/point_cloud.ply (INRIA output), meta.json (SOG) "
+            f"or {lod_set.NAME} (PlayCanvas LOD set)"
         )
     if not os.path.isfile(spath):  # reading a pipe would wait for a writer forever
         raise ModelFileError(f"{spath}: not a regular file (a pipe or device cannot be read as a model)")
@@ -146,13 +156,22 @@ def detect_format(path) -> str:
     return sniff_format(path).name
 
 
-def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
+def read_model(path, warn_nonfinite: bool = True, lod: int | None = None) -> ModelFile:
     """Load any supported model file (see the module table). Raises ModelFileError (a ValueError)
-    naming the file and the problem; warns (NonFiniteWarning) when the model holds NaN or Inf."""
+    naming the file and the problem; warns (NonFiniteWarning) when the model holds NaN or Inf.
+    `lod`: the level of detail of a LOD set (default: its finest, 0); refused for other formats."""
     spath = os.fspath(model_file(path))
     fmt = sniff_format(spath)
-    notes: list[str] = [inria_iteration_note(path)] if os.path.isdir(path) and fmt is not sog.FORMAT else []
-    model, format_notes = fmt.read(spath)
+    inria = os.path.isdir(path) and fmt not in (sog.FORMAT, lod_set.FORMAT)
+    notes: list[str] = [inria_iteration_note(path)] if inria else []
+    if lod is None:
+        model, format_notes = fmt.read(spath)
+    elif fmt.read_level is None:
+        raise ModelFileError(
+            f"{spath}: a level of detail (lod = {lod}) picks a level of a PlayCanvas LOD set; this is a {fmt.title}"
+        )
+    else:
+        model, format_notes = fmt.read_level(spath, lod)
     notes += format_notes
     up = (fmt.recorded_up(spath) if fmt.recorded_up else None) or fmt.up
     check_renderable(model, spath)
@@ -162,7 +181,7 @@ def read_model(path, warn_nonfinite: bool = True) -> ModelFile:
             total = sum(counts.values())
             per = ", ".join(f"{f} {c}" for f, c in counts.items())
             warnings.warn(f"{spath}: the model holds {total} non-finite values ({per})", NonFiniteWarning)
-    return ModelFile(model, Path(spath), fmt.name, up, notes)
+    return ModelFile(model, Path(spath), fmt.name, up, notes, lod)
 
 
 def _inria_iterations(folder) -> list[tuple[int, Path]]:
@@ -197,25 +216,29 @@ def model_file(path):
     if not os.path.isdir(path):
         return path
     p = Path(path)
+    if (p / lod_set.NAME).is_file():
+        return p / lod_set.NAME
     return p / "meta.json" if (p / "meta.json").is_file() else inria_output_model(p)
 
 
 def model_files(path) -> list[Path]:
     """The files a model path stands for: model_file's, and an unbundled SOG's images after its
-    meta.json (what a campaign hashes to know its model). A folder that is neither an INRIA
-    output nor a SOG comes back as itself (read_model refuses it with the reason)."""
+    meta.json, or a LOD set's lod-meta.json and every tile's files (what a campaign hashes to know
+    its model). A folder that is none of these comes back as itself (read_model refuses it with the reason)."""
     p = Path(model_file(path))
     if p.is_file() and p.suffix.lower() == ".json":
         with open(p, "rb") as f:
             head = f.read(4096)
+        if lod_set.is_lod_meta(head):
+            return lod_set.lod_files(p)
         if sog.is_sog_meta(head):
             return sog.unbundled_files(p)
     return [p]
 
 
-def load_model(path) -> Model:
+def load_model(path, lod: int | None = None) -> Model:
     """The Model in any supported file (read_model without the metadata)."""
-    return read_model(path).model
+    return read_model(path, lod=lod).model
 
 
 def check_renderable(model: Model, where: str):

@@ -7,8 +7,19 @@ colours), a `vertex` element of four uint32 (packed_position 11-10-11 bits, pack
 optional `sh` element of uint8 f_rest_0..K-1 (channel-major as in the INRIA PLY). Each value is
 lerp(min, max, code / (2^bits - 1)) computed in float64 like the JavaScript reference and rounded
 once to float32; colour -> SH DC = (c - 0.5) / C0; alpha byte -> logit (saturated bytes give
-+-20 instead of +-Inf, see quantized.py); SH byte b -> ((b + 0.5) / 256 - 0.5) * 8, with 0 and
++-20 instead of +-Inf, below); SH byte b -> ((b + 0.5) / 256 - 0.5) * 8, with 0 and
 255 mapping to the ends (-4, +4). rot_0..3 keep the INRIA order (w, x, y, z).
+
+Saturated alphas (decided here, docs/models.md "Saturated opacities"): the reference decoder's
+logit -log(1 / a - 1) is +Inf for a packed alpha of 1.0 (byte 255; 667 rows of PlayCanvas's
+guitar.compressed.ply, 198 of biker's) and -Inf for 0.0. They are read as +-20 (quantized.py's
+rule for every quantised format), which draws the same: the renderer's float32 sigmoid of 20 is
+1.0 exactly, as of +Inf (a reference viewer's alpha 1, capped at 0.99 by the compositor), and a
+splat at sigmoid(-20) = 2e-9 is skipped as one at 0. Keeping +Inf would instead make the model's
+stored words the decoder's accident: 23 of a +Inf's 32 bit flips give NaN, where a trained
+model's large logit (which 20 stands for) turns into another large or small finite value. The
+rows are counted in the loader's notes ("opacity +inf in 198 rows, ..."), which a campaign's
+manifest keeps (model_notes).
 """
 
 from __future__ import annotations
@@ -20,7 +31,7 @@ from seuwgpu.model.formats import ply
 from seuwgpu.model.formats.base import ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.ply import PlyHeader, read_element
-from seuwgpu.model.formats.quantized import SH_C0, finite_logit
+from seuwgpu.model.formats.quantized import SATURATED_LOGIT, SH_C0, finite_logit
 
 CHUNK = 256
 _BOUNDS = [f"{m}_{a}" for m in ("min", "max") for a in "xyz"] + [
@@ -49,6 +60,27 @@ def _lerp(a, b, t):
 
 
 def read_compressed_ply(header: PlyHeader) -> Model:
+    """The model a compressed PLY holds (notes and all: read_with_notes)."""
+    return read_with_notes(header)[0]
+
+
+def saturation_notes(full: int, empty: int) -> list[str]:
+    """What the loader says of packed alphas of 1.0 and 0.0 (+-Inf by the reference decoder)."""
+    notes = []
+    if full:
+        notes.append(
+            f"opacity +inf in {full} rows, from packed alpha 1.0, as the reference decoder gives: read as "
+            f"+{SATURATED_LOGIT:g}, drawn the same (alpha 1, capped at 0.99)"
+        )
+    if empty:
+        notes.append(
+            f"opacity -inf in {empty} rows, from packed alpha 0.0, as the reference decoder gives: read as "
+            f"-{SATURATED_LOGIT:g}, drawn the same (skipped)"
+        )
+    return notes
+
+
+def read_with_notes(header: PlyHeader) -> tuple[Model, list[str]]:
     path = header.path
     chunk_el, vertex_el = header.element("chunk"), header.element("vertex")
     names = chunk_el.names()
@@ -114,6 +146,7 @@ def read_compressed_ply(header: PlyHeader) -> Model:
             c[:, j] = _lerp(bound(f"min_{ch}"), bound(f"max_{ch}"), c[:, j])
     with np.errstate(divide="ignore"):
         opacity = finite_logit(-np.log(1.0 / c[:, 3] - 1.0))
+    saturated = (int(np.count_nonzero(c[:, 3] == 1.0)), int(np.count_nonzero(c[:, 3] == 0.0)))
     sh_rest = np.zeros((n, 0, 3))
     sh_el = header.element("sh")
     if sh_el is not None:
@@ -132,7 +165,7 @@ def read_compressed_ply(header: PlyHeader) -> Model:
         v = np.where(b == 0, 0.0, np.where(b == 255, 1.0, (b + 0.5) / 256.0))
         r = k // 3
         sh_rest = ((v - 0.5) * 8.0).reshape(n, 3, r).transpose(0, 2, 1)  # channel-major -> [N, R, 3]
-    return Model(
+    model = Model(
         means=means,
         log_scales=log_scales,
         quats=quats,
@@ -140,6 +173,7 @@ def read_compressed_ply(header: PlyHeader) -> Model:
         sh_dc=(c[:, :3] - 0.5) / SH_C0,
         sh_rest=sh_rest,
     )
+    return model, saturation_notes(*saturated)
 
 
 def _sniff(probe: Probe) -> bool:
@@ -153,6 +187,6 @@ FORMAT = ModelFormat(
     suffixes=(".compressed.ply",),
     up="-y",
     sniff=_sniff,
-    read=lambda path: (read_compressed_ply(ply.read_header(path)), []),
+    read=lambda path: read_with_notes(ply.read_header(path)),
     recorded_up=ply.recorded_up,
 )
