@@ -155,3 +155,11 @@ def test_the_packaged_manifest_is_complete_and_consistent():
         assert m.trainer and m.capture and m.subject and m.sh_degree in range(4)
         assert all(HEX64.match(f.sha256) and f.size > 0 for f in m.files)
         assert m.model in {f.path for f in m.files}, m.name
+        assert set(m.also.values()) <= {f.path for f in m.files} - {m.model}, m.name
+
+
+def test_another_published_format_must_be_one_of_the_files(tmp_path):
+    bad = tmp_path / "m.toml"
+    bad.write_text(_entry("one", {"a.splat": b"x"}, "file:///x/") + 'also = { spz = "a.spz" }\n')
+    with pytest.raises(ValueError, match=r"model 'one': also maps formats to paths among its files"):
+        corpus.load_manifest(bad)

@@ -21,7 +21,7 @@ import tomllib
 import urllib.error
 import urllib.request
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from seuwgpu.errors import InputError
@@ -68,6 +68,9 @@ class CorpusModel:
     capture: str  # how the publisher says it was made
     files: tuple[CorpusFile, ...]
     notes: str = ""
+    # the same model as the publisher also published it, in other formats ({format: path}, each
+    # path one of `files`): every one of them must load as the same model (tools/check_corpus.py)
+    also: dict = field(default_factory=dict)
 
     @property
     def size(self) -> int:
@@ -102,8 +105,11 @@ def load_manifest(path: str | Path | None = None) -> dict[str, CorpusModel]:
             raise CorpusError(f"{where}: needs files, each path once")
         if not _SHA256.match(str(m["licence_sha256"])):
             raise CorpusError(f"{where}: licence_sha256 must be 64 hex digits")
+        also = m.get("also", {})
+        if not isinstance(also, dict) or any(str(v) not in {f.path for f in files} for v in also.values()):
+            raise CorpusError(f"{where}: also maps formats to paths among its files")
         fields = {k: m[k] for k in _MODEL_KEYS if k != "files"}
-        models[m["name"]] = CorpusModel(**fields, files=tuple(files), notes=m.get("notes", ""))
+        models[m["name"]] = CorpusModel(**fields, files=tuple(files), notes=m.get("notes", ""), also=dict(also))
     if not models:
         raise CorpusError(f"{path}: no [[model]] entries")
     return models
