@@ -46,6 +46,7 @@ from seuwgpu.model import encoding
 from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, MIN_VIEW_SIZE
 from seuwgpu.model.cameras import Camera, check_one_size, image_sizes
 from seuwgpu.model.fields import FIELDS, Model
+from seuwgpu.model.formats import writable_formats
 from seuwgpu.model.scenes import list_scenes
 from seuwgpu.model.sources import Source, load_source, source_views
 from seuwgpu.report.format import json_safe
@@ -93,8 +94,11 @@ PRECISIONS = tuple(encoding.PRECISIONS)
 FRAME_FORMATS = ("png", "tiff", "npz")
 """png: 8-bit display frames (clipped to [0, 1], non-finite pixels black); tiff: float32,
 unclamped, non-finite values kept; npz: all frames of a call in one float32 array."""
-MODEL_FORMATS = ("ply", "spz")
-"""Files Injection.save_models writes: INRIA PLY (float32) and Niantic SPZ."""
+MODEL_FORMATS = writable_formats()
+"""The model formats Injection.save_models can write: those of model.formats.REGISTRY with a
+writer (INRIA PLY, compressed PLY, SPZ, SOG, .splat)."""
+_EMBEDDED_FORMATS = ("ply", "spz")
+"""What save_models writes by default for an embedded scene (or a bare Model): no source format."""
 
 Scene = Source
 """A loaded model (`.model`), its display name (`.name`), the up axis that frames it (`.up`) and
@@ -237,6 +241,8 @@ class Injection:
     """With inject(models=True): the model as stored after the fault (`models["faulted"]`) and as
     each other defense leaves it (`models[defense]`), at the stored precision."""
     up: str | None = field(default=None, repr=False)
+    source_format: str | None = field(default=None, repr=False)
+    """The format of the model file the scene came from (None: an embedded scene or a Model)."""
 
     def error_map(self, defense: str = "none") -> np.ndarray:
         """Per-pixel maximum absolute channel error against the clean frames, [K, H, W] (NaN where
@@ -268,30 +274,35 @@ class Injection:
         path.write_text(json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n")
         return [*files, path]
 
-    def save_models(self, out: str | Path, *, formats: Iterable[str] = MODEL_FORMATS) -> list[Path]:
+    def save_models(self, out: str | Path, *, formats: Iterable[str] | None = None) -> list[Path]:
         """The faulted model and each defense's repaired one (`models`) as model files a splat viewer
-        opens: `faulted.ply`, `guard.ply`, ... (INRIA PLY: float32, so at fp32 the flipped bit is
-        there bit for bit) and `.spz` (Niantic SPZ, quantized; a model with a non-finite value has
-        none, with a warning). Returns the files written."""
-        from seuwgpu.model.formats import save_model
+        opens: `faulted.ply`, `guard.ply`, ... Default `formats`: the format of the file the scene
+        was loaded from (`faulted.compressed.ply`, `faulted.sog`, `faulted.splat`, ... where it has
+        a writer) and the INRIA PLY (float32: at fp32 the flipped bit is there bit for bit); for an
+        embedded scene (or a bare Model) PLY and SPZ. Any of MODEL_FORMATS may be named. The
+        quantised formats store a corrupted value as docs/models.md says ("Writing a damaged
+        model"); one that cannot hold the model (NaN; SPZ: any non-finite value) is left out with
+        a warning saying why. Returns the files written."""
+        from seuwgpu.model.formats import format_named, save_model
 
         if self.models is None:
             raise InputError("this injection kept no models: call inject(..., models=True)")
+        if formats is None:
+            src = self.source_format
+            formats = (src, "ply") if src in MODEL_FORMATS else _EMBEDDED_FORMATS
         formats = tuple(dict.fromkeys(_names(formats, "formats")))
-        unknown = sorted(set(formats) - set(MODEL_FORMATS))
+        unknown = [f for f in formats if f not in MODEL_FORMATS]
         if unknown:
-            raise InputError(
-                f"unknown model format(s) {', '.join(unknown)}; expected some of {', '.join(MODEL_FORMATS)}"
-            )
+            raise InputError(f"unknown model format(s) {', '.join(unknown)}; writable: {', '.join(MODEL_FORMATS)}")
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         paths = []
         for name, model in self.models.items():
             for fmt in formats:
-                path = out / f"{name}.{fmt}"
+                path = out / f"{name}{format_named(fmt).suffixes[0]}"
                 try:
-                    save_model(model, path, up=self.up)
-                except ValueError as e:  # SPZ holds no non-finite value: that file is left out, said
+                    save_model(model, path, format=fmt, up=self.up)
+                except ValueError as e:  # a quantised format that cannot hold this model: left out, said
                     if fmt == "ply":
                         raise
                     warnings.warn(f"{path.name} not written: {e}", stacklevel=2)
@@ -357,7 +368,8 @@ def inject(
         metrics[d] = {k: v for k, v in rec.items() if k not in site_info and k not in ("bit", "k")}
     kept = _injected_models(eng, model_of, site, defenses) if models else None
     up = scene.up if isinstance(scene, Source) else None
-    return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames, kept, up)
+    src = scene.format if isinstance(scene, Source) else None
+    return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames, kept, up, src)
 
 
 def storm(
