@@ -269,7 +269,9 @@ def save_model(model: Model, path, format: str | None = None, up: str | None = N
         by_suffix = sorted(((s, f) for f in writable for s in f.suffixes), key=lambda sf: -len(sf[0]))
         fmt = next((f for s, f in by_suffix if spath.lower().endswith(s)), None)
     if fmt is None:
-        choices = " or ".join(f"{f.suffixes[0]} ({f.title})" for f in writable)
+        ranked = sorted(writable, key=lambda f: f is not ply.FORMAT)  # the exact one first
+        items = [f"{f.suffixes[0]} ({f.title})" for f in ranked]
+        choices = ", ".join(items[:-1]) + " or " + items[-1] if len(items) > 1 else items[0]
         raise ModelFileError(f"{spath}: cannot write this format; write {choices}")
     fmt.write(model, spath, up=up, **options)
     return fmt.name
