@@ -48,7 +48,6 @@ from pathlib import Path
 import numpy as np
 
 from seuwgpu.model.fields import Model
-from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.quantized import sigmoid, storable, turned_to_minus_y, unit_quats
 
 BOOK = 256  # codebook entries
@@ -203,13 +202,11 @@ def sog_files(model: Model, path: str = "<model>") -> dict[str, bytes]:
 
 
 def write_sog(model: Model, path, up: str | None = None, **_options) -> None:
-    """Write `model` as SOG: a bundled zip for a `.sog` path; for a `meta.json` path (or a
-    folder), an unbundled SOG of meta.json and its images in that folder."""
+    """Write `model` as SOG: for a `meta.json` path (or a folder), an unbundled SOG of meta.json
+    and its images in that folder; any other path (`x.sog`), a bundled zip."""
     spath = os.fspath(path)
     p = Path(spath)
-    bundled = p.name.lower().endswith(".sog")
-    if not bundled and not (p.name == "meta.json" or p.is_dir()):
-        raise ModelFileError(f"{spath}: a SOG is written as NAME.sog (bundled) or NAME/meta.json (unbundled)")
+    bundled = not (p.name.lower() == "meta.json" or p.is_dir())
     files = sog_files(turned_to_minus_y(model, up), spath)
     if bundled:
         with zipfile.ZipFile(spath, "w", compression=zipfile.ZIP_STORED) as z:
