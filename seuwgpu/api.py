@@ -278,7 +278,9 @@ class Injection:
         """The faulted model and each defense's repaired one (`models`) as model files a splat viewer
         opens: `faulted.ply`, `guard.ply`, ... Default `formats`: the format of the file the scene
         was loaded from (`faulted.compressed.ply`, `faulted.sog`, `faulted.splat`, ... where it has
-        a writer) and the INRIA PLY (float32: at fp32 the flipped bit is there bit for bit); for an
+        a writer; in the source's coordinates, so it overlays the original in the user's viewer,
+        where another format may be turned to its convention's up axis as SPZ is) and the INRIA
+        PLY (float32: at fp32 the flipped bit is there bit for bit); for an
         embedded scene (or a bare Model) PLY and SPZ. Any of MODEL_FORMATS may be named. The
         quantised formats store a corrupted value as docs/models.md says ("Writing a damaged
         model"); one that cannot hold the model (NaN; SPZ: any non-finite value) is left out with
@@ -299,9 +301,13 @@ class Injection:
         paths = []
         for name, model in self.models.items():
             for fmt in formats:
-                path = out / f"{name}{format_named(fmt).suffixes[0]}"
+                spec = format_named(fmt)
+                path = out / f"{name}{spec.suffixes[0]}"
+                # the source's own format keeps the source's coordinates (the file overlays the
+                # original in the user's viewer); PLY only records the up axis
+                up = None if fmt == self.source_format and spec.recorded_up is None else self.up
                 try:
-                    save_model(model, path, format=fmt, up=self.up)
+                    save_model(model, path, format=fmt, up=up)
                 except ValueError as e:  # a quantised format that cannot hold this model: left out, said
                     if fmt == "ply":
                         raise

@@ -194,19 +194,21 @@ def test_sog_palette_beyond_its_size_keeps_the_extremes(monkeypatch):
 
 
 def test_save_models_writes_the_source_format(tmp_path):
-    """inject(models=True).save_models(): by default the scene file's format and the exact PLY
-    (the upset kept in both); an unknown format is one line listing the writable ones."""
+    """inject(models=True).save_models(): by default the scene file's format, in the file's
+    coordinates, and the exact PLY (the upset kept in both); an unknown format is one line listing
+    the writable ones."""
     m = tiny(100, seed=5)
     m.log_scales[:] = -3.0 + m.log_scales * 0.1
     save_model(m, tmp_path / "src.splat")
-    scene = sg.load_model(tmp_path / "src.splat")
+    scene = sg.load_model(tmp_path / "src.splat", up="+z")  # framing only: the .splat keeps its coordinates
     cams = sg.cameras(scene, views=1, size=(16, 16))
     inj = sg.inject(scene, cams, field="means", primitive=9, component=0, bit=30, defenses=("none",), models=True)
     written = inj.save_models(tmp_path / "out")
     assert [p.name for p in written] == ["faulted.splat", "faulted.ply"]
     exact = read_model(tmp_path / "out" / "faulted.ply").model
     assert abs(exact.means[9, 0]) > 1e30  # the exponent's top bit
-    assert read_model(tmp_path / "out" / "faulted.splat").model.means[9, 0] == exact.means[9, 0]
+    assert np.array_equal(read_model(tmp_path / "out" / "faulted.splat").model.means, exact.means)
+    assert read_model(tmp_path / "out" / "faulted.ply").up == "+z"  # recorded in the PLY
     writable = "compressed-ply, ply, spz, sog, splat"
     with pytest.raises(sg.InputError, match=rf"^unknown model format\(s\) ksplat; writable: {writable}$"):
         inj.save_models(tmp_path / "out", formats=["ksplat"])

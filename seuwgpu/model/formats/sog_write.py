@@ -53,7 +53,7 @@ from seuwgpu.model.formats.quantized import sigmoid, storable, turned_to_minus_y
 BOOK = 256  # codebook entries
 MAX_PALETTE = 1 << 16  # 16-bit labels
 PALETTE_ROW = 64
-ASSIGN_BLOCK = 4096  # splats per block of the palette's nearest-entry search
+ASSIGN_BLOCK = 512  # splats per block of the palette's nearest-entry search (x 65,536 float32: 128 MiB)
 
 
 def texture_size(n: int) -> tuple[int, int]:
