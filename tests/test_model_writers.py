@@ -182,6 +182,7 @@ def test_sog_palette_beyond_its_size_keeps_the_extremes(monkeypatch):
     """More splats than palette entries: one k-means step; the rows holding the smallest and the
     largest coefficient keep entries of their own, every entry is the mean of the rows it labels."""
     monkeypatch.setattr(sog_write, "MAX_PALETTE", 16)
+    monkeypatch.setattr(sog_write, "GROUPS", 4)
     rows = np.random.default_rng(1).normal(size=(40, 3, 3))
     rows[7, 1, 2], rows[30, 0, 0] = 1e6, -1e6
     palette, labels = sog_write._palette(rows)

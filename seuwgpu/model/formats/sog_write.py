@@ -30,8 +30,9 @@ What is exact and what is re-quantised:
   exact). Up to 65,536 splats each splat is its own palette entry (the vectors then differ from
   the model only by the codebook); beyond, the palette holds 65,536 entries: the splats holding
   the smallest and the largest coefficient keep entries of their own, the others are drawn evenly
-  (seeded), every splat takes its nearest entry (squared distance) and each entry becomes the mean
-  of the splats that took it (one k-means step; write-sog.ts runs several).
+  (seeded), every splat takes its nearest entry (squared distance) among the entries of its coarse
+  group (512 seeded centres), and each entry becomes the mean of the splats that took it (one
+  k-means step; write-sog.ts runs several).
 - NaN is refused, +-Inf stored as +-3.4e38 (quantized.py, "writing"); a model whose up axis is
   not -y is turned to -y first.
 """
@@ -53,7 +54,8 @@ from seuwgpu.model.formats.quantized import sigmoid, storable, turned_to_minus_y
 BOOK = 256  # codebook entries
 MAX_PALETTE = 1 << 16  # 16-bit labels
 PALETTE_ROW = 64
-ASSIGN_BLOCK = 512  # splats per block of the palette's nearest-entry search (x 65,536 float32: 128 MiB)
+ASSIGN_BLOCK = 512  # rows per block of a nearest-centre search (x 65,536 centres in float32: 128 MiB)
+GROUPS = 512  # coarse groups of the palette's nearest-entry search
 
 
 def texture_size(n: int) -> tuple[int, int]:
@@ -124,27 +126,47 @@ def _quats(q: np.ndarray) -> np.ndarray:
 
 def _palette(rows: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """(palette [K, D], label of each row): the rows themselves up to MAX_PALETTE, else one
-    k-means step from MAX_PALETTE seeded rows (the rows holding the extreme values included)."""
+    k-means step from MAX_PALETTE seeded rows (the rows holding the extreme values included), each
+    row labelled with its nearest entry among those of its coarse group (GROUPS seeded centres:
+    the search costs N x (GROUPS + MAX_PALETTE / GROUPS), not N x MAX_PALETTE)."""
     n = len(rows)
     if n <= MAX_PALETTE:
         return rows, np.arange(n)
     flat = rows.reshape(n, -1)
+    x = np.clip(flat, -1e18, 1e18).astype(np.float32)  # squared distances stay finite in float32
+    rng = np.random.default_rng(seed)
     forced = np.unique([int(np.argmin(flat.min(axis=1))), int(np.argmax(flat.max(axis=1)))])
-    rest = np.setdiff1d(np.random.default_rng(seed).permutation(n)[:MAX_PALETTE], forced)
+    rest = np.setdiff1d(rng.permutation(n)[:MAX_PALETTE], forced)
     init = np.concatenate([forced, rest[: MAX_PALETTE - len(forced)]])
-    cen = flat[init].astype(np.float32)
-    c2 = (cen * cen).sum(axis=1)
-    labels = np.empty(n, dtype=np.int64)
-    x32 = np.clip(flat, -1e18, 1e18).astype(np.float32)  # squared distances stay finite
-    for s in range(0, n, ASSIGN_BLOCK):
-        x = x32[s : s + ASSIGN_BLOCK]
-        labels[s : s + ASSIGN_BLOCK] = np.argmin(c2[None, :] - 2.0 * (x @ cen.T), axis=1)
-    labels[init] = np.arange(len(init))  # an entry's own row keeps it (ties, float32 rounding)
+    group = _nearest_rows(x, x[rng.choice(n, min(GROUPS, n), replace=False)])
+    labels = np.full(n, -1, dtype=np.int64)
+    entry_group = group[init]
+    by_group = np.argsort(entry_group, kind="stable")
+    bounds = np.searchsorted(entry_group[by_group], np.arange(GROUPS + 1))
+    order = np.argsort(group, kind="stable")
+    row_bounds = np.searchsorted(group[order], np.arange(GROUPS + 1))
+    for g in range(GROUPS):
+        members, entries = order[row_bounds[g] : row_bounds[g + 1]], by_group[bounds[g] : bounds[g + 1]]
+        if len(members) and len(entries):
+            labels[members] = entries[_nearest_rows(x[members], x[init[entries]])]
+    lost = np.nonzero(labels < 0)[0]  # a group without an entry (rare): searched among all
+    if len(lost):
+        labels[lost] = _nearest_rows(x[lost], x[init])
+    labels[init] = np.arange(len(init))  # an entry's own row keeps it
     sums = np.zeros((len(init), flat.shape[1]))
     np.add.at(sums, labels, flat)
     counts = np.bincount(labels, minlength=len(init))
     palette = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], flat[init])
     return palette, labels
+
+
+def _nearest_rows(x: np.ndarray, cen: np.ndarray) -> np.ndarray:
+    """The index of each row's nearest centre (squared distance, float32), in blocks of rows."""
+    c2 = (cen * cen).sum(axis=1)
+    out = np.empty(len(x), dtype=np.int64)
+    for s in range(0, len(x), ASSIGN_BLOCK):
+        out[s : s + ASSIGN_BLOCK] = np.argmin(c2[None, :] - 2.0 * (x[s : s + ASSIGN_BLOCK] @ cen.T), axis=1)
+    return out
 
 
 def _webp(texels: np.ndarray, w: int, h: int) -> bytes:
