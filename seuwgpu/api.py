@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import json
 import math
-import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -95,10 +94,7 @@ FRAME_FORMATS = ("png", "tiff", "npz")
 """png: 8-bit display frames (clipped to [0, 1], non-finite pixels black); tiff: float32,
 unclamped, non-finite values kept; npz: all frames of a call in one float32 array."""
 MODEL_FORMATS = writable_formats()
-"""The model formats Injection.save_models can write: those of model.formats.REGISTRY with a
-writer (INRIA PLY, compressed PLY, SPZ, SOG, .splat)."""
-_EMBEDDED_FORMATS = ("ply", "spz")
-"""What save_models writes by default for an embedded scene (or a bare Model): no source format."""
+"""The formats Injection.save_models writes: model.formats.REGISTRY's with a writer."""
 
 Scene = Source
 """A loaded model (`.model`), its display name (`.name`), the up axis that frames it (`.up`) and
@@ -276,45 +272,17 @@ class Injection:
 
     def save_models(self, out: str | Path, *, formats: Iterable[str] | None = None) -> list[Path]:
         """The faulted model and each defense's repaired one (`models`) as model files a splat viewer
-        opens: `faulted.ply`, `guard.ply`, ... Default `formats`: the format of the file the scene
-        was loaded from (`faulted.compressed.ply`, `faulted.sog`, `faulted.splat`, ... where it has
-        a writer; in the source's coordinates, so it overlays the original in the user's viewer,
-        where another format may be turned to its convention's up axis as SPZ is) and the INRIA
-        PLY (float32: at fp32 the flipped bit is there bit for bit); for an
-        embedded scene (or a bare Model) PLY and SPZ. Any of MODEL_FORMATS may be named. The
-        quantised formats store a corrupted value as docs/models.md says ("Writing a damaged
-        model"); one that cannot hold the model (NaN; SPZ: any non-finite value) is left out with
-        a warning saying why. Returns the files written."""
-        from seuwgpu.model.formats import format_named, save_model
+        opens (`faulted.ply`, `guard.sog`, ...). Default `formats`: the scene file's format, where
+        it has a writer (in the file's coordinates, to overlay the original), and the exact
+        float32 PLY; an embedded scene: PLY and SPZ. Any of MODEL_FORMATS may be named; a file
+        its format cannot hold (NaN) is left out with a warning (model.formats.save_models;
+        docs/models.md, "Writing a damaged model"). Returns the files written."""
+        from seuwgpu.model.formats import save_models
 
         if self.models is None:
             raise InputError("this injection kept no models: call inject(..., models=True)")
-        if formats is None:
-            src = self.source_format
-            formats = (src, "ply") if src in MODEL_FORMATS else _EMBEDDED_FORMATS
-        formats = tuple(dict.fromkeys(_names(formats, "formats")))
-        unknown = [f for f in formats if f not in MODEL_FORMATS]
-        if unknown:
-            raise InputError(f"unknown model format(s) {', '.join(unknown)}; writable: {', '.join(MODEL_FORMATS)}")
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        paths = []
-        for name, model in self.models.items():
-            for fmt in formats:
-                spec = format_named(fmt)
-                path = out / f"{name}{spec.suffixes[0]}"
-                # the source's own format keeps the source's coordinates (the file overlays the
-                # original in the user's viewer); PLY only records the up axis
-                up = None if fmt == self.source_format and spec.recorded_up is None else self.up
-                try:
-                    save_model(model, path, format=fmt, up=up)
-                except ValueError as e:  # a quantised format that cannot hold this model: left out, said
-                    if fmt == "ply":
-                        raise
-                    warnings.warn(f"{path.name} not written: {e}", stacklevel=2)
-                    continue
-                paths.append(path)
-        return paths
+        names = None if formats is None else _names(formats, "formats")
+        return save_models(self.models, out, names, up=self.up, source=self.source_format)
 
 
 def inject(

@@ -57,6 +57,7 @@ __all__ = [
     "nonfinite_counts",
     "read_model",
     "save_model",
+    "save_models",
     "sniff_format",
     "writable_formats",
 ]
@@ -275,3 +276,40 @@ def save_model(model: Model, path, format: str | None = None, up: str | None = N
         raise ModelFileError(f"{spath}: cannot write this format; write {choices}")
     fmt.write(model, spath, up=up, **options)
     return fmt.name
+
+
+EMBEDDED_FORMATS = ("ply", "spz")  # save_models' default without a source format (an embedded scene)
+
+
+def save_models(models: dict[str, Model], out, formats=None, up: str | None = None, source: str | None = None):
+    """Write each model of `models` (name -> Model: `faulted`, a defense's repair) in each of
+    `formats` (writable_formats() names) into the folder `out` as NAME + the format's suffix.
+    Default: the `source` file's format where it has a writer, and the exact PLY; without one
+    EMBEDDED_FORMATS. The source's own format is written in the source's coordinates (not turned
+    to `up`), so the file overlays the original in the user's viewer; PLY records `up`. A
+    quantised file that cannot hold a model (NaN; SPZ: any non-finite value) is left out with a
+    warning saying why; the PLY is always written. Returns the paths written."""
+    writable = writable_formats()
+    if formats is None:
+        formats = (source, "ply") if source in writable else EMBEDDED_FORMATS
+    formats = tuple(dict.fromkeys(formats))
+    unknown = [f for f in formats if f not in writable]
+    if unknown:
+        raise ModelFileError(f"unknown model format(s) {', '.join(unknown)}; writable: {', '.join(writable)}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, model in models.items():
+        for fmt in formats:
+            spec = format_named(fmt)
+            path = out / f"{name}{spec.suffixes[0]}"
+            turn = fmt != source or spec.recorded_up is not None  # PLY's up is a comment, not a turn
+            try:
+                save_model(model, path, format=fmt, up=up if turn else None)
+            except ValueError as e:
+                if fmt == "ply":
+                    raise
+                warnings.warn(f"{path.name} not written: {e}", stacklevel=3)
+                continue
+            paths.append(path)
+    return paths
