@@ -41,7 +41,7 @@ def test_every_format_module_is_registered_once():
     names = [f.name for f in REGISTRY]
     suffixes = [s for f in REGISTRY for s in f.suffixes]
     assert len(set(names)) == len(names) and len(set(suffixes)) == len(suffixes)
-    assert set(WRITABLE) == {"ply", "spz", "compressed-ply", "sog", "splat"}
+    assert set(WRITABLE) == {"ply", "spz", "compressed-ply", "sog", "ksplat", "splat"}
     assert all(f.up in formats.UP_AXES for f in REGISTRY)
 
 
@@ -106,7 +106,7 @@ def test_write_errors_name_the_writable_formats(tmp_path):
     with pytest.raises(ModelFileError, match=r"cannot write this format; write \.ply \(INRIA 3DGS PLY\), \.compressed"):
         save_model(m, tmp_path / "a.obj")
     with pytest.raises(ModelFileError, match="cannot write this format"):
-        save_model(m, tmp_path / "a.ksplat", format="ksplat")  # a registered format without a writer
+        save_model(m, tmp_path / "a.pt", format="gsplat")  # a registered format without a writer
     with pytest.raises(ModelFileError, match="unknown model format 'obj'; known: compressed-ply, ply, spz"):
         format_named("obj")
 

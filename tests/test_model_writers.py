@@ -1,4 +1,4 @@
-"""The quantised writers (compressed PLY, .splat, SOG): files our readers read back as the format
+"""The quantised writers (compressed PLY, .splat, SOG, .ksplat): files our readers read back as the format
 quantises them (the expected values computed here from the format's definition), the reference
 layout (header, field order, meta.json keys, image sizes), and a corrupted value kept as the most
 extreme value the format can hold (quantized.py, "writing"); save_models' default formats."""
@@ -178,6 +178,32 @@ def test_sog_writer(tmp_path):
         save_model(m, path)
 
 
+def test_sog_writer_keeps_a_splat_transform_sog(tmp_path):
+    """splat-transform's SOG (tests/data/formats/sh3.sog, SH degree 3) read, written and read
+    again: the same values (rotations within a step), the same zip layout (members stored,
+    images first, meta.json last) and meta.json keys in the same order."""
+    from pathlib import Path
+
+    ref = Path(__file__).parent / "data" / "formats" / "sh3.sog"
+    first = read_model(ref).model
+    save_model(first, tmp_path / "again.sog")
+    again = read_model(tmp_path / "again.sog").model
+    for f in ("means", "log_scales", "opacity", "sh_dc", "sh_rest"):
+        assert np.array_equal(getattr(again, f), getattr(first, f)), f
+    # rotations: bit for bit but where two components tie for the largest (one 8-bit step)
+    assert same_rotation(again.quats, first.quats, 2 / 255 / math.sqrt(2))
+    assert np.mean(np.all(again.quats == first.quats, axis=1)) > 0.95
+
+    def keys(d):
+        return [(k, keys(v)) if isinstance(v, dict) else k for k, v in d.items()]
+
+    def layout(path):
+        with zipfile.ZipFile(path) as z:
+            return z.namelist(), {i.compress_type for i in z.infolist()}, keys(json.loads(z.read("meta.json")))
+
+    assert layout(tmp_path / "again.sog") == layout(ref)
+
+
 def test_sog_palette_beyond_its_size_keeps_the_extremes(monkeypatch):
     """More splats than palette entries: one k-means step; the rows holding the smallest and the
     largest coefficient keep entries of their own, every entry is the mean of the rows it labels."""
@@ -192,6 +218,33 @@ def test_sog_palette_beyond_its_size_keeps_the_extremes(monkeypatch):
         assert np.array_equal(palette[labels[i]], flat[i]) and np.sum(labels == labels[i]) == 1
     for k in np.unique(labels):
         assert np.allclose(palette[k], flat[labels == k].mean(axis=0))
+
+
+def test_ksplat_writer(tmp_path):
+    """Level 0: GaussianSplats3D's own level-0 file read and written again is the same file, byte
+    for byte; a damaged model keeps its positions and SH exactly, Inf as 3.4e38, a huge log-scale
+    as the largest float32 scale; SH band 3 is dropped; NaN refused."""
+    from pathlib import Path
+
+    ref = Path(__file__).parent / "data" / "formats" / "level0_sh2.ksplat"
+    assert save_model(read_model(ref).model, tmp_path / "again.ksplat") == "ksplat"
+    assert (tmp_path / "again.ksplat").read_bytes() == ref.read_bytes()
+
+    m = tiny(30, degree=3, seed=2)
+    m.means[1, 2], m.means[2, 0], m.log_scales[3, 1], m.sh_rest[4, 7, 2] = 1e30, -np.inf, 1e30, -1e30
+    save_model(m, tmp_path / "m.ksplat")
+    mf = read_model(tmp_path / "m.ksplat")
+    back = mf.model
+    assert "compression level 0" in mf.notes[0] and back.sh_degree == 2
+    want = m.means.copy()
+    want[2, 0] = -F32_MAX
+    assert np.array_equal(back.means, want) and np.array_equal(back.sh_rest, m.sh_rest[:, :8])
+    assert back.log_scales[3, 1] == np.float32(math.log(F32_MAX))
+    assert np.array_equal(back.quats, m.quats)  # as given: the renderers normalise
+    assert np.array_equal(back.opacity, logit_of_byte(np.floor(sigmoid(m.opacity) * 255 + 0.5)))
+    m.quats[0, 0] = np.nan
+    with pytest.raises(ModelFileError, match=r"\.ksplat cannot store NaN \(found in quats\); write \.ply"):
+        save_model(m, tmp_path / "m.ksplat")
 
 
 def test_save_models_writes_the_source_format(tmp_path):
@@ -210,7 +263,7 @@ def test_save_models_writes_the_source_format(tmp_path):
     assert abs(exact.means[9, 0]) > 1e30  # the exponent's top bit
     assert np.array_equal(read_model(tmp_path / "out" / "faulted.splat").model.means, exact.means)
     assert read_model(tmp_path / "out" / "faulted.ply").up == "+z"  # recorded in the PLY
-    writable = "compressed-ply, ply, spz, sog, splat"
-    with pytest.raises(sg.InputError, match=rf"^unknown model format\(s\) ksplat; writable: {writable}$"):
-        inj.save_models(tmp_path / "out", formats=["ksplat"])
+    writable = "compressed-ply, ply, spz, sog, ksplat, splat"
+    with pytest.raises(sg.InputError, match=rf"^unknown model format\(s\) gsplat; writable: {writable}$"):
+        inj.save_models(tmp_path / "out", formats=["gsplat"])
     assert [p.name for p in inj.save_models(tmp_path / "o2", formats="compressed-ply")] == ["faulted.compressed.ply"]

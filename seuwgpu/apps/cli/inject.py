@@ -69,8 +69,8 @@ def inject_arguments(s: argparse.ArgumentParser):
         type=Path,
         metavar="DIR",
         help="also write the faulted model and each defense's repaired one (faulted.ply, guard.ply, ...), to open "
-        "in a splat viewer: in the --model file's format (compressed PLY, SOG, .splat, SPZ, PLY) and as INRIA PLY "
-        "(float32, exact); a scene by name as PLY and SPZ",
+        "in a splat viewer: in the --model file's format (compressed PLY, SOG, .splat, .ksplat, SPZ, PLY) and as "
+        "INRIA PLY (float32, exact); a scene by name as PLY and SPZ",
     )
     add_profile_arg(s)
 

@@ -6,14 +6,14 @@
 | SuperSplat/PlayCanvas compressed PLY | `ply` magic, `chunk` element, packed_* | compressed_ply.py | -y | yes |
 | Niantic SPZ v1-v4 (`.spz`) | gzip header / NGSP magic | spz.py (v4: zstandard) | +y | v2, v3 |
 | PlayCanvas SOG v2 (`.sog` zip; `meta.json` + WebP) | zip with meta.json; JSON: "means" | sog.py (Pillow) | -y | yes |
-| GaussianSplats3D `.ksplat` (v0.1, levels 0-2) | its header, sizes adding up to the file's | ksplat.py | -y | no |
+| GaussianSplats3D `.ksplat` (v0.1, levels 0-2) | its header, sizes adding up to the file's | ksplat.py | -y | level 0 |
 | gsplat checkpoint (`.pt`) | zip / pickle magic | gsplat.py (torch) | -y | no |
 | antimatter15 `.splat` | no header: size % 32 == 0, plausible records | splat.py | -y | yes |
 
 Each module exports one `FORMAT` (base.ModelFormat: name, suffixes, up axis, sniff, read ->
 (Model, notes), write or None); REGISTRY below lists them in sniffing order, and everything here
 loops over it. Adding a format: CONTRIBUTING.md, "Add a model format". The quantised writers
-(compressed PLY, .splat, SOG) share one rule for corrupted values (quantized.py, "writing"): NaN
+(compressed PLY, .splat, SOG, .ksplat) share one rule for corrupted values (quantized.py, "writing"): NaN
 is refused, +-Inf stored as the largest finite float32, and an upset's value kept as a range end
 or codebook entry rather than clipped into the clean range.
 
@@ -254,8 +254,8 @@ def nonfinite_counts(model: Model) -> dict[str, int]:
 
 def save_model(model: Model, path, format: str | None = None, up: str | None = None, **options) -> str:
     """Write `model` in a writable format (writable_formats(): INRIA PLY `.ply`, SPZ `.spz`
-    (options: version=3, antialiased=False), compressed PLY `.compressed.ply`, `.splat`, SOG `.sog`
-    or an unbundled SOG's `meta.json`), chosen by `format` or the file extension (the longest
+    (options: version=3, antialiased=False), compressed PLY `.compressed.ply`, `.splat`, `.ksplat` (level 0),
+    SOG `.sog` or an unbundled SOG's `meta.json`), chosen by `format` or the file extension (the longest
     suffix that matches: `x.compressed.ply` is a compressed PLY). Returns the format written.
 
     `up`: the model's up axis. A PLY records it (`comment up +z`, which read_model honours). SPZ

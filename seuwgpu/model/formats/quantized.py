@@ -52,7 +52,7 @@ def to_u8(x: np.ndarray) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------- writing
 #
-# What the quantised writers (compressed PLY, .splat, SOG) do with a corrupted value, one rule for
+# What the quantised writers (compressed PLY, .splat, SOG, .ksplat) do with a corrupted value, one rule for
 # all three (docs/models.md, "Writing a damaged model"):
 # - NaN has no code in any of them: the file is refused (ModelFileError naming the format and the
 #   fields), and the exact float32 PLY is the file to open.

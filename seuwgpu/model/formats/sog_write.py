@@ -181,7 +181,7 @@ def _webp(texels: np.ndarray, w: int, h: int) -> bytes:
 
 
 def sog_files(model: Model, path: str = "<model>") -> dict[str, bytes]:
-    """meta.json and the WebP images of a model's SOG (module docstring), by file name."""
+    """The WebP images and meta.json of a model's SOG (module docstring), by file name."""
     v = storable(model, path, "PlayCanvas SOG")
     n, r = model.n, model.sh_rest.shape[1]
     w, h = texture_size(n)
@@ -220,7 +220,7 @@ def sog_files(model: Model, path: str = "<model>") -> dict[str, bytes]:
             "codebook": sh_book.tolist(),
             "files": ["shN_centroids.webp", "shN_labels.webp"],
         }
-    return {"meta.json": json.dumps(meta, allow_nan=False).encode("utf-8"), **files}
+    return {**files, "meta.json": json.dumps(meta, allow_nan=False).encode("utf-8")}  # write-sog.ts's order
 
 
 def write_sog(model: Model, path, up: str | None = None, **_options) -> None:
