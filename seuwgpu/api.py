@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import json
 import math
-import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,6 +46,7 @@ from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, MIN_VIEW_SIZE
 from seuwgpu.model.cameras import Camera, check_one_size, image_sizes
 from seuwgpu.model.corpus import CorpusModel
 from seuwgpu.model.fields import FIELDS, Model
+from seuwgpu.model.formats import writable_formats
 from seuwgpu.model.scenes import list_scenes
 from seuwgpu.model.sources import Source, load_source, source_views
 from seuwgpu.report.format import json_safe
@@ -96,8 +96,8 @@ PRECISIONS = tuple(encoding.PRECISIONS)
 FRAME_FORMATS = ("png", "tiff", "npz")
 """png: 8-bit display frames (clipped to [0, 1], non-finite pixels black); tiff: float32,
 unclamped, non-finite values kept; npz: all frames of a call in one float32 array."""
-MODEL_FORMATS = ("ply", "spz")
-"""Files Injection.save_models writes: INRIA PLY (float32) and Niantic SPZ."""
+MODEL_FORMATS = writable_formats()
+"""The formats Injection.save_models writes: model.formats.REGISTRY's with a writer."""
 
 Scene = Source
 """A loaded model (`.model`), its display name (`.name`), the up axis that frames it (`.up`) and
@@ -274,6 +274,8 @@ class Injection:
     """With inject(models=True): the model as stored after the fault (`models["faulted"]`) and as
     each other defense leaves it (`models[defense]`), at the stored precision."""
     up: str | None = field(default=None, repr=False)
+    source_format: str | None = field(default=None, repr=False)
+    """The format of the model file the scene came from (None: an embedded scene or a Model)."""
 
     def error_map(self, defense: str = "none") -> np.ndarray:
         """Per-pixel maximum absolute channel error against the clean frames, [K, H, W] (NaN where
@@ -305,36 +307,19 @@ class Injection:
         path.write_text(json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n")
         return [*files, path]
 
-    def save_models(self, out: str | Path, *, formats: Iterable[str] = MODEL_FORMATS) -> list[Path]:
+    def save_models(self, out: str | Path, *, formats: Iterable[str] | None = None) -> list[Path]:
         """The faulted model and each defense's repaired one (`models`) as model files a splat viewer
-        opens: `faulted.ply`, `guard.ply`, ... (INRIA PLY: float32, so at fp32 the flipped bit is
-        there bit for bit) and `.spz` (Niantic SPZ, quantized; a model with a non-finite value has
-        none, with a warning). Returns the files written."""
-        from seuwgpu.model.formats import save_model
+        opens (`faulted.ply`, `guard.sog`, ...). Default `formats`: the scene file's format, where
+        it has a writer (in the file's coordinates, to overlay the original), and the exact
+        float32 PLY; an embedded scene: PLY and SPZ. Any of MODEL_FORMATS may be named; a file
+        its format cannot hold (NaN) is left out with a warning (model.formats.save_models;
+        docs/models.md, "Writing a damaged model"). Returns the files written."""
+        from seuwgpu.model.formats import save_models
 
         if self.models is None:
             raise InputError("this injection kept no models: call inject(..., models=True)")
-        formats = tuple(dict.fromkeys(_names(formats, "formats")))
-        unknown = sorted(set(formats) - set(MODEL_FORMATS))
-        if unknown:
-            raise InputError(
-                f"unknown model format(s) {', '.join(unknown)}; expected some of {', '.join(MODEL_FORMATS)}"
-            )
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        paths = []
-        for name, model in self.models.items():
-            for fmt in formats:
-                path = out / f"{name}.{fmt}"
-                try:
-                    save_model(model, path, up=self.up)
-                except ValueError as e:  # SPZ holds no non-finite value: that file is left out, said
-                    if fmt == "ply":
-                        raise
-                    warnings.warn(f"{path.name} not written: {e}", stacklevel=2)
-                    continue
-                paths.append(path)
-        return paths
+        names = None if formats is None else _names(formats, "formats")
+        return save_models(self.models, out, names, up=self.up, source=self.source_format)
 
 
 def inject(
@@ -394,7 +379,8 @@ def inject(
         metrics[d] = {k: v for k, v in rec.items() if k not in site_info and k not in ("bit", "k")}
     kept = _injected_models(eng, model_of, site, defenses) if models else None
     up = scene.up if isinstance(scene, Source) else None
-    return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames, kept, up)
+    src = scene.format if isinstance(scene, Source) else None
+    return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames, kept, up, src)
 
 
 def storm(

@@ -27,6 +27,7 @@ class Source:
     up: str
     scene: str | None = None  # the embedded scene framed by its registered views (None: a file, or --up given)
     notes: list[str] = field(default_factory=list)
+    format: str | None = None  # the file's format (formats.REGISTRY name); None: an embedded scene
 
 
 def load_source(
@@ -44,7 +45,7 @@ def load_source(
         raise ValueError(f"unknown up axis {up!r}; expected one of {', '.join(AXES)}")
     if path is not None:
         mf = read_model(path, lod=lod)
-        return Source(mf.model, mf.name, up or mf.up, None, mf.notes)
+        return Source(mf.model, mf.name, up or mf.up, None, mf.notes, mf.format)
     if lod is not None:
         raise ValueError(f"lod = {lod} picks a level of a PlayCanvas LOD set (a model file), not of an embedded scene")
     name = scene or scenes.DEFAULT_SCENE

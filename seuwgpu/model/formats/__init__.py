@@ -3,17 +3,20 @@
 | format | recognised by | module | up axis | written |
 |---|---|---|---|---|
 | INRIA PLY (`.ply`; binary LE/BE, ASCII) | `ply` magic, `vertex` element | ply.py (own header + numpy) | -y | yes |
-| SuperSplat/PlayCanvas compressed PLY | `ply` magic, `chunk` element, packed_* | compressed_ply.py | -y | no |
+| SuperSplat/PlayCanvas compressed PLY | `ply` magic, `chunk` element, packed_* | compressed_ply.py | -y | yes |
 | Niantic SPZ v1-v4 (`.spz`) | gzip header / NGSP magic | spz.py (v4: zstandard) | +y | v2, v3 |
-| PlayCanvas SOG v2 (`.sog` zip; `meta.json` + WebP) | zip with meta.json; JSON: "means" | sog.py (Pillow) | -y | no |
+| PlayCanvas SOG v2 (`.sog` zip; `meta.json` + WebP) | zip with meta.json; JSON: "means" | sog.py (Pillow) | -y | yes |
 | PlayCanvas LOD set (`lod-meta.json`, SOG tiles; one level) | JSON: "lodLevels" | lod.py | -y | no |
-| GaussianSplats3D `.ksplat` (v0.1, levels 0-2) | its header, sizes adding up to the file's | ksplat.py | -y | no |
+| GaussianSplats3D `.ksplat` (v0.1, levels 0-2) | its header, sizes adding up to the file's | ksplat.py | -y | level 0 |
 | gsplat checkpoint (`.pt`) | zip / pickle magic | gsplat.py (torch) | -y | no |
-| antimatter15 `.splat` | no header: size % 32 == 0, plausible records | splat.py | -y | no |
+| antimatter15 `.splat` | no header: size % 32 == 0, plausible records | splat.py | -y | yes |
 
 Each module exports one `FORMAT` (base.ModelFormat: name, suffixes, up axis, sniff, read ->
 (Model, notes), write or None); REGISTRY below lists them in sniffing order, and everything here
-loops over it. Adding a format: CONTRIBUTING.md, "Add a model format".
+loops over it. Adding a format: CONTRIBUTING.md, "Add a model format". The quantised writers
+(compressed PLY, .splat, SOG, .ksplat) share one rule for corrupted values (quantized.py, "writing"): NaN
+is refused, +-Inf stored as the largest finite float32, and an upset's value kept as a range end
+or codebook entry rather than clipped into the clean range.
 
 The up axis is the file format's convention, used to frame a model when no cameras are given:
 SPZ stores RUB axes (y up); PLY, .splat, .ksplat, SOG and gsplat models live in their capture's COLMAP world,
@@ -56,7 +59,9 @@ __all__ = [
     "nonfinite_counts",
     "read_model",
     "save_model",
+    "save_models",
     "sniff_format",
+    "writable_formats",
 ]
 
 # Every format, in sniffing order: the first whose sniff says yes reads the file. The compressed
@@ -72,6 +77,11 @@ REGISTRY: tuple[ModelFormat, ...] = (
     splat_format.FORMAT,
 )
 FORMATS = {f.name: f.title for f in REGISTRY}  # name -> title (kept for callers; the code below asks REGISTRY)
+
+
+def writable_formats() -> tuple[str, ...]:
+    """The names of the formats with a writer, in REGISTRY order."""
+    return tuple(f.name for f in REGISTRY if f.write is not None)
 
 
 def format_named(name: str) -> ModelFormat:
@@ -266,8 +276,10 @@ def nonfinite_counts(model: Model) -> dict[str, int]:
 
 
 def save_model(model: Model, path, format: str | None = None, up: str | None = None, **options) -> str:
-    """Write `model` in a writable format (INRIA PLY `.ply`, or SPZ `.spz`; options: version=3,
-    antialiased=False), chosen by `format` or the file extension. Returns the format written.
+    """Write `model` in a writable format (writable_formats(): INRIA PLY `.ply`, SPZ `.spz`
+    (options: version=3, antialiased=False), compressed PLY `.compressed.ply`, `.splat`, `.ksplat` (level 0),
+    SOG `.sog` or an unbundled SOG's `meta.json`), chosen by `format` or the file extension (the longest
+    suffix that matches: `x.compressed.ply` is a compressed PLY). Returns the format written.
 
     `up`: the model's up axis. A PLY records it (`comment up +z`, which read_model honours). SPZ
     has no such field and its frame is y-up (RUB), so a model whose up is another axis is turned
@@ -278,9 +290,49 @@ def save_model(model: Model, path, format: str | None = None, up: str | None = N
     if format is not None:
         fmt = next((f for f in writable if f.name == format), None)
     else:
-        fmt = next((f for f in writable if spath.lower().endswith(f.suffixes)), None)
+        by_suffix = sorted(((s, f) for f in writable for s in f.suffixes), key=lambda sf: -len(sf[0]))
+        fmt = next((f for s, f in by_suffix if spath.lower().endswith(s)), None)
     if fmt is None:
-        choices = " or ".join(f"{f.suffixes[0]} ({f.title})" for f in writable)
+        ranked = sorted(writable, key=lambda f: f is not ply.FORMAT)  # the exact one first
+        items = [f"{f.suffixes[0]} ({f.title})" for f in ranked]
+        choices = ", ".join(items[:-1]) + " or " + items[-1] if len(items) > 1 else items[0]
         raise ModelFileError(f"{spath}: cannot write this format; write {choices}")
     fmt.write(model, spath, up=up, **options)
     return fmt.name
+
+
+EMBEDDED_FORMATS = ("ply", "spz")  # save_models' default without a source format (an embedded scene)
+
+
+def save_models(models: dict[str, Model], out, formats=None, up: str | None = None, source: str | None = None):
+    """Write each model of `models` (name -> Model: `faulted`, a defense's repair) in each of
+    `formats` (writable_formats() names) into the folder `out` as NAME + the format's suffix.
+    Default: the `source` file's format where it has a writer, and the exact PLY; without one
+    EMBEDDED_FORMATS. The source's own format is written in the source's coordinates (not turned
+    to `up`), so the file overlays the original in the user's viewer; PLY records `up`. A
+    quantised file that cannot hold a model (NaN; SPZ: any non-finite value) is left out with a
+    warning saying why; the PLY is always written. Returns the paths written."""
+    writable = writable_formats()
+    if formats is None:
+        formats = (source, "ply") if source in writable else EMBEDDED_FORMATS
+    formats = tuple(dict.fromkeys(formats))
+    unknown = [f for f in formats if f not in writable]
+    if unknown:
+        raise ModelFileError(f"unknown model format(s) {', '.join(unknown)}; writable: {', '.join(writable)}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, model in models.items():
+        for fmt in formats:
+            spec = format_named(fmt)
+            path = out / f"{name}{spec.suffixes[0]}"
+            turn = fmt != source or spec.recorded_up is not None  # PLY's up is a comment, not a turn
+            try:
+                save_model(model, path, format=fmt, up=up if turn else None)
+            except ValueError as e:
+                if fmt == "ply":
+                    raise
+                warnings.warn(f"{path.name} not written: {e}", stacklevel=3)
+                continue
+            paths.append(path)
+    return paths
