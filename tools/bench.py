@@ -96,10 +96,10 @@ from seuwgpu.render.renderer import Renderer  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_floors import measure_floors, stage_floor_s  # noqa: E402
-from bench_stages import STAGES, StageTimedRenderer  # noqa: E402
+from bench_stages import STAGES, StageTimedRenderer, timestamp_period_ns  # noqa: E402
 from bench_table import print_table  # noqa: E402
 
-from seuwgpu.gpu.timing import count_dispatches, timestamp_period_ns  # noqa: E402
+from seuwgpu.gpu.timing import count_dispatches  # noqa: E402
 
 
 @functools.cache

@@ -9,8 +9,6 @@ set's size are left untimed and counted.
 
 from __future__ import annotations
 
-from seuwgpu.gpu.device import GPU
-
 
 class TimedPass:
     """Forwards to a real compute pass; remembers the label of the first pipeline set on it."""
@@ -91,16 +89,3 @@ class TimedEncoder:
 
     def __getattr__(self, name):
         return getattr(self._e, name)
-
-
-def timestamp_period_ns(gpu: GPU) -> float:
-    """Nanoseconds per timestamp tick: wgpu-native's wgpuQueueGetTimestampPeriod (Vulkan's
-    timestampPeriod; WebGPU itself specifies nanoseconds, wgpu-native returns ticks), 1.0 where it
-    is absent. wgpu-py 0.32 wraps no such call, so this reaches the queue's native handle: the one
-    place the package does, kept here with the other timing."""
-    try:
-        from wgpu.backends.wgpu_native._api import libf
-
-        return float(libf.wgpuQueueGetTimestampPeriod(gpu.queue._internal))
-    except Exception:  # noqa: BLE001 - another backend: WebGPU specifies nanoseconds
-        return 1.0
