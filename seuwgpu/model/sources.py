@@ -27,6 +27,7 @@ class Source:
     up: str
     scene: str | None = None  # the embedded scene framed by its registered views (None: a file, or --up given)
     notes: list[str] = field(default_factory=list)
+    format: str | None = None  # a file's format (formats.REGISTRY's name); None: an embedded scene
 
 
 def load_source(
@@ -42,7 +43,7 @@ def load_source(
         raise ValueError(f"unknown up axis {up!r}; expected one of {', '.join(AXES)}")
     if path is not None:
         mf = read_model(path)
-        return Source(mf.model, mf.name, up or mf.up, None, mf.notes)
+        return Source(mf.model, mf.name, up or mf.up, None, mf.notes, mf.format)
     name = scene or scenes.DEFAULT_SCENE
     if n is not None and not scenes.is_capture(name):
         # before generating: enough memory to generate and render it (an engine checks its own
