@@ -1,0 +1,100 @@
+"""The report's opening summary (report/summary.py, analysis/summary.py): the cheapest-defense
+rule, the target's spec key and option, what the runner keeps of a model file for it. Its
+numbers against the records: tests/test_report_numbers.py; the page: test_report_browser.py."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from seuwgpu.analysis.summary import DEFAULT_TARGET, cheapest, spec_target
+from seuwgpu.campaign.spec import SpecError, as_spec, normalize_spec, sites_key
+
+
+def defenses(rows):
+    cols = ["defense", "rate", "ci_lo", "ci_hi", "time_ms", "device_bytes"]
+    t = pd.DataFrame(rows, columns=cols)
+    return t.assign(scene="m", n_primitives=1000, precision="fp32")
+
+
+def test_the_cheapest_defense_that_meets_the_target_is_the_fastest_then_the_smallest():
+    t = defenses(
+        [
+            ("none", 0.05, 0.04, 0.06, 2.0, 0),
+            ("checksum", 0.0, 0.0, 0.0004, 2.1, 34_000),  # the best rate, but slower
+            ("parity4", 0.0002, 0.0, 0.0008, 2.05, 5_400),  # as fast as guard, larger
+            ("guard", 0.0003, 0.0, 0.0009, 2.05, 976),  # meets the target: fastest, then smallest
+            ("scalebound", 0.0001, 0.0, 0.0003, math.nan, 64),  # time not measured: after the measured
+        ]
+    )
+    r = cheapest(t, 0.001).iloc[0]
+    assert r["met"] and r["defense"] == "guard" and r["candidates"] == 4
+    assert r["time_ms"] == 2.05 and r["device_bytes"] == 976
+    # a stricter target leaves only the slower checksum and the unmeasured scalebound: the measured first
+    assert cheapest(t, 0.0005).iloc[0]["defense"] == "checksum"
+    # only the unmeasured one meets it: it is the answer (its time shown as not measured, never 0)
+    r = cheapest(t, 0.00035).iloc[0]
+    assert r["defense"] == "scalebound" and math.isnan(r["time_ms"])
+
+
+def test_no_defense_meets_the_target_and_the_summary_says_which_came_closest():
+    t = defenses([("none", 0.05, 0.04, 0.06, 2.0, 0), ("guard", 0.001, 0.0002, 0.004, 2.5, 976)])
+    r = cheapest(t, 0.001).iloc[0]  # guard's rate equals the target, but its interval reaches 0.4%
+    assert not r["met"] and pd.isna(r["defense"]) and r["candidates"] == 0
+    assert r["closest"] == "guard" and r["closest_ci_hi"] == 0.004
+    with pytest.raises(ValueError, match="target"):
+        cheapest(t, 0)
+
+
+def test_the_target_is_a_spec_key_that_changes_no_fault_site():
+    raw = {"views": 1, "size": "16x16", "scenes": [{"scene": "spheres", "n": 100}], "single": {"samples": 1}}
+    spec = normalize_spec({**raw, "summary": {"target": 0.02}})
+    assert spec.summary.target == 0.02 and as_spec(spec.to_dict()) == spec
+    assert spec_target([{"spec": spec.to_dict()}]) == 0.02
+    assert spec_target([{"spec": normalize_spec(raw).to_dict()}]) is None  # the report's default then
+    assert DEFAULT_TARGET == 0.001
+    assert sites_key(spec) == sites_key(normalize_spec(raw))
+    for bad in (0, 1, -0.1, "0.1", True):
+        with pytest.raises(SpecError, match="summary.target"):
+            normalize_spec({**raw, "summary": {"target": bad}})
+    with pytest.raises(SpecError, match="unknown key"):
+        normalize_spec({**raw, "summary": {"goal": 0.1}})
+
+
+def test_report_takes_the_target_on_its_command_line():
+    from seuwgpu.apps.cli import build_parser
+
+    args = build_parser().parse_args(["report", "runs/a", "--out", "r", "--target", "0.005"])
+    assert args.target == 0.005
+    assert build_parser().parse_args(["report", "runs/a", "--out", "r"]).target is None
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["report", "runs/a", "--out", "r", "--target", "2"])
+
+
+def test_the_manifest_keeps_the_model_files_format_size_degree_and_loader_notes(tmp_path):
+    """What the summary's model table reads: Runner.check_files, before a new run's manifest."""
+    from seuwgpu.campaign.runner import Runner
+    from seuwgpu.model.fields import Model
+    from seuwgpu.model.formats import save_model
+
+    rng = np.random.default_rng(0)
+    n = 40
+    model = Model(
+        means=rng.normal(size=(n, 3)).astype(np.float32),
+        log_scales=np.full((n, 3), -3.0, np.float32),
+        quats=np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
+        opacity=np.zeros(n, np.float32),
+        sh_dc=rng.normal(size=(n, 3)).astype(np.float32),
+        sh_rest=np.zeros((n, 3, 3), np.float32),
+    )
+    path = tmp_path / "tiny.ply"
+    save_model(model, path)
+    spec = normalize_spec(
+        {"views": 1, "size": "16x16", "scenes": [{"model": str(path)}, {"scene": "spheres", "n": 50}], "single": {}}
+    )
+    models = Runner(spec, None).check_files()
+    assert models[0] == {"name": "tiny", "format": "ply", "primitives": n, "sh_degree": 1, "notes": []}
+    assert models[1] == {"name": "spheres", "format": "embedded scene", "primitives": 50, "sh_degree": 3, "notes": []}
