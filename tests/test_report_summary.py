@@ -98,3 +98,58 @@ def test_the_manifest_keeps_the_model_files_format_size_degree_and_loader_notes(
     models = Runner(spec, None).check_files()
     assert models[0] == {"name": "tiny", "format": "ply", "primitives": n, "sh_degree": 1, "notes": []}
     assert models[1] == {"name": "spheres", "format": "embedded scene", "primitives": 50, "sh_degree": 3, "notes": []}
+
+
+def records(time_ms=float("nan")) -> pd.DataFrame:
+    """A few single-upset records of one model under none and guard (no run: the summary's rows)."""
+    rows = []
+    for field, bit in [("opacity", 30), ("opacity", 0), ("log_scales", 30), ("log_scales", 0)]:
+        for i in range(4):
+            for d in ("none", "guard"):
+                bad = d == "none" and bit == 30 and i < 3
+                rows.append(
+                    {
+                        "campaign": "single",
+                        "scene": "m",
+                        "n_primitives": 100,
+                        "precision": "fp32",
+                        "field": field,
+                        "primitive": i,
+                        "component": 0,
+                        "bit": bit,
+                        "defense": d,
+                        "footprint": 0.5 if bad else 0.0,
+                        "peak_error": 1.0 if bad else 0.0,
+                        "nonfinite": False,
+                        "catastrophic": bad,
+                        "k": 1,
+                        "weight": 100.0 * (3 if field == "log_scales" else 1) / 4,
+                        "time_ms": time_ms,
+                    }
+                )
+    return pd.DataFrame(rows)
+
+
+def test_a_time_not_measured_is_said_so_never_zero_and_a_missing_arm_is_named():
+    from seuwgpu.report.summary import summary_section
+
+    manifests = [{"spec": {"scenes": [{"scene": "m", "n": 100}], "summary": {"target": 0.5}}}]
+    sec = summary_section(records(), manifests, panel=False)
+    t = next(t.df for t in sec.tables if t.name == "summary_defenses")
+    assert list(t["time per frame"]) == ["not measured"] * 2 and list(t["time vs none"]) == [
+        "reference",
+        "not measured",
+    ]
+    num = sec.numbers["summary"]
+    assert num["target"] == 0.5 and num["target_source"] == "the spec's [summary] target"
+    assert all(math.isnan(d["time_ms"]) for d in num["defenses"])
+    # guard meets 50% (no catastrophe), none does not: guard is the answer though its time is unknown
+    assert [c["defense"] for c in num["cheapest"]] == ["guard"]
+    assert "Its panel (clean | faulted | guarded | error): `seuwgpu inject --scene m --n 100" in " ".join(sec.notes)
+    # no arm without a defense: p_c is not measured, and the summary says how to measure it
+    df = records()
+    sec = summary_section(df[df["defense"] == "guard"], manifests, panel=False)
+    assert "p_c: not measured" in sec.text and not any(t.name == "summary_pc" for t in sec.tables)
+    # no single upset at all
+    sec = summary_section(df.assign(campaign="dose"), manifests, panel=False)
+    assert "no single upset" in sec.text and not sec.tables

@@ -112,9 +112,7 @@ def _nonfinite_notes(manifests: list[dict]) -> dict[str, str]:
             counts = note.get("nonfinite_values") or {}
             if counts and scene not in out:
                 what = ", ".join(f"{f} {int(c)}" for f, c in counts.items())
-                out[scene] = (
-                    f"NaN/Inf in the clean model at {precision} (components per field: {what}; the guard maps them)"
-                )
+                out[scene] = f"the clean model holds NaN/Inf at {precision}: {what} values (the guard maps them)"
     return out
 
 

@@ -293,6 +293,13 @@ def summary_section(df: pd.DataFrame, manifests: list[dict], target: float | Non
                 "whose time was.",
             )
         )
+    if len(models) and not len(pc):
+        lead.append('p_c: not measured (no single upset without a defense: add "none" to [single] defenses).')
+    if not len(models):
+        lead.append(
+            "These records hold no single upset (campaign [single], k = 1): the summary rests on them; run the "
+            "default campaign (`seuwgpu demo`) or a spec with [single]."
+        )
     sec.text = " ".join(lead)
     sec.numbers["summary"] = _numbers(res)
     return sec
