@@ -154,8 +154,11 @@ def worst_record(s: pd.DataFrame) -> dict | None:
         }
     )
     i = int(np.lexsort((-np.arange(len(key)), key["pe"], key["fp"], key["nf"]))[-1])
-    rec = none.iloc[i].to_dict()
-    return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in rec.items()}
+    rec = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in none.iloc[i].to_dict().items()}
+    for k in ("primitive", "component"):  # None where not recorded (folded records keep few sites)
+        v = rec.get(k)
+        rec[k] = int(v) if v is not None and not pd.isna(v) and v >= 0 else None
+    return rec
 
 
 def _exposure(defense: str, check_every: int) -> tuple[float, float]:

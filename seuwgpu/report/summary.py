@@ -75,7 +75,7 @@ def inject_command(worst: dict, manifests: list[dict]) -> str:
     if spec.get("scale") is not None:
         args += ["--scale", f"{float(spec['scale']):g}"]
     args += ["--precision", str(worst["precision"]), "--field", str(worst["field"])]
-    args += ["--primitive", str(int(worst["primitive"])), "--component", str(int(worst.get("component", 0)))]
+    args += ["--primitive", str(worst["primitive"]), "--component", str(worst.get("component") or 0)]
     args += ["--bit", str(int(worst["bit"])), "--out", "worst_flip"]
     return " ".join(shlex.quote(a) for a in args)
 
@@ -104,8 +104,8 @@ def worst_flip_frames(worst: dict, manifests: list[dict], gpu=None) -> dict:
     from seuwgpu.gpu.device import get_gpu
     from seuwgpu.model.sources import load_source, source_views
 
-    if worst.get("fault", "bit") not in ("bit", None) or int(worst.get("primitive", -1)) < 0:
-        raise ValueError(f"the worst record is a {worst.get('fault')} fault, not one bit flip")
+    if not _one_flip(worst):
+        raise ValueError("the worst record is not one bit flip at a recorded site")
     sc = _scene_spec(worst, manifests)
     if sc is None:
         raise ValueError(f"no [[scenes]] entry of the runs' specs names {worst['scene']!r}")
@@ -123,7 +123,7 @@ def worst_flip_frames(worst: dict, manifests: list[dict], gpu=None) -> dict:
         model = model.sample(n, int(sc.get("seed", 0)), src.name)
     profile = (manifests[0].get("profile") if manifests else None) or "strict"
     eng = Engine(model, views, str(worst["precision"]), gpu=gpu or get_gpu(), scene=src.name, profile=profile)
-    site = eng.site(str(worst["field"]), int(worst["primitive"]), int(worst.get("component", 0)), (int(worst["bit"]),))
+    site = eng.site(str(worst["field"]), worst["primitive"], worst.get("component") or 0, (int(worst["bit"]),))
     out = {"clean": eng.clean.copy()}
     for d in ("none", "guard"):
         rec = eng.inject(site, d)
@@ -306,13 +306,16 @@ def summary_section(df: pd.DataFrame, manifests: list[dict], target: float | Non
 
 
 def _worst_flip(sec: Section, worst: dict, manifests: list[dict], panel: bool):
-    cmd = inject_command(worst, manifests) if int(worst.get("primitive", -1)) >= 0 else ""
+    cmd = inject_command(worst, manifests) if _one_flip(worst) else ""
     bit = int(worst["bit"])
+    prim = "?" if worst.get("primitive") is None else worst["primitive"]
+    values = [worst.get(k) for k in ("clean_value", "corrupted_value")]
+    known = worst.get("primitive") is not None and all(isinstance(v, (int, float)) for v in values)
+    change = " -> ".join(f"{float(v):.6g}" for v in values) if known else "values not kept"
     what = (
         f"{worst['scene']} (N={int(worst['n_primitives']):,}, {worst['precision']}): "
-        f"{FIELD_LABELS.get(worst['field'], worst['field'])}[{int(worst.get('primitive', -1))}]"
-        f"[{int(worst.get('component', 0))}] bit {bit}, {worst.get('clean_value', float('nan')):.6g} -> "
-        f"{worst.get('corrupted_value', float('nan')):.6g}: footprint {100 * float(worst['footprint']):.3g}%"
+        f"{FIELD_LABELS.get(worst['field'], worst['field'])}[{prim}][{worst.get('component') or 0}] bit {bit}, "
+        f"{change}: footprint {100 * float(worst['footprint']):.3g}%"
         + (", non-finite pixels" if worst.get("nonfinite") else "")
     )
     sec.notes.append(f"Worst flip found (no defense): {what}.")
@@ -335,6 +338,16 @@ def _worst_flip(sec: Section, worst: dict, manifests: list[dict], panel: bool):
             sec.notes.append(f"Its panel could not be drawn here ({type(e).__name__}: {e}).")
     if made is None and cmd:
         sec.notes.append(f"Its panel (clean | faulted | guarded | error): `{cmd}`")
+    elif made is None:
+        sec.notes.append(
+            "Its site was not kept (records folded as read keep few sites: `seuwgpu report --fold no` names it)."
+        )
+
+
+def _one_flip(worst: dict) -> bool:
+    """The record is one bit flipped at a recorded site (what `seuwgpu inject` draws)."""
+    fault = worst.get("fault")
+    return worst.get("primitive") is not None and (fault is None or fault == "bit" or pd.isna(fault))
 
 
 def _numbers(res: dict) -> dict:
