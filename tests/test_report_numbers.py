@@ -300,9 +300,10 @@ def test_summary_numbers(run):
             k, n = cells["catastrophic"].sum()[key], cells.size()[key]
             assert (c["ci_lo"], c["ci_hi"]) == pytest.approx(wilson(k, n))
             assert c["share_of_pc"] == pytest.approx(share[key])
-    # the worst flip: a non-finite frame of the unguarded arm (none other is worse)
+    # the worst flip: the largest footprint of the unguarded arm, a non-finite frame first among equals
     w = num["worst"]
-    assert w["nonfinite"] and w["footprint"] == none.loc[none["nonfinite"], "footprint"].max()
+    top = none[none["footprint"] == none["footprint"].max()]
+    assert w["footprint"] == top["footprint"].iloc[0] and w["nonfinite"] == top["nonfinite"].any()
     # each defense, per model: rate and interval, the time its records measured, exposure
     times = {"none": 2.0, "guard": 2.5, "ecc": 2.0}
     got = {(r["scene"], r["defense"]): r for r in num["defenses"]}
@@ -319,7 +320,8 @@ def test_summary_numbers(run):
     # the cheapest: among those whose interval's upper end is at most the target, by time then bytes
     for scene in SCENES:
         rows = [got[(scene, d)] for d in DEFS]
-        ok = sorted((r for r in rows if r["ci_hi"] <= 0.001), key=lambda r: (r["time_ms"], r["device_bytes"]))
+        ok = [r for r in rows if r["ci_hi"] <= 0.001]
+        ok = sorted(ok, key=lambda r: (r["defense"] != "none", r["time_ms"], r["device_bytes"]))
         c = next(c for c in num["cheapest"] if c["scene"] == scene)
         assert c["met"] == bool(ok) and c["defense"] == (ok[0]["defense"] if ok else None)
     page = (out / "report.md").read_text()

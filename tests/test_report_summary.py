@@ -35,6 +35,10 @@ def test_the_cheapest_defense_that_meets_the_target_is_the_fastest_then_the_smal
     assert r["time_ms"] == 2.05 and r["device_bytes"] == 976
     # a stricter target leaves only the slower checksum and the unmeasured scalebound: the measured first
     assert cheapest(t, 0.0005).iloc[0]["defense"] == "checksum"
+    # no defense meets a loose target: nothing to add, although guard was timed faster (noise)
+    loose = t.assign(time_ms=t["time_ms"].where(t["defense"] != "guard", 1.9))
+    r = cheapest(loose, 0.1).iloc[0]
+    assert r["defense"] == "none" and r["candidates"] == 5
     # only the unmeasured one meets it: it is the answer (its time shown as not measured, never 0)
     r = cheapest(t, 0.00035).iloc[0]
     assert r["defense"] == "scalebound" and math.isnan(r["time_ms"])
@@ -153,3 +157,16 @@ def test_a_time_not_measured_is_said_so_never_zero_and_a_missing_arm_is_named():
     # no single upset at all
     sec = summary_section(df.assign(campaign="dose"), manifests, panel=False)
     assert "no single upset" in sec.text and not sec.tables
+
+
+def test_the_worst_flip_is_the_largest_footprint_a_non_finite_frame_first_among_equals():
+    from seuwgpu.analysis.summary import worst_record
+
+    df = records()
+    none = df["defense"] == "none"
+    df.loc[none & (df["field"] == "opacity") & (df["bit"] == 0), ["nonfinite", "footprint"]] = [True, 0.01]
+    assert worst_record(df)["footprint"] == 0.5  # a sheet over half the frame beats a non-finite speck
+    df.loc[none & (df["field"] == "opacity") & (df["bit"] == 0) & (df["primitive"] == 2), "footprint"] = 0.5
+    w = worst_record(df)
+    assert w["nonfinite"] and (w["field"], w["bit"], w["primitive"]) == ("opacity", 0, 2)
+    assert worst_record(df[~none]) is None  # no unguarded record: no worst flip to show

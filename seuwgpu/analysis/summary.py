@@ -12,8 +12,8 @@ weighted by the stored bits its records stand for, with its 95% interval (analys
 * cells: the (field, bit) cells with the highest catastrophic rate under no defense, each with
   n, its interval and the share of p_c it carries (W_h p_h / p_c, W_h the cell's share of the
   model's stored bits);
-* worst: the single record of the worst flip found under no defense (a non-finite frame first,
-  then the largest footprint);
+* worst: the single record of the worst flip found under no defense (the largest footprint, a
+  non-finite frame before a finite one of the same footprint);
 * defenses: per model, precision and defense: the residual catastrophic rate (interval), the
   device memory it adds (faults.defenses.device_bytes, bytes and % of the stored model), the time
   per frame the records measured (time_ms, the median over the arm's records; NaN where none
@@ -22,7 +22,8 @@ weighted by the stored bits its records stand for, with its 95% interval (analys
   0 for a guard (every frame clamped) or a read-time code, infinite without a defense;
 * cheapest: per model and precision, the defense whose residual rate meets the target (the
   upper end of its 95% interval at most `target`, per upset) that is cheapest in the order
-  CHEAPEST_ORDER: time per frame first (unmeasured times last), then device memory.
+  CHEAPEST_ORDER: no defense when it meets the target (it costs nothing: a measured time below
+  it is noise), then time per frame (unmeasured times last), then device memory.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from seuwgpu.analysis.records import single_upsets
 # the residual catastrophic rate per upset a defense must meet, unless the spec's
 # `[summary] target` or `seuwgpu report --target` says otherwise
 DEFAULT_TARGET = 0.001
-CHEAPEST_ORDER = ("time per frame (ms)", "device memory (bytes)")
+CHEAPEST_ORDER = ("no defense (it adds nothing)", "time per frame (ms)", "device memory (bytes)")
 TOP_CELLS = 5
 MODEL = ["scene", "n_primitives"]
 
@@ -141,8 +142,8 @@ def top_cells(s: pd.DataFrame, top: int = TOP_CELLS, conf: float = 0.95) -> pd.D
 
 
 def worst_record(s: pd.DataFrame) -> dict | None:
-    """The worst flip found under no defense: a non-finite frame first, then the largest
-    footprint, then the largest peak error (ties: the first record)."""
+    """The worst flip found under no defense: the largest footprint (the share of the frame it
+    changes), then a non-finite frame, then the largest peak error (ties: the first record)."""
     none = s[s["defense"] == "none"]
     if none.empty:
         return None
@@ -153,7 +154,7 @@ def worst_record(s: pd.DataFrame) -> dict | None:
             "pe": none["peak_error"].astype(float).fillna(np.inf).to_numpy() if "peak_error" in none else 0.0,
         }
     )
-    i = int(np.lexsort((-np.arange(len(key)), key["pe"], key["fp"], key["nf"]))[-1])
+    i = int(np.lexsort((-np.arange(len(key)), key["pe"], key["nf"], key["fp"]))[-1])
     rec = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in none.iloc[i].to_dict().items()}
     for k in ("primitive", "component"):  # None where not recorded (folded records keep few sites)
         v = rec.get(k)
@@ -234,8 +235,8 @@ def _checked(defense: str) -> bool:
 
 def cheapest(defenses: pd.DataFrame, target: float) -> pd.DataFrame:
     """Per model and precision, the defense that meets `target` (its interval's upper end at most
-    `target`) and comes first in CHEAPEST_ORDER (time per frame, unmeasured last; then device
-    bytes; then the registry's order). A row with defense NaN and met False where none meets it."""
+    `target`) and comes first in CHEAPEST_ORDER (none; then time per frame, unmeasured last; then
+    device bytes; then the registry's order). A row with defense NaN and met False where none meets it."""
     if not 0 < float(target) < 1:
         raise ValueError(f"the target is a catastrophic rate per upset in (0, 1), got {target!r}")
     rows = []
@@ -258,8 +259,8 @@ def cheapest(defenses: pd.DataFrame, target: float) -> pd.DataFrame:
                 }
             )
             continue
-        ok = ok.assign(_t=ok["time_ms"].fillna(np.inf), _i=np.arange(len(ok)))
-        best = ok.sort_values(["_t", "device_bytes", "_i"], kind="stable").iloc[0]
+        ok = ok.assign(_n=ok["defense"] != "none", _t=ok["time_ms"].fillna(np.inf), _i=np.arange(len(ok)))
+        best = ok.sort_values(["_n", "_t", "device_bytes", "_i"], kind="stable").iloc[0]
         rows.append(
             {
                 **base,

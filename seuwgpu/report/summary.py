@@ -268,7 +268,9 @@ def summary_section(df: pd.DataFrame, manifests: list[dict], target: float | Non
     if len(cheap):
         rows = []
         for r in cheap.to_dict("records"):
-            if r["met"]:
+            if r["met"] and r["defense"] == "none":
+                what = f"no defense needed: without one the rate is at most {_pct(r['ci_hi'])}"
+            elif r["met"]:
                 what = (
                     f"{r['defense']}: residual {_pct(r['rate'])} (at most {_pct(r['ci_hi'])}), "
                     f"{_ms(r['time_ms'])} a frame, {int(r['device_bytes']):,} B on the device; "
@@ -289,7 +291,7 @@ def summary_section(df: pd.DataFrame, manifests: list[dict], target: float | Non
                 f"A defense meets the target when the upper end of its residual rate's 95% interval is at most "
                 f"{_pct(target)} per upset (here: {res['target_source']}; set it with `[summary] target` in the spec "
                 f"or `seuwgpu report --target`; default {_pct(S.DEFAULT_TARGET)}). Cheapest: by "
-                f"{' then '.join(S.CHEAPEST_ORDER)}; a defense whose time was not measured comes after those "
+                f"{', then '.join(S.CHEAPEST_ORDER)}; a defense whose time was not measured comes after those "
                 "whose time was.",
             )
         )
