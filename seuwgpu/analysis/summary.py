@@ -40,7 +40,7 @@ from seuwgpu.analysis.records import single_upsets
 # the residual catastrophic rate per upset a defense must meet, unless the spec's
 # `[summary] target` or `seuwgpu report --target` says otherwise
 DEFAULT_TARGET = 0.001
-CHEAPEST_ORDER = ("no defense (it adds nothing)", "time per frame (ms)", "device memory (bytes)")
+CHEAPEST_ORDER = ("no defense (it adds nothing)", "time per frame", "device memory")
 TOP_CELLS = 5
 MODEL = ["scene", "n_primitives"]
 

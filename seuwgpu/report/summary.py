@@ -278,8 +278,8 @@ def summary_section(df: pd.DataFrame, manifests: list[dict], target: float | Non
                 )
             else:
                 what = (
-                    f"none meets it: the closest is {r['closest']}, at most {_pct(r['closest_ci_hi'])}; "
-                    "more samples narrow the intervals"
+                    f"not met by any defense measured: the closest is {r['closest']}, at most "
+                    f"{_pct(r['closest_ci_hi'])}; more samples narrow the intervals"
                 )
             rows.append({"model": _model_name(r), "precision": r["precision"], "cheapest meeting the target": what})
             lead.append(f"Target {_pct(target)} per upset on {_model_name(r)}: {what}.")
@@ -290,9 +290,9 @@ def summary_section(df: pd.DataFrame, manifests: list[dict], target: float | Non
                 pd.DataFrame(rows),
                 f"A defense meets the target when the upper end of its residual rate's 95% interval is at most "
                 f"{_pct(target)} per upset (here: {res['target_source']}; set it with `[summary] target` in the spec "
-                f"or `seuwgpu report --target`; default {_pct(S.DEFAULT_TARGET)}). Cheapest: by "
-                f"{', then '.join(S.CHEAPEST_ORDER)}; a defense whose time was not measured comes after those "
-                "whose time was.",
+                f"or `seuwgpu report --target`; default {_pct(S.DEFAULT_TARGET)}). Cheapest: {S.CHEAPEST_ORDER[0]} "
+                f"when that meets the target, else by {' then by '.join(S.CHEAPEST_ORDER[1:])}; a defense whose "
+                "time was not measured comes after those whose time was.",
             )
         )
     if len(models) and not len(pc):
