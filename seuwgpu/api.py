@@ -710,10 +710,13 @@ def make_report(
     *,
     progress: Callable[[int, int], None] | None = None,
     workers: int | None = None,
+    target: float | None = None,
 ) -> Path:
     """Write the report of the runs (HTML, figures as PNG, tables as CSV and Markdown,
     summary.json) into `out`; returns the path of index.html. fold: fold the records as they
     are read (the same numbers in less memory; None: only when they would not fit unfolded).
+    target: the residual catastrophic rate per upset the summary's cheapest defense must meet
+    (None: the runs' spec `[summary] target`, else 0.001).
     `progress(parts read, parts)` as the parts are read; `workers`: processes folding parts side
     by side (default: one per CPU, at most 8, from 256 parts on). `runs` may also be the
     campaign_runs of campaign/store.py (their manifests read once by the caller)."""
@@ -722,7 +725,7 @@ def make_report(
 
     runs = [r if isinstance(r, CampaignRun) else _existing(r, "run directory") for r in _paths(runs)]
     out = make_out_dir(_out_path(out, "report folder"), what="report folder")
-    return build_report(runs, out, fold=fold, progress=progress, workers=workers)
+    return build_report(runs, out, fold=fold, progress=progress, workers=workers, target=target)
 
 
 def outcome_rates(

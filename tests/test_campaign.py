@@ -490,7 +490,8 @@ def test_unreadable_model_or_camera_file_stops_before_the_manifest(tmp_path):
     Runner(normalize_spec({**base, "scenes": [{"model": str(noted)}]}), tmp_path / "run", quiet=True).run()
     assert len(read_records(tmp_path / "run")) == 2
     notes = read_model(noted).notes
-    assert notes and store.read_manifest(tmp_path / "run")["model_notes"] == {"noted": notes}
+    models = store.read_manifest(tmp_path / "run")["models"]
+    assert notes and [m["notes"] for m in models if m["name"] == "noted"] == [notes]
 
 
 def test_cell_sites_are_drawn_with_replacement():

@@ -239,6 +239,12 @@ def test_demo_on_a_tiny_scene(tmp_path, capsys):
     m = read_manifest(tmp_path / "demo")
     assert len(read_records(tmp_path / "demo")) == m["total_injections"] * len(m["spec"]["single"]["defenses"])
     assert (tmp_path / "demo" / "report" / "index.html").is_file()
+    # the report opens with the summary (issue 45): the model, its p_c, the worst flip's panel
+    model = {"name": "spheres", "format": "embedded scene", "primitives": 200, "sh_degree": 3, "notes": []}
+    assert m["models"] == [model]
+    md = (tmp_path / "demo" / "report" / "report.md").read_text()
+    assert md.split("\n## ")[1].startswith("Summary") and "p_c = " in md.split("\n## ")[1]
+    assert (tmp_path / "demo" / "report" / "fig_worst_flip.png").is_file()
 
 
 @pytest.mark.slow

@@ -67,6 +67,9 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     check_every = 1          # a check defense checks every S frames: what it repairs is drawn until then
     frames_per_second = 30.0 # the frame rate the check's exposure (frames) turns into hours
 
+    [summary]                # optional: the report's opening summary (it changes no injection)
+    target = 0.001           # residual catastrophic rate per upset the cheapest defense must meet
+
     [sizes]                  # primitive-count sweep: single upsets at each N (a procedural scene
     n = [5000, 20000, 80000] # is generated at N; a capture or model file cut to a seeded subset)
     scenes = "all"           # optional: [[scenes]] indices swept, or "all" (default: [0], the first)
@@ -107,6 +110,7 @@ _TOP = {
     "name",
     "outcomes",  # analysis inputs (thresholds, upset rates) and the optional LPIPS metric
     "reliability",
+    "summary",
     "lpips",
     "profile",
 }
@@ -238,6 +242,13 @@ class ReliabilitySpec(_Stored):
 
 
 @dataclass(frozen=True, kw_only=True)
+class SummarySpec(_Stored):
+    """[summary]: the report summary's target (a residual catastrophic rate per upset)."""
+
+    target: float | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
 class Spec(_Stored):
     """A validated campaign spec with its defaults filled in (module docstring: the TOML keys).
     `profile` None: the default renderer profile ("strict"), not recorded."""
@@ -253,6 +264,7 @@ class Spec(_Stored):
     lpips: bool = False
     outcomes: OutcomesSpec | None = None
     reliability: ReliabilitySpec | None = None
+    summary: SummarySpec | None = None
     single: UpsetSpec | None = None
     dose: DoseSpec | None = None
     sizes: SizesSpec | None = None
@@ -273,7 +285,8 @@ class Spec(_Stored):
         """A Spec from its stored form (a manifest's `spec`), not validated again: the files it
         names may be on another machine."""
         sections = {"single": UpsetSpec, "dose": DoseSpec, "sizes": SizesSpec}
-        kw = {k: v for k, v in d.items() if k not in ("scenes", "size", *sections, "outcomes", "reliability")}
+        tables = ("scenes", "size", *sections, "outcomes", "reliability", "summary")
+        kw = {k: v for k, v in d.items() if k not in tables}
         kw["size"] = tuple(d["size"])
         kw["scenes"] = tuple(SceneSpec.from_dict(sc) for sc in d["scenes"])
         for key, kind in sections.items():
@@ -283,6 +296,8 @@ class Spec(_Stored):
             kw["outcomes"] = OutcomesSpec.from_dict(d["outcomes"])
         if "reliability" in d:
             kw["reliability"] = ReliabilitySpec.from_dict(d["reliability"])
+        if "summary" in d:
+            kw["summary"] = SummarySpec.from_dict(d["summary"])
         return cls(**kw)
 
 
@@ -694,6 +709,12 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
         spec["outcomes"] = _outcomes(raw["outcomes"])
     if "reliability" in raw:
         spec["reliability"] = _reliability(raw["reliability"])
+    if "summary" in raw:
+        _keys(raw["summary"], {"target"}, "summary")
+        t = raw["summary"].get("target", 0.001)
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 < t < 1:
+            raise SpecError(f"summary.target must be a catastrophic rate per upset in (0, 1), got {t!r}")
+        spec["summary"] = {"target": float(t)}
     if not any(k in raw for k in ("single", "dose", "sizes")):
         raise SpecError("the spec needs at least one of [single], [dose], [sizes]")
     if "single" in raw:
@@ -856,7 +877,7 @@ def _short_hash(keyed: dict) -> str:
 # Spec entries that change no drawn site and no measurement of one: the campaign's label, the
 # part size (injection ids, and so every draw, do not depend on it), the analysis inputs, and
 # extra metrics recorded beside the others (LPIPS, sort-first region columns).
-_NOT_SITES = ("name", "batch", "outcomes", "reliability", "lpips", "profile")
+_NOT_SITES = ("name", "batch", "outcomes", "reliability", "summary", "lpips", "profile")
 _NOT_SITES_IN = ("regions",)
 
 

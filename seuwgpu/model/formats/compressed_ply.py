@@ -19,7 +19,7 @@ splat at sigmoid(-20) = 2e-9 is skipped as one at 0. Keeping +Inf would instead 
 stored words the decoder's accident: 23 of a +Inf's 32 bit flips give NaN, where a trained
 model's large logit (which 20 stands for) turns into another large or small finite value. The
 rows are counted in the loader's notes ("opacity +inf in 198 rows, ..."), which a campaign's
-manifest keeps (model_notes).
+manifest keeps (its `models`).
 
 Written (write_compressed_ply) as splat-transform's write-compressed-ply.ts / compressed-chunk.ts
 pack it, in float64: the same header (18 chunk bounds, four uint32, uchar SH), bounds = each
