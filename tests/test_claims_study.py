@@ -243,9 +243,13 @@ def test_the_real_study_specs_fall_back_to_flowers_tile_and_shrink():
     out = tool.with_samples(raw, 4)
     assert out["single"]["samples"] == 4 and out["dose"]["repeats"] == 2 and raw["single"]["samples"] == 64
     plan = pd.DataFrame([{"campaign": "single", "injections": 1520, "arms": 4}])
+    rates = tool.REAL_RATES
+    want = rates["setup_s"] + 1520 / rates["single_4arms"]
     assert tool.estimate_seconds(plan, {"single": {"defenses": ["none", "guard", "guard_all", "parity4r"]}}) == (
-        pytest.approx(1520 / tool.REAL_RATES["single_4arms"])
+        pytest.approx(want)
     )
+    two = tool.estimate_seconds(plan, {"single": {"defenses": ["none", "guard"]}})
+    assert two == pytest.approx(rates["setup_s"] + 1520 / (2 * rates["single_4arms"]))
     import tomllib
     from pathlib import Path
 

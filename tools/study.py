@@ -40,13 +40,12 @@ REAL_SPECS = (
 )
 LOD = "flowers/lod-meta.json"
 LOD_TILE = "flowers/0_0"  # the LOD set's finest tile with the most splats (164,037), a plain SOG folder
-# measured rates (sites a second, all arms of a spec together) on this 2-core lavapipe host: see
-# docs/study/real/README.md; the plan's time estimate rests on them
-# (2026-12-07, load average 6.7 on the 2 cores: plant 640 injections x 4 arms in 42.0 s, 15.2/s; the
-# flowers tile 768 x 4 in 23.4 s, 32.8/s; setup included): the plan gives the time at the slower
-# rate and at twice it (the faster one measured); 2 arms are taken at twice the 4 arms' rate, 3 at
-# 4/3 of it, a dose render (k upsets, every view re-rendered) at DESIGN.md's 0.23 s a view
-REAL_RATES = {"single_4arms": 15.2, "single_2arms": 30.4, "size_3arms": 20.3, "dose_render_s": 0.92}
+# measured rates on this 2-core lavapipe host (docs/study/real/README.md; 2026-12-07, load average
+# 6.7 from other sessions): plant 160 injections x 4 arms in 26.3 s and 640 in 42.0 s, so 30.6 a
+# second once started and 21 s to start a (model, spec) context (load, clean renders); flowers'
+# tile 192 in 19.0 s (12.7 s to start at that rate). 2 arms are taken at twice the 4 arms' rate, 3
+# at 4/3 of it, a dose render (k upsets, every view drawn anew) at DESIGN.md's 0.23 s a view.
+REAL_RATES = {"single_4arms": 30.6, "setup_s": 21.0, "dose_render_s": 0.92}
 
 
 def lod_loads(corpus: Path) -> bool:
@@ -91,17 +90,15 @@ def with_samples(raw: dict, samples: int) -> dict:
 
 
 def estimate_seconds(plan, spec_raw: dict) -> float:
-    """The plan's compute time from the measured rates (REAL_RATES)."""
+    """The plan's compute time from the measured rates (REAL_RATES): injections at the rate for the
+    spec's arms, plus the start of each (model, size) context."""
     arms = len((spec_raw.get("single") or spec_raw.get("sizes") or spec_raw.get("dose"))["defenses"])
-    total = 0.0
+    total = REAL_RATES["setup_s"] * len(plan)
     for _, r in plan.iterrows():
         if r["campaign"] == "dose":
             total += r["injections"] * r["arms"] * REAL_RATES["dose_render_s"]
-        elif r["campaign"] == "size":
-            total += r["injections"] / REAL_RATES["size_3arms"] * arms / 3
         else:
-            rate = REAL_RATES["single_4arms"] if arms >= 3 else REAL_RATES["single_2arms"]
-            total += r["injections"] / rate * (arms / 4 if arms >= 3 else arms / 2)
+            total += r["injections"] / (REAL_RATES["single_4arms"] * 4 / arms)
     return total
 
 
@@ -294,10 +291,7 @@ def run_real(args) -> int:
                 f"about {est / 60:.0f} min at the measured rates"
             )
             print(plan.to_string(index=False))
-        print(
-            f"total: about {total / 3600:.2f} h of campaigns at the slower measured rate, {total / 7200:.2f} h at the "
-            "faster (REAL_RATES; the report comes on top)"
-        )
+        print(f"total: about {total / 3600:.2f} h of campaigns at the measured rates (REAL_RATES; the report on top)")
         return 0
     return run_specs(args, [(name, spec) for name, _, spec in specs], notes)
 
