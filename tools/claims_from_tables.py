@@ -1,7 +1,7 @@
 """Re-derive the claims rows of issue 36 from a report's stored tables, for a report whose records
-are not at hand (docs/study/full: about 2 GB of Parquet, not in the repository).
+are not at hand (it was written for docs/study/full, about 2 GB of Parquet, removed since: issue 46).
 
-    python tools/claims_from_tables.py docs/study/full     # writes claims_rederived.csv and .md there
+    python tools/claims_from_tables.py REPORT     # writes claims_rederived.csv and .md there
 
 Every row comes from the library's functions over the stored CSVs (and summary.json's per-model
 rates), never from new arithmetic here:
@@ -292,7 +292,7 @@ def write_reverdict(d: Path, note: str) -> pd.DataFrame:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("report", help="a report folder (docs/study/full)")
+    ap.add_argument("report", help="a report folder (docs/study/cpu)")
     ap.add_argument("--size", default="256x256", help="the runs' frame size W x H (the median's 8-bit floor)")
     ap.add_argument("--reverdict", action="store_true", help="rewrite claims.csv/.md with issue 46's verdict rule")
     ap.add_argument("--note", default="", help="with --reverdict: the first line of claims.md (provenance)")
