@@ -60,6 +60,54 @@ def test_verdict_rule(lo, hi, n, want):
     assert population.verdict(lo, hi, 0.634, claims.paper_half_unit(0.634), n) == want
 
 
+@pytest.mark.parametrize(
+    "lo, hi, n, want",
+    [
+        (0.40, 1.20, 4, "reproduced"),  # inside [0.6335 / 2, 0.6345 x 2]
+        (0.40, 1.30, 4, "inconclusive"),  # reaches past the band: the test cannot reject "above"
+        (1.30, 2.00, 4, "differs"),  # wholly above the band
+        (0.10, 0.30, 4, "differs"),  # wholly below
+        (0.40, 1.20, 2, "inconclusive"),  # too few models: never firmer with one or two
+        (0.40, 1.20, 1, "inconclusive"),
+        (-0.2, 1.20, 4, "inconclusive"),  # holds 0 and values far below the band
+    ],
+)
+def test_equivalence_verdict_needs_the_interval_inside_the_margin(lo, hi, n, want):
+    h = claims.paper_half_unit(0.634)
+    assert population.equivalence_verdict(lo, hi, 0.634, h, ("factor", 2.0), n) == want
+
+
+@pytest.mark.parametrize(
+    "lo, hi, want", [(0.0, 0.008, "reproduced"), (0.0, 0.02, "inconclusive"), (0.011, 0.05, "differs")]
+)
+def test_a_paper_zero_gets_an_upper_bound(lo, hi, want):
+    h = claims.paper_half_unit("0.000")
+    assert population.equivalence_verdict(lo, hi, 0.0, h, ("bound", 0.01), 4) == want
+    assert claims.MARGINS.get("field_rate_quats") == ("factor", 2.0)  # the factor is not used for a 0
+    from seuwgpu.analysis.paper import margin_of
+
+    assert margin_of("field_rate_quats") == ("bound", 0.01)
+
+
+def test_absolute_margin_and_minus_infinity():
+    assert population.equivalence_verdict(47.0, 52.0, 49.2, 0.05, ("abs", 3.0), 4) == "reproduced"
+    assert population.equivalence_verdict(40.0, 46.0, 49.2, 0.05, ("abs", 3.0), 4) == "differs"
+    assert population.equivalence_verdict(-np.inf, -np.inf, 10.6, 0.05, ("abs", 3.0), 4) == "differs"
+    assert population.equivalence_verdict(-np.inf, np.nan, 10.6, 0.05, ("abs", 3.0), 4) == "inconclusive"
+
+
+def test_one_model_never_gives_a_firmer_verdict_than_two():
+    """The older `_over_models` fell back to the pooled records' verdict with one model; now one
+    model's row keeps its value and the pooled interval beside, and is inconclusive."""
+    one = pd.DataFrame({"scene": ["a"], "n_primitives": [8192], "v": [0.006]})
+    r = claims._over_models("pc_none", one, "v", "test", 0.95, pooled=(0.6, 0.55, 0.65))
+    assert r["verdict"] == "inconclusive" and r["measured"] == pytest.approx(0.6)
+    assert (r["pooled_lo"], r["pooled_hi"]) == (0.55, 0.65) and np.isnan(r["ci_lo"])
+    df = models(0.6)
+    t = claims.claims_table(df).set_index("claim")
+    assert not t["verdict"].isin(["reproduced", "differs"]).any()
+
+
 def test_an_interval_over_models_stays_inside_the_quantity_s_range():
     """A t interval over four models of a rate (0, 0, 0.011, 0.13 %: the guarded p_c) runs below 0
     and one of a share above 100%: the row is cut to the range, says so, and the verdict is the
@@ -71,14 +119,18 @@ def test_an_interval_over_models_stays_inside_the_quantity_s_range():
     row = claims._over_models("pc_guard", per, "v", "test", 0.95)
     assert row["ci_lo"] == 0.0 and row["ci_hi"] == pytest.approx(v.mean() + half)
     assert "lower" in row["basis"] and "cut to 0" in row["basis"]
-    assert row["verdict"] == population.verdict(v.mean() - half, v.mean() + half, 0.0612, 0.00005, 4)
+    want = population.equivalence_verdict(v.mean() - half, v.mean() + half, 0.0612, 0.00005, ("factor", 2.0), 4)
+    assert row["verdict"] == want
     share = pd.DataFrame({"scene": ["a", "b", "c", "d"], "s": [1.0, 1.0, 0.9935, 0.9314]})
     s = share["s"].to_numpy() * 100
     top = s.mean() + sps.t.ppf(0.975, 3) * s.std(ddof=1) / 2
     assert top > 100
     row = claims._over_models("guard_share", share, "s", "test", 0.95)
     assert row["ci_hi"] == 100.0 and row["ci_lo"] == pytest.approx(2 * s.mean() - top)
-    assert row["verdict"] == "differs"  # 90.4 lies below the interval, cut or not
+    band = (90.35 - 5, 90.45 + 5)  # 90.4 +- 5 points
+    lo, hi = row["ci_lo"], row["ci_hi"]
+    want = "differs" if lo > band[1] else "reproduced" if band[0] <= lo and hi <= band[1] else "inconclusive"
+    assert row["verdict"] == want
     inside = claims._over_models("pc_none", per.assign(v=[0.01, 0.012, 0.015, 0.02]), "v", "test", 0.95)
     assert "cut" not in inside["basis"]
 
@@ -93,8 +145,11 @@ def test_claims_compare_the_paper_with_the_equal_field_mean_over_models():
     half = sps.t.ppf(0.975, len(v) - 1) * v.std(ddof=1) / np.sqrt(len(v))
     assert (r["measured"], r["ci_lo"], r["ci_hi"]) == pytest.approx((v.mean(), v.mean() - half, v.mean() + half))
     assert r["paper"] == 0.634 and r["n_models"] == 4 and r["interval_over"] == claims.OVER_MODELS
-    inside = r["ci_lo"] <= 0.6345 and 0.6335 <= r["ci_hi"]
-    assert r["verdict"] == ("inconclusive" if r["ci_lo"] <= 0 else "reproduced" if inside else "differs")
+    band = (0.6335 / 2, 0.6345 * 2)
+    inside = band[0] <= r["ci_lo"] and r["ci_hi"] <= band[1]
+    outside = r["ci_hi"] < band[0] or r["ci_lo"] > band[1]
+    assert r["verdict"] == ("reproduced" if inside else "differs" if outside else "inconclusive")
+    assert r["population"] == population.REAL and r["margin"] == "x/2" and r["N"] == "full size: 1,000"
     b = t.loc[claims.PAPER["pc_none_bits"][0]]
     assert b["measured"] == pytest.approx(100 * est["bits_p_c"].mean())
     assert b["paper"] == pytest.approx(0.1934, abs=5e-5)  # Table 2 weighted by 3, 3, 4, 1, 3, 45 components

@@ -1,7 +1,7 @@
 """Re-derive the claims rows of issue 36 from a report's stored tables, for a report whose records
-are not at hand (docs/study/full: about 2 GB of Parquet, not in the repository).
+are not at hand (it was written for docs/study/full, about 2 GB of Parquet, removed since: issue 46).
 
-    python tools/claims_from_tables.py docs/study/full     # writes claims_rederived.csv and .md there
+    python tools/claims_from_tables.py REPORT     # writes claims_rederived.csv and .md there
 
 Every row comes from the library's functions over the stored CSVs (and summary.json's per-model
 rates), never from new arithmetic here:
@@ -23,6 +23,15 @@ rates), never from new arithmetic here:
 * the IoU of the union masks at P = 64: contamination.csv (the records held no per-frame shares);
 * the guard factor and the leave-one-scene-out AUC: size_guard_factor.csv, prediction_loso.csv.
 Rows the tables cannot give are listed with verdict "not derivable" and the reason in basis.
+
+    python tools/claims_from_tables.py docs/study/cpu --reverdict   # issue 46's rule on a report's claims.csv
+
+--reverdict reads a report's own claims.csv (made by an older rule) and writes it again with the
+verdict of issue 46's rule (`population.equivalence_verdict`: the interval inside the row's margin,
+and at least 3 models of one population): per population where the basis lists the per-model
+values (real models and procedural scenes never pooled), the old verdict kept beside
+(`verdict_issue36`), and what the margins alone would give on the pooled interval
+(`verdict_margin_pooled`); claims_verdicts.md lists the rows whose verdict changed.
 """
 
 from __future__ import annotations
@@ -32,12 +41,13 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from seuwgpu.analysis import claims, scaling, stats  # noqa: E402
+from seuwgpu.analysis import claims, paper, population, scaling, stats  # noqa: E402
 from seuwgpu.analysis import estimate as E  # noqa: E402
 from seuwgpu.report.format import markdown_table  # noqa: E402
 
@@ -141,12 +151,158 @@ def paper_rows(d: Path) -> list[dict]:
     return rows + claims._size_and_loso_rows(results, 0.95)
 
 
+def claim_key(text: str) -> str | None:
+    """The key of a stored claim's text: the same text, or the shortest current text it begins
+    (rows that gained a label since, e.g. "(finite frames only)")."""
+    exact = {v[0]: k for k, v in paper.PAPER.items()}
+    if text in exact:
+        return exact[text]
+    longer = sorted((v[0], k) for k, v in paper.PAPER.items() if v[0].startswith(text))
+    return min(longer, key=lambda x: len(x[0]))[1] if longer else None
+
+
+def per_model_values(basis: str) -> dict[str, float]:
+    """{scene: value} from a basis' "per model: a 1.2; b 3.4" (empty where it lists none)."""
+    if "per model: " not in str(basis):
+        return {}
+    out = {}
+    for part in str(basis).split("per model: ", 1)[1].split(";"):
+        bits = part.strip().rsplit(" ", 1)
+        if len(bits) != 2:
+            break
+        try:
+            out[bits[0]] = float(bits[1])
+        except ValueError:
+            break
+    return out
+
+
+def _verdict(key: str, lo: float, hi: float, n_models: int) -> str:
+    _, _, pv = paper.PAPER[key]
+    if not np.isfinite(pv):
+        return "no paper value"
+    h = paper.paper_half_unit(paper.PRINTED.get(key, pv))
+    return population.equivalence_verdict(lo, hi, pv, h, paper.margin_of(key), n_models)
+
+
+def reverdict(d: Path) -> pd.DataFrame:
+    """claims.csv of report `d` under issue 46's rule (module notes); one row a (claim, population)."""
+    old = pd.read_csv(d / "claims.csv")
+    rows = []
+    for _, r in old.iterrows():
+        key = claim_key(r["claim"])
+        keep = r["verdict"] in ("not measured", "no paper value", "not derivable") or key is None
+        margin_pooled = r["verdict"]
+        if not keep:
+            n = int(r["n_models"]) if np.isfinite(r["n_models"]) else population.MIN_MODELS
+            margin_pooled = _verdict(key, r["ci_lo"], r["ci_hi"], n)
+            if key in paper.TAIL_MAXIMA:
+                margin_pooled = "not comparable"
+        base = {
+            "claim": r["claim"],
+            "unit": r["unit"],
+            "paper": r["paper"],
+            "margin": paper.margin_text(key) if key else "",
+            "verdict_issue36": r["verdict"],
+            "verdict_margin_pooled": margin_pooled,
+        }
+        per = per_model_values(r["basis"])
+        groups: dict[str, dict] = {}
+        for scene, v in per.items():
+            groups.setdefault(population.population_of(scene), {})[scene] = v
+        if keep:
+            rows.append(
+                base
+                | {
+                    "population": "as stored",
+                    "measured": r["measured"],
+                    "ci_lo": r["ci_lo"],
+                    "ci_hi": r["ci_hi"],
+                    "n_models": r["n_models"],
+                    "verdict": r["verdict"],
+                    "basis": r["basis"],
+                }
+            )
+            continue
+        if not groups:  # an interval over the records of every model: both populations pooled
+            v = "not comparable" if key in paper.TAIL_MAXIMA else "inconclusive"
+            rows.append(
+                base
+                | {
+                    "population": "both (pooled; not split by the stored table)",
+                    "measured": r["measured"],
+                    "ci_lo": r["ci_lo"],
+                    "ci_hi": r["ci_hi"],
+                    "n_models": r["n_models"],
+                    "verdict": v,
+                    "basis": f"{r['basis']}; pooled over both populations: no verdict",
+                }
+            )
+            continue
+        low, high = claims.claim_range(key)
+        for pop, vals in groups.items():
+            om = population.interval_over_models(list(vals.values()))
+            lo = min(max(om.lo, low), high) if np.isfinite(om.lo) else om.lo
+            hi = max(min(om.hi, high), low) if np.isfinite(om.hi) else om.hi
+            v = "not comparable" if key in paper.TAIL_MAXIMA else _verdict(key, lo, hi, om.n_models)
+            rows.append(
+                base
+                | {
+                    "population": pop,
+                    "measured": om.mean,
+                    "ci_lo": lo,
+                    "ci_hi": hi,
+                    "n_models": om.n_models,
+                    "verdict": v,
+                    "basis": "per model: " + "; ".join(f"{k} {x:.4g}" for k, x in vals.items()),
+                }
+            )
+    cols = [
+        "population",
+        "claim",
+        "unit",
+        "measured",
+        "ci_lo",
+        "ci_hi",
+        "paper",
+        "margin",
+        "n_models",
+        "verdict",
+        "verdict_issue36",
+        "verdict_margin_pooled",
+        "basis",
+    ]
+    return pd.DataFrame(rows)[cols]
+
+
+def write_reverdict(d: Path, note: str) -> pd.DataFrame:
+    t = reverdict(d)
+    t.to_csv(d / "claims.csv", index=False)
+    (d / "claims.md").write_text(f"{note}\n\n" + markdown_table(t) + "\n")
+    firm = t["verdict_issue36"].isin(["reproduced", "differs"])
+    changed = t[(t["verdict"] != t["verdict_issue36"]) & (firm | t["verdict"].isin(["reproduced", "differs"]))]
+    (d / "claims_verdicts.md").write_text(
+        f"{note}\n\n**Rows whose verdict changed** (issue 36's rule -> issue 46's), {len(changed)} of {len(t)}; "
+        "verdict_margin_pooled: what the margins alone give on the stored interval over all four models.\n\n"
+        + markdown_table(changed[["population", "claim", "verdict_issue36", "verdict_margin_pooled", "verdict"]])
+        + "\n"
+    )
+    return changed
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("report", help="a report folder (docs/study/full)")
+    ap.add_argument("report", help="a report folder (docs/study/cpu)")
     ap.add_argument("--size", default="256x256", help="the runs' frame size W x H (the median's 8-bit floor)")
+    ap.add_argument("--reverdict", action="store_true", help="rewrite claims.csv/.md with issue 46's verdict rule")
+    ap.add_argument("--note", default="", help="with --reverdict: the first line of claims.md (provenance)")
     args = ap.parse_args(argv)
     d = Path(args.report)
+    if args.reverdict:
+        changed = write_reverdict(d, args.note)
+        with pd.option_context("display.width", 220, "display.max_colwidth", 90):
+            print(changed[["population", "claim", "verdict_issue36", "verdict"]].to_string())
+        return 0
     frame = tuple(int(v) for v in args.size.lower().split("x"))
     rows = [equal_field_row(d)]
     rows += bit_weighted_rows(d)

@@ -3,6 +3,13 @@
     python tools/study.py --out runs/study               # the full study (long: see docs/study)
     python tools/study.py --out runs/study-small --small # the same pipeline at a tiny scale
     python tools/study.py --out runs/study-cpu --cpu     # a CPU-sized study (minutes on lavapipe)
+    python tools/study.py --real /work/corpus --out runs/real          # the study on the real corpus
+    python tools/study.py --real /work/corpus --out runs/real --plan   # its plan and time, nothing run
+
+--real CORPUS runs the specs of docs/study/real (issue 46) with their model paths read under the
+corpus folder (`seuwgpu corpus --out CORPUS`); flowers' LOD set (flowers/lod-meta.json) falls back
+to its finest tile flowers/0_0 while the loader cannot read it, and specs that need more primitives
+than that tile holds are skipped (both said on stderr and in timings.json).
 
 --small keeps the scenes, precisions, defenses and analyses but shrinks every spec (64 px, 2 views,
 2 samples per cell, 3 dose repeats up to k = 1,000, sizes sampled 2 per cell) so the whole chain
@@ -21,6 +28,78 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SPECS = ("study.toml", "study_gsplat.toml", "study_dose.toml", "study_size.toml", "study_size_large.toml")
+# the real corpus' study (docs/study/real), cheapest-to-lose last: the report needs real.toml first
+REAL_SPECS = (
+    "real.toml",
+    "real_size.toml",
+    "real_size_131k.toml",
+    "real_size_large.toml",
+    "real_gsplat.toml",
+    "real_fp16.toml",
+    "real_dose.toml",
+)
+LOD = "flowers/lod-meta.json"
+LOD_TILE = "flowers/0_0"  # the LOD set's finest tile with the most splats (164,037), a plain SOG folder
+# measured rates on this 2-core lavapipe host (docs/study/real/README.md; 2026-12-07, load average
+# 6.7 from other sessions): plant 160 injections x 4 arms in 26.3 s and 640 in 42.0 s, so 30.6 a
+# second once started and 21 s to start a (model, spec) context (load, clean renders); flowers'
+# tile 192 in 19.0 s (12.7 s to start at that rate). 2 arms are taken at twice the 4 arms' rate, 3
+# at 4/3 of it, a dose render (k upsets, every view drawn anew) at DESIGN.md's 0.23 s a view.
+REAL_RATES = {"single_4arms": 30.6, "setup_s": 21.0, "dose_render_s": 0.92}
+
+
+def lod_loads(corpus: Path) -> bool:
+    """Whether the loader reads flowers' LOD set (branch h/lod)."""
+    from seuwgpu.model.formats import read_model
+
+    try:
+        read_model(corpus / LOD, warn_nonfinite=False)
+    except Exception:  # noqa: BLE001 - any refusal means: not yet
+        return False
+    return True
+
+
+def real_raw(raw: dict, corpus: Path, lod: bool) -> dict | None:
+    """A real spec with flowers' LOD set replaced by its tile where the loader cannot read it; None
+    when a [sizes] n exceeds what the scenes then hold (the spec is skipped)."""
+    from seuwgpu.model.formats import read_model
+
+    raw = dict(raw)
+    scenes = []
+    for sc in raw["scenes"]:
+        if sc.get("model") == LOD and not lod:
+            sc = dict(sc, model=LOD_TILE)
+        scenes.append(sc)
+    raw["scenes"] = scenes
+    if "sizes" in raw:
+        held = min(read_model(corpus / sc["model"], warn_nonfinite=False).model.n for sc in scenes)
+        if max(raw["sizes"]["n"]) > held:
+            return None
+    return raw
+
+
+def with_samples(raw: dict, samples: int) -> dict:
+    """The spec with `samples` upsets a cell (single and sizes) and at most 2 dose repeats."""
+    raw = dict(raw)
+    for key in ("single", "sizes"):
+        if key in raw:
+            raw[key] = dict(raw[key], samples=samples)
+    if "dose" in raw:
+        raw["dose"] = dict(raw["dose"], repeats=min(2, raw["dose"].get("repeats", 2)))
+    return raw
+
+
+def estimate_seconds(plan, spec_raw: dict) -> float:
+    """The plan's compute time from the measured rates (REAL_RATES): injections at the rate for the
+    spec's arms, plus the start of each (model, size) context."""
+    arms = len((spec_raw.get("single") or spec_raw.get("sizes") or spec_raw.get("dose"))["defenses"])
+    total = REAL_RATES["setup_s"] * len(plan)
+    for _, r in plan.iterrows():
+        if r["campaign"] == "dose":
+            total += r["injections"] * r["arms"] * REAL_RATES["dose_render_s"]
+        else:
+            total += r["injections"] / (REAL_RATES["single_4arms"] * 4 / arms)
+    return total
 
 
 def shrink(raw: dict) -> dict:
@@ -61,13 +140,40 @@ def main(argv=None) -> int:
         action="store_true",
         help="fewer samples per cell (minutes on lavapipe: --samples 48, docs/study/cpu, took 574 s on 2 cores)",
     )
-    ap.add_argument("--samples", type=int, default=16, help="with --cpu: single upsets per (field, bit) cell and model")
-    ap.add_argument("--specs", nargs="*", default=list(SPECS), help="spec files of docs/study to run")
+    scale.add_argument(
+        "--real", metavar="CORPUS", help="the real corpus' study (docs/study/real) on this corpus folder"
+    )
+    ap.add_argument(
+        "--samples", type=int, default=None, help="upsets per (field, bit) cell (--cpu: default 16; --real: the specs')"
+    )
+    ap.add_argument("--specs", nargs="*", default=None, help="spec files of docs/study (or docs/study/real) to run")
+    ap.add_argument(
+        "--plan", action="store_true", help="with --real: print the plan and its estimated time, run nothing"
+    )
     args = ap.parse_args(argv)
+    if args.real:
+        return run_real(args)
+    args.samples = 16 if args.samples is None else args.samples
+    args.specs = list(SPECS) if args.specs is None else args.specs
+    from seuwgpu.campaign.spec import normalize_spec
 
+    specs = []
+    for name in args.specs:
+        path = ROOT / "docs" / "study" / name
+        raw = tomllib.loads(path.read_text())
+        if args.small:
+            raw = shrink(raw)
+        elif args.cpu:
+            raw = cpu_sized(raw, args.samples)
+        specs.append((name, normalize_spec(raw, path.parent)))
+    return run_specs(args, specs)
+
+
+def run_specs(args, specs: list, notes=()) -> int:
+    """Run each (name, spec) into OUT/<name's stem> (resuming what is there), then the report of
+    them all into OUT/report; timings.json says what each step took."""
     from seuwgpu.campaign import store
     from seuwgpu.campaign.runner import Runner
-    from seuwgpu.campaign.spec import normalize_spec
     from seuwgpu.errors import TooBig
     from seuwgpu.gpu.device import get_gpu
     from seuwgpu.report.build import build_report
@@ -76,15 +182,9 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     gpu = get_gpu()
     timings = {"device": str(gpu.info.get("device", gpu.info)), "small": args.small, "cpu": args.cpu, "steps": []}
+    timings.update(real=args.real, notes=list(notes))
     runs = []
-    for name in args.specs:
-        path = ROOT / "docs" / "study" / name
-        raw = tomllib.loads(path.read_text())
-        if args.small:
-            raw = shrink(raw)
-        elif args.cpu:
-            raw = cpu_sized(raw, args.samples)
-        spec = normalize_spec(raw, path.parent)
+    for name, spec in specs:
         run_dir = out / Path(name).stem
         t0 = time.perf_counter()
         stats = Runner(spec, run_dir, quiet=True, gpu=gpu).run()
@@ -121,6 +221,8 @@ def main(argv=None) -> int:
                 print(f"report: read {i:,} of {n:,} parts", file=sys.stderr)
 
         build_report(runs, out / "report", progress=progress)
+        if args.real:
+            profile_claims(runs, out / "report")
     except TooBig as e:  # the campaigns are kept; their rates are `seuwgpu rates`'s
         timings["report_skipped"] = str(e)
         print(f"report: skipped: {e}", file=sys.stderr)
@@ -136,6 +238,62 @@ def main(argv=None) -> int:
         file=sys.stderr,
     )
     return status
+
+
+def profile_claims(runs: list, report: Path) -> None:
+    """The sign-flip claims under each renderer profile (claims.sign_rows_by_profile), from the
+    unfolded records of the runs that hold log-scale sign flips under several profiles, into the
+    report folder as claims_by_profile.csv/.md (the report itself rests on the strict records)."""
+    from seuwgpu.analysis import claims
+    from seuwgpu.api import read_records
+    from seuwgpu.report.format import markdown_table
+
+    single = [r for r in runs if (r / "manifest.json").exists() and "size" not in r.name and "dose" not in r.name]
+    df = read_records(single)
+    df = df[(df["field"] == "log_scales") & (df["bit_class"] == "sign")]
+    t = claims.sign_rows_by_profile(df)
+    if t.empty:
+        return
+    t.to_csv(report / "claims_by_profile.csv", index=False)
+    (report / "claims_by_profile.md").write_text(
+        f"**Sign-flip claims by renderer profile.** {claims.PAPER_PROFILE_NOTE}\n\n" + markdown_table(t) + "\n"
+    )
+
+
+def run_real(args) -> int:
+    """The real corpus' study: plan or run its specs, then the report (module notes)."""
+    from seuwgpu.api import plan_campaign
+    from seuwgpu.campaign.spec import normalize_spec
+
+    corpus = Path(args.real).expanduser().resolve()
+    lod = lod_loads(corpus)
+    notes = [] if lod else [f"{LOD} does not load yet: flowers runs as its tile {LOD_TILE} (164,037 splats)"]
+    specs = []
+    for name in args.specs or REAL_SPECS:
+        raw = tomllib.loads((ROOT / "docs" / "study" / "real" / name).read_text())
+        raw = real_raw(raw, corpus, lod)
+        if raw is None:
+            notes.append(f"{name}: skipped (its sizes exceed flowers' tile)")
+            continue
+        if args.samples is not None:
+            raw = with_samples(raw, args.samples)
+        specs.append((name, raw, normalize_spec(raw, corpus)))
+    for n in notes:
+        print(f"study.py: {n}", file=sys.stderr)
+    if args.plan:
+        total = 0.0
+        for name, raw, spec in specs:
+            plan = plan_campaign(spec)
+            est = estimate_seconds(plan, raw)
+            total += est
+            print(
+                f"## {name}: {int(plan['injections'].sum()):,} injections, {int(plan['records'].sum()):,} records, "
+                f"about {est / 60:.0f} min at the measured rates"
+            )
+            print(plan.to_string(index=False))
+        print(f"total: about {total / 3600:.2f} h of campaigns at the measured rates (REAL_RATES; the report on top)")
+        return 0
+    return run_specs(args, [(name, spec) for name, _, spec in specs], notes)
 
 
 if __name__ == "__main__":

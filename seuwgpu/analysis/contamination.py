@@ -334,3 +334,61 @@ def plot_contamination(cont: pd.DataFrame, precision: str | None = None, defense
     ax.set_ylabel("regions contaminated (%)")
     ax.legend(fontsize=7)
     return fig
+
+
+# ---- claims rows (analysis.claims gathers them) ----------------------------------------------------
+
+
+def contamination_rows(df: pd.DataFrame, conf: float = 0.95) -> list[dict]:
+    """At the paper's finest partition, per model then over models, both ways and labelled: per
+    frame (as the paper counts, `pred_frame_pct`) and over the union of the views
+    (`pred_fraction_pct`); the IoU is of the union masks (the records hold no per-frame IoU)."""
+    from seuwgpu.analysis.claimrows import over_models, row
+    from seuwgpu.analysis.paper import PAPER_CONTAMINATION_P
+    from seuwgpu.analysis.population import MODEL
+    from seuwgpu.analysis.records import n_records, scale_sign_flips
+
+    s = single_upsets(df, "fp32", None)
+    sign = scale_sign_flips(s)
+    keys = {
+        ("none", "pred_frame_pct"): "contam_none",
+        ("guard", "pred_frame_pct"): "contam_guard",
+        ("none", "pred_fraction_pct"): "contam_none_union",
+        ("guard", "pred_fraction_pct"): "contam_guard_union",
+        ("none", "iou_mean"): "contam_iou",
+    }
+    what = {
+        "pred_frame_pct": "predicted share of one frame's regions, averaged over the views (per frame, as the paper "
+        "counts)",
+        "pred_fraction_pct": "predicted share of the regions any view reaches (union of the views)",
+        "iou_mean": "IoU of the union masks over the views (the records hold no per-frame IoU)",
+    }
+    per: dict[str, list] = {k: [] for k in keys.values()}
+    pooled: dict[str, float] = {}
+
+    def pick(t: pd.DataFrame, dfn: str, col: str) -> float:
+        r = t[(t["subset"] == "log-scale sign") & (t["defense"] == dfn) & (t["P"] == PAPER_CONTAMINATION_P)]
+        return float(r[col].iloc[0]) if len(r) and col in r else np.nan
+
+    for part, d in [(None, sign)] + [(k, g) for k, g in sign.groupby(MODEL, sort=False)]:
+        try:
+            t = contamination(d)
+        except InsufficientData:
+            continue
+        for (dfn, col), key in keys.items():
+            if part is None:
+                pooled[key] = pick(t, dfn, col)
+            else:
+                per[key].append({"scene": part[0], "n_primitives": part[1], "v": pick(t, dfn, col)})
+    rows = []
+    for (dfn, col), key in keys.items():
+        if not np.isfinite(pooled.get(key, np.nan)):
+            rows.append(row(key))
+            continue
+        basis = f"n = {n_records(sign[sign['defense'] == dfn]):,} log-scale sign flips; {what[col]}"
+        rows.append(
+            over_models(
+                key, pd.DataFrame(per[key], columns=MODEL + ["v"]), "v", basis, conf, (pooled[key], np.nan, np.nan), 1.0
+            )
+        )
+    return rows

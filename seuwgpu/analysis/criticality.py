@@ -204,3 +204,66 @@ def plot_precision_rates(rates: pd.DataFrame):
         labels.append("no event: below the triangle")
     fig.legend(handles, labels, title="precision", loc="outside right upper", fontsize=8)
     return fig
+
+
+# ---- claims rows (analysis.claims gathers them) ----------------------------------------------------
+
+
+def _footprint_stat(q: str):
+    """The Table 2 footprint statistic `q` of a set of records (% of frame, weighted by stored bits)."""
+    from seuwgpu.analysis.paper import FOOTPRINT_QUANTILES
+
+    def stat(g: pd.DataFrame) -> float:
+        fp, w = 100 * g["footprint"].to_numpy(float), record_weights(g)
+        if q == "max":
+            return float(np.nanmax(fp)) if len(fp) else np.nan
+        if q == "mean":
+            return E.wmean(fp, w)
+        return E.wquantile(fp, w, FOOTPRINT_QUANTILES[q])
+
+    return stat
+
+
+def field_rows(df: pd.DataFrame, conf: float = 0.95) -> list[dict]:
+    """Table 2 per field: the catastrophe rate and the footprint statistics, per model, then over
+    models; a maximum only at the paper's number of upsets (`claimrows.tail_row`)."""
+    from seuwgpu.analysis.claimrows import over_models, per_model, row, tail_row
+    from seuwgpu.analysis.paper import PAPER_FIELD_FOOTPRINT, PAPER_FIELD_RATES
+    from seuwgpu.analysis.population import MODEL
+    from seuwgpu.analysis.records import multiplicity, n_records, single_upsets
+
+    s = single_upsets(df, "fp32", "none")
+    s = s[s["bit"] >= 0]
+    rows = []
+    rates = E.rate(s, "catastrophic", MODEL + ["field"], conf) if len(s) else pd.DataFrame()
+    pooled = E.rate(s, "catastrophic", ["field"], conf).set_index("field") if len(s) else pd.DataFrame()
+    for f in PAPER_FIELD_RATES:
+        g = s[s["field"] == f]
+        if g.empty:
+            rows += [row(f"field_rate_{f}")] + [row(f"field_{q}_{f}") for q in PAPER_FIELD_FOOTPRINT[f]]
+            continue
+        basis = f"n = {n_records(g):,}"
+        p = pooled.loc[f]
+        rows.append(
+            over_models(
+                f"field_rate_{f}",
+                rates[rates["field"] == f],
+                "rate",
+                basis + "; stratified over bits; pooled: the same over these models' records",
+                conf,
+                (100 * p["rate"], 100 * p["ci_lo"], 100 * p["ci_hi"]),
+            )
+        )
+        for q in PAPER_FIELD_FOOTPRINT[f]:
+            fn = _footprint_stat(q)
+            if q == "max":
+                fp = np.repeat(100 * g["footprint"].to_numpy(float), multiplicity(g))
+                rows.append(tail_row(f"field_max_{f}", fp, basis, fn(g)))
+                continue
+            note = "weighted by stored bits" + ("; a quantile with its interval over models" if q == "p99" else "")
+            rows.append(
+                over_models(
+                    f"field_{q}_{f}", per_model(g, fn), "v", f"{basis}; {note}", conf, (fn(g), np.nan, np.nan), 1.0
+                )
+            )
+    return rows

@@ -191,3 +191,75 @@ def plot_guard_ccdf(df: pd.DataFrame, guard: str = "guard", precision: str | Non
     ax.set_ylabel("P(footprint > x), uniform upset")
     ax.legend(fontsize=8)
     return fig
+
+
+# ---- claims rows (analysis.claims gathers them) ----------------------------------------------------
+
+
+def guard_rows(df: pd.DataFrame, results: dict, conf: float = 0.95, arms=("guard",)) -> list[dict]:
+    """Sign-flip PSNR without and with each guard arm, the worst guarded footprint (a maximum:
+    compared at the paper's number of upsets only, `claimrows.tail_row`) and the residual share."""
+    from seuwgpu.analysis.claimrows import over_models, per_model, row, tail_row
+    from seuwgpu.analysis.paper import PAPER_GUARDED_SITES
+    from seuwgpu.analysis.stats import wilson_interval
+
+    rows = []
+    s = single_upsets(df, "fp32", None)
+    sign = scale_sign_flips(s)
+
+    def psnr(x):
+        return float(E.quality(x)["psnr_mean_mse_db"].iloc[0])
+
+    for dfn in ("none",) + tuple(arms):
+        g = sign[sign["defense"] == dfn]
+        key = "sign_psnr_none" if dfn == "none" else "sign_psnr_guard"
+        kw = {} if dfn == "none" else {"guard": dfn}
+        if g.empty:
+            rows.append(row(key, **kw))
+            continue
+        nf = float(E.quality(g)["nonfinite_pct"].iloc[0])
+        basis = (
+            f"n = {n_records(g):,}; the paper's 'mean global PSNR' read as the PSNR of the weighted mean MSE over "
+            f"the finite frames ({nf:.3g}% non-finite)"
+        )
+        rows.append(over_models(key, per_model(g, psnr), "v", basis, conf, (psnr(g), np.nan, np.nan), 1.0, **kw))
+    for arm in arms:
+        allg = single_upsets(df, None, arm)
+        if allg.empty:
+            rows += [row("guard_worst_footprint", guard=arm), row("guard_residual_share", guard=arm)]
+            continue
+        n = n_records(allg)
+        fp = 100 * allg["footprint"].to_numpy(float)
+        if MULTIPLICITY in allg:  # folded rows: each stands for its records
+            fp = np.repeat(fp, allg[MULTIPLICITY].to_numpy(int))
+        rows.append(
+            tail_row(
+                "guard_worst_footprint",
+                fp,
+                f"n = {n:,} guarded upsets, every precision (paper: {PAPER_GUARDED_SITES:,})",
+                float(np.nanmax(fp)),
+                guard=arm,
+            )
+        )
+        k = n_records(allg[allg["catastrophic"].astype(bool)])
+        lo, hi = wilson_interval(k, n, conf) if n else (np.nan, np.nan)
+        gd = results.get("guard") if arm == "guard" else None
+        split = ""
+        if gd is not None and "catastrophic_both" in gd:
+            split = (
+                f"; of the residual on paired sites: {gd['catastrophic_both']:,} catastrophic without the guard "
+                f"too, {gd['turned_catastrophic']:,} turned catastrophic by it"
+            )
+        rows.append(
+            over_models(
+                "guard_residual_share",
+                per_model(allg, lambda g: n_records(g[g["catastrophic"].astype(bool)]) / max(n_records(g), 1)),
+                "v",
+                f"{k:,} residual of {n:,} guarded upsets, every precision, counted over the sites (unweighted, as "
+                f"the paper's count){split}; pooled: Wilson",
+                conf,
+                (100 * k / n, 100 * lo, 100 * hi) if n else None,
+                guard=arm,
+            )
+        )
+    return rows

@@ -300,3 +300,56 @@ def plot_roc(res: dict):
     ax.set_ylabel("true positive rate (weighted)")
     ax.legend(fontsize=6, loc="lower right")
     return fig
+
+
+# ---- claims rows (analysis.claims gathers them) ----------------------------------------------------
+
+
+def prediction_rows(pr: dict | None, conf: float = 0.95, scenes=None) -> list[dict]:
+    """The held-out AUC rows (lookup and classifier) and the leave-one-scene-out AUC: its mean over
+    the held-out scenes (t interval over scenes) and its minimum with that scene's bootstrap interval.
+    `scenes`: the population's models; the pooled AUC rows are given only when the classifier saw
+    those models alone (never a pool of populations)."""
+    from seuwgpu.analysis.claimrows import over_models, row
+
+    rows = []
+    ok = pr is not None and len(pr.get("summary", [])) and pr.get("precision") == "fp32"
+    loso = pr["loso"] if ok and "loso" in pr else pd.DataFrame()
+    seen = set(loso["held_out_scene"]) if len(loso) and "held_out_scene" in loso else None
+    alone = scenes is None or seen is None or seen <= set(scenes)
+    if ok and alone:
+        t = pr["summary"].set_index("model")
+        for key, model in (("auc_fieldbit", "(field, bit) lookup"), ("auc_full", t.index[0])):
+            r = t.loc[model]
+            rows.append(row(key, r["auc_holdout"], r["auc_lo"], r["auc_hi"], f"held-out, {model}"))
+    else:
+        why = "" if not ok else "the classifier was trained on records of several populations: not split"
+        rows += [row("auc_fieldbit", basis=why), row("auc_full", basis=why)]
+    if len(loso):
+        clf = pr["summary"]["model"].iloc[0]
+        c = loso[(loso["model"] == clf) & loso["auc"].notna()]
+        if scenes is not None:
+            c = c[c["held_out_scene"].isin(scenes)]
+        per = c.rename(columns={"held_out_scene": "scene"}).assign(v=c["auc"].to_numpy(float))
+        if "n_primitives" not in per:
+            per["n_primitives"] = 0
+        note = "" if alone else "; trained on every population's other scenes"
+        rows.append(
+            over_models("auc_loso_mean", per, "v", f"{clf}; t interval over the held-out scenes{note}", conf, scale=1.0)
+        )
+        if len(c):
+            w = c.loc[c["auc"].idxmin()]
+            rows.append(
+                row(
+                    "auc_loso_min",
+                    w["auc"],
+                    w["auc_lo"],
+                    w["auc_hi"],
+                    f"{clf}; held out {w['held_out_scene']} (its bootstrap interval){note}",
+                )
+            )
+        else:
+            rows.append(row("auc_loso_min"))
+    else:
+        rows += [row("auc_loso_mean"), row("auc_loso_min")]
+    return rows

@@ -409,6 +409,20 @@ def scene_degrees(manifests: Iterable[dict] = ()) -> dict[str, int]:
     return out
 
 
+def model_file_scenes(manifests: Iterable[dict] = ()) -> frozenset[str]:
+    """The labels records give the runs' model files (a spec's `model = FILE`), which may share a
+    name with an embedded procedural scene (the corpus' plant.splat and the procedural plant):
+    what tells a real model from a procedural one (`population.population_of`)."""
+    from seuwgpu.campaign.spec import scene_label
+
+    out = set()
+    for m in manifests or ():
+        for sc in (m.get("spec") or {}).get("scenes") or []:
+            if isinstance(sc, dict) and sc.get("model"):
+                out.add(str(scene_label(sc)))
+    return frozenset(out)
+
+
 def sh_degree_of(df: pd.DataFrame | None = None, manifests: Iterable[dict] = ()) -> int:
     """SH degree of the models: from a manifest's spec ("sh_degree") when stated, else inferred
     from the largest sh_rest component index in the records (when at least 50 sh_rest records

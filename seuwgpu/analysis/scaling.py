@@ -53,21 +53,24 @@ def frame_size_of(manifests=()) -> tuple[int, int] | None:
     return sizes.pop() if len(sizes) == 1 else None
 
 
-def scene_group(scene: str) -> str:
+def scene_group(scene: str, model_scenes=frozenset()) -> str:
     """Procedural scenes are regenerated at each N; anything else (a capture, a model file) is cut
-    to random subsets."""
-    return PROCEDURAL if scene in SCENES else CAPTURE
+    to random subsets. model_scenes: the runs' model files' labels (`records.model_file_scenes`),
+    which may share a procedural scene's name (the corpus' plant.splat)."""
+    return PROCEDURAL if scene in SCENES and scene not in model_scenes else CAPTURE
 
 
-def mark_groups(table: pd.DataFrame, floor: float) -> pd.DataFrame:
+def mark_groups(table: pd.DataFrame, floor: float, model_scenes=frozenset()) -> pd.DataFrame:
     """Adds each row's experiment (group) and whether its median rises above `floor` (a NaN floor:
     above 0), the columns `group_fits` reads; the table, changed in place."""
-    table["group"] = [scene_group(x) for x in table["scene"]]
+    table["group"] = [scene_group(x, model_scenes) for x in table["scene"]]
     table["median_above_floor"] = table["median_mse"] > floor if np.isfinite(floor) else table["median_mse"] > 0
     return table
 
 
-def size_scaling(df: pd.DataFrame, conf: float = 0.95, frame_size: tuple[int, int] | None = None) -> dict:
+def size_scaling(
+    df: pd.DataFrame, conf: float = 0.95, frame_size: tuple[int, int] | None = None, model_scenes=frozenset()
+) -> dict:
     """Returns {"table", "fits", "guard_factor", "source_campaign", "fields", "bits"}: the last two
     are what the upsets sampled (the error is over those, not over every stored bit)."""
     d = prepare(df)
@@ -109,7 +112,7 @@ def size_scaling(df: pd.DataFrame, conf: float = 0.95, frame_size: tuple[int, in
         )
     table = sort_rows(pd.DataFrame(rows).sort_values(["scene", "n_primitives"]))
     floor = median_floor(*frame_size) if frame_size else np.nan
-    mark_groups(table, floor)
+    mark_groups(table, floor, model_scenes)
     tag(table, d, source_campaign=src)
     frows = []
     for key, g in table.groupby(["scene", "precision", "defense"], sort=False):
@@ -313,3 +316,147 @@ def plot_size_scaling(res: dict, metric: str = "mean_mse"):
         title_fontsize=7,
     )
     return fig
+
+
+# ---- claims rows (analysis.claims gathers them) ----------------------------------------------------
+MATCHED_N = (8_192, 32_768, 131_072, 524_288)  # common sizes every real model is cut to where it holds them
+
+
+def alpha_rows(sz: dict | None, groups=(PROCEDURAL, CAPTURE)) -> list[dict]:
+    """Median with median and mean with mean, each experiment apart (`group_fits`); `groups`: the
+    experiments of the population asked for (the other's rows are left out)."""
+    from seuwgpu.analysis.claimrows import row
+
+    keys = {
+        ("median_mse", PROCEDURAL): "alpha_median_procedural",
+        ("median_mse", CAPTURE): "alpha_median_capture",
+        ("mean_mse", PROCEDURAL): "alpha_mean_procedural",
+        ("mean_mse", CAPTURE): "alpha_mean_capture",
+    }
+    g = sz["groups"] if sz is not None and "groups" in sz else pd.DataFrame(columns=["precision"])
+    g = g[(g["precision"] == "fp32") & (g["defense"] == "none")] if len(g) else g
+    floor = sz.get("median_floor", np.nan) if sz is not None else np.nan
+    rows = []
+    for (metric, grp), key in keys.items():
+        if grp not in groups:
+            continue
+        r = g[(g["metric"] == metric) & (g["group"] == grp)] if len(g) else g
+        if not len(r):
+            rows.append(row(key))
+            continue
+        r = r.iloc[0]
+        basis = (
+            f"{r['scenes']}, N {r['n_min']:,}..{r['n_max']:,}; {r['n_points']} points fitted over "
+            f"{r['n_scenes_fitted']} scene(s)"
+        )
+        if metric == "median_mse":
+            basis += (
+                f" (median above the 8-bit floor {floor:.2g} only)"
+                if np.isfinite(floor)
+                else " (no frame size: no floor)"
+            )
+        basis += f"; equal slopes of the two experiments: F test p = {r['equal_slopes_p']:.3g}"
+        rows.append(
+            row(
+                key,
+                r["alpha_scene_mean"],
+                r["alpha_models_lo"],
+                r["alpha_models_hi"],
+                basis + "; pooled: one exponent, an intercept per scene",
+                n_models=int(r["n_scenes_fitted"]),
+                pooled=(r["alpha_common"], r["alpha_common_lo"], r["alpha_common_hi"]),
+            )
+        )
+    return rows
+
+
+def guard_factor_row(sz: dict | None, conf: float = 0.95, scenes=None) -> dict:
+    """The guard factor at each model's largest N (a row that averages sizes only where the models'
+    largest N differ, which its basis names; the rows at matched N do not: `matched_rows`)."""
+    from seuwgpu.analysis.claimrows import over_models, row
+
+    gf = sz["guard_factor"] if sz is not None and "guard_factor" in sz else pd.DataFrame()
+    gf = gf[gf["precision"] == "fp32"] if len(gf) else gf
+    if scenes is not None and len(gf):
+        gf = gf[gf["scene"].isin(scenes)]
+    if not len(gf):
+        return row("guard_factor")
+    ns = ", ".join(f"{r['scene']} N = {int(r['n_primitives']):,}" for _, r in gf.iterrows())
+    mixed = gf["n_primitives"].nunique() > 1
+    basis = f"each model at its largest N ({ns}; the paper's largest: 300,000)" + (
+        "; these N differ: the rows at matched N compare like with like" if mixed else ""
+    )
+    r = over_models("guard_factor", gf.rename(columns={"guard_factor": "v"}), "v", basis, conf, scale=1.0)
+    return r | ({"verdict": "not comparable"} if mixed and r["verdict"] in ("reproduced", "differs") else {})
+
+
+def matched_rows(df: pd.DataFrame, conf: float = 0.95, sizes=None) -> list[dict]:
+    """Rows at matched N from the size sweep's records (seeded subsets of each model at a common
+    primitive count; never an average over sizes): per N in `sizes` (MATCHED_N and the paper's
+    300,000 by default) that the records hold, p_c as the plain mean of per-field rates (no defense),
+    the mean single-upset MSE, and the guard factor for each guard arm present; over the models at
+    that N. The guard factor is compared with the paper's 24 only at the paper's N (within 15%)."""
+    from seuwgpu.analysis import population
+    from seuwgpu.analysis.claimrows import over_models
+    from seuwgpu.analysis.paper import PAPER_LARGEST_N
+
+    d = prepare(df)
+    d = d[(d["k"] == 1) & (d["campaign"] == "size") & (d["precision"] == "fp32")]
+    if d.empty:
+        return []
+    sizes = sorted(set(MATCHED_N) | {PAPER_LARGEST_N}) if sizes is None else sizes
+    rows = []
+    for n in sizes:
+        at = d[d["n_primitives"] == n]
+        if at.empty:
+            continue
+        label = f"N = {n:,}"
+        # a model of SH degree 0 stores no sh_rest: then the plain mean of the five other fields
+        five = population.without_sh_rest(at)
+        as_single = at.assign(campaign="single")
+        if five:
+            as_single = as_single[as_single["field"] != "sh_rest"]
+        rates = population.model_rates(as_single, "fp32", "none", conf)
+        if len(rates):
+            full = int(rates["fields"].min()) == (5 if five else 6)
+            r = over_models(
+                "matched_pc_none_5" if five else "matched_pc_none",
+                rates,
+                "fields_p_c",
+                f"{label}; size-sweep records, each field weighs 1/{5 if five else 6} within each model",
+                conf,
+            )
+            rows.append((r if full else r | {"verdict": "not measured"}) | {"N": label})
+        mse = {}
+        for dfn, g in at.groupby("defense", sort=False):
+            bad = g["nonfinite"].to_numpy(bool)
+            vals = np.where(bad, np.nan, E.mse_of_psnr(g["psnr"].to_numpy(float)))
+            mse[dfn] = pd.DataFrame(
+                [
+                    {"scene": s, "n_primitives": n, "v": E.wmean(vals[idx], g["weight"].to_numpy(float)[idx])}
+                    for s, idx in g.groupby("scene", sort=False).indices.items()
+                ]
+            )
+        if "none" in mse:
+            r = over_models("matched_mean_mse", mse["none"], "v", f"{label}; over the finite frames", conf, scale=1.0)
+            rows.append(r | {"N": label})
+        for arm in ("guard", "guard_all"):
+            if "none" not in mse or arm not in mse:
+                continue
+            m = mse["none"].merge(mse[arm], on=["scene", "n_primitives"], suffixes=("_none", "_g"))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                m["v"] = np.where(m["v_g"] > 0, m["v_none"] / m["v_g"], np.nan)
+            at_paper = abs(n - PAPER_LARGEST_N) <= 0.15 * PAPER_LARGEST_N
+            r = over_models(
+                "matched_guard_factor",
+                m,
+                "v",
+                f"{label}; mean MSE without / with {arm}" + ("" if at_paper else "; the paper's is at 300,000"),
+                conf,
+                scale=1.0,
+                guard=arm,
+            )
+            if not at_paper and r["verdict"] in ("reproduced", "differs", "inconclusive"):
+                r["verdict"] = "not comparable"
+            rows.append(r | {"N": label})
+    return rows

@@ -158,3 +158,56 @@ def slope_windows(res: dict) -> pd.DataFrame:
     out = pd.DataFrame(rows)
     out.attrs.update(t.attrs)  # the provenance of the records the table rests on
     return out
+
+
+# ---- claims rows (analysis.claims gathers them) ----------------------------------------------------
+
+
+def theory_windows(res: dict) -> pd.DataFrame:
+    """The mantissa slope over several fit windows (`slope_windows`) with the verdict each would
+    give against the paper's 0.94 and its margin (interval over bits)."""
+    from seuwgpu.analysis.paper import PAPER, margin_of, margin_text, paper_half_unit
+    from seuwgpu.analysis.population import MIN_MODELS, equivalence_verdict
+
+    w = slope_windows(res)
+    if w.empty:
+        return w
+    _, _, paper = PAPER["theory_slope"]
+    h, margin = paper_half_unit(paper), margin_of("theory_slope")
+    w["paper"] = paper
+    w["margin"] = margin_text("theory_slope")
+    ok = np.isfinite(w["slope_lo"]) & np.isfinite(w["slope_hi"])
+    w["verdict"] = [
+        equivalence_verdict(lo, hi, paper, h, margin, MIN_MODELS) if good else "not measured"
+        for lo, hi, good in zip(w["slope_lo"], w["slope_hi"], ok)
+    ]
+    return w
+
+
+def slope_row(th: dict | None) -> dict:
+    """The mantissa-slope headline: its value is the default window's; its verdict is the windows'
+    majority ("reproduced" needs more than half of the windows to reproduce, "differs" more than half
+    to differ; else "inconclusive"), so the verdict does not rest on where one window's edge falls."""
+    from seuwgpu.analysis.claimrows import row
+
+    if th is None or th.get("precision") != "fp32":
+        return row("theory_slope")
+    r = row(
+        "theory_slope",
+        th["slope"],
+        th["slope_lo"],
+        th["slope_hi"],
+        f"{th['n_fit_bits']} bits ({th['fit_bits'][0]}..{th['fit_bits'][1]}); other windows in claims_theory_windows",
+    )
+    w = theory_windows(th) if "table" in th else pd.DataFrame()
+    if len(w) and r["verdict"] in ("reproduced", "differs", "inconclusive"):
+        counts = w["verdict"].value_counts()
+        n = len(w)
+        rep, dif = int(counts.get("reproduced", 0)), int(counts.get("differs", 0))
+        verdict = "reproduced" if rep > n / 2 else "differs" if dif > n / 2 else "inconclusive"
+        r = r | {
+            "verdict": verdict,
+            "basis": f"{r['basis']}; verdict over the {n} fit windows: {rep} reproduce, {dif} differ "
+            f"(the default window alone: {r['verdict']})",
+        }
+    return r
