@@ -1,5 +1,7 @@
 """A report built from records folded as they are read (analysis.folding) says exactly what the
-report of the records themselves says: every table, figure list and headline number."""
+report of the records themselves says: every table, figure list and headline number. The reports
+compared here make their figures but leave them undrawn (conftest.undrawn_report_figures: the
+pictures are not compared); test_report_profiles.py draws a folded report's figures."""
 
 from __future__ import annotations
 
@@ -73,7 +75,7 @@ def _same_numbers(a, b, path=""):
 
 
 @pytest.mark.parametrize("max_pred_rows", [200_000, 1000])  # 1000: a sample of the 2,304 records at fp32
-def test_folded_report_equals_the_records_report(run, tmp_path, max_pred_rows):
+def test_folded_report_equals_the_records_report(run, tmp_path, max_pred_rows, undrawn_figures):
     rd, df = run
     plain = build_report([rd], tmp_path / "plain", max_pred_rows=max_pred_rows, fold=False).parent
     folded = build_report([rd], tmp_path / "folded", max_pred_rows=max_pred_rows, fold=True).parent
@@ -156,7 +158,7 @@ def test_runs_too_big_even_folded_are_refused_before_loading(run, monkeypatch):
         load_runs([rd], fold=True)
 
 
-def test_partly_paired_sites_and_mixed_parts_fold_alike(run, tmp_path):
+def test_partly_paired_sites_and_mixed_parts_fold_alike(run, tmp_path, undrawn_figures):
     """Sites missing some defenses (the mitigation table's shared grid, the guard's pairs) and
     parts that mix single upsets with dose records (whose pairing columns are empty)."""
     _, df = run
@@ -193,7 +195,7 @@ def test_an_unreadable_part_is_named(tmp_path, fold):
         load_runs([tmp_path / "run"], fold=fold)
 
 
-def test_several_runs_fold_alike(run, tmp_path):
+def test_several_runs_fold_alike(run, tmp_path, undrawn_figures):
     import shutil
 
     rd, _ = run
