@@ -26,6 +26,34 @@ def gpu():
     return get_gpu()
 
 
+@contextlib.contextmanager
+def undrawn_report_figures():
+    """Reports built in the block make every figure (its data, artists and caption) and write its
+    file, but do not rasterise it: the PNG is a 1x1 stub. For tests of a report's tables, numbers
+    and file lists, where drawing was ~40% of a small report's build. Figures are drawn for real by
+    test_report.py::test_end_to_end_report, test_report_profiles.py's
+    test_profiles_get_their_own_table_and_the_rest_rests_on_strict (records and folded) and
+    test_report_browser.py (which loads them in Chromium)."""
+    from seuwgpu.report import build
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(build, "_png", lambda fig: _STUB_PNG)
+        yield
+
+
+_STUB_PNG = bytes.fromhex(  # a valid 1x1 transparent PNG
+    "89504e470d0a1a0a0000000d49484452000000010000000108060000001f15c489"
+    "0000000d49444154789c63f8ffff3f030008fc02fea79aa0a00000000049454e44ae426082"
+)
+
+
+@pytest.fixture
+def undrawn_figures():
+    """undrawn_report_figures() around one test."""
+    with undrawn_report_figures():
+        yield
+
+
 def psnr_finite(a: np.ndarray, b: np.ndarray) -> float:
     """PSNR (data range 1) over pixels finite in both images; the non-finite masks must match.
 

@@ -1,6 +1,7 @@
 """Campaigns: spec errors, kill-and-resume, shards, replay by id, stratified sampling."""
 
 import dataclasses
+import shutil
 import signal
 import subprocess
 import sys
@@ -56,11 +57,19 @@ def canonical(df: pd.DataFrame) -> pd.DataFrame:
 
 
 @pytest.fixture(scope="module")
-def reference_run(tmp_path_factory):
+def reference_dir(tmp_path_factory):
+    """(spec, folder) of one finished, uninterrupted run of SPEC; tests read it, never write it
+    (copy it to change it)."""
     tmp = tmp_path_factory.mktemp("ref")
     spec = load_spec(write_spec(tmp))
     Runner(spec, tmp / "run", quiet=True).run()
-    return spec, canonical(read_records(tmp / "run"))
+    return spec, tmp / "run"
+
+
+@pytest.fixture(scope="module")
+def reference_run(reference_dir):
+    spec, run = reference_dir
+    return spec, canonical(read_records(run))
 
 
 def test_records_have_the_contract_columns(reference_run):
@@ -88,14 +97,13 @@ def test_records_have_the_contract_columns(reference_run):
     assert (single.k == 1).all()
 
 
-def test_records_time_each_defense_and_manifest_states_thresholds(tmp_path):
-    spec = load_spec(write_spec(tmp_path))
-    Runner(spec, tmp_path / "run", quiet=True).run()
-    raw = read_records(tmp_path / "run")
+def test_records_time_each_defense_and_manifest_states_thresholds(reference_dir):
+    _, run = reference_dir  # a fresh run of SPEC (this test ran its own copy of it before)
+    raw = read_records(run)
     assert list(raw.columns) == COLUMNS
     t = raw.groupby(["campaign", "scene", "n_primitives", "precision", "defense"])["time_ms"].agg(["min", "nunique"])
     assert (t["min"] > 0).all() and (t["nunique"] == 1).all()  # one measurement per engine and defense
-    m = store.read_manifest(tmp_path / "run")
+    m = store.read_manifest(run)
     assert m["outcomes"] == {"pixel_threshold": 1 / 255, "footprint_threshold": 0.01}
     assert m["region_grid"] == REGION_GRID_VERSION
 
@@ -239,15 +247,15 @@ def test_a_write_error_never_replaces_the_error_that_ended_the_run(reference_run
         Runner(spec, tmp_path / "b", quiet=True).run()
 
 
-def test_view_times_are_measured_once_per_run_and_kept_for_a_resume(reference_run, tmp_path, monkeypatch):
+def test_view_times_are_measured_once_per_run_and_kept_for_a_resume(reference_dir, tmp_path, monkeypatch):
     """A run keeps each engine's view times in view_times/ (its rounds beside the medians); a
     resumed run reads them instead of measuring again, so every part records the same time_ms;
     two shards claiming at once keep the first writer's."""
     from seuwgpu.faults.engine import Engine
 
-    spec, _ = reference_run
+    spec, ref_dir = reference_dir
     run = tmp_path / "run"
-    Runner(spec, run, quiet=True).run()
+    shutil.copytree(ref_dir, run)  # a finished run of SPEC (this test ran its own before)
     said = store.read_manifest(run)["time_ms"]  # the manifest states the rule the engine applies
     assert f"{Engine.VIEW_TIME_ROUNDS} rounds" in said and f"as fit {Engine.VIEW_TIME_BUDGET_S:g} s" in said
     files = sorted((run / "view_times").glob("*.json"))

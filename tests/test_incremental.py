@@ -43,7 +43,7 @@ def test_incremental_equals_full_rerender(precision):
     model = make_scene("blocks", n=2500, seed=2)
     eng = Engine(model, scene_cameras("blocks", 2, 48, 40), precision, scene="blocks")
     rng = np.random.default_rng(11)
-    sites = sample_sites(eng, rng)
+    sites = sample_sites(eng, rng, per_class=2)  # every field and bit class twice, 12 scale flips: 48 sites
     defenses = ("none", "guard", "ecc", "dup")
     inc = eng.evaluate(sites, defenses)
     assert len(inc) == len(sites) * len(defenses)

@@ -313,7 +313,7 @@ def test_end_to_end_report(synthetic, tmp_path):
     assert page.index("id='summary'") < page.index("id='claims'") < page.index("id='outcomes'")
 
 
-def test_skipped_when_no_dose_rows(synthetic, tmp_path):
+def test_skipped_when_no_dose_rows(synthetic, tmp_path, undrawn_figures):
     out = tmp_path / "report"
     # an earlier report in the same folder wrote dose files: they must not survive as stale
     out.mkdir()
@@ -356,7 +356,7 @@ def test_markdown_table_formatting():
     assert "x\\|y" in lines[2] and "0.0001235" in lines[2] and "n/a" in lines[3]
 
 
-def test_only_single_defense_skips_mitigation(synthetic, tmp_path):
+def test_only_single_defense_skips_mitigation(synthetic, tmp_path, undrawn_figures):
     df = synthetic["single_df"]
     df = df[(df["defense"] == "none") & (df["precision"] == "fp32")]
     run = write_run(tmp_path / "run_none", df, parts=1)
@@ -400,7 +400,7 @@ def test_a_report_reads_each_manifest_and_footer_once(synthetic, tmp_path, monke
     assert len(footers) == 4 and len(set(footers)) == 4  # two parts each
 
 
-def test_tables_of_an_unfinished_run_say_so(synthetic, tmp_path):
+def test_tables_of_an_unfinished_run_say_so(synthetic, tmp_path, undrawn_figures):
     """The criticality table `seuwgpu report` prints, and every table file of the report, say that
     the run is unfinished (not only the page's header): a table copied out of the report, or read
     on the terminal, must not pass for the spec's population."""

@@ -11,6 +11,7 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import undrawn_report_figures
 
 from seuwgpu.report.build import build_report
 
@@ -146,7 +147,8 @@ def run(tmp_path_factory, request):
     for i, ids in enumerate(np.array_split(np.unique(df["injection_id"]), 3)):
         df[df["injection_id"].isin(ids)].to_parquet(rd / "records" / f"part-{i:05d}.parquet", index=False)
     out = base / "report"
-    build_report([rd], out, max_pred_rows=20_000, fold=request.param)  # folded: analysis.folding
+    with undrawn_report_figures():  # the tests read the numbers and tables, not the pictures
+        build_report([rd], out, max_pred_rows=20_000, fold=request.param)  # folded: analysis.folding
     records = pd.concat([pd.read_parquet(p) for p in sorted((rd / "records").glob("*.parquet"))], ignore_index=True)
     return records, out, json.loads((out / "summary.json").read_text())
 

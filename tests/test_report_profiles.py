@@ -58,7 +58,7 @@ def test_profiles_get_their_own_table_and_the_rest_rests_on_strict(runs, tmp_pat
         assert c["n"] == len(g) and abs(c["rate"] - want) < 1e-12
 
 
-def test_folded_report_of_two_profiles_equals_the_records_report(runs, tmp_path):
+def test_folded_report_of_two_profiles_equals_the_records_report(runs, tmp_path, undrawn_figures):
     from test_folding import _same_numbers, _same_table, _tables
 
     out = {f: sg.make_report([runs / "strict", runs / "gsplat"], tmp_path / str(f), fold=f).parent for f in (0, 1)}
