@@ -39,7 +39,8 @@ from seuwgpu.model.scenes import make_scene, scene_cameras  # noqa: E402
 
 def draw_sites(eng: Engine, count: int, seed: int):
     rng = np.random.default_rng(seed)
-    cells = [(f, b) for f in FIELDS for b in range(encoding.bits_per_value(eng.precision))]
+    fields = [f for f in FIELDS if field_components(f, eng.degree) > 0]  # SH degree 0 stores no sh_rest
+    cells = [(f, b) for f in fields for b in range(encoding.bits_per_value(eng.precision))]
     out = []
     for i in range(count):
         f, b = cells[i % len(cells)]
