@@ -826,10 +826,10 @@ def test_contamination_table_says_what_its_columns_are():
     """The contamination table's caption was 'Per subset, precision, defense and P.': nothing said
     that the prediction is the whole primitive's rectangle (ECC and duplication rows read ~66%
     predicted against 0% measured in docs/study/cpu), nor over which records the IoU is averaged."""
-    from seuwgpu.report.sections import _sec_contamination
+    from seuwgpu.report.sections.contamination import contamination_section
 
     d = _records(4, field="log_scales", bit=31, bit_class="sign", footprint=0.5, regions_pred_4=15, regions_meas_4=3)
-    sec = _sec_contamination(d, [], {"results": {}, "skipped": []})
+    sec = contamination_section(d, [], {"results": {}, "skipped": []})
     cap = sec.tables[0].caption
     assert "n_iou" in cap and "weighted by stored bits" in cap and "without interval" in cap
     assert "clean footprint" in cap

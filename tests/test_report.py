@@ -427,7 +427,7 @@ def test_dose_numbers_name_their_model_when_several():
     """summary.json's dose numbers at the largest k: with several models, one per model (keyed as
     p_c's). They were one row chosen by sort order (the last scene at the largest N), unnamed: the
     CPU study's dose_psnr_median_at_kmax_guard_db was yashica-t4's 17.6 dB, beside blocks' 13.5."""
-    from seuwgpu.report.sections import _sec_dose
+    from seuwgpu.report.sections.dose import dose_section
 
     rows = []
     for scene, psnr in (("a", 40.0), ("b", 20.0)):
@@ -455,7 +455,7 @@ def test_dose_numbers_name_their_model_when_several():
                         }
                     )
     df = pd.DataFrame(rows)
-    num = _sec_dose(df, [], {"results": {}, "skipped": []}).numbers
+    num = dose_section(df, [], {"results": {}, "skipped": []}).numbers
     assert not any(k.startswith("dose_psnr_median_at_kmax_none") for k in num)  # no unnamed model
     for scene in ("a", "b"):
         for d in ("none", "guard"):
@@ -464,5 +464,5 @@ def test_dose_numbers_name_their_model_when_several():
             assert num[f"dose_psnr_median_at_kmax_{scene}_{d}_db"] == ranked[(len(g) - 1) // 2]
             assert num[f"dose_nonfinite_at_kmax_{scene}_{d}_pct"] == pytest.approx(100 * g["nonfinite"].mean())
         assert num[f"dose_kmax_{scene}"] == 10
-    one = _sec_dose(df[df["scene"] == "a"], [], {"results": {}, "skipped": []}).numbers
+    one = dose_section(df[df["scene"] == "a"], [], {"results": {}, "skipped": []}).numbers
     assert one["dose_kmax"] == 10 and one["dose_nonfinite_at_kmax_none_pct"] == pytest.approx(30)
