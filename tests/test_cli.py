@@ -229,9 +229,12 @@ def test_plan_campaign_shards_merge_and_report(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_demo_on_a_tiny_scene(tmp_path, capsys):
+def test_demo_on_a_corpus_model(tmp_path, capsys):
+    """The main job on a user's model (issue 45): a subset of the corpus model "plant" (a real
+    .splat capture, tests/data/corpus), its report opening with the summary."""
+    model = ROOT / "tests" / "data" / "corpus" / "plant-2000.splat"
     rc, out, _ = run(
-        ["demo", "--scene", "spheres", "--n", "200", "--views", "1", "--size", "16x16", "--samples", "1", "--quiet",
+        ["demo", "--model", model, "--views", "1", "--size", "16x16", "--samples", "1", "--quiet",
          "--out", tmp_path / "demo"],
         capsys,
     )  # fmt: skip
@@ -239,11 +242,13 @@ def test_demo_on_a_tiny_scene(tmp_path, capsys):
     m = read_manifest(tmp_path / "demo")
     assert len(read_records(tmp_path / "demo")) == m["total_injections"] * len(m["spec"]["single"]["defenses"])
     assert (tmp_path / "demo" / "report" / "index.html").is_file()
-    # the report opens with the summary (issue 45): the model, its p_c, the worst flip's panel
-    model = {"name": "spheres", "format": "embedded scene", "primitives": 200, "sh_degree": 3, "notes": []}
-    assert m["models"] == [model]
+    # the report opens with the summary: the model as loaded, its p_c, the worst flip's panel
+    assert m["models"] == [{"name": "plant-2000", "format": "splat", "primitives": 2000, "sh_degree": 0, "notes": []}]
     md = (tmp_path / "demo" / "report" / "report.md").read_text()
-    assert md.split("\n## ")[1].startswith("Summary") and "p_c = " in md.split("\n## ")[1]
+    summary = md.split("\n## ")[1]
+    assert (
+        summary.startswith("Summary") and "p_c = " in summary and "Model plant-2000: splat, 2,000 primitives" in summary
+    )
     assert (tmp_path / "demo" / "report" / "fig_worst_flip.png").is_file()
 
 

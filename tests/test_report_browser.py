@@ -163,7 +163,8 @@ PAGE_STATE = """(() => {
   for (let e = summary && summary.nextElementSibling; e && e.tagName !== 'H2'; e = e.nextElementSibling) {
     first.push(e.tagName === 'FIGURE' ? 'FIGURE:' + e.querySelector('img').alt : e.tagName);
   }
-  return {images, tables, sections, headings, summary: first, title: document.title};
+  const lead = summary && summary.nextElementSibling ? summary.nextElementSibling.textContent : '';
+  return {images, tables, sections, headings, summary: first, lead, title: document.title};
 })()"""
 
 
@@ -281,3 +282,21 @@ def test_the_report_opens_with_the_summary_and_its_worst_flip_panel(browser, rep
     caption = (out / "report.md").read_text()
     assert f"footprint {100 * num['worst']['footprint']:.3g}% without a defense" in caption
     assert all(d["time_ms"] > 0 for d in num["defenses"])  # measured in the run
+
+
+@pytest.mark.slow  # it runs the main job first
+def test_the_demo_report_of_a_corpus_model_opens_with_its_summary(browser, tmp_path):
+    """Issue 45's check as a user makes it: `seuwgpu demo --model` on a real capture (a subset of
+    the corpus model "plant", tests/data/corpus; CI cannot assemble the corpus), its report in
+    Chromium: the summary first, naming the model as loaded, its worst flip's panel decoded."""
+    from seuwgpu.apps.cli import main
+
+    model = Path(__file__).resolve().parent / "data" / "corpus" / "plant-2000.splat"
+    argv = ["demo", "--model", str(model), "--views", "1", "--size", "16x16", "--samples", "1", "--quiet"]
+    assert main([*argv, "--out", str(tmp_path / "demo")]) == 0
+    state, errors = page_state(browser, (tmp_path / "demo" / "report" / "index.html").as_uri())
+    assert not errors, errors
+    assert state["headings"][:2] == ["summary", "Runs"], state["headings"]
+    assert "Model plant-2000: splat, 2,000 primitives" in state["lead"], state["lead"]
+    panel = next(i for i in state["images"] if i["alt"] == "The worst flip found")
+    assert panel["complete"] and panel["width"] > 0
