@@ -127,6 +127,7 @@ def test_wilson_and_tables():
     a = cc.agreement(df, None)
     assert a["sites"].iloc[0] == 4 and a["same class"].iloc[0].startswith("3 (75.0%")
     assert a["footprint within 0.5%"].iloc[0].startswith("3 (75.0%")
+    assert a["same class, masked = tolerable"].iloc[0].startswith("4 (100.0%")
     assert a["max |Δ footprint|"].iloc[0] == "10.000%"
     conf = cc.confusion(df)
     assert list(conf.index) == list(cc.CLASSES) == list(conf.columns)
