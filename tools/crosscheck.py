@@ -326,10 +326,12 @@ def run(args) -> int:
 CAUSES = {
     "rounding": "last-bit rounding: the frames differ by an ulp in one renderer and are bit-identical in the "
     "other (invisible in both: no channel moves by 1/255)",
-    "needle-det": "needle (a huge scale along one axis): det = a*c - b*b of the 2-D covariance cancels "
-    "catastrophically in fp32, so its sign and size depend on the order of operations; the renderer "
-    "whose det came out <= 0 culls the Gaussian (CUDA and seuwgpu's gsplat profile cull det <= 0; gsplat's "
-    "torch reference clamps det to 1e-10 and draws)",
+    "needle-clamp": "needle (a huge scale along one axis): det = a*c - b*b of the 2-D covariance cancels "
+    "in fp32 and came out <= 0 in gsplat's torch reference, which clamps det to 1e-10 and draws the "
+    "Gaussian, where gsplat's CUDA kernel (ProjectionEWA3DGSFused.cu: det <= 0 culled) and seuwgpu's "
+    "gsplat profile cull it",
+    "needle-det": "needle: det = a*c - b*b cancels catastrophically in fp32, so its sign depends on the "
+    "order of the operations; one renderer's det came out <= 0 (culled), the other's > 0 (drawn)",
     "needle-conic": "needle drawn by both: the conic inverts a cancelling det, so the ellipse (and its "
     "footprint) differs with the rounding",
     "radius-int": "radius >= 2^31 px: torch's float-to-int gives INT_MIN on x86 (culled) where CUDA and "
@@ -373,13 +375,28 @@ def explain_site(r, scene, cams) -> str:
         if min(radii) < 0 and sg_drawn:
             return "radius-int"
         if gs_drawn != sg_drawn and big:
-            return "needle-det"
+            return "needle-clamp" if _torch_det(row, cam) <= 0 else "needle-det"
     if needle:
         return "needle-conic"
     d = abs(r.sg_footprint - r.gs_footprint)
     near_foot = d <= AGREE_FOOTPRINT and min(r.sg_footprint, r.gs_footprint) <= FOOTPRINT_THRESHOLD
     near_peak = 0.5 * PIXEL_THRESHOLD <= min(r.sg_peak, r.gs_peak) <= 2 * PIXEL_THRESHOLD
     return "threshold" if near_foot or near_peak else "other"
+
+
+def _torch_det(row: dict, cam) -> float:
+    """gsplat's torch det of the 2-D covariance before its clamp (as `_fully_fused_projection`)."""
+    import torch
+    from gsplat.cuda._torch_impl import _persp_proj, _quat_scale_to_covar_preci, _world_to_cam
+
+    covars, _ = _quat_scale_to_covar_preci(
+        torch.from_numpy(row["quats"]), torch.exp(torch.from_numpy(row["log_scales"])), True, False
+    )
+    vm, ks = torch.from_numpy(cam.viewmat)[None], torch.from_numpy(cam.K)[None]
+    means_c, covars_c = _world_to_cam(torch.from_numpy(row["means"]), covars, vm)
+    _, cov2 = _persp_proj(means_c, covars_c, ks, cam.width, cam.height)
+    cov2 = cov2 + torch.eye(2) * 0.3
+    return float((cov2[..., 0, 0] * cov2[..., 1, 1] - cov2[..., 0, 1] * cov2[..., 1, 0]).reshape(-1)[0])
 
 
 def explain(args) -> int:
