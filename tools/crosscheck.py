@@ -284,13 +284,16 @@ def run(args) -> int:
     print(f"{len(sites)} sites over {len(loaded)} models; {len(done)} already in {rec_path}", flush=True)
     for name, scene in loaded:
         todo = sites[(sites["model"] == name) & ~sites["site_id"].isin(done)]
+        if args.field:
+            todo = todo[todo["field"].isin(args.field)]
         if todo.empty:
             continue
         model = scene.model
         t0 = time.time()
         cams = sg.cameras(scene, views=args.views, size=(args.size, args.size))
         fields = {f: getattr(model, f) for f in SG_FIELDS}
-        views = [GsplatView(fields, model.sh_degree, c.viewmat, c.K, c.width, c.height, cap) for c in cams]
+        dtype = torch.float64 if args.fp64 else None
+        views = [GsplatView(fields, model.sh_degree, c.viewmat, c.K, c.width, c.height, cap, dtype) for c in cams]
         np.savez(out / f"clean_{name}.npz", gsplat=np.stack([v.frame for v in views]))
         t1 = time.time()
         profiles = ("gsplat", "strict") if args.strict else ("gsplat",)
@@ -312,7 +315,10 @@ def run(args) -> int:
             recs.insert(3, "sh_degree", model.sh_degree)
             recs["value_match"] = [same_bits(a, b) for a, b in zip(recs["corrupted_value"], recs["sg_corrupted"])]
             recs["views"], recs["size"], recs["alpha_cap"] = args.views, args.size, cap
+            recs["gs_projection"] = "float64" if args.fp64 else "float32"
             recs["s_seuwgpu"], recs["s_gsplat"] = (t2 - t1) / len(batch), (t3 - t2) / len(batch)
+            if rec_path.exists():  # appended under the file's own header (a column it lacks is dropped)
+                recs = recs.reindex(columns=pd.read_csv(rec_path, nrows=0).columns)
             recs.to_csv(rec_path, mode="a", header=not rec_path.exists(), index=False)
             agree = (recs["sg_class"] == recs["gs_class"]).mean()
             print(
@@ -495,6 +501,8 @@ def main(argv=None) -> int:
     r.add_argument("--batch", type=int, default=32)
     r.add_argument("--threads", type=int, default=1, help="torch threads")
     r.add_argument("--strict", action="store_true", help="also seuwgpu's strict profile")
+    r.add_argument("--field", action="append", help="only the sites of this field (repeatable)")
+    r.add_argument("--fp64", action="store_true", help="gsplat's covariance and projection in float64")
     r.add_argument("--alpha-cap", type=float, default=None, help="gsplat's alpha cap (default: 1.5.3's 0.999)")
     r.set_defaults(fn=run)
     t = sub.add_parser("table", help="agreement tables (markdown) from records.csv")

@@ -37,17 +37,21 @@ def _t(a) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))
 
 
-def project(fields: dict, viewmat: np.ndarray, K: np.ndarray, width: int, height: int, degree: int):
+def project(fields: dict, viewmat: np.ndarray, K: np.ndarray, width: int, height: int, degree: int, dtype=None):
     """gsplat's torch projection and colour of the primitives in `fields` (float32 numpy arrays:
     means [N,3], log_scales [N,3], quats [N,4], opacity [N], sh_dc [N,3], sh_rest [N,R,3]) for one
-    view: radii [N,2] int32, means2d [N,2], depths [N], conics [N,3], opacities [N], colors [N,3]."""
+    view: radii [N,2] int32, means2d [N,2], depths [N], conics [N,3], opacities [N], colors [N,3].
+    `dtype` torch.float64: the covariance and the projection (gsplat's functions are dtype-generic)
+    in float64 from the float32 values, their results rounded to float32 (crosscheck --fp64)."""
+    dt = dtype or torch.float32
     means, quats = _t(fields["means"]), _t(fields["quats"])
-    scales = torch.exp(_t(fields["log_scales"]))
-    covars, _ = _quat_scale_to_covar_preci(quats, scales, True, False, triu=False)
+    scales = torch.exp(_t(fields["log_scales"]).to(dt))
+    covars, _ = _quat_scale_to_covar_preci(quats.to(dt), scales, True, False, triu=False)
     vm, ks = _t(viewmat)[None], _t(K)[None]
     radii, means2d, depths, conics, _ = _fully_fused_projection(
-        means, covars, vm, ks, width, height, eps2d=0.3, near_plane=0.01, far_plane=1e10
+        means.to(dt), covars, vm.to(dt), ks.to(dt), width, height, eps2d=0.3, near_plane=0.01, far_plane=1e10
     )
+    means2d, depths, conics = means2d.float(), depths.float(), conics.float()
     campos = torch.inverse(vm)[0, :3, 3]
     dirs = means - campos
     coeffs = torch.cat([_t(fields["sh_dc"])[:, None, :], _t(fields["sh_rest"]).reshape(len(means), -1, 3)], dim=1)
@@ -165,11 +169,13 @@ class GsplatView:
     """One view: the clean projection, tile lists and frame; `faulted(p, row)` re-renders the frame
     with primitive p's fields replaced by `row` (a dict of that primitive's values)."""
 
-    def __init__(self, fields: dict, degree: int, viewmat, K, width: int, height: int, cap: float = ALPHA_CAP):
-        self.fields, self.degree = fields, degree
+    def __init__(
+        self, fields: dict, degree: int, viewmat, K, width: int, height: int, cap: float = ALPHA_CAP, dtype=None
+    ):
+        self.fields, self.degree, self.dtype = fields, degree, dtype
         self.viewmat, self.K, self.W, self.H, self.cap = viewmat, K, width, height, cap
         self.tx, self.ty = -(-width // TILE), -(-height // TILE)
-        self.p = project(fields, viewmat, K, width, height, degree)
+        self.p = project(fields, viewmat, K, width, height, degree, dtype)
         self.lists = tile_lists(self.p, self.tx, self.ty)
         self.frame = np.empty((height, width, 3), np.float32)
         for t in range(self.tx * self.ty):
@@ -184,7 +190,7 @@ class GsplatView:
         frame[y : y + img.shape[0], x : x + img.shape[1]] = img
 
     def project_one(self, row: dict) -> dict:
-        return project(row, self.viewmat, self.K, self.W, self.H, self.degree)
+        return project(row, self.viewmat, self.K, self.W, self.H, self.degree, self.dtype)
 
     def faulted(self, prim: int, row: dict) -> tuple[np.ndarray, np.ndarray, dict]:
         """(clean frame, faulted frame, info). Compositing is per pixel, and a Gaussian that a pixel
