@@ -195,6 +195,12 @@ def tables(df: pd.DataFrame, a: str = "sg", b: str = "gs") -> str:
         parts += [f"### Per {by}", markdown(agreement(df, by, a, b))]
     parts += ["### Classes (rows: seuwgpu, columns: gsplat)", markdown(confusion(df, a, b), index=True)]
     dis = disagreements(df, a, b)
+    if "cause" in dis and len(dis):
+        counts = dis.groupby("cause").agg(sites=("site_id", "size"), classes_differ=("site_id", "size"))
+        differ = dis[dis[f"{a}_class"] != dis[f"{b}_class"]].groupby("cause").size()
+        counts["classes_differ"] = differ.reindex(counts.index).fillna(0).astype(int)
+        counts["what"] = [CAUSES.get(c, "") for c in counts.index]
+        parts += ["### Causes", markdown(counts.sort_values("sites", ascending=False), index=True)]
     parts += [f"### Disagreements ({len(dis)})", markdown(dis) if len(dis) else "none"]
     return "\n\n".join(parts) + "\n"
 
@@ -333,15 +339,15 @@ CAUSES = {
     "rounding": "last-bit rounding: the frames differ by an ulp in one renderer and are bit-identical in the "
     "other (invisible in both: no channel moves by 1/255)",
     "needle-clamp": "needle (a huge scale along one axis): det = a*c - b*b of the 2-D covariance cancels "
-    "in fp32 and came out <= 0 in gsplat's torch reference, which clamps det to 1e-10 and draws the "
-    "Gaussian, where gsplat's CUDA kernel (ProjectionEWA3DGSFused.cu: det <= 0 culled) and seuwgpu's "
-    "gsplat profile cull it",
+    "in fp32 and came out <= 0 in gsplat's torch reference in a view, where it clamps det to 1e-10 (a "
+    "line of sub-pixel width, nearly invisible) while gsplat's CUDA kernel culls det <= 0 "
+    "(ProjectionEWA3DGSFused.cu); seuwgpu's det there came out > 0 (drawn wide) or <= 0 (culled)",
     "needle-det": "needle: det = a*c - b*b cancels catastrophically in fp32, so its sign depends on the "
     "order of the operations; one renderer's det came out <= 0 (culled), the other's > 0 (drawn)",
     "needle-conic": "needle drawn by both: the conic inverts a cancelling det, so the ellipse (and its "
     "footprint) differs with the rounding",
-    "radius-int": "radius >= 2^31 px: torch's float-to-int gives INT_MIN on x86 (culled) where CUDA and "
-    "seuwgpu's gsplat profile saturate (a frame-covering sheet)",
+    "radius-int": "a needle whose radius reaches 2^31 px in a view: torch's float-to-int gives INT_MIN on "
+    "x86 there (culled) where CUDA saturates (a frame-covering sheet)",
     "threshold": "both footprints within 0.5% of the frame on either side of the 1% threshold, or a peak "
     "change at 1/255",
     "nonfinite": "non-finite handling differs",
@@ -367,27 +373,46 @@ def explain_site(r, scene, cams) -> str:
         return "rounding"
     if bool(r.sg_nonfinite) != bool(r.gs_nonfinite):
         return "nonfinite"
-    needle = False
+    per_view = []
     for cam in cams:
         g = project(Model(**row), cam, "gsplat")
         q = gs.project(row, cam.viewmat, cam.K, cam.width, cam.height, model.sh_degree)
         radii = q["radii"][0].tolist()
         box = gs.tile_boxes(q["means2d"], q["radii"], -(-cam.width // gs.TILE), -(-cam.height // gs.TILE))[0]
         gs_drawn = min(radii) > 0 and bool(box[2] > box[0]) and bool(box[3] > box[1])
-        sg_drawn = bool(g["n_tiles"][0] > 0)
-        a, b, c = (float(x) for x in g["cov2d"][0])
-        big = max(abs(a), abs(c)) > 1e6
-        needle |= big
-        if min(radii) < 0 and sg_drawn:
-            return "radius-int"
+        big = max(abs(float(x)) for x in g["cov2d"][0][[0, 2]]) > 1e6
+        per_view.append((cam, radii, gs_drawn, bool(g["n_tiles"][0] > 0), big))
+    if any(min(radii) < 0 for _, radii, *_ in per_view):
+        return "radius-int"
+    for cam, _, gs_drawn, sg_drawn, big in per_view:
         if gs_drawn != sg_drawn and big:
             return "needle-clamp" if _torch_det(row, cam) <= 0 else "needle-det"
-    if needle:
+    if any(v[-1] for v in per_view):
         return "needle-conic"
     d = abs(r.sg_footprint - r.gs_footprint)
     near_foot = d <= AGREE_FOOTPRINT and min(r.sg_footprint, r.gs_footprint) <= FOOTPRINT_THRESHOLD
     near_peak = 0.5 * PIXEL_THRESHOLD <= min(r.sg_peak, r.gs_peak) <= 2 * PIXEL_THRESHOLD
     return "threshold" if near_foot or near_peak else "other"
+
+
+def _lone_footprints(r, scene, cams) -> tuple[float, float]:
+    """The faulted primitive alone (gsplat profile) on white: the fraction of pixels it changes, as
+    seuwgpu's GPU draws it and as its numpy twin (render.reference) does (for a needle, the cull
+    and the ellipse hang on a cancelling det, and so on the device's rounding)."""
+    import seuwgpu as sg
+    from seuwgpu.model.fields import FIELDS as SG_FIELDS
+    from seuwgpu.model.fields import Model
+    from seuwgpu.render import reference
+
+    model = scene.model
+    row = {f: getattr(model, f)[r.primitive : r.primitive + 1].copy() for f in SG_FIELDS}
+    flat = row[r.field].reshape(-1)
+    flat[r.component] = flip_fp32(flat[r.component], r.bit)
+    one = Model(**row)
+    gpu = np.asarray(sg.render_views(one, cams, profile="gsplat"))[..., :3]
+    twin = np.asarray(reference.render(one, cams, profile="gsplat"))[..., :3]
+    white = np.ones_like(gpu)
+    return frame_metrics(white, gpu)["footprint"], frame_metrics(white, twin)["footprint"]
 
 
 def _torch_det(row: dict, cam) -> float:
@@ -422,8 +447,11 @@ def explain(args) -> int:
         _, scene = _load(specs[name])
         r0 = g.iloc[0]
         cams = sg.cameras(scene, views=int(r0["views"]), size=(int(r0["size"]), int(r0["size"])))
-        rows += [{"site_id": r.site_id, "cause": explain_site(r, scene, cams)} for r in g.itertuples()]
-    out = pd.DataFrame(rows, columns=["site_id", "cause"])
+        for r in g.itertuples():
+            cause = explain_site(r, scene, cams)
+            lone = _lone_footprints(r, scene, cams) if cause.startswith(("needle", "radius")) else (math.nan,) * 2
+            rows.append({"site_id": r.site_id, "cause": cause, "lone_gpu": lone[0], "lone_twin": lone[1]})
+    out = pd.DataFrame(rows, columns=["site_id", "cause", "lone_gpu", "lone_twin"])
     out.to_csv(rec_path.with_name("causes.csv"), index=False)
     print(out["cause"].value_counts().to_string())
     return 0
@@ -477,7 +505,7 @@ def table(args) -> int:
     df = pd.read_csv(args.records)
     causes = Path(args.records).with_name("causes.csv")
     if causes.exists():
-        df = df.merge(pd.read_csv(causes), on="site_id", how="left")
+        df = df.merge(pd.read_csv(causes)[["site_id", "cause"]], on="site_id", how="left")
     text = tables(df)
     if "strict_class" in df:
         text += "\n## seuwgpu strict profile against gsplat\n\n" + "\n\n".join(
