@@ -471,7 +471,11 @@ def clean(args) -> int:
     torch.set_num_threads(args.threads)
     rows = []
     for spec in args.model:
-        name, scene = _load(spec)
+        try:
+            name, scene = _load(spec)
+        except Exception as e:  # as in run: a model that does not load is skipped, and said
+            print(f"skip {spec}: {type(e).__name__}: {e}", flush=True)
+            continue
         model = scene.model
         cams = sg.cameras(scene, views=args.views, size=(args.size, args.size))
         fields = {f: getattr(model, f) for f in SG_FIELDS}
