@@ -116,6 +116,7 @@ def test_wilson_and_tables():
             "model": ["m", "m", "n", "n"],
             "field": ["means", "opacity", "means", "opacity"],
             "bit_kind": ["sign", "exponent", "mantissa", "sign"],
+            "bit": [31, 25, 3, 31],
             "clean_value": [1.0] * 4,
             "corrupted_value": [-1.0] * 4,
             "sg_class": ["masked", "sdc", "catastrophic", "tolerable"],
@@ -135,6 +136,7 @@ def test_wilson_and_tables():
     assert list(cc.disagreements(df)["site_id"]) == ["c", "d"]
     text = cc.tables(df)
     assert "### Per field" in text and "### Disagreements (2)" in text
+    assert "| all but log-scale sign flips | 4 |" in text
 
 
 def test_gsplat_renderer_matches_gsplat_and_seuwgpu():

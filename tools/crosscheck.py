@@ -191,6 +191,9 @@ def disagreements(df: pd.DataFrame, a: str = "sg", b: str = "gs") -> pd.DataFram
 
 def tables(df: pd.DataFrame, a: str = "sg", b: str = "gs") -> str:
     parts = [f"### Overall ({a} vs {b})", markdown(agreement(df, None, a, b))]
+    needle = (df["field"] == "log_scales") & (df["bit"] == SIGN_BIT)
+    split = df.assign(sites_of=np.where(needle, "log-scale sign flips", "all but log-scale sign flips"))
+    parts += ["### Log-scale sign flips and the rest", markdown(agreement(split, "sites_of", a, b))]
     for by in ("model", "field", "bit_kind"):
         parts += [f"### Per {by}", markdown(agreement(df, by, a, b))]
     parts += ["### Classes (rows: seuwgpu, columns: gsplat)", markdown(confusion(df, a, b), index=True)]
