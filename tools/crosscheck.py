@@ -339,7 +339,7 @@ def run(args) -> int:
 
 
 CAUSES = {
-    "rounding": "last-bit rounding: the frames differ by an ulp in one renderer and are bit-identical in the "
+    "rounding": "last-bit rounding: the frames differ in their last bits in one renderer and are bit-identical in the "
     "other (invisible in both: no channel moves by 1/255)",
     "needle-clamp": "needle (a huge scale along one axis): det = a*c - b*b of the 2-D covariance cancels "
     "in fp32 and came out <= 0 in gsplat's torch reference in a view, where it clamps det to 1e-10 (a "
