@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from conftest import random_model
 
+from seuwgpu.faults import codes
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.check import Checker
 from seuwgpu.faults.guard import support_box
@@ -71,7 +72,7 @@ def test_gpu_detection_equals_a_brute_force_sweep_of_every_flip_and_burst(precis
     box = support_box(r.layout.decode(r.clean_words), precision)
     for c, words in enumerate(r.layout.encode_bits(bad)):
         r.gpu.write(r.chunks[c], words)
-    cover = dfn.parity_cover_mask(precision)
+    cover = codes.parity_cover_mask(precision)
     touches = ((bad ^ clean).astype(np.uint64) & np.uint64(cover)).any(axis=1)
     for d in CHECKED:
         chk = Checker(r, d, clean, box)
@@ -85,7 +86,7 @@ def test_gpu_detection_equals_a_brute_force_sweep_of_every_flip_and_burst(precis
         if d == "parity4r":
             np.testing.assert_array_equal(got, touches)
         if d == "scalebound":
-            bound = dfn.scale_table(box, precision)[dfn.side_data(d, clean, precision, 3, box)]
+            bound = codes.scale_table(box, precision)[dfn.side_data(d, clean, precision, 3, box)]
             ls = encoding.from_bits(bad[:, 3:6], precision)
             with np.errstate(invalid="ignore"):
                 np.testing.assert_array_equal(got, (ls > bound[:, None]).any(axis=1))

@@ -4,6 +4,7 @@ scrubbing restarts the accumulation, reloading defenses keep every frame clean, 
 import numpy as np
 
 from seuwgpu.campaign.storm import storm
+from seuwgpu.faults import schedule
 from seuwgpu.faults.engine import Engine
 from seuwgpu.faults.sites import draw_uniform_sites
 from seuwgpu.model.scenes import make_scene, scene_cameras
@@ -246,7 +247,6 @@ def test_a_check_schedule_shows_each_upset_for_its_exposure():
     frames (before frames 0, 4): parity4r draws each corrupted until the next check, so its
     catastrophic frames are exactly defenses.exposure's (3 + 3) and at the frames it names; with
     no defense and no scrub they stay (frames 1..7)."""
-    from seuwgpu.faults import defenses as dfn
 
     model = make_scene("blocks", n=200, seed=4)
     eng = Engine(model, scene_cameras("blocks", 1, 32, 32), "fp32", scene="blocks")
@@ -258,7 +258,7 @@ def test_a_check_schedule_shows_each_upset_for_its_exposure():
     cat = {d: set(g.loc[g.catastrophic, "frame"]) for d, g in df.groupby("defense")}
     assert cat["none"] == set(range(1, 8))
     assert cat["parity4r"] == {1, 2, 3, 5, 6, 7}
-    assert len(cat["parity4r"]) == dfn.exposure(4, [1, 5]).per_upset.sum()
+    assert len(cat["parity4r"]) == schedule.exposure(4, [1, 5]).per_upset.sum()
     assert (df[df.defense == "parity4r"].check_every == 4).all() and (df[df.defense == "none"].check_every == 0).all()
     every = storm(eng, 1, 8, scrub_every=0, defenses=("parity4r",), check_every=1, upsets=plan)
     assert not every.catastrophic.any()  # checked before every frame: exposure 0

@@ -26,7 +26,7 @@ accumulating between scrubs.
   and the share of frames that are catastrophic is 1 - (1 - exp(-x)) / x with x = L p T.
 * A check defense (parity, checksum, ...: `faults/defenses.py`) repairs what it detects only at
   its next check, every S frames: the catastrophes it repairs (its p_c below none's) are drawn
-  until then, (S - 1) / 2 frames on average (`defenses.exposure`), and its MTBF rows count them
+  until then, (S - 1) / 2 frames on average (`schedule.exposure`), and its MTBF rows count them
   (`with_exposure`, column exposure_hours). S and the frame rate are spec parameters
   ([reliability] check_every, frames_per_second; defaults 1 and 30).
 * Upset rates and the scrub interval are spec parameters ([reliability] rates = [...],
@@ -301,8 +301,8 @@ def catastrophic_frame_share(rate_per_bit_hour: float, bits: float, p: float, sc
 
 def check_exposure(check_every: int, frames_per_hour: float) -> tuple[float, float]:
     """(share of upsets a check every S frames lets be drawn at all, hours they are drawn on
-    average): defenses.exposure over every phase, in hours at `frames_per_hour`."""
-    from seuwgpu.faults.defenses import exposure
+    average): schedule.exposure over every phase, in hours at `frames_per_hour`."""
+    from seuwgpu.faults.schedule import exposure
 
     ex = exposure(check_every)
     return float((ex.per_upset >= 1).mean()), ex.expected / float(frames_per_hour)

@@ -10,7 +10,7 @@ leave the memory corrupted and correct what the renderer reads, so upsets pile u
 until the scrub (two in an ECC word are no longer correctable). A check defense checks before
 every `check_every`-th frame (frames 0, S, 2S, ...: its check schedule); between checks the
 frames are drawn from the memory as it is (its pipeline clamp, scalebound's, still acts), so an
-upset is seen for its exposure (defenses.exposure). The frame is rendered and measured against
+upset is seen for its exposure (schedule.exposure). The frame is rendered and measured against
 the clean render (all K views). Every arm sees the same upset sequence (paired); `upsets` gives
 a hand-made one (a list of frames, each a list of sites).
 """

@@ -2,8 +2,8 @@
 scale-class defenses over a renderer's stored chunks; twin: faults/defenses.py `detect`.
 
 The side data is computed from the clean model once, like the guard's box, and uploaded packed
-(`side_bits` per primitive, defenses.pack_side), so the device holds what the memory column
-charges (defenses.device_bytes). A check is one dispatch per chunk and one 4-byte read of the
+(`side_bits` per primitive, side.pack_side), so the device holds what the memory column
+charges (side.device_bytes). A check is one dispatch per chunk and one 4-byte read of the
 detection count; only when it is non-zero does the host read the flag bits and repair (cull,
 reload or clamp: defenses.repair), and clear them for the next check.
 """
@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from seuwgpu.faults import defenses as dfn
+from seuwgpu.faults import side as sd
 from seuwgpu.faults.guard import fill_chunk_params
 from seuwgpu.gpu.device import STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
@@ -28,10 +29,10 @@ class Checker:
         self.layout, self.chunks, self.defense = L, r.chunks, defense
         self.kernel = Kernel(g, "check")
         side = d.side_data(np.asarray(clean_rows), L.precision, L.degree, box)
-        self.side = g.upload(dfn.pack_side(side, d.side_bits))
+        self.side = g.upload(sd.pack_side(side, d.side_bits))
         self.table = g.upload(np.asarray(d.check_table(box, L.precision), np.float32))
         self.flag_words = -(-L.n // 32)
-        self.out = g.buffer(dfn.CHECK_HEADER_BYTES + 4 * self.flag_words, STORAGE, "check.out")
+        self.out = g.buffer(sd.CHECK_HEADER_BYTES + 4 * self.flag_words, STORAGE, "check.out")
         self._flagged = False  # flag bits set by the last run (cleared before the next)
         self.params = Uniforms(g, self.kernel.struct("CheckParams"), L.n_chunks, "check.params")
         fill_chunk_params(
@@ -71,9 +72,9 @@ class Checker:
 
     def flags(self) -> np.ndarray:
         """[n] bool: the primitives the last run flagged."""
-        words = self.gpu.read(self.out, np.uint32, dfn.CHECK_HEADER_BYTES, 4 * self.flag_words)
+        words = self.gpu.read(self.out, np.uint32, sd.CHECK_HEADER_BYTES, 4 * self.flag_words)
         return np.unpackbits(words.view(np.uint8), bitorder="little")[: self.layout.n].astype(bool)
 
     def device_bytes(self) -> int:
-        """Bytes of this check's buffers on the device (defenses.device_bytes counts the same)."""
+        """Bytes of this check's buffers on the device (side.device_bytes counts the same)."""
         return int(self.side.size + self.table.size + self.out.size + self.params.buffer.size)

@@ -1,10 +1,10 @@
 """What each defense costs on this device: memory (the bytes it holds on the device beside the
-model, defenses.device_bytes, and their fraction of the model's stored bytes), time (extra time
+model, side.device_bytes, and their fraction of the model's stored bytes), time (extra time
 per rendered frame as a fraction of an unprotected view, measured here, amortised over its check
 schedule) and its exposure (frames drawn from a corrupted model before its check repairs it).
 
 A check defense checks every `check_every` frames (S): its check's time counts once per S frames,
-and an upset is drawn for up to S - 1 frames, (S - 1) / 2 on average (defenses.exposure). The
+and an upset is drawn for up to S - 1 frames, (S - 1) / 2 on average (schedule.exposure). The
 in-pipeline guard clamps on every frame; read-time codes act on every read (exposure 0); with no
 defense an upset stays until the model is reloaded (exposure unbounded: "inf" in JSON).
 
@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from seuwgpu.faults import defenses as dfn
+from seuwgpu.faults import side
 from seuwgpu.faults.check import Checker
 from seuwgpu.faults.guard import component_mask, stored_box
 from seuwgpu.model import encoding
@@ -39,7 +40,7 @@ def defense_costs(
     measured on one view of `camera`, a check defense's check amortised over `check_every` frames."""
     rows = []
     parts, device, chunks = _times(model, camera, precision, repeats, gpu) if time_it else ({}, "?", 1)
-    t = {d: dfn.amortised_time(d, g, c, check_every) for d, (g, c) in parts.items()}
+    t = {d: amortised_time(d, g, c, check_every) for d, (g, c) in parts.items()}
     for d in dfn.DEFENSES:
         frac = t.get(d, float("nan"))
         obj = dfn.get(d)
@@ -53,8 +54,8 @@ def defense_costs(
         rows.append(
             {
                 "name": d,
-                "device_bytes": dfn.device_bytes(d, precision, model.sh_degree, model.n, chunks),
-                "memory_overhead": dfn.device_overhead(d, precision, model.sh_degree, model.n, chunks),
+                "device_bytes": side.device_bytes(d, precision, model.sh_degree, model.n, chunks),
+                "memory_overhead": side.device_overhead(d, precision, model.sh_degree, model.n, chunks),
                 "check_every": check_every if obj.checked else None,
                 "time_fraction": frac,
                 "check_fraction": parts[d][1] if obj.checked and d in parts else float("nan"),
@@ -129,3 +130,14 @@ def _times(model, camera, precision, repeats, gpu) -> tuple[dict, str, int]:
             check = med[f"check:{d}"] / base if d in checkers else 0.0
             out[d] = (guard, check)
     return out, r.gpu.info.get("device", "?"), r.layout.n_chunks
+
+
+def amortised_time(defense: str, guard_fraction: float, check_fraction: float, check_every: int = 1) -> float:
+    """Extra time per frame (fraction of a view) as the formula gives it: the in-pipeline clamp
+    every frame, one timed check over `check_every` frames (0: never). NaN stays NaN. The
+    measured schedule (schedule.schedule_samples) is what `defense_costs` reports."""
+    d = dfn.get(defense)
+    total = guard_fraction if d.guard_fields else 0.0
+    if d.checked and check_every:
+        total += check_fraction / check_every
+    return total
