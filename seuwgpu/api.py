@@ -39,7 +39,15 @@ from seuwgpu.campaign.spec import Spec
 from seuwgpu.campaign.store import CampaignRun
 from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.faults.defenses import DEFENSES, check_defense
-from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, INJECT_SAMPLE, VALUE_MODELS, model_bits
+from seuwgpu.faults.sites import (
+    ADJACENT_WIDTHS,
+    BURST_WIDTHS,
+    FAULT_MODELS,
+    INJECT_SAMPLE,
+    VALUE_MODELS,
+    check_site_model,
+    model_bits,
+)
 from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.metrics.image import display
 from seuwgpu.model import encoding
@@ -374,10 +382,12 @@ def storm(
     progress: Callable[[], None] | None = None,
     rows: list | None = None,
     check_every: int = 1,
+    fault: str = "bit",
 ) -> pd.DataFrame:
     """A fault storm (campaign/storm.py): `k` upsets per frame accumulating in the stored model for
     `frames` frames, reloaded every `scrub_every` frames (0: never), each defense an arm that sees
-    the same upsets; a check defense checks (and repairs) every `check_every` frames. One record
+    the same upsets; a check defense checks (and repairs) every `check_every` frames. `fault`: the
+    upsets' fault model (FAULT_MODELS: a burst, a random value, a multi-cell upset). One record
     per frame and defense. `progress()` is called after each frame;
     `rows`: a list the records are appended to as they are measured (a resumed storm's records
     first: it goes on after them)."""
@@ -387,8 +397,12 @@ def storm(
     for value, what in ((k, "k"), (frames, "frames"), (scrub_every, "scrub_every"), (seed, "seed")):
         _whole(value, what, None)  # the ranges: campaign/storm.py's own check, which names all three
     _whole(check_every, "check_every", 1)
+    if fault not in FAULT_MODELS:
+        raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
     eng = _engine(scene, views, precision, profile, "storm")
-    return run_storm(eng, k, frames, scrub_every, defenses, seed, progress, rows=rows, check_every=check_every)
+    return run_storm(
+        eng, k, frames, scrub_every, defenses, seed, progress, rows=rows, check_every=check_every, fault=fault
+    )
 
 
 def state_flips(
@@ -746,8 +760,10 @@ def report_figures(runs: str | Path | Iterable[str | Path]) -> dict:
 # ---- helpers --------------------------------------------------------------------------------------
 def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], str, int]:
     """(bits, op, value) of one fault, as faults/sites.py applies it."""
-    if fault not in FAULT_MODELS:
-        raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
+    try:
+        check_site_model(fault)
+    except ValueError as e:
+        raise InputError(str(e)) from None
     if fault in VALUE_MODELS:
         return model_bits(fault, -1, precision, int(np.random.default_rng(seed).integers(2**63)))
     if bit is None:
@@ -761,11 +777,12 @@ def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], st
             encoding.check_bit(precision, b)
         except ValueError as e:
             raise InputError(str(e)) from None
-    if fault == "adjacent" and len(bits) == 1:
-        if width not in ADJACENT_WIDTHS:
-            raise InputError(f"width must be one of {', '.join(map(str, ADJACENT_WIDTHS))}, got {width!r}")
-        return model_bits("adjacent", int(bits[0]), precision, ADJACENT_WIDTHS.index(width))
-    return tuple(int(b) for b in bits), ("flip" if fault in ("bit", "adjacent") else fault), 0
+    if fault in ("adjacent", "burst") and len(bits) == 1:
+        widths = ADJACENT_WIDTHS if fault == "adjacent" else BURST_WIDTHS
+        if width not in widths:
+            raise InputError(f"{fault} width must be one of {', '.join(map(str, widths))}, got {width!r}")
+        return model_bits(fault, int(bits[0]), precision, widths.index(width))
+    return tuple(int(b) for b in bits), ("flip" if fault in ("bit", "adjacent", "burst") else fault), 0
 
 
 def _spec(spec) -> Spec:

@@ -262,3 +262,25 @@ def test_a_check_schedule_shows_each_upset_for_its_exposure():
     assert (df[df.defense == "parity4r"].check_every == 4).all() and (df[df.defense == "none"].check_every == 0).all()
     every = storm(eng, 1, 8, scrub_every=0, defenses=("parity4r",), check_every=1, upsets=plan)
     assert not every.catastrophic.any()  # checked before every frame: exposure 0
+
+
+def test_a_storm_of_multi_cell_upsets_defeats_parity4r_and_not_the_checksum():
+    """fault="mcu_prim": each upset flips one bit in two values of a primitive. parity4r's ways
+    each see the bit twice and detect none, so every primitive hit stays corrupted; the checksum
+    reloads every one before the frame is drawn (each frame equals the clean render)."""
+    from seuwgpu.campaign.storm import shape_upsets
+
+    model = make_scene("blocks", n=200, seed=4)
+    eng = Engine(model, scene_cameras("blocks", 1, 32, 32), "fp32", scene="blocks")
+    k, frames, seed = 6, 2, 3
+    df = storm(eng, k, frames, 0, defenses=("parity4r", "checksum"), seed=seed, fault="mcu_prim")
+    rng = np.random.default_rng(seed)
+    ups = [draw_uniform_sites(eng.n, eng.degree, "fp32", k, rng) for _ in range(frames)]
+    shaped = [shape_upsets(u, "mcu_prim", eng.n, eng.degree, "fp32", rng) for u in ups]
+    assert all(len(s) == 2 * k for s in shaped)
+    hit = {s.primitive for f in shaped for s in f}
+    p4 = df[df.defense == "parity4r"].set_index("frame")
+    assert p4.loc[frames - 1, "corrupted_primitives"] == len(hit)
+    chk = df[df.defense == "checksum"].set_index("frame")  # corrupted before the check: that frame's only
+    assert chk.loc[frames - 1, "corrupted_primitives"] == len({s.primitive for s in shaped[-1]})
+    assert (chk.peak_error == 0).all() and (p4.peak_error > 0).any()

@@ -495,11 +495,13 @@ def _regions(table, where, size):
 def _fault(table, out, where):
     """The fault model, recorded only when not the default single-bit flip (older specs keep their
     hash)."""
-    from seuwgpu.faults.sites import FAULT_MODELS
+    from seuwgpu.faults.sites import check_site_model
 
     v = table.get("fault", "bit")
-    if v not in FAULT_MODELS:
-        raise SpecError(f"{where}.fault: unknown fault model {v!r}; expected one of {', '.join(FAULT_MODELS)}")
+    try:
+        check_site_model(v)
+    except ValueError as e:
+        raise SpecError(f"{where}.fault: {e}") from None
     if v != "bit":
         out["fault"] = v
 

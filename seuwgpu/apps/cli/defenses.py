@@ -22,6 +22,7 @@ from seuwgpu.apps.cli.options import (
 )
 from seuwgpu.campaign.progress import ProgressBar
 from seuwgpu.faults.defenses import DEFENSES as DEFENSE_NAMES
+from seuwgpu.faults.sites import FAULT_MODELS
 from seuwgpu.faults.state import TARGETS as STATE_TARGETS
 
 
@@ -239,6 +240,14 @@ def storm_arguments(s: argparse.ArgumentParser):
         metavar="DEFENSE",
         help=f"arms, each seeing the same upsets (default none guard parity4r; {', '.join(DEFENSE_NAMES)})",
     )
+    s.add_argument(
+        "--fault",
+        default="bit",
+        choices=FAULT_MODELS,
+        help="fault model of every upset: bit (default), adjacent (2-4 bits), burst (2-8 bits), random or zero "
+        "(the value), stuck0/stuck1, mcu_prim (the bit in two values of one primitive), mcu_neighbour (in the "
+        "neighbouring word of the device layout)",
+    )
     add_resumable_out(s, "storm", "storm.parquet and storm.png")
 
 
@@ -254,6 +263,8 @@ def cmd_storm(args):
     defenses = list(dict.fromkeys(args.defense))  # a defense named twice is one arm
     options = {"k": args.k, "frames": args.frames, "scrub-every": args.scrub_every, "defense": defenses}
     options["check-every"] = args.check_every
+    if args.fault != "bit":  # a bit storm's partial records keep their key
+        options["fault"] = args.fault
     frames = args.frames * len(defenses)
     with resumable(args, src, cams, "storm", storm_records, "frames", frames, **options) as (rows, progress):
         df = api.storm(
@@ -269,6 +280,7 @@ def cmd_storm(args):
             progress=progress,
             rows=rows,
             check_every=args.check_every,
+            fault=args.fault,
         )
         df.to_parquet(args.out / "storm.parquet", index=False)
         storm_figure(df).savefig(args.out / "storm.png", dpi=120)
