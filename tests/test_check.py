@@ -127,3 +127,42 @@ def test_each_check_binds_its_own_shader_mode_by_name():
     assert len({kernel.const(m) for m in modes}) == len(modes)
     with pytest.raises(KeyError, match="no integer const 'MODE_PARTIY'"):
         kernel.const("MODE_PARTIY")
+
+
+def test_an_upset_in_the_checkers_parameters_is_caught_and_the_check_rerun():
+    """Every bit of chunk_count and cover flipped in the uniform buffer the shader reads (the
+    host's copy intact): the seal mismatches, the host rewrites the parameters and checks again,
+    so all 120 corrupted primitives are still found. The same flips re-sealed (what the checker
+    without a seal saw) miss corrupted primitives or flag clean ones: the seal is what saves them."""
+    from seuwgpu.faults.check import seal_words
+    from seuwgpu.gpu.kernel import as_bytes
+
+    model = random_model(300, seed=21)
+    r = Renderer(model, scene_cameras("spheres", 1, 32, 32), "fp32")
+    clean = encoding.to_bits(model.flat(), "fp32")
+    bad = clean.copy()
+    hit = np.random.default_rng(3).choice(model.n, 120, replace=False)
+    bad[hit, 4] ^= np.uint32(1 << 30)
+    for c, words in enumerate(r.layout.encode_bits(bad)):
+        r.gpu.write(r.chunks[c], words)
+    chk = Checker(r, "parity4r", clean)
+    assert chk.run() == 120 and chk.param_faults == 0
+    table = np.zeros(1, np.float32)
+    wrong = 0
+    for field in ("chunk_count", "cover"):
+        for b in range(32):
+            upset = chk.params.rows.copy()
+            upset[field] ^= np.uint32(1 << b)
+            r.gpu.write(chk.params.buffer, as_bytes(upset))
+            before = chk.param_faults
+            assert chk.run() == 120 and chk.param_faults == before + 1, (field, b)
+            assert chk.run() == 120 and chk.param_faults == before + 1  # rewritten: clean again
+            upset["seal"] = seal_words(upset, table)  # as if there were no seal
+            r.gpu.write(chk.params.buffer, as_bytes(upset))
+            chk.run()
+            flags = chk.flags()
+            wrong += not flags[hit].all() or flags.sum() != 120  # a miss or a false alarm
+            chk.params.write()
+    # at least chunk_count's 4 set bits (300 = 0b100101100: fewer primitives checked) and cover's 13
+    # (bits 19..31 dropped from the parity)
+    assert wrong >= 17
