@@ -39,6 +39,7 @@ from seuwgpu.campaign.spec import Spec
 from seuwgpu.campaign.store import CampaignRun
 from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.faults.defenses import DEFENSES, check_defense
+from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY
 from seuwgpu.faults.sites import (
     ADJACENT_WIDTHS,
     BURST_WIDTHS,
@@ -470,21 +471,58 @@ def defense_costs(
     precision: str = "fp32",
     repeats: int = 7,
     time_it: bool = True,
-    check_every: int = 1,
+    check_every: int = DEFAULT_CHECK_EVERY,
+    visible: int = 0,
+    window: int = 20,
+    visible_defenses: Sequence[str] | None = None,
+    seed: int = 0,
+    fault: str = "bit",
 ) -> list[dict]:
     """Every defense with the bytes it holds on the device (and as a fraction of the model's), its
-    time per frame (a fraction of the undefended view's, the median of `repeats` rounds on this
-    device, a check's amortised over a check every `check_every` frames; NaN with time_it=False)
-    and its exposure: [{name, device_bytes, memory_overhead, check_every, time_fraction,
-    exposure_frames, exposure_frames_worst, time_basis, description}]."""
+    time per frame (a fraction of the undefended view's on this device, measured as a schedule:
+    `check_every` frames and a check against `check_every` frames, interleaved, the median of
+    `repeats` rounds with its 95% interval; NaN with time_it=False), its exposure and, with
+    `visible` upsets, what the user sees (campaign/visible.py: catastrophic and SDC frames per
+    upset, exposure counted, measured by running `visible` windows of `window` frames on `view`,
+    for `visible_defenses` (default every defense); NaN for those not measured):
+    [{name, device_bytes, memory_overhead, check_every, time_fraction, time_lo, time_hi,
+    check_fraction, repair_fraction, exposure_frames, exposure_frames_worst,
+    catastrophic_frames_per_upset, catastrophic_lo, catastrophic_hi, sdc_frames_per_upset,
+    residue_frames_per_upset, of_none, of_none_lo, of_none_hi, visible_basis, time_basis,
+    description}]."""
     from seuwgpu.faults.costs import defense_costs as costs
 
     _whole(repeats, "repeats", 1)
     _whole(check_every, "check_every", 1)
+    _whole(visible, "visible", 0)
+    _whole(window, "window", 1)
+    if fault not in FAULT_MODELS:
+        raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
     if not isinstance(view, Camera):
         raise InputError(f"view must be a Camera (from cameras()), got {type(view).__name__}")
+    names = _defense_names(visible_defenses) if visible_defenses is not None else list(DEFENSES)
     model = _model_of(scene)
-    return costs(model, view, encoding.check_precision(precision), repeats, time_it=time_it, check_every=check_every)
+    rows = costs(model, view, encoding.check_precision(precision), repeats, time_it=time_it, check_every=check_every)
+    keys = ("catastrophic_frames_per_upset", "catastrophic_lo", "catastrophic_hi", "sdc_frames_per_upset")
+    keys += ("residue_frames_per_upset", "of_none", "of_none_lo", "of_none_hi")
+    got, basis = {}, "not measured (--visible N)"
+    if visible:
+        from seuwgpu.campaign.visible import visible_damage
+
+        eng = _engine(scene, [view], precision, "strict", "measure visible damage")
+        summary, _ = visible_damage(eng, names, check_every, visible, window, fault=fault, seed=seed)
+        got = {r["defense"]: r for r in summary.to_dict("records")}
+        w = int(summary["window"].iloc[0])
+        basis = (
+            f"measured: {visible} upsets ({fault} faults of the dangerous cells), one per window of {w} frames "
+            f"reloaded at its start, landing at a uniform frame; {view.width}x{view.height}, seed {seed}"
+        )
+    for r in rows:
+        m = got.get(r["name"])
+        for k in keys:
+            r[k] = float(m[k]) if m is not None else float("nan")
+        r["visible_basis"] = basis if m is not None else "not measured"
+    return rows
 
 
 def sort_first(

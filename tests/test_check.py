@@ -94,26 +94,56 @@ def test_gpu_detection_equals_a_brute_force_sweep_of_every_flip_and_burst(precis
 
 def test_defense_costs_times_what_runs_on_the_gpu():
     """The measured cost rows (faults/costs.py): a time for every defense with a pipeline clamp or
-    a GPU check (a check's time amortised over check_every), NaN for the read-time codes, and the
-    device and model size named in the basis of each measured row."""
+    a GPU check (measured as a schedule of check_every frames), NaN for the read-time codes, the
+    device and model size named in the basis of each measured row, each time inside its interval."""
     from seuwgpu.faults.costs import defense_costs
 
     model = random_model(300, seed=3)
     camera = scene_cameras("spheres", 1, 32, 32)[0]
-    rows = {r["name"]: r for r in defense_costs(model, camera, repeats=1, check_every=4)}
+    rows = {r["name"]: r for r in defense_costs(model, camera, repeats=6, check_every=4)}
     assert list(rows) == list(dfn.DEFENSES) and rows["none"]["time_fraction"] == 0
     for name, row in rows.items():
         d = dfn.get(name)
         measured = bool(d.guard_fields) or d.checked or name == "none"
         assert np.isfinite(row["time_fraction"]) == measured, name
-        assert row["time_basis"].startswith("measured: ") == measured, name
+        assert row["time_basis"].startswith("measured as a schedule: ") == measured, name
+        if measured and name != "none":
+            assert row["time_lo"] <= row["time_fraction"] <= row["time_hi"], name
         if d.checked:
-            assert row["check_fraction"] > 0 and row["check_every"] == 4, name
-            if not d.guard_fields:
-                assert row["time_fraction"] == row["check_fraction"] / 4, name
+            assert row["check_fraction"] > 0 and row["repair_fraction"] > -1 and row["check_every"] == 4, name
+            assert "4 frame(s) and a check against 4" in row["time_basis"]
         else:
             assert np.isnan(row["check_fraction"]) and row["check_every"] is None, name
     assert f"{model.n} primitives" in rows["checksum"]["time_basis"]
+
+
+def test_a_schedule_is_timed_as_run_on_a_fake_clock():
+    """schedule_time on a clock the calls advance: a frame takes 1.0, a check 0.5 and, in every
+    other round, a repair 2.0 more. The measured fraction is what the rounds ran (0.05 or 0.25 at
+    S = 10, median 0.15), not one check over S (0.05); the rounds alternate plain and checked."""
+    from seuwgpu.faults.costs import schedule_time
+
+    now, calls, checks = [0.0], [], [0]
+
+    def frame():
+        now[0] += 1.0
+        calls.append("f")
+
+    def check():
+        checks[0] += 1
+        now[0] += 0.5 + (2.0 if checks[0] % 2 else 0.0)
+        calls.append("c")
+
+    res = schedule_time(frame, check, 10, 8, clock=lambda: now[0], warm_up=False)
+    assert res["plain"] == [10.0] * 8
+    assert res["checked"] == [12.5, 10.5] * 4
+    assert res["fraction"] == pytest.approx([0.25, 0.05] * 4) and res["time"] == pytest.approx(0.15)
+    assert (res["lo"], res["hi"]) == pytest.approx((0.05, 0.25))
+    assert "".join(calls) == ("f" * 10 + "c" + "f" * 10) * 8  # plain round, checked round, ...
+    few = schedule_time(frame, check, 1, 3, clock=lambda: now[0], warm_up=False)
+    assert np.isnan(few["lo"]) and np.isnan(few["hi"])  # 3 rounds: no 95% interval of a median
+    with pytest.raises(ValueError, match="every S >= 1 frames"):
+        schedule_time(frame, check, 0, 3)
 
 
 def test_each_check_binds_its_own_shader_mode_by_name():

@@ -235,7 +235,10 @@ def test_defenses_command_lists_every_defense_as_json_and_as_a_table(capsys):
     rows = strict(capsys.readouterr().out)
     assert [r["name"] for r in rows] == list(dfn.DEFENSES)
     keys = {"name", "device_bytes", "memory_overhead", "check_every", "time_fraction", "check_fraction"}
-    keys |= {"exposure_frames", "exposure_frames_worst", "time_basis", "description"}
+    keys |= {"exposure_frames", "exposure_frames_worst", "time_basis", "description", "time_lo", "time_hi"}
+    keys |= {"repair_fraction", "catastrophic_frames_per_upset", "catastrophic_lo", "catastrophic_hi"}
+    keys |= {"sdc_frames_per_upset", "residue_frames_per_upset", "of_none", "of_none_lo", "of_none_hi"}
+    keys |= {"visible_basis"}
     for r in rows:
         assert set(r) == keys
         # the memory column: what the device holds (issue 39), of a model of 300 x 59 fp32 values
@@ -248,9 +251,19 @@ def test_defenses_command_lists_every_defense_as_json_and_as_a_table(capsys):
         gpu_side = dfn.get(r["name"]).checked or bool(dfn.get(r["name"]).guard_fields) or r["name"] == "none"
         assert (r["time_fraction"] is not None and math.isfinite(r["time_fraction"])) == gpu_side, r
         assert r["time_basis"].startswith("measured") == gpu_side
+        assert r["catastrophic_frames_per_upset"] is None and r["visible_basis"] == "not measured"
     assert main(["defenses", "--scene", "blocks", "--n", "300", "--no-time", "--json"]) == 0
     rows = strict(capsys.readouterr().out)  # undefined (not measured): null, not a NaN literal
     assert all(r["time_fraction"] is None and r["time_basis"] == "not measured" for r in rows)
+    assert all(r["check_every"] in (None, 10) for r in rows)  # the default schedule, S = 10
+    # what the user sees, for two arms: counts per upset, none's ratio 1, the others' null
+    vis = [*cmd[:-1], "--no-time", "--visible", "3", "--window", "4", "--visible-defenses", "none", "checksum"]
+    assert main([*vis, "--check-every", "2", "--json"]) == 0
+    seen = {r["name"]: r for r in strict(capsys.readouterr().out)}
+    assert seen["none"]["of_none"] in (1.0, None) and seen["guard"]["catastrophic_frames_per_upset"] is None
+    assert seen["checksum"]["residue_frames_per_upset"] == 0
+    assert seen["checksum"]["catastrophic_frames_per_upset"] <= seen["none"]["catastrophic_frames_per_upset"]
+    assert seen["checksum"]["visible_basis"].startswith("measured: 3 upsets")
     # the table: one line per defense with the JSON's device bytes and exposure, whole at 80 columns
     assert main(["defenses", "--scene", "blocks", "--n", "300", "--no-time", "--check-every", "5"]) == 0
     lines = capsys.readouterr().out.splitlines()
@@ -259,7 +272,7 @@ def test_defenses_command_lists_every_defense_as_json_and_as_a_table(capsys):
         cells = [c.strip() for c in line.strip("│").split("│")]
         assert cells[1] == f"{r['device_bytes']:,}", line
         assert cells[3] == ("5" if dfn.get(r["name"]).checked else ""), line
-        assert cells[5] == ("until reloaded" if r["name"] == "none" else "2 (4)" if cells[3] else "0 (0)"), line
+        assert cells[6] == ("until reloaded" if r["name"] == "none" else "2 (4)" if cells[3] else "0 (0)"), line
 
 
 @pytest.mark.parametrize("precision", encoding.PRECISIONS)

@@ -1,13 +1,23 @@
 """A check defense's schedule: a check before every S-th frame. What an upset costs the user under it
-(`exposure`: the frames drawn from the corrupted model before the check repairs it) and what the
-schedule costs in time, measured as a schedule (`schedule_samples`: S frames and a check against
-S frames, interleaved round by round; faults/costs.py runs it on the renderer)."""
+(`exposure`: the frames drawn from the corrupted model before the check repairs it); what it costs
+in time is measured as a schedule (faults/costs.py `schedule_time`: S frames and a check against
+S frames, interleaved round by round), summarised by `median_interval`."""
 
 from __future__ import annotations
 
 from typing import NamedTuple
 
 import numpy as np
+
+DEFAULT_CHECK_EVERY = 10  # S when a spec or command names none: (S - 1) / 2 = 4.5 frames drawn on average
+
+
+def check_every_of(check_every, defense: str) -> int:
+    """S for `defense` from a schedule that is one S for every check defense or a {defense: S}
+    table (a defense it does not name: DEFAULT_CHECK_EVERY)."""
+    if isinstance(check_every, dict):
+        return int(check_every.get(defense, DEFAULT_CHECK_EVERY))
+    return int(check_every)
 
 
 class Exposure(NamedTuple):
@@ -35,3 +45,27 @@ def exposure(check_every: int, upset_frames=None) -> Exposure:
     per = (-frames) % s
     phases = (-np.arange(s)) % s
     return Exposure(per.astype(np.float64), float(phases.mean()), float(phases.max()))
+
+
+def median_interval(x, conf: float = 0.95) -> tuple[float, float, float]:
+    """(median, lo, hi): the median of `x` and its distribution-free interval from order
+    statistics (ranks k and n + 1 - k, k the largest with P(Binomial(n, 1/2) < k) <= (1 - conf) / 2).
+    Too few values for the interval (n < 6 at 95%): lo and hi are NaN."""
+    from math import comb
+
+    v = np.sort(np.asarray(x, dtype=np.float64))
+    v = v[~np.isnan(v)]
+    n = v.size
+    if n == 0:
+        return float("nan"), float("nan"), float("nan")
+    med = float(np.median(v))
+    k = 0
+    below = 0.0  # P(B <= k)
+    while k + 1 <= n:
+        below += comb(n, k) / 2.0**n
+        if below > (1 - conf) / 2:
+            break
+        k += 1
+    if k == 0:
+        return med, float("nan"), float("nan")
+    return med, float(v[k - 1]), float(v[n - k])
