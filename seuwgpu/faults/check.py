@@ -22,6 +22,7 @@ import numpy as np
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults import side as sd
 from seuwgpu.faults.codes import CHECKSUM_SEED, fmix32
+from seuwgpu.faults.codes import checksum as codes_checksum
 from seuwgpu.faults.guard import fill_chunk_params
 from seuwgpu.gpu.device import STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
@@ -110,3 +111,93 @@ def seal_words(rows: np.ndarray, table: np.ndarray) -> np.ndarray:
     for w in np.asarray(table, np.float32).view(np.uint32):
         h = fmix32(h ^ np.uint64(w))
     return h.astype(np.uint32)
+
+
+class FrameCheck:
+    """The check inside the frame (issue 47): parity4r's code word of every primitive verified
+    where the projection reads it (shaders/project.wgsl FRAME_CHECK); a primitive that fails is
+    dropped from that frame (culled, as a non-finite mean is) and flagged for repair, so a
+    detected upset is never drawn. Twin: the frame of the model with the flagged primitives'
+    means set to NaN (codes.cull), the flags those of defenses.detect("parity4r", ...).
+
+    Side data: the 4-bit codes, packed (side.pack_side), and the output as Checker's (a count
+    kept twice, then a flag bit per primitive). `count()` reads the count (4 bytes), `flags()`
+    the flag bits, `clear()` zeroes them after a repair."""
+
+    defense = "parity4r"
+
+    def __init__(self, renderer, clean_rows: np.ndarray):
+        d = dfn.checked(self.defense)
+        r, L = renderer, renderer.layout
+        self.renderer, self.gpu, self.layout = r, r.gpu, L
+        side = d.side_data(np.asarray(clean_rows), L.precision, L.degree)
+        self.side = r.gpu.upload(sd.pack_side(side, d.side_bits))
+        self.flag_words = -(-L.n // 32)
+        self.out = r.gpu.buffer(sd.CHECK_HEADER_BYTES + 4 * self.flag_words, STORAGE, "frame_check.out")
+        self.clear()
+        cover = d.check_parameters(L.precision, L.degree)["cover"]
+        r.projection.set_frame_check(self.side, self.out, cover)
+
+    def off(self):
+        """Back to today's projection pipeline."""
+        self.renderer.projection.set_frame_check(None)
+
+    def clear(self):
+        self.gpu.write(self.out, np.zeros(4 + self.flag_words, np.uint32))
+
+    def count(self) -> int:
+        head = self.gpu.read(self.out, np.uint32, 0, 8)
+        return int(max(head[0], head[1]))
+
+    def flags(self) -> np.ndarray:
+        words = self.gpu.read(self.out, np.uint32, sd.CHECK_HEADER_BYTES, 4 * self.flag_words)
+        return np.unpackbits(words.view(np.uint8), bitorder="little")[: self.layout.n].astype(bool)
+
+    def device_bytes(self) -> int:
+        return int(self.side.size + self.out.size)
+
+
+class DeviceRepair:
+    """Repair on the device (shaders/repair.wgsl): the primitives a FrameCheck flagged are
+    rewritten from a golden copy of the model held on the device, each golden row's checksum
+    (codes.checksum of the clean row, 32 bits a primitive) verified when it is read; a golden row
+    that fails is left alone and counted (the primitive stays flagged, dropped every frame). No
+    host copy of the model is read: the host reads two counts.
+
+    Device memory: the golden copy (the model's size again) and its checksums; `device_bytes`."""
+
+    def __init__(self, renderer, clean_rows: np.ndarray, frame_check: FrameCheck):
+        r, L = renderer, renderer.layout
+        self.renderer, self.gpu, self.layout, self.check = r, r.gpu, L, frame_check
+        self.kernel = Kernel(r.gpu, "repair")
+        self.golden = [r.gpu.upload(w, STORAGE, f"golden-chunk-{k}") for k, w in enumerate(r.clean_words)]
+        self.golden_sum = r.gpu.upload(codes_checksum(np.asarray(clean_rows)))
+        self.params = Uniforms(r.gpu, self.kernel.struct("RepairParams"), L.n_chunks, "repair.params")
+        fill_chunk_params(self.params, L)
+        self.params.write()
+
+    def run(self) -> tuple[int, int]:
+        """Repair every flagged primitive; returns (repaired, golden rows that failed their checksum)."""
+        g, L = self.gpu, self.layout
+        g.write(self.check.out, np.zeros(2, np.uint32), 8)  # this run's counts
+        enc = g.device.create_command_encoder()
+        per = 1 if L.precision == "fp32" else 2
+        for k in range(L.n_chunks):
+            lo, hi = L.chunk_range(k)
+            self.kernel.dispatch(
+                enc,
+                params=self.params.binding(k),
+                words=self.renderer.chunks[k],
+                golden=self.golden[k],
+                golden_sum=self.golden_sum,
+                out=self.check.out,
+                threads=-(-(hi - lo) // per),
+            )
+        g.submit(enc)
+        head = g.read(self.check.out, np.uint32, 0, 16)
+        if not head[2]:  # every flag cleared: the next frame's detections start from zero
+            g.write(self.check.out, np.zeros(2, np.uint32))
+        return int(head[3]), int(head[2])
+
+    def device_bytes(self) -> int:
+        return int(sum(b.size for b in self.golden) + self.golden_sum.size + self.params.buffer.size)
