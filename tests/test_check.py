@@ -104,7 +104,7 @@ def test_defense_costs_times_what_runs_on_the_gpu():
     assert list(rows) == list(dfn.DEFENSES) and rows["none"]["time_fraction"] == 0
     for name, row in rows.items():
         d = dfn.get(name)
-        measured = bool(d.guard_fields) or d.checked or name == "none"
+        measured = bool(d.guard_fields) or d.checked or d.frame_check or name == "none"
         assert np.isfinite(row["time_fraction"]) == measured, name
         assert row["time_basis"].startswith("measured as a schedule: ") == measured, name
         if measured and name != "none":
@@ -115,6 +115,7 @@ def test_defense_costs_times_what_runs_on_the_gpu():
         else:
             assert np.isnan(row["check_fraction"]) and row["check_every"] is None, name
     assert f"{model.n} primitives" in rows["checksum"]["time_basis"]
+    assert "checked in the projection" in rows["parity4f"]["time_basis"] and rows["parity4f"]["repair_fraction"] > 0
 
 
 def test_a_schedule_is_timed_as_run_on_a_fake_clock():

@@ -248,7 +248,8 @@ def test_defenses_command_lists_every_defense_as_json_and_as_a_table(capsys):
         assert r["check_every"] == (4 if checked else None)
         want = (1.5, 3.0) if checked else ("inf", "inf") if r["name"] == "none" else (0.0, 0.0)
         assert (r["exposure_frames"], r["exposure_frames_worst"]) == want, r["name"]
-        gpu_side = dfn.get(r["name"]).checked or bool(dfn.get(r["name"]).guard_fields) or r["name"] == "none"
+        d = dfn.get(r["name"])
+        gpu_side = d.checked or d.frame_check or bool(d.guard_fields) or r["name"] == "none"
         assert (r["time_fraction"] is not None and math.isfinite(r["time_fraction"])) == gpu_side, r
         assert r["time_basis"].startswith("measured") == gpu_side
         assert r["catastrophic_frames_per_upset"] is None and r["visible_basis"] == "not measured"

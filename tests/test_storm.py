@@ -262,6 +262,12 @@ def test_a_check_schedule_shows_each_upset_for_its_exposure():
     assert (df[df.defense == "parity4r"].check_every == 4).all() and (df[df.defense == "none"].check_every == 0).all()
     every = storm(eng, 1, 8, scrub_every=0, defenses=("parity4r",), check_every=1, upsets=plan)
     assert not every.catastrophic.any()  # checked before every frame: exposure 0
+    # checked inside every frame: the upset's frame drops the primitive (these two are the scene's
+    # most opaque splats: at 32x32 their absence alone changes over 1% of the pixels), the next
+    # frame is repaired: never more than the upset's own frame
+    infr = storm(eng, 1, 8, scrub_every=0, defenses=("parity4f",), check_every=4, upsets=plan).set_index("frame")
+    assert set(infr.index[infr.catastrophic]) <= {1, 5}
+    assert list(infr.corrupted_primitives) == [0, 1, 0, 0, 0, 1, 0, 0]  # corrupted only in its own frame
 
 
 def test_a_storm_of_multi_cell_upsets_defeats_parity4r_and_not_the_checksum():

@@ -119,8 +119,12 @@ def storm(
             seen = engine.read_through(prims, clean, now, d) if prims.size and checking else now
             if arm.writes_back and checking:  # the repair is written back
                 memory = {int(p): r.copy() for p, r in zip(prims, seen)}
+            # measured before the storm was resumed: its memory state replayed, not rendered (below)
+            after = arm.after_frame(clean, now, engine.precision, engine.degree) if prims.size else None
+            if after is not None:  # repaired between this frame and the next (the check inside the frame)
+                memory = {int(p): r.copy() for p, r in zip(prims, after)}
             if a * frames + f < done:
-                continue  # measured before the storm was resumed: its memory state replayed, not rendered
+                continue
             xors = engine.xor_rows(prims, clean, seen)
             engine.flips.apply(xors)
             try:

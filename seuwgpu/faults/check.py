@@ -135,8 +135,12 @@ class FrameCheck:
         self.flag_words = -(-L.n // 32)
         self.out = r.gpu.buffer(sd.CHECK_HEADER_BYTES + 4 * self.flag_words, STORAGE, "frame_check.out")
         self.clear()
-        cover = d.check_parameters(L.precision, L.degree)["cover"]
-        r.projection.set_frame_check(self.side, self.out, cover)
+        self.cover = d.check_parameters(L.precision, L.degree)["cover"]
+        self.on()
+
+    def on(self):
+        """Check in every frame from now on (the projection's FRAME_CHECK pipelines)."""
+        self.renderer.projection.set_frame_check(self.side, self.out, self.cover)
 
     def off(self):
         """Back to today's projection pipeline."""

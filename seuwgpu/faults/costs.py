@@ -25,7 +25,7 @@ import numpy as np
 
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults import side
-from seuwgpu.faults.check import Checker
+from seuwgpu.faults.check import Checker, DeviceRepair, FrameCheck
 from seuwgpu.faults.guard import component_mask, stored_box
 from seuwgpu.faults.schedule import median_interval
 from seuwgpu.model import encoding
@@ -54,11 +54,11 @@ def defense_costs(
         if not time_it:
             basis = "not measured"
         elif d in parts:
-            what = (
-                f"{check_every} frame(s) and a check against {check_every}"
-                if obj.checked
-                else "guarded frames against plain"
-            )
+            what = "guarded frames against plain"
+            if obj.checked:
+                what = f"{check_every} frame(s) and a check against {check_every}"
+            elif obj.frame_check:
+                what = f"{check_every} frames checked in the projection against {check_every} plain"
             basis = (
                 f"measured as a schedule: {device}, {model.n} primitives, {camera.width}x{camera.height}, "
                 f"{what}, interleaved, median of {repeats} rounds"
@@ -75,7 +75,7 @@ def defense_costs(
                 "time_lo": m.get("lo", nan),
                 "time_hi": m.get("hi", nan),
                 "check_fraction": m.get("check", nan) if obj.checked else nan,
-                "repair_fraction": m.get("repair", nan) if obj.checked else nan,
+                "repair_fraction": m.get("repair", nan) if obj.checked or obj.frame_check else nan,
                 "exposure_frames": ex.expected,
                 "exposure_frames_worst": ex.worst,
                 "time_basis": basis,
@@ -172,10 +172,23 @@ def _times(model, camera, precision, repeats, gpu, check_every) -> tuple[dict, s
         r.run()
 
     out = {"none": {"time": 0.0, "lo": 0.0, "hi": 0.0}}
+    for d in (x for x in dfn.REGISTRY.values() if x.frame_check):  # the check inside every frame
+        fc = FrameCheck(r, clean)
+        fc.off()
+
+        def checked_frame(fc=fc):
+            fc.on()
+            r.run()
+            fc.off()
+
+        res = schedule_time(lambda: view(0), None, check_every, repeats, guarded=checked_frame)
+        out[d.name] = {"time": res["time"], "lo": res["lo"], "hi": res["hi"]}
+        rep = DeviceRepair(r, clean, fc)
+        out[d.name]["repair"] = _device_repair_time(r, fc, rep, clean, repeats)
     one = interleaved_medians({"none": lambda: view(0), **{d: c.run for d, c in checkers.items()}}, repeats)
     for d in dfn.DEFENSES:
         if d not in masks and d not in checkers:
-            continue
+            continue  # (the frame checks were measured above)
         m = masks.get(d, 0)
         chk = checkers.get(d)
         every = check_every if chk is not None else 1
@@ -184,8 +197,34 @@ def _times(model, camera, precision, repeats, gpu, check_every) -> tuple[dict, s
         if chk is not None:
             out[d]["check"] = one[d] / one["none"]
             out[d]["repair"] = _repair_time(r, chk, clean, repeats) / one["none"]
+    for m in out.values():
+        m.setdefault("check", float("nan"))
     r.set_guard(None, 0)
     return out, r.gpu.info.get("device", "?"), r.layout.n_chunks
+
+
+def _device_repair_time(r, fc, rep, clean: np.ndarray, repeats: int) -> float:
+    """Median seconds of one device repair (DeviceRepair.run, its two counts read back) of one
+    primitive the check inside the frame flagged, over one plain frame's median."""
+    L = r.layout
+    chunk, word, shift = L.locate(np.array([0]), np.array([3]))
+    words = r.read_words(int(chunk[0]))
+    bad = words.copy()
+    bad[word] ^= np.uint32(1 << (encoding.bits_per_value(L.precision) - 2)) << shift.astype(np.uint32)
+    times, frames = [], []
+    for _ in range(max(int(repeats), 1)):
+        r.gpu.write(r.chunks[int(chunk[0])], bad)
+        fc.on()
+        t0 = time.perf_counter()
+        r.run()
+        frames.append(time.perf_counter() - t0)
+        fc.off()
+        t0 = time.perf_counter()
+        repaired, _ = rep.run()
+        times.append(time.perf_counter() - t0)
+        if repaired != 1:
+            raise RuntimeError("timing a device repair: the frame's check did not flag the upset it was given")
+    return float(np.median(times)) / float(np.median(frames))
 
 
 def _repair_time(r, chk, clean: np.ndarray, repeats: int) -> float:

@@ -71,6 +71,7 @@ class Defense:
     has_model_state = False  # `model_state` builds something from the clean model
     check_mode: str | None = None  # its check's MODE_* const in shaders/check.wgsl, by name; None: no check
     writes_back = False  # its repair rewrites the stored model (a storm keeps the repair)
+    frame_check = False  # checked inside every frame (FrameParity); `after_frame` is its repair
 
     def __init__(self, name: str, info: str, label: str = "", first_study: bool = False):
         self.name, self.info, self.label = name, info, label or name
@@ -108,6 +109,11 @@ class Defense:
         """What the renderer reads from primitives whose stored bits went from `clean` to
         `corrupt` ([M, ncomp] each); the in-pipeline guard clamp is applied later."""
         return corrupt
+
+    def after_frame(self, clean, corrupt, precision: str, degree: int):
+        """The stored rows after a frame when a repair lands between frames (FrameParity); None:
+        the frame changes nothing stored."""
+        return None
 
 
 class SupportGuard(Defense):
@@ -280,6 +286,32 @@ class ScaleBound(CheckedDefense):
         return out
 
 
+class FrameParity(Defense):
+    """parity4r's code word checked inside every frame, where the projection reads the primitive
+    (shaders/project.wgsl FRAME_CHECK, faults/check.py FrameCheck): a primitive that fails is
+    dropped from that frame (culled) and flagged; the repair (a reload from the golden copy, on
+    the device: DeviceRepair) lands before the next frame. Exposure 0 frames: a detected upset is
+    never drawn, only missed for one frame. `read` is that frame; `after_frame` the repair."""
+
+    reads_stored_bits = False
+    frame_check = True
+    side_bits = 4
+
+    def bits_per_primitive(self, precision, degree):
+        return self.side_bits
+
+    def _hit(self, clean, corrupt, precision, degree):
+        parity = get("parity4r")
+        return parity.detect(parity.side_data(clean, precision, degree), corrupt, precision, degree)
+
+    def read(self, clean, corrupt, precision, degree, box=None, prims=None, state=None):
+        return cull(corrupt, self._hit(clean, corrupt, precision, degree), precision)
+
+    def after_frame(self, clean, corrupt, precision: str, degree: int) -> np.ndarray:
+        """The stored rows once the frame's flags are repaired: flagged ones reloaded."""
+        return np.where(self._hit(clean, corrupt, precision, degree)[:, None], clean, corrupt)
+
+
 # ---- the registry ------------------------------------------------------------------------------
 REGISTRY: dict[str, Defense] = {}
 
@@ -355,6 +387,14 @@ register(
         ways=4,
         fields=FIELDS,  # a reload is harmless, so it covers every value
         reloads=True,
+    )
+)
+register(
+    FrameParity(
+        "parity4f",
+        "parity4r's check inside every frame (in the projection): a mismatch drops the primitive from that "
+        "frame and reloads it before the next",
+        label="parity4r in the frame",
     )
 )
 register(

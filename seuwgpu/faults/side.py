@@ -59,7 +59,10 @@ def device_bytes(defense: str, precision: str, degree: int, n: int, chunks: int 
     total = 0
     if d.guard_fields:
         total += buffer(BOUND_BYTES * n_components(degree)) + buffer(GUARD_COUNT_BYTES)
-    if d.checked:
+    if d.frame_check:  # the check inside the frame: packed codes and its output, no table or uniform
+        total += buffer(4 * -(-n * d.side_bits // 32))
+        total += buffer(CHECK_HEADER_BYTES + 4 * -(-n // 32))
+    elif d.checked:
         total += buffer(4 * -(-n * d.side_bits // 32))  # packed side data
         total += buffer(CHECK_HEADER_BYTES + 4 * -(-n // 32))  # count + flag bits
         total += buffer(4 * d.table_words)  # the check's table
