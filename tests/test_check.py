@@ -100,7 +100,7 @@ def test_defense_costs_times_what_runs_on_the_gpu():
 
     model = random_model(300, seed=3)
     camera = scene_cameras("spheres", 1, 32, 32)[0]
-    rows = {r["name"]: r for r in defense_costs(model, camera, repeats=6, check_every=4)}
+    rows = {r["name"]: r for r in defense_costs(model, camera, repeats=6, check_every=2)}
     assert list(rows) == list(dfn.DEFENSES) and rows["none"]["time_fraction"] == 0
     for name, row in rows.items():
         d = dfn.get(name)
@@ -110,8 +110,8 @@ def test_defense_costs_times_what_runs_on_the_gpu():
         if measured and name != "none":
             assert row["time_lo"] <= row["time_fraction"] <= row["time_hi"], name
         if d.checked:
-            assert row["check_fraction"] > 0 and row["repair_fraction"] > -1 and row["check_every"] == 4, name
-            assert "4 frame(s) and a check against 4" in row["time_basis"]
+            assert row["check_fraction"] > 0 and row["repair_fraction"] > -1 and row["check_every"] == 2, name
+            assert "2 frame(s) and a check against 2" in row["time_basis"]
         else:
             assert np.isnan(row["check_fraction"]) and row["check_every"] is None, name
     assert f"{model.n} primitives" in rows["checksum"]["time_basis"]
