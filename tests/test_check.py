@@ -92,6 +92,7 @@ def test_gpu_detection_equals_a_brute_force_sweep_of_every_flip_and_burst(precis
                 np.testing.assert_array_equal(got, (ls > bound[:, None]).any(axis=1))
 
 
+@pytest.mark.slow  # every defense timed as a schedule of 6 rounds: ~14 s on 2 shared cores
 def test_defense_costs_times_what_runs_on_the_gpu():
     """The measured cost rows (faults/costs.py): a time for every defense with a pipeline clamp or
     a GPU check (measured as a schedule of check_every frames), NaN for the read-time codes, the
