@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import json
 import math
-import warnings
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,10 +50,12 @@ from seuwgpu.faults.sites import (
 )
 from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.metrics.image import display
-from seuwgpu.model import encoding
+from seuwgpu.model import corpus, encoding
 from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, MIN_VIEW_SIZE
 from seuwgpu.model.cameras import Camera, check_one_size, image_sizes
+from seuwgpu.model.corpus import CorpusModel
 from seuwgpu.model.fields import FIELDS, Model
+from seuwgpu.model.formats import writable_formats
 from seuwgpu.model.scenes import list_scenes
 from seuwgpu.model.sources import Source, load_source, source_views
 from seuwgpu.report.format import json_safe
@@ -75,7 +76,9 @@ __all__ = [
     "Scene",
     "SeuwgpuError",
     "TooBig",
+    "assemble_corpus",
     "cameras",
+    "corpus_models",
     "default_spec",
     "defense_costs",
     "device_info",
@@ -102,8 +105,8 @@ PRECISIONS = tuple(encoding.PRECISIONS)
 FRAME_FORMATS = ("png", "tiff", "npz")
 """png: 8-bit display frames (clipped to [0, 1], non-finite pixels black); tiff: float32,
 unclamped, non-finite values kept; npz: all frames of a call in one float32 array."""
-MODEL_FORMATS = ("ply", "spz")
-"""Files Injection.save_models writes: INRIA PLY (float32) and Niantic SPZ."""
+MODEL_FORMATS = writable_formats()
+"""The formats Injection.save_models writes: model.formats.REGISTRY's with a writer."""
 
 Scene = Source
 """A loaded model (`.model`), its display name (`.name`), the up axis that frames it (`.up`) and
@@ -112,13 +115,22 @@ notes for the user (`.notes`, e.g. "trained antialiased")."""
 
 # ---- models and cameras ---------------------------------------------------------------------------
 def load_model(
-    source: str | Path, *, n: int | None = None, sh_degree: int = 3, seed: int = 0, up: str | None = None
+    source: str | Path,
+    *,
+    n: int | None = None,
+    sh_degree: int = 3,
+    seed: int = 0,
+    up: str | None = None,
+    lod: int | None = None,
 ) -> Scene:
     """An embedded scene by name (`list_scenes()`: procedural ones and two real captures) or any
     supported model file or INRIA output folder, recognised by content (INRIA PLY, compressed PLY,
-    .splat, .spz, .ksplat, SOG, gsplat .pt). `n`, `sh_degree` and `seed` shape embedded scenes (`n` with a
-    file is refused: a model file keeps all of its primitives); `up` overrides
-    the up axis used to frame the model without cameras ("+z", "-y", ...)."""
+    .splat, .spz, .ksplat, SOG, a PlayCanvas LOD set, gsplat .pt). `n`, `sh_degree` and `seed`
+    shape embedded scenes (`n` with a file is refused: a model file keeps all of its primitives);
+    `up` overrides the up axis used to frame the model without cameras ("+z", "-y", ...); `lod` picks the level of
+    a PlayCanvas LOD set (lod-meta.json or its folder; default 0, the finest), refused otherwise."""
+    if lod is not None and (isinstance(lod, bool) or not isinstance(lod, int) or lod < 0):
+        raise InputError(f"lod must be a level 0, 1, 2, ..., got {lod!r}")
     if not isinstance(source, (str, Path)):
         raise InputError(f"source must be a scene name or a model path, got {source!r}")
     path = Path(source)
@@ -127,8 +139,10 @@ def load_model(
             raise FileNotFoundError(f"{path}: no such model file or folder")
         if n is not None:  # refused, not ignored, as the command line refuses --n with --model
             raise InputError(f"n sets the primitives of an embedded scene; a model file keeps all of its own ({path})")
-        return load_source(path=path, up=up)
+        return load_source(path=path, up=up, lod=lod)
     name = str(source)
+    if lod is not None:
+        raise InputError(f"lod picks a level of a PlayCanvas LOD set (a model path), not of the scene {source!r}")
     if name not in list_scenes():
         raise InputError(f"{name!r} is neither a file nor an embedded scene; scenes: {', '.join(list_scenes())}")
     return load_source(scene=name, n=n, sh_degree=sh_degree, seed=seed, up=up)
@@ -179,6 +193,29 @@ def export_scene(
     aa = {"antialiased": True} if capture and capture_antialiased(name) else {}
     fmt = save_model(model, _out_path(out, "model file"), up="+y" if capture else "+z", **aa)
     return model, fmt
+
+
+def corpus_models(manifest: str | Path | None = None) -> list[CorpusModel]:
+    """The models of the corpus of real trained models (the packaged manifest, or `manifest`): each
+    with its subject, primitives, SH degree, format, source, licence, credit and files (docs/corpus.md)."""
+    return list(corpus.load_manifest(manifest).values())
+
+
+def assemble_corpus(
+    out: str | Path,
+    source: str | Path | None = None,
+    models: Iterable[str] | None = None,
+    *,
+    manifest: str | Path | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, Path]:
+    """Assemble the corpus (or the named `models`) into the folder `out`: every file read from the
+    folder `source` (same layout, or found by its name) or, without it, downloaded from its pinned
+    URL; its size and sha256 checked (a differing file is refused, naming it, and not kept); files
+    already there with the right hash kept. Writes `out/corpus.json` and `out/INDEX.md`; returns
+    {model: the path to pass as --model}. `progress(done_bytes, total_bytes)`, `log(line)`."""
+    return corpus.assemble(out, source=source, models=models, manifest=manifest, progress=progress, log=log)
 
 
 def device_info() -> dict:
@@ -246,6 +283,8 @@ class Injection:
     """With inject(models=True): the model as stored after the fault (`models["faulted"]`) and as
     each other defense leaves it (`models[defense]`), at the stored precision."""
     up: str | None = field(default=None, repr=False)
+    source_format: str | None = field(default=None, repr=False)
+    """The format of the model file the scene came from (None: an embedded scene or a Model)."""
 
     def error_map(self, defense: str = "none") -> np.ndarray:
         """Per-pixel maximum absolute channel error against the clean frames, [K, H, W] (NaN where
@@ -277,36 +316,19 @@ class Injection:
         path.write_text(json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n")
         return [*files, path]
 
-    def save_models(self, out: str | Path, *, formats: Iterable[str] = MODEL_FORMATS) -> list[Path]:
+    def save_models(self, out: str | Path, *, formats: Iterable[str] | None = None) -> list[Path]:
         """The faulted model and each defense's repaired one (`models`) as model files a splat viewer
-        opens: `faulted.ply`, `guard.ply`, ... (INRIA PLY: float32, so at fp32 the flipped bit is
-        there bit for bit) and `.spz` (Niantic SPZ, quantized; a model with a non-finite value has
-        none, with a warning). Returns the files written."""
-        from seuwgpu.model.formats import save_model
+        opens (`faulted.ply`, `guard.sog`, ...). Default `formats`: the scene file's format, where
+        it has a writer (in the file's coordinates, to overlay the original), and the exact
+        float32 PLY; an embedded scene: PLY and SPZ. Any of MODEL_FORMATS may be named; a file
+        its format cannot hold (NaN) is left out with a warning (model.formats.save_models;
+        docs/models.md, "Writing a damaged model"). Returns the files written."""
+        from seuwgpu.model.formats import save_models
 
         if self.models is None:
             raise InputError("this injection kept no models: call inject(..., models=True)")
-        formats = tuple(dict.fromkeys(_names(formats, "formats")))
-        unknown = sorted(set(formats) - set(MODEL_FORMATS))
-        if unknown:
-            raise InputError(
-                f"unknown model format(s) {', '.join(unknown)}; expected some of {', '.join(MODEL_FORMATS)}"
-            )
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        paths = []
-        for name, model in self.models.items():
-            for fmt in formats:
-                path = out / f"{name}.{fmt}"
-                try:
-                    save_model(model, path, up=self.up)
-                except ValueError as e:  # SPZ holds no non-finite value: that file is left out, said
-                    if fmt == "ply":
-                        raise
-                    warnings.warn(f"{path.name} not written: {e}", stacklevel=2)
-                    continue
-                paths.append(path)
-        return paths
+        names = None if formats is None else _names(formats, "formats")
+        return save_models(self.models, out, names, up=self.up, source=self.source_format)
 
 
 def inject(
@@ -366,7 +388,8 @@ def inject(
         metrics[d] = {k: v for k, v in rec.items() if k not in site_info and k not in ("bit", "k")}
     kept = _injected_models(eng, model_of, site, defenses) if models else None
     up = scene.up if isinstance(scene, Source) else None
-    return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames, kept, up)
+    src = scene.format if isinstance(scene, Source) else None
+    return Injection(_plain(site_info), {d: _plain(m) for d, m in metrics.items()}, frames, kept, up, src)
 
 
 def storm(
@@ -739,10 +762,13 @@ def make_report(
     *,
     progress: Callable[[int, int], None] | None = None,
     workers: int | None = None,
+    target: float | None = None,
 ) -> Path:
     """Write the report of the runs (HTML, figures as PNG, tables as CSV and Markdown,
     summary.json) into `out`; returns the path of index.html. fold: fold the records as they
     are read (the same numbers in less memory; None: only when they would not fit unfolded).
+    target: the residual catastrophic rate per upset the summary's cheapest defense must meet
+    (None: the runs' spec `[summary] target`, else 0.001).
     `progress(parts read, parts)` as the parts are read; `workers`: processes folding parts side
     by side (default: one per CPU, at most 8, from 256 parts on). `runs` may also be the
     campaign_runs of campaign/store.py (their manifests read once by the caller)."""
@@ -751,7 +777,7 @@ def make_report(
 
     runs = [r if isinstance(r, CampaignRun) else _existing(r, "run directory") for r in _paths(runs)]
     out = make_out_dir(_out_path(out, "report folder"), what="report folder")
-    return build_report(runs, out, fold=fold, progress=progress, workers=workers)
+    return build_report(runs, out, fold=fold, progress=progress, workers=workers, target=target)
 
 
 def outcome_rates(

@@ -430,7 +430,7 @@ def test_size_sweep_over_a_model_file_cuts_seeded_subsets(tmp_path, monkeypatch)
     from seuwgpu.model.scenes import make_scene
 
     reads, read = [], sources.read_model
-    monkeypatch.setattr(sources, "read_model", lambda p: reads.append(p) or read(p))
+    monkeypatch.setattr(sources, "read_model", lambda p, **kw: reads.append(p) or read(p, **kw))
 
     path = tmp_path / "mine.ply"
     full = make_scene("plant", 700, seed=4)
@@ -462,9 +462,10 @@ def test_unreadable_model_or_camera_file_stops_before_the_manifest(tmp_path):
     """A model file that exists but cannot be read is refused with the loader's one-line error
     by the spec (which reads the model's SH degree) and, were a resolved spec handed over, by the
     run before its manifest is written, so the folder is not claimed: the same folder then runs
-    with the corrected spec. (A camera file that cannot be read is refused with the spec.)"""
+    with the corrected spec (its manifest keeping the loader's notes of the model file, for the
+    report). (A camera file that cannot be read is refused with the spec.)"""
     from seuwgpu.errors import InputError
-    from seuwgpu.model.formats import save_model
+    from seuwgpu.model.formats import read_model, save_model
     from seuwgpu.model.scenes import make_scene
 
     good = tmp_path / "good.ply"
@@ -484,8 +485,13 @@ def test_unreadable_model_or_camera_file_stops_before_the_manifest(tmp_path):
     assert store.read_manifest(tmp_path / "run") is None
     with pytest.raises(InputError, match="cams.json"):  # camera files are read with the spec already
         normalize_spec({**base, "scenes": [{"scene": "plant", "n": 300, "cameras": str(cams)}]})
-    Runner(normalize_spec({**base, "scenes": [{"model": str(good)}]}), tmp_path / "run", quiet=True).run()
+    noted = tmp_path / "noted.spz"  # a format whose loader has notes ("SPZ version 3")
+    save_model(make_scene("plant", 300, seed=4), noted)
+    Runner(normalize_spec({**base, "scenes": [{"model": str(noted)}]}), tmp_path / "run", quiet=True).run()
     assert len(read_records(tmp_path / "run")) == 2
+    notes = read_model(noted).notes
+    models = store.read_manifest(tmp_path / "run")["models"]
+    assert notes and [m["notes"] for m in models if m["name"] == "noted"] == [notes]
 
 
 def test_cell_sites_are_drawn_with_replacement():

@@ -239,6 +239,12 @@ def test_demo_on_a_tiny_scene(tmp_path, capsys):
     m = read_manifest(tmp_path / "demo")
     assert len(read_records(tmp_path / "demo")) == m["total_injections"] * len(m["spec"]["single"]["defenses"])
     assert (tmp_path / "demo" / "report" / "index.html").is_file()
+    # the report opens with the summary (issue 45): the model, its p_c, the worst flip's panel
+    model = {"name": "spheres", "format": "embedded scene", "primitives": 200, "sh_degree": 3, "notes": []}
+    assert m["models"] == [model]
+    md = (tmp_path / "demo" / "report" / "report.md").read_text()
+    assert md.split("\n## ")[1].startswith("Summary") and "p_c = " in md.split("\n## ")[1]
+    assert (tmp_path / "demo" / "report" / "fig_worst_flip.png").is_file()
 
 
 @pytest.mark.slow
@@ -538,10 +544,11 @@ def test_view_refuses_views_without_a_camera_file(capsys):
 
 @pytest.mark.parametrize("defense", ["parity4r", "ecc"])
 def test_inject_save_model_writes_the_damage_and_each_repair(tmp_path, capsys, defense):
-    """`inject --save-model DIR`: faulted.ply read back differs from the clean model in exactly the
-    flipped bit; DEFENSE.ply holds what the defense restored (parity4r reloads the primitive, ECC
-    corrects the single flip: the clean model bit for bit), guard.ply the faulted value clamped into
-    the clean model's [min, max] of that component (the support box) and nothing else changed."""
+    """`inject --save-model DIR` of a PLY model writes PLY only (the source's format); faulted.ply
+    read back differs from the clean model in exactly the flipped bit; DEFENSE.ply holds what the
+    defense restored (parity4r reloads the primitive, ECC corrects the single flip: the clean model
+    bit for bit), guard.ply the faulted value clamped into the clean model's [min, max] of that
+    component (the support box) and nothing else changed."""
     from seuwgpu.model.formats import save_model
 
     clean_path = tmp_path / "clean.ply"
@@ -553,7 +560,7 @@ def test_inject_save_model_writes_the_damage_and_each_repair(tmp_path, capsys, d
             "--formats", "png", "--out", tmp_path / "o", "--save-model", tmp_path / "m"]  # fmt: skip
     rc, out, err = run(argv, capsys)
     assert rc == 0, err
-    assert f"models: faulted.ply, faulted.spz, {defense}.ply, {defense}.spz, guard.ply, guard.spz in" in out
+    assert f"models: faulted.ply, {defense}.ply, guard.ply in" in out  # a PLY source: PLY only
     faulted = read_model(tmp_path / "m" / "faulted.ply").model.flat()
     assert np.isfinite(faulted).all()  # -2.0 turned into a denormal: an SPZ holds it (a NaN it cannot)
     diff = clean.view(np.uint32) ^ faulted.view(np.uint32)

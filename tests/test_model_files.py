@@ -351,6 +351,13 @@ def test_compressed_ply_against_the_spec(tmp_path):
     r = lerp("min_r", "max_r", col[:, 0], 8).astype(np.float64)
     np.testing.assert_allclose(m.sh_dc[:, 0], (r - 0.5) / C0, rtol=1e-6, atol=1e-6)
     assert m.opacity[0] == 20.0 and m.opacity[1] == -20.0
+    full, empty = int((col[:, 3] == 255).sum()), int((col[:, 3] == 0).sum())  # the reference's +-inf rows
+    assert read_model(p).notes == [
+        f"opacity +inf in {full} rows, from packed alpha 1.0, as the reference decoder gives: read as +20, drawn the "
+        "same (alpha 1, capped at 0.99)",
+        f"opacity -inf in {empty} rows, from packed alpha 0.0, as the reference decoder gives: read as -20, drawn the "
+        "same (skipped)",
+    ]
     a = col[2:, 3] / 255
     np.testing.assert_allclose(m.opacity[2:], np.log(a / (1 - a)), rtol=1e-5, atol=1e-5)
     # quaternion: the largest component at `which`, the others in order, each (code/1023 - 0.5) * sqrt 2

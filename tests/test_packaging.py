@@ -134,6 +134,7 @@ def test_the_wheel_renders_from_outside_the_checkout(tmp_path):
     shaders = {p.name for p in (ROOT / "shaders").glob("*.wgsl")}
     assert shaders and shaders <= {Path(n).name for n in names if n.startswith("seuwgpu/shaders/")}
     assert any(n.startswith("seuwgpu/campaign/specs/") and n.endswith(".toml") for n in names)
+    assert "seuwgpu/model/corpus.toml" in names  # the corpus manifest (seuwgpu corpus)
     # install the wheel alone into a folder outside the checkout; dependencies come from this
     # environment, seuwgpu itself only from the wheel
     site = tmp_path / "site"

@@ -308,9 +308,9 @@ def test_end_to_end_report(synthetic, tmp_path):
     assert "Slowest-region render time and load imbalance" in skipped
     assert summary["numbers"]["guard_residual_catastrophic"] == 0
     assert 0.9 <= summary["numbers"]["pred_auc"][0] <= 1.0
-    # the report opens with the claims table
-    assert summary["sections"][0] == "claims"
-    assert page.index("id='claims'") < page.index("id='outcomes'") < page.index("id='criticality'")
+    # the report opens with the summary (report/summary.py), then the claims table
+    assert summary["sections"][:2] == ["summary", "claims"]
+    assert page.index("id='summary'") < page.index("id='claims'") < page.index("id='outcomes'")
 
 
 def test_skipped_when_no_dose_rows(synthetic, tmp_path):

@@ -22,6 +22,7 @@ import subprocess
 import time
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 BROWSERS = ("chromium-headless-shell", "chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
@@ -156,7 +157,13 @@ PAGE_STATE = """(() => {
             rows: body && body.tagName === 'TABLE' ? body.tBodies[0].rows.length : 0};
   });
   const sections = [...document.querySelectorAll('h2[id]')].map(h => h.id);
-  return {images, tables, sections, title: document.title};
+  const headings = [...document.querySelectorAll('h2')].map(h => h.id || h.textContent);
+  const summary = document.getElementById('summary');
+  let first = [];  // what the summary section holds, up to the next heading
+  for (let e = summary && summary.nextElementSibling; e && e.tagName !== 'H2'; e = e.nextElementSibling) {
+    first.push(e.tagName === 'FIGURE' ? 'FIGURE:' + e.querySelector('img').alt : e.tagName);
+  }
+  return {images, tables, sections, headings, summary: first, title: document.title};
 })()"""
 
 
@@ -241,3 +248,36 @@ def test_the_report_in_headless_chromium(browser, report):
     linked = set(re.findall(r"<a href='([^']+\.csv)'>", source))
     assert len(linked) == len(state["tables"]) and all((out / name).is_file() for name in linked)
     assert any(t["tag"] == "TABLE" for t in state["tables"])
+
+
+@pytest.mark.slow  # it runs a campaign and builds its report first
+def test_the_report_opens_with_the_summary_and_its_worst_flip_panel(browser, report):
+    """Issue 45: the page opens with the answer to the user's question (the model, p_c, the most
+    dangerous cells, the worst flip's panel, each defense, the cheapest meeting the target), the
+    runs and the contents after it, then the claims of the paper."""
+    out = report.parent
+    state, errors = page_state(browser, report.as_uri())
+    assert not errors, errors
+    assert state["headings"][:4] == ["summary", "Runs", "Contents", "claims"], state["headings"]
+    assert state["summary"][0] == "P"  # the lead: the answer in a few sentences
+    assert "FIGURE:The worst flip found" in state["summary"]
+    panel = next(i for i in state["images"] if i["alt"] == "The worst flip found")
+    assert panel["complete"] and panel["width"] > 0
+    titles = [t["title"] for t in state["tables"]]
+    for t in ("The model", "p_c: catastrophic probability per upset, no defense", "Each defense measured"):
+        assert t in titles
+    assert any(t.startswith("The cheapest defense meeting the target") for t in titles)
+    models = pd.read_csv(out / "summary_models.csv")
+    assert models.iloc[0].to_dict() == {
+        "scene": "spheres",
+        "primitives": 200,
+        "format": "embedded scene",
+        "SH degree": 3,
+        "precisions": "fp32",
+        "what the loader changed": "none",
+    }
+    # the panel rendered again is the recorded flip: the same footprint as its record
+    num = json.loads((out / "summary.json").read_text())["numbers"]["summary"]
+    caption = (out / "report.md").read_text()
+    assert f"footprint {100 * num['worst']['footprint']:.3g}% without a defense" in caption
+    assert all(d["time_ms"] > 0 for d in num["defenses"])  # measured in the run

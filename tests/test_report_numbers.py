@@ -264,7 +264,68 @@ def test_guard_reliability_and_claims(run):
     table2 = (0.004 * 3 + 2.782 * 3 + 0.0 * 4 + 0.004 * 1 + 1.016 * 3 + 0.0 * 45) / 59
     assert r["paper"] == pytest.approx(round(table2, 4))
     assert "pooled over 2 models" in r["basis"] and "big (N=4,000), small (N=500)" in r["basis"]
-    assert summary["sections"][0] == "claims"
+    assert summary["sections"][:2] == ["summary", "claims"]  # the user's answer first, then the paper
+
+
+def test_summary_numbers(run):
+    """The report's opening summary (report/summary.py), recomputed from the records: p_c per model
+    (never one number for both sizes), the most dangerous cells and their share of p_c, the worst
+    flip, each defense's residual rate, time per frame and exposure, the cheapest meeting the target."""
+    rec, out, summary = run
+    num = summary["numbers"]["summary"]
+    single = rec[rec["campaign"] == "single"]
+    none = single[single["defense"] == "none"]
+    assert num["target"] == 0.001 and num["target_source"] == "the default" and num["check_every"] == 10
+    models = {m["scene"]: m for m in num["models"]}
+    assert {s: m["n_primitives"] for s, m in models.items()} == SCENES
+    assert all(m["sh_degree"] == 3 and m["precisions"] == "fp32" for m in models.values())
+    assert all(m["loader_notes"] is None for m in models.values())  # this manifest does not say: n/a, not "none"
+    pc = {r["scene"]: r for r in num["p_c"]}
+    assert len(pc) == len(SCENES)
+    for scene, g in none.groupby("scene"):
+        p, lo, hi = stratified(g, "catastrophic")
+        assert (pc[scene]["rate"], pc[scene]["ci_lo"], pc[scene]["ci_hi"]) == pytest.approx((p, lo, hi), abs=1e-12)
+        assert pc[scene]["n"] == len(g) and pc[scene]["events"] == g["catastrophic"].sum()
+        # the top cells: rate (Wilson of the cell), n, and W_h p_h / p_c
+        cells = g.groupby(["field", "bit"])
+        rate = cells.apply(lambda c: (c["weight"] * c["catastrophic"]).sum() / c["weight"].sum(), include_groups=False)
+        share = cells["weight"].sum() * rate / (cells["weight"].sum() * rate).sum()
+        top = [c for c in num["cells"] if c["scene"] == scene]
+        assert 0 < len(top) <= 5
+        assert [c["rate"] for c in top] == sorted((c["rate"] for c in top), reverse=True)
+        assert top[0]["rate"] == pytest.approx(rate.max())
+        for c in top:
+            key = (c["field"], c["bit"])
+            assert c["rate"] == pytest.approx(rate[key]) and c["n"] == cells.size()[key]
+            k, n = cells["catastrophic"].sum()[key], cells.size()[key]
+            assert (c["ci_lo"], c["ci_hi"]) == pytest.approx(wilson(k, n))
+            assert c["share_of_pc"] == pytest.approx(share[key])
+    # the worst flip: the largest footprint of the unguarded arm, a non-finite frame first among equals
+    w = num["worst"]
+    top = none[none["footprint"] == none["footprint"].max()]
+    assert w["footprint"] == top["footprint"].iloc[0] and w["nonfinite"] == top["nonfinite"].any()
+    # each defense, per model: rate and interval, the time its records measured, exposure
+    times = {"none": 2.0, "guard": 2.5, "ecc": 2.0}
+    got = {(r["scene"], r["defense"]): r for r in num["defenses"]}
+    assert len(got) == len(SCENES) * len(DEFS)
+    for (scene, d), g in single.groupby(["scene", "defense"]):
+        r = got[(scene, d)]
+        assert (r["rate"], r["ci_lo"], r["ci_hi"]) == pytest.approx(stratified(g, "catastrophic"), abs=1e-12)
+        assert r["time_ms"] == times[d]
+        assert r["time_vs_none_pct"] == pytest.approx(100 * (times[d] / 2.0 - 1))
+        model_bytes = SCENES[scene] * 59 * 4
+        assert r["device_pct"] == pytest.approx(100 * r["device_bytes"] / model_bytes)
+        assert (r["device_bytes"] == 0) == (d == "none")
+        assert r["exposure_frames"] == ("inf" if d == "none" else 0)  # strict JSON: inf as a string
+    # the cheapest: among those whose interval's upper end is at most the target, by time then bytes
+    for scene in SCENES:
+        rows = [got[(scene, d)] for d in DEFS]
+        ok = [r for r in rows if r["ci_hi"] <= 0.001]
+        ok = sorted(ok, key=lambda r: (r["defense"] != "none", r["time_ms"], r["device_bytes"]))
+        c = next(c for c in num["cheapest"] if c["scene"] == scene)
+        assert c["met"] == bool(ok) and c["defense"] == (ok[0]["defense"] if ok else None)
+    page = (out / "report.md").read_text()
+    assert page.index("## Summary") < page.index("## Runs") < page.index("## Claims")
 
 
 def test_mtbf_per_scene(run):

@@ -23,7 +23,14 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis import population
-from seuwgpu.analysis.records import InsufficientData, n_records, record_weights, single_upsets, tag
+from seuwgpu.analysis.records import (
+    InsufficientData,
+    n_records,
+    record_weights,
+    scale_sign_flips,
+    single_upsets,
+    tag,
+)
 from seuwgpu.analysis.reliability import catastrophe_probability
 from seuwgpu.analysis.stats import wilson_interval
 
@@ -315,7 +322,7 @@ def claims_table(
     results = results or {}
     rows = []
     s = single_upsets(df, "fp32", "none")
-    sign = s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")]
+    sign = scale_sign_flips(s)
     if len(sign):
 
         def mean_fp(x):
@@ -599,7 +606,7 @@ def _guard_rows(df: pd.DataFrame, results: dict, conf: float) -> list[dict]:
     """Sign-flip PSNR without and with the guard, the worst guarded footprint and the residual share."""
     rows = []
     s = single_upsets(df, "fp32", None)
-    sign = s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")]
+    sign = scale_sign_flips(s)
     for dfn in ("none", "guard"):
         g = sign[sign["defense"] == dfn]
         key = f"sign_psnr_{dfn}"
@@ -660,7 +667,7 @@ def _contamination_rows(df: pd.DataFrame, conf: float) -> list[dict]:
     from seuwgpu.analysis.contamination import contamination
 
     s = single_upsets(df, "fp32", None)
-    sign = s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")]
+    sign = scale_sign_flips(s)
     keys = {("none", "pred_frame_pct"): "contam_none", ("guard", "pred_frame_pct"): "contam_guard"}
     keys[("none", "iou_mean")] = "contam_iou"
     per: dict[str, list] = {k: [] for k in keys.values()}

@@ -18,6 +18,7 @@ from seuwgpu.analysis.records import (
     n_records,
     pair_columns,
     record_weights,
+    scale_sign_flips,
     single_upsets,
     sort_rows,
     tag,
@@ -108,7 +109,7 @@ def guard_analysis(df: pd.DataFrame, guard: str = "guard", conf: float = 0.95) -
         )
     ptab = tag(sort_rows(pd.DataFrame(prow)), s)
 
-    sign = s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")]
+    sign = scale_sign_flips(s)
     stab = pd.DataFrame()
     if len(sign):
         q = E.quality(sign, ["precision", "defense"], conf)

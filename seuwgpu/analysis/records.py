@@ -295,6 +295,12 @@ def single_upsets(df: pd.DataFrame, precision: str | None = None, defense: str |
     return d.copy(deep=False) if m.all() else d[m]
 
 
+def scale_sign_flips(s: pd.DataFrame) -> pd.DataFrame:
+    """The log-scale sign-bit flips among single-upset records: the paper's worst case, which
+    several claims rows, the guard's table and the criticality section each report."""
+    return s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")]
+
+
 def require_single(df, defense="none") -> pd.DataFrame:
     s = single_upsets(df, None, defense)
     if s.empty:

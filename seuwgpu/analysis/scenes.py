@@ -26,6 +26,7 @@ def _box_widths(entry: dict, n: int | None, precision: str) -> dict:
         sh_degree=entry.get("sh_degree", 3),
         seed=entry.get("seed", 0),
         up=entry.get("up"),
+        lod=entry.get("lod"),
     )
     model = src.model
     if entry.get("model") and n is not None and n < model.n:

@@ -72,7 +72,7 @@ class Runner:
             from seuwgpu.faults.engine import Engine
             from seuwgpu.gpu.device import get_gpu
 
-            self.check_files()
+            models = self.check_files()
             gpu = self.gpu or get_gpu()
             manifest = {
                 "spec": self.spec.to_dict(),
@@ -87,6 +87,7 @@ class Runner:
                 "columns": store.COLUMNS,
                 "outcomes": self.thresholds,
                 "region_grid": REGION_GRID_VERSION,
+                "models": models,
                 "time_ms": "median render time of one view (view 0, rendered alone) of the clean model under "
                 "the defense's in-pipeline guard: the defenses timed interleaved just after the clean render "
                 f"(no warm-up round), {Engine.VIEW_TIME_ROUNDS} rounds or as many (at least "
@@ -98,18 +99,47 @@ class Runner:
             store.write_manifest(self.out, manifest)
         store.remove_stale_temps(rec)
 
-    def check_files(self):
+    def check_files(self) -> list[dict]:
         """Read each scene's model file once before a new run's manifest claims the directory: the
         spec check only hashes it, and a file that cannot be read would otherwise stop the run
         after the manifest was written, leaving a run folder with no records. (Camera files are
-        read by the spec check already, so an embedded scene is not built here.)"""
+        read by the spec check already, so an embedded scene is not built here.) Returns what the
+        manifest keeps of each scene's model (`models`): its label, format, primitives, SH degree and
+        the loader's notes (what it changed: which LOD level was read, saturated opacities, an
+        antialiased flag, ...), for the report's summary."""
+        from seuwgpu.campaign.spec import scene_label
+        from seuwgpu.model.captures import capture_antialiased
+        from seuwgpu.model.formats import ANTIALIASED_NOTE
+        from seuwgpu.model.scenes import is_capture
         from seuwgpu.model.sources import source_views
 
+        models = []
         for i, sc in enumerate(self.spec.scenes):
             if sc.model is None:
+                capture = is_capture(sc.scene)
+                notes = [ANTIALIASED_NOTE] if capture and capture_antialiased(sc.scene) else []
+                models.append(
+                    {
+                        "name": sc.scene,
+                        "format": "embedded scene",
+                        "primitives": sc.n,
+                        "sh_degree": sc.sh_degree,
+                        "notes": notes,
+                    }
+                )
                 continue
             src = self.file_source(i)
             source_views(src, sc.cameras, self.spec.views, self.spec.size, self.spec.scale)
+            models.append(
+                {
+                    "name": scene_label(sc),
+                    "format": src.format,
+                    "primitives": src.model.n,
+                    "sh_degree": src.model.sh_degree,
+                    "notes": list(src.notes),
+                }
+            )
+        return models
 
     def file_source(self, scene_index: int):
         """Scene `scene_index`'s model file, loaded (or the last one loaded, when it is that)."""
@@ -118,7 +148,7 @@ class Runner:
         if self._read is None or self._read[0] != scene_index:
             self._read = None  # the previous model released before the next is read
             sc = self.spec.scenes[scene_index]
-            self._read = (scene_index, load_source(path=sc.model, up=sc.up))
+            self._read = (scene_index, load_source(path=sc.model, up=sc.up, lod=sc.lod))
         return self._read[1]
 
     def done_ids(self) -> set[tuple[int, int]]:

@@ -22,6 +22,8 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     [[scenes]]               # one or more
     scene = "spheres"        # an embedded scene (`seuwgpu scene --list`: procedural or real) ...
                              # or: model = "point_cloud.ply" (any format; `ply =` is an alias)
+                             # lod = 2: with a PlayCanvas LOD set (lod-meta.json or its folder),
+                             # the level read (default 0, the finest; named NAME-lod2 in records)
     n = 100000               # primitives of an embedded scene (a real capture: all by default)
     sh_degree = 3            # of an embedded scene; a model file's is read from it (recorded)
     cameras = "cameras.json" # optional, the capture's cameras (CAMS.json, INRIA cameras.json,
@@ -66,6 +68,9 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
                              # what it repairs is drawn until then; default 10
     frames_per_second = 30.0 # the frame rate the check's exposure (frames) turns into hours
 
+    [summary]                # optional: the report's opening summary (it changes no injection)
+    target = 0.001           # residual catastrophic rate per upset the cheapest defense must meet
+
     [sizes]                  # primitive-count sweep: single upsets at each N (a procedural scene
     n = [5000, 20000, 80000] # is generated at N; a capture or model file cut to a seeded subset)
     scenes = "all"           # optional: [[scenes]] indices swept, or "all" (default: [0], the first)
@@ -106,10 +111,11 @@ _TOP = {
     "name",
     "outcomes",  # analysis inputs (thresholds, upset rates) and the optional LPIPS metric
     "reliability",
+    "summary",
     "lpips",
     "profile",
 }
-_SCENE = {"scene", "model", "ply", "n", "sh_degree", "cameras", "seed", "up"}
+_SCENE = {"scene", "model", "ply", "lod", "n", "sh_degree", "cameras", "seed", "up"}
 _SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions", "fault"}
 _DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
 _SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions", "fault", "scenes"}
@@ -152,6 +158,7 @@ class SceneSpec(_Stored):
     n: int | None = None
     model: str | None = None
     model_sha256: str | None = None
+    lod: int | None = None  # the level of a PlayCanvas LOD set (recorded when given and not 0)
     up: str | None = None
     cameras: str | None = None
     cameras_sha256: str | None = None
@@ -236,6 +243,13 @@ class ReliabilitySpec(_Stored):
 
 
 @dataclass(frozen=True, kw_only=True)
+class SummarySpec(_Stored):
+    """[summary]: the report summary's target (a residual catastrophic rate per upset)."""
+
+    target: float | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
 class Spec(_Stored):
     """A validated campaign spec with its defaults filled in (module docstring: the TOML keys).
     `profile` None: the default renderer profile ("strict"), not recorded."""
@@ -251,6 +265,7 @@ class Spec(_Stored):
     lpips: bool = False
     outcomes: OutcomesSpec | None = None
     reliability: ReliabilitySpec | None = None
+    summary: SummarySpec | None = None
     single: UpsetSpec | None = None
     dose: DoseSpec | None = None
     sizes: SizesSpec | None = None
@@ -271,7 +286,8 @@ class Spec(_Stored):
         """A Spec from its stored form (a manifest's `spec`), not validated again: the files it
         names may be on another machine."""
         sections = {"single": UpsetSpec, "dose": DoseSpec, "sizes": SizesSpec}
-        kw = {k: v for k, v in d.items() if k not in ("scenes", "size", *sections, "outcomes", "reliability")}
+        tables = ("scenes", "size", *sections, "outcomes", "reliability", "summary")
+        kw = {k: v for k, v in d.items() if k not in tables}
         kw["size"] = tuple(d["size"])
         kw["scenes"] = tuple(SceneSpec.from_dict(sc) for sc in d["scenes"])
         for key, kind in sections.items():
@@ -281,6 +297,8 @@ class Spec(_Stored):
             kw["outcomes"] = OutcomesSpec.from_dict(d["outcomes"])
         if "reliability" in d:
             kw["reliability"] = ReliabilitySpec.from_dict(d["reliability"])
+        if "summary" in d:
+            kw["summary"] = SummarySpec.from_dict(d["summary"])
         return cls(**kw)
 
 
@@ -336,7 +354,7 @@ def _list(table, key, where, default, valid=None):
     return v
 
 
-def _model_file(scene: dict, path, where: str):
+def _model_file(scene: dict, path, where: str, lod: int | None = None):
     """A scene's model file, read once by the spec: its SH degree is the scene's (the spec's
     sh_degree shapes embedded scenes; one that differs from the file's is refused, not ignored),
     recorded so that the runs' cells (no sh_rest at degree 0) and every analysis of stored bits
@@ -344,7 +362,7 @@ def _model_file(scene: dict, path, where: str):
     from seuwgpu.model.formats import read_model
 
     try:
-        model = read_model(path, warn_nonfinite=False).model
+        model = read_model(path, warn_nonfinite=False, lod=lod).model
     except ValueError as e:  # ModelFileError: the file named, the problem said
         raise SpecError(f"{where}: {e}") from None
     if "sh_degree" in scene and scene["sh_degree"] != model.sh_degree:
@@ -599,7 +617,7 @@ def scene_label(entry: SceneSpec | dict) -> str | None:
         entry = entry.to_dict()
     if entry.get("scene"):
         return str(entry["scene"])
-    return model_label(entry["model"]) if entry.get("model") else None
+    return model_label(entry["model"], entry.get("lod")) if entry.get("model") else None
 
 
 def _distinct_labels(scenes: list[dict]):
@@ -655,6 +673,8 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
         if sum(k in s for k in ("scene", "model", "ply")) != 1:
             raise SpecError(f"{where} needs exactly one of scene = NAME or model = FILE (ply = FILE is an alias)")
         out = {"sh_degree": _int(s, "sh_degree", where, 3, 0, 3), "seed": _int(s, "seed", where, 0, 0, SEED_MAX)}
+        if "lod" in s and "scene" in s:
+            raise SpecError(f"{where}.lod picks a level of a PlayCanvas LOD set given as model = ...; remove it")
         if "scene" in s:
             if not isinstance(s["scene"], str) or s["scene"] not in list_scenes():
                 raise SpecError(
@@ -675,7 +695,10 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
                 )
             out["model"] = _spec_file(s, key, where, base_dir)
             out["model_sha256"] = content_hash("model", out["model"])
-            model = _model_file(s, out["model"], where)
+            lod = _int(s, "lod", where, None, 0) if "lod" in s else None
+            model = _model_file(s, out["model"], where, lod)
+            if lod:  # level 0 is the default: the same run as without the key
+                out["lod"] = lod
             out["sh_degree"], held[i] = model.sh_degree, model.n
         if "up" in s:
             if not isinstance(s["up"], str) or s["up"] not in UP_AXES:
@@ -705,6 +728,12 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
         spec["outcomes"] = _outcomes(raw["outcomes"])
     if "reliability" in raw:
         spec["reliability"] = _reliability(raw["reliability"])
+    if "summary" in raw:
+        _keys(raw["summary"], {"target"}, "summary")
+        t = raw["summary"].get("target", 0.001)
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 < t < 1:
+            raise SpecError(f"summary.target must be a catastrophic rate per upset in (0, 1), got {t!r}")
+        spec["summary"] = {"target": float(t)}
     if not any(k in raw for k in ("single", "dose", "sizes")):
         raise SpecError("the spec needs at least one of [single], [dose], [sizes]")
     if "single" in raw:
@@ -867,7 +896,7 @@ def _short_hash(keyed: dict) -> str:
 # Spec entries that change no drawn site and no measurement of one: the campaign's label, the
 # part size (injection ids, and so every draw, do not depend on it), the analysis inputs, and
 # extra metrics recorded beside the others (LPIPS, sort-first region columns).
-_NOT_SITES = ("name", "batch", "outcomes", "reliability", "lpips", "profile")
+_NOT_SITES = ("name", "batch", "outcomes", "reliability", "summary", "lpips", "profile")
 _NOT_SITES_IN = ("regions",)
 
 

@@ -536,6 +536,21 @@ def write_guard_note(run_dir, scene: str, precision: str, profile: str, note: di
     atomic_write(guard_note_path(run_dir, scene, precision, profile), json.dumps(note, indent=1).encode())
 
 
+def read_guard_notes(run_dir) -> list[tuple[str, str, str, dict]]:
+    """(scene, precision, profile, note) of each guard note a run wrote (write_guard_note)."""
+    out = []
+    head = "guard_on_clean-"
+    for path in sorted(Path(run_dir).glob(guard_note_path(run_dir, "*", "*", "*").name)):
+        parts = path.stem[len(head) :].rsplit("-", 2)
+        try:
+            note = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        if len(parts) == 3 and isinstance(note, dict):
+            out.append((*parts, note))
+    return out
+
+
 def view_times_path(run_dir, key: str) -> Path:
     """Where a run keeps one engine's view times (Runner.view_times): measured once per run, so a
     resumed run or another shard records the same time_ms and pays no second measurement."""

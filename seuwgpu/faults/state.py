@@ -46,6 +46,9 @@ def check_target(name: str) -> str:
     return name
 
 
+TARGET_CHUNK = 0  # a state fault's Flips holds one buffer, the target's: its chunk 0
+
+
 @dataclass
 class _Fault:
     view: int
@@ -54,7 +57,7 @@ class _Fault:
     pairs: np.ndarray
 
     def encode(self, encoder):
-        self.flips.encode(encoder, {0: self.pairs})
+        self.flips.encode(encoder, {TARGET_CHUNK: self.pairs})
 
 
 class StateFaults:

@@ -27,6 +27,7 @@ class Source:
     up: str
     scene: str | None = None  # the embedded scene framed by its registered views (None: a file, or --up given)
     notes: list[str] = field(default_factory=list)
+    format: str | None = None  # the file's format (formats.REGISTRY name); None: an embedded scene
 
 
 def load_source(
@@ -36,13 +37,17 @@ def load_source(
     sh_degree: int = 3,
     seed: int = 0,
     up: str | None = None,
+    lod: int | None = None,
 ) -> Source:
-    """An embedded scene (procedural or real capture) by name, or any supported model file."""
+    """An embedded scene (procedural or real capture) by name, or any supported model file
+    (`lod`: the level of a PlayCanvas LOD set; refused for another file or a scene)."""
     if up is not None and up not in AXES:
         raise ValueError(f"unknown up axis {up!r}; expected one of {', '.join(AXES)}")
     if path is not None:
-        mf = read_model(path)
-        return Source(mf.model, mf.name, up or mf.up, None, mf.notes)
+        mf = read_model(path, lod=lod)
+        return Source(mf.model, mf.name, up or mf.up, None, mf.notes, mf.format)
+    if lod is not None:
+        raise ValueError(f"lod = {lod} picks a level of a PlayCanvas LOD set (a model file), not of an embedded scene")
     name = scene or scenes.DEFAULT_SCENE
     if n is not None and not scenes.is_capture(name):
         # before generating: enough memory to generate and render it (an engine checks its own

@@ -27,7 +27,7 @@ from seuwgpu.render.composite import (
 )
 
 OPEN = 0x80000000
-"""kv_stop's flag of a pixel that never ends (variants.wgsl `within`)."""
+"""kv_stop's flag of a pixel that never ends (variants_walk.wgsl `within`)."""
 
 
 class VariantCompositing:
@@ -172,7 +172,7 @@ class VariantCompositing:
 
 
 def walk_round(chunk: int) -> int:
-    """List positions per round of variants.wgsl's walk_list: 1024 (ROUND_MAX) where it divides
+    """List positions per round of variants_walk.wgsl's walk_list: 1024 (ROUND_MAX) where it divides
     the chunk, else 512, else one batch (TILE * TILE)."""
     chunk = check_chunk(chunk)
     return next(r for r in (4 * TILE_PIXELS, 2 * TILE_PIXELS, TILE_PIXELS) if chunk % r == 0)

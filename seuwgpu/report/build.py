@@ -7,7 +7,9 @@
 The analyses are `seuwgpu.analysis`'s; `report.sections` turns each into a section (tables, figures,
 notes, headline numbers) and `report.format` writes values and tables. `build_report` writes into
 out_dir (flat):
-  index.html      self-contained page (figures embedded as base64 PNG), one section per analysis,
+  index.html      self-contained page (figures embedded as base64 PNG), opening with the summary
+                  (report/summary.py: the model, p_c, the most dangerous cells, the worst flip's
+                  panel, each defense's cost, the cheapest meeting a target), one section per analysis,
                   each table and figure captioned with the runs, scenes, precisions and record
                   counts it rests on, and a "Skipped analyses" section saying what is missing
                   and which campaign would supply it;
@@ -79,13 +81,10 @@ OPTIONAL_COLUMNS = ("campaign", "repeat", "time_ms")
 # ------------------------------------------------------------------------------------ loading
 
 
-# Peak host memory per record while a report is built: 907,264 and 914,988 KiB (maxrss, two
-# runs) for the 474,048 records of docs/study/cpu (pandas 3.1, 2026-11-25/26), i.e. 1.96-1.98 KB
-# a record with the interpreter's own.
-REPORT_BYTES_PER_RECORD = 2000
-# The same with the records folded as read (analysis/folding.py): 3,942,828 KiB for 29,098,240
-# records of the planner-sized study (spheres and blocks, 7.8 records a row; 2026-11-26). Scenes
+# Peak host memory per record while a report is built, unfolded and folded as read
+# (analysis/folding.py), from the measurements in docs/benchmarks.md ("Report memory"); scenes
 # whose records fold less need more.
+REPORT_BYTES_PER_RECORD = 2000
 FOLDED_BYTES_PER_RECORD = 139
 
 
@@ -371,8 +370,13 @@ def build_report(
     fold: bool | None = None,
     progress=None,
     workers: int | None = None,
+    target: float | None = None,
+    panel: bool = True,
 ) -> Path:
     """Write the report of the given runs into out_dir; returns the path of index.html.
+    target: the residual catastrophic rate per upset the summary's cheapest defense must meet
+    (None: the specs' `[summary] target`, else analysis.summary.DEFAULT_TARGET); panel: render the
+    worst flip's panel again (report/summary.py; False: its `seuwgpu inject` command line only).
     fold: fold the records as they are read (load_runs); None folds only runs whose records would
     not fit in host memory unfolded (check_report_memory); workers: processes folding the parts
     (load_runs)."""
@@ -395,11 +399,18 @@ def build_report(
     if by_profile is not None:
         sections.append(by_profile)
     skipped = ctx["skipped"]
-    # the claims table opens the report
-    sections.sort(key=lambda sec: sec.key != "claims")
+    # the summary opens the report (the user's question answered), then the paper's claims, with
+    # the rows these records measure (report/summary.py)
+    from seuwgpu.report.summary import summary_section, trim_claims
+
+    for sec in sections:
+        if sec.key == "claims":
+            trim_claims(sec)
+    sections.insert(0, summary_section(df, manifests, target, panel))
+    sections.sort(key=lambda sec: {"summary": 0, "claims": 1}.get(sec.key, 2))
 
     # files
-    md_parts = [f"# {title}\n", f"\n**{partial}**\n" if partial else "", _runs_markdown(df, manifests)]
+    md_parts = [f"# {title}\n", f"\n**{partial}**\n" if partial else ""]
     html_sections = []
     toc = []
     numbers: dict = {}
@@ -444,6 +455,8 @@ def build_report(
             hs.append("<ul class='note'>" + "".join(f"<li>{html.escape(n)}</li>" for n in sec.notes) + "</ul>")
             md_parts.append("\n" + "".join(f"- {n}\n" for n in sec.notes))
         html_sections.append("\n".join(hs))
+        if sec.key == "summary":  # the runs' table after the summary, which opens the report
+            md_parts.append("\n## Runs\n" + _runs_markdown(df, manifests))
 
     skip_rows = pd.DataFrame(skipped, columns=["analysis", "missing", "what would supply it"])
     toc.append("<li><a href='#skipped'>Skipped analyses</a></li>")
@@ -493,9 +506,10 @@ def build_report(
 <p class='note'>Generated {html.escape(summary["generated"])} by seuwgpu {html.escape(__version__)}.
 {html.escape(provenance_text(provenance(df)))} {html.escape(_folded_text(df))}</p>
 {f"<p class='warn'><b>{html.escape(partial)}</b></p>" if partial else ""}
+{html_sections[0]}
 <h2>Runs</h2>{html_table(_runs_table(manifests))}
 <h2>Contents</h2><ul>{"".join(toc)}</ul>
-{"".join(html_sections)}
+{"".join(html_sections[1:])}
 <h2 id='skipped'>Skipped analyses</h2>{skip_html}
 <h2>Conventions</h2><ul class='note'>
 <li>Proportions carry 95% intervals (never a normal approximation).</li>

@@ -34,6 +34,7 @@ from seuwgpu.analysis.records import (
     provenance_text,
     record_weights,
     reference_precision,
+    scale_sign_flips,
     single_upsets,
 )
 from seuwgpu.errors import MissingExtra
@@ -257,7 +258,7 @@ def _sec_criticality(df, manifests, ctx) -> Section:
         )
     )
     s = single_upsets(df, prec, "none")
-    sign = s[(s["field"] == "log_scales") & (s["bit_class"] == "sign")]
+    sign = scale_sign_flips(s)
     if len(sign):
         fp, w = sign["footprint"].to_numpy(float) * 100, record_weights(sign)
         mean, p99 = E.wmean(fp, w), E.wquantile(fp, w, 0.99)

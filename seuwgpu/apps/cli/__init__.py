@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from seuwgpu.apps.cli import campaigns, defenses, distributed, info, inject, models, results, view
+from seuwgpu.apps.cli import campaigns, corpus, defenses, distributed, info, inject, models, results, view
 from seuwgpu.apps.cli.campaigns import run_campaign
 from seuwgpu.apps.cli.options import CliError, parse_size, refuse_ignored_options
 from seuwgpu.errors import SeuwgpuError, Terminated
@@ -28,6 +28,7 @@ __all__ = [
 COMMANDS = (
     info.INFO,
     models.SCENE,
+    corpus.CORPUS,
     models.RENDER,
     inject.INJECT,
     campaigns.CAMPAIGN,

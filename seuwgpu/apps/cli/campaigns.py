@@ -10,6 +10,7 @@ from pathlib import Path
 from seuwgpu.apps.cli.command import Command
 from seuwgpu.apps.cli.options import (
     CliError,
+    add_lod_arg,
     add_profile_arg,
     parse_size,
     positive_int,
@@ -209,6 +210,7 @@ def demo_arguments(s: argparse.ArgumentParser):
     src = s.add_mutually_exclusive_group()
     src.add_argument("--model", "--ply", dest="model", type=Path, help="run it on this model file (any format)")
     src.add_argument("--scene", help="run it on this embedded scene (`seuwgpu scene --list`)")
+    add_lod_arg(s)
     s.add_argument("--cameras", type=Path, help="the capture's cameras (any format `render` takes)")
     s.add_argument("--views", type=view_count, help="orbit views, or this many of the capture's (default 4)")
     s.add_argument("--size", type=parse_size, help="WxH of orbit views (default from the spec)")
@@ -232,6 +234,8 @@ def cmd_demo(args):
     raw = tomllib.loads(api.default_spec().read_text(encoding="utf-8"))  # the spec the API names
     if args.model is not None or args.scene is not None:  # the default campaign on another model
         raw["scenes"] = [{"model": str(args.model)} if args.model is not None else {"scene": args.scene}]
+        if args.lod is not None:
+            raw["scenes"][0]["lod"] = args.lod
         if args.scene is not None and args.n is None and is_capture(args.scene):
             raw["scenes"][0]["n"] = make_scene(args.scene).n
     if args.cameras is not None:
@@ -250,11 +254,12 @@ def cmd_demo(args):
         raw["single"]["samples"] = args.samples
     spec = normalize_spec(raw)
     sc = spec.scenes[0]
-    what = f"{sc.scene} scene, {sc.n} primitives" if sc.scene else f"model {sc.model}"
-    if sc.model and Path(sc.model).is_dir():  # an INRIA output folder: say which iteration
-        from seuwgpu.model.formats import inria_iteration_note
+    from seuwgpu.model.formats import inria_iteration_note, model_file
 
-        what += f", {inria_iteration_note(sc.model)}"
+    what = f"{sc.scene} scene, {sc.n} primitives" if sc.scene else f"model {sc.model}"
+    what += f", level {sc.lod}" if sc.lod is not None else ""
+    if sc.model and Path(sc.model).is_dir() and Path(model_file(sc.model)).name == "point_cloud.ply":
+        what += f", {inria_iteration_note(sc.model)}"  # an INRIA output folder: say which iteration
     views = f"{spec.views} of the views in {sc.cameras}" if sc.cameras else f"{spec.views} views"
     views += f" at {spec.size[0]}x{spec.size[1]}" if not sc.cameras else ""
     views += f", scaled by {spec.scale:g}" if spec.scale is not None else ""

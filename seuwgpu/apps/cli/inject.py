@@ -69,8 +69,9 @@ def inject_arguments(s: argparse.ArgumentParser):
         "--save-model",
         type=Path,
         metavar="DIR",
-        help="also write the faulted model and each defense's repaired one (faulted.ply, guard.ply, ...) as "
-        "INRIA PLY (float32) and SPZ, to open in a splat viewer",
+        help="also write the faulted model and each defense's repaired one (faulted.ply, guard.ply, ...), to open "
+        "in a splat viewer: in the --model file's format (compressed PLY, SOG, .splat, .ksplat, SPZ, PLY) and as "
+        "INRIA PLY (float32, exact); a scene by name as PLY and SPZ",
     )
     add_profile_arg(s)
 

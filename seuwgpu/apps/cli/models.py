@@ -87,8 +87,8 @@ def cmd_render(args):
         )
     images = api.render_views(src, cams, precision=args.precision, profile=args.profile, compositor=args.compositor)
     if out.suffix == ".npz":
-        # uncompressed: float32 frames compress by ~11% at 15x the write time (25 views of 256x256:
-        # 0.70 s against 0.046 s, lavapipe host, 2026-11-26)
+        # uncompressed: compression saves little on float32 frames at many times the write time
+        # (docs/benchmarks.md, "Frame files")
         np.savez(out, images=images.astype(np.float32))
         print(f"wrote {out}: images {list(images.shape)} float32")
     else:

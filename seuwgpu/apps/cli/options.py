@@ -101,9 +101,11 @@ def add_model_args(p: argparse.ArgumentParser, seed_draws: str | None = None):
         dest="model",
         type=Path,
         help="a 3DGS model file: INRIA PLY, compressed PLY, .spz, .splat, .ksplat, SOG (.sog, or meta.json or "
-        "its folder) or a gsplat .pt (recognised by content; a .splat, which has no header, by its extension)",
+        "its folder), a PlayCanvas LOD set (lod-meta.json or its folder) or a gsplat .pt (recognised by content; "
+        "a .splat, which has no header, by its extension)",
     )
     src.add_argument("--scene", help="an embedded scene (see `seuwgpu scene --list`)")
+    add_lod_arg(p)
     p.add_argument(
         "--n", type=positive_int, help="primitives of an embedded scene (default 100000; a real capture: all)"
     )
@@ -119,6 +121,25 @@ def add_model_args(p: argparse.ArgumentParser, seed_draws: str | None = None):
         choices=UP_AXES,
         help="up axis of the orbit views (default: the file format's convention, see README)",
     )
+
+
+def add_lod_arg(p: argparse.ArgumentParser):
+    p.add_argument(
+        "--lod",
+        type=level,
+        help="the level of a PlayCanvas LOD set (lod-meta.json) to read: 0 the finest (the default), then coarser",
+    )
+
+
+def level(text: str) -> int:
+    """A LOD level: a non-negative integer."""
+    try:
+        v = int(text)
+    except ValueError:
+        v = -1
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a level 0, 1, 2, ..., got {text!r}")
+    return v
 
 
 def add_compositor_arg(p: argparse.ArgumentParser):
@@ -167,7 +188,13 @@ def load_source(args):
     refuse_ignored_options(args)
 
     src = load(
-        scene=args.scene, path=args.model, n=args.n, sh_degree=scene_sh_degree(args), seed=args.seed or 0, up=args.up
+        scene=args.scene,
+        path=args.model,
+        n=args.n,
+        sh_degree=scene_sh_degree(args),
+        seed=args.seed or 0,
+        up=args.up,
+        lod=getattr(args, "lod", None),
     )
     if src.notes:
         print(f"seuwgpu: {args.model or src.name}: {'; '.join(src.notes)}", file=sys.stderr)
@@ -176,6 +203,8 @@ def load_source(args):
 
 def refuse_ignored_options(args):
     """Options the other arguments make meaningless are refused, not silently ignored."""
+    if getattr(args, "lod", None) is not None and getattr(args, "model", None) is None:
+        raise CliError("--lod picks a level of a PlayCanvas LOD set given with --model (lod-meta.json or its folder)")
     if getattr(args, "model", None) is not None and getattr(args, "n", None) is not None:
         raise CliError("--n sets the primitives of an embedded scene; a model file keeps all of its own")
     if getattr(args, "model", None) is not None and getattr(args, "sh_degree", None) is not None:

@@ -101,6 +101,22 @@ def report_arguments(s: argparse.ArgumentParser):
         type=positive_int,
         help="processes folding parts side by side (default: one per CPU, at most 8, from 256 parts on)",
     )
+    s.add_argument(
+        "--target",
+        type=summary_target,
+        help="residual catastrophic rate per upset the summary's cheapest defense must meet "
+        "(default: the spec's [summary] target, else 0.001)",
+    )
+
+
+def summary_target(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not 0 < v < 1:
+        raise argparse.ArgumentTypeError(f"a catastrophic rate per upset in (0, 1), e.g. 0.001; got {text!r}")
+    return v
 
 
 def cmd_report(args):
@@ -112,7 +128,9 @@ def cmd_report(args):
     runs = campaign_runs(args.runs)  # each manifest (and part footer) read once
     fold = {"auto": needs_folding(runs), "yes": True, "no": False}[args.fold]
     with ProgressBar("reading parts" + (" (folding)" if fold else "")) as bar:
-        index = api.make_report(runs, args.out, fold=fold, progress=bar.update, workers=args.workers)
+        index = api.make_report(
+            runs, args.out, fold=fold, progress=bar.update, workers=args.workers, target=args.target
+        )
     print(f"wrote {index}")
     if fold:  # reading the records a second time would double a long load: the report's own table
         table = index.parent / "criticality.md"

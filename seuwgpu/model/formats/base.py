@@ -67,6 +67,9 @@ class ModelFormat:
       model's up axis, which the writer records or turns the model to.
     - `up`: the axis the format's convention puts up (framing without cameras); `recorded_up(path)`
       the axis a file records itself, if the format has a place for one (PLY's `comment up`).
+    - `read_level(path, level) -> (Model, notes)`: a format holding several levels of detail (a
+      PlayCanvas LOD set) reads the one asked for (`--lod N`); None for every other format, which
+      refuses a level.
     - `hint`: a clause for the "unrecognised model file" message when sniffing needs help (the
       headerless .splat is recognised by its extension).
     """
@@ -79,4 +82,5 @@ class ModelFormat:
     read: Callable[[str], tuple[Model, list[str]]]
     write: Callable[..., None] | None = None
     recorded_up: Callable[[str], str | None] | None = None
+    read_level: Callable[[str, int], tuple[Model, list[str]]] | None = None
     hint: str = ""

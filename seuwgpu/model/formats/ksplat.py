@@ -28,6 +28,18 @@ become -+20, see quantized.py; splat-transform clamps to 1e-6 instead), quats as
 renderer normalises). The writer quantises colour and opacity with floor(), not round(), so a
 decoded colour or alpha lies up to 1/255 below the source's. Coordinates are those of the PLY
 the file was made from (COLMAP-style, y down).
+
+Written (write_ksplat) at compression level 0, the one exact level, laid out as create-ksplat.js
+writes level 0 (tests/data/formats/level0_sh2.ksplat): version 0.1, one section, no buckets,
+scene centre 0, the header's SH range the min and max of the stored SH; records in the model's
+order (splat i is primitive i). Positions, rotations (as given: the library normalises when it
+writes, the renderers when they draw; an infinite or zero one as quantized.unit_quats) and SH
+(degrees 1-2, float32) are exact; scale = exp(log-scale) rounded once to float32, clamped
+to the positive finite float32s as .splat's (a log-scale above 88.72 stores 3.4e38, below -103.28
+the smallest subnormal); colour and alpha bytes rounded to nearest (the library floors: a file
+read and written again keeps its bytes), saturating at 0 and 255. SH band 3, which the format
+lacks, is dropped (an upset there shows in the PLY only). NaN is refused, +-Inf positions and SH
+stored as +-3.4e38 (quantized.py, "writing").
 """
 
 from __future__ import annotations
@@ -41,7 +53,7 @@ import numpy as np
 from seuwgpu.model.fields import Model, sh_rest_count
 from seuwgpu.model.formats.base import ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError
-from seuwgpu.model.formats.quantized import byte_opacity, byte_sh_dc
+from seuwgpu.model.formats.quantized import F32_MAX, SH_C0, byte_opacity, byte_sh_dc, sigmoid, storable
 
 SUFFIXES = (".ksplat",)
 HEADER_BYTES = 4096
@@ -269,6 +281,42 @@ def _decode_section(spath, i, s, level, degree, sh_lo, sh_hi, f, count) -> dict[
     }
 
 
+def ksplat_bytes(model: Model, path: str = "<model>") -> bytes:
+    """The level-0 .ksplat of a model (module docstring, "Written")."""
+    v = storable(model, path, "GaussianSplats3D .ksplat")
+    n, degree = model.n, min(model.sh_degree, MAX_DEGREE)
+    rec = np.zeros(n, dtype=_record(0, degree))
+    rec["centre"] = v["means"]
+    with np.errstate(over="ignore"):
+        rec["scale"] = np.clip(np.exp(v["log_scales"]), SMALLEST_SCALE[0], F32_MAX)
+    q = model.quats.astype(np.float64)
+    odd = ~np.isfinite(q).all(axis=1) | ~q.any(axis=1)  # Inf or zero: quantized.unit_quats's rule
+    rec["rot"] = np.where(odd[:, None], v["quats"], q)
+    rgba = np.concatenate([(0.5 + SH_C0 * v["sh_dc"]) * 255.0, sigmoid(v["opacity"])[:, None] * 255.0], axis=1)
+    rec["rgba"] = np.clip(np.floor(rgba + 0.5), 0, 255)
+    if degree:  # channel-major per band: degree 1's 9 values, then degree 2's 15
+        rest = v["sh_rest"]
+        bands = [rest[:, 0:3, :]] + ([rest[:, 3:8, :]] if degree == 2 else [])
+        rec["sh"] = np.concatenate([b.transpose(0, 2, 1).reshape(n, -1) for b in bands], axis=1)
+    sh = rec["sh"] if degree else np.zeros(1, np.float32)
+    main = np.zeros(1, dtype=_MAIN)
+    main[0] = (0, 1, 0, 1, 1, n, n, 0, 0, 0, float(sh.min()), float(sh.max()))
+    section = np.zeros(1, dtype=_SECTION)
+    section[0] = (n, n, 0, 0, 0.0, 0, 0, rec.itemsize * n, 0, 0, degree)
+    head = main.tobytes().ljust(HEADER_BYTES, b"\0")
+    return head + section.tobytes() + rec.tobytes()
+
+
+def write_ksplat(model: Model, path, up: str | None = None, **_options) -> None:
+    """Write `model` as a level-0 .ksplat (turned to -y up first when `up` says otherwise)."""
+    from seuwgpu.model.formats.quantized import turned_to_minus_y
+
+    spath = os.fspath(path)
+    data = ksplat_bytes(turned_to_minus_y(model, up), spath)
+    with open(spath, "wb") as f:
+        f.write(data)
+
+
 def _sniff(probe: Probe) -> bool:
     """No magic number: a file named .ksplat must be one (or hear why not); any other file is one
     when its header's sizes add up to the file's exactly."""
@@ -292,4 +340,5 @@ FORMAT = ModelFormat(
     up="-y",
     sniff=_sniff,
     read=_read,
+    write=write_ksplat,
 )

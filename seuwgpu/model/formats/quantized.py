@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from seuwgpu.model.formats.errors import ModelFileError
+
 SATURATED_LOGIT = np.float32(20.0)
 SH_C0 = 0.28209479177387814
 
@@ -46,3 +48,67 @@ def to_u8(x: np.ndarray) -> np.ndarray:
     """The spz library's toUint8: clamp(round(x), 0, 255)."""
     with np.errstate(invalid="ignore"):
         return np.clip(round_half_away(np.asarray(x, dtype=np.float32)), 0, 255).astype(np.uint8)
+
+
+# ---------------------------------------------------------------------------------------- writing
+#
+# What the quantised writers (compressed PLY, .splat, SOG, .ksplat) do with a corrupted value, one rule for
+# all three (docs/models.md, "Writing a damaged model"):
+# - NaN has no code in any of them: the file is refused (ModelFileError naming the format and the
+#   fields), and the exact float32 PLY is the file to open.
+# - +-Inf in a field stored over a data-derived range (positions, log-scales, colours, SOG's
+#   codebooks) becomes +-F32_MAX, the most extreme finite float32: a range end of Inf would turn
+#   the range's other codes into NaN (Inf * 0) in every reader. In an 8-bit field with a fixed
+#   range (opacity, compressed PLY's SH) an infinite value is the end code, as a huge finite one.
+# - A rotation is stored normalised: an infinite component leaves the limit direction (the signs
+#   of the infinite components, the others zero), a zero quaternion the identity.
+# - A huge finite value keeps its value where the format stores a range end or codebook entry
+#   (the range is widened to hold it), else becomes the format's extreme code.
+
+F32_MAX = float(np.finfo(np.float32).max)
+RANGED = ("means", "log_scales", "sh_dc", "sh_rest")  # fields whose +-Inf become +-F32_MAX
+
+
+def storable(model, path: str, title: str) -> dict[str, np.ndarray]:
+    """The model's fields as float64 arrays ready to quantise, under the rule above: NaN refused
+    (one line naming the file, the format and the fields), +-Inf of the ranged fields clamped to
+    +-F32_MAX, quaternions normalised (unit_quats)."""
+    if model.n == 0:
+        raise ModelFileError(f"{path}: refusing to write a model with zero primitives as {title}")
+    nan = [f for f in (*RANGED, "quats", "opacity") if np.isnan(getattr(model, f)).any()]
+    if nan:
+        raise ModelFileError(
+            f"{path}: {title} cannot store NaN (found in {', '.join(nan)}); write .ply for the exact values"
+        )
+    out = {f: np.clip(getattr(model, f).astype(np.float64), -F32_MAX, F32_MAX) for f in RANGED}
+    out["opacity"] = model.opacity.astype(np.float64)
+    out["quats"] = unit_quats(model.quats)
+    return out
+
+
+def unit_quats(quats: np.ndarray) -> np.ndarray:
+    """float64 unit quaternions: q / |q|; a row with an infinite component: the signs of its
+    infinite components (normalised), the others zero; a zero row: the identity (1, 0, 0, 0)."""
+    q = np.asarray(quats, dtype=np.float64).copy()
+    inf = np.isinf(q).any(axis=1)
+    q[inf] = np.where(np.isinf(q[inf]), np.sign(q[inf]), 0.0)
+    norm = np.sqrt((q * q).sum(axis=1))
+    q[norm == 0] = (1.0, 0.0, 0.0, 0.0)
+    norm[norm == 0] = 1.0
+    return q / norm[:, None]
+
+
+def sigmoid(opacity: np.ndarray) -> np.ndarray:
+    """float64 sigmoid without overflow warnings (+-Inf and huge logits give 1 and 0)."""
+    with np.errstate(over="ignore"):
+        return 1.0 / (1.0 + np.exp(-np.asarray(opacity, dtype=np.float64)))
+
+
+def turned_to_minus_y(model, up: str | None):
+    """The model turned so that `up` points to -y, the convention of .splat, SOG and compressed
+    PLY viewers (positions, orientations and SH together); unchanged for None or -y."""
+    if up in (None, "-y"):
+        return model
+    from seuwgpu.model.sh import rotate_model, rotation_to_y
+
+    return rotate_model(model, np.diag([1.0, -1.0, -1.0]) @ rotation_to_y(up))

@@ -23,7 +23,8 @@ deliberate difference of every quantised reader here: an alpha byte of 0 or 255 
 -+20 (quantized.py), where splat-transform clamps to 1e-6 (-+13.8). Coordinates are those of the
 PLY the file was made from (splat-transform's PLY frame; COLMAP-style, y down). Version 1 (a
 meta.json without "version", written by splat-transform before 0.7, September 2025) is refused
-with a message saying how to convert it.
+with a message saying how to convert it. Written by sog_write.py (what is exact, what is
+re-quantised and what becomes of a corrupted value: its docstring).
 """
 
 from __future__ import annotations
@@ -343,6 +344,13 @@ def _read(path: str) -> tuple[Model, list[str]]:
     return model, notes
 
 
+def _write(model: Model, path: str, up: str | None = None, **options) -> None:
+    """Written by sog_write.py (bundled .sog, or an unbundled meta.json and its images)."""
+    from seuwgpu.model.formats.sog_write import write_sog
+
+    write_sog(model, path, up=up, **options)
+
+
 FORMAT = ModelFormat(
     name="sog",
     title="PlayCanvas SOG",
@@ -350,4 +358,5 @@ FORMAT = ModelFormat(
     up="-y",
     sniff=_sniff,
     read=_read,
+    write=_write,
 )

@@ -9,6 +9,21 @@ bytes 0 and 255 become -+20, see quantized.py), quats = byte / 128 - 1 with w fi
 normalised (the renderer normalises; an all-128 rotation, which no encoder writes, becomes the
 identity as in splat-transform). The format carries no SH beyond DC (degree 0). Coordinates are
 those of the PLY it was converted from (COLMAP-style, y down).
+
+Written (write_splat) as antimatter15's convert.py writes it, in float64: positions exact
+(float32), scale = exp(log-scale) rounded once to float32, colour bytes clip((0.5 + C0 * f_dc) *
+255, 0, 255), alpha sigmoid(opacity) * 255, rotation bytes clip(q / |q| * 128 + 128, 0, 255); SH
+beyond DC is dropped (the format has none). Two deliberate differences from convert.py: bytes are
+rounded to nearest (floor(x + 0.5)), not truncated, so a .splat read and written again keeps its
+colour and alpha bytes (truncation would lose one step a trip; rotations are renormalised and may
+move one step); and the records keep the model's order (record i is primitive i, the index the
+reports name), not a size x opacity sort (viewers sort by depth anyway).
+
+A damaged model (quantized.py, "writing"): NaN is refused; an infinite position becomes
++-3.4e38; a scale is clamped to the positive finite float32s (a log-scale above 88.72 stores the
+largest, 3.4e38; one below -103.28, or -Inf, the smallest, 1.4e-45), since a reader (this one
+included) refuses a file whose scales are 0 or Inf; colours and opacity saturate at bytes 0 and
+255. A model whose up axis is not -y is turned to -y first, as SPZ's writer turns it.
 """
 
 from __future__ import annotations
@@ -20,7 +35,15 @@ import numpy as np
 from seuwgpu.model.fields import Model
 from seuwgpu.model.formats.base import ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError
-from seuwgpu.model.formats.quantized import byte_opacity, byte_sh_dc
+from seuwgpu.model.formats.quantized import (
+    F32_MAX,
+    SH_C0,
+    byte_opacity,
+    byte_sh_dc,
+    sigmoid,
+    storable,
+    turned_to_minus_y,
+)
 
 SUFFIXES = (".splat",)
 RECORD = np.dtype([("pos", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
@@ -89,6 +112,30 @@ def read_splat(path) -> Model:
     )
 
 
+def splat_records(model: Model, path: str = "<model>") -> np.ndarray:
+    """The .splat records of a model (RECORD array), as described in the module docstring."""
+    v = storable(model, path, "antimatter15 .splat")
+    rec = np.zeros(model.n, dtype=RECORD)
+    rec["pos"] = v["means"]
+    tiny = float(np.finfo(np.float32).smallest_subnormal)
+    with np.errstate(over="ignore"):
+        rec["scale"] = np.clip(np.exp(v["log_scales"]), tiny, F32_MAX)
+    rgba = np.empty((model.n, 4))
+    rgba[:, :3] = (0.5 + SH_C0 * v["sh_dc"]) * 255.0
+    rgba[:, 3] = sigmoid(v["opacity"]) * 255.0
+    rec["rgba"] = np.clip(np.floor(rgba + 0.5), 0, 255).astype(np.uint8)
+    rec["rot"] = np.clip(np.floor(v["quats"] * 128.0 + 128.5), 0, 255).astype(np.uint8)
+    return rec
+
+
+def write_splat(model: Model, path, up: str | None = None, **_options) -> None:
+    """Write `model` as an antimatter15 .splat file (turned to -y up first when `up` says otherwise)."""
+    spath = os.fspath(path)
+    rec = splat_records(turned_to_minus_y(model, up), spath)
+    with open(spath, "wb") as f:
+        f.write(rec.tobytes())
+
+
 def _sniff(probe: Probe) -> bool:
     """No header: a file named .splat must pass the content check, any other file the stricter one."""
     if probe.named(SUFFIXES):
@@ -106,5 +153,6 @@ FORMAT = ModelFormat(
     up="-y",
     sniff=_sniff,
     read=lambda path: (read_splat(path), []),
+    write=write_splat,
     hint="a .splat file, which has no header, is recognised by its extension",
 )
