@@ -34,3 +34,14 @@ def test_catastrophic_frames_per_upset_are_what_the_frames_showed():
     assert visible_damage(eng, ("parity4r",), check_every=2, upsets=1, window=5)[0]["window"].item() == 6
     with pytest.raises(ValueError, match="upsets, window and check_every >= 1"):
         visible_damage(eng, ("none",), upsets=0)
+
+
+def test_no_event_has_a_bound_not_a_degenerate_interval():
+    from seuwgpu.campaign.visible import frames_interval
+
+    rng = np.random.default_rng(0)
+    lo, hi = frames_interval(np.zeros(40), rng, 20)
+    assert lo == 0 and hi == pytest.approx(20 * (1 - 0.025 ** (1 / 40)))  # 0 of 40: share <= 8.8%
+    lo, hi = frames_interval(np.array([0.0, 2.0, 4.0, 0.0]), rng, 20)
+    assert 0 <= lo <= 1.5 <= hi <= 4
+    assert all(np.isnan(frames_interval(np.zeros(1), rng, 20)))

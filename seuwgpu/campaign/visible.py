@@ -8,7 +8,8 @@ defense checks before every S-th frame (frames 0, S, 2S, ... of the storm; a win
 number of S, so every window sees the same phases). Every frame is rendered and measured against
 the clean render. Every arm sees the same upsets at the same frames (paired).
 
-Per arm: catastrophic and SDC frames per upset (mean over the upsets, 95% bootstrap interval),
+Per arm: catastrophic and SDC frames per upset (mean over the upsets, 95% bootstrap interval; with
+no event, the exact binomial bound on the share of upsets showing any, times the window),
 the share of them that follow a check (`residue`: what the check left, seen until the reload),
 and the ratio of catastrophic frames to the unguarded arm's ("none", when measured; paired
 bootstrap interval). The unguarded arm draws an upset until the reload, so its count, and every
@@ -52,9 +53,14 @@ def plan_upsets(engine, upsets: int, window: int, cells=DANGEROUS, fault: str = 
     return plan, at
 
 
-def _boot(x: np.ndarray, rng) -> tuple[float, float]:
+def frames_interval(x: np.ndarray, rng, window: int) -> tuple[float, float]:
+    """95% interval of the mean frames per upset: a bootstrap over the upsets; with no event at
+    all (the bootstrap would say [0, 0]) the exact binomial bound on the share of upsets that show
+    any, each at most `window` frames: [0, window (1 - 0.025^(1/n))]."""
     if x.size < 2:
         return float("nan"), float("nan")
+    if not x.any():
+        return 0.0, float(window * (1 - 0.025 ** (1 / x.size)))
     means = x[rng.integers(0, x.size, size=(BOOTSTRAP, x.size))].mean(axis=1)
     return float(np.quantile(means, 0.025)), float(np.quantile(means, 0.975))
 
@@ -104,15 +110,18 @@ def visible_damage(
     none = per.get("none")
     for d in defenses:
         cat, sdc, res = per.get(d, (np.zeros(upsets),) * 3)
-        lo, hi = _boot(cat, rng)
-        slo, shi = _boot(sdc, rng)
+        lo, hi = frames_interval(cat, rng, window)
+        slo, shi = frames_interval(sdc, rng, window)
         ratio = r_lo = r_hi = float("nan")
         if none is not None and none[0].sum() > 0:
             ratio = cat.sum() / none[0].sum()
-            idx = rng.integers(0, upsets, size=(BOOTSTRAP, upsets))
-            num, den = cat[idx].sum(1), none[0][idx].sum(1)
-            ok = den > 0
-            r_lo, r_hi = (float(np.quantile(num[ok] / den[ok], q)) for q in (0.025, 0.975))
+            if cat.any():  # paired bootstrap over the upsets
+                idx = rng.integers(0, upsets, size=(BOOTSTRAP, upsets))
+                num, den = cat[idx].sum(1), none[0][idx].sum(1)
+                ok = den > 0
+                r_lo, r_hi = (float(np.quantile(num[ok] / den[ok], q)) for q in (0.025, 0.975))
+            else:  # no event: the bound above over the unguarded mean
+                r_lo, r_hi = 0.0, hi / float(none[0].mean())
         rows.append(
             {
                 "defense": d,
