@@ -13,8 +13,9 @@ override GUARD_LO: u32 = 0u;      // in-pipeline guard: components 0..31 to clam
 override GUARD_HI: u32 = 0u;      // components 32..63
 // The check inside the frame (issue 47; faults/check.py FrameCheck): 0 = off (the pipeline is
 // today's, bit for bit); otherwise the parity bits of each value FRAME_COVER covers, over every
-// stored component, 4 ways interleaved (parity4r's code), against the stored code: a primitive
-// that fails is dropped from this frame (culled) and flagged for repair.
+// stored component, 4 ways interleaved (parity4r's code), against the stored code, for every
+// primitive the view would draw: one that fails is dropped from this frame (culled) and flagged
+// for repair. A primitive culled anyway is not checked (it draws nothing either way).
 override FRAME_CHECK: u32 = 0u;
 override FRAME_COVER: u32 = 0u;
 
@@ -228,16 +229,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         return;
     }
     let g = view.chunk_base + j;
-    if (FRAME_CHECK != 0u && frame_check_fails(j, g)) {
-        let p = g % view.n_total;
-        if (view.view_index == 0u) {  // counted once a frame
-            atomicOr(&frame_out[4u + (p >> 5u)], 1u << (p & 31u));
-            atomicAdd(&frame_out[0], 1u);
-            atomicAdd(&frame_out[1], 1u);
-        }
-        cull(g);
-        return;
-    }
     let mean = vec3<f32>(comp(j, 0u), comp(j, 1u), comp(j, 2u));
     let vm = view.viewmat;
     let p = (vm * vec4<f32>(mean, 1.0)).xyz;
@@ -309,6 +300,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
 
 // Opacity and colour, then the screen record of a drawn primitive.
 fn emit(j: u32, g: u32, mean: vec3<f32>, xy: vec2<f32>, conic: vec3<f32>, rect: vec2<u32>, z: f32) {
+    // The check inside the frame, on the primitives this view draws (what is culled anyway draws
+    // nothing, corrupted or not): a failing one is dropped and flagged.
+    if (FRAME_CHECK != 0u && frame_check_fails(j, g)) {
+        let p = g % view.n_total;
+        atomicOr(&frame_out[4u + (p >> 5u)], 1u << (p & 31u));
+        atomicAdd(&frame_out[0], 1u);
+        atomicAdd(&frame_out[1], 1u);
+        cull(g);
+        return;
+    }
     let opacity = sigmoid(comp(j, 10u));
     let d = mean - view.campos.xyz;
     let dir = d * rsqrt_ieee(dot(d, d));
