@@ -405,7 +405,8 @@ def test_the_measured_table_states_the_spec_and_seed_that_produced_it():
     assert raw["seed"] == 0 and raw["single"]["samples"] == 300
     spec = normalize_spec(raw)
     assert [s.scene for s in spec.scenes] == ["leica-sofort", "yashica-t4"]
-    assert "| leica-sofort | guard | 0.006% | ~0 | 0.43 (0.005) |" in text
+    flat = " ".join(text.split())  # the counts of its seed-0 rerun, as the page states them
+    assert "Of 900 on leica-sofort / yashica-t4: none 600 / 685 catastrophic, guard 3 / 74" in flat
 
 
 def test_guard_all_clamps_sh_rest_where_the_guard_does_not():
