@@ -38,7 +38,16 @@ from seuwgpu.campaign.spec import Spec
 from seuwgpu.campaign.store import CampaignRun
 from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.faults.defenses import DEFENSES, check_defense
-from seuwgpu.faults.sites import ADJACENT_WIDTHS, FAULT_MODELS, INJECT_SAMPLE, VALUE_MODELS, model_bits
+from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY
+from seuwgpu.faults.sites import (
+    ADJACENT_WIDTHS,
+    BURST_WIDTHS,
+    FAULT_MODELS,
+    INJECT_SAMPLE,
+    VALUE_MODELS,
+    check_site_model,
+    model_bits,
+)
 from seuwgpu.gpu.constants import PROFILES
 from seuwgpu.metrics.image import display
 from seuwgpu.model import corpus, encoding
@@ -397,10 +406,12 @@ def storm(
     progress: Callable[[], None] | None = None,
     rows: list | None = None,
     check_every: int = 1,
+    fault: str = "bit",
 ) -> pd.DataFrame:
     """A fault storm (campaign/storm.py): `k` upsets per frame accumulating in the stored model for
     `frames` frames, reloaded every `scrub_every` frames (0: never), each defense an arm that sees
-    the same upsets; a check defense checks (and repairs) every `check_every` frames. One record
+    the same upsets; a check defense checks (and repairs) every `check_every` frames. `fault`: the
+    upsets' fault model (FAULT_MODELS: a burst, a random value, a multi-cell upset). One record
     per frame and defense. `progress()` is called after each frame;
     `rows`: a list the records are appended to as they are measured (a resumed storm's records
     first: it goes on after them)."""
@@ -410,8 +421,12 @@ def storm(
     for value, what in ((k, "k"), (frames, "frames"), (scrub_every, "scrub_every"), (seed, "seed")):
         _whole(value, what, None)  # the ranges: campaign/storm.py's own check, which names all three
     _whole(check_every, "check_every", 1)
+    if fault not in FAULT_MODELS:
+        raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
     eng = _engine(scene, views, precision, profile, "storm")
-    return run_storm(eng, k, frames, scrub_every, defenses, seed, progress, rows=rows, check_every=check_every)
+    return run_storm(
+        eng, k, frames, scrub_every, defenses, seed, progress, rows=rows, check_every=check_every, fault=fault
+    )
 
 
 def state_flips(
@@ -479,21 +494,58 @@ def defense_costs(
     precision: str = "fp32",
     repeats: int = 7,
     time_it: bool = True,
-    check_every: int = 1,
+    check_every: int = DEFAULT_CHECK_EVERY,
+    visible: int = 0,
+    window: int = 20,
+    visible_defenses: Sequence[str] | None = None,
+    seed: int = 0,
+    fault: str = "bit",
 ) -> list[dict]:
     """Every defense with the bytes it holds on the device (and as a fraction of the model's), its
-    time per frame (a fraction of the undefended view's, the median of `repeats` rounds on this
-    device, a check's amortised over a check every `check_every` frames; NaN with time_it=False)
-    and its exposure: [{name, device_bytes, memory_overhead, check_every, time_fraction,
-    exposure_frames, exposure_frames_worst, time_basis, description}]."""
+    time per frame (a fraction of the undefended view's on this device, measured as a schedule:
+    `check_every` frames and a check against `check_every` frames, interleaved, the median of
+    `repeats` rounds with its 95% interval; NaN with time_it=False), its exposure and, with
+    `visible` upsets, what the user sees (campaign/visible.py: catastrophic and SDC frames per
+    upset, exposure counted, measured by running `visible` windows of `window` frames on `view`,
+    for `visible_defenses` (default every defense); NaN for those not measured):
+    [{name, device_bytes, memory_overhead, check_every, time_fraction, time_lo, time_hi,
+    check_fraction, repair_fraction, exposure_frames, exposure_frames_worst,
+    catastrophic_frames_per_upset, catastrophic_lo, catastrophic_hi, sdc_frames_per_upset,
+    residue_frames_per_upset, of_none, of_none_lo, of_none_hi, visible_basis, time_basis,
+    description}]."""
     from seuwgpu.faults.costs import defense_costs as costs
 
     _whole(repeats, "repeats", 1)
     _whole(check_every, "check_every", 1)
+    _whole(visible, "visible", 0)
+    _whole(window, "window", 1)
+    if fault not in FAULT_MODELS:
+        raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
     if not isinstance(view, Camera):
         raise InputError(f"view must be a Camera (from cameras()), got {type(view).__name__}")
+    names = _defense_names(visible_defenses) if visible_defenses is not None else list(DEFENSES)
     model = _model_of(scene)
-    return costs(model, view, encoding.check_precision(precision), repeats, time_it=time_it, check_every=check_every)
+    rows = costs(model, view, encoding.check_precision(precision), repeats, time_it=time_it, check_every=check_every)
+    keys = ("catastrophic_frames_per_upset", "catastrophic_lo", "catastrophic_hi", "sdc_frames_per_upset")
+    keys += ("residue_frames_per_upset", "of_none", "of_none_lo", "of_none_hi")
+    got, basis = {}, "not measured (--visible N)"
+    if visible:
+        from seuwgpu.campaign.visible import visible_damage
+
+        eng = _engine(scene, [view], precision, "strict", "measure visible damage")
+        summary, _ = visible_damage(eng, names, check_every, visible, window, fault=fault, seed=seed)
+        got = {r["defense"]: r for r in summary.to_dict("records")}
+        w = int(summary["window"].iloc[0])
+        basis = (
+            f"measured: {visible} upsets ({fault} faults of the dangerous cells), one per window of {w} frames "
+            f"reloaded at its start, landing at a uniform frame; {view.width}x{view.height}, seed {seed}"
+        )
+    for r in rows:
+        m = got.get(r["name"])
+        for k in keys:
+            r[k] = float(m[k]) if m is not None else float("nan")
+        r["visible_basis"] = basis if m is not None else "not measured"
+    return rows
 
 
 def sort_first(
@@ -772,8 +824,10 @@ def report_figures(runs: str | Path | Iterable[str | Path]) -> dict:
 # ---- helpers --------------------------------------------------------------------------------------
 def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], str, int]:
     """(bits, op, value) of one fault, as faults/sites.py applies it."""
-    if fault not in FAULT_MODELS:
-        raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
+    try:
+        check_site_model(fault)
+    except ValueError as e:
+        raise InputError(str(e)) from None
     if fault in VALUE_MODELS:
         return model_bits(fault, -1, precision, int(np.random.default_rng(seed).integers(2**63)))
     if bit is None:
@@ -787,11 +841,12 @@ def _fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], st
             encoding.check_bit(precision, b)
         except ValueError as e:
             raise InputError(str(e)) from None
-    if fault == "adjacent" and len(bits) == 1:
-        if width not in ADJACENT_WIDTHS:
-            raise InputError(f"width must be one of {', '.join(map(str, ADJACENT_WIDTHS))}, got {width!r}")
-        return model_bits("adjacent", int(bits[0]), precision, ADJACENT_WIDTHS.index(width))
-    return tuple(int(b) for b in bits), ("flip" if fault in ("bit", "adjacent") else fault), 0
+    if fault in ("adjacent", "burst") and len(bits) == 1:
+        widths = ADJACENT_WIDTHS if fault == "adjacent" else BURST_WIDTHS
+        if width not in widths:
+            raise InputError(f"{fault} width must be one of {', '.join(map(str, widths))}, got {width!r}")
+        return model_bits(fault, int(bits[0]), precision, widths.index(width))
+    return tuple(int(b) for b in bits), ("flip" if fault in ("bit", "adjacent", "burst") else fault), 0
 
 
 def _spec(spec) -> Spec:

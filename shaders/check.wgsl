@@ -5,7 +5,13 @@
 // a 32-bit checksum, or its scale class) from its words as they are now, flag mismatches
 // and count them, so the host learns in one small read whether to repair. One thread per
 // primitive of one chunk; the words are only read. The side data is packed as the memory
-// column charges it (side_bits per primitive: defenses.pack_side), the flags one bit each.
+// column charges it (side_bits per primitive: side.pack_side), the flags one bit each.
+//
+// The checker's own state is checked too (issue 47): `seal` is a hash of every other parameter
+// and of the table, computed by the host (check.py `seal_words`); the chunk's first thread
+// recomputes it and counts a mismatch in `param_faults`, and the host then rewrites the
+// parameters and checks again. The detection count is kept twice (`detected`, `detected_copy`):
+// one upset in either cannot turn a non-zero count into zero.
 
 struct CheckParams {
     plane_words: u32,
@@ -17,9 +23,9 @@ struct CheckParams {
     ways: u32,            // parity ways (1 or 4)
     cover: u32,           // bits of each value the parity covers
     comp_count: u32,      // parity covers components 0 .. comp_count - 1
-    side_bits: u32,       // bits of side data per primitive (1, 4 or 32; defenses.pack_side)
-    _p1: u32,
-    _p2: u32,
+    side_bits: u32,       // bits of side data per primitive (1, 4 or 32; side.pack_side)
+    table_len: u32,       // f32 words of `table` the seal covers
+    seal: u32,            // hash of the words above and of the table (check.py seal_words)
 };
 
 const MODE_PARITY: u32 = 0u;
@@ -28,8 +34,8 @@ const MODE_SCALE: u32 = 2u;
 
 struct CheckOut {
     detected: atomic<u32>,
-    _p0: u32,
-    _p1: u32,
+    detected_copy: atomic<u32>,  // the same count, kept twice
+    param_faults: atomic<u32>,   // chunks whose parameters did not match their seal
     _p2: u32,
     flags: array<atomic<u32>>,   // bit g % 32 of word g / 32: primitive g (global index) flagged
 };
@@ -57,7 +63,7 @@ fn side_code(g: u32) -> u32 {
     return (side[g / per] >> ((g % per) * params.side_bits)) & ((1u << params.side_bits) - 1u);
 }
 
-// MurmurHash3's finaliser: a bijection of u32 that avalanches (twin: defenses.fmix32)
+// MurmurHash3's finaliser: a bijection of u32 that avalanches (twin: codes.fmix32)
 fn fmix32(x: u32) -> u32 {
     var h = x ^ (x >> 16u);
     h = h * 0x85ebca6bu;
@@ -66,9 +72,34 @@ fn fmix32(x: u32) -> u32 {
     return h ^ (h >> 16u);
 }
 
+// the parameters' seal as the host computed it (twin: check.py seal_words)
+fn params_seal() -> u32 {
+    var h = 0x811C9DC5u;
+    h = fmix32(h ^ params.plane_words);
+    h = fmix32(h ^ params.ncomp);
+    h = fmix32(h ^ params.chunk_count);
+    h = fmix32(h ^ params.fmt);
+    h = fmix32(h ^ params.prim_base);
+    h = fmix32(h ^ params.mode);
+    h = fmix32(h ^ params.ways);
+    h = fmix32(h ^ params.cover);
+    h = fmix32(h ^ params.comp_count);
+    h = fmix32(h ^ params.side_bits);
+    h = fmix32(h ^ params.table_len);
+    let n = min(params.table_len, arrayLength(&table));  // a flipped length never runs away
+    for (var i = 0u; i < n; i = i + 1u) {
+        h = fmix32(h ^ bitcast<u32>(table[i]));
+    }
+    return h;
+}
+
 @compute @workgroup_size(WG)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let j = linear_id(gid, nwg);
+    // thread 0 of every chunk exists whatever chunk_count says (the host sizes the dispatch)
+    if (j == 0u && params_seal() != params.seal) {
+        atomicAdd(&out.param_faults, 1u);
+    }
     if (j >= params.chunk_count) {
         return;
     }
@@ -105,5 +136,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         let g = params.prim_base + j;
         atomicOr(&out.flags[g >> 5u], 1u << (g & 31u));
         atomicAdd(&out.detected, 1u);
+        atomicAdd(&out.detected_copy, 1u);
     }
 }

@@ -11,6 +11,13 @@ override FMT: u32 = 0u;           // FMT_FP32, FMT_FP16 or FMT_BF16
 override SH_DEGREE: u32 = 3u;
 override GUARD_LO: u32 = 0u;      // in-pipeline guard: components 0..31 to clamp
 override GUARD_HI: u32 = 0u;      // components 32..63
+// The check inside the frame (issue 47; faults/check.py FrameCheck): 0 = off (the pipeline is
+// today's, bit for bit); otherwise the parity bits of each value FRAME_COVER covers, over every
+// stored component, 4 ways interleaved (parity4r's code), against the stored code, for every
+// primitive the view would draw: one that fails is dropped from this frame (culled) and flagged
+// for repair. A primitive culled anyway is not checked (it draws nothing either way).
+override FRAME_CHECK: u32 = 0u;
+override FRAME_COVER: u32 = 0u;
 
 struct View {
     viewmat: mat4x4<f32>,     // world-to-camera, column-major (as WGSL stores it)
@@ -46,6 +53,10 @@ struct View {
 // In-pipeline support guard (memory untouched): the box, and clamp counts per field (view 0).
 @group(0) @binding(8) var<storage, read> box: array<Bound>;
 @group(0) @binding(9) var<storage, read_write> guard_counts: array<atomic<u32>>;
+// The check inside the frame: 4-bit codes per primitive (side.pack_side), and its output as
+// check.wgsl's CheckOut lays it out (detected, detected_copy, 2 words, then a flag bit per primitive).
+@group(0) @binding(10) var<storage, read> frame_side: array<u32>;
+@group(0) @binding(11) var<storage, read_write> frame_out: array<atomic<u32>>;
 
 // Renderer profile (docs/renderer.md, "Profiles"): PROFILE_STRICT (default) or PROFILE_GSPLAT.
 // A pipeline override, so each profile compiles to its own specialised pipeline.
@@ -184,6 +195,29 @@ fn cull(g: u32) {
     out_rect[g] = vec2<u32>(0u, 0u);
 }
 
+// stored pattern of component c of primitive j of this chunk (check.wgsl's `stored`)
+fn stored_bits(j: u32, c: u32) -> u32 {
+    if (FMT == FMT_FP32) {
+        return model[c * view.plane_words + j];
+    }
+    return (model[c * view.plane_words + (j >> 1u)] >> (16u * (j & 1u))) & 0xffffu;
+}
+
+// parity4r's check of primitive j (global index g): true when its code word fails
+fn frame_check_fails(j: u32, g: u32) -> bool {
+    let ncomp = 14u + 3u * ((SH_DEGREE + 1u) * (SH_DEGREE + 1u) - 1u);
+    var x = 0u;
+    for (var c = 0u; c < ncomp; c = c + 1u) {
+        x = x ^ (stored_bits(j, c) & FRAME_COVER);
+    }
+    var par = 0u;
+    for (var w = 0u; w < 4u; w = w + 1u) {
+        par = par | ((countOneBits(x & (0x11111111u << w)) & 1u) << w);
+    }
+    let p = g % view.n_total;  // the primitive (a batched renderer writes view v's records at v n + p)
+    return par != ((frame_side[p >> 3u] >> ((p & 7u) * 4u)) & 15u);
+}
+
 fn pack_rect(x0: f32, y0: f32, x1: f32, y1: f32) -> vec2<u32> {
     return vec2<u32>(u32(x0) | (u32(y0) << 16u), u32(x1) | (u32(y1) << 16u));
 }
@@ -266,6 +300,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
 
 // Opacity and colour, then the screen record of a drawn primitive.
 fn emit(j: u32, g: u32, mean: vec3<f32>, xy: vec2<f32>, conic: vec3<f32>, rect: vec2<u32>, z: f32) {
+    // The check inside the frame, on the primitives this view draws (what is culled anyway draws
+    // nothing, corrupted or not): a failing one is dropped and flagged.
+    if (FRAME_CHECK != 0u && frame_check_fails(j, g)) {
+        let p = g % view.n_total;
+        atomicOr(&frame_out[4u + (p >> 5u)], 1u << (p & 31u));
+        atomicAdd(&frame_out[0], 1u);
+        atomicAdd(&frame_out[1], 1u);
+        cull(g);
+        return;
+    }
     let opacity = sigmoid(comp(j, 10u));
     let d = mean - view.campos.xyz;
     let dir = d * rsqrt_ieee(dot(d, d));

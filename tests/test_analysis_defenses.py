@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 
 from seuwgpu.analysis.defenses import dangerous_mask, defense_table
-from seuwgpu.faults.defenses import memory_overhead
+from seuwgpu.faults.side import memory_overhead
 
 
 def records():

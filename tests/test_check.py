@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from conftest import random_model
 
+from seuwgpu.faults import codes
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.check import Checker
 from seuwgpu.faults.guard import support_box
@@ -71,7 +72,7 @@ def test_gpu_detection_equals_a_brute_force_sweep_of_every_flip_and_burst(precis
     box = support_box(r.layout.decode(r.clean_words), precision)
     for c, words in enumerate(r.layout.encode_bits(bad)):
         r.gpu.write(r.chunks[c], words)
-    cover = dfn.parity_cover_mask(precision)
+    cover = codes.parity_cover_mask(precision)
     touches = ((bad ^ clean).astype(np.uint64) & np.uint64(cover)).any(axis=1)
     for d in CHECKED:
         chk = Checker(r, d, clean, box)
@@ -85,34 +86,66 @@ def test_gpu_detection_equals_a_brute_force_sweep_of_every_flip_and_burst(precis
         if d == "parity4r":
             np.testing.assert_array_equal(got, touches)
         if d == "scalebound":
-            bound = dfn.scale_table(box, precision)[dfn.side_data(d, clean, precision, 3, box)]
+            bound = codes.scale_table(box, precision)[dfn.side_data(d, clean, precision, 3, box)]
             ls = encoding.from_bits(bad[:, 3:6], precision)
             with np.errstate(invalid="ignore"):
                 np.testing.assert_array_equal(got, (ls > bound[:, None]).any(axis=1))
 
 
+@pytest.mark.slow  # every defense timed as a schedule of 6 rounds: ~14 s on 2 shared cores
 def test_defense_costs_times_what_runs_on_the_gpu():
     """The measured cost rows (faults/costs.py): a time for every defense with a pipeline clamp or
-    a GPU check (a check's time amortised over check_every), NaN for the read-time codes, and the
-    device and model size named in the basis of each measured row."""
+    a GPU check (measured as a schedule of check_every frames), NaN for the read-time codes, the
+    device and model size named in the basis of each measured row, each time inside its interval."""
     from seuwgpu.faults.costs import defense_costs
 
     model = random_model(300, seed=3)
     camera = scene_cameras("spheres", 1, 32, 32)[0]
-    rows = {r["name"]: r for r in defense_costs(model, camera, repeats=1, check_every=4)}
+    rows = {r["name"]: r for r in defense_costs(model, camera, repeats=6, check_every=2)}
     assert list(rows) == list(dfn.DEFENSES) and rows["none"]["time_fraction"] == 0
     for name, row in rows.items():
         d = dfn.get(name)
-        measured = bool(d.guard_fields) or d.checked or name == "none"
+        measured = bool(d.guard_fields) or d.checked or d.frame_check or name == "none"
         assert np.isfinite(row["time_fraction"]) == measured, name
-        assert row["time_basis"].startswith("measured: ") == measured, name
+        assert row["time_basis"].startswith("measured as a schedule: ") == measured, name
+        if measured and name != "none":
+            assert row["time_lo"] <= row["time_fraction"] <= row["time_hi"], name
         if d.checked:
-            assert row["check_fraction"] > 0 and row["check_every"] == 4, name
-            if not d.guard_fields:
-                assert row["time_fraction"] == row["check_fraction"] / 4, name
+            assert row["check_fraction"] > 0 and row["repair_fraction"] > -1 and row["check_every"] == 2, name
+            assert "2 frame(s) and a check against 2" in row["time_basis"]
         else:
             assert np.isnan(row["check_fraction"]) and row["check_every"] is None, name
     assert f"{model.n} primitives" in rows["checksum"]["time_basis"]
+    assert "checked in the projection" in rows["parity4f"]["time_basis"] and rows["parity4f"]["repair_fraction"] > 0
+
+
+def test_a_schedule_is_timed_as_run_on_a_fake_clock():
+    """schedule_time on a clock the calls advance: a frame takes 1.0, a check 0.5 and, in every
+    other round, a repair 2.0 more. The measured fraction is what the rounds ran (0.05 or 0.25 at
+    S = 10, median 0.15), not one check over S (0.05); the rounds alternate plain and checked."""
+    from seuwgpu.faults.costs import schedule_time
+
+    now, calls, checks = [0.0], [], [0]
+
+    def frame():
+        now[0] += 1.0
+        calls.append("f")
+
+    def check():
+        checks[0] += 1
+        now[0] += 0.5 + (2.0 if checks[0] % 2 else 0.0)
+        calls.append("c")
+
+    res = schedule_time(frame, check, 10, 8, clock=lambda: now[0], warm_up=False)
+    assert res["plain"] == [10.0] * 8
+    assert res["checked"] == [12.5, 10.5] * 4
+    assert res["fraction"] == pytest.approx([0.25, 0.05] * 4) and res["time"] == pytest.approx(0.15)
+    assert (res["lo"], res["hi"]) == pytest.approx((0.05, 0.25))
+    assert "".join(calls) == ("f" * 10 + "c" + "f" * 10) * 8  # plain round, checked round, ...
+    few = schedule_time(frame, check, 1, 3, clock=lambda: now[0], warm_up=False)
+    assert np.isnan(few["lo"]) and np.isnan(few["hi"])  # 3 rounds: no 95% interval of a median
+    with pytest.raises(ValueError, match="every S >= 1 frames"):
+        schedule_time(frame, check, 0, 3)
 
 
 def test_each_check_binds_its_own_shader_mode_by_name():
@@ -126,3 +159,42 @@ def test_each_check_binds_its_own_shader_mode_by_name():
     assert len({kernel.const(m) for m in modes}) == len(modes)
     with pytest.raises(KeyError, match="no integer const 'MODE_PARTIY'"):
         kernel.const("MODE_PARTIY")
+
+
+def test_an_upset_in_the_checkers_parameters_is_caught_and_the_check_rerun():
+    """Every bit of chunk_count and cover flipped in the uniform buffer the shader reads (the
+    host's copy intact): the seal mismatches, the host rewrites the parameters and checks again,
+    so all 120 corrupted primitives are still found. The same flips re-sealed (what the checker
+    without a seal saw) miss corrupted primitives or flag clean ones: the seal is what saves them."""
+    from seuwgpu.faults.check import seal_words
+    from seuwgpu.gpu.kernel import as_bytes
+
+    model = random_model(300, seed=21)
+    r = Renderer(model, scene_cameras("spheres", 1, 32, 32), "fp32")
+    clean = encoding.to_bits(model.flat(), "fp32")
+    bad = clean.copy()
+    hit = np.random.default_rng(3).choice(model.n, 120, replace=False)
+    bad[hit, 4] ^= np.uint32(1 << 30)
+    for c, words in enumerate(r.layout.encode_bits(bad)):
+        r.gpu.write(r.chunks[c], words)
+    chk = Checker(r, "parity4r", clean)
+    assert chk.run() == 120 and chk.param_faults == 0
+    table = np.zeros(1, np.float32)
+    wrong = 0
+    for field in ("chunk_count", "cover"):
+        for b in range(32):
+            upset = chk.params.rows.copy()
+            upset[field] ^= np.uint32(1 << b)
+            r.gpu.write(chk.params.buffer, as_bytes(upset))
+            before = chk.param_faults
+            assert chk.run() == 120 and chk.param_faults == before + 1, (field, b)
+            assert chk.run() == 120 and chk.param_faults == before + 1  # rewritten: clean again
+            upset["seal"] = seal_words(upset, table)  # as if there were no seal
+            r.gpu.write(chk.params.buffer, as_bytes(upset))
+            chk.run()
+            flags = chk.flags()
+            wrong += not flags[hit].all() or flags.sum() != 120  # a miss or a false alarm
+            chk.params.write()
+    # at least chunk_count's 4 set bits (300 = 0b100101100: fewer primitives checked) and cover's 13
+    # (bits 19..31 dropped from the parity)
+    assert wrong >= 17

@@ -4,7 +4,10 @@
 import numpy as np
 import pytest
 
+from seuwgpu.faults import codes, schedule
 from seuwgpu.faults import defenses as dfn
+from seuwgpu.faults import side as sd
+from seuwgpu.faults.costs import amortised_time
 from seuwgpu.faults.engine import Engine
 from seuwgpu.faults.guard import support_box
 from seuwgpu.model import encoding
@@ -27,13 +30,13 @@ def stored_rows(model, precision):
 def test_every_defense_is_the_identity_on_the_clean_model(real, precision):
     rows = stored_rows(real, precision)
     box = support_box(Model.from_flat(encoding.from_bits(rows, precision), real.sh_degree), precision)
-    cells = dfn.CellBoxes(rows, precision, real.sh_degree)
+    cells = codes.CellBoxes(rows, precision, real.sh_degree)
     prims = np.arange(real.n)
     for d in dfn.DEFENSES:
         got = dfn.read(d, rows, rows, precision, real.sh_degree, box, prims, cells)
         np.testing.assert_array_equal(got, rows, err_msg=d)
     # the scale classes hold every clean log-scale
-    bound = dfn.scale_class_bounds(rows, float(box.lo[3:6].min()), float(box.hi[3:6].max()), precision)
+    bound = codes.scale_class_bounds(rows, float(box.lo[3:6].min()), float(box.hi[3:6].max()), precision)
     assert (encoding.from_bits(rows[:, 3:6], precision) <= bound[:, None]).all()
     assert np.unique(bound).size > 4  # the classes separate small from large splats
 
@@ -41,7 +44,7 @@ def test_every_defense_is_the_identity_on_the_clean_model(real, precision):
 def test_parity_catches_what_it_covers_and_culls(real):
     p, deg = "fp32", real.sh_degree
     rows = stored_rows(real, p)[:200]
-    cover = dfn.parity_cover_mask(p)
+    cover = codes.parity_cover_mask(p)
     assert cover == 0xF8000000 | (0xF << 19) | 0x07800000  # sign, exponent, 4 top mantissa bits
     nan3 = np.full(3, 0x7FC00000, np.uint32)
     for comp in (0, 3, 6, 10, 13):  # means, log_scales, quats, opacity, sh_dc
@@ -92,7 +95,7 @@ def test_checksum_reloads_every_single_value_change(real):
     h = 0x811C9DC5
     for _ in range(59):
         h = fmix(h)
-    assert dfn.checksum(np.zeros((1, 59), np.uint16))[0] == h
+    assert codes.checksum(np.zeros((1, 59), np.uint16))[0] == h
     # two sign-bit flips in one primitive (they cancel in FNV-1a) are caught
     two = rows.copy()
     two[:, [39, 50]] ^= np.uint16(0x8000)
@@ -151,7 +154,7 @@ def test_scalebound_clamps_a_grown_log_scale_to_its_class(real):
     bad = rows[small : small + 1].copy()
     bad[0, 3] ^= np.uint32(1 << 31)  # -x -> +x
     got = dfn.read("scalebound", rows[small : small + 1], bad, p, deg, box)
-    bound = dfn.scale_class_bounds(rows[small : small + 1], float(box.lo[3:6].min()), float(box.hi[3:6].max()), p)
+    bound = codes.scale_class_bounds(rows[small : small + 1], float(box.lo[3:6].min()), float(box.hi[3:6].max()), p)
     assert encoding.from_bits(got[0, 3], p) == bound[0] < box.hi[3]
     np.testing.assert_array_equal(got[0, 4:], bad[0, 4:])
 
@@ -159,7 +162,7 @@ def test_scalebound_clamps_a_grown_log_scale_to_its_class(real):
 def test_cellbox_clamps_into_the_cell_and_is_tighter_than_the_guard(real):
     p = "fp32"
     rows = stored_rows(real, p)
-    cells = dfn.CellBoxes(rows, p, real.sh_degree)
+    cells = codes.CellBoxes(rows, p, real.sh_degree)
     box = support_box(real, p)
     assert np.unique(cells.cell).size > 20  # the object spreads over many cells
     i = int(np.argmin(encoding.from_bits(rows[:, 3], p)))
@@ -176,18 +179,18 @@ def test_cellbox_clamps_into_the_cell_and_is_tighter_than_the_guard(real):
 def test_memory_overheads_by_hand():
     bits = 59 * 32
     n = 1000
-    assert dfn.memory_overhead("none", "fp32", 3, n) == 0
-    assert dfn.memory_overhead("parity", "fp32", 3, n) == pytest.approx(1 / bits)
-    assert dfn.memory_overhead("parity4", "fp32", 3, n) == pytest.approx(4 / bits)
-    assert dfn.memory_overhead("checksum", "fp16", 3, n) == pytest.approx(32 / (59 * 16))
-    assert dfn.memory_overhead("ecc", "fp32", 3, n) == pytest.approx(5 / 32)
-    assert dfn.memory_overhead("ecc_crit", "fp32", 3, n) == pytest.approx(4 * 5 / bits)
-    assert dfn.memory_overhead("dup", "bf16", 0, n) == pytest.approx(2.0)
-    assert dfn.memory_overhead("guard", "fp32", 3, n) == pytest.approx(2 * 14 * 32 / (n * bits))
-    assert dfn.memory_overhead("scalebound", "fp32", 3, n) == pytest.approx((4 * n + 2 * 14 * 32) / (n * bits))
-    assert dfn.memory_overhead("cellbox", "fp32", 3, n) == pytest.approx((9 * n + 2 * 14 * 32 * 512) / (n * bits))
+    assert sd.memory_overhead("none", "fp32", 3, n) == 0
+    assert sd.memory_overhead("parity", "fp32", 3, n) == pytest.approx(1 / bits)
+    assert sd.memory_overhead("parity4", "fp32", 3, n) == pytest.approx(4 / bits)
+    assert sd.memory_overhead("checksum", "fp16", 3, n) == pytest.approx(32 / (59 * 16))
+    assert sd.memory_overhead("ecc", "fp32", 3, n) == pytest.approx(5 / 32)
+    assert sd.memory_overhead("ecc_crit", "fp32", 3, n) == pytest.approx(4 * 5 / bits)
+    assert sd.memory_overhead("dup", "bf16", 0, n) == pytest.approx(2.0)
+    assert sd.memory_overhead("guard", "fp32", 3, n) == pytest.approx(2 * 14 * 32 / (n * bits))
+    assert sd.memory_overhead("scalebound", "fp32", 3, n) == pytest.approx((4 * n + 2 * 14 * 32) / (n * bits))
+    assert sd.memory_overhead("cellbox", "fp32", 3, n) == pytest.approx((9 * n + 2 * 14 * 32 * 512) / (n * bits))
     with pytest.raises(ValueError, match="unknown defense 'tmr'"):
-        dfn.memory_overhead("tmr", "fp32", 3, n)
+        sd.memory_overhead("tmr", "fp32", 3, n)
 
 
 def test_defense_names_outside_the_list_are_defined_only_in_it():
@@ -232,22 +235,36 @@ def test_defenses_command_lists_every_defense_as_json_and_as_a_table(capsys):
     rows = strict(capsys.readouterr().out)
     assert [r["name"] for r in rows] == list(dfn.DEFENSES)
     keys = {"name", "device_bytes", "memory_overhead", "check_every", "time_fraction", "check_fraction"}
-    keys |= {"exposure_frames", "exposure_frames_worst", "time_basis", "description"}
+    keys |= {"exposure_frames", "exposure_frames_worst", "time_basis", "description", "time_lo", "time_hi"}
+    keys |= {"repair_fraction", "catastrophic_frames_per_upset", "catastrophic_lo", "catastrophic_hi"}
+    keys |= {"sdc_frames_per_upset", "residue_frames_per_upset", "of_none", "of_none_lo", "of_none_hi"}
+    keys |= {"visible_basis"}
     for r in rows:
         assert set(r) == keys
         # the memory column: what the device holds (issue 39), of a model of 300 x 59 fp32 values
-        assert r["device_bytes"] == dfn.device_bytes(r["name"], "fp32", 3, 300)
+        assert r["device_bytes"] == sd.device_bytes(r["name"], "fp32", 3, 300)
         assert r["memory_overhead"] == pytest.approx(r["device_bytes"] / (300 * 59 * 4))
         checked = dfn.get(r["name"]).checked
         assert r["check_every"] == (4 if checked else None)
         want = (1.5, 3.0) if checked else ("inf", "inf") if r["name"] == "none" else (0.0, 0.0)
         assert (r["exposure_frames"], r["exposure_frames_worst"]) == want, r["name"]
-        gpu_side = dfn.get(r["name"]).checked or bool(dfn.get(r["name"]).guard_fields) or r["name"] == "none"
+        d = dfn.get(r["name"])
+        gpu_side = d.checked or d.frame_check or bool(d.guard_fields) or r["name"] == "none"
         assert (r["time_fraction"] is not None and math.isfinite(r["time_fraction"])) == gpu_side, r
         assert r["time_basis"].startswith("measured") == gpu_side
+        assert r["catastrophic_frames_per_upset"] is None and r["visible_basis"] == "not measured"
     assert main(["defenses", "--scene", "blocks", "--n", "300", "--no-time", "--json"]) == 0
     rows = strict(capsys.readouterr().out)  # undefined (not measured): null, not a NaN literal
     assert all(r["time_fraction"] is None and r["time_basis"] == "not measured" for r in rows)
+    assert all(r["check_every"] in (None, 10) for r in rows)  # the default schedule, S = 10
+    # what the user sees, for two arms: counts per upset, none's ratio 1, the others' null
+    vis = [*cmd[:-1], "--no-time", "--visible", "3", "--window", "4", "--visible-defenses", "none", "checksum"]
+    assert main([*vis, "--check-every", "2", "--json"]) == 0
+    seen = {r["name"]: r for r in strict(capsys.readouterr().out)}
+    assert seen["none"]["of_none"] in (1.0, None) and seen["guard"]["catastrophic_frames_per_upset"] is None
+    assert seen["checksum"]["residue_frames_per_upset"] == 0
+    assert seen["checksum"]["catastrophic_frames_per_upset"] <= seen["none"]["catastrophic_frames_per_upset"]
+    assert seen["checksum"]["visible_basis"].startswith("measured: 3 upsets")
     # the table: one line per defense with the JSON's device bytes and exposure, whole at 80 columns
     assert main(["defenses", "--scene", "blocks", "--n", "300", "--no-time", "--check-every", "5"]) == 0
     lines = capsys.readouterr().out.splitlines()
@@ -256,7 +273,7 @@ def test_defenses_command_lists_every_defense_as_json_and_as_a_table(capsys):
         cells = [c.strip() for c in line.strip("│").split("│")]
         assert cells[1] == f"{r['device_bytes']:,}", line
         assert cells[3] == ("5" if dfn.get(r["name"]).checked else ""), line
-        assert cells[5] == ("until reloaded" if r["name"] == "none" else "2 (4)" if cells[3] else "0 (0)"), line
+        assert cells[6] == ("until reloaded" if r["name"] == "none" else "2 (4)" if cells[3] else "0 (0)"), line
 
 
 @pytest.mark.parametrize("precision", encoding.PRECISIONS)
@@ -265,7 +282,7 @@ def test_checksum_and_parity4r_undo_every_single_and_adjacent_flip(real, precisi
     reloads all of them; parity4r all those touching its covered bits (the rest: low mantissa)."""
     rows = stored_rows(real, precision)[[7]]
     nb = encoding.bits_per_value(precision)
-    cover = dfn.parity_cover_mask(precision)
+    cover = codes.parity_cover_mask(precision)
     bad, covered = [], []
     for c in range(rows.shape[1]):
         for w in (1, 2, 3, 4):
@@ -304,18 +321,18 @@ def test_the_memory_column_says_what_the_gpu_check_stores(real):
     bits = 59 * 32
     for d, b in packed.items():
         box_bits = 2 * 14 * 32 if d == "scalebound" else 0
-        assert dfn.memory_overhead(d, p, 3, 1000) == pytest.approx((b * 1000 + box_bits) / (1000 * bits))
+        assert sd.memory_overhead(d, p, 3, 1000) == pytest.approx((b * 1000 + box_bits) / (1000 * bits))
         assert dfn.get(d).side_bits == b
     model = make_scene("blocks", n=333, seed=2)
     r = Renderer(model, scene_cameras("blocks", 1, 32, 32), p, chunk_prims=128)
     clean = stored_rows(model, p)
     mbox = support_box(model, p)
-    guard_bytes = dfn.device_bytes("guard", p, 3, model.n)
+    guard_bytes = sd.device_bytes("guard", p, 3, model.n)
     assert guard_bytes == r.box_buf.size + r.guard_counts.size  # what the pipeline's guard reads
     for d in CHECKED:
         chk = Checker(r, d, clean, mbox)
         extra = guard_bytes if dfn.get(d).guard_fields else 0
-        assert chk.device_bytes() + extra == dfn.device_bytes(d, p, 3, model.n, r.layout.n_chunks), d
+        assert chk.device_bytes() + extra == sd.device_bytes(d, p, 3, model.n, r.layout.n_chunks), d
         # the side data: 333 codes of side_bits each, in whole 16-byte-aligned u32 words
         assert chk.side.size == max(16, -(-(-(-333 * dfn.get(d).side_bits // 32) * 4) // 16) * 16), d
     text = " ".join((Path(__file__).resolve().parents[1] / "docs" / "defenses.md").read_text().split())
@@ -327,13 +344,13 @@ def test_each_side_data_packing_round_trips(bits):
     rng = np.random.default_rng(bits)
     for m in (0, 1, 31, 32, 33, 1000):
         codes = rng.integers(0, 1 << bits, m, dtype=np.uint64).astype(np.uint32)
-        words = dfn.pack_side(codes, bits)
+        words = sd.pack_side(codes, bits)
         assert words.dtype == np.uint32 and words.size == -(-m * bits // 32)
-        np.testing.assert_array_equal(dfn.unpack_side(words, bits, m), codes)
+        np.testing.assert_array_equal(sd.unpack_side(words, bits, m), codes)
     # by hand: four 4-bit codes in one word, the first in the low nibble
-    assert dfn.pack_side(np.array([1, 2, 3, 15], np.uint32), 4)[0] == 0xF321
+    assert sd.pack_side(np.array([1, 2, 3, 15], np.uint32), 4)[0] == 0xF321
     with pytest.raises(ValueError, match="does not fit in 4 bits"):
-        dfn.pack_side(np.array([16], np.uint32), 4)
+        sd.pack_side(np.array([16], np.uint32), 4)
 
 
 def test_the_packed_side_data_of_every_checked_defense_round_trips(real):
@@ -344,31 +361,31 @@ def test_the_packed_side_data_of_every_checked_defense_round_trips(real):
         side = dfn.side_data(d, rows, p, 3, box)
         bits = dfn.get(d).side_bits
         assert int(side.max()) < (1 << bits) if bits < 32 else True
-        np.testing.assert_array_equal(dfn.unpack_side(dfn.pack_side(side, bits), bits, len(side)), side, err_msg=d)
+        np.testing.assert_array_equal(sd.unpack_side(sd.pack_side(side, bits), bits, len(side)), side, err_msg=d)
 
 
 def test_exposure_on_hand_made_upset_schedules():
     """Checks before frames 0, S, 2S, ...: an upset landing before frame f is drawn for
     (-f) mod S frames (counted by hand below)."""
-    e = dfn.exposure(4, [0, 1, 2, 3, 4, 5, 9, 12])
+    e = schedule.exposure(4, [0, 1, 2, 3, 4, 5, 9, 12])
     np.testing.assert_array_equal(e.per_upset, [0, 3, 2, 1, 0, 3, 3, 0])
     assert (e.expected, e.worst) == (1.5, 3.0)  # phases 0, 3, 2, 1 equally likely
-    e1 = dfn.exposure(1, [0, 5, 7])
+    e1 = schedule.exposure(1, [0, 5, 7])
     np.testing.assert_array_equal(e1.per_upset, [0, 0, 0])
     assert (e1.expected, e1.worst) == (0.0, 0.0)
-    e10 = dfn.exposure(10)
+    e10 = schedule.exposure(10)
     assert (e10.expected, e10.worst) == (4.5, 9.0) and len(e10.per_upset) == 10
-    never = dfn.exposure(0, [3])
+    never = schedule.exposure(0, [3])
     assert never.per_upset[0] == np.inf and never.expected == np.inf
     with pytest.raises(ValueError, match="every S >= 1 frames"):
-        dfn.exposure(-1)
+        schedule.exposure(-1)
 
 
 def test_amortised_time_charges_the_check_once_per_schedule():
-    assert dfn.amortised_time("parity4r", 0.05, 0.2, 10) == pytest.approx(0.02)
-    assert dfn.amortised_time("scalebound", 0.05, 0.2, 4) == pytest.approx(0.05 + 0.05)
-    assert dfn.amortised_time("guard", 0.05, 0.2, 4) == pytest.approx(0.05)  # no check to amortise
-    assert dfn.amortised_time("checksum", 0.0, 0.2, 0) == 0.0  # never checked
+    assert amortised_time("parity4r", 0.05, 0.2, 10) == pytest.approx(0.02)
+    assert amortised_time("scalebound", 0.05, 0.2, 4) == pytest.approx(0.05 + 0.05)
+    assert amortised_time("guard", 0.05, 0.2, 4) == pytest.approx(0.05)  # no check to amortise
+    assert amortised_time("checksum", 0.0, 0.2, 0) == 0.0  # never checked
 
 
 def test_the_measured_table_states_the_spec_and_seed_that_produced_it():
@@ -388,7 +405,8 @@ def test_the_measured_table_states_the_spec_and_seed_that_produced_it():
     assert raw["seed"] == 0 and raw["single"]["samples"] == 300
     spec = normalize_spec(raw)
     assert [s.scene for s in spec.scenes] == ["leica-sofort", "yashica-t4"]
-    assert "| leica-sofort | guard | 0.006% | ~0 | 0.43 (0.005) |" in text
+    flat = " ".join(text.split())  # the counts of its seed-0 rerun, as the page states them
+    assert "Of 900 on leica-sofort / yashica-t4: none 600 / 685 catastrophic, guard 3 / 74" in flat
 
 
 def test_guard_all_clamps_sh_rest_where_the_guard_does_not():
@@ -431,9 +449,9 @@ def test_the_model_derived_tables_come_from_the_model_itself():
     p = "fp32"
     rows = stored_rows(made, p)
     box = support_box(made, p)
-    table = dfn.scale_table(box, p)
+    table = codes.scale_table(box, p)
     assert table[-1] == made.log_scales.max() and table[0] > made.log_scales.min()
-    assert table.size == dfn.SCALE_CLASSES and np.all(np.diff(table) >= 0)
+    assert table.size == codes.SCALE_CLASSES and np.all(np.diff(table) >= 0)
     cls = dfn.get("scalebound").side_data(rows, p, 3, box).astype(np.int64)
     top = made.log_scales.max(axis=1)
     assert np.all(table[cls] >= top)

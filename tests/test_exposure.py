@@ -79,6 +79,13 @@ def test_reliability_reads_the_check_schedule_from_the_spec():
     assert mt.loc["parity4r", "mtbf_hours"] == pytest.approx(1 / (r * 7 / 8), rel=1e-9)
     assert mt.loc["parity4r", "exposure_hours"] == pytest.approx(3.5 / (60 * 3600.0))
     assert math.isnan(mt.loc["none", "exposure_hours"])
-    # checked before every frame (the default): what it repairs is never drawn
+    # no S in the spec: the default S = 10 at 30 frames/s, stated; the MTBF is bounded
     plain = R.reliability(df, [{"spec": {"reliability": {"rates": rates, "scrub_hours": 24.0}}}])
-    assert math.isinf(plain["mtbf"].set_index("defense").loc["parity4r", "mtbf_hours"])
+    assert plain["check_every"] == 10 and "default (S = 10" in plain["check_every_from"]
+    assert plain["mtbf"].set_index("defense").loc["parity4r", "mtbf_hours"] == pytest.approx(1 / (r * 9 / 10))
+    assert R.reliability(df)["check_every_from"] == "the default (S = 10)"  # no manifest at all
+    # a schedule per check defense: parity4r's own S
+    per = {"reliability": {"rates": rates, "scrub_hours": 24.0, "check_every": {"parity4r": 4}}}
+    res4 = R.reliability(df, [{"spec": per}])
+    assert res4["check_every_of"] == {"parity4r": 4}
+    assert res4["mtbf"].set_index("defense").loc["parity4r", "mtbf_hours"] == pytest.approx(1 / (r * 3 / 4))

@@ -50,8 +50,11 @@ def test_models_name_their_bits():
     assert model_bits("stuck1", 7, "fp16", 0) == ((7,), "stuck1", 0)
     assert model_bits("zero", -1, "fp16", 99) == (tuple(range(16)), "set", 0)
     assert model_bits("random", -1, "bf16", 0xDEADBEEF12345678) == (tuple(range(16)), "set", 0x5678)
-    with pytest.raises(ValueError, match="unknown fault model 'burst'"):
-        model_bits("burst", 3, "fp32", 0)
+    # burst: width 2..8 from r % 7, top bit the cell's
+    assert model_bits("burst", 31, "fp32", 6) == (tuple(range(24, 32)), "flip", 0)
+    assert model_bits("burst", 2, "bf16", 4) == (tuple(range(6)), "flip", 0)  # moved up to fit
+    with pytest.raises(ValueError, match="unknown fault model 'bursts'"):
+        model_bits("bursts", 3, "fp32", 0)
     names = {
         fault_name(Site("opacity", 0, 0, b, op, v), "fp32")
         for b, op, v in [((3,), "flip", 0), ((3, 4), "flip", 0), ((3, 9), "flip", 0), ((3,), "stuck0", 0)]
@@ -104,8 +107,11 @@ def test_campaigns_draw_the_spec_fault_model():
     )
     spec = normalize_spec({**base, "single": {**base["single"], "fault": "adjacent"}})
     assert spec.single.fault == "adjacent"
-    with pytest.raises(SpecError, match="single.fault: unknown fault model 'burst'"):
-        normalize_spec({**base, "single": {**base["single"], "fault": "burst"}})
+    assert normalize_spec({**base, "single": {**base["single"], "fault": "burst"}}).single.fault == "burst"
+    with pytest.raises(SpecError, match="single.fault: unknown fault model 'bursts'"):
+        normalize_spec({**base, "single": {**base["single"], "fault": "bursts"}})
+    with pytest.raises(SpecError, match="fault model 'mcu_prim' hits several stored values at once: a storm"):
+        normalize_spec({**base, "single": {**base["single"], "fault": "mcu_prim"}})
     ctx = Context("single", 0, 500, "fp32", ["none"], 0, 8, [("opacity", 30), ("opacity", 31)], 4, fault="adjacent")
     sites, w = draw_sites(ctx, np.arange(8), injection_seeds(0, np.arange(8)), 500, 3)
     for i, s in enumerate(sites):
@@ -135,3 +141,18 @@ def test_stored_bits_are_the_models_encoded_values(precision, chunk_prims):
     want = encoding.to_bits(model.flat(), precision)
     assert got.dtype == want.dtype
     np.testing.assert_array_equal(got, want)
+
+
+def test_multi_cell_upsets_hit_the_neighbouring_word_or_another_value_of_the_primitive():
+    from seuwgpu.faults.sites import multi_cell_sites, neighbour_primitive
+
+    a = Site("opacity", 7, 0, (30,))
+    # the device layout is planar: the next word holds primitive 8 (fp32) or 9 (two halves a word)
+    assert [s.primitive for s in multi_cell_sites(a, "mcu_neighbour", 100, 3, "fp32", 0)] == [7, 8]
+    assert [s.primitive for s in multi_cell_sites(a, "mcu_neighbour", 100, 3, "bf16", 0)] == [7, 9]
+    assert neighbour_primitive(99, 100, "fp32") == 98 and neighbour_primitive(98, 100, "fp16") == 96
+    both = multi_cell_sites(a, "mcu_prim", 100, 3, "fp32", 0)
+    assert [(s.primitive, s.flat_component(), s.bits) for s in both] == [(7, 10, (30,)), (7, 11, (30,))]
+    last = multi_cell_sites(Site("sh_rest", 7, 44, (3,)), "mcu_prim", 100, 3, "fp32", 57)
+    assert [s.flat_component() for s in last] == [58, 57]  # wraps round the primitive's 59 values
+    assert multi_cell_sites(a, "burst", 100, 3, "fp32", 0) == [a]

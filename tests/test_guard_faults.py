@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from conftest import random_model
 
-from seuwgpu.faults.defenses import DEFENSES, dup_read, ecc_read
+from seuwgpu.faults.codes import dup_read, ecc_read
+from seuwgpu.faults.defenses import DEFENSES
 from seuwgpu.faults.engine import Engine
 from seuwgpu.faults.guard import GuardAlert, GuardMonitor, clamp_values, component_mask, scrub, support_box
 from seuwgpu.faults.sites import uniform_upsets

@@ -277,7 +277,7 @@ def test_summary_numbers(run):
     num = summary["numbers"]["summary"]
     single = rec[rec["campaign"] == "single"]
     none = single[single["defense"] == "none"]
-    assert num["target"] == 0.001 and num["target_source"] == "the default" and num["check_every"] == 1
+    assert num["target"] == 0.001 and num["target_source"] == "the default" and num["check_every"] == 10
     models = {m["scene"]: m for m in num["models"]}
     assert {s: m["n_primitives"] for s, m in models.items()} == SCENES
     assert all(m["sh_degree"] == 3 and m["precisions"] == "fp32" for m in models.values())

@@ -4,6 +4,7 @@ scrubbing restarts the accumulation, reloading defenses keep every frame clean, 
 import numpy as np
 
 from seuwgpu.campaign.storm import storm
+from seuwgpu.faults import schedule
 from seuwgpu.faults.engine import Engine
 from seuwgpu.faults.sites import draw_uniform_sites
 from seuwgpu.model.scenes import make_scene, scene_cameras
@@ -246,7 +247,6 @@ def test_a_check_schedule_shows_each_upset_for_its_exposure():
     frames (before frames 0, 4): parity4r draws each corrupted until the next check, so its
     catastrophic frames are exactly defenses.exposure's (3 + 3) and at the frames it names; with
     no defense and no scrub they stay (frames 1..7)."""
-    from seuwgpu.faults import defenses as dfn
 
     model = make_scene("blocks", n=200, seed=4)
     eng = Engine(model, scene_cameras("blocks", 1, 32, 32), "fp32", scene="blocks")
@@ -258,7 +258,35 @@ def test_a_check_schedule_shows_each_upset_for_its_exposure():
     cat = {d: set(g.loc[g.catastrophic, "frame"]) for d, g in df.groupby("defense")}
     assert cat["none"] == set(range(1, 8))
     assert cat["parity4r"] == {1, 2, 3, 5, 6, 7}
-    assert len(cat["parity4r"]) == dfn.exposure(4, [1, 5]).per_upset.sum()
+    assert len(cat["parity4r"]) == schedule.exposure(4, [1, 5]).per_upset.sum()
     assert (df[df.defense == "parity4r"].check_every == 4).all() and (df[df.defense == "none"].check_every == 0).all()
     every = storm(eng, 1, 8, scrub_every=0, defenses=("parity4r",), check_every=1, upsets=plan)
     assert not every.catastrophic.any()  # checked before every frame: exposure 0
+    # checked inside every frame: the upset's frame drops the primitive (these two are the scene's
+    # most opaque splats: at 32x32 their absence alone changes over 1% of the pixels), the next
+    # frame is repaired: never more than the upset's own frame
+    infr = storm(eng, 1, 8, scrub_every=0, defenses=("parity4f",), check_every=4, upsets=plan).set_index("frame")
+    assert set(infr.index[infr.catastrophic]) <= {1, 5}
+    assert list(infr.corrupted_primitives) == [0, 1, 0, 0, 0, 1, 0, 0]  # corrupted only in its own frame
+
+
+def test_a_storm_of_multi_cell_upsets_defeats_parity4r_and_not_the_checksum():
+    """fault="mcu_prim": each upset flips one bit in two values of a primitive. parity4r's ways
+    each see the bit twice and detect none, so every primitive hit stays corrupted; the checksum
+    reloads every one before the frame is drawn (each frame equals the clean render)."""
+    from seuwgpu.campaign.storm import shape_upsets
+
+    model = make_scene("blocks", n=200, seed=4)
+    eng = Engine(model, scene_cameras("blocks", 1, 32, 32), "fp32", scene="blocks")
+    k, frames, seed = 6, 2, 3
+    df = storm(eng, k, frames, 0, defenses=("parity4r", "checksum"), seed=seed, fault="mcu_prim")
+    rng = np.random.default_rng(seed)
+    ups = [draw_uniform_sites(eng.n, eng.degree, "fp32", k, rng) for _ in range(frames)]
+    shaped = [shape_upsets(u, "mcu_prim", eng.n, eng.degree, "fp32", rng) for u in ups]
+    assert all(len(s) == 2 * k for s in shaped)
+    hit = {s.primitive for f in shaped for s in f}
+    p4 = df[df.defense == "parity4r"].set_index("frame")
+    assert p4.loc[frames - 1, "corrupted_primitives"] == len(hit)
+    chk = df[df.defense == "checksum"].set_index("frame")  # corrupted before the check: that frame's only
+    assert chk.loc[frames - 1, "corrupted_primitives"] == len({s.primitive for s in shaped[-1]})
+    assert (chk.peak_error == 0).all() and (p4.peak_error > 0).any()

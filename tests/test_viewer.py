@@ -88,6 +88,11 @@ def test_every_defense_and_its_check_schedule(state):
     feet = [state.frame()[1]["footprint"] for _ in range(4)]  # frames 1, 2 exposed; 3, 4 repaired
     assert feet[0] > 0.01 and feet[1] > 0.01 and feet[2] == 0 and feet[3] == 0, feet
     assert state.readout["check_every"] == 3 and flipped_bits(state) == 1
+    # what the user saw under this defense: 4 frames with the fault, 2 of them catastrophic
+    assert (state.readout["seen_frames"], state.readout["seen_catastrophic"]) == (4, 2)
+    state.set_guard("parity4f")  # checked inside the frame: dropped in the first frame, then repaired
+    feet = [state.frame()[1]["footprint"] for _ in range(2)]
+    assert feet[0] < 0.01 and feet[1] == 0 and flipped_bits(state) == 1, feet
     with pytest.raises(ValueError, match="every S >= 1 frames"):
         state.set_check_every(0)
 

@@ -19,7 +19,8 @@ import pandas as pd
 
 from seuwgpu.analysis.estimate import one_rate
 from seuwgpu.analysis.records import figure, single_upsets
-from seuwgpu.faults.defenses import DEFENSES, FIRST_DEFENSES, device_overhead, memory_overhead
+from seuwgpu.faults.defenses import DEFENSES, FIRST_DEFENSES
+from seuwgpu.faults.side import device_overhead, memory_overhead
 from seuwgpu.model import encoding
 
 # goal of issue 16, on each real model
@@ -91,7 +92,7 @@ def defense_table(df: pd.DataFrame, timing: dict | None = None, manifests: Itera
                     "danger_hi_pct": 100 * dhi,
                     "danger_vs_none": dp / base if base else float("nan"),
                     "memory_overhead_pct": 100 * memory_overhead(d, prec, degree, n_prims),
-                    # what this package's buffers hold on the device for it (defenses.device_bytes)
+                    # what this package's buffers hold on the device for it (side.device_bytes)
                     "device_memory_pct": 100 * device_overhead(d, prec, degree, n_prims),
                     "time_fraction": float(t.get("time_fraction", float("nan"))),
                 }

@@ -61,6 +61,7 @@ def memory_overhead(
                 if isinstance(v, (int, float)):
                     return float(v), "from the run manifest"
     from seuwgpu.faults import defenses as dfn  # the stored bits each defense adds, defined there
+    from seuwgpu.faults import side
 
     d = dfn.REGISTRY.get(defense)
     if d is None:
@@ -70,7 +71,7 @@ def memory_overhead(
     if not n_primitives and d.bits_per_model(precision, sh_degree) and not d.bits_per_primitive(precision, sh_degree):
         return 0.0, "fp32 box bounds per model (~0 per primitive)"
     n = int(n_primitives or 1)  # without N only per-primitive overheads are stated (exact for them)
-    frac = dfn.memory_overhead(defense, precision, sh_degree, n)
+    frac = side.memory_overhead(defense, precision, sh_degree, n)
     where = f", N = {n:,}" if n_primitives else ""
     return frac, f"{d.info}{where}"
 

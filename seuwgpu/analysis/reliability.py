@@ -26,9 +26,12 @@ accumulating between scrubs.
   and the share of frames that are catastrophic is 1 - (1 - exp(-x)) / x with x = L p T.
 * A check defense (parity, checksum, ...: `faults/defenses.py`) repairs what it detects only at
   its next check, every S frames: the catastrophes it repairs (its p_c below none's) are drawn
-  until then, (S - 1) / 2 frames on average (`defenses.exposure`), and its MTBF rows count them
+  until then, (S - 1) / 2 frames on average (`schedule.exposure`), and its MTBF rows count them
   (`with_exposure`, column exposure_hours). S and the frame rate are spec parameters
-  ([reliability] check_every, frames_per_second; defaults 1 and 30).
+  ([reliability] check_every: one S or a {defense: S} table, frames_per_second; defaults
+  schedule.DEFAULT_CHECK_EVERY = 10 and 30), so a check defense's MTBF is bounded by default:
+  at S = 1 what it repairs would never be drawn and a check that left no residue would have an
+  MTBF without bound. The report states S and where it came from.
 * Upset rates and the scrub interval are spec parameters ([reliability] rates = [...],
   scrub_hours = ...); the defaults below name their sources. They are orders of magnitude, so the
   sensitivity figure shows the MTBF over the whole range of rates.
@@ -59,6 +62,7 @@ from seuwgpu.analysis.records import (
     tag,
 )
 from seuwgpu.faults.defenses import REGISTRY as dfn_registry
+from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY, check_every_of
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import field_components, n_components, sh_rest_count
 
@@ -128,20 +132,22 @@ def reliability_parameters(manifests: Iterable[dict] = ()) -> tuple[list[dict], 
     return list(UPSET_RATES), DEFAULT_SCRUB_HOURS, "defaults (sources in the table)"
 
 
-DEFAULT_CHECK_EVERY = 1  # a check defense checks before every frame unless the spec says otherwise
 DEFAULT_FRAMES_PER_SECOND = 30.0
 
 
-def check_schedule(manifests: Iterable[dict] = ()) -> tuple[int, float]:
-    """(check every S frames, frames per second) of the runs' [reliability] table, else defaults:
-    how long what a check defense repairs is drawn before it is (check_exposure)."""
+def check_schedule(manifests: Iterable[dict] = ()) -> tuple[int | dict, float, str]:
+    """(check every S frames: one S or {defense: S}, frames per second, where S came from) of the
+    runs' [reliability] table, else defaults: how long what a check defense repairs is drawn
+    before it is (check_exposure)."""
     for m in manifests or ():
         t = (m.get("spec") or {}).get("reliability")
         if isinstance(t, dict):
-            return int(t.get("check_every", DEFAULT_CHECK_EVERY)), float(
-                t.get("frames_per_second", DEFAULT_FRAMES_PER_SECOND)
-            )
-    return DEFAULT_CHECK_EVERY, DEFAULT_FRAMES_PER_SECOND
+            s = t.get("check_every")
+            fps = float(t.get("frames_per_second", DEFAULT_FRAMES_PER_SECOND))
+            if s is not None:
+                return (dict(s) if isinstance(s, dict) else int(s)), fps, "run spec [reliability]"
+            return DEFAULT_CHECK_EVERY, fps, f"the default (S = {DEFAULT_CHECK_EVERY}; the spec names none)"
+    return DEFAULT_CHECK_EVERY, DEFAULT_FRAMES_PER_SECOND, f"the default (S = {DEFAULT_CHECK_EVERY})"
 
 
 MODEL = ["scene", "n_primitives"]
@@ -301,8 +307,8 @@ def catastrophic_frame_share(rate_per_bit_hour: float, bits: float, p: float, sc
 
 def check_exposure(check_every: int, frames_per_hour: float) -> tuple[float, float]:
     """(share of upsets a check every S frames lets be drawn at all, hours they are drawn on
-    average): defenses.exposure over every phase, in hours at `frames_per_hour`."""
-    from seuwgpu.faults.defenses import exposure
+    average): schedule.exposure over every phase, in hours at `frames_per_hour`."""
+    from seuwgpu.faults.schedule import exposure
 
     ex = exposure(check_every)
     return float((ex.per_upset >= 1).mean()), ex.expected / float(frames_per_hour)
@@ -464,10 +470,10 @@ def reliability(
     precision = precision or reference_precision(pc)
     degree = model_degrees(s, manifests)
     rates, scrub, rates_from = reliability_parameters(manifests)
-    check_every, fps = check_schedule(manifests)
+    check_every, fps, schedule_from = check_schedule(manifests)
     checked = [d for d in pd.unique(pc["defense"]) if d in dfn_registry and dfn_registry[d].checked]
     if exposure is None and checked:  # what a check repairs is drawn until the check: counted
-        exposure = {d: check_exposure(check_every, fps * 3600.0) for d in checked}
+        exposure = {d: check_exposure(check_every_of(check_every, d), fps * 3600.0) for d in checked}
     defenses = ("none", "guard", *checked)
     models = models_in(s)
     per_model = len(models) > 1
@@ -537,6 +543,8 @@ def reliability(
         "precision": precision,
         "scrub_hours": scrub,
         "check_every": check_every,
+        "check_every_of": {d: check_every_of(check_every, d) for d in checked},
+        "check_every_from": schedule_from,
         "frames_per_second": fps,
         "rates": rates,
         "rates_from": rates_from,

@@ -54,13 +54,12 @@ def spec_target(manifests: Iterable[dict] = ()) -> float | None:
     return None
 
 
-def spec_check_every(manifests: Iterable[dict] = ()) -> int:
-    """The check schedule S of the runs' specs (`[reliability] check_every`, default 1)."""
-    for m in manifests or ():
-        s = ((m.get("spec") or {}).get("reliability") or {}).get("check_every")
-        if s is not None:
-            return int(s)
-    return 1
+def spec_check_every(manifests: Iterable[dict] = ()) -> int | dict:
+    """The check schedule of the runs' specs (`[reliability] check_every`: one S or a table per
+    check defense; default schedule.DEFAULT_CHECK_EVERY), as the reliability analysis reads it."""
+    from seuwgpu.analysis.reliability import check_schedule
+
+    return check_schedule(manifests)[0]
 
 
 def model_table(df: pd.DataFrame, manifests: Iterable[dict] = ()) -> pd.DataFrame:
@@ -162,15 +161,16 @@ def worst_record(s: pd.DataFrame) -> dict | None:
     return rec
 
 
-def _exposure(defense: str, check_every: int) -> tuple[float, float]:
-    """(expected, worst) frames drawn from the corrupted model before a repair (defenses.exposure)."""
-    from seuwgpu.faults.defenses import REGISTRY, exposure
+def _exposure(defense: str, check_every) -> tuple[float, float]:
+    """(expected, worst) frames drawn from the corrupted model before a repair (schedule.exposure)."""
+    from seuwgpu.faults.defenses import REGISTRY
+    from seuwgpu.faults.schedule import check_every_of, exposure
 
     if defense == "none":
         return math.inf, math.inf
     d = REGISTRY.get(defense)
     if d is not None and d.checked:
-        ex = exposure(check_every)
+        ex = exposure(check_every_of(check_every, defense))
         return ex.expected, ex.worst
     return 0.0, 0.0
 
@@ -179,7 +179,9 @@ def defense_rows(s: pd.DataFrame, manifests: Iterable[dict] = (), conf: float = 
     """Per model, precision and defense: residual catastrophic rate with its interval, device
     memory, measured time per frame and exposure (module notes)."""
     from seuwgpu.analysis.reliability import model_degrees
-    from seuwgpu.faults.defenses import DEFENSES, device_bytes, device_overhead
+    from seuwgpu.faults.defenses import DEFENSES
+    from seuwgpu.faults.schedule import check_every_of
+    from seuwgpu.faults.side import device_bytes, device_overhead
 
     if s.empty:
         return pd.DataFrame()
@@ -214,7 +216,7 @@ def defense_rows(s: pd.DataFrame, manifests: Iterable[dict] = (), conf: float = 
                 "device_bytes": device_bytes(d, prec, deg, n) if known else np.nan,
                 "device_pct": 100 * device_overhead(d, prec, deg, n) if known else np.nan,
                 "time_ms": float(t) if t is not None else np.nan,
-                "check_every": check_every if _checked(d) else np.nan,
+                "check_every": check_every_of(check_every, d) if _checked(d) else np.nan,
                 "exposure_frames": exp_mean,
                 "exposure_worst_frames": exp_worst,
             }

@@ -430,6 +430,12 @@ class ViewerState:
         """The current faults drawn under the defense: the pipeline's clamp for the guards; for
         the others what they read (a check defense: once checked since the faults changed)."""
         e, d = self.engine, dfn.get(self.defense)
+        drawn = self.defense
+        if d.frame_check:  # checked inside the frame: the faults' first frame drops, then repaired
+            key = self._faults_key()
+            if getattr(self, "_framed_faults", None) == key:
+                drawn = "parity4r"  # reloaded before this frame: what its check reads back
+            self._framed_faults = key
         if d.checked:
             key = self._faults_key()
             if self.frame_count % self.check_every == 0:
@@ -442,9 +448,9 @@ class ViewerState:
             return e.render_current(self.defense)
         active = list(self.groups)
         e.undo_all()
-        handle = e.apply([s for g in active for s in g.sites], self.defense)
+        handle = e.apply([s for g in active for s in g.sites], drawn)
         try:
-            return e.render_current(self.defense)
+            return e.render_current(drawn)
         finally:
             e.undo(handle)
             for g in active:
@@ -505,6 +511,15 @@ class ViewerState:
         self.last_image = img
         self.readout = self._measure(img, self.clean_image, clamps, frame_ms)
         self.readout["clean_render"] = clean_render
+        # what the user has seen: frames drawn while faults were active, and how many were
+        # catastrophic (footprint > 1% or a non-finite pixel), since the faults or the defense changed
+        tally = (self.defense, self._faults_key())
+        if getattr(self, "_tally_key", None) != tally:
+            self._tally_key, self.seen = tally, [0, 0]
+        if self.groups:
+            self.seen[0] += 1
+            self.seen[1] += bool(self.readout["footprint"] > 0.01 or self.readout["nonfinite_pixels"])
+        self.readout["seen_frames"], self.readout["seen_catastrophic"] = self.seen
         self.dirty = False
         return self.compose(img, self.clean_image), self.readout
 

@@ -64,7 +64,8 @@ Spec (TOML; unknown keys and bad values fail at once, naming the key):
     [reliability]            # optional: inputs of the MTBF analysis (they change no injection)
     scrub_hours = 24.0       # the model is restored from protected storage this often
     rates = [{environment = "ground", per_bit_hour = 1e-12, source = "where the rate comes from"}]
-    check_every = 1          # a check defense checks every S frames: what it repairs is drawn until then
+    check_every = 10         # a check defense checks every S frames (or {parity4r = 10, checksum = 20}):
+                             # what it repairs is drawn until then; default 10
     frames_per_second = 30.0 # the frame rate the check's exposure (frames) turns into hours
 
     [summary]                # optional: the report's opening summary (it changes no injection)
@@ -91,7 +92,7 @@ from pathlib import Path
 import numpy as np
 
 from seuwgpu.errors import InputError
-from seuwgpu.faults.defenses import DEFENSES
+from seuwgpu.faults.defenses import DEFENSES, REGISTRY
 from seuwgpu.model import budget, encoding
 from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
@@ -227,7 +228,7 @@ class ReliabilitySpec(_Stored):
 
     scrub_hours: float | None = None
     rates: tuple[RateSpec, ...] | None = None
-    check_every: int | None = None
+    check_every: int | dict | None = None
     frames_per_second: float | None = None
 
     @classmethod
@@ -513,11 +514,13 @@ def _regions(table, where, size):
 def _fault(table, out, where):
     """The fault model, recorded only when not the default single-bit flip (older specs keep their
     hash)."""
-    from seuwgpu.faults.sites import FAULT_MODELS
+    from seuwgpu.faults.sites import check_site_model
 
     v = table.get("fault", "bit")
-    if v not in FAULT_MODELS:
-        raise SpecError(f"{where}.fault: unknown fault model {v!r}; expected one of {', '.join(FAULT_MODELS)}")
+    try:
+        check_site_model(v)
+    except ValueError as e:
+        raise SpecError(f"{where}.fault: {e}") from None
     if v != "bit":
         out["fault"] = v
 
@@ -560,9 +563,25 @@ def _reliability(t) -> dict:
     out = {}
     if "check_every" in t:
         v = t["check_every"]
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise SpecError(f"reliability.check_every must be a whole number of frames >= 1, got {v!r}")
-        out["check_every"] = v
+
+        def whole(x):
+            return not isinstance(x, bool) and isinstance(x, int) and x >= 1
+
+        if isinstance(v, dict):  # a schedule per check defense
+            for d, s in v.items():
+                if d not in REGISTRY or not REGISTRY[d].checked:
+                    ok = ", ".join(x for x, o in REGISTRY.items() if o.checked)
+                    raise SpecError(f"reliability.check_every: {d!r} is not a check defense; expected one of {ok}")
+                if not whole(s):
+                    raise SpecError(f"reliability.check_every.{d} must be a whole number of frames >= 1, got {s!r}")
+            out["check_every"] = dict(v)
+        elif not whole(v):
+            raise SpecError(
+                f"reliability.check_every must be a whole number of frames >= 1 (or a table of them per "
+                f"check defense), got {v!r}"
+            )
+        else:
+            out["check_every"] = v
     if "frames_per_second" in t:
         v = t["frames_per_second"]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:

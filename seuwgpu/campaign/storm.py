@@ -2,15 +2,18 @@
 reloaded from the golden copy every S frames (scrubbing), and the image quality of every frame
 under each defense.
 
-Per frame: k new single-bit upsets, uniform over the stored bits (the dose campaign's draw),
-XOR into the memory state; then the defense acts. Defenses that check and repair memory
+Per frame: k new upsets, each anchored at a stored bit drawn uniformly (the dose campaign's draw)
+and shaped by the fault model (`fault`: a single-bit flip by default; a burst of 2-8 bits, a
+random value, or a multi-cell upset over two values of one primitive or the neighbouring word of
+the device layout: faults/sites.py), written into the memory state; then the defense acts.
+Defenses that check and repair memory
 (a checked defense, `Defense.writes_back`: parity culls, checksum and parity4r reload, scalebound clamps) write their
 repair back, so a repaired primitive stays repaired; read-time defenses (guard, ECC, duplication)
 leave the memory corrupted and correct what the renderer reads, so upsets pile up in one value
 until the scrub (two in an ECC word are no longer correctable). A check defense checks before
 every `check_every`-th frame (frames 0, S, 2S, ...: its check schedule); between checks the
 frames are drawn from the memory as it is (its pipeline clamp, scalebound's, still acts), so an
-upset is seen for its exposure (defenses.exposure). The frame is rendered and measured against
+upset is seen for its exposure (schedule.exposure). The frame is rendered and measured against
 the clean render (all K views). Every arm sees the same upset sequence (paired); `upsets` gives
 a hand-made one (a list of frames, each a list of sites).
 """
@@ -22,7 +25,14 @@ import pandas as pd
 
 from seuwgpu.errors import TooBig
 from seuwgpu.faults import defenses as dfn
-from seuwgpu.faults.sites import draw_uniform_sites, mask_of
+from seuwgpu.faults.sites import (
+    Site,
+    apply_sites,
+    check_fault_model,
+    draw_uniform_sites,
+    model_bits,
+    multi_cell_sites,
+)
 from seuwgpu.metrics.image import catastrophic
 from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, available_text, gb
 
@@ -54,13 +64,16 @@ def storm(
     rows=None,
     check_every: int = 1,
     upsets=None,
+    fault: str = "bit",
 ):
     """Records (one per frame and defense) of a fault storm; scrub_every 0 = never. `rows`: a list
     the records are appended to as they are measured (what an interrupted storm has done:
     `storm_records(rows)`). Records already in it are those of a resumed storm of the same
     arguments (its first records, in order: the arms one after the other, frame by frame): the storm
     goes on after them, drawing the same upsets (all are drawn before the first frame) and replaying
-    the measured frames' upsets, repairs and scrubs into the memory state without rendering them."""
+    the measured frames' upsets, repairs and scrubs into the memory state without rendering them.
+    `fault`: the fault model of every drawn upset (sites.FAULT_MODELS; "bit" draws as before)."""
+    check_fault_model(fault)
     if k < 1 or frames < 1 or scrub_every < 0 or check_every < 1:
         raise ValueError(
             "storm needs k >= 1, frames >= 1, scrub_every >= 0, check_every >= 1 "
@@ -78,6 +91,8 @@ def storm(
             first,
             *(draw_uniform_sites(engine.n, engine.degree, engine.precision, k, rng) for _ in range(frames - 1)),
         ]
+        if fault != "bit":
+            upsets = [shape_upsets(u, fault, engine.n, engine.degree, engine.precision, rng) for u in upsets]
     rows = [] if rows is None else rows
     done = len(rows)  # records of a resumed storm
     if done > frames * len(defenses):
@@ -94,7 +109,8 @@ def storm(
                 row = memory.get(s.primitive)
                 if row is None:
                     row = engine.primitive_bits([s.primitive])[0]
-                row[s.flat_component()] ^= row.dtype.type(mask_of(s.bits))
+                c = s.flat_component()
+                row[c] = apply_sites(row[c : c + 1], [s])[0]
                 memory[s.primitive] = row
             prims = np.fromiter(memory, dtype=np.int64, count=len(memory))
             clean = engine.primitive_bits(prims)
@@ -103,8 +119,12 @@ def storm(
             seen = engine.read_through(prims, clean, now, d) if prims.size and checking else now
             if arm.writes_back and checking:  # the repair is written back
                 memory = {int(p): r.copy() for p, r in zip(prims, seen)}
+            # measured before the storm was resumed: its memory state replayed, not rendered (below)
+            after = arm.after_frame(clean, now, engine.precision, engine.degree) if prims.size else None
+            if after is not None:  # repaired between this frame and the next (the check inside the frame)
+                memory = {int(p): r.copy() for p, r in zip(prims, after)}
             if a * frames + f < done:
-                continue  # measured before the storm was resumed: its memory state replayed, not rendered
+                continue
             xors = engine.xor_rows(prims, clean, seen)
             engine.flips.apply(xors)
             try:
@@ -132,6 +152,21 @@ def storm(
             if progress:
                 progress()
     return storm_records(rows)
+
+
+def shape_upsets(anchors: list[Site], fault: str, n: int, degree: int, precision: str, rng) -> list[Site]:
+    """The sites of upsets of fault model `fault` anchored at single-bit sites `anchors` (one
+    random number each from `rng`): a value model's value, a burst's width, a multi-cell
+    upset's partner value (sites.model_bits, sites.multi_cell_sites)."""
+    out = []
+    for a, r in zip(anchors, rng.integers(0, 2**63, size=len(anchors))):
+        bits, op, value = model_bits(fault, a.bits[0], precision, int(r))
+        out.extend(
+            multi_cell_sites(
+                Site(a.field, a.primitive, a.component, bits, op, value), fault, n, degree, precision, int(r)
+            )
+        )
+    return out
 
 
 def storm_records(rows: list) -> pd.DataFrame:

@@ -2,10 +2,17 @@
 scale-class defenses over a renderer's stored chunks; twin: faults/defenses.py `detect`.
 
 The side data is computed from the clean model once, like the guard's box, and uploaded packed
-(`side_bits` per primitive, defenses.pack_side), so the device holds what the memory column
-charges (defenses.device_bytes). A check is one dispatch per chunk and one 4-byte read of the
+(`side_bits` per primitive, side.pack_side), so the device holds what the memory column
+charges (side.device_bytes). A check is one dispatch per chunk and one 4-byte read of the
 detection count; only when it is non-zero does the host read the flag bits and repair (cull,
 reload or clamp: defenses.repair), and clear them for the next check.
+
+The checker's own state (issue 47): its parameters carry a seal (`seal_words`, a hash of every
+parameter and of the table) that the shader verifies; a mismatch (an upset in the uniform
+buffer) makes `run` rewrite the parameters from the host's copy and check again
+(`param_faults` counts them). The detection count is kept twice, so one upset in it cannot hide
+a detection. What one upset in the side data or the flag bits does is stated in
+docs/defenses.md and measured by tools/checker_state.py.
 """
 
 from __future__ import annotations
@@ -13,6 +20,9 @@ from __future__ import annotations
 import numpy as np
 
 from seuwgpu.faults import defenses as dfn
+from seuwgpu.faults import side as sd
+from seuwgpu.faults.codes import CHECKSUM_SEED, fmix32
+from seuwgpu.faults.codes import checksum as codes_checksum
 from seuwgpu.faults.guard import fill_chunk_params
 from seuwgpu.gpu.device import STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
@@ -28,10 +38,11 @@ class Checker:
         self.layout, self.chunks, self.defense = L, r.chunks, defense
         self.kernel = Kernel(g, "check")
         side = d.side_data(np.asarray(clean_rows), L.precision, L.degree, box)
-        self.side = g.upload(dfn.pack_side(side, d.side_bits))
-        self.table = g.upload(np.asarray(d.check_table(box, L.precision), np.float32))
+        self.side = g.upload(sd.pack_side(side, d.side_bits))
+        table = np.asarray(d.check_table(box, L.precision), np.float32)
+        self.table = g.upload(table)
         self.flag_words = -(-L.n // 32)
-        self.out = g.buffer(dfn.CHECK_HEADER_BYTES + 4 * self.flag_words, STORAGE, "check.out")
+        self.out = g.buffer(sd.CHECK_HEADER_BYTES + 4 * self.flag_words, STORAGE, "check.out")
         self._flagged = False  # flag bits set by the last run (cleared before the next)
         self.params = Uniforms(g, self.kernel.struct("CheckParams"), L.n_chunks, "check.params")
         fill_chunk_params(
@@ -39,10 +50,13 @@ class Checker:
             L,
             mode=self.kernel.const(d.check_mode),
             side_bits=d.side_bits,
+            table_len=table.size,
             **d.check_parameters(L.precision, L.degree),
         )
+        self.params.rows["seal"] = seal_words(self.params.rows, table)
         self.params.write()
         self.zero = np.zeros(4, np.uint32)
+        self.param_faults = 0  # runs that found their parameters upset (and were rerun)
 
     def encode(self, enc):
         for k in range(self.layout.n_chunks):
@@ -57,23 +71,137 @@ class Checker:
             )
 
     def run(self) -> int:
-        """Check every primitive; returns how many are flagged (one small read)."""
-        if self._flagged:
-            self.gpu.write(self.out, np.zeros(4 + self.flag_words, np.uint32))
-        else:
-            self.gpu.write(self.out, self.zero)
-        enc = self.gpu.device.create_command_encoder()
-        self.encode(enc)
-        self.gpu.submit(enc)
-        count = int(self.gpu.read(self.out, np.uint32, 0, 4)[0])
-        self._flagged = count > 0
+        """Check every primitive; returns how many are flagged (one small read). Parameters found
+        upset are rewritten from the host's copy and the check run again."""
+        for _ in range(2):
+            if self._flagged:
+                self.gpu.write(self.out, np.zeros(4 + self.flag_words, np.uint32))
+            else:
+                self.gpu.write(self.out, self.zero)
+            enc = self.gpu.device.create_command_encoder()
+            self.encode(enc)
+            self.gpu.submit(enc)
+            head = self.gpu.read(self.out, np.uint32, 0, 12)
+            count = int(max(head[0], head[1]))  # kept twice: an upset in one copy hides nothing
+            self._flagged = True  # flags may be set: cleared before the next run
+            if not head[2]:
+                break
+            self.param_faults += 1
+            self.params.write()
+        self._flagged = count > 0 or bool(head[2])
         return count
 
     def flags(self) -> np.ndarray:
         """[n] bool: the primitives the last run flagged."""
-        words = self.gpu.read(self.out, np.uint32, dfn.CHECK_HEADER_BYTES, 4 * self.flag_words)
+        words = self.gpu.read(self.out, np.uint32, sd.CHECK_HEADER_BYTES, 4 * self.flag_words)
         return np.unpackbits(words.view(np.uint8), bitorder="little")[: self.layout.n].astype(bool)
 
     def device_bytes(self) -> int:
-        """Bytes of this check's buffers on the device (defenses.device_bytes counts the same)."""
+        """Bytes of this check's buffers on the device (side.device_bytes counts the same)."""
         return int(self.side.size + self.table.size + self.out.size + self.params.buffer.size)
+
+
+def seal_words(rows: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """[slots] u32: each CheckParams slot's seal, h = fmix32(h ^ word) over its words before the
+    seal, then over the table's words (twin of shaders/check.wgsl params_seal)."""
+    fields = [f for f in rows.dtype.names if f != "seal"]
+    h = np.full(rows.shape[0], CHECKSUM_SEED, np.uint64)
+    for f in fields[: fields.index("table_len") + 1]:
+        h = fmix32(h ^ rows[f].astype(np.uint64))
+    for w in np.asarray(table, np.float32).view(np.uint32):
+        h = fmix32(h ^ np.uint64(w))
+    return h.astype(np.uint32)
+
+
+class FrameCheck:
+    """The check inside the frame (issue 47): parity4r's code word of every primitive verified
+    where the projection reads it (shaders/project.wgsl FRAME_CHECK); a primitive that fails is
+    dropped from that frame (culled, as a non-finite mean is) and flagged for repair, so a
+    detected upset is never drawn. Twin: the frame of the model with the flagged primitives'
+    means set to NaN (codes.cull), the flags those of defenses.detect("parity4r", ...).
+
+    Side data: the 4-bit codes, packed (side.pack_side), and the output as Checker's (a count
+    kept twice, then a flag bit per primitive). `count()` reads the count (4 bytes), `flags()`
+    the flag bits, `clear()` zeroes them after a repair."""
+
+    defense = "parity4r"
+
+    def __init__(self, renderer, clean_rows: np.ndarray):
+        d = dfn.checked(self.defense)
+        r, L = renderer, renderer.layout
+        self.renderer, self.gpu, self.layout = r, r.gpu, L
+        side = d.side_data(np.asarray(clean_rows), L.precision, L.degree)
+        self.side = r.gpu.upload(sd.pack_side(side, d.side_bits))
+        self.flag_words = -(-L.n // 32)
+        self.out = r.gpu.buffer(sd.CHECK_HEADER_BYTES + 4 * self.flag_words, STORAGE, "frame_check.out")
+        self.clear()
+        self.cover = d.check_parameters(L.precision, L.degree)["cover"]
+        self.on()
+
+    def on(self):
+        """Check in every frame from now on (the projection's FRAME_CHECK pipelines)."""
+        self.renderer.projection.set_frame_check(self.side, self.out, self.cover)
+
+    def off(self):
+        """Back to today's projection pipeline."""
+        self.renderer.projection.set_frame_check(None)
+
+    def clear(self):
+        self.gpu.write(self.out, np.zeros(4 + self.flag_words, np.uint32))
+
+    def count(self) -> int:
+        head = self.gpu.read(self.out, np.uint32, 0, 8)
+        return int(max(head[0], head[1]))
+
+    def flags(self) -> np.ndarray:
+        words = self.gpu.read(self.out, np.uint32, sd.CHECK_HEADER_BYTES, 4 * self.flag_words)
+        return np.unpackbits(words.view(np.uint8), bitorder="little")[: self.layout.n].astype(bool)
+
+    def device_bytes(self) -> int:
+        return int(self.side.size + self.out.size)
+
+
+class DeviceRepair:
+    """Repair on the device (shaders/repair.wgsl): the primitives a FrameCheck flagged are
+    rewritten from a golden copy of the model held on the device, each golden row's checksum
+    (codes.checksum of the clean row, 32 bits a primitive) verified when it is read; a golden row
+    that fails is left alone and counted (the primitive stays flagged, dropped every frame). No
+    host copy of the model is read: the host reads two counts.
+
+    Device memory: the golden copy (the model's size again) and its checksums; `device_bytes`."""
+
+    def __init__(self, renderer, clean_rows: np.ndarray, frame_check: FrameCheck):
+        r, L = renderer, renderer.layout
+        self.renderer, self.gpu, self.layout, self.check = r, r.gpu, L, frame_check
+        self.kernel = Kernel(r.gpu, "repair")
+        self.golden = [r.gpu.upload(w, STORAGE, f"golden-chunk-{k}") for k, w in enumerate(r.clean_words)]
+        self.golden_sum = r.gpu.upload(codes_checksum(np.asarray(clean_rows)))
+        self.params = Uniforms(r.gpu, self.kernel.struct("RepairParams"), L.n_chunks, "repair.params")
+        fill_chunk_params(self.params, L)
+        self.params.write()
+
+    def run(self) -> tuple[int, int]:
+        """Repair every flagged primitive; returns (repaired, golden rows that failed their checksum)."""
+        g, L = self.gpu, self.layout
+        g.write(self.check.out, np.zeros(2, np.uint32), 8)  # this run's counts
+        enc = g.device.create_command_encoder()
+        per = 1 if L.precision == "fp32" else 2
+        for k in range(L.n_chunks):
+            lo, hi = L.chunk_range(k)
+            self.kernel.dispatch(
+                enc,
+                params=self.params.binding(k),
+                words=self.renderer.chunks[k],
+                golden=self.golden[k],
+                golden_sum=self.golden_sum,
+                out=self.check.out,
+                threads=-(-(hi - lo) // per),
+            )
+        g.submit(enc)
+        head = g.read(self.check.out, np.uint32, 0, 16)
+        if not head[2]:  # every flag cleared: the next frame's detections start from zero
+            g.write(self.check.out, np.zeros(2, np.uint32))
+        return int(head[3]), int(head[2])
+
+    def device_bytes(self) -> int:
+        return int(sum(b.size for b in self.golden) + self.golden_sum.size + self.params.buffer.size)

@@ -1,10 +1,10 @@
 """What each defense costs on this device: memory (the bytes it holds on the device beside the
-model, defenses.device_bytes, and their fraction of the model's stored bytes), time (extra time
+model, side.device_bytes, and their fraction of the model's stored bytes), time (extra time
 per rendered frame as a fraction of an unprotected view, measured here, amortised over its check
 schedule) and its exposure (frames drawn from a corrupted model before its check repairs it).
 
 A check defense checks every `check_every` frames (S): its check's time counts once per S frames,
-and an upset is drawn for up to S - 1 frames, (S - 1) / 2 on average (defenses.exposure). The
+and an upset is drawn for up to S - 1 frames, (S - 1) / 2 on average (schedule.exposure). The
 in-pipeline guard clamps on every frame; read-time codes act on every read (exposure 0); with no
 defense an upset stays until the model is reloaded (exposure unbounded: "inf" in JSON).
 
@@ -24,8 +24,10 @@ import time
 import numpy as np
 
 from seuwgpu.faults import defenses as dfn
-from seuwgpu.faults.check import Checker
+from seuwgpu.faults import side
+from seuwgpu.faults.check import Checker, DeviceRepair, FrameCheck
 from seuwgpu.faults.guard import component_mask, stored_box
+from seuwgpu.faults.schedule import median_interval
 from seuwgpu.model import encoding
 from seuwgpu.model.budget import check_model
 from seuwgpu.render.renderer import Renderer
@@ -34,30 +36,46 @@ from seuwgpu.render.renderer import Renderer
 def defense_costs(
     model, camera, precision: str = "fp32", repeats: int = 7, gpu=None, time_it: bool = True, check_every: int = 1
 ) -> list:
-    """[{name, device_bytes, memory_overhead, check_every, time_fraction, check_fraction,
-    exposure_frames, exposure_frames_worst, time_basis, description}] for every defense, the time
-    measured on one view of `camera`, a check defense's check amortised over `check_every` frames."""
+    """[{name, device_bytes, memory_overhead, check_every, time_fraction, time_lo, time_hi,
+    check_fraction, repair_fraction, exposure_frames, exposure_frames_worst, time_basis,
+    description}] for every defense. Time is measured on one view of `camera` as a schedule
+    (`schedule_time`): a guard's guarded frames against plain ones; a check defense's S frames
+    and a check against S frames (S = `check_every`), interleaved, the median of the rounds'
+    paired ratios with its 95% interval (time_lo, time_hi; NaN with fewer than 6 rounds).
+    check_fraction: one check alone over one frame; repair_fraction: one detection's reload
+    (the flags read and the primitive's words rewritten from the golden copy) over one frame."""
     rows = []
-    parts, device, chunks = _times(model, camera, precision, repeats, gpu) if time_it else ({}, "?", 1)
-    t = {d: dfn.amortised_time(d, g, c, check_every) for d, (g, c) in parts.items()}
+    parts, device, chunks = _times(model, camera, precision, repeats, gpu, check_every) if time_it else ({}, "?", 1)
+    nan = float("nan")
     for d in dfn.DEFENSES:
-        frac = t.get(d, float("nan"))
         obj = dfn.get(d)
         ex = obj.upset_exposure(check_every)
+        m = parts.get(d, {})
         if not time_it:
             basis = "not measured"
-        elif d in t:
-            basis = f"measured: {device}, {model.n} primitives, {camera.width}x{camera.height}, median of {repeats}"
+        elif d in parts:
+            what = "guarded frames against plain"
+            if obj.checked:
+                what = f"{check_every} frame(s) and a check against {check_every}"
+            elif obj.frame_check:
+                what = f"{check_every} frames checked in the projection against {check_every} plain"
+            basis = (
+                f"measured as a schedule: {device}, {model.n} primitives, {camera.width}x{camera.height}, "
+                f"{what}, interleaved, median of {repeats} rounds"
+            )
         else:
             basis = "no GPU implementation (modelled by what it reads)"
         rows.append(
             {
                 "name": d,
-                "device_bytes": dfn.device_bytes(d, precision, model.sh_degree, model.n, chunks),
-                "memory_overhead": dfn.device_overhead(d, precision, model.sh_degree, model.n, chunks),
+                "device_bytes": side.device_bytes(d, precision, model.sh_degree, model.n, chunks),
+                "memory_overhead": side.device_overhead(d, precision, model.sh_degree, model.n, chunks),
                 "check_every": check_every if obj.checked else None,
-                "time_fraction": frac,
-                "check_fraction": parts[d][1] if obj.checked and d in parts else float("nan"),
+                "time_fraction": m.get("time", nan),
+                "time_lo": m.get("lo", nan),
+                "time_hi": m.get("hi", nan),
+                "check_fraction": m.get("check", nan) if obj.checked else nan,
+                "repair_fraction": m.get("repair", nan) if obj.checked or obj.frame_check else nan,
                 "exposure_frames": ex.expected,
                 "exposure_frames_worst": ex.worst,
                 "time_basis": basis,
@@ -67,8 +85,45 @@ def defense_costs(
     return rows
 
 
+def schedule_time(
+    frame, check, every: int, repeats: int, clock=time.perf_counter, warm_up: bool = True, guarded=None
+) -> dict:
+    """A check schedule's time, measured as one: rounds of `every` frames with `check()` before
+    the first (what the user's device runs) against rounds of `every` frames alone, interleaved
+    round by round (interleaved_samples), on `clock`. `guarded`: the frame as the defense draws
+    it (a pipeline clamp), default `frame`. Returns {"plain": [s], "checked": [s], "fraction":
+    [(checked - plain) / plain per round], "time", "lo", "hi": median_interval of the fractions}."""
+    every = int(every)
+    if every < 1:
+        raise ValueError(f"a check schedule is every S >= 1 frames (got {every})")
+    guarded = frame if guarded is None else guarded
+
+    def plain():
+        for _ in range(every):
+            frame()
+
+    def checked():
+        if check is not None:
+            check()
+        for _ in range(every):
+            guarded()
+
+    got = interleaved_samples({"plain": plain, "checked": checked}, repeats, warm_up=warm_up, clock=clock)
+    p, c = np.asarray(got["plain"]), np.asarray(got["checked"])
+    frac = (c - p) / p
+    med, lo, hi = median_interval(frac)
+    return {
+        "plain": got["plain"],
+        "checked": got["checked"],
+        "fraction": frac.tolist(),
+        "time": med,
+        "lo": lo,
+        "hi": hi,
+    }
+
+
 def interleaved_samples(
-    configs: dict, repeats: int, budget_s: float | None = None, least: int = 3, warm_up: bool = True
+    configs: dict, repeats: int, budget_s: float | None = None, least: int = 3, warm_up: bool = True, clock=None
 ) -> dict:
     """{name: [seconds of each round]} of calling each of `configs` (name -> callable that returns
     when the GPU is done). Timed interleaved, round by round, so a drift of the machine's load hits
@@ -76,19 +131,21 @@ def interleaved_samples(
     `budget_s`: once `least` rounds ran, a round starts only if it would end within that many
     seconds at the rounds' mean so far (a large model's measurement would otherwise outlast the
     campaign it is made for; starting any round that began within the budget overran it by up to
-    a round: at 1M primitives a third round of about 1.3 s)."""
+    a round: at 1M primitives a third round of about 1.3 s). `clock`: seconds now (default
+    time.perf_counter; a test's fake clock)."""
+    clock = time.perf_counter if clock is None else clock
     for f in configs.values() if warm_up else ():
         f()
     samples = {k: [] for k in configs}
-    t_start = time.perf_counter()
+    t_start = clock()
     for r in range(max(int(repeats), 1)):
-        spent = time.perf_counter() - t_start
+        spent = clock() - t_start
         if budget_s is not None and r >= max(least, 1) and spent + spent / r > budget_s:
             break
         for k, f in configs.items():
-            t0 = time.perf_counter()
+            t0 = clock()
             f()
-            samples[k].append(time.perf_counter() - t0)
+            samples[k].append(clock() - t0)
     return samples
 
 
@@ -98,9 +155,9 @@ def interleaved_medians(configs: dict, repeats: int, budget_s: float | None = No
     return {k: float(np.median(v)) for k, v in samples.items()}
 
 
-def _times(model, camera, precision, repeats, gpu) -> tuple[dict, str, int]:
-    """({defense: (guard clamp per frame, one check) as fractions of a view}, the device, the
-    model's chunks)."""
+def _times(model, camera, precision, repeats, gpu, check_every) -> tuple[dict, str, int]:
+    """({defense: {time, lo, hi (schedule_time's), check (one check / one frame), repair (one
+    reload / one frame)}}, the device, the model's chunks)."""
     # a renderer plus the model's flat copy and bits: an engine's share, not a renderer's
     check_model(model.n, model.sh_degree, "a model of", "time the defenses of")
     r = Renderer(model, [camera], precision, gpu=gpu)
@@ -114,18 +171,107 @@ def _times(model, camera, precision, repeats, gpu) -> tuple[dict, str, int]:
         r.set_guard(None, mask)
         r.run()
 
-    configs = {"none": lambda: view(0)}
-    for d, m in masks.items():
-        configs[d] = lambda m=m: view(m)
-    for d, c in checkers.items():
-        configs[f"check:{d}"] = c.run
-    med = interleaved_medians(configs, repeats)
-    r.set_guard(None, 0)
-    base = med["none"]
-    out = {"none": (0.0, 0.0)}
+    out = {"none": {"time": 0.0, "lo": 0.0, "hi": 0.0}}
+    for d in (x for x in dfn.REGISTRY.values() if x.frame_check):  # the check inside every frame
+        fc = FrameCheck(r, clean)
+        fc.off()
+
+        def checked_frame(fc=fc):
+            fc.on()
+            r.run()
+            fc.off()
+
+        res = schedule_time(lambda: view(0), None, check_every, repeats, guarded=checked_frame)
+        out[d.name] = {"time": res["time"], "lo": res["lo"], "hi": res["hi"]}
+        rep = DeviceRepair(r, clean, fc)
+        out[d.name]["repair"] = _device_repair_time(r, fc, rep, clean, repeats)
+    one = interleaved_medians({"none": lambda: view(0), **{d: c.run for d, c in checkers.items()}}, repeats)
     for d in dfn.DEFENSES:
-        if d in masks or d in checkers:
-            guard = (med[d] - base) / base if d in masks else 0.0
-            check = med[f"check:{d}"] / base if d in checkers else 0.0
-            out[d] = (guard, check)
+        if d not in masks and d not in checkers:
+            continue  # (the frame checks were measured above)
+        m = masks.get(d, 0)
+        chk = checkers.get(d)
+        every = check_every if chk is not None else 1
+        res = schedule_time(lambda: view(0), chk.run if chk else None, every, repeats, guarded=lambda m=m: view(m))
+        out[d] = {"time": res["time"], "lo": res["lo"], "hi": res["hi"]}
+        if chk is not None:
+            out[d]["check"] = one[d] / one["none"]
+            out[d]["repair"] = _repair_time(r, chk, clean, repeats) / one["none"]
+    for m in out.values():
+        m.setdefault("check", float("nan"))
+    r.set_guard(None, 0)
     return out, r.gpu.info.get("device", "?"), r.layout.n_chunks
+
+
+def _device_repair_time(r, fc, rep, clean: np.ndarray, repeats: int) -> float:
+    """Median seconds of one device repair (DeviceRepair.run, its two counts read back) of one
+    primitive the check inside the frame flagged, over one plain frame's median."""
+    L = r.layout
+    chunk, word, shift = L.locate(np.array([0]), np.array([3]))
+    words = r.read_words(int(chunk[0]))
+    bad = words.copy()
+    bad[word] ^= np.uint32(1 << (encoding.bits_per_value(L.precision) - 2)) << shift.astype(np.uint32)
+    times, frames = [], []
+    for _ in range(max(int(repeats), 1)):
+        r.gpu.write(r.chunks[int(chunk[0])], bad)
+        fc.on()
+        t0 = time.perf_counter()
+        r.run()
+        frames.append(time.perf_counter() - t0)
+        fc.off()
+        t0 = time.perf_counter()
+        repaired, _ = rep.run()
+        times.append(time.perf_counter() - t0)
+        if repaired != 1:
+            raise RuntimeError("timing a device repair: the frame's check did not flag the upset it was given")
+    return float(np.median(times)) / float(np.median(frames))
+
+
+def _repair_time(r, chk, clean: np.ndarray, repeats: int) -> float:
+    """Median seconds of one detection's repair beyond the check: a primitive's log-scale
+    exponent flipped in the device buffer, the check run, its flags read and the primitive's
+    words rewritten from the golden copy (a reload; what the host path of check.py does)."""
+    L = r.layout
+    nb = encoding.bits_per_value(L.precision)
+    flip, big = clean[:1].copy(), clean[:1].copy()
+    flip[0, 3] ^= flip.dtype.type(1 << (nb - 2))  # what every parity and the checksum see
+    big[0, 3] = encoding.to_bits(np.float32([1e4]), L.precision)[0]  # above every scale class
+    chunk, word, shift = L.locate(np.zeros(L.ncomp, np.int64), np.arange(L.ncomp))
+    words = r.read_words(int(chunk[0])).copy()
+
+    def write(rows):
+        w = words.copy()
+        vals = rows[0].astype(np.uint32) << shift.astype(np.uint32)
+        keep = ~(np.uint32((1 << encoding.bits_per_value(L.precision)) - 1) << shift.astype(np.uint32))
+        w[word] = (w[word] & keep) | vals
+        r.gpu.write(r.chunks[int(chunk[0])], w)
+
+    for bad in (flip, big):
+        write(bad)
+        chk.run()
+        if chk.flags()[0]:
+            break
+    times = []
+    for _ in range(max(int(repeats), 1)):
+        write(bad)
+        t0 = time.perf_counter()
+        chk.run()
+        if not chk.flags()[0]:
+            raise RuntimeError("timing a repair: the check did not flag the upset it was given")
+        write(clean[:1])
+        t_repair = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        chk.run()  # the clean check, for the difference
+        times.append(t_repair - (time.perf_counter() - t0))
+    return float(np.median(times))
+
+
+def amortised_time(defense: str, guard_fraction: float, check_fraction: float, check_every: int = 1) -> float:
+    """Extra time per frame (fraction of a view) as the formula gives it: the in-pipeline clamp
+    every frame, one timed check over `check_every` frames (0: never). NaN stays NaN. The
+    measured schedule (schedule.schedule_samples) is what `defense_costs` reports."""
+    d = dfn.get(defense)
+    total = guard_fraction if d.guard_fields else 0.0
+    if d.checked and check_every:
+        total += check_fraction / check_every
+    return total

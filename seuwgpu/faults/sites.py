@@ -2,8 +2,8 @@
 
 A site is (field, primitive, component, bits) in the stored precision plus an operation on those
 bits of the stored value:
-- "flip": XOR (one bit: a single-event upset; 2-4 neighbouring bits: an adjacent multi-cell
-  upset, as in SRAM; any other set: a multi-bit upset);
+- "flip": XOR (one bit: a single-event upset; 2-8 neighbouring bits: an adjacent multi-bit
+  upset in one word, as in SRAM; any other set: a multi-bit upset);
 - "stuck0" / "stuck1": the named bits read 0 / 1 (a stuck-at fault; a bit already at that value is
   masked);
 - "set": the named bits take `value`'s bits ("zero": every bit 0; "random": every bit uniform).
@@ -22,11 +22,16 @@ from seuwgpu.model import encoding
 from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, canonical_field, field_components
 
 # Fault models a campaign spec or the CLI names (`fault = ...`), and what each does to the bits a
-# site names (the cell's bit): see `draw_model_bits` for the draw.
-FAULT_MODELS = ("bit", "adjacent", "stuck0", "stuck1", "random", "zero")
+# site names (the cell's bit): see `model_bits` for the draw. The multi-cell models hit several
+# stored values at once (`multi_cell_sites`): a storm draws them (an upset is then a few sites);
+# a single-upset campaign, whose injection is one site, refuses them.
+SITE_MODELS = ("bit", "adjacent", "burst", "stuck0", "stuck1", "random", "zero")
+MULTI_CELL_MODELS = ("mcu_prim", "mcu_neighbour")
+FAULT_MODELS = SITE_MODELS + MULTI_CELL_MODELS
 VALUE_MODELS = ("random", "zero")  # replace the whole value: cells are per field, bit = -1
 OPS = ("flip", "stuck0", "stuck1", "set")
 ADJACENT_WIDTHS = (2, 3, 4)
+BURST_WIDTHS = (2, 3, 4, 5, 6, 7, 8)  # "burst": an adjacent multi-bit upset in one word, 2-8 bits
 # primitives `inject` (command line and seuwgpu.inject) tries when no primitive is named: the
 # most harmful of this many, drawn with the seed
 INJECT_SAMPLE = 64
@@ -35,6 +40,18 @@ INJECT_SAMPLE = 64
 def check_fault_model(name: str) -> str:
     if name not in FAULT_MODELS:
         raise ValueError(f"unknown fault model {name!r}; expected one of {', '.join(FAULT_MODELS)}")
+    return name
+
+
+def check_site_model(name: str) -> str:
+    """A fault model one site carries (a single-upset injection); the multi-cell ones are refused
+    with a line saying where they can be drawn."""
+    check_fault_model(name)
+    if name in MULTI_CELL_MODELS:
+        raise ValueError(
+            f"fault model {name!r} hits several stored values at once: a storm draws it (seuwgpu storm --fault), "
+            f"a single-upset injection carries one of {', '.join(SITE_MODELS)}"
+        )
     return name
 
 
@@ -53,12 +70,12 @@ class Site:
 
     @property
     def record_bit(self) -> int:
-        """The `bit` column of records: the bit, or an adjacent burst's top bit (its stratum);
-        -1 for other multi-bit and whole-value faults."""
+        """The `bit` column of records: the bit, or an adjacent burst's top bit (its stratum; up to
+        max(BURST_WIDTHS) bits); -1 for other multi-bit and whole-value faults."""
         if len(self.bits) == 1:
             return self.bits[0]
         b = sorted(self.bits)
-        return b[-1] if self.op == "flip" and b[-1] - b[0] == len(b) - 1 and len(b) <= 4 else -1
+        return b[-1] if self.op == "flip" and b[-1] - b[0] == len(b) - 1 and len(b) <= BURST_WIDTHS[-1] else -1
 
     def flat_component(self) -> int:
         return FIELD_OFFSET[self.field] + self.component
@@ -112,14 +129,17 @@ def make_site(
 
 def fault_name(site: Site, precision: str) -> str:
     """The fault model of a site, as records name it (FAULT_MODELS, or "multi" for several
-    non-neighbouring flipped bits)."""
+    non-neighbouring flipped bits): neighbouring bits are "adjacent" up to max(ADJACENT_WIDTHS)
+    bits, "burst" above (a burst campaign's 2-4-bit draws are adjacent ones)."""
     if site.op == "set":
         return "zero" if (site.value & mask_of(site.bits)) == 0 else "random"
     if site.op != "flip":
         return site.op
     if len(site.bits) == 1:
         return "bit"
-    return "adjacent" if site.record_bit >= 0 else "multi"
+    if site.record_bit < 0:
+        return "multi"
+    return "adjacent" if len(site.bits) <= ADJACENT_WIDTHS[-1] else "burst"
 
 
 def site_bit_class(site: Site, precision: str) -> str:
@@ -175,20 +195,49 @@ def apply_sites(clean: np.ndarray, sites: list[Site]) -> np.ndarray:
 
 def model_bits(model: str, bit: int, precision: str, r: int) -> tuple[tuple[int, ...], str, int]:
     """(bits, op, value) of one fault of `model` anchored at the cell's `bit`, from one 64-bit
-    random number `r` (adjacent: width ADJACENT_WIDTHS[r % 3], the burst's top bit is `bit`, moved
-    up to fit in the value at the lowest bits; random: the value's bits are r's low bits)."""
+    random number `r` (adjacent: width ADJACENT_WIDTHS[r % 3], burst: BURST_WIDTHS[r % 7], the
+    burst's top bit is `bit`, moved up to fit in the value at the lowest bits; random: the value's
+    bits are r's low bits). A multi-cell model's bits in each value it hits are the cell's bit."""
     nb = encoding.bits_per_value(precision)
     if model in VALUE_MODELS:
         allbits = tuple(range(nb))
         return allbits, "set", (int(r) & ((1 << nb) - 1)) if model == "random" else 0
-    if model == "adjacent":
-        w = ADJACENT_WIDTHS[int(r) % len(ADJACENT_WIDTHS)]
+    if model in ("adjacent", "burst"):
+        widths = ADJACENT_WIDTHS if model == "adjacent" else BURST_WIDTHS
+        w = widths[int(r) % len(widths)]
         start = max(0, int(bit) - w + 1)
         return tuple(range(start, start + w)), "flip", 0
     if model in ("stuck0", "stuck1"):
         return (int(bit),), model, 0
     check_fault_model(model)
     return (int(bit),), "flip", 0
+
+
+def neighbour_primitive(primitive: int, n: int, precision: str) -> int:
+    """The primitive whose value of the same component sits in the next u32 word of the device's
+    planar layout (model/layout.py: component c of primitive j at word c * plane + j, two 16-bit
+    values a word): j + 1 at fp32, j + 2 at fp16/bf16; the previous word's at the end."""
+    step = 32 // encoding.bits_per_value(precision)
+    q = int(primitive) + step
+    return q if q < n else max(int(primitive) - step, 0)
+
+
+def multi_cell_sites(site: Site, model: str, n: int, degree: int, precision: str, r: int) -> list[Site]:
+    """The sites of one multi-cell upset anchored at `site` (its bits flip in every value hit):
+    mcu_prim also flips them in another value of the same primitive (component drawn from `r`,
+    uniform over the others: a layout that keeps a primitive's values together); mcu_neighbour in
+    the same component of the primitive in the neighbouring word (`neighbour_primitive`). Other
+    models: [site]."""
+    if model == "mcu_prim":
+        ncomp = 14 + 3 * ((degree + 1) ** 2 - 1)
+        other = (site.flat_component() + 1 + int(r) % (ncomp - 1)) % ncomp
+        partner = site_from_flat(site.primitive, other, site.bits, degree)
+        return [site, Site(partner.field, partner.primitive, partner.component, site.bits, site.op, site.value)]
+    if model == "mcu_neighbour":
+        q = neighbour_primitive(site.primitive, n, precision)
+        return [site] if q == site.primitive else [site, Site(site.field, q, site.component, site.bits, site.op)]
+    check_fault_model(model)
+    return [site]
 
 
 def uniform_upsets(model: Model, precision: str, k: int, rng: np.random.Generator) -> list[Site]:

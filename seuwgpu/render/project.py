@@ -382,6 +382,8 @@ class Projection:
         self.gpu, self.label = gpu, label
         self.profile = check_profile(profile)
         self._kernels: dict[tuple, Kernel] = {}
+        # the check inside the frame (off: FRAME_CHECK 0, today's pipeline): set_frame_check
+        self.set_frame_check(None)
         self.kernel = self.variant(PRECISION_CODE["fp32"], 3, 0, 0)
         self.set_slots(slots)
         self.capacity = 0
@@ -451,13 +453,27 @@ class Projection:
             tile_y0=tile_origin[1],
         )
 
-    def variant(self, fmt: int, degree: int, guard_lo: int, guard_hi: int) -> Kernel:
-        """The pipeline for stored precision code `fmt`, SH `degree` and guard mask words."""
-        key = (int(fmt), int(degree), int(guard_lo), int(guard_hi))
+    def set_frame_check(self, side=None, out=None, cover: int = 0):
+        """The check inside the frame: `side` the packed 4-bit parity codes of every primitive,
+        `out` its output (a CheckOut: count twice, 2 words, a flag bit per primitive), `cover` the
+        bits of each value the parity covers; None: off (today's pipeline)."""
+        if side is None:  # placeholders (a buffer is never bound both read-only and writable)
+            self.frame_cover = 0
+            self.frame_side = self.gpu.buffer(16, STORAGE, f"{self.label}.frame_side_off")
+            self.frame_out = self.gpu.buffer(16, STORAGE, f"{self.label}.frame_out_off")
+            return
+        self.frame_side, self.frame_out, self.frame_cover = side, out, int(cover)
+
+    def variant(self, fmt: int, degree: int, guard_lo: int, guard_hi: int, cover: int = 0) -> Kernel:
+        """The pipeline for stored precision code `fmt`, SH `degree`, guard mask words and the
+        frame check's cover (0: no check in the frame)."""
+        key = (int(fmt), int(degree), int(guard_lo), int(guard_hi), int(cover))
         k = self._kernels.get(key)
         if k is None:
             names = ("FMT", "SH_DEGREE", "GUARD_LO", "GUARD_HI")
-            constants = {**dict(zip(names, key)), "PROFILE": PROFILE_CODE[self.profile]}
+            constants = {**dict(zip(names, key[:4])), "PROFILE": PROFILE_CODE[self.profile]}
+            if cover:
+                constants.update(FRAME_CHECK=1, FRAME_COVER=int(cover))
             k = self._kernels[key] = Kernel(self.gpu, "project", constants=constants)
         return k
 
@@ -465,7 +481,7 @@ class Projection:
         """Project `count` primitives of the stored chunk `words` with slot `slot`'s parameters.
         `box`: the guard's Bound per component; `guard_counts`: its atomic clamp counters."""
         row = self.params.rows[slot]
-        kernel = self.variant(row["fmt"], row["sh_degree"], row["guard_lo"], row["guard_hi"])
+        kernel = self.variant(row["fmt"], row["sh_degree"], row["guard_lo"], row["guard_hi"], self.frame_cover)
         kernel.dispatch(
             encoder,
             view=self.params.binding(slot),
@@ -478,6 +494,8 @@ class Projection:
             depth_vals=self.depth_vals,
             box=box,
             guard_counts=guard_counts,
+            frame_side=self.frame_side,
+            frame_out=self.frame_out,
             threads=count,
         )
 

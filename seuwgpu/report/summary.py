@@ -21,6 +21,7 @@ import pandas as pd
 
 from seuwgpu.analysis import summary as S
 from seuwgpu.analysis.records import FIELD_LABELS
+from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY
 from seuwgpu.report.sections import FigureItem, Section, TableItem
 
 KEY = "summary"
@@ -258,7 +259,8 @@ def summary_section(df: pd.DataFrame, manifests: list[dict], target: float | Non
                 "measured in the run (the median time_ms of its records: one view of the clean model under the "
                 "defense's in-pipeline guard; a check's own time is not in it; not measured: a run that kept "
                 f"no time) and its exposure: frames drawn from a corrupted model before a check repairs it, at "
-                f"a check every S = {res['check_every']} frame(s) (`[reliability] check_every`; (S - 1) / 2 "
+                f"a check every S = {res['check_every']} frame(s) (`[reliability] check_every`, default "
+                f"{DEFAULT_CHECK_EVERY}; (S - 1) / 2 "
                 "mean, S - 1 worst), 0 for a guard that clamps every frame or a code corrected at every read, "
                 "until reloaded without a defense.",
             )

@@ -22,6 +22,8 @@ from seuwgpu.apps.cli.options import (
 )
 from seuwgpu.campaign.progress import ProgressBar
 from seuwgpu.faults.defenses import DEFENSES as DEFENSE_NAMES
+from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY
+from seuwgpu.faults.sites import FAULT_MODELS
 from seuwgpu.faults.state import TARGETS as STATE_TARGETS
 
 
@@ -86,7 +88,7 @@ def pd_display():
 
 # ---- defenses ---------------------------------------------------------------------------------------
 def defenses_arguments(s: argparse.ArgumentParser):
-    add_model_args(s)
+    add_model_args(s, seed_draws="the --visible upsets")
     add_camera_args(s, views=1, size="256x256")
     s.add_argument("--repeats", type=positive_int, default=7, help="timing rounds (medians)")
     s.add_argument("--no-time", action="store_true", help="skip the timing (time_fraction NaN)")
@@ -94,9 +96,28 @@ def defenses_arguments(s: argparse.ArgumentParser):
     s.add_argument(
         "--check-every",
         type=positive_int,
-        default=1,
-        help="check schedule S of the check defenses: check every S frames (time amortised over S; default 1)",
+        default=DEFAULT_CHECK_EVERY,
+        help="check schedule S of the check defenses: check every S frames (timed as S frames and a check "
+        f"against S frames; default {DEFAULT_CHECK_EVERY})",
     )
+    s.add_argument(
+        "--visible",
+        type=index_int,
+        default=0,
+        metavar="N",
+        help="measure what the user sees: N upsets of the dangerous cells, one per window of --window frames, "
+        "landing at a uniform frame; catastrophic and SDC frames per upset (exposure counted) per defense "
+        "(default 0: not measured)",
+    )
+    s.add_argument("--window", type=positive_int, default=20, help="frames between reloads for --visible (default 20)")
+    s.add_argument(
+        "--visible-defenses",
+        nargs="+",
+        choices=DEFENSE_NAMES,
+        metavar="DEFENSE",
+        help="the arms of --visible (default: every defense)",
+    )
+    s.add_argument("--fault", default="bit", choices=FAULT_MODELS, help="fault model of the --visible upsets")
 
 
 def cmd_defenses(args):
@@ -115,6 +136,11 @@ def cmd_defenses(args):
         repeats=args.repeats,
         time_it=not args.no_time,
         check_every=args.check_every,
+        visible=args.visible,
+        window=args.window,
+        visible_defenses=args.visible_defenses,
+        seed=args.seed,
+        fault=args.fault,
     )
     if args.json:
         import json
@@ -131,26 +157,45 @@ def cmd_defenses(args):
     )
     # numbers stay on one line at any width; what each defense does follows the table
     t.caption = (
-        "bytes: held on the device; memory: of the model's bytes; S: checked every S frames; time: a frame's, "
-        "the check's amortised over S; exposure: frames drawn from a corrupted model before the check, mean (worst)"
+        "bytes: held on the device; memory: of the model's bytes; S: checked every S frames; time: of a frame, "
+        "measured as S frames and a check against S frames [95% interval]; repair: one reload, of a frame; "
+        "exposure: frames drawn from a corrupted model before the check, mean (worst)"
+        + (
+            "; seen: catastrophic frames per upset [95%] (x none), measured as " + rows[0]["visible_basis"]
+            if args.visible
+            else ""
+        )
     )
-    for c in ("defense", "bytes", "memory", "S", "time", "exposure"):
+    cols = ["defense", "bytes", "memory", "S", "time", "repair", "exposure"] + (["seen"] if args.visible else [])
+    for c in cols:
         t.add_column(c, justify="left" if c == "defense" else "right", no_wrap=True)
     for r in rows:
         tf, ex, worst = r["time_fraction"], r["exposure_frames"], r["exposure_frames_worst"]
+        lo, hi, rep = r["time_lo"], r["time_hi"], r["repair_fraction"]
+        band = "" if lo != lo or r["name"] == "none" else f" [{100 * lo:+.1f}, {100 * hi:+.1f}]"
         t.add_row(
             r["name"],
             f"{r['device_bytes']:,}",
             f"{100 * r['memory_overhead']:.3f}%",
             "" if r["check_every"] is None else str(r["check_every"]),
-            "n/a" if tf != tf else f"{100 * tf:+.1f}%",
+            "n/a" if tf != tf else f"{100 * tf:+.2f}%{band}",
+            "" if rep != rep else f"{100 * rep:.1f}%",
             "until reloaded" if ex == float("inf") else f"{ex:g} ({worst:g})",
+            *([_seen(r)] if args.visible else []),
         )
     console = Console()
     console.print(t)
     for r in rows:
         console.print(f"[bold]{r['name']}[/bold]: {r['description']}", highlight=False)
     return 0
+
+
+def _seen(r) -> str:
+    c = r["catastrophic_frames_per_upset"]
+    if c != c:
+        return ""
+    x = r["of_none"]
+    return f"{c:.3g} [{r['catastrophic_lo']:.3g}, {r['catastrophic_hi']:.3g}]" + ("" if x != x else f" (x{x:.3f})")
 
 
 DEFENSES = Command(
@@ -239,6 +284,14 @@ def storm_arguments(s: argparse.ArgumentParser):
         metavar="DEFENSE",
         help=f"arms, each seeing the same upsets (default none guard parity4r; {', '.join(DEFENSE_NAMES)})",
     )
+    s.add_argument(
+        "--fault",
+        default="bit",
+        choices=FAULT_MODELS,
+        help="fault model of every upset: bit (default), adjacent (2-4 bits), burst (2-8 bits), random or zero "
+        "(the value), stuck0/stuck1, mcu_prim (the bit in two values of one primitive), mcu_neighbour (in the "
+        "neighbouring word of the device layout)",
+    )
     add_resumable_out(s, "storm", "storm.parquet and storm.png")
 
 
@@ -254,6 +307,8 @@ def cmd_storm(args):
     defenses = list(dict.fromkeys(args.defense))  # a defense named twice is one arm
     options = {"k": args.k, "frames": args.frames, "scrub-every": args.scrub_every, "defense": defenses}
     options["check-every"] = args.check_every
+    if args.fault != "bit":  # a bit storm's partial records keep their key
+        options["fault"] = args.fault
     frames = args.frames * len(defenses)
     with resumable(args, src, cams, "storm", storm_records, "frames", frames, **options) as (rows, progress):
         df = api.storm(
@@ -269,6 +324,7 @@ def cmd_storm(args):
             progress=progress,
             rows=rows,
             check_every=args.check_every,
+            fault=args.fault,
         )
         df.to_parquet(args.out / "storm.parquet", index=False)
         storm_figure(df).savefig(args.out / "storm.png", dpi=120)

@@ -19,7 +19,7 @@ from seuwgpu.apps.cli.options import (
     positive_int,
 )
 from seuwgpu.faults.defenses import DEFENSES
-from seuwgpu.faults.sites import FAULT_MODELS, INJECT_SAMPLE
+from seuwgpu.faults.sites import INJECT_SAMPLE, SITE_MODELS
 
 
 def lpips_text(value: float) -> str:
@@ -45,11 +45,12 @@ def inject_arguments(s: argparse.ArgumentParser):
     s.add_argument(
         "--fault",
         default="bit",
-        choices=FAULT_MODELS,
-        help="bit/adjacent: flip the bits (adjacent with one --bit: --width bits ending there); "
+        choices=SITE_MODELS,
+        help="bit/adjacent/burst: flip the bits (adjacent (2-4) or burst (2-8) with one --bit: --width bits "
+        "ending there); "
         "stuck0/stuck1: the bits stuck; zero/random: the whole value replaced (random from --seed)",
     )
-    s.add_argument("--width", type=int, choices=(2, 3, 4), help="adjacent burst width (default 2)")
+    s.add_argument("--width", type=int, choices=range(2, 9), help="adjacent (2-4) or burst (2-8) width (default 2)")
     s.add_argument("--defense", default="none", choices=DEFENSES)
     s.add_argument(
         "--sample",

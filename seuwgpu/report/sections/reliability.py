@@ -8,6 +8,14 @@ from seuwgpu.analysis import (
 from seuwgpu.report.sections.base import FigureItem, Section, TableItem, prov
 
 
+def schedule_text(res) -> str:
+    """The check schedule the MTBF rows used: one S, or S per check defense."""
+    per = res.get("check_every_of") or {}
+    if isinstance(res["check_every"], dict) and per:
+        return ", ".join(f"{d} S = {s}" for d, s in per.items())
+    return f"S = {res['check_every']}"
+
+
 def reliability_section(df, manifests, ctx) -> Section:
     # the single-upset p_c alone (analysis.reliability notes): no dose fit's p as a per-upset probability
     res = reliability.reliability(df, manifests)
@@ -22,9 +30,9 @@ def reliability_section(df, manifests, ctx) -> Section:
         "stay far below the tens to thousands where the dose fits' p was measured. Upsets accumulate "
         "until the next scrub, every "
         f"{res['scrub_hours']:g} h: MTBF = T / (1 - exp(-rate x bits x p x T)). Rates and scrub interval: "
-        f"{res['rates_from']}. A check defense repairs what it detects at its next check, every "
-        f"{res['check_every']} frame(s) at {res['frames_per_second']:g} frames/s: what it repairs counts for "
-        "the frames it is drawn until then (exposure_hours)."
+        f"{res['rates_from']}. A check defense repairs what it detects at its next check, every S frames "
+        f"({schedule_text(res)}; S from {res['check_every_from']}) at {res['frames_per_second']:g} frames/s: "
+        "what it repairs counts for the frames it is drawn until then, (S - 1) / 2 on average (exposure_hours)."
         + (
             f" These records hold {len(res['models'])} models (scenes): each has its own p_c, stored bits, "
             "MTBF rows; none is pooled over scenes."

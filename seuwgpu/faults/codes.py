@@ -1,0 +1,256 @@
+"""The code mathematics of the defenses (faults/defenses.py registers the defenses built on it):
+parity over the covered bits of each value (interleaved ways), SEC-DED Hamming over sign and
+exponent, triple-modular majority, the per-primitive checksum (h = fmix32(h ^ value), each step
+a bijection, so any change confined to one stored value is detected with certainty), scalebound's
+scale classes and cellbox's per-cell boxes. Every function is a numpy twin over stored bit
+patterns [M, ncomp]; shaders/check.wgsl computes parity, checksum and scale classes alike.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from seuwgpu.model import encoding
+
+GUARD_FIELDS = ("means", "log_scales", "quats", "opacity", "sh_dc")  # every field but the inert sh_rest
+CRITICAL_FIELDS = ("log_scales", "opacity")
+PARITY_MANTISSA = 4  # top mantissa bits covered by the parity defenses, besides sign+exponent
+SCALE_CLASS_BITS = 4
+SCALE_CLASSES = 1 << SCALE_CLASS_BITS
+
+
+def covered_components(fields, degree: int) -> np.ndarray:
+    """Flat component indices of `fields` at SH degree `degree`, in layout order."""
+    from seuwgpu.model.fields import FIELD_OFFSET, field_components
+
+    return np.array([FIELD_OFFSET[f] + c for f in fields for c in range(field_components(f, degree))], np.int64)
+
+
+def protected_bits(precision: str) -> list[int]:
+    return encoding.bits_of_class(precision, "exponent") + encoding.bits_of_class(precision, "sign")
+
+
+def _hamming_positions(m: int) -> tuple[list[int], int]:
+    """Codeword positions (1-based, non powers of two) for m data bits, and r check bits."""
+    r = 0
+    while (1 << r) < m + r + 1:
+        r += 1
+    pos = [p for p in range(1, m + r + 1) if p & (p - 1)][:m]
+    return pos, r
+
+
+def ecc_check_bits(precision: str) -> int:
+    """SEC-DED Hamming check bits per stored value protecting its sign and exponent bits."""
+    _, r = _hamming_positions(len(protected_bits(precision)))
+    return r + 1
+
+
+def ecc_read(clean_bits: np.ndarray, stored_bits: np.ndarray, precision: str) -> np.ndarray:
+    """What an SEC-DED Hamming code over the sign+exponent bits returns on read.
+
+    The check bits were computed from the clean value when it was written; the stored value may
+    since have been corrupted (the check bits are assumed intact: they are a small fraction of the
+    memory, and modelling their upsets would only add corrected cases). A single error among the
+    protected bits is corrected; two are detected but cannot be corrected (the value passes);
+    mantissa errors are not covered and pass. Three or more are what the decoder makes of them:
+    an odd count looks like a single error and is "corrected" at the syndrome's position (a
+    fourth wrong bit, or none changed where that is a check bit's).
+    """
+    return ecc_decode(clean_bits, stored_bits, precision)[0]
+
+
+def ecc_decode(clean_bits: np.ndarray, stored_bits: np.ndarray, precision: str) -> tuple[np.ndarray, np.ndarray]:
+    """SEC-DED decoding (ecc_read) and, per value, whether the decoder flags an uncorrectable
+    error: an even number of errors with a non-zero syndrome, or an odd number whose syndrome
+    names no position of the codeword."""
+    prot = protected_bits(precision)
+    pos, r = _hamming_positions(len(prot))
+    clean = np.asarray(clean_bits).astype(np.uint64)
+    cur = np.asarray(stored_bits).astype(np.uint64)
+
+    def syndrome_and_parity(v):
+        syn = np.zeros(v.shape, dtype=np.uint64)
+        par = np.zeros(v.shape, dtype=np.uint64)
+        for p, b in zip(pos, prot):
+            bit = (v >> np.uint64(b)) & np.uint64(1)
+            syn ^= bit * np.uint64(p)
+            par ^= bit
+        return syn, par
+
+    s_clean, p_clean = syndrome_and_parity(clean)
+    s_cur, p_cur = syndrome_and_parity(cur)
+    syn = s_clean ^ s_cur
+    single = (syn != 0) & ((p_clean ^ p_cur) == 1)
+    out = cur.copy()
+    for p, b in zip(pos, prot):
+        hit = single & (syn == np.uint64(p))
+        out[hit] ^= np.uint64(1) << np.uint64(b)
+    n = len(prot) + r  # codeword positions 1..n: data at `pos`, check bits at the powers of two
+    uncorrectable = (syn != 0) & (((p_clean ^ p_cur) == 0) | (syn > np.uint64(n)))
+    return out.astype(np.asarray(stored_bits).dtype), uncorrectable
+
+
+def majority(a, b, c):
+    """Bitwise majority vote of three copies (triple modular redundancy)."""
+    return (a & b) | (a & c) | (b & c)
+
+
+def dup_read(clean_bits: np.ndarray, stored_bits: np.ndarray) -> np.ndarray:
+    """Full duplication with majority voting: the upset hit one of three copies (copy 0)."""
+    return majority(np.asarray(stored_bits), np.asarray(clean_bits), np.asarray(clean_bits))
+
+
+def cull_bits(precision: str) -> int:
+    """Stored pattern written into a culled primitive's means: a quiet NaN (the renderer culls a
+    primitive whose camera-space depth is not finite, docs/renderer.md rule 2)."""
+    return {"fp32": 0x7FC00000, "fp16": 0x7E00, "bf16": 0x7FC0}[encoding.check_precision(precision)]
+
+
+def cull(rows: np.ndarray, hit: np.ndarray, precision: str) -> np.ndarray:
+    """`rows` with the means of the `hit` primitives set to cull_bits (the renderer draws nothing)."""
+    out = rows.copy()
+    out[np.ix_(hit, np.arange(3))] = cull_bits(precision)  # means are components 0..2
+    return out
+
+
+def parity_cover_mask(precision: str) -> int:
+    """Bits of each value the parity defenses cover: sign, exponent and the top PARITY_MANTISSA
+    mantissa bits."""
+    man, _ = encoding.LAYOUT[encoding.check_precision(precision)]
+    return ((1 << encoding.bits_per_value(precision)) - 1) & ~((1 << (man - PARITY_MANTISSA)) - 1)
+
+
+def parity_bits(rows: np.ndarray, precision: str, degree: int, ways: int, fields=GUARD_FIELDS) -> np.ndarray:
+    """[M, ways] parity of the covered bits of each primitive's `fields` values, way w over bit
+    positions b with b % ways == w (interleaving: a burst of <= ways adjacent bits of one value
+    flips at most one bit of each way)."""
+    cols = covered_components(fields, degree)
+    v = np.asarray(rows)[:, cols].astype(np.uint64) & np.uint64(parity_cover_mask(precision))
+    out = np.zeros((v.shape[0], ways), dtype=np.uint8)
+    for b in range(encoding.bits_per_value(precision)):
+        out[:, b % ways] ^= ((v >> np.uint64(b)) & np.uint64(1)).astype(np.uint8).sum(axis=1).astype(np.uint8) & 1
+    return out
+
+
+CHECKSUM_SEED = 0x811C9DC5
+
+
+def fmix32(h: np.ndarray) -> np.ndarray:
+    """MurmurHash3's 32-bit finaliser (a bijection that avalanches), on uint64 arrays of u32 values."""
+    m = np.uint64(0xFFFFFFFF)
+    h = h ^ (h >> np.uint64(16))
+    h = (h * np.uint64(0x85EBCA6B)) & m
+    h = h ^ (h >> np.uint64(13))
+    h = (h * np.uint64(0xC2B2AE35)) & m
+    return h ^ (h >> np.uint64(16))
+
+
+def checksum(rows: np.ndarray) -> np.ndarray:
+    """[M] 32-bit checksum of each primitive's stored patterns: h = fmix32(h ^ value) per value.
+    (FNV-1a's multiply-only step was dropped: it moves a difference only upwards, so two sign-bit
+    flips in one primitive cancel; a fault storm found such a pair.)"""
+    h = np.full(np.asarray(rows).shape[0], CHECKSUM_SEED, dtype=np.uint64)
+    for c in range(rows.shape[1]):
+        h = fmix32(h ^ rows[:, c].astype(np.uint64))
+    return h.astype(np.uint32)
+
+
+@functools.cache
+def scale_class_table(lo: float, hi: float, precision: str) -> np.ndarray:
+    """The 2**SCALE_CLASS_BITS log-scale upper bounds a class stands for: the model's log-scale
+    range [lo, hi] cut into equal classes, each top rounded up to a stored value; the last is hi.
+    Cached per (range, precision), since every read of a scalebound primitive needs it; read-only."""
+    k = 1 << SCALE_CLASS_BITS
+    edges = (lo + (np.arange(1, k + 1) / k) * max(hi - lo, 0.0)).astype(np.float32)
+    q = encoding.quantize(edges, precision)
+    for _ in range(8):  # round up in the stored precision, one representable step at a time
+        below = q < edges
+        if not below.any():
+            break
+        b = encoding.to_bits(q[below], precision).astype(np.int64)
+        nxt = np.where(q[below] == 0, 1, np.where(np.signbit(q[below]), b - 1, b + 1))
+        q[below] = encoding.from_bits(nxt.astype(np.uint32), precision)
+    q[-1] = hi
+    table = np.maximum.accumulate(np.minimum(q, np.float32(hi)))
+    table.flags.writeable = False
+    return table
+
+
+def scale_classes(clean: np.ndarray, table: np.ndarray, precision: str) -> np.ndarray:
+    """[M] class of each primitive: the lowest whose bound holds its largest finite log-scale."""
+    ls = encoding.from_bits(np.asarray(clean)[:, 3:6], precision)
+    top = np.where(np.isfinite(ls), ls, -np.inf).max(axis=1)
+    return np.minimum(np.searchsorted(table, top, side="left"), table.size - 1)
+
+
+def scale_class_bounds(clean: np.ndarray, lo: float, hi: float, precision: str) -> np.ndarray:
+    """[M] upper bound of each primitive's log-scales (scalebound's 4-bit class, looked up)."""
+    table = scale_class_table(lo, hi, precision)
+    return table[scale_classes(clean, table, precision)]
+
+
+def ecc_crit_read(clean: np.ndarray, corrupt: np.ndarray, precision: str, degree: int) -> np.ndarray:
+    cols = covered_components(CRITICAL_FIELDS, degree)
+    out = corrupt.copy()
+    out[:, cols], flagged = ecc_decode(clean[:, cols], corrupt[:, cols], precision)
+    # SEC-DED flags what it cannot correct (two errors in the protected bits): cull. What it does
+    # not flag (three errors read as one and "corrected", four with a zero syndrome) passes.
+    return cull(out, flagged.any(axis=1), precision)
+
+
+CELL_GRID = 8
+
+
+class CellBoxes:
+    """cellbox's stored state: the grid, each primitive's cell, and per-cell boxes [cells, 14]."""
+
+    def __init__(self, rows: np.ndarray, precision: str, degree: int):
+        rows = np.asarray(rows)
+        vals = encoding.from_bits(rows, precision)
+        means = vals[:, :3].astype(np.float64)
+        fin = np.isfinite(means).all(axis=1)
+        self.lo, self.hi = np.percentile(means[fin], 1, axis=0), np.percentile(means[fin], 99, axis=0)
+        self.cell = self.cell_of(means)
+        self.cols = covered_components(GUARD_FIELDS, degree)
+        v = vals[:, self.cols].astype(np.float32)
+        ncell = CELL_GRID**3
+        self.box_lo = np.zeros((ncell, self.cols.size), np.float32)
+        self.box_hi = np.zeros((ncell, self.cols.size), np.float32)
+        for c in np.unique(self.cell):
+            x = v[self.cell == c]
+            f = np.isfinite(x)
+            lo, hi = np.where(f, x, np.inf).min(0), np.where(f, x, -np.inf).max(0)
+            empty = ~np.isfinite(lo)
+            lo[empty], hi[empty] = 0, 0
+            self.box_lo[c], self.box_hi[c] = lo, hi
+        self.precision = precision
+
+    def cell_of(self, means: np.ndarray) -> np.ndarray:
+        with np.errstate(invalid="ignore"):
+            q = np.floor((means - self.lo) / np.maximum(self.hi - self.lo, 1e-30) * CELL_GRID)
+        q = np.clip(np.nan_to_num(q, nan=0), 0, CELL_GRID - 1).astype(np.int64)
+        return (q[:, 0] * CELL_GRID + q[:, 1]) * CELL_GRID + q[:, 2]
+
+
+def cellbox_read(clean: np.ndarray, corrupt: np.ndarray, prims: np.ndarray, cells: CellBoxes) -> np.ndarray:
+    """Clamp the guarded values of `corrupt` (primitives `prims`) into their stored cell's box."""
+    out = corrupt.copy()
+    p = cells.precision
+    cid = cells.cell[np.asarray(prims, dtype=np.int64)]
+    lo, hi = cells.box_lo[cid], cells.box_hi[cid]
+    v = encoding.from_bits(out[:, cells.cols], p)
+    with np.errstate(invalid="ignore"):
+        low = np.isnan(v) | (v < lo)
+        high = v > hi
+    sub = out[:, cells.cols]
+    sub[low] = encoding.to_bits(lo[low], p)
+    sub[high] = encoding.to_bits(hi[high], p)
+    out[:, cells.cols] = sub
+    return out
+
+
+def scale_table(box, precision: str) -> np.ndarray:
+    """scalebound's class bounds for a model: its log-scale box cut into 2**SCALE_CLASS_BITS."""
+    return scale_class_table(float(box.lo[3:6].min()), float(box.hi[3:6].max()), precision)

@@ -1,0 +1,72 @@
+// #import common
+
+// Repair on the device (faults/check.py DeviceRepair): every primitive the check inside the frame
+// flagged (project.wgsl FRAME_CHECK) is rewritten from the golden copy of its chunk, after the
+// golden row's own checksum is verified (h = fmix32(h ^ value) over its values, as check.wgsl's
+// MODE_CHECKSUM); a golden row that fails is counted and left alone (the primitive stays dropped).
+// One thread per stored word of a plane: at fp16/bf16 a word holds two primitives, so one thread
+// writes both halves and no two threads write one word.
+
+struct RepairParams {
+    plane_words: u32,
+    ncomp: u32,
+    chunk_count: u32,     // primitives in this chunk
+    fmt: u32,
+    prim_base: u32,       // global index of this chunk's first primitive
+    _p0: u32,
+    _p1: u32,
+    _p2: u32,
+};
+
+@group(0) @binding(0) var<uniform> params: RepairParams;
+@group(0) @binding(1) var<storage, read_write> words: array<u32>;
+@group(0) @binding(2) var<storage, read> golden: array<u32>;
+@group(0) @binding(3) var<storage, read> golden_sum: array<u32>;
+// the frame check's output: [0, 1] detections, [2] golden rows that failed, [3] primitives
+// repaired, then a flag bit per primitive (cleared when repaired)
+@group(0) @binding(4) var<storage, read_write> out: array<atomic<u32>>;
+
+fn fmix32(x: u32) -> u32 {
+    var h = x ^ (x >> 16u);
+    h = h * 0x85ebca6bu;
+    h = h ^ (h >> 13u);
+    h = h * 0xc2b2ae35u;
+    return h ^ (h >> 16u);
+}
+
+@compute @workgroup_size(WG)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let w = linear_id(gid, nwg);
+    let per = select(2u, 1u, params.fmt == FMT_FP32);
+    if (w * per >= params.chunk_count) {
+        return;
+    }
+    var mask = 0u;  // the bits of the word to take from the golden copy
+    for (var h = 0u; h < per; h = h + 1u) {
+        let j = w * per + h;
+        let p = params.prim_base + j;
+        if (j >= params.chunk_count || (atomicLoad(&out[4u + (p >> 5u)]) & (1u << (p & 31u))) == 0u) {
+            continue;
+        }
+        let half = select(0xffffu << (16u * h), 0xffffffffu, per == 1u);
+        var s = 0x811C9DC5u;
+        for (var c = 0u; c < params.ncomp; c = c + 1u) {
+            let g = golden[c * params.plane_words + w];
+            s = fmix32(s ^ select((g >> (16u * h)) & 0xffffu, g, per == 1u));
+        }
+        if (s != golden_sum[p]) {
+            atomicAdd(&out[2], 1u);
+            continue;
+        }
+        mask = mask | half;
+        atomicAnd(&out[4u + (p >> 5u)], ~(1u << (p & 31u)));
+        atomicAdd(&out[3], 1u);
+    }
+    if (mask == 0u) {
+        return;
+    }
+    for (var c = 0u; c < params.ncomp; c = c + 1u) {
+        let i = c * params.plane_words + w;
+        words[i] = (words[i] & ~mask) | (golden[i] & mask);
+    }
+}
