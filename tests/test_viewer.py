@@ -238,7 +238,7 @@ def test_offscreen_window_panel_and_input(model, gpu):
     from seuwgpu.apps.viewer import OrbitCamera, ViewerState
     from seuwgpu.apps.viewer_window import PANEL_WIDTH, ViewerApp
 
-    W, H = PANEL_WIDTH + 120, 360
+    W, H = PANEL_WIDTH + 120, 400  # the whole panel down to its inject section
     canvas = RenderCanvas(size=(W, H))
     st = ViewerState(model, "fp32", (120, H), scene="spheres", orbit=OrbitCamera.for_scene("spheres"))
     app = ViewerApp(st, canvas)

@@ -418,9 +418,8 @@ class ViewerApp:
         psnr = ro.get("psnr", float("inf"))
         psnr_text = f"{psnr:7.2f}" if np.isfinite(psnr) else f"{'inf' if psnr > 0 else 'NaN':>7}"  # NaN: undefined
         imgui.text(f"PSNR {psnr_text} dB  non-finite {ro.get('nonfinite_pixels', 0):>8} px")
-        imgui.text(
-            f"seen with faults {ro.get('seen_frames', 0):>6} frames, {ro.get('seen_catastrophic', 0):>6} catastrophic"
-        )
+        # what the user has seen since the faults or the defense changed (fits the panel's width)
+        imgui.text(f"seen {ro.get('seen_frames', 0):>6} faulty frames, {ro.get('seen_catastrophic', 0):>5} catastr.")
         # two reserved rows for the guard line and its alert details
         if st.guard == "off":
             imgui.text_colored(_rgb(0.6, 0.6, 0.6), "guard off: clamps not monitored")
