@@ -1,6 +1,6 @@
 """seuwgpu: single-event-upset fault injection for 3D Gaussian splatting on WGSL compute shaders.
 
-The public API (seuwgpu/api.py) is importable from here: `import seuwgpu as sg; sg.render(...)`.
+The public API (seuwgpu/api/) is importable from here: `import seuwgpu as sg; sg.render(...)`.
 It is loaded on first use, so `import seuwgpu` and `seuwgpu --version` stay fast.
 """
 

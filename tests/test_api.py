@@ -1,4 +1,4 @@
-"""The public Python API (seuwgpu/api.py), used only through the package root, as a user would."""
+"""The public Python API (seuwgpu/api/), used only through the package root, as a user would."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ def views(scene):
 def test_root_exports_the_api():
     from seuwgpu import api
 
-    assert set(sg.__all__) == {"__version__", *api.__all__}  # the lazy list in __init__ agrees with api.py
+    assert set(sg.__all__) == {"__version__", *api.__all__}  # the lazy list in __init__ agrees with seuwgpu.api
     assert all(getattr(sg, name) is getattr(api, name) for name in api.__all__)
     with pytest.raises(AttributeError):
         sg.no_such_function  # noqa: B018

@@ -43,7 +43,7 @@ def test_models_name_their_bits():
     assert model_bits("adjacent", 15, "bf16", 5) == ((12, 13, 14, 15), "flip", 0)
     assert model_bits("adjacent", 1, "fp32", 2) == ((0, 1, 2, 3), "flip", 0)  # moved up to fit
     # a bit out of range is named as asked, not as the burst's lowest bit
-    from seuwgpu.api import _fault_bits
+    from seuwgpu.api._checks import fault_bits as _fault_bits
 
     with pytest.raises(ValueError, match="bit 30 is out of range for fp16"):
         _fault_bits("adjacent", 30, 3, "fp16", 0)

@@ -3,7 +3,7 @@
     python tools/build_docs.py [--out docs/api]
 
 tests/test_docs.py builds it again into a temporary folder and fails when the committed copy
-differs, so the reference cannot go stale: re-run this after changing seuwgpu/api.py.
+differs, so the reference cannot go stale: re-run this after changing seuwgpu/api/.
 """
 
 from __future__ import annotations
