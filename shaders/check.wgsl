@@ -63,15 +63,6 @@ fn side_code(g: u32) -> u32 {
     return (side[g / per] >> ((g % per) * params.side_bits)) & ((1u << params.side_bits) - 1u);
 }
 
-// MurmurHash3's finaliser: a bijection of u32 that avalanches (twin: codes.fmix32)
-fn fmix32(x: u32) -> u32 {
-    var h = x ^ (x >> 16u);
-    h = h * 0x85ebca6bu;
-    h = h ^ (h >> 13u);
-    h = h * 0xc2b2ae35u;
-    return h ^ (h >> 16u);
-}
-
 // the parameters' seal as the host computed it (twin: check.py seal_words)
 fn params_seal() -> u32 {
     var h = 0x811C9DC5u;

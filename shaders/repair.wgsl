@@ -26,14 +26,6 @@ struct RepairParams {
 // repaired, then a flag bit per primitive (cleared when repaired)
 @group(0) @binding(4) var<storage, read_write> out: array<atomic<u32>>;
 
-fn fmix32(x: u32) -> u32 {
-    var h = x ^ (x >> 16u);
-    h = h * 0x85ebca6bu;
-    h = h ^ (h >> 13u);
-    h = h * 0xc2b2ae35u;
-    return h ^ (h >> 16u);
-}
-
 @compute @workgroup_size(WG)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let w = linear_id(gid, nwg);
