@@ -18,8 +18,9 @@ from seuwgpu.campaign import store
 from seuwgpu.campaign.merge import merge
 from seuwgpu.campaign.runner import Runner, replay
 from seuwgpu.campaign.sampling import enumerate_contexts
+from seuwgpu.campaign.schema import COLUMNS, RECORD_SCHEMA, REPRODUCIBLE_COLUMNS
 from seuwgpu.campaign.spec import SpecError, load_spec, normalize_spec
-from seuwgpu.campaign.store import COLUMNS, REPRODUCIBLE_COLUMNS, read_records
+from seuwgpu.campaign.store import read_records
 from seuwgpu.render.regions import REGION_GRID_VERSION
 
 SPEC = textwrap.dedent("""
@@ -613,7 +614,7 @@ def test_parts_carry_their_compute_time(tmp_path):
 
 
 def test_parts_are_written_with_the_records_schema_and_checked_when_read(tmp_path):
-    """store.RECORD_SCHEMA: a part's columns are written with its types (an integer column given as
+    """schema.RECORD_SCHEMA: a part's columns are written with its types (an integer column given as
     whole floats is stored int64, a bitmask computed as uint64 keeps its 64 bits as int64), a
     column no record has is refused, and a part whose column holds another kind of value is
     refused when read, naming the part and the column."""
@@ -639,7 +640,7 @@ def test_parts_are_written_with_the_records_schema_and_checked_when_read(tmp_pat
     pd.DataFrame({"scene": [1, 2]}).to_parquet(store.part_path(tmp_path, 4, 2))  # another tool's file
     with pytest.raises(store.InputError, match=r"part-0000000004-000002.parquet: column scene holds int64, records"):
         store.read_part(store.part_path(tmp_path, 4, 2))
-    assert store.COLUMNS == store.RECORD_SCHEMA.names
+    assert COLUMNS == RECORD_SCHEMA.names
 
 
 def test_part_writer_writes_every_queued_part_and_reports_errors(tmp_path):

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from seuwgpu.apps.cli import main
-from seuwgpu.campaign.store import REPRODUCIBLE_COLUMNS, read_manifest, read_records
+from seuwgpu.campaign.schema import REPRODUCIBLE_COLUMNS
+from seuwgpu.campaign.store import read_manifest, read_records
 from seuwgpu.model.formats import read_model
 from seuwgpu.model.scenes import make_scene, scene_cameras
 from seuwgpu.render.renderer import Renderer

@@ -15,9 +15,10 @@ from seuwgpu.campaign import ray as distributed
 from seuwgpu.campaign import sortfirst
 from seuwgpu.campaign.ray import ray_available
 from seuwgpu.campaign.runner import Runner
+from seuwgpu.campaign.schema import REPRODUCIBLE_COLUMNS
 from seuwgpu.campaign.sortfirst import split_regions
 from seuwgpu.campaign.spec import normalize_spec
-from seuwgpu.campaign.store import REPRODUCIBLE_COLUMNS, read_records
+from seuwgpu.campaign.store import read_records
 from seuwgpu.render.regions import region_id_map
 
 needs_ray = pytest.mark.skipif(

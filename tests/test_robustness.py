@@ -16,6 +16,7 @@ from seuwgpu.campaign import store
 from seuwgpu.campaign.budget import check_campaign
 from seuwgpu.campaign.merge import merge
 from seuwgpu.campaign.runner import Runner
+from seuwgpu.campaign.schema import REPRODUCIBLE_COLUMNS
 from seuwgpu.campaign.spec import SpecError, load_spec, normalize_spec, spec_hash
 from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.model.budget import check_frames, check_render
@@ -46,7 +47,7 @@ def tiny_spec(tmp_path, scene='scene = "spheres"\n    n = 200', name="spec.toml"
 def records(run):
     """A run's records in a canonical order, without the wall-clock time_ms (never reproduced)."""
     df = store.read_records(run).sort_values(["injection_id", "defense"]).reset_index(drop=True)
-    return df[store.REPRODUCIBLE_COLUMNS]
+    return df[REPRODUCIBLE_COLUMNS]
 
 
 @pytest.fixture(scope="module")

@@ -21,6 +21,7 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate
 from seuwgpu.campaign import store
+from seuwgpu.campaign.schema import check_part_schema
 from seuwgpu.metrics.image import OUTCOMES
 
 COUNTS = (*OUTCOMES, "nonfinite")
@@ -96,7 +97,7 @@ def _read(path: Path, columns: list[str], optional=()) -> pd.DataFrame:
     import pyarrow.parquet as pq
 
     schema = pq.read_schema(path)
-    store.check_part_schema(path, schema)  # a column of the wrong kind: refused, naming the part
+    check_part_schema(path, schema)  # a column of the wrong kind: refused, naming the part
     have = set(schema.names)
     missing = [c for c in columns if c not in have]
     if missing:

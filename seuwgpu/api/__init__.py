@@ -509,7 +509,8 @@ def outcome_rates(
     sentence naming unfinished runs, "" if none)."""
     from seuwgpu.analysis.cells import fold_runs, groups
     from seuwgpu.analysis.cells import outcome_rates as rates
-    from seuwgpu.campaign.store import campaign_runs, check_record_columns, partial_runs_text
+    from seuwgpu.campaign.schema import check_record_columns
+    from seuwgpu.campaign.store import campaign_runs, partial_runs_text
 
     by = list(dict.fromkeys(names_of(by, "by")))  # a column named twice: once
     check_record_columns(by, "by")

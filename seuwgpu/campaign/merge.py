@@ -12,13 +12,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from seuwgpu.campaign import store
+from seuwgpu.campaign import schema, store
 from seuwgpu.campaign.spec import SpecError, renamed_models, spec_hash, unlabelled_spec_hash
 
 
 def same_records(a: Path, b: Path) -> bool:
     """Two copies of a part hold the same records: the same bytes, or the same values in every
-    column but the wall-clock ones (store.TIMED_COLUMNS): a shard run twice (a re-run after a lost
+    column but the wall-clock ones (schema.TIMED_COLUMNS): a shard run twice (a re-run after a lost
     node, or a whole run beside its shards) times its renders anew and reproduces everything else."""
     if a.read_bytes() == b.read_bytes():
         return True
@@ -27,7 +27,7 @@ def same_records(a: Path, b: Path) -> bool:
     x, y = pd.read_parquet(a), pd.read_parquet(b)
     if list(x.columns) != list(y.columns):
         return False
-    timed = [c for c in store.TIMED_COLUMNS if c in x.columns]
+    timed = [c for c in schema.TIMED_COLUMNS if c in x.columns]
     return x.drop(columns=timed).equals(y.drop(columns=timed))
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from seuwgpu.campaign import store
+from seuwgpu.campaign import schema, store
 from seuwgpu.campaign.progress import injection_bar
 from seuwgpu.campaign.sampling import Context, draw_sites, enumerate_contexts, injection_seeds
 from seuwgpu.campaign.spec import Spec, SpecError, as_spec, spec_hash
@@ -84,7 +84,7 @@ class Runner:
                 "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
                 "total_injections": self.total,
                 "profile": self.spec.renderer_profile,
-                "columns": store.COLUMNS,
+                "columns": schema.COLUMNS,
                 "outcomes": self.thresholds,
                 "region_grid": REGION_GRID_VERSION,
                 "models": models,
@@ -355,7 +355,7 @@ class Runner:
         )
         df["catastrophic"] = df["outcome"].to_numpy() == "catastrophic"
         df["time_ms"] = df["defense"].map(self.view_times(eng, ctx)).astype(float)
-        return df.reindex(columns=store.columns_of(ctx))
+        return df.reindex(columns=schema.columns_of(ctx))
 
     def run_block(self, eng, ctx: Context, first: int, count: int) -> pd.DataFrame:
         return self.run_blocks(eng, ctx, [(first, count)])[0]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from seuwgpu.campaign import store
+from seuwgpu.campaign.schema import REPRODUCIBLE_COLUMNS
 
 
 def npz_shape(path, shape):
@@ -63,9 +64,7 @@ def records_equal(run, ref):
 
     def check(_out):
         a, b = (
-            store.read_records(d)
-            .sort_values(["injection_id", "defense"])
-            .reset_index(drop=True)[store.REPRODUCIBLE_COLUMNS]
+            store.read_records(d).sort_values(["injection_id", "defense"]).reset_index(drop=True)[REPRODUCIBLE_COLUMNS]
             for d in (run, ref)
         )
         assert len(a) == len(b) and a.equals(b), (len(a), len(b))

@@ -49,7 +49,7 @@ def cmd_rates(args):
 
     from seuwgpu import api
     from seuwgpu.analysis.cells import COUNTS
-    from seuwgpu.campaign.store import check_record_columns
+    from seuwgpu.campaign.schema import check_record_columns
 
     by = list(dict.fromkeys(c.strip() for c in args.by.split(",") if c.strip()))  # a column named twice: once
     check_record_columns(by, "--by")
