@@ -740,7 +740,8 @@ def test_the_spec_is_typed_and_its_stored_form_round_trips():
     `spec`, what the hash covers) reads back as the same Spec, and a typo is still one line."""
     import json
 
-    from seuwgpu.campaign.spec import DoseSpec, SizesSpec, Spec, UpsetSpec, spec_hash
+    from seuwgpu.campaign.spec_hash import spec_hash
+    from seuwgpu.campaign.spec_types import DoseSpec, SizesSpec, Spec, UpsetSpec
 
     raw = {
         "seed": 3,

@@ -280,7 +280,8 @@ def _spec_run(run_dir, records, raw: dict, ids=range(0, 400)) -> dict:
     first id is in `ids` (records of the right row count; their values do not matter here)."""
     import json
 
-    from seuwgpu.campaign.spec import normalize_spec, spec_hash
+    from seuwgpu.campaign.spec import normalize_spec
+    from seuwgpu.campaign.spec_hash import spec_hash
 
     spec = normalize_spec(raw)
     store.records_dir(run_dir).mkdir(parents=True)
@@ -297,7 +298,7 @@ def test_the_same_sites_under_another_spec_hash_are_caught(runs, tmp_path):
     """Specs that differ only in what draws and measures no site (a name, the batch, thresholds,
     LPIPS, region columns, an explicit default profile) have other spec hashes but the same sites
     key: their runs hold the same sites, and pooled would count them twice."""
-    from seuwgpu.campaign.spec import sites_key, spec_hash
+    from seuwgpu.campaign.spec_hash import sites_key, spec_hash
     from seuwgpu.report.build import load_runs
 
     _, records = runs

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from seuwgpu.campaign.sampling import Context, draw_sites, injection_seeds
-from seuwgpu.campaign.spec import SpecError, normalize_spec, spec_hash
+from seuwgpu.campaign.spec import SpecError, normalize_spec
+from seuwgpu.campaign.spec_hash import spec_hash
 from seuwgpu.faults.engine import Engine
 from seuwgpu.faults.sites import Site, corrupt_bits, fault_name, model_bits
 from seuwgpu.model.scenes import make_scene, scene_cameras

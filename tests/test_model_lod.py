@@ -15,7 +15,8 @@ from PIL import Image
 
 from seuwgpu.apps.cli import build_parser, main, parse_arguments
 from seuwgpu.apps.cli.options import load_source
-from seuwgpu.campaign.spec import SpecError, normalize_spec, scene_label, spec_hash
+from seuwgpu.campaign.spec import SpecError, normalize_spec, scene_label
+from seuwgpu.campaign.spec_hash import spec_hash
 from seuwgpu.model.fields import FIELDS
 from seuwgpu.model.formats import ModelFileError, detect_format, model_files, read_model, save_model
 from seuwgpu.model.scenes import make_scene

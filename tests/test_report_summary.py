@@ -11,7 +11,9 @@ import pandas as pd
 import pytest
 
 from seuwgpu.analysis.summary import DEFAULT_TARGET, cheapest, spec_target
-from seuwgpu.campaign.spec import SpecError, as_spec, normalize_spec, sites_key
+from seuwgpu.campaign.spec import SpecError, normalize_spec
+from seuwgpu.campaign.spec_hash import sites_key
+from seuwgpu.campaign.spec_types import as_spec
 
 
 def defenses(rows):

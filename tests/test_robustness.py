@@ -17,7 +17,8 @@ from seuwgpu.campaign.budget import check_campaign
 from seuwgpu.campaign.merge import merge
 from seuwgpu.campaign.runner import Runner
 from seuwgpu.campaign.schema import REPRODUCIBLE_COLUMNS
-from seuwgpu.campaign.spec import SpecError, load_spec, normalize_spec, spec_hash
+from seuwgpu.campaign.spec import SpecError, load_spec, normalize_spec
+from seuwgpu.campaign.spec_hash import spec_hash
 from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.model.budget import check_frames, check_render
 from seuwgpu.model.cameras import CameraFileError, read_cameras
@@ -132,7 +133,7 @@ def test_shards_made_before_the_model_name_was_hashed_still_merge(tmp_path):
     all as "its manifest's spec does not match its spec hash (edited by hand?)": finished shards
     could not be joined. They merge, and shards of such a campaign that name the model otherwise
     (scan.ply, copy.ply: one hash then) are still refused."""
-    from seuwgpu.campaign.spec import unlabelled_spec_hash
+    from seuwgpu.campaign.spec_hash import unlabelled_spec_hash
 
     save_model(make_scene("spheres", n=150, seed=1), tmp_path / "scan.ply")
     shutil.copy(tmp_path / "scan.ply", tmp_path / "copy.ply")

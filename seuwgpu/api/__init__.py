@@ -50,7 +50,7 @@ from seuwgpu.api._checks import (
 )
 from seuwgpu.api._injection import FRAME_FILE_FORMATS, Injection, injected_models, mean_lpips, plain, save_frames
 from seuwgpu.api._studies import defense_costs, sort_first, state_flips, storm, worst_case
-from seuwgpu.campaign.spec import Spec
+from seuwgpu.campaign.spec_types import Spec
 from seuwgpu.campaign.store import CampaignRun
 from seuwgpu.errors import InputError, RunInUse, SeuwgpuError, TooBig
 from seuwgpu.faults.defenses import DEFENSES
@@ -363,7 +363,7 @@ def run_campaign(
     address: str | None = None,
 ) -> dict:
     """Run (or resume) the campaign of a spec (a dict with the keys of a spec file, a TOML path such
-    as `default_spec()`, or a validated `campaign.spec.Spec`) into the run directory `out`.
+    as `default_spec()`, or a validated `campaign.spec_types.Spec`) into the run directory `out`.
     `progress(done, total, catastrophic)` is called after each block of injections;
     `progress=True` shows a rich progress bar (also in a notebook), "log" a line on stderr every
     10 s (a batch job's log), None or False nothing. `executor="ray"` runs the shard's blocks on

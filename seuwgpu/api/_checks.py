@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seuwgpu.campaign.spec import Spec
+from seuwgpu.campaign.spec_types import Spec
 from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import check_defense
 from seuwgpu.faults.sites import (

@@ -7,7 +7,7 @@ after minutes."""
 from __future__ import annotations
 
 from seuwgpu.campaign.sampling import enumerate_contexts
-from seuwgpu.campaign.spec import Spec
+from seuwgpu.campaign.spec_types import Spec
 from seuwgpu.errors import TooBig
 from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, available_text, check_model, gb
 

@@ -13,7 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from seuwgpu.campaign import schema, store
-from seuwgpu.campaign.spec import SpecError, renamed_models, spec_hash, unlabelled_spec_hash
+from seuwgpu.campaign.spec import SpecError
+from seuwgpu.campaign.spec_hash import renamed_models, spec_hash, unlabelled_spec_hash
 
 
 def same_records(a: Path, b: Path) -> bool:

@@ -289,7 +289,7 @@ def run_ray(
     ray = get_ray()
     from seuwgpu.campaign import store
     from seuwgpu.campaign.budget import check_campaign
-    from seuwgpu.campaign.spec import as_spec
+    from seuwgpu.campaign.spec_types import as_spec
 
     spec = as_spec(spec)
     if workers is not None and (isinstance(workers, bool) or int(workers) != workers or workers < 1):

@@ -18,7 +18,9 @@ import pandas as pd
 from seuwgpu.campaign import schema, store
 from seuwgpu.campaign.progress import injection_bar
 from seuwgpu.campaign.sampling import Context, draw_sites, enumerate_contexts, injection_seeds
-from seuwgpu.campaign.spec import Spec, SpecError, as_spec, spec_hash
+from seuwgpu.campaign.spec import SpecError
+from seuwgpu.campaign.spec_hash import spec_hash
+from seuwgpu.campaign.spec_types import Spec, as_spec
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.sites import draw_uniform_sites
 from seuwgpu.metrics.image import FOOTPRINT_THRESHOLD, PIXEL_THRESHOLD, outcome_class

@@ -12,7 +12,7 @@ from dataclasses import field as dc_field
 
 import numpy as np
 
-from seuwgpu.campaign.spec import SceneSpec, Spec, as_spec
+from seuwgpu.campaign.spec_types import SceneSpec, Spec, as_spec
 from seuwgpu.faults.sites import VALUE_MODELS, Site, model_bits, site_from_flat
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import field_components, stored_fields

@@ -97,7 +97,7 @@ def expected_parts(spec) -> dict[tuple[int, int], int]:
     injections per context, one row per injection and defense). `spec`: a Spec or its stored
     form (a manifest's)."""
     from seuwgpu.campaign.sampling import enumerate_contexts
-    from seuwgpu.campaign.spec import as_spec
+    from seuwgpu.campaign.spec_types import as_spec
 
     spec = as_spec(spec)
     out, bs = {}, spec.batch
@@ -176,7 +176,7 @@ class CampaignRun:
 
 def campaign_runs(run_dirs) -> list[CampaignRun]:
     """Each run directory's CampaignRun (a list of them is returned as it is)."""
-    from seuwgpu.campaign.spec import sites_key
+    from seuwgpu.campaign.spec_hash import sites_key
 
     run_dirs = list(run_dirs)
     if all(isinstance(r, CampaignRun) for r in run_dirs):
@@ -314,7 +314,8 @@ def check_same_run(run_dir, manifest: dict | None, spec, spec_hash: str):
     """Refuse to add records of `spec` (a Spec, or its stored form) to a run of another spec,
     naming what differs (a model or camera file whose content changed since the run began, else
     the spec hashes). A run without any part may be replaced (the caller writes the new manifest)."""
-    from seuwgpu.campaign.spec import SpecError, spec_dict
+    from seuwgpu.campaign.spec import SpecError
+    from seuwgpu.campaign.spec_types import spec_dict
 
     spec = spec_dict(spec)
 
@@ -332,7 +333,7 @@ def check_same_run(run_dir, manifest: dict | None, spec, spec_hash: str):
                     f"{ha[:12]}.. then, {hb[:12]}.. now): the file changed since the run began; restore it, or "
                     "use a new --out directory"
                 )
-    from seuwgpu.campaign.spec import renamed_models
+    from seuwgpu.campaign.spec_hash import renamed_models
 
     renamed = renamed_models(old, spec)
     if renamed:
