@@ -26,7 +26,7 @@ def check(folder: Path) -> bool:
         n, degree = model.n, model.sh_degree
         good = n == m.primitives and degree == m.sh_degree
         for fmt, rel in m.also.items():  # the same model in the publisher's other formats
-            other = api.load_model(path.parent / rel).model
+            other = api.load_model(folder / m.name / rel).model  # `also` paths: in the model's folder
             same = other.n == n and other.sh_degree == degree
             good &= same
             flag = "" if same else " DIFFERS"

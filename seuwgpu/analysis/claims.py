@@ -376,9 +376,8 @@ def claims_table(
         # verdict than the rows over models give them (those carry their own n_models)
         few = t["verdict"].isin(["reproduced", "differs"]) & t["n_models"].isna()
         few &= 0 < n_models < population.MIN_MODELS
-        t.loc[few, "basis"] = t.loc[few, "basis"] + (
-            f"; {pop}: {n_models} model(s), under {population.MIN_MODELS}: inconclusive (was {t.loc[few, 'verdict']})"
-        )
+        note = f"; {pop}: {n_models} model(s), under {population.MIN_MODELS}: inconclusive (was "
+        t.loc[few, "basis"] = t.loc[few, "basis"] + note + t.loc[few, "verdict"] + ")"  # each row its own
         t.loc[few, "verdict"] = "inconclusive"
         tables.append(t)
     t = pd.concat(tables, ignore_index=True)

@@ -457,10 +457,14 @@ class Projection:
         """The check inside the frame: `side` the packed 4-bit parity codes of every primitive,
         `out` its output (a CheckOut: count twice, 2 words, a flag bit per primitive), `cover` the
         bits of each value the parity covers; None: off (today's pipeline)."""
-        if side is None:  # placeholders (a buffer is never bound both read-only and writable)
+        if side is None:  # placeholders (a buffer is never bound both read-only and writable), made once
+            if getattr(self, "_frame_off", None) is None:
+                self._frame_off = (
+                    self.gpu.buffer(16, STORAGE, f"{self.label}.frame_side_off"),
+                    self.gpu.buffer(16, STORAGE, f"{self.label}.frame_out_off"),
+                )
             self.frame_cover = 0
-            self.frame_side = self.gpu.buffer(16, STORAGE, f"{self.label}.frame_side_off")
-            self.frame_out = self.gpu.buffer(16, STORAGE, f"{self.label}.frame_out_off")
+            self.frame_side, self.frame_out = self._frame_off
             return
         self.frame_side, self.frame_out, self.frame_cover = side, out, int(cover)
 

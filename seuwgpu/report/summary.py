@@ -42,6 +42,11 @@ def _ms(t: float) -> str:
     return f"{t:.3g} ms" if t is not None and np.isfinite(t) else "not measured"
 
 
+def _bytes(b: float) -> str:
+    """Device bytes; n/a for an arm the defenses registry no longer knows (NaN, never 0)."""
+    return f"{int(b):,} B" if np.isfinite(b) else "n/a"
+
+
 def _frames(mean: float, worst: float) -> str:
     if math.isinf(mean):
         return "until reloaded"
@@ -236,7 +241,7 @@ def summary_section(df: pd.DataFrame, manifests: list[dict], target: float | Non
                 "n": defs["n"],
                 "residual catastrophic (%, 95% CI)": [_pct(r.rate, r.ci_lo, r.ci_hi) for r in defs.itertuples()],
                 "device memory": [
-                    "n/a" if not np.isfinite(b) else f"{int(b):,} B ({p:.3g}% of the model)"
+                    "n/a" if not np.isfinite(b) else f"{_bytes(b)} ({p:.3g}% of the model)"
                     for b, p in zip(defs["device_bytes"], defs["device_pct"])
                 ],
                 "time per frame": [_ms(x) for x in defs["time_ms"]],
@@ -275,7 +280,7 @@ def summary_section(df: pd.DataFrame, manifests: list[dict], target: float | Non
             elif r["met"]:
                 what = (
                     f"{r['defense']}: residual {_pct(r['rate'])} (at most {_pct(r['ci_hi'])}), "
-                    f"{_ms(r['time_ms'])} a frame, {int(r['device_bytes']):,} B on the device; "
+                    f"{_ms(r['time_ms'])} a frame, {_bytes(r['device_bytes'])} on the device; "
                     f"{int(r['candidates'])} defense(s) meet the target"
                 )
             else:
