@@ -109,9 +109,9 @@ def test_defense_costs_times_what_runs_on_the_gpu():
         assert np.isfinite(row["time_fraction"]) == measured, name
         assert row["time_basis"].startswith("measured as a schedule: ") == measured, name
         if measured and name != "none":
-            assert row["time_lo"] <= row["time_fraction"] <= row["time_hi"], name
+            assert row["time_lo"] <= row["time_fraction"] <= row["time_hi"] and row["time_lo"] < row["time_hi"], name
         if d.checked:
-            assert row["check_fraction"] > 0 and row["repair_fraction"] > -1 and row["check_every"] == 2, name
+            assert row["check_fraction"] > 0 and row["repair_fraction"] > 0 and row["check_every"] == 2, name
             assert "2 frame(s) and a check against 2" in row["time_basis"]
         else:
             assert np.isnan(row["check_fraction"]) and row["check_every"] is None, name

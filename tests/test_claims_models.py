@@ -119,18 +119,16 @@ def test_an_interval_over_models_stays_inside_the_quantity_s_range():
     row = claims._over_models("pc_guard", per, "v", "test", 0.95)
     assert row["ci_lo"] == 0.0 and row["ci_hi"] == pytest.approx(v.mean() + half)
     assert "lower" in row["basis"] and "cut to 0" in row["basis"]
-    want = population.equivalence_verdict(v.mean() - half, v.mean() + half, 0.0612, 0.00005, ("factor", 2.0), 4)
-    assert row["verdict"] == want
+    # [0, 0.055]% against the paper's 0.0612 within a factor 2, [0.0306, 0.1224]: neither inside nor outside
+    assert row["verdict"] == "inconclusive"
     share = pd.DataFrame({"scene": ["a", "b", "c", "d"], "s": [1.0, 1.0, 0.9935, 0.9314]})
     s = share["s"].to_numpy() * 100
     top = s.mean() + sps.t.ppf(0.975, 3) * s.std(ddof=1) / 2
     assert top > 100
     row = claims._over_models("guard_share", share, "s", "test", 0.95)
     assert row["ci_hi"] == 100.0 and row["ci_lo"] == pytest.approx(2 * s.mean() - top)
-    band = (90.35 - 5, 90.45 + 5)  # 90.4 +- 5 points
-    lo, hi = row["ci_lo"], row["ci_hi"]
-    want = "differs" if lo > band[1] else "reproduced" if band[0] <= lo and hi <= band[1] else "inconclusive"
-    assert row["verdict"] == want
+    # [92.8, 100] against 90.4 +- 5 points, [85.35, 95.45]: it reaches past the band, not wholly outside
+    assert 85.35 < row["ci_lo"] < 95.45 < row["ci_hi"] and row["verdict"] == "inconclusive"
     inside = claims._over_models("pc_none", per.assign(v=[0.01, 0.012, 0.015, 0.02]), "v", "test", 0.95)
     assert "cut" not in inside["basis"]
 
