@@ -7,7 +7,6 @@ import pytest
 from seuwgpu.faults import codes, schedule
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults import side as sd
-from seuwgpu.faults.costs import amortised_time
 from seuwgpu.faults.engine import Engine
 from seuwgpu.faults.guard import support_box
 from seuwgpu.model import encoding
@@ -379,13 +378,6 @@ def test_exposure_on_hand_made_upset_schedules():
     assert never.per_upset[0] == np.inf and never.expected == np.inf
     with pytest.raises(ValueError, match="every S >= 1 frames"):
         schedule.exposure(-1)
-
-
-def test_amortised_time_charges_the_check_once_per_schedule():
-    assert amortised_time("parity4r", 0.05, 0.2, 10) == pytest.approx(0.02)
-    assert amortised_time("scalebound", 0.05, 0.2, 4) == pytest.approx(0.05 + 0.05)
-    assert amortised_time("guard", 0.05, 0.2, 4) == pytest.approx(0.05)  # no check to amortise
-    assert amortised_time("checksum", 0.0, 0.2, 0) == 0.0  # never checked
 
 
 def test_the_measured_table_states_the_spec_and_seed_that_produced_it():

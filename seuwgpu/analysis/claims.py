@@ -71,7 +71,7 @@ PAPER_PROFILE_NOTE = (
 )
 
 # the old names (tools/claims_from_tables.py, tests)
-_row, _over_models, _per_model = row, over_models, per_model
+_row, _over_models = row, over_models
 
 
 def _arm_columns(rates: pd.DataFrame, arm: str) -> pd.DataFrame:

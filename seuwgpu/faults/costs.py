@@ -184,7 +184,7 @@ def _times(model, camera, precision, repeats, gpu, check_every) -> tuple[dict, s
         res = schedule_time(lambda: view(0), None, check_every, repeats, guarded=checked_frame)
         out[d.name] = {"time": res["time"], "lo": res["lo"], "hi": res["hi"]}
         rep = DeviceRepair(r, clean, fc)
-        out[d.name]["repair"] = _device_repair_time(r, fc, rep, clean, repeats)
+        out[d.name]["repair"] = _device_repair_time(r, fc, rep, repeats)
     one = interleaved_medians({"none": lambda: view(0), **{d: c.run for d, c in checkers.items()}}, repeats)
     for d in dfn.DEFENSES:
         if d not in masks and d not in checkers:
@@ -203,7 +203,7 @@ def _times(model, camera, precision, repeats, gpu, check_every) -> tuple[dict, s
     return out, r.gpu.info.get("device", "?"), r.layout.n_chunks
 
 
-def _device_repair_time(r, fc, rep, clean: np.ndarray, repeats: int) -> float:
+def _device_repair_time(r, fc, rep, repeats: int) -> float:
     """Median seconds of one device repair (DeviceRepair.run, its two counts read back) of one
     primitive the check inside the frame flagged, over one plain frame's median."""
     L = r.layout
@@ -264,14 +264,3 @@ def _repair_time(r, chk, clean: np.ndarray, repeats: int) -> float:
         chk.run()  # the clean check, for the difference
         times.append(t_repair - (time.perf_counter() - t0))
     return float(np.median(times))
-
-
-def amortised_time(defense: str, guard_fraction: float, check_fraction: float, check_every: int = 1) -> float:
-    """Extra time per frame (fraction of a view) as the formula gives it: the in-pipeline clamp
-    every frame, one timed check over `check_every` frames (0: never). NaN stays NaN. The
-    measured schedule (schedule.schedule_samples) is what `defense_costs` reports."""
-    d = dfn.get(defense)
-    total = guard_fraction if d.guard_fields else 0.0
-    if d.checked and check_every:
-        total += check_fraction / check_every
-    return total

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from seuwgpu.model import encoding
-from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, canonical_field, field_components
+from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, canonical_field, field_components, n_components
 
 # Fault models a campaign spec or the CLI names (`fault = ...`), and what each does to the bits a
 # site names (the cell's bit): see `model_bits` for the draw. The multi-cell models hit several
@@ -229,7 +229,7 @@ def multi_cell_sites(site: Site, model: str, n: int, degree: int, precision: str
     the same component of the primitive in the neighbouring word (`neighbour_primitive`). Other
     models: [site]."""
     if model == "mcu_prim":
-        ncomp = 14 + 3 * ((degree + 1) ** 2 - 1)
+        ncomp = n_components(degree)
         other = (site.flat_component() + 1 + int(r) % (ncomp - 1)) % ncomp
         partner = site_from_flat(site.primitive, other, site.bits, degree)
         return [site, Site(partner.field, partner.primitive, partner.component, site.bits, site.op, site.value)]

@@ -152,13 +152,7 @@ def summary_section(df: pd.DataFrame, manifests: list[dict], target: float | Non
             TableItem(
                 "summary_models",
                 "The model",
-                models.rename(
-                    columns={
-                        "n_primitives": "primitives",
-                        "sh_degree": "SH degree",
-                        "loader_notes": "what the loader changed",
-                    }
-                ),
+                models.rename(columns=MODEL_COLUMNS),
                 "Each model of the records: its file format (or embedded scene), primitives, SH degree, "
                 "the stored precisions measured, and what the loader changed (its notes, kept in the run's "
                 "manifest; n/a: a run of an older version, which did not keep them).",

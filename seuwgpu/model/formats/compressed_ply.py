@@ -78,11 +78,6 @@ def _lerp(a, b, t):
     return a * (1.0 - t) + b * t
 
 
-def read_compressed_ply(header: PlyHeader) -> Model:
-    """The model a compressed PLY holds (notes and all: read_with_notes)."""
-    return read_with_notes(header)[0]
-
-
 def saturation_notes(full: int, empty: int) -> list[str]:
     """What the loader says of packed alphas of 1.0 and 0.0 (+-Inf by the reference decoder)."""
     notes = []

@@ -207,12 +207,6 @@ def lod_files(path) -> list[Path]:
     return files
 
 
-def levels_of(path) -> list[int]:
-    """The levels a LOD set holds."""
-    meta_path = lod_meta_path(path)
-    return _levels(_leaves(_meta(meta_path)["tree"], meta_path))
-
-
 def _sniff(probe: Probe) -> bool:
     return is_lod_meta(probe.head)
 

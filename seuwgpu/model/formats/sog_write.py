@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from seuwgpu.model.fields import Model
-from seuwgpu.model.formats.quantized import sigmoid, storable, turned_to_minus_y, unit_quats
+from seuwgpu.model.formats.quantized import sigmoid, storable, turned_to_minus_y
 
 BOOK = 256  # codebook entries
 MAX_PALETTE = 1 << 16  # 16-bit labels
@@ -189,7 +189,7 @@ def sog_files(model: Model, path: str = "<model>") -> dict[str, bytes]:
     files = {
         "means_l.webp": _webp((codes & 0xFF).astype(np.uint8), w, h),
         "means_u.webp": _webp((codes >> 8).astype(np.uint8), w, h),
-        "quats.webp": _webp(_quats(unit_quats(v["quats"])), w, h),
+        "quats.webp": _webp(_quats(v["quats"]), w, h),  # storable normalised them
     }
     scale_book, scale_idx = codebook(v["log_scales"])
     files["scales.webp"] = _webp(scale_idx, w, h)
