@@ -219,7 +219,7 @@ def summary_section(df: pd.DataFrame, manifests: list[dict], target: float | Non
         first = cells.groupby([*S.MODEL, "precision"], sort=False)
         for _, g in first:
             share = float(g["share_of_pc"].sum())
-            top = ", ".join(f"{r.field} bit {int(r.bit)}" for r in g.head(3).itertuples())
+            top = ", ".join(f"{FIELD_LABELS.get(r.field, r.field)} bit {int(r.bit)}" for r in g.head(3).itertuples())
             lead.append(f"Most dangerous: {top} ({100 * share:.3g}% of p_c in the top {len(g)} cells).")
     # the worst flip
     worst = res["worst"]
