@@ -434,7 +434,7 @@ class ViewerState:
         if d.frame_check:  # checked inside the frame: the faults' first frame drops, then repaired
             key = self._faults_key()
             if getattr(self, "_framed_faults", None) == key:
-                drawn = "parity4r"  # reloaded before this frame: what its check reads back
+                drawn = d.code  # reloaded before this frame: what its code's check reads back
             self._framed_faults = key
         if d.checked:
             key = self._faults_key()

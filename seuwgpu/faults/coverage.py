@@ -122,7 +122,7 @@ def outcomes(
     clean = np.asarray(clean)
     index = np.arange(clean.shape[0]) if index is None else np.asarray(index)
     side = d.side_data(clean, precision, degree, box) if d.checked else None
-    side4 = dfn.get("parity4r").side_data(clean, precision, degree) if d.frame_check else None
+    side4 = dfn.get(d.code).side_data(clean, precision, degree) if d.frame_check else None
     caught = np.zeros(len(prims), bool)
     restored = np.zeros(len(prims), bool)
     for s in range(0, len(prims), CHUNK):
@@ -134,7 +134,7 @@ def outcomes(
             rows[ar, c[:, k]] ^= m[:, k].astype(rows.dtype)
         base = clean[p]
         if d.frame_check:  # parity4r's check in the frame: dropped, then reloaded before the next frame
-            hit = _parity_hit(dfn.get("parity4r"), rows, side4[p], precision, degree)
+            hit = _parity_hit(dfn.get(d.code), rows, side4[p], precision, degree)
             caught[sl] = restored[sl] = hit
             continue
         if d.checked:

@@ -296,12 +296,13 @@ class FrameParity(Defense):
     reads_stored_bits = False
     frame_check = True
     side_bits = 4
+    code = "parity4r"  # the check defense whose code word the frame verifies (and reloads as)
 
     def bits_per_primitive(self, precision, degree):
         return self.side_bits
 
     def _hit(self, clean, corrupt, precision, degree):
-        parity = get("parity4r")
+        parity = get(self.code)
         return parity.detect(parity.side_data(clean, precision, degree), corrupt, precision, degree)
 
     def read(self, clean, corrupt, precision, degree, box=None, prims=None, state=None):
