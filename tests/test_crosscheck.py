@@ -107,9 +107,6 @@ def test_classes_match_seuwgpu_on_the_same_numbers():
 
 
 def test_wilson_and_tables():
-    assert all(math.isnan(x) for x in cc.wilson(0, 0))  # undefined, not 0
-    lo, hi = cc.wilson(99, 100)
-    assert 0.945 < lo < 0.95 and 0.998 < hi <= 1.0
     df = pd.DataFrame(
         {
             "site_id": ["a", "b", "c", "d"],

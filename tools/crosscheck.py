@@ -26,6 +26,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from seuwgpu.analysis.stats import wilson_interval  # noqa: E402
+from seuwgpu.model.fields import field_components  # noqa: E402
+
 FIELDS = ("means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest")
 SIGN_BIT = 31
 EXPONENT_BITS = tuple(range(23, 31))
@@ -37,11 +42,6 @@ CLASSES = ("masked", "tolerable", "sdc", "catastrophic")
 
 
 # ---- sites --------------------------------------------------------------------------------------
-def field_components(field: str, degree: int) -> int:
-    """Stored components of a field per primitive (sh_rest: coefficient-major, 3 channels each)."""
-    return {"means": 3, "log_scales": 3, "quats": 4, "opacity": 1, "sh_dc": 3}.get(field, 3 * ((degree + 1) ** 2 - 1))
-
-
 def bit_kind(bit: int) -> str:
     return "sign" if bit == SIGN_BIT else "exponent" if bit in EXPONENT_BITS else "mantissa"
 
@@ -117,17 +117,6 @@ def classify(footprint: float, peak_error: float, nonfinite: bool, identical: bo
 
 
 # ---- tables -------------------------------------------------------------------------------------
-def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95% Wilson interval of k successes in n; (nan, nan) for n = 0."""
-    if n == 0:
-        return (math.nan, math.nan)
-    p = k / n
-    den = 1 + z * z / n
-    mid = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return (max(0.0, mid - half), min(1.0, mid + half))
-
-
 def compare(df: pd.DataFrame, a: str = "sg", b: str = "gs") -> pd.DataFrame:
     """Per site: same class, |footprint difference| and whether it is within 0.5% of the frame."""
     out = df.copy()
@@ -162,7 +151,7 @@ def agreement(df: pd.DataFrame, by: str | None, a: str = "sg", b: str = "gs") ->
 
 
 def _rate(k: int, n: int) -> str:
-    lo, hi = wilson(k, n)
+    lo, hi = wilson_interval(k, n)  # seuwgpu's: the interval is statistics, not the renderer under check
     return f"{k} ({100 * k / n:.1f}%, {100 * lo:.1f}-{100 * hi:.1f})"
 
 
