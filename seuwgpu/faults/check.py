@@ -93,12 +93,17 @@ class Checker:
 
     def flags(self) -> np.ndarray:
         """[n] bool: the primitives the last run flagged."""
-        words = self.gpu.read(self.out, np.uint32, sd.CHECK_HEADER_BYTES, 4 * self.flag_words)
-        return np.unpackbits(words.view(np.uint8), bitorder="little")[: self.layout.n].astype(bool)
+        return read_flags(self.gpu, self.out, self.layout.n)
 
     def device_bytes(self) -> int:
         """Bytes of this check's buffers on the device (side.device_bytes counts the same)."""
         return int(self.side.size + self.table.size + self.out.size + self.params.buffer.size)
+
+
+def read_flags(gpu, out, n: int) -> np.ndarray:
+    """[n] bool: the flag bits a check writes after its header (Checker and FrameCheck alike)."""
+    words = gpu.read(out, np.uint32, sd.CHECK_HEADER_BYTES, 4 * -(-n // 32))
+    return np.unpackbits(words.view(np.uint8), bitorder="little")[:n].astype(bool)
 
 
 def seal_words(rows: np.ndarray, table: np.ndarray) -> np.ndarray:
@@ -154,8 +159,8 @@ class FrameCheck:
         return int(max(head[0], head[1]))
 
     def flags(self) -> np.ndarray:
-        words = self.gpu.read(self.out, np.uint32, sd.CHECK_HEADER_BYTES, 4 * self.flag_words)
-        return np.unpackbits(words.view(np.uint8), bitorder="little")[: self.layout.n].astype(bool)
+        """[n] bool: the primitives the frames since the last clear() flagged."""
+        return read_flags(self.gpu, self.out, self.layout.n)
 
     def device_bytes(self) -> int:
         return int(self.side.size + self.out.size)
