@@ -18,14 +18,14 @@
 // pairs the whole rectangle (the images are the same bit for bit; tests compare the two).
 //
 // Batched views: the screen records of view v are records v * n_total .. (v + 1) * n_total - 1
-// (sorted_prims holds those indices, all views mixed in one depth order), and a pair's tile id is
+// (depth_vals, depth-sorted, holds those indices, all views mixed in one depth order), and a pair's tile id is
 // v * n_tiles + its tile in view v, so the stable tile sort leaves each tile of each view its own
 // list, front to back with ties by primitive index, as one view's list alone would be.
 override EXACT_BIN: bool = true;
 
 @group(0) @binding(0) var<uniform> bin: Binning;
-@group(0) @binding(1) var<storage, read> rects: array<vec2<u32>>;
-@group(0) @binding(2) var<storage, read> sorted_prims: array<u32>;
+@group(0) @binding(1) var<storage, read> proj_rect: array<vec2<u32>>;
+@group(0) @binding(2) var<storage, read> depth_vals: array<u32>;
 @group(0) @binding(3) var<storage, read_write> counts: array<u32>;     // depth order: counts, scanned in place
 @group(0) @binding(4) var<storage, read_write> by_record: array<u32>;  // per record: its count, then its offset
 @group(0) @binding(5) var<storage, read_write> isect_tiles: array<u32>;
@@ -45,7 +45,7 @@ struct Footprint {
 };
 
 fn footprint(g: u32) -> Footprint {
-    let q = rects[g];
+    let q = proj_rect[g];
     var f = Footprint(q.x & 0xffffu, q.x >> 16u, q.y & 0xffffu, q.y >> 16u,
         Reach(REACH_ALL, vec2<f32>(0.0), vec4<f32>(0.0), 0.0, 0.0, 0.0, 0.0));
     if (f.x1 <= f.x0 || f.y1 <= f.y0) {
@@ -62,7 +62,7 @@ fn row_of(f: Footprint, ty: u32) -> vec2<u32> {
     return row_tiles(f.r, first.y + f32(ty * TILE), first.x, f.x0, f.x1);
 }
 
-// by_record[g] = tiles paired with record g (culled ones have empty rects).
+// by_record[g] = tiles paired with record g (culled ones have an empty proj_rect).
 @compute @workgroup_size(WG)
 fn count_tiles(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let g = linear_id(gid, nwg);
@@ -82,7 +82,7 @@ fn count_tiles(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     by_record[g] = c;
 }
 
-// counts[s] = the count of the s-th record in depth order (sorted_prims is a permutation of the
+// counts[s] = the count of the s-th record in depth order (depth_vals, depth-sorted, is a permutation of the
 // records), for the scan.
 @compute @workgroup_size(WG)
 fn gather_counts(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -90,7 +90,7 @@ fn gather_counts(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wor
     if (s >= bin.views * bin.n_total) {
         return;
     }
-    counts[s] = by_record[sorted_prims[s]];
+    counts[s] = by_record[depth_vals[s]];
 }
 
 // by_record[g] = record g's offset, from the scanned depth-ordered counts.
@@ -100,7 +100,7 @@ fn scatter_offsets(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_w
     if (s >= bin.views * bin.n_total) {
         return;
     }
-    by_record[sorted_prims[s]] = counts[s];
+    by_record[depth_vals[s]] = counts[s];
 }
 
 // One (tile id, primitive) pair per paired tile of record g, row-major, at its scanned offset:

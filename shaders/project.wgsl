@@ -44,10 +44,10 @@ struct View {
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var<storage, read> model: array<u32>;
-@group(0) @binding(2) var<storage, read_write> out_xy: array<vec2<f32>>;
-@group(0) @binding(3) var<storage, read_write> out_conic: array<vec4<f32>>;   // conic.xyz, opacity
-@group(0) @binding(4) var<storage, read_write> out_rgb: array<vec4<f32>>;
-@group(0) @binding(5) var<storage, read_write> out_rect: array<vec2<u32>>;    // (x0 | y0 << 16, x1 | y1 << 16)
+@group(0) @binding(2) var<storage, read_write> proj_xy: array<vec2<f32>>;
+@group(0) @binding(3) var<storage, read_write> proj_conic: array<vec4<f32>>;   // conic.xyz, opacity
+@group(0) @binding(4) var<storage, read_write> proj_rgb: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> proj_rect: array<vec2<u32>>;    // (x0 | y0 << 16, x1 | y1 << 16)
 @group(0) @binding(6) var<storage, read_write> depth_keys: array<u32>;
 @group(0) @binding(7) var<storage, read_write> depth_vals: array<u32>;
 // In-pipeline support guard (memory untouched): the box, and clamp counts per field (view 0).
@@ -192,7 +192,7 @@ fn jacobian(p: vec3<f32>, rz: f32, glm: bool) -> mat3x2<f32> {
 fn cull(g: u32) {
     depth_keys[g] = 0xffffffffu;
     depth_vals[g] = g;
-    out_rect[g] = vec2<u32>(0u, 0u);
+    proj_rect[g] = vec2<u32>(0u, 0u);
 }
 
 // stored pattern of component c of primitive j of this chunk (check.wgsl's `stored`)
@@ -315,10 +315,10 @@ fn emit(j: u32, g: u32, mean: vec3<f32>, xy: vec2<f32>, conic: vec3<f32>, rect: 
     let dir = d * rsqrt_ieee(dot(d, d));
     let rgb = sh_colour(j, dir);
 
-    out_xy[g] = xy;
-    out_conic[g] = vec4<f32>(conic, opacity);
-    out_rgb[g] = vec4<f32>(rgb, z);  // depth rides along for incremental re-compositing
-    out_rect[g] = rect;
+    proj_xy[g] = xy;
+    proj_conic[g] = vec4<f32>(conic, opacity);
+    proj_rgb[g] = vec4<f32>(rgb, z);  // depth rides along for incremental re-compositing
+    proj_rect[g] = rect;
     depth_keys[g] = bitcast<u32>(z);
     depth_vals[g] = g;
 }

@@ -25,7 +25,7 @@ struct Recomp {
     background: vec4<f32>,  // w: 0 (blend.wgsl unfused)
     chunk_pass: u32,    // the chunk of every entry's list this dispatch composites
     ckpt_every: u32,    // list positions between checkpoints (a multiple of the round; divides CHUNK_PAIRS)
-    first_view: u32,    // the kept view group bound (kv_isect, kv_box, kv_xy, kv_conic, kv_rgb start there)
+    first_view: u32,    // the kept view group bound (kv_isect_prims, kv_isect_box, kv_proj_xy, kv_proj_conic, kv_proj_rgb start there)
     first_entry: u32,   // this dispatch's entries: first_entry .. n_entries - 1 (all of view group's)
 };
 
@@ -49,10 +49,10 @@ struct VariantEntry {
 
 @group(0) @binding(11) var<storage, read> entries: array<VariantEntry>;
 @group(0) @binding(12) var<storage, read> kv_ranges: array<vec2<u32>>;
-@group(0) @binding(13) var<storage, read> kv_isect: array<u32>;
-@group(0) @binding(14) var<storage, read> kv_xy: array<vec2<f32>>;
-@group(0) @binding(15) var<storage, read> kv_conic: array<vec4<f32>>;
-@group(0) @binding(16) var<storage, read> kv_rgb: array<vec4<f32>>;     // w = depth
+@group(0) @binding(13) var<storage, read> kv_isect_prims: array<u32>;
+@group(0) @binding(14) var<storage, read> kv_proj_xy: array<vec2<f32>>;
+@group(0) @binding(15) var<storage, read> kv_proj_conic: array<vec4<f32>>;
+@group(0) @binding(16) var<storage, read> kv_proj_rgb: array<vec4<f32>>;     // w = depth
 @group(0) @binding(17) var<storage, read> var_xy: array<vec2<f32>>;
 @group(0) @binding(18) var<storage, read> var_conic: array<vec4<f32>>;
 @group(0) @binding(19) var<storage, read> var_rgb: array<vec4<f32>>;
@@ -65,7 +65,7 @@ struct VariantEntry {
 // (1 + the last position of a record that reaches it; 0: none does). main writes the stops of
 // lists of one chunk (NEVER where none: read as open, reached anywhere); the checkpoint pass
 // writes every listed tile's (render/incremental.py).
-@group(0) @binding(26) var<storage, read_write> kv_stop: array<u32>;
+@group(0) @binding(26) var<storage, read_write> kv_stop_pos: array<u32>;
 // Clean frame's checkpoints: the pixels' state (rgb, T) at list positions j * ckpt_every,
 // 0 < j * ckpt_every < n: at a chunk's first position the merged state of the chunks before it,
 // elsewhere the state of the chunk's own walk. Tile t of view v keeps them at slots
@@ -83,7 +83,7 @@ const FINISHED: u32 = 0xffffffffu;
 @group(0) @binding(37) var<storage, read_write> chunk_states: array<vec4<f32>>;
 var<workgroup> s_changed: array<atomic<u32>, 4>;  // min col, max col, min row, max row
 @group(0) @binding(22) var<storage, read> clean_image: array<vec4<f32>>;  // [K, H, W]
-@group(0) @binding(23) var<storage, read> kv_box: array<u32>;              // pixel box per kept pair
+@group(0) @binding(23) var<storage, read> kv_isect_box: array<u32>;              // pixel box per kept pair
 
 const NONE: u32 = 0xffffffffu;
 const OPEN: u32 = 0x80000000u;
@@ -134,7 +134,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         let ck = clean_key(v, prim);
         let qpos = count_before(v, range.x, range.y, ck, prim);
         var removed = NONE;
-        if (qpos < n && kv_isect[list_base(v) + range.x + qpos] == prim) {
+        if (qpos < n && kv_isect_prims[list_base(v) + range.x + qpos] == prim) {
             removed = qpos;
         }
         // the re-projected variant, if the binning pairs it with this tile (its rectangle covers the
@@ -205,7 +205,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
     let cross = workgroupUniformLoad(&s_cross);
     // Pixels the change cannot reach, copied from the clean frame (see above): a pixel's value
     // depends only on the records that do not skip it, in list order, grouped by chunk, up to its
-    // end (kv_stop, a position in the clean list). On opaque surfaces most upsets of hidden
+    // end (kv_stop_pos, a position in the clean list). On opaque surfaces most upsets of hidden
     // primitives then re-blend nothing.
     let o = prim_base(v) + prim;
     var copy_clean: array<vec4<bool>, QPI>;
@@ -219,7 +219,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         for (var i = 0u; i < QUAD; i = i + 1u) {
             let y = min(tile0.y + row0 + QUAD * j + i, rc.height - 1u);
             let at = (v * rc.height + y) * rc.width + x_stop;
-            stop[i] = kv_stop[at];
+            stop[i] = kv_stop_pos[at];
             if (cross.x < cross.y) {
                 let px = bitcast<vec4<u32>>(clean_image[at]);
                 odd[i] = any((px & vec4<u32>(0x7f800000u)) == vec4<u32>(0x7f800000u));
@@ -227,7 +227,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
         }
         let open = (stop & vec4<u32>(OPEN)) != vec4<u32>(0u);
         let alive = vec4<bool>(a != NONE) & within(vec4<u32>(a), stop);
-        let old_hits = contributes(kv_xy[o], kv_conic[o], p.q[j]) & vec4<bool>(removed != NONE);
+        let old_hits = contributes(kv_proj_xy[o], kv_proj_conic[o], p.q[j]) & vec4<bool>(removed != NONE);
         let new_hits = contributes(var_xy[vi], var_conic[vi], p.q[j]) & vec4<bool>(insert != NONE);
         let new_reaches = new_hits & (within(vec4<u32>(insert_at), stop) | open);
         let old_reaches = old_hits & within(vec4<u32>(removed), stop);
@@ -239,8 +239,8 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
             walk_bits = walk_bits | select(vec4<u32>(0u), vec4<u32>(0xffffffffu), odd);
         }
         for (var i = cross.x; i < cross.y; i = i + CHUNK_PAIRS) {
-            let og = prim_base(v) + kv_isect[list_base(v) + range.x + i];
-            let hit = contributes(kv_xy[og], kv_conic[og], p.q[j]) & within(vec4<u32>(i - 1u), stop);
+            let og = prim_base(v) + kv_isect_prims[list_base(v) + range.x + i];
+            let hit = contributes(kv_proj_xy[og], kv_proj_conic[og], p.q[j]) & within(vec4<u32>(i - 1u), stop);
             moved = moved | hit;
             // the record leaves one chunk for its neighbour: both change
             let after = (i + 1u) / CHUNK_PAIRS;
@@ -365,7 +365,7 @@ fn variants(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: 
 // The checkpoint pass over a clean frame's listed tiles (entries: view and tile; render/
 // incremental.py CleanViews), one chunk per dispatch like `variants`, with the same arithmetic: it
 // keeps the pixels' state at every checkpoint position of the list and writes each pixel's end
-// (where it stopped; the last position of the chunk whose merge ended it; NEVER) into kv_stop.
+// (where it stopped; the last position of the chunk whose merge ended it; NEVER) into kv_stop_pos.
 @compute @workgroup_size(TILE, ROWS)
 fn checkpoints(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
                @builtin(local_invocation_id) lid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
@@ -423,7 +423,7 @@ fn checkpoints(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nw
                 if (now) {
                     end = select(hi - 1u, stops[j][i], p.q[j].done[i] && stops[j][i] != NEVER);
                 }
-                kv_stop[(v * rc.height + y) * rc.width + x] = end;
+                kv_stop_pos[(v * rc.height + y) * rc.width + x] = end;
             }
         }
     }

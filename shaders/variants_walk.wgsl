@@ -6,10 +6,10 @@
 // merged in at its depth, the clean frame's checkpoints and chunk results read and written, and
 // the chunk bookkeeping. The file that imports it MUST declare (variants.wgsl does):
 //   the uniform  rc: Recomp, with prim_base(v) and list_base(v) (a view's clean records and list)
-//   storage      kv_ranges, kv_isect, kv_xy, kv_conic, kv_rgb, kv_box, kv_stop, ckpt_base,
+//   storage      kv_ranges, kv_isect_prims, kv_proj_xy, kv_proj_conic, kv_proj_rgb, kv_isect_box, kv_stop_pos, ckpt_base,
 //                ckpt_states, chunk_base, chunk_states, slabs, variant_ended, entry_next
-//   consts       NONE, OPEN (kv_stop's never-ending flag), FINISHED
-// Whether clean list position x is at or before the pixels' ends (kv_stop, above): for a pixel
+//   consts       NONE, OPEN (kv_stop_pos's never-ending flag), FINISHED
+// Whether clean list position x is at or before the pixels' ends (kv_stop_pos, above): for a pixel
 // that never ends, whether a record at x can still reach it.
 fn within(x: vec4<u32>, stop: vec4<u32>) -> vec4<bool> {
     return select(x <= stop, x < (stop & vec4<u32>(~OPEN)), (stop & vec4<u32>(OPEN)) != vec4<u32>(0u));
@@ -87,7 +87,7 @@ fn before(ka: u32, ia: u32, kb: u32, ib: u32) -> bool {
 }
 
 fn clean_key(v: u32, g: u32) -> u32 {
-    return bitcast<u32>(kv_rgb[prim_base(v) + g].w);
+    return bitcast<u32>(kv_proj_rgb[prim_base(v) + g].w);
 }
 
 // number of list entries ordered before (key, idx)
@@ -97,7 +97,7 @@ fn count_before(v: u32, start: u32, end: u32, key: u32, idx: u32) -> u32 {
     let base = list_base(v);
     while (lo < hi) {
         let mid = (lo + hi) >> 1u;
-        let g = kv_isect[base + mid];
+        let g = kv_isect_prims[base + mid];
         if (before(clean_key(v, g), g, key, idx)) {
             lo = mid + 1u;
         } else {
@@ -215,7 +215,7 @@ fn blend_batch_stops(p: ptr<function, Pixels>, col: u32, row0: u32, m: u32, sb: 
     }
 }
 
-// The list a walk reads: view v's clean tile list (starting at `first` in kv_isect) with clean
+// The list a walk reads: view v's clean tile list (starting at `first` in kv_isect_prims) with clean
 // position `removed` dropped and a record (xy, co, rgb, pixel box bx) inserted at position
 // `insert` of the resulting list (NONE: neither).
 struct Walk {
@@ -281,7 +281,7 @@ fn walk_list(p: ptr<function, Pixels>, li: u32, col: u32, row0: u32, start: u32,
             let i = first + li * per_lane + s;
             var bx = w.bx;
             if (i != w.insert) {
-                bx = kv_box[list_base(w.v) + w.first + clean_pos(min(i, hi - 1u), w.insert, w.removed)];
+                bx = kv_isect_box[list_base(w.v) + w.first + clean_pos(min(i, hi - 1u), w.insert, w.removed)];
             }
             kept_bits = kept_bits | (u32(i < hi && boxes_meet(bx, live)) << s);
         }
@@ -303,8 +303,8 @@ fn walk_list(p: ptr<function, Pixels>, li: u32, col: u32, row0: u32, start: u32,
                     stage_boxed(slot, w.xy, w.co, w.rgb, w.bx);
                 } else {
                     let at = list_base(w.v) + w.first + clean_pos(i, w.insert, w.removed);
-                    let og = prim_base(w.v) + kv_isect[at];  // its box: the clean frame's, for this very pair
-                    stage_boxed(slot, kv_xy[og], kv_conic[og], kv_rgb[og], kv_box[at]);
+                    let og = prim_base(w.v) + kv_isect_prims[at];  // its box: the clean frame's, for this very pair
+                    stage_boxed(slot, kv_proj_xy[og], kv_proj_conic[og], kv_proj_rgb[og], kv_isect_box[at]);
                 }
             }
             workgroupBarrier();
@@ -388,7 +388,7 @@ fn all_pixels_finished(p: ptr<function, Pixels>, li: u32) -> bool {
 //   frame's last checkpoint at or before a (render/incremental.py CleanViews keeps them), in the
 //   chunk that holds it, and runs to where every re-blended pixel ends;
 // - a pixel is copied from the clean frame unless its value can change: the clean or corrupted
-//   record reaches it at or before its end (kv_stop), or, on a list of several chunks, a record
+//   record reaches it at or before its end (kv_stop_pos), or, on a list of several chunks, a record
 //   that reaches it before its end moves across a chunk boundary (the removal or insertion shifts
 //   the positions between them by one; records that skip a pixel change nothing in it, and a
 //   chunk of them merges as the identity), or its clean value is not finite (conservative);

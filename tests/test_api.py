@@ -354,7 +354,7 @@ def test_storm_and_state_flips_are_the_engine_runs_they_name():
     eng = Engine(scene.model, cams, "fp32", scene=scene.name)
     pd_testing.assert_frame_equal(df, storm(eng, 3, 2, 1, ("none", "guard"), 4))
     flips = sg.state_flips(scene, cams, targets=["xy", "conic"], samples=1, bits=[31, 0, 31], seed=2)
-    assert len(flips) == 2 * 2 and set(flips["target"]) == {"xy", "conic"}
+    assert len(flips) == 2 * 2 and set(flips["target"]) == {"proj_xy", "proj_conic"}
     pd_testing.assert_frame_equal(flips, state_campaign(eng, ["xy", "conic"], 1, [31, 0], 2))
     with pytest.raises(sg.InputError, match="k must be an integer"):
         sg.storm(scene, cams, k=1.5)

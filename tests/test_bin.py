@@ -46,7 +46,8 @@ def run_stage(gpu, rects, order, tiles, size, capacity, records, exact=True):
     stage.params.write()
     enc = gpu.device.create_command_encoder()
     xy, conic = gpu.upload(records["xy"].astype(np.float32)), gpu.upload(records["conic"])
-    stage.encode_emit(enc, 0, gpu.upload(packed(rects)), gpu.upload(order.astype(np.uint32)), xy, conic)
+    given = {"proj_rect": gpu.upload(packed(rects)), "depth_vals": gpu.upload(order.astype(np.uint32))}
+    stage.encode_emit(enc, 0, {**given, "proj_xy": xy, "proj_conic": conic})
     gpu.submit(enc)
     return stage
 
@@ -211,8 +212,9 @@ def test_batched_views_bin_as_each_view_alone(gpu):
     stage.params.write()
     slot = stage.batch_slot
     enc = gpu.device.create_command_encoder()
-    args = gpu.upload(packed(rects)), gpu.upload(order.astype(np.uint32)), gpu.upload(xy), gpu.upload(conic)
-    stage.encode_emit(enc, slot, *args)
+    names = ("proj_rect", "depth_vals", "proj_xy", "proj_conic")
+    arrays = (packed(rects), order.astype(np.uint32), xy, conic)
+    stage.encode_emit(enc, slot, {name: gpu.upload(a) for name, a in zip(names, arrays)})
     gpu.submit(enc)
     total = int(gpu.read(stage.stats)[slot])
     tiles = gpu.read(stage.isect_tiles)[:total].astype(np.int64)

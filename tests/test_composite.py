@@ -43,18 +43,16 @@ def gpu_frame(gpu, ranges, prims, rec: dict, w: int, h: int, background, chunk=C
     stage.set_capacity(len(prims))
     depth = rec.get("depth", np.zeros(len(rec["opacity"])))
     enc = gpu.device.create_command_encoder()
-    stage.encode(
-        enc,
-        frame.params.binding(0),
-        gpu.upload(np.asarray(ranges).astype(np.uint32)),
-        gpu.upload(np.asarray(prims).astype(np.uint32)),
-        gpu.upload(rec["mean2d"]),
-        gpu.upload(np.column_stack([rec["conic"], rec["opacity"]]).astype(np.float32)),
-        gpu.upload(np.column_stack([rec["rgb"], depth]).astype(np.float32)),
-        (tx, ty),
-        gpu.buffer(4 * len(prims)),
-        stops=gpu.buffer(4 * w * h),  # a kept frame: the kernel that also writes boxes and stops
-    )
+    buffers = {
+        "ranges": np.asarray(ranges).astype(np.uint32),
+        "isect_prims": np.asarray(prims).astype(np.uint32),
+        "proj_xy": rec["mean2d"],
+        "proj_conic": np.column_stack([rec["conic"], rec["opacity"]]).astype(np.float32),
+        "proj_rgb": np.column_stack([rec["rgb"], depth]).astype(np.float32),
+    }
+    buffers = {name: gpu.upload(a) for name, a in buffers.items()} | {"isect_box": gpu.buffer(4 * len(prims))}
+    # a kept frame: the kernel that also writes boxes and stops
+    stage.encode(enc, frame.params.binding(0), buffers, (tx, ty), stops=gpu.buffer(4 * w * h))
     gpu.submit(enc)
     return gpu.read(stage.image, np.float32).reshape(h, w, 4)
 
@@ -328,7 +326,7 @@ def _kept_frame(gpu, model, cams, **kw) -> tuple[np.ndarray, np.ndarray, np.ndar
     r = Renderer(model, cams, gpu=gpu, keep_views=True, **kw)
     r.capture_views = True
     img = r.render_rgba().view(np.uint32)
-    return img, gpu.read(r.kv_box)[: r.k * r.capacity], gpu.read(r.kv_stop)
+    return img, gpu.read(r.kv_isect_box)[: r.k * r.capacity], gpu.read(r.kv_stop_pos)
 
 
 def _extreme_model(n: int, seed: int) -> Model:
@@ -379,7 +377,7 @@ def test_wide_compositor_viewports_and_capped_slabs(gpu):
     for s in ("lanes", "wide"):
         r = _cap_slabs(Renderer(model, cams, gpu=gpu, chunk=256, compositor=s, keep_views=True), 8)
         r.capture_views = True
-        capped[s] = (r.render_rgba().view(np.uint32), gpu.read(r.kv_stop))
+        capped[s] = (r.render_rgba().view(np.uint32), gpu.read(r.kv_stop_pos))
         assert _no_room(r) >= 1
     assert np.array_equal(capped["wide"][0], full.view(np.uint32))
     for a, b in zip(capped["lanes"], capped["wide"]):

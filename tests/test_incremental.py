@@ -177,7 +177,7 @@ def test_arms_that_draw_the_same_frames_recomposite_nothing(monkeypatch):
 
 @pytest.mark.parametrize("as_gpu", [False, True])
 def test_kept_views_are_bound_a_view_group_at_a_time(gpu, monkeypatch, as_gpu):
-    """A kept view set holds K tile lists (kv_isect, kv_box) and K views' records in one buffer
+    """A kept view set holds K tile lists (kv_isect_prims, kv_isect_box) and K views' records in one buffer
     each, bound one view group at a time (Renderer.kept_view_groups): with a 512 KiB binding, 4
     kept views of 65,536-pair lists (1 MiB buffers) are bound two views at a time, and a sheet's
     records (every tile of every view) equal a full re-render's. The evaluator's batches shrink to
@@ -191,7 +191,7 @@ def test_kept_views_are_bound_a_view_group_at_a_time(gpu, monkeypatch, as_gpu):
     eng = Engine(model, cams, "fp32", gpu=gpu)
     r = eng.renderer
     assert r.max_capacity == (1 << 19) // 4 and r.capacity == 65536
-    assert r.kv_isect.size == 4 * 4 * 65536 > 1 << 19
+    assert r.kv_isect_prims.size == 4 * 4 * 65536 > 1 << 19
     assert r.kept_view_groups() == [(0, 2), (2, 4)]
     site = eng.site("log_scales", 0, 0, 31)  # a sheet: every tile of every view
     recs = eng.evaluate_frame([site])

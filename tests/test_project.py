@@ -8,7 +8,7 @@ exp / rsqrt may differ by an ulp; measured: ~1e-6 and ~3 ulps)."""
 
 import numpy as np
 import pytest
-from conftest import random_model
+from conftest import close_records, random_model
 
 from seuwgpu.faults.guard import clamp_values, component_mask, guard_fields, support_box
 from seuwgpu.gpu.constants import TILE
@@ -65,18 +65,6 @@ def gpu_project(gpu, model, cam, precision, chunk_prims, guard=None):
         stage.encode(enc, c, words[c], b - a, box, counts)
     gpu.submit(enc)
     return stage.read(model.n), L.n_chunks, gpu.read(counts)[:6]
-
-
-def close_records(got, want, tol=1e-5):
-    """Same non-finite pattern; finite rows within tol of their largest component."""
-    got = got.astype(np.float64).reshape(len(got), -1)
-    want = want.astype(np.float64).reshape(len(want), -1)
-    assert np.array_equal(np.isnan(got), np.isnan(want)) and np.array_equal(np.isinf(got), np.isinf(want))
-    assert np.array_equal(got[np.isinf(got)], want[np.isinf(want)])
-    ok = np.isfinite(want).all(axis=1)
-    scale = np.maximum(np.abs(want[ok]).max(axis=1, keepdims=True), np.finfo(np.float32).tiny)
-    err = np.abs(got[ok] - want[ok]) / scale
-    assert err.max(initial=0) <= tol, err.max()
 
 
 @pytest.mark.parametrize("precision", encoding.PRECISIONS)

@@ -482,5 +482,5 @@ def test_needles_are_never_culled_by_cancellation():
     r = Renderer(m, [cam], keep_views=True)
     r.capture_views = True
     r.render()
-    rects = r.gpu.read(r.kv_rect, np.uint32, 0, 8 * n).reshape(n, 2)
+    rects = r.gpu.read(r.kv_proj_rect, np.uint32, 0, 8 * n).reshape(n, 2)
     assert (rects[:, 1] != 0).all()

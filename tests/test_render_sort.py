@@ -1,13 +1,12 @@
-"""Sorting stage (render/sort.py): the depth sort and the tile sort on the GPU against stable
-argsort, exactly, on the same keys."""
+"""Sorting stage (render/sort.py): the depth sort on the GPU against stable argsort, exactly, on
+keys with ties and culled primitives (the tile sort on real pairs: tests/test_stages.py)."""
 
 import numpy as np
 from conftest import random_model
 
 from seuwgpu.gpu.sort import stable_sort
 from seuwgpu.model.cameras import orbit_cameras
-from seuwgpu.render.bin import emit
-from seuwgpu.render.project import depth_keys, n_tiles_xy, project
+from seuwgpu.render.project import depth_keys, project
 from seuwgpu.render.sort import Sorting, depth_order, tile_key_bits
 
 
@@ -34,23 +33,6 @@ def test_depth_sort_matches_stable_argsort(gpu):
     np.testing.assert_array_equal(gpu.read(vb)[:drawn], depth_order(proj))
 
 
-def test_tile_sort_matches_stable_argsort(gpu):
-    n = 1200
-    model = random_model(n, seed=8)
-    cam = orbit_cameras(2, 80, 48)[1]
-    tx, ty = n_tiles_xy(cam)
-    with np.errstate(all="ignore"):
-        proj = project(model, cam)
-    e = emit(proj["rect"], depth_order(proj), tx)
-    tiles, prims = e["isect_tiles"].astype(np.uint32), e["isect_prims"].astype(np.uint32)
-    total = len(tiles)
-    stage = Sorting(gpu, n, capacity=total + 100)
-    tb, pb = gpu.upload(tiles), gpu.upload(prims)
-    count = gpu.upload(np.array([total], np.uint32))  # the total as the GPU's scan leaves it
-    enc = gpu.device.create_command_encoder()
-    stage.encode_tiles(enc, tb, pb, (count, 0), tx * ty)
-    gpu.submit(enc)
-    assert tile_key_bits(tx * ty) == int(tx * ty - 1).bit_length() and tile_key_bits(1) == 1
-    want_tiles, want_prims = stable_sort(tiles, prims, tile_key_bits(tx * ty))
-    np.testing.assert_array_equal(gpu.read(tb)[:total], want_tiles)
-    np.testing.assert_array_equal(gpu.read(pb)[:total], want_prims)
+def test_tile_keys_take_the_bits_of_the_tile_count():
+    """The tile sort on the GPU against its twin is tests/test_stages.py's; its key width here."""
+    assert tile_key_bits(80) == 7 and tile_key_bits(64) == 6 and tile_key_bits(1) == 1

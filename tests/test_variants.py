@@ -43,11 +43,11 @@ def test_variants_match_twin(gpu):
     assert len(b_idx) > 20
     k, n, B, cap, stride = r.k, r.n, comp.B, r.capacity, r.kv_stride  # view v's records at v * stride
     kv = {
-        "xy": gpu.read(r.kv_xy, np.float32).reshape(k, stride, 2)[:, :n],
-        "conic": gpu.read(r.kv_conic, np.float32).reshape(k, stride, 4)[:, :n],
-        "rgb": gpu.read(r.kv_rgb, np.float32).reshape(k, stride, 4)[:, :n],
+        "xy": gpu.read(r.kv_proj_xy, np.float32).reshape(k, stride, 2)[:, :n],
+        "conic": gpu.read(r.kv_proj_conic, np.float32).reshape(k, stride, 4)[:, :n],
+        "rgb": gpu.read(r.kv_proj_rgb, np.float32).reshape(k, stride, 4)[:, :n],
         "ranges": gpu.read(r.kv_ranges).reshape(k, r.n_tiles, 2),
-        "isect": gpu.read(r.kv_isect).reshape(k, cap),
+        "isect": gpu.read(r.kv_isect_prims).reshape(k, cap),
     }
     var = comp.projection.read(k * B)
     bg = r.background
@@ -167,17 +167,17 @@ def test_checkpoint_pass_matches_twin(gpu):
     r.capture_views = True
     r.render_rgba()
     r.capture_views = False
-    stops_main = gpu.read(r.kv_stop).copy()
+    stops_main = gpu.read(r.kv_stop_pos).copy()
     views = CleanViews(r, 1024)
-    ends = gpu.read(r.kv_stop).reshape(r.height, r.width).astype(np.int64)
+    ends = gpu.read(r.kv_stop_pos).reshape(r.height, r.width).astype(np.int64)
     main_ends = stops_main.reshape(r.height, r.width).astype(np.int64)
     states = gpu.read(views.ckpt_states, np.float32).reshape(-1, 16, 16, 4)
     base = gpu.read(views.ckpt_base)
     ranges = gpu.read(r.kv_ranges).reshape(-1, 2).astype(np.int64)
-    isect = gpu.read(r.kv_isect)
-    xy = gpu.read(r.kv_xy, np.float32).reshape(-1, 2)
-    co = gpu.read(r.kv_conic, np.float32).reshape(-1, 4)
-    rgb = gpu.read(r.kv_rgb, np.float32).reshape(-1, 4)
+    isect = gpu.read(r.kv_isect_prims)
+    xy = gpu.read(r.kv_proj_xy, np.float32).reshape(-1, 2)
+    co = gpu.read(r.kv_proj_conic, np.float32).reshape(-1, 4)
+    rgb = gpu.read(r.kv_proj_rgb, np.float32).reshape(-1, 4)
     long_tiles = checked = 0
     for t in range(r.n_tiles):
         a, b = ranges[t]

@@ -101,12 +101,12 @@ def stage_floor_s(stage: str, *, n: int, pairs: int, n_tiles: int, model_bytes: 
 # Bytes each stage must read + write per view, at least (n primitives, `pairs` tile intersections):
 # projection reads the stored model and writes 56 B of records per primitive; a 4-bit LSD radix
 # sort pass reads and writes a (key, value) pair per element; binning reads rectangles and the
-# order, writes counts, scans them and emits 8 B per pair.
+# order, writes counts, scans them (24 B a primitive) and emits 8 B per pair. Keyed by the
+# PIPELINE stages' names (tools/bench_stages.py STAGES).
 STAGE_BYTES = {
     "project": lambda n, pairs, n_tiles, model_bytes: model_bytes + 56 * n,
-    "depth sort": lambda n, pairs, n_tiles, model_bytes: 8 * 16 * n,
-    "count+scan": lambda n, pairs, n_tiles, model_bytes: 24 * n,
-    "emit": lambda n, pairs, n_tiles, model_bytes: 16 * n + 8 * pairs,
-    "tile sort": lambda n, pairs, n_tiles, model_bytes: -(-tile_key_bits(n_tiles) // 4) * 16 * pairs,
+    "depth_sort": lambda n, pairs, n_tiles, model_bytes: 8 * 16 * n,
+    "emit": lambda n, pairs, n_tiles, model_bytes: 24 * n + 16 * n + 8 * pairs,
+    "tile_sort": lambda n, pairs, n_tiles, model_bytes: -(-tile_key_bits(n_tiles) // 4) * 16 * pairs,
     "ranges": lambda n, pairs, n_tiles, model_bytes: None,
 }

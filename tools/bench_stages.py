@@ -1,6 +1,6 @@
 """Per-stage GPU times of a render (tools/bench.py): a Renderer whose next submission carries
-timestamp queries around every compute pass (seuwgpu/gpu/timing.py), and the stage each pass
-belongs to, from its label."""
+timestamp queries around every compute pass (seuwgpu/gpu/timing.py), and the PIPELINE stage
+each pass belongs to: the one that recorded it (Renderer.encode_stage)."""
 
 from __future__ import annotations
 
@@ -14,27 +14,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from seuwgpu.gpu.device import GPU  # noqa: E402
 from seuwgpu.gpu.timing import TimedEncoder  # noqa: E402
+from seuwgpu.render.pipeline import PIPELINE  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
 
-STAGES = ("project", "depth sort", "count+scan", "emit", "tile sort", "ranges", "composite")
-
-# Stage of a compute pass, from its label or the label of the first pipeline it sets (Kernel
-# labels its passes and device.pipeline its pipelines "<shader>:<entry>"; the sorters label their
-# passes "radix_sort" / "prefix_sum").
-_STAGE_OF = {
-    "project:main": "project",
-    "bin:count_tiles": "count+scan",
-    "bin:gather_counts": "count+scan",  # the counts into depth order for the scan
-    "bin:scatter_offsets": "count+scan",  # and the offsets back to the records
-    "prefix_sum": "count+scan",
-    "bin:emit": "emit",
-    "bin:tile_ranges": "ranges",
-    "composite:main": "composite",
-    "composite:chunks": "composite",
-    "composite:merge": "composite",
-    "composite_wide:main": "composite",
-    "composite_wide:chunks": "composite",
-}
+STAGES = tuple(stage.name for stage in PIPELINE)
+"""The render pipeline's stages (render/pipeline.py): each compute pass is timed under the stage
+that recorded it, so a new stage gets its own column (emit includes the tile counts and their scan)."""
 
 
 def timestamp_period_ns(gpu: GPU) -> float:
@@ -58,6 +43,8 @@ class StageTimedRenderer(Renderer):
         super().__init__(*args, **kw)
         self.timed = False
         self._ts = None
+        self._proxy = None
+        self._stage_of_pass: dict[int, str] = {}  # timed pass index -> the stage that recorded it
 
     def _ensure_queries(self):
         want = min(4096, 2 * self.k * (self.layout.n_chunks + 16))  # ~9 passes per view today
@@ -76,12 +63,22 @@ class StageTimedRenderer(Renderer):
         if not self.timed:
             return super().encode(encoder, views, split)
         qs, cap, buf = self._ensure_queries()
-        proxy = TimedEncoder(encoder, qs, cap)
-        super().encode(proxy, views)  # timed: one encoder (no split), so every pass is in one query set
+        proxy = self._proxy = TimedEncoder(encoder, qs, cap)
+        self._stage_of_pass = {}
+        try:
+            super().encode(proxy, views)  # timed: one encoder (no split), so every pass is in one query set
+        finally:
+            self._proxy = None
         if proxy.records:
             encoder.resolve_query_set(qs, 0, 2 * len(proxy.records), buf, 0)
         self._last = proxy
         return encoder
+
+    def encode_stage(self, stage, encoder, buffers, slot, views):
+        before = len(self._proxy.records) if self._proxy is not None else 0
+        super().encode_stage(stage, encoder, buffers, slot, views)
+        if self._proxy is not None:
+            self._stage_of_pass.update(dict.fromkeys(range(before, len(self._proxy.records)), stage.name))
 
     def stage_times(self) -> dict:
         """Seconds per stage (summed over views) of the last timed submission, plus 'gaps',
@@ -92,18 +89,9 @@ class StageTimedRenderer(Renderer):
         ns = timestamp_period_ns(self.gpu)
         begin, end = ticks[0::2], ticks[1::2]
         out = {s: 0.0 for s in STAGES}
-        out["other"] = 0.0
-        after_emit = False  # a radix sort before a view's emit is the depth sort, after it the tile sort
-        for rec, b, e in zip(proxy.records, begin, end):
-            name = rec["label"] or ""
-            if name == "project:main":
-                after_emit = False
-            elif name == "bin:emit":
-                after_emit = True
-            stage = (
-                ("tile sort" if after_emit else "depth sort") if name == "radix_sort" else _STAGE_OF.get(name, "other")
-            )
-            out[stage] += max(0, int(e - b)) * ns * 1e-9
+        out["other"] = 0.0  # passes recorded outside the stages (none today)
+        for i, (b, e) in enumerate(zip(begin, end)):
+            out[self._stage_of_pass.get(i, "other")] += max(0, int(e - b)) * ns * 1e-9
         span = (int(end.max()) - int(begin.min())) * ns * 1e-9 if n else 0.0
         out["gaps"] = max(0.0, span - sum(out[s] for s in (*STAGES, "other")))
         out["untimed_passes"] = proxy.untimed

@@ -65,7 +65,8 @@ def print_table(doc: dict, console=None) -> None:
     if stages_known:
         notes.append(
             "Stage columns: GPU ms per submission (summed over the K views) from timestamp queries on one "
-            "separate instrumented submission; 'count+scan' = tile counts + prefix sum; 'gaps' = time "
+            "separate instrumented submission, one column per render stage (render/pipeline.py; 'emit' includes the "
+            "tile counts and their prefix sum); 'gaps' = time "
             "between passes. Mpix/s and ms/view come from un-instrumented submissions."
         )
     else:

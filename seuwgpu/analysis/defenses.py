@@ -21,6 +21,7 @@ from seuwgpu.analysis.estimate import one_rate
 from seuwgpu.analysis.records import figure, single_upsets
 from seuwgpu.faults.defenses import DEFENSES, FIRST_DEFENSES
 from seuwgpu.faults.side import device_overhead, memory_overhead
+from seuwgpu.faults.state import FLOAT_TARGETS
 from seuwgpu.model import encoding
 
 # goal of issue 16, on each real model
@@ -186,7 +187,7 @@ def state_table(df: pd.DataFrame) -> pd.DataFrame:
     from seuwgpu.analysis.estimate import rate
 
     d = df.copy()
-    floats = d["target"].isin(["xy", "conic", "rgb", "pixel"])
+    floats = d["target"].isin(FLOAT_TARGETS)
     cls = np.where(d["bit"] == 31, "sign", np.where(d["bit"] >= 23, "exponent", "mantissa"))
     d["bit_class"] = np.where(floats, cls, np.where(d["bit"] >= 16, "high half", "low half"))
     d["weight"] = 1.0  # each (target, bit) cell equally: the table is per cell class

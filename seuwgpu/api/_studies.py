@@ -81,9 +81,11 @@ def state_flips(
     """Transient bit flips in one frame's pipeline state (faults/state.py): `samples` flips per
     (target, bit) cell, `targets` the pipeline-state buffers (default: all), `bits` 0..31 (default:
     all). One record per flip; `progress` and `rows` as `storm`'s."""
-    from seuwgpu.faults.state import TARGETS, state_campaign
+    from seuwgpu.faults.state import TARGETS, check_target, state_campaign
 
-    targets = list(TARGETS) if targets is None else list(dict.fromkeys(names_of(targets, "targets")))
+    if targets is not None:  # a former name and its new one are the same target
+        targets = list(dict.fromkeys(check_target(t) for t in names_of(targets, "targets")))
+    targets = list(TARGETS) if targets is None else targets
     bits = list(range(32)) if bits is None else list(dict.fromkeys(whole(b, "bit", None) for b in bits))
     whole(samples, "samples", 1)
     whole(seed, "seed", None)

@@ -2,17 +2,20 @@
 next, in one view, between the two stages (a flip dispatch recorded into the frame's command
 stream, renderer.state_fault). The next frame is clean: every stage rewrites its outputs.
 
-Targets (the stage after which the flip lands, the buffer, its words per record):
-- xy, conic, rgb: the projected per-splat records (screen mean; conic + opacity; colour), after
-  projection (binning reads xy and conic too: exact binning pairs tiles by the footprint);
-  depth_key: the depth sort keys, before the depth sort;
-- tile_key: the (tile) keys of the intersection list, before the tile sort; isect_prim: the
+Targets: the outputs render/pipeline.py declares fault targets, by their buffers' (shader)
+names, each flipped after the stage that declares it (FAULT_TARGETS):
+- proj_xy, proj_conic, proj_rgb: the projected per-splat records (screen mean; conic + opacity;
+  colour), after projection (binning reads proj_xy and proj_conic too: exact binning pairs tiles
+  by the footprint); depth_keys: the depth sort keys, before the depth sort;
+- isect_tiles: the (tile) keys of the intersection list, before the tile sort; isect_prims: the
   tile-sorted primitive ids, before the ranges are found;
-- tile_range: each tile's [start, end) of the sorted list, before compositing;
-- pixel: the compositor's accumulators (colour and transmittance) of one pixel as written at the
+- ranges: each tile's [start, end) of the sorted list, before compositing;
+- image: the compositor's accumulators (colour and transmittance) of one pixel as written at the
   end of its loop (the shader keeps them in registers; the written pixel is where a flip can be
   placed from outside).
-A tile_range flip that makes a range run backwards or past the intersection list would make the
+The names these targets had before (xy, conic, rgb, depth_key, tile_key, isect_prim, tile_range,
+pixel) are still accepted as aliases (FORMER_NAMES); records carry the buffers' names.
+A ranges flip that makes a range run backwards or past the intersection list would make the
 compositor loop over ~2^32 entries reading out of bounds: on a real GPU a watchdog reset. Such
 flips are recorded as `due` (detected unrecoverable error) and not rendered.
 """
@@ -26,24 +29,28 @@ import pandas as pd
 
 from seuwgpu.faults.flips import Flips
 from seuwgpu.metrics.image import catastrophic
+from seuwgpu.render.pipeline import FAULT_TARGETS
 
-# target -> (stage point, words per record, words used per record)
-TARGETS = {
-    "xy": ("projected", 2, 2),
-    "conic": ("projected", 4, 4),
-    "rgb": ("projected", 4, 3),
-    "depth_key": ("projected", 1, 1),
-    "tile_key": ("emitted", 1, 1),
-    "isect_prim": ("sorted", 1, 1),
-    "tile_range": ("ranged", 2, 2),
-    "pixel": ("composited", 4, 4),
-}
+# target -> (the stage it lands after, words per record, words used per record)
+TARGETS = {name: (stage.name, o.words, o.used_words) for name, (stage, o) in FAULT_TARGETS.items()}
+FORMER_NAMES = {o.former: name for name, (_, o) in FAULT_TARGETS.items() if o.former}
+"""The targets' names before they took their buffers' names: accepted, read as the new ones."""
+FLOAT_TARGETS = frozenset(
+    name for target, (_, o) in FAULT_TARGETS.items() if o.dtype == "f32" for name in (target, o.former) if name
+)
+"""Targets of float32 words, by either name (records made before the rename carry the former)."""
 
 
 def check_target(name: str) -> str:
+    """The target's buffer name (a former name is read as its new one)."""
+    name = FORMER_NAMES.get(name, name)
     if name not in TARGETS:
         raise ValueError(f"unknown pipeline-state target {name!r}; expected one of {', '.join(TARGETS)}")
     return name
+
+
+def _record(target: str) -> str:
+    return FAULT_TARGETS[target][1].record
 
 
 TARGET_CHUNK = 0  # a state fault's Flips holds one buffer, the target's: its chunk 0
@@ -73,41 +80,34 @@ class StateFaults:
         self._flips: dict[int, Flips] = {}
 
     def buffer(self, target: str):
-        r, p, b = self.r, self.r.projection, self.r.binning
-        return {
-            "xy": p.xy,
-            "conic": p.conic,
-            "rgb": p.rgb,
-            "depth_key": p.depth_keys,
-            "tile_key": b.isect_tiles,
-            "isect_prim": b.isect_prims,
-            "tile_range": b.ranges,
-            "pixel": r.image,
-        }[check_target(target)]
+        return self.r.buffers[check_target(target)]
 
     def records(self, target: str, view: int) -> int:
-        r = self.r
-        if target in ("tile_key", "isect_prim"):
+        r, record = self.r, _record(check_target(target))
+        if record == "pair":
             return int(self.totals[view])
-        if target == "tile_range":
+        if record == "tile":
             return r.n_tiles
-        if target == "pixel":
+        if record == "pixel":
             return r.width * r.height
         return r.n
 
     def word(self, target: str, view: int, index: int, comp: int) -> int:
+        target = check_target(target)
         per = TARGETS[target][1]
-        base = view * self.r.width * self.r.height * 4 if target == "pixel" else 0
+        # the frames of all K views lie in one image; the other buffers hold the view being drawn
+        base = view * self.r.width * self.r.height * per if _record(target) == "pixel" else 0
         return base + index * per + comp
 
     def is_due(self, target: str, view: int, index: int, comp: int, bit: int) -> bool:
-        if target != "tile_range":
+        if check_target(target) != "ranges":
             return False
         rng = self.ranges[view, index].astype(np.int64)
         rng[comp] ^= 1 << bit
         return bool(rng[0] > rng[1] or rng[1] > self.totals[view])
 
     def _arm(self, target: str, view: int, index: int, comp: int, bit: int):
+        target = check_target(target)
         buf = self.buffer(target)
         fl = self._flips.get(id(buf))
         if fl is None:
@@ -128,7 +128,7 @@ class StateFaults:
     def inject(self, target: str, view: int, index: int, comp: int, bit: int) -> dict:
         """Flip bit `bit` of word `comp` of record `index` of `target` in view `view`, render the
         frame (all views; the others clean), measure against the clean frame."""
-        e = self.engine
+        e, target = self.engine, check_target(target)
         rec = {"target": target, "view": view, "index": index, "comp": comp, "bit": bit}
         if self.is_due(target, view, index, comp, bit):
             nan = float("nan")

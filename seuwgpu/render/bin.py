@@ -30,6 +30,8 @@ from seuwgpu.gpu.constants import TILE
 from seuwgpu.gpu.device import GPU, STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
 from seuwgpu.gpu.sort import PrefixSum, exclusive_scan
+from seuwgpu.render.project import unpack_rects
+from seuwgpu.render.stage import Output, Stage
 
 F = np.float32
 
@@ -123,28 +125,31 @@ class Binning:
         batched list): (buffer, byte_offset)."""
         return (self.stats, 4 * slot)
 
-    def encode_emit(self, encoder, slot: int, rects, sorted_prims, xy, conic):
+    @property
+    def buffers(self) -> dict:
+        """The buffers it owns that bin.wgsl binds, by their names there (the pairs' pixel boxes,
+        `isect_box`, are compositing's)."""
+        names = ("counts", "by_record", "isect_tiles", "isect_prims", "stats", "ranges")
+        return {name: getattr(self, name) for name in names}
+
+    def encode_emit(self, encoder, slot: int, buffers: dict):
         """Counts, offsets, total and pairs of slot `slot` (view v, or the K views batched) from
-        the packed rectangles, the screen records (`xy`, `conic` with opacity: render/project.py)
-        and the depth order."""
-        u = self.params.binding(slot)
-        shared = {"bin": u, "rects": rects, "sorted_prims": sorted_prims, "proj_xy": xy, "proj_conic": conic}
-        shared.update(counts=self.counts, by_record=self.by_record)
+        the depth order and the screen records (`buffers`: proj_rect, depth_vals, proj_xy,
+        proj_conic with opacity: render/project.py); the pairs go to `buffers`' isect lists."""
+        shared = {**self.buffers, **buffers, "bin": self.params.binding(slot)}
         count = self.n * self._views_of(slot)
         self.k_count.dispatch(encoder, shared, threads=count)
         self.k_gather.dispatch(encoder, shared, threads=count)
         self.scan.encode(encoder, self.counts, self.counts, count, total=self.total(slot))
         self.k_scatter.dispatch(encoder, shared, threads=count)
-        self.k_emit.dispatch(encoder, shared, isect_tiles=self.isect_tiles, isect_prims=self.isect_prims, threads=count)
+        self.k_emit.dispatch(encoder, shared, threads=count)
 
-    def encode_ranges(self, encoder, slot: int):
+    def encode_ranges(self, encoder, slot: int, buffers: dict | None = None):
         """Per-tile ranges of slot `slot`'s tile-sorted list (and, batched, each view's total)."""
         self.k_ranges.dispatch(
             encoder,
+            {**self.buffers, **(buffers or {})},
             bin=self.params.binding(slot),
-            isect_tiles=self.isect_tiles,
-            stats=self.stats,
-            ranges=self.ranges,
             threads=self.n_tiles * self._views_of(slot),
         )
 
@@ -267,3 +272,50 @@ def tile_lists(
     e = emit(rects, order, tiles_x, records)
     by_tile = np.argsort(e["isect_tiles"], kind="stable")
     return tile_ranges(e["isect_tiles"][by_tile], n_tiles), e["isect_prims"][by_tile]
+
+
+# ---- the stages ---------------------------------------------------------------------------------
+def _encode_emit(encoder, buffers, r, slot, views):
+    r.binning.encode_emit(encoder, slot, buffers)
+
+
+def emit_twin(proj_rect, depth_vals, proj_xy, proj_conic, tiles_x, exact_binning) -> dict:
+    """`emit` over the kernel's buffers: every record in depth order (a culled one's rectangle
+    is empty)."""
+    records = {"xy": proj_xy, "conic": proj_conic} if exact_binning else None
+    e = emit(unpack_rects(proj_rect), depth_vals, tiles_x, records)
+    return {"isect_tiles": e["isect_tiles"].astype(np.uint32), "isect_prims": e["isect_prims"].astype(np.uint32)}
+
+
+EMIT = Stage(
+    "emit",
+    inputs=("proj_rect", "depth_vals", "proj_xy", "proj_conic"),
+    params=("tiles_x", "exact_binning"),
+    outputs=(
+        # the pairs' tile keys, flipped before the tile sort
+        Output("isect_tiles", 1, "pair", fault=True, former="tile_key"),
+        Output("isect_prims", 1, "pair"),
+    ),
+    run=_encode_emit,
+    twin_of=emit_twin,
+    split_before=True,
+)
+
+
+def _encode_ranges(encoder, buffers, r, slot, views):
+    r.binning.encode_ranges(encoder, slot, buffers)
+
+
+def ranges_twin(isect_tiles, n_tiles) -> dict:
+    return {"ranges": tile_ranges(isect_tiles, n_tiles).astype(np.uint32)}
+
+
+RANGES = Stage(
+    "ranges",
+    inputs=("isect_tiles",),
+    params=("n_tiles",),
+    outputs=(Output("ranges", 2, "tile", fault=True, kept=True, former="tile_range"),),
+    run=_encode_ranges,
+    twin_of=ranges_twin,
+    split_before=True,
+)

@@ -38,6 +38,7 @@ from seuwgpu.gpu.device import GPU, INDIRECT, STORAGE
 from seuwgpu.gpu.kernel import Kernel
 from seuwgpu.render.bin import REACH_ALL, REACH_ELLIPSE, band_extent, reach
 from seuwgpu.render.project import exp_f32
+from seuwgpu.render.stage import Output, Stage
 
 F = np.float32
 ALPHA_MAX = F(0.99)
@@ -131,22 +132,10 @@ class Compositing:
         self.extra_list = g.buffer(16 * (cap // self.chunk + 1), STORAGE, "composite.extra_list")
         self.merge_list = g.buffer(8 * (slots // 2 + 1), STORAGE, "composite.merge_list")  # >= 2 slots a tile
 
-    def encode(
-        self,
-        encoder,
-        frame,
-        ranges,
-        isect_prims,
-        xy,
-        conic,
-        rgb,
-        tiles: tuple[int, int],
-        isect_box,
-        stops=None,
-        frames: int = 1,
-    ):
-        """One view: `frame` its Binning slot (render/bin.py), `ranges` / `isect_prims` its tile
-        lists, `xy` / `conic` / `rgb` the screen records (render/project.py), tiles = (TX, TY).
+    def encode(self, encoder, frame, buffers: dict, tiles: tuple[int, int], stops=None, frames: int = 1):
+        """One view: `frame` its Binning slot (render/bin.py), `buffers` its tile lists (`ranges`,
+        `isect_prims`), the screen records (`proj_xy`, `proj_conic`, `proj_rgb`: render/project.py)
+        and `isect_box`; tiles = (TX, TY).
         A frame kept for re-compositing passes `stops` (u32 per pixel, indexed as the image),
         which receives the position in its tile's list of the record each pixel stopped at
         (0xffffffff: none, or a list longer than a chunk), while `isect_box` (u32 per pair)
@@ -162,14 +151,9 @@ class Compositing:
         # blend.wgsl's buffers; each entry point binds those it uses (`work` is read by the
         # later passes as their `work_counts`)
         buffers = {
+            **buffers,
             "bin": frame,
-            "ranges": ranges,
-            "isect_prims": isect_prims,
-            "proj_xy": xy,
-            "proj_conic": conic,
-            "proj_rgb": rgb,
             "image": self.image,
-            "isect_box": isect_box,
             "work": self.work,
             "chunk_slabs": self.slabs,
             "extra_list": self.extra_list,
@@ -353,3 +337,34 @@ def composite_frame(
             img[ys, xs, :3] = rgb.reshape(img[ys, xs].shape[:2] + (3,))
             img[ys, xs, 3] = T.reshape(img[ys, xs].shape[:2])
     return img
+
+
+# ---- the stage ----------------------------------------------------------------------------------
+def _encode_composite(encoder, buffers, r, slot, views):
+    # a kept frame also records where each pixel stopped (and each pair's pixel box)
+    stops = r.kv_stop_pos if r.keep_views and r.capture_views else None
+    frame = r.binning.params.binding(slot)
+    r.compositing.encode(encoder, frame, buffers, (r.tiles_x, r.tiles_y), stops=stops, frames=len(views))
+
+
+def composite_twin(ranges, isect_prims, proj_xy, proj_conic, proj_rgb, width, height, background, profile) -> dict:
+    """`composite_frame` over the kernel's buffers: image [H * W, 4] (rgb, T)."""
+    records = {"mean2d": proj_xy, "conic": proj_conic[:, :3], "opacity": proj_conic[:, 3], "rgb": proj_rgb[:, :3]}
+    with np.errstate(all="ignore"):
+        frame = composite_frame(ranges, isect_prims, records, width, height, background, profile=profile)
+    return {"image": frame.reshape(-1, 4)}
+
+
+COMPOSITE = Stage(
+    "composite",
+    inputs=("ranges", "isect_prims", "proj_xy", "proj_conic", "proj_rgb"),
+    params=("width", "height", "background", "profile"),
+    outputs=(
+        # the pixels as written at the end of the compositor's loop (it keeps them in registers)
+        Output("image", 4, "pixel", "f32", exact=False, fault=True, former="pixel"),
+        # each pair's pixel box, written for kept frames only (the variants entry reads it)
+        Output("isect_box", 1, "pair", kept=True, twinned=False),
+    ),
+    run=_encode_composite,
+    twin_of=composite_twin,
+)

@@ -26,9 +26,6 @@ from seuwgpu.render.project import Projection, unpack_rects
 from seuwgpu.render.regions import region_edges
 from seuwgpu.render.variants import CHECKPOINT_EVERY, VariantCompositing, checkpoint_every
 
-KEPT_BY_RENDERER = ("kv_ranges", "kv_isect", "kv_box", "kv_stop", "kv_xy", "kv_conic", "kv_rgb")
-"""The keep_views renderer's buffers the variants entry binds, under the same names."""
-
 
 class CleanViews:
     """A keep_views renderer's clean per-view state that every compositor re-compositing against
@@ -38,7 +35,7 @@ class CleanViews:
     128 MB; `rects_of` unpacks the few a batch needs), the longest clean tile list, and the
     checkpoints. The checkpoint pass (variants.wgsl:checkpoints, one frame's worth of
     compositing) keeps each pixel's state every `every` positions of every longer tile list and
-    each pixel's end (the last position its value depends on) in the renderer's kv_stop, so a
+    each pixel's end (the last position its value depends on) in the renderer's kv_stop_pos, so a
     variant's walk starts at most `every` positions before its change and stops where its pixels
     end: an upset costs its footprint, not the length of the lists (docs/renderer.md)."""
 
@@ -59,7 +56,7 @@ class CleanViews:
         r, g = self.r, self.r.gpu
         if self.version == r.version:
             return
-        rects = g.read(r.kv_rect, np.uint32, 0, 8 * r.kv_stride * r.k).reshape(r.k, r.kv_stride, 2)
+        rects = g.read(r.kv_proj_rect, np.uint32, 0, 8 * r.kv_stride * r.k).reshape(r.k, r.kv_stride, 2)
         self.rect_words = rects[:, : r.n]
         ranges = g.read(r.kv_ranges, np.uint32, 0, 8 * r.n_tiles * r.k).reshape(-1, 2).astype(np.int64)
         lengths = ranges[:, 1] - ranges[:, 0]
@@ -121,7 +118,8 @@ class CleanViews:
         """The kept buffers by the names variants.wgsl's variants entry binds them under."""
         r = self.r
         return {
-            **{name: getattr(r, name) for name in KEPT_BY_RENDERER},
+            # the variants entry binds them under the same names; the rectangles are read here
+            **{name: buf for name, buf in r.kept_buffers.items() if name != "kv_proj_rect"},
             "ckpt_base": self.ckpt_base,
             "ckpt_states": self.ckpt_states,
             "chunk_base": self.chunk_base,
@@ -218,7 +216,7 @@ class IncrementalCompositor:
         enc = g.device.create_command_encoder()
         for v in range(K):
             p.encode(enc, v, self.var_words, m, self.r.box_buf, self.r.guard_counts)
-        self.rects_readback.encode(enc, p.rect, 0, 8 * K * B)
+        self.rects_readback.encode(enc, p.buffers["proj_rect"], 0, 8 * K * B)
         g.submit(enc)
         return m
 
@@ -267,7 +265,12 @@ class IncrementalCompositor:
             encoder,
             {"variant": b_idx + first, "view": v_idx, "tile": t_idx, "prim": prims[b_idx]},
             kept=self.clean.kept,
-            variant={"var_xy": p.xy, "var_conic": p.conic, "var_rgb": p.rgb, "var_rect": p.rect},
+            variant={
+                "var_xy": p.buffers["proj_xy"],
+                "var_conic": p.buffers["proj_conic"],
+                "var_rgb": p.buffers["proj_rgb"],
+                "var_rect": p.buffers["proj_rect"],
+            },
             clean_image=self.clean_buf,
             longest=self.longest_list,
             groups=self.r.kept_view_groups(),

@@ -37,6 +37,7 @@ from seuwgpu.gpu.kernel import Kernel, Uniforms
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model
 from seuwgpu.model.sh import sh_basis
+from seuwgpu.render.stage import Output, Stage
 
 # ---------------------------------------------------------------------------------------------
 # numpy twin
@@ -366,10 +367,11 @@ def project_gsplat(model: Model, cam: Camera) -> dict:
 class Projection:
     """project.wgsl: one model chunk's primitives into one view, one thread per primitive.
 
-    Owns the screen records of `capacity` primitives (written at chunk_base + j): `xy` (screen
-    mean), `conic` (conic.xyz, opacity), `rgb` (colour, depth p.z), `rect` (packed tile rectangle
-    (x0 | y0 << 16, x1 | y1 << 16), zero when culled), `depth_keys` / `depth_vals` (f32 bits of
-    p.z, 0xffffffff when culled; primitive index) for the depth sort. Parameters: one `View` slot
+    Owns the screen records of `capacity` primitives (written at chunk_base + j), PROJECT's
+    outputs in `buffers` by their shader names: `proj_xy` (screen mean), `proj_conic` (conic.xyz,
+    opacity), `proj_rgb` (colour, depth p.z), `proj_rect` (packed tile rectangle (x0 | y0 << 16,
+    x1 | y1 << 16), zero when culled), `depth_keys` / `depth_vals` (f32 bits of p.z, 0xffffffff
+    when culled; primitive index) for the depth sort. Parameters: one `View` slot
     per (view, chunk) in `params` (fill with `set_view`, then `params.write()`). Culled
     primitives get only their rectangle and depth key written.
 
@@ -396,12 +398,7 @@ class Projection:
             return
         gpu, label = self.gpu, self.label
         self.capacity = n = int(capacity)
-        self.xy = gpu.buffer(8 * n, STORAGE, f"{label}.xy")
-        self.conic = gpu.buffer(16 * n, STORAGE, f"{label}.conic")
-        self.rgb = gpu.buffer(16 * n, STORAGE, f"{label}.rgb")
-        self.rect = gpu.buffer(8 * n, STORAGE, f"{label}.rect")
-        self.depth_keys = gpu.buffer(4 * n, STORAGE, f"{label}.depth_keys")
-        self.depth_vals = gpu.buffer(4 * n, STORAGE, f"{label}.depth_vals")
+        self.buffers = {o.name: gpu.buffer(4 * o.words * n, STORAGE, f"{label}.{o.name}") for o in PROJECT.outputs}
 
     def set_slots(self, slots: int):
         """(Re)allocate the parameter slots (one per view and model chunk)."""
@@ -481,21 +478,17 @@ class Projection:
             k = self._kernels[key] = Kernel(self.gpu, "project", constants=constants)
         return k
 
-    def encode(self, encoder, slot: int, words, count: int, box, guard_counts):
+    def encode(self, encoder, slot: int, words, count: int, box, guard_counts, buffers=None):
         """Project `count` primitives of the stored chunk `words` with slot `slot`'s parameters.
-        `box`: the guard's Bound per component; `guard_counts`: its atomic clamp counters."""
+        `box`: the guard's Bound per component; `guard_counts`: its atomic clamp counters;
+        `buffers`: where the records go (default: this stage's own `buffers`)."""
         row = self.params.rows[slot]
         kernel = self.variant(row["fmt"], row["sh_degree"], row["guard_lo"], row["guard_hi"], self.frame_cover)
         kernel.dispatch(
             encoder,
+            self.buffers if buffers is None else buffers,
             view=self.params.binding(slot),
             model=words,
-            out_xy=self.xy,
-            out_conic=self.conic,
-            out_rgb=self.rgb,
-            out_rect=self.rect,
-            depth_keys=self.depth_keys,
-            depth_vals=self.depth_vals,
             box=box,
             guard_counts=guard_counts,
             frame_side=self.frame_side,
@@ -508,17 +501,18 @@ class Projection:
         [n, 3], opacity, rgb [n, 3], depth, rect [n, 4] (x0, y0, x1, y1), depth_keys, depth_vals."""
         n = self.capacity if n is None else int(n)
         g = self.gpu
-        conic = g.read(self.conic, np.float32, 0, 16 * n).reshape(n, 4)
-        rgb = g.read(self.rgb, np.float32, 0, 16 * n).reshape(n, 4)
+        b = self.buffers
+        conic = g.read(b["proj_conic"], np.float32, 0, 16 * n).reshape(n, 4)
+        rgb = g.read(b["proj_rgb"], np.float32, 0, 16 * n).reshape(n, 4)
         return {
-            "xy": g.read(self.xy, np.float32, 0, 8 * n).reshape(n, 2),
+            "xy": g.read(b["proj_xy"], np.float32, 0, 8 * n).reshape(n, 2),
             "conic": conic[:, :3],
             "opacity": conic[:, 3],
             "rgb": rgb[:, :3],
             "depth": rgb[:, 3],
-            "rect": unpack_rects(g.read(self.rect, np.uint32, 0, 8 * n).reshape(n, 2)),
-            "depth_keys": g.read(self.depth_keys, np.uint32, 0, 4 * n),
-            "depth_vals": g.read(self.depth_vals, np.uint32, 0, 4 * n),
+            "rect": unpack_rects(g.read(b["proj_rect"], np.uint32, 0, 8 * n).reshape(n, 2)),
+            "depth_keys": g.read(b["depth_keys"], np.uint32, 0, 4 * n),
+            "depth_vals": g.read(b["depth_vals"], np.uint32, 0, 4 * n),
         }
 
 
@@ -533,3 +527,46 @@ def depth_keys(proj: dict) -> np.ndarray:
     keys = np.ascontiguousarray(proj["depth"], np.float32).view(np.uint32).copy()
     keys[~proj["visible"]] = 0xFFFFFFFF
     return keys
+
+
+# ---- the stage ----------------------------------------------------------------------------------
+def project_twin(model: Model, view: Camera, profile: str) -> dict:
+    """`project` as the kernel's buffers: culled primitives' records zero but for their depth key
+    (the kernel writes only their rectangle and keys; run_stage clears the rest)."""
+    with np.errstate(all="ignore"):
+        proj = project(model, view, profile)
+    vis = proj["visible"]
+    rect = proj["rect"].astype(np.uint32)
+    out = {
+        "proj_xy": proj["mean2d"],
+        "proj_conic": np.column_stack([proj["conic"], proj["opacity"]]),
+        "proj_rgb": np.column_stack([proj["rgb"], proj["depth"]]),
+    }
+    out = {name: np.where(vis[:, None], rows, F(0)).astype(F) for name, rows in out.items()}
+    out["proj_rect"] = np.stack([rect[:, 0] | rect[:, 1] << 16, rect[:, 2] | rect[:, 3] << 16], axis=1)
+    out["depth_keys"] = depth_keys(proj)
+    out["depth_vals"] = np.arange(model.n, dtype=np.uint32)
+    return out
+
+
+def _encode_project(encoder, buffers, r, slot, views):
+    for v in views:
+        r.encode_projection(encoder, v, buffers)
+
+
+PROJECT = Stage(
+    "project",
+    inputs=("model", "view"),
+    params=("profile",),
+    outputs=(
+        Output("proj_xy", 2, "primitive", "f32", exact=False, fault=True, kept=True, former="xy"),
+        Output("proj_conic", 4, "primitive", "f32", exact=False, fault=True, kept=True, former="conic"),
+        Output("proj_rgb", 4, "primitive", "f32", used=3, exact=False, fault=True, kept=True, former="rgb"),
+        Output("proj_rect", 2, "primitive", kept=True),
+        # the depth sort's keys and values, flipped before it sorts them
+        Output("depth_keys", 1, "primitive", exact=False, fault=True, former="depth_key"),
+        Output("depth_vals", 1, "primitive"),
+    ),
+    run=_encode_project,
+    twin_of=project_twin,
+)

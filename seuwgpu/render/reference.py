@@ -2,13 +2,14 @@
 per-pixel twin of that (strict profile).
 
 Each stage's twin lives beside its GPU wrapper (render/project.py `project`, render/sort.py
-`depth_order`, render/bin.py `tile_lists`, render/composite.py `composite_frame`) and follows
-docs/renderer.md to the letter, with gsplat's conventions, in float32 arithmetic. Composed here,
-they give `render_view` / `render`, against which tests compare the GPU image (PSNR >= 50 dB) and
-the benchmark reports a speed ratio. NaN and Inf are ordinary inputs: a corrupted parameter takes
-the path the rules define (culling of a non-finite depth or screen mean, the "unbounded
-footprint" sheet for a non-finite 2-D covariance, saturating tile rectangles, NaN-propagating
-alpha, ...).
+`stable_sort`, render/bin.py `emit` and `tile_ranges`, render/composite.py `composite_frame`),
+declared with it as a `Stage` (render/stage.py) that takes and returns the kernel's buffers by
+name, and follows docs/renderer.md to the letter, with gsplat's conventions, in float32
+arithmetic. Run in PIPELINE's order here, they give `render_view` / `render`, against which
+tests compare the GPU image (PSNR >= 50 dB) and the benchmark reports a speed ratio. NaN and Inf
+are ordinary inputs: a corrupted parameter takes the path the rules define (culling of a
+non-finite depth or screen mean, the "unbounded footprint" sheet for a non-finite 2-D
+covariance, saturating tile rectangles, NaN-propagating alpha, ...).
 
 `render_view_naive` is a plain per-pixel Python loop over numpy float32 scalars, with its own
 per-primitive scalar projection: obviously correct and slow (tiny images only). The vectorised
@@ -23,8 +24,8 @@ from seuwgpu.gpu.constants import TILE
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model
 from seuwgpu.model.sh import SH_C0, SH_C1, SH_C2, SH_C3
-from seuwgpu.render.bin import tile_lists
-from seuwgpu.render.composite import ALPHA_MAX, ALPHA_MIN, T_MIN, composite_frame
+from seuwgpu.render.composite import ALPHA_MAX, ALPHA_MIN, T_MIN
+from seuwgpu.render.pipeline import run_twins
 from seuwgpu.render.project import (
     EXTENT,
     FAR,
@@ -35,21 +36,26 @@ from seuwgpu.render.project import (
     exp_f32,
     jacobian_limits,
     n_tiles_xy,
-    project,
 )
-from seuwgpu.render.sort import depth_order
 
 
 def render_view(model: Model, cam: Camera, background=(1.0, 1.0, 1.0), profile: str = "strict") -> np.ndarray:
-    """Float32 image [H, W, 3] (unclamped) of one view: project, depth order, bin, composite,
+    """Float32 image [H, W, 3] (unclamped) of one view: the twins of PIPELINE's stages in order,
     under a renderer profile (docs/renderer.md)."""
     TX, TY = n_tiles_xy(cam)
     with np.errstate(all="ignore"):
-        proj = project(model, cam, profile)
-        records = {"xy": proj["mean2d"], "conic": np.column_stack([proj["conic"], proj["opacity"]])}
-        ranges, prims = tile_lists(proj["rect"], depth_order(proj), TX, TX * TY, records)
-        frame = composite_frame(ranges, prims, proj, cam.width, cam.height, background, profile=profile)
-    return frame[..., :3].copy()
+        out = run_twins(
+            model=model,
+            view=cam,
+            profile=profile,
+            tiles_x=TX,
+            n_tiles=TX * TY,
+            exact_binning=True,
+            width=cam.width,
+            height=cam.height,
+            background=background,
+        )
+    return out["image"].reshape(cam.height, cam.width, 4)[..., :3].copy()
 
 
 def render(model: Model, cams: list[Camera], background=(1.0, 1.0, 1.0), profile: str = "strict") -> np.ndarray:

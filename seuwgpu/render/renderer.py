@@ -41,6 +41,7 @@ from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model, StoredLayout
 from seuwgpu.render.bin import Binning
 from seuwgpu.render.composite import Compositing, check_shape, default_chunk, default_shape
+from seuwgpu.render.pipeline import KEPT, PIPELINE
 from seuwgpu.render.project import Projection, check_profile
 from seuwgpu.render.sort import Sorting
 
@@ -148,7 +149,7 @@ class Renderer:
     @property
     def max_capacity(self) -> int:
         """Most pairs a view's tile list may hold: one binding of u32, and with kept views, the K
-        lists of kv_isect and kv_box in one buffer each (bound a view group at a time:
+        lists of kv_isect_prims and kv_isect_box in one buffer each (bound a view group at a time:
         kept_view_groups)."""
         cap = self.gpu.max_binding // 4
         if self.keep_views:
@@ -156,10 +157,10 @@ class Renderer:
         return cap
 
     def kept_view_groups(self) -> list[tuple[int, int]]:
-        """Views [v0, v1) whose kept records (kv_xy, kv_conic, kv_rgb at `kv_stride` a view) and
-        tile lists (kv_isect, kv_box at `capacity` a view) each fit one storage binding: the
+        """Views [v0, v1) whose kept records (kv_proj_xy, kv_proj_conic, kv_proj_rgb at `kv_stride` a view) and
+        tile lists (kv_isect_prims, kv_isect_box at `capacity` a view) each fit one storage binding: the
         incremental re-compositor binds one group per dispatch, so kept views are limited by the
-        buffer size, not by one binding (4M primitives x 4 views: 256 MB of kv_rgb)."""
+        buffer size, not by one binding (4M primitives x 4 views: 256 MB of kv_proj_rgb)."""
         per_view = max(16 * self.kv_stride, 4 * self.capacity)
         size = max(1, self.gpu.max_binding // per_view)
         if size < self.k and (4 * self.capacity) % 256:
@@ -208,18 +209,40 @@ class Renderer:
         if self.keep_views:
             # view v's records at v * kv_stride: a multiple of 64, so a view group binds aligned
             g, k = self.gpu, self.k
-            n = self.kv_stride = -(-self.n // 64) * 64
-            self.kv_xy = g.buffer(8 * n * k, STORAGE, "kv_xy")
-            self.kv_conic = g.buffer(16 * n * k, STORAGE, "kv_conic")
-            self.kv_rgb = g.buffer(16 * n * k, STORAGE, "kv_rgb")
-            self.kv_rect = g.buffer(8 * n * k, STORAGE, "kv_rect")
-            self.kv_ranges = g.buffer(8 * self.n_tiles * k, STORAGE, "kv_ranges")
+            self.kv_stride = -(-self.n // 64) * 64
+            for o in KEPT:  # the tile lists follow the capacity: _set_capacity
+                if o.record != "pair":
+                    setattr(
+                        self, o.kept_name, g.buffer(4 * o.words * self.kept_records(o)[0] * k, STORAGE, o.kept_name)
+                    )
             # per pixel of each view, the list position of the record it stopped at (composite.wgsl)
-            self.kv_stop = g.buffer(4 * k * self.width * self.height, STORAGE, "kv_stop")
+            self.kv_stop_pos = g.buffer(4 * k * self.width * self.height, STORAGE, "kv_stop_pos")
         # a batched frame set's one list holds all K views' pairs (a first guess of 4 a primitive
         # and view; a frame that needs more grows the buffers and runs again)
         want = self._want_capacity or max(65536, 4 * self.n) * (self.k if self.batched else 1)
         self._set_capacity(min(max(self.capacity, _next_pow2(want)), self.max_capacity), force=True)
+
+    def kept_records(self, output) -> tuple[int, int]:
+        """(records a view apart, records copied a view) of the kept copy of `output`."""
+        return {
+            "primitive": (self.kv_stride, self.n),
+            "pair": (self.capacity, self.capacity),
+            "tile": (self.n_tiles, self.n_tiles),
+        }[output.record]
+
+    @property
+    def kept_buffers(self) -> dict:
+        """The kept views' buffers by name (kv_<output>, kv_stop_pos); empty without keep_views."""
+        if not self.keep_views:
+            return {}
+        return {name: getattr(self, name) for name in (*(o.kept_name for o in KEPT), "kv_stop_pos")}
+
+    @property
+    def buffers(self) -> dict:
+        """Every buffer the stages bind, by its shader name (PIPELINE's inputs and outputs)."""
+        p, b = self.projection, self.binning
+        own = {"isect_box": b.isect_box, "image": self.compositing.image}
+        return {**p.buffers, **b.buffers, **own, **self.kept_buffers}
 
     def _batching(self) -> bool:
         """Whether the current views can be batched (module docstring)."""
@@ -271,7 +294,8 @@ class Renderer:
             return
         g = self.gpu
         old_capacity = self.capacity
-        old_kv = {name: getattr(self, name, None) for name in ("kv_isect", "kv_box")}
+        lists = [o for o in KEPT if o.record == "pair"]
+        old_kv = {o.kept_name: getattr(self, o.kept_name, None) for o in lists}
         if capacity != self.capacity:
             self.compositing.set_capacity(capacity)  # its slabs: at most one binding
             self.capacity = capacity
@@ -279,13 +303,14 @@ class Renderer:
             self.sorting.set_capacity(capacity)
         if self.keep_views:  # one tile list per view: follows both the capacity and the view count
             enc = g.device.create_command_encoder()
-            for name, old in old_kv.items():  # the pairs' primitives and pixel boxes
-                new = g.buffer(4 * self.capacity * self.k, STORAGE, name)
-                setattr(self, name, new)
+            for o in lists:  # the pairs' primitives and pixel boxes
+                old, per = old_kv[o.kept_name], 4 * o.words
+                new = g.buffer(per * self.capacity * self.k, STORAGE, o.kept_name)
+                setattr(self, o.kept_name, new)
                 if old is not None and not force:
                     for v in range(self.k):
-                        old_at, new_at = 4 * old_capacity * v, 4 * self.capacity * v
-                        enc.copy_buffer_to_buffer(old, old_at, new, new_at, 4 * old_capacity)
+                        old_at, new_at = per * old_capacity * v, per * self.capacity * v
+                        enc.copy_buffer_to_buffer(old, old_at, new, new_at, per * old_capacity)
             g.submit(enc)
         self.version += 1  # the kept-view buffers may have been replaced
         self._write_params()
@@ -312,46 +337,45 @@ class Renderer:
         self.set_cameras(cams)
 
     # ---- encoding --------------------------------------------------------------------------------
-    def _encode_projection(self, encoder, v: int):
+    def encode_projection(self, encoder, v: int, buffers=None):
         """View v's projection of every model chunk (its own projection slot per chunk)."""
         L, p = self.layout, self.projection
         for c in range(L.n_chunks):
             lo, hi = L.chunk_range(c)
-            p.encode(encoder, v * L.n_chunks + c, self.chunks[c], hi - lo, self.box_buf, self.guard_counts)
+            p.encode(encoder, v * L.n_chunks + c, self.chunks[c], hi - lo, self.box_buf, self.guard_counts, buffers)
+
+    def encode_stage(self, stage, encoder, buffers: dict, slot: int, views: range):
+        """Record one PIPELINE stage (tools/bench.py times the passes each records)."""
+        stage.encode(encoder, buffers, self, slot, views)
+
+    def _encode_pipeline(self, encoder, slot: int, views: range, split):
+        split = split or _same_encoder
+        buffers = self.buffers
+        for stage in PIPELINE:
+            if stage.split_before:
+                encoder = split(encoder)
+            self.encode_stage(stage, encoder, buffers, slot, views)
+            self._state_hook(encoder, slot, stage.name)
+        return encoder
 
     def encode_view(self, encoder, v: int, split=None):
         """View v's passes; `split` as in encode_batch (returns the encoder left to submit)."""
-        split = split or _same_encoder
-        p, b = self.projection, self.binning
-        self._encode_projection(encoder, v)
-        self._state_hook(encoder, v, "projected")
-        encoder = split(encoder)
-        self.sorting.encode_depth(encoder, p.depth_keys, p.depth_vals)
-        encoder = split(encoder)
-        b.encode_emit(encoder, v, p.rect, p.depth_vals, p.xy, p.conic)
-        self._state_hook(encoder, v, "emitted")
-        self.sorting.encode_tiles(encoder, b.isect_tiles, b.isect_prims, b.total(v), self.n_tiles)
-        self._state_hook(encoder, v, "sorted")
-        encoder = split(encoder)
-        b.encode_ranges(encoder, v)
-        self._state_hook(encoder, v, "ranged")
-        # a kept frame also records where each pixel stopped
-        self._encode_composite(encoder, v, 1, self.kv_stop if self.keep_views and self.capture_views else None)
-        self._state_hook(encoder, v, "composited")
+        encoder = self._encode_pipeline(encoder, v, range(v, v + 1), split)
         if self.keep_views and self.capture_views:
-            n = self.n
-            s = self.kv_stride
-            encoder.copy_buffer_to_buffer(p.xy, 0, self.kv_xy, 8 * s * v, 8 * n)
-            encoder.copy_buffer_to_buffer(p.conic, 0, self.kv_conic, 16 * s * v, 16 * n)
-            encoder.copy_buffer_to_buffer(p.rgb, 0, self.kv_rgb, 16 * s * v, 16 * n)
-            encoder.copy_buffer_to_buffer(p.rect, 0, self.kv_rect, 8 * s * v, 8 * n)
-            encoder.copy_buffer_to_buffer(b.isect_prims, 0, self.kv_isect, 4 * self.capacity * v, 4 * self.capacity)
-            encoder.copy_buffer_to_buffer(b.isect_box, 0, self.kv_box, 4 * self.capacity * v, 4 * self.capacity)
-            encoder.copy_buffer_to_buffer(b.ranges, 0, self.kv_ranges, 8 * self.n_tiles * v, 8 * self.n_tiles)
+            self._copy_kept(encoder, v)
         return encoder
 
+    def _copy_kept(self, encoder, v: int):
+        """View v's kept copies of the outputs PIPELINE declares kept."""
+        buffers = self.buffers
+        for o in KEPT:
+            stride, count = self.kept_records(o)
+            per = 4 * o.words
+            encoder.copy_buffer_to_buffer(buffers[o.name], 0, buffers[o.kept_name], per * stride * v, per * count)
+
     # A transient fault in the pipeline state of one frame (faults/state.py): `state_fault` is
-    # None or an object with .view, .point and .encode(encoder), recorded after that stage.
+    # None or an object with .view, .point (a stage's name) and .encode(encoder), recorded after
+    # that stage of that view.
     state_fault = None
 
     def _state_hook(self, encoder, v: int, point: str):
@@ -365,37 +389,7 @@ class Renderer:
         (run's, on a GPU): called between stages with the encoder so far, it submits it and
         returns a fresh one, so that the device starts on a stage while Python records the next;
         returns the encoder left to submit."""
-        split = split or _same_encoder
-        p, b = self.projection, self.binning
-        for v in range(self.k):
-            self._encode_projection(encoder, v)
-        encoder = split(encoder)
-        self.sorting.encode_depth(encoder, p.depth_keys, p.depth_vals)
-        encoder = split(encoder)
-        slot = b.batch_slot
-        b.encode_emit(encoder, slot, p.rect, p.depth_vals, p.xy, p.conic)
-        self.sorting.encode_tiles(encoder, b.isect_tiles, b.isect_prims, b.total(slot), self.k * self.n_tiles)
-        encoder = split(encoder)
-        b.encode_ranges(encoder, slot)
-        self._encode_composite(encoder, slot, self.k)
-        return encoder
-
-    def _encode_composite(self, encoder, slot: int, frames: int, stops=None):
-        """Compositing of Binning slot `slot`'s lists: one view's, or the K batched views'."""
-        p, b = self.projection, self.binning
-        self.compositing.encode(
-            encoder,
-            b.params.binding(slot),
-            b.ranges,
-            b.isect_prims,
-            p.xy,
-            p.conic,
-            p.rgb,
-            (self.tiles_x, self.tiles_y),
-            b.isect_box,
-            stops=stops,
-            frames=frames,
-        )
+        return self._encode_pipeline(encoder, self.binning.batch_slot, range(self.k), split)
 
     def encode(self, encoder, views=None, split=None):
         """Record `views` (all K by default); `split` as in encode_batch. Returns the encoder left

@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from seuwgpu.gpu.device import GPU
-from seuwgpu.gpu.sort import RadixSort
+from seuwgpu.gpu.sort import RadixSort, stable_sort
+from seuwgpu.render.stage import Output, Stage
 
 
 def tile_key_bits(n_tiles: int) -> int:
@@ -56,3 +57,47 @@ def depth_order(proj: dict) -> np.ndarray:
     """Indices of the visible primitives, front to back by depth, ties by index."""
     vis = np.nonzero(proj["visible"])[0]
     return vis[np.argsort(proj["depth"][vis], kind="stable")]
+
+
+# ---- the stages ---------------------------------------------------------------------------------
+def _encode_depth_sort(encoder, buffers, r, slot, views):
+    r.sorting.encode_depth(encoder, buffers["depth_keys"], buffers["depth_vals"])
+
+
+def depth_sort_twin(depth_keys, depth_vals) -> dict:
+    keys, vals = stable_sort(depth_keys, depth_vals, 32)
+    return {"depth_keys": keys, "depth_vals": np.asarray(vals, np.uint32)}
+
+
+DEPTH_SORT = Stage(
+    "depth_sort",
+    inputs=("depth_keys", "depth_vals"),
+    outputs=(Output("depth_keys", 1, "primitive"), Output("depth_vals", 1, "primitive")),
+    run=_encode_depth_sort,
+    twin_of=depth_sort_twin,
+    split_before=True,
+)
+
+
+def _encode_tile_sort(encoder, buffers, r, slot, views):
+    count = r.binning.total(slot)
+    r.sorting.encode_tiles(encoder, buffers["isect_tiles"], buffers["isect_prims"], count, len(views) * r.n_tiles)
+
+
+def tile_sort_twin(isect_tiles, isect_prims, n_tiles) -> dict:
+    tiles, prims = stable_sort(isect_tiles, isect_prims, tile_key_bits(n_tiles))
+    return {"isect_tiles": tiles, "isect_prims": np.asarray(prims, np.uint32)}
+
+
+TILE_SORT = Stage(
+    "tile_sort",
+    inputs=("isect_tiles", "isect_prims"),
+    params=("n_tiles",),
+    outputs=(
+        Output("isect_tiles", 1, "pair"),
+        # the sorted lists' primitives, flipped before the ranges are found
+        Output("isect_prims", 1, "pair", fault=True, kept=True, former="isect_prim"),
+    ),
+    run=_encode_tile_sort,
+    twin_of=tile_sort_twin,
+)

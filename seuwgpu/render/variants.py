@@ -27,7 +27,7 @@ from seuwgpu.render.composite import (
 )
 
 OPEN = 0x80000000
-"""kv_stop's flag of a pixel that never ends (variants_walk.wgsl `within`)."""
+"""kv_stop_pos's flag of a pixel that never ends (variants_walk.wgsl `within`)."""
 
 
 class VariantCompositing:
@@ -38,7 +38,7 @@ class VariantCompositing:
     dispatch c, merged into the entry's slab (running state between dispatches), so no workgroup
     walks more than one chunk (llvmpipe's loop limit: docs/renderer.md). When both lists are one
     chunk, a pixel that neither record reaches, or whose reaching records lie behind the record
-    it stopped at in the clean frame (`kv_stop`), is copied from the clean image. Owns the
+    it stopped at in the clean frame (`kv_stop_pos`), is copied from the clean image. Owns the
     entries, the slabs and the `Recomp` parameters (one slot per chunk dispatch)."""
 
     def __init__(self, gpu: GPU, max_entries: int, profile: str = "strict", chunk: int = CHUNK, exact: bool = True):
@@ -104,8 +104,8 @@ class VariantCompositing:
         """What both entry points bind: a dispatch's parameters, the entries and their running
         state, and the clean frame's kept buffers (by their shader names), views [v0, v1) of the
         per-view records (`stride` records a view) and tile lists (`capacity` pairs a view)."""
-        per_view = {"kv_isect": 4 * capacity, "kv_box": 4 * capacity}
-        per_view.update(kv_xy=8 * stride, kv_conic=16 * stride, kv_rgb=16 * stride)
+        per_view = {"kv_isect_prims": 4 * capacity, "kv_isect_box": 4 * capacity}
+        per_view.update(kv_proj_xy=8 * stride, kv_proj_conic=16 * stride, kv_proj_rgb=16 * stride)
         views = {name: (kept[name], size * v0, size * (v1 - v0)) for name, size in per_view.items()}
         return {**kept, **views, "rc": self.params.binding(slot), "entries": self.entries}
 
@@ -115,9 +115,9 @@ class VariantCompositing:
         """Record the slabs of `entries` ({variant, view, tile, prim: int arrays [E]}, sorted by
         view); `longest`: the longest clean tile list (a variant's list holds at most one pair
         more); `groups`: the kept view groups bound one at a time (Renderer.kept_view_groups).
-        kept, by the shader's names: the clean frame's per-view `kv_ranges`, `kv_isect` and `kv_box`
-        (tile lists and the pairs' pixel boxes, `capacity` apart), `kv_stop` (per pixel, its end
-        in its list), `kv_xy`, `kv_conic`, `kv_rgb` (w = depth) of n_prims records per view, and
+        kept, by the shader's names: the clean frame's per-view `kv_ranges`, `kv_isect_prims` and `kv_isect_box`
+        (tile lists and the pairs' pixel boxes, `capacity` apart), `kv_stop_pos` (per pixel, its end
+        in its list), `kv_proj_xy`, `kv_proj_conic`, `kv_proj_rgb` (w = depth) of n_prims records per view, and
         its checkpoints (`ckpt_base`, `ckpt_states`) and later chunks' results (`chunk_base`,
         `chunk_states`; both from encode_checkpoints); variant: the variants' `var_xy`,
         `var_conic`, `var_rgb`, `var_rect` (n_variants per
@@ -142,7 +142,7 @@ class VariantCompositing:
         """Record the checkpoint pass (variants.wgsl:checkpoints) over `entries` ({view, tile},
         sorted by view): the pixels' state at every `ckpt_every` positions of those tiles' clean
         lists into `ckpt_states` (slots from `ckpt_base`), each later chunk's own result into
-        `chunk_states` (slots from `chunk_base`) and each pixel's end into `kv_stop`. Same kept
+        `chunk_states` (slots from `chunk_base`) and each pixel's end into `kv_stop_pos`. Same kept
         buffers, groups and params as `encode`."""
         n = len(entries["tile"])
         entries = {"variant": np.zeros(n, np.int64), "prim": np.zeros(n, np.int64), **entries}
@@ -210,7 +210,7 @@ def tile_checkpoints(ids, pxs, pys, mx, my, conic, opac, rgb, chunk: int, every:
     """Twin of variants.wgsl:checkpoints for one tile list `ids` at pixel centres (pxs, pys) [P]
     (records as composite.py's composite_tile takes them): ({position: (C [P, 3], T [P])} at every
     checkpoint position (at a chunk's first position the chunks before it merged, elsewhere the
-    chunk's own walk so far), ends [P] as kv_stop holds them (the last position each pixel's value
+    chunk's own walk so far), ends [P] as kv_stop_pos holds them (the last position each pixel's value
     depends on; for a pixel that never ends OPEN | (1 + the last position of a record blended into
     it, 0 for none))). Only a pixel alive at a position reads that checkpoint."""
     chunk = check_chunk(chunk)

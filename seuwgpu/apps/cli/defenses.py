@@ -24,6 +24,7 @@ from seuwgpu.campaign.progress import ProgressBar
 from seuwgpu.faults.defenses import DEFENSES as DEFENSE_NAMES
 from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY
 from seuwgpu.faults.sites import FAULT_MODELS
+from seuwgpu.faults.state import FORMER_NAMES, check_target
 from seuwgpu.faults.state import TARGETS as STATE_TARGETS
 
 
@@ -350,8 +351,9 @@ def state_arguments(s: argparse.ArgumentParser):
         "--targets",
         nargs="+",
         default=list(STATE_TARGETS),
-        choices=STATE_TARGETS,
-        help="pipeline-state buffers to flip bits in (default: all)",
+        choices=[*STATE_TARGETS, *FORMER_NAMES],
+        help="pipeline-state buffers to flip bits in (default: all); the former names "
+        f"({', '.join(FORMER_NAMES)}) still work",
     )
     s.add_argument("--samples", type=positive_int, default=10, help="flips per (target, bit) cell")
     s.add_argument("--bit", type=word_bit, nargs="+", help="bits 0..31 (default: all 32)")
@@ -368,7 +370,8 @@ def cmd_state(args):
     output_folder(args, args.out)
     src = load_source(args)
     cams = load_cams(args, src)
-    targets, bits = list(dict.fromkeys(args.targets)), list(dict.fromkeys(args.bit or range(32)))
+    targets = list(dict.fromkeys(check_target(t) for t in args.targets))
+    bits = list(dict.fromkeys(args.bit or range(32)))
     options = {"targets": targets, "samples": args.samples, "bit": bits}
     flips = len(targets) * len(bits) * args.samples
     with resumable(args, src, cams, "state", pd.DataFrame, "flips", flips, **options) as (rows, progress):
