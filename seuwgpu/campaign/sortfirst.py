@@ -136,7 +136,8 @@ def footprint_mask(values: np.ndarray, degree: int, cam) -> np.ndarray:
     view by the compositing rule, occlusion aside: inside its binned tile rectangle, sigma >= 0
     and alpha >= 1/255 (a NaN alpha contributes, as in the renderer). float32, as the numpy twin."""
     from seuwgpu.model.fields import Model
-    from seuwgpu.render.reference import ALPHA_MAX, ALPHA_MIN, F, project
+    from seuwgpu.render.composite import ALPHA_MAX, ALPHA_MIN
+    from seuwgpu.render.project import F, project
 
     m = Model.from_flat(np.asarray(values, np.float32).reshape(1, -1), degree)
     p = project(m, cam)
