@@ -32,7 +32,8 @@ def inputs(n=1500, seed=3, size=(72, 40)):
         proj = project(model, cam)
     order = depth_order(proj)
     full = np.concatenate([order, np.setdiff1d(np.arange(n), order)])
-    records = {"xy": proj["mean2d"], "conic": np.column_stack([proj["conic"], proj["opacity"]]).astype(np.float32)}
+    conic = np.column_stack([proj["conic"], proj["opacity"]]).astype(np.float32)
+    records = {"proj_xy": proj["proj_xy"], "proj_conic": conic}
     return proj["rect"], full, n_tiles_xy(cam), size, records
 
 
@@ -45,7 +46,7 @@ def run_stage(gpu, rects, order, tiles, size, capacity, records, exact=True):
     stage.set_view(0, tiles_x=tx, size=size, origin=(0, 0), background=(1, 1, 1))
     stage.params.write()
     enc = gpu.device.create_command_encoder()
-    xy, conic = gpu.upload(records["xy"].astype(np.float32)), gpu.upload(records["conic"])
+    xy, conic = gpu.upload(records["proj_xy"].astype(np.float32)), gpu.upload(records["proj_conic"])
     given = {"proj_rect": gpu.upload(packed(rects)), "depth_vals": gpu.upload(order.astype(np.uint32))}
     stage.encode_emit(enc, 0, {**given, "proj_xy": xy, "proj_conic": conic})
     gpu.submit(enc)
@@ -88,8 +89,8 @@ def test_exact_binning_drops_only_unreachable_pairs():
     assert kept <= every
     dropped = every - kept
     assert 0.05 * len(every) < len(dropped) < 0.6 * len(every)
-    xy = records["xy"].astype(np.float64)
-    co = records["conic"].astype(np.float64)
+    xy = records["proj_xy"].astype(np.float64)
+    co = records["proj_conic"].astype(np.float64)
     ii, jj = np.meshgrid(np.arange(16) + 0.5, np.arange(16) + 0.5)
     for t, g in dropped:
         px, py = (t % tiles[0]) * 16 + ii, (t // tiles[0]) * 16 + jj
@@ -112,10 +113,10 @@ def test_quadrant_masks_drop_only_unreachable_quadrants():
     e = emit(rects, order, tiles[0], records)
     t, g = e["isect_tiles"], e["isect_prims"]
     origin = np.stack([(t % tiles[0]) * 16, (t // tiles[0]) * 16], axis=1)
-    quads = ellipse_quadrants(records["xy"][g], records["conic"][g], origin)
+    quads = ellipse_quadrants(records["proj_xy"][g], records["proj_conic"][g], origin)
     assert (quads[g == 7] == 15).all() and (quads[g == 9] == 15).all()
-    xy = records["xy"].astype(np.float64)
-    co = records["conic"].astype(np.float64)
+    xy = records["proj_xy"].astype(np.float64)
+    co = records["proj_conic"].astype(np.float64)
     ii, jj = np.meshgrid(np.arange(8) + 0.5, np.arange(8) + 0.5)
     dropped = 0
     for p in range(len(t)):
@@ -201,7 +202,7 @@ def test_batched_views_bin_as_each_view_alone(gpu):
     with np.errstate(all="ignore"):
         projs = [project(model, cam) for cam in cams]
     rects = np.concatenate([p["rect"] for p in projs])
-    xy = np.concatenate([p["mean2d"] for p in projs]).astype(np.float32)
+    xy = np.concatenate([p["proj_xy"] for p in projs]).astype(np.float32)
     conic = np.concatenate([np.column_stack([p["conic"], p["opacity"]]) for p in projs]).astype(np.float32)
     depth = np.concatenate([np.where(p["visible"], p["depth"], np.inf) for p in projs]).astype(np.float32)
     order = np.argsort(depth, kind="stable")  # all K views mixed, ties by record index
@@ -228,7 +229,7 @@ def test_batched_views_bin_as_each_view_alone(gpu):
     totals = gpu.read(stage.stats)[:k]
     wanted = 0
     for v, p in enumerate(projs):
-        rec = {"xy": p["mean2d"], "conic": np.column_stack([p["conic"], p["opacity"]]).astype(np.float32)}
+        rec = {"proj_xy": p["proj_xy"], "proj_conic": np.column_stack([p["conic"], p["opacity"]]).astype(np.float32)}
         want_ranges, want_prims = tile_lists(p["rect"], depth_order(p), tx, tx * ty, rec)
         mine = ranges[v * tx * ty : (v + 1) * tx * ty]
         first = mine[0, 0]

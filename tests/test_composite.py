@@ -46,7 +46,7 @@ def gpu_frame(gpu, ranges, prims, rec: dict, w: int, h: int, background, chunk=C
     buffers = {
         "ranges": np.asarray(ranges).astype(np.uint32),
         "isect_prims": np.asarray(prims).astype(np.uint32),
-        "proj_xy": rec["mean2d"],
+        "proj_xy": rec["proj_xy"],
         "proj_conic": np.column_stack([rec["conic"], rec["opacity"]]).astype(np.float32),
         "proj_rgb": np.column_stack([rec["rgb"], depth]).astype(np.float32),
     }
@@ -111,7 +111,7 @@ def _edge_records(n: int, rng) -> dict:
     mean2d[rng.random(n) < 0.03] = [[1e5, 20.0]]
     mean2d[rng.random(n) < 0.03] = [[20.0, -3e7]]
     return {
-        "mean2d": mean2d.astype(np.float32),
+        "proj_xy": mean2d.astype(np.float32),
         "conic": conic.astype(np.float32),
         "opacity": op.astype(np.float32),
         "rgb": rng.uniform(0, 1, (n, 3)).astype(np.float32),
@@ -147,7 +147,7 @@ def test_exp_flushes_results_below_the_smallest_normal(gpu):
     every device and in the twin. A record at a pixel corner with conic (1, 0, 1) has sigma =
     (x^2 + y^2) / 2 at pixel (x, y): 0.99 alpha up to x^2 + y^2 = 174 (sigma 87), nothing beyond."""
     rec = {
-        "mean2d": np.array([[0.5, 0.5]], np.float32),
+        "proj_xy": np.array([[0.5, 0.5]], np.float32),
         "conic": np.array([[1.0, 0.0, 1.0]], np.float32),
         "opacity": np.array([np.float32(0.5).view(np.uint32) ^ np.uint32(1 << 30)]).view(np.float32),
         "rgb": np.zeros((1, 3), np.float32),
@@ -167,7 +167,7 @@ def _flat_records(opacity, rgb, w=16, h=16) -> dict:
     """Records with conic 0 (sigma = 0 at every pixel: alpha = min(0.99, o) everywhere)."""
     n = len(opacity)
     return {
-        "mean2d": np.full((n, 2), [w / 2, h / 2], np.float32),
+        "proj_xy": np.full((n, 2), [w / 2, h / 2], np.float32),
         "conic": np.zeros((n, 3), np.float32),
         "opacity": np.asarray(opacity, np.float32),
         "rgb": np.asarray(rgb, np.float32),
@@ -213,7 +213,7 @@ def _dense_records(n: int, rng, w: int, h: int) -> dict:
     rgb = rng.uniform(0, 1, (n, 3))
     rgb[rng.choice(n, 3, replace=False), 1] = [np.inf, np.nan, 0.5]
     return {
-        "mean2d": rng.uniform(-4, [w + 4, h + 4], (n, 2)).astype(np.float32),
+        "proj_xy": rng.uniform(-4, [w + 4, h + 4], (n, 2)).astype(np.float32),
         "conic": np.column_stack([cc / det, -b / det, a / det]).astype(np.float32),
         "opacity": op.astype(np.float32),
         "rgb": rgb.astype(np.float32),
@@ -465,7 +465,7 @@ def test_a_tile_longer_than_the_cpu_loop_limit(gpu):
     rng = np.random.default_rng(9)
     n = 60_000
     rec = {
-        "mean2d": rng.uniform(7, 9, (n, 2)).astype(np.float32),
+        "proj_xy": rng.uniform(7, 9, (n, 2)).astype(np.float32),
         "conic": np.tile(np.array([[0.5, 0.0, 0.5]], np.float32), (n, 1)),
         "opacity": np.full(n, 0.0045, np.float32),  # alpha >= 1/255 within ~0.7 px of the mean
         "rgb": rng.uniform(0, 1, (n, 3)).astype(np.float32),

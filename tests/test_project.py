@@ -90,7 +90,7 @@ def assert_records_match(got, want, cam):
     assert (got["rect"][want["unbounded"]] == [0, 0, *n_tiles_xy(cam)]).all()
     assert (got["conic"][want["unbounded"]] == 0).all()
     # float records of the drawn primitives
-    close_records(got["xy"][vis], want["mean2d"][vis])
+    close_records(got["proj_xy"][vis], want["proj_xy"][vis])
     close_records(got["conic"][vis], want["conic"][vis])
     close_records(got["rgb"][vis], want["rgb"][vis])
     np.testing.assert_allclose(got["depth"][vis], want["depth"][vis], rtol=2e-6)

@@ -142,7 +142,7 @@ def test_isotropic_gaussian_at_image_centre(logit):
     assert p["visible"][0] and not p["unbounded"][0]
     a_expect = (f * s / z) ** 2 + 0.3
     np.testing.assert_allclose(p["cov2d"][0], [a_expect, 0, a_expect], rtol=1e-5, atol=1e-7)
-    np.testing.assert_allclose(p["mean2d"][0], [16.5, 16.5])
+    np.testing.assert_allclose(p["proj_xy"][0], [16.5, 16.5])
     r = np.ceil(3.33 * np.sqrt(a_expect))
     assert tuple(p["rect"][0]) == (
         int(np.floor((16.5 - r) / 16)),
@@ -168,7 +168,7 @@ def test_pixel_centre_convention():
     cam = pinhole(32, 32, 32.0)
     model = prims([[-5.5 / 32, (7.5 - 16) / 32, 1.0]], log_scales=-12.0, opacity=1.0, rgb=(0.1, 0.1, 0.1))
     p = project(model, cam)
-    assert tuple(p["mean2d"][0]) == (10.5, 7.5)
+    assert tuple(p["proj_xy"][0]) == (10.5, 7.5)
     img = ref.render_view(model, cam)
     peak = composite_one(p["rgb"][0], sigmoid32(1.0))
     np.testing.assert_array_equal(img[7, 10], peak)  # sigma = 0 exactly at the pixel centre
@@ -233,7 +233,7 @@ def test_sheet_with_far_off_screen_centre_is_still_a_sheet():
     cam = pinhole(32, 32, 32.0)
     model = prims([[1e20, 0.0, 1.0]], log_scales=100.0, opacity=2.0)
     p = project(model, cam)
-    assert p["visible"][0] and p["unbounded"][0] and np.isfinite(p["mean2d"][0]).all()
+    assert p["visible"][0] and p["unbounded"][0] and np.isfinite(p["proj_xy"][0]).all()
     img = ref.render_view(model, cam)
     expect = composite_one(p["rgb"][0], sigmoid32(2.0))
     np.testing.assert_array_equal(img, np.broadcast_to(expect, img.shape))
@@ -431,7 +431,7 @@ def test_ewa_covariance_matches_sampled_projection():
     np.testing.assert_allclose(
         [a - 0.3, b, c - 0.3], [emp[0, 0], emp[0, 1], emp[1, 1]], rtol=0.03, atol=0.03 * np.sqrt(emp[0, 0] * emp[1, 1])
     )
-    np.testing.assert_allclose(p["mean2d"][0], uv.mean(0), atol=0.05)
+    np.testing.assert_allclose(p["proj_xy"][0], uv.mean(0), atol=0.05)
     a_, b_, c_ = a, b, c
     det = a_ * c_ - b_ * b_
     np.testing.assert_allclose(p["conic"][0], [c_ / det, -b_ / det, a_ / det], rtol=1e-5)
@@ -449,7 +449,7 @@ def test_jacobian_clamped_beyond_the_frame():
     J0 = np.array([f / z, 0, -f * tx / z**2])
     a = J0 @ (s2 * np.eye(3)) @ J0 + 0.3
     np.testing.assert_allclose(p["cov2d"][0, 0], a, rtol=1e-5)
-    np.testing.assert_allclose(p["mean2d"][0, 0], f * x / z + W / 2, rtol=1e-6)
+    np.testing.assert_allclose(p["proj_xy"][0, 0], f * x / z + W / 2, rtol=1e-6)
 
 
 def test_needles_are_never_culled_by_cancellation():

@@ -56,7 +56,7 @@ def test_compositor_input_flips_equal_the_twin(sf, target, index, comp, bit):
     n = sf.r.n
     ids = np.minimum(state["isect_prims"][:, 0], n - 1)  # an id past the records reads the last (robust access)
     records = {
-        "mean2d": f["proj_xy"],
+        "proj_xy": f["proj_xy"],
         "conic": f["proj_conic"][:, :3],
         "opacity": f["proj_conic"][:, 3],
         "rgb": f["proj_rgb"][:, :3],
@@ -66,7 +66,7 @@ def test_compositor_input_flips_equal_the_twin(sf, target, index, comp, bit):
         g = sf.engine.gpu
         rects = unpack_rects(g.read(sf.r.kv_proj_rect, np.uint32, 8 * sf.r.kv_stride * v, 8 * n).reshape(n, 2))
         order = np.lexsort((np.arange(n), state["proj_rgb"][:, 3]))  # depth bits, ties by index
-        bin_records = {"xy": f["proj_xy"], "conic": f["proj_conic"]}
+        bin_records = {"proj_xy": f["proj_xy"], "proj_conic": f["proj_conic"]}
         ranges, ids = tile_lists(rects, order, sf.r.tiles_x, sf.r.n_tiles, bin_records)
     want = composite_frame(ranges, ids, records, sf.r.width, sf.r.height)
     assert psnr_finite(got[v], want) > 60

@@ -59,7 +59,8 @@ def test_variants_match_twin(gpu):
         tx, ty = t % r.tiles_x, t // r.tiles_x
         ids = variant_list(kv["isect"][v, a:z], keys, p, var["depth_keys"][vi], x0 <= tx < x1 and y0 <= ty < y1)
         xy, conic, rgb = kv["xy"][v].copy(), kv["conic"][v].copy(), kv["rgb"][v].copy()
-        xy[p], conic[p], rgb[p, :3] = var["xy"][vi], np.append(var["conic"][vi], var["opacity"][vi]), var["rgb"][vi]
+        xy[p], rgb[p, :3] = var["proj_xy"][vi], var["rgb"][vi]
+        conic[p] = np.append(var["conic"][vi], var["opacity"][vi])
         (ys, xs), pxs, pys = tile_pixels(tx, ty, r.width, r.height)
         want, T = composite_tile(ids, pxs, pys, xy[:, 0], xy[:, 1], conic[:, :3], conic[:, 3], rgb[:, :3], bg)
         got = slabs[e, : ys.stop - ys.start, : xs.stop - xs.start].reshape(-1, 4)

@@ -151,7 +151,7 @@ def footprint_mask(values: np.ndarray, degree: int, cam) -> np.ndarray:
         return mask
     px = np.arange(xa, xb, dtype=F) + F(0.5)
     py = np.arange(ya, yb, dtype=F) + F(0.5)
-    mx, my = p["mean2d"][0]
+    mx, my = p["proj_xy"][0]
     cxx, cxy, czz = p["conic"][0]
     with np.errstate(all="ignore"):
         dx = (mx - px)[None, :]

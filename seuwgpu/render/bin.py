@@ -230,7 +230,7 @@ def emit(rects: np.ndarray, order: np.ndarray, tiles_x: int, records: dict | Non
     y0, x1, y1 in tiles, exclusive max; empty when culled) visited in `order` (primitive indices
     front to back) -> counts and offsets per position in `order`, and the (tile, primitive) pairs
     `isect_tiles`, `isect_prims` in emission order (row-major within each rectangle). `records`
-    ({"xy" [N, 2], "conic" [N, 4]: conic and opacity}) turns on exact binning (`reach`,
+    ({"proj_xy" [N, 2], "proj_conic" [N, 4]: conic and opacity}) turns on exact binning (`reach`,
     `row_tiles`); without it every tile of the rectangle is paired. `origin`: the viewport's
     first pixel."""
     order = np.asarray(order, np.int64)
@@ -243,7 +243,7 @@ def emit(rects: np.ndarray, order: np.ndarray, tiles_x: int, records: dict | Non
     c0, c1 = r[pos, 0], r[pos, 2]
     if records is not None:
         prims = order[pos]
-        rr = reach(np.asarray(records["xy"])[prims], np.asarray(records["conic"])[prims])
+        rr = reach(np.asarray(records["proj_xy"])[prims], np.asarray(records["proj_conic"])[prims])
         c0, c1 = row_tiles(rr, ty * TILE + origin[1], origin[0], c0, c1)
     n_row = c1 - c0
     counts = np.bincount(pos, weights=n_row, minlength=len(order)).astype(np.int64)
@@ -282,7 +282,7 @@ def _encode_emit(encoder, buffers, r, slot, views):
 def emit_twin(proj_rect, depth_vals, proj_xy, proj_conic, tiles_x, exact_binning) -> dict:
     """`emit` over the kernel's buffers: every record in depth order (a culled one's rectangle
     is empty)."""
-    records = {"xy": proj_xy, "conic": proj_conic} if exact_binning else None
+    records = {"proj_xy": proj_xy, "proj_conic": proj_conic} if exact_binning else None
     e = emit(unpack_rects(proj_rect), depth_vals, tiles_x, records)
     return {"isect_tiles": e["isect_tiles"].astype(np.uint32), "isect_prims": e["isect_prims"].astype(np.uint32)}
 

@@ -310,11 +310,11 @@ def composite_frame(
     chunk=CHUNK,
 ):
     """Twin of the main entry for one view: tile t draws prims[ranges[t, 0]:ranges[t, 1]] with
-    the screen records (`mean2d` [N, 2], `conic` [N, 3], `opacity`, `rgb` [N, 3]). Returns
+    the screen records (`proj_xy` [N, 2], `conic` [N, 3], `opacity`, `rgb` [N, 3]). Returns
     [H, W, 4] float32 (rgb, T) like the GPU's image."""
     bg = np.asarray(background, dtype=F).reshape(3)
     tiles_x, tiles_y = -(-int(width) // TILE), -(-int(height) // TILE)
-    mx, my = records["mean2d"][:, 0], records["mean2d"][:, 1]
+    mx, my = records["proj_xy"][:, 0], records["proj_xy"][:, 1]
     img = np.empty((height, width, 4), dtype=F)
     prims = np.asarray(prims, np.int64)
     for ty in range(tiles_y):
@@ -349,7 +349,7 @@ def _encode_composite(encoder, buffers, r, slot, views):
 
 def composite_twin(ranges, isect_prims, proj_xy, proj_conic, proj_rgb, width, height, background, profile) -> dict:
     """`composite_frame` over the kernel's buffers: image [H * W, 4] (rgb, T)."""
-    records = {"mean2d": proj_xy, "conic": proj_conic[:, :3], "opacity": proj_conic[:, 3], "rgb": proj_rgb[:, :3]}
+    records = {"proj_xy": proj_xy, "conic": proj_conic[:, :3], "opacity": proj_conic[:, 3], "rgb": proj_rgb[:, :3]}
     with np.errstate(all="ignore"):
         frame = composite_frame(ranges, isect_prims, records, width, height, background, profile=profile)
     return {"image": frame.reshape(-1, 4)}

@@ -202,7 +202,7 @@ def check_profile(profile: str) -> str:
 def project(model: Model, cam: Camera, profile: str = "strict") -> dict:
     """Per-primitive projection of `model` (decoded float32 values) for one camera.
 
-    Returns arrays over all N primitives: depth (p.z), visible (bool), mean2d [N,2],
+    Returns arrays over all N primitives: depth (p.z), visible (bool), proj_xy [N,2] (the screen mean),
     cov2d [N,3] (a, b, c, dilated), conic [N,3], unbounded (bool), radius [N,2] (rx, ry),
     opacity [N], rgb [N,3], rect [N,4] int32 (x0, y0, x1, y1 in tiles, exclusive max; zeros
     when culled), n_tiles [N] int64 (0 when culled).
@@ -258,7 +258,7 @@ def project(model: Model, cam: Camera, profile: str = "strict") -> dict:
         return records(model, campos, pz, ok, (mx, my), (a, b, c), conic, unb & ok, (rx, ry), rectf)
 
 
-def records(model: Model, campos, pz, ok, mean2d, cov, conic, unbounded, radius, rectf) -> dict:
+def records(model: Model, campos, pz, ok, screen_xy, cov, conic, unbounded, radius, rectf) -> dict:
     """The projection's outputs (see `project`): culled rows' rectangles cleared, then opacity
     and colour."""
     with np.errstate(all="ignore"):
@@ -270,7 +270,7 @@ def records(model: Model, campos, pz, ok, mean2d, cov, conic, unbounded, radius,
     return {
         "depth": pz.astype(F),
         "visible": ok,
-        "mean2d": np.stack(mean2d, axis=1).astype(F),
+        "proj_xy": np.stack(screen_xy, axis=1).astype(F),
         "cov2d": np.stack(cov, axis=1).astype(F),
         "conic": conic.astype(F),
         "unbounded": unbounded,
@@ -497,7 +497,7 @@ class Projection:
         )
 
     def read(self, n: int | None = None) -> dict:
-        """Records of primitives [0, n) as numpy arrays (tests, inspection): xy [n, 2], conic
+        """Records of primitives [0, n) as numpy arrays (tests, inspection): proj_xy [n, 2], conic
         [n, 3], opacity, rgb [n, 3], depth, rect [n, 4] (x0, y0, x1, y1), depth_keys, depth_vals."""
         n = self.capacity if n is None else int(n)
         g = self.gpu
@@ -505,7 +505,7 @@ class Projection:
         conic = g.read(b["proj_conic"], np.float32, 0, 16 * n).reshape(n, 4)
         rgb = g.read(b["proj_rgb"], np.float32, 0, 16 * n).reshape(n, 4)
         return {
-            "xy": g.read(b["proj_xy"], np.float32, 0, 8 * n).reshape(n, 2),
+            "proj_xy": g.read(b["proj_xy"], np.float32, 0, 8 * n).reshape(n, 2),
             "conic": conic[:, :3],
             "opacity": conic[:, 3],
             "rgb": rgb[:, :3],
@@ -538,7 +538,7 @@ def project_twin(model: Model, view: Camera, profile: str) -> dict:
     vis = proj["visible"]
     rect = proj["rect"].astype(np.uint32)
     out = {
-        "proj_xy": proj["mean2d"],
+        "proj_xy": proj["proj_xy"],
         "proj_conic": np.column_stack([proj["conic"], proj["opacity"]]),
         "proj_rgb": np.column_stack([proj["rgb"], proj["depth"]]),
     }
