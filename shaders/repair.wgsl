@@ -1,4 +1,4 @@
-// #import common
+// #import codes
 
 // Repair on the device (faults/check.py DeviceRepair): every primitive the check inside the frame
 // flagged (project.wgsl FRAME_CHECK) is rewritten from the golden copy of its chunk, after the
@@ -41,10 +41,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             continue;
         }
         let half = select(0xffffu << (16u * h), 0xffffffffu, per == 1u);
-        var s = 0x811C9DC5u;
+        var s = CHECKSUM_SEED;
         for (var c = 0u; c < params.ncomp; c = c + 1u) {
-            let g = golden[c * params.plane_words + w];
-            s = fmix32(s ^ select((g >> (16u * h)) & 0xffffu, g, per == 1u));
+            s = checksum_step(s, stored_pattern(golden[c * params.plane_words + w], j, params.fmt));
         }
         if (s != golden_sum[p]) {
             atomicAdd(&out[2], 1u);
