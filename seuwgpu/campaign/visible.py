@@ -31,15 +31,14 @@ import pandas as pd
 from seuwgpu.campaign.store import atomic_write, visible_path
 from seuwgpu.campaign.storm import shape_upsets, storm
 from seuwgpu.faults import defenses as dfn
-from seuwgpu.faults.sites import Site, check_fault_model
+from seuwgpu.faults.sites import DANGEROUS_CELLS, Site, check_fault_model
 from seuwgpu.metrics.image import PIXEL_THRESHOLD
 from seuwgpu.model.fields import field_components
 
-DANGEROUS = (("log_scales", 30), ("log_scales", 31), ("opacity", 30), ("opacity", 31))
 BOOTSTRAP = 2000
 
 
-def plan_upsets(engine, upsets: int, window: int, cells=DANGEROUS, fault: str = "bit", seed: int = 0):
+def plan_upsets(engine, upsets: int, window: int, cells=DANGEROUS_CELLS, fault: str = "bit", seed: int = 0):
     """(a storm plan: `upsets * window` frames of sites, the frame in its window each lands at)."""
     check_fault_model(fault)
     rng = np.random.default_rng(seed)
@@ -75,7 +74,7 @@ def visible_damage(
     check_every: int = 10,
     upsets: int = 50,
     window: int = 20,
-    cells=DANGEROUS,
+    cells=DANGEROUS_CELLS,
     fault: str = "bit",
     seed: int = 0,
     progress=None,
