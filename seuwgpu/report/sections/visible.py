@@ -20,10 +20,10 @@ COLUMNS = {
     "catastrophic_frames_per_upset": "catastrophic frames / upset",
     "catastrophic_lo": "catastrophic lo",
     "catastrophic_hi": "catastrophic hi",
+    "residue_frames_per_upset": "after the check",  # the post-check residue, beside what is seen
     "sdc_frames_per_upset": "SDC frames / upset",
     "sdc_lo": "SDC lo",
     "sdc_hi": "SDC hi",
-    "residue_frames_per_upset": "after the check",
     "of_none": "x none",
     "of_none_lo": "x none lo",
     "of_none_hi": "x none hi",
