@@ -127,3 +127,9 @@ def test_no_visible_records_no_table_and_an_event_free_arm_has_its_bound(tmp_pat
     assert shown.loc["parity4f", "x none"] == 0
     assert shown.loc["parity4f", "x none hi"] == pytest.approx(20 * (1 - 0.025 ** (1 / 40)) / 1.25)
     assert (shown["device"] == "llvmpipe").all() and (shown["date"] == "2026-12-07").all()
+    # the same measurement kept in a second folder: a row of its own, not pooled upsets
+    other = tmp_path / "second"
+    save_counts(other, counts.assign(catastrophic_frames=0), **meta, device="llvmpipe", date="2026-12-08")
+    both = next(t for t in _report_section([tmp_path, other]).tables if t.name == "visible_damage").df
+    got = both.set_index(["run", "defense"])["catastrophic frames / upset"]
+    assert got[(tmp_path.name, "none")] == 50 / 40 and got[("second", "none")] == 0 and len(both) == 4

@@ -11,17 +11,18 @@ from seuwgpu.campaign.visible import MEASUREMENT, summarise
 
 
 def visible_table(counts: pd.DataFrame) -> pd.DataFrame:
-    """One row per measurement and defense: the MEASUREMENT keys, device and date, then
+    """One row per measurement (and run folder) and defense: the MEASUREMENT keys, device and date, then
     summarise's columns (frames per upset, catastrophic and SDC, with 95% intervals; the residue
     after the check; the share of the unguarded arm's catastrophic frames)."""
+    keys = [*MEASUREMENT, "run"] if "run" in counts else list(MEASUREMENT)
     rows = []
-    for key, g in counts.groupby(list(MEASUREMENT), sort=False):
-        s = summarise(g, seed=int(dict(zip(MEASUREMENT, key))["seed"])).drop(columns=["window", "upsets"])
-        for k, v in zip(MEASUREMENT, key):
+    for key, g in counts.groupby(keys, sort=False):
+        s = summarise(g, seed=int(dict(zip(keys, key))["seed"])).drop(columns=["window", "upsets"])
+        for k, v in zip(keys, key):
             s[k] = v
         for k in ("device", "date"):
             s[k] = ", ".join(sorted(set(g[k].astype(str)))) if k in g else ""
         rows.append(s)
-    cols = [*MEASUREMENT, "device", "date"]
+    cols = [*keys, "device", "date"]
     out = pd.concat(rows, ignore_index=True)
     return out[cols + [c for c in out.columns if c not in cols]]

@@ -200,6 +200,9 @@ def save_counts(run_dir, counts: pd.DataFrame, **measurement) -> Path:
 
 
 def read_counts(run_dirs) -> pd.DataFrame | None:
-    """The visible-damage records of run folders (save_counts), None where they hold none."""
-    files = [f for d in run_dirs for f in sorted(visible_path(d, "*").parent.glob("*.parquet"))]
-    return pd.concat([pd.read_parquet(f) for f in files], ignore_index=True) if files else None
+    """The visible-damage records of run folders (save_counts), each row with its folder's name
+    (`run`: one measurement kept in two folders stays two), None where they hold none."""
+    files = [(Path(d).name, f) for d in run_dirs for f in sorted(visible_path(d, "*").parent.glob("*.parquet"))]
+    if not files:
+        return None
+    return pd.concat([pd.read_parquet(f).assign(run=run) for run, f in files], ignore_index=True)

@@ -56,6 +56,7 @@ def visible_item(manifests) -> tuple[TableItem, dict] | None:
         "without a check never repairs). x none: catastrophic frames over the unguarded arm's, paired. Every "
         "number grows with the window: the unguarded arm draws an upset until the reload."
     )
-    df = t[list(COLUMNS)].rename(columns=COLUMNS)
+    cols = (["run"] if t["run"].nunique() > 1 else []) + list(COLUMNS)  # which folder, when several
+    df = t[cols].rename(columns=COLUMNS)
     df["S"] = df["S"].map(lambda s: "" if s == 0 else str(int(s)))
     return TableItem("visible_damage", "What the user sees, per upset", df, cap), numbers
