@@ -185,12 +185,12 @@ MEASUREMENT = ("scene", "n_primitives", "precision", "width", "height", "fault",
 def save_counts(run_dir, counts: pd.DataFrame, **measurement) -> Path:
     """Write one measurement's upset_counts into the run folder (store.visible_path), each row
     carrying `measurement` (the MEASUREMENT keys besides window, upsets and schedule; device and
-    date too). The same measurement measured again replaces its file."""
+    date too). The same measurement of the same arms measured again replaces its file."""
     df = counts.assign(**measurement)
     missing = [k for k in MEASUREMENT if k not in df.columns]
     if missing:
         raise ValueError(f"a visible-damage record needs {', '.join(missing)}")
-    key = "-".join(str(df[k].iloc[0]) for k in MEASUREMENT if k not in ("n_primitives", "upsets"))
+    key = "-".join([*(str(df[k].iloc[0]) for k in MEASUREMENT), "+".join(dict.fromkeys(df["defense"]))])
     path = visible_path(run_dir, "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in key))
     path.parent.mkdir(parents=True, exist_ok=True)
     buf = io.BytesIO()
