@@ -32,6 +32,7 @@ const MODE_PARITY: u32 = 0u;
 const MODE_CHECKSUM: u32 = 1u;
 const MODE_SCALE: u32 = 2u;
 
+// laid out as codes.wgsl's OUT_* words (the host reads them by those names)
 struct CheckOut {
     detected: atomic<u32>,
     detected_copy: atomic<u32>,  // the same count, kept twice

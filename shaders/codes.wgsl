@@ -7,6 +7,15 @@
 
 const CHECKSUM_SEED: u32 = 0x811C9DC5u;
 
+// A check's output as words (check.wgsl's CheckOut, project.wgsl's frame_out, repair.wgsl's out;
+// the host reads these names: faults/check.py CheckOutput): the detection count twice (an upset
+// in one copy hides nothing), each check's own two words, then a flag bit per primitive.
+const OUT_DETECTED: u32 = 0u;
+const OUT_DETECTED_COPY: u32 = 1u;
+const OUT_FAULTS: u32 = 2u;    // check.wgsl: parameter faults; repair.wgsl: golden rows that failed
+const OUT_REPAIRED: u32 = 3u;  // repair.wgsl: primitives repaired
+const OUT_FLAGS: u32 = 4u;     // the first flag word: primitive g is bit g % 32 of word OUT_FLAGS + g / 32
+
 // MurmurHash3's finaliser: a bijection of u32 that avalanches (twin: codes.fmix32)
 fn fmix32(x: u32) -> u32 {
     var h = x ^ (x >> 16u);

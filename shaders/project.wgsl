@@ -292,9 +292,9 @@ fn emit(j: u32, g: u32, mean: vec3<f32>, xy: vec2<f32>, conic: vec3<f32>, rect: 
     // nothing, corrupted or not): a failing one is dropped and flagged.
     if (FRAME_CHECK != 0u && frame_check_fails(j, g)) {
         let p = g % view.n_total;
-        atomicOr(&frame_out[4u + (p >> 5u)], 1u << (p & 31u));
-        atomicAdd(&frame_out[0], 1u);
-        atomicAdd(&frame_out[1], 1u);
+        atomicOr(&frame_out[OUT_FLAGS + (p >> 5u)], 1u << (p & 31u));
+        atomicAdd(&frame_out[OUT_DETECTED], 1u);
+        atomicAdd(&frame_out[OUT_DETECTED_COPY], 1u);
         cull(g);
         return;
     }

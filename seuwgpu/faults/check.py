@@ -24,8 +24,8 @@ from seuwgpu.faults import side as sd
 from seuwgpu.faults.codes import CHECKSUM_SEED, fmix32
 from seuwgpu.faults.codes import checksum as codes_checksum
 from seuwgpu.faults.guard import fill_chunk_params
-from seuwgpu.gpu.device import STORAGE
-from seuwgpu.gpu.kernel import Kernel, Uniforms
+from seuwgpu.gpu.device import STORAGE, shader_source
+from seuwgpu.gpu.kernel import Kernel, Uniforms, wgsl_constants
 
 
 class Checker:
@@ -99,19 +99,21 @@ class Checker:
 
 
 class CheckOutput:
-    """The output buffer of both checks, one layout (shaders/check.wgsl CheckOut; project.wgsl's
-    frame_out and repair.wgsl's out read it as words): a header of side.CHECK_HEADER_BYTES, the
-    detection count twice (an upset in one copy hides nothing), then each check's own two words
-    (the check's parameter faults; the device repair's failed golden rows and repaired
-    primitives), then one flag bit per primitive (bit g % 32 of word g / 32)."""
+    """The output buffer of both checks, as shaders/codes.wgsl's OUT_* words lay it out (read
+    from there): the detection count twice (an upset in one copy hides nothing), then each
+    check's own two words (the check's parameter faults; the device repair's failed golden rows
+    and repaired primitives), then one flag bit per primitive (bit g % 32 of word g / 32)."""
 
-    DETECTED, DETECTED_COPY, FAULTS, REPAIRED = range(4)  # the header's words
-    HEADER_WORDS = sd.CHECK_HEADER_BYTES // 4
+    DETECTED, DETECTED_COPY, FAULTS, REPAIRED, FLAGS = (
+        wgsl_constants(shader_source("codes"))[f"OUT_{w}"]
+        for w in ("DETECTED", "DETECTED_COPY", "FAULTS", "REPAIRED", "FLAGS")
+    )
+    HEADER_WORDS = FLAGS
 
     def __init__(self, gpu, n: int, label: str):
         self.gpu, self.n = gpu, n
         self.flag_words = -(-n // 32)
-        self.buffer = gpu.buffer(sd.CHECK_HEADER_BYTES + 4 * self.flag_words, STORAGE, label)
+        self.buffer = gpu.buffer(4 * (self.HEADER_WORDS + self.flag_words), STORAGE, label)
         self._zeros = np.zeros(self.HEADER_WORDS + self.flag_words, np.uint32)
 
     def clear(self):
@@ -133,7 +135,7 @@ class CheckOutput:
 
     def flags(self) -> np.ndarray:
         """[n] bool: the flag bits."""
-        words = self.gpu.read(self.buffer, np.uint32, sd.CHECK_HEADER_BYTES, 4 * self.flag_words)
+        words = self.gpu.read(self.buffer, np.uint32, 4 * self.FLAGS, 4 * self.flag_words)
         return np.unpackbits(words.view(np.uint8), bitorder="little")[: self.n].astype(bool)
 
 
