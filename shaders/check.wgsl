@@ -1,4 +1,4 @@
-// #import common
+// #import codes
 
 // Per-primitive checks of the stored model (faults/check.py; twin: faults/defenses.py detect):
 // recompute what each primitive stored beside the clean model (4 interleaved or 1 parity bit(s),
@@ -32,6 +32,7 @@ const MODE_PARITY: u32 = 0u;
 const MODE_CHECKSUM: u32 = 1u;
 const MODE_SCALE: u32 = 2u;
 
+// laid out as codes.wgsl's OUT_* words (the host reads them by those names)
 struct CheckOut {
     detected: atomic<u32>,
     detected_copy: atomic<u32>,  // the same count, kept twice
@@ -48,38 +49,30 @@ struct CheckOut {
 
 // stored pattern of component c of primitive j of this chunk
 fn stored(j: u32, c: u32) -> u32 {
-    if (params.fmt == FMT_FP32) {
-        return words[c * params.plane_words + j];
-    }
-    return (words[c * params.plane_words + (j >> 1u)] >> (16u * (j & 1u))) & 0xffffu;
+    return stored_pattern(words[stored_word_index(c, j, params.plane_words, params.fmt)], j, params.fmt);
 }
 
-// side code of primitive g (global index): defenses.unpack_side
+// side code of primitive g (global index): side.unpack_side
 fn side_code(g: u32) -> u32 {
-    if (params.side_bits == 32u) {
-        return side[g];
-    }
-    let per = 32u / params.side_bits;
-    return (side[g / per] >> ((g % per) * params.side_bits)) & ((1u << params.side_bits) - 1u);
+    return code_of(side[code_word_index(g, params.side_bits)], g, params.side_bits);
 }
 
 // the parameters' seal as the host computed it (twin: check.py seal_words)
 fn params_seal() -> u32 {
-    var h = 0x811C9DC5u;
-    h = fmix32(h ^ params.plane_words);
-    h = fmix32(h ^ params.ncomp);
-    h = fmix32(h ^ params.chunk_count);
-    h = fmix32(h ^ params.fmt);
-    h = fmix32(h ^ params.prim_base);
-    h = fmix32(h ^ params.mode);
-    h = fmix32(h ^ params.ways);
-    h = fmix32(h ^ params.cover);
-    h = fmix32(h ^ params.comp_count);
-    h = fmix32(h ^ params.side_bits);
-    h = fmix32(h ^ params.table_len);
+    var h = checksum_step(CHECKSUM_SEED, params.plane_words);
+    h = checksum_step(h, params.ncomp);
+    h = checksum_step(h, params.chunk_count);
+    h = checksum_step(h, params.fmt);
+    h = checksum_step(h, params.prim_base);
+    h = checksum_step(h, params.mode);
+    h = checksum_step(h, params.ways);
+    h = checksum_step(h, params.cover);
+    h = checksum_step(h, params.comp_count);
+    h = checksum_step(h, params.side_bits);
+    h = checksum_step(h, params.table_len);
     let n = min(params.table_len, arrayLength(&table));  // a flipped length never runs away
     for (var i = 0u; i < n; i = i + 1u) {
-        h = fmix32(h ^ bitcast<u32>(table[i]));
+        h = checksum_step(h, bitcast<u32>(table[i]));
     }
     return h;
 }
@@ -101,22 +94,17 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         for (var c = 0u; c < params.comp_count; c = c + 1u) {
             x = x ^ (stored(j, c) & params.cover);
         }
-        var par = 0u;
-        for (var w = 0u; w < params.ways; w = w + 1u) {
-            let way = select(0x11111111u << w, 0xffffffffu, params.ways == 1u);
-            par = par ^ ((countOneBits(x & way) & 1u) << w);
-        }
-        flagged = par != side_code(params.prim_base + j);
+        flagged = parity_code(x, params.ways) != side_code(params.prim_base + j);
     } else if (params.mode == MODE_CHECKSUM) {
-        var h = 0x811C9DC5u;
+        var h = CHECKSUM_SEED;
         for (var c = 0u; c < params.ncomp; c = c + 1u) {
-            h = fmix32(h ^ stored(j, c));
+            h = checksum_step(h, stored(j, c));
         }
         flagged = h != side_code(params.prim_base + j);
     } else if (params.mode == MODE_SCALE) {
         let bound = table[side_code(params.prim_base + j)];
         for (var c = 3u; c < 6u; c = c + 1u) {
-            let w = words[c * params.plane_words + select(j >> 1u, j, params.fmt == FMT_FP32)];
+            let w = words[stored_word_index(c, j, params.plane_words, params.fmt)];
             let v = decode_value(w, params.fmt != FMT_FP32 && (j & 1u) == 1u, params.fmt);
             if (!is_nan_f32(v) && v > bound) {  // NaN is the guard's (bit test, not v != v)
                 flagged = true;

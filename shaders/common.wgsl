@@ -258,12 +258,3 @@ fn row_tiles(r: Reach, y: f32, fx: f32, x0: u32, x1: u32) -> vec2<u32> {
     let c1 = clamp(floor((e.y - fx - 0.5) / ts) + 1.0, f32(x0), f32(x1));
     return vec2<u32>(u32(c0), u32(max(c0, c1)));
 }
-
-// MurmurHash3's finaliser: a bijection of u32 that avalanches (twin: codes.fmix32)
-fn fmix32(x: u32) -> u32 {
-    var h = x ^ (x >> 16u);
-    h = h * 0x85ebca6bu;
-    h = h ^ (h >> 13u);
-    h = h * 0xc2b2ae35u;
-    return h ^ (h >> 16u);
-}

@@ -1,4 +1,4 @@
-// #import common
+// #import codes
 
 // Projection (render/project.py): decode the stored primitive, EWA-project it into one view,
 // evaluate SH colour, and compute its tile rectangle. One thread per primitive of one model chunk.
@@ -195,27 +195,15 @@ fn cull(g: u32) {
     proj_rect[g] = vec2<u32>(0u, 0u);
 }
 
-// stored pattern of component c of primitive j of this chunk (check.wgsl's `stored`)
-fn stored_bits(j: u32, c: u32) -> u32 {
-    if (FMT == FMT_FP32) {
-        return model[c * view.plane_words + j];
-    }
-    return (model[c * view.plane_words + (j >> 1u)] >> (16u * (j & 1u))) & 0xffffu;
-}
-
 // parity4r's check of primitive j (global index g): true when its code word fails
 fn frame_check_fails(j: u32, g: u32) -> bool {
     let ncomp = 14u + 3u * ((SH_DEGREE + 1u) * (SH_DEGREE + 1u) - 1u);
     var x = 0u;
     for (var c = 0u; c < ncomp; c = c + 1u) {
-        x = x ^ (stored_bits(j, c) & FRAME_COVER);
-    }
-    var par = 0u;
-    for (var w = 0u; w < 4u; w = w + 1u) {
-        par = par | ((countOneBits(x & (0x11111111u << w)) & 1u) << w);
+        x = x ^ (stored_pattern(model[stored_word_index(c, j, view.plane_words, FMT)], j, FMT) & FRAME_COVER);
     }
     let p = g % view.n_total;  // the primitive (a batched renderer writes view v's records at v n + p)
-    return par != ((frame_side[p >> 3u] >> ((p & 7u) * 4u)) & 15u);
+    return parity_code(x, 4u) != code_of(frame_side[code_word_index(p, 4u)], p, 4u);
 }
 
 fn pack_rect(x0: f32, y0: f32, x1: f32, y1: f32) -> vec2<u32> {
@@ -304,9 +292,9 @@ fn emit(j: u32, g: u32, mean: vec3<f32>, xy: vec2<f32>, conic: vec3<f32>, rect: 
     // nothing, corrupted or not): a failing one is dropped and flagged.
     if (FRAME_CHECK != 0u && frame_check_fails(j, g)) {
         let p = g % view.n_total;
-        atomicOr(&frame_out[4u + (p >> 5u)], 1u << (p & 31u));
-        atomicAdd(&frame_out[0], 1u);
-        atomicAdd(&frame_out[1], 1u);
+        atomicOr(&frame_out[OUT_FLAGS + (p >> 5u)], 1u << (p & 31u));
+        atomicAdd(&frame_out[OUT_DETECTED], 1u);
+        atomicAdd(&frame_out[OUT_DETECTED_COPY], 1u);
         cull(g);
         return;
     }

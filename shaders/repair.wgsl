@@ -1,4 +1,4 @@
-// #import common
+// #import codes
 
 // Repair on the device (faults/check.py DeviceRepair): every primitive the check inside the frame
 // flagged (project.wgsl FRAME_CHECK) is rewritten from the golden copy of its chunk, after the
@@ -22,8 +22,8 @@ struct RepairParams {
 @group(0) @binding(1) var<storage, read_write> words: array<u32>;
 @group(0) @binding(2) var<storage, read> golden: array<u32>;
 @group(0) @binding(3) var<storage, read> golden_sum: array<u32>;
-// the frame check's output: [0, 1] detections, [2] golden rows that failed, [3] primitives
-// repaired, then a flag bit per primitive (cleared when repaired)
+// the frame check's output, laid out as codes.wgsl's OUT_* words: the detections, the golden rows
+// that failed (OUT_FAULTS), the primitives repaired (OUT_REPAIRED), the flags (cleared when repaired)
 @group(0) @binding(4) var<storage, read_write> out: array<atomic<u32>>;
 
 @compute @workgroup_size(WG)
@@ -37,22 +37,21 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     for (var h = 0u; h < per; h = h + 1u) {
         let j = w * per + h;
         let p = params.prim_base + j;
-        if (j >= params.chunk_count || (atomicLoad(&out[4u + (p >> 5u)]) & (1u << (p & 31u))) == 0u) {
+        if (j >= params.chunk_count || (atomicLoad(&out[OUT_FLAGS + (p >> 5u)]) & (1u << (p & 31u))) == 0u) {
             continue;
         }
         let half = select(0xffffu << (16u * h), 0xffffffffu, per == 1u);
-        var s = 0x811C9DC5u;
+        var s = CHECKSUM_SEED;
         for (var c = 0u; c < params.ncomp; c = c + 1u) {
-            let g = golden[c * params.plane_words + w];
-            s = fmix32(s ^ select((g >> (16u * h)) & 0xffffu, g, per == 1u));
+            s = checksum_step(s, stored_pattern(golden[c * params.plane_words + w], j, params.fmt));
         }
         if (s != golden_sum[p]) {
-            atomicAdd(&out[2], 1u);
+            atomicAdd(&out[OUT_FAULTS], 1u);
             continue;
         }
         mask = mask | half;
-        atomicAnd(&out[4u + (p >> 5u)], ~(1u << (p & 31u)));
-        atomicAdd(&out[3], 1u);
+        atomicAnd(&out[OUT_FLAGS + (p >> 5u)], ~(1u << (p & 31u)));
+        atomicAdd(&out[OUT_REPAIRED], 1u);
     }
     if (mask == 0u) {
         return;

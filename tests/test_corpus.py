@@ -176,3 +176,42 @@ def test_another_published_format_must_be_one_of_the_files(tmp_path):
     bad.write_text(_entry("one", {"a.splat": b"x"}, "file:///x/") + 'also = { spz = "a.spz" }\n')
     with pytest.raises(ValueError, match=r"model 'one': also maps formats to paths among its files"):
         corpus.load_manifest(bad)
+
+
+def test_each_file_is_hashed_once_as_it_is_copied(small, tmp_path, monkeypatch):
+    """From a folder, a file is hashed while it is copied, not once to find it and again to copy
+    it; a same-named decoy of the right size is hashed once, refused, and its bytes taken back
+    from the progress."""
+    manifest, pub, files = small
+    hashed, real = [], hashlib.sha256
+
+    class Counting:
+        def __init__(self):
+            self.h = real()
+
+        def update(self, block):
+            hashed.append(len(block))
+            self.h.update(block)
+
+        def hexdigest(self):
+            return self.h.hexdigest()
+
+    monkeypatch.setattr(corpus.hashlib, "sha256", Counting)
+    decoy = tmp_path / "src" / "a" / "meta.json"  # found by name before the real one, same size
+    decoy.parent.mkdir(parents=True)
+    decoy.write_bytes(b'{"x": 9}')
+    for rel, data in files["tiles"].items():
+        (tmp_path / "src" / "x" / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "src" / "x" / rel).write_bytes(data)
+    seen = []
+    api.assemble_corpus(
+        tmp_path / "out",
+        source=tmp_path / "src",
+        manifest=manifest,
+        models=["tiles"],
+        progress=lambda d, t: seen.append((d, t)),
+    )
+    total = sum(len(b) for b in files["tiles"].values())
+    assert sum(hashed) == total + len(decoy.read_bytes())  # the decoy once, each file once
+    assert seen[-1] == (total, total) and max(d for d, _ in seen) <= total
+    assert (tmp_path / "out" / "tiles" / "1_0" / "meta.json").read_bytes() == files["tiles"]["1_0/meta.json"]

@@ -69,10 +69,13 @@ def test_ecc_corrects_each_value_of_a_neighbour_upset_and_the_fast_parity_is_the
     }
     assert table[("mcu_neighbour", "ecc")]["restored"] == 9 * 59  # both primitives, each corrected
     assert table[("mcu_neighbour", "parity4r")]["caught_se"] == 9 * 59
-    # the shader's parity (XOR of the covered bits, a count per way) against the twin
-    for d in ("parity", "parity4", "parity4r"):
+    # the shader's parity (Parity.detect: XOR of the covered bits, a count per way) against the
+    # code recomputed bit by bit from the corrupted rows (codes.parity_bits, side_data's)
+    for d in ("parity", "parity4", "parity4r", "parity4f"):
         cols, masks, (caught, _) = _outcomes(d, "burst3", rows)
         bad = np.repeat(rows[:1], len(cols), 0)
         bad[np.arange(len(cols)), cols[:, 0]] ^= masks[:, 0].astype(np.uint32)
-        side = dfn.side_data(d, rows[:1], "fp32", 3)
-        np.testing.assert_array_equal(caught, dfn.detect(d, np.repeat(side, len(cols)), bad, "fp32", 3), err_msg=d)
+        code = dfn.get(d).code if d == "parity4f" else d
+        side = dfn.side_data(code, rows[:1], "fp32", 3)
+        np.testing.assert_array_equal(caught, dfn.side_data(code, bad, "fp32", 3) != side, err_msg=d)
+        assert caught.any() and not caught.all(), d  # bursts inside and outside the covered bits

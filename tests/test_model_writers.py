@@ -267,3 +267,20 @@ def test_save_models_writes_the_source_format(tmp_path):
     with pytest.raises(sg.InputError, match=rf"^unknown model format\(s\) gsplat; writable: {writable}$"):
         inj.save_models(tmp_path / "out", formats=["gsplat"])
     assert [p.name for p in inj.save_models(tmp_path / "o2", formats="compressed-ply")] == ["faulted.compressed.ply"]
+
+
+def test_the_shared_encodings_by_hand():
+    """quantized.py's helpers, which compressed PLY, .splat, .ksplat, SOG and SPZ share."""
+    from seuwgpu.model.formats import quantized as qz
+
+    np.testing.assert_array_equal(
+        qz.unorm_codes(np.array([-1.0, 0.0, 0.5, 1 / 1023, 1.0, 2.0]), 10), [0, 0, 512, 1, 1023, 1023]
+    )
+    np.testing.assert_array_equal(qz.alpha_bytes(np.array([-np.inf, 0.0, np.inf])), [0, 128, 255])  # 127.5 rounds up
+    np.testing.assert_array_equal(
+        qz.colour_bytes(np.array([[0.0, -0.5 / C0, 0.5 / C0], [1.0, 2.0, 9.0]])), [[128, 0, 255], [199, 255, 255]]
+    )
+    assert qz.linear_scales(np.array([-1e4, 0.0, 1e4])).tolist() == [2.0**-149, 1.0, float(F32_MAX)]
+    q = np.array([[0.5, -0.5, 0.5, 0.5], [0.1, 0.2, -0.9, 0.3], [-0.7, 0.7, 0.1, 0.0]])
+    largest, negative = qz.largest_component(q)
+    assert largest.tolist() == [0, 2, 0] and negative.tolist() == [False, True, True]  # ties: the first

@@ -5,6 +5,7 @@ rendering over ranks."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import pandas as pd
 
@@ -138,6 +139,7 @@ def defense_costs(
     visible_defenses: Sequence[str] | None = None,
     seed: int = 0,
     fault: str = "bit",
+    out: str | Path | None = None,
 ) -> list[dict]:
     """Every defense with the bytes it holds on the device (and as a fraction of the model's), its
     time per frame (a fraction of the undefended view's on this device, measured as a schedule:
@@ -150,7 +152,8 @@ def defense_costs(
     check_fraction, repair_fraction, exposure_frames, exposure_frames_worst,
     catastrophic_frames_per_upset, catastrophic_lo, catastrophic_hi, sdc_frames_per_upset,
     residue_frames_per_upset, of_none, of_none_lo, of_none_hi, visible_basis, time_basis,
-    description}]."""
+    description}]. `out`: a run folder that keeps the `visible` measurement's per-upset records
+    for its report (campaign/visible.py save_counts)."""
     from seuwgpu.faults.costs import defense_costs as costs
 
     whole(repeats, "repeats", 1)
@@ -161,6 +164,8 @@ def defense_costs(
         raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
     if not isinstance(view, Camera):
         raise InputError(f"view must be a Camera (from cameras()), got {type(view).__name__}")
+    if out is not None and not visible:
+        raise InputError("out keeps the records of the visible-damage measurement: give visible = N upsets too")
     names = defense_names(visible_defenses) if visible_defenses is not None else list(DEFENSES)
     model = model_from(scene)
     rows = costs(model, view, encoding.check_precision(precision), repeats, time_it=time_it, check_every=check_every)
@@ -171,9 +176,11 @@ def defense_costs(
         from seuwgpu.campaign.visible import visible_damage
 
         eng = engine_for(scene, [view], precision, "strict", "measure visible damage")
-        summary, _ = visible_damage(eng, names, check_every, visible, window, fault=fault, seed=seed)
+        summary, recs = visible_damage(eng, names, check_every, visible, window, fault=fault, seed=seed)
         got = {r["defense"]: r for r in summary.to_dict("records")}
         w = int(summary["window"].iloc[0])
+        if out is not None:
+            _save_visible(out, eng, recs, visible, w, check_every, fault, seed)
         basis = (
             f"measured: {visible} upsets ({fault} faults of the dangerous cells), one per window of {w} frames "
             f"reloaded at its start, landing at a uniform frame; {view.width}x{view.height}, seed {seed}"
@@ -184,6 +191,29 @@ def defense_costs(
             r[k] = float(m[k]) if m is not None else float("nan")
         r["visible_basis"] = basis if m is not None else "not measured"
     return rows
+
+
+def _save_visible(out, eng, recs, upsets: int, window: int, check_every: int, fault: str, seed: int):
+    """The visible-damage measurement's per-upset records into the run folder `out`, with the
+    model, view, device and date each number depends on."""
+    from datetime import UTC, datetime
+
+    from seuwgpu.campaign.visible import save_counts, upset_counts
+
+    r = eng.renderer
+    save_counts(
+        out,
+        upset_counts(recs, upsets, window, check_every),
+        scene=eng.scene,
+        n_primitives=eng.n,
+        precision=eng.precision,
+        width=r.width,
+        height=r.height,
+        fault=fault,
+        seed=seed,
+        device=str(r.gpu.info.get("device", "?")),
+        date=datetime.now(UTC).date().isoformat(),
+    )
 
 
 def sort_first(

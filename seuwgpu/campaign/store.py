@@ -443,6 +443,12 @@ def view_times_path(run_dir, key: str) -> Path:
     return Path(run_dir) / "view_times" / f"{key}.json"
 
 
+def visible_path(run_dir, name: str) -> Path:
+    """Where a run folder keeps one visible-damage measurement's per-upset records
+    (`seuwgpu defenses --visible N --out RUN`, campaign/visible.py), which the report of RUN reads."""
+    return Path(run_dir) / "visible" / f"{name}.parquet"
+
+
 def forget_measurements(run_dir):
     """Remove what a run measured beside its records (view times, guard notes): the run directory
     is taken by another spec (check_same_run lets one without parts be), and they were measured

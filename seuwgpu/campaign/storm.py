@@ -116,11 +116,10 @@ def storm(
             clean = engine.primitive_bits(prims)
             now = np.stack([memory[p] for p in prims]) if prims.size else clean
             checking = not arm.checked or f % check_every == 0  # a check defense acts on its schedule
-            seen = engine.read_through(prims, clean, now, d) if prims.size and checking else now
+            seen, after = engine.frame_through(prims, clean, now, d) if prims.size and checking else (now, None)
             if arm.writes_back and checking:  # the repair is written back
                 memory = {int(p): r.copy() for p, r in zip(prims, seen)}
             # measured before the storm was resumed: its memory state replayed, not rendered (below)
-            after = arm.after_frame(clean, now, engine.precision, engine.degree) if prims.size else None
             if after is not None:  # repaired between this frame and the next (the check inside the frame)
                 memory = {int(p): r.copy() for p, r in zip(prims, after)}
             if a * frames + f < done:

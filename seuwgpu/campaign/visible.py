@@ -22,20 +22,23 @@ component uniform, shaped by the fault model (`fault`, sites.FAULT_MODELS).
 
 from __future__ import annotations
 
+import io
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 
+from seuwgpu.campaign.store import atomic_write, visible_path
 from seuwgpu.campaign.storm import shape_upsets, storm
 from seuwgpu.faults import defenses as dfn
-from seuwgpu.faults.sites import Site, check_fault_model
+from seuwgpu.faults.sites import DANGEROUS_CELLS, Site, check_fault_model
 from seuwgpu.metrics.image import PIXEL_THRESHOLD
 from seuwgpu.model.fields import field_components
 
-DANGEROUS = (("log_scales", 30), ("log_scales", 31), ("opacity", 30), ("opacity", 31))
 BOOTSTRAP = 2000
 
 
-def plan_upsets(engine, upsets: int, window: int, cells=DANGEROUS, fault: str = "bit", seed: int = 0):
+def plan_upsets(engine, upsets: int, window: int, cells=DANGEROUS_CELLS, fault: str = "bit", seed: int = 0):
     """(a storm plan: `upsets * window` frames of sites, the frame in its window each lands at)."""
     check_fault_model(fault)
     rng = np.random.default_rng(seed)
@@ -71,7 +74,7 @@ def visible_damage(
     check_every: int = 10,
     upsets: int = 50,
     window: int = 20,
-    cells=DANGEROUS,
+    cells=DANGEROUS_CELLS,
     fault: str = "bit",
     seed: int = 0,
     progress=None,
@@ -80,7 +83,8 @@ def visible_damage(
     check_every (0: not a check defense), window, upsets, catastrophic_frames_per_upset [lo, hi],
     sdc_frames_per_upset [lo, hi], residue_frames_per_upset (catastrophic frames after the first
     check that follows the upset), of_none [lo, hi] (catastrophic frames over the unguarded arm's;
-    NaN without a "none" arm or when it shows none)."""
+    NaN without a "none" arm or when it shows none). `upset_counts(recs, ...)` are the records the
+    summary is made of (what `seuwgpu defenses --visible N --out RUN` keeps for the report)."""
     if upsets < 1 or window < 1 or check_every < 1:
         raise ValueError(
             f"visible damage needs upsets, window and check_every >= 1 (got {upsets}, {window}, {check_every})"
@@ -96,20 +100,51 @@ def visible_damage(
     first_check = -(-at // check_every) * check_every  # the first check at or after the upset lands
     recs["after_check"] = landed & (f_in >= first_check[recs["upset"].to_numpy()])
     recs["sdc"] = (recs["peak_error"] > PIXEL_THRESHOLD) & ~recs["catastrophic"]
+    return summarise(upset_counts(recs, upsets, window, check_every), seed), recs
+
+
+def upset_counts(recs: pd.DataFrame, upsets: int, window: int, schedule: int) -> pd.DataFrame:
+    """One row per (defense, upset) of visible_damage's frame records: the frames drawn after the
+    upset landed that were catastrophic, SDC, and catastrophic after the check that follows it
+    (`residue_frames`: for a defense without a check every catastrophic frame, never repaired),
+    with the measurement's window, upsets, schedule (its S) and each arm's check_every (0: no check)."""
+    defenses = list(dict.fromkeys(recs["defense"]))
+    checked = recs["defense"].map({d: dfn.get(d).checked for d in defenses})
+    seen = recs["after_upset"]
+    frames = pd.DataFrame(
+        {
+            "defense": recs["defense"],
+            "upset": recs["upset"],
+            "catastrophic_frames": recs["catastrophic"] & seen,
+            "sdc_frames": recs["sdc"] & seen,
+            "residue_frames": recs["catastrophic"] & seen & (recs["after_check"] | ~checked),
+        }
+    )
+    full = pd.MultiIndex.from_product([defenses, range(upsets)], names=["defense", "upset"])
+    out = frames.groupby(["defense", "upset"], sort=False).sum().reindex(full, fill_value=0).astype(np.int64)
+    out = out.reset_index()
+    out.insert(1, "check_every", [schedule if dfn.get(d).checked else 0 for d in out["defense"]])
+    out["window"], out["upsets"], out["schedule"] = window, upsets, schedule
+    return out
+
+
+def summarise(counts: pd.DataFrame, seed: int = 0) -> pd.DataFrame:
+    """The summary of one measurement's upset_counts (one row per defense, in their order; the
+    columns of visible_damage's), its bootstrap seeded by `seed`: the CLI's and the report's
+    numbers alike."""
+    window, upsets = int(counts["window"].iloc[0]), int(counts["upsets"].iloc[0])
+    defenses = list(dict.fromkeys(counts["defense"]))
+    per = {
+        d: tuple(
+            g.sort_values("upset")[c].to_numpy(float) for c in ("catastrophic_frames", "sdc_frames", "residue_frames")
+        )
+        for d, g in counts.groupby("defense", sort=False)
+    }
     rng = np.random.default_rng(seed)
-    per = {}
-    for d, g in recs[recs["after_upset"]].groupby("defense", sort=False):
-        by = g.groupby("upset")
-        cat = by["catastrophic"].sum().reindex(range(upsets), fill_value=0).to_numpy(float)
-        sdc = by["sdc"].sum().reindex(range(upsets), fill_value=0).to_numpy(float)
-        after = g["after_check"] if dfn.get(d).checked else np.ones(len(g), bool)  # never repaired
-        res = g[after].groupby("upset")["catastrophic"].sum()
-        res = res.reindex(range(upsets), fill_value=0).to_numpy(float)
-        per[d] = (cat, sdc, res)
     rows = []
     none = per.get("none")
     for d in defenses:
-        cat, sdc, res = per.get(d, (np.zeros(upsets),) * 3)
+        cat, sdc, res = per[d]
         lo, hi = frames_interval(cat, rng, window)
         slo, shi = frames_interval(sdc, rng, window)
         ratio = r_lo = r_hi = float("nan")
@@ -125,7 +160,7 @@ def visible_damage(
         rows.append(
             {
                 "defense": d,
-                "check_every": check_every if dfn.get(d).checked else 0,
+                "check_every": int(counts.loc[counts["defense"] == d, "check_every"].iloc[0]),
                 "window": window,
                 "upsets": upsets,
                 "catastrophic_frames_per_upset": float(cat.mean()),
@@ -140,4 +175,34 @@ def visible_damage(
                 "of_none_hi": r_hi,
             }
         )
-    return pd.DataFrame(rows), recs
+    return pd.DataFrame(rows)
+
+
+# what identifies one measurement among the records of a run folder (one file each)
+MEASUREMENT = ("scene", "n_primitives", "precision", "width", "height", "fault", "window", "upsets", "schedule", "seed")
+
+
+def save_counts(run_dir, counts: pd.DataFrame, **measurement) -> Path:
+    """Write one measurement's upset_counts into the run folder (store.visible_path), each row
+    carrying `measurement` (the MEASUREMENT keys besides window, upsets and schedule; device and
+    date too). The same measurement of the same arms measured again replaces its file."""
+    df = counts.assign(**measurement)
+    missing = [k for k in MEASUREMENT if k not in df.columns]
+    if missing:
+        raise ValueError(f"a visible-damage record needs {', '.join(missing)}")
+    key = "-".join([*(str(df[k].iloc[0]) for k in MEASUREMENT), "+".join(dict.fromkeys(df["defense"]))])
+    path = visible_path(run_dir, "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in key))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    df.to_parquet(buf, index=False)
+    atomic_write(path, buf.getvalue())
+    return path
+
+
+def read_counts(run_dirs) -> pd.DataFrame | None:
+    """The visible-damage records of run folders (save_counts), each row with its folder's name
+    (`run`: one measurement kept in two folders stays two), None where they hold none."""
+    files = [(Path(d).name, f) for d in run_dirs for f in sorted(visible_path(d, "*").parent.glob("*.parquet"))]
+    if not files:
+        return None
+    return pd.concat([pd.read_parquet(f).assign(run=run) for run, f in files], ignore_index=True)

@@ -24,8 +24,8 @@ from seuwgpu.faults import side as sd
 from seuwgpu.faults.codes import CHECKSUM_SEED, fmix32
 from seuwgpu.faults.codes import checksum as codes_checksum
 from seuwgpu.faults.guard import fill_chunk_params
-from seuwgpu.gpu.device import STORAGE
-from seuwgpu.gpu.kernel import Kernel, Uniforms
+from seuwgpu.gpu.device import STORAGE, shader_source
+from seuwgpu.gpu.kernel import Kernel, Uniforms, wgsl_constants
 
 
 class Checker:
@@ -41,8 +41,7 @@ class Checker:
         self.side = g.upload(sd.pack_side(side, d.side_bits))
         table = np.asarray(d.check_table(box, L.precision), np.float32)
         self.table = g.upload(table)
-        self.flag_words = -(-L.n // 32)
-        self.out = g.buffer(sd.CHECK_HEADER_BYTES + 4 * self.flag_words, STORAGE, "check.out")
+        self.out = CheckOutput(g, L.n, "check.out")
         self._flagged = False  # flag bits set by the last run (cleared before the next)
         self.params = Uniforms(g, self.kernel.struct("CheckParams"), L.n_chunks, "check.params")
         fill_chunk_params(
@@ -55,7 +54,6 @@ class Checker:
         )
         self.params.rows["seal"] = seal_words(self.params.rows, table)
         self.params.write()
-        self.zero = np.zeros(4, np.uint32)
         self.param_faults = 0  # runs that found their parameters upset (and were rerun)
 
     def encode(self, enc):
@@ -66,7 +64,7 @@ class Checker:
                 side=self.side,
                 words=self.chunks[k],
                 table=self.table,
-                out=self.out,
+                out=self.out.buffer,
                 threads=self.layout.chunk_range(k)[1] - self.layout.chunk_range(k)[0],
             )
 
@@ -75,35 +73,70 @@ class Checker:
         upset are rewritten from the host's copy and the check run again."""
         for _ in range(2):
             if self._flagged:
-                self.gpu.write(self.out, np.zeros(4 + self.flag_words, np.uint32))
+                self.out.clear()
             else:
-                self.gpu.write(self.out, self.zero)
+                self.out.clear_header()
             enc = self.gpu.device.create_command_encoder()
             self.encode(enc)
             self.gpu.submit(enc)
-            head = self.gpu.read(self.out, np.uint32, 0, 12)
-            count = int(max(head[0], head[1]))  # kept twice: an upset in one copy hides nothing
+            head = self.out.header(CheckOutput.FAULTS + 1)
+            count = CheckOutput.count(head)
             self._flagged = True  # flags may be set: cleared before the next run
-            if not head[2]:
+            if not head[CheckOutput.FAULTS]:
                 break
             self.param_faults += 1
             self.params.write()
-        self._flagged = count > 0 or bool(head[2])
+        self._flagged = count > 0 or bool(head[CheckOutput.FAULTS])
         return count
 
     def flags(self) -> np.ndarray:
         """[n] bool: the primitives the last run flagged."""
-        return read_flags(self.gpu, self.out, self.layout.n)
+        return self.out.flags()
 
     def device_bytes(self) -> int:
         """Bytes of this check's buffers on the device (side.device_bytes counts the same)."""
-        return int(self.side.size + self.table.size + self.out.size + self.params.buffer.size)
+        return int(self.side.size + self.table.size + self.out.buffer.size + self.params.buffer.size)
 
 
-def read_flags(gpu, out, n: int) -> np.ndarray:
-    """[n] bool: the flag bits a check writes after its header (Checker and FrameCheck alike)."""
-    words = gpu.read(out, np.uint32, sd.CHECK_HEADER_BYTES, 4 * -(-n // 32))
-    return np.unpackbits(words.view(np.uint8), bitorder="little")[:n].astype(bool)
+class CheckOutput:
+    """The output buffer of both checks, as shaders/codes.wgsl's OUT_* words lay it out (read
+    from there): the detection count twice (an upset in one copy hides nothing), then each
+    check's own two words (the check's parameter faults; the device repair's failed golden rows
+    and repaired primitives), then one flag bit per primitive (bit g % 32 of word g / 32)."""
+
+    DETECTED, DETECTED_COPY, FAULTS, REPAIRED, FLAGS = (
+        wgsl_constants(shader_source("codes"))[f"OUT_{w}"]
+        for w in ("DETECTED", "DETECTED_COPY", "FAULTS", "REPAIRED", "FLAGS")
+    )
+    HEADER_WORDS = FLAGS
+
+    def __init__(self, gpu, n: int, label: str):
+        self.gpu, self.n = gpu, n
+        self.flag_words = -(-n // 32)
+        self.buffer = gpu.buffer(4 * (self.HEADER_WORDS + self.flag_words), STORAGE, label)
+        self._zeros = np.zeros(self.HEADER_WORDS + self.flag_words, np.uint32)
+
+    def clear(self):
+        """Header and flags zeroed."""
+        self.gpu.write(self.buffer, self._zeros)
+
+    def clear_header(self, first: int = 0, count: int = HEADER_WORDS):
+        """Header words first .. first + count - 1 zeroed; the flags kept."""
+        self.gpu.write(self.buffer, self._zeros[:count], 4 * first)
+
+    def header(self, words: int = HEADER_WORDS) -> np.ndarray:
+        """The first `words` header words (one small read)."""
+        return self.gpu.read(self.buffer, np.uint32, 0, 4 * words)
+
+    @classmethod
+    def count(cls, head: np.ndarray) -> int:
+        """The detections a header holds: the larger copy."""
+        return int(max(head[cls.DETECTED], head[cls.DETECTED_COPY]))
+
+    def flags(self) -> np.ndarray:
+        """[n] bool: the flag bits."""
+        words = self.gpu.read(self.buffer, np.uint32, 4 * self.FLAGS, 4 * self.flag_words)
+        return np.unpackbits(words.view(np.uint8), bitorder="little")[: self.n].astype(bool)
 
 
 def seal_words(rows: np.ndarray, table: np.ndarray) -> np.ndarray:
@@ -137,33 +170,31 @@ class FrameCheck:
         self.renderer, self.gpu, self.layout = r, r.gpu, L
         side = d.side_data(np.asarray(clean_rows), L.precision, L.degree)
         self.side = r.gpu.upload(sd.pack_side(side, d.side_bits))
-        self.flag_words = -(-L.n // 32)
-        self.out = r.gpu.buffer(sd.CHECK_HEADER_BYTES + 4 * self.flag_words, STORAGE, "frame_check.out")
+        self.out = CheckOutput(r.gpu, L.n, "frame_check.out")
         self.clear()
         self.cover = d.check_parameters(L.precision, L.degree)["cover"]
         self.on()
 
     def on(self):
         """Check in every frame from now on (the projection's FRAME_CHECK pipelines)."""
-        self.renderer.projection.set_frame_check(self.side, self.out, self.cover)
+        self.renderer.projection.set_frame_check(self.side, self.out.buffer, self.cover)
 
     def off(self):
         """Back to today's projection pipeline."""
         self.renderer.projection.set_frame_check(None)
 
     def clear(self):
-        self.gpu.write(self.out, np.zeros(4 + self.flag_words, np.uint32))
+        self.out.clear()
 
     def count(self) -> int:
-        head = self.gpu.read(self.out, np.uint32, 0, 8)
-        return int(max(head[0], head[1]))
+        return CheckOutput.count(self.out.header(CheckOutput.DETECTED_COPY + 1))
 
     def flags(self) -> np.ndarray:
         """[n] bool: the primitives the frames since the last clear() flagged."""
-        return read_flags(self.gpu, self.out, self.layout.n)
+        return self.out.flags()
 
     def device_bytes(self) -> int:
-        return int(self.side.size + self.out.size)
+        return int(self.side.size + self.out.buffer.size)
 
 
 class DeviceRepair:
@@ -188,7 +219,8 @@ class DeviceRepair:
     def run(self) -> tuple[int, int]:
         """Repair every flagged primitive; returns (repaired, golden rows that failed their checksum)."""
         g, L = self.gpu, self.layout
-        g.write(self.check.out, np.zeros(2, np.uint32), 8)  # this run's counts
+        out = self.check.out
+        out.clear_header(CheckOutput.FAULTS, 2)  # this run's counts
         enc = g.device.create_command_encoder()
         per = 1 if L.precision == "fp32" else 2
         for k in range(L.n_chunks):
@@ -199,14 +231,14 @@ class DeviceRepair:
                 words=self.renderer.chunks[k],
                 golden=self.golden[k],
                 golden_sum=self.golden_sum,
-                out=self.check.out,
+                out=out.buffer,
                 threads=-(-(hi - lo) // per),
             )
         g.submit(enc)
-        head = g.read(self.check.out, np.uint32, 0, 16)
-        if not head[2]:  # every flag cleared: the next frame's detections start from zero
-            g.write(self.check.out, np.zeros(2, np.uint32))
-        return int(head[3]), int(head[2])
+        head = out.header()
+        if not head[CheckOutput.FAULTS]:  # every flag cleared: the next frame's detections start from zero
+            out.clear_header(CheckOutput.DETECTED, 2)
+        return int(head[CheckOutput.REPAIRED]), int(head[CheckOutput.FAULTS])
 
     def device_bytes(self) -> int:
         return int(sum(b.size for b in self.golden) + self.golden_sum.size + self.params.buffer.size)

@@ -26,8 +26,9 @@ import numpy as np
 
 from seuwgpu.faults import codes
 from seuwgpu.faults import defenses as dfn
+from seuwgpu.faults.sites import DANGEROUS_CELLS
 from seuwgpu.model import encoding
-from seuwgpu.model.fields import FIELD_OFFSET, n_components
+from seuwgpu.model.fields import FIELD_OFFSET, field_components, n_components
 
 RANDOM_DRAWS = 256
 CHUNK = 1 << 17  # faults evaluated at once (rows of ncomp values)
@@ -48,9 +49,12 @@ def covered_defenses() -> list[str]:
 
 
 def dangerous_cells() -> list[tuple[int, int]]:
-    """(flat component, bit) of the 8 dangerous cells at fp32: log-scale and opacity bits 30, 31."""
-    comps = [FIELD_OFFSET["log_scales"] + i for i in range(3)] + [FIELD_OFFSET["opacity"]]
-    return [(c, b) for c in comps for b in (30, 31)]
+    """(flat component, bit) of the 8 dangerous cells (sites.DANGEROUS_CELLS, each component of
+    their fields), field by field, component by component, then bit."""
+    bits = {}
+    for field, bit in DANGEROUS_CELLS:
+        bits.setdefault(field, []).append(bit)
+    return [(FIELD_OFFSET[f] + i, b) for f, bs in bits.items() for i in range(field_components(f, 0)) for b in bs]
 
 
 def family(name: str, ncomp: int, nb: int, clean_row=None, rng=None) -> tuple[np.ndarray, np.ndarray]:
@@ -91,18 +95,6 @@ def family(name: str, ncomp: int, nb: int, clean_row=None, rng=None) -> tuple[np
     raise ValueError(f"unknown fault family {name!r}; expected one of {', '.join(FAMILIES)}")
 
 
-def _parity_hit(d, rows: np.ndarray, side: np.ndarray, precision: str, degree: int) -> np.ndarray:
-    """The parity check as the shader computes it: the XOR of the covered bits of every covered
-    value, then one parity per way; against the stored code."""
-    n = d.components(degree)
-    x = np.bitwise_xor.reduce(rows[:, :n].astype(np.uint32) & np.uint32(codes.parity_cover_mask(precision)), axis=1)
-    par = np.zeros(rows.shape[0], np.uint32)
-    for w in range(d.ways):
-        way = np.uint32(0xFFFFFFFF if d.ways == 1 else (0x11111111 << w) & 0xFFFFFFFF)
-        par |= ((np.bitwise_count(x & way) & 1).astype(np.uint32)) << np.uint32(w)
-    return par != side
-
-
 def outcomes(
     defense: str,
     clean: np.ndarray,
@@ -134,14 +126,10 @@ def outcomes(
             rows[ar, c[:, k]] ^= m[:, k].astype(rows.dtype)
         base = clean[p]
         if d.frame_check:  # parity4r's check in the frame: dropped, then reloaded before the next frame
-            hit = _parity_hit(dfn.get(d.code), rows, side4[p], precision, degree)
-            caught[sl] = restored[sl] = hit
+            caught[sl] = restored[sl] = d.hit(side4[p], rows, precision, degree)
             continue
         if d.checked:
-            if isinstance(d, dfn.Parity):
-                hit = _parity_hit(d, rows, side[p], precision, degree)
-            else:
-                hit = d.detect(side[p], rows, precision, degree, box)
+            hit = d.detect(side[p], rows, precision, degree, box)
             caught[sl] = hit
             restored[sl] = hit if d.reloads else (d.repair(base, rows, hit, precision, box, side[p]) == base).all(1)
             continue

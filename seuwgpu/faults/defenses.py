@@ -115,6 +115,12 @@ class Defense:
         the frame changes nothing stored."""
         return None
 
+    def frame(self, clean, corrupt, precision: str, degree: int, box=None, prims=None, state=None):
+        """(read, after_frame) of one frame, together: a frame check computes its check once."""
+        return self.read(clean, corrupt, precision, degree, box, prims, state), self.after_frame(
+            clean, corrupt, precision, degree
+        )
+
 
 class SupportGuard(Defense):
     """The support guard: `fields` clamped into the clean model's box while projecting (the
@@ -241,6 +247,19 @@ class Parity(CheckedDefense):
         par = parity_bits(np.asarray(clean), precision, degree, self.ways, self.fields).astype(np.uint32)
         return (par << np.arange(par.shape[1], dtype=np.uint32)).sum(axis=1).astype(np.uint32)
 
+    def detect(self, side, rows, precision, degree, box=None):
+        """As shaders/check.wgsl computes it, parity being linear: the XOR of the covered bits of
+        every covered value, then one parity per way (side_data's code of the rows, at a
+        fraction of its cost: the coverage sweep checks millions of rows)."""
+        rows = np.asarray(rows)
+        cover = np.uint32(parity_cover_mask(precision))
+        x = np.bitwise_xor.reduce(rows[:, : self.components(degree)].astype(np.uint32) & cover, axis=1)
+        code = np.zeros(rows.shape[0], np.uint32)
+        for w in range(self.ways):
+            way = np.uint32(0xFFFFFFFF if self.ways == 1 else (0x11111111 << w) & 0xFFFFFFFF)
+            code |= (np.bitwise_count(x & way) & 1).astype(np.uint32) << np.uint32(w)
+        return code != np.asarray(side, dtype=np.uint32)
+
 
 class Checksum(CheckedDefense):
     check_mode = "MODE_CHECKSUM"
@@ -301,9 +320,12 @@ class FrameParity(Defense):
     def bits_per_primitive(self, precision, degree):
         return self.side_bits
 
+    def hit(self, side, corrupt, precision, degree) -> np.ndarray:
+        """[M] bool: the frame's check fails (its code's detect against the code's side data)."""
+        return get(self.code).detect(side, corrupt, precision, degree)
+
     def _hit(self, clean, corrupt, precision, degree):
-        parity = get(self.code)
-        return parity.detect(parity.side_data(clean, precision, degree), corrupt, precision, degree)
+        return self.hit(get(self.code).side_data(clean, precision, degree), corrupt, precision, degree)
 
     def read(self, clean, corrupt, precision, degree, box=None, prims=None, state=None):
         return cull(corrupt, self._hit(clean, corrupt, precision, degree), precision)
@@ -311,6 +333,10 @@ class FrameParity(Defense):
     def after_frame(self, clean, corrupt, precision: str, degree: int) -> np.ndarray:
         """The stored rows once the frame's flags are repaired: flagged ones reloaded."""
         return np.where(self._hit(clean, corrupt, precision, degree)[:, None], clean, corrupt)
+
+    def frame(self, clean, corrupt, precision, degree, box=None, prims=None, state=None):
+        hit = self._hit(clean, corrupt, precision, degree)  # once for the frame and its repair
+        return cull(corrupt, hit, precision), np.where(hit[:, None], clean, corrupt)
 
 
 # ---- the registry ------------------------------------------------------------------------------

@@ -244,13 +244,25 @@ class Engine:
         """What `defense` reads from primitives `prims` (stored bits [M, ncomp]) that went from
         `clean` to `corrupt` (the support guard is applied later, in the pipeline or by clamp_bits)."""
         d = dfn.get(defense)
-        state = None
-        if d.has_model_state:  # stored beside the model: built once, from the clean model
-            if defense not in self._model_states:
-                rows = self.primitive_bits(np.arange(self.n))
-                self._model_states[defense] = d.model_state(rows, self.precision, self.degree)
-            state = self._model_states[defense]
-        return d.read(np.asarray(clean), np.asarray(corrupt), self.precision, self.degree, self.box, prims, state)
+        return d.read(
+            np.asarray(clean), np.asarray(corrupt), self.precision, self.degree, self.box, prims, self._state(d)
+        )
+
+    def frame_through(self, prims, clean: np.ndarray, corrupt: np.ndarray, defense: str):
+        """(read_through, the stored rows after the frame's repair or None: Defense.frame)."""
+        d = dfn.get(defense)
+        return d.frame(
+            np.asarray(clean), np.asarray(corrupt), self.precision, self.degree, self.box, prims, self._state(d)
+        )
+
+    def _state(self, d):
+        """What `d` stores beside the model (Defense.model_state), built once from the clean model."""
+        if not d.has_model_state:
+            return None
+        if d.name not in self._model_states:
+            rows = self.primitive_bits(np.arange(self.n))
+            self._model_states[d.name] = d.model_state(rows, self.precision, self.degree)
+        return self._model_states[d.name]
 
     def _faulted(self, sites: list[Site]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(primitives [P] hit, their clean bits [P, ncomp], their bits after every site in order:

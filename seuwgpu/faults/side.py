@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from seuwgpu.faults.defenses import get
+from seuwgpu.gpu.device import shader_source
+from seuwgpu.gpu.kernel import wgsl_constants
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import n_components
 
@@ -36,7 +38,8 @@ def unpack_side(words: np.ndarray, bits: int, m: int) -> np.ndarray:
     return ((w >> ((i % per).astype(np.uint64) * np.uint64(bits))) & mask).astype(np.uint32)
 
 
-CHECK_HEADER_BYTES = 16  # shaders/check.wgsl CheckOut's count and padding
+# the header of a check's output before its flag words (shaders/codes.wgsl OUT_FLAGS)
+CHECK_HEADER_BYTES = 4 * wgsl_constants(shader_source("codes"))["OUT_FLAGS"]
 BOUND_BYTES = 16  # faults/guard.py Box.rows(): lo, hi and their stored bits per component
 GUARD_COUNT_BYTES = 32  # the renderer's clamp counts (8 u32)
 

@@ -32,6 +32,10 @@ VALUE_MODELS = ("random", "zero")  # replace the whole value: cells are per fiel
 OPS = ("flip", "stuck0", "stuck1", "set")
 ADJACENT_WIDTHS = (2, 3, 4)
 BURST_WIDTHS = (2, 3, 4, 5, 6, 7, 8)  # "burst": an adjacent multi-bit upset in one word, 2-8 bits
+# (field, bit) of the dangerous cells at fp32, where nearly every catastrophe of a single flip
+# lives: the log-scales' and opacity's sign and top exponent bit (the visible-damage upsets, the
+# coverage sweep's dangerous pairs)
+DANGEROUS_CELLS = (("log_scales", 30), ("log_scales", 31), ("opacity", 30), ("opacity", 31))
 # primitives `inject` (command line and seuwgpu.inject) tries when no primitive is named: the
 # most harmful of this many, drawn with the seed
 INJECT_SAMPLE = 64

@@ -148,11 +148,12 @@ def _candidates(source: Path, model: CorpusModel, f: CorpusFile, by_name: dict[s
 
 
 def _copy_checked(read: Callable[[], object], dest: Path, f: CorpusFile, label: str, what: str, advance) -> None:
-    """Stream `read()` (a binary file object) into dest, checking size and sha256; on a mismatch the
-    partial file is removed and a CorpusError names the file."""
+    """Stream `read()` (a binary file object) into dest, hashing it as it is copied (its only
+    hash), checking size and sha256; on a mismatch the partial file is removed, its bytes taken
+    back from the progress, and a CorpusError names the file."""
     part = dest.with_name(dest.name + ".part")
     dest.parent.mkdir(parents=True, exist_ok=True)
-    h, n = hashlib.sha256(), 0
+    h, n, sent = hashlib.sha256(), 0, 0
     try:
         with read() as src, open(part, "wb") as out:
             for block in iter(lambda: src.read(_CHUNK), b""):
@@ -162,7 +163,9 @@ def _copy_checked(read: Callable[[], object], dest: Path, f: CorpusFile, label: 
                 h.update(block)
                 out.write(block)
                 advance(len(block))
+                sent += len(block)
         if n != f.size or h.hexdigest() != f.sha256:
+            advance(-sent)
             got = f"{n:,} bytes" if n != f.size else f"sha256 {h.hexdigest()}"
             raise CorpusError(
                 f"{label}: {got} from {what}, the manifest says {f.size:,} bytes, sha256 {f.sha256}: refused"
@@ -170,6 +173,22 @@ def _copy_checked(read: Callable[[], object], dest: Path, f: CorpusFile, label: 
         os.replace(part, dest)
     finally:
         part.unlink(missing_ok=True)
+
+
+def _copy_found(found: list[Path], dest: Path, f: CorpusFile, label: str, advance, src: Path, model: str):
+    """Copy the first of the files `found` for `f` whose bytes check, trying those of its size in
+    turn (each hashed once, as it is copied); none of its size: the best guess, refused naming
+    its size; none that checks: the first refusal."""
+    if not found:
+        raise CorpusError(f"{label}: not found in {src} (as {model}/{f.path}, {f.path} or by its name)")
+    refused = None
+    for p in [q for q in found if q.stat().st_size == f.size] or found[:1]:
+        try:
+            _copy_checked(lambda p=p: open(p, "rb"), dest, f, label, str(p), advance)
+            return
+        except CorpusError as e:
+            refused = refused or e
+    raise refused
 
 
 def assemble(
@@ -221,13 +240,7 @@ def assemble(
                         raise
                     raise CorpusError(f"{label}: cannot download {url} ({getattr(e, 'reason', e)})") from None
             else:
-                found = _candidates(src, m, f, by_name)
-                match = next((p for p in found if p.stat().st_size == f.size and sha256_of(p) == f.sha256), None)
-                if match is None and found:  # the best guess, refused with its hash named
-                    match = found[0]
-                if match is None:
-                    raise CorpusError(f"{label}: not found in {src} (as {m.name}/{f.path}, {f.path} or by its name)")
-                _copy_checked(lambda p=match: open(p, "rb"), dest, f, label, str(match), advance)
+                _copy_found(_candidates(src, m, f, by_name), dest, f, label, advance, src, m.name)
             fetched += 1
         if log:
             log(f"{m.name}: {len(m.files)} file(s), {m.size:,} bytes ({fetched} fetched, {kept} already there)")

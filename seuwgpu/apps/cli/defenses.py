@@ -119,6 +119,12 @@ def defenses_arguments(s: argparse.ArgumentParser):
         help="the arms of --visible (default: every defense)",
     )
     s.add_argument("--fault", default="bit", choices=FAULT_MODELS, help="fault model of the --visible upsets")
+    s.add_argument(
+        "--out",
+        type=Path,
+        metavar="RUN",
+        help="keep the --visible records in the run folder RUN (RUN/visible/), whose report then shows them",
+    )
 
 
 def cmd_defenses(args):
@@ -142,6 +148,7 @@ def cmd_defenses(args):
         visible_defenses=args.visible_defenses,
         seed=args.seed,
         fault=args.fault,
+        out=args.out,
     )
     if args.json:
         import json

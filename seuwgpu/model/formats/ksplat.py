@@ -53,7 +53,14 @@ import numpy as np
 from seuwgpu.model.fields import Model, sh_rest_count
 from seuwgpu.model.formats.base import ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError
-from seuwgpu.model.formats.quantized import F32_MAX, SH_C0, byte_opacity, byte_sh_dc, sigmoid, storable
+from seuwgpu.model.formats.quantized import (
+    alpha_bytes,
+    byte_opacity,
+    byte_sh_dc,
+    colour_bytes,
+    linear_scales,
+    storable,
+)
 
 SUFFIXES = (".ksplat",)
 HEADER_BYTES = 4096
@@ -287,13 +294,12 @@ def ksplat_bytes(model: Model, path: str = "<model>") -> bytes:
     n, degree = model.n, min(model.sh_degree, MAX_DEGREE)
     rec = np.zeros(n, dtype=_record(0, degree))
     rec["centre"] = v["means"]
-    with np.errstate(over="ignore"):
-        rec["scale"] = np.clip(np.exp(v["log_scales"]), SMALLEST_SCALE[0], F32_MAX)
+    rec["scale"] = linear_scales(v["log_scales"])  # at least SMALLEST_SCALE[0]
     q = model.quats.astype(np.float64)
     odd = ~np.isfinite(q).all(axis=1) | ~q.any(axis=1)  # Inf or zero: quantized.unit_quats's rule
     rec["rot"] = np.where(odd[:, None], v["quats"], q)
-    rgba = np.concatenate([(0.5 + SH_C0 * v["sh_dc"]) * 255.0, sigmoid(v["opacity"])[:, None] * 255.0], axis=1)
-    rec["rgba"] = np.clip(np.floor(rgba + 0.5), 0, 255)
+    rec["rgba"][:, :3] = colour_bytes(v["sh_dc"])
+    rec["rgba"][:, 3] = alpha_bytes(v["opacity"])
     if degree:  # channel-major per band: degree 1's 9 values, then degree 2's 15
         rest = v["sh_rest"]
         bands = [rest[:, 0:3, :]] + ([rest[:, 3:8, :]] if degree == 2 else [])

@@ -104,6 +104,42 @@ def sigmoid(opacity: np.ndarray) -> np.ndarray:
         return 1.0 / (1.0 + np.exp(-np.asarray(opacity, dtype=np.float64)))
 
 
+def unorm_codes(v: np.ndarray, bits: int) -> np.ndarray:
+    """uint32 codes of values in [0, 1] on 2^bits - 1 steps, rounded to nearest (halves up) and
+    clamped: clip(floor(v * (2^bits - 1) + 0.5), 0, 2^bits - 1)."""
+    top = (1 << bits) - 1
+    return np.clip(np.floor(v * top + 0.5), 0, top).astype(np.uint32)
+
+
+def alpha_bytes(opacity: np.ndarray) -> np.ndarray:
+    """uint8 alphas of logits, sigmoid(opacity) as an 8-bit code (compressed PLY, .splat, .ksplat, SOG)."""
+    return unorm_codes(sigmoid(opacity), 8).astype(np.uint8)
+
+
+def colour_bytes(sh_dc: np.ndarray) -> np.ndarray:
+    """uint8 colours of SH DC coefficients, 0.5 + SH_C0 * f_dc as 8-bit codes (.splat, .ksplat)."""
+    return unorm_codes(0.5 + SH_C0 * np.asarray(sh_dc, dtype=np.float64), 8).astype(np.uint8)
+
+
+def linear_scales(log_scales: np.ndarray) -> np.ndarray:
+    """exp(log_scales) kept inside float32's range, 2^-149 .. F32_MAX (.splat, .ksplat store scales)."""
+    with np.errstate(over="ignore"):
+        return np.clip(np.exp(log_scales), float(np.finfo(np.float32).smallest_subnormal), F32_MAX)
+
+
+def largest_component(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(index of each quaternion's largest |component|, the first of equal magnitudes as the
+    reference encoders pick it; whether that component is negative): the "smallest three"
+    rotation codes of compressed PLY, SOG and SPZ store the others of the quaternion whose
+    largest component is made positive."""
+    n = len(q)
+    a = np.abs(q)
+    largest = np.zeros(n, dtype=np.int64)
+    for i in (1, 2, 3):  # strictly greater: the first of equal magnitudes wins
+        largest = np.where(a[:, i] > a[np.arange(n), largest], i, largest)
+    return largest, q[np.arange(n), largest] < 0
+
+
 def turned_to_minus_y(model, up: str | None):
     """The model turned so that `up` points to -y, the convention of .splat, SOG and compressed
     PLY viewers (positions, orientations and SH together); unchanged for None or -y."""

@@ -49,7 +49,13 @@ from pathlib import Path
 import numpy as np
 
 from seuwgpu.model.fields import Model
-from seuwgpu.model.formats.quantized import sigmoid, storable, turned_to_minus_y
+from seuwgpu.model.formats.quantized import (
+    alpha_bytes,
+    largest_component,
+    storable,
+    turned_to_minus_y,
+    unorm_codes,
+)
 
 BOOK = 256  # codebook entries
 MAX_PALETTE = 1 << 16  # 16-bit labels
@@ -103,7 +109,7 @@ def _means(means: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     lt = _log_transform(means)
     mins, maxs = lt.min(axis=0), lt.max(axis=0)
     span = np.where(maxs > mins, maxs - mins, 1.0)
-    codes = np.clip(np.floor((lt - mins) / span * 65535.0 + 0.5), 0, 65535).astype(np.uint16)
+    codes = unorm_codes((lt - mins) / span, 16).astype(np.uint16)
     return mins, maxs, codes
 
 
@@ -111,15 +117,12 @@ def _quats(q: np.ndarray) -> np.ndarray:
     """RGBA bytes [N, 4]: the three components other than the largest (made positive), in
     (w, x, y, z) order, as (c * sqrt(2) * 0.5 + 0.5) * 255; A = 252 + the largest's index."""
     n = len(q)
-    a = np.abs(q)
-    largest = np.zeros(n, dtype=np.int64)
-    for i in (1, 2, 3):  # the first of equal magnitudes, as the reference
-        largest = np.where(a[:, i] > a[np.arange(n), largest], i, largest)
-    q = np.where((q[np.arange(n), largest] < 0)[:, None], -q, q)
+    largest, negative = largest_component(q)
+    q = np.where(negative[:, None], -q, q)
     others = np.array([[j for j in range(4) if j != m] for m in range(4)])[largest]
     abc = q[np.arange(n)[:, None], others] * math.sqrt(2.0)
     out = np.empty((n, 4), dtype=np.uint8)
-    out[:, :3] = np.clip(np.floor(255.0 * (abc * 0.5 + 0.5) + 0.5), 0, 255)
+    out[:, :3] = unorm_codes(abc * 0.5 + 0.5, 8)
     out[:, 3] = 252 + largest
     return out
 
@@ -194,7 +197,7 @@ def sog_files(model: Model, path: str = "<model>") -> dict[str, bytes]:
     scale_book, scale_idx = codebook(v["log_scales"])
     files["scales.webp"] = _webp(scale_idx, w, h)
     dc_book, dc_idx = codebook(v["sh_dc"])
-    alpha = np.clip(np.floor(sigmoid(v["opacity"]) * 255.0 + 0.5), 0, 255).astype(np.uint8)
+    alpha = alpha_bytes(v["opacity"])
     files["sh0.webp"] = _webp(np.concatenate([dc_idx, alpha[:, None]], axis=1), w, h)
     meta = {
         "version": 2,

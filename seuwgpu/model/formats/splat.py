@@ -36,11 +36,11 @@ from seuwgpu.model.fields import Model
 from seuwgpu.model.formats.base import ModelFormat, Probe
 from seuwgpu.model.formats.errors import ModelFileError
 from seuwgpu.model.formats.quantized import (
-    F32_MAX,
-    SH_C0,
+    alpha_bytes,
     byte_opacity,
     byte_sh_dc,
-    sigmoid,
+    colour_bytes,
+    linear_scales,
     storable,
     turned_to_minus_y,
 )
@@ -117,13 +117,9 @@ def splat_records(model: Model, path: str = "<model>") -> np.ndarray:
     v = storable(model, path, "antimatter15 .splat")
     rec = np.zeros(model.n, dtype=RECORD)
     rec["pos"] = v["means"]
-    tiny = float(np.finfo(np.float32).smallest_subnormal)
-    with np.errstate(over="ignore"):
-        rec["scale"] = np.clip(np.exp(v["log_scales"]), tiny, F32_MAX)
-    rgba = np.empty((model.n, 4))
-    rgba[:, :3] = (0.5 + SH_C0 * v["sh_dc"]) * 255.0
-    rgba[:, 3] = sigmoid(v["opacity"]) * 255.0
-    rec["rgba"] = np.clip(np.floor(rgba + 0.5), 0, 255).astype(np.uint8)
+    rec["scale"] = linear_scales(v["log_scales"])
+    rec["rgba"][:, :3] = colour_bytes(v["sh_dc"])
+    rec["rgba"][:, 3] = alpha_bytes(v["opacity"])
     rec["rot"] = np.clip(np.floor(v["quats"] * 128.0 + 128.5), 0, 255).astype(np.uint8)
     return rec
 

@@ -44,7 +44,7 @@ from seuwgpu.model.budget import check_model
 from seuwgpu.model.fields import Model
 from seuwgpu.model.formats.base import ANTIALIASED_NOTE, ModelFormat
 from seuwgpu.model.formats.errors import ModelFileError
-from seuwgpu.model.formats.quantized import finite_logit, round_half_away, to_u8
+from seuwgpu.model.formats.quantized import finite_logit, largest_component, round_half_away, to_u8
 from seuwgpu.model.sh import rotate_model, rotation_to_y
 
 MAGIC = 0x5053474E  # "NGSP" little-endian
@@ -329,10 +329,7 @@ def _pack_first_three(q: np.ndarray) -> np.ndarray:
 
 def _pack_smallest_three(q: np.ndarray) -> np.ndarray:
     a = np.abs(q)
-    largest = np.zeros(len(q), dtype=np.int64)
-    for i in (1, 2, 3):  # strictly greater: the first of equal magnitudes wins, as in the reference
-        largest = np.where(a[:, i] > a[np.arange(len(q)), largest], i, largest)
-    negate = q[np.arange(len(q)), largest] < 0
+    largest, negate = largest_component(q)
     comp = largest.astype(np.uint32)
     for i in range(4):
         keep = largest != i

@@ -153,8 +153,15 @@ def mitigation_section(df, manifests, ctx) -> Section:
 
 def defenses_section(df, manifests, ctx) -> Section:
     from seuwgpu.analysis import defenses as D  # issue 16: defenses against cost (own module)
+    from seuwgpu.report.sections.visible import visible_item
 
+    seen = visible_item(manifests)  # what the user sees (issue 47), where the run folders keep it
     if not D.has_new_defenses(df):
+        if seen is not None:
+            sec = Section("defenses", "Defenses against cost", "What the user sees under each defense.")
+            sec.tables.append(seen[0])
+            sec.numbers.update(seen[1])
+            return sec
         others = ", ".join(d for d in DEFENSES if d not in FIRST_DEFENSES)
         raise InsufficientData(
             "no defense beyond guard/ECC/duplication in the records",
@@ -172,4 +179,7 @@ def defenses_section(df, manifests, ctx) -> Section:
     )
     sec.tables.append(TableItem("defenses", "Defenses against cost", t, cap))
     sec.figures.append(FigureItem("fig_pareto", "Pareto", D.pareto_figure(t), "Residual rate against memory."))
+    if seen is not None:
+        sec.tables.append(seen[0])
+        sec.numbers.update(seen[1])
     return sec
