@@ -54,7 +54,7 @@ struct View {
 @group(0) @binding(8) var<storage, read> box: array<Bound>;
 @group(0) @binding(9) var<storage, read_write> guard_counts: array<atomic<u32>>;
 // The check inside the frame: 4-bit codes per primitive (side.pack_side), and its output as
-// check.wgsl's CheckOut lays it out (detected, detected_copy, 2 words, then a flag bit per primitive).
+// codes.wgsl's OUT_* words lay it out (detected, detected_copy, 2 words, then a flag bit per primitive).
 @group(0) @binding(10) var<storage, read> frame_side: array<u32>;
 @group(0) @binding(11) var<storage, read_write> frame_out: array<atomic<u32>>;
 
