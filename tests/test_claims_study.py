@@ -237,7 +237,7 @@ def test_reverdict_splits_a_stored_row_by_population(tmp_path):
     assert real["verdict_issue36"] == "differs" and real["verdict_margin_pooled"] == "differs"  # 4.5 < 5.15
 
 
-def test_the_real_study_specs_fall_back_to_flowers_tile_and_shrink():
+def test_the_real_study_specs_and_their_planner():
     tool = _tool("study")
     raw = {"scenes": [{"model": "flowers/lod-meta.json"}], "single": {"samples": 64}, "dose": {"repeats": 4}}
     out = tool.with_samples(raw, 4)

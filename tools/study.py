@@ -7,9 +7,9 @@
     python tools/study.py --real /work/corpus --out runs/real --plan   # its plan and time, nothing run
 
 --real CORPUS runs the specs of docs/study/real (issue 46) with their model paths read under the
-corpus folder (`seuwgpu corpus --out CORPUS`); flowers' LOD set (flowers/lod-meta.json) falls back
-to its finest tile flowers/0_0 while the loader cannot read it, and specs that need more primitives
-than that tile holds are skipped (both said on stderr and in timings.json).
+corpus folder (`seuwgpu corpus --out CORPUS`), then writes the report and, beside it, the single
+upsets' records cut to the columns the headline numbers need (records_single.parquet: what
+tests/test_study_real.py recomputes them from).
 
 --small keeps the scenes, precisions, defenses and analyses but shrinks every spec (64 px, 2 views,
 2 samples per cell, 3 dose repeats up to k = 1,000, sizes sampled 2 per cell) so the whole chain
@@ -38,44 +38,11 @@ REAL_SPECS = (
     "real_fp16.toml",
     "real_dose.toml",
 )
-LOD = "flowers/lod-meta.json"
-LOD_TILE = "flowers/0_0"  # the LOD set's finest tile with the most splats (164,037), a plain SOG folder
-# measured rates on this 2-core lavapipe host (docs/study/real/README.md; 2026-12-07, load average
-# 6.7 from other sessions): plant 160 injections x 4 arms in 26.3 s and 640 in 42.0 s, so 30.6 a
-# second once started and 21 s to start a (model, spec) context (load, clean renders); flowers'
-# tile 192 in 19.0 s (12.7 s to start at that rate). 2 arms are taken at twice the 4 arms' rate, 3
-# at 4/3 of it, a dose render (k upsets, every view drawn anew) at DESIGN.md's 0.23 s a view.
-REAL_RATES = {"single_4arms": 30.6, "setup_s": 21.0, "dose_render_s": 0.92}
-
-
-def lod_loads(corpus: Path) -> bool:
-    """Whether the loader reads flowers' LOD set (branch h/lod)."""
-    from seuwgpu.model.formats import read_model
-
-    try:
-        read_model(corpus / LOD, warn_nonfinite=False)
-    except Exception:  # noqa: BLE001 - any refusal means: not yet
-        return False
-    return True
-
-
-def real_raw(raw: dict, corpus: Path, lod: bool) -> dict | None:
-    """A real spec with flowers' LOD set replaced by its tile where the loader cannot read it; None
-    when a [sizes] n exceeds what the scenes then hold (the spec is skipped)."""
-    from seuwgpu.model.formats import read_model
-
-    raw = dict(raw)
-    scenes = []
-    for sc in raw["scenes"]:
-        if sc.get("model") == LOD and not lod:
-            sc = dict(sc, model=LOD_TILE)
-        scenes.append(sc)
-    raw["scenes"] = scenes
-    if "sizes" in raw:
-        held = min(read_model(corpus / sc["model"], warn_nonfinite=False).model.n for sc in scenes)
-        if max(raw["sizes"]["n"]) > held:
-            return None
-    return raw
+# the rates of the first run of the real study on this 2-core lavapipe host (docs/study/real/README.md,
+# "Wall time"): 4 arms' injections a second after a (model, spec) context's start, that start, and
+# a dose render (k upsets, every view drawn anew) per arm; 2 arms are taken at twice the 4 arms'
+# rate, 3 at 4/3 of it (the gsplat profile and fp16 ran slower: the README gives their times)
+REAL_RATES = {"single_4arms": 224.0, "setup_s": 10.0, "dose_render_s": 1.19}
 
 
 def with_samples(raw: dict, samples: int) -> dict:
@@ -169,7 +136,7 @@ def main(argv=None) -> int:
     return run_specs(args, specs)
 
 
-def run_specs(args, specs: list, notes=()) -> int:
+def run_specs(args, specs: list) -> int:
     """Run each (name, spec) into OUT/<name's stem> (resuming what is there), then the report of
     them all into OUT/report; timings.json says what each step took."""
     from seuwgpu.campaign import store
@@ -182,7 +149,7 @@ def run_specs(args, specs: list, notes=()) -> int:
     out.mkdir(parents=True, exist_ok=True)
     gpu = get_gpu()
     timings = {"device": str(gpu.info.get("device", gpu.info)), "small": args.small, "cpu": args.cpu, "steps": []}
-    timings.update(real=args.real, notes=list(notes))
+    timings.update(real=args.real)
     runs = []
     for name, spec in specs:
         run_dir = out / Path(name).stem
@@ -223,6 +190,7 @@ def run_specs(args, specs: list, notes=()) -> int:
         build_report(runs, out / "report", progress=progress)
         if args.real:
             profile_claims(runs, out / "report")
+            headline_records(runs, out / "report")
     except TooBig as e:  # the campaigns are kept; their rates are `seuwgpu rates`'s
         timings["report_skipped"] = str(e)
         print(f"report: skipped: {e}", file=sys.stderr)
@@ -238,6 +206,25 @@ def run_specs(args, specs: list, notes=()) -> int:
         file=sys.stderr,
     )
     return status
+
+
+HEADLINE_COLUMNS = ["scene", "n_primitives", "precision", "profile", "field", "bit", "defense"]
+HEADLINE_COLUMNS += ["catastrophic", "weight"]
+
+
+def headline_records(runs: list, report: Path) -> None:
+    """The single upsets' records (one upset each, k = 1) cut to the columns that the headline
+    numbers need, small enough to commit beside the report (records_single.parquet), so a test
+    recomputes those numbers from records and not from the report's own tables."""
+    from seuwgpu.api import read_records
+
+    single = [r for r in runs if (r / "manifest.json").exists() and "size" not in r.name and "dose" not in r.name]
+    df = read_records(single)
+    df = df.loc[(df["campaign"] == "single") & (df["k"] == 1), HEADLINE_COLUMNS].reset_index(drop=True)
+    for c in ("scene", "precision", "profile", "field", "defense"):
+        df[c] = df[c].astype("category")
+    df["bit"] = df["bit"].astype("int8")
+    df.to_parquet(report / "records_single.parquet", index=False, compression="zstd")
 
 
 def profile_claims(runs: list, report: Path) -> None:
@@ -266,20 +253,12 @@ def run_real(args) -> int:
     from seuwgpu.campaign.spec import normalize_spec
 
     corpus = Path(args.real).expanduser().resolve()
-    lod = lod_loads(corpus)
-    notes = [] if lod else [f"{LOD} does not load yet: flowers runs as its tile {LOD_TILE} (164,037 splats)"]
     specs = []
     for name in args.specs or REAL_SPECS:
         raw = tomllib.loads((ROOT / "docs" / "study" / "real" / name).read_text())
-        raw = real_raw(raw, corpus, lod)
-        if raw is None:
-            notes.append(f"{name}: skipped (its sizes exceed flowers' tile)")
-            continue
         if args.samples is not None:
             raw = with_samples(raw, args.samples)
         specs.append((name, raw, normalize_spec(raw, corpus)))
-    for n in notes:
-        print(f"study.py: {n}", file=sys.stderr)
     if args.plan:
         total = 0.0
         for name, raw, spec in specs:
@@ -293,7 +272,7 @@ def run_real(args) -> int:
             print(plan.to_string(index=False))
         print(f"total: about {total / 3600:.2f} h of campaigns at the measured rates (REAL_RATES; the report on top)")
         return 0
-    return run_specs(args, [(name, spec) for name, _, spec in specs], notes)
+    return run_specs(args, [(name, spec) for name, _, spec in specs])
 
 
 if __name__ == "__main__":
