@@ -570,7 +570,7 @@ def test_outcome_and_reliability_tables_of_the_spec():
     for bad, what in (
         ({"reliability": {"check_every": 0}}, "reliability.check_every"),
         ({"reliability": {"check_every": 2.5}}, "reliability.check_every"),
-        ({"reliability": {"check_every": {"guard": 3}}}, "'guard' is not a check defense"),
+        ({"reliability": {"check_every": {"guard": 3}}}, "unknown check defense 'guard'; expected one of parity"),
         ({"reliability": {"check_every": {"parity4r": 0}}}, "reliability.check_every.parity4r"),
         ({"reliability": {"frames_per_second": -30}}, "reliability.frames_per_second"),
         ({"outcomes": {"footprint": 2}}, "outcomes.footprint"),

@@ -14,7 +14,6 @@ from seuwgpu.api._checks import (
     model_from,
     names_of,
     view_list,
-    whole,
 )
 from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES
@@ -22,7 +21,7 @@ from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY
 from seuwgpu.faults.sites import (
     FAULT_MODELS,
 )
-from seuwgpu.model import encoding
+from seuwgpu.model import checks, encoding
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model
 from seuwgpu.model.sources import Source
@@ -55,8 +54,8 @@ def storm(
 
     defenses = defense_names(defenses)
     for value, what in ((k, "k"), (frames, "frames"), (scrub_every, "scrub_every"), (seed, "seed")):
-        whole(value, what, None)  # the ranges: campaign/storm.py's own check, which names all three
-    whole(check_every, "check_every", 1)
+        checks.integer(value, what)  # the ranges: campaign/storm.py's own check, which names all three
+    checks.integer(check_every, "check_every", 1)
     if fault not in FAULT_MODELS:
         raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
     eng = engine_for(scene, views, precision, profile, "storm")
@@ -84,9 +83,9 @@ def state_flips(
     from seuwgpu.faults.state import TARGETS, state_campaign
 
     targets = list(TARGETS) if targets is None else list(dict.fromkeys(names_of(targets, "targets")))
-    bits = list(range(32)) if bits is None else list(dict.fromkeys(whole(b, "bit", None) for b in bits))
-    whole(samples, "samples", 1)
-    whole(seed, "seed", None)
+    bits = list(range(32)) if bits is None else list(dict.fromkeys(checks.integer(b, "bit") for b in bits))
+    checks.integer(samples, "samples", 1)
+    checks.integer(seed, "seed")
     eng = engine_for(scene, views, precision, profile, "state_flips")
     return state_campaign(eng, targets, samples, bits, seed, progress, rows=rows)
 
@@ -116,9 +115,9 @@ def worst_case(
         except ValueError as e:
             raise InputError(str(e)) from None
     if bits is not None:
-        bits = [whole(b, "bit", 0) for b in bits]
+        bits = [checks.integer(b, "bit", 0) for b in bits]
     if max_evaluations is not None:
-        whole(max_evaluations, "max_evaluations", 1)
+        checks.integer(max_evaluations, "max_evaluations", 1)
     eng = engine_for(scene, views, precision, profile, "worst_case")
     return {d: search(eng, d, fields, bits, max_evaluations=max_evaluations) for d in defenses}
 
@@ -151,10 +150,10 @@ def defense_costs(
     description}]."""
     from seuwgpu.faults.costs import defense_costs as costs
 
-    whole(repeats, "repeats", 1)
-    whole(check_every, "check_every", 1)
-    whole(visible, "visible", 0)
-    whole(window, "window", 1)
+    checks.integer(repeats, "repeats", 1)
+    checks.integer(check_every, "check_every", 1)
+    checks.integer(visible, "visible", 0)
+    checks.integer(window, "window", 1)
     if fault not in FAULT_MODELS:
         raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
     if not isinstance(view, Camera):
@@ -210,7 +209,7 @@ def sort_first(
     if not ray_available():
         raise InputError(f"sort-first rendering needs Ray. {INSTALL_HINT}")
     for p in ranks:
-        whole(p, "ranks", 1)
+        checks.integer(p, "ranks", 1)
     parsed = None if upset is None else parse_upset(upset)
     kw = {"component": component, "primitive": primitive, "sample": sample, "seed": seed, "guard": guard}
     return sort_first_tables(

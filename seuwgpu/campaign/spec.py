@@ -92,8 +92,8 @@ import numpy as np
 from seuwgpu.campaign.spec_types import SceneSpec, Spec
 from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES, REGISTRY
-from seuwgpu.model import budget, encoding
-from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, n_values
+from seuwgpu.model import checks, encoding
+from seuwgpu.model.budget import n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
 from seuwgpu.model.formats import UP_AXES
 
@@ -142,24 +142,19 @@ def _int(table, key, where, default=None, lo=None, hi=None):
     v = table.get(key, default)
     if v is None:
         raise SpecError(f"{where}.{key} is required")
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise SpecError(f"{where}.{key} must be an integer, got {v!r}")
-    if lo is not None and v < lo or hi is not None and v > hi:
-        raise SpecError(f"{where}.{key} = {v} is out of range [{lo}, {hi if hi is not None else 'inf'}]")
-    return v
+    return checks.integer(v, f"{where}.{key}", lo, hi)
 
 
-def _list(table, key, where, default, valid=None):
+def _list(table, key, where, default) -> list:
     v = table.get(key, default)
-    if isinstance(v, str) and v == "all" and valid is not None:
-        return list(valid)
     if not isinstance(v, list) or not v:
-        raise SpecError(f"{where}.{key} must be a non-empty list" + (' or "all"' if valid is not None else ""))
-    if valid is not None:
-        bad = [x for x in v if not isinstance(x, str) or x not in valid]
-        if bad:
-            raise SpecError(f"{where}.{key}: unknown value(s) {bad}; valid: {list(valid)}")
+        raise SpecError(f"{where}.{key} must be a non-empty list")
     return v
+
+
+def _counts(table, key, where) -> list[int]:
+    """A non-empty list of positive integers (dose.k, sizes.n)."""
+    return [checks.integer(x, f"{where}.{key}", 1) for x in _list(table, key, where, None)]
 
 
 def _model_file(scene: dict, path, where: str, lod: int | None = None):
@@ -200,14 +195,8 @@ def _fields(table, where):
         return list(FIELDS)
     if not isinstance(v, list) or not v:
         raise SpecError(f'{where}.fields must be "all" or a list of fields')
-    try:
-        out = [canonical_field(f) for f in v]
-    except ValueError as e:
-        raise SpecError(f"{where}.fields: {e}") from None
-    twice = sorted({f for f in out if out.count(f) > 1})
-    if twice:
-        raise SpecError(f"{where}.fields names {', '.join(twice)} more than once (a field and its alias?)")
-    return out
+    out = [canonical_field(f, f"{where}.fields") for f in v]
+    return checks.listed_once(out, f"{where}.fields", " (a field and its alias?)")
 
 
 def _bits(table, where, precisions):
@@ -218,8 +207,7 @@ def _bits(table, where, precisions):
         raise SpecError(f'{where}.bits must be "all" or a list of bit indices')
     for p in precisions:
         for b in v:
-            if not 0 <= b < encoding.bits_per_value(p):
-                raise SpecError(f"{where}.bits: bit {b} is out of range for {p} (0..{encoding.bits_per_value(p) - 1})")
+            encoding.check_bit(p, b, f"{where}.bits")
     return sorted(set(v))
 
 
@@ -230,11 +218,8 @@ def _samples(table, where, default):
         _keys(v, {"margin", "confidence"}, f"{where}.samples")
         from seuwgpu.campaign.plan import sample_size
 
-        margin, conf = v.get("margin"), v.get("confidence", 0.95)
-        if not isinstance(margin, (int, float)) or not 0 < margin < 1:
-            raise SpecError(f"{where}.samples.margin must be a proportion in (0, 1), e.g. 0.02")
-        if not isinstance(conf, (int, float)) or not 0 < conf < 1:
-            raise SpecError(f"{where}.samples.confidence must be in (0, 1), e.g. 0.95")
+        margin = checks.proportion(v.get("margin"), f"{where}.samples.margin", "0.02")
+        conf = checks.proportion(v.get("confidence", 0.95), f"{where}.samples.confidence", "0.95")
         # No finite-population correction: a cell's sites are drawn with replacement (each
         # injection from its own hash stream, campaign/sampling.py, so any block can be re-run or
         # resumed alone), and the correction only holds for draws without replacement.
@@ -291,14 +276,14 @@ def content_hash(key: str, path) -> str:
     return h.hexdigest()
 
 
-def _names(table, key, where, default, valid) -> list:
-    """A list of names (precisions, defenses), each at most once: an arm listed twice would be
-    run and counted twice."""
-    v = _list(table, key, where, default, valid)
-    twice = sorted({x for x in v if v.count(x) > 1})
-    if twice:
-        raise SpecError(f"{where}.{key} lists {', '.join(map(repr, twice))} more than once")
-    return v
+def _names(table, key, where, default, kind, valid) -> list:
+    """A list of names (precisions, defenses), each at most once, or "all" of them."""
+    if table.get(key) == "all":
+        return list(valid)
+    v = table.get(key, default)
+    if not isinstance(v, list) or not v:
+        raise SpecError(f'{where}.{key} must be a non-empty list or "all"')
+    return checks.listed_once([checks.one_of(x, kind, valid, f"{where}.{key}") for x in v], f"{where}.{key}")
 
 
 def _regions(table, where, size):
@@ -333,14 +318,6 @@ def _fault(table, out, where):
         out["fault"] = v
 
 
-def parse_size(v, where="size") -> tuple[int, int]:
-    """budget.parse_size raising SpecError."""
-    try:
-        return budget.parse_size(v, where)
-    except InputError as e:
-        raise SpecError(str(e)) from None
-
-
 def _name(raw) -> str:
     v = raw.get("name", "campaign")
     if not isinstance(v, str) or not v.strip():
@@ -371,35 +348,17 @@ def _reliability(t) -> dict:
     out = {}
     if "check_every" in t:
         v = t["check_every"]
-
-        def whole(x):
-            return not isinstance(x, bool) and isinstance(x, int) and x >= 1
-
-        if isinstance(v, dict):  # a schedule per check defense
+        if isinstance(v, dict):  # a schedule per check defense: frames between checks
+            checked = [x for x, o in REGISTRY.items() if o.checked]
             for d, s in v.items():
-                if d not in REGISTRY or not REGISTRY[d].checked:
-                    ok = ", ".join(x for x, o in REGISTRY.items() if o.checked)
-                    raise SpecError(f"reliability.check_every: {d!r} is not a check defense; expected one of {ok}")
-                if not whole(s):
-                    raise SpecError(f"reliability.check_every.{d} must be a whole number of frames >= 1, got {s!r}")
+                checks.one_of(d, "check defense", checked, "reliability.check_every")
+                checks.integer(s, f"reliability.check_every.{d}", 1)
             out["check_every"] = dict(v)
-        elif not whole(v):
-            raise SpecError(
-                f"reliability.check_every must be a whole number of frames >= 1 (or a table of them per "
-                f"check defense), got {v!r}"
-            )
         else:
-            out["check_every"] = v
-    if "frames_per_second" in t:
-        v = t["frames_per_second"]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
-            raise SpecError(f"reliability.frames_per_second must be a positive number, got {v!r}")
-        out["frames_per_second"] = float(v)
-    if "scrub_hours" in t:
-        v = t["scrub_hours"]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
-            raise SpecError(f"reliability.scrub_hours must be a positive number of hours, got {v!r}")
-        out["scrub_hours"] = float(v)
+            out["check_every"] = checks.integer(v, "reliability.check_every", 1)
+    for key in ("frames_per_second", "scrub_hours"):
+        if key in t:
+            out[key] = checks.number(t[key], f"reliability.{key}")
     if "rates" in t:
         rates = t["rates"]
         if not isinstance(rates, list) or not rates:
@@ -407,9 +366,7 @@ def _reliability(t) -> dict:
         out["rates"] = []
         for i, r in enumerate(rates):
             _keys(r, {"environment", "per_bit_hour", "source"}, f"reliability.rates[{i}]")
-            lam = r.get("per_bit_hour")
-            if isinstance(lam, bool) or not isinstance(lam, (int, float)) or not lam > 0:
-                raise SpecError(f"reliability.rates[{i}].per_bit_hour must be a positive number, got {lam!r}")
+            lam = checks.number(r.get("per_bit_hour"), f"reliability.rates[{i}].per_bit_hour")
             if not isinstance(r.get("environment"), str) or not isinstance(r.get("source"), str):
                 raise SpecError(f"reliability.rates[{i}] needs environment and source (strings)")
             out["rates"].append({"environment": r["environment"], "per_bit_hour": float(lam), "source": r["source"]})
@@ -446,22 +403,28 @@ def _distinct_labels(scenes: list[dict]):
 
 def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
     """The validated spec with its defaults filled in (`to_dict()`: what is hashed and stored in
-    the manifest)."""
+    the manifest). The shared checks (model/checks.py) raise InputError: a spec's is a SpecError."""
+    try:
+        return _normalize(raw, base_dir)
+    except InputError as e:
+        if type(e) is not InputError:
+            raise
+        raise SpecError(str(e)) from None
+
+
+def _normalize(raw: dict, base_dir: Path | None) -> Spec:
     from seuwgpu.model.scenes import is_capture, list_scenes, make_scene
 
     _keys(raw, _TOP, "the spec")
     spec = {
         "name": _name(raw),
         "seed": _int(raw, "seed", "spec", 0, 0, SEED_MAX),
-        "views": _int(raw, "views", "spec", 4, 1, MAX_VIEWS),
-        "size": list(parse_size(raw.get("size", "256x256"))),
+        "views": checks.views(raw.get("views", 4), "spec.views"),
+        "size": list(checks.image_size(raw.get("size", "256x256"))),
         "batch": _int(raw, "batch", "spec", 256, 1, 65536),
     }
     if "scale" in raw:  # recorded only when given, so older specs keep their hash
-        scale = raw["scale"]
-        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= MAX_SCALE:
-            raise SpecError(f"scale must be a number in (0, {MAX_SCALE}], got {scale!r}")
-        spec["scale"] = float(scale)
+        spec["scale"] = checks.scale(raw["scale"])
     if "profile" in raw:  # renderer profile (docs/renderer.md); recorded only when given (hash)
         from seuwgpu.render.project import check_profile  # the one definition of the profile names
 
@@ -481,14 +444,9 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
         if sum(k in s for k in ("scene", "model", "ply")) != 1:
             raise SpecError(f"{where} needs exactly one of scene = NAME or model = FILE (ply = FILE is an alias)")
         out = {"sh_degree": _int(s, "sh_degree", where, 3, 0, 3), "seed": _int(s, "seed", where, 0, 0, SEED_MAX)}
-        if "lod" in s and "scene" in s:
-            raise SpecError(f"{where}.lod picks a level of a PlayCanvas LOD set given as model = ...; remove it")
         if "scene" in s:
-            if not isinstance(s["scene"], str) or s["scene"] not in list_scenes():
-                raise SpecError(
-                    f"{where}.scene: unknown scene {s['scene']!r}; embedded scenes: {', '.join(list_scenes())}"
-                )
-            out["scene"] = s["scene"]
+            out["scene"] = checks.one_of(s["scene"], "scene", list_scenes(), f"{where}.scene")
+            checks.lod_of_a_model_file(s.get("lod"), s["scene"], f"{where}.lod")
             if is_capture(s["scene"]):
                 held[i] = make_scene(s["scene"]).n
                 out["n"] = _int(s, "n", where, held[i], 1, held[i])
@@ -503,15 +461,13 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
                 )
             out["model"] = _spec_file(s, key, where, base_dir)
             out["model_sha256"] = content_hash("model", out["model"])
-            lod = _int(s, "lod", where, None, 0) if "lod" in s else None
+            lod = checks.lod_level(s["lod"], f"{where}.lod") if "lod" in s else None
             model = _model_file(s, out["model"], where, lod)
             if lod:  # level 0 is the default: the same run as without the key
                 out["lod"] = lod
             out["sh_degree"], held[i] = model.sh_degree, model.n
         if "up" in s:
-            if not isinstance(s["up"], str) or s["up"] not in UP_AXES:
-                raise SpecError(f"{where}.up: {s['up']!r} is no axis; expected one of {', '.join(UP_AXES)}")
-            out["up"] = s["up"]
+            out["up"] = checks.one_of(s["up"], "up axis", UP_AXES, f"{where}.up")
         if "cameras" in s:
             out["cameras"] = _spec_file(s, "cameras", where, base_dir)
             out["cameras_sha256"] = content_hash("cameras", out["cameras"])
@@ -538,45 +494,39 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
         spec["reliability"] = _reliability(raw["reliability"])
     if "summary" in raw:
         _keys(raw["summary"], {"target"}, "summary")
-        t = raw["summary"].get("target", 0.001)
-        if isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 < t < 1:
-            raise SpecError(f"summary.target must be a catastrophic rate per upset in (0, 1), got {t!r}")
-        spec["summary"] = {"target": float(t)}
+        spec["summary"] = {"target": checks.proportion(raw["summary"].get("target", 0.001), "summary.target", "0.001")}
     if not any(k in raw for k in ("single", "dose", "sizes")):
         raise SpecError("the spec needs at least one of [single], [dose], [sizes]")
     if "single" in raw:
         t = raw["single"]
         _keys(t, _SINGLE, "single")
-        precisions = _names(t, "precisions", "single", ["fp32"], encoding.PRECISIONS)
+        precisions = _names(t, "precisions", "single", ["fp32"], "precision", encoding.PRECISIONS)
         spec["single"] = {
             "precisions": precisions,
             "fields": _fields(t, "single"),
             "bits": _bits(t, "single", precisions),
             "samples": _samples(t, "single", 20),
             "sampling": t.get("sampling", "stratified"),
-            "defenses": _names(t, "defenses", "single", ["none", "guard"], DEFENSES),
+            "defenses": _names(t, "defenses", "single", ["none", "guard"], "defense", DEFENSES),
             "regions": _regions(t, "single", spec["size"]),
         }
         _no_missing_fields(t, "single", spec["scenes"])
         _fault(t, spec["single"], "single")
-        if spec["single"]["sampling"] not in ("stratified", "uniform"):
-            raise SpecError(f'single.sampling must be "stratified" or "uniform", got {t["sampling"]!r}')
+        checks.one_of(spec["single"]["sampling"], "sampling", ("stratified", "uniform"), "single.sampling")
     if "dose" in raw:
         t = raw["dose"]
         _keys(t, _DOSE, "dose")
         if "k" in t and ("k_max" in t or "points" in t):
             raise SpecError("dose: give either k = [...] or k_max and points, not both")
         if "k" in t:
-            ks = _list(t, "k", "dose", None)
-            if not all(isinstance(k, int) and not isinstance(k, bool) and 1 <= k for k in ks):
-                raise SpecError("dose.k must be a list of positive integers")
+            ks = _counts(t, "k", "dose")
         else:
             ks = dose_levels(_int(t, "k_max", "dose", 20_000, 1), _int(t, "points", "dose", 12, 1, 200))
         spec["dose"] = {
-            "precisions": _names(t, "precisions", "dose", ["fp32"], encoding.PRECISIONS),
+            "precisions": _names(t, "precisions", "dose", ["fp32"], "precision", encoding.PRECISIONS),
             "k": sorted(set(int(k) for k in ks)),
             "repeats": _int(t, "repeats", "dose", 3, 1),
-            "defenses": _names(t, "defenses", "dose", ["none", "guard"], DEFENSES),
+            "defenses": _names(t, "defenses", "dose", ["none", "guard"], "defense", DEFENSES),
         }
         for i, sc in enumerate(spec["scenes"]):  # model files: checked when loaded (runner)
             for p in spec["dose"]["precisions"]:
@@ -599,9 +549,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
             or not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(spec["scenes"]) for i in which)
         ):
             raise SpecError(f'sizes.scenes must be "all" or a list of [[scenes]] indices 0..{len(spec["scenes"]) - 1}')
-        ns = _list(t, "n", "sizes", None)
-        if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in ns):
-            raise SpecError("sizes.n must be a list of positive integers")
+        ns = _counts(t, "n", "sizes")
         for i in which:
             # a procedural scene is generated at each n; a capture or a model file is cut to a
             # seeded random subset of n (model/fields.py Model.sample), framed as the whole model
@@ -609,7 +557,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
             name, have = sc.get("scene") or sc["model"], held.get(i)
             if have is not None and max(ns) > have:
                 raise SpecError(f"sizes.n: {name} has {have} primitives; n must not exceed it (got {max(ns)})")
-        precisions = _names(t, "precisions", "sizes", ["fp32"], encoding.PRECISIONS)
+        precisions = _names(t, "precisions", "sizes", ["fp32"], "precision", encoding.PRECISIONS)
         spec["sizes"] = {
             "n": sorted(set(ns)),
             "precisions": precisions,
@@ -617,7 +565,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
             "bits": _bits(t, "sizes", precisions),
             "samples": _samples(t, "sizes", 10),
             "sampling": t.get("sampling", "stratified"),
-            "defenses": _names(t, "defenses", "sizes", ["none"], DEFENSES),
+            "defenses": _names(t, "defenses", "sizes", ["none"], "defense", DEFENSES),
             "regions": _regions(t, "sizes", spec["size"]),
         }
         _no_missing_fields(t, "sizes", [spec["scenes"][i] for i in which])

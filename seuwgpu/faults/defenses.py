@@ -53,7 +53,7 @@ from seuwgpu.faults.codes import (
     scale_table,
 )
 from seuwgpu.faults.schedule import Exposure, exposure
-from seuwgpu.model import encoding
+from seuwgpu.model import checks, encoding
 from seuwgpu.model.fields import FIELDS, n_components
 
 
@@ -420,10 +420,7 @@ FIRST_DEFENSES = tuple(d.name for d in REGISTRY.values() if d.first_study)
 
 def get(name: str) -> Defense:
     """The registered defense `name` (a clear error for any other name)."""
-    d = REGISTRY.get(name)
-    if d is None:
-        raise ValueError(f"unknown defense {name!r}; expected one of {', '.join(REGISTRY)}")
-    return d
+    return REGISTRY[checks.one_of(name, "defense", REGISTRY)]
 
 
 def check_defense(name: str) -> str:
