@@ -49,7 +49,8 @@ def storm(
     upsets' fault model (FAULT_MODELS: a burst, a random value, a multi-cell upset). One record
     per frame and defense. `progress()` is called after each frame;
     `rows`: a list the records are appended to as they are measured (a resumed storm's records
-    first: it goes on after them)."""
+    first: it goes on after them). To resume as `seuwgpu storm` does: `campaign.partial.resumed`
+    with the `run_identity` of the arguments yields the `rows` and `progress` to pass."""
     from seuwgpu.campaign.storm import storm as run_storm
 
     defenses = defense_names(defenses)
