@@ -8,77 +8,11 @@ folder name).
 Lists of names (precisions, defenses, fields with their aliases) must not repeat an entry; lists of
 numbers (bits, k, sizes.n, regions) are merged. Seeds are integers in [0, 2**63).
 
+Every key, its default (or an example) and what it means is written once, as a field of
+campaign/spec_types.py; the reference below (alternatives commented out), the key sets checked
+here and the defaults come from there.
+
 Spec (TOML; unknown keys and bad values fail at once, naming the key):
-
-    seed = 0                 # master seed
-    views = 4                # orbit views per scene (K), or K of the capture's views, evenly
-    size = "256x256"         # WxH of orbit views
-    scale = 0.25             # optional: render at this fraction of the views' resolution
-    batch = 256              # injections per GPU batch and per Parquet part
-    profile = "strict"       # optional renderer profile: "strict" or "gsplat" (docs/renderer.md)
-    lpips = true             # optional: LPIPS (AlexNet) of every record, re-rendered in full
-                             # (slow: ~1 s per 256 px view on a CPU; pip install 'seuwgpu[lpips]')
-
-    [[scenes]]               # one or more
-    scene = "spheres"        # an embedded scene (`seuwgpu scene --list`: procedural or real) ...
-                             # or: model = "point_cloud.ply" (any format; `ply =` is an alias)
-                             # lod = 2: with a PlayCanvas LOD set (lod-meta.json or its folder),
-                             # the level read (default 0, the finest; named NAME-lod2 in records)
-    n = 100000               # primitives of an embedded scene (a real capture: all by default)
-    sh_degree = 3            # of an embedded scene; a model file's is read from it (recorded)
-    cameras = "cameras.json" # optional, the capture's cameras (CAMS.json, INRIA cameras.json,
-                             # a COLMAP model folder, nerfstudio transforms.json) instead of orbits;
-                             # their views keep their own sizes, so not with `size =` (use scale)
-    up = "-y"                # optional: up axis of the orbit views (default: the format's)
-
-    [single]                 # single upsets, stratified by (field, bit) cell
-    precisions = ["fp32"]
-    fields = "all"           # the fields each model holds (no sh_rest at SH degree 0), or a list
-    bits = "all"             # or a list of bit indices (those valid for each precision)
-    samples = 20             # injections per (field, bit) cell, or a plan:
-                             # samples = {margin = 0.02, confidence = 0.95} (Leveugle et al. 2009,
-                             # worst case p = 0.5; sites drawn with replacement, so no
-                             # finite-population correction)
-    sampling = "stratified"  # or "uniform": `samples` x cells injections drawn uniformly over
-                             # all stored bits (weight column = bits each sample stands for)
-    defenses = ["none", "guard"]   # `seuwgpu defenses` lists them all
-    fault = "bit"            # fault model: "bit" (single-bit flip), "adjacent" (2-4 neighbouring
-                             # bits of the value from the cell's bit up), "stuck0"/"stuck1" (the
-                             # cell's bit stuck), "random"/"zero" (the whole value replaced by
-                             # random bits / 0: one cell per field, bits ignored)
-    regions = [4, 16, 64]    # optional: sort-first contamination columns regions_pred_P and
-                             # regions_meas_P (int64 bitmasks of the P regions reached/changed in
-                             # any view), regions_pred_frame_P and regions_meas_frame_P (the share
-                             # one view's frame reaches, averaged over the views)
-
-    [dose]                   # k simultaneous upsets drawn uniformly over the whole bit budget
-    precisions = ["fp32"]
-    k = [1, 10, 100]         # or k_max = 20000 and points = 12 (log-spaced, rounded, distinct)
-    repeats = 3
-    defenses = ["none", "guard"]
-
-    [outcomes]               # optional: outcome-class thresholds (defaults: the paper's)
-    pixel_threshold = 0.00392156862745098  # a channel change above it is visible (SDC), 1/255
-    footprint = 0.01         # a frame with more changed pixels than this share is catastrophic
-
-    [reliability]            # optional: inputs of the MTBF analysis (they change no injection)
-    scrub_hours = 24.0       # the model is restored from protected storage this often
-    rates = [{environment = "ground", per_bit_hour = 1e-12, source = "where the rate comes from"}]
-    check_every = 10         # a check defense checks every S frames (or {parity4r = 10, checksum = 20}):
-                             # what it repairs is drawn until then; default 10
-    frames_per_second = 30.0 # the frame rate the check's exposure (frames) turns into hours
-
-    [summary]                # optional: the report's opening summary (it changes no injection)
-    target = 0.001           # residual catastrophic rate per upset the cheapest defense must meet
-
-    [sizes]                  # primitive-count sweep: single upsets at each N (a procedural scene
-    n = [5000, 20000, 80000] # is generated at N; a capture or model file cut to a seeded subset)
-    scenes = "all"           # optional: [[scenes]] indices swept, or "all" (default: [0], the first)
-    precisions = ["fp32"]
-    fields = "all"
-    bits = "all"
-    samples = 10
-    defenses = ["none"]
 """
 
 from __future__ import annotations
@@ -89,7 +23,21 @@ from pathlib import Path
 
 import numpy as np
 
-from seuwgpu.campaign.spec_types import SceneSpec, Spec
+from seuwgpu.campaign.spec_types import (
+    DoseSpec,
+    OutcomesSpec,
+    RateSpec,
+    ReliabilitySpec,
+    SamplePlan,
+    SceneSpec,
+    SizesSpec,
+    Spec,
+    SummarySpec,
+    UpsetSpec,
+    key_names,
+    reference,
+    toml_default,
+)
 from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES, REGISTRY
 from seuwgpu.model import checks, encoding
@@ -97,29 +45,7 @@ from seuwgpu.model.budget import n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
 from seuwgpu.model.formats import UP_AXES
 
-_TOP = {
-    "seed",
-    "views",
-    "size",
-    "scale",
-    "batch",
-    "scenes",
-    "single",
-    "dose",
-    "sizes",
-    "name",
-    "outcomes",  # analysis inputs (thresholds, upset rates) and the optional LPIPS metric
-    "reliability",
-    "summary",
-    "lpips",
-    "profile",
-}
-_SCENE = {"scene", "model", "ply", "lod", "n", "sh_degree", "cameras", "seed", "up"}
-_SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions", "fault"}
-_DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
-_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions", "fault", "scenes"}
-
-
+SAMPLINGS = ("stratified", "uniform")
 SEED_MAX = 2**63 - 1  # seeds are TOML integers (signed 64-bit), used as unsigned 64-bit hash keys
 
 
@@ -127,10 +53,12 @@ class SpecError(InputError):
     """A campaign spec (or a run directory or shard set it meets) that cannot be run as given."""
 
 
-def _keys(table: dict, allowed: set, where: str):
+def _keys(table: dict, cls, where: str):
+    """Refuse a key the table `cls` (spec_types) does not take, naming those it does."""
     if not isinstance(table, dict):
         raise SpecError(f"{where} must be a table")
-    unknown = sorted(set(table) - allowed)
+    allowed = key_names(cls)
+    unknown = sorted(set(table) - set(allowed))
     if unknown:
         raise SpecError(
             f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(repr(k) for k in unknown)} in {where} "
@@ -138,23 +66,26 @@ def _keys(table: dict, allowed: set, where: str):
         )
 
 
-def _int(table, key, where, default=None, lo=None, hi=None):
-    v = table.get(key, default)
-    if v is None:
-        raise SpecError(f"{where}.{key} is required")
-    return checks.integer(v, f"{where}.{key}", lo, hi)
+def _get(table, cls, key: str, where: str):
+    """The key's value, or the default of the table `cls` (spec_types) where it is left out."""
+    if key in table:
+        return table[key]
+    try:
+        return toml_default(cls, key)
+    except KeyError:
+        raise SpecError(f"{where}.{key} is required") from None
 
 
-def _list(table, key, where, default) -> list:
-    v = table.get(key, default)
+def _int(table, cls, key, where, lo=None, hi=None):
+    return checks.integer(_get(table, cls, key, where), f"{where}.{key}", lo, hi)
+
+
+def _counts(table, cls, key, where) -> list[int]:
+    """A non-empty list of positive integers (dose.k, sizes.n)."""
+    v = _get(table, cls, key, where)
     if not isinstance(v, list) or not v:
         raise SpecError(f"{where}.{key} must be a non-empty list")
-    return v
-
-
-def _counts(table, key, where) -> list[int]:
-    """A non-empty list of positive integers (dose.k, sizes.n)."""
-    return [checks.integer(x, f"{where}.{key}", 1) for x in _list(table, key, where, None)]
+    return [checks.integer(x, f"{where}.{key}", 1) for x in v]
 
 
 def _model_file(scene: dict, path, where: str, lod: int | None = None):
@@ -179,7 +110,7 @@ def _model_file(scene: dict, path, where: str, lod: int | None = None):
 def _no_missing_fields(table, where: str, scenes: list):
     """A field listed by name that a scene's model does not hold (sh_rest at SH degree 0) is
     refused; "all" means the fields each model holds (campaign/sampling.py scene_fields)."""
-    if table.get("fields", "all") == "all":
+    if table.get("fields", "all") == "all":  # "all": each model's own fields, whatever the default
         return
     for i, sc in enumerate(scenes):
         if sc["sh_degree"] == 0 and "sh_rest" in [canonical_field(f) for f in table["fields"]]:
@@ -189,8 +120,8 @@ def _no_missing_fields(table, where: str, scenes: list):
             )
 
 
-def _fields(table, where):
-    v = table.get("fields", "all")
+def _fields(table, cls, where):
+    v = _get(table, cls, "fields", where)
     if v == "all":
         return list(FIELDS)
     if not isinstance(v, list) or not v:
@@ -199,8 +130,8 @@ def _fields(table, where):
     return checks.listed_once(out, f"{where}.fields", " (a field and its alias?)")
 
 
-def _bits(table, where, precisions):
-    v = table.get("bits", "all")
+def _bits(table, cls, where, precisions):
+    v = _get(table, cls, "bits", where)
     if v == "all":
         return "all"
     if not isinstance(v, list) or not v or not all(isinstance(b, int) and not isinstance(b, bool) for b in v):
@@ -211,20 +142,21 @@ def _bits(table, where, precisions):
     return sorted(set(v))
 
 
-def _samples(table, where, default):
+def _samples(table, cls, where):
     """`samples` as an int, or planned from {margin, confidence} (campaign.plan.sample_size)."""
-    v = table.get("samples", default)
+    v = _get(table, cls, "samples", where)
     if isinstance(v, dict):
-        _keys(v, {"margin", "confidence"}, f"{where}.samples")
+        _keys(v, SamplePlan, f"{where}.samples")
         from seuwgpu.campaign.plan import sample_size
 
         margin = checks.proportion(v.get("margin"), f"{where}.samples.margin", "0.02")
-        conf = checks.proportion(v.get("confidence", 0.95), f"{where}.samples.confidence", "0.95")
+        conf = _get(v, SamplePlan, "confidence", f"{where}.samples")
+        conf = checks.proportion(conf, f"{where}.samples.confidence", "0.95")
         # No finite-population correction: a cell's sites are drawn with replacement (each
         # injection from its own hash stream, campaign/sampling.py, so any block can be re-run or
         # resumed alone), and the correction only holds for draws without replacement.
         return int(sample_size(float(margin), float(conf)))
-    return _int(table, "samples", where, default, 1)
+    return _int(table, cls, "samples", where, 1)
 
 
 def _spec_file(table, key, where, base_dir: Path | None) -> str:
@@ -276,22 +208,36 @@ def content_hash(key: str, path) -> str:
     return h.hexdigest()
 
 
-def _names(table, key, where, default, kind, valid) -> list:
+def _names(table, cls, key, where, kind, valid) -> list:
     """A list of names (precisions, defenses), each at most once, or "all" of them."""
     if table.get(key) == "all":
         return list(valid)
-    v = table.get(key, default)
+    v = _get(table, cls, key, where)
     if not isinstance(v, list) or not v:
         raise SpecError(f'{where}.{key} must be a non-empty list or "all"')
     return checks.listed_once([checks.one_of(x, kind, valid, f"{where}.{key}") for x in v], f"{where}.{key}")
 
 
-def _regions(table, where, size):
+def _upsets(t: dict, cls, where: str, size) -> dict:
+    """The single-upset keys [single] and [sizes] share (spec_types.UpsetSpec), checked."""
+    precisions = _names(t, cls, "precisions", where, "precision", encoding.PRECISIONS)
+    return {
+        "precisions": precisions,
+        "fields": _fields(t, cls, where),
+        "bits": _bits(t, cls, where, precisions),
+        "samples": _samples(t, cls, where),
+        "sampling": checks.one_of(_get(t, cls, "sampling", where), "sampling", SAMPLINGS, f"{where}.sampling"),
+        "defenses": _names(t, cls, "defenses", where, "defense", DEFENSES),
+        "regions": _regions(t, cls, where, size),
+    }
+
+
+def _regions(table, cls, where, size):
     """Sort-first partition sizes P for contamination columns (regions_pred_P, regions_meas_P);
     each must fit the tile-aligned region grid of the frame (render/regions.py)."""
     from seuwgpu.render.regions import region_grid
 
-    v = table.get("regions", [])
+    v = list(_get(table, cls, "regions", where))
     if not isinstance(v, list) or not all(isinstance(p, int) and not isinstance(p, bool) for p in v):
         raise SpecError(f"{where}.regions must be a list of partition sizes, e.g. [4, 16, 64]")
     for p in v:
@@ -304,22 +250,22 @@ def _regions(table, where, size):
     return sorted(set(v))
 
 
-def _fault(table, out, where):
+def _fault(table, cls, out, where):
     """The fault model, recorded only when not the default single-bit flip (older specs keep their
     hash)."""
     from seuwgpu.faults.sites import check_site_model
 
-    v = table.get("fault", "bit")
+    v = _get(table, cls, "fault", where)
     try:
         check_site_model(v)
     except ValueError as e:
         raise SpecError(f"{where}.fault: {e}") from None
-    if v != "bit":
+    if v != toml_default(cls, "fault"):
         out["fault"] = v
 
 
 def _name(raw) -> str:
-    v = raw.get("name", "campaign")
+    v = _get(raw, Spec, "name", "spec")
     if not isinstance(v, str) or not v.strip():
         raise SpecError(f"name must be a non-empty string, got {v!r}")
     return v
@@ -331,12 +277,11 @@ def dose_levels(k_max: int, points: int) -> list[int]:
 
 
 def _outcomes(t) -> dict:
-    from seuwgpu.metrics.image import FOOTPRINT_THRESHOLD, PIXEL_THRESHOLD
 
-    _keys(t, {"pixel_threshold", "footprint"}, "outcomes")
+    _keys(t, OutcomesSpec, "outcomes")
     out = {}
-    for key, default in (("pixel_threshold", PIXEL_THRESHOLD), ("footprint", FOOTPRINT_THRESHOLD)):
-        v = t.get(key, default)
+    for key in key_names(OutcomesSpec):
+        v = _get(t, OutcomesSpec, key, "outcomes")
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < 1:
             raise SpecError(f"outcomes.{key} must be a number in [0, 1), got {v!r}")
         out[key] = float(v)
@@ -344,7 +289,7 @@ def _outcomes(t) -> dict:
 
 
 def _reliability(t) -> dict:
-    _keys(t, {"scrub_hours", "rates", "check_every", "frames_per_second"}, "reliability")
+    _keys(t, ReliabilitySpec, "reliability")
     out = {}
     if "check_every" in t:
         v = t["check_every"]
@@ -365,7 +310,7 @@ def _reliability(t) -> dict:
             raise SpecError("reliability.rates must be a non-empty list of {environment, per_bit_hour, source}")
         out["rates"] = []
         for i, r in enumerate(rates):
-            _keys(r, {"environment", "per_bit_hour", "source"}, f"reliability.rates[{i}]")
+            _keys(r, RateSpec, f"reliability.rates[{i}]")
             lam = checks.number(r.get("per_bit_hour"), f"reliability.rates[{i}].per_bit_hour")
             if not isinstance(r.get("environment"), str) or not isinstance(r.get("source"), str):
                 raise SpecError(f"reliability.rates[{i}] needs environment and source (strings)")
@@ -415,13 +360,13 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
 def _normalize(raw: dict, base_dir: Path | None) -> Spec:
     from seuwgpu.model.scenes import is_capture, list_scenes, make_scene
 
-    _keys(raw, _TOP, "the spec")
+    _keys(raw, Spec, "the spec")
     spec = {
         "name": _name(raw),
-        "seed": _int(raw, "seed", "spec", 0, 0, SEED_MAX),
-        "views": checks.views(raw.get("views", 4), "spec.views"),
-        "size": list(checks.image_size(raw.get("size", "256x256"))),
-        "batch": _int(raw, "batch", "spec", 256, 1, 65536),
+        "seed": _int(raw, Spec, "seed", "spec", 0, SEED_MAX),
+        "views": checks.views(_get(raw, Spec, "views", "spec"), "spec.views"),
+        "size": list(checks.image_size(_get(raw, Spec, "size", "spec"))),
+        "batch": _int(raw, Spec, "batch", "spec", 1, 65536),
     }
     if "scale" in raw:  # recorded only when given, so older specs keep their hash
         spec["scale"] = checks.scale(raw["scale"])
@@ -440,18 +385,21 @@ def _normalize(raw: dict, base_dir: Path | None) -> Spec:
     held = {}  # scene index -> primitives of a capture or a model file (what a [sizes] n may not exceed)
     for i, s in enumerate(scenes):
         where = f"scenes[{i}]"
-        _keys(s, _SCENE, where)
+        _keys(s, SceneSpec, where)
         if sum(k in s for k in ("scene", "model", "ply")) != 1:
             raise SpecError(f"{where} needs exactly one of scene = NAME or model = FILE (ply = FILE is an alias)")
-        out = {"sh_degree": _int(s, "sh_degree", where, 3, 0, 3), "seed": _int(s, "seed", where, 0, 0, SEED_MAX)}
+        out = {
+            "sh_degree": _int(s, SceneSpec, "sh_degree", where, 0, 3),
+            "seed": _int(s, SceneSpec, "seed", where, 0, SEED_MAX),
+        }
         if "scene" in s:
             out["scene"] = checks.one_of(s["scene"], "scene", list_scenes(), f"{where}.scene")
             checks.lod_of_a_model_file(s.get("lod"), s["scene"], f"{where}.lod")
             if is_capture(s["scene"]):
                 held[i] = make_scene(s["scene"]).n
-                out["n"] = _int(s, "n", where, held[i], 1, held[i])
+                out["n"] = _int({"n": held[i], **s}, SceneSpec, "n", where, 1, held[i])  # all of it by default
             else:
-                out["n"] = _int(s, "n", where, 100_000, 1)
+                out["n"] = _int(s, SceneSpec, "n", where, 1)
         else:
             key = "model" if "model" in s else "ply"
             if "n" in s:  # refused, not ignored, as --n with --model (a [sizes] sweep cuts a file)
@@ -493,40 +441,31 @@ def _normalize(raw: dict, base_dir: Path | None) -> Spec:
     if "reliability" in raw:
         spec["reliability"] = _reliability(raw["reliability"])
     if "summary" in raw:
-        _keys(raw["summary"], {"target"}, "summary")
-        spec["summary"] = {"target": checks.proportion(raw["summary"].get("target", 0.001), "summary.target", "0.001")}
+        _keys(raw["summary"], SummarySpec, "summary")
+        target = _get(raw["summary"], SummarySpec, "target", "summary")
+        spec["summary"] = {"target": checks.proportion(target, "summary.target", "0.001")}
     if not any(k in raw for k in ("single", "dose", "sizes")):
         raise SpecError("the spec needs at least one of [single], [dose], [sizes]")
     if "single" in raw:
         t = raw["single"]
-        _keys(t, _SINGLE, "single")
-        precisions = _names(t, "precisions", "single", ["fp32"], "precision", encoding.PRECISIONS)
-        spec["single"] = {
-            "precisions": precisions,
-            "fields": _fields(t, "single"),
-            "bits": _bits(t, "single", precisions),
-            "samples": _samples(t, "single", 20),
-            "sampling": t.get("sampling", "stratified"),
-            "defenses": _names(t, "defenses", "single", ["none", "guard"], "defense", DEFENSES),
-            "regions": _regions(t, "single", spec["size"]),
-        }
+        _keys(t, UpsetSpec, "single")
+        spec["single"] = _upsets(t, UpsetSpec, "single", spec["size"])
         _no_missing_fields(t, "single", spec["scenes"])
-        _fault(t, spec["single"], "single")
-        checks.one_of(spec["single"]["sampling"], "sampling", ("stratified", "uniform"), "single.sampling")
+        _fault(t, UpsetSpec, spec["single"], "single")
     if "dose" in raw:
         t = raw["dose"]
-        _keys(t, _DOSE, "dose")
+        _keys(t, DoseSpec, "dose")
         if "k" in t and ("k_max" in t or "points" in t):
             raise SpecError("dose: give either k = [...] or k_max and points, not both")
         if "k" in t:
-            ks = _counts(t, "k", "dose")
+            ks = _counts(t, DoseSpec, "k", "dose")
         else:
-            ks = dose_levels(_int(t, "k_max", "dose", 20_000, 1), _int(t, "points", "dose", 12, 1, 200))
+            ks = dose_levels(_int(t, DoseSpec, "k_max", "dose", 1), _int(t, DoseSpec, "points", "dose", 1, 200))
         spec["dose"] = {
-            "precisions": _names(t, "precisions", "dose", ["fp32"], "precision", encoding.PRECISIONS),
+            "precisions": _names(t, DoseSpec, "precisions", "dose", "precision", encoding.PRECISIONS),
             "k": sorted(set(int(k) for k in ks)),
-            "repeats": _int(t, "repeats", "dose", 3, 1),
-            "defenses": _names(t, "defenses", "dose", ["none", "guard"], "defense", DEFENSES),
+            "repeats": _int(t, DoseSpec, "repeats", "dose", 1),
+            "defenses": _names(t, DoseSpec, "defenses", "dose", "defense", DEFENSES),
         }
         for i, sc in enumerate(spec["scenes"]):  # model files: checked when loaded (runner)
             for p in spec["dose"]["precisions"]:
@@ -539,8 +478,8 @@ def _normalize(raw: dict, base_dir: Path | None) -> Spec:
                     )
     if "sizes" in raw:
         t = raw["sizes"]
-        _keys(t, _SIZES, "sizes")
-        which = t.get("scenes", [0])
+        _keys(t, SizesSpec, "sizes")
+        which = _get(t, SizesSpec, "scenes", "sizes")
         if which == "all":
             which = list(range(len(spec["scenes"])))
         if (
@@ -549,7 +488,7 @@ def _normalize(raw: dict, base_dir: Path | None) -> Spec:
             or not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(spec["scenes"]) for i in which)
         ):
             raise SpecError(f'sizes.scenes must be "all" or a list of [[scenes]] indices 0..{len(spec["scenes"]) - 1}')
-        ns = _counts(t, "n", "sizes")
+        ns = _counts(t, SizesSpec, "n", "sizes")
         for i in which:
             # a procedural scene is generated at each n; a capture or a model file is cut to a
             # seeded random subset of n (model/fields.py Model.sample), framed as the whole model
@@ -557,21 +496,11 @@ def _normalize(raw: dict, base_dir: Path | None) -> Spec:
             name, have = sc.get("scene") or sc["model"], held.get(i)
             if have is not None and max(ns) > have:
                 raise SpecError(f"sizes.n: {name} has {have} primitives; n must not exceed it (got {max(ns)})")
-        precisions = _names(t, "precisions", "sizes", ["fp32"], "precision", encoding.PRECISIONS)
-        spec["sizes"] = {
-            "n": sorted(set(ns)),
-            "precisions": precisions,
-            "fields": _fields(t, "sizes"),
-            "bits": _bits(t, "sizes", precisions),
-            "samples": _samples(t, "sizes", 10),
-            "sampling": t.get("sampling", "stratified"),
-            "defenses": _names(t, "defenses", "sizes", ["none"], "defense", DEFENSES),
-            "regions": _regions(t, "sizes", spec["size"]),
-        }
+        spec["sizes"] = {"n": sorted(set(ns)), **_upsets(t, SizesSpec, "sizes", spec["size"])}
         _no_missing_fields(t, "sizes", [spec["scenes"][i] for i in which])
         if "scenes" in t:  # recorded only when given (the first scene by default), older hashes stay
             spec["sizes"]["scenes"] = sorted(set(which))
-        _fault(t, spec["sizes"], "sizes")
+        _fault(t, SizesSpec, spec["sizes"], "sizes")
     return Spec.from_dict(spec)
 
 
@@ -598,3 +527,6 @@ def load_spec(path) -> Spec:
     except OSError as e:
         raise SpecError(f"{path}: cannot be read ({e.strerror or e})") from None
     return normalize_spec(raw, path.resolve().parent)
+
+
+__doc__ += "\n" + reference() + "\n"
