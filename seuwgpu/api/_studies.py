@@ -16,7 +16,7 @@ from seuwgpu.api._checks import (
     view_list,
 )
 from seuwgpu.errors import InputError
-from seuwgpu.faults.defenses import DEFENSES
+from seuwgpu.faults.defenses import DEFENSES, pipeline_guards
 from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY
 from seuwgpu.faults.sites import (
     FAULT_MODELS,
@@ -198,11 +198,13 @@ def sort_first(
     repeats: int = 3,
     precision: str = "fp32",
     address: str | None = None,
+    guard_variant: str = "guard",
 ) -> list[dict]:
     """Sort-first rendering over Ray ranks (campaign/sortfirst.py; needs `seuwgpu[ray]`): for each
     rank count P, the per-rank render times and, with `upset` ("field:bit", e.g. "log_scales:31",
     applied to every rank's copy), the ranks it contaminates with and without the node-local
-    `guard` ("scrub" the stored copy, or "clamp" in the pipeline). Without `primitive`, the most
+    `guard` ("scrub" the stored copy, or "clamp" in the pipeline) of the fields `guard_variant`
+    clamps ("guard", "guard_all", ...: a defense with guard fields). Without `primitive`, the most
     harmful of `sample` primitives. Prints a table per rank count; returns the results."""
     from seuwgpu.campaign.ray import INSTALL_HINT, ray_available
     from seuwgpu.campaign.sortfirst import parse_upset, sort_first_tables
@@ -213,6 +215,7 @@ def sort_first(
         checks.integer(p, "ranks", 1)
     parsed = None if upset is None else parse_upset(upset)
     kw = {"component": component, "primitive": primitive, "sample": sample, "seed": seed, "guard": guard}
+    kw["guard_variant"] = checks.one_of(guard_variant, "guard variant", pipeline_guards())
     return sort_first_tables(
         model_from(scene), view_list(views), encoding.check_precision(precision), list(ranks), parsed,
         address=address, repeats=repeats, **kw,

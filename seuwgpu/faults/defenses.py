@@ -438,6 +438,20 @@ def pipeline_guards() -> dict[str, tuple[str, ...]]:
     return {d.name: d.guard_fields for d in REGISTRY.values() if d.guard_fields}
 
 
+def guard_arm(ran) -> str | None:
+    """The support-guard arm of a run's defenses (`ran`), the one its analyses set beside `none`:
+    `guard` where it ran, else the first other pipeline guard in registry order (guard_all for a
+    run that clamps every field); None where no guard ran."""
+    ran = set(ran)
+    return next((name for name in pipeline_guards() if name in ran), None)
+
+
+def guard_arms(ran) -> tuple[str, ...]:
+    """("none", the run's guard arm): each where it ran, in that order."""
+    ran = set(ran)
+    return tuple(d for d in ("none", guard_arm(ran)) if d is not None and d in ran)
+
+
 def checked(name: str) -> CheckedDefense:
     """The registered defense `name`, which must have a per-primitive check."""
     d = get(name)
