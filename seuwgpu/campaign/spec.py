@@ -237,7 +237,8 @@ def _regions(table, cls, where, size):
     each must fit the tile-aligned region grid of the frame (render/regions.py)."""
     from seuwgpu.render.regions import region_grid
 
-    v = list(_get(table, cls, "regions", where))
+    v = _get(table, cls, "regions", where)
+    v = list(v) if isinstance(v, tuple) else v  # the default, ()
     if not isinstance(v, list) or not all(isinstance(p, int) and not isinstance(p, bool) for p in v):
         raise SpecError(f"{where}.regions must be a list of partition sizes, e.g. [4, 16, 64]")
     for p in v:
