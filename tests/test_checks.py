@@ -73,7 +73,7 @@ def test_a_level_of_an_embedded_scene_is_refused_once_worded(capsys, tmp_path):
     assert cli == "seuwgpu render: error: --lod " + problem + "an embedded scene"
 
 
-def test_a_bit_out_of_range_and_an_unknown_name_one_wording(scene):
+def test_a_bit_out_of_range_and_an_unknown_name_one_wording(scene, capsys, tmp_path):
     problem = "bit 16 is out of range for fp16 (valid bits are 0..15)"
     with pytest.raises(InputError) as api:
         sg.inject(scene, sg.cameras(scene, views=1, size=(16, 16)), field="opacity", bit=16, precision="fp16")
@@ -83,6 +83,14 @@ def test_a_bit_out_of_range_and_an_unknown_name_one_wording(scene):
     with pytest.raises(InputError, match="^" + expected):
         sg.inject(scene, [], field="opacity", bit=3, defenses=["armour"])
     assert spec_error(spec(single={"defenses": ["none", "armour"]})) == "single.defenses: " + expected
+    cli = cli_error(capsys, ["storm", "--defense", "none", "armour", "--out", str(tmp_path / "s")])
+    assert cli.endswith("argument --defense: " + expected)
+    precision = "unknown precision 'fp8'; expected one of fp32, fp16, bf16"
+    assert spec_error(spec(single={"precisions": ["fp8"]})) == "single.precisions: " + precision
+    cli = cli_error(capsys, ["render", "--precision", "fp8", "--out", str(tmp_path / "r.npz")])
+    assert cli.endswith("argument --precision: " + precision)
+    with pytest.raises(InputError, match="^" + precision + "$"):
+        sg.render_views(scene, sg.cameras(scene, views=1, size=(16, 16)), precision="fp8")
     field = "unknown field 'colour'; expected one of " + ", ".join(sg.FIELDS)
     assert spec_error(spec(single={"fields": ["colour"]})) == "single.fields: " + field
 

@@ -11,6 +11,7 @@ from seuwgpu.apps.cli.options import (
     add_camera_args,
     add_model_args,
     add_profile_arg,
+    defense_name,
     index_int,
     load_cams,
     load_source,
@@ -91,7 +92,7 @@ def defenses_arguments(s: argparse.ArgumentParser):
     s.add_argument(
         "--visible-defenses",
         nargs="+",
-        choices=DEFENSE_NAMES,
+        type=defense_name,
         metavar="DEFENSE",
         help="the arms of --visible (default: every defense)",
     )
@@ -193,7 +194,7 @@ def worstcase_arguments(s: argparse.ArgumentParser):
         "--defense",
         nargs="+",
         default=["none"],
-        choices=DEFENSE_NAMES,
+        type=defense_name,
         metavar="DEFENSE",
         help=f"defenses to search under, each on its own (default none; {', '.join(DEFENSE_NAMES)})",
     )
@@ -258,7 +259,7 @@ def storm_arguments(s: argparse.ArgumentParser):
         "--defense",
         nargs="+",
         default=["none", "guard", "parity4r"],
-        choices=DEFENSE_NAMES,
+        type=defense_name,
         metavar="DEFENSE",
         help=f"arms, each seeing the same upsets (default none guard parity4r; {', '.join(DEFENSE_NAMES)})",
     )

@@ -7,8 +7,9 @@ import sys
 from pathlib import Path
 
 from seuwgpu.errors import InputError, SeuwgpuError
+from seuwgpu.faults.defenses import check_defense
 from seuwgpu.model import checks
-from seuwgpu.model.encoding import PRECISIONS
+from seuwgpu.model.encoding import PRECISIONS, check_precision
 from seuwgpu.model.formats import UP_AXES
 
 
@@ -28,6 +29,15 @@ def argument_type(check):
 
     parse.__name__ = check.__name__
     return parse
+
+
+precision_name = argument_type(check_precision)
+defense_name = argument_type(check_defense)
+
+
+def one_of_metavar(names) -> str:
+    """How argparse shows a `choices` option's names ({a,b,c}), for one checked by its type."""
+    return "{" + ",".join(names) + "}"
 
 
 @argument_type
@@ -117,7 +127,9 @@ def add_model_args(p: argparse.ArgumentParser, seed_draws: str | None = None):
     else:
         p.add_argument("--seed", type=int, help="seed of an embedded scene (default 0)")
     p.set_defaults(seed_draws=bool(seed_draws))
-    p.add_argument("--precision", choices=PRECISIONS, default="fp32", help="stored precision")
+    p.add_argument(
+        "--precision", type=precision_name, metavar=one_of_metavar(PRECISIONS), default="fp32", help="stored precision"
+    )
     p.add_argument(
         "--up",
         choices=UP_AXES,
