@@ -392,6 +392,15 @@ def reference(indent: str = "    ") -> str:
     return "\n\n".join(blocks)
 
 
+def stored_table(manifest: dict, key: str):
+    """The typed `[key]` table (Spec.TABLES: reliability, summary, ...) of a run manifest's
+    stored spec, or None where it has none (or the manifest no spec). One table is read, not the
+    whole spec: the analyses take manifests of runs written by older versions, and parts of them."""
+    spec = manifest.get("spec") if isinstance(manifest, dict) else None
+    table = spec.get(key) if isinstance(spec, dict) else None
+    return Spec.TABLES[key].from_dict(table) if isinstance(table, dict) else None
+
+
 def spec_dict(spec: Spec | dict) -> dict:
     """The stored form of a spec (a manifest's is one already)."""
     return spec.to_dict() if isinstance(spec, Spec) else spec
