@@ -120,9 +120,9 @@ class SceneSpec(_Stored):
         example="2",
         alternative=True,
     )
-    up: str | None = key("up axis of the orbit views (default: the format's)", default=None, example='"-y"')
+    up: str | None = key("optional: up axis of the orbit views (default: the format's)", default=None, example='"-y"')
     cameras: str | None = key(
-        "the capture's cameras (CAMS.json, INRIA cameras.json, a COLMAP model folder, nerfstudio "
+        "optional: the capture's cameras (CAMS.json, INRIA cameras.json, a COLMAP model folder, nerfstudio "
         "transforms.json) instead of orbits; their views keep their own sizes, so not with `size =` (use scale)",
         default=None,
         example='"cameras.json"',
@@ -136,7 +136,7 @@ _FAULTS = (
     "replaced by random bits / 0: one cell per field, bits ignored)"
 )
 _REGIONS = (
-    "sort-first contamination columns regions_pred_P and regions_meas_P (int64 bitmasks of the P regions "
+    "optional: sort-first contamination columns regions_pred_P and regions_meas_P (int64 bitmasks of the P regions "
     "reached/changed in any view), regions_pred_frame_P and regions_meas_frame_P (the share one view's frame "
     "reaches, averaged over the views)"
 )
@@ -188,7 +188,7 @@ class SizesSpec(UpsetSpec):
         example="[5000, 20000, 80000]",
     )
     scenes: tuple[int, ...] | None = key(
-        '[[scenes]] indices swept, or "all" (default: [0], the first)', default=None, toml=[0]
+        'optional: [[scenes]] indices swept, or "all" (default: [0], the first)', default=None, toml=[0]
     )
     samples: int = key(_SAMPLES, toml=10)
     defenses: tuple[str, ...] = key("`seuwgpu defenses` lists them all", toml=["none"])
@@ -294,19 +294,23 @@ class Spec(_Stored):
     size: tuple[int, int] = key("WxH of orbit views", toml="256x256")
     batch: int = key("injections per GPU batch and per Parquet part", toml=256)
     scenes: tuple[SceneSpec, ...] = key("one or more")
-    scale: float | None = key("render at this fraction of the views' resolution", default=None, example="0.25")
+    scale: float | None = key(
+        "optional: render at this fraction of the views' resolution", default=None, example="0.25"
+    )
     profile: str | None = key(
-        'renderer profile: "strict" or "gsplat" (docs/renderer.md)', default=None, example='"strict"'
+        'optional renderer profile: "strict" or "gsplat" (docs/renderer.md)', default=None, example='"strict"'
     )
     lpips: bool = key(
-        "LPIPS (AlexNet) of every record, re-rendered in full (slow: ~1 s per 256 px view on a CPU; "
+        "optional: LPIPS (AlexNet) of every record, re-rendered in full (slow: ~1 s per 256 px view on a CPU; "
         "pip install 'seuwgpu[lpips]')",
         default=False,
         example="true",
     )
-    outcomes: OutcomesSpec | None = key("outcome-class thresholds (defaults: the paper's)", default=None)
-    reliability: ReliabilitySpec | None = key("inputs of the MTBF analysis (they change no injection)", default=None)
-    summary: SummarySpec | None = key("the report's opening summary (it changes no injection)", default=None)
+    outcomes: OutcomesSpec | None = key("optional: outcome-class thresholds (defaults: the paper's)", default=None)
+    reliability: ReliabilitySpec | None = key(
+        "optional: inputs of the MTBF analysis (they change no injection)", default=None
+    )
+    summary: SummarySpec | None = key("optional: the report's opening summary (it changes no injection)", default=None)
     single: UpsetSpec | None = key("single upsets, stratified by (field, bit) cell", default=None)
     dose: DoseSpec | None = key("k simultaneous upsets drawn uniformly over the whole bit budget", default=None)
     sizes: SizesSpec | None = key("primitive-count sweep: single upsets at each N", default=None)
