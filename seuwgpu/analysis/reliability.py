@@ -63,6 +63,7 @@ from seuwgpu.analysis.records import (
 )
 from seuwgpu.campaign.spec_types import stored_table
 from seuwgpu.faults.defenses import REGISTRY as dfn_registry
+from seuwgpu.faults.defenses import guard_arm
 from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY, check_every_of
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import field_components, n_components, sh_rest_count
@@ -476,7 +477,8 @@ def reliability(
     checked = [d for d in pd.unique(pc["defense"]) if d in dfn_registry and dfn_registry[d].checked]
     if exposure is None and checked:  # what a check repairs is drawn until the check: counted
         exposure = {d: check_exposure(check_every_of(check_every, d), fps * 3600.0) for d in checked}
-    defenses = ("none", "guard", *checked)
+    guard = guard_arm(pc["defense"])  # a run without guard: its own guard (guard_all, ...) beside none
+    defenses = ("none", "guard", *([guard] if guard not in (None, "guard") else []), *checked)
     models = models_in(s)
     per_model = len(models) > 1
     if per_model and bits is not None and not isinstance(bits, dict):
