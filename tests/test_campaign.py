@@ -570,7 +570,7 @@ def test_outcome_and_reliability_tables_of_the_spec():
     for bad, what in (
         ({"reliability": {"check_every": 0}}, "reliability.check_every"),
         ({"reliability": {"check_every": 2.5}}, "reliability.check_every"),
-        ({"reliability": {"check_every": {"guard": 3}}}, "'guard' is not a check defense"),
+        ({"reliability": {"check_every": {"guard": 3}}}, "unknown check defense 'guard'; expected one of parity"),
         ({"reliability": {"check_every": {"parity4r": 0}}}, "reliability.check_every.parity4r"),
         ({"reliability": {"frames_per_second": -30}}, "reliability.frames_per_second"),
         ({"outcomes": {"footprint": 2}}, "outcomes.footprint"),
@@ -766,3 +766,64 @@ def test_the_spec_is_typed_and_its_stored_form_round_trips():
         spec.seed = 4
     with pytest.raises(SpecError, match=r"^unknown key 'sampels' in single \(allowed: "):
         normalize_spec({"scenes": [{"scene": "spheres"}], "single": {"sampels": 2}})
+
+
+def test_each_spec_key_is_written_once_and_the_checker_the_defaults_and_the_docstring_agree():
+    """campaign/spec_types.py writes each key once; the checker's key sets, the defaults a spec
+    that leaves a key out gets and the docstring's reference are derived from it: every table
+    refuses a key it does not hold naming exactly its keys (hand-listed here), and a minimal spec
+    gets the defaults the docstring shows (hand-written here)."""
+    import re
+
+    from seuwgpu.campaign import spec as spec_module
+    from seuwgpu.campaign.spec_types import DoseSpec, SceneSpec, SizesSpec, Spec, UpsetSpec, key_names
+
+    upset = ["bits", "defenses", "fault", "fields", "precisions", "regions", "samples", "sampling"]
+    tables = {
+        "the spec": (
+            Spec,
+            [
+                "batch",
+                "dose",
+                "lpips",
+                "name",
+                "outcomes",
+                "profile",
+                "reliability",
+                "scale",
+                "scenes",
+                "seed",
+                "single",
+                "size",
+                "sizes",
+                "summary",
+                "views",
+            ],
+        ),
+        "scenes[0]": (SceneSpec, ["cameras", "lod", "model", "n", "ply", "scene", "seed", "sh_degree", "up"]),
+        "single": (UpsetSpec, upset),
+        "sizes": (SizesSpec, sorted([*upset, "n", "scenes"])),
+        "dose": (DoseSpec, ["defenses", "k", "k_max", "points", "precisions", "repeats"]),
+    }
+    for where, (cls, keys) in tables.items():
+        assert sorted(key_names(cls)) == keys
+        raw = {"scenes": [{"scene": "spheres", "n": 100}], "single": {}, "sizes": {"n": [10]}, "dose": {"k": [1]}}
+        table = raw if where == "the spec" else raw["scenes"][0] if where == "scenes[0]" else raw[where]
+        table["zz"] = 1
+        with pytest.raises(SpecError, match=re.escape(f"unknown key 'zz' in {where} (allowed: {', '.join(keys)})")):
+            normalize_spec(raw)
+    spec = normalize_spec({"scenes": [{"scene": "spheres"}], "single": {}, "sizes": {"n": [10]}, "dose": {}})
+    assert (spec.name, spec.seed, spec.views, spec.size, spec.batch) == ("campaign", 0, 4, (256, 256), 256)
+    assert (spec.scenes[0].n, spec.scenes[0].sh_degree, spec.scenes[0].seed) == (100_000, 3, 0)
+    assert (spec.single.samples, spec.single.defenses, spec.single.sampling) == (20, ("none", "guard"), "stratified")
+    assert (spec.sizes.samples, spec.sizes.defenses, spec.sizes.scene_indices) == (10, ("none",), (0,))
+    assert spec.dose.repeats == 3 and len(spec.dose.k) == 12 and spec.dose.k[-1] == 20_000
+    doc = spec_module.__doc__
+    for line in (
+        "    samples = 20 ",
+        "    samples = 10 ",
+        "    n = 100000 ",
+        '    defenses = ["none"] ',
+        "    repeats = 3 ",
+    ):
+        assert line in doc

@@ -291,7 +291,7 @@ def test_the_command_line_and_a_spec_share_the_size_and_view_limits(capsys):
 
     from seuwgpu.apps.cli import build_parser
     from seuwgpu.campaign.spec import SpecError, normalize_spec
-    from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, MIN_VIEW_SIZE
+    from seuwgpu.model.checks import MAX_SCALE, MAX_VIEWS, MIN_VIEW_SIZE
 
     required = {"render": ["--out", "o"], "inject": ["--field", "opacity", "--bit", "3", "--out", "o"]}
 

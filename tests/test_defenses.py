@@ -471,3 +471,17 @@ def test_reads_stored_bits_says_which_defenses_change_what_is_read(real):
         got = dfn.read(d, rows, bad, p, 3, box, prims, cells)
         assert np.array_equal(got, bad) == dfn.get(d).reads_stored_bits, d
         assert bool(dfn.get(d).guard_fields) <= dfn.get(d).reads_stored_bits or d == "scalebound", d
+
+
+def test_the_guard_arm_is_the_guard_the_run_ran():
+    """The none/guard comparisons of the report take the run's own guard: `guard` where it ran
+    (the paper's; a run with guard and guard_all keeps it), else the other pipeline guard it ran
+    in registry order (guard_all for a run that clamps every field); none without a guard."""
+    from seuwgpu.faults.defenses import guard_arm, guard_arms
+
+    assert guard_arm(["none", "guard", "parity4r"]) == "guard"
+    assert guard_arm(["guard_all", "none", "guard"]) == "guard"
+    assert guard_arm(["none", "guard_all", "parity4r"]) == "guard_all"
+    assert guard_arm(["none", "parity4r"]) is None
+    assert guard_arms(["parity4r", "guard_all", "none"]) == ("none", "guard_all")
+    assert guard_arms(["guard"]) == ("guard",) and guard_arms(["parity4r"]) == ()

@@ -170,9 +170,9 @@ def test_spec_model_cameras_scale_and_capture_defaults(tmp_path):
     spec = normalize_spec({**base, "scenes": [{"scene": "yashica-t4", "up": "+y"}]})
     assert spec.scenes[0].n == 8192 and spec.scenes[0].up == "+y"
     for bad, frag in (
-        ({"scenes": [{"scene": "leica-sofort", "n": 9000}]}, "out of range"),
+        ({"scenes": [{"scene": "leica-sofort", "n": 9000}]}, r"^scenes\[0\]\.n must be at most 8192, got 9000$"),
         ({"scenes": [{"scene": "spheres", "model": "m.spz"}]}, "exactly one"),
-        ({"scenes": [{"scene": "spheres", "up": "up"}]}, "no axis"),
+        ({"scenes": [{"scene": "spheres", "up": "up"}]}, "unknown up axis 'up'; expected one of"),
         ({"scenes": [{"scene": "spheres"}], "scale": 0}, "scale"),
         ({"scenes": [{"scene": "leica-sofort"}], "sizes": {"n": [100, 10000]}}, "8192"),
     ):

@@ -192,7 +192,7 @@ def test_every_command_taking_a_model_takes_its_level(lod_set, tmp_path, capsys)
     assert_same(src.model, [tile(lod_set, "1_0", 0, 12)])
     assert src.name == "garden-lod1" and "LOD set: level 1 of 2" in capsys.readouterr().err
     assert main(["render", "--scene", "spheres", "--lod", "1", "--out", str(tmp_path / "r.npz")]) == 2
-    assert "--lod picks a level of a PlayCanvas LOD set given with --model" in capsys.readouterr().err
+    assert "--lod picks a level of a PlayCanvas LOD set (a model file: lod-meta.json" in capsys.readouterr().err
     assert main(["render", "--model", str(lod_set), "--lod", "4", "--out", str(tmp_path / "r.npz")]) != 0
     assert "has no level 4; it has levels 0-1" in capsys.readouterr().err
 
@@ -203,7 +203,7 @@ def test_api_load_model_takes_the_level(lod_set):
 
     scene = api.load_model(lod_set / "lod-meta.json", lod=1)
     assert scene.name == "garden-lod1" and scene.model.n == 12
-    with pytest.raises(InputError, match="lod picks a level of a PlayCanvas LOD set .*not of the scene 'spheres'"):
+    with pytest.raises(InputError, match="^lod picks a level of a PlayCanvas LOD set .*embedded scene 'spheres'$"):
         api.load_model("spheres", lod=1)
 
 

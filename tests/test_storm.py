@@ -290,3 +290,43 @@ def test_a_storm_of_multi_cell_upsets_defeats_parity4r_and_not_the_checksum():
     chk = df[df.defense == "checksum"].set_index("frame")  # corrupted before the check: that frame's only
     assert chk.loc[frames - 1, "corrupted_primitives"] == len({s.primitive for s in shaped[-1]})
     assert (chk.peak_error == 0).all() and (p4.peak_error > 0).any()
+
+
+def test_the_run_identity_names_files_by_content_and_the_resolved_up(tmp_path):
+    """campaign/partial.py run_identity (what the CLI's storm and state resume by, and what an API
+    user's own resumable loop can use): an embedded scene by its name, size and degree; a model
+    file by the sha256 of its content, whatever path reaches it; the up axis as resolved."""
+    import hashlib
+    import shutil
+
+    from seuwgpu.campaign.partial import run_identity
+    from seuwgpu.model.formats import save_model
+    from seuwgpu.model.sources import load_source
+
+    src = load_source(scene="blocks", n=50)
+    views = [None, None]
+    common = {"sh_degree": 3, "seed": 0, "size": (16, 24), "scale": None, "precision": "fp32", "profile": "strict"}
+    run = run_identity("storm", src, views, **common, k=3)
+    assert run == {
+        "command": "storm",
+        "model": None,
+        "scene": "blocks",
+        "n": 50,
+        "sh-degree": 3,
+        "seed": 0,
+        "up": "+z",
+        "cameras": None,
+        "views": 2,
+        "size": "16x24",
+        "scale": 1.0,
+        "precision": "fp32",
+        "profile": "strict",
+        "k": 3,
+    }
+    save_model(src.model, tmp_path / "m.ply")
+    (tmp_path / "other").mkdir()
+    shutil.copy(tmp_path / "m.ply", tmp_path / "other" / "m.ply")
+    sha = "sha256:" + hashlib.sha256((tmp_path / "m.ply").read_bytes()).hexdigest()
+    for path in (tmp_path / "m.ply", tmp_path / "other" / "m.ply"):
+        run = run_identity("state", load_source(path=path), views, model=path, **common)
+        assert run["model"] == sha and run["scene"] is None and run["n"] is None and run["sh-degree"] is None

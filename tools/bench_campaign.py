@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from seuwgpu.faults.defenses import check_defense  # noqa: E402
 from seuwgpu.faults.engine import Engine  # noqa: E402
 from seuwgpu.model import encoding  # noqa: E402
-from seuwgpu.model.budget import parse_size  # noqa: E402
+from seuwgpu.model.checks import image_size as parse_size  # noqa: E402
 from seuwgpu.model.fields import FIELDS, field_components  # noqa: E402
 from seuwgpu.model.scenes import make_scene, scene_cameras  # noqa: E402
 

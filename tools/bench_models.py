@@ -39,7 +39,7 @@ def measure(path: str, views: int, size: str, repeats: int, samples: int, arms: 
 
     import seuwgpu.api as sg
     from seuwgpu.faults.engine import Engine
-    from seuwgpu.model.budget import parse_size
+    from seuwgpu.model.checks import image_size as parse_size
     from seuwgpu.render.renderer import Renderer
 
     w, h = parse_size(size)

@@ -21,7 +21,7 @@ from seuwgpu.faults.check import Checker, FrameCheck  # noqa: E402
 from seuwgpu.faults.costs import interleaved_samples  # noqa: E402
 from seuwgpu.faults.schedule import median_interval  # noqa: E402
 from seuwgpu.model import encoding  # noqa: E402
-from seuwgpu.model.budget import parse_size  # noqa: E402
+from seuwgpu.model.checks import image_size as parse_size  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
 
 

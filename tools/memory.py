@@ -26,7 +26,7 @@ import wgpu
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from seuwgpu.model.budget import parse_size  # noqa: E402
+from seuwgpu.model.checks import image_size as parse_size  # noqa: E402
 from seuwgpu.model.scenes import make_scene, scene_cameras  # noqa: E402
 from seuwgpu.render.renderer import Renderer  # noqa: E402
 

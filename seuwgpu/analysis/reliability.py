@@ -61,7 +61,9 @@ from seuwgpu.analysis.records import (
     sort_rows,
     tag,
 )
+from seuwgpu.campaign.spec_types import stored_table
 from seuwgpu.faults.defenses import REGISTRY as dfn_registry
+from seuwgpu.faults.defenses import guard_arm
 from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY, check_every_of
 from seuwgpu.model import encoding
 from seuwgpu.model.fields import field_components, n_components, sh_rest_count
@@ -125,10 +127,11 @@ def format_duration(hours: float) -> str:
 def reliability_parameters(manifests: Iterable[dict] = ()) -> tuple[list[dict], float, str]:
     """(rates, scrub_hours, where they came from): the runs' [reliability] table, else defaults."""
     for m in manifests or ():
-        t = (m.get("spec") or {}).get("reliability")
-        if isinstance(t, dict):
-            rates = t.get("rates") or list(UPSET_RATES)
-            return list(rates), float(t.get("scrub_hours", DEFAULT_SCRUB_HOURS)), "run spec [reliability]"
+        t = stored_table(m, "reliability")
+        if t is not None:
+            rates = [r.to_dict() for r in t.rates] if t.rates else list(UPSET_RATES)
+            scrub = DEFAULT_SCRUB_HOURS if t.scrub_hours is None else t.scrub_hours
+            return rates, float(scrub), "run spec [reliability]"
     return list(UPSET_RATES), DEFAULT_SCRUB_HOURS, "defaults (sources in the table)"
 
 
@@ -140,10 +143,10 @@ def check_schedule(manifests: Iterable[dict] = ()) -> tuple[int | dict, float, s
     runs' [reliability] table, else defaults: how long what a check defense repairs is drawn
     before it is (check_exposure)."""
     for m in manifests or ():
-        t = (m.get("spec") or {}).get("reliability")
-        if isinstance(t, dict):
-            s = t.get("check_every")
-            fps = float(t.get("frames_per_second", DEFAULT_FRAMES_PER_SECOND))
+        t = stored_table(m, "reliability")
+        if t is not None:
+            s = t.check_every
+            fps = float(DEFAULT_FRAMES_PER_SECOND if t.frames_per_second is None else t.frames_per_second)
             if s is not None:
                 return (dict(s) if isinstance(s, dict) else int(s)), fps, "run spec [reliability]"
             return DEFAULT_CHECK_EVERY, fps, f"the default (S = {DEFAULT_CHECK_EVERY}; the spec names none)"
@@ -474,7 +477,8 @@ def reliability(
     checked = [d for d in pd.unique(pc["defense"]) if d in dfn_registry and dfn_registry[d].checked]
     if exposure is None and checked:  # what a check repairs is drawn until the check: counted
         exposure = {d: check_exposure(check_every_of(check_every, d), fps * 3600.0) for d in checked}
-    defenses = ("none", "guard", *checked)
+    guard = guard_arm(pc["defense"])  # a run without guard: its own guard (guard_all, ...) beside none
+    defenses = ("none", "guard", *([guard] if guard not in (None, "guard") else []), *checked)
     models = models_in(s)
     per_model = len(models) > 1
     if per_model and bits is not None and not isinstance(bits, dict):

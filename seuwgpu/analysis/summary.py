@@ -36,6 +36,7 @@ import pandas as pd
 
 from seuwgpu.analysis import estimate as E
 from seuwgpu.analysis.records import single_upsets
+from seuwgpu.campaign.spec_types import stored_table
 
 # the residual catastrophic rate per upset a defense must meet, unless the spec's
 # `[summary] target` or `seuwgpu report --target` says otherwise
@@ -48,9 +49,9 @@ MODEL = ["scene", "n_primitives"]
 def spec_target(manifests: Iterable[dict] = ()) -> float | None:
     """The `[summary] target` the runs' specs set (the first one set), or None."""
     for m in manifests or ():
-        t = ((m.get("spec") or {}).get("summary") or {}).get("target")
-        if t is not None:
-            return float(t)
+        t = stored_table(m, "summary")
+        if t is not None and t.target is not None:
+            return float(t.target)
     return None
 
 

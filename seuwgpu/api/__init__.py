@@ -25,7 +25,6 @@ input and the problem, as the command line prints it.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
@@ -43,10 +42,8 @@ from seuwgpu.api._checks import (
     out_path,
     paths_of,
     profile_name,
-    size_pair,
     spec_of,
     view_list,
-    whole,
 )
 from seuwgpu.api._injection import FRAME_FILE_FORMATS, Injection, injected_models, mean_lpips, plain, save_frames
 from seuwgpu.api._studies import defense_costs, sort_first, state_flips, storm, worst_case
@@ -59,8 +56,7 @@ from seuwgpu.faults.sites import (
     INJECT_SAMPLE,
 )
 from seuwgpu.gpu.constants import PROFILES
-from seuwgpu.model import corpus, encoding
-from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, MIN_VIEW_SIZE
+from seuwgpu.model import checks, corpus, encoding
 from seuwgpu.model.cameras import Camera, image_sizes
 from seuwgpu.model.corpus import CorpusModel
 from seuwgpu.model.fields import FIELDS, Model
@@ -137,8 +133,8 @@ def load_model(
     shape embedded scenes (`n` with a file is refused: a model file keeps all of its primitives);
     `up` overrides the up axis used to frame the model without cameras ("+z", "-y", ...); `lod` picks the level of
     a PlayCanvas LOD set (lod-meta.json or its folder; default 0, the finest), refused otherwise."""
-    if lod is not None and (isinstance(lod, bool) or not isinstance(lod, int) or lod < 0):
-        raise InputError(f"lod must be a level 0, 1, 2, ..., got {lod!r}")
+    if lod is not None:
+        checks.lod_level(lod)
     if not isinstance(source, (str, Path)):
         raise InputError(f"source must be a scene name or a model path, got {source!r}")
     path = Path(source)
@@ -149,8 +145,7 @@ def load_model(
             raise InputError(f"n sets the primitives of an embedded scene; a model file keeps all of its own ({path})")
         return load_source(path=path, up=up, lod=lod)
     name = str(source)
-    if lod is not None:
-        raise InputError(f"lod picks a level of a PlayCanvas LOD set (a model path), not of the scene {source!r}")
+    checks.lod_of_a_model_file(lod, name)
     if name not in list_scenes():
         raise InputError(f"{name!r} is neither a file nor an embedded scene; scenes: {', '.join(list_scenes())}")
     return load_source(scene=name, n=n, sh_degree=sh_degree, seed=seed, up=up)
@@ -171,16 +166,13 @@ def cameras(
     refused (as the command line refuses --size with --cameras), not ignored; use `scale`. The
     command line's limits hold here too: 1..64 views, sides of at least 16 px, scale in (0, 16]."""
     check_scene(scene)
-    if views is not None and whole(views, "views", 1) > MAX_VIEWS:
-        raise InputError(f"views must be at most {MAX_VIEWS}, got {views}")
+    if views is not None:
+        checks.views(views)
     if cameras is not None and size is not None:
         raise InputError("size sets orbit views; a cameras file gives each view its own size (use scale)")
-    w, h = size_pair((256, 256) if size is None else size)
-    if min(w, h) < MIN_VIEW_SIZE:
-        raise InputError(f"size must be at least {MIN_VIEW_SIZE} px a side (one tile), got {size!r}")
-    number = isinstance(scale, (int, float)) and not isinstance(scale, bool)
-    if scale is not None and not (number and math.isfinite(scale) and 0 < scale <= MAX_SCALE):
-        raise InputError(f"scale must be a number in (0, {MAX_SCALE}], got {scale!r}")
+    w, h = checks.image_size((256, 256) if size is None else size)
+    if scale is not None:
+        checks.scale(scale)
     return source_views(scene, cameras, views, (w, h), scale, default_views=4)
 
 
@@ -307,12 +299,11 @@ def inject(
     stored model is restored exactly afterwards. `models`: also keep the faulted model and each
     defense's repaired one (`Injection.models`, written by `Injection.save_models`)."""
     defenses = defense_names(defenses)
-    if not isinstance(sample, int) or isinstance(sample, bool) or sample < 1:
-        raise InputError(f"sample must be a positive integer, got {sample!r}")
-    whole(component, "component", 0)  # 1.7 was truncated to primitive 1, True taken as 1
+    checks.integer(sample, "sample", 1)
+    checks.integer(component, "component", 0)  # 1.7 was truncated to primitive 1, True taken as 1
     if primitive is not None:
-        whole(primitive, "primitive", 0)
-    whole(seed, "seed", 0 if primitive is None or fault == "random" else None)  # numpy's seeds are >= 0
+        checks.integer(primitive, "primitive", 0)
+    checks.integer(seed, "seed", 0 if primitive is None or fault == "random" else None)  # numpy's seeds are >= 0
     bits, op, value = fault_bits(fault, bit, width, precision, seed)
     eng = engine_for(scene, views, precision, profile, "inject")
     model_of = model_from(scene)

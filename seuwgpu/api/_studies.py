@@ -15,15 +15,14 @@ from seuwgpu.api._checks import (
     model_from,
     names_of,
     view_list,
-    whole,
 )
 from seuwgpu.errors import InputError
-from seuwgpu.faults.defenses import DEFENSES
+from seuwgpu.faults.defenses import DEFENSES, pipeline_guards
 from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY
 from seuwgpu.faults.sites import (
     FAULT_MODELS,
 )
-from seuwgpu.model import encoding
+from seuwgpu.model import checks, encoding
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model
 from seuwgpu.model.sources import Source
@@ -51,13 +50,14 @@ def storm(
     upsets' fault model (FAULT_MODELS: a burst, a random value, a multi-cell upset). One record
     per frame and defense. `progress()` is called after each frame;
     `rows`: a list the records are appended to as they are measured (a resumed storm's records
-    first: it goes on after them)."""
+    first: it goes on after them). To resume as `seuwgpu storm` does: `campaign.partial.resumed`
+    with the `run_identity` of the arguments yields the `rows` and `progress` to pass."""
     from seuwgpu.campaign.storm import storm as run_storm
 
     defenses = defense_names(defenses)
     for value, what in ((k, "k"), (frames, "frames"), (scrub_every, "scrub_every"), (seed, "seed")):
-        whole(value, what, None)  # the ranges: campaign/storm.py's own check, which names all three
-    whole(check_every, "check_every", 1)
+        checks.integer(value, what)  # the ranges: campaign/storm.py's own check, which names all three
+    checks.integer(check_every, "check_every", 1)
     if fault not in FAULT_MODELS:
         raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
     eng = engine_for(scene, views, precision, profile, "storm")
@@ -87,9 +87,9 @@ def state_flips(
     if targets is not None:  # a former name and its new one are the same target
         targets = list(dict.fromkeys(check_target(t) for t in names_of(targets, "targets")))
     targets = list(TARGETS) if targets is None else targets
-    bits = list(range(32)) if bits is None else list(dict.fromkeys(whole(b, "bit", None) for b in bits))
-    whole(samples, "samples", 1)
-    whole(seed, "seed", None)
+    bits = list(range(32)) if bits is None else list(dict.fromkeys(checks.integer(b, "bit") for b in bits))
+    checks.integer(samples, "samples", 1)
+    checks.integer(seed, "seed")
     eng = engine_for(scene, views, precision, profile, "state_flips")
     return state_campaign(eng, targets, samples, bits, seed, progress, rows=rows)
 
@@ -119,9 +119,9 @@ def worst_case(
         except ValueError as e:
             raise InputError(str(e)) from None
     if bits is not None:
-        bits = [whole(b, "bit", 0) for b in bits]
+        bits = [checks.integer(b, "bit", 0) for b in bits]
     if max_evaluations is not None:
-        whole(max_evaluations, "max_evaluations", 1)
+        checks.integer(max_evaluations, "max_evaluations", 1)
     eng = engine_for(scene, views, precision, profile, "worst_case")
     return {d: search(eng, d, fields, bits, max_evaluations=max_evaluations) for d in defenses}
 
@@ -156,10 +156,10 @@ def defense_costs(
     for its report (campaign/visible.py save_counts)."""
     from seuwgpu.faults.costs import defense_costs as costs
 
-    whole(repeats, "repeats", 1)
-    whole(check_every, "check_every", 1)
-    whole(visible, "visible", 0)
-    whole(window, "window", 1)
+    checks.integer(repeats, "repeats", 1)
+    checks.integer(check_every, "check_every", 1)
+    checks.integer(visible, "visible", 0)
+    checks.integer(window, "window", 1)
     if fault not in FAULT_MODELS:
         raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
     if not isinstance(view, Camera):
@@ -230,11 +230,13 @@ def sort_first(
     repeats: int = 3,
     precision: str = "fp32",
     address: str | None = None,
+    guard_variant: str = "guard",
 ) -> list[dict]:
     """Sort-first rendering over Ray ranks (campaign/sortfirst.py; needs `seuwgpu[ray]`): for each
     rank count P, the per-rank render times and, with `upset` ("field:bit", e.g. "log_scales:31",
     applied to every rank's copy), the ranks it contaminates with and without the node-local
-    `guard` ("scrub" the stored copy, or "clamp" in the pipeline). Without `primitive`, the most
+    `guard` ("scrub" the stored copy, or "clamp" in the pipeline) of the fields `guard_variant`
+    clamps ("guard", "guard_all", ...: a defense with guard fields). Without `primitive`, the most
     harmful of `sample` primitives. Prints a table per rank count; returns the results."""
     from seuwgpu.campaign.ray import INSTALL_HINT, ray_available
     from seuwgpu.campaign.sortfirst import parse_upset, sort_first_tables
@@ -242,9 +244,10 @@ def sort_first(
     if not ray_available():
         raise InputError(f"sort-first rendering needs Ray. {INSTALL_HINT}")
     for p in ranks:
-        whole(p, "ranks", 1)
+        checks.integer(p, "ranks", 1)
     parsed = None if upset is None else parse_upset(upset)
     kw = {"component": component, "primitive": primitive, "sample": sample, "seed": seed, "guard": guard}
+    kw["guard_variant"] = checks.one_of(guard_variant, "guard variant", pipeline_guards())
     return sort_first_tables(
         model_from(scene), view_list(views), encoding.check_precision(precision), list(ranks), parsed,
         address=address, repeats=repeats, **kw,

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from seuwgpu.campaign.progress import ProgressBar
 from seuwgpu.campaign.store import atomic_write, lock, remove_stale_temps
 from seuwgpu.errors import InputError
 
@@ -144,3 +145,58 @@ class PartialRecords:
             raise
         finally:
             self._lock.close()
+
+
+def run_identity(
+    command: str,
+    source,
+    views: list,
+    *,
+    model=None,
+    cameras=None,
+    sh_degree: int,
+    seed: int | None,
+    size: tuple[int, int],
+    scale: float | None,
+    precision: str,
+    profile: str,
+    **options,
+) -> dict:
+    """What makes a resumed run the same run: every argument that decides its records. The model
+    and camera files (`model`, `cameras`: their paths, None for an embedded scene or orbit views)
+    stand for their content (sha256: the same files through another path are the same run); the
+    other arguments as read, defaults spelled out; the up axis as resolved (`source.up`), so that
+    naming the default axis, or one beside a cameras file, is the same run; then the command's
+    `options`, named as its command-line options."""
+    from seuwgpu.campaign.spec import content_hash
+
+    def content(key, path):
+        return None if path is None else "sha256:" + content_hash(key, path)
+
+    return {
+        "command": command,
+        "model": content("model", model),
+        "scene": None if model else source.name,
+        "n": None if model else source.model.n,
+        "sh-degree": None if model else sh_degree,
+        "seed": seed,
+        "up": None if cameras else source.up,  # what frames the orbit; unused by cameras
+        "cameras": content("cameras", cameras),
+        "views": len(views),
+        "size": None if cameras else "x".join(map(str, size)),
+        "scale": scale or 1.0,
+        "precision": precision,
+        "profile": profile,
+        **options,
+    }
+
+
+@contextlib.contextmanager
+def resumed(out, name: str, run: dict, records, unit: str, total: int):
+    """Around a resumable run (`storm`, `state`) and the writing of its results: the records of an
+    interrupted run of the same `run` (run_identity) in OUT/NAME.partial.parquet, read before any
+    rendering, and a bar of `total` `unit`s. Yields (rows, progress) for the API call (its `rows`
+    and `progress`)."""
+    partial = PartialRecords(Path(out) / f"{name}.partial.parquet", run, records)
+    with partial.kept() as rows, ProgressBar(unit, total, len(rows)) as bar:
+        yield rows, partial.progress(bar.advance)

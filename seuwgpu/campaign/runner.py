@@ -24,6 +24,7 @@ from seuwgpu.campaign.spec_types import Spec, as_spec
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.sites import draw_uniform_sites
 from seuwgpu.metrics.image import FOOTPRINT_THRESHOLD, PIXEL_THRESHOLD, outcome_class
+from seuwgpu.model import checks
 from seuwgpu.render.regions import REGION_GRID_VERSION
 from seuwgpu.version import __version__
 
@@ -43,7 +44,7 @@ class Runner:
     ):
         spec = as_spec(spec)  # a Spec, or its stored form (a manifest's)
         self.spec, self.out = spec, None if out is None else Path(out)
-        self.shard = store.check_shard(shard)
+        self.shard = checks.shard(shard)
         self.quiet, self.full = quiet, full
         self.gpu = gpu
         self.hash = spec_hash(spec)

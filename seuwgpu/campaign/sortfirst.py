@@ -207,9 +207,11 @@ def sort_first(
     repeats: int = 3,
     address: str | None = None,
     composite: bool = True,
+    guard_variant: str = "guard",
 ) -> dict:
     """Render `cameras` with `ranks` Ray actors (sort-first), time the ranks, and (with `upset` =
-    (field, bits)) find the ranks a single upset contaminates without and with the node-local guard."""
+    (field, bits)) find the ranks a single upset contaminates without and with the node-local guard
+    (`guard_variant`: a pipeline guard, faults/defenses.py pipeline_guards, e.g. guard_all)."""
     ray = get_ray()
     from seuwgpu.faults.guard import clamp_values, component_mask, guard_fields, support_box
     from seuwgpu.faults.sites import make_site
@@ -222,6 +224,7 @@ def sort_first(
     check_model(model.n, model.sh_degree, "a model of", "render sort-first")
     regions, grid = split_regions(ranks, width, height)
     check_upset(model, upset, primitive, component, precision)
+    guarded_fields = guard_fields(guard_variant)  # an unknown variant refused before Ray starts
     started = init_ray(address)
     actors = []
     try:
@@ -230,7 +233,9 @@ def sort_first(
         Actor = ray.remote(RankRenderer)
         mref = ray.put(model)
         t0 = time.perf_counter()
-        actors = [Actor.options(**opts).remote(mref, cameras, precision, vp, r) for r, vp in enumerate(regions)]
+        actors = [
+            Actor.options(**opts).remote(mref, cameras, precision, vp, r, guard_variant) for r, vp in enumerate(regions)
+        ]
         infos = ray.get([a.info.remote() for a in actors])
         setup_wall = time.perf_counter() - t0
         out = {
@@ -245,6 +250,7 @@ def sort_first(
             "infos": infos,
             "setup_wall_s": setup_wall,
             "guard_mode": guard,
+            "guard_variant": guard_variant,
         }
         if composite:
             parts = ray.get([a.clean_image.remote() for a in actors])
@@ -274,7 +280,7 @@ def sort_first(
             bad[c] = encoding.from_bits(
                 encoding.flip_bits(encoding.to_bits(row[c : c + 1], precision), list(site.bits), precision), precision
             )[0]
-            clamped, _ = clamp_values(bad[None], box, component_mask(guard_fields("guard"), model.sh_degree))
+            clamped, _ = clamp_values(bad[None], box, component_mask(guarded_fields, model.sh_degree))
             out.update(
                 {
                     "site": site,
@@ -321,8 +327,9 @@ def print_sort_first(res: dict, console=None):
     for col in ("rank", "region x,y,w,h", "render ms"):
         t.add_column(col, justify="right")
     up = "site" in res
+    variant = res.get("guard_variant", "guard")
     if up:
-        for col in ("reached", "changed px", "changed px, guard", "guard clamps", "reached, guarded"):
+        for col in ("reached", "changed px", f"changed px, {variant}", f"{variant} clamps", "reached, guarded"):
             t.add_column(col, justify="right")
     for r, vp in enumerate(res["regions"]):
         row = [str(r), ",".join(map(str, vp)), f"{1000 * res['times'][r]:.2f}" + (" *" if r == res["slowest"] else "")]
@@ -348,7 +355,7 @@ def print_sort_first(res: dict, console=None):
         how = f" ({res['primitive_chosen']})" if "primitive_chosen" in res else ""
         console.print(
             f"upset: {s.field}[{s.primitive}][{s.component}] bit {','.join(map(str, s.bits))}{how}: "
-            f"{res['clean_value']:.6g} -> {res['corrupted_value']:.6g}; guard reads {res['guarded_value']:.6g}"
+            f"{res['clean_value']:.6g} -> {res['corrupted_value']:.6g}; {variant} reads {res['guarded_value']:.6g}"
         )
         console.print(f"  ranks its clean footprint reaches:     {_fmt_set(res['reach_clean'])}")
         console.print(f"  ranks its corrupted footprint reaches: {_fmt_set(res['reach_upset'])}")
@@ -357,7 +364,7 @@ def print_sort_first(res: dict, console=None):
             f"({len(res['touched_none'])} of {P})"
         )
         console.print(
-            f"  ranks contaminated, node-local guard:  {_fmt_set(res['touched_guard'])} "
+            f"  ranks contaminated, node-local {variant}:  {_fmt_set(res['touched_guard'])} "
             f"({len(res['touched_guard'])} of {P}; its clamped footprint reaches {_fmt_set(res['reach_guarded'])})"
         )
 

@@ -8,77 +8,11 @@ folder name).
 Lists of names (precisions, defenses, fields with their aliases) must not repeat an entry; lists of
 numbers (bits, k, sizes.n, regions) are merged. Seeds are integers in [0, 2**63).
 
+Every key, its default (or an example) and what it means is written once, as a field of
+campaign/spec_types.py; the reference below (alternatives commented out), the key sets checked
+here and the defaults come from there.
+
 Spec (TOML; unknown keys and bad values fail at once, naming the key):
-
-    seed = 0                 # master seed
-    views = 4                # orbit views per scene (K), or K of the capture's views, evenly
-    size = "256x256"         # WxH of orbit views
-    scale = 0.25             # optional: render at this fraction of the views' resolution
-    batch = 256              # injections per GPU batch and per Parquet part
-    profile = "strict"       # optional renderer profile: "strict" or "gsplat" (docs/renderer.md)
-    lpips = true             # optional: LPIPS (AlexNet) of every record, re-rendered in full
-                             # (slow: ~1 s per 256 px view on a CPU; pip install 'seuwgpu[lpips]')
-
-    [[scenes]]               # one or more
-    scene = "spheres"        # an embedded scene (`seuwgpu scene --list`: procedural or real) ...
-                             # or: model = "point_cloud.ply" (any format; `ply =` is an alias)
-                             # lod = 2: with a PlayCanvas LOD set (lod-meta.json or its folder),
-                             # the level read (default 0, the finest; named NAME-lod2 in records)
-    n = 100000               # primitives of an embedded scene (a real capture: all by default)
-    sh_degree = 3            # of an embedded scene; a model file's is read from it (recorded)
-    cameras = "cameras.json" # optional, the capture's cameras (CAMS.json, INRIA cameras.json,
-                             # a COLMAP model folder, nerfstudio transforms.json) instead of orbits;
-                             # their views keep their own sizes, so not with `size =` (use scale)
-    up = "-y"                # optional: up axis of the orbit views (default: the format's)
-
-    [single]                 # single upsets, stratified by (field, bit) cell
-    precisions = ["fp32"]
-    fields = "all"           # the fields each model holds (no sh_rest at SH degree 0), or a list
-    bits = "all"             # or a list of bit indices (those valid for each precision)
-    samples = 20             # injections per (field, bit) cell, or a plan:
-                             # samples = {margin = 0.02, confidence = 0.95} (Leveugle et al. 2009,
-                             # worst case p = 0.5; sites drawn with replacement, so no
-                             # finite-population correction)
-    sampling = "stratified"  # or "uniform": `samples` x cells injections drawn uniformly over
-                             # all stored bits (weight column = bits each sample stands for)
-    defenses = ["none", "guard"]   # `seuwgpu defenses` lists them all
-    fault = "bit"            # fault model: "bit" (single-bit flip), "adjacent" (2-4 neighbouring
-                             # bits of the value from the cell's bit up), "stuck0"/"stuck1" (the
-                             # cell's bit stuck), "random"/"zero" (the whole value replaced by
-                             # random bits / 0: one cell per field, bits ignored)
-    regions = [4, 16, 64]    # optional: sort-first contamination columns regions_pred_P and
-                             # regions_meas_P (int64 bitmasks of the P regions reached/changed in
-                             # any view), regions_pred_frame_P and regions_meas_frame_P (the share
-                             # one view's frame reaches, averaged over the views)
-
-    [dose]                   # k simultaneous upsets drawn uniformly over the whole bit budget
-    precisions = ["fp32"]
-    k = [1, 10, 100]         # or k_max = 20000 and points = 12 (log-spaced, rounded, distinct)
-    repeats = 3
-    defenses = ["none", "guard"]
-
-    [outcomes]               # optional: outcome-class thresholds (defaults: the paper's)
-    pixel_threshold = 0.00392156862745098  # a channel change above it is visible (SDC), 1/255
-    footprint = 0.01         # a frame with more changed pixels than this share is catastrophic
-
-    [reliability]            # optional: inputs of the MTBF analysis (they change no injection)
-    scrub_hours = 24.0       # the model is restored from protected storage this often
-    rates = [{environment = "ground", per_bit_hour = 1e-12, source = "where the rate comes from"}]
-    check_every = 10         # a check defense checks every S frames (or {parity4r = 10, checksum = 20}):
-                             # what it repairs is drawn until then; default 10
-    frames_per_second = 30.0 # the frame rate the check's exposure (frames) turns into hours
-
-    [summary]                # optional: the report's opening summary (it changes no injection)
-    target = 0.001           # residual catastrophic rate per upset the cheapest defense must meet
-
-    [sizes]                  # primitive-count sweep: single upsets at each N (a procedural scene
-    n = [5000, 20000, 80000] # is generated at N; a capture or model file cut to a seeded subset)
-    scenes = "all"           # optional: [[scenes]] indices swept, or "all" (default: [0], the first)
-    precisions = ["fp32"]
-    fields = "all"
-    bits = "all"
-    samples = 10
-    defenses = ["none"]
 """
 
 from __future__ import annotations
@@ -89,37 +23,29 @@ from pathlib import Path
 
 import numpy as np
 
-from seuwgpu.campaign.spec_types import SceneSpec, Spec
+from seuwgpu.campaign.spec_types import (
+    DoseSpec,
+    OutcomesSpec,
+    RateSpec,
+    ReliabilitySpec,
+    SamplePlan,
+    SceneSpec,
+    SizesSpec,
+    Spec,
+    SummarySpec,
+    UpsetSpec,
+    key_names,
+    reference,
+    toml_default,
+)
 from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES, REGISTRY
-from seuwgpu.model import budget, encoding
-from seuwgpu.model.budget import MAX_SCALE, MAX_VIEWS, n_values
+from seuwgpu.model import checks, encoding
+from seuwgpu.model.budget import n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
 from seuwgpu.model.formats import UP_AXES
 
-_TOP = {
-    "seed",
-    "views",
-    "size",
-    "scale",
-    "batch",
-    "scenes",
-    "single",
-    "dose",
-    "sizes",
-    "name",
-    "outcomes",  # analysis inputs (thresholds, upset rates) and the optional LPIPS metric
-    "reliability",
-    "summary",
-    "lpips",
-    "profile",
-}
-_SCENE = {"scene", "model", "ply", "lod", "n", "sh_degree", "cameras", "seed", "up"}
-_SINGLE = {"precisions", "fields", "bits", "samples", "sampling", "defenses", "regions", "fault"}
-_DOSE = {"precisions", "k", "k_max", "points", "repeats", "defenses"}
-_SIZES = {"n", "precisions", "fields", "bits", "samples", "defenses", "sampling", "regions", "fault", "scenes"}
-
-
+SAMPLINGS = ("stratified", "uniform")
 SEED_MAX = 2**63 - 1  # seeds are TOML integers (signed 64-bit), used as unsigned 64-bit hash keys
 
 
@@ -127,10 +53,12 @@ class SpecError(InputError):
     """A campaign spec (or a run directory or shard set it meets) that cannot be run as given."""
 
 
-def _keys(table: dict, allowed: set, where: str):
+def _keys(table: dict, cls, where: str):
+    """Refuse a key the table `cls` (spec_types) does not take, naming those it does."""
     if not isinstance(table, dict):
         raise SpecError(f"{where} must be a table")
-    unknown = sorted(set(table) - allowed)
+    allowed = key_names(cls)
+    unknown = sorted(set(table) - set(allowed))
     if unknown:
         raise SpecError(
             f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(repr(k) for k in unknown)} in {where} "
@@ -138,28 +66,26 @@ def _keys(table: dict, allowed: set, where: str):
         )
 
 
-def _int(table, key, where, default=None, lo=None, hi=None):
-    v = table.get(key, default)
-    if v is None:
-        raise SpecError(f"{where}.{key} is required")
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise SpecError(f"{where}.{key} must be an integer, got {v!r}")
-    if lo is not None and v < lo or hi is not None and v > hi:
-        raise SpecError(f"{where}.{key} = {v} is out of range [{lo}, {hi if hi is not None else 'inf'}]")
-    return v
+def _get(table, cls, key: str, where: str):
+    """The key's value, or the default of the table `cls` (spec_types) where it is left out."""
+    if key in table:
+        return table[key]
+    try:
+        return toml_default(cls, key)
+    except KeyError:
+        raise SpecError(f"{where}.{key} is required") from None
 
 
-def _list(table, key, where, default, valid=None):
-    v = table.get(key, default)
-    if isinstance(v, str) and v == "all" and valid is not None:
-        return list(valid)
+def _int(table, cls, key, where, lo=None, hi=None):
+    return checks.integer(_get(table, cls, key, where), f"{where}.{key}", lo, hi)
+
+
+def _counts(table, cls, key, where) -> list[int]:
+    """A non-empty list of positive integers (dose.k, sizes.n)."""
+    v = _get(table, cls, key, where)
     if not isinstance(v, list) or not v:
-        raise SpecError(f"{where}.{key} must be a non-empty list" + (' or "all"' if valid is not None else ""))
-    if valid is not None:
-        bad = [x for x in v if not isinstance(x, str) or x not in valid]
-        if bad:
-            raise SpecError(f"{where}.{key}: unknown value(s) {bad}; valid: {list(valid)}")
-    return v
+        raise SpecError(f"{where}.{key} must be a non-empty list")
+    return [checks.integer(x, f"{where}.{key}", 1) for x in v]
 
 
 def _model_file(scene: dict, path, where: str, lod: int | None = None):
@@ -184,7 +110,7 @@ def _model_file(scene: dict, path, where: str, lod: int | None = None):
 def _no_missing_fields(table, where: str, scenes: list):
     """A field listed by name that a scene's model does not hold (sh_rest at SH degree 0) is
     refused; "all" means the fields each model holds (campaign/sampling.py scene_fields)."""
-    if table.get("fields", "all") == "all":
+    if table.get("fields", "all") == "all":  # "all": each model's own fields, whatever the default
         return
     for i, sc in enumerate(scenes):
         if sc["sh_degree"] == 0 and "sh_rest" in [canonical_field(f) for f in table["fields"]]:
@@ -194,52 +120,43 @@ def _no_missing_fields(table, where: str, scenes: list):
             )
 
 
-def _fields(table, where):
-    v = table.get("fields", "all")
+def _fields(table, cls, where):
+    v = _get(table, cls, "fields", where)
     if v == "all":
         return list(FIELDS)
     if not isinstance(v, list) or not v:
         raise SpecError(f'{where}.fields must be "all" or a list of fields')
-    try:
-        out = [canonical_field(f) for f in v]
-    except ValueError as e:
-        raise SpecError(f"{where}.fields: {e}") from None
-    twice = sorted({f for f in out if out.count(f) > 1})
-    if twice:
-        raise SpecError(f"{where}.fields names {', '.join(twice)} more than once (a field and its alias?)")
-    return out
+    out = [canonical_field(f, f"{where}.fields") for f in v]
+    return checks.listed_once(out, f"{where}.fields", " (a field and its alias?)")
 
 
-def _bits(table, where, precisions):
-    v = table.get("bits", "all")
+def _bits(table, cls, where, precisions):
+    v = _get(table, cls, "bits", where)
     if v == "all":
         return "all"
     if not isinstance(v, list) or not v or not all(isinstance(b, int) and not isinstance(b, bool) for b in v):
         raise SpecError(f'{where}.bits must be "all" or a list of bit indices')
     for p in precisions:
         for b in v:
-            if not 0 <= b < encoding.bits_per_value(p):
-                raise SpecError(f"{where}.bits: bit {b} is out of range for {p} (0..{encoding.bits_per_value(p) - 1})")
+            encoding.check_bit(p, b, f"{where}.bits")
     return sorted(set(v))
 
 
-def _samples(table, where, default):
+def _samples(table, cls, where):
     """`samples` as an int, or planned from {margin, confidence} (campaign.plan.sample_size)."""
-    v = table.get("samples", default)
+    v = _get(table, cls, "samples", where)
     if isinstance(v, dict):
-        _keys(v, {"margin", "confidence"}, f"{where}.samples")
+        _keys(v, SamplePlan, f"{where}.samples")
         from seuwgpu.campaign.plan import sample_size
 
-        margin, conf = v.get("margin"), v.get("confidence", 0.95)
-        if not isinstance(margin, (int, float)) or not 0 < margin < 1:
-            raise SpecError(f"{where}.samples.margin must be a proportion in (0, 1), e.g. 0.02")
-        if not isinstance(conf, (int, float)) or not 0 < conf < 1:
-            raise SpecError(f"{where}.samples.confidence must be in (0, 1), e.g. 0.95")
+        margin = checks.proportion(v.get("margin"), f"{where}.samples.margin", "0.02")
+        conf = _get(v, SamplePlan, "confidence", f"{where}.samples")
+        conf = checks.proportion(conf, f"{where}.samples.confidence", "0.95")
         # No finite-population correction: a cell's sites are drawn with replacement (each
         # injection from its own hash stream, campaign/sampling.py, so any block can be re-run or
         # resumed alone), and the correction only holds for draws without replacement.
         return int(sample_size(float(margin), float(conf)))
-    return _int(table, "samples", where, default, 1)
+    return _int(table, cls, "samples", where, 1)
 
 
 def _spec_file(table, key, where, base_dir: Path | None) -> str:
@@ -291,22 +208,37 @@ def content_hash(key: str, path) -> str:
     return h.hexdigest()
 
 
-def _names(table, key, where, default, valid) -> list:
-    """A list of names (precisions, defenses), each at most once: an arm listed twice would be
-    run and counted twice."""
-    v = _list(table, key, where, default, valid)
-    twice = sorted({x for x in v if v.count(x) > 1})
-    if twice:
-        raise SpecError(f"{where}.{key} lists {', '.join(map(repr, twice))} more than once")
-    return v
+def _names(table, cls, key, where, kind, valid) -> list:
+    """A list of names (precisions, defenses), each at most once, or "all" of them."""
+    if table.get(key) == "all":
+        return list(valid)
+    v = _get(table, cls, key, where)
+    if not isinstance(v, list) or not v:
+        raise SpecError(f'{where}.{key} must be a non-empty list or "all"')
+    return checks.listed_once([checks.one_of(x, kind, valid, f"{where}.{key}") for x in v], f"{where}.{key}")
 
 
-def _regions(table, where, size):
+def _upsets(t: dict, cls, where: str, size) -> dict:
+    """The single-upset keys [single] and [sizes] share (spec_types.UpsetSpec), checked."""
+    precisions = _names(t, cls, "precisions", where, "precision", encoding.PRECISIONS)
+    return {
+        "precisions": precisions,
+        "fields": _fields(t, cls, where),
+        "bits": _bits(t, cls, where, precisions),
+        "samples": _samples(t, cls, where),
+        "sampling": checks.one_of(_get(t, cls, "sampling", where), "sampling", SAMPLINGS, f"{where}.sampling"),
+        "defenses": _names(t, cls, "defenses", where, "defense", DEFENSES),
+        "regions": _regions(t, cls, where, size),
+    }
+
+
+def _regions(table, cls, where, size):
     """Sort-first partition sizes P for contamination columns (regions_pred_P, regions_meas_P);
     each must fit the tile-aligned region grid of the frame (render/regions.py)."""
     from seuwgpu.render.regions import region_grid
 
-    v = table.get("regions", [])
+    v = _get(table, cls, "regions", where)
+    v = list(v) if isinstance(v, tuple) else v  # the default, ()
     if not isinstance(v, list) or not all(isinstance(p, int) and not isinstance(p, bool) for p in v):
         raise SpecError(f"{where}.regions must be a list of partition sizes, e.g. [4, 16, 64]")
     for p in v:
@@ -319,30 +251,22 @@ def _regions(table, where, size):
     return sorted(set(v))
 
 
-def _fault(table, out, where):
+def _fault(table, cls, out, where):
     """The fault model, recorded only when not the default single-bit flip (older specs keep their
     hash)."""
     from seuwgpu.faults.sites import check_site_model
 
-    v = table.get("fault", "bit")
+    v = _get(table, cls, "fault", where)
     try:
         check_site_model(v)
     except ValueError as e:
         raise SpecError(f"{where}.fault: {e}") from None
-    if v != "bit":
+    if v != toml_default(cls, "fault"):
         out["fault"] = v
 
 
-def parse_size(v, where="size") -> tuple[int, int]:
-    """budget.parse_size raising SpecError."""
-    try:
-        return budget.parse_size(v, where)
-    except InputError as e:
-        raise SpecError(str(e)) from None
-
-
 def _name(raw) -> str:
-    v = raw.get("name", "campaign")
+    v = _get(raw, Spec, "name", "spec")
     if not isinstance(v, str) or not v.strip():
         raise SpecError(f"name must be a non-empty string, got {v!r}")
     return v
@@ -354,12 +278,11 @@ def dose_levels(k_max: int, points: int) -> list[int]:
 
 
 def _outcomes(t) -> dict:
-    from seuwgpu.metrics.image import FOOTPRINT_THRESHOLD, PIXEL_THRESHOLD
 
-    _keys(t, {"pixel_threshold", "footprint"}, "outcomes")
+    _keys(t, OutcomesSpec, "outcomes")
     out = {}
-    for key, default in (("pixel_threshold", PIXEL_THRESHOLD), ("footprint", FOOTPRINT_THRESHOLD)):
-        v = t.get(key, default)
+    for key in key_names(OutcomesSpec):
+        v = _get(t, OutcomesSpec, key, "outcomes")
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < 1:
             raise SpecError(f"outcomes.{key} must be a number in [0, 1), got {v!r}")
         out[key] = float(v)
@@ -367,49 +290,29 @@ def _outcomes(t) -> dict:
 
 
 def _reliability(t) -> dict:
-    _keys(t, {"scrub_hours", "rates", "check_every", "frames_per_second"}, "reliability")
+    _keys(t, ReliabilitySpec, "reliability")
     out = {}
     if "check_every" in t:
         v = t["check_every"]
-
-        def whole(x):
-            return not isinstance(x, bool) and isinstance(x, int) and x >= 1
-
-        if isinstance(v, dict):  # a schedule per check defense
+        if isinstance(v, dict):  # a schedule per check defense: frames between checks
+            checked = [x for x, o in REGISTRY.items() if o.checked]
             for d, s in v.items():
-                if d not in REGISTRY or not REGISTRY[d].checked:
-                    ok = ", ".join(x for x, o in REGISTRY.items() if o.checked)
-                    raise SpecError(f"reliability.check_every: {d!r} is not a check defense; expected one of {ok}")
-                if not whole(s):
-                    raise SpecError(f"reliability.check_every.{d} must be a whole number of frames >= 1, got {s!r}")
+                checks.one_of(d, "check defense", checked, "reliability.check_every")
+                checks.integer(s, f"reliability.check_every.{d}", 1)
             out["check_every"] = dict(v)
-        elif not whole(v):
-            raise SpecError(
-                f"reliability.check_every must be a whole number of frames >= 1 (or a table of them per "
-                f"check defense), got {v!r}"
-            )
         else:
-            out["check_every"] = v
-    if "frames_per_second" in t:
-        v = t["frames_per_second"]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
-            raise SpecError(f"reliability.frames_per_second must be a positive number, got {v!r}")
-        out["frames_per_second"] = float(v)
-    if "scrub_hours" in t:
-        v = t["scrub_hours"]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
-            raise SpecError(f"reliability.scrub_hours must be a positive number of hours, got {v!r}")
-        out["scrub_hours"] = float(v)
+            out["check_every"] = checks.integer(v, "reliability.check_every", 1)
+    for key in ("frames_per_second", "scrub_hours"):
+        if key in t:
+            out[key] = checks.number(t[key], f"reliability.{key}")
     if "rates" in t:
         rates = t["rates"]
         if not isinstance(rates, list) or not rates:
             raise SpecError("reliability.rates must be a non-empty list of {environment, per_bit_hour, source}")
         out["rates"] = []
         for i, r in enumerate(rates):
-            _keys(r, {"environment", "per_bit_hour", "source"}, f"reliability.rates[{i}]")
-            lam = r.get("per_bit_hour")
-            if isinstance(lam, bool) or not isinstance(lam, (int, float)) or not lam > 0:
-                raise SpecError(f"reliability.rates[{i}].per_bit_hour must be a positive number, got {lam!r}")
+            _keys(r, RateSpec, f"reliability.rates[{i}]")
+            lam = checks.number(r.get("per_bit_hour"), f"reliability.rates[{i}].per_bit_hour")
             if not isinstance(r.get("environment"), str) or not isinstance(r.get("source"), str):
                 raise SpecError(f"reliability.rates[{i}] needs environment and source (strings)")
             out["rates"].append({"environment": r["environment"], "per_bit_hour": float(lam), "source": r["source"]})
@@ -446,22 +349,28 @@ def _distinct_labels(scenes: list[dict]):
 
 def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
     """The validated spec with its defaults filled in (`to_dict()`: what is hashed and stored in
-    the manifest)."""
+    the manifest). The shared checks (model/checks.py) raise InputError: a spec's is a SpecError."""
+    try:
+        return _normalize(raw, base_dir)
+    except InputError as e:
+        if type(e) is not InputError:
+            raise
+        raise SpecError(str(e)) from None
+
+
+def _normalize(raw: dict, base_dir: Path | None) -> Spec:
     from seuwgpu.model.scenes import is_capture, list_scenes, make_scene
 
-    _keys(raw, _TOP, "the spec")
+    _keys(raw, Spec, "the spec")
     spec = {
         "name": _name(raw),
-        "seed": _int(raw, "seed", "spec", 0, 0, SEED_MAX),
-        "views": _int(raw, "views", "spec", 4, 1, MAX_VIEWS),
-        "size": list(parse_size(raw.get("size", "256x256"))),
-        "batch": _int(raw, "batch", "spec", 256, 1, 65536),
+        "seed": _int(raw, Spec, "seed", "spec", 0, SEED_MAX),
+        "views": checks.views(_get(raw, Spec, "views", "spec"), "spec.views"),
+        "size": list(checks.image_size(_get(raw, Spec, "size", "spec"))),
+        "batch": _int(raw, Spec, "batch", "spec", 1, 65536),
     }
     if "scale" in raw:  # recorded only when given, so older specs keep their hash
-        scale = raw["scale"]
-        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= MAX_SCALE:
-            raise SpecError(f"scale must be a number in (0, {MAX_SCALE}], got {scale!r}")
-        spec["scale"] = float(scale)
+        spec["scale"] = checks.scale(raw["scale"])
     if "profile" in raw:  # renderer profile (docs/renderer.md); recorded only when given (hash)
         from seuwgpu.render.project import check_profile  # the one definition of the profile names
 
@@ -477,23 +386,21 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
     held = {}  # scene index -> primitives of a capture or a model file (what a [sizes] n may not exceed)
     for i, s in enumerate(scenes):
         where = f"scenes[{i}]"
-        _keys(s, _SCENE, where)
+        _keys(s, SceneSpec, where)
         if sum(k in s for k in ("scene", "model", "ply")) != 1:
             raise SpecError(f"{where} needs exactly one of scene = NAME or model = FILE (ply = FILE is an alias)")
-        out = {"sh_degree": _int(s, "sh_degree", where, 3, 0, 3), "seed": _int(s, "seed", where, 0, 0, SEED_MAX)}
-        if "lod" in s and "scene" in s:
-            raise SpecError(f"{where}.lod picks a level of a PlayCanvas LOD set given as model = ...; remove it")
+        out = {
+            "sh_degree": _int(s, SceneSpec, "sh_degree", where, 0, 3),
+            "seed": _int(s, SceneSpec, "seed", where, 0, SEED_MAX),
+        }
         if "scene" in s:
-            if not isinstance(s["scene"], str) or s["scene"] not in list_scenes():
-                raise SpecError(
-                    f"{where}.scene: unknown scene {s['scene']!r}; embedded scenes: {', '.join(list_scenes())}"
-                )
-            out["scene"] = s["scene"]
+            out["scene"] = checks.one_of(s["scene"], "scene", list_scenes(), f"{where}.scene")
+            checks.lod_of_a_model_file(s.get("lod"), s["scene"], f"{where}.lod")
             if is_capture(s["scene"]):
                 held[i] = make_scene(s["scene"]).n
-                out["n"] = _int(s, "n", where, held[i], 1, held[i])
+                out["n"] = _int({"n": held[i], **s}, SceneSpec, "n", where, 1, held[i])  # all of it by default
             else:
-                out["n"] = _int(s, "n", where, 100_000, 1)
+                out["n"] = _int(s, SceneSpec, "n", where, 1)
         else:
             key = "model" if "model" in s else "ply"
             if "n" in s:  # refused, not ignored, as --n with --model (a [sizes] sweep cuts a file)
@@ -503,15 +410,13 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
                 )
             out["model"] = _spec_file(s, key, where, base_dir)
             out["model_sha256"] = content_hash("model", out["model"])
-            lod = _int(s, "lod", where, None, 0) if "lod" in s else None
+            lod = checks.lod_level(s["lod"], f"{where}.lod") if "lod" in s else None
             model = _model_file(s, out["model"], where, lod)
             if lod:  # level 0 is the default: the same run as without the key
                 out["lod"] = lod
             out["sh_degree"], held[i] = model.sh_degree, model.n
         if "up" in s:
-            if not isinstance(s["up"], str) or s["up"] not in UP_AXES:
-                raise SpecError(f"{where}.up: {s['up']!r} is no axis; expected one of {', '.join(UP_AXES)}")
-            out["up"] = s["up"]
+            out["up"] = checks.one_of(s["up"], "up axis", UP_AXES, f"{where}.up")
         if "cameras" in s:
             out["cameras"] = _spec_file(s, "cameras", where, base_dir)
             out["cameras_sha256"] = content_hash("cameras", out["cameras"])
@@ -537,46 +442,31 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
     if "reliability" in raw:
         spec["reliability"] = _reliability(raw["reliability"])
     if "summary" in raw:
-        _keys(raw["summary"], {"target"}, "summary")
-        t = raw["summary"].get("target", 0.001)
-        if isinstance(t, bool) or not isinstance(t, (int, float)) or not 0 < t < 1:
-            raise SpecError(f"summary.target must be a catastrophic rate per upset in (0, 1), got {t!r}")
-        spec["summary"] = {"target": float(t)}
+        _keys(raw["summary"], SummarySpec, "summary")
+        target = _get(raw["summary"], SummarySpec, "target", "summary")
+        spec["summary"] = {"target": checks.proportion(target, "summary.target", "0.001")}
     if not any(k in raw for k in ("single", "dose", "sizes")):
         raise SpecError("the spec needs at least one of [single], [dose], [sizes]")
     if "single" in raw:
         t = raw["single"]
-        _keys(t, _SINGLE, "single")
-        precisions = _names(t, "precisions", "single", ["fp32"], encoding.PRECISIONS)
-        spec["single"] = {
-            "precisions": precisions,
-            "fields": _fields(t, "single"),
-            "bits": _bits(t, "single", precisions),
-            "samples": _samples(t, "single", 20),
-            "sampling": t.get("sampling", "stratified"),
-            "defenses": _names(t, "defenses", "single", ["none", "guard"], DEFENSES),
-            "regions": _regions(t, "single", spec["size"]),
-        }
+        _keys(t, UpsetSpec, "single")
+        spec["single"] = _upsets(t, UpsetSpec, "single", spec["size"])
         _no_missing_fields(t, "single", spec["scenes"])
-        _fault(t, spec["single"], "single")
-        if spec["single"]["sampling"] not in ("stratified", "uniform"):
-            raise SpecError(f'single.sampling must be "stratified" or "uniform", got {t["sampling"]!r}')
+        _fault(t, UpsetSpec, spec["single"], "single")
     if "dose" in raw:
         t = raw["dose"]
-        _keys(t, _DOSE, "dose")
+        _keys(t, DoseSpec, "dose")
         if "k" in t and ("k_max" in t or "points" in t):
             raise SpecError("dose: give either k = [...] or k_max and points, not both")
         if "k" in t:
-            ks = _list(t, "k", "dose", None)
-            if not all(isinstance(k, int) and not isinstance(k, bool) and 1 <= k for k in ks):
-                raise SpecError("dose.k must be a list of positive integers")
+            ks = _counts(t, DoseSpec, "k", "dose")
         else:
-            ks = dose_levels(_int(t, "k_max", "dose", 20_000, 1), _int(t, "points", "dose", 12, 1, 200))
+            ks = dose_levels(_int(t, DoseSpec, "k_max", "dose", 1), _int(t, DoseSpec, "points", "dose", 1, 200))
         spec["dose"] = {
-            "precisions": _names(t, "precisions", "dose", ["fp32"], encoding.PRECISIONS),
+            "precisions": _names(t, DoseSpec, "precisions", "dose", "precision", encoding.PRECISIONS),
             "k": sorted(set(int(k) for k in ks)),
-            "repeats": _int(t, "repeats", "dose", 3, 1),
-            "defenses": _names(t, "defenses", "dose", ["none", "guard"], DEFENSES),
+            "repeats": _int(t, DoseSpec, "repeats", "dose", 1),
+            "defenses": _names(t, DoseSpec, "defenses", "dose", "defense", DEFENSES),
         }
         for i, sc in enumerate(spec["scenes"]):  # model files: checked when loaded (runner)
             for p in spec["dose"]["precisions"]:
@@ -589,8 +479,8 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
                     )
     if "sizes" in raw:
         t = raw["sizes"]
-        _keys(t, _SIZES, "sizes")
-        which = t.get("scenes", [0])
+        _keys(t, SizesSpec, "sizes")
+        which = _get(t, SizesSpec, "scenes", "sizes")
         if which == "all":
             which = list(range(len(spec["scenes"])))
         if (
@@ -599,9 +489,7 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
             or not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(spec["scenes"]) for i in which)
         ):
             raise SpecError(f'sizes.scenes must be "all" or a list of [[scenes]] indices 0..{len(spec["scenes"]) - 1}')
-        ns = _list(t, "n", "sizes", None)
-        if not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in ns):
-            raise SpecError("sizes.n must be a list of positive integers")
+        ns = _counts(t, SizesSpec, "n", "sizes")
         for i in which:
             # a procedural scene is generated at each n; a capture or a model file is cut to a
             # seeded random subset of n (model/fields.py Model.sample), framed as the whole model
@@ -609,21 +497,11 @@ def normalize_spec(raw: dict, base_dir: Path | None = None) -> Spec:
             name, have = sc.get("scene") or sc["model"], held.get(i)
             if have is not None and max(ns) > have:
                 raise SpecError(f"sizes.n: {name} has {have} primitives; n must not exceed it (got {max(ns)})")
-        precisions = _names(t, "precisions", "sizes", ["fp32"], encoding.PRECISIONS)
-        spec["sizes"] = {
-            "n": sorted(set(ns)),
-            "precisions": precisions,
-            "fields": _fields(t, "sizes"),
-            "bits": _bits(t, "sizes", precisions),
-            "samples": _samples(t, "sizes", 10),
-            "sampling": t.get("sampling", "stratified"),
-            "defenses": _names(t, "defenses", "sizes", ["none"], DEFENSES),
-            "regions": _regions(t, "sizes", spec["size"]),
-        }
+        spec["sizes"] = {"n": sorted(set(ns)), **_upsets(t, SizesSpec, "sizes", spec["size"])}
         _no_missing_fields(t, "sizes", [spec["scenes"][i] for i in which])
         if "scenes" in t:  # recorded only when given (the first scene by default), older hashes stay
             spec["sizes"]["scenes"] = sorted(set(which))
-        _fault(t, spec["sizes"], "sizes")
+        _fault(t, SizesSpec, spec["sizes"], "sizes")
     return Spec.from_dict(spec)
 
 
@@ -650,3 +528,6 @@ def load_spec(path) -> Spec:
     except OSError as e:
         raise SpecError(f"{path}: cannot be read ({e.strerror or e})") from None
     return normalize_spec(raw, path.resolve().parent)
+
+
+__doc__ += "\n" + reference() + "\n"

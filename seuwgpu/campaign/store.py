@@ -34,6 +34,7 @@ import pyarrow.parquet as pq
 
 from seuwgpu.campaign.schema import COLUMNS, REGION_TYPE, check_part_schema, column_type, records_schema
 from seuwgpu.errors import InputError, RunInUse
+from seuwgpu.model import checks
 
 MANIFEST = "manifest.json"
 RECORDS = "records"
@@ -364,21 +365,6 @@ def make_out_dir(path, option: str = "--out", what: str = "run directory") -> Pa
     return p
 
 
-def check_shard(shard) -> tuple[int, int]:
-    """Shard I of N as (I, N): integers with 0 <= I < N (an I >= N ran no block and returned as
-    done, N = 0 divided by zero)."""
-    import numbers
-
-    try:
-        i, n = shard
-        whole = all(isinstance(v, numbers.Integral) and not isinstance(v, bool) for v in (i, n))
-    except (TypeError, ValueError):
-        whole = False
-    if not (whole and 0 <= i < n):
-        raise InputError(f"shard must be (I, N), integers with 0 <= I < N, got {shard!r}")
-    return int(i), int(n)
-
-
 @contextlib.contextmanager
 def lock(run_dir, shard: tuple[int, int] = (0, 1), command: str | None = None):
     """Hold the run directory's lock for shard I/N (an exclusive flock: released when the
@@ -387,7 +373,7 @@ def lock(run_dir, shard: tuple[int, int] = (0, 1), command: str | None = None):
     that is no campaign (`storm`, `state`: one run per directory) instead."""
     import fcntl
 
-    i, n = check_shard(shard)
+    i, n = checks.shard(shard)
     make_out_dir(run_dir)
     path = Path(run_dir) / (f".lock-{command}" if command else f".lock-{i}-of-{n}")
     what = f"a `seuwgpu {command}` run" if command else "a campaign"

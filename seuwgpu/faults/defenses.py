@@ -53,7 +53,7 @@ from seuwgpu.faults.codes import (
     scale_table,
 )
 from seuwgpu.faults.schedule import Exposure, exposure
-from seuwgpu.model import encoding
+from seuwgpu.model import checks, encoding
 from seuwgpu.model.fields import FIELDS, n_components
 
 
@@ -446,10 +446,7 @@ FIRST_DEFENSES = tuple(d.name for d in REGISTRY.values() if d.first_study)
 
 def get(name: str) -> Defense:
     """The registered defense `name` (a clear error for any other name)."""
-    d = REGISTRY.get(name)
-    if d is None:
-        raise ValueError(f"unknown defense {name!r}; expected one of {', '.join(REGISTRY)}")
-    return d
+    return REGISTRY[checks.one_of(name, "defense", REGISTRY)]
 
 
 def check_defense(name: str) -> str:
@@ -465,6 +462,20 @@ def defense_label(name: str) -> str:
 def pipeline_guards() -> dict[str, tuple[str, ...]]:
     """{name: fields} of the defenses whose fields the pipeline's support guard clamps."""
     return {d.name: d.guard_fields for d in REGISTRY.values() if d.guard_fields}
+
+
+def guard_arm(ran) -> str | None:
+    """The support-guard arm of a run's defenses (`ran`), the one its analyses set beside `none`:
+    `guard` where it ran, else the first other pipeline guard in registry order (guard_all for a
+    run that clamps every field); None where no guard ran."""
+    ran = set(ran)
+    return next((name for name in pipeline_guards() if name in ran), None)
+
+
+def guard_arms(ran) -> tuple[str, ...]:
+    """("none", the run's guard arm): each where it ran, in that order."""
+    ran = set(ran)
+    return tuple(d for d in ("none", guard_arm(ran)) if d is not None and d in ran)
 
 
 def checked(name: str) -> CheckedDefense:

@@ -28,7 +28,7 @@ from seuwgpu.faults import defenses as dfn
 from seuwgpu.gpu.constants import PRECISION_CODE
 from seuwgpu.gpu.device import STORAGE
 from seuwgpu.gpu.kernel import Kernel, Struct, Uniforms
-from seuwgpu.model import encoding
+from seuwgpu.model import checks, encoding
 from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, field_components
 
 _FIELD_INDEX = {f: i for i, f in enumerate(FIELDS)}
@@ -143,9 +143,7 @@ def support_box(stored: Model | None, precision: str, ranges=None) -> Box:
 def guard_fields(variant: str = "guard") -> tuple[str, ...]:
     """The fields a guard variant (a registered defense with `guard_fields`) clamps."""
     variants = dfn.pipeline_guards()
-    if variant not in variants:
-        raise ValueError(f"unknown guard variant {variant!r}; expected one of {', '.join(variants)}")
-    return variants[variant]
+    return variants[checks.one_of(variant, "guard variant", variants)]
 
 
 def component_mask(fields, degree: int) -> int:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 
-from seuwgpu.errors import InputError, TooBig
+from seuwgpu.errors import TooBig
 from seuwgpu.model.fields import n_components
 
 SCENE_BYTES_PER_VALUE = 6  # generating an embedded scene (float64 intermediates, float32 result)
@@ -27,32 +27,6 @@ PROJECTED_BYTES = 16  # the largest per-primitive projection record (conic, rgb:
 PIXEL_BYTES = 16  # one rgba f32 pixel of one view
 BUFFER_ALIGN = 16  # every GPU buffer's size is a multiple of this (gpu/device.py GPU.buffer)
 HOST_SHARE = 0.8  # of the available memory a job may plan to use
-# The views a command renders (apps/cli/ --size, --views) and a campaign spec names (size,
-# views): one set of limits, so that a value one accepts the other never refuses.
-MIN_VIEW_SIZE = 16  # px, width and height: one 16 px tile; the image metrics' 7x7 windows need >= 7
-MAX_VIEWS = 64  # views rendered for each injection of a campaign, or by one command
-MAX_SCALE = 16  # --scale and a spec's `scale`: at most 16 times the views' own resolution
-
-
-def parse_size(value, where: str = "size") -> tuple[int, int]:
-    """A view's `WxH` (text such as "128x96", or a [W, H] pair as TOML writes it), each side at
-    least MIN_VIEW_SIZE: what --size and a campaign spec's `size` take. Bad input: InputError
-    naming `where`."""
-    if isinstance(value, str):
-        try:
-            w, h = (int(x) for x in value.lower().split("x"))
-        except ValueError:
-            raise InputError(f'{where} must look like "128x96", got {value!r}') from None
-    elif isinstance(value, (list, tuple)) and len(value) == 2:
-        w, h = value
-    else:
-        raise InputError(f'{where} must look like "128x96", got {value!r}')
-    whole = all(isinstance(v, int) and not isinstance(v, bool) for v in (w, h))
-    if not whole or w < MIN_VIEW_SIZE or h < MIN_VIEW_SIZE:
-        raise InputError(
-            f"{where}: width and height must be whole numbers of at least {MIN_VIEW_SIZE} px, got {value!r}"
-        )
-    return int(w), int(h)
 
 
 def n_values(degree: int) -> int:

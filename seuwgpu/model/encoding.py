@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from seuwgpu.errors import InputError
+from seuwgpu.model import checks
+
 PRECISIONS = ("fp32", "fp16", "bf16")
 
 BITS = {"fp32": 32, "fp16": 16, "bf16": 16}
@@ -17,20 +20,22 @@ BITS = {"fp32": 32, "fp16": 16, "bf16": 16}
 LAYOUT = {"fp32": (23, 8), "fp16": (10, 5), "bf16": (7, 8)}
 
 
-def check_precision(precision: str) -> str:
-    if precision not in PRECISIONS:
-        raise ValueError(f"unknown precision {precision!r}; expected one of {', '.join(PRECISIONS)}")
-    return precision
+def check_precision(precision: str, what: str | None = None) -> str:
+    return checks.one_of(precision, "precision", PRECISIONS, what)
 
 
 def bits_per_value(precision: str) -> int:
     return BITS[check_precision(precision)]
 
 
-def check_bit(precision: str, bit: int) -> int:
+def check_bit(precision: str, bit: int, what: str | None = None) -> int:
+    """A bit of a stored value at `precision` (0 = the least significant): the API's bit=, the
+    command line's --bit and a spec's bits (`what` names the spec's list)."""
+    checks.integer(bit, what or "bit")
     nb = bits_per_value(precision)
-    if not (0 <= int(bit) < nb):
-        raise ValueError(f"bit {bit} is out of range for {precision} (valid bits are 0..{nb - 1})")
+    if not 0 <= bit < nb:
+        where = f"{what}: " if what else ""
+        raise InputError(f"{where}bit {bit} is out of range for {precision} (valid bits are 0..{nb - 1})")
     return int(bit)
 
 

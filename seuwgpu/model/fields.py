@@ -22,7 +22,7 @@ from dataclasses import fields as dc_fields
 
 import numpy as np
 
-from seuwgpu.model import encoding
+from seuwgpu.model import checks, encoding
 
 FIELDS = ("means", "log_scales", "quats", "opacity", "sh_dc", "sh_rest")
 FIELD_ALIASES = {
@@ -49,10 +49,11 @@ FIELD_OFFSET = {"means": 0, "log_scales": 3, "quats": 6, "opacity": 10, "sh_dc":
 BASE_COMPONENTS = 14
 
 
-def canonical_field(name: str) -> str:
+def canonical_field(name: str, what: str | None = None) -> str:
+    """A field by its name or an alias (log_scale, mean, ...), as its canonical name."""
     key = str(name).strip().lower()
     if key not in FIELD_ALIASES:
-        raise ValueError(f"unknown field {name!r}; expected one of {', '.join(FIELDS)}")
+        checks.one_of(name, "field", FIELDS, what)
     return FIELD_ALIASES[key]
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from seuwgpu.model import scenes
+from seuwgpu.model import checks, scenes
 from seuwgpu.model.budget import RENDER_BYTES_PER_VALUE, SCENE_BYTES_PER_VALUE, check_scene
 from seuwgpu.model.cameras import Camera, load_cameras, scale_cameras, select_views
 from seuwgpu.model.captures import capture_antialiased
@@ -41,14 +41,13 @@ def load_source(
 ) -> Source:
     """An embedded scene (procedural or real capture) by name, or any supported model file
     (`lod`: the level of a PlayCanvas LOD set; refused for another file or a scene)."""
-    if up is not None and up not in AXES:
-        raise ValueError(f"unknown up axis {up!r}; expected one of {', '.join(AXES)}")
+    if up is not None:
+        checks.one_of(up, "up axis", AXES)
     if path is not None:
         mf = read_model(path, lod=lod)
         return Source(mf.model, mf.name, up or mf.up, None, mf.notes, mf.format)
-    if lod is not None:
-        raise ValueError(f"lod = {lod} picks a level of a PlayCanvas LOD set (a model file), not of an embedded scene")
     name = scene or scenes.DEFAULT_SCENE
+    checks.lod_of_a_model_file(lod, name)
     if n is not None and not scenes.is_capture(name):
         # before generating: enough memory to generate and render it (an engine checks its own
         # copies: faults/engine.py, campaign specs: campaign/budget.py)

@@ -12,6 +12,7 @@ from seuwgpu.apps.cli.options import (
     CliError,
     add_lod_arg,
     add_profile_arg,
+    argument_type,
     parse_size,
     positive_int,
     proportion,
@@ -20,17 +21,17 @@ from seuwgpu.apps.cli.options import (
     view_count,
 )
 from seuwgpu.apps.cli.results import print_criticality
+from seuwgpu.model import checks
 from seuwgpu.model.formats import UP_AXES
 
 
+@argument_type
 def parse_shard(text: str) -> tuple[int, int]:
     try:
         i, n = (int(v) for v in text.split("/"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"--shard must look like I/N (e.g. 0/4), got {text!r}") from None
-    if n < 1 or not 0 <= i < n:
-        raise argparse.ArgumentTypeError(f"--shard I/N needs 0 <= I < N, got {text!r}")
-    return i, n
+    return checks.shard((i, n), None)
 
 
 def run_campaign(

@@ -11,6 +11,7 @@ from seuwgpu.apps.cli.options import (
     add_camera_args,
     add_model_args,
     add_profile_arg,
+    defense_name,
     index_int,
     load_cams,
     load_source,
@@ -20,45 +21,12 @@ from seuwgpu.apps.cli.options import (
     view_size,
     word_bit,
 )
-from seuwgpu.campaign.progress import ProgressBar
+from seuwgpu.campaign.partial import resumed, run_identity
 from seuwgpu.faults.defenses import DEFENSES as DEFENSE_NAMES
 from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY
 from seuwgpu.faults.sites import FAULT_MODELS
 from seuwgpu.faults.state import FORMER_NAMES, check_target
 from seuwgpu.faults.state import TARGETS as STATE_TARGETS
-
-
-def partial_records(args, src, cams, name: str, records, **options):
-    """The records of an interrupted run of the same arguments in `--out` (campaign/partial.py;
-    another run's are refused, naming what differs). The run is what decides its records: the
-    model and camera files by their content (sha256: the same files through another path are the
-    same run), the other options as read (defaults spelled out; the up axis as resolved, so that
-    `--up` naming the default, or given with --cameras, is the same run), then the command's
-    `options`. `records(rows)`: the DataFrame of the records, as the finished run writes it."""
-    from seuwgpu.campaign.partial import PartialRecords
-    from seuwgpu.campaign.spec import content_hash
-
-    def content(key):
-        path = getattr(args, key)
-        return None if path is None else "sha256:" + content_hash(key, path)
-
-    run = {
-        "command": args.command,
-        "model": content("model"),
-        "scene": None if args.model else src.name,
-        "n": None if args.model else src.model.n,
-        "sh-degree": None if args.model else scene_sh_degree(args),
-        "seed": args.seed,
-        "up": None if args.cameras else src.up,  # what frames the orbit: --up or the format's; unused by cameras
-        "cameras": content("cameras"),
-        "views": len(cams),
-        "size": None if args.cameras else "x".join(map(str, view_size(args))),
-        "scale": args.scale or 1.0,
-        "precision": args.precision,
-        "profile": args.profile,
-        **options,
-    }
-    return PartialRecords(args.out / f"{name}.partial.parquet", run, records)
 
 
 def add_resumable_out(s: argparse.ArgumentParser, name: str, results: str):
@@ -73,12 +41,23 @@ def add_resumable_out(s: argparse.ArgumentParser, name: str, results: str):
 
 @contextlib.contextmanager
 def resumable(args, src, cams, name: str, records, unit: str, total: int, **options):
-    """The frame of a resumable command (`storm`, `state`) around its measuring and the writing of
-    its results: the partial records (`partial_records`, read before any rendering) and a bar of
-    `total` `unit`s. Yields (rows, progress) for the API call."""
-    partial = partial_records(args, src, cams, name, records, **options)
-    with partial.kept() as rows, ProgressBar(unit, total, len(rows)) as bar:
-        yield rows, partial.progress(bar.advance)
+    """campaign/partial.py `resumed` of the run the arguments name (`run_identity`)."""
+    run = run_identity(
+        args.command,
+        src,
+        cams,
+        model=args.model,
+        cameras=args.cameras,
+        sh_degree=scene_sh_degree(args),
+        seed=args.seed,
+        size=view_size(args),
+        scale=args.scale,
+        precision=args.precision,
+        profile=args.profile,
+        **options,
+    )
+    with resumed(args.out, name, run, records, unit, total) as (rows, progress):
+        yield rows, progress
 
 
 def pd_display():
@@ -114,7 +93,7 @@ def defenses_arguments(s: argparse.ArgumentParser):
     s.add_argument(
         "--visible-defenses",
         nargs="+",
-        choices=DEFENSE_NAMES,
+        type=defense_name,
         metavar="DEFENSE",
         help="the arms of --visible (default: every defense)",
     )
@@ -223,7 +202,7 @@ def worstcase_arguments(s: argparse.ArgumentParser):
         "--defense",
         nargs="+",
         default=["none"],
-        choices=DEFENSE_NAMES,
+        type=defense_name,
         metavar="DEFENSE",
         help=f"defenses to search under, each on its own (default none; {', '.join(DEFENSE_NAMES)})",
     )
@@ -288,7 +267,7 @@ def storm_arguments(s: argparse.ArgumentParser):
         "--defense",
         nargs="+",
         default=["none", "guard", "parity4r"],
-        choices=DEFENSE_NAMES,
+        type=defense_name,
         metavar="DEFENSE",
         help=f"arms, each seeing the same upsets (default none guard parity4r; {', '.join(DEFENSE_NAMES)})",
     )

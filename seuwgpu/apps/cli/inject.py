@@ -11,9 +11,11 @@ from seuwgpu.apps.cli.options import (
     add_camera_args,
     add_model_args,
     add_profile_arg,
+    defense_name,
     index_int,
     load_cams,
     load_source,
+    one_of_metavar,
     output_folder,
     parse_formats,
     positive_int,
@@ -51,7 +53,7 @@ def inject_arguments(s: argparse.ArgumentParser):
         "stuck0/stuck1: the bits stuck; zero/random: the whole value replaced (random from --seed)",
     )
     s.add_argument("--width", type=int, choices=range(2, 9), help="adjacent (2-4) or burst (2-8) width (default 2)")
-    s.add_argument("--defense", default="none", choices=DEFENSES)
+    s.add_argument("--defense", default="none", type=defense_name, metavar=one_of_metavar(DEFENSES))
     s.add_argument(
         "--sample",
         type=positive_int,

@@ -7,7 +7,9 @@ import sys
 from pathlib import Path
 
 from seuwgpu.errors import InputError, SeuwgpuError
-from seuwgpu.model.encoding import PRECISIONS
+from seuwgpu.faults.defenses import check_defense
+from seuwgpu.model import checks
+from seuwgpu.model.encoding import PRECISIONS, check_precision
 from seuwgpu.model.formats import UP_AXES
 
 
@@ -15,79 +17,89 @@ class CliError(SeuwgpuError):
     """A user error: printed as one line, exit status 2."""
 
 
+def argument_type(check):
+    """An argparse type from a shared check (model/checks.py): its message, as argparse prints it
+    after `argument --OPTION:`."""
+
+    def parse(text: str):
+        try:
+            return check(text)
+        except InputError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+
+    parse.__name__ = check.__name__
+    return parse
+
+
+precision_name = argument_type(check_precision)
+defense_name = argument_type(check_defense)
+
+
+def one_of_metavar(names) -> str:
+    """How argparse shows a `choices` option's names ({a,b,c}), for one checked by its type."""
+    return "{" + ",".join(names) + "}"
+
+
+@argument_type
 def parse_size(text: str) -> tuple[int, int]:
-    """WxH of views (model/budget.py parse_size: a campaign spec's `size` takes the same)."""
-    from seuwgpu.model.budget import parse_size as parse
-
-    try:
-        return parse(text)
-    except InputError as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
+    """WxH of views (a campaign spec's `size` and the API's take the same)."""
+    return checks.image_size(text, None)
 
 
-def _whole(text: str, lo: int) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < lo:
-        raise argparse.ArgumentTypeError(f"must be at least {lo}, got {v}")
-    return v
-
-
+@argument_type
 def positive_int(text: str) -> int:
     """An argument that counts something (primitives, views, samples): an integer >= 1."""
-    return _whole(text, 1)
+    return checks.integer(int_word(text), None, 1)
 
 
+@argument_type
 def view_count(text: str) -> int:
-    """A number of views: 1 to budget.MAX_VIEWS (a campaign spec's `views` limit too)."""
-    from seuwgpu.model.budget import MAX_VIEWS
-
-    v = _whole(text, 1)
-    if v > MAX_VIEWS:
-        raise argparse.ArgumentTypeError(f"at most {MAX_VIEWS} views, got {v}")
-    return v
+    """A number of views: 1 to checks.MAX_VIEWS (a campaign spec's `views` limit too)."""
+    return checks.views(int_word(text), None)
 
 
+@argument_type
 def index_int(text: str) -> int:
     """An index or threshold argument: an integer >= 0."""
-    return _whole(text, 0)
+    return checks.integer(int_word(text), None, 0)
 
 
+@argument_type
 def word_bit(text: str) -> int:
     """A bit of a 32-bit pipeline-state word: 0 to 31."""
-    v = _whole(text, 0)
-    if v > 31:
-        raise argparse.ArgumentTypeError(f"a pipeline-state word has bits 0..31, got {v}")
-    return v
+    return checks.integer(int_word(text), None, 0, 31)
 
 
+@argument_type
 def positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (v > 0 and v < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return v
+    return checks.number(float_word(text), None)
 
 
+@argument_type
 def scale_factor(text: str) -> float:
-    """--scale: in (0, budget.MAX_SCALE] (a campaign spec's `scale` limit too)."""
-    from seuwgpu.model.budget import MAX_SCALE
-
-    v = positive_float(text)
-    if v > MAX_SCALE:
-        raise argparse.ArgumentTypeError(f"at most {MAX_SCALE} (times the views' resolution), got {text!r}")
-    return v
+    """--scale: in (0, checks.MAX_SCALE] (a campaign spec's `scale` limit too)."""
+    return checks.scale(float_word(text), None)
 
 
+@argument_type
 def proportion(text: str) -> float:
-    v = positive_float(text)
-    if v >= 1:
-        raise argparse.ArgumentTypeError(f"must be between 0 and 1, got {text!r}")
-    return v
+    return checks.proportion(float_word(text), None)
+
+
+def int_word(text: str):
+    """A command-line word as an integer, or as itself for the check to name."""
+    try:
+        return int(text)
+    except ValueError:
+        return text
+
+
+def float_word(text: str):
+    """A command-line word as a number, or as itself for the check to name."""
+    try:
+        return float(text)
+    except ValueError:
+        return text
 
 
 def add_model_args(p: argparse.ArgumentParser, seed_draws: str | None = None):
@@ -115,7 +127,9 @@ def add_model_args(p: argparse.ArgumentParser, seed_draws: str | None = None):
     else:
         p.add_argument("--seed", type=int, help="seed of an embedded scene (default 0)")
     p.set_defaults(seed_draws=bool(seed_draws))
-    p.add_argument("--precision", choices=PRECISIONS, default="fp32", help="stored precision")
+    p.add_argument(
+        "--precision", type=precision_name, metavar=one_of_metavar(PRECISIONS), default="fp32", help="stored precision"
+    )
     p.add_argument(
         "--up",
         choices=UP_AXES,
@@ -131,15 +145,10 @@ def add_lod_arg(p: argparse.ArgumentParser):
     )
 
 
+@argument_type
 def level(text: str) -> int:
     """A LOD level: a non-negative integer."""
-    try:
-        v = int(text)
-    except ValueError:
-        v = -1
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a level 0, 1, 2, ..., got {text!r}")
-    return v
+    return checks.lod_level(int_word(text), None)
 
 
 def add_compositor_arg(p: argparse.ArgumentParser):
@@ -203,8 +212,8 @@ def load_source(args):
 
 def refuse_ignored_options(args):
     """Options the other arguments make meaningless are refused, not silently ignored."""
-    if getattr(args, "lod", None) is not None and getattr(args, "model", None) is None:
-        raise CliError("--lod picks a level of a PlayCanvas LOD set given with --model (lod-meta.json or its folder)")
+    if getattr(args, "model", None) is None:
+        checks.lod_of_a_model_file(getattr(args, "lod", None), getattr(args, "scene", None), "--lod")
     if getattr(args, "model", None) is not None and getattr(args, "n", None) is not None:
         raise CliError("--n sets the primitives of an embedded scene; a model file keeps all of its own")
     if getattr(args, "model", None) is not None and getattr(args, "sh_degree", None) is not None:

@@ -6,8 +6,9 @@ import argparse
 from pathlib import Path
 
 from seuwgpu.apps.cli.command import Command
-from seuwgpu.apps.cli.options import positive_int
+from seuwgpu.apps.cli.options import argument_type, float_word, positive_int
 from seuwgpu.campaign.progress import ProgressBar
+from seuwgpu.model import checks
 
 
 def print_criticality(run_dirs):
@@ -109,14 +110,10 @@ def report_arguments(s: argparse.ArgumentParser):
     )
 
 
+@argument_type
 def summary_target(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        v = float("nan")
-    if not 0 < v < 1:
-        raise argparse.ArgumentTypeError(f"a catastrophic rate per upset in (0, 1), e.g. 0.001; got {text!r}")
-    return v
+    """A residual catastrophic rate per upset."""
+    return checks.proportion(float_word(text), None, "0.001")
 
 
 def cmd_report(args):

@@ -293,7 +293,7 @@ def save_model(model: Model, path, format: str | None = None, up: str | None = N
         by_suffix = sorted(((s, f) for f in writable for s in f.suffixes), key=lambda sf: -len(sf[0]))
         fmt = next((f for s, f in by_suffix if spath.lower().endswith(s)), None)
     if fmt is None:
-        ranked = sorted(writable, key=lambda f: f is not ply.FORMAT)  # the exact one first
+        ranked = sorted(writable, key=lambda f: not f.exact)  # the exact one first
         items = [f"{f.suffixes[0]} ({f.title})" for f in ranked]
         choices = ", ".join(items[:-1]) + " or " + items[-1] if len(items) > 1 else items[0]
         raise ModelFileError(f"{spath}: cannot write this format; write {choices}")
@@ -301,20 +301,21 @@ def save_model(model: Model, path, format: str | None = None, up: str | None = N
     return fmt.name
 
 
-EMBEDDED_FORMATS = ("ply", "spz")  # save_models' default without a source format (an embedded scene)
+EXACT = next(f for f in REGISTRY if f.exact)  # the format every kept model is written in
+EMBEDDED_FORMATS = (EXACT.name, spz.FORMAT.name)  # save_models' default without a source format (an embedded scene)
 
 
 def save_models(models: dict[str, Model], out, formats=None, up: str | None = None, source: str | None = None):
     """Write each model of `models` (name -> Model: `faulted`, a defense's repair) in each of
     `formats` (writable_formats() names) into the folder `out` as NAME + the format's suffix.
-    Default: the `source` file's format where it has a writer, and the exact PLY; without one
+    Default: the `source` file's format where it has a writer, and the EXACT one (PLY); without one
     EMBEDDED_FORMATS. The source's own format is written in the source's coordinates (not turned
     to `up`), so the file overlays the original in the user's viewer; PLY records `up`. A
     quantised file that cannot hold a model (NaN; SPZ: any non-finite value) is left out with a
-    warning saying why; the PLY is always written. Returns the paths written."""
+    warning saying why; the exact one is always written (its failure raises). Returns the paths written."""
     writable = writable_formats()
     if formats is None:
-        formats = (source, "ply") if source in writable else EMBEDDED_FORMATS
+        formats = (source, EXACT.name) if source in writable else EMBEDDED_FORMATS
     formats = tuple(dict.fromkeys(formats))
     unknown = [f for f in formats if f not in writable]
     if unknown:
@@ -330,7 +331,7 @@ def save_models(models: dict[str, Model], out, formats=None, up: str | None = No
             try:
                 save_model(model, path, format=fmt, up=up if turn else None)
             except ValueError as e:
-                if fmt == "ply":
+                if spec.exact:
                     raise
                 warnings.warn(f"{path.name} not written: {e}", stacklevel=3)
                 continue

@@ -72,6 +72,8 @@ class ModelFormat:
       refuses a level.
     - `hint`: a clause for the "unrecognised model file" message when sniffing needs help (the
       headerless .splat is recognised by its extension).
+    - `exact`: its writer keeps every value as it is (float32, no quantisation, NaN kept): the
+      file a faulted model is always written to, and the first a refusal suggests.
     """
 
     name: str
@@ -84,3 +86,4 @@ class ModelFormat:
     recorded_up: Callable[[str], str | None] | None = None
     read_level: Callable[[str, int], tuple[Model, list[str]]] | None = None
     hint: str = ""
+    exact: bool = False

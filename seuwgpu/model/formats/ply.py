@@ -533,4 +533,5 @@ FORMAT = ModelFormat(
     read=_read,
     write=_write,
     recorded_up=recorded_up,
+    exact=True,
 )

@@ -8,6 +8,7 @@ from seuwgpu.analysis import (
 from seuwgpu.analysis.records import (
     reference_precision,
 )
+from seuwgpu.faults.defenses import guard_arms
 from seuwgpu.report.sections.base import FigureItem, Section, TableItem, prov
 
 
@@ -24,7 +25,7 @@ def contamination_section(df, manifests, ctx) -> Section:
         FigureItem(
             "fig_contamination",
             "Contaminated regions against P",
-            contamination.plot_contamination(cont),
+            contamination.plot_contamination(cont, defenses=guard_arms(cont["defense"])),
             "Share of regions contaminated by one log-scale sign-bit upset against P at the reference "
             "precision, predicted (solid) and measured (dashed), without and with the guard.",
             prov(cont),
@@ -42,7 +43,7 @@ def contamination_section(df, manifests, ctx) -> Section:
         "non-empty (0 where nothing changed). slowest_region_ms and imbalance: plain means over records."
     )
     sec.tables.append(TableItem("contamination", "Region contamination", cont, cap))
-    sub = cont[(cont["subset"] == "log-scale sign") & cont["defense"].isin(["none", "guard"])]
+    sub = cont[(cont["subset"] == "log-scale sign") & cont["defense"].isin(guard_arms(cont["defense"]))]
     if len(sub):
         sub = sub[sub["precision"] == reference_precision(sub)]
         pmax = int(sub["P"].max())

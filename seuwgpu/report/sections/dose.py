@@ -10,6 +10,7 @@ from seuwgpu.analysis.records import (
     dose_records,
     reference_precision,
 )
+from seuwgpu.faults.defenses import guard_arms
 from seuwgpu.report.sections.base import FigureItem, Section, TableItem, prov
 
 
@@ -65,12 +66,13 @@ def dose_section(df, manifests, ctx) -> Section:
     ref_curves = curves[curves["precision"] == ref]
     models = reliability.models_in(ref_curves)
     per_model = len(models) > 1
+    arms = guard_arms(ref_curves["defense"])  # none and the guard the runs ran (guard, else guard_all, ...)
     for m in models.itertuples():
         g = ref_curves[(ref_curves["scene"] == m.scene) & (ref_curves["n_primitives"] == m.n_primitives)]
         kmax = int(g["k"].max())
         tail = f"_{m.key}" if per_model else ""
         sec.numbers[f"dose_kmax{tail}"] = kmax
-        for dfn in ("none", "guard"):
+        for dfn in arms:
             top = g[(g["defense"] == dfn) & (g["k"] == kmax)]
             if len(top):
                 sec.numbers[f"dose_psnr_median_at_kmax{tail}_{dfn}_db"] = float(top["psnr_median_db"].iloc[0])

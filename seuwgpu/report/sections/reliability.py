@@ -5,6 +5,7 @@ from __future__ import annotations
 from seuwgpu.analysis import (
     reliability,
 )
+from seuwgpu.faults.defenses import guard_arms
 from seuwgpu.report.sections.base import FigureItem, Section, TableItem, prov
 
 
@@ -96,7 +97,7 @@ def reliability_section(df, manifests, ctx) -> Section:
     pc = res["pc"]
     for m in res["models"]:
         rows = pc[(pc["scene"] == m["scene"]) & (pc["n_primitives"] == m["n_primitives"])] if per_model else pc
-        for dfn in ("none", "guard"):
+        for dfn in guard_arms(pc["defense"]):
             r = reliability.pc_lookup(rows, prec, dfn)
             if r is not None:
                 key = f"p_c_{m['key']}_{dfn}_pct" if per_model else f"p_c_{dfn}_pct"
