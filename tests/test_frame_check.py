@@ -131,3 +131,23 @@ def test_a_flagless_repair_rewrites_only_what_fails_its_code():
     rows[5, 5] ^= np.uint32(1 << 30)
     for c, words in enumerate(r.layout.encode_bits(rows)):
         np.testing.assert_array_equal(r.read_words(c), words)
+
+
+def test_the_frame_checks_device_bytes_are_their_buffers():
+    """side.device_bytes counts what FrameCheck uploads: the packed codes and the output (4 header
+    words, and parity4f's flag bits), in 16-byte-aligned buffers, by hand at 333 primitives; on an
+    fp32 SH-0 model of 114,865 (tarot's size) parity2f's 2 bits stay within 0.5% of the model."""
+    from seuwgpu.faults import side as sd
+
+    model = random_model(333, seed=2)
+    r = Renderer(model, scene_cameras("spheres", 1, 16, 16), "fp32", chunk_prims=128)
+    clean = encoding.to_bits(model.flat(), "fp32")
+    by_hand = {"parity4f": 176 + 64, "parity2f": 96 + 16}  # codes 42 / 21 words; header 16 + 11 flag words
+    for d, want in by_hand.items():
+        fc = FrameCheck(r, clean, d)
+        fc.off()
+        assert fc.device_bytes() == sd.device_bytes(d, "fp32", 3, 333) == want, d
+    n = 114_865
+    assert sd.device_bytes("parity2f", "fp32", 0, n) == 7180 * 4 + 16
+    assert sd.device_overhead("parity2f", "fp32", 0, n) == pytest.approx(28_736 / (n * 14 * 4))
+    assert sd.device_overhead("parity2f", "fp32", 0, n) < 0.005 < sd.device_overhead("parity4f", "fp32", 0, n)
