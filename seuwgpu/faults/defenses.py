@@ -13,7 +13,8 @@ defense is the identity on the clean model (tests/test_defenses.py).
 
 The kinds (classes below): `Defense` (none: reads the corrupted bits), `SupportGuard` (the
 guard's box clamp, applied in the pipeline: faults/guard.py; its `read` returns the corrupted
-bits and `guard_fields` names what the pipeline clamps), `Ecc`, `EccCritical` and
+bits and `guard_fields` names what the pipeline clamps), `FrameParity` (a parity code checked
+inside every frame, in the projection: parity4f, parity2f), `Ecc`, `EccCritical` and
 `Duplication` (read-time codes, modelled by what they read), `CellBox` (per-cell boxes), and
 `CheckedDefense` (a per-primitive check on the GPU, shaders/check.wgsl: `Parity`, `Checksum`,
 `ScaleBound`), which flags a primitive and then culls it (its mean set to NaN: the one corrupted
