@@ -44,15 +44,23 @@ fn stored_pattern(word: u32, j: u32, fmt: u32) -> u32 {
     return (word >> (16u * (j & 1u))) & 0xffffu;
 }
 
-// the parity code of x, the XOR of a primitive's covered bits: one parity bit per way, way w
-// over the bit positions b with b % ways == w (1 way: every bit) (codes.parity_bits)
+// the parity code of x, the XOR of a primitive's covered bits (parity_fold): one parity bit per
+// way, way w over the bit positions b with b % ways == w (ways 1, 2, 4, 8; 1 way: every bit)
+// (codes.ParityCode.code)
 fn parity_code(x: u32, ways: u32) -> u32 {
     var par = 0u;
     for (var w = 0u; w < ways; w = w + 1u) {
-        let way = select(0x11111111u << w, 0xffffffffu, ways == 1u);
+        let way = (0xffffffffu / ((1u << ways) - 1u)) << w;
         par = par | ((countOneBits(x & way) & 1u) << w);
     }
     return par;
+}
+
+// x with value c's covered bits folded in, rotated left by (diagonal c) % ways so that its bit b
+// counts in way (b + diagonal c) % ways (diagonal 0: by bit position alone, parity4r's code)
+fn parity_fold(x: u32, covered: u32, c: u32, ways: u32, diagonal: u32) -> u32 {
+    let k = (c * diagonal) % ways;
+    return x ^ ((covered << k) | (covered >> ((32u - k) & 31u)));
 }
 
 // the side data word holding primitive g's code of `bits` bits (side.pack_side)

@@ -13,11 +13,15 @@ override GUARD_LO: u32 = 0u;      // in-pipeline guard: components 0..31 to clam
 override GUARD_HI: u32 = 0u;      // components 32..63
 // The check inside the frame (issue 47; faults/check.py FrameCheck): 0 = off (the pipeline is
 // today's, bit for bit); otherwise the parity bits of each value FRAME_COVER covers, over every
-// stored component, 4 ways interleaved (parity4r's code), against the stored code, for every
-// primitive the view would draw: one that fails is dropped from this frame (culled) and flagged
-// for repair. A primitive culled anyway is not checked (it draws nothing either way).
+// stored component, in FRAME_WAYS ways (bit b of value c in way (b + FRAME_DIAGONAL c) % FRAME_WAYS:
+// codes.wgsl parity_fold), against the stored code, for every primitive the view would draw: one
+// that fails is dropped from this frame (culled), counted and, with FRAME_FLAGS, flagged for
+// repair. A primitive culled anyway is not checked (it draws nothing either way).
 override FRAME_CHECK: u32 = 0u;
 override FRAME_COVER: u32 = 0u;
+override FRAME_WAYS: u32 = 4u;
+override FRAME_DIAGONAL: u32 = 0u;
+override FRAME_FLAGS: u32 = 1u;
 
 struct View {
     viewmat: mat4x4<f32>,     // world-to-camera, column-major (as WGSL stores it)
@@ -195,15 +199,16 @@ fn cull(g: u32) {
     proj_rect[g] = vec2<u32>(0u, 0u);
 }
 
-// parity4r's check of primitive j (global index g): true when its code word fails
+// the frame's check of primitive j (global index g): true when its code word fails
 fn frame_check_fails(j: u32, g: u32) -> bool {
     let ncomp = 14u + 3u * ((SH_DEGREE + 1u) * (SH_DEGREE + 1u) - 1u);
     var x = 0u;
     for (var c = 0u; c < ncomp; c = c + 1u) {
-        x = x ^ (stored_pattern(model[stored_word_index(c, j, view.plane_words, FMT)], j, FMT) & FRAME_COVER);
+        let v = stored_pattern(model[stored_word_index(c, j, view.plane_words, FMT)], j, FMT) & FRAME_COVER;
+        x = parity_fold(x, v, c, FRAME_WAYS, FRAME_DIAGONAL);
     }
     let p = g % view.n_total;  // the primitive (a batched renderer writes view v's records at v n + p)
-    return parity_code(x, 4u) != code_of(frame_side[code_word_index(p, 4u)], p, 4u);
+    return parity_code(x, FRAME_WAYS) != code_of(frame_side[code_word_index(p, FRAME_WAYS)], p, FRAME_WAYS);
 }
 
 fn pack_rect(x0: f32, y0: f32, x1: f32, y1: f32) -> vec2<u32> {
@@ -289,10 +294,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
 // Opacity and colour, then the screen record of a drawn primitive.
 fn emit(j: u32, g: u32, mean: vec3<f32>, xy: vec2<f32>, conic: vec3<f32>, rect: vec2<u32>, z: f32) {
     // The check inside the frame, on the primitives this view draws (what is culled anyway draws
-    // nothing, corrupted or not): a failing one is dropped and flagged.
+    // nothing, corrupted or not): a failing one is dropped, counted and (FRAME_FLAGS) flagged.
     if (FRAME_CHECK != 0u && frame_check_fails(j, g)) {
         let p = g % view.n_total;
-        atomicOr(&frame_out[OUT_FLAGS + (p >> 5u)], 1u << (p & 31u));
+        if (FRAME_FLAGS != 0u) {
+            atomicOr(&frame_out[OUT_FLAGS + (p >> 5u)], 1u << (p & 31u));
+        }
         atomicAdd(&frame_out[OUT_DETECTED], 1u);
         atomicAdd(&frame_out[OUT_DETECTED_COPY], 1u);
         cull(g);

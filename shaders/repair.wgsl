@@ -1,11 +1,19 @@
 // #import codes
 
 // Repair on the device (faults/check.py DeviceRepair): every primitive the check inside the frame
-// flagged (project.wgsl FRAME_CHECK) is rewritten from the golden copy of its chunk, after the
+// found failing (project.wgsl FRAME_CHECK) is rewritten from the golden copy of its chunk, after the
 // golden row's own checksum is verified (h = fmix32(h ^ value) over its values, as check.wgsl's
 // MODE_CHECKSUM); a golden row that fails is counted and left alone (the primitive stays dropped).
+// Which primitives failed: with REPAIR_FLAGS, the flag bits the frame set; without (a code that
+// keeps no flags), this pass recomputes every primitive's code (CODE_*: the frame check's
+// FRAME_COVER, FRAME_WAYS, FRAME_DIAGONAL) from its stored words against the stored `side`.
 // One thread per stored word of a plane: at fp16/bf16 a word holds two primitives, so one thread
 // writes both halves and no two threads write one word.
+
+override REPAIR_FLAGS: u32 = 1u;
+override CODE_COVER: u32 = 0u;
+override CODE_WAYS: u32 = 4u;
+override CODE_DIAGONAL: u32 = 0u;
 
 struct RepairParams {
     plane_words: u32,
@@ -25,6 +33,21 @@ struct RepairParams {
 // the frame check's output, laid out as codes.wgsl's OUT_* words: the detections, the golden rows
 // that failed (OUT_FAULTS), the primitives repaired (OUT_REPAIRED), the flags (cleared when repaired)
 @group(0) @binding(4) var<storage, read_write> out: array<atomic<u32>>;
+// the frame check's packed codes (read without REPAIR_FLAGS)
+@group(0) @binding(5) var<storage, read> side: array<u32>;
+
+// primitive j (global p) of stored word w needs a repair: flagged, or its code fails
+fn needs_repair(w: u32, j: u32, p: u32) -> bool {
+    if (REPAIR_FLAGS != 0u) {
+        return (atomicLoad(&out[OUT_FLAGS + (p >> 5u)]) & (1u << (p & 31u))) != 0u;
+    }
+    var x = 0u;
+    for (var c = 0u; c < params.ncomp; c = c + 1u) {
+        let v = stored_pattern(words[c * params.plane_words + w], j, params.fmt) & CODE_COVER;
+        x = parity_fold(x, v, c, CODE_WAYS, CODE_DIAGONAL);
+    }
+    return parity_code(x, CODE_WAYS) != code_of(side[code_word_index(p, CODE_WAYS)], p, CODE_WAYS);
+}
 
 @compute @workgroup_size(WG)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -37,7 +60,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     for (var h = 0u; h < per; h = h + 1u) {
         let j = w * per + h;
         let p = params.prim_base + j;
-        if (j >= params.chunk_count || (atomicLoad(&out[OUT_FLAGS + (p >> 5u)]) & (1u << (p & 31u))) == 0u) {
+        if (j >= params.chunk_count || !needs_repair(w, j, p)) {
             continue;
         }
         let half = select(0xffffu << (16u * h), 0xffffffffu, per == 1u);
@@ -50,7 +73,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             continue;
         }
         mask = mask | half;
-        atomicAnd(&out[OUT_FLAGS + (p >> 5u)], ~(1u << (p & 31u)));
+        if (REPAIR_FLAGS != 0u) {
+            atomicAnd(&out[OUT_FLAGS + (p >> 5u)], ~(1u << (p & 31u)));
+        }
         atomicAdd(&out[OUT_REPAIRED], 1u);
     }
     if (mask == 0u) {

@@ -71,11 +71,75 @@ def test_ecc_corrects_each_value_of_a_neighbour_upset_and_the_fast_parity_is_the
     assert table[("mcu_neighbour", "parity4r")]["caught_se"] == 9 * 59
     # the shader's parity (Parity.detect: XOR of the covered bits, a count per way) against the
     # code recomputed bit by bit from the corrupted rows (codes.parity_bits, side_data's)
-    for d in ("parity", "parity4", "parity4r", "parity4f"):
-        cols, masks, (caught, _) = _outcomes(d, "burst3", rows)
-        bad = np.repeat(rows[:1], len(cols), 0)
-        bad[np.arange(len(cols)), cols[:, 0]] ^= masks[:, 0].astype(np.uint32)
-        code = dfn.get(d).code if d == "parity4f" else d
-        side = dfn.side_data(code, rows[:1], "fp32", 3)
-        np.testing.assert_array_equal(caught, dfn.side_data(code, bad, "fp32", 3) != side, err_msg=d)
-        assert caught.any() and not caught.all(), d  # bursts inside and outside the covered bits
+    for d in ("parity", "parity4", "parity4r", "parity4f", "parity2f"):
+        for fam in ("burst3", "mcu_prim"):
+            cols, masks, (caught, _) = _outcomes(d, fam, rows)
+            bad = np.repeat(rows[:1], len(cols), 0)
+            for k in range(2):
+                bad[np.arange(len(cols)), cols[:, k]] ^= masks[:, k].astype(np.uint32)
+            side_data = dfn.get(d).side_data
+            side = side_data(rows[:1], "fp32", 3)
+            np.testing.assert_array_equal(caught, side_data(bad, "fp32", 3) != side, err_msg=f"{d} {fam}")
+            assert caught.any() or (fam == "mcu_prim" and d != "parity2f"), d
+
+
+def _way(bit, value):
+    """parity2f's way of a bit, by hand: (bit + value) mod 2."""
+    return (bit + value) % 2
+
+
+def test_parity2f_groups_diagonally_by_hand():
+    """parity2f's two ways, bit b of value c in way (b + c) mod 2, over bits 19..31 of every value:
+    single flips, 2- and 3-bit bursts and the same bit in two values of different index parity are
+    seen; 4-bit bursts and the same bit in two values of equal index parity cancel."""
+    rows = _rows()
+    cols, masks, (caught, restored) = _outcomes("parity2f", "bit", rows)
+    bit = np.array([int(m).bit_length() - 1 for m in masks[:, 0]])
+    np.testing.assert_array_equal(caught, bit >= COVERED_FROM)
+    np.testing.assert_array_equal(restored, caught)  # dropped, then reloaded: the clean row
+    for w in range(2, 9):
+        cols, masks, (caught, _) = _outcomes("parity2f", f"burst{w}", rows)
+        lo = np.array([(int(m) & -int(m)).bit_length() - 1 for m in masks[:, 0]])
+        covered = np.clip(lo + w - np.maximum(lo, COVERED_FROM), 0, None)
+        # a run of L covered bits puts L // 2 or L // 2 + 1 in each way: all even only if L % 4 == 0
+        np.testing.assert_array_equal(caught, (covered > 0) & (covered % 4 != 0), err_msg=f"burst{w}")
+    four = (masks[:, 0] == np.uint64(0xF << 24)) & (cols[:, 0] == 4)  # burst8's masks: bits 24..31
+    eight = (masks[:, 0] == np.uint64(0xFF << 24)) & (cols[:, 0] == 4)
+    assert four.sum() == 0 and eight.sum() == 1 and not caught[eight].any()
+    cols, masks, (caught, _) = _outcomes("parity2f", "burst4", rows)
+    one = (masks[:, 0] == np.uint64(0xF << 24)) & (cols[:, 0] == 4)
+    assert one.sum() == 1 and not caught[one].any()  # bits 24..27: two in each way, unseen
+    cols, masks, (caught, _) = _outcomes("parity2f", "mcu_prim", rows)
+    bit = np.array([int(m).bit_length() - 1 for m in masks[:, 0]])
+    np.testing.assert_array_equal(caught, (bit >= COVERED_FROM) & ((cols[:, 0] + cols[:, 1]) % 2 == 1))
+    pick = (cols[:, 0] == 3) & (bit == 30)  # log-scale x's exponent top bit with each other value's
+    assert caught[pick & (cols[:, 1] == 4)].all() and not caught[pick & (cols[:, 1] == 5)].any()
+    # the dangerous pairs: the 8 cells split 4 and 4 between the ways; the 12 pairs inside a way pass
+    cols, masks, (caught, _) = _outcomes("parity2f", "dangerous_pairs", rows)
+    ways = [[_way(int(m).bit_length() - 1, int(c)) for c, m in zip(cs, ms)] for cs, ms in zip(cols, masks)]
+    np.testing.assert_array_equal(caught, [a != b for a, b in ways])
+    assert (~caught).sum() == 12
+    # log-scale x or z bit 31 (way 0) with opacity bit 31 (way 1): seen, where parity4r misses them
+    both31 = (masks[:, 0] == np.uint64(1 << 31)) & (masks[:, 1] == np.uint64(1 << 31)) & (cols[:, 1] == 10)
+    np.testing.assert_array_equal(caught[both31], [c % 2 == 1 for c in cols[both31, 0]])  # x, z: ways 0, 1
+    assert caught[both31 & (cols[:, 0] == 3)].all() and not caught[both31 & (cols[:, 0] == 4)].any()
+    # any two cells of the primitive: seen when one alone is covered, or both are, in different ways
+    cols, masks, (caught, _) = _outcomes("parity2f", "pair", rows)
+    b = np.log2(masks.astype(np.float64)).astype(np.int64)  # one bit a mask: exact
+    cov = b >= COVERED_FROM
+    want = (cov[:, 0] ^ cov[:, 1]) | (cov[:, 0] & cov[:, 1] & (_way(b[:, 0], cols[:, 0]) != _way(b[:, 1], cols[:, 1])))
+    np.testing.assert_array_equal(caught, want)
+    # a random value c: the changed covered bits, counted per way bit by bit
+    cols, masks, (caught, _) = _outcomes("parity2f", "random", rows)
+    odd = [
+        any(sum((int(m) >> k) & 1 for k in range(COVERED_FROM, 32) if _way(k, int(c)) == w) % 2 for w in (0, 1))
+        for c, m in zip(cols[:, 0], masks[:, 0])
+    ]
+    np.testing.assert_array_equal(caught, odd)
+    assert 0.7 < np.mean(caught) < 0.8  # about 3 in 4 changes of the covered bits are odd in a way
+    # neighbouring words (planar layout: two primitives, one flip each) are caught when each is
+    table = {
+        r["family"]: r
+        for r in coverage.coverage_table(rows, "fp32", 3, families=("bit", "mcu_neighbour"), defenses=("parity2f",))
+    }
+    assert table["mcu_neighbour"]["caught"] == 13 * 59  # the covered bits of every value, in both

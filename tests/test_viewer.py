@@ -93,6 +93,8 @@ def test_every_defense_and_its_check_schedule(state):
     state.set_guard("parity4f")  # checked inside the frame: dropped in the first frame, then repaired
     feet = [state.frame()[1]["footprint"] for _ in range(2)]
     assert feet[0] < 0.01 and feet[1] == 0 and flipped_bits(state) == 1, feet
+    state.set_guard("parity2f")  # the same faults, already framed: drawn as its repair left them
+    assert state.frame()[1]["footprint"] == 0 and flipped_bits(state) == 1
     with pytest.raises(ValueError, match="every S >= 1 frames"):
         state.set_check_every(0)
 

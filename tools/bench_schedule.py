@@ -1,6 +1,6 @@
 """A defense's time measured as a schedule, with many rounds (issue 47 point 6): S plain frames,
 S frames with parity4r's check before the first, and S frames checked inside the projection
-(parity4f), interleaved round by round on one renderer; the median of each configuration's
+(parity4f, parity2f), interleaved round by round on one renderer; the median of each configuration's
 paired ratio to the plain rounds with its distribution-free 95% interval.
 
     python tools/bench_schedule.py [--scene leica-sofort | --model FILE] [--size 256x256] [--every 10] [--rounds 41]
@@ -39,8 +39,9 @@ def main(argv=None) -> int:
     r = Renderer(model, [cam], "fp32")
     clean = encoding.to_bits(model.flat(), "fp32")
     chk = Checker(r, "parity4r", clean)
-    fc = FrameCheck(r, clean)
-    fc.off()
+    frame_checks = {d: FrameCheck(r, clean, d) for d in ("parity4f", "parity2f")}
+    for fc in frame_checks.values():
+        fc.off()
 
     def plain():
         for _ in range(a.every):
@@ -50,18 +51,20 @@ def main(argv=None) -> int:
         chk.run()
         plain()
 
-    def in_frame():
+    def in_frame(fc):
         fc.on()
         plain()
         fc.off()
 
-    got = interleaved_samples({"plain": plain, "parity4r": checked, "parity4f": in_frame}, a.rounds)
+    runs = {"plain": plain, "parity4r": checked}
+    runs.update({d: (lambda fc=fc: in_frame(fc)) for d, fc in frame_checks.items()})
+    got = interleaved_samples(runs, a.rounds)
     p = np.asarray(got["plain"])
     print(
         f"{name}: {model.n:,} primitives, {w}x{h}, S = {a.every}, {len(p)} interleaved rounds, "
         f"{r.gpu.info.get('device', '?')}; a plain frame {1000 * np.median(p) / a.every:.1f} ms (median)"
     )
-    for k in ("parity4r", "parity4f"):
+    for k in ("parity4r", *frame_checks):
         med, lo, hi = median_interval((np.asarray(got[k]) - p) / p)
         print(f"  {k}: {100 * med:+.2f}% of a frame [95% {100 * lo:+.2f}, {100 * hi:+.2f}]")
     return 0

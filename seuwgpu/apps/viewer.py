@@ -430,11 +430,10 @@ class ViewerState:
         """The current faults drawn under the defense: the pipeline's clamp for the guards; for
         the others what they read (a check defense: once checked since the faults changed)."""
         e, d = self.engine, dfn.get(self.defense)
-        drawn = self.defense
+        after_repair = False
         if d.frame_check:  # checked inside the frame: the faults' first frame drops, then repaired
             key = self._faults_key()
-            if getattr(self, "_framed_faults", None) == key:
-                drawn = d.code  # reloaded before this frame: what its code's check reads back
+            after_repair = getattr(self, "_framed_faults", None) == key  # reloaded before this frame
             self._framed_faults = key
         if d.checked:
             key = self._faults_key()
@@ -448,9 +447,9 @@ class ViewerState:
             return e.render_current(self.defense)
         active = list(self.groups)
         e.undo_all()
-        handle = e.apply([s for g in active for s in g.sites], drawn)
+        handle = e.apply([s for g in active for s in g.sites], self.defense, after_repair=after_repair)
         try:
-            return e.render_current(drawn)
+            return e.render_current(self.defense)
         finally:
             e.undo(handle)
             for g in active:

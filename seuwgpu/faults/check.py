@@ -21,7 +21,7 @@ import numpy as np
 
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults import side as sd
-from seuwgpu.faults.codes import CHECKSUM_SEED, fmix32
+from seuwgpu.faults.codes import CHECKSUM_SEED, fmix32, parity_cover_mask
 from seuwgpu.faults.codes import checksum as codes_checksum
 from seuwgpu.faults.guard import fill_chunk_params
 from seuwgpu.gpu.device import STORAGE, shader_source
@@ -152,32 +152,37 @@ def seal_words(rows: np.ndarray, table: np.ndarray) -> np.ndarray:
 
 
 class FrameCheck:
-    """The check inside the frame (issue 47): parity4r's code word of every primitive verified
-    where the projection reads it (shaders/project.wgsl FRAME_CHECK); a primitive that fails is
-    dropped from that frame (culled, as a non-finite mean is) and flagged for repair, so a
-    detected upset is never drawn. Twin: the frame of the model with the flagged primitives'
-    means set to NaN (codes.cull), the flags those of defenses.detect("parity4r", ...).
+    """The check inside the frame (issue 47): a frame-check defense's parity code (defenses.
+    FrameParity: parity4f, parity2f) of every primitive verified where the projection reads it
+    (shaders/project.wgsl FRAME_CHECK); a primitive that fails is dropped from that frame (culled,
+    as a non-finite mean is), counted and, for a defense that keeps flags, flagged for repair, so
+    a detected upset is never drawn. Twin: the frame of the model with the failing primitives'
+    means set to NaN (codes.cull), the failing ones those of FrameParity.hit.
 
-    Side data: the 4-bit codes, packed (side.pack_side), and the output as Checker's (a count
-    kept twice, then a flag bit per primitive). `count()` reads the count (4 bytes), `flags()`
-    the flag bits, `clear()` zeroes them after a repair."""
+    Side data: the codes, packed (side.pack_side), and the output as Checker's (a count kept twice,
+    then, with flags, a flag bit per primitive). `count()` reads the count (4 bytes), `flags()` the
+    flag bits, `clear()` zeroes them after a repair."""
 
-    defense = "parity4r"
-
-    def __init__(self, renderer, clean_rows: np.ndarray):
-        d = dfn.checked(self.defense)
+    def __init__(self, renderer, clean_rows: np.ndarray, defense: str = "parity4f"):
+        d = dfn.get(defense)
+        if not d.frame_check:
+            ok = ", ".join(x.name for x in dfn.REGISTRY.values() if x.frame_check)
+            raise ValueError(f"defense {defense!r} is not checked inside the frame; those that are: {ok}")
         r, L = renderer, renderer.layout
-        self.renderer, self.gpu, self.layout = r, r.gpu, L
+        self.renderer, self.gpu, self.layout, self.defense = r, r.gpu, L, d
         side = d.side_data(np.asarray(clean_rows), L.precision, L.degree)
         self.side = r.gpu.upload(sd.pack_side(side, d.side_bits))
-        self.out = CheckOutput(r.gpu, L.n, "frame_check.out")
+        self.out = CheckOutput(r.gpu, L.n if d.flags else 0, "frame_check.out")
         self.clear()
-        self.cover = d.check_parameters(L.precision, L.degree)["cover"]
+        self.cover = parity_cover_mask(L.precision)
         self.on()
 
     def on(self):
         """Check in every frame from now on (the projection's FRAME_CHECK pipelines)."""
-        self.renderer.projection.set_frame_check(self.side, self.out.buffer, self.cover)
+        code = self.defense.code
+        self.renderer.projection.set_frame_check(
+            self.side, self.out.buffer, self.cover, code.ways, code.diagonal, self.defense.flags
+        )
 
     def off(self):
         """Back to today's projection pipeline."""
@@ -191,6 +196,8 @@ class FrameCheck:
 
     def flags(self) -> np.ndarray:
         """[n] bool: the primitives the frames since the last clear() flagged."""
+        if not self.defense.flags:
+            raise ValueError(f"{self.defense.name} keeps no flags: its repair re-verifies every primitive")
         return self.out.flags()
 
     def device_bytes(self) -> int:
@@ -198,18 +205,29 @@ class FrameCheck:
 
 
 class DeviceRepair:
-    """Repair on the device (shaders/repair.wgsl): the primitives a FrameCheck flagged are
-    rewritten from a golden copy of the model held on the device, each golden row's checksum
-    (codes.checksum of the clean row, 32 bits a primitive) verified when it is read; a golden row
-    that fails is left alone and counted (the primitive stays flagged, dropped every frame). No
-    host copy of the model is read: the host reads two counts.
+    """Repair on the device (shaders/repair.wgsl): the primitives a FrameCheck flagged (for a code
+    without flags: every primitive whose code fails, recomputed in this pass) are rewritten from a
+    golden copy of the model held on the device, each golden row's checksum (codes.checksum of
+    the clean row, 32 bits a primitive) verified when it is read; a golden row that fails is left
+    alone and counted (the primitive stays flagged, dropped every frame). No host copy of the
+    model is read: the host reads two counts.
 
     Device memory: the golden copy (the model's size again) and its checksums; `device_bytes`."""
 
     def __init__(self, renderer, clean_rows: np.ndarray, frame_check: FrameCheck):
         r, L = renderer, renderer.layout
         self.renderer, self.gpu, self.layout, self.check = r, r.gpu, L, frame_check
-        self.kernel = Kernel(r.gpu, "repair")
+        code = frame_check.defense.code
+        self.kernel = Kernel(
+            r.gpu,
+            "repair",
+            constants={
+                "REPAIR_FLAGS": int(frame_check.defense.flags),
+                "CODE_COVER": frame_check.cover,
+                "CODE_WAYS": code.ways,
+                "CODE_DIAGONAL": code.diagonal,
+            },
+        )
         self.golden = [r.gpu.upload(w, STORAGE, f"golden-chunk-{k}") for k, w in enumerate(r.clean_words)]
         self.golden_sum = r.gpu.upload(codes_checksum(np.asarray(clean_rows)))
         self.params = Uniforms(r.gpu, self.kernel.struct("RepairParams"), L.n_chunks, "repair.params")
@@ -217,7 +235,8 @@ class DeviceRepair:
         self.params.write()
 
     def run(self) -> tuple[int, int]:
-        """Repair every flagged primitive; returns (repaired, golden rows that failed their checksum)."""
+        """Repair every flagged (or failing) primitive; returns (repaired, golden rows that failed
+        their checksum)."""
         g, L = self.gpu, self.layout
         out = self.check.out
         out.clear_header(CheckOutput.FAULTS, 2)  # this run's counts
@@ -232,6 +251,7 @@ class DeviceRepair:
                 golden=self.golden[k],
                 golden_sum=self.golden_sum,
                 out=out.buffer,
+                side=self.check.side,
                 threads=-(-(hi - lo) // per),
             )
         g.submit(enc)

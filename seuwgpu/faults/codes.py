@@ -122,16 +122,76 @@ def parity_cover_mask(precision: str) -> int:
     return ((1 << encoding.bits_per_value(precision)) - 1) & ~((1 << (man - PARITY_MANTISSA)) - 1)
 
 
-def parity_bits(rows: np.ndarray, precision: str, degree: int, ways: int, fields=GUARD_FIELDS) -> np.ndarray:
-    """[M, ways] parity of the covered bits of each primitive's `fields` values, way w over bit
-    positions b with b % ways == w (interleaving: a burst of <= ways adjacent bits of one value
-    flips at most one bit of each way)."""
+def parity_bits(
+    rows: np.ndarray, precision: str, degree: int, ways: int, fields=GUARD_FIELDS, diagonal: int = 0
+) -> np.ndarray:
+    """[M, ways] parity of the covered bits of each primitive's `fields` values, bit b of flat
+    component c in way (b + diagonal * c) % ways, counted bit by bit. diagonal 0 interleaves by bit
+    position only: a burst of <= ways adjacent bits of one value flips at most one bit of each way.
+    diagonal 1 also puts the same bit of neighbouring values in different ways."""
     cols = covered_components(fields, degree)
     v = np.asarray(rows)[:, cols].astype(np.uint64) & np.uint64(parity_cover_mask(precision))
+    shift = (cols * diagonal) % ways  # the values whose bit b counts in way (b + shift) % ways
     out = np.zeros((v.shape[0], ways), dtype=np.uint8)
-    for b in range(encoding.bits_per_value(precision)):
-        out[:, b % ways] ^= ((v >> np.uint64(b)) & np.uint64(1)).astype(np.uint8).sum(axis=1).astype(np.uint8) & 1
+    for k in np.unique(shift):
+        vk = v[:, shift == k]
+        for b in range(encoding.bits_per_value(precision)):
+            ones = ((vk >> np.uint64(b)) & np.uint64(1)).astype(np.uint8).sum(axis=1).astype(np.uint8)
+            out[:, (b + int(k)) % ways] ^= ones & 1
     return out
+
+
+def way_mask(way: int, ways: int) -> int:
+    """The bit positions b of a u32 with b % ways == way (ways 1, 2, 4, 8 or 16; shaders/codes.wgsl)."""
+    return (0xFFFFFFFF // ((1 << ways) - 1)) << way & 0xFFFFFFFF
+
+
+def rotl32(x: np.ndarray, k: int) -> np.ndarray:
+    """u32 words rotated left by k (0..31) bits."""
+    x = np.asarray(x, np.uint32)
+    return (x << np.uint32(k)) | (x >> np.uint32((32 - k) % 32)) if k else x
+
+
+class ParityCode:
+    """`ways` parity bits a primitive over the covered bits (parity_cover_mask) of the values of
+    `fields` (they lead the layout), bit b of flat component c in way (b + diagonal * c) % ways
+    (parity_bits). The check defenses (defenses.Parity) and the checks inside the frame
+    (defenses.FrameParity) hold one; shaders/codes.wgsl computes it as `code` does."""
+
+    def __init__(self, ways: int, fields, diagonal: int = 0):
+        if ways not in (1, 2, 4, 8, 16):
+            raise ValueError(f"a parity code has 1, 2, 4, 8 or 16 ways (got {ways})")
+        self.ways, self.fields, self.diagonal = int(ways), tuple(fields), int(diagonal)
+
+    def components(self, degree: int) -> int:
+        """The code covers flat components 0 .. this - 1 (its fields lead the layout)."""
+        cols = covered_components(self.fields, degree)
+        assert np.array_equal(cols, np.arange(cols.size))
+        return int(cols.size)
+
+    def side_data(self, clean, precision: str, degree: int) -> np.ndarray:
+        """[M] u32: the code of each clean primitive (way w in bit w), counted bit by bit."""
+        par = parity_bits(np.asarray(clean), precision, degree, self.ways, self.fields, self.diagonal)
+        return (par.astype(np.uint32) << np.arange(self.ways, dtype=np.uint32)).sum(axis=1).astype(np.uint32)
+
+    def code(self, rows, precision: str, degree: int) -> np.ndarray:
+        """[M] u32: the code as the shaders compute it, parity being linear: value c's covered bits
+        rotated left by (diagonal * c) % ways (so its bit b lands in way (b + diagonal * c) % ways),
+        XORed over the values, then one parity per way (side_data's code at a fraction of its
+        cost: the coverage sweep checks millions of rows)."""
+        v = np.asarray(rows)[:, : self.components(degree)].astype(np.uint32) & np.uint32(parity_cover_mask(precision))
+        shift = (np.arange(v.shape[1]) * self.diagonal) % self.ways
+        x = np.zeros(v.shape[0], np.uint32)
+        for k in np.unique(shift):
+            x ^= rotl32(np.bitwise_xor.reduce(v[:, shift == k], axis=1), int(k))
+        out = np.zeros(v.shape[0], np.uint32)
+        for w in range(self.ways):
+            out |= (np.bitwise_count(x & np.uint32(way_mask(w, self.ways))) & 1).astype(np.uint32) << np.uint32(w)
+        return out
+
+    def detect(self, side, rows, precision: str, degree: int) -> np.ndarray:
+        """[M] bool: the stored `rows` fail their code `side`."""
+        return self.code(rows, precision, degree) != np.asarray(side, dtype=np.uint32)
 
 
 CHECKSUM_SEED = 0x811C9DC5

@@ -173,7 +173,7 @@ def _times(model, camera, precision, repeats, gpu, check_every) -> tuple[dict, s
 
     out = {"none": {"time": 0.0, "lo": 0.0, "hi": 0.0}}
     for d in (x for x in dfn.REGISTRY.values() if x.frame_check):  # the check inside every frame
-        fc = FrameCheck(r, clean)
+        fc = FrameCheck(r, clean, d.name)
         fc.off()
 
         def checked_frame(fc=fc):

@@ -114,7 +114,7 @@ def outcomes(
     clean = np.asarray(clean)
     index = np.arange(clean.shape[0]) if index is None else np.asarray(index)
     side = d.side_data(clean, precision, degree, box) if d.checked else None
-    side4 = dfn.get(d.code).side_data(clean, precision, degree) if d.frame_check else None
+    code = d.side_data(clean, precision, degree) if d.frame_check else None
     caught = np.zeros(len(prims), bool)
     restored = np.zeros(len(prims), bool)
     for s in range(0, len(prims), CHUNK):
@@ -125,8 +125,8 @@ def outcomes(
         for k in range(c.shape[1]):
             rows[ar, c[:, k]] ^= m[:, k].astype(rows.dtype)
         base = clean[p]
-        if d.frame_check:  # parity4r's check in the frame: dropped, then reloaded before the next frame
-            caught[sl] = restored[sl] = d.hit(side4[p], rows, precision, degree)
+        if d.frame_check:  # its code checked in the frame: dropped, then reloaded before the next frame
+            caught[sl] = restored[sl] = d.hit(code[p], rows, precision, degree)
             continue
         if d.checked:
             hit = d.detect(side[p], rows, precision, degree, box)

@@ -13,7 +13,8 @@ defense is the identity on the clean model (tests/test_defenses.py).
 
 The kinds (classes below): `Defense` (none: reads the corrupted bits), `SupportGuard` (the
 guard's box clamp, applied in the pipeline: faults/guard.py; its `read` returns the corrupted
-bits and `guard_fields` names what the pipeline clamps), `Ecc`, `EccCritical` and
+bits and `guard_fields` names what the pipeline clamps), `FrameParity` (a parity code checked
+inside every frame, in the projection: parity4f, parity2f), `Ecc`, `EccCritical` and
 `Duplication` (read-time codes, modelled by what they read), `CellBox` (per-cell boxes), and
 `CheckedDefense` (a per-primitive check on the GPU, shaders/check.wgsl: `Parity`, `Checksum`,
 `ScaleBound`), which flags a primitive and then culls it (its mean set to NaN: the one corrupted
@@ -39,6 +40,7 @@ from seuwgpu.faults.codes import (
     SCALE_CLASS_BITS,
     SCALE_CLASSES,
     CellBoxes,
+    ParityCode,
     cellbox_read,
     checksum,
     covered_components,
@@ -47,7 +49,6 @@ from seuwgpu.faults.codes import (
     ecc_check_bits,
     ecc_crit_read,
     ecc_read,
-    parity_bits,
     parity_cover_mask,
     scale_classes,
     scale_table,
@@ -224,41 +225,30 @@ class CheckedDefense(Defense):
 
 
 class Parity(CheckedDefense):
-    """`ways` interleaved parity bits over the sign, exponent and top PARITY_MANTISSA mantissa
-    bits of the values of `fields` (they lead the layout); a mismatch culls or reloads."""
+    """`code` (codes.ParityCode: interleaved parity bits over the sign, exponent and top
+    PARITY_MANTISSA mantissa bits of the values of its fields) checked on the GPU every S frames;
+    a mismatch culls or reloads."""
 
     check_mode = "MODE_PARITY"
 
-    def __init__(self, name, info, ways: int, fields, reloads: bool, label="", first_study=False):
+    def __init__(self, name, info, code: ParityCode, reloads: bool, label="", first_study=False):
         super().__init__(name, info, label, first_study)
-        self.ways, self.fields, self.reloads = ways, tuple(fields), reloads
-        self.side_bits = ways
+        self.code, self.reloads = code, reloads
+        self.ways, self.fields = code.ways, code.fields
+        self.side_bits = code.ways
 
     def components(self, degree: int) -> int:
-        """The check covers flat components 0 .. this - 1 (its fields lead the layout)."""
-        cols = covered_components(self.fields, degree)
-        assert np.array_equal(cols, np.arange(cols.size))
-        return int(cols.size)
+        return self.code.components(degree)
 
     def check_parameters(self, precision, degree):
         return {"ways": self.ways, "cover": parity_cover_mask(precision), "comp_count": self.components(degree)}
 
     def side_data(self, clean, precision, degree, box=None):
-        par = parity_bits(np.asarray(clean), precision, degree, self.ways, self.fields).astype(np.uint32)
-        return (par << np.arange(par.shape[1], dtype=np.uint32)).sum(axis=1).astype(np.uint32)
+        return self.code.side_data(clean, precision, degree)
 
     def detect(self, side, rows, precision, degree, box=None):
-        """As shaders/check.wgsl computes it, parity being linear: the XOR of the covered bits of
-        every covered value, then one parity per way (side_data's code of the rows, at a
-        fraction of its cost: the coverage sweep checks millions of rows)."""
-        rows = np.asarray(rows)
-        cover = np.uint32(parity_cover_mask(precision))
-        x = np.bitwise_xor.reduce(rows[:, : self.components(degree)].astype(np.uint32) & cover, axis=1)
-        code = np.zeros(rows.shape[0], np.uint32)
-        for w in range(self.ways):
-            way = np.uint32(0xFFFFFFFF if self.ways == 1 else (0x11111111 << w) & 0xFFFFFFFF)
-            code |= (np.bitwise_count(x & way) & 1).astype(np.uint32) << np.uint32(w)
-        return code != np.asarray(side, dtype=np.uint32)
+        """As shaders/check.wgsl computes it (codes.ParityCode.code)."""
+        return self.code.detect(side, rows, precision, degree)
 
 
 class Checksum(CheckedDefense):
@@ -306,32 +296,47 @@ class ScaleBound(CheckedDefense):
 
 
 class FrameParity(Defense):
-    """parity4r's code word checked inside every frame, where the projection reads the primitive
-    (shaders/project.wgsl FRAME_CHECK, faults/check.py FrameCheck): a primitive that fails is
-    dropped from that frame (culled) and flagged; the repair (a reload from the golden copy, on
-    the device: DeviceRepair) lands before the next frame. Exposure 0 frames: a detected upset is
-    never drawn, only missed for one frame. `read` is that frame; `after_frame` the repair."""
+    """A parity code (codes.ParityCode over every stored value) checked inside every frame, where
+    the projection reads the primitive (shaders/project.wgsl FRAME_CHECK, faults/check.py
+    FrameCheck): a primitive that fails is dropped from that frame (culled); the repair (a reload
+    from the golden copy, on the device: DeviceRepair) lands before the next frame. Exposure 0
+    frames: a detected upset is never drawn, only missed for one frame. `read` is that frame;
+    `after_frame` the repair.
+
+    `flags`: a flag bit per primitive marks what the frame dropped and the repair rewrites only
+    those (parity4f); without (parity2f) the frame only counts its detections and the repair
+    re-verifies every primitive's code, rewriting those that fail (a full pass, run only after a
+    detection), so the device holds the code bits alone."""
 
     reads_stored_bits = False
     frame_check = True
-    side_bits = 4
-    code = "parity4r"  # the check defense whose code word the frame verifies (and reloads as)
+
+    def __init__(self, name, info, code: ParityCode, flags: bool, label=""):
+        super().__init__(name, info, label)
+        if code.fields != FIELDS:
+            raise ValueError("a check inside the frame covers every stored value (the projection reads them all)")
+        self.code, self.flags = code, bool(flags)
+        self.side_bits = code.ways
 
     def bits_per_primitive(self, precision, degree):
         return self.side_bits
 
+    def side_data(self, clean, precision: str, degree: int) -> np.ndarray:
+        """[M] u32: the code of each clean primitive (what FrameCheck uploads, packed)."""
+        return self.code.side_data(clean, precision, degree)
+
     def hit(self, side, corrupt, precision, degree) -> np.ndarray:
-        """[M] bool: the frame's check fails (its code's detect against the code's side data)."""
-        return get(self.code).detect(side, corrupt, precision, degree)
+        """[M] bool: the frame's check fails (the code's detect against its side data)."""
+        return self.code.detect(side, corrupt, precision, degree)
 
     def _hit(self, clean, corrupt, precision, degree):
-        return self.hit(get(self.code).side_data(clean, precision, degree), corrupt, precision, degree)
+        return self.hit(self.side_data(clean, precision, degree), corrupt, precision, degree)
 
     def read(self, clean, corrupt, precision, degree, box=None, prims=None, state=None):
         return cull(corrupt, self._hit(clean, corrupt, precision, degree), precision)
 
     def after_frame(self, clean, corrupt, precision: str, degree: int) -> np.ndarray:
-        """The stored rows once the frame's flags are repaired: flagged ones reloaded."""
+        """The stored rows once the frame's detections are repaired: those that fail reloaded."""
         return np.where(self._hit(clean, corrupt, precision, degree)[:, None], clean, corrupt)
 
     def frame(self, clean, corrupt, precision, degree, box=None, prims=None, state=None):
@@ -340,6 +345,7 @@ class FrameParity(Defense):
 
 
 # ---- the registry ------------------------------------------------------------------------------
+PARITY4R = ParityCode(4, FIELDS)  # parity4r's code, which parity4f checks inside the frame
 REGISTRY: dict[str, Defense] = {}
 
 
@@ -390,8 +396,7 @@ register(
     Parity(
         "parity",
         "1 parity bit per primitive over sign, exponent and top mantissa bits; mismatch culls",
-        ways=1,
-        fields=GUARD_FIELDS,  # a cull for an inert sh_rest hit would only harm
+        ParityCode(1, GUARD_FIELDS),  # a cull for an inert sh_rest hit would only harm
         reloads=False,
     )
 )
@@ -399,8 +404,7 @@ register(
     Parity(
         "parity4",
         "4 interleaved parity bits per primitive (bit mod 4): catch bursts of <= 4 bits; cull",
-        ways=4,
-        fields=GUARD_FIELDS,
+        ParityCode(4, GUARD_FIELDS),
         reloads=False,
     )
 )
@@ -411,8 +415,7 @@ register(
     Parity(
         "parity4r",
         "parity4's check over every value; a mismatch reloads the primitive from the golden copy",
-        ways=4,
-        fields=FIELDS,  # a reload is harmless, so it covers every value
+        PARITY4R,  # a reload is harmless, so it covers every value
         reloads=True,
     )
 )
@@ -421,7 +424,20 @@ register(
         "parity4f",
         "parity4r's check inside every frame (in the projection): a mismatch drops the primitive from that "
         "frame and reloads it before the next",
+        PARITY4R,
+        flags=True,
         label="parity4r in the frame",
+    )
+)
+register(
+    FrameParity(
+        "parity2f",
+        "2 parity bits per primitive over every value, bit b of value c in way (b + c) mod 2, checked inside "
+        "every frame: a mismatch drops the primitive from that frame; the repair re-verifies every primitive "
+        "and reloads those that fail before the next",
+        ParityCode(2, FIELDS, diagonal=1),
+        flags=False,  # 2 bits a primitive, nothing more: 0.45% of an fp32 SH-0 model
+        label="2 diagonal parity bits in the frame",
     )
 )
 register(

@@ -284,12 +284,14 @@ class Engine:
         return prims, clean, cur
 
     # ---- flips on the GPU --------------------------------------------------------------------------
-    def _xor_lists(self, sites: list[Site], defense: str) -> dict[int, np.ndarray]:
-        """Per chunk: [(word, xor mask)] turning the clean words into what the defense reads."""
+    def _xor_lists(self, sites: list[Site], defense: str, after_repair: bool = False) -> dict[int, np.ndarray]:
+        """Per chunk: [(word, xor mask)] turning the clean words into what the defense reads (with
+        `after_repair`, the stored rows once a frame's repair landed: Defense.after_frame)."""
         if not sites:
             return {}
         prims, clean, cur = self._faulted(sites)
-        return self.xor_rows(prims, clean, self.read_through(prims, clean, cur, defense))
+        rows = dfn.get(defense).after_frame(clean, cur, self.precision, self.degree) if after_repair else None
+        return self.xor_rows(prims, clean, self.read_through(prims, clean, cur, defense) if rows is None else rows)
 
     def xor_rows(self, prims: np.ndarray, clean: np.ndarray, rows: np.ndarray) -> dict[int, np.ndarray]:
         """Per chunk: [(word, xor mask)] turning primitives `prims` (clean bits `clean`) into `rows`."""
@@ -310,9 +312,10 @@ class Engine:
                 out[int(ch)] = np.stack([w[keep], m[keep]], axis=1).astype(np.uint32)
         return out
 
-    def apply(self, sites: list[Site], defense: str = "none") -> dict:
-        """Flip the sites in the GPU-resident model (as the defense reads them); returns a handle."""
-        xors = self._xor_lists(list(sites), dfn.check_defense(defense))
+    def apply(self, sites: list[Site], defense: str = "none", after_repair: bool = False) -> dict:
+        """Flip the sites in the GPU-resident model (as the defense reads them; `after_repair`: as
+        its repair between frames left them, for a check inside the frame); returns a handle."""
+        xors = self._xor_lists(list(sites), dfn.check_defense(defense), after_repair)
         self.flips.apply(xors)
         self._active.append(xors)
         return xors

@@ -50,7 +50,8 @@ def device_bytes(defense: str, precision: str, degree: int, n: int, chunks: int 
     A support guard: the box the pipeline reads (one Bound record per stored component) and the
     clamp counts. A GPU check: its side data packed `side_bits` a primitive, its output (a count and
     one flag bit per primitive), its table (scalebound's class bounds) and one uniform slot per
-    model chunk; scalebound adds the guard's. The read-time codes without a GPU decoder (ECC,
+    model chunk; scalebound adds the guard's. A check inside the frame: its packed codes and its
+    output (the count, and the flag bits if it keeps them). The read-time codes without a GPU decoder (ECC,
     ecc_crit, TMR, cellbox): their encoding's bits, packed, rounded up to whole u32 words."""
     from seuwgpu.gpu.constants import UNIFORM_STRIDE
     from seuwgpu.model.budget import BUFFER_ALIGN
@@ -64,7 +65,7 @@ def device_bytes(defense: str, precision: str, degree: int, n: int, chunks: int 
         total += buffer(BOUND_BYTES * n_components(degree)) + buffer(GUARD_COUNT_BYTES)
     if d.frame_check:  # the check inside the frame: packed codes and its output, no table or uniform
         total += buffer(4 * -(-n * d.side_bits // 32))
-        total += buffer(CHECK_HEADER_BYTES + 4 * -(-n // 32))
+        total += buffer(CHECK_HEADER_BYTES + (4 * -(-n // 32) if d.flags else 0))  # flag bits if it keeps them
     elif d.checked:
         total += buffer(4 * -(-n * d.side_bits // 32))  # packed side data
         total += buffer(CHECK_HEADER_BYTES + 4 * -(-n // 32))  # count + flag bits

@@ -450,31 +450,34 @@ class Projection:
             tile_y0=tile_origin[1],
         )
 
-    def set_frame_check(self, side=None, out=None, cover: int = 0):
-        """The check inside the frame: `side` the packed 4-bit parity codes of every primitive,
-        `out` its output (a CheckOut: count twice, 2 words, a flag bit per primitive), `cover` the
-        bits of each value the parity covers; None: off (today's pipeline)."""
+    def set_frame_check(self, side=None, out=None, cover: int = 0, ways: int = 4, diagonal: int = 0, flags=True):
+        """The check inside the frame: `side` the packed parity codes (`ways` bits) of every
+        primitive, `out` its output (a CheckOut: count twice, 2 words, with `flags` a flag bit per
+        primitive), `cover` the bits of each value the parity covers, bit b of value c counted in
+        way (b + diagonal c) % ways; None: off (today's pipeline)."""
         if side is None:  # placeholders (a buffer is never bound both read-only and writable), made once
             if getattr(self, "_frame_off", None) is None:
                 self._frame_off = (
                     self.gpu.buffer(16, STORAGE, f"{self.label}.frame_side_off"),
                     self.gpu.buffer(16, STORAGE, f"{self.label}.frame_out_off"),
                 )
-            self.frame_cover = 0
+            self.frame_code = None
             self.frame_side, self.frame_out = self._frame_off
             return
-        self.frame_side, self.frame_out, self.frame_cover = side, out, int(cover)
+        self.frame_side, self.frame_out = side, out
+        self.frame_code = (int(cover), int(ways), int(diagonal), int(bool(flags)))
 
-    def variant(self, fmt: int, degree: int, guard_lo: int, guard_hi: int, cover: int = 0) -> Kernel:
+    def variant(self, fmt: int, degree: int, guard_lo: int, guard_hi: int, code=None) -> Kernel:
         """The pipeline for stored precision code `fmt`, SH `degree`, guard mask words and the
-        frame check's cover (0: no check in the frame)."""
-        key = (int(fmt), int(degree), int(guard_lo), int(guard_hi), int(cover))
+        frame check's code (cover, ways, diagonal, flags; None: no check in the frame)."""
+        key = (int(fmt), int(degree), int(guard_lo), int(guard_hi), code)
         k = self._kernels.get(key)
         if k is None:
             names = ("FMT", "SH_DEGREE", "GUARD_LO", "GUARD_HI")
             constants = {**dict(zip(names, key[:4])), "PROFILE": PROFILE_CODE[self.profile]}
-            if cover:
-                constants.update(FRAME_CHECK=1, FRAME_COVER=int(cover))
+            if code is not None:
+                frame = ("FRAME_COVER", "FRAME_WAYS", "FRAME_DIAGONAL", "FRAME_FLAGS")
+                constants.update(FRAME_CHECK=1, **dict(zip(frame, code)))
             k = self._kernels[key] = Kernel(self.gpu, "project", constants=constants)
         return k
 
@@ -483,7 +486,7 @@ class Projection:
         `box`: the guard's Bound per component; `guard_counts`: its atomic clamp counters;
         `buffers`: where the records go (default: this stage's own `buffers`)."""
         row = self.params.rows[slot]
-        kernel = self.variant(row["fmt"], row["sh_degree"], row["guard_lo"], row["guard_hi"], self.frame_cover)
+        kernel = self.variant(row["fmt"], row["sh_degree"], row["guard_lo"], row["guard_hi"], self.frame_code)
         kernel.dispatch(
             encoder,
             self.buffers if buffers is None else buffers,
