@@ -827,3 +827,22 @@ def test_each_spec_key_is_written_once_and_the_checker_the_defaults_and_the_docs
         "    repeats = 3 ",
     ):
         assert line in doc
+
+
+def test_a_manifest_s_stored_scenes_and_size_read_typed_old_runs_included(reference_dir):
+    """The analyses read a run's [[scenes]] and size typed (spec_types.stored_scenes/stored_size):
+    this run's entries round-trip to their stored dicts; an older run's entry without sh_degree
+    or seed reads them as None and drops a key this version no longer knows; no spec, no scenes."""
+    import json
+
+    from seuwgpu.campaign.spec_types import SceneSpec, stored_scenes, stored_size
+
+    spec, run = reference_dir
+    m = json.loads((run / "manifest.json").read_text())
+    scenes = stored_scenes(m)
+    assert [sc.to_dict() for sc in scenes] == m["spec"]["scenes"] and scenes == spec.scenes
+    assert stored_size(m) == tuple(m["spec"]["size"]) == spec.size
+    old = {"spec": {"size": [64, 48], "scenes": [{"scene": "spheres", "n": 500, "retired_key": 1}, "not a table"]}}
+    assert stored_scenes(old) == (SceneSpec(sh_degree=None, seed=None, scene="spheres", n=500),)
+    assert stored_size(old) == (64, 48)
+    assert stored_scenes({}) == () and stored_size({"spec": {"size": [64]}}) is None

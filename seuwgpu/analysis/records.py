@@ -397,15 +397,14 @@ def scene_degrees(manifests: Iterable[dict] = ()) -> dict[str, int]:
     model file's own degree since specs read it; runs of older versions stated 3 for every model
     file, so inference from the records comes first where there is any: reliability.model_degrees)."""
     from seuwgpu.campaign.spec import scene_label
+    from seuwgpu.campaign.spec_types import stored_scenes
 
     out: dict[str, int] = {}
     for m in manifests or ():
-        for sc in (m.get("spec") or {}).get("scenes") or []:
-            if not isinstance(sc, dict) or sc.get("sh_degree") is None:
-                continue
-            label = scene_label(sc)
+        for sc in stored_scenes(m):
+            label = scene_label(sc) if sc.sh_degree is not None else None
             if label:
-                out.setdefault(str(label), int(sc["sh_degree"]))
+                out.setdefault(str(label), int(sc.sh_degree))
     return out
 
 
@@ -414,13 +413,9 @@ def model_file_scenes(manifests: Iterable[dict] = ()) -> frozenset[str]:
     name with an embedded procedural scene (the corpus' plant.splat and the procedural plant):
     what tells a real model from a procedural one (`population.population_of`)."""
     from seuwgpu.campaign.spec import scene_label
+    from seuwgpu.campaign.spec_types import stored_scenes
 
-    out = set()
-    for m in manifests or ():
-        for sc in (m.get("spec") or {}).get("scenes") or []:
-            if isinstance(sc, dict) and sc.get("model"):
-                out.add(str(scene_label(sc)))
-    return frozenset(out)
+    return frozenset(str(scene_label(sc)) for m in manifests or () for sc in stored_scenes(m) if sc.model)
 
 
 def sh_degree_of(df: pd.DataFrame | None = None, manifests: Iterable[dict] = ()) -> int:

@@ -44,12 +44,9 @@ def median_floor(width: int, height: int) -> float:
 
 def frame_size_of(manifests=()) -> tuple[int, int] | None:
     """(W, H) of the runs' frames from their specs; None when they do not say or disagree."""
-    sizes = set()
-    for m in manifests or ():
-        spec = m.get("spec") if isinstance(m, dict) and isinstance(m.get("spec"), dict) else {}
-        size = spec.get("size")
-        if isinstance(size, (list, tuple)) and len(size) == 2:
-            sizes.add((int(size[0]), int(size[1])))
+    from seuwgpu.campaign.spec_types import stored_size
+
+    sizes = {stored_size(m) for m in manifests or ()} - {None}
     return sizes.pop() if len(sizes) == 1 else None
 
 

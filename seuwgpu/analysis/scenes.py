@@ -12,25 +12,26 @@ import pandas as pd
 
 from seuwgpu.analysis.records import InsufficientData, prepare, tag
 from seuwgpu.campaign.spec import scene_label
+from seuwgpu.campaign.spec_types import SceneSpec, stored_scenes, stored_size
 from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, field_components
 
 
-def _box_widths(entry: dict, n: int | None, precision: str) -> dict:
+def _box_widths(entry: SceneSpec, n: int | None, precision: str) -> dict:
     from seuwgpu.faults.guard import support_box
     from seuwgpu.model.sources import load_source
 
     src = load_source(
-        scene=entry.get("scene"),
-        path=entry.get("model"),
+        scene=entry.scene,
+        path=entry.model,
         n=n,
-        sh_degree=entry.get("sh_degree", 3),
-        seed=entry.get("seed", 0),
-        up=entry.get("up"),
-        lod=entry.get("lod"),
+        sh_degree=3 if entry.sh_degree is None else entry.sh_degree,
+        seed=entry.seed or 0,
+        up=entry.up,
+        lod=entry.lod,
     )
     model = src.model
-    if entry.get("model") and n is not None and n < model.n:
-        model = model.sample(n, entry.get("seed", 0), src.name)  # a [sizes] row: the runner's subset
+    if entry.model and n is not None and n < model.n:
+        model = model.sample(n, entry.seed or 0, src.name)  # a [sizes] row: the runner's subset
     box = support_box(model, precision)
     width = np.asarray(box.hi, float) - np.asarray(box.lo, float)
     deg = model.sh_degree
@@ -61,14 +62,14 @@ def scene_table(df: pd.DataFrame, manifests: Iterable[dict] = ()) -> tuple[pd.Da
             # the spec's entry of this scene, by the label its records carry (an embedded scene's
             # name, a model file's label): a [sizes] row of an embedded scene listed after a
             # model file was re-made from that file (its SH degree and boxes)
-            entries = [e for e in (spec.get("scenes") or []) if isinstance(e, dict) and scene_label(e) == key[0]]
-            entry = next((e for e in entries if e.get("n") in (None, key[1])), entries[0] if entries else None)
+            entries = [e for e in stored_scenes(m) if scene_label(e) == key[0]]
+            entry = next((e for e in entries if e.n in (None, key[1])), entries[0] if entries else None)
             row = {
                 "scene": key[0],
-                "kind": "embedded" if entry and entry.get("scene") else "model file",
+                "kind": "embedded" if entry and entry.scene else "model file",
                 "primitives": int(key[1]),
                 "views": spec.get("views"),
-                "size": "x".join(map(str, spec.get("size", []))),
+                "size": "x".join(map(str, stored_size(m) or ())),
             }
             try:
                 if entry is None:

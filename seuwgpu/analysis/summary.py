@@ -69,16 +69,17 @@ def model_table(df: pd.DataFrame, manifests: Iterable[dict] = ()) -> pd.DataFram
     manifest of an older run does not say)."""
     from seuwgpu.analysis.reliability import model_degrees
     from seuwgpu.campaign.spec import scene_label
+    from seuwgpu.campaign.spec_types import stored_scenes
 
     manifests = list(manifests or ())
     stated: dict[str, dict] = {}
     for m in manifests:
         for info in m.get("models") or []:
             stated.setdefault(str(info.get("name")), info)
-        for sc in (m.get("spec") or {}).get("scenes") or []:
-            label = scene_label(sc) if isinstance(sc, dict) else None
+        for sc in stored_scenes(m):
+            label = scene_label(sc)
             if label and label not in stated:
-                stated[label] = {"format": "embedded scene" if sc.get("scene") else np.nan}
+                stated[label] = {"format": "embedded scene" if sc.scene else np.nan}
     s = single_upsets(df, None, None)
     degrees = model_degrees(df, manifests)
     nonfinite = _nonfinite_notes(manifests)

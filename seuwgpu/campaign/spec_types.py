@@ -405,6 +405,27 @@ def stored_table(manifest: dict, key: str):
     return Spec.TABLES[key].from_dict(table) if isinstance(table, dict) else None
 
 
+def stored_scenes(manifest: dict) -> tuple[SceneSpec, ...]:
+    """The typed [[scenes]] of a run manifest's stored spec (none where it has no spec). The
+    analyses take manifests of runs of older versions: a key those did not store (sh_degree,
+    seed) reads as None, and a key this version no longer knows is left out."""
+    spec = manifest.get("spec") if isinstance(manifest, dict) else None
+    scenes = spec.get("scenes") if isinstance(spec, dict) else None
+    known = {f.name for f in fields(SceneSpec)}
+    return tuple(
+        SceneSpec.from_dict({"sh_degree": None, "seed": None} | {k: v for k, v in sc.items() if k in known})
+        for sc in scenes or ()
+        if isinstance(sc, dict)
+    )
+
+
+def stored_size(manifest: dict) -> tuple[int, int] | None:
+    """(W, H) of a run manifest's stored spec, or None where it does not say."""
+    spec = manifest.get("spec") if isinstance(manifest, dict) else None
+    size = spec.get("size") if isinstance(spec, dict) else None
+    return (int(size[0]), int(size[1])) if isinstance(size, (list, tuple)) and len(size) == 2 else None
+
+
 def spec_dict(spec: Spec | dict) -> dict:
     """The stored form of a spec (a manifest's is one already)."""
     return spec.to_dict() if isinstance(spec, Spec) else spec

@@ -21,6 +21,7 @@ import pandas as pd
 
 from seuwgpu.analysis import summary as S
 from seuwgpu.analysis.records import FIELD_LABELS
+from seuwgpu.campaign.spec_types import SceneSpec, stored_scenes, stored_size
 from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY
 from seuwgpu.report.sections import FigureItem, Section, TableItem
 
@@ -61,23 +62,24 @@ def _model_name(r) -> str:
 
 def inject_command(worst: dict, manifests: list[dict]) -> str:
     """The `seuwgpu inject` command line that draws the worst flip's panel."""
-    sc = _scene_spec(worst, manifests) or {}
+    sc = _scene_spec(worst, manifests) or SceneSpec(sh_degree=None, seed=None)
     spec = _spec_of(worst, manifests)
+    size = stored_size(_manifest_of(worst, manifests))
     args = ["seuwgpu", "inject"]
-    if sc.get("model"):
-        args += ["--model", str(sc["model"])]
+    if sc.model:
+        args += ["--model", str(sc.model)]
     else:
         args += ["--scene", str(worst["scene"]), "--n", str(int(worst["n_primitives"]))]
-        if sc.get("sh_degree") is not None:
-            args += ["--sh-degree", str(int(sc["sh_degree"]))]
-        if sc.get("seed"):
-            args += ["--seed", str(int(sc["seed"]))]
-    if sc.get("cameras"):
-        args += ["--cameras", str(sc["cameras"])]
+        if sc.sh_degree is not None:
+            args += ["--sh-degree", str(int(sc.sh_degree))]
+        if sc.seed:
+            args += ["--seed", str(int(sc.seed))]
+    if sc.cameras:
+        args += ["--cameras", str(sc.cameras)]
     if spec.get("views"):
         args += ["--views", str(int(spec["views"]))]
-    if spec.get("size") and not sc.get("cameras"):
-        args += ["--size", f"{int(spec['size'][0])}x{int(spec['size'][1])}"]
+    if size and not sc.cameras:
+        args += ["--size", f"{size[0]}x{size[1]}"]
     if spec.get("scale") is not None:
         args += ["--scale", f"{float(spec['scale']):g}"]
     args += ["--precision", str(worst["precision"]), "--field", str(worst["field"])]
@@ -87,20 +89,20 @@ def inject_command(worst: dict, manifests: list[dict]) -> str:
 
 
 def _spec_of(worst: dict, manifests: list[dict]) -> dict:
+    return _manifest_of(worst, manifests).get("spec") or {}
+
+
+def _manifest_of(worst: dict, manifests: list[dict]) -> dict:
     run = worst.get("run")
-    for m in manifests:
-        if run is None or m.get("_run") == run:
-            return m.get("spec") or {}
-    return (manifests[0].get("spec") or {}) if manifests else {}
+    return next((m for m in manifests if run is None or m.get("_run") == run), manifests[0] if manifests else {})
 
 
-def _scene_spec(worst: dict, manifests: list[dict]) -> dict | None:
+def _scene_spec(worst: dict, manifests: list[dict]):
+    """The typed [[scenes]] entry of the worst flip's run that its records name, or None."""
     from seuwgpu.campaign.spec import scene_label
 
-    for sc in _spec_of(worst, manifests).get("scenes") or []:
-        if isinstance(sc, dict) and scene_label(sc) == str(worst["scene"]):
-            return sc
-    return None
+    scenes = stored_scenes(_manifest_of(worst, manifests))
+    return next((sc for sc in scenes if scene_label(sc) == str(worst["scene"])), None)
 
 
 def worst_flip_frames(worst: dict, manifests: list[dict], gpu=None) -> dict:
@@ -117,16 +119,17 @@ def worst_flip_frames(worst: dict, manifests: list[dict], gpu=None) -> dict:
         raise ValueError(f"no [[scenes]] entry of the runs' specs names {worst['scene']!r}")
     spec = _spec_of(worst, manifests)
     n = int(worst["n_primitives"])
-    if sc.get("model"):
-        src = load_source(path=sc["model"], up=sc.get("up"))
+    if sc.model:
+        src = load_source(path=sc.model, up=sc.up)
     else:
-        src = load_source(scene=sc["scene"], n=n, sh_degree=int(sc.get("sh_degree", 3)), seed=int(sc.get("seed", 0)))
-        src.up = sc.get("up") or src.up
-    size = tuple(spec.get("size") or (256, 256))
-    views = source_views(src, sc.get("cameras"), spec.get("views"), size, spec.get("scale"))
+        sh_degree = 3 if sc.sh_degree is None else int(sc.sh_degree)
+        src = load_source(scene=sc.scene, n=n, sh_degree=sh_degree, seed=int(sc.seed or 0))
+        src.up = sc.up or src.up
+    size = stored_size(_manifest_of(worst, manifests)) or (256, 256)
+    views = source_views(src, sc.cameras, spec.get("views"), size, spec.get("scale"))
     model = src.model
-    if sc.get("model") and model.n != n:
-        model = model.sample(n, int(sc.get("seed", 0)), src.name)
+    if sc.model and model.n != n:
+        model = model.sample(n, int(sc.seed or 0), src.name)
     profile = (manifests[0].get("profile") if manifests else None) or "strict"
     eng = Engine(model, views, str(worst["precision"]), gpu=gpu or get_gpu(), scene=src.name, profile=profile)
     site = eng.site(str(worst["field"]), worst["primitive"], worst.get("component") or 0, (int(worst["bit"]),))
