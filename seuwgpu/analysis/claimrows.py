@@ -87,7 +87,7 @@ def claim_range(key: str) -> tuple[float, float]:
         return 0.0, 100.0
     if key.startswith("auc"):
         return 0.0, 1.0
-    if key.endswith(("guard_factor", "mean_mse")):
+    if key.endswith(("guard_factor", "mean_mse")) or key.startswith("budget"):
         return 0.0, np.inf
     return -np.inf, np.inf
 
@@ -106,8 +106,8 @@ def over_models(key, per_model: pd.DataFrame, column: str, basis: str, conf: flo
     per = "; ".join(f"{r['scene']} {scale * r[column]:.4g}" for _, r in per_model.iterrows())
     neg = np.isneginf(vals)
     if neg.any():
-        n = int(np.isfinite(vals).sum() + neg.sum())
-        lo, hi = (-np.inf, -np.inf) if neg.all() else (-np.inf, np.nan)
+        n = int(np.isfinite(vals).sum() + neg.sum())  # a model without a value (NaN) is not one of them
+        lo, hi = (-np.inf, -np.inf) if neg.sum() == n else (-np.inf, np.nan)
         b = f"{basis}; per model: {per}; {int(neg.sum())} of {n} models at -inf"
         return row(key, -np.inf, lo, hi, b, n_models=n, pooled=pooled, per_model=pm, **kw)
     om = population.interval_over_models(vals, conf)
