@@ -20,7 +20,7 @@ from seuwgpu.errors import InputError
 from seuwgpu.faults.defenses import DEFENSES, pipeline_guards
 from seuwgpu.faults.schedule import DEFAULT_CHECK_EVERY
 from seuwgpu.faults.sites import (
-    FAULT_MODELS,
+    check_fault_model,
 )
 from seuwgpu.model import checks, encoding
 from seuwgpu.model.cameras import Camera
@@ -58,8 +58,7 @@ def storm(
     for value, what in ((k, "k"), (frames, "frames"), (scrub_every, "scrub_every"), (seed, "seed")):
         checks.integer(value, what)  # the ranges: campaign/storm.py's own check, which names all three
     checks.integer(check_every, "check_every", 1)
-    if fault not in FAULT_MODELS:
-        raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
+    check_fault_model(fault)
     eng = engine_for(scene, views, precision, profile, "storm")
     return run_storm(
         eng, k, frames, scrub_every, defenses, seed, progress, rows=rows, check_every=check_every, fault=fault
@@ -160,8 +159,7 @@ def defense_costs(
     checks.integer(check_every, "check_every", 1)
     checks.integer(visible, "visible", 0)
     checks.integer(window, "window", 1)
-    if fault not in FAULT_MODELS:
-        raise InputError(f"unknown fault model {fault!r}; expected one of {', '.join(FAULT_MODELS)}")
+    check_fault_model(fault)
     if not isinstance(view, Camera):
         raise InputError(f"view must be a Camera (from cameras()), got {type(view).__name__}")
     if out is not None and not visible:

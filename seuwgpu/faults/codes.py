@@ -170,9 +170,9 @@ class ParityCode:
         return int(cols.size)
 
     def side_data(self, clean, precision: str, degree: int) -> np.ndarray:
-        """[M] u32: the code of each clean primitive (way w in bit w), counted bit by bit."""
-        par = parity_bits(np.asarray(clean), precision, degree, self.ways, self.fields, self.diagonal)
-        return (par.astype(np.uint32) << np.arange(self.ways, dtype=np.uint32)).sum(axis=1).astype(np.uint32)
+        """[M] u32: the code of each clean primitive (way w in bit w), as `code` computes it (the
+        bit-by-bit count, parity_bits, is its test's oracle)."""
+        return self.code(clean, precision, degree)
 
     def code(self, rows, precision: str, degree: int) -> np.ndarray:
         """[M] u32: the code as the shaders compute it, parity being linear: value c's covered bits

@@ -233,6 +233,8 @@ class Parity(CheckedDefense):
 
     def __init__(self, name, info, code: ParityCode, reloads: bool, label="", first_study=False):
         super().__init__(name, info, label, first_study)
+        if code.diagonal:  # check.wgsl's MODE_PARITY folds no diagonal: its side data would disagree
+            raise ValueError("a periodic parity check (check.wgsl) has no diagonal ways; the frame's check has")
         self.code, self.reloads = code, reloads
         self.ways, self.fields = code.ways, code.fields
         self.side_bits = code.ways

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seuwgpu.model import encoding
+from seuwgpu.model import checks, encoding
 from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, canonical_field, field_components, n_components
 
 # Fault models a campaign spec or the CLI names (`fault = ...`), and what each does to the bits a
@@ -42,9 +42,7 @@ INJECT_SAMPLE = 64
 
 
 def check_fault_model(name: str) -> str:
-    if name not in FAULT_MODELS:
-        raise ValueError(f"unknown fault model {name!r}; expected one of {', '.join(FAULT_MODELS)}")
-    return name
+    return checks.one_of(name, "fault model", FAULT_MODELS)
 
 
 def check_site_model(name: str) -> str:
