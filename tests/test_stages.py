@@ -13,7 +13,7 @@ import pytest
 from conftest import close_records, random_model
 
 from seuwgpu.model.scenes import make_scene, scene_cameras
-from seuwgpu.render.pipeline import PIPELINE, run_twins
+from seuwgpu.render.pipeline import PIPELINE
 from seuwgpu.render.project import n_tiles_xy
 from seuwgpu.render.renderer import Renderer
 
@@ -105,16 +105,6 @@ def test_every_stage_equals_its_twin_on_the_same_named_inputs(renderer):
         state.update(want)
     assert len(state["isect_tiles"]) > r.n  # a real workload: more pairs than primitives
     assert "image" in names and "isect_prims" in names
-
-
-def test_the_twins_in_pipeline_order_are_the_reference_renderer(renderer):
-    """The reference renderer is the loop over the twins: its frame is their last output."""
-    from seuwgpu.render import reference
-
-    r, v = renderer, 0
-    model, cam = r.stored_model(), r.cameras[v]
-    image = run_twins(**context(r, v))["image"].reshape(cam.height, cam.width, 4)
-    np.testing.assert_array_equal(reference.render_view(model, cam), image[..., :3])
 
 
 def test_each_stage_declares_what_it_binds_and_its_twin_returns_its_outputs():

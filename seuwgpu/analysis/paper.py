@@ -111,11 +111,6 @@ def paper_field_upsets() -> int:
     return PAPER_BITS * PAPER_SCENES * PAPER_CELL_UPSETS
 
 
-def paper_sign_upsets() -> int:
-    """Upsets behind the sign-flip footprint rows: one bit (the log-scale sign) x scenes x a cell (8,000)."""
-    return PAPER_SCENES * PAPER_CELL_UPSETS
-
-
 def _inconsistencies() -> tuple[str, ...]:
     return (
         "alpha = 2.78 (the median's exponent) lies outside the range its own proof of Lemma 2 (redundancy "

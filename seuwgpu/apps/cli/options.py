@@ -71,11 +71,6 @@ def word_bit(text: str) -> int:
 
 
 @argument_type
-def positive_float(text: str) -> float:
-    return checks.number(float_word(text), None)
-
-
-@argument_type
 def scale_factor(text: str) -> float:
     """--scale: in (0, checks.MAX_SCALE] (a campaign spec's `scale` limit too)."""
     return checks.scale(float_word(text), None)
