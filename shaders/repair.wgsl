@@ -7,6 +7,9 @@
 // Which primitives failed: with REPAIR_FLAGS, the flag bits the frame set; without (a code that
 // keeps no flags), this pass recomputes every primitive's code (CODE_*: the frame check's
 // FRAME_COVER, FRAME_WAYS, FRAME_DIAGONAL) from its stored words against the stored `side`.
+// A repaired primitive's code is rewritten too where the verified golden row's code differs from
+// the stored one: an upset in the code bits (which makes a clean primitive fail every frame) is
+// repaired by the same pass, not left to fail until the side data is reloaded.
 // One thread per stored word of a plane: at fp16/bf16 a word holds two primitives, so one thread
 // writes both halves and no two threads write one word.
 
@@ -33,11 +36,12 @@ struct RepairParams {
 // the frame check's output, laid out as codes.wgsl's OUT_* words: the detections, the golden rows
 // that failed (OUT_FAULTS), the primitives repaired (OUT_REPAIRED), the flags (cleared when repaired)
 @group(0) @binding(4) var<storage, read_write> out: array<atomic<u32>>;
-// the frame check's packed codes (read without REPAIR_FLAGS)
-@group(0) @binding(5) var<storage, read> side: array<u32>;
+// the frame check's packed codes: read without REPAIR_FLAGS, a repaired primitive's rewritten
+// (atomically: a word holds the codes of 32 / CODE_WAYS primitives, of other threads)
+@group(0) @binding(5) var<storage, read_write> side: array<atomic<u32>>;
 
 // primitive j (global p) of stored word w needs a repair: flagged, or its code fails
-fn needs_repair(w: u32, j: u32, p: u32) -> bool {
+fn needs_repair(w: u32, j: u32, p: u32, stored_code: u32) -> bool {
     if (REPAIR_FLAGS != 0u) {
         return (atomicLoad(&out[OUT_FLAGS + (p >> 5u)]) & (1u << (p & 31u))) != 0u;
     }
@@ -46,7 +50,7 @@ fn needs_repair(w: u32, j: u32, p: u32) -> bool {
         let v = stored_pattern(words[c * params.plane_words + w], j, params.fmt) & CODE_COVER;
         x = parity_fold(x, v, c, CODE_WAYS, CODE_DIAGONAL);
     }
-    return parity_code(x, CODE_WAYS) != code_of(side[code_word_index(p, CODE_WAYS)], p, CODE_WAYS);
+    return parity_code(x, CODE_WAYS) != stored_code;
 }
 
 @compute @workgroup_size(WG)
@@ -60,17 +64,29 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     for (var h = 0u; h < per; h = h + 1u) {
         let j = w * per + h;
         let p = params.prim_base + j;
-        if (j >= params.chunk_count || !needs_repair(w, j, p)) {
+        if (j >= params.chunk_count) {
+            continue;
+        }
+        let code_word = code_word_index(p, CODE_WAYS);
+        let stored_code = code_of(atomicLoad(&side[code_word]), p, CODE_WAYS);
+        if (!needs_repair(w, j, p, stored_code)) {
             continue;
         }
         let half = select(0xffffu << (16u * h), 0xffffffffu, per == 1u);
         var s = CHECKSUM_SEED;
+        var x = 0u;  // the golden row's code
         for (var c = 0u; c < params.ncomp; c = c + 1u) {
-            s = checksum_step(s, stored_pattern(golden[c * params.plane_words + w], j, params.fmt));
+            let v = stored_pattern(golden[c * params.plane_words + w], j, params.fmt);
+            s = checksum_step(s, v);
+            x = parity_fold(x, v & CODE_COVER, c, CODE_WAYS, CODE_DIAGONAL);
         }
         if (s != golden_sum[p]) {
             atomicAdd(&out[OUT_FAULTS], 1u);
             continue;
+        }
+        let code = parity_code(x, CODE_WAYS);
+        if (code != stored_code) {  // only this primitive's bits of the word change
+            atomicXor(&side[code_word], (code ^ stored_code) << ((p % (32u / CODE_WAYS)) * CODE_WAYS));
         }
         mask = mask | half;
         if (REPAIR_FLAGS != 0u) {

@@ -12,7 +12,9 @@ from seuwgpu.faults import codes
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.check import DeviceRepair, FrameCheck
 from seuwgpu.model import encoding
+from seuwgpu.model.fields import Model
 from seuwgpu.model.scenes import scene_cameras
+from seuwgpu.render.project import project
 from seuwgpu.render.renderer import Renderer
 
 
@@ -51,9 +53,11 @@ def test_a_flip_in_the_device_buffer_is_dropped_from_the_frame(defense, precisio
     d = dfn.get(defense)
     detected = d.hit(d.side_data(clean, precision, 3), bad, precision, 3)  # the twin's
     assert set(np.flatnonzero(detected)) == ({7, big} if defense == "parity2f" else {7})
-    if d.flags:  # checked where drawn: flagged in the views that would draw it
-        flagged = fc.flags()
-        assert flagged.any() and not (flagged & ~detected).any()
+    if d.flags:  # checked where drawn: flagged exactly where a view would draw it
+        faulted = Model.from_flat(encoding.from_bits(bad, precision), 3)
+        drawn = np.logical_or.reduce([project(faulted, cam)["visible"] for cam in cams])
+        np.testing.assert_array_equal(fc.flags(), detected & drawn)
+        assert fc.flags().any()
     else:
         with pytest.raises(ValueError, match="keeps no flags"):
             fc.flags()
@@ -68,6 +72,17 @@ def test_a_flip_in_the_device_buffer_is_dropped_from_the_frame(defense, precisio
     assert not np.array_equal(got, want_clean)
 
 
+def _repairing(defense, precision):
+    """A 300-primitive model in chunks of 128, one 32x32 view, its clean frame, the frame check
+    and the device repair."""
+    model = random_model(300, seed=6)
+    r = Renderer(model, scene_cameras("spheres", 1, 32, 32), precision, chunk_prims=128)
+    clean = encoding.to_bits(model.flat(), precision)
+    want = r.render()
+    fc = FrameCheck(r, clean, defense)
+    return model, r, clean, want, fc, DeviceRepair(r, clean, fc)
+
+
 @pytest.mark.parametrize(
     "defense,precision", [("parity4f", "fp32"), ("parity4f", "fp16"), ("parity2f", "fp32"), ("parity2f", "fp16")]
 )
@@ -78,12 +93,7 @@ def test_the_device_repairs_a_flip_and_the_next_frame_is_the_clean_one(defense, 
     every primitive's code (here also the same bit in values 3 and 4 of a third primitive, which
     parity4r's code cannot see). A golden row that fails its checksum is refused: the primitive
     stays dropped."""
-    model = random_model(300, seed=6)
-    r = Renderer(model, scene_cameras("spheres", 1, 32, 32), precision, chunk_prims=128)
-    clean = encoding.to_bits(model.flat(), precision)
-    want = r.render()
-    fc = FrameCheck(r, clean, defense)
-    rep = DeviceRepair(r, clean, fc)
+    model, r, clean, want, fc, rep = _repairing(defense, precision)
     nb = encoding.bits_per_value(precision)
     p, q = 130, 131  # chunk 1; at fp16 the two share a word
     upsets = [(p, 4, nb - 2), (q, 10, nb - 2)]
@@ -112,6 +122,38 @@ def test_the_device_repairs_a_flip_and_the_next_frame_is_the_clean_one(defense, 
     assert rep.run() == (0, 1) and fc.count() > 0  # still dropped, still refused
     if dfn.get(defense).flags:
         assert fc.flags()[p]
+
+
+@pytest.mark.parametrize(
+    "defense,precision", [("parity4f", "fp32"), ("parity4f", "fp16"), ("parity2f", "fp32"), ("parity2f", "fp16")]
+)
+def test_the_device_repair_rewrites_an_upset_code(defense, precision):
+    """An upset in the code bits makes a clean primitive fail: the frame drops it, and the repair
+    rewrites its code from the verified golden row (its row is clean: rewritten to itself), so
+    the side data is again the clean model's packed codes, the next frame the clean frame and the
+    frame after it detects nothing (no repair after every frame). A code upset of a primitive the
+    row upset of another shares a code word with is repaired with it."""
+    from seuwgpu.faults import side as sd
+
+    model, r, clean, want, fc, rep = _repairing(defense, precision)
+    d = dfn.get(defense)
+    packed = sd.pack_side(d.side_data(clean, precision, 3), d.side_bits)
+    drawn = int(np.argmax(model.opacity))  # the big splat: drawn in the view
+    per = 32 // d.side_bits
+    neighbour = drawn + 1 if drawn % per != per - 1 else drawn - 1  # shares the code word
+    bad = packed.copy()
+    bad[drawn // per] ^= np.uint32(1) << np.uint32((drawn % per) * d.side_bits)  # code bit 0
+    r.gpu.write(fc.side, bad)
+    _flip(r, neighbour, 10, encoding.bits_per_value(precision) - 2)
+    assert not np.array_equal(r.render(), want) and fc.count() > 0
+    if d.flags:
+        assert fc.flags()[drawn]
+    assert rep.run() == (2, 0)
+    np.testing.assert_array_equal(r.gpu.read(fc.side, np.uint32)[: packed.size], packed)
+    np.testing.assert_array_equal(r.render(), want)
+    assert fc.count() == 0
+    r.render()
+    assert fc.count() == 0
 
 
 def test_a_flagless_repair_rewrites_only_what_fails_its_code():

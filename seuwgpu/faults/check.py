@@ -209,8 +209,10 @@ class DeviceRepair:
     without flags: every primitive whose code fails, recomputed in this pass) are rewritten from a
     golden copy of the model held on the device, each golden row's checksum (codes.checksum of
     the clean row, 32 bits a primitive) verified when it is read; a golden row that fails is left
-    alone and counted (the primitive stays flagged, dropped every frame). No host copy of the
-    model is read: the host reads two counts.
+    alone and counted (the primitive stays flagged, dropped every frame). A repaired primitive's
+    code is rewritten from the golden row too, so an upset in the code bits (a clean primitive
+    failing every frame) is repaired by the same pass. No host copy of the model is read: the
+    host reads two counts.
 
     Device memory: the golden copy (the model's size again) and its checksums; `device_bytes`."""
 

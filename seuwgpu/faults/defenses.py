@@ -308,7 +308,12 @@ class FrameParity(Defense):
     `flags`: a flag bit per primitive marks what the frame dropped and the repair rewrites only
     those (parity4f); without (parity2f) the frame only counts its detections and the repair
     re-verifies every primitive's code, rewriting those that fail (a full pass, run only after a
-    detection), so the device holds the code bits alone."""
+    detection), so the device holds the code bits alone.
+
+    `after_frame` repairs every failing primitive. The device's parity4f repairs those a view drew
+    (flagged); one no view drew stays corrupt and is dropped from the first frame that would draw
+    it, then repaired: frames from fixed views are the same, a moving view can see that primitive
+    missing for one more frame than the twin shows."""
 
     reads_stored_bits = False
     frame_check = True
