@@ -116,9 +116,22 @@ def test_sharded_and_merged_equals_unsharded(reference_run, tmp_path):
         d = tmp_path / f"shard{i}"
         Runner(spec, d, shard=(i, 3), quiet=True).run()
         dirs.append(d)
+    # visible-damage records kept in shards (`defenses --visible N --out SHARD`) come along
+    kept = {}
+    for i, name in ((0, "m0"), (1, "m1"), (2, "m1")):
+        path = store.visible_path(dirs[i], name)
+        path.parent.mkdir(exist_ok=True)
+        pd.DataFrame({"defense": ["none"], "catastrophic_frames": [int(name[1])]}).to_parquet(path)
+        kept[name] = path.read_bytes()
     merge(tmp_path / "merged", dirs)
     got = canonical(read_records(tmp_path / "merged"))
     pd.testing.assert_frame_equal(got, ref)
+    for name, data in kept.items():
+        assert store.visible_path(tmp_path / "merged", name).read_bytes() == data
+    # one measurement whose copies differ between shards is refused, naming it
+    pd.DataFrame({"defense": ["none"], "catastrophic_frames": [7]}).to_parquet(store.visible_path(dirs[2], "m1"))
+    with pytest.raises(SpecError, match="m1.parquet differ"):
+        merge(tmp_path / "merged2", dirs)
 
 
 def test_blocks_evaluated_one_by_one_equal_grouped_ones(reference_run, tmp_path, monkeypatch):

@@ -5,7 +5,8 @@ come from different specs, when `out` is one of the shards, when `out` already h
 another spec, when two shards disagree on a part (on more than its wall-clock times: a shard run
 twice agrees), and when parts of the campaign are missing: `allow_partial` merges what there is
 and records the missing parts in the manifest (`missing_parts`: [first id, count] pairs;
-`injections_recorded` < `total_injections`).
+`injections_recorded` < `total_injections`). The shards' visible-damage records (`seuwgpu
+defenses --visible N --out SHARD`) are copied along (`merge_visible`).
 """
 
 from __future__ import annotations
@@ -30,6 +31,31 @@ def same_records(a: Path, b: Path) -> bool:
         return False
     timed = [c for c in schema.TIMED_COLUMNS if c in x.columns]
     return x.drop(columns=timed).equals(y.drop(columns=timed))
+
+
+def merge_visible(out: Path, shard_dirs: list[Path]) -> int:
+    """Copy the shards' visible-damage records (store.visible_path: `seuwgpu defenses --visible N
+    --out SHARD`) into `out`, so its report shows them; returns the files copied. One measurement
+    kept in two shards (the same file name) must hold the same bytes: two differing copies are
+    refused, naming both, rather than one silently kept."""
+    seen: dict[str, Path] = {}
+    for d in [out, *shard_dirs]:
+        for f in sorted(store.visible_path(d, "*").parent.glob("*.parquet")):
+            if f.name in seen:
+                if seen[f.name].resolve() != f.resolve() and seen[f.name].read_bytes() != f.read_bytes():
+                    raise SpecError(
+                        f"visible-damage records {f.name} differ between {seen[f.name].parent.parent} and {d}"
+                    )
+                continue
+            seen[f.name] = f
+    copied = 0
+    for name, f in seen.items():
+        dst = store.visible_path(out, name.removesuffix(".parquet"))
+        if f.resolve() != dst.resolve():
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            store.atomic_write(dst, f.read_bytes())
+            copied += 1
+    return copied
 
 
 def merge(out: Path, shard_dirs: list[Path], allow_partial: bool = False) -> int:
@@ -87,6 +113,7 @@ def merge(out: Path, shard_dirs: list[Path], allow_partial: bool = False) -> int
                 f"the shards hold {len(found)} of the campaign's {len(expected)} parts: {n_missing:,} injections "
                 f"are missing (first: ids {a}..{a + c - 1}); run the missing shards, or merge with --allow-partial"
             )
+        merge_visible(out, shard_dirs)
         for key, p in found.items():
             dst = store.part_path(out, *key)
             if p.resolve() != dst.resolve():
