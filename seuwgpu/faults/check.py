@@ -24,8 +24,8 @@ from seuwgpu.faults import side as sd
 from seuwgpu.faults.codes import CHECKSUM_SEED, fmix32, parity_cover_mask
 from seuwgpu.faults.codes import checksum as codes_checksum
 from seuwgpu.faults.guard import fill_chunk_params
-from seuwgpu.gpu.device import STORAGE, shader_source
-from seuwgpu.gpu.kernel import Kernel, Uniforms, wgsl_constants
+from seuwgpu.gpu.device import STORAGE
+from seuwgpu.gpu.kernel import Kernel, Uniforms
 
 
 class Checker:
@@ -105,8 +105,7 @@ class CheckOutput:
     and repaired primitives), then one flag bit per primitive (bit g % 32 of word g / 32)."""
 
     DETECTED, DETECTED_COPY, FAULTS, REPAIRED, FLAGS = (
-        wgsl_constants(shader_source("codes"))[f"OUT_{w}"]
-        for w in ("DETECTED", "DETECTED_COPY", "FAULTS", "REPAIRED", "FLAGS")
+        sd.OUT_WORDS[f"OUT_{w}"] for w in ("DETECTED", "DETECTED_COPY", "FAULTS", "REPAIRED", "FLAGS")
     )
     HEADER_WORDS = FLAGS
 

@@ -38,8 +38,10 @@ def unpack_side(words: np.ndarray, bits: int, m: int) -> np.ndarray:
     return ((w >> ((i % per).astype(np.uint64) * np.uint64(bits))) & mask).astype(np.uint32)
 
 
-# the header of a check's output before its flag words (shaders/codes.wgsl OUT_FLAGS)
-CHECK_HEADER_BYTES = 4 * wgsl_constants(shader_source("codes"))["OUT_FLAGS"]
+# a check's output words as shaders/codes.wgsl lays them out (OUT_DETECTED, ..., OUT_FLAGS: the
+# first flag word), read from it once; the header is the words before the flags
+OUT_WORDS = {k: v for k, v in wgsl_constants(shader_source("codes")).items() if k.startswith("OUT_")}
+CHECK_HEADER_BYTES = 4 * OUT_WORDS["OUT_FLAGS"]
 BOUND_BYTES = 16  # faults/guard.py Box.rows(): lo, hi and their stored bits per component
 GUARD_COUNT_BYTES = 32  # the renderer's clamp counts (8 u32)
 
