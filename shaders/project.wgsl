@@ -202,10 +202,14 @@ fn cull(g: u32) {
 // the frame's check of primitive j (global index g): true when its code word fails
 fn frame_check_fails(j: u32, g: u32) -> bool {
     let ncomp = 14u + 3u * ((SH_DEGREE + 1u) * (SH_DEGREE + 1u) - 1u);
+    let classes = parity_classes(FRAME_WAYS, FRAME_DIAGONAL);
     var x = 0u;
-    for (var c = 0u; c < ncomp; c = c + 1u) {
-        let v = stored_pattern(model[stored_word_index(c, j, view.plane_words, FMT)], j, FMT) & FRAME_COVER;
-        x = parity_fold(x, v, c, FRAME_WAYS, FRAME_DIAGONAL);
+    for (var k = 0u; k < classes; k = k + 1u) {
+        var words = 0u;  // the class's stored words XORed, folded once (parity_fold)
+        for (var c = k; c < ncomp; c = c + classes) {
+            words = words ^ model[stored_word_index(c, j, view.plane_words, FMT)];
+        }
+        x = parity_fold(x, stored_pattern(words, j, FMT) & FRAME_COVER, k, FRAME_WAYS, FRAME_DIAGONAL);
     }
     let p = g % view.n_total;  // the primitive (a batched renderer writes view v's records at v n + p)
     return parity_code(x, FRAME_WAYS) != code_of(frame_side[code_word_index(p, FRAME_WAYS)], p, FRAME_WAYS);

@@ -193,3 +193,10 @@ def test_the_frame_checks_device_bytes_are_their_buffers():
     assert sd.device_bytes("parity2f", "fp32", 0, n) == 7180 * 4 + 16
     assert sd.device_overhead("parity2f", "fp32", 0, n) == pytest.approx(28_736 / (n * 14 * 4))
     assert sd.device_overhead("parity2f", "fp32", 0, n) < 0.005 < sd.device_overhead("parity4f", "fp32", 0, n)
+
+
+def test_a_parity_code_folds_by_rotation_class_so_its_diagonal_is_0_or_1():
+    """The shaders XOR each rotation class's words before one fold (codes.wgsl parity_classes);
+    a diagonal they cannot fold that way is refused where the code is made."""
+    with pytest.raises(ValueError, match="diagonal is 0 or 1"):
+        codes.ParityCode(4, dfn.FIELDS, diagonal=2)
