@@ -117,3 +117,80 @@ def test_positive_counts_and_numbers_hand_checked():
     assert checks.image_size((np.int64(32), 16)) == (32, 16) and checks.image_size("64X48") == (64, 48)
     with pytest.raises(InputError, match="^single.defenses lists 'guard', 'none' more than once$"):
         checks.listed_once(["none", "guard", "none", "guard"], "single.defenses")
+
+
+def test_n_beside_a_model_file_one_wording(capsys, tmp_path):
+    """n shapes an embedded scene: beside a model file the API, --n and a spec refuse it (not
+    ignore it) with checks.n_of_an_embedded_scene's line, each naming the input its way."""
+    from seuwgpu.model.formats import save_model
+
+    ply = tmp_path / "m.ply"
+    save_model(sg.load_model("spheres", n=50).model, ply)
+    problem = f"sets the primitives of an embedded scene; a model file keeps all of its own ({ply})"
+    with pytest.raises(InputError) as api:
+        sg.load_model(str(ply), n=10)
+    assert str(api.value) == "n " + problem
+    cli = cli_error(capsys, ["render", "--model", str(ply), "--n", "10", "--out", str(tmp_path / "r.npz")])
+    assert cli == "seuwgpu render: error: --n " + problem
+    raw = spec(scene={"model": str(ply), "n": 10})
+    assert spec_error(raw) == "scenes[0].n " + problem + "; a [sizes] table cuts it to subsets"
+
+
+def test_size_beside_a_cameras_file_one_wording(scene, capsys, tmp_path):
+    """A cameras file gives each view its own size: a size beside it is refused by the API, --size
+    and a spec (whose every scene has one) with checks.size_of_orbit_views's line."""
+    from seuwgpu.model.cameras import save_cameras
+
+    cams = tmp_path / "CAMS.json"
+    save_cameras(sg.cameras(scene, views=1, size=(48, 32)), cams)
+    problem = "sets orbit views; a cameras file gives each view its own size (use "
+    with pytest.raises(InputError) as api:
+        sg.cameras(scene, cameras=cams, size=(64, 64))
+    assert str(api.value) == "size " + problem + "scale)"
+    argv = ["render", "--cameras", str(cams), "--size", "64x64", "--out", str(tmp_path / "r.npz")]
+    assert cli_error(capsys, argv) == "seuwgpu render: error: --size " + problem + "--scale)"
+    raw = spec(scene={"scene": "spheres", "n": 100, "cameras": str(cams)}, size="64x64")
+    assert spec_error(raw) == "size " + problem + "scale); every scene has one"
+
+
+def test_a_defense_named_twice_is_refused_everywhere(scene, capsys, tmp_path):
+    """An arm named twice would be run and counted twice: the API's defenses (inject, storm,
+    worst_case, defense_costs), the command line's --defense / --visible-defenses and a spec's
+    defenses refuse it with checks.listed_once's line (they used to merge it silently, but for the
+    spec)."""
+    twice = ["none", "guard", "none"]
+    line = "lists 'none' more than once"
+    calls = (
+        lambda: sg.inject(scene, [], field="opacity", bit=3, defenses=twice),
+        lambda: sg.storm(scene, [], defenses=twice),
+        lambda: sg.worst_case(scene, [], defenses=twice),
+        lambda: sg.defense_costs(scene, sg.cameras(scene, views=1, size=(16, 16))[0], visible_defenses=twice),
+    )
+    for call in calls:
+        with pytest.raises(InputError, match=f"^defenses {line}$"):
+            call()
+    out = tmp_path / "s"
+    for command, option in (("storm", "--defense"), ("worstcase", "--defense"), ("defenses", "--visible-defenses")):
+        argv = [command, "--scene", "spheres", "--n", "50", option, *twice]
+        argv += ["--out", str(out)] if command == "storm" else []
+        assert cli_error(capsys, argv) == f"seuwgpu {command}: error: {option} {line}"
+    assert not out.exists()
+    assert spec_error(spec(single={"defenses": twice})) == f"single.defenses {line}"
+
+
+def test_a_profile_and_a_target_are_input_errors_one_wording(scene, capsys, tmp_path):
+    """render's check_profile and faults/state's check_target are checks.one_of: an InputError
+    no caller re-wraps, the same line from the API, --profile and a spec."""
+    from seuwgpu.faults.state import TARGETS, check_target
+
+    problem = "unknown renderer profile 'fast'; expected one of strict, gsplat"
+    with pytest.raises(InputError, match=f"^{problem}$"):
+        sg.render_views(scene, sg.cameras(scene, views=1, size=(16, 16)), profile="fast")
+    cli = cli_error(capsys, ["render", "--profile", "fast", "--out", str(tmp_path / "r.npz")])
+    assert cli.endswith("argument --profile: " + problem)
+    assert spec_error(spec(profile="fast")) == "profile: " + problem
+    target = "unknown pipeline-state target 'rects'; expected one of " + ", ".join(TARGETS)
+    with pytest.raises(InputError, match=f"^{target}$"):
+        sg.state_flips(scene, [], targets=["rects"])
+    with pytest.raises(InputError, match="^targets: unknown pipeline-state target 1; "):
+        check_target(1, "targets")

@@ -300,7 +300,7 @@ SPEC_CASES = {
     'scene = "spheres"\nup = 3': r"^scenes\[0\]\.up: unknown up axis 3; expected one of \+x, -x",
     # was ignored: the whole file ran, as if n were not there (the command line refuses --n with --model)
     'model = "x.ply"\nn = 50': r"scenes\[0\]\.n sets the primitives of an embedded scene; a model file",
-    'ply = "x.ply"\nn = 50': r"a model file \(ply = \.\.\.\) keeps all of its own",
+    'ply = "x.ply"\nn = 50': r"a model file keeps all of its own \(x\.ply\); a \[sizes\] table cuts it",
 }
 
 
@@ -465,7 +465,7 @@ def test_spec_size_with_cameras_on_every_scene_is_refused(tmp_path):
     save_cameras(orbit_cameras(2, 48, 32), tmp_path / "cams.json")
     cams = {"scene": "spheres", "n": 50, "cameras": str(tmp_path / "cams.json")}
     single = {"fields": ["opacity"], "bits": [30], "samples": 1, "defenses": ["none"]}
-    with pytest.raises(SpecError, match="size: every scene takes its image size from its camera file"):
+    with pytest.raises(SpecError, match=r"^size sets orbit views; .* \(use scale\); every scene has one$"):
         normalize_spec({"size": "64x64", "scenes": [cams], "single": single})
     assert normalize_spec({"scenes": [cams], "single": single}).scenes[0].cameras
     both = normalize_spec({"size": "64x64", "scenes": [cams, {"scene": "blocks", "n": 50}], "single": single})

@@ -70,14 +70,18 @@ def test_a_storm_too_long_for_host_memory_is_refused_at_once(monkeypatch):
         storm(eng, 10**9, 10**9, 10, ("none",))
 
 
-def test_storm_command_runs_a_defense_named_twice_once(tmp_path):
+def test_storm_command_refuses_a_defense_named_twice(tmp_path):
+    """A defense named twice was merged into one arm; it is refused, as the API and a spec refuse
+    it (tests/test_checks.py), before anything is written."""
     import pandas as pd
 
     from seuwgpu.apps.cli import main
 
     args = ["storm", "--scene", "blocks", "--n", "100", "--size", "16x16", "--k", "2", "--frames", "2"]
-    assert main([*args, "--defense", "none", "none", "--out", str(tmp_path)]) == 0
-    df = pd.read_parquet(tmp_path / "storm.parquet")
+    assert main([*args, "--defense", "none", "none", "--out", str(tmp_path / "s")]) == 2
+    assert not (tmp_path / "s").exists()
+    assert main([*args, "--defense", "none", "--out", str(tmp_path / "s")]) == 0
+    df = pd.read_parquet(tmp_path / "s" / "storm.parquet")
     assert len(df) == 2 and list(df.frame) == [0, 1]
 
 

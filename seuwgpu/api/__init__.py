@@ -41,7 +41,6 @@ from seuwgpu.api._checks import (
     names_of,
     out_path,
     paths_of,
-    profile_name,
     spec_of,
     view_list,
 )
@@ -141,8 +140,7 @@ def load_model(
     if isinstance(source, Path) or path.exists() or path.suffix or "/" in str(source):
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such model file or folder")
-        if n is not None:  # refused, not ignored, as the command line refuses --n with --model
-            raise InputError(f"n sets the primitives of an embedded scene; a model file keeps all of its own ({path})")
+        checks.n_of_an_embedded_scene(n, path)  # as the command line refuses --n with --model
         return load_source(path=path, up=up, lod=lod)
     name = str(source)
     checks.lod_of_a_model_file(lod, name)
@@ -168,8 +166,7 @@ def cameras(
     check_scene(scene)
     if views is not None:
         checks.views(views)
-    if cameras is not None and size is not None:
-        raise InputError("size sets orbit views; a cameras file gives each view its own size (use scale)")
+    checks.size_of_orbit_views(size, cameras is not None)  # as the command line refuses --size with --cameras
     w, h = checks.image_size((256, 256) if size is None else size)
     if scale is not None:
         checks.scale(scale)
@@ -252,13 +249,14 @@ def render_views(
     for corrupted values (PROFILES: "strict", or "gsplat" as gsplat's CUDA kernels; docs/renderer.md).
     `compositor`: the compositor's shape, "lanes" or "wide" (the same frames bit for bit; "wide"
     is the shape GPUs fill, docs/renderer.md); None: the device's default."""
+    from seuwgpu.render.project import check_profile
     from seuwgpu.render.renderer import render_split
 
     model = model_from(scene)
     from seuwgpu.render.composite import check_shape
 
     shape = None if compositor is None else check_shape(compositor)
-    views, precision, profile = view_list(views), encoding.check_precision(precision), profile_name(profile)
+    views, precision, profile = view_list(views), encoding.check_precision(precision), check_profile(profile)
     sizes = image_sizes(views)
     if len(sizes) == 1:  # frames larger than one storage binding: in view groups or tile-row bands
         return render_split(model, views, precision, profile=profile, compositor=shape)

@@ -18,7 +18,7 @@ from seuwgpu.faults.sites import (
     check_site_model,
     model_bits,
 )
-from seuwgpu.model import encoding
+from seuwgpu.model import checks, encoding
 from seuwgpu.model.cameras import Camera, check_one_size
 from seuwgpu.model.fields import Model
 from seuwgpu.model.sources import Source
@@ -26,10 +26,7 @@ from seuwgpu.model.sources import Source
 
 def fault_bits(fault, bit, width, precision, seed) -> tuple[tuple[int, ...], str, int]:
     """(bits, op, value) of one fault, as faults/sites.py applies it."""
-    try:
-        check_site_model(fault)
-    except ValueError as e:
-        raise InputError(str(e)) from None
+    check_site_model(fault)
     if fault in VALUE_MODELS:
         return model_bits(fault, -1, precision, int(np.random.default_rng(seed).integers(2**63)))
     if bit is None:
@@ -63,30 +60,22 @@ def spec_of(spec) -> Spec:
 def engine_for(scene, views, precision: str, profile: str, what: str):
     """The fault-injection engine (faults/engine.py) of a model and its views, one image size."""
     from seuwgpu.faults.engine import Engine
+    from seuwgpu.render.project import check_profile
 
     model = model_from(scene)
     name = scene.name if isinstance(scene, Source) else "model"
     views = view_list(views)
     check_one_size(views, "views", what)
-    return Engine(model, views, encoding.check_precision(precision), scene=name, profile=profile_name(profile))
+    return Engine(model, views, encoding.check_precision(precision), scene=name, profile=check_profile(profile))
 
 
 def defense_names(defenses) -> tuple[str, ...]:
-    """Defense names checked, each once (an arm named twice is one arm)."""
-    names = tuple(dict.fromkeys(check_defense(d) for d in names_of(defenses, "defenses")))
+    """Defense names checked, each named once (a defense named twice is refused, as a spec's
+    `defenses` and the command line's --defense refuse it: checks.listed_once)."""
+    names = tuple(checks.listed_once([check_defense(d) for d in names_of(defenses, "defenses")], "defenses"))
     if not names:
         raise InputError("defenses must name at least one defense")
     return names
-
-
-def profile_name(profile) -> str:
-    """render's check_profile (the one definition of the names) raising the API's InputError."""
-    from seuwgpu.render.project import check_profile
-
-    try:
-        return check_profile(profile if isinstance(profile, str) else repr(profile))
-    except ValueError as e:
-        raise InputError(str(e)) from None
 
 
 def check_scene(scene):

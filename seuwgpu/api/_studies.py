@@ -113,10 +113,7 @@ def worst_case(
 
     defenses = defense_names(defenses)
     if fields is not None:
-        try:
-            fields = [canonical_field(f) for f in names_of(fields, "fields")]
-        except ValueError as e:
-            raise InputError(str(e)) from None
+        fields = [canonical_field(f) for f in names_of(fields, "fields")]
     if bits is not None:
         bits = [checks.integer(b, "bit", 0) for b in bits]
     if max_evaluations is not None:

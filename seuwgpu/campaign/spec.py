@@ -256,11 +256,7 @@ def _fault(table, cls, out, where):
     hash)."""
     from seuwgpu.faults.sites import check_site_model
 
-    v = _get(table, cls, "fault", where)
-    try:
-        check_site_model(v)
-    except ValueError as e:
-        raise SpecError(f"{where}.fault: {e}") from None
+    v = check_site_model(_get(table, cls, "fault", where), f"{where}.fault")
     if v != toml_default(cls, "fault"):
         out["fault"] = v
 
@@ -374,11 +370,7 @@ def _normalize(raw: dict, base_dir: Path | None) -> Spec:
     if "profile" in raw:  # renderer profile (docs/renderer.md); recorded only when given (hash)
         from seuwgpu.render.project import check_profile  # the one definition of the profile names
 
-        p = raw["profile"]
-        try:
-            spec["profile"] = check_profile(p if isinstance(p, str) else repr(p))  # a TOML list: unhashable
-        except ValueError as e:
-            raise SpecError(f"profile: {e}") from None
+        spec["profile"] = check_profile(raw["profile"], "profile")
     scenes = raw.get("scenes")
     if not isinstance(scenes, list) or not scenes:
         raise SpecError("the spec needs at least one [[scenes]] table")
@@ -403,11 +395,8 @@ def _normalize(raw: dict, base_dir: Path | None) -> Spec:
                 out["n"] = _int(s, SceneSpec, "n", where, 1)
         else:
             key = "model" if "model" in s else "ply"
-            if "n" in s:  # refused, not ignored, as --n with --model (a [sizes] sweep cuts a file)
-                raise SpecError(
-                    f"{where}.n sets the primitives of an embedded scene; a model file ({key} = ...) keeps all of "
-                    "its own (a [sizes] table cuts it to subsets)"
-                )
+            hint = "; a [sizes] table cuts it to subsets"  # refused, not ignored, as --n with --model
+            checks.n_of_an_embedded_scene(s.get("n"), s[key], f"{where}.n", hint)
             out["model"] = _spec_file(s, key, where, base_dir)
             out["model_sha256"] = content_hash("model", out["model"])
             lod = checks.lod_level(s["lod"], f"{where}.lod") if "lod" in s else None
@@ -426,11 +415,9 @@ def _normalize(raw: dict, base_dir: Path | None) -> Spec:
             check_one_size(views, f"{where}.cameras {out['cameras']}", "a campaign")
         spec["scenes"].append(out)
     _distinct_labels(spec["scenes"])
-    if "size" in raw and all("cameras" in sc for sc in spec["scenes"]):  # refused, not ignored, as --size
-        raise SpecError(
-            "size: every scene takes its image size from its camera file, so size would be ignored; "
-            "remove it (scale = S resizes the camera files' views)"
-        )
+    # refused, not ignored, as --size with --cameras; where a scene has no camera file, size applies
+    every_scene_has_cameras = all("cameras" in sc for sc in spec["scenes"])
+    checks.size_of_orbit_views(raw.get("size"), every_scene_has_cameras, hint="; every scene has one")
     # recorded only when given, so older specs keep their hash (the manifest states the thresholds)
     if "lpips" in raw:
         if not isinstance(raw["lpips"], bool):

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from seuwgpu.errors import InputError
 from seuwgpu.model import checks, encoding
 from seuwgpu.model.fields import FIELD_OFFSET, FIELDS, Model, canonical_field, field_components, n_components
 
@@ -41,18 +42,18 @@ DANGEROUS_CELLS = (("log_scales", 30), ("log_scales", 31), ("opacity", 30), ("op
 INJECT_SAMPLE = 64
 
 
-def check_fault_model(name: str) -> str:
-    return checks.one_of(name, "fault model", FAULT_MODELS)
+def check_fault_model(name: str, what: str | None = None) -> str:
+    return checks.one_of(name, "fault model", FAULT_MODELS, what)
 
 
-def check_site_model(name: str) -> str:
+def check_site_model(name: str, what: str | None = None) -> str:
     """A fault model one site carries (a single-upset injection); the multi-cell ones are refused
     with a line saying where they can be drawn."""
-    check_fault_model(name)
+    check_fault_model(name, what)
     if name in MULTI_CELL_MODELS:
-        raise ValueError(
-            f"fault model {name!r} hits several stored values at once: a storm draws it (seuwgpu storm --fault), "
-            f"a single-upset injection carries one of {', '.join(SITE_MODELS)}"
+        raise InputError(
+            f"{checks.prefix(what)}fault model {name!r} hits several stored values at once: a storm draws "
+            f"it (seuwgpu storm --fault), a single-upset injection carries one of {', '.join(SITE_MODELS)}"
         )
     return name
 

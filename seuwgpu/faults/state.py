@@ -29,6 +29,7 @@ import pandas as pd
 
 from seuwgpu.faults.flips import Flips
 from seuwgpu.metrics.image import catastrophic
+from seuwgpu.model import checks
 from seuwgpu.render.pipeline import FAULT_TARGETS
 
 # target -> (the stage it lands after, words per record, words used per record)
@@ -41,12 +42,10 @@ FLOAT_TARGETS = frozenset(
 """Targets of float32 words, by either name (records made before the rename carry the former)."""
 
 
-def check_target(name: str) -> str:
-    """The target's buffer name (a former name is read as its new one)."""
-    name = FORMER_NAMES.get(name, name)
-    if name not in TARGETS:
-        raise ValueError(f"unknown pipeline-state target {name!r}; expected one of {', '.join(TARGETS)}")
-    return name
+def check_target(name: str, what: str | None = None) -> str:
+    """The target's buffer name (a former name is read as its new one), InputError otherwise."""
+    name = FORMER_NAMES.get(name, name) if isinstance(name, str) else name
+    return checks.one_of(name, "pipeline-state target", TARGETS, what)
 
 
 def _record(target: str) -> str:

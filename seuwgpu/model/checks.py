@@ -30,7 +30,8 @@ def _named(what: str | None, problem: str) -> str:
     return f"{what} {problem}" if what else problem
 
 
-def _where(what: str | None) -> str:
+def prefix(what: str | None) -> str:
+    """`what: ` before a problem that names its value (unknown precision 'fp8'), or nothing."""
     return f"{what}: " if what else ""
 
 
@@ -66,7 +67,7 @@ def one_of(value, kind: str, choices: Iterable[str], what: str | None = None) ->
     """A name from a registry (a precision, a field, a defense, a profile, a scene, ...)."""
     choices = list(choices)
     if not isinstance(value, str) or value not in choices:
-        raise InputError(f"{_where(what)}unknown {kind} {value!r}; expected one of {', '.join(choices)}")
+        raise InputError(f"{prefix(what)}unknown {kind} {value!r}; expected one of {', '.join(choices)}")
     return value
 
 
@@ -107,7 +108,7 @@ def image_size(value, what: str | None = "size") -> tuple[int, int]:
     whole = all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (w, h))
     if not whole or w < MIN_VIEW_SIZE or h < MIN_VIEW_SIZE:
         raise InputError(
-            f"{_where(what)}width and height must be whole numbers of at least {MIN_VIEW_SIZE} px, got {value!r}"
+            f"{prefix(what)}width and height must be whole numbers of at least {MIN_VIEW_SIZE} px, got {value!r}"
         )
     return int(w), int(h)
 
@@ -137,3 +138,20 @@ def lod_of_a_model_file(lod, scene: str | None, what: str = "lod"):
         raise InputError(
             f"{what} picks a level of a PlayCanvas LOD set (a model file: lod-meta.json or its folder), not of {which}"
         )
+
+
+def n_of_an_embedded_scene(n, model, what: str = "n", hint: str = ""):
+    """A primitive count shapes an embedded scene: beside a model file (`model`, as the user named
+    it) it is refused, not ignored, for a model file keeps all of its primitives."""
+    if n is not None and model is not None:
+        raise InputError(
+            f"{what} sets the primitives of an embedded scene; a model file keeps all of its own ({model}){hint}"
+        )
+
+
+def size_of_orbit_views(size, from_files: bool, what: str = "size", scale: str = "scale", hint: str = ""):
+    """An image size shapes orbit views: where the views come from camera files (`from_files`),
+    which give each view its own size, it is refused, not ignored; `scale` (named as the user
+    knows it) resizes those views."""
+    if size is not None and from_files:
+        raise InputError(f"{what} sets orbit views; a cameras file gives each view its own size (use {scale}){hint}")

@@ -34,6 +34,7 @@ import numpy as np
 from seuwgpu.gpu.constants import EXP_MAX, EXP_MIN, PRECISION_CODE, PROFILE_CODE, TILE
 from seuwgpu.gpu.device import GPU, STORAGE
 from seuwgpu.gpu.kernel import Kernel, Uniforms
+from seuwgpu.model import checks
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model
 from seuwgpu.model.sh import sh_basis
@@ -193,10 +194,9 @@ def quat_to_rotmat(quats: np.ndarray) -> np.ndarray:
     return R
 
 
-def check_profile(profile: str) -> str:
-    if profile not in PROFILE_CODE:
-        raise ValueError(f"unknown renderer profile {profile!r}; expected one of {', '.join(PROFILE_CODE)}")
-    return profile
+def check_profile(profile: str, what: str | None = None) -> str:
+    """A renderer profile's name (the one definition of the names: PROFILE_CODE), InputError otherwise."""
+    return checks.one_of(profile, "renderer profile", PROFILE_CODE, what)
 
 
 def project(model: Model, cam: Camera, profile: str = "strict") -> dict:

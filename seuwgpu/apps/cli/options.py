@@ -159,10 +159,12 @@ def add_compositor_arg(p: argparse.ArgumentParser):
 
 def add_profile_arg(p: argparse.ArgumentParser, default: str | None = "strict"):
     from seuwgpu.gpu.constants import PROFILES
+    from seuwgpu.render.project import check_profile
 
     p.add_argument(
         "--profile",
-        choices=PROFILES,
+        type=argument_type(check_profile),  # the API's and a spec's check and wording
+        metavar=one_of_metavar(PROFILES),
         default=default,
         help="what corrupted values draw: strict (NaN covariance = frame-covering sheet) or gsplat "
         "(gsplat's CUDA arithmetic); docs/renderer.md" + ("" if default else "; overrides the spec's profile"),
@@ -207,10 +209,12 @@ def load_source(args):
 
 def refuse_ignored_options(args):
     """Options the other arguments make meaningless are refused, not silently ignored."""
+    for option in ("defense", "visible_defenses"):  # a list of arms: each named once, as the API and a spec
+        if isinstance(getattr(args, option, None), list):
+            checks.listed_once(getattr(args, option), "--" + option.replace("_", "-"))
     if getattr(args, "model", None) is None:
         checks.lod_of_a_model_file(getattr(args, "lod", None), getattr(args, "scene", None), "--lod")
-    if getattr(args, "model", None) is not None and getattr(args, "n", None) is not None:
-        raise CliError("--n sets the primitives of an embedded scene; a model file keeps all of its own")
+    checks.n_of_an_embedded_scene(getattr(args, "n", None), getattr(args, "model", None), "--n")
     if getattr(args, "model", None) is not None and getattr(args, "sh_degree", None) is not None:
         raise CliError("--sh-degree sets the SH degree of an embedded scene; a model file has its own")
     seed_only_shapes_a_scene = getattr(args, "seed", None) is not None and not getattr(args, "seed_draws", True)
@@ -223,8 +227,7 @@ def refuse_ignored_options(args):
         raise CliError("--views picks views of a --cameras file; the viewer's orbit is one view you steer")
     # --size of the commands that take camera options (add_camera_args, and demo's; `view`'s is its window)
     orbit_size = getattr(args, "size", None) if hasattr(args, "default_size") else None
-    if getattr(args, "cameras", None) is not None and orbit_size is not None:
-        raise CliError("--size sets orbit views; a cameras file gives each view its own size (use --scale)")
+    checks.size_of_orbit_views(orbit_size, getattr(args, "cameras", None) is not None, "--size", "--scale")
 
 
 def scene_sh_degree(args) -> int:
