@@ -12,7 +12,7 @@ from scipy import stats as sps
 from test_reliability_models import COMPS, single_records
 from test_report_numbers import stratified
 
-from seuwgpu.analysis import claims, dose, population, scaling, theory
+from seuwgpu.analysis import claimrows, claims, dose, population, scaling, theory
 
 
 def models(*hot):
@@ -46,18 +46,29 @@ def test_t_interval_over_models():
 
 
 @pytest.mark.parametrize(
-    "lo, hi, n, want",
+    "key, lo, hi, n, kw, want",
     [
-        (0.5, 0.8, 4, "reproduced"),  # the paper's 0.634 inside
-        (0.7, 0.9, 4, "differs"),  # outside
-        (0.5, 0.8, 2, "inconclusive"),  # too few models
-        (-0.2, 1.5, 4, "inconclusive"),  # inside, but it also holds 0: the models cannot tell
-        (0.6345, 0.9, 4, "reproduced"),  # 0.634 as printed reaches 0.6345
-        (0.63451, 0.9, 4, "differs"),
+        ("pc_none", 0.40, 1.20, 4, {}, "reproduced"),  # inside [0.6335 / 2, 0.6345 x 2]
+        ("pc_none", 1.30, 2.00, 4, {}, "differs"),
+        ("pc_none", 0.40, 1.20, 2, {}, "inconclusive"),  # under MIN_MODELS
+        ("pc_none", 0.40, 1.20, None, {}, "reproduced"),  # over the records: the claims table holds it
+        ("pc_none", np.nan, np.nan, None, {}, "not measured"),  # over the records, no interval
+        ("pc_none", np.nan, np.nan, 4, {}, "inconclusive"),  # over models, no interval
+        ("pc_none", 0.40, 1.20, 4, {"population": population.POOLED}, "inconclusive"),
+        ("pc_guard_bits", 0.1, 0.2, 4, {}, "no paper value"),  # this project's own estimate
+        ("field_rate_quats", 0.0, 0.004, 4, {}, "reproduced"),  # 0.000 as printed: under the 0.01 bound
+        ("dose_none_all", -np.inf, -np.inf, 7, {}, "differs"),  # every model at -inf: below any band
+        ("dose_guard_all", -np.inf, np.nan, 7, {}, "inconclusive"),
+        ("guard_worst_footprint", 8.0, 12.0, None, {"matched": False}, "not comparable"),
+        ("guard_worst_footprint", 8.0, 12.0, None, {}, "reproduced"),  # at the paper's number of upsets
     ],
 )
-def test_verdict_rule(lo, hi, n, want):
-    assert population.verdict(lo, hi, 0.634, claims.paper_half_unit(0.634), n) == want
+def test_claim_verdict_is_the_one_rule_of_a_row(key, lo, hi, n, kw, want):
+    assert population.claim_verdict(key, lo, hi, n, **kw) == want
+    if kw or n is None or want == "no paper value":
+        return
+    r = claimrows.row(key, 1.0, lo, hi, n_models=n)  # the claims table's rows take the same verdict
+    assert r["verdict"] == want
 
 
 @pytest.mark.parametrize(
@@ -97,10 +108,10 @@ def test_absolute_margin_and_minus_infinity():
 
 
 def test_one_model_never_gives_a_firmer_verdict_than_two():
-    """The older `_over_models` fell back to the pooled records' verdict with one model; now one
+    """The older rows over models fell back to the pooled records' verdict with one model; now one
     model's row keeps its value and the pooled interval beside, and is inconclusive."""
     one = pd.DataFrame({"scene": ["a"], "n_primitives": [8192], "v": [0.006]})
-    r = claims._over_models("pc_none", one, "v", "test", 0.95, pooled=(0.6, 0.55, 0.65))
+    r = claimrows.over_models("pc_none", one, "v", "test", 0.95, pooled=(0.6, 0.55, 0.65))
     assert r["verdict"] == "inconclusive" and r["measured"] == pytest.approx(0.6)
     assert (r["pooled_lo"], r["pooled_hi"]) == (0.55, 0.65) and np.isnan(r["ci_lo"])
     df = models(0.6)
@@ -116,7 +127,7 @@ def test_an_interval_over_models_stays_inside_the_quantity_s_range():
     v = per["v"].to_numpy() * 100
     half = sps.t.ppf(0.975, 3) * v.std(ddof=1) / 2
     assert v.mean() - half < 0  # the uncut interval leaves the range
-    row = claims._over_models("pc_guard", per, "v", "test", 0.95)
+    row = claimrows.over_models("pc_guard", per, "v", "test", 0.95)
     assert row["ci_lo"] == 0.0 and row["ci_hi"] == pytest.approx(v.mean() + half)
     assert "lower" in row["basis"] and "cut to 0" in row["basis"]
     # [0, 0.055]% against the paper's 0.0612 within a factor 2, [0.0306, 0.1224]: neither inside nor outside
@@ -125,11 +136,11 @@ def test_an_interval_over_models_stays_inside_the_quantity_s_range():
     s = share["s"].to_numpy() * 100
     top = s.mean() + sps.t.ppf(0.975, 3) * s.std(ddof=1) / 2
     assert top > 100
-    row = claims._over_models("guard_share", share, "s", "test", 0.95)
+    row = claimrows.over_models("guard_share", share, "s", "test", 0.95)
     assert row["ci_hi"] == 100.0 and row["ci_lo"] == pytest.approx(2 * s.mean() - top)
     # [92.8, 100] against 90.4 +- 5 points, [85.35, 95.45]: it reaches past the band, not wholly outside
     assert 85.35 < row["ci_lo"] < 95.45 < row["ci_hi"] and row["verdict"] == "inconclusive"
-    inside = claims._over_models("pc_none", per.assign(v=[0.01, 0.012, 0.015, 0.02]), "v", "test", 0.95)
+    inside = claimrows.over_models("pc_none", per.assign(v=[0.01, 0.012, 0.015, 0.02]), "v", "test", 0.95)
     assert "cut" not in inside["basis"]
 
 

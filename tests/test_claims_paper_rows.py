@@ -15,7 +15,7 @@ from scipy import stats as sps
 from test_reliability_models import single_records
 from test_report_numbers import stratified
 
-from seuwgpu.analysis import claims, guard, mitigation
+from seuwgpu.analysis import claims, guard, mitigation, scaling
 
 MODELS = {"m0": 0.6, "m1": 0.3, "m2": 0.45, "m3": 0.2}
 
@@ -224,7 +224,7 @@ def test_budget_on_the_mean_psnr_guard_factor_and_loso_auc():
     r = row(t, "guard_factor")
     assert (r["measured"], r["ci_lo"], r["ci_hi"]) == pytest.approx(t_interval([20, 30, 26], 0), rel=1e-9)
     assert r["verdict"] == "not comparable"  # N = 500, 800, 900: never an average over sizes
-    same = claims._size_and_loso_rows({"size": {"guard_factor": gf.assign(n_primitives=900)}}, 0.95)[0]
+    same = scaling.guard_factor_row({"guard_factor": gf.assign(n_primitives=900)}, 0.95)
     assert same["verdict"] == "reproduced"  # [12.8, 37.8] inside 24 x/2 = [11.75, 49], three models
     r = row(t, "auc_loso_mean")
     assert (r["measured"], r["ci_lo"], r["ci_hi"]) == pytest.approx(t_interval(loso["auc"], 0, 1), rel=1e-9)

@@ -249,6 +249,46 @@ def test_reverdict_splits_a_stored_row_by_population(tmp_path):
     assert real["verdict_issue36"] == "differs" and real["verdict_margin_pooled"] == "differs"  # 4.5 < 5.15
 
 
+def test_reverdict_keeps_a_corpus_model_real_and_a_model_at_minus_inf(tmp_path):
+    """A corpus model named like a procedural scene (plant) is a real model where scenes.csv says it
+    is a model file, or where claims.csv names the row's population; a model at -inf keeps the mean
+    at -inf (the interval [-inf, -inf] when every model is there: below any band, differs), where
+    the t interval over the finite values alone would drop it."""
+    tool = _tool("claims_from_tables")
+    basis = "k/N = 0.197; per model: plant -inf; m1 -inf; m2 -inf; m3 nan; 3 of 3 models at -inf"
+    assert tool.per_model_values(basis) == pytest.approx(
+        {"plant": -np.inf, "m1": -np.inf, "m2": -np.inf, "m3": np.nan}, nan_ok=True
+    )
+    row = {
+        "claim": claims.PAPER["dose_none_all"][0],
+        "unit": "dB",
+        "measured": -np.inf,
+        "ci_lo": -np.inf,
+        "ci_hi": -np.inf,
+        "paper": 10.6,
+        "verdict": "differs",
+        "n_models": 3,
+        "basis": basis,
+    }
+    pd.DataFrame([row]).to_csv(tmp_path / "claims.csv", index=False)
+    pd.DataFrame({"scene": ["plant", "m1", "m2", "m3"], "kind": "model file"}).to_csv(
+        tmp_path / "scenes.csv", index=False
+    )
+    t = tool.reverdict(tmp_path)
+    assert list(t["population"]) == [population.REAL]  # plant is not the procedural plant here
+    r = t.iloc[0]
+    assert r["n_models"] == 3 and r["measured"] == r["ci_lo"] == r["ci_hi"] == -np.inf
+    assert r["verdict"] == "differs" and r["verdict_margin_pooled"] == "differs"  # -inf read back from the CSV
+    # without scenes.csv, the population claims.csv names
+    (tmp_path / "scenes.csv").unlink()
+    pd.DataFrame([row | {"population": population.REAL}]).to_csv(tmp_path / "claims.csv", index=False)
+    assert list(tool.reverdict(tmp_path)["population"]) == [population.REAL]
+    # one of two models at -inf: [-inf, NaN], no verdict either way
+    pd.DataFrame([row | {"basis": "per model: m1 -inf; m2 12.0; m3 11.0"}]).to_csv(tmp_path / "claims.csv", index=False)
+    r = tool.reverdict(tmp_path).iloc[0]
+    assert r["measured"] == r["ci_lo"] == -np.inf and np.isnan(r["ci_hi"]) and r["verdict"] == "inconclusive"
+
+
 def test_the_real_study_specs_and_their_planner():
     tool = _tool("study")
     raw = {"scenes": [{"model": "flowers/lod-meta.json"}], "single": {"samples": 64}, "dose": {"repeats": 4}}

@@ -12,7 +12,7 @@ import pytest
 from scipy.optimize import brentq
 from scipy.stats import chi2
 
-from seuwgpu.analysis import claims, dose
+from seuwgpu.analysis import claimrows, claims, dose
 
 
 def _loglik(p, k, x, n):
@@ -195,7 +195,7 @@ def test_verdict_reads_the_paper_value_to_its_printed_digits(key, lo, hi, verdic
     """The paper prints rounded values; its 0.997 is any number that rounds to it, widened by the
     row's margin (paper.MARGINS): reproduced needs the interval inside, differs wholly outside
     (paper_half_unit: half a unit of the last printed digit)."""
-    r = claims._row(key, (lo + hi) / 2, lo, hi)
+    r = claimrows.row(key, (lo + hi) / 2, lo, hi)
     assert r["verdict"] == verdict
     assert claims.paper_half_unit(0.997) == pytest.approx(5e-4)
     assert claims.paper_half_unit(10.3) == pytest.approx(0.05)

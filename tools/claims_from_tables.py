@@ -27,10 +27,11 @@ Rows the tables cannot give are listed with verdict "not derivable" and the reas
     python tools/claims_from_tables.py docs/study/cpu --reverdict   # issue 46's rule on a report's claims.csv
 
 --reverdict reads a report's own claims.csv (made by an older rule) and writes it again with the
-verdict of issue 46's rule (`population.equivalence_verdict`: the interval inside the row's margin,
+verdict of issue 46's rule (`population.claim_verdict`: the interval inside the row's margin,
 and at least 3 models of one population): per population where the basis lists the per-model
-values (real models and procedural scenes never pooled), the old verdict kept beside
-(`verdict_issue36`), and what the margins alone would give on the pooled interval
+values (real models and procedural scenes never pooled: the population claims.csv names, else each
+model's, with the report's model files from scenes.csv; a model at -inf keeps the mean at -inf),
+the old verdict kept beside (`verdict_issue36`), and what the margins alone would give on the pooled interval
 (`verdict_margin_pooled`); claims_verdicts.md lists the rows whose verdict changed.
 """
 
@@ -38,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -47,7 +49,7 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from seuwgpu.analysis import claims, paper, population, scaling, stats  # noqa: E402
+from seuwgpu.analysis import claimrows, claims, dose, paper, population, prediction, scaling, stats, theory  # noqa: E402
 from seuwgpu.analysis import estimate as E  # noqa: E402
 from seuwgpu.report.format import markdown_table  # noqa: E402
 
@@ -62,7 +64,7 @@ def equal_field_row(d: Path) -> dict:
     p, lo, hi, _ = E.stratified_interval(cells["cat_rate_pct"] / 100, cells["n"], W)
     value = float(rates["cat_rate_pct"].mean())
     assert abs(100 * p - value) < 1e-6 * max(value, 1e-12), (100 * p, value)  # the two tables agree
-    return claims._row(
+    return claimrows.row(
         "pc_none",
         value,
         100 * lo,
@@ -79,7 +81,7 @@ def bit_weighted_rows(d: Path) -> list[dict]:
     for dfn in ("none", "guard"):
         per = cat[(cat["precision"] == "fp32") & (cat["defense"] == dfn)].rename(columns={"rate": "p"})
         rows.append(
-            claims._over_models(
+            claimrows.over_models(
                 f"pc_{dfn}_bits", per, "p", "summary.json's per-model weighted rates (catastrophic)", 0.95
             )
         )
@@ -87,14 +89,15 @@ def bit_weighted_rows(d: Path) -> list[dict]:
 
 
 def not_derivable(key: str, why: str) -> dict:
-    return claims._row(key, basis=why) | {"verdict": "not derivable"}
+    return claimrows.row(key, basis=why) | {"verdict": "not derivable"}
 
 
 def alpha_and_dose_rows(d: Path, frame_size) -> list[dict]:
     floor = scaling.median_floor(*frame_size)
     t = scaling.mark_groups(pd.read_csv(d / "size_scaling.csv"), floor)
-    rows = claims._alpha_rows({"groups": scaling.group_fits(t), "median_floor": floor})
-    rows += claims._dose_rows(pd.read_csv(d / "dose_curves.csv"), 0.95)
+    rows = scaling.alpha_rows({"groups": scaling.group_fits(t), "median_floor": floor})
+    # the finite-frame rows only: these reports predate the rows that count a non-finite frame
+    rows += [r for r in dose.dose_rows(pd.read_csv(d / "dose_curves.csv"), 0.95) if not r["key"].endswith("_all")]
     return rows
 
 
@@ -105,23 +108,23 @@ def paper_rows(d: Path) -> list[dict]:
     for f in claims.PAPER_FIELD_RATES:
         r = crit.loc[f]
         basis = f"n = {int(r['n']):,}; criticality.csv, fp32, pooled over the models (no per-model table)"
-        rows.append(claims._row(f"field_rate_{f}", r["cat_rate_pct"], r["cat_ci_lo_pct"], r["cat_ci_hi_pct"], basis))
+        rows.append(claimrows.row(f"field_rate_{f}", r["cat_rate_pct"], r["cat_ci_lo_pct"], r["cat_ci_hi_pct"], basis))
         for q in claims.PAPER_FIELD_FOOTPRINT[f]:
-            rows.append(claims._row(f"field_{q}_{f}", r[f"{q}_pct"], basis=basis))
-    rows.append(claims._budget_row(pd.read_csv(d / "dose_curves.csv"), 0.95))
+            rows.append(claimrows.row(f"field_{q}_{f}", r[f"{q}_pct"], basis=basis))
+    rows.append(dose.budget_rows(pd.read_csv(d / "dose_curves.csv"), 0.95)[0])  # the finite-frame budget
     sign = pd.read_csv(d / "guard_sign_psnr.csv")
     for dfn in ("none", "guard"):
         r = sign[(sign["precision"] == "fp32") & (sign["defense"] == dfn)].iloc[0]
         basis = f"n = {int(r['n']):,}; guard_sign_psnr.csv, pooled over the models"
-        rows.append(claims._row(f"sign_psnr_{dfn}", r["psnr_mean_mse_db"], basis=basis))
+        rows.append(claimrows.row(f"sign_psnr_{dfn}", r["psnr_mean_mse_db"], basis=basis))
     paired = pd.read_csv(d / "guard_paired.csv").set_index("precision").loc["all"]
     n, k = int(paired["pairs"]), int(paired["residual_catastrophic"])
     both = int(paired["catastrophic_none"]) - int(paired["neutralised"])
     lo, hi = stats.wilson_interval(k, n, 0.95)
     basis = f"guard_paired.csv, every precision: {n:,} guarded sites; no per-model table"
-    rows.append(claims._row("guard_worst_footprint", paired["worst_guarded_footprint_pct"], basis=basis))
+    rows.append(claimrows.row("guard_worst_footprint", paired["worst_guarded_footprint_pct"], basis=basis))
     rows.append(
-        claims._row(
+        claimrows.row(
             "guard_residual_share",
             100 * k / n,
             100 * lo,
@@ -139,16 +142,14 @@ def paper_rows(d: Path) -> list[dict]:
         & (cont["defense"] == "none")
         & (cont["P"] == claims.PAPER_CONTAMINATION_P)
     ]
-    rows.append(claims._row("contam_iou", c["iou_mean"].iloc[0], basis="IoU of the union masks over the views"))
-    results = {
-        "size": {"guard_factor": pd.read_csv(d / "size_guard_factor.csv")},
-        "prediction": {
-            "loso": pd.read_csv(d / "prediction_loso.csv"),
-            "summary": pd.read_csv(d / "prediction.csv"),
-            "precision": "fp32",
-        },
+    rows.append(claimrows.row("contam_iou", c["iou_mean"].iloc[0], basis="IoU of the union masks over the views"))
+    rows.append(scaling.guard_factor_row({"guard_factor": pd.read_csv(d / "size_guard_factor.csv")}, 0.95))
+    pr = {
+        "loso": pd.read_csv(d / "prediction_loso.csv"),
+        "summary": pd.read_csv(d / "prediction.csv"),
+        "precision": "fp32",
     }
-    return rows + claims._size_and_loso_rows(results, 0.95)
+    return rows + prediction.prediction_rows(pr, 0.95)[2:]  # the leave-one-scene-out rows
 
 
 def claim_key(text: str) -> str | None:
@@ -162,13 +163,14 @@ def claim_key(text: str) -> str | None:
 
 
 def per_model_values(basis: str) -> dict[str, float]:
-    """{scene: value} from a basis' "per model: a 1.2; b 3.4" (empty where it lists none)."""
+    """{scene: value} from a basis' "per model: a 1.2; b -inf; c nan" (empty where it lists none);
+    the note after a list with models at -inf ("2 of 3 models at -inf") is not a model."""
     if "per model: " not in str(basis):
         return {}
     out = {}
     for part in str(basis).split("per model: ", 1)[1].split(";"):
         bits = part.strip().rsplit(" ", 1)
-        if len(bits) != 2:
+        if len(bits) != 2 or re.fullmatch(r"\d+ of \d+ models at", bits[0]):
             break
         try:
             out[bits[0]] = float(bits[1])
@@ -177,27 +179,33 @@ def per_model_values(basis: str) -> dict[str, float]:
     return out
 
 
-def _verdict(key: str, lo: float, hi: float, n_models: int) -> str:
-    _, _, pv = paper.PAPER[key]
-    if not np.isfinite(pv):
-        return "no paper value"
-    h = paper.paper_half_unit(paper.PRINTED.get(key, pv))
-    return population.equivalence_verdict(lo, hi, pv, h, paper.margin_of(key), n_models)
+def model_scenes(d: Path) -> frozenset[str]:
+    """The report's scenes read from model files (scenes.csv's kind "model file"): a corpus model
+    named like a procedural scene (plant) is a real model (`population.population_of`)."""
+    f = d / "scenes.csv"
+    if not f.exists():
+        return frozenset()
+    s = pd.read_csv(f)
+    return frozenset(s.loc[s["kind"] == "model file", "scene"].astype(str))
 
 
 def reverdict(d: Path) -> pd.DataFrame:
-    """claims.csv of report `d` under issue 46's rule (module notes); one row a (claim, population)."""
+    """claims.csv of report `d` under issue 46's rule (module notes); one row a (claim, population).
+    A row's population is the one claims.csv names where it names one, else each model's
+    (`population.population_of` with the report's model files, scenes.csv)."""
     old = pd.read_csv(d / "claims.csv")
+    files = model_scenes(d)
     rows = []
     for _, r in old.iterrows():
-        key = claim_key(r["claim"])
+        stored_key = r.get("key")
+        key = stored_key if isinstance(stored_key, str) and stored_key in paper.PAPER else claim_key(r["claim"])
         keep = r["verdict"] in ("not measured", "no paper value", "not derivable") or key is None
+        # a maximum is compared only at the paper's number of upsets (`claimrows.tail_row` says so)
+        matched = "(the paper's number)" in str(r["basis"])
         margin_pooled = r["verdict"]
         if not keep:
-            n = int(r["n_models"]) if np.isfinite(r["n_models"]) else population.MIN_MODELS
-            margin_pooled = _verdict(key, r["ci_lo"], r["ci_hi"], n)
-            if key in paper.TAIL_MAXIMA:
-                margin_pooled = "not comparable"
+            n = int(r["n_models"]) if np.isfinite(r["n_models"]) else None
+            margin_pooled = population.claim_verdict(key, r["ci_lo"], r["ci_hi"], n, matched=matched)
         base = {
             "claim": r["claim"],
             "unit": r["unit"],
@@ -207,9 +215,11 @@ def reverdict(d: Path) -> pd.DataFrame:
             "verdict_margin_pooled": margin_pooled,
         }
         per = per_model_values(r["basis"])
+        stored_pop = r.get("population")
         groups: dict[str, dict] = {}
         for scene, v in per.items():
-            groups.setdefault(population.population_of(scene), {})[scene] = v
+            pop = stored_pop if stored_pop in (population.REAL, population.PROCEDURAL) else None
+            groups.setdefault(pop or population.population_of(scene, files), {})[scene] = v
         if keep:
             rows.append(
                 base
@@ -225,7 +235,7 @@ def reverdict(d: Path) -> pd.DataFrame:
             )
             continue
         if not groups:  # an interval over the records of every model: both populations pooled
-            v = "not comparable" if key in paper.TAIL_MAXIMA else "inconclusive"
+            n = int(r["n_models"]) if np.isfinite(r["n_models"]) else None
             rows.append(
                 base
                 | {
@@ -234,27 +244,28 @@ def reverdict(d: Path) -> pd.DataFrame:
                     "ci_lo": r["ci_lo"],
                     "ci_hi": r["ci_hi"],
                     "n_models": r["n_models"],
-                    "verdict": v,
+                    "verdict": population.claim_verdict(
+                        key, r["ci_lo"], r["ci_hi"], n, population.POOLED, matched=matched
+                    ),
                     "basis": f"{r['basis']}; pooled over both populations: no verdict",
                 }
             )
             continue
-        low, high = claims.claim_range(key)
         for pop, vals in groups.items():
-            om = population.interval_over_models(list(vals.values()))
-            lo = min(max(om.lo, low), high) if np.isfinite(om.lo) else om.lo
-            hi = max(min(om.hi, high), low) if np.isfinite(om.hi) else om.hi
-            v = "not comparable" if key in paper.TAIL_MAXIMA else _verdict(key, lo, hi, om.n_models)
+            mi = claimrows.models_interval(key, list(vals.values()))
+            basis = "per model: " + "; ".join(f"{k} {x:.4g}" for k, x in vals.items())
+            if mi.at_neg_inf:
+                basis += f"; {mi.at_neg_inf} of {mi.n_models} models at -inf"
             rows.append(
                 base
                 | {
                     "population": pop,
-                    "measured": om.mean,
-                    "ci_lo": lo,
-                    "ci_hi": hi,
-                    "n_models": om.n_models,
-                    "verdict": v,
-                    "basis": "per model: " + "; ".join(f"{k} {x:.4g}" for k, x in vals.items()),
+                    "measured": mi.mean,
+                    "ci_lo": mi.lo,
+                    "ci_hi": mi.hi,
+                    "n_models": mi.n_models,
+                    "verdict": population.claim_verdict(key, mi.lo, mi.hi, mi.n_models, pop, matched=matched),
+                    "basis": basis,
                 }
             )
     cols = [
@@ -313,7 +324,7 @@ def main(argv=None) -> int:
     out = pd.DataFrame(rows)
     th = pd.read_csv(d / "theory.csv")
     fit = th[th["in_fit"]]
-    windows = claims.theory_windows({"table": th, "fit_bits": (int(fit["bit"].min()), int(fit["bit"].max()))})
+    windows = theory.theory_windows({"table": th, "fit_bits": (int(fit["bit"].min()), int(fit["bit"].max()))})
     out.to_csv(d / "claims_rederived.csv", index=False)
     windows.to_csv(d / "claims_theory_windows.csv", index=False)
     (d / "claims_rederived.md").write_text(

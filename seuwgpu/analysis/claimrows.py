@@ -1,5 +1,5 @@
 """One row of the claims table: the value measured with its 95% interval, the paper's value, the
-margin and the verdict (`population.equivalence_verdict`), and over what the interval is taken.
+margin and the verdict (`population.claim_verdict`), and over what the interval is taken.
 
 Every analysis module builds its own claims rows with these (`dose.dose_rows`,
 `scaling.alpha_rows`, `guard.guard_rows`, ...); `claims.claims_table` gathers them per population.
@@ -7,15 +7,17 @@ Every analysis module builds its own claims rows with these (`dose.dose_rows`,
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis import population
-from seuwgpu.analysis.paper import PAPER, PRINTED, margin_of, margin_text, paper_half_unit, paper_upsets
+from seuwgpu.analysis.paper import PAPER, margin_text, paper_upsets
+from seuwgpu.analysis.population import claim_verdict
 
 OVER_MODELS = "models (t, n-1 df)"
 OVER_RECORDS = "records of these models"
-NOT_COMPARABLE = "not comparable"
 
 
 def row(
@@ -39,19 +41,9 @@ def row(
     claim, unit, paper = PAPER[key]
     over = OVER_RECORDS if n_models is None else OVER_MODELS
     pv, plo, phi = pooled if pooled is not None else (np.nan, np.nan, np.nan)
-    margin = margin_of(key)
-    if not measures_claim or np.isnan(value):
-        verdict = "not measured"
-    elif not np.isfinite(paper):
-        verdict = "no paper value"
-    elif np.isnan(lo) or np.isnan(hi):
-        verdict = "inconclusive" if n_models is not None else "not measured"
-        if n_models is None:
-            basis = (basis + "; " if basis else "") + "no interval"
-    else:
-        h = paper_half_unit(PRINTED.get(key, paper))
-        n = population.MIN_MODELS if n_models is None else n_models
-        verdict = population.equivalence_verdict(lo, hi, paper, h, margin, n)
+    verdict = claim_verdict(key, lo, hi, n_models) if measures_claim and not np.isnan(value) else "not measured"
+    if verdict == "not measured" and measures_claim and not np.isnan(value):
+        basis = (basis + "; " if basis else "") + "no interval"
     if guard not in (None, "guard"):  # the guard column names every row's; the text only the other arms'
         claim = f"{claim} [{guard}]"
     out = {
@@ -92,44 +84,67 @@ def claim_range(key: str) -> tuple[float, float]:
     return -np.inf, np.inf
 
 
+class ModelsInterval(NamedTuple):
+    """A claim's mean over models with its interval as its row gives it (`models_interval`)."""
+
+    mean: float
+    lo: float
+    hi: float
+    n_models: int
+    at_neg_inf: int  # models at -inf
+    cut: list[str]  # the ends cut to the quantity's range, as the basis says them
+
+
+def models_interval(key: str, values, conf: float = 0.95, scale: float = 1.0) -> ModelsInterval:
+    """The t interval over one value a model (times `scale`), cut to the values the quantity can
+    take (claim_range). A model at -inf (a PSNR over frames of which some are non-finite) makes the
+    mean -inf: the interval is [-inf, -inf] when every model is there, else [-inf, NaN]; a model
+    without a value (NaN) is not one of them. Under two models: no interval (NaN)."""
+    vals = np.asarray(values, dtype=float)
+    neg = np.isneginf(vals)
+    if neg.any():
+        n = int(np.isfinite(vals).sum() + neg.sum())
+        hi = -np.inf if neg.sum() == n else np.nan
+        return ModelsInterval(-np.inf, -np.inf, hi, n, int(neg.sum()), [])
+    om = population.interval_over_models(vals, conf)
+    if om.n_models < 2:
+        return ModelsInterval(scale * om.mean, np.nan, np.nan, om.n_models, 0, [])
+    low, high = claim_range(key)
+    lo, hi = scale * om.lo, scale * om.hi
+    cut = [f"{name} {v:.4g} cut to {bound:g}" for name, v, bound in (("lower", lo, low), ("upper", hi, high))]
+    cut = [c for c, over in zip(cut, (lo < low, hi > high)) if over]
+    return ModelsInterval(
+        scale * om.mean,
+        min(max(lo, low), high) if np.isfinite(lo) else lo,
+        max(min(hi, high), low) if np.isfinite(hi) else hi,
+        om.n_models,
+        0,
+        cut,
+    )
+
+
 def over_models(key, per_model: pd.DataFrame, column: str, basis: str, conf: float, pooled=None, scale=100.0, **kw):
-    """The claim's row over models. Records of one model give its value but no interval over
-    models, so no firmer verdict than two ("inconclusive"); the pooled records' interval stays
-    beside. The interval is cut to the values the quantity can take (claim_range); the basis says
-    so. A model at -inf (a PSNR over frames of which some are non-finite) makes the mean -inf: its
-    interval is [-inf, -inf] when every model is there, else [-inf, NaN]."""
+    """The claim's row over models (`models_interval`). Records of one model give its value but no
+    interval over models, so no firmer verdict than two ("inconclusive"); the pooled records'
+    interval stays beside. The basis says where the interval was cut to the quantity's range."""
     vals = per_model[column].to_numpy(float) if len(per_model) else np.array([])
     pm = None
     if len(per_model):
         pm = per_model.assign(v=scale * vals)
         pm = pm.assign(**{c: pm[c] if c in pm else np.nan for c in population.MODEL})[population.MODEL + ["v"]]
     per = "; ".join(f"{r['scene']} {scale * r[column]:.4g}" for _, r in per_model.iterrows())
-    neg = np.isneginf(vals)
-    if neg.any():
-        n = int(np.isfinite(vals).sum() + neg.sum())  # a model without a value (NaN) is not one of them
-        lo, hi = (-np.inf, -np.inf) if neg.sum() == n else (-np.inf, np.nan)
-        b = f"{basis}; per model: {per}; {int(neg.sum())} of {n} models at -inf"
-        return row(key, -np.inf, lo, hi, b, n_models=n, pooled=pooled, per_model=pm, **kw)
-    om = population.interval_over_models(vals, conf)
-    if om.n_models < 2:
-        v = scale * om.mean if om.n_models else (pooled[0] if pooled is not None else np.nan)
+    mi = models_interval(key, vals, conf, scale)
+    if mi.at_neg_inf:
+        b = f"{basis}; per model: {per}; {mi.at_neg_inf} of {mi.n_models} models at -inf"
+    elif mi.n_models < 2:
         b = f"{basis}; one model: no interval over models" + (f" ({per})" if per else "")
-        return row(key, v, np.nan, np.nan, b, n_models=om.n_models, pooled=pooled, per_model=pm, **kw)
-    low, high = claim_range(key)
-    lo, hi = scale * om.lo, scale * om.hi
-    cut = [f"{name} {v:.4g} cut to {bound:g}" for name, v, bound in (("lower", lo, low), ("upper", hi, high))]
-    cut = [c for c, over in zip(cut, (lo < low, hi > high)) if over]
-    return row(
-        key,
-        scale * om.mean,
-        min(max(lo, low), high) if np.isfinite(lo) else lo,
-        max(min(hi, high), low) if np.isfinite(hi) else hi,
-        f"{basis}; per model: {per}" + (f"; t interval {', '.join(cut)} (the quantity's range)" if cut else ""),
-        n_models=om.n_models,
-        pooled=pooled,
-        per_model=pm,
-        **kw,
-    )
+        if not mi.n_models:
+            mi = mi._replace(mean=pooled[0] if pooled is not None else np.nan)
+    else:
+        b = f"{basis}; per model: {per}"
+        if mi.cut:
+            b += f"; t interval {', '.join(mi.cut)} (the quantity's range)"
+    return row(key, mi.mean, mi.lo, mi.hi, b, n_models=mi.n_models, pooled=pooled, per_model=pm, **kw)
 
 
 def per_model(d: pd.DataFrame, fn) -> pd.DataFrame:
@@ -167,7 +182,7 @@ def tail_row(key: str, values, basis: str, pooled_value: float, **kw) -> dict:
             "with the sample",
             **kw,
         )
-        return r | {"verdict": NOT_COMPARABLE}
+        return r | {"verdict": claim_verdict(key, np.nan, np.nan, matched=False)}
     return row(
         key,
         m,

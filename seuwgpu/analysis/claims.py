@@ -70,9 +70,6 @@ PAPER_PROFILE_NOTE = (
     "profile, free of that cancellation, agrees with float64)."
 )
 
-# the old names (tools/claims_from_tables.py, tests)
-_row, _over_models = row, over_models
-
 
 def _arm_columns(rates: pd.DataFrame, arm: str) -> pd.DataFrame:
     """A `population.model_rates` table's estimates named after its arm: fields_pc_<arm>(_lo, _hi)
@@ -124,37 +121,6 @@ def model_estimates(df: pd.DataFrame, conf: float = 0.95, rates: dict | None = N
             out[c] = 100 * out[c]
     out.attrs.update(none.attrs)  # the provenance of the records the rates rest on
     return out
-
-
-def theory_windows(res: dict) -> pd.DataFrame:
-    from seuwgpu.analysis.theory import theory_windows as windows
-
-    return windows(res)
-
-
-def _alpha_rows(sz: dict | None) -> list[dict]:
-    from seuwgpu.analysis.scaling import alpha_rows
-
-    return alpha_rows(sz)
-
-
-def _dose_rows(curves, conf: float) -> list[dict]:
-    from seuwgpu.analysis.dose import dose_rows
-
-    return [r for r in dose_rows(curves, conf) if not r["key"].endswith("_all")]
-
-
-def _budget_row(curves, conf: float) -> dict:
-    from seuwgpu.analysis.dose import budget_rows
-
-    return budget_rows(curves, conf)[0]
-
-
-def _size_and_loso_rows(results: dict, conf: float) -> list[dict]:
-    from seuwgpu.analysis.prediction import prediction_rows
-    from seuwgpu.analysis.scaling import guard_factor_row
-
-    return [guard_factor_row(results.get("size"), conf)] + prediction_rows(results.get("prediction"), conf)[2:]
 
 
 def sign_rows(df: pd.DataFrame, conf: float = 0.95) -> list[dict]:

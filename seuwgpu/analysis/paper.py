@@ -6,7 +6,7 @@ They are what the claims table compares against, never a target of any computati
 prints its values rounded (0.997, 0.634): such a value stands for every number that rounds to it,
 [v - h, v + h] with h half a unit of its last printed digit (`paper_half_unit`).
 
-The verdict rule (`population.equivalence_verdict`): each row has an equivalence margin
+The verdict rule (`population.claim_verdict`, the one function every row takes): each row has an equivalence margin
 (`MARGINS`): a factor (the paper's value times or over it) or an absolute difference. A paper value
 of 0 gets an upper bound instead (`ZERO_BOUND`). "reproduced" needs the whole 95% interval inside
 the margin (two one-sided tests at 2.5% each), "differs" needs it wholly outside, anything else is
@@ -138,6 +138,40 @@ PAPER_CHECKED = (
 )
 PAPER_INCONSISTENCIES = _inconsistencies()
 
+# the rows over the finite frames; each has its twin `_all` where a non-finite frame fails
+# (`_every_frame`): the same claim, unit and paper value
+FINITE_ONLY = "(finite frames only)"
+_DOSE = {
+    "dose_none": (
+        f"PSNR of the mean MSE at the paper's heaviest dose per primitive, fp32, no defense {FINITE_ONLY}",
+        "dB",
+        10.6,
+    ),
+    "dose_guard": (
+        f"PSNR of the mean MSE at the paper's heaviest dose per primitive, fp32, guard {FINITE_ONLY}",
+        "dB",
+        21.8,
+    ),
+}
+_BUDGET = {
+    "budget_mean_psnr": (
+        "redundancy budget per primitive: k/N where the PSNR of the mean MSE falls to 30 dB, fp32, no defense "
+        + FINITE_ONLY,
+        "upsets per primitive",
+        round(paper_budget_k_per_n(), 4),
+    ),
+}
+
+
+def _every_frame(rows: dict, fails: str = "") -> dict:
+    """The `_all` twin of each finite-frame row: a non-finite frame counted as a failure (its text
+    says so, `fails` after it: ": -inf" where the value is then -inf)."""
+    return {
+        f"{k}_all": (claim.replace(FINITE_ONLY, f"(a non-finite frame fails{fails})"), unit, v)
+        for k, (claim, unit, v) in rows.items()
+    }
+
+
 # key: (claim, unit, paper value); NaN: this project's own estimate, beside no paper number
 PAPER = {
     "sign_mean": ("log-scale sign flip: mean footprint, fp32", "% of frame", 10.3),
@@ -177,27 +211,8 @@ PAPER = {
     "alpha_median_capture": ("alpha of the median single-upset error, captures (random subsets)", "", 2.78),
     "alpha_mean_procedural": ("alpha of the mean single-upset error, procedural scenes (regenerated per N)", "", 0.09),
     "alpha_mean_capture": ("alpha of the mean single-upset error, captures (random subsets)", "", 0.09),
-    "dose_none": (
-        "PSNR of the mean MSE at the paper's heaviest dose per primitive, fp32, no defense (finite frames only)",
-        "dB",
-        10.6,
-    ),
-    "dose_guard": (
-        "PSNR of the mean MSE at the paper's heaviest dose per primitive, fp32, guard (finite frames only)",
-        "dB",
-        21.8,
-    ),
-    "dose_none_all": (
-        "PSNR of the mean MSE at the paper's heaviest dose per primitive, fp32, no defense (a non-finite frame "
-        "fails: -inf)",
-        "dB",
-        10.6,
-    ),
-    "dose_guard_all": (
-        "PSNR of the mean MSE at the paper's heaviest dose per primitive, fp32, guard (a non-finite frame fails: -inf)",
-        "dB",
-        21.8,
-    ),
+    **_DOSE,
+    **_every_frame(_DOSE, ": -inf"),
     **{
         f"field_rate_{f}": (f"Table 2: catastrophe rate of {f} upsets, fp32, no defense", "%", v)
         for f, v in PAPER_FIELD_RATES.items()
@@ -207,18 +222,8 @@ PAPER = {
         for f, qs in PAPER_FIELD_FOOTPRINT.items()
         for q, v in qs.items()
     },
-    "budget_mean_psnr": (
-        "redundancy budget per primitive: k/N where the PSNR of the mean MSE falls to 30 dB, fp32, no defense "
-        "(finite frames only)",
-        "upsets per primitive",
-        round(paper_budget_k_per_n(), 4),
-    ),
-    "budget_mean_psnr_all": (
-        "redundancy budget per primitive: k/N where the PSNR of the mean MSE falls to 30 dB, fp32, no defense "
-        "(a non-finite frame fails)",
-        "upsets per primitive",
-        round(paper_budget_k_per_n(), 4),
-    ),
+    **_BUDGET,
+    **_every_frame(_BUDGET),
     "sign_psnr_none": ("log-scale sign flip: PSNR of the mean MSE, fp32, no defense", "dB", 49.2),
     "sign_psnr_guard": ("log-scale sign flip: PSNR of the mean MSE, fp32, guard", "dB", 65.8),
     "guard_worst_footprint": ("worst guarded footprint over the guarded single upsets", "% of frame", 11.68),
@@ -290,14 +295,10 @@ MARGINS: dict[str, tuple[str, float]] = {
     "alpha_median_capture": ("abs", 0.5),
     "alpha_mean_procedural": ("abs", 0.1),
     "alpha_mean_capture": ("abs", 0.1),
-    "dose_none": ("abs", 3.0),
-    "dose_guard": ("abs", 3.0),
-    "dose_none_all": ("abs", 3.0),
-    "dose_guard_all": ("abs", 3.0),
+    **{k: ("abs", 3.0) for k in (*_DOSE, *_every_frame(_DOSE))},
     **{f"field_rate_{f}": FACTOR2 for f in PAPER_FIELD_RATES},
     **{f"field_{q}_{f}": FACTOR2 for f, qs in PAPER_FIELD_FOOTPRINT.items() for q in qs},
-    "budget_mean_psnr": FACTOR2,
-    "budget_mean_psnr_all": FACTOR2,
+    **{k: FACTOR2 for k in (*_BUDGET, *_every_frame(_BUDGET))},
     "sign_psnr_none": ("abs", 3.0),
     "sign_psnr_guard": ("abs", 3.0),
     "guard_worst_footprint": FACTOR2,

@@ -6,15 +6,20 @@ difference between models reads as a difference from the paper. To speak of 3DGS
 general, each model gives one estimate and the interval is over models: the Student-t interval of
 their mean (n_models - 1 degrees of freedom), which carries the between-model variation.
 
-Verdict against a paper value v printed to half-unit h (`paper.paper_half_unit`) with the row's
-equivalence margin (`paper.MARGINS`, stated before the numbers), `equivalence_verdict`:
+A claims row's verdict is `claim_verdict` (the claims table's rows, the mantissa slope's fit windows,
+tools/claims_from_tables.py): the paper's value and margin of the row's key, then the rule
+`equivalence_verdict` against a paper value v printed to half-unit h (`paper.paper_half_unit`) with
+the row's equivalence margin (`paper.MARGINS`, stated before the numbers):
 * the band: [(v - h) / f, (v + h) * f] for a factor f, [v - h - d, v + h + d] for an absolute d, and
   [0, bound] for a paper value of 0 (an upper bound: `paper.ZERO_BOUND`);
 * "reproduced" when the whole 95% interval lies inside the band: two one-sided tests at 2.5% each
   reject "below the band" and "above the band";
 * "differs" when the whole interval lies outside the band (above or below);
 * "inconclusive" otherwise, with fewer than MIN_MODELS models (one model never gives a firmer
-  verdict than two), without an interval, or without a margin.
+  verdict than two), without an interval, or without a margin;
+* "no paper value" for this project's own estimates, "not comparable" for a maximum not taken at
+  the paper's number of upsets (`paper.TAIL_MAXIMA`), and "inconclusive" for an interval over the
+  records of both populations pooled (`POOLED`).
 
 Populations (`population_of`): the real models (model files, and the embedded captures) and the
 procedural scenes are never pooled: the claims table computes each population's rows apart.
@@ -33,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.analysis import estimate as E
+from seuwgpu.analysis.paper import PAPER, PRINTED, TAIL_MAXIMA, margin_of, paper_half_unit
 from seuwgpu.analysis.records import multiplicity, single_upsets, tag
 from seuwgpu.errors import require
 
@@ -108,6 +114,32 @@ def equivalence_band(paper: float, half_unit: float, margin: tuple[str, float] |
     return paper - half_unit - m, paper + half_unit + m
 
 
+POOLED = "both populations, pooled"  # an interval over both populations' records: no verdict
+NOT_COMPARABLE = "not comparable"
+
+
+def claim_verdict(
+    key: str, lo: float, hi: float, n_models: int | None = None, population: str | None = None, matched: bool = True
+) -> str:
+    """The verdict of the claims row `key` (`paper.PAPER`) on its 95% interval [lo, hi] (module
+    notes): n_models, the models the interval is over, or None for an interval over the records (a
+    bootstrap, bits, a held-out set: counted as MIN_MODELS here, the claims table holds it to its
+    population's models); population: the row's, POOLED for both pooled (no verdict); matched:
+    False for a maximum (`paper.TAIL_MAXIMA`) over another number of upsets than the paper's. An
+    interval over the records without its ends is "not measured"."""
+    paper = PAPER[key][2]
+    if not np.isfinite(paper):
+        return "no paper value"
+    if key in TAIL_MAXIMA and not matched:
+        return NOT_COMPARABLE
+    if population == POOLED:
+        return "inconclusive"
+    if n_models is None and (np.isnan(lo) or np.isnan(hi)):
+        return "not measured"
+    n = MIN_MODELS if n_models is None else n_models
+    return equivalence_verdict(lo, hi, paper, paper_half_unit(PRINTED.get(key, paper)), margin_of(key), n)
+
+
 def equivalence_verdict(lo: float, hi: float, paper: float, half_unit: float, margin, n_models: int) -> str:
     """reproduced / differs / inconclusive against the margin's band (module notes). An interval at
     -inf on both ends (a PSNR over frames of which some are non-finite) lies below any band."""
@@ -119,20 +151,6 @@ def equivalence_verdict(lo: float, hi: float, paper: float, half_unit: float, ma
     if blo <= lo and hi <= bhi:
         return "reproduced"
     return "inconclusive"
-
-
-def verdict(lo: float, hi: float, paper: float, half_unit: float, n_models: int) -> str:
-    """The older rule (issue 36): reproduced when the interval meets the paper's value as printed,
-    differs when not, inconclusive under MIN_MODELS models or when the interval also holds 0. Kept
-    to list the verdicts the margins changed (`tools/claims_from_tables.py`); the claims use
-    `equivalence_verdict`."""
-    if n_models < MIN_MODELS or not (np.isfinite(lo) and np.isfinite(hi)) or not np.isfinite(paper):
-        return "inconclusive"
-    if hi < paper - half_unit or lo > paper + half_unit:
-        return "differs"
-    if lo <= 0 <= hi:
-        return "inconclusive"
-    return "reproduced"
 
 
 def equal_field_weights(d: pd.DataFrame) -> np.ndarray:

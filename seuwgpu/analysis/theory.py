@@ -165,22 +165,16 @@ def slope_windows(res: dict) -> pd.DataFrame:
 
 def theory_windows(res: dict) -> pd.DataFrame:
     """The mantissa slope over several fit windows (`slope_windows`) with the verdict each would
-    give against the paper's 0.94 and its margin (interval over bits)."""
-    from seuwgpu.analysis.paper import PAPER, margin_of, margin_text, paper_half_unit
-    from seuwgpu.analysis.population import MIN_MODELS, equivalence_verdict
+    give against the paper's 0.94 and its margin (`population.claim_verdict`, interval over bits)."""
+    from seuwgpu.analysis.paper import PAPER, margin_text
+    from seuwgpu.analysis.population import claim_verdict
 
     w = slope_windows(res)
     if w.empty:
         return w
-    _, _, paper = PAPER["theory_slope"]
-    h, margin = paper_half_unit(paper), margin_of("theory_slope")
-    w["paper"] = paper
+    w["paper"] = PAPER["theory_slope"][2]
     w["margin"] = margin_text("theory_slope")
-    ok = np.isfinite(w["slope_lo"]) & np.isfinite(w["slope_hi"])
-    w["verdict"] = [
-        equivalence_verdict(lo, hi, paper, h, margin, MIN_MODELS) if good else "not measured"
-        for lo, hi, good in zip(w["slope_lo"], w["slope_hi"], ok)
-    ]
+    w["verdict"] = [claim_verdict("theory_slope", lo, hi) for lo, hi in zip(w["slope_lo"], w["slope_hi"])]
     return w
 
 

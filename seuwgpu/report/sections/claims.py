@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from seuwgpu.analysis import (
-    claims,
-)
+from seuwgpu.analysis import claims, theory
 from seuwgpu.report.sections.base import Section, TableItem
 
 
@@ -65,7 +63,7 @@ def claims_section(df, manifests, ctx) -> Section:
             TableItem(
                 "claims_theory_windows",
                 "Mantissa slope against the fit window",
-                claims.theory_windows(th),
+                theory.theory_windows(th),
                 "The log2 slope of the mean peak error per mantissa bit over other fit windows (bits in, "
                 "95% t interval over bits) and the verdict each would give against the paper's value and "
                 "margin; the claims row's verdict is their majority.",
