@@ -134,17 +134,18 @@ def over_models(key, per_model: pd.DataFrame, column: str, basis: str, conf: flo
         pm = pm.assign(**{c: pm[c] if c in pm else np.nan for c in population.MODEL})[population.MODEL + ["v"]]
     per = "; ".join(f"{r['scene']} {scale * r[column]:.4g}" for _, r in per_model.iterrows())
     mi = models_interval(key, vals, conf, scale)
+    mean = mi.mean
     if mi.at_neg_inf:
         b = f"{basis}; per model: {per}; {mi.at_neg_inf} of {mi.n_models} models at -inf"
     elif mi.n_models < 2:
         b = f"{basis}; one model: no interval over models" + (f" ({per})" if per else "")
         if not mi.n_models:
-            mi = mi._replace(mean=pooled[0] if pooled is not None else np.nan)
+            mean = pooled[0] if pooled is not None else np.nan
     else:
         b = f"{basis}; per model: {per}"
         if mi.cut:
             b += f"; t interval {', '.join(mi.cut)} (the quantity's range)"
-    return row(key, mi.mean, mi.lo, mi.hi, b, n_models=mi.n_models, pooled=pooled, per_model=pm, **kw)
+    return row(key, mean, mi.lo, mi.hi, b, n_models=mi.n_models, pooled=pooled, per_model=pm, **kw)
 
 
 def per_model(d: pd.DataFrame, fn) -> pd.DataFrame:
