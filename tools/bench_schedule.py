@@ -1,7 +1,8 @@
 """A defense's time measured as a schedule, with many rounds (issue 47 point 6): S plain frames,
 S frames with parity4r's check before the first, and S frames checked inside the projection
-(parity4f, parity2f; each frame's detection count read, as a repair needs), interleaved round by round on one renderer; the median of each configuration's
-paired ratio to the plain rounds with its distribution-free 95% interval.
+(parity4f, parity2f; each frame's detection count read, as a repair needs), interleaved round by
+round on one renderer; the median of each configuration's paired ratio to the plain rounds with
+its distribution-free 95% interval.
 
     python tools/bench_schedule.py [--scene leica-sofort | --model FILE] [--size 256x256] [--every 10] [--rounds 41]
         [--defenses parity4r parity4f parity2f]
