@@ -44,6 +44,22 @@ fn stored_pattern(word: u32, j: u32, fmt: u32) -> u32 {
     return (word >> (16u * (j & 1u))) & 0xffffu;
 }
 
+// what a code folds of a stored word: primitive j's pattern, or with a per-word code (per_word:
+// codes.ParityCode.pairs, set by the host at fp16/bf16 only) the whole word, both primitives of
+// the pair (2i, 2i + 1) it holds (the cover mask then covers both halves)
+fn coded_pattern(word: u32, j: u32, fmt: u32, per_word: u32) -> u32 {
+    if (per_word != 0u) {
+        return word;
+    }
+    return stored_pattern(word, j, fmt);
+}
+
+// the index of primitive p's code in the side data: p, or with a per-word code its pair's, p >> 1
+// (chunks start at even primitives, fields.StoredLayout: the pair of word j >> 1 of a chunk)
+fn code_index(p: u32, per_word: u32) -> u32 {
+    return select(p, p >> 1u, per_word != 0u);
+}
+
 // the parity code of x, the XOR of a primitive's covered bits (parity_fold): one parity bit per
 // way, way w over the bit positions b with b % ways == w (ways 1, 2, 4, 8; 1 way: every bit)
 // (codes.ParityCode.code)

@@ -16,12 +16,15 @@ override GUARD_HI: u32 = 0u;      // components 32..63
 // stored component, in FRAME_WAYS ways (bit b of value c in way (b + FRAME_DIAGONAL c) % FRAME_WAYS:
 // codes.wgsl parity_fold), against the stored code, for every primitive the view would draw: one
 // that fails is dropped from this frame (culled), counted and, with FRAME_FLAGS, flagged for
-// repair. A primitive culled anyway is not checked (it draws nothing either way).
+// repair. A primitive culled anyway is not checked (it draws nothing either way). FRAME_PER_WORD
+// (fp16/bf16 only): the code is a stored word's, both primitives of the pair (codes.wgsl
+// coded_pattern, code_index), so a failing word drops both from the frame.
 override FRAME_CHECK: u32 = 0u;
 override FRAME_COVER: u32 = 0u;
 override FRAME_WAYS: u32 = 4u;
 override FRAME_DIAGONAL: u32 = 0u;
 override FRAME_FLAGS: u32 = 1u;
+override FRAME_PER_WORD: u32 = 0u;
 
 struct View {
     viewmat: mat4x4<f32>,     // world-to-camera, column-major (as WGSL stores it)
@@ -209,10 +212,11 @@ fn frame_check_fails(j: u32, g: u32) -> bool {
         for (var c = k; c < ncomp; c = c + classes) {
             words = words ^ model[stored_word_index(c, j, view.plane_words, FMT)];
         }
-        x = parity_fold(x, stored_pattern(words, j, FMT) & FRAME_COVER, k, FRAME_WAYS, FRAME_DIAGONAL);
+        x = parity_fold(x, coded_pattern(words, j, FMT, FRAME_PER_WORD) & FRAME_COVER, k, FRAME_WAYS, FRAME_DIAGONAL);
     }
     let p = g % view.n_total;  // the primitive (a batched renderer writes view v's records at v n + p)
-    return parity_code(x, FRAME_WAYS) != code_of(frame_side[code_word_index(p, FRAME_WAYS)], p, FRAME_WAYS);
+    let q = code_index(p, FRAME_PER_WORD);
+    return parity_code(x, FRAME_WAYS) != code_of(frame_side[code_word_index(q, FRAME_WAYS)], q, FRAME_WAYS);
 }
 
 fn pack_rect(x0: f32, y0: f32, x1: f32, y1: f32) -> vec2<u32> {

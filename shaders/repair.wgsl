@@ -11,12 +11,16 @@
 // the stored one: an upset in the code bits (which makes a clean primitive fail every frame) is
 // repaired by the same pass, not left to fail until the side data is reloaded.
 // One thread per stored word of a plane: at fp16/bf16 a word holds two primitives, so one thread
-// writes both halves and no two threads write one word.
+// writes both halves and no two threads write one word. CODE_PER_WORD (fp16/bf16 only: a per-word
+// code, parity2f's): one code covers the word's two primitives, verified once; a word that fails is
+// rewritten whole once both golden rows pass their checksums (either failing: counted, the word
+// left alone), and its code rewritten from the golden words.
 
 override REPAIR_FLAGS: u32 = 1u;
 override CODE_COVER: u32 = 0u;
 override CODE_WAYS: u32 = 4u;
 override CODE_DIAGONAL: u32 = 0u;
+override CODE_PER_WORD: u32 = 0u;
 
 struct RepairParams {
     plane_words: u32,
@@ -52,7 +56,7 @@ fn needs_repair(w: u32, j: u32, p: u32, stored_code: u32) -> bool {
         for (var c = k; c < params.ncomp; c = c + classes) {
             acc = acc ^ words[c * params.plane_words + w];
         }
-        x = parity_fold(x, stored_pattern(acc, j, params.fmt) & CODE_COVER, k, CODE_WAYS, CODE_DIAGONAL);
+        x = parity_fold(x, coded_pattern(acc, j, params.fmt, CODE_PER_WORD) & CODE_COVER, k, CODE_WAYS, CODE_DIAGONAL);
     }
     return parity_code(x, CODE_WAYS) != stored_code;
 }
@@ -64,39 +68,54 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (w * per >= params.chunk_count) {
         return;
     }
+    let codes = select(per, 1u, CODE_PER_WORD != 0u);  // codes of this word: one a primitive, or one
+    let span = per / codes;  // primitives a code covers (2: a per-word code)
     var mask = 0u;  // the bits of the word to take from the golden copy
-    for (var h = 0u; h < per; h = h + 1u) {
-        let j = w * per + h;
+    for (var h = 0u; h < codes; h = h + 1u) {
+        let j = w * per + h;  // the code's first primitive (a per-word code's: the word's even one)
         let p = params.prim_base + j;
         if (j >= params.chunk_count) {
             continue;
         }
-        let code_word = code_word_index(p, CODE_WAYS);
-        let stored_code = code_of(atomicLoad(&side[code_word]), p, CODE_WAYS);
+        let q = code_index(p, CODE_PER_WORD);
+        let code_word = code_word_index(q, CODE_WAYS);
+        let stored_code = code_of(atomicLoad(&side[code_word]), q, CODE_WAYS);
         if (!needs_repair(w, j, p, stored_code)) {
             continue;
         }
-        let half = select(0xffffu << (16u * h), 0xffffffffu, per == 1u);
-        var s = CHECKSUM_SEED;
-        var x = 0u;  // the golden row's code
+        let part = select(0xffffu << (16u * h), 0xffffffffu, span == per);  // the code's bits of the word
+        var x = 0u;  // the golden words' code
         for (var c = 0u; c < params.ncomp; c = c + 1u) {
-            let v = stored_pattern(golden[c * params.plane_words + w], j, params.fmt);
-            s = checksum_step(s, v);
+            let v = coded_pattern(golden[c * params.plane_words + w], j, params.fmt, CODE_PER_WORD);
             x = parity_fold(x, v & CODE_COVER, c, CODE_WAYS, CODE_DIAGONAL);
         }
-        if (s != golden_sum[p]) {
-            atomicAdd(&out[OUT_FAULTS], 1u);
+        var rows = 0u;  // the code's primitives, each golden row's checksum verified
+        var failed = 0u;
+        for (var i = 0u; i < span; i = i + 1u) {
+            let jj = j + i;
+            if (jj >= params.chunk_count) {
+                break;
+            }
+            var s = CHECKSUM_SEED;
+            for (var c = 0u; c < params.ncomp; c = c + 1u) {
+                s = checksum_step(s, stored_pattern(golden[c * params.plane_words + w], jj, params.fmt));
+            }
+            rows = rows + 1u;
+            failed = failed + select(0u, 1u, s != golden_sum[params.prim_base + jj]);
+        }
+        if (failed != 0u) {
+            atomicAdd(&out[OUT_FAULTS], failed);
             continue;
         }
         let code = parity_code(x, CODE_WAYS);
-        if (code != stored_code) {  // only this primitive's bits of the word change
-            atomicXor(&side[code_word], (code ^ stored_code) << ((p % (32u / CODE_WAYS)) * CODE_WAYS));
+        if (code != stored_code) {  // only this code's bits of the side word change
+            atomicXor(&side[code_word], (code ^ stored_code) << ((q % (32u / CODE_WAYS)) * CODE_WAYS));
         }
-        mask = mask | half;
+        mask = mask | part;
         if (REPAIR_FLAGS != 0u) {
             atomicAnd(&out[OUT_FLAGS + (p >> 5u)], ~(1u << (p & 31u)));
         }
-        atomicAdd(&out[OUT_REPAIRED], 1u);
+        atomicAdd(&out[OUT_REPAIRED], rows);
     }
     if (mask == 0u) {
         return;

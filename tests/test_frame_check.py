@@ -1,8 +1,9 @@
 """The checks inside the frame (faults/check.py FrameCheck, shaders/project.wgsl FRAME_CHECK):
 parity4f (parity4r's 4 ways, a flag bit per primitive) and parity2f (2 ways grouped diagonally,
-no flags). A flip written into the device buffer is dropped from that very frame; the frame
-equals the twin's (the model with the failing primitives culled) bit for bit; the device repair
-rewrites them from the golden copy and the next frame is the clean one."""
+no flags; at fp16/bf16 one code a stored word pair). A flip written into the device buffer is
+dropped from that very frame; the frame equals the twin's (the model with the failing primitives
+culled) bit for bit; the device repair rewrites them from the golden copy and the next frame is
+the clean one."""
 
 import numpy as np
 import pytest
@@ -33,7 +34,8 @@ def test_a_flip_in_the_device_buffer_is_dropped_from_the_frame(defense, precisio
     """Three upsets: the big splat's log-scales x and y (values 3, 4) at the top exponent bit (the
     same bit in two values of different index parity: parity2f's ways 0 and 1, parity4r's one way
     twice), an sh_rest sign (value 40: a single flip, seen by both), and log-scales x and z
-    (values 3, 5: the same bit in values of equal index parity, unseen by both)."""
+    (values 3, 5: the same bit in values of equal index parity, unseen by both). parity2f at bf16
+    codes word pairs: both primitives of a failing pair are dropped, the clean partner too."""
     model = random_model(200, seed=4)
     cams = scene_cameras("spheres", 2, 32, 32)
     r = Renderer(model, cams, precision, chunk_prims=128)
@@ -52,7 +54,10 @@ def test_a_flip_in_the_device_buffer_is_dropped_from_the_frame(defense, precisio
     got = r.render()
     d = dfn.get(defense)
     detected = d.hit(d.side_data(clean, precision, 3), bad, precision, 3)  # the twin's
-    assert set(np.flatnonzero(detected)) == ({7, big} if defense == "parity2f" else {7})
+    want = {7, big} if defense == "parity2f" else {7}
+    if d.code.pairs(precision):  # a failing word pair is dropped together
+        want |= {p ^ 1 for p in want}
+    assert set(np.flatnonzero(detected)) == want
     if d.flags:  # checked where drawn: flagged exactly where a view would draw it
         faulted = Model.from_flat(encoding.from_bits(bad, precision), 3)
         drawn = np.logical_or.reduce([project(faulted, cam)["visible"] for cam in cams])
@@ -91,21 +96,25 @@ def test_the_device_repairs_a_flip_and_the_next_frame_is_the_clean_one(defense, 
     frame's check, repaired from the golden device copy (its checksum verified), and the next
     frame equals the clean frame bit for bit. parity2f keeps no flags: its repair re-verifies
     every primitive's code (here also the same bit in values 3 and 4 of a third primitive, which
-    parity4r's code cannot see). A golden row that fails its checksum is refused: the primitive
-    stays dropped."""
+    parity4r's code cannot see); at fp16 it codes word pairs and rewrites both primitives of a
+    failing word (repaired: 130, 131, 140 and its clean partner 141). A golden row that fails its
+    checksum is refused: the primitive stays dropped."""
     model, r, clean, want, fc, rep = _repairing(defense, precision)
+    d = dfn.get(defense)
     nb = encoding.bits_per_value(precision)
     p, q = 130, 131  # chunk 1; at fp16 the two share a word
-    upsets = [(p, 4, nb - 2), (q, 10, nb - 2)]
+    upsets = [(p, 4, nb - 2), (q, 11, nb - 2)]  # values 4 and 11: ways 0 and 1 of parity2f's pair code
     if defense == "parity2f":
         upsets += [(140, 3, nb - 2), (140, 4, nb - 2)]
     for prim, comp, bit in upsets:
         _flip(r, prim, comp, bit)
     dropped = r.render()
     assert fc.count() > 0 and not np.array_equal(dropped, want)
-    if dfn.get(defense).flags:
+    if d.flags:
         assert set(np.flatnonzero(fc.flags())) == {p, q}
-    assert rep.run() == (len({u[0] for u in upsets}), 0)
+    hit = d.partners(sorted({u[0] for u in upsets}), model.n, precision)
+    assert rep.run() == (len(hit), 0)
+    assert len(hit) == (4 if d.code.pairs(precision) else len({u[0] for u in upsets}))
     assert fc.count() == 0 and not (dfn.get(defense).flags and fc.flags().any())
     np.testing.assert_array_equal(r.render(), want)  # the next frame: the clean one, bit for bit
     for c in range(r.layout.n_chunks):
@@ -132,23 +141,27 @@ def test_the_device_repair_rewrites_an_upset_code(defense, precision):
     rewrites its code from the verified golden row (its row is clean: rewritten to itself), so
     the side data is again the clean model's packed codes, the next frame the clean frame and the
     frame after it detects nothing (no repair after every frame). A code upset of a primitive the
-    row upset of another shares a code word with is repaired with it."""
+    row upset of another shares a code word with is repaired with it. parity2f at fp16: the codes
+    are word pairs', and each failing pair is rewritten whole (4 primitives repaired)."""
     from seuwgpu.faults import side as sd
 
     model, r, clean, want, fc, rep = _repairing(defense, precision)
     d = dfn.get(defense)
     packed = sd.pack_side(d.side_data(clean, precision, 3), d.side_bits)
+    assert packed.size == -(-d.n_codes(model.n, precision) * d.side_bits // 32)
     drawn = int(np.argmax(model.opacity))  # the big splat: drawn in the view
+    span = d.code.span(precision)  # primitives a code covers
     per = 32 // d.side_bits
-    neighbour = drawn + 1 if drawn % per != per - 1 else drawn - 1  # shares the code word
+    code = drawn // span
+    other = code + 1 if code % per != per - 1 else code - 1  # shares the code word
     bad = packed.copy()
-    bad[drawn // per] ^= np.uint32(1) << np.uint32((drawn % per) * d.side_bits)  # code bit 0
+    bad[code // per] ^= np.uint32(1) << np.uint32((code % per) * d.side_bits)  # code bit 0
     r.gpu.write(fc.side, bad)
-    _flip(r, neighbour, 10, encoding.bits_per_value(precision) - 2)
+    _flip(r, other * span, 10, encoding.bits_per_value(precision) - 2)
     assert not np.array_equal(r.render(), want) and fc.count() > 0
     if d.flags:
         assert fc.flags()[drawn]
-    assert rep.run() == (2, 0)
+    assert rep.run() == (2 * span, 0)
     np.testing.assert_array_equal(r.gpu.read(fc.side, np.uint32)[: packed.size], packed)
     np.testing.assert_array_equal(r.render(), want)
     assert fc.count() == 0
@@ -178,7 +191,8 @@ def test_a_flagless_repair_rewrites_only_what_fails_its_code():
 def test_the_frame_checks_device_bytes_are_their_buffers():
     """side.device_bytes counts what FrameCheck uploads: the packed codes and the output (4 header
     words, and parity4f's flag bits), in 16-byte-aligned buffers, by hand at 333 primitives; on an
-    fp32 SH-0 model of 114,865 (tarot's size) parity2f's 2 bits stay within 0.5% of the model."""
+    fp32 SH-0 model of 114,865 (tarot's size) parity2f's 2 bits stay within 0.5% of the model, and
+    at fp16 (224 bits a primitive) its per-word code's 1 bit a primitive does too."""
     from seuwgpu.faults import side as sd
 
     model = random_model(333, seed=2)
@@ -193,6 +207,19 @@ def test_the_frame_checks_device_bytes_are_their_buffers():
     assert sd.device_bytes("parity2f", "fp32", 0, n) == 7180 * 4 + 16
     assert sd.device_overhead("parity2f", "fp32", 0, n) == pytest.approx(28_736 / (n * 14 * 4))
     assert sd.device_overhead("parity2f", "fp32", 0, n) < 0.005 < sd.device_overhead("parity4f", "fp32", 0, n)
+    # fp16: 167 word pairs of 2 bits = 334 bits, 11 words (48 B aligned), and the 16-byte header
+    r = Renderer(model, scene_cameras("spheres", 1, 16, 16), "fp16", chunk_prims=128)
+    fc = FrameCheck(r, encoding.to_bits(model.flat(), "fp16"), "parity2f")
+    fc.off()
+    assert fc.device_bytes() == sd.device_bytes("parity2f", "fp16", 3, 333) == 48 + 16
+    assert (
+        dfn.get("parity2f").bits_per_primitive("fp16", 0) == 1
+        and dfn.get("parity4f").bits_per_primitive("fp16", 0) == 4
+    )
+    # tarot's size at fp16 SH 0: 57,433 pairs of 2 bits, 3,590 words (14,368 B aligned) + 16
+    assert sd.device_bytes("parity2f", "fp16", 0, n) == 14_368 + 16
+    assert sd.device_overhead("parity2f", "fp16", 0, n) == pytest.approx(14_384 / (n * 14 * 2))
+    assert sd.device_overhead("parity2f", "fp16", 0, n) < 0.005
 
 
 def test_a_parity_code_folds_by_rotation_class_so_its_diagonal_is_0_or_1():
@@ -200,3 +227,78 @@ def test_a_parity_code_folds_by_rotation_class_so_its_diagonal_is_0_or_1():
     a diagonal they cannot fold that way is refused where the code is made."""
     with pytest.raises(ValueError, match="diagonal is 0 or 1"):
         codes.ParityCode(4, dfn.FIELDS, diagonal=2)
+
+
+def test_parity2f_codes_word_pairs_at_16_bits_and_primitives_at_fp32():
+    """fp32: parity2f's code is the per-primitive code it always was (codes.parity_bits, counted bit
+    by bit, and ParityCode without per_word agree). fp16/bf16: one code a stored word pair (2i,
+    2i + 1), the bit-by-bit parity of both rows' covered bits; detect marks both of a failing pair;
+    the same bit of values of one way flipped in both primitives of a pair cancels (unseen), the
+    same flip in one primitive of two different pairs is seen in both."""
+    d = dfn.get("parity2f")
+    plain = codes.ParityCode(2, dfn.FIELDS, diagonal=1)
+    for precision in ("fp32", "fp16", "bf16"):
+        rows = encoding.to_bits(random_model(101, seed=9).flat(), precision)
+        oracle = codes.parity_bits(rows, precision, 3, 2, dfn.FIELDS, 1)  # [M, 2], bit by bit
+        per_prim = (oracle[:, 0] | oracle[:, 1] << 1).astype(np.uint32)
+        np.testing.assert_array_equal(plain.side_data(rows, precision, 3), per_prim)
+        side = d.side_data(rows, precision, 3)
+        if precision == "fp32":
+            np.testing.assert_array_equal(side, per_prim)  # unchanged
+            assert d.n_codes(101, precision) == 101 and d.bits_per_primitive(precision, 3) == 2
+            continue
+        pairs = np.append(per_prim, 0)
+        np.testing.assert_array_equal(side, pairs[0::2] ^ pairs[1::2])
+        assert side.size == d.n_codes(101, precision) == 51 and d.bits_per_primitive(precision, 3) == 1
+        nb = encoding.bits_per_value(precision)
+        bad = rows.copy()
+        for prim in (10, 11, 20):  # pair (10, 11): value 3 twice, one way: unseen; 20 alone: seen
+            bad[prim, 3] ^= bad.dtype.type(1 << (nb - 2))
+        hit = d.hit(side, bad, precision, 3)
+        assert set(np.flatnonzero(hit)) == {20, 21}
+        np.testing.assert_array_equal(hit, d.code.detect_changed(rows, bad, np.arange(101), precision, 3))
+        # the twin on a subset (the engine's faulted rows): grouped by pair, the rest clean
+        sub = np.array([10, 11, 20])
+        np.testing.assert_array_equal(d.code.detect_changed(rows[sub], bad[sub], sub, precision, 3), [0, 0, 1])
+        np.testing.assert_array_equal(d.partners(sub, 101, precision), [10, 11, 20, 21])
+        np.testing.assert_array_equal(d.partners([100], 101, precision), [100])  # 101 is padding
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+def test_parity2f_the_same_flip_in_both_primitives_of_a_word(precision):
+    """The same bit of value 3 flipped in primitives 130 and 131 (one stored word at fp16): at fp32
+    two codes each see it (both dropped and repaired), at fp16 one code sees it twice in one way and
+    misses it (nothing dropped, nothing repaired: the device agrees with the twin)."""
+    model, r, clean, want, fc, rep = _repairing("parity2f", precision)
+    nb = encoding.bits_per_value(precision)
+    bad = clean.copy()
+    for prim in (130, 131):
+        bad[prim, 3] ^= bad.dtype.type(1 << (nb - 2))
+        _flip(r, prim, 3, nb - 2)
+    d = dfn.get("parity2f")
+    seen = precision == "fp32"
+    assert d.hit(d.side_data(clean, precision, 3), bad, precision, 3)[[130, 131]].tolist() == [seen, seen]
+    r.render()
+    assert rep.run() == ((2, 0) if seen else (0, 0))
+
+
+def test_the_engines_twin_drops_a_failing_pairs_clean_partner():
+    """The engine's twin (faults/engine.py, what the storm, the visible-damage measurement and the
+    viewer draw) on the faulted primitives and, for parity2f at fp16, their word partners: a single
+    opacity flip of primitive 21 drops 20 and 21 from the frame (means written as the cull
+    pattern), then the repair leaves both clean; at fp32 only 21 is dropped."""
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.faults.sites import Site
+
+    model = random_model(100, seed=5)
+    for precision, dropped in (("fp16", [20, 21]), ("fp32", [21])):
+        eng = Engine(model, scene_cameras("spheres", 1, 16, 16), precision)
+        site = Site("opacity", 21, 0, (encoding.bits_per_value(precision) - 2,))
+        clean = eng.renderer.clean_words
+        handle = eng.apply([site], "parity2f")
+        rows = eng.layout.chunk_values(0, eng.renderer.read_words(0))
+        assert np.isnan(rows[0]).tolist()[19:23] == [p in dropped for p in range(19, 23)], precision
+        eng.undo(handle)
+        handle = eng.apply([site], "parity2f", after_repair=True)  # repaired: the clean words
+        np.testing.assert_array_equal(eng.renderer.read_words(0), clean[0])
+        eng.undo(handle)

@@ -112,9 +112,11 @@ def storm(
                 c = s.flat_component()
                 row[c] = apply_sites(row[c : c + 1], [s])[0]
                 memory[s.primitive] = row
-            prims = np.fromiter(memory, dtype=np.int64, count=len(memory))
+            prims = np.sort(np.fromiter(memory, dtype=np.int64, count=len(memory)))
             clean = engine.primitive_bits(prims)
             now = np.stack([memory[p] for p in prims]) if prims.size else clean
+            # a per-word frame code's clean pair partners: dropped with a failing pair (Defense.partners)
+            prims, clean, now = engine.with_partners(prims, clean, now, d)
             checking = not arm.checked or f % check_every == 0  # a check defense acts on its schedule
             seen, after = engine.frame_through(prims, clean, now, d) if prims.size and checking else (now, None)
             if arm.writes_back and checking:  # the repair is written back

@@ -21,7 +21,7 @@ import numpy as np
 
 from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults import side as sd
-from seuwgpu.faults.codes import CHECKSUM_SEED, fmix32, parity_cover_mask
+from seuwgpu.faults.codes import CHECKSUM_SEED, fmix32
 from seuwgpu.faults.codes import checksum as codes_checksum
 from seuwgpu.faults.guard import fill_chunk_params
 from seuwgpu.gpu.device import STORAGE
@@ -169,18 +169,22 @@ class FrameCheck:
             raise ValueError(f"defense {defense!r} is not checked inside the frame; those that are: {ok}")
         r, L = renderer, renderer.layout
         self.renderer, self.gpu, self.layout, self.defense = r, r.gpu, L, d
+        # a per-word code's pair of primitive p is p >> 1, the word j >> 1 of its chunk: chunks start
+        # at even primitives (fields.StoredLayout), so a pair never splits
+        assert L.chunk_prims % 2 == 0, "a stored word pair split between chunks"
         side = d.side_data(np.asarray(clean_rows), L.precision, L.degree)
         self.side = r.gpu.upload(sd.pack_side(side, d.side_bits))
         self.out = CheckOutput(r.gpu, L.n if d.flags else 0, "frame_check.out")
         self.clear()
-        self.cover = parity_cover_mask(L.precision)
+        self.cover = d.code.cover(L.precision)  # both halves of a word for a per-word code
+        self.per_word = d.code.pairs(L.precision)
         self.on()
 
     def on(self):
         """Check in every frame from now on (the projection's FRAME_CHECK pipelines)."""
         code = self.defense.code
         self.renderer.projection.set_frame_check(
-            self.side, self.out.buffer, self.cover, code.ways, code.diagonal, self.defense.flags
+            self.side, self.out.buffer, self.cover, code.ways, code.diagonal, self.defense.flags, self.per_word
         )
 
     def off(self):
@@ -210,8 +214,10 @@ class DeviceRepair:
     the clean row, 32 bits a primitive) verified when it is read; a golden row that fails is left
     alone and counted (the primitive stays flagged, dropped every frame). A repaired primitive's
     code is rewritten from the golden row too, so an upset in the code bits (a clean primitive
-    failing every frame) is repaired by the same pass. No host copy of the model is read: the
-    host reads two counts.
+    failing every frame) is repaired by the same pass. A per-word code (parity2f at fp16/bf16)
+    is verified once a stored word, and a word that fails is rewritten whole (both primitives,
+    counted as two repaired) once both golden rows pass their checksums, its code from the golden
+    words. No host copy of the model is read: the host reads two counts.
 
     Device memory: the golden copy (the model's size again) and its checksums; `device_bytes`."""
 
@@ -227,6 +233,7 @@ class DeviceRepair:
                 "CODE_COVER": frame_check.cover,
                 "CODE_WAYS": code.ways,
                 "CODE_DIAGONAL": code.diagonal,
+                "CODE_PER_WORD": int(frame_check.per_word),
             },
         )
         self.golden = [r.gpu.upload(w, STORAGE, f"golden-chunk-{k}") for k, w in enumerate(r.clean_words)]

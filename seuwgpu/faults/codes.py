@@ -156,14 +156,43 @@ class ParityCode:
     """`ways` parity bits a primitive over the covered bits (parity_cover_mask) of the values of
     `fields` (they lead the layout), bit b of flat component c in way (b + diagonal * c) % ways
     (parity_bits). The check defenses (defenses.Parity) and the checks inside the frame
-    (defenses.FrameParity) hold one; shaders/codes.wgsl computes it as `code` does."""
+    (defenses.FrameParity) hold one; shaders/codes.wgsl computes it as `code` does.
 
-    def __init__(self, ways: int, fields, diagonal: int = 0):
+    `per_word`: at 16-bit precisions (two primitives a stored word: primitives 2i and 2i + 1 share
+    every word, fields.StoredLayout) one code covers a stored word pair, both halves folded whole
+    (cover | cover << 16), so the side data holds `ways` bits a pair: ways / 2 a primitive. Parity is
+    linear and a word's high half lands in the low half's ways (ways divide 16), so the pair's code
+    is the XOR of its two primitive codes. At fp32 a word is a primitive: the code is per primitive."""
+
+    def __init__(self, ways: int, fields, diagonal: int = 0, per_word: bool = False):
         if ways not in (1, 2, 4, 8, 16):
             raise ValueError(f"a parity code has 1, 2, 4, 8 or 16 ways (got {ways})")
         if diagonal not in (0, 1):  # the shaders fold by rotation class (codes.wgsl parity_classes)
             raise ValueError(f"a parity code's diagonal is 0 or 1 (got {diagonal})")
+        if per_word and ways < 2:  # ways / 2 bits a primitive
+            raise ValueError("a per-word parity code has at least 2 ways")
         self.ways, self.fields, self.diagonal = int(ways), tuple(fields), int(diagonal)
+        self.per_word = bool(per_word)
+
+    def pairs(self, precision: str) -> bool:
+        """One code a stored word pair of primitives (per_word at a 16-bit precision)."""
+        return self.per_word and encoding.bits_per_value(precision) == 16
+
+    def span(self, precision: str) -> int:
+        """Primitives a code covers: 2 for a per-word code at 16 bits, else 1."""
+        return 2 if self.pairs(precision) else 1
+
+    def n_codes(self, n: int, precision: str) -> int:
+        """Codes of n primitives (the side data's length)."""
+        return -(-int(n) // self.span(precision))
+
+    def bits_per_primitive(self, precision: str) -> int:
+        return self.ways // self.span(precision)
+
+    def cover(self, precision: str) -> int:
+        """The bits of a folded stored pattern the code covers (both halves of a word per word)."""
+        m = parity_cover_mask(precision)
+        return m | m << 16 if self.pairs(precision) else m
 
     def components(self, degree: int) -> int:
         """The code covers flat components 0 .. this - 1 (its fields lead the layout)."""
@@ -172,15 +201,15 @@ class ParityCode:
         return int(cols.size)
 
     def side_data(self, clean, precision: str, degree: int) -> np.ndarray:
-        """[M] u32: the code of each clean primitive (way w in bit w), as `code` computes it (the
-        bit-by-bit count, parity_bits, is its test's oracle)."""
+        """[n_codes] u32: the code of each clean primitive (of each word pair with `pairs`), as
+        `code` computes it (the bit-by-bit count, parity_bits, is its test's oracle)."""
         return self.code(clean, precision, degree)
 
-    def code(self, rows, precision: str, degree: int) -> np.ndarray:
-        """[M] u32: the code as the shaders compute it, parity being linear: value c's covered bits
-        rotated left by (diagonal * c) % ways (so its bit b lands in way (b + diagonal * c) % ways),
-        XORed over the values, then one parity per way (side_data's code at a fraction of its
-        cost: the coverage sweep checks millions of rows)."""
+    def primitive_code(self, rows, precision: str, degree: int) -> np.ndarray:
+        """[M] u32: each primitive's code, as the shaders compute it, parity being linear: value c's
+        covered bits rotated left by (diagonal * c) % ways (so its bit b lands in way (b + diagonal
+        * c) % ways), XORed over the values, then one parity per way (side_data's code at a
+        fraction of its cost: the coverage sweep checks millions of rows)."""
         v = np.asarray(rows)[:, : self.components(degree)].astype(np.uint32) & np.uint32(parity_cover_mask(precision))
         shift = (np.arange(v.shape[1]) * self.diagonal) % self.ways
         x = np.zeros(v.shape[0], np.uint32)
@@ -191,9 +220,46 @@ class ParityCode:
             out |= (np.bitwise_count(x & np.uint32(way_mask(w, self.ways))) & 1).astype(np.uint32) << np.uint32(w)
         return out
 
+    def code(self, rows, precision: str, degree: int) -> np.ndarray:
+        """[n_codes] u32: the stored code of the model `rows` (every primitive, in order): each
+        primitive's, or with `pairs` each word pair's, the XOR of its primitives' (a missing last
+        partner is the layout's zero padding)."""
+        c = self.primitive_code(rows, precision, degree)
+        if not self.pairs(precision):
+            return c
+        if c.size % 2:
+            c = np.append(c, np.uint32(0))
+        return c[0::2] ^ c[1::2]
+
     def detect(self, side, rows, precision: str, degree: int) -> np.ndarray:
-        """[M] bool: the stored `rows` fail their code `side`."""
-        return self.code(rows, precision, degree) != np.asarray(side, dtype=np.uint32)
+        """[M] bool: the stored `rows` (every primitive, in order) fail their code `side`; with
+        `pairs` both primitives of a failing pair."""
+        fails = self.code(rows, precision, degree) != np.asarray(side, dtype=np.uint32)
+        return np.repeat(fails, self.span(precision))[: np.asarray(rows).shape[0]]
+
+    def detect_changed(self, clean, rows, prims, precision: str, degree: int) -> np.ndarray:
+        """[M] bool: `detect` for primitives `prims` (indices in the model, each once) whose rows
+        went from `clean` to `rows`, every other primitive clean: with `pairs` a pair fails when
+        its members' code changes (linear: XORed over those in `prims`) do not cancel, and both of
+        a failing pair's members among `prims` are True (a partner not among them is dropped too:
+        `partners` adds it)."""
+        delta = self.primitive_code(clean, precision, degree) ^ self.primitive_code(rows, precision, degree)
+        if not self.pairs(precision):
+            return delta != 0
+        pair = np.asarray(prims, np.int64) >> 1
+        u, inv = np.unique(pair, return_inverse=True)
+        acc = np.zeros(u.size, np.uint32)
+        np.bitwise_xor.at(acc, inv, delta)
+        return acc[inv] != 0
+
+    def partners(self, prims, n: int, precision: str) -> np.ndarray:
+        """`prims` (sorted, unique) and, with `pairs`, their word partners (< n): what a frame of
+        the per-word code drops with them."""
+        prims = np.asarray(prims, np.int64)
+        if not self.pairs(precision):
+            return prims
+        both = np.concatenate([prims, prims ^ 1])
+        return np.unique(both[both < int(n)])
 
 
 CHECKSUM_SEED = 0x811C9DC5

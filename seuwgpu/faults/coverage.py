@@ -114,7 +114,6 @@ def outcomes(
     clean = np.asarray(clean)
     index = np.arange(clean.shape[0]) if index is None else np.asarray(index)
     side = d.side_data(clean, precision, degree, box) if d.checked else None
-    code = d.side_data(clean, precision, degree) if d.frame_check else None
     caught = np.zeros(len(prims), bool)
     restored = np.zeros(len(prims), bool)
     for s in range(0, len(prims), CHUNK):
@@ -126,7 +125,8 @@ def outcomes(
             rows[ar, c[:, k]] ^= m[:, k].astype(rows.dtype)
         base = clean[p]
         if d.frame_check:  # its code checked in the frame: dropped, then reloaded before the next frame
-            caught[sl] = restored[sl] = d.hit(code[p], rows, precision, degree)
+            # (each fault alone: with a per-word code its word pair, the partner clean, checked together)
+            caught[sl] = restored[sl] = d.code.detect_changed(base, rows, 2 * ar, precision, degree)
             continue
         if d.checked:
             hit = d.detect(side[p], rows, precision, degree, box)
@@ -194,7 +194,7 @@ def coverage_table(
             caught, restored = outcomes(d, clean, prims, cols, masks, precision, degree, box, state, index)
             out.append(row(fam, d, len(prims), caught, restored, harm))
     if "mcu_neighbour" in families and clean.shape[0] >= 2:
-        cols, masks = family("bit", ncomp, nb)
+        one_cols, one_masks = cols, masks = family("bit", ncomp, nb)
         m = clean.shape[0]
         harm = np.tile((masks & se) != 0, (m - 1, 1)).any(1)
         prims = np.repeat(np.arange(m), len(cols))
@@ -204,7 +204,29 @@ def coverage_table(
                 x.reshape(m, -1) for x in outcomes(d, clean, prims, cols, masks, precision, degree, box, state, index)
             )
             both_c, both_r = caught[:-1] & caught[1:], restored[:-1] & restored[1:]
+            arm = dfn.get(d)
+            if arm.frame_check and arm.code.pairs(precision):
+                # a per-word code: rows 2i and 2i + 1 share a word and one code, checked together
+                both_c[0::2] = both_r[0::2] = _same_word(arm, clean, one_cols, one_masks, precision, degree)
             out.append(row("mcu_neighbour", d, both_c.size, both_c.ravel(), both_r.ravel(), harm))
+    return out
+
+
+def _same_word(d, clean: np.ndarray, cols: np.ndarray, masks: np.ndarray, precision: str, degree: int):
+    """[pairs, F] caught: fault f (cols[f], masks[f]) in both primitives of each stored word pair
+    (rows 2i, 2i + 1) at once, under the per-word frame code of `d`."""
+    m = clean.shape[0] - clean.shape[0] % 2
+    out = np.zeros((m // 2, len(cols)), bool)
+    ar = np.arange(len(cols))
+    for i in range(m // 2):
+        base = np.repeat(clean[2 * i : 2 * i + 2], len(cols), axis=0)  # [2F]: row 2i F times, then 2i + 1
+        rows = base.copy()
+        for half in range(2):
+            r = half * len(cols) + ar
+            for k in range(cols.shape[1]):
+                rows[r, cols[:, k]] ^= masks[:, k].astype(rows.dtype)
+        index = np.concatenate([2 * ar, 2 * ar + 1])  # fault f's two rows: a pair of their own
+        out[i] = d.code.detect_changed(base, rows, index, precision, degree)[: len(cols)]
     return out
 
 

@@ -111,15 +111,20 @@ class Defense:
         `corrupt` ([M, ncomp] each); the in-pipeline guard clamp is applied later."""
         return corrupt
 
-    def after_frame(self, clean, corrupt, precision: str, degree: int):
+    def after_frame(self, clean, corrupt, precision: str, degree: int, prims=None):
         """The stored rows after a frame when a repair lands between frames (FrameParity); None:
-        the frame changes nothing stored."""
+        the frame changes nothing stored. `prims`: the rows' primitives (None: the whole model)."""
         return None
+
+    def partners(self, prims, n: int, precision: str) -> np.ndarray:
+        """`prims` and the primitives its twins need beside them (the pair partners of a per-word
+        frame code, FrameParity): what a caller evaluating a subset of the model includes."""
+        return np.asarray(prims, np.int64)
 
     def frame(self, clean, corrupt, precision: str, degree: int, box=None, prims=None, state=None):
         """(read, after_frame) of one frame, together: a frame check computes its check once."""
         return self.read(clean, corrupt, precision, degree, box, prims, state), self.after_frame(
-            clean, corrupt, precision, degree
+            clean, corrupt, precision, degree, prims
         )
 
 
@@ -233,8 +238,8 @@ class Parity(CheckedDefense):
 
     def __init__(self, name, info, code: ParityCode, reloads: bool, label="", first_study=False):
         super().__init__(name, info, label, first_study)
-        if code.diagonal:  # check.wgsl's MODE_PARITY folds no diagonal: its side data would disagree
-            raise ValueError("a periodic parity check (check.wgsl) has no diagonal ways; the frame's check has")
+        if code.diagonal or code.per_word:  # check.wgsl's MODE_PARITY folds neither: its side data would disagree
+            raise ValueError("a periodic parity check (check.wgsl) has no diagonal ways nor per-word codes")
         self.code, self.reloads = code, reloads
         self.ways, self.fields = code.ways, code.fields
         self.side_bits = code.ways
@@ -313,7 +318,13 @@ class FrameParity(Defense):
     `after_frame` repairs every failing primitive. The device's parity4f repairs those a view drew
     (flagged); one no view drew stays corrupt and is dropped from the first frame that would draw
     it, then repaired: frames from fixed views are the same, a moving view can see that primitive
-    missing for one more frame than the twin shows."""
+    missing for one more frame than the twin shows.
+
+    A per-word code (`code.per_word`, parity2f) at fp16/bf16 codes each stored word pair of
+    primitives (2i, 2i + 1) together: a failing pair is dropped from the frame together (its clean
+    partner missing for that frame) and repaired together. The twins given a subset of the
+    primitives (`prims`: their indices) group them by pair, every primitive not given being clean
+    (`partners` names what a caller must include for the clean partner's drop to be drawn)."""
 
     reads_stored_bits = False
     frame_check = True
@@ -322,32 +333,44 @@ class FrameParity(Defense):
         super().__init__(name, info, label)
         if code.fields != FIELDS:
             raise ValueError("a check inside the frame covers every stored value (the projection reads them all)")
+        if code.per_word and flags:  # the frame flags a primitive, the repair would need its pair's
+            raise ValueError("a per-word frame code keeps no flags (its repair re-verifies every word)")
         self.code, self.flags = code, bool(flags)
-        self.side_bits = code.ways
+        self.side_bits = code.ways  # bits of one packed code (a primitive's, or a word pair's)
 
     def bits_per_primitive(self, precision, degree):
-        return self.side_bits
+        return self.code.bits_per_primitive(precision)
+
+    def n_codes(self, n: int, precision: str) -> int:
+        """Packed codes of n primitives (one a word pair with a per-word code at 16 bits)."""
+        return self.code.n_codes(n, precision)
+
+    def partners(self, prims, n: int, precision: str) -> np.ndarray:
+        return self.code.partners(prims, n, precision)
 
     def side_data(self, clean, precision: str, degree: int) -> np.ndarray:
-        """[M] u32: the code of each clean primitive (what FrameCheck uploads, packed)."""
+        """[n_codes] u32: the code of each clean primitive, or word pair (what FrameCheck uploads, packed)."""
         return self.code.side_data(clean, precision, degree)
 
     def hit(self, side, corrupt, precision, degree) -> np.ndarray:
-        """[M] bool: the frame's check fails (the code's detect against its side data)."""
+        """[M] bool: the frame's check fails (the code's detect against its side data; `corrupt` the
+        whole model, in order)."""
         return self.code.detect(side, corrupt, precision, degree)
 
-    def _hit(self, clean, corrupt, precision, degree):
-        return self.hit(self.side_data(clean, precision, degree), corrupt, precision, degree)
+    def _hit(self, clean, corrupt, precision, degree, prims=None):
+        if prims is None:  # the whole model, in order
+            return self.hit(self.side_data(clean, precision, degree), corrupt, precision, degree)
+        return self.code.detect_changed(clean, corrupt, prims, precision, degree)
 
     def read(self, clean, corrupt, precision, degree, box=None, prims=None, state=None):
-        return cull(corrupt, self._hit(clean, corrupt, precision, degree), precision)
+        return cull(corrupt, self._hit(clean, corrupt, precision, degree, prims), precision)
 
-    def after_frame(self, clean, corrupt, precision: str, degree: int) -> np.ndarray:
+    def after_frame(self, clean, corrupt, precision: str, degree: int, prims=None) -> np.ndarray:
         """The stored rows once the frame's detections are repaired: those that fail reloaded."""
-        return np.where(self._hit(clean, corrupt, precision, degree)[:, None], clean, corrupt)
+        return np.where(self._hit(clean, corrupt, precision, degree, prims)[:, None], clean, corrupt)
 
     def frame(self, clean, corrupt, precision, degree, box=None, prims=None, state=None):
-        hit = self._hit(clean, corrupt, precision, degree)  # once for the frame and its repair
+        hit = self._hit(clean, corrupt, precision, degree, prims)  # once for the frame and its repair
         return cull(corrupt, hit, precision), np.where(hit[:, None], clean, corrupt)
 
 
@@ -439,11 +462,11 @@ register(
 register(
     FrameParity(
         "parity2f",
-        "2 parity bits per primitive over every value, bit b of value c in way (b + c) mod 2, checked inside "
-        "every frame: a mismatch drops the primitive from that frame; the repair re-verifies every primitive "
-        "and reloads those that fail before the next",
-        ParityCode(2, FIELDS, diagonal=1),
-        flags=False,  # 2 bits a primitive, nothing more: 0.45% of an fp32 SH-0 model
+        "2 parity bits per primitive (at fp16/bf16 per stored word pair: 1 bit a primitive) over every value, "
+        "bit b of value c in way (b + c) mod 2, checked inside every frame: a mismatch drops the primitive (its "
+        "word pair) from that frame; the repair re-verifies every code and reloads what fails before the next",
+        ParityCode(2, FIELDS, diagonal=1, per_word=True),
+        flags=False,  # 2 bits a primitive (a word pair at fp16/bf16: 1), nothing more: 0.45% of an SH-0 model
         label="2 diagonal parity bits in the frame",
     )
 )

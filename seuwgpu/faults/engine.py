@@ -289,9 +289,22 @@ class Engine:
         `after_repair`, the stored rows once a frame's repair landed: Defense.after_frame)."""
         if not sites:
             return {}
-        prims, clean, cur = self._faulted(sites)
-        rows = dfn.get(defense).after_frame(clean, cur, self.precision, self.degree) if after_repair else None
+        d = dfn.get(defense)
+        prims, clean, cur = self.with_partners(*self._faulted(sites), defense)
+        rows = d.after_frame(clean, cur, self.precision, self.degree, prims) if after_repair else None
         return self.xor_rows(prims, clean, self.read_through(prims, clean, cur, defense) if rows is None else rows)
+
+    def with_partners(self, prims, clean: np.ndarray, cur: np.ndarray, defense: str):
+        """(prims, clean, cur) with the primitives the defense's twin needs beside them
+        (Defense.partners: a per-word frame code's pair partners, clean), in primitive order."""
+        prims = np.asarray(prims, np.int64)
+        ext = dfn.get(defense).partners(prims, self.n, self.precision)
+        if ext.size == prims.size:
+            return prims, clean, cur
+        base = self.primitive_bits(ext)
+        now = base.copy()
+        now[np.searchsorted(ext, prims)] = cur
+        return ext, base, now
 
     def xor_rows(self, prims: np.ndarray, clean: np.ndarray, rows: np.ndarray) -> dict[int, np.ndarray]:
         """Per chunk: [(word, xor mask)] turning primitives `prims` (clean bits `clean`) into `rows`."""

@@ -52,7 +52,8 @@ def device_bytes(defense: str, precision: str, degree: int, n: int, chunks: int 
     A support guard: the box the pipeline reads (one Bound record per stored component) and the
     clamp counts. A GPU check: its side data packed `side_bits` a primitive, its output (a count and
     one flag bit per primitive), its table (scalebound's class bounds) and one uniform slot per
-    model chunk; scalebound adds the guard's. A check inside the frame: its packed codes and its
+    model chunk; scalebound adds the guard's. A check inside the frame: its packed codes (one a
+    stored word pair for a per-word code at fp16/bf16: parity2f's 1 bit a primitive) and its
     output (the count, and the flag bits if it keeps them). The read-time codes without a GPU decoder (ECC,
     ecc_crit, TMR, cellbox): their encoding's bits, packed, rounded up to whole u32 words."""
     from seuwgpu.gpu.constants import UNIFORM_STRIDE
@@ -65,8 +66,8 @@ def device_bytes(defense: str, precision: str, degree: int, n: int, chunks: int 
     total = 0
     if d.guard_fields:
         total += buffer(BOUND_BYTES * n_components(degree)) + buffer(GUARD_COUNT_BYTES)
-    if d.frame_check:  # the check inside the frame: packed codes and its output, no table or uniform
-        total += buffer(4 * -(-n * d.side_bits // 32))
+    if d.frame_check:  # the check inside the frame: packed codes (a word pair's with a per-word code) and its output
+        total += buffer(4 * -(-d.n_codes(n, precision) * d.side_bits // 32))
         total += buffer(CHECK_HEADER_BYTES + (4 * -(-n // 32) if d.flags else 0))  # flag bits if it keeps them
     elif d.checked:
         total += buffer(4 * -(-n * d.side_bits // 32))  # packed side data

@@ -450,11 +450,14 @@ class Projection:
             tile_y0=tile_origin[1],
         )
 
-    def set_frame_check(self, side=None, out=None, cover: int = 0, ways: int = 4, diagonal: int = 0, flags=True):
+    def set_frame_check(
+        self, side=None, out=None, cover: int = 0, ways: int = 4, diagonal: int = 0, flags=True, per_word=False
+    ):
         """The check inside the frame: `side` the packed parity codes (`ways` bits) of every
-        primitive, `out` its output (a CheckOut: count twice, 2 words, with `flags` a flag bit per
-        primitive), `cover` the bits of each value the parity covers, bit b of value c counted in
-        way (b + diagonal c) % ways; None: off (today's pipeline)."""
+        primitive (with `per_word`, at fp16/bf16, of every stored word pair: the whole word folded),
+        `out` its output (a CheckOut: count twice, 2 words, with `flags` a flag bit per primitive),
+        `cover` the bits of each folded pattern the parity covers, bit b of value c counted in way
+        (b + diagonal c) % ways; None: off (today's pipeline)."""
         if side is None:  # placeholders (a buffer is never bound both read-only and writable), made once
             if getattr(self, "_frame_off", None) is None:
                 self._frame_off = (
@@ -465,18 +468,18 @@ class Projection:
             self.frame_side, self.frame_out = self._frame_off
             return
         self.frame_side, self.frame_out = side, out
-        self.frame_code = (int(cover), int(ways), int(diagonal), int(bool(flags)))
+        self.frame_code = (int(cover), int(ways), int(diagonal), int(bool(flags)), int(bool(per_word)))
 
     def variant(self, fmt: int, degree: int, guard_lo: int, guard_hi: int, code=None) -> Kernel:
         """The pipeline for stored precision code `fmt`, SH `degree`, guard mask words and the
-        frame check's code (cover, ways, diagonal, flags; None: no check in the frame)."""
+        frame check's code (cover, ways, diagonal, flags, per_word; None: no check in the frame)."""
         key = (int(fmt), int(degree), int(guard_lo), int(guard_hi), code)
         k = self._kernels.get(key)
         if k is None:
             names = ("FMT", "SH_DEGREE", "GUARD_LO", "GUARD_HI")
             constants = {**dict(zip(names, key[:4])), "PROFILE": PROFILE_CODE[self.profile]}
             if code is not None:
-                frame = ("FRAME_COVER", "FRAME_WAYS", "FRAME_DIAGONAL", "FRAME_FLAGS")
+                frame = ("FRAME_COVER", "FRAME_WAYS", "FRAME_DIAGONAL", "FRAME_FLAGS", "FRAME_PER_WORD")
                 constants.update(FRAME_CHECK=1, **dict(zip(frame, code)))
             k = self._kernels[key] = Kernel(self.gpu, "project", constants=constants)
         return k
