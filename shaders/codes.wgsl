@@ -74,17 +74,9 @@ fn parity_code(x: u32, ways: u32) -> u32 {
 
 // x with value c's covered bits folded in, rotated left by (diagonal c) % ways so that its bit b
 // counts in way (b + diagonal c) % ways (diagonal 0: by bit position alone, parity4r's code).
-// Rotation, the cover mask and a 16-bit value's extraction from its word are linear over XOR, so
-// the values of one rotation class may be XORed as whole words first and folded once: value c is
-// in class c % parity_classes (diagonal 0 or 1, codes.ParityCode), rotated by that class.
 fn parity_fold(x: u32, covered: u32, c: u32, ways: u32, diagonal: u32) -> u32 {
     let k = (c * diagonal) % ways;
     return x ^ ((covered << k) | (covered >> ((32u - k) & 31u)));
-}
-
-// the rotation classes of a code's values (parity_fold): 1 for diagonal 0, `ways` for diagonal 1
-fn parity_classes(ways: u32, diagonal: u32) -> u32 {
-    return select(1u, ways, diagonal != 0u);
 }
 
 // the side data word holding primitive g's code of `bits` bits (side.pack_side)

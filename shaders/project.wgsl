@@ -16,7 +16,8 @@ override GUARD_HI: u32 = 0u;      // components 32..63
 // stored component, in FRAME_WAYS ways (bit b of value c in way (b + FRAME_DIAGONAL c) % FRAME_WAYS:
 // codes.wgsl parity_fold), against the stored code, for every primitive the view would draw: one
 // that fails is dropped from this frame (culled), counted and, with FRAME_FLAGS, flagged for
-// repair. A primitive culled anyway is not checked (it draws nothing either way). FRAME_PER_WORD
+// repair. A primitive culled anyway is not checked (it draws nothing either way). Each value is
+// folded as the projection reads it (`stored`), not read a second time. FRAME_PER_WORD
 // (fp16/bf16 only): the code is a stored word's, both primitives of the pair (codes.wgsl
 // coded_pattern, code_index), so a failing word drops both from the frame.
 override FRAME_CHECK: u32 = 0u;
@@ -72,11 +73,19 @@ override PROFILE: u32 = PROFILE_STRICT;
 const SH_C0: f32 = 0.28209479177387814;
 const SH_C1: f32 = 0.4886025119029199;
 
+// the frame check's fold of the stored words this invocation has read (stored): the projection
+// reads each value of a primitive it draws exactly once, so the check costs a fold per value, not
+// a second read of the primitive
+var<private> frame_fold: u32 = 0u;
+
 fn stored(j: u32, c: u32) -> f32 {
-    if (FMT == FMT_FP32) {
-        return bitcast<f32>(model[c * view.plane_words + j]);
+    let w = model[stored_word_index(c, j, view.plane_words, FMT)];
+    if (FRAME_CHECK != 0u) {
+        frame_fold = parity_fold(frame_fold, coded_pattern(w, j, FMT, FRAME_PER_WORD) & FRAME_COVER, c, FRAME_WAYS, FRAME_DIAGONAL);
     }
-    let w = model[c * view.plane_words + (j >> 1u)];
+    if (FMT == FMT_FP32) {
+        return bitcast<f32>(w);
+    }
     return decode_value(w, (j & 1u) == 1u, FMT);
 }
 
@@ -202,21 +211,12 @@ fn cull(g: u32) {
     proj_rect[g] = vec2<u32>(0u, 0u);
 }
 
-// the frame's check of primitive j (global index g): true when its code word fails
-fn frame_check_fails(j: u32, g: u32) -> bool {
-    let ncomp = 14u + 3u * ((SH_DEGREE + 1u) * (SH_DEGREE + 1u) - 1u);
-    let classes = parity_classes(FRAME_WAYS, FRAME_DIAGONAL);
-    var x = 0u;
-    for (var k = 0u; k < classes; k = k + 1u) {
-        var words = 0u;  // the class's stored words XORed, folded once (parity_fold)
-        for (var c = k; c < ncomp; c = c + classes) {
-            words = words ^ model[stored_word_index(c, j, view.plane_words, FMT)];
-        }
-        x = parity_fold(x, coded_pattern(words, j, FMT, FRAME_PER_WORD) & FRAME_COVER, k, FRAME_WAYS, FRAME_DIAGONAL);
-    }
+// the frame's check of primitive j (global index g), once every value is read: true when the
+// fold of its values (frame_fold) fails its code word
+fn frame_check_fails(g: u32) -> bool {
     let p = g % view.n_total;  // the primitive (a batched renderer writes view v's records at v n + p)
     let q = code_index(p, FRAME_PER_WORD);
-    return parity_code(x, FRAME_WAYS) != code_of(frame_side[code_word_index(q, FRAME_WAYS)], q, FRAME_WAYS);
+    return parity_code(frame_fold, FRAME_WAYS) != code_of(frame_side[code_word_index(q, FRAME_WAYS)], q, FRAME_WAYS);
 }
 
 fn pack_rect(x0: f32, y0: f32, x1: f32, y1: f32) -> vec2<u32> {
@@ -301,9 +301,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
 
 // Opacity and colour, then the screen record of a drawn primitive.
 fn emit(j: u32, g: u32, mean: vec3<f32>, xy: vec2<f32>, conic: vec3<f32>, rect: vec2<u32>, z: f32) {
+    let opacity = sigmoid(comp(j, 10u));
+    let d = mean - view.campos.xyz;
+    let dir = d * rsqrt_ieee(dot(d, d));
+    let rgb = sh_colour(j, dir);
     // The check inside the frame, on the primitives this view draws (what is culled anyway draws
-    // nothing, corrupted or not): a failing one is dropped, counted and (FRAME_FLAGS) flagged.
-    if (FRAME_CHECK != 0u && frame_check_fails(j, g)) {
+    // nothing, corrupted or not), now that every value is read: a failing one is dropped, counted
+    // and (FRAME_FLAGS) flagged.
+    if (FRAME_CHECK != 0u && frame_check_fails(g)) {
         let p = g % view.n_total;
         if (FRAME_FLAGS != 0u) {
             atomicOr(&frame_out[OUT_FLAGS + (p >> 5u)], 1u << (p & 31u));
@@ -313,10 +318,6 @@ fn emit(j: u32, g: u32, mean: vec3<f32>, xy: vec2<f32>, conic: vec3<f32>, rect: 
         cull(g);
         return;
     }
-    let opacity = sigmoid(comp(j, 10u));
-    let d = mean - view.campos.xyz;
-    let dir = d * rsqrt_ieee(dot(d, d));
-    let rgb = sh_colour(j, dir);
 
     proj_xy[g] = xy;
     proj_conic[g] = vec4<f32>(conic, opacity);

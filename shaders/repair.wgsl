@@ -49,14 +49,10 @@ fn needs_repair(w: u32, j: u32, p: u32, stored_code: u32) -> bool {
     if (REPAIR_FLAGS != 0u) {
         return (atomicLoad(&out[OUT_FLAGS + (p >> 5u)]) & (1u << (p & 31u))) != 0u;
     }
-    let classes = parity_classes(CODE_WAYS, CODE_DIAGONAL);
     var x = 0u;
-    for (var k = 0u; k < classes; k = k + 1u) {
-        var acc = 0u;  // the class's stored words XORed, folded once (codes.wgsl parity_fold)
-        for (var c = k; c < params.ncomp; c = c + classes) {
-            acc = acc ^ words[c * params.plane_words + w];
-        }
-        x = parity_fold(x, coded_pattern(acc, j, params.fmt, CODE_PER_WORD) & CODE_COVER, k, CODE_WAYS, CODE_DIAGONAL);
+    for (var c = 0u; c < params.ncomp; c = c + 1u) {
+        let v = coded_pattern(words[c * params.plane_words + w], j, params.fmt, CODE_PER_WORD);
+        x = parity_fold(x, v & CODE_COVER, c, CODE_WAYS, CODE_DIAGONAL);
     }
     return parity_code(x, CODE_WAYS) != stored_code;
 }

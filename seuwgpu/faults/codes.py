@@ -167,8 +167,6 @@ class ParityCode:
     def __init__(self, ways: int, fields, diagonal: int = 0, per_word: bool = False):
         if ways not in (1, 2, 4, 8, 16):
             raise ValueError(f"a parity code has 1, 2, 4, 8 or 16 ways (got {ways})")
-        if diagonal not in (0, 1):  # the shaders fold by rotation class (codes.wgsl parity_classes)
-            raise ValueError(f"a parity code's diagonal is 0 or 1 (got {diagonal})")
         if per_word and ways < 2:  # ways / 2 bits a primitive
             raise ValueError("a per-word parity code has at least 2 ways")
         self.ways, self.fields, self.diagonal = int(ways), tuple(fields), int(diagonal)
