@@ -4,6 +4,12 @@ S frames with parity4r's check before the first, and S frames checked inside the
 round on one renderer; the median of each configuration's paired ratio to the plain rounds with
 its distribution-free 95% interval.
 
+--stages N adds the decomposition a frame check's cost allows (it changes the projection alone):
+N interleaved rounds of one frame per configuration on a renderer with timestamp queries around
+every pass (tools/bench_stages.py), the projection's time with each check minus the plain one's in
+the same round (median, 95% interval), beside the detection count's read, as shares of the plain
+frame: far less noisy than the whole frame's wall clock on a shared host.
+
     python tools/bench_schedule.py [--scene leica-sofort | --model FILE] [--size 256x256] [--every 10] [--rounds 41]
         [--defenses parity4r parity4f parity2f]
 
@@ -14,11 +20,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from seuwgpu import api  # noqa: E402
 from seuwgpu.faults.check import Checker, FrameCheck  # noqa: E402
@@ -38,6 +46,7 @@ def main(argv=None) -> int:
     ap.add_argument("--size", default="256x256")
     ap.add_argument("--every", type=int, default=10)
     ap.add_argument("--rounds", type=int, default=41)
+    ap.add_argument("--stages", type=int, default=0, help="rounds of the projection-stage decomposition")
     ap.add_argument(
         "--defenses", nargs="+", default=["parity4r", "parity4f", "parity2f"], choices=FRAME_CHECKS + ("parity4r",)
     )
@@ -78,7 +87,56 @@ def main(argv=None) -> int:
     for k in [k for k in runs if k != "plain"]:
         med, lo, hi = median_interval((np.asarray(got[k]) - p) / p)
         print(f"  {k}: {100 * med:+.2f}% of a frame [95% {100 * lo:+.2f}, {100 * hi:+.2f}]")
+    if a.stages and frame_checks:
+        stage_decomposition(model, cam, clean, list(frame_checks), a.stages, float(np.median(p)) / a.every)
     return 0
+
+
+def stage_decomposition(model, cam, clean, defenses, rounds: int, frame_s: float):
+    """The projection stage's time with each frame check minus without, by timestamp queries,
+    interleaved round by round, and the detection count's read, as shares of a plain frame."""
+    from bench_stages import StageTimedRenderer
+
+    r = StageTimedRenderer(model, [cam], "fp32")
+    checks = {d: FrameCheck(r, clean, d) for d in defenses}
+    for fc in checks.values():
+        fc.off()
+    r.timed = True
+
+    def project_time(fc=None):
+        if fc is not None:
+            fc.on()
+        r.render()
+        t = r.stage_times()["project"]
+        if fc is not None:
+            fc.off()
+        return t
+
+    project_time()  # compiles
+    for fc in checks.values():
+        project_time(fc)
+    got = {k: [] for k in ("plain", *checks)}
+    for _ in range(rounds):
+        got["plain"].append(project_time())
+        for d, fc in checks.items():
+            got[d].append(project_time(fc))
+    fc = next(iter(checks.values()))
+    t0 = time.perf_counter()
+    for _ in range(200):
+        fc.count()
+    read_s = (time.perf_counter() - t0) / 200
+    plain = np.asarray(got["plain"])
+    print(
+        f"  projection stage (timestamp queries, {rounds} interleaved rounds): plain {1e3 * np.median(plain):.2f} ms; "
+        f"the detection count's read {1e3 * read_s:.2f} ms ({100 * read_s / frame_s:.2f}% of a frame)"
+    )
+    for d in checks:
+        med, lo, hi = median_interval(np.asarray(got[d]) - plain)
+        share = [100 * (v + read_s) / frame_s for v in (med, lo, hi)]
+        print(
+            f"  {d}: projection {1e3 * med:+.3f} ms [95% {1e3 * lo:+.3f}, {1e3 * hi:+.3f}]; with the read "
+            f"{share[0]:+.2f}% of a frame [95% {share[1]:+.2f}, {share[2]:+.2f}]"
+        )
 
 
 if __name__ == "__main__":
