@@ -312,3 +312,57 @@ def test_the_engines_twin_drops_a_failing_pairs_clean_partner():
         handle = eng.apply([site], "parity2f", after_repair=True)  # repaired: the clean words
         np.testing.assert_array_equal(eng.renderer.read_words(0), clean[0])
         eng.undo(handle)
+
+
+@pytest.mark.parametrize("precision", ["fp16", "bf16"])
+def test_the_batched_evaluator_draws_parity2f_variants_as_a_full_render_does(precision):
+    """A campaign's batched records under parity2f at 16 bits (faults/engine.py evaluate_frame)
+    equal full renders site by site: each variant is checked alone (covered flips of one primitive
+    in one batch do not cancel each other's code change), and a detected one drops its clean word
+    partner too (drawn whole: pair_drop_metrics), so two primitives go missing, not one."""
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.model.fields import FIELDS, field_components
+    from seuwgpu.model.scenes import make_scene
+
+    eng = Engine(make_scene("spheres", n=6, seed=3), scene_cameras("spheres", 1, 16, 16), precision)
+    nb = encoding.bits_per_value(precision)
+    sites = [
+        eng.site(f, p, c, b)
+        for p in (2, 3, 5)
+        for f in FIELDS
+        for c in range(field_components(f, eng.degree))[:2]
+        for b in (0, nb - 6, nb - 2)
+    ]
+    sites.append(eng.site("opacity", 2, 0, nb - 2))  # an odd count of covered flips on pair (2, 3)
+    df = eng.evaluate_frame(sites, ["parity2f"])
+    covered = codes.parity_cover_mask(precision)
+    hit = np.array([bool((covered >> s.bits[0]) & 1) for s in sites])
+    assert hit.any() and (~hit).any()
+    for s, (_, rec) in zip(sites, df.iterrows()):
+        full = eng.inject(s, "parity2f")
+        for key in ("footprint", "peak_error", "clamps"):
+            assert full[key] == rec[key], (s, key, full[key], rec[key])
+    clean = eng.primitive_bits(np.array([2]))
+    drops = eng.partner_drops(
+        np.full(len(sites), 2),
+        np.repeat(clean, len(sites), 0),
+        np.array([s.flat_component() for s in sites]),
+        np.array([int(clean[0, s.flat_component()]) ^ (1 << s.bits[0]) for s in sites]),
+        "parity2f",
+    )
+    assert drops.tolist() == hit.tolist()
+
+
+def test_worstcase_refuses_a_defense_that_drops_a_word_partner():
+    """The incremental worst-case search draws one primitive a variant: parity2f at fp16 (a detected
+    flip drops its word partner too) is refused with a one-line reason, at fp32 it runs."""
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.faults.worstcase import worst_case
+    from seuwgpu.model.scenes import make_scene
+
+    scene = make_scene("spheres", n=6, seed=3)
+    eng = Engine(scene, scene_cameras("spheres", 1, 16, 16), "fp16")
+    with pytest.raises(ValueError, match="drops its word partner"):
+        worst_case(eng, "parity2f", fields=["opacity"])
+    eng = Engine(scene, scene_cameras("spheres", 1, 16, 16), "fp32")
+    assert worst_case(eng, "parity2f", fields=["opacity"]).evaluated > 0

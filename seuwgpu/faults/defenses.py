@@ -111,6 +111,16 @@ class Defense:
         `corrupt` ([M, ncomp] each); the in-pipeline guard clamp is applied later."""
         return corrupt
 
+    def read_variants(self, clean, corrupt, precision: str, degree: int, box=None, prims=None, state=None):
+        """`read` of independent variants: row i is a model where primitive `prims[i]` alone went
+        from `clean[i]` to `corrupt[i]` (the batched evaluator's rows; a primitive may repeat)."""
+        return self.read(clean, corrupt, precision, degree, box, prims, state)
+
+    def drops_partner(self, clean, corrupt, precision: str, degree: int) -> np.ndarray:
+        """[M] bool: of such variants, those whose frame also drops a clean primitive beside the
+        hit one (a per-word frame code's pair partner: FrameParity)."""
+        return np.zeros(np.asarray(corrupt).shape[0], bool)
+
     def after_frame(self, clean, corrupt, precision: str, degree: int, prims=None):
         """The stored rows after a frame when a repair lands between frames (FrameParity); None:
         the frame changes nothing stored. `prims`: the rows' primitives (None: the whole model)."""
@@ -364,6 +374,19 @@ class FrameParity(Defense):
 
     def read(self, clean, corrupt, precision, degree, box=None, prims=None, state=None):
         return cull(corrupt, self._hit(clean, corrupt, precision, degree, prims), precision)
+
+    def read_variants(self, clean, corrupt, precision, degree, box=None, prims=None, state=None):
+        """Each variant checked alone (grouping repeated primitives by pair would XOR independent
+        variants' code changes together)."""
+        return cull(corrupt, self._variant_hit(clean, corrupt, precision, degree), precision)
+
+    def drops_partner(self, clean, corrupt, precision: str, degree: int) -> np.ndarray:
+        hit = self._variant_hit(clean, corrupt, precision, degree)
+        return hit & self.code.pairs(precision)
+
+    def _variant_hit(self, clean, corrupt, precision, degree) -> np.ndarray:
+        code = self.code.primitive_code
+        return code(clean, precision, degree) != code(corrupt, precision, degree)
 
     def after_frame(self, clean, corrupt, precision: str, degree: int, prims=None) -> np.ndarray:
         """The stored rows once the frame's detections are repaired: those that fail reloaded."""

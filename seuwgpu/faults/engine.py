@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from seuwgpu.faults import defenses as dfn
+from seuwgpu.faults.codes import cull
 from seuwgpu.faults.costs import interleaved_samples
 from seuwgpu.faults.flips import Flips
 from seuwgpu.faults.guard import Box, GuardMonitor, clamp_bits, component_mask, stored_ranges, support_box
@@ -531,8 +532,38 @@ class Engine:
         whose component `comps[i]` now holds the stored pattern `values[i]`, as `defense` reads them."""
         bits = clean.copy()
         bits[np.arange(len(comps)), comps] = values
-        bits = self.read_through(prims, clean, bits, defense)
+        d = dfn.get(defense)
+        bits = d.read_variants(clean, bits, self.precision, self.degree, self.box, prims, self._state(d))
         return bits, np.full(len(comps), self._guard_mask(defense), dtype=np.int64)
+
+    def partner_drops(self, prims, clean: np.ndarray, comps: np.ndarray, values: np.ndarray, defense: str):
+        """[M] bool: the variants of variant_rows whose frame also drops a clean primitive beside
+        the hit one (Defense.drops_partner: a per-word frame code's pair partner, when the model has
+        it). The incremental evaluator draws one primitive a variant, so these frames are drawn
+        whole (pair_drop_metrics)."""
+        bits = clean.copy()
+        bits[np.arange(len(comps)), comps] = values
+        drops = dfn.get(defense).drops_partner(clean, bits, self.precision, self.degree)
+        return drops & ((np.asarray(prims, np.int64) ^ 1) < self.n)
+
+    def pair_drop_metrics(self, prims, defense: str) -> dict:
+        """Metrics of the frames that drop primitive p and its word partner p ^ 1 (both culled,
+        nothing else changed) for each p of `prims`, by full renders, one a pair: every detected
+        upset of a pair draws that same frame."""
+        pairs, inv = np.unique(np.asarray(prims, np.int64) >> 1, return_inverse=True)
+        per_pair = []
+        for q in pairs:
+            both = np.array([2 * q, 2 * q + 1], np.int64)
+            base = self.primitive_bits(both)
+            handle = self.xor_rows(both, base, cull(base, np.ones(2, bool), self.precision))
+            self.flips.apply(handle)
+            self._active.append(handle)
+            try:
+                per_pair.append(self.measure_current(defense))
+            finally:
+                self.undo(handle)
+        keys = ("footprint", "footprint_max", "peak_error", "psnr", "ssim", "nonfinite", "clamps")
+        return {k: np.array([per_pair[i][k] for i in inv]) for k in keys}
 
     def _arm_metrics(self, prims, rows: np.ndarray, regions, drawn: list) -> dict:
         """Metrics of one arm's variants (drawn stored bits `rows`). A variant that draws the same
@@ -604,9 +635,20 @@ class Engine:
         for d in defenses:
             dfn.check_defense(d)
             bits, gm = self.variant_rows(prims, clean, comps, corrupt_b, d)
+            pair = self.partner_drops(prims, clean, comps, corrupt_b, d)
+            if pair.any() and regions:
+                raise ValueError(
+                    f"regions (sort-first contamination) under {d} at {self.precision}: a detected upset drops "
+                    "its word partner too, which the incremental path does not draw; use fp32 or another defense"
+                )
             self.use_reference(d)
             rows, clamps = self.evaluator.drawn_rows(bits, gm, clean if gm.any() else None)
             m = dict(self._arm_metrics(prims, rows, regions, drawn), clamps=clamps)
+            if pair.any():  # drawn whole (the twin's rows stay as drawn: an arm repeating them is the same)
+                whole = self.pair_drop_metrics(prims[pair], d)
+                m = {k: np.array(v, copy=True) for k, v in m.items()}
+                for k, v in whole.items():
+                    m[k][pair] = v
             cols = dict(base)
             with np.errstate(invalid="ignore"):  # NaN values are data here
                 cols.update(

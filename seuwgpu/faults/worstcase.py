@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from seuwgpu.faults import defenses as dfn
 from seuwgpu.faults.sites import Site, check_field_stored, site_from_flat
 from seuwgpu.gpu.constants import TILE
 from seuwgpu.model import encoding
@@ -107,6 +108,11 @@ def worst_case(
 ) -> WorstCase:
     """The single-bit flip of the space with the largest footprint under `defense` (see module);
     `fields` None: every field the model stores."""
+    if dfn.get(defense).partners(np.zeros(1, np.int64), 2, engine.precision).size > 1:
+        raise ValueError(
+            f"worstcase under {defense} at {engine.precision}: a detected flip drops its word partner too, "
+            "which the incremental search does not draw; use fp32 or another defense"
+        )
     prims, comps, bts = site_space(engine, fields, bits, primitives)
     bound = footprint_bounds(engine, prims, comps, bts, defense)
     order = np.argsort(-bound, kind="stable")
