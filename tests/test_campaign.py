@@ -591,6 +591,10 @@ def test_outcome_and_reliability_tables_of_the_spec():
         ({"reliability": {"scrub_hours": 0}}, "reliability.scrub_hours"),
         ({"reliability": {"rates": [{"environment": "a", "per_bit_hour": -1, "source": "s"}]}}, "per_bit_hour"),
         ({"single": {"samples": 1, "regions": [64]}, "size": "64x64"}, "do not fit"),
+        (
+            {"single": {"samples": 1, "regions": [4], "precisions": ["fp16"], "defenses": ["none", "parity2f"]}},
+            r"^single.regions under parity2f at fp16: a detected upset drops its word partner too",
+        ),
     ):
         with pytest.raises(SpecError, match=what):
             normalize_spec(base | bad)

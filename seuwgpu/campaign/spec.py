@@ -221,7 +221,7 @@ def _names(table, cls, key, where, kind, valid) -> list:
 def _upsets(t: dict, cls, where: str, size) -> dict:
     """The single-upset keys [single] and [sizes] share (spec_types.UpsetSpec), checked."""
     precisions = _names(t, cls, "precisions", where, "precision", encoding.PRECISIONS)
-    return {
+    out = {
         "precisions": precisions,
         "fields": _fields(t, cls, where),
         "bits": _bits(t, cls, where, precisions),
@@ -230,6 +230,15 @@ def _upsets(t: dict, cls, where: str, size) -> dict:
         "defenses": _names(t, cls, "defenses", where, "defense", DEFENSES),
         "regions": _regions(t, cls, where, size),
     }
+    if out["regions"]:  # the incremental path draws one primitive a variant (faults/engine.py evaluate_frame)
+        for d in out["defenses"]:
+            for p in precisions:
+                if REGISTRY[d].partners(np.zeros(1, np.int64), 2, p).size > 1:
+                    raise SpecError(
+                        f"{where}.regions under {d} at {p}: a detected upset drops its word partner too, which "
+                        "the contamination measurement does not draw; use fp32 or another defense"
+                    )
+    return out
 
 
 def _regions(table, cls, where, size):
