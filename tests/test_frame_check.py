@@ -366,3 +366,23 @@ def test_worstcase_refuses_a_defense_that_drops_a_word_partner():
         worst_case(eng, "parity2f", fields=["opacity"])
     eng = Engine(scene, scene_cameras("spheres", 1, 16, 16), "fp32")
     assert worst_case(eng, "parity2f", fields=["opacity"]).evaluated > 0
+
+
+def test_the_injected_model_under_parity2f_drops_the_word_partner_at_16_bits():
+    """`inject`'s kept models (api injected_models) are what the renderer reads: under parity2f
+    at fp16 a detected flip of primitive 21 culls 20 and 21 (the frame drops the word pair), at
+    fp32 only 21; an uncovered low bit is read as flipped, nothing culled."""
+    from seuwgpu.api import injected_models
+    from seuwgpu.faults.engine import Engine
+    from seuwgpu.faults.sites import Site
+
+    model = random_model(100, seed=5)
+    for precision, dropped in (("fp16", [20, 21]), ("fp32", [21])):
+        eng = Engine(model, scene_cameras("spheres", 1, 16, 16), precision)
+        nb = encoding.bits_per_value(precision)
+        kept = injected_models(eng, model, Site("opacity", 21, 0, (nb - 2,)), ["parity2f"])
+        culled = np.isnan(kept["parity2f"].means).any(axis=1)
+        assert np.flatnonzero(culled).tolist() == dropped, precision
+        assert not np.isnan(kept["faulted"].means).any()
+        low = injected_models(eng, model, Site("opacity", 21, 0, (0,)), ["parity2f"])["parity2f"]
+        assert not np.isnan(low.means).any() and low.opacity[21] != model.quantized(precision).opacity[21]

@@ -98,8 +98,8 @@ def injected_models(eng, model: Model, site, defenses) -> dict[str, Model]:
     for d in defenses:
         if d == "none":
             continue
-        prims, rows, masks = eng.variant_bits([site], d)
-        out[d] = with_rows(prims, eng.drawn_rows(rows, masks[0]))
+        prims, rows = eng.defended_rows([site], d)  # a frame check's dropped pair partner included
+        out[d] = with_rows(prims, eng.drawn_rows(rows, eng.masks.get(d, 0)))
     return out
 
 

@@ -295,6 +295,13 @@ class Engine:
         rows = d.after_frame(clean, cur, self.precision, self.degree, prims) if after_repair else None
         return self.xor_rows(prims, clean, self.read_through(prims, clean, cur, defense) if rows is None else rows)
 
+    def defended_rows(self, sites: list[Site], defense: str) -> tuple[np.ndarray, np.ndarray]:
+        """(primitives, their stored bits as `defense` reads them with every site applied): what
+        the renderer reads of the model, the clean pair partners a frame check drops included
+        (the in-pipeline guard's clamp is drawn_rows')."""
+        prims, clean, cur = self.with_partners(*self._faulted(list(sites)), defense)
+        return prims, self.read_through(prims, clean, cur, defense)
+
     def with_partners(self, prims, clean: np.ndarray, cur: np.ndarray, defense: str):
         """(prims, clean, cur) with the primitives the defense's twin needs beside them
         (Defense.partners: a per-word frame code's pair partners, clean), in primitive order."""
