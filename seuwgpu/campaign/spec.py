@@ -233,7 +233,7 @@ def _upsets(t: dict, cls, where: str, size) -> dict:
     if out["regions"]:  # the incremental path draws one primitive a variant (faults/engine.py evaluate_frame)
         for d in out["defenses"]:
             for p in precisions:
-                if REGISTRY[d].partners(np.zeros(1, np.int64), 2, p).size > 1:
+                if REGISTRY[d].drops_partners(p):
                     raise SpecError(
                         f"{where}.regions under {d} at {p}: a detected upset drops its word partner too, which "
                         "the contamination measurement does not draw; use fp32 or another defense"

@@ -116,9 +116,14 @@ class Defense:
         from `clean[i]` to `corrupt[i]` (the batched evaluator's rows; a primitive may repeat)."""
         return self.read(clean, corrupt, precision, degree, box, prims, state)
 
+    def drops_partners(self, precision: str) -> bool:
+        """A detected upset's frame also drops a clean primitive beside the hit one (a per-word
+        frame code's pair partner at this precision: FrameParity), which one-primitive variants
+        (the incremental evaluator, worstcase, sort-first regions) do not draw."""
+        return False
+
     def drops_partner(self, clean, corrupt, precision: str, degree: int) -> np.ndarray:
-        """[M] bool: of such variants, those whose frame also drops a clean primitive beside the
-        hit one (a per-word frame code's pair partner: FrameParity)."""
+        """[M] bool: of such variants, those whose frame also drops their partner (drops_partners)."""
         return np.zeros(np.asarray(corrupt).shape[0], bool)
 
     def after_frame(self, clean, corrupt, precision: str, degree: int, prims=None):
@@ -380,9 +385,13 @@ class FrameParity(Defense):
         variants' code changes together)."""
         return cull(corrupt, self._variant_hit(clean, corrupt, precision, degree), precision)
 
+    def drops_partners(self, precision: str) -> bool:
+        return self.code.pairs(precision)
+
     def drops_partner(self, clean, corrupt, precision: str, degree: int) -> np.ndarray:
-        hit = self._variant_hit(clean, corrupt, precision, degree)
-        return hit & self.code.pairs(precision)
+        if not self.drops_partners(precision):
+            return np.zeros(np.asarray(corrupt).shape[0], bool)
+        return self._variant_hit(clean, corrupt, precision, degree)
 
     def _variant_hit(self, clean, corrupt, precision, degree) -> np.ndarray:
         code = self.code.primitive_code

@@ -643,7 +643,7 @@ class Engine:
             dfn.check_defense(d)
             bits, gm = self.variant_rows(prims, clean, comps, corrupt_b, d)
             pair = self.partner_drops(prims, clean, comps, corrupt_b, d)
-            if pair.any() and regions:
+            if regions and dfn.get(d).drops_partners(self.precision):
                 raise ValueError(
                     f"regions (sort-first contamination) under {d} at {self.precision}: a detected upset drops "
                     "its word partner too, which the incremental path does not draw; use fp32 or another defense"

@@ -108,7 +108,7 @@ def worst_case(
 ) -> WorstCase:
     """The single-bit flip of the space with the largest footprint under `defense` (see module);
     `fields` None: every field the model stores."""
-    if dfn.get(defense).partners(np.zeros(1, np.int64), 2, engine.precision).size > 1:
+    if dfn.get(defense).drops_partners(engine.precision):
         raise ValueError(
             f"worstcase under {defense} at {engine.precision}: a detected flip drops its word partner too, "
             "which the incremental search does not draw; use fp32 or another defense"
