@@ -334,3 +334,39 @@ def test_the_run_identity_names_files_by_content_and_the_resolved_up(tmp_path):
     for path in (tmp_path / "m.ply", tmp_path / "other" / "m.ply"):
         run = run_identity("state", load_source(path=path), views, model=path, **common)
         assert run["model"] == sha and run["scene"] is None and run["n"] is None and run["sh-degree"] is None
+
+
+def test_an_interrupted_visible_damage_measurement_resumes(tmp_path, monkeypatch, capsys):
+    """`defenses --visible N --out RUN` keeps its frames as it goes: interrupted in the unguarded
+    arm, then in the parity2f arm, it resumes each time after the frames it holds, renders only
+    the missing ones, and keeps the per-upset records an uninterrupted run keeps (the partial
+    file removed)."""
+    import pandas as pd
+
+    from seuwgpu.apps.cli import main
+    from seuwgpu.campaign import partial
+
+    monkeypatch.setattr(partial, "SAVE_EVERY_S", 0.0)
+    monkeypatch.setattr(partial, "WRITE_SHARE", 0)
+    argv = ["defenses", "--scene", "blocks", "--n", "100", "--size", "16x16", "--no-time", "--json"]
+    argv += ["--visible", "3", "--window", "4", "--check-every", "2", "--visible-defenses", "none", "parity2f"]
+    argv += ["--out", str(tmp_path)]
+    part = tmp_path / "defenses-visible.partial.parquet"
+    with monkeypatch.context() as patch:
+        calls = run_counting(patch, Engine, "measure_current")
+        assert main(argv) == 0 and not part.exists()
+    assert len(calls) == 24  # 3 upsets x 4 frames x 2 arms
+    (kept,) = (tmp_path / "visible").glob("*.parquet")
+    want = pd.read_parquet(kept).drop(columns="date")
+    kept.unlink()
+    for stop, done in ((5, 4), (12, 15)):  # the 5th frame of the first arm, the 3rd of the second
+        with monkeypatch.context() as patch:
+            run_counting(patch, Engine, "measure_current", stop)
+            assert main(argv) == 130
+        assert f"the {done} records measured so far are in {part}" in capsys.readouterr().err
+        assert len(pd.read_parquet(part)) == done and not kept.exists()
+    with monkeypatch.context() as patch:
+        calls = run_counting(patch, Engine, "measure_current")
+        assert main(argv) == 0
+    assert len(calls) == 24 - 15 and not part.exists()
+    pd.testing.assert_frame_equal(pd.read_parquet(kept).drop(columns="date"), want)

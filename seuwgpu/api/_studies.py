@@ -136,6 +136,8 @@ def defense_costs(
     seed: int = 0,
     fault: str = "bit",
     out: str | Path | None = None,
+    progress: Callable[[], None] | None = None,
+    rows: list | None = None,
 ) -> list[dict]:
     """Every defense with the bytes it holds on the device (and as a fraction of the model's), its
     time per frame (a fraction of the undefended view's on this device, measured as a schedule:
@@ -149,7 +151,10 @@ def defense_costs(
     catastrophic_frames_per_upset, catastrophic_lo, catastrophic_hi, sdc_frames_per_upset,
     residue_frames_per_upset, of_none, of_none_lo, of_none_hi, visible_basis, time_basis,
     description}]. `out`: a run folder that keeps the `visible` measurement's per-upset records
-    for its report (campaign/visible.py save_counts)."""
+    for its report (campaign/visible.py save_counts). `progress()` is called after each frame of
+    the `visible` measurement; `rows`: a list its frame records are appended to as they are
+    measured (an interrupted measurement's records first: it goes on after them; `seuwgpu defenses
+    --visible N --out RUN` resumes so, as storm does)."""
     from seuwgpu.faults.costs import defense_costs as costs
 
     checks.integer(repeats, "repeats", 1)
@@ -163,7 +168,7 @@ def defense_costs(
         raise InputError("out keeps the records of the visible-damage measurement: give visible = N upsets too")
     names = defense_names(visible_defenses) if visible_defenses is not None else list(DEFENSES)
     model = model_from(scene)
-    rows = costs(model, view, encoding.check_precision(precision), repeats, time_it=time_it, check_every=check_every)
+    table = costs(model, view, encoding.check_precision(precision), repeats, time_it=time_it, check_every=check_every)
     keys = ("catastrophic_frames_per_upset", "catastrophic_lo", "catastrophic_hi", "sdc_frames_per_upset")
     keys += ("residue_frames_per_upset", "of_none", "of_none_lo", "of_none_hi")
     got, basis = {}, "not measured (--visible N)"
@@ -171,7 +176,9 @@ def defense_costs(
         from seuwgpu.campaign.visible import visible_damage
 
         eng = engine_for(scene, [view], precision, "strict", "measure visible damage")
-        summary, recs = visible_damage(eng, names, check_every, visible, window, fault=fault, seed=seed)
+        summary, recs = visible_damage(
+            eng, names, check_every, visible, window, fault=fault, seed=seed, progress=progress, rows=rows
+        )
         got = {r["defense"]: r for r in summary.to_dict("records")}
         w = int(summary["window"].iloc[0])
         if out is not None:
@@ -180,12 +187,12 @@ def defense_costs(
             f"measured: {visible} upsets ({fault} faults of the dangerous cells), one per window of {w} frames "
             f"reloaded at its start, landing at a uniform frame; {view.width}x{view.height}, seed {seed}"
         )
-    for r in rows:
+    for r in table:
         m = got.get(r["name"])
         for k in keys:
             r[k] = float(m[k]) if m is not None else float("nan")
         r["visible_basis"] = basis if m is not None else "not measured"
-    return rows
+    return table
 
 
 def _save_visible(out, eng, recs, upsets: int, window: int, check_every: int, fault: str, seed: int):

@@ -56,6 +56,16 @@ def plan_upsets(engine, upsets: int, window: int, cells=DANGEROUS_CELLS, fault: 
     return plan, at
 
 
+def whole_window(window: int, check_every: int) -> int:
+    """The window rounded up to whole schedules, so that every window sees the same check phases."""
+    return -(-window // check_every) * check_every
+
+
+def visible_frames(upsets: int, window: int, check_every: int, arms: int) -> int:
+    """The frames a visible-damage measurement renders (its progress bar's total)."""
+    return upsets * whole_window(window, check_every) * arms
+
+
 def frames_interval(x: np.ndarray, rng, window: int) -> tuple[float, float]:
     """95% interval of the mean frames per upset: a bootstrap over the upsets; with no event at
     all (the bootstrap would say [0, 0]) the exact binomial bound on the share of upsets that show
@@ -78,21 +88,27 @@ def visible_damage(
     fault: str = "bit",
     seed: int = 0,
     progress=None,
+    rows=None,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(summary: one row per defense, the storm's frame records). Summary columns: defense,
     check_every (0: not a check defense), window, upsets, catastrophic_frames_per_upset [lo, hi],
     sdc_frames_per_upset [lo, hi], residue_frames_per_upset (catastrophic frames after the first
     check that follows the upset), of_none [lo, hi] (catastrophic frames over the unguarded arm's;
     NaN without a "none" arm or when it shows none). `upset_counts(recs, ...)` are the records the
-    summary is made of (what `seuwgpu defenses --visible N --out RUN` keeps for the report)."""
+    summary is made of (what `seuwgpu defenses --visible N --out RUN` keeps for the report).
+    `progress()` is called after each frame; `rows`: the storm's record list (campaign/storm.py:
+    an interrupted measurement's records first, and it goes on after them; visible_frames of them
+    in all)."""
     if upsets < 1 or window < 1 or check_every < 1:
         raise ValueError(
             f"visible damage needs upsets, window and check_every >= 1 (got {upsets}, {window}, {check_every})"
         )
-    window = -(-window // check_every) * check_every  # whole schedules: every window sees the same phases
+    window = whole_window(window, check_every)
     plan, at = plan_upsets(engine, upsets, window, cells, fault, seed)
     frames = upsets * window
-    recs = storm(engine, 1, frames, window, tuple(defenses), seed, progress, check_every=check_every, upsets=plan)
+    recs = storm(
+        engine, 1, frames, window, tuple(defenses), seed, progress, rows=rows, check_every=check_every, upsets=plan
+    )
     recs["upset"] = recs["frame"] // window
     f_in = recs["frame"] % window
     landed = f_in >= at[recs["upset"].to_numpy()]

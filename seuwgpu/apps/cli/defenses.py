@@ -53,7 +53,8 @@ def resumable(args, src, cams, name: str, records, unit: str, total: int, **opti
         size=view_size(args),
         scale=args.scale,
         precision=args.precision,
-        profile=args.profile,
+        profile=getattr(args, "profile", "strict"),  # `defenses` has none: strict
+        **({"lod": args.lod} if getattr(args, "lod", None) is not None else {}),  # older runs' keys kept
         **options,
     )
     with resumed(args.out, name, run, records, unit, total) as (rows, progress):
@@ -102,7 +103,9 @@ def defenses_arguments(s: argparse.ArgumentParser):
         "--out",
         type=Path,
         metavar="RUN",
-        help="keep the --visible records in the run folder RUN (RUN/visible/), whose report then shows them",
+        help="keep the --visible records in the run folder RUN (RUN/visible/), whose report then shows them; "
+        "an interrupted --visible measurement keeps its frames in RUN/defenses-visible.partial.parquet: re-run "
+        "the same command to resume it",
     )
 
 
@@ -115,20 +118,23 @@ def cmd_defenses(args):
         args.scene = "leica-sofort"
     src = load_source(args)
     cam = load_cams(args, src, one_size=False)[0]  # one view: any size
-    rows = api.defense_costs(
-        src,
-        cam,
-        precision=args.precision,
-        repeats=args.repeats,
-        time_it=not args.no_time,
-        check_every=args.check_every,
-        visible=args.visible,
-        window=args.window,
-        visible_defenses=args.visible_defenses,
-        seed=args.seed,
-        fault=args.fault,
-        out=args.out,
-    )
+    with visible_records(args, src, cam) as (frames, progress):
+        rows = api.defense_costs(
+            src,
+            cam,
+            precision=args.precision,
+            repeats=args.repeats,
+            time_it=not args.no_time,
+            check_every=args.check_every,
+            visible=args.visible,
+            window=args.window,
+            visible_defenses=args.visible_defenses,
+            seed=args.seed,
+            fault=args.fault,
+            out=args.out,
+            progress=progress,
+            rows=frames,
+        )
     if args.json:
         import json
 
@@ -175,6 +181,29 @@ def cmd_defenses(args):
     for r in rows:
         console.print(f"[bold]{r['name']}[/bold]: {r['description']}", highlight=False)
     return 0
+
+
+@contextlib.contextmanager
+def visible_records(args, src, cam):
+    """(frame records, progress) of the --visible measurement: with --out, resumable as storm is
+    (RUN/defenses-visible.partial.parquet, kept when the run stops early); without, a bar alone."""
+    from seuwgpu.campaign.progress import ProgressBar
+    from seuwgpu.campaign.storm import storm_records
+    from seuwgpu.campaign.visible import visible_frames
+
+    if not args.visible:
+        yield None, None
+        return
+    arms = args.visible_defenses or list(DEFENSE_NAMES)
+    total = visible_frames(args.visible, args.window, args.check_every, len(arms))
+    if args.out is None:
+        with ProgressBar("frames", total) as bar:
+            yield None, bar.advance
+        return
+    options = {"visible": args.visible, "window": args.window, "check-every": args.check_every}
+    options.update({"visible-defenses": arms, "fault": args.fault})
+    with resumable(args, src, [cam], "defenses-visible", storm_records, "frames", total, **options) as got:
+        yield got
 
 
 def _seen(r) -> str:
