@@ -84,6 +84,7 @@ def test_a_flip_in_the_device_buffer_is_dropped_from_the_frame(defense, precisio
         with pytest.raises(ValueError, match="keeps no flags"):
             fc.flags()
     assert fc.count() >= (2 if defense == "parity2f" else 1)  # parity2f: the sheet, in both views
+    assert fc.frame_count() == fc.count()  # carried back with the frame's stats
     # the twin: the corrupted model with the detected primitives culled (one no view draws is
     # culled either way), rendered without the check
     fc.off()
@@ -92,6 +93,33 @@ def test_a_flip_in_the_device_buffer_is_dropped_from_the_frame(defense, precisio
         r.gpu.write(r.chunks[c], words)
     np.testing.assert_array_equal(got, r.render())
     assert not np.array_equal(got, want_clean)
+
+
+def test_the_detection_count_rides_on_the_frames_own_read(monkeypatch):
+    """A frame checked inside the projection reads from the device as often as a plain frame
+    (once: its stats), its detection count carried in that read: 0 for the clean model, and after
+    an upset what a read of its own gives. Before a checked frame there is no carried count (an
+    error, not a made-up 0); turned off, the frame carries nothing."""
+    model = random_model(120, seed=2)
+    r = Renderer(model, scene_cameras("spheres", 1, 32, 32), "fp32", chunk_prims=64)
+    clean = encoding.to_bits(model.flat(), "fp32")
+    reads = []
+    real = r.gpu.read
+    monkeypatch.setattr(r.gpu, "read", lambda *a, **k: reads.append(1) or real(*a, **k))
+    r.run()
+    plain = len(reads)
+    fc = FrameCheck(r, clean, "parity2f")
+    with pytest.raises(RuntimeError, match="no frame was rendered"):
+        fc.frame_count()
+    reads.clear()
+    r.run()
+    assert len(reads) == plain == 1 and fc.frame_count() == 0
+    _flip(r, int(np.argmax(model.opacity)), 3, 30)
+    r.run()
+    assert fc.frame_count() == fc.count() > 0
+    fc.off()
+    r.run()
+    assert r.carried.size == 0
 
 
 def _repairing(defense, precision):

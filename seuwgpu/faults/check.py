@@ -159,8 +159,10 @@ class FrameCheck:
     means set to NaN (codes.cull), the failing ones those of FrameParity.hit.
 
     Side data: the codes, packed (side.pack_side), and the output as Checker's (a count kept twice,
-    then, with flags, a flag bit per primitive). `count()` reads the count (4 bytes), `flags()` the
-    flag bits, `clear()` zeroes them after a repair."""
+    then, with flags, a flag bit per primitive). `frame_count()` is the count as the last frame
+    left it, read back with that frame's own stats (Renderer.carry_back: no read of its own, what
+    decides a repair every frame); `count()` reads it now, `flags()` the flag bits, `clear()`
+    zeroes them after a repair."""
 
     def __init__(self, renderer, clean_rows: np.ndarray, defense: str = "parity4f"):
         d = dfn.get(defense)
@@ -186,16 +188,28 @@ class FrameCheck:
         self.renderer.projection.set_frame_check(
             self.side, self.out.buffer, self.cover, code.ways, code.diagonal, self.defense.flags, self.per_word
         )
+        assert CheckOutput.DETECTED_COPY == CheckOutput.DETECTED + 1  # the two words of the count, carried
+        self.renderer.carry_back((self.out.buffer, 4 * CheckOutput.DETECTED, 2))
 
     def off(self):
         """Back to today's projection pipeline."""
         self.renderer.projection.set_frame_check(None)
+        self.renderer.carry_back(None)
 
     def clear(self):
         self.out.clear()
 
     def count(self) -> int:
         return CheckOutput.count(self.out.header(CheckOutput.DETECTED_COPY + 1))
+
+    def frame_count(self) -> int:
+        """The detections as the last frame rendered with this check left them (no read)."""
+        carried = self.renderer.carried
+        if carried.size != 2:
+            raise RuntimeError("no frame was rendered with this check on since it was turned on")
+        head = np.zeros(CheckOutput.DETECTED_COPY + 1, np.uint32)
+        head[[CheckOutput.DETECTED, CheckOutput.DETECTED_COPY]] = carried
+        return CheckOutput.count(head)
 
     def flags(self) -> np.ndarray:
         """[n] bool: the primitives the frames since the last clear() flagged."""

@@ -176,10 +176,10 @@ def _times(model, camera, precision, repeats, gpu, check_every) -> tuple[dict, s
         fc = FrameCheck(r, clean, d.name)
         fc.off()
 
-        def checked_frame(fc=fc):  # a frame and the 4-byte read of its detections (repair or not)
+        def checked_frame(fc=fc):  # a frame and its detections (repair or not), carried in its read
             fc.on()
             r.run()
-            fc.count()
+            fc.frame_count()
             fc.off()
 
         res = schedule_time(lambda: view(0), None, check_every, repeats, guarded=checked_frame)

@@ -34,11 +34,13 @@ from seuwgpu.render.project import unpack_rects
 from seuwgpu.render.stage import Output, Stage
 
 F = np.float32
+CARRIED = 2  # words of other buffers the frame's read of `stats` carries back (Renderer.carry_back)
 
 
 class Binning:
     """Tile binning of `n` primitives: owns the counts and offsets, the intersection totals
-    (`stats`, u32 [K + 1]: view v's at v, a batched list's at K), the per-tile `ranges` (u32
+    (`stats`, u32 [K + 1 + CARRIED]: view v's at v, a batched list's at K, then the words the
+    renderer carries back with them, Renderer.carry_back), the per-tile `ranges` (u32
     [n_tiles, 2], K times that when batched), the intersection lists (`isect_tiles`,
     `isect_prims`, `isect_box`, `capacity` each) and the `Binning` parameters (`params`: slot v
     for view v alone, slot K for the K views in one list).
@@ -80,7 +82,7 @@ class Binning:
         lists = self.k if batched else 1  # views binned in one list
         self._set_entries(self.n * lists)
         self.params = Uniforms(g, self.struct, self.k + 1, "bin.params")
-        self.stats = g.buffer(4 * (self.k + 1), STORAGE, "bin.stats")
+        self.stats = g.buffer(4 * (self.k + 1 + CARRIED), STORAGE, "bin.stats")
         self.ranges = g.buffer(8 * self.n_tiles * lists, STORAGE, "bin.ranges")
 
     @property

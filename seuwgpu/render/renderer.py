@@ -39,7 +39,7 @@ from seuwgpu.model import encoding
 from seuwgpu.model.budget import check_frames, check_render
 from seuwgpu.model.cameras import Camera
 from seuwgpu.model.fields import Model, StoredLayout
-from seuwgpu.render.bin import Binning
+from seuwgpu.render.bin import CARRIED, Binning
 from seuwgpu.render.composite import Compositing, check_shape, default_chunk, default_shape
 from seuwgpu.render.pipeline import KEPT, PIPELINE
 from seuwgpu.render.project import Projection, check_profile
@@ -418,16 +418,37 @@ class Renderer:
         self.gpu.submit(encoder)
         return self.gpu.device.create_command_encoder()
 
+    # (buffer, byte offset, words) of another buffer copied at the end of every frame into the
+    # stats the frame reads back anyway (at most bin.CARRIED words), or None; `carried` holds them
+    # as the last frame left them. A frame check's detection count rides so (faults/check.py): a
+    # check inside the frame adds no read, and no wait, of its own.
+    _carry = None
+    carried = np.zeros(0, np.uint32)
+
+    def carry_back(self, source: tuple | None):
+        """Read `source` ((buffer, byte offset, words), words <= bin.CARRIED) back with every
+        frame's stats from now on (None: stop)."""
+        if source is not None and not 0 < int(source[2]) <= CARRIED:
+            raise ValueError(f"a frame carries back 1 to {CARRIED} words, not {source[2]}")
+        self._carry = source
+        self.carried = np.zeros(0, np.uint32)  # until a frame carries them
+
     def run(self) -> np.ndarray:
         """Encode, submit and wait for the K views (growing the intersection buffers and re-running
         as needed); returns the per-view intersection totals."""
         while True:
-            for views in self.submission_groups():
+            groups = self.submission_groups()
+            for i, views in enumerate(groups):
                 enc = self.gpu.device.create_command_encoder()
                 enc = self.encode(enc, views, self._submit_and_renew if self.split_submissions else None)
+                if self._carry is not None and i == len(groups) - 1:
+                    buf, offset, words = self._carry
+                    enc.copy_buffer_to_buffer(buf, int(offset), self.binning.stats, 4 * (self.k + 1), 4 * int(words))
                 self.gpu.submit(enc)
             stats = self.gpu.read(self.binning.stats, np.uint32)
             totals = stats[: self.k]
+            carried = 0 if self._carry is None else int(self._carry[2])
+            self.carried = stats[self.k + 1 : self.k + 1 + carried]
             # batched: the K views' pairs share one list (their sum at the batched slot)
             need = int(stats[self.binning.batch_slot] if self.batched else totals.max())
             if need <= self.capacity:
