@@ -466,3 +466,23 @@ def test_dose_numbers_name_their_model_when_several():
         assert num[f"dose_kmax_{scene}"] == 10
     one = dose_section(df[df["scene"] == "a"], [], {"results": {}, "skipped": []}).numbers
     assert one["dose_kmax"] == 10 and one["dose_nonfinite_at_kmax_none_pct"] == pytest.approx(30)
+
+
+def test_a_folder_of_visible_damage_records_alone_is_refused_saying_what_it_holds(tmp_path, capsys):
+    """`defenses --visible N --out RUN` into a fresh folder keeps records a report shows beside a
+    campaign's: reporting the folder alone says so, instead of only that part files are missing."""
+    import pandas as pd
+
+    from seuwgpu.apps.cli import main
+    from seuwgpu.campaign import store
+
+    run = tmp_path / "run"
+    path = store.visible_path(run, "m")
+    path.parent.mkdir(parents=True)
+    pd.DataFrame({"defense": ["none"], "catastrophic_frames": [1]}).to_parquet(path)
+    assert main(["report", str(run), "--out", str(tmp_path / "rep")]) == 2
+    err = capsys.readouterr().err
+    assert "no records/part-*.parquet (it holds visible-damage records alone" in err
+    (tmp_path / "empty").mkdir()
+    assert main(["report", str(tmp_path / "empty"), "--out", str(tmp_path / "rep")]) == 2
+    assert "visible-damage" not in capsys.readouterr().err

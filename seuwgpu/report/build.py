@@ -161,7 +161,14 @@ def load_runs(
         manifest["_run"] = run.name
         manifest["_run_dir"] = str(p)
         if not parts:
-            raise FileNotFoundError(f"{p}: no records/part-*.parquet")
+            visible = any(store.visible_path(p, "*").parent.glob("*.parquet"))
+            hint = (
+                " (it holds visible-damage records alone, `defenses --visible N --out`, which a campaign's "
+                "report shows beside its records: run a campaign into it, `seuwgpu campaign SPEC --out`)"
+                if visible
+                else ""
+            )
+            raise FileNotFoundError(f"{p}: no records/part-*.parquet{hint}")
         runs.append((run.name, parts))
         manifests.append(manifest)
     thresholds = thresholds_of(manifests)
