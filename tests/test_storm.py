@@ -2,6 +2,7 @@
 scrubbing restarts the accumulation, reloading defenses keep every frame clean, memory restored."""
 
 import numpy as np
+import pytest
 
 from seuwgpu.campaign.storm import storm
 from seuwgpu.faults import schedule
@@ -345,6 +346,7 @@ def test_an_interrupted_visible_damage_measurement_resumes(tmp_path, monkeypatch
 
     from seuwgpu.apps.cli import main
     from seuwgpu.campaign import partial
+    from seuwgpu.campaign import storm as storm_module
 
     monkeypatch.setattr(partial, "SAVE_EVERY_S", 0.0)
     monkeypatch.setattr(partial, "WRITE_SHARE", 0)
@@ -352,15 +354,13 @@ def test_an_interrupted_visible_damage_measurement_resumes(tmp_path, monkeypatch
     argv += ["--visible", "3", "--window", "4", "--check-every", "2", "--visible-defenses", "none", "parity2f"]
     argv += ["--out", str(tmp_path)]
     part = tmp_path / "defenses-visible.partial.parquet"
-    with monkeypatch.context() as patch:
-        calls = run_counting(patch, Engine, "measure_current")
-        assert main(argv) == 0 and not part.exists()
-    assert len(calls) == 24  # 3 upsets x 4 frames x 2 arms
+    assert main(argv) == 0 and not part.exists()
     (kept,) = (tmp_path / "visible").glob("*.parquet")
     want = pd.read_parquet(kept).drop(columns="date")
     kept.unlink()
     for stop, done in ((5, 4), (12, 15)):  # the 5th frame of the first arm, the 3rd of the second
         with monkeypatch.context() as patch:
+            patch.setattr(storm_module, "DRAWN_KEPT", 0)  # a render a frame: the stop's frame known
             run_counting(patch, Engine, "measure_current", stop)
             assert main(argv) == 130
         assert f"the {done} records measured so far are in {part}" in capsys.readouterr().err
@@ -368,5 +368,28 @@ def test_an_interrupted_visible_damage_measurement_resumes(tmp_path, monkeypatch
     with monkeypatch.context() as patch:
         calls = run_counting(patch, Engine, "measure_current")
         assert main(argv) == 0
-    assert len(calls) == 24 - 15 and not part.exists()
+    assert 0 < len(calls) <= 24 - 15 and not part.exists()  # the missing frames at most
     pd.testing.assert_frame_equal(pd.read_parquet(kept).drop(columns="date"), want)
+
+
+def test_frames_that_draw_the_same_state_take_its_metrics_and_equal_rendering_each():
+    """A visible-damage measurement (one upset a window, held until the reload) renders only the
+    frames whose drawn state is new: its frame records equal those of rendering every frame
+    (DRAWN_KEPT = 0), with far fewer renders."""
+    import pandas as pd
+
+    from seuwgpu.campaign import storm as storm_module
+    from seuwgpu.campaign.visible import visible_damage
+
+    eng = Engine(make_scene("blocks", n=100), scene_cameras("blocks", 1, 16, 16))
+    runs = {}
+    for kept in (storm_module.DRAWN_KEPT, 0):
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(storm_module, "DRAWN_KEPT", kept)
+            calls = run_counting(patch, Engine, "measure_current")
+            _, recs = visible_damage(eng, ("none", "parity2f", "guard"), 2, upsets=6, window=8, seed=3)
+        runs[kept] = (recs, len(calls))
+    (memo, memo_calls), (every, every_calls) = runs[storm_module.DRAWN_KEPT], runs[0]
+    assert every_calls == 6 * 8 * 3 and memo_calls < every_calls / 2
+    pd.testing.assert_frame_equal(memo, every)
+    assert memo["catastrophic"].any()  # the upsets drew something
