@@ -360,7 +360,7 @@ def test_an_interrupted_visible_damage_measurement_resumes(tmp_path, monkeypatch
     kept.unlink()
     for stop, done in ((5, 4), (12, 15)):  # the 5th frame of the first arm, the 3rd of the second
         with monkeypatch.context() as patch:
-            patch.setattr(storm_module, "DRAWN_KEPT", 0)  # a render a frame: the stop's frame known
+            patch.setattr(storm_module, "REUSE_DRAWN", False)  # a render a frame: the stop's frame known
             run_counting(patch, Engine, "measure_current", stop)
             assert main(argv) == 130
         assert f"the {done} records measured so far are in {part}" in capsys.readouterr().err
@@ -375,7 +375,7 @@ def test_an_interrupted_visible_damage_measurement_resumes(tmp_path, monkeypatch
 def test_frames_that_draw_the_same_state_take_its_metrics_and_equal_rendering_each():
     """A visible-damage measurement (one upset a window, held until the reload) renders only the
     frames whose drawn state is new: its frame records equal those of rendering every frame
-    (DRAWN_KEPT = 0), with far fewer renders."""
+    (REUSE_DRAWN off), with far fewer renders."""
     import pandas as pd
 
     from seuwgpu.campaign import storm as storm_module
@@ -383,13 +383,25 @@ def test_frames_that_draw_the_same_state_take_its_metrics_and_equal_rendering_ea
 
     eng = Engine(make_scene("blocks", n=100), scene_cameras("blocks", 1, 16, 16))
     runs = {}
-    for kept in (storm_module.DRAWN_KEPT, 0):
+    for kept in (True, False):
         with pytest.MonkeyPatch.context() as patch:
-            patch.setattr(storm_module, "DRAWN_KEPT", kept)
+            patch.setattr(storm_module, "REUSE_DRAWN", kept)
             calls = run_counting(patch, Engine, "measure_current")
             _, recs = visible_damage(eng, ("none", "parity2f", "guard"), 2, upsets=6, window=8, seed=3)
         runs[kept] = (recs, len(calls))
-    (memo, memo_calls), (every, every_calls) = runs[storm_module.DRAWN_KEPT], runs[0]
+    (memo, memo_calls), (every, every_calls) = runs[True], runs[False]
     assert every_calls == 6 * 8 * 3 and memo_calls < every_calls / 2
     pd.testing.assert_frame_equal(memo, every)
     assert memo["catastrophic"].any()  # the upsets drew something
+    # one primitive upset again with other bits, then flipped back: each frame draws anew
+    from seuwgpu.faults.sites import Site
+
+    scale = [Site("log_scales", 5, 0, (b,)) for b in (30, 29, 30)]
+    plan = [[scale[0]], [], [scale[1]], [], [scale[2]], [Site("log_scales", 5, 0, (29,))], []]
+    runs = {}
+    for kept in (True, False):
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(storm_module, "REUSE_DRAWN", kept)
+            runs[kept] = storm(eng, 1, len(plan), 0, ("none",), upsets=plan)
+    pd.testing.assert_frame_equal(runs[True], runs[False])
+    assert runs[True]["footprint"].iloc[-1] == 0 and len(set(runs[True]["footprint"].iloc[:5])) > 1

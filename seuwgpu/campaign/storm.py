@@ -14,9 +14,9 @@ until the scrub (two in an ECC word are no longer correctable). A check defense 
 every `check_every`-th frame (frames 0, S, 2S, ...: its check schedule); between checks the
 frames are drawn from the memory as it is (its pipeline clamp, scalebound's, still acts), so an
 upset is seen for its exposure (schedule.exposure). The frame is rendered and measured against
-the clean render (all K views); a frame that draws exactly what an earlier frame of its arm drew
-(the same stored bits through the same views: the renderer is deterministic) takes that frame's
-metrics instead of rendering it again (DRAWN_KEPT), which makes a `defenses --visible` window,
+the clean render (all K views); a frame that draws exactly what its arm's clean frame or the frame
+before it drew (the same stored bits through the same views: the renderer is deterministic) takes that frame's
+metrics instead of rendering it again (REUSE_DRAWN), which makes a `defenses --visible` window,
 one state from its upset to its reload, cost a few renders instead of one a frame. Every arm sees
 the same upset sequence (paired); `upsets` gives a hand-made one (a list of frames, each a list of
 sites).
@@ -42,9 +42,9 @@ from seuwgpu.model.budget import HOST_SHARE, available_host_bytes, available_tex
 
 SITE_BYTES = 320  # host bytes of one drawn upset (a Site), measured with tracemalloc
 ROW_BYTES = 700  # host bytes of one record (a dict) before the DataFrame is made
-# frames of an arm whose metrics are kept to stand for a later frame that draws the same (0: every
-# frame rendered): a window of `defenses --visible` draws one state from its upset to its reload
-DRAWN_KEPT = 64
+# a frame that draws what the clean frame or the frame before it drew takes its metrics (False:
+# every frame rendered): a window of `defenses --visible` draws one state from its upset to its reload
+REUSE_DRAWN = True
 
 
 def check_storm(k: int, frames: int, arms: int):
@@ -108,7 +108,7 @@ def storm(
         arm = dfn.get(d)
         if (a + 1) * frames <= done:
             continue  # every frame of this arm measured before the storm was resumed
-        drawn: dict[bytes, dict] = {}  # the metrics of the frames drawn so far, by what they drew
+        clean_frame = last_frame = None  # (what it drew, its metrics): the clean frame's, the last one's
         memory: dict[int, np.ndarray] = {}  # primitive -> its stored bits now (absent: clean)
         for f in range(frames):
             if scrub_every and f and f % scrub_every == 0:
@@ -134,11 +134,15 @@ def storm(
                 memory = {int(p): r.copy() for p, r in zip(prims, after)}
             if a * frames + f < done:
                 continue
-            # a frame that draws what an earlier frame of this arm drew (the same stored bits
-            # through the same views: between an upset and the reload, or a clean frame) is that
-            # frame, bit for bit: its metrics are taken, not rendered again
-            key = prims.tobytes() + b"|" + np.ascontiguousarray(seen).tobytes()
-            m = drawn.get(key) if DRAWN_KEPT else None
+            # a frame that draws what the clean frame or the frame before it drew (the same stored
+            # bits through the same views: from an upset to the reload, or clean) is that frame, bit
+            # for bit: its metrics are taken, not rendered again
+            changed = (seen != clean).any(axis=1) if prims.size else np.zeros(0, bool)
+            key = prims[changed].tobytes() + b"|" + np.ascontiguousarray(seen[changed]).tobytes()
+            m = None
+            for known in (clean_frame, last_frame) if REUSE_DRAWN else ():
+                if known is not None and known[0] == key:
+                    m = known[1]
             if m is None:
                 xors = engine.xor_rows(prims, clean, seen)
                 engine.flips.apply(xors)
@@ -146,10 +150,10 @@ def storm(
                     m = engine.measure_current(d)
                 finally:
                     engine.flips.apply(xors)
-                if len(drawn) >= DRAWN_KEPT:
-                    drawn.clear()
-                if DRAWN_KEPT:
-                    drawn[key] = m
+            if changed.any():
+                last_frame = (key, m)
+            else:
+                clean_frame = (key, m)
             corrupted = int((now != clean).any(axis=1).sum()) if prims.size else 0
             rows.append(
                 {
