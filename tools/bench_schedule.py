@@ -12,7 +12,8 @@ wall clock there).
 N interleaved rounds of one frame per configuration on a renderer with timestamp queries around
 every pass (tools/bench_stages.py), the projection's time with each check minus the plain one's in
 the same round (median, 95% interval), as shares of the plain frame: far less noisy than the whole
-frame's wall clock on a shared host.
+frame's wall clock on a shared host; beside it the device's whole frame by the same queries (the
+first pass's start to the last pass's end: the frame without the host's recording and waiting).
 
     python tools/bench_schedule.py [--scene leica-sofort | --model FILE] [--size 256x256] [--every 10] [--rounds 41]
         [--defenses parity4r parity4f parity2f]
@@ -104,7 +105,7 @@ def main(argv=None) -> int:
 def stage_decomposition(model, cam, clean, defenses, rounds: int, frame_s: float):
     """The projection stage's time with each frame check minus without, by timestamp queries,
     interleaved round by round, and the detection count's read, as shares of a plain frame."""
-    from bench_stages import StageTimedRenderer
+    from bench_stages import STAGES, StageTimedRenderer
 
     r = StageTimedRenderer(model, [cam], "fp32")
     checks = {d: FrameCheck(r, clean, d) for d in defenses}
@@ -112,14 +113,14 @@ def stage_decomposition(model, cam, clean, defenses, rounds: int, frame_s: float
         fc.off()
     r.timed = True
 
-    def project_time(fc=None):
+    def project_time(fc=None):  # (the projection's seconds, the device's: first pass's start to last's end)
         if fc is not None:
             fc.on()
         r.render()
-        t = r.stage_times()["project"]
+        t = r.stage_times()
         if fc is not None:
             fc.off()
-        return t
+        return t["project"], sum(t[k] for k in (*STAGES, "other", "gaps"))
 
     project_time()  # compiles
     for fc in checks.values():
@@ -131,15 +132,19 @@ def stage_decomposition(model, cam, clean, defenses, rounds: int, frame_s: float
             got[d].append(project_time(fc))
     plain = np.asarray(got["plain"])
     print(
-        f"  projection stage (timestamp queries, {rounds} interleaved rounds): plain {1e3 * np.median(plain):.2f} ms; "
-        "the detection count rides on the frame's read of its stats (no read of its own)"
+        f"  by timestamp queries, {rounds} interleaved rounds: the projection stage {1e3 * np.median(plain[:, 0]):.2f} "
+        f"ms, the device's frame {1e3 * np.median(plain[:, 1]):.2f} ms (plain, medians); the detection count rides "
+        "on the frame's read of its stats (no read of its own)"
     )
     for d in checks:
-        med, lo, hi = median_interval(np.asarray(got[d]) - plain)
+        x = np.asarray(got[d])
+        med, lo, hi = median_interval(x[:, 0] - plain[:, 0])
         share = [100 * v / frame_s for v in (med, lo, hi)]
+        fmed, flo, fhi = (100 * v for v in median_interval((x[:, 1] - plain[:, 1]) / plain[:, 1]))
         print(
-            f"  {d}: projection {1e3 * med:+.3f} ms [95% {1e3 * lo:+.3f}, {1e3 * hi:+.3f}]; "
-            f"{share[0]:+.2f}% of a frame [95% {share[1]:+.2f}, {share[2]:+.2f}]"
+            f"  {d}: projection {1e3 * med:+.3f} ms [95% {1e3 * lo:+.3f}, {1e3 * hi:+.3f}], "
+            f"{share[0]:+.2f}% of a frame [95% {share[1]:+.2f}, {share[2]:+.2f}]; the device's frame "
+            f"{fmed:+.2f}% [95% {flo:+.2f}, {fhi:+.2f}]"
         )
 
 
