@@ -863,3 +863,26 @@ def test_a_manifest_s_stored_scenes_and_size_read_typed_old_runs_included(refere
     assert stored_scenes(old) == (SceneSpec(sh_degree=None, seed=None, scene="spheres", n=500),)
     assert stored_size(old) == (64, 48)
     assert stored_scenes({}) == () and stored_size({"spec": {"size": [64]}}) is None
+
+
+def test_interleaved_rounds_alternate_their_order_when_asked():
+    """alternate=True: every other round runs the configurations in reverse order (a, b, b, a,
+    a, b), so what follows one configuration does not always fall on the same other; each still
+    gets one sample a round, timed around its own call (a fake clock: a costs 1 s, b 2 s)."""
+    from seuwgpu.faults.costs import interleaved_samples
+
+    clock, order = [0.0], []
+
+    def config(name, cost):
+        def f():
+            order.append(name)
+            clock[0] += cost
+
+        return f
+
+    configs = {"a": config("a", 1.0), "b": config("b", 2.0)}
+    got = interleaved_samples(configs, 3, warm_up=False, clock=lambda: clock[0], alternate=True)
+    assert order == ["a", "b", "b", "a", "a", "b"] and got == {"a": [1.0] * 3, "b": [2.0] * 3}
+    order.clear()
+    interleaved_samples(configs, 3, warm_up=False, clock=lambda: clock[0])
+    assert order == ["a", "b"] * 3

@@ -1,7 +1,8 @@
 """A defense's time measured as a schedule, with many rounds (issue 47 point 6): S plain frames,
 S frames with parity4r's check before the first, and S frames checked inside the projection
 (parity4f, parity2f; each frame's detection count taken, as a repair needs: it rides on the
-frame's own read of its stats, Renderer.carry_back), interleaved round by round on one renderer;
+frame's own read of its stats, Renderer.carry_back), interleaved round by round on one renderer,
+every other round in reverse order;
 the median of each configuration's paired ratio to the plain rounds with its distribution-free
 95% interval, by two clocks: the wall clock, and the process's CPU time (on a CPU adapter the
 device's threads are this process's, so its CPU time is the frame's work without the time other
@@ -83,7 +84,8 @@ def main(argv=None) -> int:
 
     runs = {"plain": plain, **({"parity4r": checked} if chk else {})}
     runs.update({d: (lambda fc=fc: in_frame(fc)) for d, fc in frame_checks.items()})
-    got = interleaved_samples(runs, a.rounds, clock=lambda: np.array([time.perf_counter(), time.process_time()]))
+    clocks = lambda: np.array([time.perf_counter(), time.process_time()])  # noqa: E731
+    got = interleaved_samples(runs, a.rounds, clock=clocks, alternate=True)
     p = np.asarray(got["plain"])
     print(
         f"{name}: {model.n:,} primitives, {w}x{h}, S = {a.every}, {len(p)} interleaved rounds, "
@@ -126,9 +128,9 @@ def stage_decomposition(model, cam, clean, defenses, rounds: int, frame_s: float
     for fc in checks.values():
         project_time(fc)
     got = {k: [] for k in ("plain", *checks)}
-    for _ in range(rounds):
-        got["plain"].append(project_time())
-        for d, fc in checks.items():
+    order = [("plain", None), *checks.items()]
+    for i in range(rounds):  # every other round in reverse order (interleaved_samples' alternate)
+        for d, fc in reversed(order) if i % 2 else order:
             got[d].append(project_time(fc))
     plain = np.asarray(got["plain"])
     print(

@@ -123,7 +123,13 @@ def schedule_time(
 
 
 def interleaved_samples(
-    configs: dict, repeats: int, budget_s: float | None = None, least: int = 3, warm_up: bool = True, clock=None
+    configs: dict,
+    repeats: int,
+    budget_s: float | None = None,
+    least: int = 3,
+    warm_up: bool = True,
+    clock=None,
+    alternate: bool = False,
 ) -> dict:
     """{name: [seconds of each round]} of calling each of `configs` (name -> callable that returns
     when the GPU is done). Timed interleaved, round by round, so a drift of the machine's load hits
@@ -132,7 +138,9 @@ def interleaved_samples(
     seconds at the rounds' mean so far (a large model's measurement would otherwise outlast the
     campaign it is made for; starting any round that began within the budget overran it by up to
     a round: at 1M primitives a third round of about 1.3 s). `clock`: seconds now (default
-    time.perf_counter; a test's fake clock)."""
+    time.perf_counter; a test's fake clock). `alternate`: every other round runs the
+    configurations in reverse order, so that what follows a configuration (a pipeline switched
+    back, a cache another one filled) does not always fall on the same one."""
     clock = time.perf_counter if clock is None else clock
     for f in configs.values() if warm_up else ():
         f()
@@ -142,7 +150,8 @@ def interleaved_samples(
         spent = clock() - t_start
         if budget_s is not None and r >= max(least, 1) and spent + spent / r > budget_s:
             break
-        for k, f in configs.items():
+        order = list(configs.items())
+        for k, f in reversed(order) if alternate and r % 2 else order:
             t0 = clock()
             f()
             samples[k].append(clock() - t0)
