@@ -122,7 +122,8 @@ def test_defense_costs_times_what_runs_on_the_gpu():
 def test_a_schedule_is_timed_as_run_on_a_fake_clock():
     """schedule_time on a clock the calls advance: a frame takes 1.0, a check 0.5 and, in every
     other round, a repair 2.0 more. The measured fraction is what the rounds ran (0.05 or 0.25 at
-    S = 10, median 0.15), not one check over S (0.05); the rounds alternate plain and checked."""
+    S = 10, median 0.15), not one check over S (0.05); the rounds alternate plain and checked, every
+    other round in reverse order."""
     from seuwgpu.faults.costs import schedule_time
 
     now, calls, checks = [0.0], [], [0]
@@ -141,7 +142,8 @@ def test_a_schedule_is_timed_as_run_on_a_fake_clock():
     assert res["checked"] == [12.5, 10.5] * 4
     assert res["fraction"] == pytest.approx([0.25, 0.05] * 4) and res["time"] == pytest.approx(0.15)
     assert (res["lo"], res["hi"]) == pytest.approx((0.05, 0.25))
-    assert "".join(calls) == ("f" * 10 + "c" + "f" * 10) * 8  # plain round, checked round, ...
+    # plain round, checked round; then checked first, plain second (every other round reversed)
+    assert "".join(calls) == ("f" * 10 + "c" + "f" * 10 + "c" + "f" * 10 + "f" * 10) * 4
     few = schedule_time(frame, check, 1, 3, clock=lambda: now[0], warm_up=False)
     assert np.isnan(few["lo"]) and np.isnan(few["hi"])  # 3 rounds: no 95% interval of a median
     with pytest.raises(ValueError, match="every S >= 1 frames"):

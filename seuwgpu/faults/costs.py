@@ -90,9 +90,10 @@ def schedule_time(
 ) -> dict:
     """A check schedule's time, measured as one: rounds of `every` frames with `check()` before
     the first (what the user's device runs) against rounds of `every` frames alone, interleaved
-    round by round (interleaved_samples), on `clock`. `guarded`: the frame as the defense draws
-    it (a pipeline clamp), default `frame`. Returns {"plain": [s], "checked": [s], "fraction":
-    [(checked - plain) / plain per round], "time", "lo", "hi": median_interval of the fractions}."""
+    round by round, every other round in reverse order (interleaved_samples), on `clock`.
+    `guarded`: the frame as the defense draws it (a pipeline clamp), default `frame`. Returns
+    {"plain": [s], "checked": [s], "fraction": [(checked - plain) / plain per round], "time",
+    "lo", "hi": median_interval of the fractions}."""
     every = int(every)
     if every < 1:
         raise ValueError(f"a check schedule is every S >= 1 frames (got {every})")
@@ -108,7 +109,9 @@ def schedule_time(
         for _ in range(every):
             guarded()
 
-    got = interleaved_samples({"plain": plain, "checked": checked}, repeats, warm_up=warm_up, clock=clock)
+    got = interleaved_samples(
+        {"plain": plain, "checked": checked}, repeats, warm_up=warm_up, clock=clock, alternate=True
+    )
     p, c = np.asarray(got["plain"]), np.asarray(got["checked"])
     frac = (c - p) / p
     med, lo, hi = median_interval(frac)
