@@ -39,7 +39,7 @@ from seuwgpu.campaign.spec_types import (
     toml_default,
 )
 from seuwgpu.errors import InputError
-from seuwgpu.faults.defenses import DEFENSES, REGISTRY
+from seuwgpu.faults.defenses import DEFENSES, REGISTRY, partner_drop_refusal
 from seuwgpu.model import checks, encoding
 from seuwgpu.model.budget import n_values
 from seuwgpu.model.fields import FIELDS, canonical_field
@@ -233,11 +233,9 @@ def _upsets(t: dict, cls, where: str, size) -> dict:
     if out["regions"]:  # the incremental path draws one primitive a variant (faults/engine.py evaluate_frame)
         for d in out["defenses"]:
             for p in precisions:
-                if REGISTRY[d].drops_partners(p):
-                    raise SpecError(
-                        f"{where}.regions under {d} at {p}: a detected upset drops its word partner too, which "
-                        "the contamination measurement does not draw; use fp32 or another defense"
-                    )
+                refusal = partner_drop_refusal(f"{where}.regions", d, p)
+                if refusal:
+                    raise SpecError(refusal)
     return out
 
 

@@ -531,6 +531,18 @@ def check_defense(name: str) -> str:
     return get(name).name
 
 
+def partner_drop_refusal(what: str, defense: str, precision: str) -> str | None:
+    """Why `what` (a measurement that draws one primitive a variant) cannot run under `defense` at
+    `precision`, or None when it can (Defense.drops_partners): the one line the spec, the
+    incremental evaluator and the worst-case search refuse with."""
+    if not get(defense).drops_partners(precision):
+        return None
+    return (
+        f"{what} under {defense} at {precision}: a detected upset drops its word partner too, which "
+        "one-primitive variants do not draw; use fp32 or another defense"
+    )
+
+
 def defense_label(name: str) -> str:
     """The defense's short name in figures and tables (its name where it has none)."""
     d = REGISTRY.get(name)

@@ -643,11 +643,9 @@ class Engine:
             dfn.check_defense(d)
             bits, gm = self.variant_rows(prims, clean, comps, corrupt_b, d)
             pair = self.partner_drops(prims, clean, comps, corrupt_b, d)
-            if regions and dfn.get(d).drops_partners(self.precision):
-                raise ValueError(
-                    f"regions (sort-first contamination) under {d} at {self.precision}: a detected upset drops "
-                    "its word partner too, which the incremental path does not draw; use fp32 or another defense"
-                )
+            refusal = dfn.partner_drop_refusal("regions (sort-first contamination)", d, self.precision)
+            if regions and refusal:
+                raise ValueError(refusal)
             self.use_reference(d)
             rows, clamps = self.evaluator.drawn_rows(bits, gm, clean if gm.any() else None)
             m = dict(self._arm_metrics(prims, rows, regions, drawn), clamps=clamps)

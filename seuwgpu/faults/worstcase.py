@@ -108,11 +108,9 @@ def worst_case(
 ) -> WorstCase:
     """The single-bit flip of the space with the largest footprint under `defense` (see module);
     `fields` None: every field the model stores."""
-    if dfn.get(defense).drops_partners(engine.precision):
-        raise ValueError(
-            f"worstcase under {defense} at {engine.precision}: a detected flip drops its word partner too, "
-            "which the incremental search does not draw; use fp32 or another defense"
-        )
+    refusal = dfn.partner_drop_refusal("worstcase", defense, engine.precision)
+    if refusal:
+        raise ValueError(refusal)
     prims, comps, bts = site_space(engine, fields, bits, primitives)
     bound = footprint_bounds(engine, prims, comps, bts, defense)
     order = np.argsort(-bound, kind="stable")
